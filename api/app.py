@@ -1,0 +1,70 @@
+"""``create_app(settings, service) -> FastAPI``: the REST API under ``/api/v1`` and the dashboard at ``/``.
+
+The app reads the service only through :class:`service.interface.ChtcService`. ``settings`` is the service's
+``Settings`` (only ``settings.api`` is read: ``token``, ``read_token``); binding (``api.host``/``api.port``,
+127.0.0.1 by default) is the caller's job (``chtc run`` / ``chtc demo`` run uvicorn with them).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from fastapi import FastAPI
+from fastapi.responses import FileResponse
+from fastapi.staticfiles import StaticFiles
+
+from api.deps import AuthConfig, Clock
+from api.errors import install_error_handlers
+from api.metrics import ApiMetrics, RequestTimer
+from api.routers import chtc, condition, field, health, identifications, sensors
+from service.interface import ChtcService
+
+API_PREFIX = "/api/v1"
+STATIC_DIR = Path(__file__).parent / "static"
+# The page may load and fetch only from its own origin (no CDN, no third-party beacons).
+DASHBOARD_HEADERS = {
+    "Cache-Control": "no-cache",
+    "Content-Security-Policy": (
+        "default-src 'self'; img-src 'self' data:; object-src 'none'; frame-ancestors 'none'"
+    ),
+    "X-Content-Type-Options": "nosniff",
+    "Referrer-Policy": "no-referrer",
+}
+
+
+def utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+def create_app(settings: Any, service: ChtcService, *, clock: Clock = utc_now) -> FastAPI:
+    """Build the app around an already running service; nothing is opened here."""
+    app = FastAPI(
+        title="spindle-chtc",
+        version="1",
+        description="Online soft sensor for spindle convective heat transfer coefficients H1-H7.",
+        openapi_url=f"{API_PREFIX}/openapi.json",
+        docs_url=None,  # Swagger UI would load from a CDN; the shop floor is offline
+        redoc_url=None,
+    )
+    app.state.service = service
+    app.state.clock = clock
+    app.state.auth = AuthConfig.from_settings(settings.api)
+    app.state.metrics = ApiMetrics(service)
+    install_error_handlers(app)
+    for module in (chtc, field, sensors, condition, identifications, health):
+        app.include_router(module.router, prefix=API_PREFIX)
+    _mount_dashboard(app)
+    app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)
+    return app
+
+
+def _mount_dashboard(app: FastAPI) -> None:
+    index = STATIC_DIR / "index.html"
+
+    @app.get("/", include_in_schema=False)
+    async def dashboard() -> FileResponse:
+        return FileResponse(index, headers=DASHBOARD_HEADERS)
+
+    app.mount("/static", StaticFiles(directory=STATIC_DIR), name="static")

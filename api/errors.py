@@ -1,0 +1,106 @@
+"""One JSON error shape for every failure the API returns.
+
+Shape: ``{"error": {"code": str, "message": str, "field": str | None, "detail": any}}``.
+
+Error tree (API layer)::
+
+    ApiError(Exception)              status, code, message, field, detail; raised by routers and deps
+    service.interface.ServiceError   translated once, here:
+        NotFoundError  -> 404 not_found       BusyError     -> 409 busy
+        NoDataError    -> 503 no_data         NotReadyError -> 503 not_ready
+
+FastAPI's ``RequestValidationError`` becomes 422 ``invalid`` naming the first bad field; Starlette's
+``HTTPException`` (unknown route, wrong method) keeps its status with a code derived from it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from fastapi import FastAPI, Request
+from fastapi.exceptions import RequestValidationError
+from fastapi.responses import JSONResponse
+from starlette.exceptions import HTTPException as StarletteHTTPException
+
+from service.interface import BusyError, NoDataError, NotFoundError, NotReadyError, ServiceError
+
+
+class ApiError(Exception):
+    """An error response: HTTP status, machine code, human message, the offending field (if any)."""
+
+    def __init__(
+        self,
+        status: int,
+        code: str,
+        message: str,
+        *,
+        field: str | None = None,
+        detail: Any = None,
+        headers: dict[str, str] | None = None,
+    ) -> None:
+        super().__init__(message)
+        self.status = status
+        self.code = code
+        self.message = message
+        self.field = field
+        self.detail = detail
+        self.headers = headers
+
+
+def invalid(field: str, message: str, *, detail: Any = None) -> ApiError:
+    """A 422 naming the bad query/body field."""
+    return ApiError(422, "invalid", f"{field}: {message}", field=field, detail=detail)
+
+
+def error_body(code: str, message: str, *, field: str | None = None, detail: Any = None) -> dict[str, Any]:
+    return {"error": {"code": code, "message": message, "field": field, "detail": detail}}
+
+
+_SERVICE_ERRORS: tuple[tuple[type[ServiceError], int, str], ...] = (
+    (NotFoundError, 404, "not_found"),
+    (BusyError, 409, "busy"),
+    (NoDataError, 503, "no_data"),
+    (NotReadyError, 503, "not_ready"),
+)
+
+_HTTP_CODES = {401: "unauthorized", 403: "forbidden", 404: "not_found", 405: "method_not_allowed"}
+
+
+def _field_of(loc: tuple[Any, ...] | list[Any]) -> str | None:
+    parts = [str(p) for p in loc if p not in ("query", "body", "path", "header")]
+    return ".".join(parts) if parts else None
+
+
+async def _api_error(_: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, ApiError)
+    body = error_body(exc.code, exc.message, field=exc.field, detail=exc.detail)
+    return JSONResponse(body, status_code=exc.status, headers=exc.headers)
+
+
+async def _service_error(_: Request, exc: Exception) -> JSONResponse:
+    for cls, status, code in _SERVICE_ERRORS:
+        if isinstance(exc, cls):
+            headers = {"Retry-After": "5"} if status == 503 else None
+            return JSONResponse(error_body(code, str(exc)), status_code=status, headers=headers)
+    return JSONResponse(error_body("service_error", str(exc)), status_code=500)
+
+
+async def _validation_error(_: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, RequestValidationError)
+    errors = [{"field": _field_of(e["loc"]), "message": e["msg"], "type": e["type"]} for e in exc.errors()]
+    first = errors[0] if errors else {"field": None, "message": "invalid request"}
+    message = f"{first['field']}: {first['message']}" if first["field"] else str(first["message"])
+    return JSONResponse(error_body("invalid", message, field=first["field"], detail=errors), status_code=422)
+
+
+async def _http_error(_: Request, exc: Exception) -> JSONResponse:
+    assert isinstance(exc, StarletteHTTPException)
+    code = _HTTP_CODES.get(exc.status_code, f"http_{exc.status_code}")
+    return JSONResponse(error_body(code, str(exc.detail)), status_code=exc.status_code, headers=exc.headers)
+
+
+def install_error_handlers(app: FastAPI) -> None:
+    app.add_exception_handler(ApiError, _api_error)
+    app.add_exception_handler(ServiceError, _service_error)
+    app.add_exception_handler(RequestValidationError, _validation_error)
+    app.add_exception_handler(StarletteHTTPException, _http_error)

@@ -1,0 +1,129 @@
+"""GET /temperature-field: the predicted temperature field on the (r, z) section.
+
+``format=mesh`` returns the P1 mesh (nodes, triangles, nodal °C); ``format=grid`` samples it on a regular
+``nr`` x ``nz`` grid over the section's bounding box (null outside the section); ``format=points``
+evaluates it at ``points=r1,z1;r2,z2;...`` (m). Sizes are bounded so one request cannot monopolise the CPU.
+"""
+
+from __future__ import annotations
+
+import math
+from typing import Annotated, Literal
+
+import numpy as np
+from fastapi import APIRouter, Query, Response
+
+from api.deps import ReadAccess, ServiceDep
+from api.errors import invalid
+from api.schemas import FieldGridOut, FieldMeshOut, FieldPointsOut, PointOut
+from service.interface import FieldSnapshot
+
+router = APIRouter(tags=["temperature field"], dependencies=[ReadAccess])
+
+MAX_GRID = 200
+MAX_POINTS = 1000
+
+
+def parse_points(text: str) -> np.ndarray:
+    """``"r1,z1;r2,z2"`` (m) -> (P, 2); raises a 422 naming ``points`` and the bad pair."""
+    pairs = [p for p in text.replace(" ", "").split(";") if p]
+    if not pairs:
+        raise invalid("points", "no points given; expected 'r1,z1;r2,z2;...' in m")
+    if len(pairs) > MAX_POINTS:
+        raise invalid("points", f"{len(pairs)} points given, at most {MAX_POINTS} allowed")
+    out = np.empty((len(pairs), 2))
+    for i, pair in enumerate(pairs):
+        parts = pair.split(",")
+        try:
+            if len(parts) != 2:
+                raise ValueError
+            out[i] = [float(parts[0]), float(parts[1])]
+        except ValueError:
+            raise invalid("points", f"pair {i + 1} ({pair!r}) is not 'r,z' with two numbers in m") from None
+        if not all(math.isfinite(v) for v in out[i]):
+            raise invalid("points", f"pair {i + 1} ({pair!r}) is not finite")
+    return out
+
+
+def _meta(f: FieldSnapshot) -> dict[str, object]:
+    finite = f.temps_c[np.isfinite(f.temps_c)]
+    return {
+        "at": f.at,
+        "t": f.t,
+        "identification_id": f.identification_id,
+        "t_min_c": round(float(finite.min()), 4) if finite.size else None,
+        "t_max_c": round(float(finite.max()), 4) if finite.size else None,
+    }
+
+
+def _clean(values: np.ndarray) -> list[float | None]:
+    return [None if not math.isfinite(v) else v for v in np.round(values, 4).tolist()]
+
+
+def mesh_out(f: FieldSnapshot) -> FieldMeshOut:
+    return FieldMeshOut(
+        **_meta(f),  # type: ignore[arg-type]
+        nodes_r_m=np.round(f.nodes_rz[:, 0], 7).tolist(),
+        nodes_z_m=np.round(f.nodes_rz[:, 1], 7).tolist(),
+        temps_c=_clean(f.temps_c),
+        triangles=np.asarray(f.triangles, dtype=int).tolist(),
+    )
+
+
+def grid_out(f: FieldSnapshot, nr: int, nz: int) -> FieldGridOut:
+    r0, r1, z0, z1 = f.bounds_rz
+    r = np.linspace(r0, r1, nr)
+    z = np.linspace(z0, z1, nz)
+    rr, zz = np.meshgrid(r, z, indexing="ij")
+    temps = f.evaluate(np.c_[rr.ravel(), zz.ravel()]).reshape(nr, nz)
+    return FieldGridOut(
+        **_meta(f),  # type: ignore[arg-type]
+        r_m=np.round(r, 7).tolist(),
+        z_m=np.round(z, 7).tolist(),
+        temps_c=[_clean(row) for row in temps],
+    )
+
+
+def points_out(f: FieldSnapshot, pts: np.ndarray) -> FieldPointsOut:
+    temps = f.evaluate(pts)
+    return FieldPointsOut(
+        **_meta(f),  # type: ignore[arg-type]
+        points=[
+            PointOut(
+                r_m=float(r),
+                z_m=float(z),
+                temp_c=None if not math.isfinite(t) else round(float(t), 4),
+                inside=bool(math.isfinite(t)),
+            )
+            for (r, z), t in zip(pts, temps, strict=True)
+        ],
+    )
+
+
+@router.get(
+    "/temperature-field",
+    response_model=FieldMeshOut | FieldGridOut | FieldPointsOut,
+    summary="predicted temperature field (°C) on the (r, z) section: mesh, grid or points",
+)
+def get_field(
+    service: ServiceDep,
+    at: Annotated[Literal["now", "steady"], Query(description="current state or steady state")] = "now",
+    format: Annotated[Literal["mesh", "grid", "points"], Query(description="response layout")] = "mesh",
+    nr: Annotated[int, Query(ge=2, le=MAX_GRID, description="grid points along r (format=grid)")] = 60,
+    nz: Annotated[int, Query(ge=2, le=MAX_GRID, description="grid points along z (format=grid)")] = 120,
+    points: Annotated[str | None, Query(max_length=40_000, description="'r1,z1;r2,z2' in m")] = None,
+) -> Response:
+    if format == "points":
+        if points is None:
+            raise invalid("points", "required with format=points, e.g. points=0.03,0.1;0.08,0.2")
+        pts = parse_points(points)
+    elif points is not None:
+        raise invalid("points", "only allowed with format=points")
+    snap = service.field(at)
+    if format == "mesh":
+        out: FieldMeshOut | FieldGridOut | FieldPointsOut = mesh_out(snap)
+    elif format == "grid":
+        out = grid_out(snap, nr, nz)
+    else:
+        out = points_out(snap, pts)
+    return Response(out.model_dump_json(), media_type="application/json")

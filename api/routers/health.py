@@ -1,0 +1,48 @@
+"""Liveness, readiness and Prometheus metrics.
+
+healthz/readyz are open to probes; metrics honour the read token.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter, Request, Response
+from fastapi.responses import JSONResponse
+from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
+
+from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.errors import error_body
+from api.schemas import HealthOut, ReadyOut, health_out
+
+router = APIRouter(tags=["health"])
+
+
+@router.get("/healthz", response_model=HealthOut, summary="liveness plus device health (always 200 if alive)")
+async def healthz(service: ServiceDep) -> HealthOut:
+    return health_out(service.health())
+
+
+@router.get(
+    "/readyz",
+    response_model=ReadyOut,
+    responses={503: {"description": "model not loaded or data not fresh"}},
+    summary="ready = model loaded and data fresh",
+)
+async def readyz(service: ServiceDep, clock: ClockDep) -> JSONResponse:
+    r = service.ready()
+    body = ReadyOut(ready=r.ready, reasons=list(r.reasons), t=clock())
+    if r.ready:
+        return JSONResponse(body.model_dump(mode="json"))
+    msg = "not ready: " + "; ".join(r.reasons) if r.reasons else "not ready"
+    return JSONResponse(
+        error_body("not_ready", msg, detail=body.model_dump(mode="json")),
+        status_code=503,
+        headers={"Retry-After": "5"},
+    )
+
+
+@router.get(
+    "/metrics", dependencies=[ReadAccess], summary="Prometheus text exposition", response_class=Response
+)
+def metrics(request: Request) -> Response:
+    data = generate_latest(request.app.state.metrics.registry)
+    return Response(data, media_type=CONTENT_TYPE_LATEST)

@@ -1,0 +1,93 @@
+"""Identifications: list (paginated, since/until), one by id, start one now (bearer token), job state."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Body, Path, Query, Request
+from fastapi.responses import JSONResponse
+from pydantic import AwareDatetime
+
+from api.deps import ReadAccess, ServiceDep, WriteAccess
+from api.errors import invalid
+from api.schemas import (
+    IdentificationOut,
+    IdentificationPageOut,
+    IdentificationRequest,
+    JobOut,
+    identification_out,
+    job_out,
+)
+
+router = APIRouter(tags=["identifications"])
+PREFIX = "/api/v1"
+
+
+@router.get(
+    "/identifications",
+    response_model=IdentificationPageOut,
+    dependencies=[ReadAccess],
+    summary="stored identifications, newest first",
+)
+def list_identifications(
+    service: ServiceDep,
+    since: Annotated[AwareDatetime | None, Query(description="finished at or after (UTC ISO-8601)")] = None,
+    until: Annotated[AwareDatetime | None, Query(description="finished before (UTC ISO-8601)")] = None,
+    limit: Annotated[int, Query(ge=1, le=100)] = 20,
+    offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
+) -> IdentificationPageOut:
+    if since is not None and until is not None and until <= since:
+        raise invalid("until", "must be later than since")
+    page = service.list_identifications(since=since, until=until, limit=limit, offset=offset)
+    nxt = offset + len(page.items)
+    return IdentificationPageOut(
+        items=[identification_out(r) for r in page.items],
+        total=page.total,
+        limit=limit,
+        offset=offset,
+        next_offset=nxt if nxt < page.total else None,
+    )
+
+
+@router.get(
+    "/identifications/jobs/{job_id}",
+    response_model=JobOut,
+    dependencies=[ReadAccess],
+    summary="state of a requested identification",
+)
+def get_job(service: ServiceDep, job_id: Annotated[str, Path(max_length=64)]) -> JobOut:
+    return job_out(service.job(job_id), PREFIX)
+
+
+@router.get(
+    "/identifications/{identification_id}",
+    response_model=IdentificationOut,
+    dependencies=[ReadAccess],
+    summary="one stored identification",
+)
+def get_identification(
+    service: ServiceDep, identification_id: Annotated[int, Path(ge=1)]
+) -> IdentificationOut:
+    return identification_out(service.get_identification(identification_id))
+
+
+@router.post(
+    "/identifications",
+    response_model=JobOut,
+    status_code=202,
+    summary="start an identification now (needs the bearer token)",
+    responses={
+        401: {"description": "no token"},
+        403: {"description": "wrong token"},
+        409: {"description": "busy"},
+    },
+)
+def start_identification(
+    request: Request,
+    service: ServiceDep,
+    _: WriteAccess,
+    body: Annotated[IdentificationRequest | None, Body()] = None,
+) -> JSONResponse:
+    reason = body.reason if body is not None else "manual"
+    job = job_out(service.request_identification(reason), PREFIX)
+    return JSONResponse(job.model_dump(mode="json"), status_code=202, headers={"Location": job.href})

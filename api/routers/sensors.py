@@ -1,0 +1,47 @@
+"""GET /sensors: the 32 channels at the newest sample, measured vs predicted (°C)."""
+
+from __future__ import annotations
+
+from typing import Annotated
+
+from fastapi import APIRouter, Query, Response
+
+from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.errors import invalid
+from api.schemas import SensorsOut, sensor_out
+
+router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
+
+
+def parse_channels(text: str) -> set[int]:
+    """``"1,2,17"`` -> {1, 2, 17}; a 422 naming ``channels`` otherwise."""
+    try:
+        chosen = {int(c) for c in text.split(",") if c.strip()}
+    except ValueError:
+        raise invalid("channels", f"{text!r} is not a comma-separated list of channel numbers") from None
+    if not chosen or any(c < 1 for c in chosen):
+        raise invalid("channels", "channel numbers start at 1")
+    return chosen
+
+
+@router.get(
+    "/sensors", response_model=SensorsOut, summary="newest sample per channel with the model prediction"
+)
+async def get_sensors(
+    service: ServiceDep,
+    clock: ClockDep,
+    channels: Annotated[str | None, Query(description="comma-separated channel numbers, e.g. 1,7,20")] = None,
+) -> Response:
+    readings = service.sensors()
+    if channels is not None:
+        chosen = parse_channels(channels)
+        readings = [r for r in readings if r.channel in chosen]
+    now = clock()
+    newest = max((r.t for r in readings), default=None)
+    out = SensorsOut(
+        t=newest,
+        sample_age_s=None if newest is None else round((now - newest).total_seconds(), 3),
+        served_at=now,
+        channels=[sensor_out(r) for r in readings],
+    )
+    return Response(out.model_dump_json(), media_type="application/json")

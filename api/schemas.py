@@ -1,0 +1,327 @@
+"""Response schemas (pydantic), separate from the service snapshots and the ORM rows.
+
+Naming: every number carries its unit in its name (``h_w_m2k``, ``ambient_c``, ``speed_rpm``, ``r_m``,
+``age_s``); every timestamp is UTC ISO-8601 and ends in ``_at`` (or is ``t``/``since``). Conversion functions
+``*_out()`` build these from :mod:`service.interface` snapshots.
+"""
+
+from __future__ import annotations
+
+import math
+from datetime import datetime
+from typing import Any, Literal
+
+import numpy as np
+from pydantic import BaseModel, Field
+
+from service.interface import (
+    H_UNIT,
+    ZONE_NAMES,
+    ChtcSnapshot,
+    ConditionSnapshot,
+    DeviceHealth,
+    HealthSnapshot,
+    IdentificationJob,
+    IdentificationRecord,
+    SensorReading,
+)
+
+
+def _enum(value: object) -> Any:
+    """An enum member (or a plain string) as its string value; pydantic checks it against the Literal."""
+    return str(value)
+
+
+def _num(x: float | None, digits: int | None = None) -> float | None:
+    """A JSON-safe float: NaN/inf become null."""
+    if x is None:
+        return None
+    v = float(x)
+    if not math.isfinite(v):
+        return None
+    return round(v, digits) if digits is not None else v
+
+
+class ZoneOut(BaseModel):
+    name: str = Field(description="H1..H7")
+    h_w_m2k: float | None = Field(description="convective heat transfer coefficient, W/(m²·K)")
+    ci95_lo_w_m2k: float | None
+    ci95_hi_w_m2k: float | None
+    identified: bool = Field(description="False: practically unidentifiable from this window (wide CI)")
+
+
+def zones_out(h: np.ndarray, lo: np.ndarray, hi: np.ndarray, identified: np.ndarray) -> list[ZoneOut]:
+    return [
+        ZoneOut(
+            name=n,
+            h_w_m2k=_num(h[i], 4),
+            ci95_lo_w_m2k=_num(lo[i], 4),
+            ci95_hi_w_m2k=_num(hi[i], 4),
+            identified=bool(identified[i]),
+        )
+        for i, n in enumerate(ZONE_NAMES)
+    ]
+
+
+class ConditionOut(BaseModel):
+    id: int
+    speed_rpm: float
+    torque_nm: float
+    ambient_c: float
+    since: datetime = Field(description="UTC start of this condition")
+    state: Literal["stable", "changing"]
+
+
+def condition_out(c: ConditionSnapshot) -> ConditionOut:
+    return ConditionOut(
+        id=c.id,
+        speed_rpm=c.speed_rpm,
+        torque_nm=c.torque_nm,
+        ambient_c=c.ambient_c,
+        since=c.since,
+        state=_enum(c.state),
+    )
+
+
+class ChtcOut(BaseModel):
+    status: Literal["fresh", "identifying", "stale", "no-data"]
+    unit: str = Field(H_UNIT, description="unit of every h_w_m2k / ci95_*_w_m2k")
+    zones: list[ZoneOut]
+    identified_at: datetime
+    identification_id: int
+    condition: ConditionOut
+    f_c2: float | None = Field(description="objective: mean squared residual, °C²")
+    fit: float | None = Field(description="1 / (1 + f), dimensionless")
+    rmse_c: float | None
+    method: str
+    model_version: str
+    newest_sample_at: datetime | None
+    sample_age_s: float | None = Field(description="age of the newest sample at served_at, s")
+    served_at: datetime
+
+
+def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
+    age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
+    return ChtcOut(
+        status=_enum(s.status),
+        unit=s.unit,
+        zones=zones_out(s.h, s.ci95_lo, s.ci95_hi, s.identified),
+        identified_at=s.identified_at,
+        identification_id=s.identification_id,
+        condition=condition_out(s.condition),
+        f_c2=_num(s.f),
+        fit=_num(s.fit),
+        rmse_c=_num(s.rmse_c),
+        method=s.method,
+        model_version=s.model_version,
+        newest_sample_at=s.newest_sample_at,
+        sample_age_s=age,
+        served_at=now,
+    )
+
+
+class FieldMeta(BaseModel):
+    at: Literal["now", "steady"]
+    t: datetime = Field(description="UTC instant the field belongs to")
+    identification_id: int | None
+    temperature_unit: str = "°C"
+    length_unit: str = "m"
+    t_min_c: float | None
+    t_max_c: float | None
+
+
+class FieldMeshOut(FieldMeta):
+    format: Literal["mesh"] = "mesh"
+    nodes_r_m: list[float]
+    nodes_z_m: list[float]
+    temps_c: list[float | None]
+    triangles: list[list[int]]
+
+
+class FieldGridOut(FieldMeta):
+    format: Literal["grid"] = "grid"
+    r_m: list[float] = Field(description="nr grid abscissae, m")
+    z_m: list[float] = Field(description="nz grid ordinates, m")
+    temps_c: list[list[float | None]] = Field(description="[i_r][i_z], null outside the section")
+
+
+class PointOut(BaseModel):
+    r_m: float
+    z_m: float
+    temp_c: float | None = Field(description="null when the point is outside the section")
+    inside: bool
+
+
+class FieldPointsOut(FieldMeta):
+    format: Literal["points"] = "points"
+    points: list[PointOut]
+
+
+class SensorOut(BaseModel):
+    channel: int
+    name: str
+    role: str
+    r_m: float
+    z_m: float
+    measured_c: float | None
+    predicted_c: float | None
+    residual_c: float | None = Field(description="measured - predicted, °C")
+    quality: str
+    t: datetime
+
+
+def sensor_out(s: SensorReading) -> SensorOut:
+    return SensorOut(
+        channel=s.channel,
+        name=s.name,
+        role=s.role,
+        r_m=s.r_m,
+        z_m=s.z_m,
+        measured_c=_num(s.measured_c, 4),
+        predicted_c=_num(s.predicted_c, 4),
+        residual_c=_num(s.residual_c, 4),
+        quality=s.quality,
+        t=s.t,
+    )
+
+
+class SensorsOut(BaseModel):
+    t: datetime | None = Field(description="UTC of the newest sample")
+    sample_age_s: float | None
+    served_at: datetime
+    channels: list[SensorOut]
+
+
+class ConditionsOut(BaseModel):
+    current: ConditionOut
+    recent: list[ConditionOut] = Field(description="newest first, the current one included")
+    served_at: datetime
+
+
+class IdentificationOut(BaseModel):
+    id: int
+    started_at: datetime
+    finished_at: datetime
+    reason: str
+    outcome: str
+    message: str
+    condition: ConditionOut
+    window_from: datetime
+    window_to: datetime
+    unit: str = H_UNIT
+    zones: list[ZoneOut]
+    f_c2: float | None
+    fit: float | None
+    rmse_c: float | None
+    method: str
+    model_version: str
+    nfev: int
+    wall_s: float
+    n_sensors_used: int
+
+
+def identification_out(r: IdentificationRecord) -> IdentificationOut:
+    return IdentificationOut(
+        id=r.id,
+        started_at=r.started_at,
+        finished_at=r.finished_at,
+        reason=r.reason,
+        outcome=r.outcome,
+        message=r.message,
+        condition=condition_out(r.condition),
+        window_from=r.window_from,
+        window_to=r.window_to,
+        zones=zones_out(r.h, r.ci95_lo, r.ci95_hi, r.identified),
+        f_c2=_num(r.f),
+        fit=_num(r.fit),
+        rmse_c=_num(r.rmse_c),
+        method=r.method,
+        model_version=r.model_version,
+        nfev=r.nfev,
+        wall_s=r.wall_s,
+        n_sensors_used=r.n_sensors_used,
+    )
+
+
+class IdentificationPageOut(BaseModel):
+    items: list[IdentificationOut]
+    total: int
+    limit: int
+    offset: int
+    next_offset: int | None
+
+
+class IdentificationRequest(BaseModel):
+    model_config = {"extra": "forbid"}
+    reason: str = Field("manual", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\- ]+$")
+
+
+class JobOut(BaseModel):
+    job_id: str
+    reason: str
+    state: Literal["queued", "running", "done", "failed"]
+    requested_at: datetime
+    finished_at: datetime | None
+    identification_id: int | None
+    message: str
+    href: str = Field(description="poll this URL for the job's state")
+
+
+def job_out(j: IdentificationJob, prefix: str) -> JobOut:
+    return JobOut(
+        job_id=j.job_id,
+        reason=j.reason,
+        state=_enum(j.state),
+        requested_at=j.requested_at,
+        finished_at=j.finished_at,
+        identification_id=j.identification_id,
+        message=j.message,
+        href=f"{prefix}/identifications/jobs/{j.job_id}",
+    )
+
+
+class DeviceOut(BaseModel):
+    name: str
+    status: Literal["ok", "degraded", "down", "disabled"]
+    last_ok_at: datetime | None
+    age_s: float | None
+    counters: dict[str, int]
+    message: str
+
+
+def device_out(d: DeviceHealth) -> DeviceOut:
+    return DeviceOut(
+        name=d.name,
+        status=_enum(d.status),
+        last_ok_at=d.last_ok_at,
+        age_s=_num(d.age_s, 3),
+        counters=dict(d.counters),
+        message=d.message,
+    )
+
+
+class HealthOut(BaseModel):
+    status: Literal["ok", "degraded"]
+    t: datetime
+    model_loaded: bool
+    model_version: str | None
+    uptime_s: float
+    devices: list[DeviceOut]
+
+
+def health_out(h: HealthSnapshot) -> HealthOut:
+    bad = not h.model_loaded or any(str(d.status) in ("degraded", "down") for d in h.devices)
+    return HealthOut(
+        status="degraded" if bad else "ok",
+        t=h.t,
+        model_loaded=h.model_loaded,
+        model_version=h.model_version,
+        uptime_s=round(h.uptime_s, 3),
+        devices=[device_out(d) for d in h.devices],
+    )
+
+
+class ReadyOut(BaseModel):
+    ready: bool
+    reasons: list[str]
+    t: datetime

@@ -1,0 +1,311 @@
+"""Async Modbus TCP driver for the 32-channel temperature DAQ (input registers, FC4 only, never writes).
+
+Uses pymodbus' ``AsyncModbusTcpClient`` with its own retries and automatic reconnect switched off
+(``retries=0, reconnect_delay=0``; pymodbus' backoff grows to 300 s): reconnecting is ``Source``'s bounded
+backoff. pymodbus errors are translated here, once:
+
+- ``ExceptionResponse`` / ``isError()``         → ``ModbusExceptionError`` (with the exception code)
+- fewer registers than asked                   → ``ShortReplyError`` naming the register range
+- bytes arrived but no valid frame in time     → ``ShortReplyError`` ("garbled reply", with the bytes)
+- nothing arrived in time                      → ``DeviceTimeoutError`` (link dropped, reconnect)
+- connection refused / lost                    → ``DeviceUnavailableError`` (reconnect with backoff)
+
+Each good poll gives a ``DaqReading`` whose per-channel ``quality`` says: DAQ status 1 → ``OPEN_CIRCUIT``,
+2 → ``OUT_OF_RANGE`` (also outside ``valid_range_c``), NaN → ``NAN``, identical value over
+``stuck_samples`` device samples → ``STUCK``, device sample counter frozen for ``stale_after_s`` → ``STALE``.
+A counter going backwards is a device restart (counted; stuck history reset).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass, field, replace
+from datetime import datetime
+from typing import Any, Protocol
+
+import numpy as np
+import numpy.typing as npt
+from pymodbus.client import AsyncModbusTcpClient
+from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOException
+
+from drivers.base import Source, StuckDetector
+from drivers.errors import (
+    DeviceError,
+    DeviceTimeoutError,
+    DeviceUnavailableError,
+    ModbusExceptionError,
+    ProtocolError,
+    ShortReplyError,
+)
+from drivers.quality import PRECEDENCE, Quality
+from drivers.registers import RegisterMap, RegisterValues, decode, default_register_map, read_blocks
+
+FC_READ_INPUT_REGISTERS = 4
+_RANK = np.array([PRECEDENCE.index(q) for q in sorted(Quality)])  # lower rank wins
+
+
+class ModbusClient(Protocol):
+    """What the driver needs from a pymodbus async client (``client=`` may be any object like this)."""
+
+    @property
+    def connected(self) -> bool: ...
+
+    async def connect(self) -> bool: ...
+
+    def close(self) -> None: ...
+
+    def read_input_registers(self, address: int, *, count: int = 1, device_id: int = 1) -> Any: ...
+
+
+@dataclass(frozen=True)
+class DaqReading:
+    """One DAQ poll.
+
+    ``t`` UTC; temps_c (n,) °C; ambient_c °C; status (n,) DAQ codes; counter (device sample count, ``None``
+    if unmapped); quality (n,) ``Quality`` as uint8; ``new_sample`` when the device counter advanced since
+    the previous poll; ``restarted`` when it went backwards.
+    """
+
+    t: datetime
+    temps_c: npt.NDArray[np.float64]
+    ambient_c: float
+    status: npt.NDArray[np.int64]
+    counter: int | None
+    quality: npt.NDArray[np.uint8]
+    ambient_quality: Quality = Quality.OK
+    new_sample: bool = True
+    restarted: bool = False
+    flags: dict[str, int] = field(default_factory=dict)  # count per Quality label, for logs and health
+
+
+class ModbusDaq(Source[DaqReading]):
+    """The temperature DAQ over Modbus TCP: ``async with ModbusDaq(host, port) as daq: await daq.read()``.
+
+    ``timeout_s`` is per Modbus request (s); ``stale_after_s`` how long the device sample counter may stay
+    unchanged (s); ``stuck_samples`` identical device samples before a channel is ``STUCK`` (``None``: off);
+    ``valid_range_c`` plausible temperatures (°C). ``client=`` injects a pymodbus-like async client.
+    """
+
+    def __init__(
+        self,
+        host: str = "127.0.0.1",
+        port: int = 502,
+        *,
+        register_map: RegisterMap | None = None,
+        timeout_s: float = 1.0,
+        stale_after_s: float = 30.0,
+        stuck_samples: int | None = 60,
+        stuck_tolerance_c: float = 0.0,
+        valid_range_c: tuple[float, float] = (-40.0, 250.0),
+        client: ModbusClient | None = None,
+        **source_kwargs: Any,
+    ) -> None:
+        super().__init__(
+            name=f"modbus {host}:{port}", timeout_s=timeout_s, stale_after_s=stale_after_s, **source_kwargs
+        )
+        self.host, self.port = host, port
+        self.register_map = register_map or default_register_map()
+        self.blocks: list[tuple[int, int]] = read_blocks(self.register_map)
+        self.valid_range_c = valid_range_c
+        self._rx: list[bytes] = []
+        self._client: ModbusClient | None = client  # built on first connect (pymodbus needs a running loop)
+        n = self.register_map.n_channels
+        self._stuck = (
+            StuckDetector(n, samples=stuck_samples, tolerance=stuck_tolerance_c) if stuck_samples else None
+        )
+        self._stuck_mask = np.zeros(n, dtype=bool)
+        self._last_counter: int | None = None
+        self._counter_changed_at = float("-inf")
+
+    def _make_client(self) -> ModbusClient:
+        return AsyncModbusTcpClient(
+            self.host,
+            port=self.port,
+            timeout=self.timeout_s,
+            retries=0,
+            reconnect_delay=0,
+            name=self.name,
+            trace_packet=self._trace_packet,
+        )
+
+    def _trace_packet(self, sending: bool, data: bytes) -> bytes:
+        if not sending:
+            self._rx.append(bytes(data))
+        return data
+
+    # ---------------------------------------------------------------------------------------- Source hooks
+    def _read_timeout_s(self) -> float:
+        return self.timeout_s * (len(self.blocks) + 1)
+
+    async def _connect(self) -> None:
+        try:
+            if self._client is None:
+                self._client = self._make_client()
+            ok = await self._client.connect()
+        except (ModbusException, OSError) as err:
+            raise DeviceUnavailableError(f"cannot connect: {err}", device=self.name) from err
+        if not ok:
+            raise DeviceUnavailableError("cannot connect (refused or unreachable)", device=self.name)
+
+    async def _disconnect(self) -> None:
+        if self._client is not None:
+            self._client.close()
+
+    def _needs_reconnect(self, err: DeviceError) -> bool:
+        # A garbled reply may leave the byte stream out of step: start a fresh connection.
+        return super()._needs_reconnect(err) or (isinstance(err, ShortReplyError) and err.got == 0)
+
+    async def _read_internal(self) -> DaqReading:
+        blocks = [(start, await self._read_block(start, count)) for start, count in self.blocks]
+        return self._assess(decode(self.register_map, blocks))
+
+    # ---------------------------------------------------------------------------------------- protocol
+    def _connected_client(self) -> ModbusClient:
+        if self._client is None:
+            raise DeviceUnavailableError("not connected", device=self.name)
+        return self._client
+
+    async def _read_block(self, start: int, count: int) -> list[int]:
+        """Read ``count`` input registers from ``start`` (FC4), translating every pymodbus failure."""
+        self._rx.clear()
+        unit = self.register_map.unit_id
+        try:
+            reply = await self._connected_client().read_input_registers(start, count=count, device_id=unit)
+        except ModbusIOException as err:
+            raise self._io_error(start, count) from err
+        except ConnectionException as err:
+            msg = f"connection lost reading {_span(start, count)}"
+            raise DeviceUnavailableError(msg, device=self.name) from err
+        except ModbusException as err:
+            raise ProtocolError(f"bad reply for {_span(start, count)}: {err}", device=self.name) from err
+        except OSError as err:
+            msg = f"socket error reading {_span(start, count)}: {err}"
+            raise DeviceUnavailableError(msg, device=self.name) from err
+        return self._check_reply(reply, start, count)
+
+    def _io_error(self, start: int, count: int) -> Exception:
+        received = b"".join(self._rx)
+        if not self._connected_client().connected:
+            return DeviceUnavailableError(f"connection lost reading {_span(start, count)}", device=self.name)
+        if received:
+            detail = f"garbled reply, {len(received)} bytes: {received[:32].hex(' ')}"
+            return ShortReplyError(start=start, count=count, got=0, device=self.name, detail=detail)
+        msg = f"no reply for {_span(start, count)} within {self.timeout_s:g} s"
+        return DeviceTimeoutError(msg, device=self.name)
+
+    def _check_reply(self, reply: Any, start: int, count: int) -> list[int]:
+        if reply.isError():
+            code = int(getattr(reply, "exception_code", 0))
+            raise ModbusExceptionError(
+                function_code=FC_READ_INPUT_REGISTERS,
+                exception_code=code,
+                start=start,
+                count=count,
+                device=self.name,
+            )
+        registers: Sequence[int] = getattr(reply, "registers", None) or []
+        if len(registers) != count:
+            raise ShortReplyError(start=start, count=count, got=len(registers), device=self.name)
+        return [int(w) & 0xFFFF for w in registers]
+
+    # ---------------------------------------------------------------------------------------- quality
+    def is_stale(self) -> bool:
+        """True when no good poll for ``stale_after_s`` or the device sample counter is frozen that long."""
+        return super().is_stale() or self._clock() - self._counter_changed_at > self.stale_after_s
+
+    def current(self) -> DaqReading:
+        """The latest reading, every channel ``STALE`` if the device has been silent or frozen for
+        ``stale_after_s``. Raises ``NoDataError`` before the first good poll."""
+        latest = self.latest()
+        if not self.is_stale():
+            return latest
+        stale = np.full_like(latest.quality, np.uint8(Quality.STALE))
+        return replace(latest, quality=stale, ambient_quality=Quality.STALE, flags={"stale": len(stale)})
+
+    def _track_counter(self, counter: int | None) -> tuple[bool, bool]:
+        """(new_sample, restarted) from the device sample counter."""
+        now = self._clock()
+        previous, self._last_counter = self._last_counter, counter
+        if counter is None or previous is None or counter != previous:
+            self._counter_changed_at = now
+        if counter is None or previous is None:
+            return True, False
+        restarted = counter < previous
+        if restarted:
+            self.metrics.count("restarts")
+            if self._stuck is not None:
+                self._stuck.reset()
+        return counter != previous, restarted
+
+    def _assess(self, v: RegisterValues) -> DaqReading:
+        new_sample, restarted = self._track_counter(v.counter)
+        if new_sample:
+            self.metrics.count("new_samples")
+            if self._stuck is not None:
+                self._stuck_mask = self._stuck.update(v.temps_c)
+        stale = self._clock() - self._counter_changed_at > self.stale_after_s
+        if stale:
+            self.metrics.count("stale_polls")
+        quality = channel_quality(
+            v.temps_c, v.status, stuck=self._stuck_mask, stale=stale, valid_range_c=self.valid_range_c
+        )
+        amb = channel_quality(
+            np.array([v.ambient_c]),
+            np.array([v.ambient_status]),
+            stale=stale,
+            valid_range_c=self.valid_range_c,
+        )
+        return DaqReading(
+            t=self._now(),
+            temps_c=v.temps_c,
+            ambient_c=v.ambient_c,
+            status=v.status,
+            counter=v.counter,
+            quality=quality,
+            ambient_quality=Quality(int(amb[0])),
+            new_sample=new_sample,
+            restarted=restarted,
+            flags=quality_counts(quality),
+        )
+
+
+def channel_quality(
+    temps_c: npt.NDArray[np.float64],
+    status: npt.NDArray[np.int64],
+    *,
+    stuck: npt.NDArray[np.bool_] | None = None,
+    stale: bool = False,
+    valid_range_c: tuple[float, float] = (-40.0, 250.0),
+) -> npt.NDArray[np.uint8]:
+    """Per-channel ``Quality`` (uint8) from values (°C), DAQ status codes, a stuck mask and staleness.
+
+    Where several conditions hold, the first in ``quality.PRECEDENCE`` wins.
+    """
+    lo, hi = valid_range_c
+    nan = np.isnan(temps_c)
+    with np.errstate(invalid="ignore"):
+        out_of_range = ~nan & ((temps_c < lo) | (temps_c > hi))
+    masks = {
+        Quality.STALE: np.full(temps_c.shape, stale),
+        Quality.NAN: nan,
+        Quality.OUT_OF_RANGE: out_of_range,
+        Quality.STUCK: np.zeros(temps_c.shape, bool) if stuck is None else stuck,
+    }
+    q = np.where(
+        status == 0,
+        np.uint8(Quality.OK),
+        np.where(status == 1, np.uint8(Quality.OPEN_CIRCUIT), np.uint8(Quality.OUT_OF_RANGE)),
+    ).astype(np.uint8)
+    for flag, mask in masks.items():
+        q = np.where(mask & (_RANK[flag] < _RANK[q]), np.uint8(flag), q).astype(np.uint8)
+    return q
+
+
+def quality_counts(quality: npt.NDArray[np.uint8]) -> dict[str, int]:
+    """Number of channels per flag label, e.g. ``{"ok": 30, "open_circuit": 2}``."""
+    counts = np.bincount(quality, minlength=len(Quality))
+    return {Quality(v).label: int(n) for v, n in enumerate(counts) if n}
+
+
+def _span(start: int, count: int) -> str:
+    return f"input registers {start}-{start + count - 1}"

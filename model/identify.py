@@ -1,0 +1,406 @@
+"""Identification of the convective heat transfer coefficients H1..H7 from a window of measured temperatures.
+
+The reduced model (``model.rom``) is fitted to the 32 sensor series of a ``Window``; the objective is the
+paper's f = mean squared error [°C²] over the usable sensors and samples, fit = 1/(1+f). Methods:
+
+- ``"empirical"``: the paper's correlations (``model.empirical.empirical_h``), no fitting;
+- ``"ga"``, ``"woa"``, ``"gwo"``, ``"igwo"``: population optimizers (``model.optim``) with the paper's Table 3
+  settings by default (population 7, 100 iterations, a 2.0 → 0.001);
+- ``"hybrid"`` (default): a short IGWO on the reduced model, then a bounded trust-region least-squares polish
+  (scipy TRF) with a finite-difference Jacobian evaluated as one batch.
+
+Options: joint estimation of the front/rear bearing heat scale factors with H (``estimate_loads``); sensor
+offsets subtracted (``offsets_c``, see ``baseline_offsets``); initial field ``window.t0``; warm start from a
+previous solution; channel mask. Every result carries 95 % confidence intervals from the Jacobian at the
+optimum (σ² = SSR/(m − p), cov = σ²(JᵀJ)⁻¹), the correlation matrix, and per-sensor and test-point errors.
+
+Errors::
+
+    IdentificationError(ValueError)        bad window, method, warm start or option (the field is named)
+    └── InsufficientDataError              too few usable sensors or samples for a fit
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Mapping
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+from scipy.optimize import least_squares
+
+from model import optim
+from model.identify_problem import (
+    N_H,
+    Array,
+    Problem,
+    SensorModel,
+    baseline_offsets,
+    confidence,
+    per_sensor_rmse,
+    point_errors,
+    usable_entries,
+)
+from model.optim._common import as_rng
+
+__all__ = [
+    "METHODS",
+    "IdentificationError",
+    "IdentificationResult",
+    "IdentifyOptions",
+    "InsufficientDataError",
+    "Window",
+    "baseline_offsets",
+    "identify",
+]
+
+METHODS = ("empirical", "ga", "woa", "gwo", "igwo", "hybrid")
+N_CHANNELS = 32
+
+
+class IdentificationError(ValueError):
+    """The identification cannot run as asked; the message names the field."""
+
+
+class InsufficientDataError(IdentificationError):
+    """Too little usable data (sensors or samples) for a meaningful fit."""
+
+
+@dataclass(frozen=True)
+class Window:
+    """Measured data for one identification.
+
+    inputs: ``model.inputs.InputSeries`` over n_steps; measured_c: (n_steps + 1, 32) [°C], NaN for a missing
+    sample; mask: (32,) bool, True = usable channel; t0: initial field, a uniform temperature [°C] or an (N,)
+    field of the fitted model's mesh. ``speed_rpm`` (the condition's speed) is only needed by ``"empirical"``.
+    """
+
+    inputs: Any
+    measured_c: NDArray[np.float64]
+    mask: NDArray[np.bool_]
+    t0: float | NDArray[np.float64]
+    speed_rpm: float | None = None
+
+
+@dataclass(frozen=True)
+class IdentifyOptions:
+    """Tuning of ``identify``; defaults are the paper's Table 3 for the metaheuristics."""
+
+    popsize: int = 7
+    maxiter: int = 100
+    a_start: float = 2.0
+    a_end: float = 0.001
+    fun_target: float | None = None  # paper: stop at fit > 0.5, i.e. f < 1 °C²
+    time_budget_s: float | None = None
+    hybrid_popsize: int = 7
+    hybrid_maxiter: int = 12
+    warm_a_start: float = 0.3  # a warm start must not be scattered by a = 2 exploration
+    warm_hybrid_maxiter: int = 3
+    load_box: tuple[float, float] = (0.5, 2.0)
+    ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
+    min_sensors: int = 4
+    min_samples: int = 30
+    lsq_max_nfev: int = 60
+    lsq_tol: float = 1e-10
+
+
+@dataclass
+class IdentificationResult:
+    """Identified H and its quality. Units: H [W/(m²·K)], f [°C²], temperatures and errors [°C], wall_s [s].
+
+    ``nfev`` counts reduced-model evaluations of the search (the CI Jacobian is extra); ``test_points`` maps
+    test point -> {me (max |error|), mae, rmse} against the window's (offset-corrected) measurements;
+    ``fe_check`` (when a full FE model was given) the RMSE over the usable entries with the reduced model and
+    with the full FE at the same H.
+    """
+
+    h: Array
+    h_ci95: Array  # (7, 2)
+    identified: NDArray[np.bool_]  # (7,)
+    correlation: Array  # (7, 7)
+    load_scale: Array | None
+    f: float
+    fit: float
+    rmse_per_sensor: Array  # (32,)
+    test_points: dict[int, dict[str, float]]
+    nfev: int
+    wall_s: float
+    method: str
+    message: str
+    load_scale_ci95: Array | None = None
+    sigma_c: float = float("nan")
+    fe_check: dict[str, float] | None = None
+    theta: Array = field(default_factory=lambda: np.zeros(0), repr=False)
+    population: Array | None = field(default=None, repr=False)
+
+
+def _check_window(window: Window, n_nodes: int | None) -> Array:
+    meas = np.asarray(window.measured_c, dtype=float)
+    n = int(window.inputs.n_steps) if hasattr(window.inputs, "n_steps") else len(window.inputs.ambient_c)
+    if meas.shape != (n + 1, N_CHANNELS):
+        raise IdentificationError(
+            f"window.measured_c: expected shape ({n + 1}, {N_CHANNELS}), got {meas.shape}"
+        )
+    mask = np.asarray(window.mask)
+    if mask.shape != (N_CHANNELS,) or mask.dtype != bool:
+        raise IdentificationError(
+            f"window.mask: expected ({N_CHANNELS},) bool, got {mask.shape} {mask.dtype}"
+        )
+    t0 = np.asarray(window.t0, dtype=float)
+    if t0.ndim > 0 and n_nodes is not None and t0.shape != (n_nodes,):
+        raise IdentificationError(f"window.t0: expected a scalar or ({n_nodes},) field, got {t0.shape}")
+    return meas
+
+
+def _bounds(box: tuple[float, float], estimate_loads: bool, opts: IdentifyOptions) -> Array:
+    lo, hi = float(box[0]), float(box[1])
+    if not (0.0 < lo < hi):
+        raise IdentificationError(f"box: expected 0 < low < high, got {box}")
+    rows = [[lo, hi]] * N_H
+    if estimate_loads:
+        rows += [list(opts.load_box)] * 2
+    return np.array(rows, dtype=float)
+
+
+def _warm_vector(warm_start: Any, p: int, bounds: Array) -> Array | None:
+    if warm_start is None:
+        return None
+    if isinstance(warm_start, IdentificationResult):
+        theta = (
+            warm_start.h
+            if warm_start.load_scale is None
+            else np.concatenate([warm_start.h, warm_start.load_scale])
+        )
+    else:
+        theta = np.asarray(warm_start, dtype=float).reshape(-1)
+    if theta.size == N_H and p > N_H:
+        theta = np.concatenate([theta, np.ones(p - N_H)])
+    if theta.size != p or not np.all(np.isfinite(theta)):
+        raise IdentificationError(f"warm_start: expected {p} finite values, got {theta.size}")
+    return np.clip(theta[:p], bounds[:, 0], bounds[:, 1])
+
+
+def _metaheuristic(
+    problem: Problem, method: str, rng: np.random.Generator, x0: Array | None, opts: IdentifyOptions
+) -> tuple[Array, str, Array]:
+    common: dict[str, Any] = {
+        "rng": rng,
+        "x0": x0,
+        "popsize": opts.popsize,
+        "maxiter": opts.maxiter,
+        "fun_target": opts.fun_target,
+        "time_budget_s": opts.time_budget_s,
+    }
+    if method in ("gwo", "igwo"):
+        a0 = opts.warm_a_start if x0 is not None else opts.a_start
+        res = optim.grey_wolf(
+            problem.objective,
+            problem.bounds,
+            variant="gwo" if method == "gwo" else "igwo",
+            a_start=a0,
+            a_end=opts.a_end,
+            **common,
+        )
+    elif method == "woa":
+        res = optim.whale(problem.objective, problem.bounds, **common)
+    else:
+        res = optim.genetic(problem.objective, problem.bounds, **common)
+    return res.x, res.message, res.population
+
+
+def _hybrid(
+    problem: Problem, rng: np.random.Generator, x0: Array | None, opts: IdentifyOptions
+) -> tuple[Array, str, Array]:
+    stage = replace(
+        opts,
+        popsize=opts.hybrid_popsize,
+        maxiter=opts.warm_hybrid_maxiter if x0 is not None else opts.hybrid_maxiter,
+        fun_target=None,
+    )
+    start, _, pop = _metaheuristic(problem, "igwo", rng, x0, stage)
+    scale = 1.0 / np.sqrt(problem.usable.m)
+    cache: dict[bytes, Array] = {}
+
+    def fun(x: Array) -> Array:
+        r = problem.residuals(x[None, :])[0]
+        cache.clear()
+        cache[x.tobytes()] = r
+        return np.asarray(r * scale)
+
+    def jac(x: Array) -> Array:
+        j, _ = problem.jacobian(x, cache.get(x.tobytes()))
+        return np.asarray(j * scale)
+
+    sol = least_squares(
+        fun,
+        start,
+        jac=jac,
+        bounds=(problem.bounds[:, 0], problem.bounds[:, 1]),
+        method="trf",
+        x_scale="jac",
+        ftol=opts.lsq_tol,
+        xtol=opts.lsq_tol,
+        gtol=opts.lsq_tol,
+        max_nfev=opts.lsq_max_nfev,
+    )
+    return np.asarray(sol.x), f"IGWO {stage.popsize}x{stage.maxiter} + TRF: {sol.message}", pop
+
+
+def _empirical(window: Window, spec: Any, bounds: Array) -> tuple[Array, str]:
+    p = len(bounds)
+    if window.speed_rpm is None:
+        raise IdentificationError("window.speed_rpm: required by method 'empirical'")
+    from model.empirical import empirical_h
+
+    ambient = float(np.mean(window.inputs.ambient_c))
+    h = np.asarray(empirical_h(spec, speed_rpm=float(window.speed_rpm), ambient_c=ambient), dtype=float)
+    h = np.clip(h, bounds[:N_H, 0], bounds[:N_H, 1])  # the reduced model is only valid inside the box
+    theta = np.concatenate([h, np.ones(p - N_H)]) if p > N_H else h
+    return theta, "empirical correlations (no fit)"
+
+
+def _spec_or_default(spec: Any) -> Any:
+    if spec is not None:
+        return spec
+    from model.geometry import load_spindle
+
+    return load_spindle()
+
+
+def identify(
+    rom: SensorModel,
+    window: Window,
+    *,
+    rng: np.random.Generator | int,
+    method: str = "hybrid",
+    box: tuple[float, float] | None = None,
+    warm_start: ArrayLike | IdentificationResult | None = None,
+    estimate_loads: bool = False,
+    offsets_c: ArrayLike | None = None,
+    fe: Any = None,
+    spec: Any = None,
+    options: IdentifyOptions | None = None,
+) -> IdentificationResult:
+    """Identify H1..H7 [W/(m²·K)] from ``window`` by fitting the reduced model ``rom``.
+
+    Args:
+        rom: ``model.rom.ReducedModel`` (anything with a batched ``simulate_sensors``).
+        window: inputs, measurements, channel mask and initial field.
+        rng: generator or seed of the stochastic methods (same seed, same answer).
+        method: one of ``METHODS``; ``"hybrid"`` (IGWO then bounded TRF) by default.
+        box: search box for H [W/(m²·K)]; None uses ``rom.h_box`` or (5, 200).
+        warm_start: a previous solution (7 or 9 values, or an ``IdentificationResult``): the population is
+            seeded around it (plus random wolves) and starts with a smaller control parameter a.
+        estimate_loads: also fit the front/rear bearing heat scale factors (box ``options.load_box``).
+        offsets_c: (32,) constant sensor offsets [°C] subtracted from the measurements.
+        fe: full FE model for an optional re-check of the answer (``fe_check``).
+        spec: ``SpindleSpec`` for the test-point channels and the empirical method (None: packaged spindle).
+        options: tuning (``IdentifyOptions``).
+
+    Raises:
+        IdentificationError: bad method, window shape, mask, warm start or box.
+        InsufficientDataError: fewer than ``min_sensors`` usable channels or ``min_samples`` usable samples.
+    """
+    started = time.perf_counter()
+    opts = options or IdentifyOptions()
+    if method not in METHODS:
+        raise IdentificationError(f"method: expected one of {', '.join(METHODS)}, got {method!r}")
+    basis = getattr(rom, "basis", None)
+    meas = _check_window(window, None if basis is None else int(basis.shape[0]))
+    if offsets_c is not None:
+        off = np.asarray(offsets_c, dtype=float)
+        if off.shape != (N_CHANNELS,) or not np.all(np.isfinite(off)):
+            raise IdentificationError(
+                f"offsets_c: expected {N_CHANNELS} finite values, got shape {off.shape}"
+            )
+        meas = meas - off[None, :]
+    usable = usable_entries(meas, window.mask)
+    _check_enough(usable, opts)
+    bounds = _bounds(box or tuple(getattr(rom, "h_box", (5.0, 200.0))), estimate_loads, opts)
+    problem = Problem(rom, inputs=window.inputs, measured_c=meas, usable=usable, t0=window.t0, bounds=bounds)
+    generator = as_rng(rng)
+    x0 = _warm_vector(warm_start, len(bounds), bounds)
+    spec = _spec_or_default(spec)
+    population = None
+    if method == "empirical":
+        theta, message = _empirical(window, spec, bounds)
+    elif method == "hybrid":
+        theta, message, population = _hybrid(problem, generator, x0, opts)
+    else:
+        theta, message, population = _metaheuristic(problem, method, generator, x0, opts)
+    nfev = problem.nfev
+    result = _assemble(problem, theta, meas, spec, method=method, message=message, nfev=nfev, opts=opts)
+    result.population = population
+    if fe is not None:
+        result.fe_check = _fe_check(fe, problem, theta, window)
+    result.wall_s = time.perf_counter() - started
+    return result
+
+
+def _check_enough(usable: Any, opts: IdentifyOptions) -> None:
+    if usable.sensors < opts.min_sensors:
+        raise InsufficientDataError(
+            f"window.mask: {usable.sensors} usable channels, at least {opts.min_sensors} needed"
+        )
+    if usable.samples < opts.min_samples:
+        raise InsufficientDataError(
+            f"window.measured_c: {usable.samples} usable samples after t0, at least {opts.min_samples} needed"
+        )
+
+
+def _assemble(
+    problem: Problem,
+    theta: Array,
+    meas: Array,
+    spec: Any,
+    *,
+    method: str,
+    message: str,
+    nfev: int,
+    opts: IdentifyOptions,
+) -> IdentificationResult:
+    jac, r = problem.jacobian(theta)
+    conf = confidence(jac, r)
+    f = float(np.mean(r * r))
+    pred = problem.predict(theta[None, :])[0]
+    lo, hi = theta - conf.half_width, theta + conf.half_width
+    h = theta[:N_H]
+    rel = conf.half_width[:N_H] / np.maximum(np.abs(h), 1e-12)
+    loads = theta[N_H:] if len(theta) > N_H else None
+    return IdentificationResult(
+        h=h.copy(),
+        h_ci95=np.column_stack([lo[:N_H], hi[:N_H]]),
+        identified=np.asarray(rel <= opts.ci_threshold),
+        correlation=conf.correlation[:N_H, :N_H].copy(),
+        load_scale=None if loads is None else loads.copy(),
+        f=f,
+        fit=1.0 / (1.0 + f),
+        rmse_per_sensor=per_sensor_rmse(pred, meas),
+        test_points=point_errors(pred, meas, _test_channels(spec)),
+        nfev=nfev,
+        wall_s=0.0,
+        method=method,
+        message=message,
+        load_scale_ci95=None if loads is None else np.column_stack([lo[N_H:], hi[N_H:]]),
+        sigma_c=conf.sigma_c,
+        theta=theta.copy(),
+    )
+
+
+def _test_channels(spec: Any) -> Mapping[int, int]:
+    channels = getattr(spec, "test_point_channels", None)
+    return dict(channels) if channels else {}
+
+
+def _fe_check(fe: Any, problem: Problem, theta: Array, window: Window) -> dict[str, float]:
+    from model.fem import simulate_sensors
+
+    scale = (float(theta[N_H]), float(theta[N_H + 1])) if len(theta) > N_H else (1.0, 1.0)
+    sens, _ = simulate_sensors(fe, theta[:N_H], window.inputs, window.t0, load_scale=scale)
+    rom_pred = problem.predict(theta[None, :])[0]
+    e = problem.usable.entries
+    rmse_fe = float(np.sqrt(np.mean((sens - problem.measured)[e] ** 2)))
+    rmse_rom = float(np.sqrt(np.mean((rom_pred - problem.measured)[e] ** 2)))
+    return {"rmse_rom_c": rmse_rom, "rmse_fe_c": rmse_fe, "rmse_diff_c": rmse_fe - rmse_rom}

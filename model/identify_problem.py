@@ -1,0 +1,186 @@
+"""The least-squares problem behind the identification: residuals of the reduced model against a window.
+
+Parameters θ are H1..H7 [W/(m²·K)], optionally followed by the front/rear bearing heat scale factors
+(dimensionless). The residual r = T_model − T_measured [°C] is taken over the usable entries: channels in the
+window's mask, samples 1..n (sample 0 is fixed by the initial field, not by H) and finite measurements. The
+objective is f = mean(r²) [°C²] (the paper's eq. 32); the paper's fitness is 1/(1+f).
+
+Everything is evaluated for a whole population at once (one reduced-model call per batch), including the
+finite-difference Jacobian: the p perturbed points form one batch.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from typing import Any, Protocol
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+Array = NDArray[np.float64]
+N_H = 7
+
+
+class SensorModel(Protocol):
+    """What the identification needs of ``model.rom.ReducedModel``."""
+
+    def simulate_sensors(
+        self, h: Array, inputs: Any, t0: float | Array, *, load_scale: Array | None = None
+    ) -> Array: ...
+
+
+@dataclass(frozen=True)
+class Usable:
+    """Which entries of the (n_steps + 1, 32) window enter the fit."""
+
+    entries: NDArray[np.bool_]  # (n_steps + 1, 32)
+
+    @property
+    def m(self) -> int:
+        return int(self.entries.sum())
+
+    @property
+    def sensors(self) -> int:
+        return int(self.entries.any(axis=0).sum())
+
+    @property
+    def samples(self) -> int:
+        return int(self.entries.any(axis=1).sum())
+
+
+def usable_entries(measured_c: Array, mask: NDArray[np.bool_]) -> Usable:
+    """Entries used by the fit: masked-in channels, samples after the first, finite values."""
+    entries = np.isfinite(measured_c) & np.asarray(mask, dtype=bool)[None, :]
+    entries[0, :] = False
+    return Usable(entries)
+
+
+def baseline_offsets(baseline_c: ArrayLike, model_c: ArrayLike) -> Array:
+    """Sensor offsets [°C] from a baseline at thermal equilibrium: mean measured − model, per channel.
+
+    ``baseline_c`` is (n, 32) or (32,) measured at equilibrium (spindle idle long enough that every part sits
+    at the ambient, or any state the model reproduces); ``model_c`` is the model's value there, a scalar
+    (e.g. the ambient) or (32,). Subtract the result from later measurements (``identify(offsets_c=...)``).
+    """
+    base = np.atleast_2d(np.asarray(baseline_c, dtype=float))
+    with np.errstate(invalid="ignore"):
+        mean = np.nanmean(base, axis=0)
+    return np.asarray(mean - np.broadcast_to(np.asarray(model_c, dtype=float), mean.shape))
+
+
+class Problem:
+    """Batched residuals, objective and Jacobian of one identification window; counts model evaluations."""
+
+    def __init__(
+        self,
+        model: SensorModel,
+        *,
+        inputs: Any,
+        measured_c: Array,
+        usable: Usable,
+        t0: float | Array,
+        bounds: Array,
+    ) -> None:
+        self.model = model
+        self.inputs = inputs
+        self.measured = measured_c
+        self.usable = usable
+        self.t0 = t0
+        self.bounds = bounds
+        self.p = len(bounds)
+        self.nfev = 0
+        self._flat = np.flatnonzero(usable.entries.ravel())
+        self._target = measured_c.ravel()[self._flat]
+        self._weights = usable.entries.astype(float) / max(usable.m, 1)
+        self._filled = np.where(usable.entries, measured_c, 0.0)
+
+    def predict(self, theta: Array) -> Array:
+        """Model sensor temperatures (P, n_steps + 1, 32) [°C] for parameters θ (P, p)."""
+        theta = np.atleast_2d(theta)
+        scale = theta[:, N_H:] if self.p > N_H else None
+        self.nfev += len(theta)
+        return np.asarray(self.model.simulate_sensors(theta[:, :N_H], self.inputs, self.t0, load_scale=scale))
+
+    def residuals(self, theta: Array) -> Array:
+        """r = model − measured over the usable entries, (P, m) [°C]."""
+        pred = self.predict(theta)
+        flat = pred.reshape(len(pred), -1)[:, self._flat]
+        return np.asarray(flat - self._target[None, :])
+
+    def objective(self, theta: Array) -> Array:
+        """f = mean(r²) per candidate, (P,) [°C²]; suited as a vectorized optimizer objective."""
+        diff = self.predict(theta) - self._filled[None, :, :]
+        diff *= diff
+        return np.asarray(np.einsum("pij,ij->p", diff, self._weights))
+
+    def jacobian(
+        self, theta: Array, r0: Array | None = None, *, rel_step: float = 1e-6
+    ) -> tuple[Array, Array]:
+        """(J (m, p) [°C per unit θ], r (m,)) by forward differences, all points in one model call.
+
+        Steps go backwards where a forward step would leave the box.
+        """
+        x = np.asarray(theta, dtype=float)
+        step = rel_step * np.maximum(np.abs(x), 1.0)
+        step = np.where(x + step > self.bounds[:, 1], -step, step)
+        pts = x[None, :] + np.diag(step)
+        if r0 is None:
+            pts = np.vstack([x[None, :], pts])
+        res = self.residuals(pts)
+        base = res[0] if r0 is None else r0
+        diffs = res[1:] if r0 is None else res
+        return np.asarray(((diffs - base[None, :]) / step[:, None]).T), np.asarray(base)
+
+
+@dataclass(frozen=True)
+class Confidence:
+    """Linearised statistics at the optimum: cov = σ²(JᵀJ)⁻¹ with σ² = SSR/(m − p)."""
+
+    sigma_c: float
+    cov: Array  # (p, p)
+    half_width: Array  # (p,) 95 % half-widths
+    correlation: Array  # (p, p)
+
+
+def confidence(jac: Array, residual: Array, *, z: float = 1.959964) -> Confidence:
+    """95 % confidence from the Jacobian (m, p) and residuals (m,) at the optimum (pinv if singular)."""
+    m, p = jac.shape
+    ssr = float(residual @ residual)
+    sigma2 = ssr / max(m - p, 1)
+    cov = sigma2 * np.linalg.pinv(jac.T @ jac)
+    sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov / np.outer(sd, sd)
+    corr = np.where(np.isfinite(corr), corr, 0.0)
+    np.fill_diagonal(corr, 1.0)
+    return Confidence(float(np.sqrt(sigma2)), cov, z * sd, corr)
+
+
+def per_sensor_rmse(pred: Array, measured: Array, *, skip_first: bool = True) -> Array:
+    """RMSE per channel (32,) [°C] over the finite samples (NaN for a channel without any)."""
+    err = (pred - measured)[1:] if skip_first else pred - measured
+    with np.errstate(invalid="ignore"):
+        return np.asarray(np.sqrt(np.nanmean(err * err, axis=0)))
+
+
+def point_errors(
+    pred: Array, measured: Array, channels: Mapping[int, int], *, skip_first: bool = True
+) -> dict[int, dict[str, float]]:
+    """Paper's Table 11 metrics per test point: max |error|, mean |error| and RMSE [°C].
+
+    ``channels`` maps test point -> 1-based channel.
+    """
+    err = (pred - measured)[1:] if skip_first else pred - measured
+    out: dict[int, dict[str, float]] = {}
+    for tp, ch in sorted(channels.items()):
+        e = err[:, ch - 1]
+        e = e[np.isfinite(e)]
+        if e.size == 0:
+            continue
+        out[tp] = {
+            "me": float(np.max(np.abs(e))),
+            "mae": float(np.mean(np.abs(e))),
+            "rmse": float(np.sqrt(np.mean(e * e))),
+        }
+    return out

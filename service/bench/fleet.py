@@ -1,0 +1,168 @@
+"""``chtc bench fleet``: how many soft-sensor instances one PostgreSQL server holds (the write side).
+
+Each instance writes about one sample row per ``database.sample_store_period_s`` (10 s), plus rare condition,
+identification and device-event rows, each batch in its own transaction (``service.db.writer``). This bench
+starts K writer threads, each standing for one instance with its own database on the server (the layout
+deploy/OPERATIONS.md recommends: one database per spindle), and commits single-sample transactions through
+the real repository code (``service.db.repository.write_records``) as fast as it can for ``--seconds``.
+Figures per K: committed transactions/s, commit latency median and p99, and the number of instances that
+rate carries at one sample per 10 s. The same loop against a local SQLite file (one writer) is the peer.
+The bench client shares the machine with the server, so the figures are lower bounds for a dedicated server.
+
+The databases ``chtc_bench_fleet_<i>`` are created (dropped first) and dropped at the end.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import tempfile
+import threading
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+DEFAULT_PG = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
+SAMPLE_PERIOD_S = 10.0
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``chtc bench fleet``."""
+    parser.add_argument("--pg-url", default=DEFAULT_PG, help="a PostgreSQL URL with CREATE DATABASE rights")
+    parser.add_argument("--writers", default="1,4,16", help="comma-separated K (concurrent instances)")
+    parser.add_argument("--seconds", type=float, default=5.0, help="measuring time per K, s")
+    parser.add_argument("--runs", type=int, default=3, help="repeats per K (medians are reported)")
+    parser.add_argument("--json", action="store_true")
+
+
+def _sample(i: int) -> Any:
+    from service.db.records import SampleData
+
+    return SampleData(
+        t=datetime.now(UTC),
+        temps_c=[20.0 + 0.01 * ((i + c) % 100) for c in range(32)],
+        ambient_c=22.0,
+        speed_rpm=3000.0,
+        torque_nm=5.0,
+        quality=["ok"] * 32,
+    )
+
+
+def _writer_loop(factory: Any, stop_at: float, latencies: list[float]) -> None:
+    from service.db.repository import write_records
+
+    i = 0
+    while (start := time.perf_counter()) < stop_at:
+        with factory.begin() as session:
+            write_records(session, [_sample(i)])
+        latencies.append(time.perf_counter() - start)
+        i += 1
+
+
+def measure(factories: list[Any], seconds: float) -> dict[str, float]:
+    """K threads (one per session factory) committing single-sample transactions for ``seconds``."""
+    per_thread: list[list[float]] = [[] for _ in factories]
+    stop_at = time.perf_counter() + seconds
+    threads = [
+        threading.Thread(target=_writer_loop, args=(f, stop_at, lat))
+        for f, lat in zip(factories, per_thread, strict=True)
+    ]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    lat = sorted(x for lst in per_thread for x in lst)
+    tps = len(lat) / seconds
+    return {
+        "tx_per_s": tps,
+        "commit_ms_p50": 1e3 * lat[len(lat) // 2],
+        "commit_ms_p99": 1e3 * lat[min(len(lat) - 1, int(0.99 * len(lat)))],
+        "instances_at_10s": tps * SAMPLE_PERIOD_S,
+    }
+
+
+def _medians(runs: list[dict[str, float]]) -> dict[str, float]:
+    return {k: round(statistics.median(r[k] for r in runs), 3) for k in runs[0]}
+
+
+def _pg_databases(pg_url: str, k: int) -> tuple[list[Any], Any]:
+    import sqlalchemy as sa
+    from sqlalchemy.engine import make_url
+
+    from service.db.engine import create_db_engine, make_session_factory
+    from service.db.migrate import upgrade
+
+    admin = sa.create_engine(pg_url, isolation_level="AUTOCOMMIT")
+    engines = []
+    with admin.connect() as conn:
+        for i in range(k):
+            name = f"chtc_bench_fleet_{i}"
+            conn.execute(sa.text(f'DROP DATABASE IF EXISTS "{name}" WITH (FORCE)'))
+            conn.execute(sa.text(f'CREATE DATABASE "{name}"'))
+            url = make_url(pg_url).set(database=name).render_as_string(hide_password=False)
+            engine = create_db_engine(url)
+            upgrade(engine)
+            engines.append(engine)
+    return [make_session_factory(e) for e in engines], (admin, engines)
+
+
+def _drop_pg(handles: Any, k: int) -> None:
+    import sqlalchemy as sa
+
+    admin, engines = handles
+    for e in engines:
+        e.dispose()
+    with admin.connect() as conn:
+        for i in range(k):
+            conn.execute(sa.text(f'DROP DATABASE IF EXISTS "chtc_bench_fleet_{i}" WITH (FORCE)'))
+    admin.dispose()
+
+
+def _sqlite_run(seconds: float, runs: int) -> dict[str, float]:
+    from service.db.engine import create_db_engine, make_session_factory
+    from service.db.migrate import upgrade
+
+    with tempfile.TemporaryDirectory() as tmp:
+        engine = create_db_engine(f"sqlite:///{Path(tmp) / 'bench.db'}")
+        upgrade(engine)
+        factory = make_session_factory(engine)
+        result = _medians([measure([factory], seconds) for _ in range(runs)])
+        engine.dispose()
+    return result
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run ``chtc bench fleet``."""
+    ks = sorted({int(x) for x in args.writers.split(",") if x.strip()})
+    factories, handles = _pg_databases(args.pg_url, max(ks))
+    report: dict[str, Any] = {"sample_period_s": SAMPLE_PERIOD_S, "seconds": args.seconds, "runs": args.runs}
+    try:
+        report["postgresql"] = {
+            str(k): _medians([measure(factories[:k], args.seconds) for _ in range(args.runs)]) for k in ks
+        }
+    finally:
+        _drop_pg(handles, max(ks))
+    report["sqlite_1_writer"] = _sqlite_run(args.seconds, args.runs)
+    report["load_average_1min"] = round(os.getloadavg()[0], 2)
+    report["cpu_count"] = os.cpu_count()
+    print(json.dumps(report, indent=2) if args.json else _table(report))
+    return 0
+
+
+def _table(report: dict[str, Any]) -> str:
+    head = f"{'backend':<22}{'tx/s':>10}{'p50 ms':>10}{'p99 ms':>10}{'instances @10 s':>18}"
+    rows = [head]
+    items = [(f"postgresql K={k}", r) for k, r in report["postgresql"].items()]
+    items.append(("sqlite K=1", report["sqlite_1_writer"]))
+    for name, r in items:
+        rows.append(
+            f"{name:<22}{r['tx_per_s']:>10.0f}{r['commit_ms_p50']:>10.2f}{r['commit_ms_p99']:>10.2f}"
+            f"{r['instances_at_10s']:>18.0f}"
+        )
+    rows.append(
+        f"(medians of {report['runs']} runs of {report['seconds']} s; load {report['load_average_1min']})"
+    )
+    return "\n".join(rows)

@@ -1,0 +1,209 @@
+"""``chtc bench model``: speed and accuracy of the full FE model and of the reduced model, in one run.
+
+Figures (one 60-min window = 360 steps of 10 s, the service's default mesh unless told otherwise):
+
+- ``full_forward_ms``: one full-FE θ-method window (factorisation + 360 solves, sensors only), median of runs;
+- ``full_vs_reference_max_err_c``: the default mesh against a much finer mesh at the 32 sensors, on the
+  paper's two H sets and one random H, with a heat step and an ambient drift inside the window;
+- ``rom_forward_ms`` (one candidate) and ``rom_batched_ms_per_candidate`` (population of 28), medians;
+- ``rom_max_err_c``: reduced vs full FE at the sensors over ``--check`` random H in the box (two random input
+  histories each: uniform start and non-uniform start), not used in training;
+- ``rom_build_s`` (fresh build into a temporary cache), ``rom_load_s`` (loading that cache file);
+- ``speedup_rom_vs_full`` = full_forward_ms / rom_batched_ms_per_candidate, measured in the same run.
+
+Progress goes to stderr; ``--json`` prints one JSON object, otherwise a table.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import sys
+import tempfile
+import time
+from collections.abc import Callable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+PAPER_H = (
+    (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54),  # Table 4, 3000 rpm
+    (79.75, 46.25, 61.89, 45.31, 46.20, 68.23, 11.12),  # Table 10, 4000 rpm
+)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``chtc bench model``."""
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument("--runs", type=int, default=5, help="timing repetitions (median), default 5")
+    parser.add_argument("--check", type=int, default=100, help="random H for rom_max_err_c (>= 100 advised)")
+    parser.add_argument(
+        "--rank", type=int, default=None, help="reduced-model rank (default: model.rom default)"
+    )
+    parser.add_argument("--mesh-size-m", type=float, default=None, help="FE mesh size [m] (default: spec's)")
+    parser.add_argument(
+        "--reference-mesh-size-m",
+        type=float,
+        default=None,
+        help="reference mesh size [m] (default: 0.4 x mesh)",
+    )
+    parser.add_argument("--seed", type=int, default=12345, help="seed of the random check cases")
+
+
+def _median_ms(fn: Callable[[], Any], runs: int) -> float:
+    times = []
+    for _ in range(max(1, runs)):
+        started = time.perf_counter()
+        fn()
+        times.append(time.perf_counter() - started)
+    return 1e3 * statistics.median(times)
+
+
+def _window(n_steps: int = 360) -> Any:
+    """A 60-min window: front/rear heat step after 20 min, ambient drifting by 1 °C."""
+    from model.inputs import InputSeries
+
+    k = np.arange(n_steps)
+    return InputSeries(
+        10.0,
+        21.8 + k / n_steps,
+        np.where(k < 120, 80.0, 200.0),
+        np.where(k < 120, 40.0, 110.0),
+    )
+
+
+def _progress(text: str) -> None:
+    print(f"[bench model {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
+
+
+def _full_figures(fe: Any, spec: Any, args: argparse.Namespace) -> dict[str, Any]:
+    from model.fem import build_fe_model, simulate_sensors
+
+    inputs = _window()
+    h = np.asarray(PAPER_H[0])
+    full_ms = _median_ms(lambda: simulate_sensors(fe, h, inputs, 21.8), args.runs)
+    ref_size = args.reference_mesh_size_m or 0.4 * fe.mesh_size_m
+    _progress(f"reference mesh {ref_size:.5f} m")
+    ref = build_fe_model(spec, mesh_size_m=ref_size)
+    rng = np.random.default_rng(args.seed)
+    lo, hi = spec.h_box
+    hs = [np.asarray(x) for x in PAPER_H] + [lo * (hi / lo) ** rng.random(7)]
+    errs = []
+    for i, hh in enumerate(hs):
+        coarse, _ = simulate_sensors(fe, hh, inputs, 21.8)
+        fine, _ = simulate_sensors(ref, hh, inputs, 21.8)
+        errs.append(float(np.max(np.abs(coarse - fine))))
+        _progress(f"reference case {i + 1}/{len(hs)}: {errs[-1]:.4f} °C")
+    return {
+        "full_forward_ms": full_ms,
+        "reference_nodes": int(ref.n_nodes),
+        "reference_mesh_size_m": ref_size,
+        "full_vs_reference_max_err_c": max(errs),
+    }
+
+
+def _rom_figures(fe: Any, spec: Any, args: argparse.Namespace) -> dict[str, Any]:
+    from model import rom_check
+    from model.rom import load_or_build_rom
+
+    opts: dict[str, Any] = {} if args.rank is None else {"rank": args.rank}
+    with tempfile.TemporaryDirectory(prefix="chtc-bench-rom-") as tmp:
+        _progress("building the reduced model (fresh cache)")
+        started = time.perf_counter()
+        built = load_or_build_rom(fe, spec, Path(tmp), progress=_progress, **opts)
+        build_s = time.perf_counter() - started
+        started = time.perf_counter()
+        rom = load_or_build_rom(fe, spec, Path(tmp), **opts)
+        load_s = time.perf_counter() - started
+    if not rom.from_cache:
+        raise RuntimeError("reduced model was not reloaded from its cache file")
+    inputs = _window()
+    rng = np.random.default_rng(args.seed)
+    lo, hi = rom.h_box
+    pop = lo * (hi / lo) ** rng.random((28, 7))
+    one_ms = _median_ms(lambda: rom.simulate_sensors(pop[:1], inputs, 21.8), 10 * args.runs)
+    batch_ms = _median_ms(lambda: rom.simulate_sensors(pop, inputs, 21.8), 4 * args.runs) / 28
+    _progress(f"checking the reduced model on {args.check} random H (2 histories each)")
+    report = rom_check.error_report(
+        rom,
+        fe,
+        theta=rom.theta,
+        box=rom.h_box,
+        n_cases=args.check,
+        seed=args.seed,
+        q_max_w=tuple(built.error_report.get("q_max_w", (300.0, 150.0))),
+        progress=_progress,
+    )
+    return {
+        "rom_size": rom.rank,
+        "rom_forward_ms": one_ms,
+        "rom_batched_ms_per_candidate": batch_ms,
+        "rom_max_err_c": report["max_err_c"],
+        "rom_mean_err_c": report["mean_err_c"],
+        "rom_p95_err_c": report["p95_err_c"],
+        "rom_max_err_uniform_start_c": report["max_err_uniform_start_c"],
+        "rom_max_err_field_start_c": report["max_err_field_start_c"],
+        "rom_check_h": report["n_cases"],
+        "rom_check_histories": report["n_histories"],
+        "rom_build_reported_err_c": built.error_report["max_err_c"],
+        "rom_build_s": build_s,
+        "rom_load_s": load_s,
+    }
+
+
+def run(args: argparse.Namespace) -> dict[str, Any]:
+    """All figures as one dict (times in ms or s, errors in °C)."""
+    from model.fem import build_fe_model
+    from model.geometry import load_spindle
+
+    spec = load_spindle()
+    fe = build_fe_model(spec, mesh_size_m=args.mesh_size_m)
+    _progress(f"FE model: {fe.n_nodes} nodes; timing the full forward model")
+    out: dict[str, Any] = {"mesh_nodes": int(fe.n_nodes), "mesh_size_m": fe.mesh_size_m, "window_steps": 360}
+    out["window_dt_s"] = 10.0
+    out.update(_full_figures(fe, spec, args))
+    out.update(_rom_figures(fe, spec, args))
+    out["speedup_rom_vs_full"] = out["full_forward_ms"] / out["rom_batched_ms_per_candidate"]
+    out["speedup_rom_single_vs_full"] = out["full_forward_ms"] / out["rom_forward_ms"]
+    out["runs"] = args.runs
+    out["load_avg_1m"] = os.getloadavg()[0]  # other work on the machine inflates every timing
+    out["timestamp_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    return out
+
+
+def format_table(res: dict[str, Any]) -> str:
+    """A readable table of the figures."""
+    rows = [
+        ("FE mesh", f"{res['mesh_nodes']} nodes ({res['mesh_size_m'] * 1e3:.2f} mm)"),
+        ("full FE, one 60-min window", f"{res['full_forward_ms']:.1f} ms"),
+        ("reference mesh", f"{res['reference_nodes']} nodes ({res['reference_mesh_size_m'] * 1e3:.2f} mm)"),
+        ("full FE vs reference (sensors)", f"{res['full_vs_reference_max_err_c']:.4f} °C max"),
+        ("reduced model rank", f"{res['rom_size']}"),
+        ("ROM, one candidate", f"{res['rom_forward_ms']:.3f} ms"),
+        ("ROM, population of 28", f"{res['rom_batched_ms_per_candidate']:.3f} ms per candidate"),
+        (
+            f"ROM vs full FE ({res['rom_check_h']} H)",
+            f"{res['rom_max_err_c']:.4f} °C max, {res['rom_p95_err_c']:.4f} p95, "
+            f"{res['rom_mean_err_c']:.4f} mean",
+        ),
+        ("ROM build / load", f"{res['rom_build_s']:.1f} s / {res['rom_load_s'] * 1e3:.0f} ms"),
+        ("speed-up ROM (batched) vs full", f"{res['speedup_rom_vs_full']:.0f}x"),
+        ("speed-up ROM (single) vs full", f"{res['speedup_rom_single_vs_full']:.0f}x"),
+    ]
+    width = max(len(k) for k, _ in rows)
+    lines = [
+        f"chtc bench model ({res['timestamp_utc']}, medians of {res['runs']} runs, "
+        f"load average {res['load_avg_1m']:.1f})"
+    ]
+    lines += [f"  {k.ljust(width)}  {v}" for k, v in rows]
+    return "\n".join(lines)
+
+
+def main(args: argparse.Namespace) -> int:
+    """Run ``chtc bench model``."""
+    res = run(args)
+    print(json.dumps(res, indent=2) if args.json else format_table(res), flush=True)
+    return 0

@@ -1,0 +1,91 @@
+"""The ``chtc`` command line.
+
+Each sub-command lives in its own module, imported only when it runs, so that ``chtc --help`` is instant and a
+broken optional component cannot break the others:
+
+- ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
+  ``replay``, ``identify``, ``prebuild``);
+- ``service.bench.<name>`` for the benchmarks (``chtc bench model|optim|identify|acquisition|api``).
+
+Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import importlib
+import os
+import sys
+from collections.abc import Sequence
+from types import ModuleType
+
+COMMANDS: dict[str, str] = {
+    "run": "run the soft sensor against real devices (Modbus DAQ + CAN), with the API and dashboard",
+    "demo": "simulated devices + virtual plant + service + API + dashboard on SQLite; prints the URL",
+    "simulate": "serve the simulated Modbus DAQ and CAN node (driven by the virtual plant) or a replay",
+    "record": "record live devices into a temperature CSV and a CAN log",
+    "replay": "play recorded logs through simulated devices into the unchanged service",
+    "identify": "offline, deterministic identification of H1-H7 from recorded log files",
+    "prebuild": "build the FE model and the reduced-model cache ahead of time (container images, installs)",
+}
+
+BENCHMARKS: dict[str, str] = {
+    "model": "FE and reduced-model speed and accuracy",
+    "optim": "IGWO (paper/normalized), GWO, WOA, GA on the paper's benchmark functions and shifted versions",
+    "identify": "identification methods on virtual-plant data at the paper's two conditions",
+    "acquisition": "Modbus poll latency, CAN decode rate, ring buffer, reconnect time",
+    "api": "GET /chtc latency idle and during identification; condition change to fresh H",
+    "fleet": "PostgreSQL write capacity: concurrent instances' sample commits/s (scaling note)",
+}
+
+
+def _load(package: str, name: str) -> ModuleType:
+    return importlib.import_module(f"{package}.{name}")
+
+
+def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
+    parser = argparse.ArgumentParser(
+        prog="chtc",
+        description="spindle-chtc: online soft sensor for spindle convective heat transfer coefficients.",
+    )
+    sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
+    wanted = argv[0] if argv else None
+    for name, text in COMMANDS.items():
+        p = sub.add_parser(name, help=text, description=text)
+        if name == wanted:
+            module = _load("service.commands", name)
+            module.add_arguments(p)
+            p.set_defaults(_module=module)
+    bench = sub.add_parser("bench", help="benchmarks: print figures (not tests)", description="Benchmarks.")
+    bench_sub = bench.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
+    wanted_bench = argv[1] if wanted == "bench" and len(argv) > 1 else None
+    for name, text in BENCHMARKS.items():
+        p = bench_sub.add_parser(name, help=text, description=text)
+        if name == wanted_bench:
+            module = _load("service.bench", name)
+            module.add_arguments(p)
+            p.set_defaults(_module=module)
+    return parser
+
+
+def _limit_blas_threads() -> None:
+    """One BLAS thread per process: the FE/ROM solves are small, and OpenBLAS' thread pool made them 2-50x
+    slower on a loaded 2-core machine (measured; docs/model.md). Must happen before numpy is imported."""
+    for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+        os.environ.setdefault(var, "1")
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    _limit_blas_threads()
+    args_list = list(sys.argv[1:] if argv is None else argv)
+    parser = build_parser(args_list)
+    args = parser.parse_args(args_list)
+    try:
+        return int(args._module.main(args) or 0)
+    except KeyboardInterrupt:
+        print("interrupted", file=sys.stderr)
+        return 130
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

@@ -1,0 +1,198 @@
+"""``chtc demo``: the whole soft sensor against simulated devices driven by the virtual plant, on SQLite.
+
+The virtual plant (``model.plant.VirtualPlant``, its own finer mesh and ground truth) runs an operating
+profile with several speed changes (3000 → 4000 → 5000 → 4000 → 3000 rpm, ``--segment-min`` each); the
+simulated Modbus DAQ and CAN node serve it on a free loopback port and a private virtual CAN channel at
+``--speedup`` plant seconds per wall second. The unchanged service (real drivers, ring buffer, detector,
+scheduler, worker process, database writer) and the API with the dashboard run in this process. Progress
+lines report detected conditions and identifications (H with fit, and the plant's true H for comparison).
+
+All timestamps are simulated UTC: they start at the real time and run ``--speedup`` times faster. After the
+profile ends the plant holds its last state. Stops on Ctrl-C or after ``--duration`` wall seconds.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import signal
+import sys
+import tempfile
+import time
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+SPEEDS_RPM = (3000.0, 4000.0, 5000.0, 4000.0, 3000.0)
+AMBIENT_C = (23.2, 21.8, 22.0, 22.5, 23.0)
+TORQUE_NM = (5.0, 6.0, 8.0, 6.0, 5.0)
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument(
+        "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
+    )
+    parser.add_argument("--host", default="127.0.0.1", help="API/dashboard host (default 127.0.0.1)")
+    parser.add_argument("--port", type=int, default=8000, help="API/dashboard port; 0 picks a free one")
+    parser.add_argument(
+        "--speedup",
+        type=float,
+        default=60.0,
+        help="plant seconds per wall second (default 60: 1 h per minute)",
+    )
+    parser.add_argument(
+        "--database-url", default=None, help="SQLAlchemy URL (default: a fresh SQLite file in a temp dir)"
+    )
+    parser.add_argument(
+        "--duration", type=float, default=None, help="stop after this many wall seconds (default: Ctrl-C)"
+    )
+    parser.add_argument("--seed", type=int, default=0, help="plant noise seed and identification seed")
+    parser.add_argument(
+        "--segment-min", type=float, default=60.0, help="plant minutes per speed (default 60)"
+    )
+    parser.add_argument("--quiet", action="store_true", help="only print the URL and errors")
+
+
+def build_profile(segment_min: float, *, idle_min: float = 5.0) -> list[Any]:
+    """The demo's operating profile as ``model.plant.Segment`` (s, rpm, N·m, °C).
+
+    It starts with the spindle idle (cold, uniform at ambient) for ``idle_min``: the service sees the machine
+    start from a known state, as in the paper's runs.
+    """
+    from model.plant import Segment
+
+    idle = [Segment(60.0 * idle_min, 0.0, 0.0, AMBIENT_C[0])] if idle_min > 0 else []
+    return idle + [
+        Segment(60.0 * segment_min, n, m, a) for n, m, a in zip(SPEEDS_RPM, TORQUE_NM, AMBIENT_C, strict=True)
+    ]
+
+
+def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
+    """Settings from ``--config`` with the demo's API address, database and seed."""
+    from service.settings import load_settings
+
+    s = load_settings(args.config)
+    port = args.port
+    if port == 0:
+        from service.runtime import free_port
+
+        port = free_port(args.host)
+    return s.model_copy(
+        update={
+            "api": s.api.model_copy(update={"host": args.host, "port": port}),
+            "database": s.database.model_copy(update={"url": db_url}),
+            "identification": s.identification.model_copy(update={"seed": args.seed}),
+        }
+    )
+
+
+class Printer:
+    """Progress lines stamped with the plant time and, for identifications, the plant's true H."""
+
+    def __init__(self, run: Any, *, quiet: bool) -> None:
+        self.run, self.quiet = run, quiet
+        self.rig: Any = None
+
+    def __call__(self, msg: str) -> None:
+        if self.quiet:
+            return
+        elapsed = self.rig.plant_time_s() if self.rig is not None else 0.0
+        h, rem = divmod(int(elapsed), 3600)
+        line = f"[plant +{h:02d}:{rem // 60:02d}:{rem % 60:02d}] {msg}"
+        if msg.startswith("identification") and " ok:" in msg:
+            k = min(int(np.searchsorted(self.run.times_s, elapsed)), len(self.run.times_s) - 1)
+            line += (
+                "\n"
+                + " " * 17
+                + "plant truth H = ["
+                + ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
+                + "]"
+            )
+        print(line, flush=True)
+
+
+async def run_demo(args: argparse.Namespace) -> int:
+    from model.geometry import load_spindle
+    from model.plant import VirtualPlant
+    from service.runtime import Runtime, ScaledClock
+    from service.simrig import SimAddress, make_drivers, plant_rig
+
+    tmp = None
+    if args.database_url is None:
+        tmp = tempfile.TemporaryDirectory(prefix="chtc-demo-")
+        db_url = f"sqlite:///{Path(tmp.name) / 'demo.db'}"
+    else:
+        db_url = args.database_url
+    settings = demo_settings(args, db_url)
+    clock = ScaledClock(args.speedup)
+    print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
+    runtime = Runtime(settings, clock=clock, on_event=lambda m: None)
+    await asyncio.to_thread(runtime.load)
+    print("running the virtual plant over the demo profile ...", flush=True)
+    plant = VirtualPlant(load_spindle(settings.model.spindle), seed=args.seed)
+    run = await asyncio.to_thread(plant.run, build_profile(args.segment_min), dt_s=10.0)
+    printer = Printer(run, quiet=args.quiet)
+    runtime.on_event = printer
+    address = SimAddress.free(speedup=args.speedup)
+    daq, can_sensor = make_drivers(settings, address, clock=clock)
+    stop = asyncio.Event()
+    _install_signals(stop)
+    rig = None
+    try:
+        await runtime.start(daq=daq, can=can_sensor, api=True)
+        await runtime.wait_api()
+        rig = printer.rig = await plant_rig(run, address=address)
+        print(
+            f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc; database: {_safe(db_url)})",
+            flush=True,
+        )
+        print(
+            f"plant profile: idle, then {' -> '.join(f'{n:.0f}' for n in SPEEDS_RPM)} rpm, "
+            f"{args.segment_min:.0f} min each, "
+            f"x{args.speedup:g} ({args.segment_min * 60 / args.speedup:.0f} s per segment); Ctrl-C stops",
+            flush=True,
+        )
+        started = time.monotonic()
+        while not stop.is_set():
+            if args.duration is not None and time.monotonic() - started >= args.duration:
+                break
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(stop.wait(), timeout=0.2)
+    finally:
+        await runtime.stop()
+        if rig is not None:
+            await rig.stop()
+        if tmp is not None:
+            tmp.cleanup()
+    print("demo stopped", flush=True)
+    return 0
+
+
+def _install_signals(stop: asyncio.Event) -> None:
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+
+
+def _safe(url: str) -> str:
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).render_as_string(hide_password=True)
+
+
+def quiet_third_party_logs() -> None:
+    """pymodbus logs every timeout and dumps frames; the drivers count and report those errors already."""
+    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
+def main(args: argparse.Namespace) -> int:
+    quiet_third_party_logs()
+    if args.speedup <= 0:
+        print("chtc demo: --speedup must be > 0", file=sys.stderr)
+        return 2
+    return asyncio.run(run_demo(args))

@@ -1,0 +1,122 @@
+"""``chtc replay``: recorded logs -> simulated devices -> the unchanged service; every identification saved.
+
+The temperature CSV is served by the simulated Modbus DAQ row by row and the CAN log is replayed on a private
+virtual CAN channel (``drivers.sim.replay``), at ``--speedup`` recorded seconds per wall second. The service
+runs exactly as in production (drivers, ring buffer, detector, scheduler, worker process, database writer);
+its clock reads the recorded time, so stored timestamps are the log's. When the log ends (plus the time for
+running identifications) every identification is in the database and in ``--out`` (JSON, or CSV by suffix).
+
+Sample times come from the service's clock, not from the CSV rows, so a replay reproduces ``chtc identify``
+on the same files up to the acquisition's sampling jitter (within one row period); see docs/service.md.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import csv
+import json
+import sys
+import time
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import Any
+
+from service.commands.identify import record_dict
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("csv", type=Path, help="temperature CSV (chtc record / drivers.logs format)")
+    parser.add_argument("can", type=Path, nargs="?", default=None, help="CAN log (.blf/.asc/.log/.csv)")
+    parser.add_argument("--config", type=Path, default=None, help="settings TOML")
+    parser.add_argument("--speedup", type=float, default=60.0, help="recorded seconds per wall second")
+    parser.add_argument("--database-url", default=None, help="SQLAlchemy URL (default: settings)")
+    parser.add_argument("--out", type=Path, default=Path("identifications.json"), help=".json or .csv output")
+    parser.add_argument("--api", action="store_true", help="also serve the API/dashboard on settings.api")
+    parser.add_argument(
+        "--grace", type=float, default=30.0, help="wall s to wait for running identifications"
+    )
+
+
+def write_out(path: Path, records: list[Any]) -> None:
+    rows = [record_dict(r) for r in records]
+    if path.suffix.lower() == ".csv":
+        with path.open("w", newline="", encoding="utf-8") as f:
+            w = csv.writer(f)
+            w.writerow(
+                ["id", "outcome", "condition_id", "speed_rpm", "ambient_c", "window_from", "window_to"]
+                + [f"h{i}_w_m2k" for i in range(1, 8)]
+                + [f"h{i}_ci95_lo" for i in range(1, 8)]
+                + [f"h{i}_ci95_hi" for i in range(1, 8)]
+                + ["fit", "rmse_c", "message"]
+            )
+            for r in rows:
+                c = r["condition"]
+                head = [r["id"], r["outcome"], c["id"], c["speed_rpm"], c["ambient_c"], r["window_from"]]
+                zones = [*r["h_w_m2k"], *r["ci95_lo_w_m2k"], *r["ci95_hi_w_m2k"]]
+                w.writerow([*head, r["window_to"], *zones, r["fit"], r["rmse_c"], r["message"]])
+    else:
+        path.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
+
+
+async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
+    from service.runtime import Runtime, ScaledClock
+    from service.simrig import SimAddress, make_drivers, replay_rig
+
+    clock = ScaledClock(args.speedup)
+    runtime = Runtime(settings, clock=clock, on_event=lambda m: print(m, flush=True))
+    await asyncio.to_thread(runtime.load)
+    address = SimAddress.free(speedup=args.speedup)
+    rig = await replay_rig(args.csv, args.can, address=address, begin=False)
+    daq, can_sensor = make_drivers(settings, address, clock=clock)
+    try:
+        await runtime.start(daq=daq, can=can_sensor, api=args.api)
+        await _begin_in_phase(rig, clock, settings.acquisition.sample_period_s / args.speedup)
+        await asyncio.sleep(rig.replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
+        deadline = time.monotonic() + args.grace
+        while runtime.service.core.scheduler.running is not None and time.monotonic() < deadline:
+            await asyncio.sleep(0.1)
+        with runtime.service.core.lock:
+            return list(reversed(runtime.service.core.records))
+    finally:
+        await runtime.stop()
+        await rig.stop()
+
+
+async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = 0.3) -> None:
+    """Start the replay so the acquisition samples ``phase`` of a row period after each recorded row.
+
+    The sampler ticks every period from when it started (just now); beginning the replay 0.7 periods before
+    its next tick makes every sample see the row recorded 0.3 periods earlier (held), with the speed of the
+    same row, after a few DAQ polls: the recorded rows, shifted by a constant 0.3 periods.
+    """
+    await asyncio.sleep(0)  # let the sampler task take its first time reading
+    await asyncio.sleep((1.0 - phase) * period_wall_s)
+    clock.start(at=datetime.fromtimestamp(rig.replay.t_ref, tz=UTC))
+    rig.replay.begin()
+
+
+def main(args: argparse.Namespace) -> int:
+    from drivers.logs import LogFormatError
+    from service.commands.demo import quiet_third_party_logs
+    from service.settings import SettingsError, load_settings
+
+    quiet_third_party_logs()
+    try:
+        settings = load_settings(args.config)
+    except SettingsError as err:
+        print(f"chtc replay: {err}", file=sys.stderr)
+        return 2
+    if args.database_url is not None:
+        settings = settings.model_copy(
+            update={"database": settings.database.model_copy(update={"url": args.database_url})}
+        )
+    try:
+        records = asyncio.run(run_replay(args, settings))
+    except (LogFormatError, OSError) as err:
+        print(f"chtc replay: {err}", file=sys.stderr)
+        return 2
+    write_out(args.out, records)
+    ok = sum(r.outcome == "ok" for r in records)
+    print(f"replay done: {len(records)} identifications ({ok} ok) -> {args.out} and the database")
+    return 0

@@ -1,0 +1,102 @@
+"""``chtc run --config FILE``: the soft sensor against real devices, with the API and the dashboard.
+
+Settings come from the TOML file and ``CHTC_<SECTION>__<KEY>`` environment variables (``service.settings``).
+The Modbus DAQ is ``modbus.host:port`` (register map ``modbus.register_map`` or the default of SPEC §4), the
+speed/torque sensor any python-can interface (``can.interface``/``can.channel``); the API listens on
+``api.host:api.port``. ``--migrate`` brings the database schema up to date first (retried in the background
+while the database is unreachable; records are buffered meanwhile). Stops cleanly on SIGINT/SIGTERM.
+"""
+
+from __future__ import annotations
+
+import argparse
+import asyncio
+import contextlib
+import logging
+import signal
+import sys
+from pathlib import Path
+from typing import Any
+
+log = logging.getLogger("chtc")
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    parser.add_argument("--config", type=Path, default=None, help="settings TOML (env CHTC_... overrides it)")
+    parser.add_argument("--migrate", action="store_true", help="upgrade the database schema before starting")
+    parser.add_argument("--print-config", action="store_true", help="print the effective settings and exit")
+
+
+def make_device_drivers(settings: Any, *, clock: Any) -> tuple[Any, Any]:
+    """The production drivers from ``settings.modbus`` / ``settings.can``."""
+    from drivers.can_sensor import CanSpindleSensor
+    from drivers.modbus_daq import ModbusDaq
+    from drivers.registers import load_register_map
+
+    m, c = settings.modbus, settings.can
+    daq = ModbusDaq(
+        m.host,
+        m.port,
+        register_map=load_register_map(m.register_map) if m.register_map is not None else None,
+        timeout_s=m.timeout_s,
+        stale_after_s=max(30.0, 3.0 * settings.acquisition.sample_period_s),
+        now=clock,
+    )
+    can_sensor = CanSpindleSensor(
+        interface=c.interface,
+        channel=c.channel,
+        bitrate=c.bitrate,
+        dbc=c.dbc,
+        stale_after_s=c.stale_after_s,
+        now=clock,
+    )
+    return daq, can_sensor
+
+
+async def serve(settings: Any, *, migrate: bool) -> int:
+    from service.runtime import Runtime, ScaledClock
+
+    clock = ScaledClock(1.0)
+    runtime = Runtime(settings, clock=clock, migrate=migrate, on_event=lambda m: log.info("%s", m))
+    log.info("loading the model (cache %s)", settings.model.rom_cache_dir)
+    await asyncio.to_thread(runtime.load, progress=lambda m: log.info("%s", m))
+    daq, can_sensor = make_device_drivers(settings, clock=clock)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    try:
+        await runtime.start(daq=daq, can=can_sensor, api=True)
+        await runtime.wait_api()
+        log.info("serving on %s", runtime.url)
+        await stop.wait()
+    finally:
+        await runtime.stop()
+    log.info("stopped")
+    return 0
+
+
+def main(args: argparse.Namespace) -> int:
+    import json
+
+    from drivers.errors import ConfigError
+    from service.commands.demo import quiet_third_party_logs
+    from service.settings import SettingsError, load_settings
+
+    quiet_third_party_logs()
+    logging.getLogger("chtc").setLevel(logging.INFO)
+    logging.getLogger("service").setLevel(logging.INFO)
+    try:
+        settings = load_settings(args.config)
+    except SettingsError as err:
+        print(f"chtc run: {err}", file=sys.stderr)
+        return 2
+    if args.print_config:
+        print(json.dumps(settings.redacted(), indent=2))
+        return 0
+    try:
+        return asyncio.run(serve(settings, migrate=args.migrate))
+    except ConfigError as err:
+        print(f"chtc run: {err}", file=sys.stderr)
+        return 2

@@ -1,0 +1,49 @@
+"""Persistence: SQLAlchemy 2.0 models, repository, buffered writer, Alembic migrations.
+
+Everything is built at the edge from ``settings.database``; nothing connects at import. API::
+
+    from service.db import engine, migrate, repository as repo, writer, records, convert
+
+    eng = engine.create_db_engine(settings.database.url, echo=settings.database.echo)  # SQLite: WAL, FKs on
+    migrate.upgrade(eng)                       # or URL; to "head"; current_revision(eng), head_revision()
+    factory = engine.make_session_factory(eng) # sessionmaker, expire_on_commit=False
+
+    # one session per job/request; SQLAlchemy errors → DatabaseUnavailableError / RecordError
+    with repo.session_scope(factory, "list identifications") as s:
+        page = repo.list_identifications(s, since=t0, until=t1, limit=50, offset=0, outcome=None)
+        api_page = convert.identification_page(page)      # -> service.interface.IdentificationPage
+        row = repo.get_identification(s, 12)              # RecordNotFoundError if absent
+        rec = convert.identification_record(row)          # -> service.interface.IdentificationRecord
+        last = repo.last_identification(s)                # newest "ok" one, or None if there is none
+        warm = repo.nearest_identification(s, speed_rpm=4000, torque_nm=10, ambient_c=22,
+                                           before=now, exclude_condition_id=7,
+                                           scales=(1000.0, 5.0, 5.0))   # or None; warm.h -> 7 floats
+        seeds = repo.latest_per_condition(s, limit=100)   # newest ok result per condition (scheduler history)
+        max_cond_id, max_ident_id = repo.max_ids(s)       # resume id counters after a restart
+        repo.list_conditions(s, since=..., until=..., limit=..., offset=...)        # Page[Condition]
+        repo.list_device_events(s, since=..., until=..., device="modbus", limit=100)  # Page[DeviceEvent]
+        repo.list_samples(s, since=..., until=..., limit=10_000)          # list[SampleRow], oldest 1st
+        repo.add_condition / end_condition / add_identification / add_device_event / add_samples(s, record(s))
+        repo.write_records(s, [record, ...])              # what the writer does per batch
+
+    # the service's write path: never blocks, buffers while the database is down, retries with backoff
+    w = writer.DbWriter(factory, batch_size=500, buffer_max=100_000, retry_initial_s=0.5, retry_max_s=30.0,
+                        clock=lambda: datetime.now(UTC)).start()
+    w.submit(records.ConditionStart(id=7, started_at=t, speed_rpm=4000.0, torque_nm=10.0, ambient_c=22.0))
+    w.submit(records.ConditionEnd(id=6, ended_at=t))
+    w.submit(records.IdentificationData.from_result(result, id=12, condition_id=7, started_at=..,
+             finished_at=.., window_start=.., window_end=.., reason="schedule", model_version="...",
+             warm_start_source="condition 6", warm_start_id=11))
+    # or IdentificationData(...) directly, with outcome="failed"/"skipped"/"cancelled"/... and a message
+    dec = records.SampleDecimator(settings.database.sample_store_period_s)
+    if dec.keep(sample.t): w.submit(records.SampleData.from_sample(sample))   # a drivers Sample
+    w.submit(records.DeviceEventData(t=t, device="modbus", kind="timeout", detail="unit 1, 1.0 s"))
+    w.status()   # WriterStatus(connected, pending, written, dropped, rejected, errors, lost_on_close,
+                 #              last_error, last_error_at, last_ok_at)  -> health / metrics
+    w.flush(timeout_s=10.0) -> bool ; w.close(timeout_s=10.0) -> WriterStatus   # on shutdown
+
+Ids of conditions and identifications are assigned by the service (start from ``repo.max_ids`` + 1; if the
+database is down at start, any larger unique integers, e.g. epoch milliseconds, work): the writer may hold
+the rows for a while, and the API needs the id at once. All datetimes are aware UTC (naive ones are refused).
+Errors: see ``service.db.errors``.
+"""

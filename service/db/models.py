@@ -1,0 +1,136 @@
+"""SQLAlchemy 2.0 typed declarative models (the schema of migration ``0001_initial``).
+
+Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``. Every timestamp is
+:class:`~service.db.types.UtcDateTime` (aware UTC in and out, on SQLite too).
+Units: °C, rpm, N·m, W/(m²·K), s.
+
+Ids of conditions and identifications are assigned by the service (it needs them before the row is stored,
+because the writer may hold rows while the database is down); device events and samples get database ids.
+
+Per-channel sample temperatures are one JSON array per row rather than 32 columns: the number of channels is
+configuration (the spindle file), so a different DAQ needs no migration, and the array is always read whole.
+The cost is that one channel cannot be filtered or indexed in SQL; nobody needs that.
+H1–H7 of an identification are seven columns because they are what trend queries read.
+"""
+
+from __future__ import annotations
+
+from datetime import datetime
+from typing import Any
+
+from sqlalchemy import JSON, BigInteger, Boolean, Double, ForeignKey, Integer, MetaData, String, Text
+from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+
+from service.db.types import UtcDateTime
+
+OUTCOMES = ("ok", "failed", "insufficient-data", "skipped", "cancelled")
+
+
+NAMING = {
+    "ix": "ix_%(table_name)s_%(column_0_N_name)s",
+    "uq": "uq_%(table_name)s_%(column_0_N_name)s",
+    "ck": "ck_%(table_name)s_%(constraint_name)s",
+    "fk": "fk_%(table_name)s_%(column_0_name)s_%(referred_table_name)s",
+    "pk": "pk_%(table_name)s",
+}
+
+
+class Base(DeclarativeBase):
+    metadata = MetaData(naming_convention=NAMING)
+    type_annotation_map = {datetime: UtcDateTime, float: Double, dict[str, Any]: JSON}  # noqa: RUF012
+
+
+class Condition(Base):
+    """An operating condition (speed, torque, ambient) from its start until the next one starts."""
+
+    __tablename__ = "conditions"
+
+    id: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    started_at: Mapped[datetime] = mapped_column(index=True)
+    ended_at: Mapped[datetime | None]
+    speed_rpm: Mapped[float]
+    torque_nm: Mapped[float]
+    ambient_c: Mapped[float]
+
+    identifications: Mapped[list[Identification]] = relationship(
+        back_populates="condition", foreign_keys="Identification.condition_id", passive_deletes=True
+    )
+
+
+class Identification(Base):
+    """One identification of H1–H7 (also the failed, skipped and cancelled ones, with their message)."""
+
+    __tablename__ = "identifications"
+
+    id: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
+    condition_id: Mapped[int] = mapped_column(
+        BigInteger, ForeignKey("conditions.id", ondelete="CASCADE"), index=True
+    )
+    started_at: Mapped[datetime]
+    finished_at: Mapped[datetime] = mapped_column(index=True)
+    window_start: Mapped[datetime]
+    window_end: Mapped[datetime]
+    reason: Mapped[str] = mapped_column(String(32))  # trigger: "schedule", "manual", ...
+    outcome: Mapped[str] = mapped_column(String(32))  # one of OUTCOMES
+    message: Mapped[str] = mapped_column(Text, default="")
+    method: Mapped[str] = mapped_column(String(32))
+    model_version: Mapped[str] = mapped_column(String(128))
+    h1: Mapped[float | None]  # W/(m²·K); NULL when not identified (failed, skipped)
+    h2: Mapped[float | None]
+    h3: Mapped[float | None]
+    h4: Mapped[float | None]
+    h5: Mapped[float | None]
+    h6: Mapped[float | None]
+    h7: Mapped[float | None]
+    ci95_lo: Mapped[list[float | None] | None] = mapped_column(JSON)  # 7, W/(m²·K)
+    ci95_hi: Mapped[list[float | None] | None] = mapped_column(JSON)
+    identified: Mapped[list[bool] | None] = mapped_column(JSON)  # 7; False: practically unidentifiable
+    load_scale_front: Mapped[float | None]  # fitted bearing heat scales (estimate_loads), 1 = nominal
+    load_scale_rear: Mapped[float | None]
+    f: Mapped[float | None]  # objective, mean squared residual, °C²
+    fit: Mapped[float | None]  # 1 / (1 + f)
+    rmse_c: Mapped[float | None]  # °C
+    nfev: Mapped[int] = mapped_column(Integer, default=0)
+    duration_s: Mapped[float]  # wall time, s
+    n_sensors_used: Mapped[int] = mapped_column(Integer, default=0)
+    warm_start_source: Mapped[str | None] = mapped_column(
+        String(64)
+    )  # "this condition", "condition 7", "none"
+    warm_start_id: Mapped[int | None] = mapped_column(BigInteger)  # soft reference: no FK, may be gone
+    diagnostics: Mapped[dict[str, Any] | None]  # free-form: test-point errors, per-sensor RMSE, ...
+
+    condition: Mapped[Condition] = relationship(back_populates="identifications", foreign_keys=[condition_id])
+
+    @property
+    def h(self) -> tuple[float | None, ...]:
+        """H1..H7, W/(m²·K) (None where not identified)."""
+        return (self.h1, self.h2, self.h3, self.h4, self.h5, self.h6, self.h7)
+
+
+class DeviceEvent(Base):
+    """Something a device (or the database, or the worker) did: connected, lost, fault frame, restarted."""
+
+    __tablename__ = "device_events"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    t: Mapped[datetime] = mapped_column(index=True)
+    device: Mapped[str] = mapped_column(String(16))  # "modbus" | "can" | "db" | "worker" | ...
+    kind: Mapped[str] = mapped_column(String(64))  # "connected", "timeout", "fault-status", ...
+    detail: Mapped[str] = mapped_column(Text, default="")
+
+
+class SampleRow(Base):
+    """One stored acquisition instant (the service stores one per ``database.sample_store_period_s``)."""
+
+    __tablename__ = "samples"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    t: Mapped[datetime] = mapped_column(index=True)
+    ambient_c: Mapped[float | None]
+    speed_rpm: Mapped[float | None]
+    torque_nm: Mapped[float | None]
+    temps_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel, °C; null = no usable value
+    n_good: Mapped[int] = mapped_column(Integer)  # channels with quality "ok"
+    bad_channels: Mapped[dict[str, Any]] = mapped_column(JSON)  # {"7": "open_circuit", ...} (1-based)
+    can_ok: Mapped[bool] = mapped_column(Boolean)
+    daq_ok: Mapped[bool] = mapped_column(Boolean)

@@ -1,0 +1,286 @@
+"""Queries and writes on one ``Session`` (one session per job or request: use ``session_scope``).
+
+Lookups by id raise ``RecordNotFoundError``; ``last_identification`` and ``nearest_identification`` return
+None only with their documented meaning ("there is none"). SQLAlchemy errors inside ``session_scope`` are
+translated once into ``DatabaseUnavailableError`` / ``RecordError``.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Iterator, Sequence
+from contextlib import contextmanager
+from dataclasses import dataclass
+from datetime import datetime
+from itertools import groupby
+from typing import Any, Generic, TypeVar
+
+from sqlalchemy import exc as sa_exc
+from sqlalchemy import func, insert, select, update
+from sqlalchemy.orm import Session, joinedload, sessionmaker
+from sqlalchemy.sql import Select
+
+from service.db.errors import RecordNotFoundError, translate
+from service.db.models import Condition, DeviceEvent, Identification, SampleRow
+from service.db.records import (
+    ConditionEnd,
+    ConditionStart,
+    DeviceEventData,
+    IdentificationData,
+    Record,
+    SampleData,
+)
+
+T = TypeVar("T")
+DEFAULT_DISTANCE_SCALES = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: one "unit" of condition distance each
+
+
+@dataclass(frozen=True)
+class Page(Generic[T]):
+    items: Sequence[T]  # newest first
+    total: int  # rows matching the filter over all pages
+    limit: int
+    offset: int
+
+
+@contextmanager
+def session_scope(factory: sessionmaker[Session], what: str = "database access") -> Iterator[Session]:
+    """One unit of work: commit on success, roll back on error; SQLAlchemy errors become typed errors."""
+    session = factory()
+    try:
+        yield session
+        session.commit()
+    except sa_exc.SQLAlchemyError as err:
+        session.rollback()
+        raise translate(err, what) from err
+    finally:
+        session.close()
+
+
+# --- writes ---------------------------------------------------------------------------------------
+_TABLE_OF: dict[type, type] = {
+    ConditionStart: Condition,
+    IdentificationData: Identification,
+    DeviceEventData: DeviceEvent,
+    SampleData: SampleRow,
+}
+
+
+def write_records(session: Session, records: Sequence[Record]) -> None:
+    """Write records in order; runs of one kind become one multi-row INSERT (or one UPDATE each for ends)."""
+    for kind, group in groupby(records, key=type):
+        run = list(group)
+        if kind is ConditionEnd:
+            for end in run:
+                assert isinstance(end, ConditionEnd)
+                _end_condition(session, end)
+        else:
+            session.execute(insert(_TABLE_OF[kind]), [r.values() for r in run])  # type: ignore[union-attr]
+
+
+def _end_condition(session: Session, end: ConditionEnd) -> None:
+    result = session.execute(update(Condition).where(Condition.id == end.id).values(ended_at=end.ended_at))
+    if getattr(result, "rowcount", 1) == 0:
+        raise RecordNotFoundError(f"conditions: no id {end.id} to end")
+
+
+def add_condition(session: Session, record: ConditionStart) -> Condition:
+    row = Condition(**record.values())
+    session.add(row)
+    session.flush()
+    return row
+
+
+def end_condition(session: Session, record: ConditionEnd) -> None:
+    _end_condition(session, record)
+
+
+def add_identification(session: Session, record: IdentificationData) -> Identification:
+    row = Identification(**record.values())
+    session.add(row)
+    session.flush()
+    return row
+
+
+def add_device_event(session: Session, record: DeviceEventData) -> DeviceEvent:
+    row = DeviceEvent(**record.values())
+    session.add(row)
+    session.flush()
+    return row
+
+
+def add_samples(session: Session, records: Sequence[SampleData]) -> None:
+    if records:
+        session.execute(insert(SampleRow), [r.values() for r in records])
+
+
+# --- reads ----------------------------------------------------------------------------------------
+def get_condition(session: Session, condition_id: int) -> Condition:
+    row = session.get(Condition, condition_id)
+    if row is None:
+        raise RecordNotFoundError(f"conditions: no id {condition_id}")
+    return row
+
+
+def list_conditions(
+    session: Session,
+    *,
+    since: datetime | None = None,
+    until: datetime | None = None,
+    limit: int = 50,
+    offset: int = 0,
+) -> Page[Condition]:
+    """Conditions started in [since, until), newest first."""
+    query = _time_filter(select(Condition), Condition.started_at, since, until)
+    return _page(session, query.order_by(Condition.started_at.desc(), Condition.id.desc()), limit, offset)
+
+
+def get_identification(session: Session, identification_id: int) -> Identification:
+    row = session.get(Identification, identification_id, options=[joinedload(Identification.condition)])
+    if row is None:
+        raise RecordNotFoundError(f"identifications: no id {identification_id}")
+    return row
+
+
+def list_identifications(
+    session: Session,
+    *,
+    since: datetime | None = None,
+    until: datetime | None = None,
+    limit: int = 50,
+    offset: int = 0,
+    outcome: str | None = None,
+    condition_id: int | None = None,
+) -> Page[Identification]:
+    """Identifications finished in [since, until), newest first, with their condition loaded."""
+    query = _time_filter(select(Identification), Identification.finished_at, since, until)
+    if outcome is not None:
+        query = query.where(Identification.outcome == outcome)
+    if condition_id is not None:
+        query = query.where(Identification.condition_id == condition_id)
+    query = query.options(joinedload(Identification.condition))
+    order = (Identification.finished_at.desc(), Identification.id.desc())
+    return _page(session, query.order_by(*order), limit, offset)
+
+
+def last_identification(
+    session: Session, *, outcome: str | None = "ok", condition_id: int | None = None
+) -> Identification | None:
+    """The newest identification (default: successful ones only); None if there is none."""
+    page = list_identifications(session, limit=1, outcome=outcome, condition_id=condition_id)
+    return page.items[0] if page.items else None
+
+
+def nearest_identification(
+    session: Session,
+    *,
+    speed_rpm: float,
+    torque_nm: float,
+    ambient_c: float,
+    before: datetime | None = None,
+    exclude_condition_id: int | None = None,
+    scales: tuple[float, float, float] = DEFAULT_DISTANCE_SCALES,
+) -> Identification | None:
+    """The successful identification whose condition is nearest to (speed, torque, ambient), for a warm start.
+
+    Distance: Σ((x - x_c) / scale)², scales in (rpm, N·m, °C). Ties go to the newest. Only identifications
+    finished before ``before`` count. None if there is no earlier successful identification.
+    """
+    ds = (Condition.speed_rpm - speed_rpm) / scales[0]
+    dt = (Condition.torque_nm - torque_nm) / scales[1]
+    da = (Condition.ambient_c - ambient_c) / scales[2]
+    query = (
+        select(Identification)
+        .join(Identification.condition)
+        .where(Identification.outcome == "ok", Identification.h1.is_not(None))
+        .options(joinedload(Identification.condition))
+    )
+    if before is not None:
+        query = query.where(Identification.finished_at < before)
+    if exclude_condition_id is not None:
+        query = query.where(Identification.condition_id != exclude_condition_id)
+    query = query.order_by(ds * ds + dt * dt + da * da, Identification.finished_at.desc()).limit(1)
+    return session.scalars(query).first()
+
+
+def latest_per_condition(session: Session, *, limit: int = 100) -> list[Identification]:
+    """The newest successful identification of each of the ``limit`` most recent conditions, newest first.
+
+    Seeds the scheduler's warm-start memory after a restart.
+    """
+    newest = (
+        select(Identification.condition_id, func.max(Identification.finished_at).label("t"))
+        .where(Identification.outcome == "ok")
+        .group_by(Identification.condition_id)
+        .subquery()
+    )
+    query = (
+        select(Identification)
+        .join(
+            newest,
+            (Identification.condition_id == newest.c.condition_id)
+            & (Identification.finished_at == newest.c.t),
+        )
+        .where(Identification.outcome == "ok")
+        .options(joinedload(Identification.condition))
+        .order_by(Identification.finished_at.desc(), Identification.id.desc())
+    )
+    seen: set[int] = set()
+    out: list[Identification] = []
+    for row in session.scalars(query):
+        if row.condition_id not in seen and len(out) < limit:
+            seen.add(row.condition_id)
+            out.append(row)
+    return out
+
+
+def max_ids(session: Session) -> tuple[int, int]:
+    """(largest condition id, largest identification id), 0 for an empty table: where the service resumes."""
+    cond = session.scalar(select(func.max(Condition.id))) or 0
+    ident = session.scalar(select(func.max(Identification.id))) or 0
+    return int(cond), int(ident)
+
+
+def list_device_events(
+    session: Session,
+    *,
+    since: datetime | None = None,
+    until: datetime | None = None,
+    device: str | None = None,
+    limit: int = 100,
+    offset: int = 0,
+) -> Page[DeviceEvent]:
+    """Device events at t in [since, until), newest first."""
+    query = _time_filter(select(DeviceEvent), DeviceEvent.t, since, until)
+    if device is not None:
+        query = query.where(DeviceEvent.device == device)
+    return _page(session, query.order_by(DeviceEvent.t.desc(), DeviceEvent.id.desc()), limit, offset)
+
+
+def list_samples(
+    session: Session, *, since: datetime | None = None, until: datetime | None = None, limit: int = 10_000
+) -> list[SampleRow]:
+    """Stored samples at t in [since, until), oldest first (for replay and plots)."""
+    query = _time_filter(select(SampleRow), SampleRow.t, since, until)
+    return list(session.scalars(query.order_by(SampleRow.t, SampleRow.id).limit(limit)))
+
+
+def count_rows(session: Session, model: type[Any]) -> int:
+    return int(session.scalar(select(func.count()).select_from(model)) or 0)
+
+
+def _time_filter(
+    query: Select[Any], column: Any, since: datetime | None, until: datetime | None
+) -> Select[Any]:
+    if since is not None:
+        query = query.where(column >= since)
+    if until is not None:
+        query = query.where(column < until)
+    return query
+
+
+def _page(session: Session, query: Select[Any], limit: int, offset: int) -> Page[Any]:
+    if limit < 1 or offset < 0:
+        raise ValueError(f"need limit >= 1 and offset >= 0, got limit={limit}, offset={offset}")
+    total = session.scalar(select(func.count()).select_from(query.order_by(None).subquery())) or 0
+    items = list(session.scalars(query.limit(limit).offset(offset)).unique())
+    return Page(items=items, total=int(total), limit=limit, offset=offset)

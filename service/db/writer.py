@@ -1,0 +1,246 @@
+"""Buffered, retrying database writer: the service never waits for (or crashes on) the database.
+
+``DbWriter.submit(record)`` appends to an in-memory FIFO and returns at once. A worker thread writes the
+FIFO in order, in batches (one session and transaction per batch). While the database is unavailable the
+records stay buffered (at most ``buffer_max``; beyond that new records are dropped and counted) and the
+worker retries with exponential backoff (``retry_initial_s`` doubling up to ``retry_max_s``), probing even
+when idle so that ``status().connected`` tells the truth for health checks. A record the database refuses
+for good (duplicate id, missing condition) is isolated, counted in ``rejected`` and skipped, so one bad
+record never blocks the rest. Outages are themselves recorded as ``DeviceEventData(device="db")`` rows,
+written once the database is back.
+
+``flush(timeout_s)`` waits until everything submitted so far is written; ``close(timeout_s)`` flushes, stops
+the thread and counts what could not be written as ``lost_on_close``.
+"""
+
+from __future__ import annotations
+
+import itertools
+import logging
+import threading
+from collections import deque
+from collections.abc import Callable, Iterable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from types import TracebackType
+
+from sqlalchemy import text
+from sqlalchemy.orm import Session, sessionmaker
+
+from service.db.errors import DatabaseUnavailableError
+from service.db.records import RECORD_TYPES, DeviceEventData, Record
+from service.db.repository import session_scope, write_records
+
+log = logging.getLogger(__name__)
+
+
+def _utcnow() -> datetime:
+    return datetime.now(UTC)
+
+
+@dataclass(frozen=True)
+class WriterStatus:
+    connected: bool  # the last write or probe succeeded
+    pending: int  # records buffered, not yet written
+    written: int
+    dropped: int  # refused by submit() because the buffer was full (or the writer closed)
+    rejected: int  # refused by the database for good (see last_error)
+    errors: int  # failed write/probe attempts
+    lost_on_close: int  # still buffered when close() gave up
+    last_error: str | None
+    last_error_at: datetime | None  # UTC
+    last_ok_at: datetime | None  # UTC of the last successful write or probe
+
+
+class DbWriter:
+    """See the module docstring. Thread-safe; use as a context manager or call ``start()``/``close()``."""
+
+    def __init__(
+        self,
+        session_factory: sessionmaker[Session],
+        *,
+        batch_size: int = 500,
+        buffer_max: int = 100_000,
+        retry_initial_s: float = 0.5,
+        retry_max_s: float = 30.0,
+        clock: Callable[[], datetime] = _utcnow,
+        name: str = "chtc-db-writer",
+    ) -> None:
+        if batch_size < 1 or buffer_max < 1 or not 0 < retry_initial_s <= retry_max_s:
+            raise ValueError("need batch_size >= 1, buffer_max >= 1, 0 < retry_initial_s <= retry_max_s")
+        self._factory = session_factory
+        self._batch_size = batch_size
+        self._buffer_max = buffer_max
+        self._retry = (retry_initial_s, retry_max_s)
+        self._clock = clock
+        self._queue: deque[Record] = deque()
+        self._cond = threading.Condition()
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._closed = False
+        self._connected = False
+        self._outage_reported = False
+        self._counts = {"written": 0, "dropped": 0, "rejected": 0, "errors": 0, "lost_on_close": 0}
+        self._last_error: tuple[str, datetime] | None = None
+        self._last_ok_at: datetime | None = None
+
+    # --- caller side ------------------------------------------------------------------------------
+    def start(self) -> DbWriter:
+        self._thread.start()
+        return self
+
+    def submit(self, record: Record) -> bool:
+        """Buffer one record; False if it was dropped (buffer full or writer closed). Never blocks on I/O."""
+        if not isinstance(record, RECORD_TYPES):
+            raise TypeError(f"not a database record: {type(record).__name__}")
+        with self._cond:
+            if self._closed or len(self._queue) >= self._buffer_max:
+                self._counts["dropped"] += 1
+                return False
+            self._queue.append(record)
+            self._cond.notify_all()
+            return True
+
+    def submit_many(self, records: Iterable[Record]) -> int:
+        """Buffer records in order; returns how many were accepted."""
+        return sum(self.submit(r) for r in records)
+
+    def flush(self, timeout_s: float = 10.0) -> bool:
+        """Wait until every record submitted so far is written (or rejected); False on timeout."""
+        with self._cond:
+            return self._cond.wait_for(lambda: not self._queue, timeout=timeout_s)
+
+    def close(self, timeout_s: float = 10.0) -> WriterStatus:
+        """Flush (up to ``timeout_s``), stop the worker and return the final status."""
+        with self._cond:
+            self._closed = True
+        if self._thread.is_alive():
+            self.flush(timeout_s)
+            self._stop.set()
+            with self._cond:
+                self._cond.notify_all()
+            self._thread.join(timeout=max(timeout_s, 1.0))
+        with self._cond:
+            if self._queue:
+                self._counts["lost_on_close"] += len(self._queue)
+                log.error("database writer closed with %d records not written", len(self._queue))
+                self._queue.clear()
+                self._cond.notify_all()
+        return self.status()
+
+    def status(self) -> WriterStatus:
+        with self._cond:
+            err = self._last_error
+            return WriterStatus(
+                connected=self._connected,
+                pending=len(self._queue),
+                last_error=err[0] if err else None,
+                last_error_at=err[1] if err else None,
+                last_ok_at=self._last_ok_at,
+                **self._counts,
+            )
+
+    def __enter__(self) -> DbWriter:
+        return self.start()
+
+    def __exit__(
+        self, exc_type: type[BaseException] | None, exc: BaseException | None, tb: TracebackType | None
+    ) -> None:
+        self.close()
+
+    # --- worker side ------------------------------------------------------------------------------
+    def _run(self) -> None:
+        failures = 0
+        while not self._stop.is_set():
+            batch = self._next_batch()
+            try:
+                if batch:
+                    self._write(batch)
+                elif not self._connected:
+                    self._probe()
+                else:
+                    continue
+                failures = 0
+            except DatabaseUnavailableError as err:
+                self._on_unavailable(err)
+                delay = min(self._retry[1], self._retry[0] * 2.0 ** min(failures, 30))
+                failures += 1
+                self._stop.wait(delay)
+            except Exception as err:  # never let the thread die: count, log, back off
+                log.exception("database writer: unexpected error")
+                self._note_error(f"unexpected: {err!r}")
+                self._stop.wait(self._retry[0])
+
+    def _next_batch(self) -> list[Record]:
+        with self._cond:
+            if not self._queue and self._connected:
+                self._cond.wait_for(lambda: self._queue or self._stop.is_set(), timeout=1.0)
+            return list(itertools.islice(self._queue, self._batch_size))
+
+    def _write(self, batch: Sequence[Record]) -> None:
+        try:
+            with session_scope(self._factory, f"write {len(batch)} records") as session:
+                write_records(session, batch)
+        except DatabaseUnavailableError:
+            raise
+        except Exception:  # refused for good (or a bug): find the culprits one by one
+            self._isolate(batch)
+            return
+        self._done(len(batch), "written")
+
+    def _isolate(self, batch: Sequence[Record]) -> None:
+        """Write one by one to find the records the database refuses; skip those, keep order for the rest."""
+        for record in batch:
+            try:
+                with session_scope(self._factory, f"write {type(record).__name__}") as session:
+                    write_records(session, [record])
+            except DatabaseUnavailableError:
+                raise
+            except Exception as err:
+                log.warning("database writer: record rejected: %s", err)
+                self._note_error(str(err))
+                self._done(1, "rejected")
+            else:
+                self._done(1, "written")
+
+    def _probe(self) -> None:
+        with session_scope(self._factory, "probe") as session:
+            session.execute(text("SELECT 1"))
+        self._mark_ok()
+
+    def _done(self, n: int, counter: str) -> None:
+        with self._cond:
+            for _ in range(min(n, len(self._queue))):  # close() may have given up on these already
+                self._queue.popleft()
+            self._counts[counter] += n
+            self._cond.notify_all()
+        self._mark_ok()
+
+    def _mark_ok(self) -> None:
+        with self._cond:
+            was = self._connected
+            self._connected = True
+            self._last_ok_at = self._clock()
+            reported, self._outage_reported = self._outage_reported, False
+        if not was:
+            log.info("database writer: connected")
+        if reported:
+            self.submit(
+                DeviceEventData(t=self._clock(), device="db", kind="available", detail="writes resumed")
+            )
+
+    def _on_unavailable(self, err: DatabaseUnavailableError) -> None:
+        with self._cond:
+            self._connected = False
+            reported, self._outage_reported = self._outage_reported, True
+        self._note_error(str(err))
+        if not reported:
+            log.warning("database writer: database unavailable, buffering: %s", err)
+            self.submit(
+                DeviceEventData(t=self._clock(), device="db", kind="unavailable", detail=str(err)[:500])
+            )
+
+    def _note_error(self, message: str) -> None:
+        with self._cond:
+            self._counts["errors"] += 1
+            self._last_error = (message, self._clock())

@@ -1,0 +1,34 @@
+"""Adapter from the acquisition ring buffer (``drivers.ringbuffer.RingBuffer``) to identification windows.
+
+Speed and torque of samples whose CAN data were not fresh (``can_ok`` False: stale, faulted, never heard) are
+treated as missing, like the ambient temperature the acquisition already sets to NaN when the DAQ flags it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+
+from service.window import RawWindow
+
+__all__ = ["RingHistory"]
+
+
+class RingHistory:
+    """``raw_window(t_from, t_to)`` over a ring buffer (epoch seconds, inclusive)."""
+
+    def __init__(self, ring: Any) -> None:
+        self.ring = ring
+
+    def raw_window(self, t_from: float, t_to: float) -> RawWindow:
+        w = self.ring.window(t_from, t_to)
+        can_ok = np.asarray(w.can_ok, dtype=bool)
+        return RawWindow(
+            times_s=np.asarray(w.t, dtype=float),
+            temps_c=np.asarray(w.temps_c, dtype=float),
+            quality=np.asarray(w.quality, dtype=np.uint8),
+            ambient_c=np.asarray(w.ambient_c, dtype=float),
+            speed_rpm=np.where(can_ok, w.speed_rpm, np.nan),
+            torque_nm=np.where(can_ok, w.torque_nm, np.nan),
+        )

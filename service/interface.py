@@ -1,0 +1,414 @@
+"""The narrow interface through which the API reads (and pokes) the running service.
+
+``api/`` imports only this module from ``service/``. The running service (``service/service.py``) implements
+:class:`ChtcService`; the API tests use the in-memory implementation in ``service/interface_memory.py``.
+
+Contract for implementers:
+
+- Every method is synchronous, thread-safe and cheap. ``chtc()``, ``condition()``, ``sensors()``,
+  ``health()``, ``ready()`` and ``metrics()`` are called on every poll (10 Hz per client is expected): return
+  prebuilt, immutable snapshots, never do I/O or numerical work in them. ``list_identifications()`` and
+  ``get_identification()`` may read the database (the API calls them from a worker thread). ``field()`` may
+  solve a steady state once per identification but should cache the result.
+- Units: temperatures °C, H in W/(m²·K), lengths m, speed rpm, torque N·m, durations s. Every ``datetime`` is
+  timezone-aware UTC.
+- Snapshots are frozen; arrays inside them must not be mutated after construction (build new snapshots).
+- Failures are typed (never ``None`` for "failed")::
+
+      ServiceError
+      ├── NotFoundError(ServiceError, LookupError)        unknown identification id / job id      -> 404
+      ├── NoDataError(ServiceError)                       nothing to show yet (no field, no data)  -> 503
+      ├── BusyError(ServiceError)                         an identification is already running    -> 409
+      └── NotReadyError(ServiceError)                     model not loaded / not enough good data -> 503
+
+  ``chtc()`` returns ``None`` only with its documented meaning: no identification has finished yet.
+"""
+
+from __future__ import annotations
+
+import enum
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
+from datetime import datetime
+from functools import cached_property
+from typing import Literal, Protocol, runtime_checkable
+
+import numpy as np
+
+H_UNIT = "W/(m²·K)"
+ZONE_NAMES: tuple[str, ...] = ("H1", "H2", "H3", "H4", "H5", "H6", "H7")
+
+
+class ServiceError(Exception):
+    """Base of the errors the service raises towards the API."""
+
+
+class NotFoundError(ServiceError, LookupError):
+    """An identification or job id that does not exist."""
+
+
+class NoDataError(ServiceError):
+    """Nothing to show yet (no field before the first identification, no samples)."""
+
+
+class BusyError(ServiceError):
+    """An identification is already queued or running."""
+
+
+class NotReadyError(ServiceError):
+    """The service cannot do what was asked yet (model not loaded, too little good data)."""
+
+
+class ChtcStatus(enum.StrEnum):
+    """Freshness of the H values the API serves."""
+
+    FRESH = "fresh"  # identified at the current, stable condition from recent data
+    IDENTIFYING = "identifying"  # condition changed; a new identification is queued or running
+    STALE = "stale"  # no recent samples (devices down) or the last identification is too old
+    NO_DATA = "no-data"  # no samples at all
+
+
+class ConditionState(enum.StrEnum):
+    STABLE = "stable"
+    CHANGING = "changing"
+
+
+@dataclass(frozen=True)
+class ConditionSnapshot:
+    """One operating condition as seen by the change detector."""
+
+    id: int
+    speed_rpm: float
+    torque_nm: float
+    ambient_c: float
+    since: datetime  # UTC start of this condition
+    state: ConditionState
+
+
+@dataclass(frozen=True, eq=False)
+class ChtcSnapshot:
+    """The current H1-H7 and where they came from."""
+
+    h: np.ndarray  # (7,) W/(m²·K)
+    ci95_lo: np.ndarray  # (7,) W/(m²·K)
+    ci95_hi: np.ndarray  # (7,) W/(m²·K)
+    identified: np.ndarray  # (7,) bool: False = practically unidentifiable from this window
+    identified_at: datetime  # UTC end of the identification
+    condition: ConditionSnapshot  # the condition the window was taken at
+    f: float  # objective: mean squared residual, °C²
+    fit: float  # 1 / (1 + f)
+    rmse_c: float  # over usable sensors and samples, °C
+    method: str  # "hybrid", "igwo", ...
+    model_version: str  # geometry + mesh + ROM hash
+    identification_id: int
+    status: ChtcStatus
+    newest_sample_at: datetime | None  # UTC of the newest sample in the ring buffer
+    unit: str = H_UNIT
+    zones: tuple[str, ...] = ZONE_NAMES
+
+
+FieldAt = Literal["now", "steady"]
+
+
+@dataclass(frozen=True, eq=False)
+class FieldSnapshot:
+    """A temperature field on the axisymmetric (r, z) section of the P1 mesh."""
+
+    t: datetime  # UTC instant the field belongs to (for "steady": when it was computed)
+    at: FieldAt
+    nodes_rz: np.ndarray  # (N, 2) m
+    triangles: np.ndarray  # (M, 3) node indices
+    temps_c: np.ndarray  # (N,) °C
+    identification_id: int | None = None
+
+    @property
+    def bounds_rz(self) -> tuple[float, float, float, float]:
+        """(r_min, r_max, z_min, z_max) of the mesh, m."""
+        lo = self.nodes_rz.min(axis=0)
+        hi = self.nodes_rz.max(axis=0)
+        return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
+
+    @cached_property
+    def _locator(self) -> _TriangleLocator:
+        return _TriangleLocator(self.nodes_rz, self.triangles)
+
+    def evaluate(self, points_rz: np.ndarray) -> np.ndarray:
+        """Temperatures (°C) at (P, 2) points (r, z) in m, by P1 interpolation; NaN outside the section."""
+        pts = np.asarray(points_rz, dtype=float).reshape(-1, 2)
+        tri, bary = self._locator.locate(pts)
+        out = np.full(len(pts), np.nan)
+        ok = tri >= 0
+        nodes = self.triangles[tri[ok]]
+        out[ok] = np.einsum("pk,pk->p", bary[ok], self.temps_c[nodes])
+        return out
+
+
+class _TriangleLocator:
+    """Finds the triangle containing each point: k nearest centroids first, brute force for the rest."""
+
+    def __init__(self, nodes_rz: np.ndarray, triangles: np.ndarray, *, k: int = 4) -> None:
+        from scipy.spatial import cKDTree
+
+        self._p = np.asarray(nodes_rz, dtype=float)
+        self._t = np.asarray(triangles, dtype=np.int64)
+        self._k = min(k, len(self._t))
+        v = self._p[self._t]  # (M, 3, 2)
+        self._v0 = v[:, 0, :]
+        e1 = v[:, 1, :] - self._v0
+        e2 = v[:, 2, :] - self._v0
+        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        self._inv = np.stack([np.stack([e2[:, 1], -e2[:, 0]], -1), np.stack([-e1[:, 1], e1[:, 0]], -1)], 1)
+        self._inv /= det[:, None, None]
+        centroids = v.mean(axis=1)
+        self._tree = cKDTree(centroids)
+        # any point of a triangle lies within this distance of the triangle's centroid
+        self._reach = float(np.linalg.norm(v - centroids[:, None, :], axis=-1).max()) * (1 + 1e-9)
+        self._bbox = (self._p.min(axis=0), self._p.max(axis=0))
+
+    def _bary(self, pts: np.ndarray, tri: np.ndarray) -> np.ndarray:
+        d = pts - self._v0[tri]
+        lam = np.einsum("...ij,...j->...i", self._inv[tri], d)
+        return np.concatenate([1.0 - lam.sum(-1, keepdims=True), lam], -1)
+
+    def locate(self, pts: np.ndarray, *, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
+        tri = np.full(len(pts), -1, dtype=np.int64)
+        bary = np.zeros((len(pts), 3))
+        inside_box = np.all((pts >= self._bbox[0] - 1e-12) & (pts <= self._bbox[1] + 1e-12), axis=1)
+        idx = np.flatnonzero(inside_box)
+        if len(idx) == 0:
+            return tri, bary
+        dist, cand = self._tree.query(pts[idx], k=self._k, distance_upper_bound=self._reach)
+        dist, cand = dist.reshape(len(idx), -1), cand.reshape(len(idx), -1)
+        near = np.isfinite(dist)  # beyond reach of every centroid: certainly outside
+        cand = np.where(near, cand, 0)
+        b = self._bary(pts[idx][:, None, :], cand)  # (P, k, 3)
+        hit = np.all(b >= -tol, axis=-1) & near
+        found = hit.any(axis=1)
+        first = hit.argmax(axis=1)
+        tri[idx[found]] = cand[found, first[found]]
+        bary[idx[found]] = b[found, first[found]]
+        self._exhaustive(pts, idx[~found & near[:, 0]], tri, bary, tol)
+        return tri, bary
+
+    def _exhaustive(
+        self, pts: np.ndarray, rest: np.ndarray, tri: np.ndarray, bary: np.ndarray, tol: float
+    ) -> None:
+        """Exact second pass for points the k-nearest search missed: every triangle within reach."""
+        if len(rest) == 0:
+            return
+        balls = self._tree.query_ball_point(pts[rest], r=self._reach)
+        owner = np.repeat(rest, [len(b) for b in balls])
+        cand = np.fromiter((c for b in balls for c in b), dtype=np.int64, count=len(owner))
+        if len(cand) == 0:
+            return
+        b = self._bary(pts[owner], cand)
+        hit = np.flatnonzero(np.all(b >= -tol, axis=-1))
+        _, first = np.unique(owner[hit], return_index=True)
+        sel = hit[first]
+        tri[owner[sel]] = cand[sel]
+        bary[owner[sel]] = b[sel]
+
+
+@dataclass(frozen=True)
+class SensorReading:
+    """One channel at the newest sample, with the model's prediction for it."""
+
+    channel: int  # 1..32
+    name: str
+    role: str  # "bearing" | "housing"
+    r_m: float
+    z_m: float
+    measured_c: float | None  # None when the channel has no usable value (see quality)
+    predicted_c: float | None  # None before the first identification
+    residual_c: float | None  # measured - predicted
+    quality: str  # drivers.quality.Quality value: "ok", "stale", "open_circuit", ...
+    t: datetime  # UTC of the sample
+
+
+@dataclass(frozen=True, eq=False)
+class IdentificationRecord:
+    """One finished (or failed) identification, as stored."""
+
+    id: int
+    started_at: datetime
+    finished_at: datetime
+    reason: str  # "condition-change" | "manual" | "scheduled" | ...
+    outcome: str  # "ok" | "failed" | "insufficient-data"
+    message: str
+    condition: ConditionSnapshot
+    window_from: datetime
+    window_to: datetime
+    h: np.ndarray  # (7,) W/(m²·K); NaN when failed
+    ci95_lo: np.ndarray
+    ci95_hi: np.ndarray
+    identified: np.ndarray  # (7,) bool
+    f: float | None  # °C²
+    fit: float | None
+    rmse_c: float | None
+    method: str
+    model_version: str
+    nfev: int
+    wall_s: float
+    n_sensors_used: int
+
+
+@dataclass(frozen=True)
+class IdentificationPage:
+    items: Sequence[IdentificationRecord]  # newest first
+    total: int  # matching the filter, over all pages
+    limit: int
+    offset: int
+
+
+class JobState(enum.StrEnum):
+    QUEUED = "queued"
+    RUNNING = "running"
+    DONE = "done"
+    FAILED = "failed"
+
+
+@dataclass(frozen=True)
+class IdentificationJob:
+    job_id: str
+    reason: str
+    state: JobState
+    requested_at: datetime
+    finished_at: datetime | None = None
+    identification_id: int | None = None  # set when state is DONE (or FAILED with a stored record)
+    message: str = ""
+
+
+class DeviceStatus(enum.StrEnum):
+    OK = "ok"
+    DEGRADED = "degraded"  # reachable, but faults/bad channels/retries
+    DOWN = "down"
+    DISABLED = "disabled"
+
+
+@dataclass(frozen=True)
+class DeviceHealth:
+    name: str  # "modbus" | "can" | "db" | "worker"
+    status: DeviceStatus
+    last_ok_at: datetime | None  # UTC of the last good read/frame/write
+    age_s: float | None  # seconds since last_ok_at, at the time of health()
+    counters: Mapping[str, int] = field(default_factory=dict)  # e.g. {"polls": 10, "timeouts": 1}
+    message: str = ""
+
+
+@dataclass(frozen=True)
+class HealthSnapshot:
+    t: datetime
+    devices: Sequence[DeviceHealth]
+    model_loaded: bool
+    model_version: str | None
+    uptime_s: float
+
+
+@dataclass(frozen=True)
+class Readiness:
+    ready: bool  # model loaded and data fresh
+    reasons: Sequence[str] = ()  # why not, e.g. ("model not loaded", "no sample for 35 s")
+
+
+@dataclass(frozen=True)
+class HistogramData:
+    """A cumulative histogram as Prometheus wants it: counts[i] = observations <= upper_bounds[i]."""
+
+    upper_bounds: tuple[float, ...]  # ascending, without +Inf
+    counts: tuple[int, ...]  # cumulative, same length as upper_bounds
+    count: int  # total (the +Inf bucket)
+    sum: float
+
+
+class Histogram:
+    """A small thread-compatible accumulator the service can use to produce :class:`HistogramData`."""
+
+    def __init__(self, upper_bounds: Sequence[float]) -> None:
+        self._ub = tuple(float(b) for b in upper_bounds)
+        self._counts = [0] * len(self._ub)
+        self._count = 0
+        self._sum = 0.0
+
+    def observe(self, value: float) -> None:
+        for i, ub in enumerate(self._ub):
+            if value <= ub:
+                self._counts[i] += 1
+        self._count += 1
+        self._sum += float(value)
+
+    def snapshot(self) -> HistogramData:
+        return HistogramData(self._ub, tuple(self._counts), self._count, self._sum)
+
+
+LATENCY_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5)
+DURATION_BUCKETS_S = (0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 300.0)
+
+
+@dataclass(frozen=True)
+class MetricsSnapshot:
+    """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
+
+    modbus_poll_latency_s: HistogramData
+    modbus_polls_total: Mapping[str, int]  # by outcome: "ok", "timeout", "exception", "garbled", ...
+    can_frames_total: Mapping[str, int]  # by outcome: "ok", "unknown_id", "bad_dlc", "counter_gap", "fault"
+    channel_age_s: Sequence[float | None]  # 32; seconds since the channel's last good value, None = never
+    channel_quality: Sequence[str]  # 32; current Quality value per channel
+    identifications_total: Mapping[str, int]  # by outcome: "ok", "failed", "insufficient-data"
+    identification_duration_s: HistogramData
+    last_fit: float | None
+    last_rmse_c: float | None
+    db_pending_rows: int = 0
+    db_errors_total: int = 0
+    reconnects_total: Mapping[str, int] = field(default_factory=dict)  # by device
+
+
+@runtime_checkable
+class ChtcService(Protocol):
+    """What the API needs from the running service (see the module docstring for the contract)."""
+
+    def chtc(self) -> ChtcSnapshot | None:
+        """The current H1-H7; None only if no identification has finished yet."""
+        ...
+
+    def field(self, at: FieldAt) -> FieldSnapshot:
+        """Temperature field now (state estimate) or at steady state for the current H and condition.
+
+        Raises NoDataError before the first identification.
+        """
+        ...
+
+    def sensors(self) -> Sequence[SensorReading]:
+        """The 32 channels at the newest sample; raises NoDataError before the first sample."""
+        ...
+
+    def condition(self) -> ConditionSnapshot:
+        """The current operating condition; raises NoDataError before the first CAN frame."""
+        ...
+
+    def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
+        """Up to ``limit`` most recent conditions, newest first (the current one included)."""
+        ...
+
+    def list_identifications(
+        self, *, since: datetime | None, until: datetime | None, limit: int, offset: int
+    ) -> IdentificationPage:
+        """Stored identifications finished in [since, until), newest first."""
+        ...
+
+    def get_identification(self, identification_id: int) -> IdentificationRecord:
+        """One stored identification; raises NotFoundError."""
+        ...
+
+    def request_identification(self, reason: str) -> IdentificationJob:
+        """Queue an identification now; BusyError if one is queued/running, NotReadyError if it can't run."""
+        ...
+
+    def job(self, job_id: str) -> IdentificationJob:
+        """State of a requested identification; raises NotFoundError."""
+        ...
+
+    def health(self) -> HealthSnapshot: ...
+
+    def ready(self) -> Readiness: ...
+
+    def metrics(self) -> MetricsSnapshot: ...

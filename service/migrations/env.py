@@ -1,0 +1,58 @@
+"""Alembic environment: programmatic use passes a connection in ``config.attributes["connection"]``;
+CLI use takes the URL from ``sqlalchemy.url`` or ``CHTC_DATABASE__URL``. Logging is left to the caller."""
+
+from __future__ import annotations
+
+import os
+
+from alembic import context
+from sqlalchemy.engine import Connection
+
+from service.db.engine import create_db_engine
+from service.db.models import Base
+
+config = context.config
+target_metadata = Base.metadata
+
+
+def _url() -> str:
+    url = config.get_main_option("sqlalchemy.url") or os.environ.get("CHTC_DATABASE__URL")
+    if not url:
+        raise RuntimeError("no database URL: set sqlalchemy.url or CHTC_DATABASE__URL")
+    return url
+
+
+def _configure(connection: Connection) -> None:
+    context.configure(
+        connection=connection,
+        target_metadata=target_metadata,
+        compare_type=True,
+        render_as_batch=connection.dialect.name == "sqlite",
+    )
+    with context.begin_transaction():
+        context.run_migrations()
+
+
+def run_offline() -> None:
+    context.configure(url=_url(), target_metadata=target_metadata, literal_binds=True)
+    with context.begin_transaction():
+        context.run_migrations()
+
+
+def run_online() -> None:
+    connection = config.attributes.get("connection")
+    if connection is not None:
+        _configure(connection)
+        return
+    engine = create_db_engine(_url())
+    try:
+        with engine.begin() as conn:
+            _configure(conn)
+    finally:
+        engine.dispose()
+
+
+if context.is_offline_mode():
+    run_offline()
+else:
+    run_online()

@@ -1,0 +1,65 @@
+"""Load the spindle description, the FE model and the cached reduced model from settings (one place).
+
+Used by the service process (live field, field snapshots) and by the identification worker process (in its
+initializer, once per process). ``ModelRef`` is small and picklable so it can cross the process boundary;
+the reduced model is read from the cache file there, not pickled.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+__all__ = ["LoadedModel", "ModelRef", "load_model"]
+
+
+@dataclass(frozen=True)
+class ModelRef:
+    """What identifies the model: spindle TOML (None: packaged), mesh size m, ROM rank, cache dir, H box."""
+
+    spindle: str | None = None
+    mesh_size_m: float | None = None
+    rom_rank: int = 30
+    cache_dir: str = ""
+    h_box: tuple[float, float] = (5.0, 200.0)
+
+    @classmethod
+    def from_settings(cls, model_settings: Any) -> ModelRef:
+        """From ``service.settings.ModelSettings``."""
+        return cls(
+            spindle=str(model_settings.spindle) if model_settings.spindle is not None else None,
+            mesh_size_m=model_settings.mesh_size_m,
+            rom_rank=int(model_settings.rom_rank),
+            cache_dir=str(model_settings.rom_cache_dir),
+            h_box=(float(model_settings.h_box[0]), float(model_settings.h_box[1])),
+        )
+
+
+@dataclass(frozen=True, eq=False)
+class LoadedModel:
+    spec: Any  # model.geometry.SpindleSpec
+    fe: Any  # model.fem.FEModel
+    rom: Any  # model.rom.ReducedModel
+    ref: ModelRef
+
+    @property
+    def version(self) -> str:
+        """Short model id: the reduced-model cache key (geometry + mesh + options)."""
+        key = str(getattr(self.rom, "key", "") or "")
+        return key[:16] or "unversioned"
+
+
+def load_model(ref: ModelRef, *, progress: Callable[[str], None] | None = None) -> LoadedModel:
+    """Spec, FE model and reduced model (from the cache, built and saved there on a miss)."""
+    from model.fem import build_fe_model
+    from model.geometry import load_spindle
+    from model.rom import load_or_build_rom
+
+    spec = load_spindle(ref.spindle)
+    fe = build_fe_model(spec, mesh_size_m=ref.mesh_size_m)
+    cache = Path(ref.cache_dir) if ref.cache_dir else Path.home() / ".cache" / "spindle-chtc"
+    cache.mkdir(parents=True, exist_ok=True)
+    rom = load_or_build_rom(fe, spec, cache, rank=ref.rom_rank, box=ref.h_box, progress=progress)
+    return LoadedModel(spec=spec, fe=fe, rom=rom, ref=ref)

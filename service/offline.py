@@ -1,0 +1,106 @@
+"""The service's core run offline over a recorded sample sequence: deterministic identifications.
+
+Used by ``chtc identify`` (recorded log files) and by tests. The samples go through exactly the same
+``ServiceCore`` (ring buffer, live state, detector, scheduler, window building) as in the running service;
+the only difference is that each identification runs synchronously in this process (``run_identification``
+with the same seeded rng) instead of in the worker process, so the same log always gives the same H.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable, Iterable
+from dataclasses import dataclass, field
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+
+from service.core import CoreConfig, Restored, ServiceCore
+from service.history import RingHistory
+from service.interface import IdentificationRecord
+from service.modelload import LoadedModel
+from service.worker import JobOutcome, JobStatus, final_field, run_identification
+
+__all__ = ["OfflineResult", "run_offline"]
+
+
+@dataclass
+class OfflineResult:
+    records: list[IdentificationRecord]  # oldest first
+    stored: list[Any] = field(default_factory=list)  # the records the database writer would have got
+    samples: int = 0
+
+
+class _ListSink:
+    def __init__(self) -> None:
+        self.records: list[Any] = []
+
+    def submit(self, record: Any) -> bool:
+        self.records.append(record)
+        return True
+
+
+class _Tee:
+    def __init__(self, first: _ListSink, second: Any) -> None:
+        self.first, self.second = first, second
+
+    def submit(self, record: Any) -> bool:
+        self.first.submit(record)
+        return True if self.second is None else bool(self.second.submit(record))
+
+
+def _run(model: LoadedModel, launch: Any) -> JobOutcome:
+    try:
+        result, window = run_identification(model, launch.request)
+        field_c = final_field(model, window, result)
+    except Exception as err:  # same contract as the worker process: a failed job is an outcome
+        from model.identify import InsufficientDataError
+
+        status = JobStatus.INSUFFICIENT_DATA if isinstance(err, InsufficientDataError) else JobStatus.FAILED
+        return JobOutcome(launch.start.job_id, status, None, f"{type(err).__name__}: {err}", 0.0)
+    return JobOutcome(launch.start.job_id, JobStatus.OK, result, str(result.message), result.wall_s, field_c)
+
+
+def run_offline(
+    samples: Iterable[Any],
+    *,
+    model: LoadedModel,
+    config: CoreConfig,
+    ring_capacity: int = 100_000,
+    on_event: Callable[[str], None] | None = None,
+    restored: Restored | None = None,
+    sink: Any = None,
+) -> OfflineResult:
+    """Feed ``samples`` (``drivers.ringbuffer.Sample``, time-ordered) through the core; identify inline."""
+    from drivers.ringbuffer import RingBuffer
+
+    ring = RingBuffer(ring_capacity, len(model.spec.sensors))
+    listed = _ListSink()
+    core = ServiceCore(
+        config,
+        model=model,
+        history=RingHistory(ring),
+        sink=_Tee(listed, sink),
+        restored=restored,
+        on_event=on_event,
+    )
+    n = 0
+    for sample in samples:
+        ring.append(sample)
+        n += 1
+        pending = core.ingest(sample)
+        while pending:
+            launch = pending.pop(0)
+            outcome = _run(model, launch)
+            finished = _finished_at(sample.t, outcome)
+            stepper = None
+            if outcome.status is JobStatus.OK:
+                stepper = core.live.prepare(np.asarray(outcome.result.h, dtype=float))
+            pending += core.job_done(outcome, finished_at=finished, stepper=stepper)
+    return OfflineResult(records=list(reversed(core.records)), stored=listed.records, samples=n)
+
+
+def _finished_at(t: datetime, outcome: JobOutcome) -> datetime:
+    """Offline, an identification finishes at the sample that triggered it (no wall time passes)."""
+    del outcome
+    return t

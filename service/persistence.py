@@ -1,0 +1,211 @@
+"""Database at the edge of the service: migrate, restore the state of the last run, buffered writes.
+
+``open_persistence(settings.database, migrate=...)`` builds the engine and the session factory, optionally
+migrates, reads back what the service needs to resume (``Restored``: the last successful identification,
+the newest result per condition for warm starts, recent conditions, the next free ids) and starts the
+buffered writer (``service.db.writer.DbWriter``).
+
+The database being down never stops the service:
+
+- at start-up: the service starts without restored state; ids continue from a time-based base
+  (``int(epoch s) * 1000``) so they cannot collide with rows of earlier runs; records are held in a
+  ``GateSink`` until the schema is known to be in place (migrated / checked), retried in the background;
+- later: the writer buffers and retries (E's ``DbWriter``).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
+
+from service.core import Restored
+from service.db.records import Record
+from service.detector import OperatingPoint
+from service.interface import ConditionState
+from service.scheduler import PastResult
+from service.views import condition_from_row, row_to_record
+
+__all__ = ["GateSink", "Persistence", "open_persistence", "restore"]
+
+log = logging.getLogger(__name__)
+
+
+def restore(session_factory: Any, *, limit: int = 100) -> Restored:
+    """The state of the previous run from the database (raises ``service.db.errors.DatabaseError``)."""
+    from service.db.repository import (
+        last_identification,
+        latest_per_condition,
+        list_conditions,
+        max_ids,
+        session_scope,
+    )
+
+    with session_scope(session_factory, "restore state") as session:
+        cond_max, ident_max = max_ids(session)
+        last_row = last_identification(session)
+        last = row_to_record(last_row) if last_row is not None else None
+        latest = latest_per_condition(session, limit=limit)
+        history = tuple(
+            PastResult(
+                int(r.condition_id),
+                OperatingPoint(r.condition.speed_rpm, r.condition.torque_nm, r.condition.ambient_c),
+                tuple(float(x) for x in r.h),
+            )
+            for r in reversed(latest)  # oldest first: the scheduler prefers the newest on ties
+            if all(x is not None for x in r.h)
+        )
+        rows = list_conditions(session, limit=50).items
+        conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
+    return Restored(
+        last=last,
+        history=history,
+        conditions=conditions,
+        next_condition_id=cond_max + 1,
+        next_identification_id=ident_max + 1,
+    )
+
+
+def fallback_restored(now_s: float | None = None) -> Restored:
+    """No database at start-up: empty state, ids from a time-based base (no collision with stored rows)."""
+    base = int(now_s if now_s is not None else time.time()) * 1000
+    return Restored(next_condition_id=base, next_identification_id=base)
+
+
+class GateSink:
+    """Holds records until ``open(writer)``, then forwards everything (in order) to the writer."""
+
+    def __init__(self, *, max_held: int = 1_000_000) -> None:
+        self.writer: Any = None
+        self.held: list[Record] = []
+        self.max_held = max_held
+        self.dropped = 0
+
+    def submit(self, record: Record) -> bool:
+        if self.writer is not None:
+            return bool(self.writer.submit(record))
+        if len(self.held) >= self.max_held:
+            self.dropped += 1
+            return False
+        self.held.append(record)
+        return True
+
+    def open(self, writer: Any) -> None:
+        held, self.held = self.held, []
+        self.writer = writer
+        for record in held:
+            writer.submit(record)
+
+    def status(self) -> Any:
+        if self.writer is not None:
+            return self.writer.status()
+        from service.db.writer import WriterStatus
+
+        return WriterStatus(
+            connected=False,
+            pending=len(self.held),
+            written=0,
+            dropped=self.dropped,
+            rejected=0,
+            errors=0,
+            lost_on_close=0,
+            last_error="database not reachable at start-up (schema not checked yet)",
+            last_error_at=None,
+            last_ok_at=None,
+        )
+
+
+@dataclass
+class Persistence:
+    """Engine, sessions, the gated writer and what was restored."""
+
+    url: str
+    engine: Any
+    session_factory: Any
+    sink: GateSink
+    restored: Restored
+    restored_from_db: bool
+    settings: Any
+    migrate: bool
+    on_event: Callable[[str], None] = field(default=lambda _m: None)
+    _task: asyncio.Task[None] | None = None
+
+    async def ensure_open(self, *, retry_s: float = 2.0) -> None:
+        """Retry migration/check until the database answers, then open the writer (background task)."""
+        while self.sink.writer is None:
+            try:
+                await asyncio.to_thread(_prepare_schema, self.engine, self.migrate)
+            except Exception as err:  # database down: keep buffering, try again
+                log.info("database not ready: %s", err)
+                await asyncio.sleep(retry_s)
+                continue
+            self.sink.open(_start_writer(self.session_factory, self.settings))
+            self.on_event(
+                f"db: connected ({_safe_url(self.url)}), writing {len(self.sink.held)} held records"
+            )
+
+    def start_background(self) -> None:
+        if self.sink.writer is None and self._task is None:
+            self._task = asyncio.ensure_future(self.ensure_open())
+
+    def close(self, timeout_s: float = 10.0) -> Any:
+        if self._task is not None:
+            self._task.cancel()
+        status = None
+        if self.sink.writer is not None:
+            status = self.sink.writer.close(timeout_s)
+        self.engine.dispose()
+        return status
+
+
+def _prepare_schema(engine: Any, migrate: bool) -> None:
+    from service.db.migrate import current_revision, head_revision, upgrade
+
+    if migrate:
+        upgrade(engine)
+        return
+    rev = current_revision(engine)
+    if rev != head_revision():
+        raise RuntimeError(
+            f"database schema is at {rev or 'nothing'}, need {head_revision()}: run with --migrate"
+        )
+
+
+def _start_writer(session_factory: Any, db: Any) -> Any:
+    from service.db.writer import DbWriter
+
+    return DbWriter(
+        session_factory,
+        batch_size=db.batch_size,
+        buffer_max=db.buffer_max,
+        retry_initial_s=db.retry_initial_s,
+        retry_max_s=db.retry_max_s,
+    ).start()
+
+
+def _safe_url(url: str) -> str:
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).render_as_string(hide_password=True)
+
+
+def open_persistence(db: Any, *, migrate: bool, on_event: Callable[[str], None] | None = None) -> Persistence:
+    """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage."""
+    from service.db.engine import create_db_engine, make_session_factory
+
+    say = on_event or (lambda _m: None)
+    engine = create_db_engine(db.url, echo=db.echo)
+    factory = make_session_factory(engine)
+    sink = GateSink(max_held=db.buffer_max)
+    try:
+        _prepare_schema(engine, migrate)
+        restored = restore(factory)
+        from_db = True
+        sink.open(_start_writer(factory, db))
+    except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background
+        say(f"db: not available at start-up ({err}); buffering records and retrying")
+        restored, from_db = fallback_restored(), False
+    return Persistence(db.url, engine, factory, sink, restored, from_db, db, migrate, say)

@@ -1,0 +1,213 @@
+"""Assemble and run the whole soft sensor from ``Settings``: model, database, worker, acquisition, API.
+
+Used by ``chtc run`` (real devices), ``chtc demo`` (simulated devices at a speed-up) and ``chtc replay``.
+``ScaledClock`` is the one clock of a run: the acquisition stamps samples with it and the service and the API
+measure ages with it. At speed-up 1 it is the UTC wall clock; at speed-up S it starts at the real UTC time
+and runs S times faster, so everything on the sample time axis (hold times, schedules, windows, staleness)
+is in plant seconds while the wall-clock parts (device timeouts, backoff) stay real.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import socket
+import time
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+from service.core import CoreConfig, ServiceCore
+from service.detector import DetectorConfig
+from service.history import RingHistory
+from service.modelload import LoadedModel, ModelRef, load_model
+from service.persistence import Persistence, open_persistence
+from service.scheduler import SchedulerConfig
+from service.service import SoftSensorService
+from service.window import WindowRules
+from service.worker import IdentificationWorker
+
+__all__ = ["Runtime", "ScaledClock", "core_config", "free_port"]
+
+log = logging.getLogger(__name__)
+
+
+class ScaledClock:
+    """UTC ``datetime`` clock running ``speedup`` times faster than the monotonic clock from ``start()``."""
+
+    def __init__(self, speedup: float = 1.0, *, monotonic: Callable[[], float] = time.monotonic) -> None:
+        if not speedup > 0:
+            raise ValueError(f"speedup must be > 0, got {speedup}")
+        self.speedup = float(speedup)
+        self.monotonic = monotonic
+        self.start()
+
+    def start(self, at: datetime | None = None) -> None:
+        """(Re)start now, reading ``at`` (default: the current UTC time; a replay uses the log's start)."""
+        self._mono0 = self.monotonic()
+        self._utc0 = at if at is not None else datetime.now(UTC)
+
+    def __call__(self) -> datetime:
+        return self._utc0 + timedelta(seconds=self.speedup * (self.monotonic() - self._mono0))
+
+
+def core_config(settings: Any) -> CoreConfig:
+    """The core's configuration from ``Settings`` (minutes -> s; the window grid is the sample period)."""
+    ident, det, acq = settings.identification, settings.detector, settings.acquisition
+    schedule = tuple(60.0 * m for m in ident.schedule_min)
+    return CoreConfig(
+        detector=DetectorConfig(
+            speed_threshold_rpm=det.speed_threshold_rpm,
+            torque_threshold_nm=det.torque_threshold_nm,
+            ambient_threshold_c=det.ambient_threshold_c,
+            hold_s=det.hold_s,
+        ),
+        scheduler=SchedulerConfig(
+            min_data_s=ident.min_window_s,
+            schedule_s=schedule,
+            max_window_s=max(schedule[-1], ident.min_window_s),
+            tolerance_s=0.5 * acq.sample_period_s,
+        ),
+        rules=WindowRules(
+            dt_s=acq.sample_period_s,
+            min_window_s=ident.min_window_s,
+            min_good_channels=ident.min_good_channels,
+        ),
+        method=ident.method,
+        seed=ident.seed,
+        estimate_loads=ident.estimate_loads,
+        ci_threshold=ident.ci_rel_threshold,
+        stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
+        sample_store_period_s=settings.database.sample_store_period_s,
+    )
+
+
+def free_port(host: str = "127.0.0.1") -> int:
+    """An unused TCP port on ``host`` (for in-process simulators and the API in tests and the demo)."""
+    with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
+        s.bind((host, 0))
+        return int(s.getsockname()[1])
+
+
+@dataclass
+class Runtime:
+    """One running soft sensor. ``await start(daq=..., can=...)``, ``await stop()``."""
+
+    settings: Any
+    clock: ScaledClock
+    on_event: Callable[[str], None]
+    migrate: bool = True
+    model: LoadedModel | None = None
+    persistence: Persistence | None = None
+    service: SoftSensorService | None = None
+    acquisition: Any = None
+    ring: Any = None
+    api_server: Any = None
+    acquisition_task: asyncio.Task[Any] | None = None
+    api_task: asyncio.Task[Any] | None = None
+
+    @property
+    def speedup(self) -> float:
+        return self.clock.speedup
+
+    def load(self, *, progress: Callable[[str], None] | None = None) -> LoadedModel:
+        """Load the model (builds and caches the reduced model on the first run)."""
+        if self.model is None:
+            self.model = load_model(ModelRef.from_settings(self.settings.model), progress=progress)
+        return self.model
+
+    async def start(self, *, daq: Any, can: Any, api: bool = True) -> None:
+        """Open the database, start the worker process, the acquisition and (optionally) the API server."""
+        from drivers.acquisition import Acquisition
+        from drivers.ringbuffer import RingBuffer
+
+        s = self.settings
+        model = self.load()
+        self.persistence = open_persistence(s.database, migrate=self.migrate, on_event=self.on_event)
+        self.persistence.start_background()
+        self.ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))
+        cfg = core_config(s)
+        core = ServiceCore(
+            cfg,
+            model=model,
+            history=RingHistory(self.ring),
+            sink=self.persistence.sink,
+            restored=self.persistence.restored,
+            on_event=self.on_event,
+        )
+        worker = IdentificationWorker(ModelRef.from_settings(s.model), timeout_s=s.identification.timeout_s)
+        self.service = SoftSensorService(
+            core,
+            worker=worker,
+            writer=self.persistence.sink,
+            session_factory=self.persistence.session_factory,
+            sources={"modbus": daq, "can": can},
+            clock=self.clock,
+            stale_after_s=cfg.stale_after_s,
+            on_event=self.on_event,
+        )
+        core.on_cancel = self.service.on_cancel
+        await self.service.start()
+        self.acquisition = Acquisition(
+            daq,
+            can,
+            self.ring,
+            period_s=s.acquisition.sample_period_s / self.speedup,
+            on_sample=self.service.on_sample,
+            now=self.clock,
+        )
+        poll = min(s.modbus.poll_interval_s, s.acquisition.sample_period_s / 2.0) / self.speedup
+        self.acquisition_task = asyncio.ensure_future(self.acquisition.run(poll_interval_s=poll))
+        if api:
+            self.api_task = asyncio.ensure_future(self._serve_api())
+
+    async def _serve_api(self) -> None:
+        import uvicorn
+
+        from api.app import create_app
+
+        assert self.service is not None
+        app = create_app(self.settings, self.service, clock=self.clock)
+        config = uvicorn.Config(
+            app, host=self.settings.api.host, port=self.settings.api.port, log_level="warning", lifespan="off"
+        )
+        self.api_server = uvicorn.Server(config)
+        await self.api_server.serve()
+
+    async def wait_api(self, timeout_s: float = 20.0) -> None:
+        """Wait until the API server accepts connections (raises TimeoutError)."""
+        deadline = time.monotonic() + timeout_s
+        while self.api_server is None or not self.api_server.started:
+            task = self.api_task
+            if task is None or (task.done() and (task.cancelled() or task.exception() is not None)):
+                raise RuntimeError(
+                    f"API server did not start: {task and not task.cancelled() and task.exception()}"
+                )
+            if time.monotonic() > deadline:
+                raise TimeoutError(f"API server not up within {timeout_s:.0f} s")
+            await asyncio.sleep(0.05)
+
+    @property
+    def url(self) -> str:
+        return f"http://{self.settings.api.host}:{self.settings.api.port}/"
+
+    async def stop(self) -> None:
+        """Stop the API (gracefully), the acquisition, the worker and the writer (flushing it)."""
+        if self.api_server is not None:
+            self.api_server.should_exit = True
+        if self.acquisition_task is not None:
+            self.acquisition_task.cancel()
+        for task in (self.api_task, self.acquisition_task):
+            if task is not None:
+                with contextlib.suppress(asyncio.CancelledError, Exception):
+                    await asyncio.wait_for(task, timeout=10.0)
+        if self.acquisition is not None:
+            for src in (self.acquisition.daq, self.acquisition.can):
+                with contextlib.suppress(Exception):
+                    await src.close()
+        if self.service is not None:
+            await self.service.close()
+        if self.persistence is not None:
+            await asyncio.to_thread(self.persistence.close)

@@ -1,0 +1,486 @@
+"""The running soft sensor: the asyncio shell around :class:`service.core.ServiceCore`.
+
+Data flow::
+
+    acquisition (drivers) --Sample--> ring buffer --> core.ingest: live state, detector, scheduler
+         --Launch--> worker process (identification) --JobOutcome--> core.job_done --> records
+    records --> DbWriter (buffers while the database is down) ;  API threads --> ChtcService methods
+
+:class:`SoftSensorService` implements ``service.interface.ChtcService`` for the API. Everything the API polls
+is prebuilt under the core's lock; nothing here blocks the event loop for long (the worker is a separate
+process, the writer a thread). Device health is sampled once a second and transitions are stored as device
+events. Time comes from an injected ``clock`` (UTC ``datetime``), the same clock the acquisition stamps
+samples with, so ``chtc demo`` can run the whole service at a speed-up.
+"""
+
+from __future__ import annotations
+
+import asyncio
+import logging
+import time
+from collections.abc import Callable, Mapping, Sequence
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+from service.core import Launch, ServiceCore
+from service.db.records import DeviceEventData
+from service.interface import (
+    LATENCY_BUCKETS_S,
+    ChtcSnapshot,
+    ChtcStatus,
+    ConditionSnapshot,
+    DeviceHealth,
+    DeviceStatus,
+    FieldAt,
+    FieldSnapshot,
+    HealthSnapshot,
+    Histogram,
+    IdentificationJob,
+    IdentificationPage,
+    IdentificationRecord,
+    MetricsSnapshot,
+    NoDataError,
+    NotFoundError,
+    Readiness,
+    SensorReading,
+)
+from service.views import age_s, row_to_record
+from service.worker import IdentificationWorker, JobOutcome, JobStatus
+
+__all__ = ["SoftSensorService"]
+
+log = logging.getLogger(__name__)
+Clock = Callable[[], datetime]
+
+
+def utc_now() -> datetime:
+    return datetime.now(UTC)
+
+
+class SoftSensorService:
+    """See the module docstring. Construct with the parts, ``start()`` on the loop, ``close()`` at the end."""
+
+    def __init__(
+        self,
+        core: ServiceCore,
+        *,
+        worker: IdentificationWorker | None,
+        writer: Any = None,  # service.db.writer.DbWriter (submit/status) or None
+        session_factory: Any = None,  # sessionmaker for the history endpoints, or None
+        sources: Mapping[str, Any] | None = None,  # "modbus"/"can" -> drivers Source (metrics, connected)
+        clock: Clock = utc_now,
+        stale_after_s: float = 60.0,
+        on_event: Callable[[str], None] | None = None,
+    ) -> None:
+        self.core = core
+        self.worker = worker
+        self.writer = writer
+        self.session_factory = session_factory
+        self.sources = dict(sources or {})
+        self.clock = clock
+        self.stale_after_s = stale_after_s
+        self.on_event = on_event or (lambda msg: log.info("%s", msg))
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._tasks: set[asyncio.Task[Any]] = set()
+        self._started_mono = time.monotonic()
+        self._device_state: dict[str, DeviceStatus] = {}
+        self._snap_cache: tuple[tuple[Any, ...], ChtcSnapshot] | None = None
+        self._steady_cache: tuple[tuple[Any, ...], FieldSnapshot] | None = None
+        self._poll_latency = Histogram(LATENCY_BUCKETS_S)
+        self.model_loaded = worker is None or worker.model_version is not None
+        self.closed = False
+
+    # --- lifecycle ------------------------------------------------------------------------------------------
+    async def start(self) -> None:
+        """Remember the loop, start the worker process (loads the model there) and the health watcher."""
+        self._loop = asyncio.get_running_loop()
+        live = self.core.live
+        live.set_h(live.h, stepper=await asyncio.to_thread(live.prepare, live.h))
+        if self.worker is not None:
+            version = await self.worker.start()
+            self.model_loaded = True
+            self.record_event("worker", "started", f"model {version}")
+        self._spawn(self._watch_health())
+
+    async def close(self) -> None:
+        self.closed = True
+        for task in list(self._tasks):
+            task.cancel()
+        await asyncio.gather(*self._tasks, return_exceptions=True)
+        if self.worker is not None:
+            self.worker.close()
+
+    def _spawn(self, coro: Any) -> asyncio.Task[Any]:
+        task = asyncio.ensure_future(coro)
+        self._tasks.add(task)
+        task.add_done_callback(self._tasks.discard)
+        return task
+
+    # --- samples and jobs (event-loop thread) -----------------------------------------------------------
+    def on_sample(self, sample: Any) -> None:
+        """Feed one acquisition sample (called on the event loop by the acquisition)."""
+        for launch in self.core.ingest(sample):
+            self._launch(launch)
+
+    def on_cancel(self, job_id: int) -> None:
+        if self.worker is not None:
+            self.worker.cancel(job_id)
+
+    def _launch(self, launch: Launch) -> None:
+        """Run a job on the event loop (API threads hand their manual jobs over thread-safely)."""
+        try:
+            running: asyncio.AbstractEventLoop | None = asyncio.get_running_loop()
+        except RuntimeError:
+            running = None
+        if self._loop is not None and running is not self._loop:
+            self._loop.call_soon_threadsafe(self._launch, launch)
+            return
+        self._spawn(self._run_job(launch))
+
+    async def _run_job(self, launch: Launch) -> None:
+        assert launch.request is not None
+        if self.worker is None:
+            outcome = JobOutcome(launch.start.job_id, JobStatus.FAILED, None, "no identification worker", 0.0)
+        else:
+            try:
+                outcome = await self.worker.run(launch.request)
+            except asyncio.CancelledError:
+                raise
+            except Exception as err:  # the worker façade should not raise; never lose the job silently
+                outcome = JobOutcome(
+                    launch.start.job_id, JobStatus.FAILED, None, f"{type(err).__name__}: {err}", 0.0
+                )
+        if self.worker is not None and self.worker.restarts:
+            self.record_event("worker", "restarted", f"{self.worker.restarts} restart(s) so far")
+        stepper = None
+        if outcome.status is JobStatus.OK and outcome.result is not None:
+            # factorise the live model's step for the new H in a thread, not on the event loop
+            stepper = await asyncio.to_thread(
+                self.core.live.prepare, np.asarray(outcome.result.h, dtype=float)
+            )
+        for more in self.core.job_done(outcome, finished_at=self.clock(), stepper=stepper):
+            self._launch(more)
+
+    # --- device health (event-loop thread) --------------------------------------------------------------
+    async def _watch_health(self, period_s: float = 1.0) -> None:
+        while not self.closed:
+            for dev in self._devices():
+                prev = self._device_state.get(dev.name)
+                if prev is not None and prev != dev.status:
+                    self.record_event(dev.name, f"{prev.value}->{dev.status.value}", dev.message)
+                self._device_state[dev.name] = dev.status
+            await asyncio.sleep(period_s)
+
+    def record_event(self, device: str, kind: str, detail: str = "") -> None:
+        if self.writer is not None:
+            self.writer.submit(DeviceEventData(self.clock(), device, kind, detail))
+        self.on_event(f"{device}: {kind} {detail}".rstrip())
+
+    # --- ChtcService: current values ------------------------------------------------------------------------
+    def chtc(self) -> ChtcSnapshot | None:
+        core = self.core
+        with core.lock:
+            rec = core.current
+            if rec is None:
+                return None
+            newest = core.newest.t if core.newest is not None else None
+            status = self._status(rec, newest)
+            key = (rec.id, status, newest, core.condition.id if core.condition else None)
+            if self._snap_cache is not None and self._snap_cache[0] == key:
+                return self._snap_cache[1]
+            snap = ChtcSnapshot(
+                h=rec.h,
+                ci95_lo=rec.ci95_lo,
+                ci95_hi=rec.ci95_hi,
+                identified=rec.identified,
+                identified_at=rec.finished_at,
+                condition=rec.condition,
+                f=float(rec.f if rec.f is not None else np.nan),
+                fit=float(rec.fit if rec.fit is not None else np.nan),
+                rmse_c=float(rec.rmse_c if rec.rmse_c is not None else np.nan),
+                method=rec.method,
+                model_version=rec.model_version,
+                identification_id=rec.id,
+                status=status,
+                newest_sample_at=newest,
+            )
+            self._snap_cache = (key, snap)
+            return snap
+
+    def _status(self, rec: IdentificationRecord, newest: datetime | None) -> ChtcStatus:
+        core = self.core
+        if newest is None:
+            return ChtcStatus.STALE if core.current_from_restore else ChtcStatus.NO_DATA
+        if (self.clock() - newest).total_seconds() > self.stale_after_s or core.current_from_restore:
+            return ChtcStatus.STALE
+        cond = core.condition
+        if core.scheduler.running is not None or cond is None or cond.id != rec.condition.id:
+            return ChtcStatus.IDENTIFYING
+        if cond.state.value != "stable":
+            return ChtcStatus.IDENTIFYING
+        return ChtcStatus.FRESH
+
+    def field(self, at: FieldAt) -> FieldSnapshot:
+        core = self.core
+        with core.lock:
+            rec = core.current
+            if rec is None:
+                raise NoDataError("no identification yet: no temperature field")
+            if not core.live.initialized:
+                raise NoDataError("no sample yet: the live temperature field has not started")
+            fe = core.model.fe
+            if at == "now":
+                snap = core.live.field_now()
+                return FieldSnapshot(_utc(snap.t), "now", fe.nodes_rz, fe.triangles, snap.field_c, rec.id)
+            key = (rec.id, core.condition.id if core.condition else None)
+            if self._steady_cache is not None and self._steady_cache[0] == key:
+                return self._steady_cache[1]
+            steady = core.live.steady()
+            out = FieldSnapshot(self.clock(), "steady", fe.nodes_rz, fe.triangles, steady, rec.id)
+            self._steady_cache = (key, out)
+            return out
+
+    def sensors(self) -> Sequence[SensorReading]:
+        core = self.core
+        with core.lock:
+            s = core.newest
+            if s is None:
+                raise NoDataError("no sample yet")
+            pred = core.live.sensors_now() if core.current is not None and core.live.initialized else None
+            out = []
+            for i, spec in enumerate(core.model.spec.sensors):
+                q = s.quality[i] if i < len(s.quality) else "no_data"
+                m = float(s.temps_c[i]) if q == "ok" and np.isfinite(s.temps_c[i]) else None
+                p = float(pred[i]) if pred is not None else None
+                res = m - p if m is not None and p is not None else None
+                out.append(
+                    SensorReading(spec.channel, spec.name, spec.role, spec.r_m, spec.z_m, m, p, res, q, s.t)
+                )
+            return out
+
+    def condition(self) -> ConditionSnapshot:
+        cond = self.core.condition
+        if cond is None:
+            raise NoDataError("no operating condition yet")
+        return cond
+
+    def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
+        with self.core.lock:
+            return list(self.core.conditions)[: max(0, limit)]
+
+    # --- ChtcService: history ---------------------------------------------------------------------------
+    def list_identifications(
+        self, *, since: datetime | None, until: datetime | None, limit: int, offset: int
+    ) -> IdentificationPage:
+        if self.session_factory is not None:
+            try:
+                return self._db_page(since, until, limit, offset)
+            except Exception as err:  # database down: serve what this process remembers
+                log.warning("identification history from memory (database: %s)", err)
+        with self.core.lock:
+            rows = [
+                r
+                for r in self.core.records
+                if (since is None or r.finished_at >= since) and (until is None or r.finished_at < until)
+            ]
+        rows.sort(key=lambda r: (r.finished_at, r.id), reverse=True)
+        return IdentificationPage(rows[offset : offset + limit], len(rows), limit, offset)
+
+    def _db_page(
+        self, since: datetime | None, until: datetime | None, limit: int, offset: int
+    ) -> IdentificationPage:
+        from service.db.repository import list_identifications, session_scope
+
+        with session_scope(self.session_factory, "list identifications") as session:
+            page = list_identifications(session, since=since, until=until, limit=limit, offset=offset)
+            items = [row_to_record(r) for r in page.items]
+        return self._merge_pending(IdentificationPage(items, page.total, limit, offset), since, until)
+
+    def _merge_pending(
+        self, page: IdentificationPage, since: datetime | None, until: datetime | None
+    ) -> IdentificationPage:
+        """Records still in the writer's buffer are not in the database yet: show them on the first page."""
+        if page.offset != 0:
+            return page
+        stored = {r.id for r in page.items}
+        newest_stored = max((r.id for r in page.items), default=0)
+        with self.core.lock:
+            extra = [
+                r
+                for r in self.core.records
+                if r.id not in stored
+                and r.id > newest_stored
+                and (since is None or r.finished_at >= since)
+                and (until is None or r.finished_at < until)
+            ]
+        if not extra:
+            return page
+        items = sorted([*extra, *page.items], key=lambda r: (r.finished_at, r.id), reverse=True)
+        return IdentificationPage(items[: page.limit], page.total + len(extra), page.limit, page.offset)
+
+    def get_identification(self, identification_id: int) -> IdentificationRecord:
+        with self.core.lock:
+            for r in self.core.records:
+                if r.id == identification_id:
+                    return r
+        if self.session_factory is not None:
+            from service.db.errors import RecordNotFoundError
+            from service.db.repository import get_identification, session_scope
+
+            try:
+                with session_scope(self.session_factory, "get identification") as session:
+                    return row_to_record(get_identification(session, identification_id))
+            except RecordNotFoundError:
+                pass
+        raise NotFoundError(f"identification {identification_id} not found")
+
+    # --- ChtcService: requests --------------------------------------------------------------------------
+    def request_identification(self, reason: str) -> IdentificationJob:
+        job, launches = self.core.request(reason)
+        for launch in launches:
+            self._launch(launch)
+        return job
+
+    def job(self, job_id: str) -> IdentificationJob:
+        with self.core.lock:
+            job = self.core.jobs.get(job_id)
+        if job is None:
+            raise NotFoundError(f"job {job_id!r} not found")
+        return job
+
+    # --- ChtcService: health and metrics ----------------------------------------------------------------
+    def _devices(self) -> list[DeviceHealth]:
+        now = self.clock()
+        out = [self._source_health(name, src, now) for name, src in self.sources.items()]
+        out.append(self._db_health(now))
+        out.append(self._worker_health())
+        return out
+
+    def _source_health(self, name: str, src: Any, now: datetime) -> DeviceHealth:
+        m = src.metrics
+        last_ok = m.last_ok_t
+        if not src.connected:
+            status = DeviceStatus.DOWN
+        elif src.is_stale() or m.errors:
+            status = DeviceStatus.DEGRADED if not src.is_stale() else DeviceStatus.DOWN
+        else:
+            status = DeviceStatus.OK
+        recent_error = m.last_error_t is not None and (now - m.last_error_t).total_seconds() <= 60.0
+        if status is DeviceStatus.DEGRADED and not recent_error:
+            status = DeviceStatus.OK  # old errors only: healthy again
+        counters = {
+            "polls": m.polls,
+            "reads_ok": m.reads_ok,
+            "reconnects": m.reconnects,
+            **m.errors,
+            **m.events,
+        }
+        return DeviceHealth(name, status, last_ok, age_s(last_ok, now), counters, m.last_error)
+
+    def _db_health(self, now: datetime) -> DeviceHealth:
+        if self.writer is None:
+            return DeviceHealth("db", DeviceStatus.DISABLED, None, None, {}, "no database configured")
+        st = self.writer.status()
+        status = DeviceStatus.OK if st.connected else DeviceStatus.DOWN
+        if st.connected and st.pending > 1000:
+            status = DeviceStatus.DEGRADED
+        counters = {
+            "pending": st.pending,
+            "written": st.written,
+            "dropped": st.dropped,
+            "rejected": st.rejected,
+            "errors": st.errors,
+        }
+        msg = (
+            "" if st.connected else f"buffering {st.pending} records: {st.last_error or 'not connected yet'}"
+        )
+        return DeviceHealth("db", status, st.last_ok_at, age_s(st.last_ok_at, now), counters, msg)
+
+    def _worker_health(self) -> DeviceHealth:
+        if self.worker is None:
+            return DeviceHealth("worker", DeviceStatus.DISABLED, None, None, {}, "no identification worker")
+        status = DeviceStatus.OK if self.worker.model_version is not None else DeviceStatus.DOWN
+        counters = {"restarts": self.worker.restarts, **self.core.counts}
+        running = self.worker.running_job
+        msg = f"running job-{running}" if running is not None else "idle"
+        return DeviceHealth("worker", status, None, None, counters, msg)
+
+    def health(self) -> HealthSnapshot:
+        return HealthSnapshot(
+            t=self.clock(),
+            devices=self._devices(),
+            model_loaded=self.model_loaded,
+            model_version=self.core.model.version if self.model_loaded else None,
+            uptime_s=time.monotonic() - self._started_mono,
+        )
+
+    def ready(self) -> Readiness:
+        reasons = []
+        if not self.model_loaded:
+            reasons.append("model not loaded")
+        newest = self.core.newest
+        if newest is None:
+            reasons.append("no sample yet")
+        else:
+            age = (self.clock() - newest.t).total_seconds()
+            if age > self.stale_after_s:
+                reasons.append(f"no sample for {age:.0f} s")
+        return Readiness(not reasons, tuple(reasons))
+
+    def metrics(self) -> MetricsSnapshot:
+        core = self.core
+        now = self.clock()
+        modbus = self.sources.get("modbus")
+        can = self.sources.get("can")
+        with core.lock:
+            ages = core.channel_ages(now)
+            quality = list(core.newest.quality) if core.newest is not None else ["no_data"] * len(ages)
+            last = core.current
+            counts = dict(core.counts)
+            durations = core.durations.snapshot()
+        st = self.writer.status() if self.writer is not None else None
+        reconnects = {n: int(s.metrics.reconnects) for n, s in self.sources.items()}
+        if self.worker is not None:
+            reconnects["worker"] = self.worker.restarts
+        return MetricsSnapshot(
+            modbus_poll_latency_s=_latency_hist(modbus),
+            modbus_polls_total=_outcomes(modbus, ok_key="reads_ok"),
+            can_frames_total=_outcomes(can, ok_key="reads_ok"),
+            channel_age_s=ages,
+            channel_quality=quality,
+            identifications_total=counts,
+            identification_duration_s=durations,
+            last_fit=None if last is None else last.fit,
+            last_rmse_c=None if last is None else last.rmse_c,
+            db_pending_rows=0 if st is None else int(st.pending),
+            db_errors_total=0 if st is None else int(st.errors),
+            reconnects_total=reconnects,
+        )
+
+
+def _outcomes(src: Any, *, ok_key: str) -> dict[str, int]:
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {"ok": int(getattr(m, ok_key, 0))}
+    for name, n in {**m.errors, **m.events}.items():
+        out[_snake(name)] = int(n)
+    return out
+
+
+def _latency_hist(src: Any) -> Any:
+    hist = getattr(src, "latency_histogram", None)
+    if callable(hist):
+        return hist()
+    return Histogram(LATENCY_BUCKETS_S).snapshot()
+
+
+def _snake(name: str) -> str:
+    out = "".join("_" + c.lower() if c.isupper() else c for c in name).lstrip("_")
+    return out.removesuffix("_error") or out
+
+
+def _utc(ts: float) -> datetime:
+    return datetime.fromtimestamp(ts, tz=UTC)

@@ -1,0 +1,334 @@
+"""The one validated settings object of the service.
+
+``Settings`` is built once at the edge (``chtc run --config FILE`` → ``load_settings(path)``, or
+``create_app(settings)``) and handed down as typed sections: ``settings.modbus``, ``settings.can``,
+``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
+``settings.api``, ``settings.database``. Nothing here opens a file, a socket or a database at import time.
+
+Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
+the defaults below. Environment variables use the prefix ``CHTC_`` and ``__`` between section and key,
+e.g. ``CHTC_DATABASE__URL``, ``CHTC_API__TOKEN``, ``CHTC_MODBUS__PORT``. List and tuple values in the
+environment are JSON (``CHTC_IDENTIFICATION__SCHEDULE_MIN='[10, 20, 40, 60]'``). ``Settings()`` with no file
+works for the demo. Relative paths in a TOML file are relative to that file's directory.
+
+Directories: ``CHTC_DATA_DIR`` (default ``$XDG_DATA_HOME/spindle-chtc`` or ``~/.local/share/spindle-chtc``)
+holds the default SQLite database; ``CHTC_CACHE_DIR`` (default ``$XDG_CACHE_HOME/spindle-chtc`` or
+``~/.cache/spindle-chtc``) is the default reduced-model cache. Both are read when ``Settings`` is built.
+
+Errors::
+
+    SettingsError(ValueError)   # bad value, unknown key, unreadable or malformed TOML; the message names
+                                # the key ("modbus.port: ...") and the file (and line for TOML syntax errors)
+"""
+
+from __future__ import annotations
+
+import os
+import tomllib
+from contextvars import ContextVar
+from pathlib import Path
+from typing import Any, Literal
+
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    SecretStr,
+    ValidationError,
+    field_validator,
+    model_validator,
+)
+from pydantic_settings import (
+    BaseSettings,
+    InitSettingsSource,
+    PydanticBaseSettingsSource,
+    SettingsConfigDict,
+)
+
+APP_DIR_NAME = "spindle-chtc"
+IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
+
+
+class SettingsError(ValueError):
+    """A configuration value is invalid; the message names the key (``section.key``) and the source."""
+
+
+def default_data_dir() -> Path:
+    """``$CHTC_DATA_DIR``, else ``$XDG_DATA_HOME/spindle-chtc``, else ``~/.local/share/spindle-chtc``."""
+    if env := os.environ.get("CHTC_DATA_DIR"):
+        return Path(env).expanduser()
+    base = os.environ.get("XDG_DATA_HOME") or str(Path.home() / ".local" / "share")
+    return Path(base).expanduser() / APP_DIR_NAME
+
+
+def default_cache_dir() -> Path:
+    """``$CHTC_CACHE_DIR``, else ``$XDG_CACHE_HOME/spindle-chtc``, else ``~/.cache/spindle-chtc``."""
+    if env := os.environ.get("CHTC_CACHE_DIR"):
+        return Path(env).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base).expanduser() / APP_DIR_NAME
+
+
+def default_database_url() -> str:
+    """SQLite file ``chtc.db`` in the data directory (created by the engine factory on first use)."""
+    return f"sqlite:///{default_data_dir() / 'chtc.db'}"
+
+
+class _Section(BaseModel):
+    model_config = ConfigDict(extra="forbid", frozen=True)
+
+
+class ModbusSettings(_Section):
+    """Temperature DAQ over Modbus TCP (input registers, read-only)."""
+
+    host: str = "127.0.0.1"
+    port: int = Field(default=5020, ge=1, le=65535)
+    unit: int = Field(default=1, ge=0, le=255)
+    timeout_s: float = Field(default=1.0, gt=0)
+    poll_interval_s: float = Field(default=1.0, gt=0)
+    register_map: Path | None = None  # TOML register map; None → drivers.registers.default_register_map()
+
+
+class CanSettings(_Section):
+    """Speed/torque sensor over CAN (python-can interface + DBC)."""
+
+    interface: Literal["virtual", "socketcan", "remote"] = "virtual"
+    channel: str = "chtc"  # "can0" for socketcan, "ws://host:port/" for remote, any name for virtual
+    dbc: Path | None = None  # None → packaged drivers/data/spindle.dbc
+    bitrate: int | None = Field(default=None, gt=0)
+    stale_after_s: float = Field(
+        default=0.5, gt=0
+    )  # no SpindleStatus frame for this long → speed/torque STALE
+
+
+class AcquisitionSettings(_Section):
+    ring_capacity: int = Field(default=8640, ge=2)  # samples kept in memory (8640 × 10 s = 24 h)
+    sample_period_s: float = Field(default=10.0, gt=0)  # one Sample per period (the paper samples every 10 s)
+
+
+class ModelSettings(_Section):
+    spindle: Path | None = None  # None → packaged model/data/spindle.toml
+    mesh_size_m: float | None = Field(default=None, gt=0)  # None → model.fem default service mesh
+    rom_rank: int = Field(default=30, ge=1)
+    rom_cache_dir: Path = Field(default_factory=default_cache_dir)
+    h_box: tuple[float, float] = (5.0, 200.0)  # search box for H1..H7, W/(m²·K)
+
+    @field_validator("h_box")
+    @classmethod
+    def _box_ordered(cls, value: tuple[float, float]) -> tuple[float, float]:
+        lo, hi = value
+        if not 0 < lo < hi:
+            raise ValueError(f"need 0 < lo < hi, got [{lo}, {hi}]")
+        return value
+
+
+class IdentificationSettings(_Section):
+    method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
+    schedule_min: tuple[float, ...] = (
+        10.0,
+        20.0,
+        40.0,
+        60.0,
+    )  # re-identify this long after a condition change
+    min_window_s: float = Field(default=600.0, gt=0)  # shorter windows are skipped ("too little data")
+    max_window_s: float = Field(default=3600.0, gt=0)  # fit at most this much recent data
+    distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: warm-start "nearness"
+    min_good_channels: int = Field(default=24, ge=1, le=32)
+    estimate_loads: bool = False  # also fit front/rear bearing heat scales
+    ci_rel_threshold: float = Field(
+        default=0.5, gt=0
+    )  # 95 % CI half-width / H above this → "poorly identified"
+    timeout_s: float = Field(default=120.0, gt=0)
+    seed: int = 0
+
+    @field_validator("schedule_min")
+    @classmethod
+    def _schedule_increasing(cls, value: tuple[float, ...]) -> tuple[float, ...]:
+        if not value or any(v <= 0 for v in value) or list(value) != sorted(set(value)):
+            raise ValueError(
+                f"need a non-empty, strictly increasing list of positive minutes, got {list(value)}"
+            )
+        return value
+
+    @field_validator("distance_scales")
+    @classmethod
+    def _scales_positive(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        if any(v <= 0 for v in value):
+            raise ValueError(f"need 3 positive scales (rpm, N·m, °C), got {list(value)}")
+        return value
+
+    @model_validator(mode="after")
+    def _windows_consistent(self) -> IdentificationSettings:
+        if self.max_window_s < self.min_window_s:
+            raise ValueError(
+                f"max_window_s ({self.max_window_s}) must be >= min_window_s ({self.min_window_s})"
+            )
+        if self.schedule_min[0] * 60.0 < self.min_window_s:
+            raise ValueError(
+                f"the first schedule entry ({self.schedule_min[0]} min) comes before min_window_s "
+                f"({self.min_window_s} s) of data exists"
+            )
+        return self
+
+    @property
+    def schedule_s(self) -> tuple[float, ...]:
+        """``schedule_min`` in s."""
+        return tuple(60.0 * m for m in self.schedule_min)
+
+
+class DetectorSettings(_Section):
+    """A new operating condition: a quantity moves this far from the current one and stays there hold_s."""
+
+    speed_threshold_rpm: float = Field(default=150.0, gt=0)
+    torque_threshold_nm: float = Field(default=1.0, gt=0)
+    ambient_threshold_c: float = Field(default=1.0, gt=0)
+    hold_s: float = Field(default=60.0, gt=0)
+    median_samples: int = Field(default=3, ge=1)  # median filter length against isolated outliers
+    max_gap_s: float = Field(default=120.0, gt=0)  # a longer gap inside a hold period restarts it
+
+
+class ApiSettings(_Section):
+    host: str = "127.0.0.1"
+    port: int = Field(default=8000, ge=1, le=65535)
+    token: SecretStr | None = None  # bearer token for writes; None → every write is refused (403)
+    read_token: SecretStr | None = None  # None → reads are open
+
+    @field_validator("token", "read_token", mode="before")
+    @classmethod
+    def _empty_is_unset(cls, value: Any) -> Any:
+        return None if isinstance(value, str) and not value.strip() else value
+
+
+class DatabaseSettings(_Section):
+    url: str = Field(default_factory=default_database_url)  # sqlite:///… or postgresql+psycopg://…
+    sample_store_period_s: float = Field(default=10.0, gt=0)  # store at most one Sample per period
+    batch_size: int = Field(default=500, ge=1)
+    retry_initial_s: float = Field(default=0.5, gt=0)
+    retry_max_s: float = Field(default=30.0, gt=0)
+    buffer_max: int = Field(
+        default=100_000, ge=1
+    )  # records held while the DB is down; beyond: dropped, counted
+    echo: bool = False
+
+    @field_validator("url")
+    @classmethod
+    def _url_parses(cls, value: str) -> str:
+        from sqlalchemy.engine import make_url
+        from sqlalchemy.exc import ArgumentError
+
+        try:
+            make_url(value)
+        except ArgumentError as err:
+            raise ValueError(f"not a database URL: {value!r}") from err
+        return value
+
+    @model_validator(mode="after")
+    def _retry_order(self) -> DatabaseSettings:
+        if self.retry_max_s < self.retry_initial_s:
+            raise ValueError("retry_max_s must be >= retry_initial_s")
+        return self
+
+
+_TOML_DATA: ContextVar[dict[str, Any] | None] = ContextVar("_chtc_toml_data", default=None)
+
+
+class Settings(BaseSettings):
+    """All settings; see the module docstring for sources and precedence."""
+
+    model_config = SettingsConfigDict(
+        env_prefix="CHTC_",
+        env_nested_delimiter="__",
+        extra="forbid",
+        frozen=True,
+    )
+
+    modbus: ModbusSettings = Field(default_factory=ModbusSettings)
+    can: CanSettings = Field(default_factory=CanSettings)
+    acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)
+    model: ModelSettings = Field(default_factory=ModelSettings)
+    identification: IdentificationSettings = Field(default_factory=IdentificationSettings)
+    detector: DetectorSettings = Field(default_factory=DetectorSettings)
+    api: ApiSettings = Field(default_factory=ApiSettings)
+    database: DatabaseSettings = Field(default_factory=DatabaseSettings)
+
+    @classmethod
+    def settings_customise_sources(
+        cls,
+        settings_cls: type[BaseSettings],
+        init_settings: PydanticBaseSettingsSource,
+        env_settings: PydanticBaseSettingsSource,
+        dotenv_settings: PydanticBaseSettingsSource,
+        file_secret_settings: PydanticBaseSettingsSource,
+    ) -> tuple[PydanticBaseSettingsSource, ...]:
+        toml = InitSettingsSource(settings_cls, init_kwargs=dict(_TOML_DATA.get() or {}))
+        return (init_settings, env_settings, toml)
+
+    @classmethod
+    def from_toml(cls, path: str | Path | None, **overrides: Any) -> Settings:
+        """Settings from a TOML file (``None``: none) under the environment; raises ``SettingsError``."""
+        data = _resolve_paths(read_toml(path), Path(path).parent) if path is not None else {}
+        token = _TOML_DATA.set(data)
+        try:
+            return cls(**overrides)
+        except ValidationError as err:
+            raise SettingsError(format_validation_error(err, source=path)) from err
+        finally:
+            _TOML_DATA.reset(token)
+
+    def redacted(self) -> dict[str, Any]:
+        """Plain dict for logs and ``--print-config``: tokens masked, database password hidden."""
+        from sqlalchemy.engine import make_url
+
+        data = self.model_dump(mode="json")
+        for key in ("token", "read_token"):
+            if data["api"][key] is not None:
+                data["api"][key] = "**********"
+        data["database"]["url"] = make_url(self.database.url).render_as_string(hide_password=True)
+        return data
+
+
+def load_settings(path: str | Path | None = None, **overrides: Any) -> Settings:
+    """The edge entry point: ``Settings.from_toml(path)``; every failure is a ``SettingsError``."""
+    return Settings.from_toml(path, **overrides)
+
+
+def read_toml(path: str | Path) -> dict[str, Any]:
+    """Parse a TOML config file; ``SettingsError`` names the file (and line for syntax errors)."""
+    path = Path(path)
+    try:
+        text = path.read_text(encoding="utf-8")
+    except OSError as err:
+        raise SettingsError(f"{path}: cannot read config file: {err.strerror or err}") from err
+    try:
+        return tomllib.loads(text)
+    except tomllib.TOMLDecodeError as err:
+        raise SettingsError(f"{path}: invalid TOML: {err}") from err
+
+
+_PATH_KEYS = (("modbus", "register_map"), ("can", "dbc"), ("model", "spindle"), ("model", "rom_cache_dir"))
+
+
+def _resolve_paths(data: dict[str, Any], base: Path) -> dict[str, Any]:
+    """Relative file paths in a config file are relative to that file's directory (``~`` is expanded)."""
+    for section, key in _PATH_KEYS:
+        block = data.get(section)
+        if isinstance(block, dict) and isinstance(block.get(key), str):
+            value = Path(block[key]).expanduser()
+            block[key] = str(value if value.is_absolute() else base / value)
+    return data
+
+
+def format_validation_error(err: ValidationError, *, source: str | Path | None = None) -> str:
+    """One line per problem, each starting with the dotted key, e.g. ``modbus.port: Input should be ...``."""
+    lines = []
+    for item in err.errors(include_url=False):
+        key = ".".join(str(p) for p in item["loc"]) or "<root>"
+        msg = item["msg"]
+        if item["type"] == "extra_forbidden":
+            msg = "unknown key"
+        given = item.get("input")
+        secret = any("token" in str(p) for p in item["loc"]) or item["type"] == "value_error"
+        shown = "" if secret or isinstance(given, dict | SecretStr) or given is None else f" (got {given!r})"
+        lines.append(f"{key}: {msg}{shown}")
+    where = f" in {source}" if source is not None else ""
+    return f"invalid settings{where} (env CHTC_<SECTION>__<KEY> overrides the file):\n  " + "\n  ".join(lines)

@@ -1,0 +1,315 @@
+"""Identification jobs in a separate process, so the API and the acquisition never stall.
+
+One ``concurrent.futures.ProcessPoolExecutor`` with ``max_workers=1`` and a ``spawn`` context (no forked copy
+of the event loop, sockets or database connections). Its initializer loads the model once per worker process
+from the reduced-model cache (``service.modelload.load_model``); a job carries only the resampled window
+(``service.window.WindowArrays``), the initial field, the warm start and the options.
+
+Cancellation: a shared integer holds the id of the job to cancel; every batch evaluation of the reduced
+model checks it (``CancellableModel``) and stops the run. A job that does not stop in time (or exceeds
+its timeout) has its process terminated and the pool is recreated (the next job pays the model load
+again, about a second with a warm cache).
+
+Errors::
+
+    WorkerError(RuntimeError)           the pool is closed
+    (a failed job is not an exception: it is a JobOutcome with status FAILED and the message)
+"""
+
+from __future__ import annotations
+
+import asyncio
+import concurrent.futures as cf
+import contextlib
+import enum
+import multiprocessing
+import os
+import time
+from collections.abc import Iterator
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from service.modelload import LoadedModel, ModelRef, load_model
+from service.window import WindowArrays
+
+__all__ = [
+    "IdentificationWorker",
+    "JobOutcome",
+    "JobRequest",
+    "JobStatus",
+    "WorkerError",
+    "run_job_in_process",
+]
+
+
+class WorkerError(RuntimeError):
+    """The worker cannot take jobs (closed)."""
+
+
+class JobStatus(enum.StrEnum):
+    OK = "ok"
+    FAILED = "failed"
+    CANCELLED = "cancelled"
+    INSUFFICIENT_DATA = "insufficient-data"  # the identification itself found too few usable data
+
+
+@dataclass(frozen=True, eq=False)
+class JobRequest:
+    job_id: int
+    window: WindowArrays
+    t0_c: float | np.ndarray  # uniform °C or (N,) initial field at window.times_s[0]
+    warm_start: tuple[float, ...] | None
+    method: str = "hybrid"
+    seed: int = 0
+    estimate_loads: bool = False
+    time_budget_s: float | None = None
+    ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
+
+
+@dataclass(frozen=True, eq=False)
+class JobOutcome:
+    job_id: int
+    status: JobStatus
+    result: Any | None  # model.identify.IdentificationResult when OK
+    message: str
+    wall_s: float
+    final_field_c: np.ndarray | None = None  # (N,) fitted model's field at the window end, °C (when OK)
+
+
+# --- inside the worker process --------------------------------------------------------------------
+_MODEL: LoadedModel | None = None
+_CANCEL: Any = None  # multiprocessing.Value("q"): id of the job to cancel, -1 for none
+
+
+class JobCancelled(Exception):
+    """Raised inside the worker process when the running job was cancelled."""
+
+
+def _init_worker(ref: ModelRef, cancel: Any) -> None:
+    global _MODEL, _CANCEL
+    _CANCEL = cancel
+    _MODEL = load_model(ref)
+
+
+def _ping() -> str:
+    assert _MODEL is not None
+    return _MODEL.version
+
+
+def to_model_window(model: LoadedModel, window: WindowArrays, t0_c: float | np.ndarray) -> Any:
+    """``model.identify.Window`` from the resampled arrays (bearing heat from speed and torque)."""
+    from model.identify import Window
+    from model.inputs import inputs_from_operation
+
+    ambient, speed, torque = window.step_inputs()
+    inputs = inputs_from_operation(
+        model.spec, dt_s=window.dt_s, speed_rpm=speed, torque_nm=torque, ambient_c=ambient
+    )
+    return Window(
+        inputs=inputs,
+        measured_c=window.measured_c,
+        mask=window.mask,
+        t0=t0_c,
+        speed_rpm=float(np.mean(speed)),
+    )
+
+
+class CancellableModel:
+    """The reduced model seen by the optimizer: every batch evaluation first checks the cancel flag.
+
+    ``model.identify.identify`` has no callback, but it evaluates the model many times per second, so this is
+    where a cancelled job stops (within one batch, milliseconds).
+    """
+
+    def __init__(self, rom: Any, should_stop: Any) -> None:
+        self._rom = rom
+        self._should_stop = should_stop
+
+    def simulate_sensors(self, *args: Any, **kwargs: Any) -> Any:
+        if self._should_stop():
+            raise JobCancelled
+        return self._rom.simulate_sensors(*args, **kwargs)
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self._rom, name)
+
+
+def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any = None) -> tuple[Any, Any]:
+    """``model.identify.identify`` for one request -> (result, model window); the rng is seeded from it."""
+    from model.identify import IdentifyOptions, identify
+
+    rom = model.rom if should_stop is None else CancellableModel(model.rom, should_stop)
+    window = to_model_window(model, req.window, req.t0_c)
+    result = identify(
+        rom,
+        window,
+        method=req.method,
+        box=model.ref.h_box,
+        rng=np.random.default_rng(req.seed),
+        warm_start=None if req.warm_start is None else np.asarray(req.warm_start, dtype=float),
+        estimate_loads=req.estimate_loads,
+        spec=model.spec,
+        options=IdentifyOptions(time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold),
+    )
+    return result, window
+
+
+def final_field(model: LoadedModel, window: Any, result: Any) -> np.ndarray:
+    """The reduced model's field (N,) °C at the end of the window with the identified H (and load scales)."""
+    ls = getattr(result, "load_scale", None)
+    traj = model.rom.simulate_state(
+        np.asarray(result.h, dtype=float),
+        window.inputs,
+        window.t0,
+        load_scale=None if ls is None else np.asarray(ls, dtype=float),
+    )
+    return np.asarray(model.rom.lift(traj[-1]))
+
+
+def _insufficient_data_error() -> type[Exception]:
+    from model.identify import InsufficientDataError
+
+    return InsufficientDataError
+
+
+def run_job_in_process(req: JobRequest) -> JobOutcome:
+    """The function the pool runs: never raises, every failure becomes a FAILED outcome with its message."""
+    started = time.perf_counter()
+
+    def should_stop() -> bool:
+        return _CANCEL is not None and _CANCEL.value == req.job_id
+
+    try:
+        if _MODEL is None:
+            raise RuntimeError("worker process has no model (initializer failed)")
+        result, window = run_identification(_MODEL, req, should_stop=should_stop)
+        field = final_field(_MODEL, window, result)
+    except _insufficient_data_error() as err:
+        return JobOutcome(
+            req.job_id, JobStatus.INSUFFICIENT_DATA, None, str(err), time.perf_counter() - started
+        )
+    except JobCancelled:
+        return JobOutcome(req.job_id, JobStatus.CANCELLED, None, "cancelled", time.perf_counter() - started)
+    except Exception as err:  # the boundary of the worker process: report, never crash the pool
+        msg = f"{type(err).__name__}: {err}"
+        return JobOutcome(req.job_id, JobStatus.FAILED, None, msg, time.perf_counter() - started)
+    wall = time.perf_counter() - started
+    return JobOutcome(req.job_id, JobStatus.OK, result, str(getattr(result, "message", "")), wall, field)
+
+
+# --- in the service process -----------------------------------------------------------------------
+_THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
+
+
+@contextlib.contextmanager
+def _single_threaded_children() -> Iterator[None]:
+    """Environment for a spawned worker: one BLAS thread, so it leaves a core to the event loop."""
+    saved = {k: os.environ.get(k) for k in _THREAD_VARS}
+    os.environ.update(dict.fromkeys(_THREAD_VARS, "1"))
+    try:
+        yield
+    finally:
+        for k, v in saved.items():
+            if v is None:
+                os.environ.pop(k, None)
+            else:
+                os.environ[k] = v
+
+
+class IdentificationWorker:
+    """Async façade over a one-process pool; ``await run(req)`` returns a :class:`JobOutcome`."""
+
+    def __init__(
+        self,
+        ref: ModelRef,
+        *,
+        context: str = "spawn",
+        timeout_s: float = 120.0,
+        cancel_grace_s: float = 5.0,
+    ) -> None:
+        self.ref = ref
+        self.timeout_s = timeout_s
+        self.cancel_grace_s = cancel_grace_s
+        self._ctx = multiprocessing.get_context(context)
+        self._cancel = self._ctx.Value("q", -1)
+        self._pool: cf.ProcessPoolExecutor | None = None
+        self._closed = False
+        self.running_job: int | None = None
+        self.restarts = 0
+        self.model_version: str | None = None
+
+    def _ensure_pool(self) -> cf.ProcessPoolExecutor:
+        if self._closed:
+            raise WorkerError("the identification worker is closed")
+        if self._pool is None:
+            self._pool = cf.ProcessPoolExecutor(
+                max_workers=1,
+                mp_context=self._ctx,
+                initializer=_init_worker,
+                initargs=(self.ref, self._cancel),
+            )
+        return self._pool
+
+    async def start(self) -> str:
+        """Start the process and load the model there; returns the model version (waits for it)."""
+        loop = asyncio.get_running_loop()
+        with _single_threaded_children():  # the process is spawned by this first submit
+            fut = loop.run_in_executor(self._ensure_pool(), _ping)
+        self.model_version = await fut
+        return self.model_version
+
+    async def run(self, req: JobRequest) -> JobOutcome:
+        loop = asyncio.get_running_loop()
+        started = time.perf_counter()
+        self.running_job = req.job_id  # the cancel flag is not reset: job ids are unique
+        try:
+            with _single_threaded_children():  # a recreated pool spawns its process on this submit
+                fut = loop.run_in_executor(self._ensure_pool(), run_job_in_process, req)
+            try:
+                return await asyncio.wait_for(asyncio.shield(fut), timeout=self.timeout_s)
+            except TimeoutError:
+                self.cancel(req.job_id)
+                msg = f"identification exceeded timeout_s={self.timeout_s:.0f} s"
+                return await self._after_cancel(fut, req.job_id, msg, started, JobStatus.FAILED)
+            except asyncio.CancelledError:
+                self.cancel(req.job_id)
+                await self._after_cancel(fut, req.job_id, "cancelled", started, JobStatus.CANCELLED)
+                raise
+        except cf.process.BrokenProcessPool as err:
+            self._discard_pool()
+            return JobOutcome(req.job_id, JobStatus.FAILED, None, f"worker process died: {err}", 0.0)
+        finally:
+            self.running_job = None
+
+    def cancel(self, job_id: int) -> None:
+        """Ask the running job ``job_id`` to stop at its next reduced-model evaluation."""
+        self._cancel.value = job_id
+
+    async def _after_cancel(
+        self, fut: asyncio.Future[JobOutcome], job_id: int, msg: str, started: float, status: JobStatus
+    ) -> JobOutcome:
+        try:
+            await asyncio.wait_for(asyncio.shield(fut), timeout=self.cancel_grace_s)
+        except (TimeoutError, cf.process.BrokenProcessPool):
+            self._discard_pool()
+        return JobOutcome(job_id, status, None, msg, time.perf_counter() - started)
+
+    def _discard_pool(self) -> None:
+        pool, self._pool = self._pool, None
+        if pool is None:
+            return
+        self.restarts += 1
+        # ProcessPoolExecutor has no public terminate; a stuck job has to be killed to free the single slot.
+        for proc in list(getattr(pool, "_processes", {}).values()):
+            proc.terminate()
+        pool.shutdown(wait=False, cancel_futures=True)
+
+    def close(self) -> None:
+        self._closed = True
+        pool, self._pool = self._pool, None
+        if pool is not None:
+            for proc in list(getattr(pool, "_processes", {}).values()):
+                proc.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)

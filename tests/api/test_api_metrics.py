@@ -1,0 +1,55 @@
+"""GET /metrics: Prometheus text that parses, with the service's numbers and the API's own latency."""
+
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+from prometheus_client.parser import text_string_to_metric_families
+
+from service.interface_memory import InMemoryService
+from tests.api.conftest import ManualClock
+
+
+def _families(client: TestClient) -> dict[str, list]:  # type: ignore[type-arg]
+    r = client.get("/api/v1/metrics")
+    assert r.status_code == 200
+    assert r.headers["content-type"].startswith("text/plain")
+    return {f.name: f.samples for f in text_string_to_metric_families(r.text)}
+
+
+def test_metrics_parse_and_carry_service_numbers(
+    client: TestClient, service: InMemoryService, clock: ManualClock
+) -> None:
+    clock.advance(7.0)
+    fam = _families(client)
+    ages = [s for s in fam["chtc_channel_age_seconds"]]
+    assert len(ages) == 32 and all(abs(s.value - 7.0) < 1e-9 for s in ages)
+    m = service.metrics()
+    polls = {s.labels["outcome"]: s.value for s in fam["chtc_modbus_polls"] if s.name.endswith("_total")}
+    assert polls == {k: float(v) for k, v in m.modbus_polls_total.items()}
+    count = [s for s in fam["chtc_identification_duration_seconds"] if s.name.endswith("_count")]
+    assert count[0].value == m.identification_duration_s.count == 2
+    fit = fam["chtc_identification_fit"][0].value
+    assert fit == m.last_fit
+
+
+def test_request_latency_histogram_counts_requests(client: TestClient) -> None:
+    for _ in range(3):
+        client.get("/api/v1/chtc")
+    client.get("/api/v1/identifications/999")
+    fam = _families(client)
+    counts = {
+        (s.labels["route"], s.labels["status"]): s.value
+        for s in fam["chtc_http_request_duration_seconds"]
+        if s.name.endswith("_count")
+    }
+    assert counts[("/api/v1/chtc", "200")] == 3
+    assert counts[("/api/v1/identifications/{identification_id}", "404")] == 1
+
+
+def test_each_app_has_its_own_registry(service: InMemoryService, clock: ManualClock) -> None:
+    from api.app import create_app
+    from service.settings import Settings
+
+    a = create_app(Settings(), service, clock=clock)
+    b = create_app(Settings(), service, clock=clock)
+    assert a.state.metrics.registry is not b.state.metrics.registry

@@ -1,0 +1,95 @@
+"""POST /identifications, jobs, and the bearer-token rules for writes and (optional) reads."""
+
+from __future__ import annotations
+
+from fastapi.testclient import TestClient
+
+from api.app import create_app
+from service.interface_memory import InMemoryService
+from service.settings import Settings
+from tests.api.conftest import WRITE_TOKEN, ManualClock
+
+AUTH = {"Authorization": f"Bearer {WRITE_TOKEN}"}
+
+
+def _error(r: object) -> dict:  # type: ignore[type-arg]
+    body = r.json()  # type: ignore[attr-defined]
+    assert set(body) == {"error"}
+    assert set(body["error"]) == {"code", "message", "field", "detail"}
+    return body["error"]  # type: ignore[no-any-return]
+
+
+def test_post_without_token_is_401(client: TestClient) -> None:
+    r = client.post("/api/v1/identifications")
+    assert r.status_code == 401
+    assert r.headers["www-authenticate"] == "Bearer"
+    assert _error(r)["field"] == "Authorization"
+
+
+def test_post_with_other_scheme_is_401(client: TestClient) -> None:
+    r = client.post("/api/v1/identifications", headers={"Authorization": f"Basic {WRITE_TOKEN}"})
+    assert r.status_code == 401
+
+
+def test_post_with_wrong_token_is_403(client: TestClient) -> None:
+    r = client.post("/api/v1/identifications", headers={"Authorization": "Bearer nope"})
+    assert r.status_code == 403
+    assert _error(r)["code"] == "forbidden"
+
+
+def test_post_when_no_token_configured_is_403(service: InMemoryService, clock: ManualClock) -> None:
+    with TestClient(create_app(Settings(), service, clock=clock)) as c:
+        r = c.post("/api/v1/identifications", headers=AUTH)
+    assert r.status_code == 403
+    assert "no API token" in _error(r)["message"]
+
+
+def test_post_starts_a_job_then_busy_then_done(client: TestClient, service: InMemoryService) -> None:
+    r = client.post("/api/v1/identifications", headers=AUTH, json={"reason": "operator check"})
+    assert r.status_code == 202
+    job = r.json()
+    assert job["state"] == "queued" and job["reason"] == "operator check"
+    assert r.headers["location"] == job["href"]
+    busy = client.post("/api/v1/identifications", headers=AUTH)
+    assert busy.status_code == 409 and _error(busy)["code"] == "busy"
+    assert client.get("/api/v1/chtc").json()["status"] == "identifying"
+    rec = service.finish_job(job["job_id"], h=[60.0] * 7)
+    done = client.get(job["href"]).json()
+    assert done["state"] == "done" and done["identification_id"] == rec.id
+    chtc = client.get("/api/v1/chtc").json()
+    assert chtc["identification_id"] == rec.id and chtc["status"] == "fresh"
+
+
+def test_post_body_is_validated(client: TestClient) -> None:
+    r = client.post("/api/v1/identifications", headers=AUTH, json={"reason": "x", "force": True})
+    assert r.status_code == 422 and _error(r)["field"] == "force"
+    r = client.post("/api/v1/identifications", headers=AUTH, json={"reason": "<script>"})
+    assert r.status_code == 422 and _error(r)["field"] == "reason"
+
+
+def test_post_when_not_ready_is_503(client: TestClient, service: InMemoryService) -> None:
+    service.set_model_loaded(False)
+    r = client.post("/api/v1/identifications", headers=AUTH)
+    assert r.status_code == 503 and _error(r)["code"] == "not_ready"
+
+
+def test_unknown_job_is_404(client: TestClient) -> None:
+    r = client.get("/api/v1/identifications/jobs/job-99")
+    assert r.status_code == 404 and _error(r)["code"] == "not_found"
+
+
+def test_read_token_guards_reads_but_not_probes(service: InMemoryService, clock: ManualClock) -> None:
+    settings = Settings(api={"token": WRITE_TOKEN, "read_token": "reader"})
+    with TestClient(create_app(settings, service, clock=clock)) as c:
+        assert c.get("/api/v1/chtc").status_code == 401
+        assert c.get("/api/v1/chtc", headers={"Authorization": "Bearer wrong"}).status_code == 403
+        assert c.get("/api/v1/chtc", headers={"Authorization": "Bearer reader"}).status_code == 200
+        assert c.get("/api/v1/sensors", headers=AUTH).status_code == 200
+        assert c.get("/api/v1/metrics").status_code == 401
+        assert c.get("/api/v1/healthz").status_code == 200
+        assert c.get("/api/v1/readyz").status_code == 200
+        assert c.get("/").status_code == 200
+        # the read token does not allow writes
+        assert (
+            c.post("/api/v1/identifications", headers={"Authorization": "Bearer reader"}).status_code == 403
+        )

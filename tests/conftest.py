@@ -1,0 +1,52 @@
+"""Shared test configuration.
+
+Markers: ``slow`` (end-to-end, run in CI), ``postgres`` (needs PostgreSQL at ``CHTC_TEST_PG_URL``, default
+``postgresql+psycopg://postgres@127.0.0.1:5432/test``), ``browser`` (needs ``/usr/bin/chromium``).
+In CI (``CI=true``) a missing PostgreSQL or Chromium is a failure, not a skip.
+"""
+
+from __future__ import annotations
+
+import os
+import shutil
+
+# One BLAS thread, before numpy is imported anywhere (see service/cli.py: thread pools only contend here).
+for _var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
+    os.environ.setdefault(_var, "1")
+
+import pytest  # noqa: E402
+
+PG_URL = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
+IN_CI = os.environ.get("CI", "").lower() == "true"
+
+
+def _pg_available() -> bool:
+    try:
+        import sqlalchemy as sa
+
+        engine = sa.create_engine(PG_URL, connect_args={"connect_timeout": 3})
+        with engine.connect() as conn:
+            conn.execute(sa.text("select 1"))
+        engine.dispose()
+        return True
+    except Exception:
+        return False
+
+
+@pytest.fixture(scope="session")
+def pg_url() -> str:
+    if not _pg_available():
+        if IN_CI:
+            pytest.fail(f"PostgreSQL not reachable at {PG_URL} (required in CI)")
+        pytest.skip(f"PostgreSQL not reachable at {PG_URL}")
+    return PG_URL
+
+
+@pytest.fixture(scope="session")
+def chromium_path() -> str:
+    path = shutil.which("chromium") or shutil.which("chromium-browser")
+    if path is None:
+        if IN_CI:
+            pytest.fail("chromium not installed (required in CI)")
+        pytest.skip("chromium not installed")
+    return path

@@ -1,0 +1,39 @@
+"""Smoke test of ``chtc bench identify`` with one seed everywhere (the benchmark itself is not a test)."""
+
+from __future__ import annotations
+
+import json
+
+import pytest
+
+from service.cli import main
+
+
+@pytest.mark.slow
+def test_bench_identify_json_shape(capsys: pytest.CaptureFixture[str]) -> None:
+    args = [
+        "bench",
+        "identify",
+        "--json",
+        "--seeds",
+        "1",
+        "--ci-seeds",
+        "1",
+        "--warm-seeds",
+        "1",
+        "--skip-28x150",
+    ]
+    assert main(args) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["data"].startswith("SYNTHETIC")
+    assert [(c["speed_rpm"], c["ambient_c"]) for c in out["conditions"]] == [(3000.0, 23.2), (4000.0, 21.8)]
+    for cond in out["conditions"]:
+        methods = cond["methods"]
+        assert set(methods) == {"empirical", "ga", "woa", "gwo", "igwo", "hybrid"}
+        assert min(m["objective_gap_pct"] for m in methods.values()) == 0.0
+        for m in methods.values():
+            assert len(m["h_err_pct"]) == 7
+            assert set(m["test_points"]) == {"1", "3", "5", "7"}
+        assert methods["hybrid"]["objective_gap_pct"] <= 0.1
+    assert 0.0 <= out["ci_coverage_95"] <= 1.0
+    assert out["warm_vs_cold_nfev_ratio"] > 0.0

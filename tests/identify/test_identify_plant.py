@@ -1,0 +1,103 @@
+"""Identification on virtual-plant data (finer mesh, its own truth, σ = 0.15 °C noise)."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+import pytest
+
+from model.identify import METHODS, IdentificationResult, IdentifyOptions, identify
+from tests.identify.conftest import Condition
+
+
+@pytest.fixture(scope="module")
+def hybrid3000(model: Any, cond3000: Condition) -> IdentificationResult:
+    return identify(model.rom, cond3000.window, rng=0, spec=model.spec)
+
+
+def test_hybrid_reaches_the_noise_floor_and_covers_the_truth(
+    hybrid3000: IdentificationResult, cond3000: Condition
+) -> None:
+    res, truth = hybrid3000, cond3000.h_true
+    assert res.method == "hybrid"
+    # the residual is the sensor noise (0.15 °C) plus quantisation and a small model error
+    assert 0.13 < res.sigma_c < 0.2
+    assert res.fit == pytest.approx(1.0 / (1.0 + res.f))
+    inside = (res.h_ci95[:, 0] <= truth) & (truth <= res.h_ci95[:, 1])
+    assert res.identified.sum() >= 2
+    assert np.all(inside[res.identified]), (res.h, res.h_ci95, truth)
+    assert np.all(np.abs(res.h[res.identified] / truth[res.identified] - 1.0) < 0.3)
+    # statistics are well-formed
+    np.testing.assert_allclose(res.correlation, res.correlation.T, atol=1e-12)
+    np.testing.assert_allclose(np.diag(res.correlation), 1.0)
+    assert set(res.test_points) == {1, 3, 5, 7}
+    for tp in res.test_points.values():
+        assert tp["mae"] <= tp["rmse"] <= tp["me"]
+    assert np.all(np.isfinite(res.rmse_per_sensor))
+
+
+def test_hybrid_fit_is_at_least_as_good_as_at_the_truth(
+    model: Any, cond3000: Condition, hybrid3000: IdentificationResult
+) -> None:
+    at_truth = identify(
+        model.rom,
+        cond3000.window,
+        rng=0,
+        method="hybrid",
+        spec=model.spec,
+        warm_start=cond3000.h_true,
+        options=IdentifyOptions(lsq_max_nfev=1, warm_hybrid_maxiter=0),
+    )
+    assert hybrid3000.f <= at_truth.f * 1.001
+
+
+@pytest.mark.parametrize("method", ["ga", "woa", "gwo", "igwo"])
+def test_metaheuristics_improve_on_the_empirical_formula(
+    model: Any, cond3000: Condition, method: str
+) -> None:
+    emp = identify(model.rom, cond3000.window, rng=0, method="empirical", spec=model.spec)
+    res = identify(
+        model.rom, cond3000.window, rng=1, method=method, spec=model.spec, options=IdentifyOptions(maxiter=40)
+    )
+    assert res.method == method and res.nfev >= 6 * 40  # GA: popsize - elite per generation
+    assert res.f < emp.f
+    assert res.f < 3 * 0.15**2
+
+
+def test_masked_broken_channel_does_not_spoil_the_fit(
+    model: Any, cond3000: Condition, hybrid3000: IdentificationResult
+) -> None:
+    window = cond3000.window
+    broken = window.measured_c.copy()
+    broken[:, 4] += np.linspace(0.0, 40.0, len(broken))  # channel 5 drifts by 40 °C
+    mask = window.mask.copy()
+    mask[4] = False
+    spoiled = identify(model.rom, replace(window, measured_c=broken), rng=0, spec=model.spec)
+    masked = identify(model.rom, replace(window, measured_c=broken, mask=mask), rng=0, spec=model.spec)
+    assert spoiled.f > 10 * hybrid3000.f  # the fault is huge when it is used ...
+    assert masked.f < 1.05 * hybrid3000.f  # ... and harmless when masked out
+    ok = hybrid3000.identified
+    assert np.all(np.abs(masked.h[ok] / hybrid3000.h[ok] - 1.0) < 0.15)
+    assert masked.rmse_per_sensor[4] > 5.0  # the broken channel is still reported
+
+
+def test_warm_start_from_the_neighbouring_condition_needs_fewer_evaluations(
+    model: Any, cond4000: Condition, hybrid3000: IdentificationResult
+) -> None:
+    cold = identify(model.rom, cond4000.window, rng=3, spec=model.spec)
+    warm = identify(model.rom, cond4000.window, rng=3, spec=model.spec, warm_start=hybrid3000)
+    assert warm.nfev < cold.nfev
+    assert warm.f <= cold.f * 1.001
+
+
+def test_seeded_identification_is_reproducible(model: Any, cond3000: Condition) -> None:
+    opts = IdentifyOptions(maxiter=10)
+    a = identify(model.rom, cond3000.window, rng=5, method="igwo", spec=model.spec, options=opts)
+    b = identify(model.rom, cond3000.window, rng=5, method="igwo", spec=model.spec, options=opts)
+    np.testing.assert_array_equal(a.h, b.h)
+
+
+def test_every_method_is_known() -> None:
+    assert METHODS == ("empirical", "ga", "woa", "gwo", "igwo", "hybrid")

@@ -1,0 +1,88 @@
+"""Reduced model of the real spindle FE model (coarse mesh to stay fast) against ``model.fem.simulate``."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from model import rom_train
+from model.fem import FEModel, build_fe_model, simulate, steady_state
+from model.geometry import SpindleSpec, load_spindle
+from model.inputs import InputSeries
+from model.rom import DEFAULT_RANK, ReducedModel, load_or_build_rom
+
+
+@pytest.fixture(scope="module")
+def spec() -> SpindleSpec:
+    return load_spindle()
+
+
+@pytest.fixture(scope="module")
+def fe(spec: SpindleSpec) -> FEModel:
+    return build_fe_model(spec, mesh_size_m=0.008)
+
+
+@pytest.fixture(scope="module")
+def rom(fe: FEModel, spec: SpindleSpec, tmp_path_factory: pytest.TempPathFactory) -> ReducedModel:
+    return load_or_build_rom(fe, spec, tmp_path_factory.mktemp("rom"), n_train=10, n_check=4)
+
+
+def test_reference_stepper_is_the_full_fe_theta_method(fe: FEModel) -> None:
+    h = np.array([88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54])
+    n = 40
+    inputs = InputSeries(10.0, np.full(n, 23.2), np.where(np.arange(n) < 20, 50.0, 150.0), np.full(n, 40.0))
+    full = fe.sensors(simulate(fe, h, inputs, 23.2))
+    mine = rom_train.reference_sensors(
+        fe,
+        h,
+        dt_s=10.0,
+        ambient_c=inputs.ambient_c,
+        q_front_w=inputs.q_front_w,
+        q_rear_w=inputs.q_rear_w,
+        t0=np.full(fe.n_nodes, 23.2),
+        theta=1.0,
+    )
+    np.testing.assert_allclose(mine, full, atol=1e-9)
+
+
+def test_rom_uses_spec_box_and_reports_its_error(rom: ReducedModel, spec: SpindleSpec) -> None:
+    assert rom.h_box == spec.h_box
+    assert rom.rank == DEFAULT_RANK
+    assert 0.0 < rom.error_report["max_err_c"] < 0.1
+
+
+def test_rom_vs_full_fe_with_mid_window_step(rom: ReducedModel, fe: FEModel, spec: SpindleSpec) -> None:
+    rng = np.random.default_rng(99)
+    lo, hi = spec.h_box
+    n = 360
+    amb = np.where(np.arange(n) < 200, 21.8, 22.6)
+    inputs = InputSeries(
+        10.0, amb, np.where(np.arange(n) < 120, 80.0, 230.0), np.where(np.arange(n) < 120, 40.0, 120.0)
+    )
+    t0 = steady_state(fe, np.full(7, 50.0), ambient_c=21.8, q_front_w=80.0, q_rear_w=40.0)
+    hs = lo * (hi / lo) ** rng.random((3, 7))
+    red = rom.simulate_sensors(hs, inputs, t0)
+    bound = rom.error_report["max_err_c"]
+    for p in range(3):
+        full = fe.sensors(simulate(fe, hs[p], inputs, t0))
+        err = np.max(np.abs(red[p] - full))
+        assert err < max(1.5 * bound, 0.02), (hs[p], err, bound)
+
+
+def test_cache_reloads_fast_and_identical(
+    rom: ReducedModel, fe: FEModel, spec: SpindleSpec, tmp_path: Path
+) -> None:
+    import time
+
+    first = load_or_build_rom(fe, spec, tmp_path, rank=12, n_train=3, n_check=1)
+    started = time.perf_counter()
+    again = load_or_build_rom(fe, spec, tmp_path, rank=12, n_train=3, n_check=1)
+    assert time.perf_counter() - started < 1.0
+    assert again.from_cache
+    inputs = InputSeries.constant(30, dt_s=10.0, ambient_c=20.0, q_front_w=100.0, q_rear_w=50.0)
+    h = np.full((2, 7), 30.0)
+    np.testing.assert_array_equal(
+        first.simulate_sensors(h, inputs, 20.0), again.simulate_sensors(h, inputs, 20.0)
+    )

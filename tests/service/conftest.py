@@ -1,0 +1,57 @@
+"""Fixtures of the service tests: the service's model (FE + cached reduced model) and virtual-plant runs.
+
+The reduced model is read from the same cache directory the service uses (``Settings().model.rom_cache_dir``,
+overridable with ``CHTC_CACHE_DIR``); the first run on a fresh machine builds it (about a minute).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime
+
+import numpy as np
+import pytest
+
+from drivers.ringbuffer import RingBuffer, Sample
+from model.geometry import load_spindle
+from model.plant import PlantRun, Segment, VirtualPlant
+from service.modelload import LoadedModel, ModelRef, load_model
+from service.settings import Settings
+
+T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
+
+
+@pytest.fixture(scope="session")
+def model_ref() -> ModelRef:
+    return ModelRef.from_settings(Settings().model)
+
+
+@pytest.fixture(scope="session")
+def loaded_model(model_ref: ModelRef) -> LoadedModel:
+    return load_model(model_ref)
+
+
+def plant_run(profile: list[Segment], *, seed: int = 1, mesh_size_m: float = 0.004, **kw: object) -> PlantRun:
+    """A virtual-plant run (coarser plant mesh than the service's default plant, for speed)."""
+    return VirtualPlant(load_spindle(), mesh_size_m=mesh_size_m, seed=seed, **kw).run(profile)  # type: ignore[arg-type]
+
+
+def samples_of(run: PlantRun, *, t0: float = T0) -> list[Sample]:
+    """The run as acquisition samples (quality from the DAQ status: 0 ok, 1 open circuit, 2 out of range)."""
+    quality_of_status = np.array([0, 2, 3], dtype=np.uint8)  # Quality.OK, OPEN_CIRCUIT, OUT_OF_RANGE
+    out = []
+    for k, t in enumerate(run.times_s):
+        out.append(
+            Sample(
+                t=datetime.fromtimestamp(t0 + float(t), tz=UTC),
+                temps_c=np.asarray(run.temps_c[k], dtype=float),
+                ambient_c=float(run.ambient_c[k]),
+                speed_rpm=float(run.speed_rpm[k]),
+                torque_nm=float(run.torque_nm[k]),
+                quality=quality_of_status[np.asarray(run.status[k])],
+            )
+        )
+    return out
+
+
+def ring_of(capacity: int = 4000) -> RingBuffer:
+    return RingBuffer(capacity, 32)

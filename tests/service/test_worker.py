@@ -1,0 +1,134 @@
+"""The core builds the right identification window from the ring buffer, skips with a reason when the data
+are too poor, and the worker process runs (and cancels) identifications."""
+
+from __future__ import annotations
+
+import asyncio
+
+import numpy as np
+import pytest
+
+from model.plant import ChannelFault, Segment
+from service.core import CoreConfig, ServiceCore
+from service.detector import DetectorConfig
+from service.history import RingHistory
+from service.scheduler import SchedulerConfig
+from service.window import WindowRules
+from service.worker import IdentificationWorker, JobRequest, JobStatus
+
+from .conftest import T0, plant_run, ring_of, samples_of
+
+CFG = CoreConfig(
+    detector=DetectorConfig(hold_s=60.0),
+    scheduler=SchedulerConfig(min_data_s=600.0, schedule_s=(600.0, 1200.0), max_window_s=3600.0),
+    rules=WindowRules(dt_s=10.0, min_window_s=600.0, min_good_channels=24),
+)
+
+
+class ListSink:
+    def __init__(self) -> None:
+        self.records: list[object] = []
+
+    def submit(self, record: object) -> bool:
+        self.records.append(record)
+        return True
+
+
+def feed(core: ServiceCore, ring, samples) -> list:
+    launches = []
+    for s in samples:
+        ring.append(s)
+        launches += core.ingest(s)
+    return launches
+
+
+def test_window_of_the_first_launch(loaded_model):
+    run = plant_run([Segment(900.0, 3000.0, 2.0, 23.2)])
+    ring = ring_of()
+    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=ListSink())
+    launches = feed(core, ring, samples_of(run))
+    assert len(launches) == 1  # the 1200 s entry is not due within 900 s
+    (launch,) = launches
+    job = launch.start
+    assert job.t_from == pytest.approx(T0) and job.t_to == pytest.approx(T0 + 600.0)
+    assert job.warm_start is None and job.warm_source == "none"
+    w = launch.request.window
+    assert w.n_steps == 60 and w.dt_s == 10.0 and w.mask.all()
+    np.testing.assert_allclose(w.measured_c, run.temps_c[:61])
+    _, speed, _ = w.step_inputs()
+    np.testing.assert_allclose(speed, 3000.0)
+    # the initial field is the live state at the condition start: the first sample's uniform field
+    assert np.ptp(launch.request.t0_c) == 0.0
+    assert launch.request.t0_c[0] == pytest.approx(np.mean(run.temps_c[0]))
+    assert core.jobs[launch.job_key].state.value == "running"
+
+
+def test_too_few_good_channels_is_skipped_with_reason(loaded_model):
+    faults = [ChannelFault(channel=c, kind="open", start_s=100.0) for c in range(1, 11)]
+    run = plant_run([Segment(1300.0, 3000.0, 2.0, 23.2)], faults=faults)
+    ring = ring_of()
+    sink = ListSink()
+    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=sink)
+    assert feed(core, ring, samples_of(run)) == []
+    skipped = [r for r in core.records if r.outcome == "insufficient-data"]
+    assert len(skipped) == 2  # the 600 s and the 1200 s entries
+    assert "only 22 channels" in skipped[0].message and "ch1 (" in skipped[0].message
+    stored = [r for r in sink.records if type(r).__name__ == "IdentificationData"]
+    assert [r.outcome for r in stored] == ["insufficient-data", "insufficient-data"]
+    assert core.counts["insufficient-data"] == 2
+    samples = [r for r in sink.records if type(r).__name__ == "SampleData"]
+    assert samples[-1].quality[0] == "open_circuit" and samples[-1].quality[20] == "ok"
+
+
+@pytest.fixture(scope="module")
+def window_request(loaded_model):
+    run = plant_run([Segment(1800.0, 3000.0, 2.0, 23.2)])
+    ring = ring_of()
+    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=ListSink())
+    (launch,) = feed(core, ring, samples_of(run))
+    return launch.request
+
+
+def test_worker_process_runs_and_cancels(model_ref, window_request, loaded_model):
+    async def scenario():
+        worker = IdentificationWorker(model_ref, timeout_s=120.0)
+        try:
+            version = await worker.start()
+            ok = await worker.run(window_request)
+            worker_cancel = JobRequest(
+                job_id=99, window=window_request.window, t0_c=window_request.t0_c, warm_start=None
+            )
+            task = asyncio.ensure_future(worker.run(worker_cancel))
+            worker.cancel(99)
+            cancelled = await task
+            return version, ok, cancelled
+        finally:
+            worker.close()
+
+    version, ok, cancelled = asyncio.run(scenario())
+    assert version == loaded_model.version
+    assert ok.status is JobStatus.OK, ok.message
+    assert ok.result.fit > 0.9 and ok.final_field_c.shape == (loaded_model.fe.n_nodes,)
+    assert cancelled.status is JobStatus.CANCELLED
+
+
+def test_manual_requests_and_idle_condition(loaded_model):
+    from service.interface import BusyError, NotReadyError
+
+    run = plant_run([Segment(700.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)])
+    ring = ring_of()
+    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=ListSink())
+    with pytest.raises(NotReadyError, match="no samples"):
+        core.request("manual")
+    samples = samples_of(run)
+    feed(core, ring, samples[:71])  # the idle condition, 10 min: its scheduled job is skipped
+    (idle,) = [r for r in core.records if r.outcome == "skipped"]
+    assert "idle" in idle.message and "not identifiable" in idle.message
+    launches = feed(core, ring, samples[71:100])  # ~4 min of the 3000 rpm condition
+    assert launches == []
+    with pytest.raises(NotReadyError, match="min_data_s"):
+        core.request("manual")
+    launches = feed(core, ring, samples[100:])
+    assert len(launches) == 1 and launches[0].start.point.speed_rpm == pytest.approx(3000.0)
+    with pytest.raises(BusyError, match="already running"):
+        core.request("manual")
