@@ -5,7 +5,8 @@ broken optional component cannot break the others:
 
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
   ``replay``, ``identify``, ``prebuild``);
-- ``service.bench.<name>`` for the benchmarks (``chtc bench model|optim|identify|acquisition|api``).
+- ``service.bench.<name>`` for the benchmarks
+  (``chtc bench model|optim|identify|chain|acquisition|api|fleet``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -35,6 +36,7 @@ BENCHMARKS: dict[str, str] = {
     "identify": "identification methods on virtual-plant data at the paper's two conditions",
     "acquisition": "Modbus poll latency, CAN decode rate, ring buffer, reconnect time",
     "api": "GET /chtc latency idle and during identification; condition change to fresh H",
+    "chain": "the service's answers over a chain of conditions: H error and CI coverage vs the plant's truth",
     "fleet": "PostgreSQL write capacity: concurrent instances' sample commits/s (scaling note)",
 }
 

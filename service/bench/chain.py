@@ -1,0 +1,142 @@
+"""``chtc bench chain``: accuracy of the *running service's* answers over a chain of operating conditions.
+
+``chtc bench identify`` fits one window that starts from the plant's true (uniform) initial field. The
+service cannot do that after the first condition: each window starts from its live state, which was
+advanced with earlier, imperfect H (``service.live``). This bench measures what that costs.
+
+Data are SYNTHETIC: per seed the virtual plant (finer mesh, its own truth ``model.plant.h_true``, σ = 0.15 °C)
+runs the end-to-end test's profile (3000 → 4000 → 5000 rpm, 45 min each, from a cold spindle), and the
+samples go through the service's own core offline (``service.offline.run_offline``: detector, scheduler,
+live state, windows, identification; deterministic). For the last identification of each condition (the
+40-min window) it reports, per H, the median and maximum relative error against the truth over the seeds,
+the median relative 95 % half-width of the (noise-only) CI, and the fraction of seeds whose CI covers the
+truth.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+PROFILE = ((2700.0, 3000.0, 5.0, 23.2), (2700.0, 4000.0, 6.0, 21.8), (2700.0, 5000.0, 8.0, 22.0))
+T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``chtc bench chain``."""
+    parser.add_argument("--seeds", type=int, default=8, help="virtual-plant noise seeds (default 8)")
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+def plant_samples(seed: int) -> list[Any]:
+    """The profile's plant run as acquisition samples every 10 s (all channels OK)."""
+    from drivers.ringbuffer import Sample
+    from model.geometry import load_spindle
+    from model.plant import Segment, VirtualPlant
+
+    run = VirtualPlant(load_spindle(), seed=seed).run([Segment(*s) for s in PROFILE], dt_s=10.0)
+    ok = np.zeros(run.temps_c.shape[1], dtype=np.uint8)
+    return [
+        Sample(
+            t=datetime.fromtimestamp(T0 + float(t), tz=UTC),
+            temps_c=np.asarray(run.temps_c[k], dtype=float),
+            ambient_c=float(run.ambient_c[k]),
+            speed_rpm=float(run.speed_rpm[k]),
+            torque_nm=float(run.torque_nm[k]),
+            quality=ok,
+        )
+        for k, t in enumerate(run.times_s)
+    ]
+
+
+def last_per_condition(records: list[Any]) -> dict[float, Any]:
+    """The last successful identification of each condition, keyed by its speed (rounded to 100 rpm)."""
+    out: dict[float, Any] = {}
+    for rec in records:  # oldest first
+        if rec.outcome == "ok":
+            out[round(rec.condition.speed_rpm, -2)] = rec
+    return out
+
+
+def summarise(errors: np.ndarray, half_widths: np.ndarray, covered: np.ndarray) -> dict[str, list[float]]:
+    """Per-H figures over seeds; inputs (seeds, 7)."""
+    return {
+        "h_err_pct_median": np.round(100 * np.median(np.abs(errors), axis=0), 1).tolist(),
+        "h_err_pct_max": np.round(100 * np.max(np.abs(errors), axis=0), 1).tolist(),
+        "ci_half_width_pct_median": np.round(100 * np.median(half_widths, axis=0), 1).tolist(),
+        "ci_coverage": np.round(np.mean(covered, axis=0), 2).tolist(),
+    }
+
+
+def run(seeds: int, *, progress: Any = None) -> dict[str, Any]:
+    from model.plant import h_true
+    from service.modelload import ModelRef, load_model
+    from service.offline import run_offline
+    from service.runtime import core_config
+    from service.settings import Settings
+
+    settings = Settings()
+    model = load_model(ModelRef.from_settings(settings.model))
+    rows: dict[float, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
+    started = time.perf_counter()
+    for seed in range(seeds):
+        result = run_offline(plant_samples(seed), model=model, config=core_config(settings))
+        for speed, rec in last_per_condition(result.records).items():
+            truth = h_true(rec.condition.speed_rpm, rec.condition.ambient_c)
+            h, lo, hi = (np.asarray(a, dtype=float) for a in (rec.h, rec.ci95_lo, rec.ci95_hi))
+            rows.setdefault(speed, []).append(
+                ((h - truth) / truth, (hi - lo) / 2 / h, (lo <= truth) & (truth <= hi))
+            )
+        if progress is not None:
+            progress(f"seed {seed + 1}/{seeds} done ({time.perf_counter() - started:.0f} s)")
+    conditions = []
+    for (speed, items), (_, _, torque, ambient) in zip(sorted(rows.items()), PROFILE, strict=False):
+        err, half, cov = (np.array([it[i] for it in items]) for i in range(3))
+        conditions.append(
+            {"speed_rpm": speed, "torque_nm": torque, "ambient_c": ambient, "seeds": len(items)}
+            | summarise(err, half, cov)
+        )
+    return {
+        "synthetic": True,
+        "window_min": 40,
+        "conditions": conditions,
+        "wall_s": round(time.perf_counter() - started, 1),
+    }
+
+
+def _print_table(out: dict[str, Any]) -> None:
+    print(
+        "last (40-min) identification per condition, chained through the service core; "
+        f"synthetic data; wall {out['wall_s']} s"
+    )
+    head = "".join(f"{'H' + str(i + 1):>8}" for i in range(7))
+    for c in out["conditions"]:
+        print(f"\n{c['speed_rpm']:.0f} rpm, {c['torque_nm']} N·m, {c['ambient_c']} °C ({c['seeds']} seeds)")
+        print(f"{'':28}{head}")
+        for key, label in (
+            ("h_err_pct_median", "median |error| %"),
+            ("h_err_pct_max", "max |error| %"),
+            ("ci_half_width_pct_median", "median CI half-width %"),
+            ("ci_coverage", "95 % CI coverage"),
+        ):
+            print(
+                f"{label:28}" + "".join(f"{v:8.2f}" if key == "ci_coverage" else f"{v:8.1f}" for v in c[key])
+            )
+
+
+def main(args: argparse.Namespace) -> int:
+    if args.seeds < 1:
+        print("error: --seeds must be >= 1", file=sys.stderr)
+        return 2
+    out = run(args.seeds, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        _print_table(out)
+    return 0
