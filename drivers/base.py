@@ -271,7 +271,11 @@ class Source(Generic[T]):
     ) -> None:
         """Read every ``interval_s`` seconds until closed or cancelled. Errors are counted (and passed to
         ``on_error``), never raised; while the link is down the loop waits for the next reconnect attempt,
-        so reconnecting after an outage takes at most ``max(interval_s, backoff.max_s)``."""
+        so reconnecting after an outage takes at most ``max(interval_s, backoff.max_s)``.
+
+        A cancellation that a third-party client swallowed during ``read()`` (seen with pymodbus' connect on
+        shutdown) is re-raised here, so cancelling the loop always ends it."""
+        task = asyncio.current_task()
         while not self._closed:
             started = self._clock()
             try:
@@ -285,6 +289,8 @@ class Source(Generic[T]):
             wait = max(0.0, interval_s - (self._clock() - started))
             if not self._connected:
                 wait = max(wait, self.retry_in_s()) if interval_s > 0 else self.retry_in_s()
+            if task is not None and task.cancelling():
+                raise asyncio.CancelledError
             await self._sleep(wait)
 
     # ------------------------------------------------------------------------------------------- internals

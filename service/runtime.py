@@ -201,8 +201,13 @@ class Runtime:
             self.acquisition_task.cancel()
         for task in (self.api_task, self.acquisition_task):
             if task is not None:
-                with contextlib.suppress(asyncio.CancelledError, Exception):
-                    await asyncio.wait_for(task, timeout=10.0)
+                # asyncio.wait, not wait_for: on a timeout wait_for cancels and then waits for the task
+                # without limit, which hung the shutdown when a client library swallowed the cancellation.
+                done, _ = await asyncio.wait({task}, timeout=10.0)
+                if not done:
+                    self.on_event(f"shutdown: {task.get_name()} did not stop within 10 s; abandoned")
+                elif not task.cancelled():
+                    task.exception()  # retrieved: a failure at shutdown was already reported by the task
         if self.acquisition is not None:
             for src in (self.acquisition.daq, self.acquisition.can):
                 with contextlib.suppress(Exception):

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import contextlib
 import random
 
 import numpy as np
@@ -135,6 +136,32 @@ def test_run_loop_reports_errors_and_waits_for_backoff() -> None:
     assert waits[0] == pytest.approx(0.5)  # waited for the reconnect, not just the interval
     assert got == [7, 8, 9]
     assert waits[1:] == pytest.approx([0.1, 0.1, 0.1])
+
+
+class SwallowsCancel(Scripted):
+    """A read that eats a cancellation and returns, as pymodbus' client did on shutdown."""
+
+    async def _read_internal(self) -> int:
+        with contextlib.suppress(asyncio.CancelledError):
+            await asyncio.sleep(10)
+        return 1
+
+
+def test_run_loop_ends_on_cancel_even_when_the_client_swallows_it() -> None:
+    src = SwallowsCancel([True], [])
+
+    async def main() -> None:
+        task = asyncio.create_task(src.run(interval_s=0.01))
+        await asyncio.sleep(0.05)  # the loop is inside the read now
+        task.cancel()
+        done, _ = await asyncio.wait({task}, timeout=5.0)
+        if not done:  # let the loop end so that the failure is reported instead of hanging
+            await src.close()
+            await asyncio.wait({task}, timeout=15.0)
+        assert done, "the run loop kept running after cancel()"
+        assert task.cancelled()
+
+    asyncio.run(main())
 
 
 def test_stale_after_last_good_read() -> None:
