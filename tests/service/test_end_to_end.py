@@ -126,7 +126,7 @@ def test_three_conditions_detected_identified_and_served(tmp_path):
     assert np.all((lo <= h) & (h <= hi)) and identified.sum() >= 2, (h, lo, hi)
     # The 95 % CIs are noise-only (model.identify). The service's windows start from its live state, which
     # carries the errors of earlier H, and the plant runs a finer mesh: the served H carry a bias the CIs do
-    # not include (coverage 0.25-0.9 per H, `chtc bench chain`; docs/service.md). What holds, measured over 20
+    # not include (coverage 0.25-1.0 per H, `chtc bench chain`; docs/service.md). What holds, measured over 20
     # seeds of this profile through the same core offline (service/bench/chain.py) and in e2e runs: the H
     # with the narrowest CI (H6) is within 7 % of the truth, and the median error of the identified H is
     # at most 28 %. Asserted with margin: 15 % and 35 %.
