@@ -49,7 +49,7 @@ from service.interface import (
 from service.views import age_s, row_to_record
 from service.worker import IdentificationWorker, JobOutcome, JobStatus
 
-__all__ = ["SoftSensorService"]
+__all__ = ["SoftSensorService", "transition_detail"]
 
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
@@ -57,6 +57,13 @@ Clock = Callable[[], datetime]
 
 def utc_now() -> datetime:
     return datetime.now(UTC)
+
+
+def transition_detail(status: DeviceStatus, message: str) -> str:
+    """The detail of a device-state event: on recovery the device's message is its last error, now cleared."""
+    if status is DeviceStatus.OK and message:
+        return f"recovered (last error: {message})"
+    return message
 
 
 class SoftSensorService:
@@ -169,7 +176,8 @@ class SoftSensorService:
             for dev in self._devices():
                 prev = self._device_state.get(dev.name)
                 if prev is not None and prev != dev.status:
-                    self.record_event(dev.name, f"{prev.value}->{dev.status.value}", dev.message)
+                    detail = transition_detail(dev.status, dev.message)
+                    self.record_event(dev.name, f"{prev.value}->{dev.status.value}", detail)
                 self._device_state[dev.name] = dev.status
             await asyncio.sleep(period_s)
 
