@@ -273,8 +273,9 @@ class Source(Generic[T]):
         ``on_error``), never raised; while the link is down the loop waits for the next reconnect attempt,
         so reconnecting after an outage takes at most ``max(interval_s, backoff.max_s)``.
 
-        A cancellation that a third-party client swallowed during ``read()`` (seen with pymodbus' connect on
-        shutdown) is re-raised here, so cancelling the loop always ends it."""
+        A cancellation swallowed during ``read()`` (seen on shutdown in the end-to-end test: the DAQ loop
+        went on after ``cancel()``; a client library or a timeout racing the cancel can consume it) is
+        re-raised here, so cancelling the loop always ends it."""
         task = asyncio.current_task()
         while not self._closed:
             started = self._clock()
