@@ -35,24 +35,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def plant_samples(seed: int) -> list[Any]:
-    """The profile's plant run as acquisition samples every 10 s (all channels OK)."""
-    from drivers.ringbuffer import Sample
+    """The profile's plant run as acquisition samples every 10 s."""
     from model.geometry import load_spindle
     from model.plant import Segment, VirtualPlant
+    from service.logsamples import samples_from_plant
 
     run = VirtualPlant(load_spindle(), seed=seed).run([Segment(*s) for s in PROFILE], dt_s=10.0)
-    ok = np.zeros(run.temps_c.shape[1], dtype=np.uint8)
-    return [
-        Sample(
-            t=datetime.fromtimestamp(T0 + float(t), tz=UTC),
-            temps_c=np.asarray(run.temps_c[k], dtype=float),
-            ambient_c=float(run.ambient_c[k]),
-            speed_rpm=float(run.speed_rpm[k]),
-            torque_nm=float(run.torque_nm[k]),
-            quality=ok,
-        )
-        for k, t in enumerate(run.times_s)
-    ]
+    return samples_from_plant(run, t0_s=T0)
 
 
 def last_per_condition(records: list[Any]) -> dict[float, Any]:
@@ -96,7 +85,10 @@ def run(seeds: int, *, progress: Any = None) -> dict[str, Any]:
         if progress is not None:
             progress(f"seed {seed + 1}/{seeds} done ({time.perf_counter() - started:.0f} s)")
     conditions = []
-    for (speed, items), (_, _, torque, ambient) in zip(sorted(rows.items()), PROFILE, strict=False):
+    for _, speed, torque, ambient in PROFILE:
+        items = rows.get(speed, [])
+        if not items:
+            continue
         err, half, cov = (np.array([it[i] for it in items]) for i in range(3))
         conditions.append(
             {"speed_rpm": speed, "torque_nm": torque, "ambient_c": ambient, "seeds": len(items)}

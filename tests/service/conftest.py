@@ -8,12 +8,12 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 
-import numpy as np
 import pytest
 
 from drivers.ringbuffer import RingBuffer, Sample
 from model.geometry import load_spindle
 from model.plant import PlantRun, Segment, VirtualPlant
+from service.logsamples import samples_from_plant
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
 
@@ -37,20 +37,7 @@ def plant_run(profile: list[Segment], *, seed: int = 1, mesh_size_m: float = 0.0
 
 def samples_of(run: PlantRun, *, t0: float = T0) -> list[Sample]:
     """The run as acquisition samples (quality from the DAQ status: 0 ok, 1 open circuit, 2 out of range)."""
-    quality_of_status = np.array([0, 2, 3], dtype=np.uint8)  # Quality.OK, OPEN_CIRCUIT, OUT_OF_RANGE
-    out = []
-    for k, t in enumerate(run.times_s):
-        out.append(
-            Sample(
-                t=datetime.fromtimestamp(t0 + float(t), tz=UTC),
-                temps_c=np.asarray(run.temps_c[k], dtype=float),
-                ambient_c=float(run.ambient_c[k]),
-                speed_rpm=float(run.speed_rpm[k]),
-                torque_nm=float(run.torque_nm[k]),
-                quality=quality_of_status[np.asarray(run.status[k])],
-            )
-        )
-    return out
+    return samples_from_plant(run, t0_s=t0)
 
 
 def ring_of(capacity: int = 4000) -> RingBuffer:
