@@ -25,15 +25,15 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from model import rom_cache, rom_modal, rom_train
+from model import rom_cache, rom_modal, rom_stream, rom_train
 from model.rom_check import error_report as _error_report
 from model.rom_train import AffineSystem
 
 Array = NDArray[np.float64]
 
-DEFAULT_RANK = (
-    50  # 30 (the planning figure) gives ~0.08-0.09 °C worst case on this geometry, 40 ~0.09; see docs/rom.md
-)
+# 46: worst case 0.022-0.032 °C over 3 x 100 random H (target 0.05) at ~575x the full FE; 50 gives 0.021 °C at
+# ~505x, 44 0.040 °C, 40 0.092 °C, 30 ~0.08-0.09 °C (docs/rom.md, "Choices")
+DEFAULT_RANK = 46
 DEFAULT_THETA = 1.0  # as model.fem.simulate (backward Euler); checked by the tests
 DEFAULT_BOX = (5.0, 200.0)
 DEFAULT_Q_MAX_W = (300.0, 150.0)  # W: above the packaged spindle's bearing heats at 7000 rpm, 20 N·m
@@ -130,11 +130,13 @@ class ReducedModel:
         """
         h2, scale = self._check_population(h, load_scale)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
-        b = self._modal_trajectory(md, h2, inputs, self.initial_state(t0), scale)  # (n+1, P, r)
-        c = np.matmul(self.sensors[None, :, :], md.phi)  # (P, 32, r)
-        # contiguous operands so that matmul goes to BLAS (strided ones take numpy's slow loop)
-        b_pnr = np.ascontiguousarray(np.swapaxes(b, 0, 1))
-        return np.asarray(np.matmul(b_pnr, np.ascontiguousarray(np.swapaxes(c, 1, 2))))
+        gain = np.matmul(self.sensors[None, :, :], md.phi)  # (P, 32, r)
+        b0, mu, forcing, seg = self._modal_setup(md, h2, inputs, self.initial_state(t0))
+        n_steps = int(seg.length.sum())
+        if rom_modal.choose_method(seg.start.size, n_steps, b0.size) == "loop":  # wide: stream the window
+            return rom_stream.modal_outputs(b0, md.lam, mu, forcing, seg, scale, gain)
+        b = rom_modal.modal_trajectory(b0, md.lam, mu, forcing, seg, scale)  # (n+1, P, r)
+        return np.asarray(np.matmul(np.swapaxes(b, 0, 1), np.swapaxes(gain, 1, 2)))
 
     def simulate_state(
         self, h: Array, inputs: InputLike, t0: float | Array, *, load_scale: Array | None = None
@@ -146,7 +148,8 @@ class ReducedModel:
         scale = None if load_scale is None else np.asarray(load_scale, dtype=np.float64).reshape(1, 2)
         h2, scale2 = self._check_population(h_arr[None, :], scale)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
-        b = self._modal_trajectory(md, h2, inputs, self.initial_state(t0), scale2)
+        b0, mu, forcing, seg = self._modal_setup(md, h2, inputs, self.initial_state(t0))
+        b = rom_modal.modal_trajectory(b0, md.lam, mu, forcing, seg, scale2)
         return np.asarray(b[:, 0, :] @ md.phi[0].T)
 
     def steady_state(
@@ -181,9 +184,10 @@ class ReducedModel:
             raise RomError(f"load_scale: expected shape ({h2.shape[0]}, 2), got {scale.shape}")
         return h2, scale
 
-    def _modal_trajectory(
-        self, md: rom_modal.Modes, h: Array, inputs: InputLike, a0: Array, scale: Array
-    ) -> Array:
+    def _modal_setup(
+        self, md: rom_modal.Modes, h: Array, inputs: InputLike, a0: Array
+    ) -> tuple[Array, Array, tuple[Array, Array, Array], rom_modal.Segments]:
+        """Modal start b(0) (P, r), amplification μ (P, r), modal loads per unit input and the segments."""
         seg = _segments(inputs)
         mu, _ = rom_modal.step_factors(md.lam, float(inputs.dt_s), self.theta)  # γ·c = (1-μ)·c/λ
         phi_t = np.swapaxes(md.phi, 1, 2)
@@ -192,8 +196,7 @@ class ReducedModel:
             phi_t @ self.q_front,
             phi_t @ self.q_rear,
         )
-        b0 = phi_t @ a0
-        return rom_modal.modal_trajectory(b0, md.lam, mu, forcing, seg, scale)
+        return phi_t @ a0, mu, forcing, seg
 
 
 def _segments(inputs: InputLike) -> rom_modal.Segments:

@@ -54,7 +54,8 @@ def conductance(k0: Array, k_zone: Array, h: Array) -> Array:
     """Reduced conductance K_r(H) (P, r, r) [W/K] for H (P, 7) [W/(m²·K)]."""
     r = k0.shape[0]
     kr = (h @ k_zone.reshape(k_zone.shape[0], r * r)).reshape(h.shape[0], r, r)
-    return kr + k0[None, :, :]
+    kr += k0[None, :, :]
+    return kr
 
 
 def ambient_load(z_zone: Array, h: Array) -> Array:
@@ -72,9 +73,7 @@ class Modes:
 
 def modes(k0: Array, k_zone: Array, h: Array) -> Modes:
     """Eigenpairs of the symmetric reduced conductance for every candidate (batched LAPACK ``syevd``)."""
-    kr = conductance(k0, k_zone, h)
-    kr = 0.5 * (kr + np.swapaxes(kr, 1, 2))
-    lam, phi = np.linalg.eigh(kr)
+    lam, phi = np.linalg.eigh(conductance(k0, k_zone, h))  # LAPACK reads the lower triangle only
     return Modes(lam=lam, phi=phi)
 
 
@@ -121,12 +120,8 @@ def modal_trajectory(
     out[0] = b0
     if n_steps == 0:
         return out
-    u = np.stack(
-        [forcing[0], forcing[1] * load_scale[:, 0:1], forcing[2] * load_scale[:, 1:2]], axis=1
-    )  # (P, 3, r) modal load per unit input
-    to_fixed = u / lam[:, None, :]  # b* = c/λ per unit input
-    to_increment = to_fixed * (1.0 - mu)[:, None, :]  # γ·c = (1−μ)·c/λ per unit input
-    x = np.stack([segments.ambient_c, segments.q_front_w, segments.q_rear_w], axis=1)  # (S, 3)
+    to_fixed, to_increment = unit_responses(lam, mu, forcing, load_scale)
+    x = segment_inputs(segments)
     # one BLAS product for all segments: (S, 3) @ (3, P·r)
     increment = (x @ np.swapaxes(to_increment, 0, 1).reshape(3, p * r)).reshape(-1, p, r)
     if method == "auto":
@@ -148,6 +143,21 @@ def modal_trajectory(
         multiply(pw[1 : length + 1], out[n0] - fixed, out=block)
         block += fixed
     return out
+
+
+def unit_responses(
+    lam: Array, mu: Array, forcing: tuple[Array, Array, Array], load_scale: Array
+) -> tuple[Array, Array]:
+    """Per unit input (1 °C ambient, 1 W front, 1 W rear): the fixed point b* = c/λ and the step increment
+    γ·c = (1−μ)·c/λ, each (P, 3, r); ``load_scale`` (P, 2) multiplies the two heat loads."""
+    u = np.stack([forcing[0], forcing[1] * load_scale[:, 0:1], forcing[2] * load_scale[:, 1:2]], axis=1)
+    to_fixed = u / lam[:, None, :]
+    return to_fixed, to_fixed * (1.0 - mu)[:, None, :]
+
+
+def segment_inputs(segments: Segments) -> Array:
+    """The segments' inputs as rows (S, 3): ambient [°C], front and rear bearing heat [W]."""
+    return np.stack([segments.ambient_c, segments.q_front_w, segments.q_rear_w], axis=1)
 
 
 def choose_method(n_segments: int, n_steps: int, width: int) -> str:

@@ -1,0 +1,135 @@
+"""Sensor outputs of the modal closed form (``model.rom_modal``), streamed through the window in time chunks.
+
+For a population (P candidates, rank r) the whole modal trajectory b(n), (n_steps+1, P, r), is several MB
+(4 MB for P = 28, r = 50, 360 steps). Materialising it, plus its per-step increments and a transposed copy
+for the sensor product, made a call write ~15 MB of fresh arrays. Whether that is cheap depends on the
+allocator's history: glibc hands arrays above its (adaptive) mmap threshold out as fresh pages and faults
+each one on first touch (~1 µs per 4 KiB page here), which made the same call 1.7x slower in one process
+than in another (0.42 vs 0.25 ms per candidate, ``chtc bench model``). This evaluator keeps only ``chunk``
+steps of the trajectory and writes the outputs G·b(n) straight into the result: a call touches the result
+plus a few chunk-sized buffers, whatever the allocator does. The arithmetic is that of the "loop" path of
+``modal_trajectory`` (exact θ-method recursion; a run of constant input uses the power table), so the two
+agree to round-off.
+
+Pure numpy; no I/O.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+from numpy.typing import NDArray
+
+from model.rom_modal import Segments, power_table, segment_inputs, unit_responses
+
+Array = NDArray[np.float64]
+
+DEFAULT_CHUNK = 32  # steps per chunk; measured in docs/rom.md ("Streaming the window")
+
+
+@dataclass(frozen=True)
+class Pieces:
+    """The segments cut at every ``chunk`` steps. Piece k covers ``length[k]`` steps from step ``start[k]``
+    of the window with the inputs of segment ``segment[k]``; chunk c holds pieces bounds[c] to bounds[c+1]."""
+
+    segment: NDArray[np.int64]
+    start: NDArray[np.int64]
+    length: NDArray[np.int64]
+    bounds: NDArray[np.int64]
+
+
+def chunk_pieces(segments: Segments, chunk: int) -> Pieces:
+    """Cut the segments at every multiple of ``chunk`` steps (vectorised: no Python loop over segments)."""
+    if chunk < 1:
+        raise ValueError(f"chunk: must be >= 1 step, got {chunk}")
+    n_steps = int(segments.length.sum())
+    start = np.union1d(segments.start, np.arange(0, n_steps, chunk)).astype(np.int64)
+    length = np.diff(np.append(start, n_steps)).astype(np.int64)
+    segment = (np.searchsorted(segments.start, start, side="right") - 1).astype(np.int64)
+    bounds = np.searchsorted(start, np.arange(0, n_steps + chunk, chunk)[: -(-n_steps // chunk) + 1])
+    return Pieces(segment, start, length, bounds.astype(np.int64))
+
+
+def modal_outputs(
+    b0: Array,
+    lam: Array,
+    mu: Array,
+    forcing: tuple[Array, Array, Array],
+    segments: Segments,
+    load_scale: Array,
+    gain: Array,
+    *,
+    chunk: int = DEFAULT_CHUNK,
+) -> Array:
+    """Outputs y_p(n) = G_p·b_p(n), (P, n_steps+1, m), of the trajectory that ``modal_trajectory`` gives.
+
+    ``gain`` (P, m, r) maps modal coordinates to outputs (sensor rows times the candidate's eigenvectors,
+    in °C per unit modal coordinate); the other arguments are those of ``modal_trajectory``.
+    """
+    n_steps = int(segments.length.sum())
+    p, r = b0.shape
+    gain_t = np.ascontiguousarray(np.swapaxes(gain, 1, 2))  # (P, r, m); a strided view is ~40 % slower
+    out = np.empty((p, n_steps + 1, gain.shape[1]))
+    np.matmul(b0[:, None, :], gain_t, out=out[:, 0:1, :])
+    if n_steps == 0:
+        return out
+    to_fixed, to_increment = unit_responses(lam, mu, forcing, load_scale)
+    ops = (np.swapaxes(to_fixed, 0, 1).reshape(3, p * r), np.swapaxes(to_increment, 0, 1).reshape(3, p * r))
+    x = segment_inputs(segments)
+    pieces = chunk_pieces(segments, chunk)
+    longest = int(pieces.length.max())
+    work = _Work(
+        traj=np.empty((min(chunk, n_steps), p * r)),
+        loads=np.empty((min(chunk, n_steps), p * r)),
+        mu=mu.reshape(p * r),
+        pw=power_table(mu, longest).reshape(longest + 1, p * r) if longest > 1 else None,
+    )
+    state = b0.reshape(p * r)
+    for c in range(pieces.bounds.size - 1):
+        k0, k1 = int(pieces.bounds[c]), int(pieces.bounds[c + 1])
+        first, used = (
+            int(pieces.start[k0]),
+            int(pieces.start[k1 - 1] + pieces.length[k1 - 1] - pieces.start[k0]),
+        )
+        _advance(work, state, pieces, k0, k1, x, ops)
+        block = work.traj[:used].reshape(used, p, r)
+        np.matmul(np.swapaxes(block, 0, 1), gain_t, out=out[:, first + 1 : first + used + 1, :])
+        state = work.traj[used - 1].copy()
+    return out
+
+
+@dataclass(frozen=True)
+class _Work:
+    """Chunk buffers, flattened to P·r columns: trajectory rows, step increments, μ and its power table."""
+
+    traj: Array
+    loads: Array
+    mu: Array
+    pw: Array | None
+
+
+def _advance(
+    work: _Work, state: Array, pieces: Pieces, k0: int, k1: int, x: Array, ops: tuple[Array, Array]
+) -> None:
+    """Fill work.traj[0:used] with b(first+1 ..) from b(first) = ``state`` (P·r,), over pieces k0:k1."""
+    seg, length = pieces.segment[k0:k1], pieces.length[k0:k1]
+    off = pieces.start[k0:k1] - pieces.start[k0]
+    singles = length == 1
+    n_single = int(np.count_nonzero(singles))
+    if n_single:  # the increments of all one-step pieces in one BLAS product: (k, 3) @ (3, P·r)
+        np.matmul(x[seg[singles]], ops[1], out=work.loads[:n_single])
+    k = 0
+    traj, mu = work.traj, work.mu
+    for s, o, n in zip(seg.tolist(), off.tolist(), length.tolist(), strict=True):
+        prev = state if o == 0 else traj[o - 1]
+        if n == 1 or work.pw is None:
+            row = traj[o]
+            np.multiply(mu, prev, out=row)
+            row += work.loads[k]
+            k += 1
+            continue
+        fixed = x[s] @ ops[0]
+        block = traj[o : o + n]
+        np.multiply(work.pw[1 : n + 1], prev - fixed, out=block)
+        block += fixed
