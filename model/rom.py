@@ -136,7 +136,9 @@ class ReducedModel:
         if rom_modal.choose_method(seg.start.size, n_steps, b0.size) == "loop":  # wide: stream the window
             return rom_stream.modal_outputs(b0, md.lam, mu, forcing, seg, scale, gain)
         b = rom_modal.modal_trajectory(b0, md.lam, mu, forcing, seg, scale)  # (n+1, P, r)
-        return np.asarray(np.matmul(np.swapaxes(b, 0, 1), np.swapaxes(gain, 1, 2)))
+        # contiguous operands: BLAS is ~40 % slower on the transposed views
+        b_pnr = np.ascontiguousarray(np.swapaxes(b, 0, 1))
+        return np.asarray(np.matmul(b_pnr, np.ascontiguousarray(np.swapaxes(gain, 1, 2))))
 
     def simulate_state(
         self, h: Array, inputs: InputLike, t0: float | Array, *, load_scale: Array | None = None
