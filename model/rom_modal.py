@@ -120,10 +120,9 @@ def modal_trajectory(
     out[0] = b0
     if n_steps == 0:
         return out
-    to_fixed, to_increment = unit_responses(lam, mu, forcing, load_scale)
+    fixed_op, step_op = unit_responses(lam, mu, forcing, load_scale)
     x = segment_inputs(segments)
-    # one BLAS product for all segments: (S, 3) @ (3, P·r)
-    increment = (x @ np.swapaxes(to_increment, 0, 1).reshape(3, p * r)).reshape(-1, p, r)
+    increment = (x @ step_op).reshape(-1, p, r)  # one BLAS product for all segments
     if method == "auto":
         method = choose_method(segments.start.size, n_steps, p * r)
     if method in ("scan", "blocked"):
@@ -138,7 +137,7 @@ def modal_trajectory(
             multiply(mu, out[n0], out=nxt)
             nxt += increment[s]
             continue
-        fixed = x[s, 0] * to_fixed[:, 0] + x[s, 1] * to_fixed[:, 1] + x[s, 2] * to_fixed[:, 2]
+        fixed = (x[s] @ fixed_op).reshape(p, r)
         block = out[n0 + 1 : n0 + length + 1]
         multiply(pw[1 : length + 1], out[n0] - fixed, out=block)
         block += fixed
@@ -148,11 +147,13 @@ def modal_trajectory(
 def unit_responses(
     lam: Array, mu: Array, forcing: tuple[Array, Array, Array], load_scale: Array
 ) -> tuple[Array, Array]:
-    """Per unit input (1 °C ambient, 1 W front, 1 W rear): the fixed point b* = c/λ and the step increment
-    γ·c = (1−μ)·c/λ, each (P, 3, r); ``load_scale`` (P, 2) multiplies the two heat loads."""
-    u = np.stack([forcing[0], forcing[1] * load_scale[:, 0:1], forcing[2] * load_scale[:, 1:2]], axis=1)
-    to_fixed = u / lam[:, None, :]
-    return to_fixed, to_fixed * (1.0 - mu)[:, None, :]
+    """Per unit input (rows: 1 °C ambient, 1 W front, 1 W rear) the fixed point b* = c/λ and the step
+    increment γ·c = (1−μ)·c/λ, each (3, P·r), so that ``inputs (S, 3) @ op`` gives all segments at once;
+    ``load_scale`` (P, 2) multiplies the two heat loads."""
+    p, r = lam.shape
+    u = np.stack([forcing[0], forcing[1] * load_scale[:, 0:1], forcing[2] * load_scale[:, 1:2]])  # (3, P, r)
+    to_fixed = u / lam[None, :, :]
+    return to_fixed.reshape(3, p * r), (to_fixed * (1.0 - mu)[None, :, :]).reshape(3, p * r)
 
 
 def segment_inputs(segments: Segments) -> Array:

@@ -74,8 +74,7 @@ def modal_outputs(
     np.matmul(b0[:, None, :], gain_t, out=out[:, 0:1, :])
     if n_steps == 0:
         return out
-    to_fixed, to_increment = unit_responses(lam, mu, forcing, load_scale)
-    ops = (np.swapaxes(to_fixed, 0, 1).reshape(3, p * r), np.swapaxes(to_increment, 0, 1).reshape(3, p * r))
+    ops = unit_responses(lam, mu, forcing, load_scale)
     x = segment_inputs(segments)
     pieces = chunk_pieces(segments, chunk)
     longest = int(pieces.length.max())
@@ -88,10 +87,8 @@ def modal_outputs(
     state = b0.reshape(p * r)
     for c in range(pieces.bounds.size - 1):
         k0, k1 = int(pieces.bounds[c]), int(pieces.bounds[c + 1])
-        first, used = (
-            int(pieces.start[k0]),
-            int(pieces.start[k1 - 1] + pieces.length[k1 - 1] - pieces.start[k0]),
-        )
+        first = int(pieces.start[k0])
+        used = int(pieces.start[k1 - 1] + pieces.length[k1 - 1]) - first
         _advance(work, state, pieces, k0, k1, x, ops)
         block = work.traj[:used].reshape(used, p, r)
         np.matmul(np.swapaxes(block, 0, 1), gain_t, out=out[:, first + 1 : first + used + 1, :])
