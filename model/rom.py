@@ -131,11 +131,11 @@ class ReducedModel:
         h2, scale = self._check_population(h, load_scale)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
         gain = np.matmul(self.sensors[None, :, :], md.phi)  # (P, 32, r)
-        b0, mu, forcing, seg = self._modal_setup(md, h2, inputs, self.initial_state(t0))
-        n_steps = int(seg.length.sum())
-        if rom_modal.choose_method(seg.start.size, n_steps, b0.size) == "loop":  # wide: stream the window
-            return rom_stream.modal_outputs(b0, md.lam, mu, forcing, seg, scale, gain)
-        b = rom_modal.modal_trajectory(b0, md.lam, mu, forcing, seg, scale)  # (n+1, P, r)
+        run = self._modal_run(md, h2, inputs, self.initial_state(t0), scale)
+        seg = run.segments
+        if rom_modal.choose_method(seg.start.size, int(seg.length.sum()), run.b0.size) == "loop":
+            return rom_stream.modal_outputs(run, gain)  # a wide population: stream the window
+        b = rom_modal.modal_trajectory(run)  # (n+1, P, r)
         # contiguous operands: BLAS is ~40 % slower on the transposed views
         b_pnr = np.ascontiguousarray(np.swapaxes(b, 0, 1))
         return np.asarray(np.matmul(b_pnr, np.ascontiguousarray(np.swapaxes(gain, 1, 2))))
@@ -150,8 +150,7 @@ class ReducedModel:
         scale = None if load_scale is None else np.asarray(load_scale, dtype=np.float64).reshape(1, 2)
         h2, scale2 = self._check_population(h_arr[None, :], scale)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
-        b0, mu, forcing, seg = self._modal_setup(md, h2, inputs, self.initial_state(t0))
-        b = rom_modal.modal_trajectory(b0, md.lam, mu, forcing, seg, scale2)
+        b = rom_modal.modal_trajectory(self._modal_run(md, h2, inputs, self.initial_state(t0), scale2))
         return np.asarray(b[:, 0, :] @ md.phi[0].T)
 
     def steady_state(
@@ -186,11 +185,11 @@ class ReducedModel:
             raise RomError(f"load_scale: expected shape ({h2.shape[0]}, 2), got {scale.shape}")
         return h2, scale
 
-    def _modal_setup(
-        self, md: rom_modal.Modes, h: Array, inputs: InputLike, a0: Array
-    ) -> tuple[Array, Array, tuple[Array, Array, Array], rom_modal.Segments]:
-        """Modal start b(0) (P, r), amplification μ (P, r), modal loads per unit input and the segments."""
-        seg = _segments(inputs)
+    def _modal_run(
+        self, md: rom_modal.Modes, h: Array, inputs: InputLike, a0: Array, scale: Array
+    ) -> rom_modal.ModalRun:
+        """The window in the candidates' modal coordinates (start, μ, modal loads per unit input)."""
+        seg = _segments(inputs)  # validates the inputs (dt first) before anything uses them
         mu, _ = rom_modal.step_factors(md.lam, float(inputs.dt_s), self.theta)  # γ·c = (1-μ)·c/λ
         phi_t = np.swapaxes(md.phi, 1, 2)
         forcing = (
@@ -198,7 +197,7 @@ class ReducedModel:
             phi_t @ self.q_front,
             phi_t @ self.q_rear,
         )
-        return phi_t @ a0, mu, forcing, seg
+        return rom_modal.ModalRun(phi_t @ a0, md.lam, mu, forcing, seg, scale)
 
 
 def _segments(inputs: InputLike) -> rom_modal.Segments:

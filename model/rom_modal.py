@@ -93,34 +93,42 @@ def power_table(mu: Array, n_max: int) -> Array:
     return table
 
 
-def modal_trajectory(
-    b0: Array,
-    lam: Array,
-    mu: Array,
-    forcing: tuple[Array, Array, Array],
-    segments: Segments,
-    load_scale: Array,
-    *,
-    method: str = "auto",
-) -> Array:
+@dataclass(frozen=True)
+class ModalRun:
+    """One population's reduced θ-method window in modal coordinates.
+
+    ``b0`` start b(0), ``lam`` eigenvalues λ [1/s] and ``mu`` step amplification μ, each (P, r); ``forcing`` =
+    (u_ambient, u_front, u_rear), each (P, r): modal loads per 1 °C of ambient and per 1 W of front/rear
+    bearing heat; the input ``segments``; ``load_scale`` (P, 2) multiplies the heat loads per candidate.
+    """
+
+    b0: Array
+    lam: Array
+    mu: Array
+    forcing: tuple[Array, Array, Array]
+    segments: Segments
+    load_scale: Array
+
+
+def modal_trajectory(run: ModalRun, *, method: str = "auto") -> Array:
     """Modal coordinates b(n), time-major (n_steps+1, P, r), from b(0) (P, r).
 
-    ``forcing`` = (u_ambient, u_front, u_rear), each (P, r): modal loads per 1 °C of ambient and per 1 W of
-    front/rear bearing heat. ``load_scale`` (P, 2) multiplies the heat loads per candidate. A segment of one
-    step costs one multiply-add (b⁺ = μ·b + γ·c); a longer one uses the power table in one vectorised block,
-    so the cost is ~(number of segments) small operations plus one pass over the output. ``method``
-    "blocked" (``blocked_recursion``, ~4√n larger operations: better for one or two candidates and inputs
-    that change every step) or "scan" (``linear_scan``) replace the loop; "auto" picks by ``choose_method``.
+    A segment of one step costs one multiply-add (b⁺ = μ·b + γ·c); a longer one uses the power table in one
+    vectorised block, so the cost is ~(number of segments) small operations plus one pass over the output.
+    ``method`` "blocked" (``blocked_recursion``, ~4√n larger operations: better for one or two candidates and
+    inputs that change every step) or "scan" (``linear_scan``) replace the loop; "auto" picks by
+    ``choose_method``.
     """
     if method not in ("auto", "loop", "scan", "blocked"):
         raise ValueError(f"method: expected 'auto', 'loop', 'scan' or 'blocked', got {method!r}")
+    segments, mu = run.segments, run.mu
     n_steps = int(segments.length.sum())
-    p, r = b0.shape
+    p, r = run.b0.shape
     out = np.empty((n_steps + 1, p, r))
-    out[0] = b0
+    out[0] = run.b0
     if n_steps == 0:
         return out
-    fixed_op, step_op = unit_responses(lam, mu, forcing, load_scale)
+    fixed_op, step_op = unit_responses(run)
     x = segment_inputs(segments)
     increment = (x @ step_op).reshape(-1, p, r)  # one BLAS product for all segments
     if method == "auto":
@@ -144,16 +152,15 @@ def modal_trajectory(
     return out
 
 
-def unit_responses(
-    lam: Array, mu: Array, forcing: tuple[Array, Array, Array], load_scale: Array
-) -> tuple[Array, Array]:
+def unit_responses(run: ModalRun) -> tuple[Array, Array]:
     """Per unit input (rows: 1 °C ambient, 1 W front, 1 W rear) the fixed point b* = c/λ and the step
-    increment γ·c = (1−μ)·c/λ, each (3, P·r), so that ``inputs (S, 3) @ op`` gives all segments at once;
-    ``load_scale`` (P, 2) multiplies the two heat loads."""
+    increment γ·c = (1−μ)·c/λ, each (3, P·r), so that ``inputs (S, 3) @ op`` gives all segments at once
+    (heat loads times the run's ``load_scale``)."""
+    forcing, scale, lam = run.forcing, run.load_scale, run.lam
     p, r = lam.shape
-    u = np.stack([forcing[0], forcing[1] * load_scale[:, 0:1], forcing[2] * load_scale[:, 1:2]])  # (3, P, r)
+    u = np.stack([forcing[0], forcing[1] * scale[:, 0:1], forcing[2] * scale[:, 1:2]])  # (3, P, r)
     to_fixed = u / lam[None, :, :]
-    return to_fixed.reshape(3, p * r), (to_fixed * (1.0 - mu)[None, :, :]).reshape(3, p * r)
+    return to_fixed.reshape(3, p * r), (to_fixed * (1.0 - run.mu)[None, :, :]).reshape(3, p * r)
 
 
 def segment_inputs(segments: Segments) -> Array:

@@ -21,7 +21,7 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from model.rom_modal import Segments, power_table, segment_inputs, unit_responses
+from model.rom_modal import ModalRun, Segments, power_table, segment_inputs, unit_responses
 
 Array = NDArray[np.float64]
 
@@ -51,40 +51,31 @@ def chunk_pieces(segments: Segments, chunk: int) -> Pieces:
     return Pieces(segment, start, length, bounds.astype(np.int64))
 
 
-def modal_outputs(
-    b0: Array,
-    lam: Array,
-    mu: Array,
-    forcing: tuple[Array, Array, Array],
-    segments: Segments,
-    load_scale: Array,
-    gain: Array,
-    *,
-    chunk: int = DEFAULT_CHUNK,
-) -> Array:
-    """Outputs y_p(n) = G_p·b_p(n), (P, n_steps+1, m), of the trajectory that ``modal_trajectory`` gives.
+def modal_outputs(run: ModalRun, gain: Array, *, chunk: int = DEFAULT_CHUNK) -> Array:
+    """Outputs y_p(n) = G_p·b_p(n), (P, n_steps+1, m), of the trajectory that ``modal_trajectory(run)`` gives.
 
     ``gain`` (P, m, r) maps modal coordinates to outputs (sensor rows times the candidate's eigenvectors,
-    in °C per unit modal coordinate); the other arguments are those of ``modal_trajectory``.
+    in °C per unit modal coordinate).
     """
+    segments = run.segments
     n_steps = int(segments.length.sum())
-    p, r = b0.shape
+    p, r = run.b0.shape
     gain_t = np.ascontiguousarray(np.swapaxes(gain, 1, 2))  # (P, r, m); a strided view is ~40 % slower
     out = np.empty((p, n_steps + 1, gain.shape[1]))
-    np.matmul(b0[:, None, :], gain_t, out=out[:, 0:1, :])
+    np.matmul(run.b0[:, None, :], gain_t, out=out[:, 0:1, :])
     if n_steps == 0:
         return out
-    ops = unit_responses(lam, mu, forcing, load_scale)
+    ops = unit_responses(run)
     x = segment_inputs(segments)
     pieces = chunk_pieces(segments, chunk)
     longest = int(pieces.length.max())
     work = _Work(
         traj=np.empty((min(chunk, n_steps), p * r)),
         loads=np.empty((min(chunk, n_steps), p * r)),
-        mu=mu.reshape(p * r),
-        pw=power_table(mu, longest).reshape(longest + 1, p * r) if longest > 1 else None,
+        mu=run.mu.reshape(p * r),
+        pw=power_table(run.mu, longest).reshape(longest + 1, p * r) if longest > 1 else None,
     )
-    state = b0.reshape(p * r)
+    state = run.b0.reshape(p * r)
     for c in range(pieces.bounds.size - 1):
         k0, k1 = int(pieces.bounds[c]), int(pieces.bounds[c + 1])
         first = int(pieces.start[k0])

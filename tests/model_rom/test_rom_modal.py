@@ -36,7 +36,7 @@ def test_segment_loop_and_scan_agree_with_plain_recursion(theta: float, method: 
     expected = _plain(b0, mu, gamma * c)
     seg = rom_modal.split_segments(amb, qf, qr)
     assert seg.start.size == n  # qr makes every step its own segment
-    got = rom_modal.modal_trajectory(b0, lam, mu, forcing, seg, scale, method=method)
+    got = rom_modal.modal_trajectory(rom_modal.ModalRun(b0, lam, mu, forcing, seg, scale), method=method)
     np.testing.assert_allclose(got, expected, atol=1e-9)
     scan = np.empty_like(expected)
     scan[0] = b0
@@ -46,7 +46,7 @@ def test_segment_loop_and_scan_agree_with_plain_recursion(theta: float, method: 
     assert few.start.size == 6
     c_few = amb[:, None, None] * forcing[0] + qf[:, None, None] * forcing[1] * scale[:, 0:1]
     np.testing.assert_allclose(
-        rom_modal.modal_trajectory(b0, lam, mu, forcing, few, scale, method=method),
+        rom_modal.modal_trajectory(rom_modal.ModalRun(b0, lam, mu, forcing, few, scale), method=method),
         _plain(b0, mu, gamma * c_few),
         atol=1e-9,
     )

@@ -40,10 +40,10 @@ def test_streamed_outputs_equal_the_projected_trajectory(
     scale = rng.uniform(0.5, 1.5, (p, 2))
     b0 = rng.normal(size=(p, r))
     gain = rng.normal(size=(p, m, r))
-    seg = _segments(lengths, rng)
-    traj = rom_modal.modal_trajectory(b0, lam, mu, forcing, seg, scale, method="loop")
+    run = rom_modal.ModalRun(b0, lam, mu, forcing, _segments(lengths, rng), scale)
+    traj = rom_modal.modal_trajectory(run, method="loop")
     expected = np.einsum("npr,pmr->pnm", traj, gain)
-    got = rom_stream.modal_outputs(b0, lam, mu, forcing, seg, scale, gain, chunk=chunk)
+    got = rom_stream.modal_outputs(run, gain, chunk=chunk)
     assert got.shape == (p, sum(lengths) + 1, m)
     np.testing.assert_allclose(got, expected, atol=1e-9)
 
@@ -69,7 +69,9 @@ def test_empty_window_gives_the_start_only_and_bad_chunk_is_named() -> None:
     empty = rom_modal.split_segments(np.zeros(0), np.zeros(0), np.zeros(0))
     lam = np.ones((2, 3))
     forcing = (np.zeros((2, 3)),) * 3
-    got = rom_stream.modal_outputs(b0, lam, 0.5 * lam, forcing, empty, np.ones((2, 2)), gain)
+    got = rom_stream.modal_outputs(
+        rom_modal.ModalRun(b0, lam, 0.5 * lam, forcing, empty, np.ones((2, 2))), gain
+    )
     np.testing.assert_allclose(got[:, 0, :], np.einsum("pmr,pr->pm", gain, b0))
     assert got.shape == (2, 1, 4)
     with pytest.raises(ValueError, match="chunk"):
