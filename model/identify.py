@@ -35,6 +35,7 @@ from model import optim
 from model.identify_problem import (
     N_H,
     Array,
+    Layout,
     Problem,
     SensorModel,
     baseline_offsets,
@@ -100,6 +101,7 @@ class IdentifyOptions:
     warm_hybrid_maxiter: int = 3
     load_box: tuple[float, float] = (0.5, 2.0)
     ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
+    t0_shift_box: tuple[float, float] = (-2.0, 2.0)  # °C, the fitted uniform shift of the start field
     min_sensors: int = 4
     min_samples: int = 30
     lsq_max_nfev: int = 60
@@ -131,6 +133,8 @@ class IdentificationResult:
     message: str
     load_scale_ci95: Array | None = None
     sigma_c: float = float("nan")
+    t0_shift_c: float | None = None  # fitted uniform shift of the start field [°C] (estimate_t0_shift)
+    t0_shift_ci95: Array | None = None  # (2,) [°C]
     fe_check: dict[str, float] | None = None
     theta: Array = field(default_factory=lambda: np.zeros(0), repr=False)
     population: Array | None = field(default=None, repr=False)
@@ -154,32 +158,36 @@ def _check_window(window: Window, n_nodes: int | None) -> Array:
     return meas
 
 
-def _bounds(box: tuple[float, float], estimate_loads: bool, opts: IdentifyOptions) -> Array:
+def _bounds(box: tuple[float, float], layout: Layout, opts: IdentifyOptions) -> Array:
     lo, hi = float(box[0]), float(box[1])
     if not (0.0 < lo < hi):
         raise IdentificationError(f"box: expected 0 < low < high, got {box}")
     rows = [[lo, hi]] * N_H
-    if estimate_loads:
+    if layout.loads:
         rows += [list(opts.load_box)] * 2
+    if layout.t0_shift:
+        rows += [list(opts.t0_shift_box)]
     return np.array(rows, dtype=float)
 
 
-def _warm_vector(warm_start: Any, p: int, bounds: Array) -> Array | None:
+def _warm_vector(warm_start: Any, layout: Layout, bounds: Array) -> Array | None:
+    """θ to start from: H (and load scales, if both fit them) of a previous solution; missing load scales
+    start at 1, the start-field shift at 0 (it belongs to one window, not to the condition)."""
     if warm_start is None:
         return None
     if isinstance(warm_start, IdentificationResult):
-        theta = (
-            warm_start.h
-            if warm_start.load_scale is None
-            else np.concatenate([warm_start.h, warm_start.load_scale])
-        )
+        ls = warm_start.load_scale
+        theta = warm_start.h if ls is None else np.concatenate([warm_start.h, ls])
     else:
         theta = np.asarray(warm_start, dtype=float).reshape(-1)
-    if theta.size == N_H and p > N_H:
-        theta = np.concatenate([theta, np.ones(p - N_H)])
-    if theta.size != p or not np.all(np.isfinite(theta)):
-        raise IdentificationError(f"warm_start: expected {p} finite values, got {theta.size}")
-    return np.clip(theta[:p], bounds[:, 0], bounds[:, 1])
+    accepted = {N_H, layout.p} | ({N_H + 2} if layout.loads else set())
+    if theta.size not in accepted or not np.all(np.isfinite(theta)):
+        sizes = " or ".join(str(n) for n in sorted(accepted))
+        raise IdentificationError(f"warm_start: expected {sizes} finite values, got {theta.size}")
+    full = np.concatenate([theta, [1.0, 1.0][: max(0, N_H + 2 * layout.loads - theta.size)]])
+    if layout.t0_shift and full.size < layout.p:
+        full = np.append(full, 0.0)
+    return np.clip(full, bounds[:, 0], bounds[:, 1])
 
 
 def _metaheuristic(
@@ -278,6 +286,7 @@ def identify(
     box: tuple[float, float] | None = None,
     warm_start: ArrayLike | IdentificationResult | None = None,
     estimate_loads: bool = False,
+    estimate_t0_shift: bool = False,
     offsets_c: ArrayLike | None = None,
     fe: Any = None,
     spec: Any = None,
@@ -294,6 +303,8 @@ def identify(
         warm_start: a previous solution (7 or 9 values, or an ``IdentificationResult``): the population is
             seeded around it (plus random wolves) and starts with a smaller control parameter a.
         estimate_loads: also fit the front/rear bearing heat scale factors (box ``options.load_box``).
+        estimate_t0_shift: also fit a uniform shift of ``window.t0`` [°C] (box ``options.t0_shift_box``):
+            for a start field that is known only up to a common offset (a service's live state).
         offsets_c: (32,) constant sensor offsets [°C] subtracted from the measurements.
         fe: full FE model for an optional re-check of the answer (``fe_check``).
         spec: ``SpindleSpec`` for the test-point channels and the empirical method (None: packaged spindle).
@@ -318,10 +329,13 @@ def identify(
         meas = meas - off[None, :]
     usable = usable_entries(meas, window.mask)
     _check_enough(usable, opts)
-    bounds = _bounds(box or tuple(getattr(rom, "h_box", (5.0, 200.0))), estimate_loads, opts)
-    problem = Problem(rom, inputs=window.inputs, measured_c=meas, usable=usable, t0=window.t0, bounds=bounds)
+    layout = Layout(loads=estimate_loads, t0_shift=estimate_t0_shift)
+    bounds = _bounds(box or tuple(getattr(rom, "h_box", (5.0, 200.0))), layout, opts)
+    problem = Problem(
+        rom, inputs=window.inputs, measured_c=meas, usable=usable, t0=window.t0, bounds=bounds, layout=layout
+    )
     generator = as_rng(rng)
-    x0 = _warm_vector(warm_start, len(bounds), bounds)
+    x0 = _warm_vector(warm_start, layout, bounds)
     spec = _spec_or_default(spec)
     population = None
     if method == "empirical":
@@ -368,7 +382,8 @@ def _assemble(
     lo, hi = theta - conf.half_width, theta + conf.half_width
     h = theta[:N_H]
     rel = conf.half_width[:N_H] / np.maximum(np.abs(h), 1e-12)
-    loads = theta[N_H:] if len(theta) > N_H else None
+    lay = problem.layout
+    loads, shift = lay.load_scale(theta), lay.shift(theta)
     return IdentificationResult(
         h=h.copy(),
         h_ci95=np.column_stack([lo[:N_H], hi[:N_H]]),
@@ -382,9 +397,11 @@ def _assemble(
         nfev=nfev,
         wall_s=0.0,
         method=method,
-        message=message,
-        load_scale_ci95=None if loads is None else np.column_stack([lo[N_H:], hi[N_H:]]),
+        message=message if shift is None else f"{message}; start field offset {float(shift):+.3f} °C",
+        load_scale_ci95=None if loads is None else np.column_stack([lo[N_H : N_H + 2], hi[N_H : N_H + 2]]),
         sigma_c=conf.sigma_c,
+        t0_shift_c=None if shift is None else float(shift),
+        t0_shift_ci95=None if shift is None else np.array([lo[-1], hi[-1]]),
         theta=theta.copy(),
     )
 
@@ -397,8 +414,10 @@ def _test_channels(spec: Any) -> Mapping[int, int]:
 def _fe_check(fe: Any, problem: Problem, theta: Array, window: Window) -> dict[str, float]:
     from model.fem import simulate_sensors
 
-    scale = (float(theta[N_H]), float(theta[N_H + 1])) if len(theta) > N_H else (1.0, 1.0)
-    sens, _ = simulate_sensors(fe, theta[:N_H], window.inputs, window.t0, load_scale=scale)
+    loads, shift = problem.layout.load_scale(theta), problem.layout.shift(theta)
+    scale = (1.0, 1.0) if loads is None else (float(loads[0]), float(loads[1]))
+    t0 = window.t0 if shift is None else np.asarray(window.t0, dtype=float) + float(shift)
+    sens, _ = simulate_sensors(fe, theta[:N_H], window.inputs, t0, load_scale=scale)
     rom_pred = problem.predict(theta[None, :])[0]
     e = problem.usable.entries
     rmse_fe = float(np.sqrt(np.mean((sens - problem.measured)[e] ** 2)))

@@ -1,9 +1,10 @@
 """The least-squares problem behind the identification: residuals of the reduced model against a window.
 
 Parameters θ are H1..H7 [W/(m²·K)], optionally followed by the front/rear bearing heat scale factors
-(dimensionless). The residual r = T_model − T_measured [°C] is taken over the usable entries: channels in the
-window's mask, samples 1..n (sample 0 is fixed by the initial field, not by H) and finite measurements. The
-objective is f = mean(r²) [°C²] (the paper's eq. 32); the paper's fitness is 1/(1+f).
+(dimensionless) and by a uniform shift of the window's start field [°C] (``Layout``). The residual
+r = T_model − T_measured [°C] is taken over the usable entries: channels in the window's mask, samples 1..n
+(sample 0 is fixed by the initial field, not by H) and finite measurements. The objective is
+f = mean(r²) [°C²] (the paper's eq. 32); the paper's fitness is 1/(1+f).
 
 Everything is evaluated for a whole population at once (one reduced-model call per batch), including the
 finite-difference Jacobian: the p perturbed points form one batch.
@@ -26,8 +27,36 @@ class SensorModel(Protocol):
     """What the identification needs of ``model.rom.ReducedModel``."""
 
     def simulate_sensors(
-        self, h: Array, inputs: Any, t0: float | Array, *, load_scale: Array | None = None
+        self,
+        h: Array,
+        inputs: Any,
+        t0: float | Array,
+        *,
+        load_scale: Array | None = None,
+        t0_shift: Array | None = None,
     ) -> Array: ...
+
+
+@dataclass(frozen=True)
+class Layout:
+    """Where the parameters sit in θ: H1..H7, then the two heat-load scales if ``loads``, then the start
+    field's uniform shift [°C] if ``t0_shift``."""
+
+    loads: bool = False
+    t0_shift: bool = False
+
+    @property
+    def p(self) -> int:
+        """Number of parameters."""
+        return N_H + 2 * int(self.loads) + int(self.t0_shift)
+
+    def load_scale(self, theta: Array) -> Array | None:
+        """The load scales (..., 2) of θ (..., p), or None when they are not fitted."""
+        return theta[..., N_H : N_H + 2] if self.loads else None
+
+    def shift(self, theta: Array) -> Array | None:
+        """The start-field shift (...,) [°C] of θ (..., p), or None when it is not fitted."""
+        return theta[..., -1] if self.t0_shift else None
 
 
 @dataclass(frozen=True)
@@ -81,7 +110,11 @@ class Problem:
         usable: Usable,
         t0: float | Array,
         bounds: Array,
+        layout: Layout | None = None,
     ) -> None:
+        self.layout = layout or Layout(loads=len(bounds) > N_H)
+        if self.layout.p != len(bounds):
+            raise ValueError(f"bounds: expected {self.layout.p} rows for {self.layout}, got {len(bounds)}")
         self.model = model
         self.inputs = inputs
         self.measured = measured_c
@@ -98,9 +131,14 @@ class Problem:
     def predict(self, theta: Array) -> Array:
         """Model sensor temperatures (P, n_steps + 1, 32) [°C] for parameters θ (P, p)."""
         theta = np.atleast_2d(theta)
-        scale = theta[:, N_H:] if self.p > N_H else None
         self.nfev += len(theta)
-        return np.asarray(self.model.simulate_sensors(theta[:, :N_H], self.inputs, self.t0, load_scale=scale))
+        lay = self.layout
+        extra = {"t0_shift": lay.shift(theta)} if lay.t0_shift else {}  # stand-in models may lack the keyword
+        return np.asarray(
+            self.model.simulate_sensors(
+                theta[:, :N_H], self.inputs, self.t0, load_scale=lay.load_scale(theta), **extra
+            )
+        )
 
     def residuals(self, theta: Array) -> Array:
         """r = model − measured over the usable entries, (P, m) [°C]."""

@@ -121,17 +121,24 @@ class ReducedModel:
         return self.project(np.ones(self.n_nodes))
 
     def simulate_sensors(
-        self, h: Array, inputs: InputLike, t0: float | Array, *, load_scale: Array | None = None
+        self,
+        h: Array,
+        inputs: InputLike,
+        t0: float | Array,
+        *,
+        load_scale: Array | None = None,
+        t0_shift: Array | None = None,
     ) -> Array:
         """Sensor temperatures (P, n_steps+1, 32) [°C] for P candidates H (P, 7) [W/(m²·K)].
 
         ``t0``: uniform start [°C] or (N,) field (projected). ``load_scale`` (P, 2) multiplies the front/rear
-        bearing heat per candidate (default 1).
+        bearing heat per candidate (default 1). ``t0_shift`` (P,) [°C] adds a uniform temperature to the
+        start field per candidate (exact: the uniform field is in the basis).
         """
         h2, scale = self._check_population(h, load_scale)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
         gain = np.matmul(self.sensors[None, :, :], md.phi)  # (P, 32, r)
-        run = self._modal_run(md, h2, inputs, self.initial_state(t0), scale)
+        run = self._modal_run(md, h2, inputs, self._start_states(t0, t0_shift, h2.shape[0]), scale)
         seg = run.segments
         if rom_modal.choose_method(seg.start.size, int(seg.length.sum()), run.b0.size) == "loop":
             return rom_stream.modal_outputs(run, gain)  # a wide population: stream the window
@@ -172,6 +179,16 @@ class ReducedModel:
         )
         return np.asarray(np.linalg.solve(kr, load))
 
+    def _start_states(self, t0: float | Array, shift: Array | None, p: int) -> Array:
+        """Reduced start state (r,), or (P, r) with a uniform ``shift`` [°C] per candidate."""
+        a0 = self.initial_state(t0)
+        if shift is None:
+            return a0
+        d = np.asarray(shift, dtype=np.float64)
+        if d.shape != (p,) or not np.all(np.isfinite(d)):
+            raise RomError(f"t0_shift: expected {p} finite values, got shape {d.shape}")
+        return np.asarray(a0[None, :] + d[:, None] * self._uniform_state[None, :])
+
     def _check_population(self, h: Array, load_scale: Array | None) -> tuple[Array, Array]:
         h2 = np.asarray(h, dtype=np.float64)
         if h2.ndim != 2 or h2.shape[1] != 7:
@@ -187,7 +204,7 @@ class ReducedModel:
 
     def _modal_run(
         self, md: rom_modal.Modes, h: Array, inputs: InputLike, a0: Array, scale: Array
-    ) -> rom_modal.ModalRun:
+    ) -> rom_modal.ModalRun:  # a0: (r,) or (P, r)
         """The window in the candidates' modal coordinates (start, μ, modal loads per unit input)."""
         seg = _segments(inputs)  # validates the inputs (dt first) before anything uses them
         mu, _ = rom_modal.step_factors(md.lam, float(inputs.dt_s), self.theta)  # γ·c = (1-μ)·c/λ
@@ -197,7 +214,8 @@ class ReducedModel:
             phi_t @ self.q_front,
             phi_t @ self.q_rear,
         )
-        return rom_modal.ModalRun(phi_t @ a0, md.lam, mu, forcing, seg, scale)
+        b0 = phi_t @ a0 if a0.ndim == 1 else np.einsum("prs,ps->pr", phi_t, a0)  # shared or per candidate
+        return rom_modal.ModalRun(b0, md.lam, mu, forcing, seg, scale)
 
 
 def _segments(inputs: InputLike) -> rom_modal.Segments:

@@ -96,6 +96,7 @@ class CoreConfig:
     method: str = "hybrid"
     seed: int = 0
     estimate_loads: bool = False
+    estimate_t0_shift: str = "never"  # "never" | "initial" (window starts from the initial guess) | "always"
     time_budget_s: float | None = None
     ci_threshold: float = 0.3
     stale_after_s: float = 60.0  # sample time without a new sample before H is reported stale
@@ -364,6 +365,7 @@ class ServiceCore:
             method=self.config.method,
             seed=self.config.seed,
             estimate_loads=self.config.estimate_loads,
+            estimate_t0_shift=self._fit_start_offset(snap),
             time_budget_s=self.config.time_budget_s,
             ci_threshold=self.config.ci_threshold,
         )
@@ -376,6 +378,12 @@ class ServiceCore:
             f"{int(arrays.mask.sum())} sensors, warm start from {job.warm_source}"
         )
         return launch, []
+
+    def _fit_start_offset(self, snap: Any) -> bool:
+        """Whether the window's start field gets a fitted uniform offset (``estimate_t0_shift``): "initial"
+        only when it is the live state's initial guess, whose error is uniform (the first sample's noise)."""
+        mode = self.config.estimate_t0_shift
+        return mode == "always" or (mode == "initial" and bool(getattr(snap, "initial", False)))
 
     def _reason(self, job: StartJob) -> str:
         if job.trigger == "manual":

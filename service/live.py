@@ -40,6 +40,7 @@ class LiveStateError(RuntimeError):
 class Snapshot:
     t: float  # s (sample time axis)
     field_c: np.ndarray  # (N,) °C
+    initial: bool = False  # the initialisation's field itself (a guess: uniform at the first sample's mean)
 
 
 @dataclass(frozen=True)
@@ -100,7 +101,7 @@ class LiveModel:
         self._last_inputs = _Inputs(*inputs)
         self._snapshots.clear()
         self._recent.clear()
-        first = Snapshot(self._t, self._T.copy())
+        first = Snapshot(self._t, self._T.copy(), initial=True)
         self._snapshots.append(first)
         self._recent.append(first)
 

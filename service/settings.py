@@ -135,6 +135,9 @@ class IdentificationSettings(_Section):
     distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: warm-start "nearness"
     min_good_channels: int = Field(default=24, ge=1, le=32)
     estimate_loads: bool = False  # also fit front/rear bearing heat scales
+    # also fit a uniform offset of the window's start field: "initial" only for windows that start from the
+    # live state's initial guess (uniform at the first sample's mean), "always", or "never"
+    estimate_t0_shift: Literal["never", "initial", "always"] = "initial"
     ci_rel_threshold: float = Field(
         default=0.5, gt=0
     )  # 95 % CI half-width / H above this → "poorly identified"

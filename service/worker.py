@@ -64,6 +64,7 @@ class JobRequest:
     method: str = "hybrid"
     seed: int = 0
     estimate_loads: bool = False
+    estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
     time_budget_s: float | None = None
     ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
 
@@ -150,6 +151,7 @@ def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any 
         rng=np.random.default_rng(req.seed),
         warm_start=None if req.warm_start is None else np.asarray(req.warm_start, dtype=float),
         estimate_loads=req.estimate_loads,
+        estimate_t0_shift=req.estimate_t0_shift,
         spec=model.spec,
         options=IdentifyOptions(time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold),
     )
@@ -157,12 +159,14 @@ def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any 
 
 
 def final_field(model: LoadedModel, window: Any, result: Any) -> np.ndarray:
-    """The reduced model's field (N,) °C at the end of the window with the identified H (and load scales)."""
+    """The reduced model's field (N,) °C at the end of the window with the identified H (and load scales),
+    from the window's start field plus the fitted uniform shift (if any)."""
     ls = getattr(result, "load_scale", None)
+    shift = getattr(result, "t0_shift_c", None)
     traj = model.rom.simulate_state(
         np.asarray(result.h, dtype=float),
         window.inputs,
-        window.t0,
+        window.t0 if shift is None else np.asarray(window.t0, dtype=float) + float(shift),
         load_scale=None if ls is None else np.asarray(ls, dtype=float),
     )
     return np.asarray(model.rom.lift(traj[-1]))

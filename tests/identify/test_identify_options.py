@@ -95,3 +95,41 @@ def test_paper_stop_rule_fit_above_one_half(model: Any, cond3000: Condition) -> 
     assert paper.fit > 0.5
     assert paper.nfev < full.nfev
     assert "fun_target" in paper.message
+
+
+def test_start_field_offset_is_fitted_jointly(model: Any, cond3000: Condition) -> None:
+    """A start field 0.2 °C too warm everywhere (a live state's common error) biases H unless the uniform
+    shift is fitted with them; fitted, the shift comes back as −0.2 °C within its CI and H as without it."""
+    w = cond3000.window
+    off = replace(w, t0=np.asarray(w.t0, dtype=float) + 0.2)
+    exact = identify(model.rom, w, rng=0, spec=model.spec)
+    biased = identify(model.rom, off, rng=0, spec=model.spec)
+    fitted = identify(model.rom, off, rng=0, spec=model.spec, estimate_t0_shift=True)
+    assert fitted.t0_shift_c is not None and fitted.t0_shift_ci95 is not None
+    assert abs(fitted.t0_shift_c + 0.2) < 0.02, fitted.t0_shift_c
+    assert fitted.t0_shift_ci95[0] <= -0.2 <= fitted.t0_shift_ci95[1]
+    assert exact.t0_shift_c is None and exact.t0_shift_ci95 is None
+    assert "start field offset -0.2" in fitted.message and "offset" not in exact.message
+    assert fitted.sigma_c < 0.9 * biased.sigma_c  # the offset shows in the residuals of the biased fit
+    err_fitted = np.abs(fitted.h - cond3000.h_true) / cond3000.h_true
+    err_exact = np.abs(exact.h - cond3000.h_true) / cond3000.h_true
+    assert np.median(err_fitted) < np.median(err_exact) + 0.05
+
+
+def test_warm_start_fills_the_loads_and_the_shift(model: Any, cond3000: Condition) -> None:
+    w = cond3000.window
+    prior = identify(model.rom, w, rng=0, spec=model.spec)
+    both = identify(
+        model.rom, w, rng=1, spec=model.spec, warm_start=prior, estimate_loads=True, estimate_t0_shift=True
+    )
+    assert both.theta.size == 10 and both.load_scale is not None and both.t0_shift_c is not None
+    with pytest.raises(IdentificationError, match="warm_start: expected 7 or 9 or 10"):
+        identify(
+            model.rom,
+            w,
+            rng=0,
+            spec=model.spec,
+            warm_start=np.ones(8),
+            estimate_loads=True,
+            estimate_t0_shift=True,
+        )

@@ -4,6 +4,7 @@ are too poor, and the worker process runs (and cancels) identifications."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 
 import numpy as np
 import pytest
@@ -14,7 +15,7 @@ from service.detector import DetectorConfig
 from service.history import RingHistory
 from service.scheduler import SchedulerConfig
 from service.window import WindowRules
-from service.worker import IdentificationWorker, JobRequest, JobStatus
+from service.worker import IdentificationWorker, JobRequest, JobStatus, final_field, run_identification
 
 from .conftest import T0, plant_run, ring_of, samples_of
 
@@ -87,6 +88,34 @@ def window_request(loaded_model):
     core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=ListSink())
     (launch,) = feed(core, ring, samples_of(run))
     return launch.request
+
+
+@pytest.mark.parametrize(
+    ("mode", "expected"), [("initial", [True, False]), ("always", [True, True]), ("never", [False, False])]
+)
+def test_core_asks_for_the_start_offset_as_configured(loaded_model, mode, expected):
+    """ "initial": only a window that starts from the live state's initial guess (here the first condition,
+    from the cold start) gets the fitted offset; the second condition starts from an advanced state."""
+    run = plant_run([Segment(700.0, 3000.0, 2.0, 23.2), Segment(700.0, 4000.0, 3.0, 23.2)])
+    ring = ring_of()
+    cfg = dataclasses.replace(CFG, estimate_t0_shift=mode)
+    core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=ListSink())
+    launches = feed(core, ring, samples_of(run))
+    assert [launch.request.estimate_t0_shift for launch in launches] == expected
+
+
+def test_start_offset_is_fitted_and_carried_into_the_final_field(loaded_model, window_request):
+    """A live state 0.3 °C too warm: the fit finds −0.3 °C, and the field the live state is rebased on
+    starts from the corrected field (its end differs from the uncorrected one by a decayed −0.3 °C)."""
+    warm = dataclasses.replace(
+        window_request, t0_c=np.asarray(window_request.t0_c) + 0.3, estimate_t0_shift=True
+    )
+    result, window = run_identification(loaded_model, warm)
+    assert result.t0_shift_c is not None and abs(result.t0_shift_c + 0.3) < 0.05, result.t0_shift_c
+    corrected = final_field(loaded_model, window, result)
+    uncorrected = final_field(loaded_model, window, dataclasses.replace(result, t0_shift_c=None))
+    diff = corrected - uncorrected
+    assert np.all(diff < 0.0) and np.all(diff > -0.3), (diff.min(), diff.max())
 
 
 def test_worker_process_runs_and_cancels(model_ref, window_request, loaded_model):
