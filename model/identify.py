@@ -184,10 +184,10 @@ def _warm_vector(warm_start: Any, layout: Layout, bounds: Array) -> Array | None
     if theta.size not in accepted or not np.all(np.isfinite(theta)):
         sizes = " or ".join(str(n) for n in sorted(accepted))
         raise IdentificationError(f"warm_start: expected {sizes} finite values, got {theta.size}")
-    full = np.concatenate([theta, [1.0, 1.0][: max(0, N_H + 2 * layout.loads - theta.size)]])
-    if layout.t0_shift and full.size < layout.p:
-        full = np.append(full, 0.0)
-    return np.clip(full, bounds[:, 0], bounds[:, 1])
+    rest = theta[N_H:]
+    loads = (rest[:2] if rest.size >= 2 else np.ones(2)) if layout.loads else np.zeros(0)
+    shift = rest[-1:] if layout.t0_shift and theta.size == layout.p else np.zeros(int(layout.t0_shift))
+    return np.clip(np.concatenate([theta[:N_H], loads, shift]), bounds[:, 0], bounds[:, 1])
 
 
 def _metaheuristic(
@@ -300,8 +300,9 @@ def identify(
         rng: generator or seed of the stochastic methods (same seed, same answer).
         method: one of ``METHODS``; ``"hybrid"`` (IGWO then bounded TRF) by default.
         box: search box for H [W/(m²·K)]; None uses ``rom.h_box`` or (5, 200).
-        warm_start: a previous solution (7 or 9 values, or an ``IdentificationResult``): the population is
-            seeded around it (plus random wolves) and starts with a smaller control parameter a.
+        warm_start: a previous solution (7 values, 9 with load scales, all p, or an ``IdentificationResult``):
+            the population is seeded around it (plus random wolves) and starts with a smaller control
+            parameter a.
         estimate_loads: also fit the front/rear bearing heat scale factors (box ``options.load_box``).
         estimate_t0_shift: also fit a uniform shift of ``window.t0`` [°C] (box ``options.t0_shift_box``):
             for a start field that is known only up to a common offset (a service's live state).

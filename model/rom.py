@@ -204,8 +204,9 @@ class ReducedModel:
 
     def _modal_run(
         self, md: rom_modal.Modes, h: Array, inputs: InputLike, a0: Array, scale: Array
-    ) -> rom_modal.ModalRun:  # a0: (r,) or (P, r)
-        """The window in the candidates' modal coordinates (start, μ, modal loads per unit input)."""
+    ) -> rom_modal.ModalRun:
+        """The window in the candidates' modal coordinates (start, μ, modal loads per unit input); the
+        reduced start ``a0`` is (r,), shared, or (P, r), per candidate."""
         seg = _segments(inputs)  # validates the inputs (dt first) before anything uses them
         mu, _ = rom_modal.step_factors(md.lam, float(inputs.dt_s), self.theta)  # γ·c = (1-μ)·c/λ
         phi_t = np.swapaxes(md.phi, 1, 2)
