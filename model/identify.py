@@ -13,6 +13,8 @@ Options: joint estimation of the front/rear bearing heat scale factors with H (`
 offsets subtracted (``offsets_c``, see ``baseline_offsets``); initial field ``window.t0``; warm start from a
 previous solution; channel mask. Every result carries 95 % confidence intervals from the Jacobian at the
 optimum (σ² = SSR/(m − p), cov = σ²(JᵀJ)⁻¹), the correlation matrix, and per-sensor and test-point errors.
+With ``start_cov`` (the start field's error covariance, reduced coordinates) the covariance also carries the
+start field's error (``model.carry``) and the result has the window-end state's covariance for the next one.
 
 Errors::
 
@@ -32,6 +34,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from model import optim
+from model.carry import CarryError, carry, check_cov
 from model.identify_problem import (
     N_H,
     Array,
@@ -43,6 +46,7 @@ from model.identify_problem import (
     per_sensor_rmse,
     point_errors,
     usable_entries,
+    with_cov,
 )
 from model.optim._common import as_rng
 
@@ -135,6 +139,7 @@ class IdentificationResult:
     sigma_c: float = float("nan")
     t0_shift_c: float | None = None  # fitted uniform shift of the start field [°C] (estimate_t0_shift)
     t0_shift_ci95: Array | None = None  # (2,) [°C]
+    end_cov: Array | None = field(default=None, repr=False)  # (r, r) [°C²] window-end state (start_cov given)
     fe_check: dict[str, float] | None = None
     theta: Array = field(default_factory=lambda: np.zeros(0), repr=False)
     population: Array | None = field(default=None, repr=False)
@@ -288,6 +293,7 @@ def identify(
     estimate_loads: bool = False,
     estimate_t0_shift: bool = False,
     offsets_c: ArrayLike | None = None,
+    start_cov: ArrayLike | None = None,
     fe: Any = None,
     spec: Any = None,
     options: IdentifyOptions | None = None,
@@ -307,6 +313,9 @@ def identify(
         estimate_t0_shift: also fit a uniform shift of ``window.t0`` [°C] (box ``options.t0_shift_box``):
             for a start field that is known only up to a common offset (a service's live state).
         offsets_c: (32,) constant sensor offsets [°C] subtracted from the measurements.
+        start_cov: (r, r) covariance [°C²] of the error of the reduced start state (a ``ReducedModel``'s
+            coordinates; zeros for an exact start): the CIs then also carry that error, and the result's
+            ``end_cov`` is the window-end state's (``model.carry``).
         fe: full FE model for an optional re-check of the answer (``fe_check``).
         spec: ``SpindleSpec`` for the test-point channels and the empirical method (None: packaged spindle).
         options: tuning (``IdentifyOptions``).
@@ -330,6 +339,7 @@ def identify(
         meas = meas - off[None, :]
     usable = usable_entries(meas, window.mask)
     _check_enough(usable, opts)
+    p0 = None if start_cov is None else _start_cov(rom, start_cov)
     layout = Layout(loads=estimate_loads, t0_shift=estimate_t0_shift)
     bounds = _bounds(box or tuple(getattr(rom, "h_box", (5.0, 200.0))), layout, opts)
     problem = Problem(
@@ -346,12 +356,24 @@ def identify(
     else:
         theta, message, population = _metaheuristic(problem, method, generator, x0, opts)
     nfev = problem.nfev
-    result = _assemble(problem, theta, meas, spec, method=method, message=message, nfev=nfev, opts=opts)
+    result = _assemble(
+        problem, theta, meas, spec, method=method, message=message, nfev=nfev, opts=opts, start_cov=p0
+    )
     result.population = population
     if fe is not None:
         result.fe_check = _fe_check(fe, problem, theta, window)
     result.wall_s = time.perf_counter() - started
     return result
+
+
+def _start_cov(rom: Any, start_cov: ArrayLike) -> Array:
+    k0 = getattr(rom, "k0", None)
+    if k0 is None or not hasattr(rom, "simulate_state"):
+        raise IdentificationError("start_cov: needs a reduced model (model.rom.ReducedModel)")
+    try:
+        return check_cov(start_cov, int(np.shape(k0)[0]))
+    except CarryError as err:
+        raise IdentificationError(str(err)) from err
 
 
 def _check_enough(usable: Any, opts: IdentifyOptions) -> None:
@@ -375,9 +397,14 @@ def _assemble(
     message: str,
     nfev: int,
     opts: IdentifyOptions,
+    start_cov: Array | None = None,
 ) -> IdentificationResult:
     jac, r = problem.jacobian(theta)
     conf = confidence(jac, r)
+    end_cov = None
+    if start_cov is not None:
+        carried = carry(problem, theta, jac, conf.cov, start_cov)
+        conf, end_cov = with_cov(conf.sigma_c, carried.cov), carried.end_cov
     f = float(np.mean(r * r))
     pred = problem.predict(theta[None, :])[0]
     lo, hi = theta - conf.half_width, theta + conf.half_width
@@ -403,6 +430,7 @@ def _assemble(
         sigma_c=conf.sigma_c,
         t0_shift_c=None if shift is None else float(shift),
         t0_shift_ci95=None if shift is None else np.array([lo[-1], hi[-1]]),
+        end_cov=end_cov,
         theta=theta.copy(),
     )
 

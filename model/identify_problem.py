@@ -142,9 +142,12 @@ class Problem:
 
     def residuals(self, theta: Array) -> Array:
         """r = model − measured over the usable entries, (P, m) [°C]."""
-        pred = self.predict(theta)
-        flat = pred.reshape(len(pred), -1)[:, self._flat]
-        return np.asarray(flat - self._target[None, :])
+        return np.asarray(self.select(self.predict(theta)) - self._target[None, :])
+
+    def select(self, values: Array) -> Array:
+        """The usable entries (K, m) of model-shaped values (K, n_steps + 1, 32), in the residuals' order."""
+        flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))  # also for K = 0
+        return np.asarray(flat[:, self._flat])
 
     def objective(self, theta: Array) -> Array:
         """f = mean(r²) per candidate, (P,) [°C²]; suited as a vectorized optimizer objective."""
@@ -186,13 +189,17 @@ def confidence(jac: Array, residual: Array, *, z: float = 1.959964) -> Confidenc
     m, p = jac.shape
     ssr = float(residual @ residual)
     sigma2 = ssr / max(m - p, 1)
-    cov = sigma2 * np.linalg.pinv(jac.T @ jac)
+    return with_cov(float(np.sqrt(sigma2)), sigma2 * np.linalg.pinv(jac.T @ jac), z=z)
+
+
+def with_cov(sigma_c: float, cov: Array, *, z: float = 1.959964) -> Confidence:
+    """95 % half-widths and correlation of a parameter covariance (p, p) (e.g. widened by ``model.carry``)."""
     sd = np.sqrt(np.clip(np.diag(cov), 0.0, None))
     with np.errstate(invalid="ignore", divide="ignore"):
         corr = cov / np.outer(sd, sd)
     corr = np.where(np.isfinite(corr), corr, 0.0)
     np.fill_diagonal(corr, 1.0)
-    return Confidence(float(np.sqrt(sigma2)), cov, z * sd, corr)
+    return Confidence(sigma_c, cov, z * sd, corr)
 
 
 def per_sensor_rmse(pred: Array, measured: Array, *, skip_first: bool = True) -> Array:

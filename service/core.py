@@ -23,6 +23,7 @@ from typing import Any, Protocol
 import numpy as np
 
 from drivers.quality import Quality
+from model.carry import StateCovariance
 from service.db.records import (
     ConditionEnd,
     ConditionStart,
@@ -97,6 +98,7 @@ class CoreConfig:
     seed: int = 0
     estimate_loads: bool = False
     estimate_t0_shift: str = "never"  # "never" | "initial" (window starts from the initial guess) | "always"
+    carry_start_error: bool = False  # CIs carry the start field's error (the live state's covariance)
     time_budget_s: float | None = None
     ci_threshold: float = 0.3
     stale_after_s: float = 60.0  # sample time without a new sample before H is reported stale
@@ -366,6 +368,8 @@ class ServiceCore:
             seed=self.config.seed,
             estimate_loads=self.config.estimate_loads,
             estimate_t0_shift=self._fit_start_offset(snap),
+            carry_start_error=self.config.carry_start_error,
+            start_cov=self.live.covariance_at(snap.t) if self.config.carry_start_error else None,
             time_budget_s=self.config.time_budget_s,
             ci_threshold=self.config.ci_threshold,
         )
@@ -515,7 +519,10 @@ class ServiceCore:
             raw = self.history.raw_window(t_end, self.live.t)
         except Exception:  # the history cannot replay: keep the current state (it has the new H already)
             return
-        self.live.rebase(t_end, final, raw)
+        cov = getattr(outcome.result, "end_cov", None)
+        h = getattr(outcome.result, "h", None)
+        carried = None if cov is None or h is None else StateCovariance(t_end, cov, np.asarray(h, np.float64))
+        self.live.rebase(t_end, final, raw, covariance=carried)
 
     # --- manual requests ------------------------------------------------------------------------------------
     def request(self, reason: str) -> tuple[IdentificationJob, list[Launch]]:

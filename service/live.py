@@ -12,6 +12,10 @@ It serves the field *now* (lifted to the mesh: it *is* the mesh field), the pred
 steady state the spindle is heading to under the current inputs and H, and snapshots of past fields that the
 identification window uses as its initial field (``field_at``).
 
+It also keeps, per rebase, the covariance of the rebased state's error that the identification reported
+(``model.carry.StateCovariance``, reduced coordinates; opaque here): ``covariance_at(t)`` is the one a window
+starting at ``t`` inherits (the latest rebase at or before ``t``), which the worker decays to ``t``.
+
 Before the first sample the state is unknown: ``initialize`` sets a uniform field (the service uses the mean
 of the good sensors of the first sample). Non-finite inputs (CAN down) hold the last valid ones.
 
@@ -73,6 +77,7 @@ class LiveModel:
         self.snapshot_every_s = snapshot_every_s
         self._snapshots: deque[Snapshot] = deque(maxlen=max(2, int(keep_s / snapshot_every_s) + 2))
         self._recent: deque[Snapshot] = deque(maxlen=max(1, recent_steps))
+        self._covariances: deque[tuple[float, Any]] = deque(maxlen=self._snapshots.maxlen)  # (t, cov | None)
         self._t: float | None = None
         self._T: np.ndarray | None = None
         self._last_inputs: _Inputs | None = None
@@ -101,6 +106,7 @@ class LiveModel:
         self._last_inputs = _Inputs(*inputs)
         self._snapshots.clear()
         self._recent.clear()
+        self._covariances.clear()
         first = Snapshot(self._t, self._T.copy(), initial=True)
         self._snapshots.append(first)
         self._recent.append(first)
@@ -162,12 +168,13 @@ class LiveModel:
             self._snapshots.extend(kept[-(self._snapshots.maxlen or len(kept)) :])
         return snap
 
-    def rebase(self, t: float, field_c: np.ndarray, raw: Any) -> None:
+    def rebase(self, t: float, field_c: np.ndarray, raw: Any, *, covariance: Any = None) -> None:
         """Restart from ``field_c`` (N,) at ``t`` (s) and replay the samples of ``raw`` after ``t``.
 
         Used when an identification finishes: the fitted model's field at the window end (computed with the
         new H from the window's initial field) replaces the state that was advanced with the old H.
-        ``raw`` is a ``service.window.RawWindow`` covering [t, now].
+        ``raw`` is a ``service.window.RawWindow`` covering [t, now]; ``covariance`` is that field's error
+        covariance (None: unknown), returned by ``covariance_at`` for windows starting at or after ``t``.
         """
         if self._t is None:
             raise LiveStateError("the live state has not been initialised (no sample yet)")
@@ -184,6 +191,9 @@ class LiveModel:
             kept = [s for s in dq if s.t < t - 1e-9]
             dq.clear()
             dq.extend(kept)
+        old = [c for c in self._covariances if c[0] < t - 1e-9]
+        self._covariances.clear()
+        self._covariances.extend([*old, (float(t), covariance)])
         self._snapshots.append(Snapshot(self._t, self._T))
         self._recent.append(Snapshot(self._t, self._T))
         for k in np.flatnonzero(times > t + 1e-9):
@@ -210,6 +220,12 @@ class LiveModel:
         if not older:
             raise LiveStateError(f"no live-state snapshot at or before t={t:.0f} s")
         return older[-1]
+
+    def covariance_at(self, t: float) -> Any:
+        """The error covariance of the latest rebase at or before ``t`` (s); None if it had none, or if no
+        rebase came since the start (the initial guess: ``Snapshot.initial`` and its offset fit)."""
+        older = [c for t_s, c in self._covariances if t_s <= t + 0.5 * self.dt_s]
+        return older[-1] if older else None
 
     def first_snapshot_after(self, t: float) -> Snapshot:
         """The earliest snapshot at or after ``t`` (s): a window starting there has a known initial field."""

@@ -65,6 +65,8 @@ class JobRequest:
     seed: int = 0
     estimate_loads: bool = False
     estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
+    carry_start_error: bool = False  # CIs carry the start field's error; the result has the end covariance
+    start_cov: Any = None  # model.carry.StateCovariance of t0_c's error (None: exact, or the initial guess)
     time_budget_s: float | None = None
     ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
 
@@ -152,10 +154,21 @@ def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any 
         warm_start=None if req.warm_start is None else np.asarray(req.warm_start, dtype=float),
         estimate_loads=req.estimate_loads,
         estimate_t0_shift=req.estimate_t0_shift,
+        start_cov=start_covariance(model, req) if req.carry_start_error else None,
         spec=model.spec,
         options=IdentifyOptions(time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold),
     )
     return result, window
+
+
+def start_covariance(model: LoadedModel, req: JobRequest) -> np.ndarray:
+    """The error covariance (r, r) [°C², reduced] of the window's start field: the live state's covariance
+    at its last rebase decayed to the window start (``model.carry.propagate``), zeros when it has none."""
+    from model.carry import propagate
+
+    if req.start_cov is None:
+        return np.zeros((model.rom.rank, model.rom.rank))
+    return propagate(model.rom, req.start_cov, float(req.window.times_s[0]), req.window.dt_s)
 
 
 def final_field(model: LoadedModel, window: Any, result: Any) -> np.ndarray:

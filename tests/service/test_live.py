@@ -91,3 +91,31 @@ def test_jittered_samples_step_on_the_grid_without_refactorising(coarse):
         spec, dt_s=10.0, speed_rpm=3000.0, torque_nm=2.0, ambient_c=np.full(89, 22.0)
     )
     np.testing.assert_allclose(live.field_now().field_c, simulate(fe, H, inputs, 22.0)[-1], atol=1e-9)
+
+
+def test_a_window_inherits_the_covariance_of_the_last_rebase_before_it(coarse):
+    """``covariance_at`` is opaque bookkeeping: the latest rebase at or before t, None before any, and a
+    rebase without one (or an earlier rebase) hides the older ones from later windows."""
+    from types import SimpleNamespace
+
+    spec, fe = coarse
+    live = LiveModel(fe, spec, h=H, snapshot_every_s=60.0)
+    live.initialize(0.0, 22.0, (22.0, 3000.0, 2.0))
+    for k in range(1, 31):
+        live.push(10.0 * k, ambient_c=22.0, speed_rpm=3000.0, torque_nm=2.0)
+    times = np.arange(0.0, 301.0, 10.0)
+    raw = SimpleNamespace(
+        times_s=times, ambient_c=np.full(31, 22.0), speed_rpm=np.full(31, 3000.0), torque_nm=np.full(31, 2.0)
+    )
+    field = live.field_now().field_c
+    assert live.covariance_at(250.0) is None  # only the initial guess so far
+    live.rebase(100.0, field, raw, covariance="cov@100")
+    live.rebase(200.0, field, raw, covariance="cov@200")
+    assert live.covariance_at(50.0) is None
+    assert live.covariance_at(150.0) == "cov@100"
+    assert live.covariance_at(250.0) == "cov@200"
+    live.rebase(150.0, field, raw)  # an earlier rebase replaces what came after it
+    assert live.covariance_at(250.0) is None and live.covariance_at(120.0) == "cov@100"
+    assert live.t == pytest.approx(300.0)
+    live.initialize(400.0, 22.0, (22.0, 3000.0, 2.0))
+    assert live.covariance_at(450.0) is None

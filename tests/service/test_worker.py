@@ -161,3 +161,25 @@ def test_manual_requests_and_idle_condition(loaded_model):
     assert len(launches) == 1 and launches[0].start.point.speed_rpm == pytest.approx(3000.0)
     with pytest.raises(BusyError, match="already running"):
         core.request("manual")
+
+
+def test_chained_windows_carry_the_start_field_error(loaded_model):
+    """With ``carry_start_error`` the first condition (from the initial guess, offset fitted) is unchanged;
+    the second starts from a state that the first's H made, and its CIs widen while its H stay the same."""
+    from service.offline import run_offline
+
+    run = plant_run([Segment(1300.0, 3000.0, 2.0, 23.2), Segment(1300.0, 4000.0, 3.0, 23.2)])
+    samples = samples_of(run)
+    base = dataclasses.replace(CFG, estimate_t0_shift="initial")
+    off, on = (
+        [r for r in run_offline(samples, model=loaded_model, config=cfg).records if r.outcome == "ok"]
+        for cfg in (base, dataclasses.replace(base, carry_start_error=True))
+    )
+    assert len(on) == len(off) == 4
+    width = lambda rec: np.asarray(rec.ci95_hi) - np.asarray(rec.ci95_lo)  # noqa: E731
+    for a, b in zip(off, on, strict=True):
+        np.testing.assert_allclose(b.h, a.h, rtol=1e-9)
+        if a.condition.speed_rpm < 3500.0:
+            np.testing.assert_allclose(width(b), width(a), rtol=1e-9)
+        else:
+            assert np.all(width(b) >= width(a) * (1 - 1e-9)) and np.any(width(b) > 1.05 * width(a))
