@@ -34,6 +34,7 @@ from model import rom_modal
 
 Array = NDArray[np.float64]
 N_H = 7
+ENSEMBLE = 128  # members of the end-state ensemble (``end_ensemble``)
 
 
 class CarryError(ValueError):
@@ -41,22 +42,38 @@ class CarryError(ValueError):
 
 
 @dataclass(frozen=True, eq=False)
+class Ensemble:
+    """The window-end state's error as an ensemble about the fitted end state ``a_end`` (r,): per member the
+    deviation of the state ``dev_a`` (M, r) [°C, reduced] and of θ ``dev_theta`` (M, p), drawn jointly."""
+
+    a_end: Array
+    dev_a: Array
+    dev_theta: Array
+
+    @property
+    def cov(self) -> Array:
+        """Second moment (r, r) [°C²] of the state deviations."""
+        return np.asarray(self.dev_a.T @ self.dev_a / max(len(self.dev_a), 1))
+
+
+@dataclass(frozen=True, eq=False)
 class StateCovariance:
-    """The live state's error covariance ``cov`` (r, r) [°C², reduced coordinates] at ``t_s`` [s]; after
-    ``t_s`` the state evolved under ``h`` (7,) [W/(m²·K)]."""
+    """A rebased live state's error at ``t_s`` [s]: the ``ensemble`` of the window that produced it, whose
+    state then evolved under ``h`` (7,) [W/(m²·K)] and ``load_scale`` (2,) (θ's first 7 / next 2 entries)."""
 
     t_s: float
-    cov: Array
+    ensemble: Ensemble
     h: Array
+    load_scale: Array | None = None
 
 
 @dataclass(frozen=True, eq=False)
 class Carried:
-    """What a window makes of its start uncertainty: θ's total covariance, the gain and the end covariance."""
+    """What a window makes of its start uncertainty: θ's total covariance, the gain and the end ensemble."""
 
     cov: Array  # (p, p) σ²(JᵀJ)⁺ + G·Gᵀ
     gain: Array  # (p, k) δθ per unit start coefficient
-    end_cov: Array  # (r, r) [°C²] of the reduced state at the window end
+    ensemble: Ensemble
 
 
 def check_cov(cov: Any, r: int, name: str = "start_cov") -> Array:
@@ -87,14 +104,42 @@ def propagator(rom: Any, h: Array, dt_s: float, n_steps: int) -> Array:
     return np.asarray((phi * mu[None, :] ** max(int(n_steps), 0)) @ phi.T)
 
 
-def propagate(rom: Any, sc: StateCovariance, t_s: float, dt_s: float) -> Array:
-    """``sc.cov`` decayed from ``sc.t_s`` to ``t_s`` [s] under ``sc.h`` (a no-op when ``t_s <= sc.t_s``)."""
+def propagate(rom: Any, sc: StateCovariance, t_s: float, dt_s: float, gap: Any = None) -> Array:
+    """The start covariance (r, r) [°C²] at ``t_s`` [s] of a state rebased at ``sc.t_s``.
+
+    With ``gap`` (the inputs from ``sc.t_s`` to ``t_s``, ``model.inputs.InputSeries``) every ensemble member
+    runs through it with its own H and load scales, so the H error keeps acting after the window (that is
+    most of the error a short gap adds: the data no longer pin the state). Without, the error only decays
+    (``propagator``). A no-op when ``t_s <= sc.t_s``.
+    """
+    ens = sc.ensemble
+    r = int(rom.k0.shape[0])
+    cov = check_cov(ens.cov, r, "state covariance")
     n = round((float(t_s) - sc.t_s) / float(dt_s))
-    cov = check_cov(sc.cov, int(rom.k0.shape[0]), "state covariance")
     if n <= 0:
         return cov
-    e = propagator(rom, sc.h, dt_s, n)
-    return np.asarray(e @ cov @ e.T)
+    if gap is None or len(gap.ambient_c) == 0:
+        e = propagator(rom, sc.h, dt_s, n)
+        return np.asarray(e @ cov @ e.T)
+    loads = None if sc.load_scale is None else np.asarray(sc.load_scale, dtype=np.float64)
+
+    def run(h: Array, ls: Array | None, a0: Array) -> Array:
+        traj = rom.simulate_state(np.maximum(h, 1e-3), gap, rom.lift(a0), load_scale=ls)
+        return np.asarray(traj[-1])
+
+    base = run(sc.h, loads, ens.a_end)
+    dev = np.array(
+        [
+            run(
+                sc.h + d_theta[:N_H],
+                None if loads is None else loads + d_theta[N_H : N_H + 2],
+                ens.a_end + d_a,
+            )
+            - base
+            for d_a, d_theta in zip(ens.dev_a, ens.dev_theta, strict=True)
+        ]
+    )
+    return np.asarray(dev.T @ dev / max(len(dev), 1))
 
 
 def start_responses(rom: Any, h: Array, dt_s: float, n_steps: int, u: Array) -> Array:
@@ -117,32 +162,65 @@ def end_jacobian(problem: Any, theta: Array, *, rel_step: float = 1e-6) -> Array
     return np.asarray(np.column_stack(cols))
 
 
-def end_state(problem: Any, theta: Array) -> Array:
-    """The reduced state (r,) at the window end for parameters θ (p,)."""
+def end_state(problem: Any, theta: Array, *, start: Array | None = None) -> Array:
+    """The reduced state (r,) at the window end for parameters θ (p,), from ``problem.t0`` or the reduced
+    ``start`` (r,)."""
     lay = problem.layout
     loads, shift = lay.load_scale(theta), lay.shift(theta)
-    t0 = problem.t0 if shift is None else np.asarray(problem.t0, dtype=np.float64) + float(shift)
+    t0 = problem.t0 if start is None else problem.model.lift(start)
+    if shift is not None:
+        t0 = np.asarray(t0, dtype=np.float64) + float(shift)
     traj = problem.model.simulate_state(
         theta[:N_H], problem.inputs, t0, load_scale=None if loads is None else np.asarray(loads)
     )
     return np.asarray(traj[-1])
 
 
-def carry(problem: Any, theta: Array, jac: Array, fit_cov: Array, start_cov: Array) -> Carried:
+def carry(
+    problem: Any,
+    theta: Array,
+    jac: Array,
+    fit_cov: Array,
+    start_cov: Array,
+    *,
+    samples: int = ENSEMBLE,
+    seed: int = 0,
+) -> Carried:
     """θ's total covariance and the window-end state covariance, given P₀ = ``start_cov`` (r, r) [°C²].
 
     ``jac`` (m, p) is the residuals' Jacobian at θ̂ over the usable entries, ``fit_cov`` (p, p) = σ²(JᵀJ)⁺.
+    The end covariance is the second moment about the fitted end state of an ensemble of ``samples``
+    windows (``end_ensemble``; fixed ``seed``: the same window gives the same answer).
     """
     rom = problem.model
     r = int(rom.k0.shape[0])
-    p0 = check_cov(start_cov, r)
-    u = factor(p0)
+    u = factor(check_cov(start_cov, r))
     dt, n = float(problem.inputs.dt_s), len(problem.inputs.ambient_c)
     h = np.asarray(theta[:N_H], dtype=np.float64)
     resp = problem.select(start_responses(rom, h, dt, n, u))  # (k, m)
     gain = -np.linalg.pinv(jac.T @ jac) @ (jac.T @ resp.T)  # (p, k)
-    s = end_jacobian(problem, theta)
-    moved = propagator(rom, h, dt, n) @ u + s @ gain  # (r, k)
-    end_cov = moved @ moved.T + s @ fit_cov @ s.T
     total = fit_cov + gain @ gain.T
-    return Carried(0.5 * (total + total.T), gain, 0.5 * (end_cov + end_cov.T))
+    ens = end_ensemble(problem, theta, gain, u, fit_cov, samples=samples, seed=seed)
+    return Carried(0.5 * (total + total.T), gain, ens)
+
+
+def end_ensemble(
+    problem: Any, theta: Array, gain: Array, u: Array, fit_cov: Array, *, samples: int, seed: int
+) -> Ensemble:
+    """The window-end state's error as an ensemble about the fitted end state: start coefficients
+    z ~ N(0, I) and the window's noise ξ ~ N(0, ``fit_cov``) give θ = θ̂ + G·z + ξ (clipped to the box) and
+    the start a₀ + U·z; each member is a full reduced run, so the map θ → a_end is not linearised (poorly
+    identified H move by tens of per cent, where S·δθ misses a large part of the change)."""
+    rng = np.random.default_rng(seed)
+    base = end_state(problem, theta)
+    lo, hi = problem.bounds[:, 0], problem.bounds[:, 1]
+    noise = factor(0.5 * (fit_cov + fit_cov.T))
+    a0 = problem.model.initial_state(problem.t0)
+    dev = np.empty((samples, base.size))
+    dev_theta = np.empty((samples, theta.size))
+    for i in range(samples):
+        z = rng.standard_normal(u.shape[1])
+        th = np.clip(theta + gain @ z + noise @ rng.standard_normal(noise.shape[1]), lo, hi)
+        dev[i] = end_state(problem, th, start=a0 + u @ z) - base
+        dev_theta[i] = th - theta
+    return Ensemble(base, dev, dev_theta)

@@ -139,7 +139,7 @@ class IdentificationResult:
     sigma_c: float = float("nan")
     t0_shift_c: float | None = None  # fitted uniform shift of the start field [°C] (estimate_t0_shift)
     t0_shift_ci95: Array | None = None  # (2,) [°C]
-    end_cov: Array | None = field(default=None, repr=False)  # (r, r) [°C²] window-end state (start_cov given)
+    end_ensemble: Any = field(default=None, repr=False)  # model.carry.Ensemble of the window end (start_cov)
     fe_check: dict[str, float] | None = None
     theta: Array = field(default_factory=lambda: np.zeros(0), repr=False)
     population: Array | None = field(default=None, repr=False)
@@ -315,7 +315,7 @@ def identify(
         offsets_c: (32,) constant sensor offsets [°C] subtracted from the measurements.
         start_cov: (r, r) covariance [°C²] of the error of the reduced start state (a ``ReducedModel``'s
             coordinates; zeros for an exact start): the CIs then also carry that error, and the result's
-            ``end_cov`` is the window-end state's (``model.carry``).
+            ``end_ensemble`` is the window-end state's error (``model.carry``).
         fe: full FE model for an optional re-check of the answer (``fe_check``).
         spec: ``SpindleSpec`` for the test-point channels and the empirical method (None: packaged spindle).
         options: tuning (``IdentifyOptions``).
@@ -401,10 +401,10 @@ def _assemble(
 ) -> IdentificationResult:
     jac, r = problem.jacobian(theta)
     conf = confidence(jac, r)
-    end_cov = None
+    ensemble = None
     if start_cov is not None:
         carried = carry(problem, theta, jac, conf.cov, start_cov)
-        conf, end_cov = with_cov(conf.sigma_c, carried.cov), carried.end_cov
+        conf, ensemble = with_cov(conf.sigma_c, carried.cov), carried.ensemble
     f = float(np.mean(r * r))
     pred = problem.predict(theta[None, :])[0]
     lo, hi = theta - conf.half_width, theta + conf.half_width
@@ -430,7 +430,7 @@ def _assemble(
         sigma_c=conf.sigma_c,
         t0_shift_c=None if shift is None else float(shift),
         t0_shift_ci95=None if shift is None else np.array([lo[-1], hi[-1]]),
-        end_cov=end_cov,
+        end_ensemble=ensemble,
         theta=theta.copy(),
     )
 

@@ -71,7 +71,7 @@ from service.scheduler import (
     Tick,
 )
 from service.views import data_to_record
-from service.window import InsufficientDataError, RawWindow, WindowRules, resample_window
+from service.window import InsufficientDataError, RawWindow, WindowArrays, WindowRules, resample_window
 from service.worker import JobOutcome, JobRequest, JobStatus
 
 __all__ = ["CoreConfig", "Launch", "Restored", "SampleHistory", "ServiceCore"]
@@ -353,6 +353,7 @@ class ServiceCore:
             return None, self.scheduler.handle(JobSkipped(ts, job.job_id, msg))
         try:
             snap = self.live.field_at(job.t_from)
+            start_cov = self.live.covariance_at(snap.t) if self.config.carry_start_error else None
             raw = self.history.raw_window(snap.t, job.t_to)
             arrays = resample_window(raw, snap.t, job.t_to, self.config.rules)
         except (InsufficientDataError, LiveStateError) as err:
@@ -369,7 +370,8 @@ class ServiceCore:
             estimate_loads=self.config.estimate_loads,
             estimate_t0_shift=self._fit_start_offset(snap),
             carry_start_error=self.config.carry_start_error,
-            start_cov=self.live.covariance_at(snap.t) if self.config.carry_start_error else None,
+            start_cov=start_cov,
+            gap=self._gap(start_cov, snap.t),
             time_budget_s=self.config.time_budget_s,
             ci_threshold=self.config.ci_threshold,
         )
@@ -382,6 +384,18 @@ class ServiceCore:
             f"{int(arrays.mask.sum())} sensors, warm start from {job.warm_source}"
         )
         return launch, []
+
+    def _gap(self, start_cov: StateCovariance | None, t_start: float) -> WindowArrays | None:
+        """The inputs from the rebase that ``start_cov`` belongs to up to the window start (None: no gap,
+        or the history no longer has it; the worker then only decays the covariance)."""
+        if start_cov is None or t_start - start_cov.t_s < 0.5 * self.config.rules.dt_s:
+            return None
+        rules = replace(self.config.rules, min_window_s=0.0, min_good_channels=0)
+        try:
+            raw = self.history.raw_window(start_cov.t_s, t_start)
+            return resample_window(raw, start_cov.t_s, t_start, rules)
+        except (InsufficientDataError, LiveStateError, ValueError):
+            return None
 
     def _fit_start_offset(self, snap: Any) -> bool:
         """Whether the window's start field gets a fitted uniform offset (``estimate_t0_shift``): "initial"
@@ -519,10 +533,7 @@ class ServiceCore:
             raw = self.history.raw_window(t_end, self.live.t)
         except Exception:  # the history cannot replay: keep the current state (it has the new H already)
             return
-        cov = getattr(outcome.result, "end_cov", None)
-        h = getattr(outcome.result, "h", None)
-        carried = None if cov is None or h is None else StateCovariance(t_end, cov, np.asarray(h, np.float64))
-        self.live.rebase(t_end, final, raw, covariance=carried)
+        self.live.rebase(t_end, final, raw, covariance=_state_covariance(outcome.result, t_end))
 
     # --- manual requests ------------------------------------------------------------------------------------
     def request(self, reason: str) -> tuple[IdentificationJob, list[Launch]]:
@@ -547,6 +558,17 @@ class ServiceCore:
                 self._manual_reason = None
             start = next(i for i in out if isinstance(i, StartJob))
             return self.jobs[self._job_keys[start.job_id]], launches
+
+
+def _state_covariance(result: Any, t_end: float) -> StateCovariance | None:
+    """The rebased state's error (the result's end ensemble), or None when the window did not carry it."""
+    ens = getattr(result, "end_ensemble", None)
+    if ens is None:
+        return None
+    ls = getattr(result, "load_scale", None)
+    return StateCovariance(
+        t_end, ens, np.asarray(result.h, np.float64), None if ls is None else np.asarray(ls, np.float64)
+    )
 
 
 def _load_scale(result: Any) -> tuple[float, float] | None:

@@ -67,6 +67,7 @@ class JobRequest:
     estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
     carry_start_error: bool = False  # CIs carry the start field's error; the result has the end covariance
     start_cov: Any = None  # model.carry.StateCovariance of t0_c's error (None: exact, or the initial guess)
+    gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
     ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
 
@@ -162,13 +163,15 @@ def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any 
 
 
 def start_covariance(model: LoadedModel, req: JobRequest) -> np.ndarray:
-    """The error covariance (r, r) [°C², reduced] of the window's start field: the live state's covariance
-    at its last rebase decayed to the window start (``model.carry.propagate``), zeros when it has none."""
+    """The error covariance (r, r) [°C², reduced] of the window's start field: the live state's error at its
+    last rebase carried through the gap's inputs to the window start (``model.carry.propagate``), zeros when
+    it has none."""
     from model.carry import propagate
 
     if req.start_cov is None:
         return np.zeros((model.rom.rank, model.rom.rank))
-    return propagate(model.rom, req.start_cov, float(req.window.times_s[0]), req.window.dt_s)
+    gap = None if req.gap is None else to_model_window(model, req.gap, 0.0).inputs
+    return propagate(model.rom, req.start_cov, float(req.window.times_s[0]), req.window.dt_s, gap)
 
 
 def final_field(model: LoadedModel, window: Any, result: Any) -> np.ndarray:

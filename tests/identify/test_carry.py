@@ -34,16 +34,18 @@ def _direction(model: Any, seed: int, size_c: float = 0.3) -> np.ndarray:
     return np.asarray(u * size_c / np.linalg.norm(u))
 
 
-def test_a_zero_start_covariance_changes_nothing_but_reports_the_end_covariance(
+def test_a_zero_start_covariance_changes_nothing_but_reports_the_end_ensemble(
     model: Any, cond3000: Condition
 ) -> None:
     r = model.rom.rank
     plain = identify(model.rom, cond3000.window, rng=0, spec=model.spec)
     exact = identify(model.rom, cond3000.window, rng=0, spec=model.spec, start_cov=np.zeros((r, r)))
     np.testing.assert_allclose(exact.h_ci95, plain.h_ci95)
-    assert plain.end_cov is None and exact.end_cov is not None
-    lam = np.linalg.eigvalsh(exact.end_cov)
+    assert plain.end_ensemble is None and exact.end_ensemble is not None
+    lam = np.linalg.eigvalsh(exact.end_ensemble.cov)
     assert lam.min() > -1e-12 * lam.max() and lam.max() > 0.0  # the window's own noise reaches the end
+    again = identify(model.rom, cond3000.window, rng=0, spec=model.spec, start_cov=np.zeros((r, r)))
+    np.testing.assert_array_equal(again.end_ensemble.dev_a, exact.end_ensemble.dev_a)  # deterministic
 
 
 def test_the_gain_predicts_a_refit_from_a_perturbed_start(model: Any, cond3000: Condition) -> None:
@@ -78,9 +80,9 @@ def test_the_end_covariance_follows_the_trajectories(model: Any, cond3000: Condi
     yb = model.rom.simulate_sensors(res.h[None, :], w.inputs, start)[0]
     resp = carry.start_responses(model.rom, res.h, w.inputs.dt_s, n, u[:, None])[0]
     np.testing.assert_allclose(resp, yb - ya, atol=1e-9)
-    # end covariance = moved start + the parameters' noise, through S = ∂a_end/∂θ
+    # with no noise the ensemble is the start error carried exactly: members z·(E·u + S·g) to first order
     jac, _ = problem.jacobian(res.theta)
-    carried = carry.carry(problem, res.theta, jac, np.zeros((7, 7)), np.outer(u, u))
+    carried = carry.carry(problem, res.theta, jac, np.zeros((7, 7)), np.outer(u, u), samples=64)
     gain = -np.linalg.solve(jac.T @ jac, jac.T @ problem.select(resp[None])[0])
     s = np.column_stack(
         [
@@ -89,20 +91,36 @@ def test_the_end_covariance_follows_the_trajectories(model: Any, cond3000: Condi
         ]
     )
     moved = e @ u + s @ gain
-    np.testing.assert_allclose(carried.end_cov, np.outer(moved, moved), atol=1e-3 * np.abs(moved).max() ** 2)
+    ens = carried.ensemble
+    z = ens.dev_theta @ gain / (gain @ gain)  # each member's start coefficient, from its θ deviation
+    np.testing.assert_allclose(ens.dev_theta, np.outer(z, gain), atol=1e-9 * np.abs(gain).max())
+    tol = 0.06 * np.abs(moved).max() * np.abs(z).max()  # the ensemble is not linearised: a few % curvature
+    np.testing.assert_allclose(ens.dev_a, np.outer(z, moved), atol=tol)
+    np.testing.assert_allclose(ens.a_end, a, atol=1e-9)
 
 
-def test_propagate_decays_to_the_window_start_and_never_grows(model: Any) -> None:
+def test_propagate_runs_the_members_through_the_gap(model: Any, cond3000: Condition) -> None:
+    """Without the gap's inputs the error only decays; with them each member's H keeps acting, and a member
+    whose H equals the nominal one just decays (a pure start deviation)."""
     r = model.rom.rank
+    w = cond3000.window
+    a_end = model.rom.simulate_state(cond3000.h_true, w.inputs, w.t0)[-1]
     u = _direction(model, 4)
-    sc = carry.StateCovariance(1000.0, np.outer(u, u), np.full(7, 60.0))
-    same = carry.propagate(model.rom, sc, 1000.0, 10.0)
-    np.testing.assert_allclose(same, np.outer(u, u))
-    later = carry.propagate(model.rom, sc, 1000.0 + 600.0, 10.0)
-    assert np.trace(later) < np.trace(same)
-    assert (
-        carry.propagate(model.rom, carry.StateCovariance(0.0, np.zeros((r, r)), sc.h), 50.0, 10.0).max() == 0
-    )
+    dev_theta = np.zeros((2, 7))
+    dev_theta[1, 4] = 5.0  # the second member has H5 5 W/(m²·K) higher
+    ens = carry.Ensemble(a_end, np.array([u, np.zeros(r)]), dev_theta)
+    sc = carry.StateCovariance(1000.0, ens, cond3000.h_true)
+    np.testing.assert_allclose(carry.propagate(model.rom, sc, 1000.0, 10.0), ens.cov)
+    decayed = carry.propagate(model.rom, sc, 1600.0, 10.0)
+    assert np.trace(decayed) < np.trace(ens.cov)
+    gap = w.inputs.slice(240, 300)  # 60 steps of the heating spindle's inputs
+    carried = carry.propagate(model.rom, sc, 1600.0, 10.0, gap)
+    e = carry.propagator(model.rom, cond3000.h_true, 10.0, 60)
+    base = model.rom.simulate_state(cond3000.h_true, gap, model.rom.lift(a_end))[-1]
+    hot = model.rom.simulate_state(cond3000.h_true + dev_theta[1], gap, model.rom.lift(a_end))[-1] - base
+    expect = (np.outer(e @ u, e @ u) + np.outer(hot, hot)) / 2
+    np.testing.assert_allclose(carried, expect, atol=1e-9 * np.abs(expect).max())
+    assert np.abs(model.rom.sensors @ hot).max() > 0.01  # the gap's H error matters at the sensors
 
 
 def test_bad_start_covariances_name_the_argument(model: Any, cond3000: Condition) -> None:
