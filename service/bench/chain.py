@@ -9,8 +9,8 @@ runs the end-to-end test's profile (3000 → 4000 → 5000 rpm, 45 min each, fro
 samples go through the service's own core offline (``service.offline.run_offline``: detector, scheduler,
 live state, windows, identification; deterministic). For the last identification of each condition (the
 40-min window) it reports, per H, the median and maximum relative error against the truth over the seeds,
-the median relative 95 % half-width of the (noise-only) CI, and the fraction of seeds whose CI covers the
-truth.
+the median relative 95 % half-width of the CI as served (with the carried start-field error when
+``identification.carry_start_error``), and the fraction of seeds whose CI covers the truth.
 """
 
 from __future__ import annotations

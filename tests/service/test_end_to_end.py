@@ -3,7 +3,7 @@ scheduler, worker process, SQLite) -> the API over HTTP (uvicorn), at a high spe
 
 Three conditions (3000, 4000, 5000 rpm, 45 plant minutes each). The service must detect each change,
 identify each condition (the later ones warm-started from an earlier condition), store everything, and
-GET /api/v1/chtc must return H close to the plant's truth (see the bias note at the final assertions).
+GET /api/v1/chtc must return H whose CIs cover the plant's truth (see the note at the final assertions).
 """
 
 from __future__ import annotations
@@ -124,15 +124,17 @@ def test_three_conditions_detected_identified_and_served(tmp_path):
     hi = np.array([z["ci95_hi_w_m2k"] for z in body["zones"]])
     identified = np.array([z["identified"] for z in body["zones"]])
     assert np.all((lo <= h) & (h <= hi)) and identified.sum() >= 2, (h, lo, hi)
-    # The 95 % CIs (model.identify) cover the truth at the first condition (its start-field offset is fitted)
-    # but not reliably at the chained ones: their start field, the live state, carries the earlier H's
-    # errors (coverage 0.55-0.9 per H at 5000 rpm, `chtc bench chain`; docs/service.md). What holds, measured
-    # over 20 seeds of this profile through the same core offline (service/bench/chain.py): the H with the
-    # narrowest CI (H6) is within 5 % of the truth (7 % before the offset was fitted), and the median error
-    # of the identified H is at most 21 % (28 %). Asserted with margin: 15 % and 35 %.
+    # The 95 % CIs carry the start field's error (model.carry): over 20 seeds of this profile through the same
+    # core offline (`chtc bench chain`, docs/service.md) they cover the truth per H in 0.85-1.0 of the seeds
+    # at 5000 rpm, all seven at once in 15 of 20 (seed 3, this one, included); the misses are single H or
+    # the H5-H7 group of one seed. Asserted: at least six of seven cover. What also holds over those seeds:
+    # the H with the narrowest CI (H6) is within 5 % of the truth, and the median error of the identified H
+    # is at most 21 %. Asserted with margin: 15 % and 35 %.
+    covered = (lo <= truth) & (truth <= hi)
     err = np.abs(h - truth) / truth
     rel = (hi - lo) / 2 / h
     narrowest = int(np.argmin(np.where(identified, rel, np.inf)))
     detail = {"h": h, "lo": lo, "hi": hi, "truth": truth, "identified": identified}
+    assert covered.sum() >= 6, detail
     assert err[narrowest] < 0.15, detail
     assert np.median(err[identified]) < 0.35, detail
