@@ -1,21 +1,21 @@
-"""Carrying the start field's uncertainty through an identification window (linearised, pure).
+"""Carrying the start field's uncertainty through an identification window (pure).
 
 A service starts each window from its live state, which earlier windows' H made; their errors are in that
 start field and bias the new H. Ignoring them gives CIs that only know the window's own noise. Here the
-error of the reduced start state a₀ (``model.rom``: T ≈ V·a) is a zero-mean Gaussian with covariance P₀
-(r, r) [°C²], written P₀ = U·Uᵀ (``factor``). To first order, around the fitted θ̂:
+error of the reduced start state a₀ (``model.rom``: T ≈ V·a) has covariance P₀ (r, r) [°C²], written
+P₀ = U·Uᵀ (``factor``), and around the fitted θ̂:
 
 - each start direction u_j moves the model's sensor values by R_j = C·Φ·diag(μᵏ)·Φᵀ·u_j (exact: the reduced
   model is linear in a₀ for fixed θ), and the least-squares fit answers with δθ_j = −(JᵀJ)⁺·Jᵀ·R_j, the
   columns of the gain G (p, k);
 - the parameters' covariance is σ²(JᵀJ)⁺ + G·Gᵀ (the window's noise plus the carried start error);
-- the window-end state's error is (E·U + S·G)·z + S·δθ_noise, with E = Φ·diag(μⁿ)·Φᵀ the window's
-  homogeneous propagator and S = ∂a_end/∂θ, so its covariance is
-  P_end = (E·U + S·G)(E·U + S·G)ᵀ + S·C_fit·Sᵀ: the next window's P₀ after ``propagate`` over the gap.
+- the window-end state's error is an ensemble (``end_ensemble``): z ~ N(0, I), ξ ~ N(0, σ²(JᵀJ)⁺),
+  θ = θ̂ + G·z + ξ, start a₀ + U·z, each member a full reduced run (not linearised);
+- the next window's P₀ comes from running the members through the gap's inputs, each with its own H
+  (``propagate``).
 
-Simplifications (docs/identification.md, "Start-field uncertainty"): linear about θ̂; the field's error outside
-the reduced basis and the live state's FE-vs-ROM difference are ignored; between a window's end and the next
-window's start the error only decays (the gap's own H error is not added).
+Simplifications (docs/identification.md, "Start-field uncertainty"): Gaussian in the reduced coordinates;
+the field's error outside the reduced basis and the live state's FE-vs-reduced difference are ignored.
 
 Errors::
 
@@ -149,17 +149,6 @@ def start_responses(rom: Any, h: Array, dt_s: float, n_steps: int, u: Array) -> 
     powers = mu[None, :] ** np.arange(n_steps + 1)[:, None]  # (n+1, r)
     coeff = phi.T @ u  # (r, k)
     return np.asarray(np.einsum("sr,nr,rk->kns", gain, powers, coeff))
-
-
-def end_jacobian(problem: Any, theta: Array, *, rel_step: float = 1e-6) -> Array:
-    """S (r, p) = ∂a_end/∂θ by forward differences of the reduced trajectory (``problem``: an
-    ``identify_problem.Problem`` over a ``ReducedModel``)."""
-    x = np.asarray(theta, dtype=np.float64)
-    step = rel_step * np.maximum(np.abs(x), 1.0)
-    step = np.where(x + step > problem.bounds[:, 1], -step, step)
-    base = end_state(problem, x)
-    cols = [(end_state(problem, x + step[i] * np.eye(len(x))[i]) - base) / step[i] for i in range(len(x))]
-    return np.asarray(np.column_stack(cols))
 
 
 def end_state(problem: Any, theta: Array, *, start: Array | None = None) -> Array:
