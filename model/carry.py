@@ -113,8 +113,7 @@ def propagate(rom: Any, sc: StateCovariance, t_s: float, dt_s: float, gap: Any =
     (``propagator``). A no-op when ``t_s <= sc.t_s``.
     """
     ens = sc.ensemble
-    r = int(rom.k0.shape[0])
-    cov = check_cov(ens.cov, r, "state covariance")
+    cov = ens.cov
     n = round((float(t_s) - sc.t_s) / float(dt_s))
     if n <= 0:
         return cov
@@ -154,11 +153,8 @@ def start_responses(rom: Any, h: Array, dt_s: float, n_steps: int, u: Array) -> 
 def end_state(problem: Any, theta: Array, *, start: Array | None = None) -> Array:
     """The reduced state (r,) at the window end for parameters θ (p,), from ``problem.t0`` or the reduced
     ``start`` (r,)."""
-    lay = problem.layout
-    loads, shift = lay.load_scale(theta), lay.shift(theta)
-    t0 = problem.t0 if start is None else problem.model.lift(start)
-    if shift is not None:
-        t0 = np.asarray(t0, dtype=np.float64) + float(shift)
+    loads = problem.layout.load_scale(theta)
+    t0 = problem.start(theta, None if start is None else problem.model.lift(start))
     traj = problem.model.simulate_state(
         theta[:N_H], problem.inputs, t0, load_scale=None if loads is None else np.asarray(loads)
     )

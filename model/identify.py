@@ -443,10 +443,9 @@ def _test_channels(spec: Any) -> Mapping[int, int]:
 def _fe_check(fe: Any, problem: Problem, theta: Array, window: Window) -> dict[str, float]:
     from model.fem import simulate_sensors
 
-    loads, shift = problem.layout.load_scale(theta), problem.layout.shift(theta)
+    loads = problem.layout.load_scale(theta)
     scale = (1.0, 1.0) if loads is None else (float(loads[0]), float(loads[1]))
-    t0 = window.t0 if shift is None else np.asarray(window.t0, dtype=float) + float(shift)
-    sens, _ = simulate_sensors(fe, theta[:N_H], window.inputs, t0, load_scale=scale)
+    sens, _ = simulate_sensors(fe, theta[:N_H], window.inputs, problem.start(theta), load_scale=scale)
     rom_pred = problem.predict(theta[None, :])[0]
     e = problem.usable.entries
     rmse_fe = float(np.sqrt(np.mean((sens - problem.measured)[e] ** 2)))

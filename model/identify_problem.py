@@ -128,6 +128,28 @@ class Problem:
         self._weights = usable.entries.astype(float) / max(usable.m, 1)
         self._filled = np.where(usable.entries, measured_c, 0.0)
 
+    @classmethod
+    def from_window(
+        cls, model: SensorModel, window: Any, bounds: Array, layout: Layout | None = None
+    ) -> Problem:
+        """The problem of a ``model.identify.Window`` as measured (no offsets), over its usable entries."""
+        return cls(
+            model,
+            inputs=window.inputs,
+            measured_c=window.measured_c,
+            usable=usable_entries(window.measured_c, window.mask),
+            t0=window.t0,
+            bounds=bounds,
+            layout=layout,
+        )
+
+    def start(self, theta: Array, t0: float | Array | None = None) -> float | Array:
+        """The start field [°C] (uniform or (N,)) for θ (p,): ``t0`` (default the window's) plus the fitted
+        uniform shift, if any."""
+        base = self.t0 if t0 is None else t0
+        shift = self.layout.shift(theta)
+        return base if shift is None else np.asarray(base, dtype=np.float64) + float(shift)
+
     def predict(self, theta: Array) -> Array:
         """Model sensor temperatures (P, n_steps + 1, 32) [°C] for parameters θ (P, p)."""
         theta = np.atleast_2d(theta)

@@ -14,7 +14,7 @@ identification window uses as its initial field (``field_at``).
 
 It also keeps, per rebase, the covariance of the rebased state's error that the identification reported
 (``model.carry.StateCovariance``, reduced coordinates; opaque here): ``covariance_at(t)`` is the one a window
-starting at ``t`` inherits (the latest rebase at or before ``t``), which the worker decays to ``t``.
+starting at ``t`` inherits (the latest rebase at or before ``t``), which the worker carries to ``t``.
 
 Before the first sample the state is unknown: ``initialize`` sets a uniform field (the service uses the mean
 of the good sensors of the first sample). Non-finite inputs (CAN down) hold the last valid ones.

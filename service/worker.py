@@ -65,7 +65,7 @@ class JobRequest:
     seed: int = 0
     estimate_loads: bool = False
     estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
-    carry_start_error: bool = False  # CIs carry the start field's error; the result has the end covariance
+    carry_start_error: bool = False  # CIs carry the start field's error; the result has the end ensemble
     start_cov: Any = None  # model.carry.StateCovariance of t0_c's error (None: exact, or the initial guess)
     gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
@@ -177,6 +177,9 @@ def start_covariance(model: LoadedModel, req: JobRequest) -> np.ndarray:
 def final_field(model: LoadedModel, window: Any, result: Any) -> np.ndarray:
     """The reduced model's field (N,) °C at the end of the window with the identified H (and load scales),
     from the window's start field plus the fitted uniform shift (if any)."""
+    ens = getattr(result, "end_ensemble", None)
+    if ens is not None:  # the identification already ran the window with these parameters
+        return np.asarray(model.rom.lift(ens.a_end))
     ls = getattr(result, "load_scale", None)
     shift = getattr(result, "t0_shift_c", None)
     traj = model.rom.simulate_state(

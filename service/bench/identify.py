@@ -216,18 +216,10 @@ def _warm_ratio(model: Any, data: list[Data], seeds: int) -> dict[str, Any]:
 
 
 def _igwo(model: Any, window: Window, seed: int, *, callback: Any = None, pop: int = 7, it: int = 100) -> Any:
-    from model.identify_problem import Problem, usable_entries
+    from model.identify_problem import Problem
 
-    usable = usable_entries(window.measured_c, window.mask)
     bounds = np.array([model.rom.h_box] * 7, dtype=float)
-    problem = Problem(
-        model.rom,
-        inputs=window.inputs,
-        measured_c=window.measured_c,
-        usable=usable,
-        t0=window.t0,
-        bounds=bounds,
-    )
+    problem = Problem.from_window(model.rom, window, bounds)
     return grey_wolf(problem.objective, bounds, rng=seed, popsize=pop, maxiter=it, callback=callback)
 
 

@@ -11,22 +11,12 @@ import pytest
 
 from model import carry
 from model.identify import IdentificationError, identify
-from model.identify_problem import Layout, Problem, usable_entries
+from model.identify_problem import Problem
 from tests.identify.conftest import Condition
 
 
 def _problem(model: Any, w: Any) -> Problem:
-    usable = usable_entries(np.asarray(w.measured_c), w.mask)
-    bounds = np.array([model.rom.h_box] * 7, dtype=float)
-    return Problem(
-        model.rom,
-        inputs=w.inputs,
-        measured_c=w.measured_c,
-        usable=usable,
-        t0=w.t0,
-        bounds=bounds,
-        layout=Layout(),
-    )
+    return Problem.from_window(model.rom, w, np.array([model.rom.h_box] * 7, dtype=float))
 
 
 def _direction(model: Any, seed: int, size_c: float = 0.3) -> np.ndarray:
