@@ -138,8 +138,9 @@ class IdentificationSettings(_Section):
     # also fit a uniform offset of the window's start field: "initial" only for windows that start from the
     # live state's initial guess (uniform at the first sample's mean), "always", or "never"
     estimate_t0_shift: Literal["never", "initial", "always"] = "initial"
-    # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry)
-    carry_start_error: bool = True
+    # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);
+    # off by default until the live service reproduces the offline chain (docs/service.md)
+    carry_start_error: bool = False
     ci_rel_threshold: float = Field(
         default=0.5, gt=0
     )  # 95 % CI half-width / H above this → "poorly identified"
