@@ -354,7 +354,7 @@ class ServiceCore:
         try:
             snap = self.live.field_at(job.t_from)
             start_cov = self.live.covariance_at(snap.t) if self.config.carry_start_error else None
-            raw = self.history.raw_window(snap.t, job.t_to)
+            raw = self._raw(snap.t, job.t_to)
             arrays = resample_window(raw, snap.t, job.t_to, self.config.rules)
         except (InsufficientDataError, LiveStateError) as err:
             msg = getattr(err, "reason", str(err))
@@ -392,10 +392,17 @@ class ServiceCore:
             return None
         rules = replace(self.config.rules, min_window_s=0.0, min_good_channels=0)
         try:
-            raw = self.history.raw_window(start_cov.t_s, t_start)
+            raw = self._raw(start_cov.t_s, t_start)
             return resample_window(raw, start_cov.t_s, t_start, rules)
         except (InsufficientDataError, LiveStateError, ValueError):
             return None
+
+    def _raw(self, t_from: float, t_to: float) -> RawWindow:
+        """The history's samples for the grid [t_from, t_to] (s): sample times jitter around the grid, so
+        the samples within half a step outside it belong to its end points (``resample_window``,
+        ``LiveModel.push``) and are included."""
+        half = 0.5 * self.config.rules.dt_s
+        return self.history.raw_window(t_from - half, t_to + half)
 
     def _fit_start_offset(self, snap: Any) -> bool:
         """Whether the window's start field gets a fitted uniform offset (``estimate_t0_shift``): "initial"
@@ -529,8 +536,9 @@ class ServiceCore:
         if final is None or not self.live.initialized:
             return
         t_end = launch.window_to.timestamp()
+        newest = self.newest.t.timestamp() if self.newest is not None else self.live.t
         try:
-            raw = self.history.raw_window(t_end, self.live.t)
+            raw = self._raw(t_end, max(newest, self.live.t))
         except Exception:  # the history cannot replay: keep the current state (it has the new H already)
             return
         self.live.rebase(t_end, final, raw, covariance=_state_covariance(outcome.result, t_end))

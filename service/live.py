@@ -44,7 +44,9 @@ class LiveStateError(RuntimeError):
 class Snapshot:
     t: float  # s (sample time axis)
     field_c: np.ndarray  # (N,) °C
-    initial: bool = False  # the initialisation's field itself (a guess: uniform at the first sample's mean)
+    # descends from the initialisation's guess (uniform at the first sample's mean) with no rebase since: its
+    # error is (nearly) that guess's uniform offset
+    initial: bool = False
 
 
 @dataclass(frozen=True)
@@ -79,6 +81,7 @@ class LiveModel:
         self._recent: deque[Snapshot] = deque(maxlen=max(1, recent_steps))
         self._covariances: deque[tuple[float, Any]] = deque(maxlen=self._snapshots.maxlen)  # (t, cov | None)
         self._t: float | None = None
+        self._from_guess = False  # the state still descends from initialize()'s guess (no rebase since)
         self._T: np.ndarray | None = None
         self._last_inputs: _Inputs | None = None
         self._stepper_key: tuple[Any, ...] | None = None
@@ -107,6 +110,7 @@ class LiveModel:
         self._snapshots.clear()
         self._recent.clear()
         self._covariances.clear()
+        self._from_guess = True
         first = Snapshot(self._t, self._T.copy(), initial=True)
         self._snapshots.append(first)
         self._recent.append(first)
@@ -144,7 +148,7 @@ class LiveModel:
             self._last_inputs = new
             return
         for k, field_c in self._march(self._T, n, self._last_inputs):
-            snap = Snapshot(self._t + k * self.dt_s, field_c)
+            snap = Snapshot(self._t + k * self.dt_s, field_c, initial=self._from_guess)
             self._recent.append(snap)
             if snap.t - self._snapshots[-1].t >= self.snapshot_every_s - 1e-9:
                 self._snapshots.append(snap)
@@ -169,24 +173,21 @@ class LiveModel:
         return snap
 
     def rebase(self, t: float, field_c: np.ndarray, raw: Any, *, covariance: Any = None) -> None:
-        """Restart from ``field_c`` (N,) at ``t`` (s) and replay the samples of ``raw`` after ``t``.
+        """Restart from ``field_c`` (N,) at ``t`` (s) and replay the samples of ``raw``.
 
         Used when an identification finishes: the fitted model's field at the window end (computed with the
         new H from the window's initial field) replaces the state that was advanced with the old H.
-        ``raw`` is a ``service.window.RawWindow`` covering [t, now]; ``covariance`` is that field's error
-        covariance (None: unknown), returned by ``covariance_at`` for windows starting at or after ``t``.
+        ``raw`` is a ``service.window.RawWindow`` from at least half a step before ``t`` up to the newest
+        sample. Every sample of it is pushed again from ``t`` (the ``push`` convention): the ones within half
+        a step of ``t`` or before only set the inputs held from ``t`` on, the later ones advance the state.
+        With no sample in ``raw`` the state restarts at ``t`` holding the current inputs. ``covariance`` is
+        that field's error covariance (None: unknown), returned by ``covariance_at`` for windows starting at
+        or after ``t``.
         """
         if self._t is None:
             raise LiveStateError("the live state has not been initialised (no sample yet)")
-        times = np.asarray(raw.times_s, dtype=float)
-        if len(times) == 0:
-            return
-        i0 = int(np.argmin(np.abs(times - t)))
         self._T = np.asarray(field_c, dtype=float).copy()
         self._t = float(t)
-        self._last_inputs = _Inputs(
-            float(raw.ambient_c[i0]), float(raw.speed_rpm[i0]), float(raw.torque_nm[i0])
-        )
         for dq in (self._snapshots, self._recent):
             kept = [s for s in dq if s.t < t - 1e-9]
             dq.clear()
@@ -194,9 +195,11 @@ class LiveModel:
         old = [c for c in self._covariances if c[0] < t - 1e-9]
         self._covariances.clear()
         self._covariances.extend([*old, (float(t), covariance)])
+        self._from_guess = False
         self._snapshots.append(Snapshot(self._t, self._T))
         self._recent.append(Snapshot(self._t, self._T))
-        for k in np.flatnonzero(times > t + 1e-9):
+        times = np.asarray(raw.times_s, dtype=float)
+        for k in range(len(times)):
             self.push(
                 float(times[k]),
                 ambient_c=float(raw.ambient_c[k]),
@@ -208,7 +211,7 @@ class LiveModel:
     def field_now(self) -> Snapshot:
         if self._T is None or self._t is None:
             raise LiveStateError("the live state has not been initialised (no sample yet)")
-        return Snapshot(self._t, self._T.copy())
+        return Snapshot(self._t, self._T.copy(), initial=self._from_guess)
 
     def sensors_now(self) -> np.ndarray:
         """Predicted temperatures (32,) °C at the sensors."""

@@ -119,3 +119,52 @@ def test_a_window_inherits_the_covariance_of_the_last_rebase_before_it(coarse):
     assert live.t == pytest.approx(300.0)
     live.initialize(400.0, 22.0, (22.0, 3000.0, 2.0))
     assert live.covariance_at(450.0) is None
+
+
+def test_a_rebase_gives_the_same_state_whether_it_comes_at_once_or_samples_later(coarse):
+    """Jittered sample times: a rebase at a window end t must use the inputs of the sample within half a
+    step of t, whether that sample came just before or just after t, and whether the identification
+    finished at once (offline) or several samples later (the worker process). It once skipped the rebase
+    when no sample lay in [t, now], so a replay and ``chtc identify`` started later windows differently."""
+    from types import SimpleNamespace
+
+    spec, fe = coarse
+    rng = np.random.default_rng(1)
+    grid = 10.0 * np.arange(1, 41)
+    times = grid + rng.uniform(-4.0, 4.0, 40)
+    speed = np.where(grid < 100.0, 3000.0, 5000.0)  # the step comes with the sample of the rebase time, 100 s
+
+    def raw_between(t_from: float, t_to: float) -> SimpleNamespace:
+        k = (times >= t_from) & (times <= t_to)
+        n = int(k.sum())
+        return SimpleNamespace(
+            times_s=times[k], ambient_c=np.full(n, 22.0), speed_rpm=speed[k], torque_nm=np.full(n, 2.0)
+        )
+
+    def run(finish_after: int) -> np.ndarray:
+        live = LiveModel(fe, spec, h=H, dt_s=10.0)
+        live.initialize(0.0, 22.0, (22.0, 3000.0, 2.0))
+        done = False
+        for k, t in enumerate(times):
+            live.push(float(t), ambient_c=22.0, speed_rpm=float(speed[k]), torque_nm=2.0)
+            if not done and t >= 100.0 - 5.0 and k >= int(np.searchsorted(times, 95.0)) + finish_after:
+                live.set_h(H * 1.3)
+                live.rebase(100.0, np.full(fe.n_nodes, 25.0), raw_between(95.0, float(t)))
+                done = True
+        assert live.t == pytest.approx(400.0)
+        return live.field_now().field_c
+
+    at_once, later, much_later = run(0), run(1), run(5)
+    np.testing.assert_allclose(later, at_once, atol=1e-9)
+    np.testing.assert_allclose(much_later, at_once, atol=1e-9)
+    # the reference: from the rebased field at 100 s with the new H and the grid-aligned inputs
+    inputs = inputs_from_operation(
+        spec, dt_s=10.0, speed_rpm=np.full(30, 5000.0), torque_nm=np.full(30, 2.0), ambient_c=np.full(30, 22.0)
+    )
+    np.testing.assert_allclose(at_once, simulate(fe, H * 1.3, inputs, 25.0)[-1], atol=1e-9)
+    # no sample in the replayed range: the state still restarts from the given field (it was left unchanged)
+    live = LiveModel(fe, spec, h=H, dt_s=10.0)
+    live.initialize(0.0, 22.0, (22.0, 3000.0, 2.0))
+    live.push(float(times[0]), ambient_c=22.0, speed_rpm=3000.0, torque_nm=2.0)
+    live.rebase(10.0, np.full(fe.n_nodes, 25.0), raw_between(1e9, 1e9))
+    assert live.t == 10.0 and np.all(live.field_now().field_c == 25.0)
