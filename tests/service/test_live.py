@@ -159,7 +159,11 @@ def test_a_rebase_gives_the_same_state_whether_it_comes_at_once_or_samples_later
     np.testing.assert_allclose(much_later, at_once, atol=1e-9)
     # the reference: from the rebased field at 100 s with the new H and the grid-aligned inputs
     inputs = inputs_from_operation(
-        spec, dt_s=10.0, speed_rpm=np.full(30, 5000.0), torque_nm=np.full(30, 2.0), ambient_c=np.full(30, 22.0)
+        spec,
+        dt_s=10.0,
+        speed_rpm=np.full(30, 5000.0),
+        torque_nm=np.full(30, 2.0),
+        ambient_c=np.full(30, 22.0),
     )
     np.testing.assert_allclose(at_once, simulate(fe, H * 1.3, inputs, 25.0)[-1], atol=1e-9)
     # no sample in the replayed range: the state still restarts from the given field (it was left unchanged)

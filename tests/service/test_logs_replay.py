@@ -104,7 +104,10 @@ def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path):
     # same live state at every window start (a rebase replays from half a step before the window end, so a
     # job that finishes samples later, as in the running service, rebases exactly as offline, where it
     # finishes at once). The second condition's windows start from that rebased state.
-    assert exact == len(offline), (exact, [(r.h, o["h_w_m2k"]) for r, o in zip(replayed, offline, strict=True)])
+    assert exact == len(offline), (
+        exact,
+        [(r.h, o["h_w_m2k"]) for r, o in zip(replayed, offline, strict=True)],
+    )
 
 
 def _minutes(o: dict) -> float:
