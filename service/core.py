@@ -98,7 +98,7 @@ class CoreConfig:
     seed: int = 0
     estimate_loads: bool = False
     estimate_t0_shift: str = "never"  # "never" | "initial" (window starts from the initial guess) | "always"
-    carry_start_error: bool = False  # CIs carry the start field's error (the live state's covariance)
+    carry_start_error: bool = True  # CIs carry the start field's error (the live state's covariance)
     time_budget_s: float | None = None
     ci_threshold: float = 0.3
     stale_after_s: float = 60.0  # sample time without a new sample before H is reported stale

@@ -20,6 +20,7 @@ def test_summarise_per_h_over_seeds() -> None:
     assert out["h_err_pct_max"] == [30.0, 50.0]
     assert out["ci_half_width_pct_median"] == [7.0, 30.0]
     assert out["ci_coverage"] == [0.67, 0.67]
+    assert out["ci_covers_all"] == 0.33 and out["ci_covers_all_but_one"] == 1.0
 
 
 @pytest.mark.slow

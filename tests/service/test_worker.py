@@ -94,14 +94,33 @@ def window_request(loaded_model):
     ("mode", "expected"), [("initial", [True, False]), ("always", [True, True]), ("never", [False, False])]
 )
 def test_core_asks_for_the_start_offset_as_configured(loaded_model, mode, expected):
-    """ "initial": only a window that starts from the live state's initial guess (here the first condition,
-    from the cold start) gets the fitted offset; the second condition starts from an advanced state."""
+    """ "initial": only a window whose start field still descends from the live state's initial guess (here
+    the first condition, from the cold start) gets the fitted offset; the second condition starts from the
+    state rebased on the first identification."""
+    from service.offline import _run
+
     run = plant_run([Segment(700.0, 3000.0, 2.0, 23.2), Segment(700.0, 4000.0, 3.0, 23.2)])
     ring = ring_of()
     cfg = dataclasses.replace(CFG, estimate_t0_shift=mode)
     core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=ListSink())
-    launches = feed(core, ring, samples_of(run))
+    launches = []
+    for s in samples_of(run):
+        ring.append(s)
+        for launch in core.ingest(s):
+            launches.append(launch)
+            core.job_done(_run(loaded_model, launch), finished_at=s.t)
     assert [launch.request.estimate_t0_shift for launch in launches] == expected
+
+
+def test_without_a_rebase_the_next_condition_still_starts_from_the_initial_guess(loaded_model):
+    """No identification finished (none rebased the live state): the second condition's start field is the
+    initial guess advanced with the initial H, so "initial" still fits its uniform offset."""
+    run = plant_run([Segment(700.0, 3000.0, 2.0, 23.2), Segment(700.0, 4000.0, 3.0, 23.2)])
+    ring = ring_of()
+    cfg = dataclasses.replace(CFG, estimate_t0_shift="initial")
+    core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=ListSink())
+    launches = feed(core, ring, samples_of(run))
+    assert [launch.request.estimate_t0_shift for launch in launches] == [True, True]
 
 
 def test_start_offset_is_fitted_and_carried_into_the_final_field(loaded_model, window_request):
@@ -112,8 +131,13 @@ def test_start_offset_is_fitted_and_carried_into_the_final_field(loaded_model, w
     )
     result, window = run_identification(loaded_model, warm)
     assert result.t0_shift_c is not None and abs(result.t0_shift_c + 0.3) < 0.05, result.t0_shift_c
+    assert warm.carry_start_error and result.end_ensemble is not None  # the default: the end state is reused
     corrected = final_field(loaded_model, window, result)
-    uncorrected = final_field(loaded_model, window, dataclasses.replace(result, t0_shift_c=None))
+    recomputed = final_field(loaded_model, window, dataclasses.replace(result, end_ensemble=None))
+    np.testing.assert_allclose(corrected, recomputed, atol=1e-6)
+    uncorrected = final_field(
+        loaded_model, window, dataclasses.replace(result, t0_shift_c=None, end_ensemble=None)
+    )
     diff = corrected - uncorrected
     assert np.all(diff < 0.0) and np.all(diff > -0.3), (diff.min(), diff.max())
 
@@ -170,7 +194,7 @@ def test_chained_windows_carry_the_start_field_error(loaded_model):
 
     run = plant_run([Segment(1300.0, 3000.0, 2.0, 23.2), Segment(1300.0, 4000.0, 3.0, 23.2)])
     samples = samples_of(run)
-    base = dataclasses.replace(CFG, estimate_t0_shift="initial")
+    base = dataclasses.replace(CFG, estimate_t0_shift="initial", carry_start_error=False)
     off, on = (
         [r for r in run_offline(samples, model=loaded_model, config=cfg).records if r.outcome == "ok"]
         for cfg in (base, dataclasses.replace(base, carry_start_error=True))
