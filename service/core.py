@@ -97,7 +97,7 @@ class CoreConfig:
     method: str = "hybrid"
     seed: int = 0
     estimate_loads: bool = False
-    estimate_t0_shift: str = "never"  # "never" | "initial" (window starts from the initial guess) | "always"
+    estimate_t0_shift: str = "never"  # "never" | "initial" (start field from the initial guess) | "always"
     carry_start_error: bool = True  # CIs carry the start field's error (the live state's covariance)
     time_budget_s: float | None = None
     ci_threshold: float = 0.3
@@ -406,7 +406,8 @@ class ServiceCore:
 
     def _fit_start_offset(self, snap: Any) -> bool:
         """Whether the window's start field gets a fitted uniform offset (``estimate_t0_shift``): "initial"
-        only when it is the live state's initial guess, whose error is uniform (the first sample's noise)."""
+        only while it still descends from the live state's initial guess (no rebase since), whose error is
+        uniform (the first sample's noise)."""
         mode = self.config.estimate_t0_shift
         return mode == "always" or (mode == "initial" and bool(getattr(snap, "initial", False)))
 
