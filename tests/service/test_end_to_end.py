@@ -130,7 +130,7 @@ def test_three_conditions_detected_identified_and_served(tmp_path):
     # seeds of this profile through the same core offline (`chtc bench chain --seeds 20`, docs/service.md)
     # each H's CI covers the truth at 5000 rpm in 0.90-1.0 of the seeds; the live run gives the offline H
     # (the rebase is the same whenever the job finishes; tests/service/test_logs_replay.py). Asserted: at
-    # least 6 of the 7 CIs cover the truth (all 7 in the run of this seed we inspected, 2026-11-23), the H
+    # least 6 of the 7 CIs cover the truth (7 and 6 in two inspected runs of this seed, 2026-11-23), the H
     # with the narrowest CI (H6: median error 1.8 %, max 5.1 % over the seeds) within 15 %, and the median
     # error of the identified H at most 35 %.
     err = np.abs(h - truth) / truth
