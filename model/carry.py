@@ -113,13 +113,12 @@ def propagate(rom: Any, sc: StateCovariance, t_s: float, dt_s: float, gap: Any =
     (``propagator``). A no-op when ``t_s <= sc.t_s``.
     """
     ens = sc.ensemble
-    cov = ens.cov
     n = round((float(t_s) - sc.t_s) / float(dt_s))
     if n <= 0:
-        return cov
+        return ens.cov
     if gap is None or len(gap.ambient_c) == 0:
         e = propagator(rom, sc.h, dt_s, n)
-        return np.asarray(e @ cov @ e.T)
+        return np.asarray(e @ ens.cov @ e.T)
     loads = None if sc.load_scale is None else np.asarray(sc.load_scale, dtype=np.float64)
 
     def run(h: Array, ls: Array | None, a0: Array) -> Array:

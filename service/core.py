@@ -537,9 +537,9 @@ class ServiceCore:
         if final is None or not self.live.initialized:
             return
         t_end = launch.window_to.timestamp()
-        newest = self.newest.t.timestamp() if self.newest is not None else self.live.t
+        t_now = self.live.t if self.newest is None else max(self.live.t, self.newest.t.timestamp())
         try:
-            raw = self._raw(t_end, max(newest, self.live.t))
+            raw = self._raw(t_end, t_now)
         except Exception:  # the history cannot replay: keep the current state (it has the new H already)
             return
         self.live.rebase(t_end, final, raw, covariance=_state_covariance(outcome.result, t_end))

@@ -79,9 +79,9 @@ class LiveModel:
         self.snapshot_every_s = snapshot_every_s
         self._snapshots: deque[Snapshot] = deque(maxlen=max(2, int(keep_s / snapshot_every_s) + 2))
         self._recent: deque[Snapshot] = deque(maxlen=max(1, recent_steps))
-        self._covariances: deque[tuple[float, Any]] = deque(maxlen=self._snapshots.maxlen)  # (t, cov | None)
+        # every rebase since initialize() (t, its covariance | None): empty while the state is the guess's
+        self._rebases: deque[tuple[float, Any]] = deque(maxlen=self._snapshots.maxlen)
         self._t: float | None = None
-        self._from_guess = False  # the state still descends from initialize()'s guess (no rebase since)
         self._T: np.ndarray | None = None
         self._last_inputs: _Inputs | None = None
         self._stepper_key: tuple[Any, ...] | None = None
@@ -109,8 +109,7 @@ class LiveModel:
         self._last_inputs = _Inputs(*inputs)
         self._snapshots.clear()
         self._recent.clear()
-        self._covariances.clear()
-        self._from_guess = True
+        self._rebases.clear()
         first = Snapshot(self._t, self._T.copy(), initial=True)
         self._snapshots.append(first)
         self._recent.append(first)
@@ -148,7 +147,7 @@ class LiveModel:
             self._last_inputs = new
             return
         for k, field_c in self._march(self._T, n, self._last_inputs):
-            snap = Snapshot(self._t + k * self.dt_s, field_c, initial=self._from_guess)
+            snap = Snapshot(self._t + k * self.dt_s, field_c, initial=not self._rebases)
             self._recent.append(snap)
             if snap.t - self._snapshots[-1].t >= self.snapshot_every_s - 1e-9:
                 self._snapshots.append(snap)
@@ -192,10 +191,9 @@ class LiveModel:
             kept = [s for s in dq if s.t < t - 1e-9]
             dq.clear()
             dq.extend(kept)
-        old = [c for c in self._covariances if c[0] < t - 1e-9]
-        self._covariances.clear()
-        self._covariances.extend([*old, (float(t), covariance)])
-        self._from_guess = False
+        old = [c for c in self._rebases if c[0] < t - 1e-9]
+        self._rebases.clear()
+        self._rebases.extend([*old, (float(t), covariance)])
         self._snapshots.append(Snapshot(self._t, self._T))
         self._recent.append(Snapshot(self._t, self._T))
         times = np.asarray(raw.times_s, dtype=float)
@@ -211,7 +209,7 @@ class LiveModel:
     def field_now(self) -> Snapshot:
         if self._T is None or self._t is None:
             raise LiveStateError("the live state has not been initialised (no sample yet)")
-        return Snapshot(self._t, self._T.copy(), initial=self._from_guess)
+        return Snapshot(self._t, self._T.copy(), initial=not self._rebases)
 
     def sensors_now(self) -> np.ndarray:
         """Predicted temperatures (32,) °C at the sensors."""
@@ -227,7 +225,7 @@ class LiveModel:
     def covariance_at(self, t: float) -> Any:
         """The error covariance of the latest rebase at or before ``t`` (s); None if it had none, or if no
         rebase came since the start (the initial guess: ``Snapshot.initial`` and its offset fit)."""
-        older = [c for t_s, c in self._covariances if t_s <= t + 0.5 * self.dt_s]
+        older = [c for t_s, c in self._rebases if t_s <= t + 0.5 * self.dt_s]
         return older[-1] if older else None
 
     def first_snapshot_after(self, t: float) -> Snapshot:

@@ -139,7 +139,7 @@ class IdentificationSettings(_Section):
     # live state's initial guess (uniform at the first sample's mean), "always", or "never"
     estimate_t0_shift: Literal["never", "initial", "always"] = "initial"
     # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);
-    # off by default until the live service reproduces the offline chain (docs/service.md)
+    # false: noise-only CIs, which undercover at chained conditions (docs/service.md)
     carry_start_error: bool = True
     ci_rel_threshold: float = Field(
         default=0.5, gt=0
