@@ -15,7 +15,7 @@ from __future__ import annotations
 import math
 import tomllib
 from collections.abc import Mapping
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
@@ -31,12 +31,20 @@ class SpindleError(ValueError):
 
 @dataclass(frozen=True)
 class Material:
-    """Isotropic solid: conductivity k [W/(m K)], density rho [kg/m^3], specific heat c [J/(kg K)]."""
+    """Isotropic solid: conductivity k [W/(m K)], density rho [kg/m^3], specific heat c [J/(kg K)].
+
+    Mechanical properties (optional, all three or none; only ``model.thermoelastic`` needs them): Young's
+    modulus e_pa [Pa], Poisson's ratio nu [-], linear expansion coefficient alpha_per_k [1/K]. They are left
+    out of ``repr`` so that the thermal model's cache key (``repr(spec)``) does not change with them.
+    """
 
     name: str
     k_w_mk: float
     rho_kg_m3: float
     c_j_kgk: float
+    e_pa: float | None = field(default=None, repr=False)
+    nu: float | None = field(default=None, repr=False)
+    alpha_per_k: float | None = field(default=None, repr=False)
 
 
 @dataclass(frozen=True)
@@ -136,6 +144,7 @@ class SpindleSpec:
     default_mesh_size_m: float = 0.0025
     plant_mesh_size_m: float = 0.0015
     ambient_name: str = "Ti"
+    mechanics: MechanicsSpec | None = field(default=None, repr=False)
 
     @property
     def test_point_channels(self) -> dict[int, int]:
@@ -201,7 +210,7 @@ def _materials(doc: Mapping[str, Any]) -> dict[str, Material]:
         if not isinstance(m, dict):
             raise SpindleError(f"materials.{name}: must be a table")
         k, rho, c = (_num(m, f, p, positive=True) for f in ("k_w_mk", "rho_kg_m3", "c_j_kgk"))
-        out[name] = Material(name, k, rho, c)
+        out[name] = Material(name, k, rho, c, *_elastic(m, p))
     return out
 
 
@@ -346,6 +355,7 @@ def spec_from_dict(doc: Mapping[str, Any]) -> SpindleSpec:
         if "plant_size_m" in mesh
         else 0.0015,
         ambient_name=_str(amb, "name", "ambient.", default="Ti"),
+        mechanics=_mechanics(doc["mechanics"], regions, materials) if "mechanics" in doc else None,
     )
 
 
@@ -360,3 +370,147 @@ def load_spindle(path: str | Path | None = None) -> SpindleSpec:
     except tomllib.TOMLDecodeError as err:
         raise SpindleError(f"{p}: invalid TOML ({err})") from err
     return spec_from_dict(doc)
+
+
+# ---------------------------------------------------------------- mechanics (thermoelastic model, optional)
+
+MOUNT_FIXES = ("axial", "axial_radial")
+SURFACES = ("outer", "inner")
+COMPONENTS = ("axial", "radial")
+
+
+@dataclass(frozen=True)
+class MountSpec:
+    """The housing's mounting face: segments on the solid's boundary, held axially (and radially if asked)."""
+
+    segments: tuple[Segment2D, ...]
+    fix: Literal["axial", "axial_radial"] = "axial"
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class FloatingSpec:
+    """A region whose ``surface`` ("outer": r = r1, "inner": r = r0) slides axially (floating bearing)."""
+
+    region: str
+    surface: Literal["outer", "inner"] = "outer"
+
+
+@dataclass(frozen=True)
+class GrowthOutputSpec:
+    """A displacement output: the ``component`` ("axial" u_z / "radial" u_r) at the point (r_m, z_m) [m]."""
+
+    name: str
+    component: Literal["axial", "radial"]
+    r_m: float
+    z_m: float
+    description: str = ""
+
+
+@dataclass(frozen=True)
+class MechanicsSpec:
+    """Boundary conditions and outputs of the thermoelastic model (``[mechanics]`` in the TOML).
+
+    ``region_material`` overrides a region's material for the mechanics only (region name -> material).
+    """
+
+    mount: MountSpec
+    floating: tuple[FloatingSpec, ...]
+    outputs: tuple[GrowthOutputSpec, ...]
+    region_material: Mapping[str, str] = field(default_factory=dict)
+
+
+def _elastic(m: Mapping[str, Any], p: str) -> tuple[float | None, float | None, float | None]:
+    keys = ("e_pa", "nu", "alpha_per_k")
+    present = [k for k in keys if k in m]
+    if not present:
+        return None, None, None
+    for k in keys:
+        _get(m, k, p)  # all three or none
+    nu, alpha = _num(m, "nu", p), _num(m, "alpha_per_k", p)
+    if not 0.0 <= nu < 0.5:
+        raise SpindleError(f"{p}nu: must be in [0, 0.5), got {nu!r}")
+    if not abs(alpha) < 1e-3:
+        raise SpindleError(f"{p}alpha_per_k: must be in 1/K with |alpha| < 1e-3 (11.5 um/(m K) = 1.15e-5)")
+    return _num(m, "e_pa", p, positive=True), nu, alpha
+
+
+def _choice(d: Mapping[str, Any], key: str, path: str, options: tuple[str, ...], default: str) -> str:
+    v = _str(d, key, path, default=default)
+    if v not in options:
+        raise SpindleError(f"{path}{key}: must be one of {options}, got {v!r}")
+    return v
+
+
+def _mount(d: Mapping[str, Any]) -> MountSpec:
+    p = "mechanics.mount."
+    segs = tuple(_segment(s, f"{p}segments[{i}]") for i, s in enumerate(_list(d, "segments", p)))
+    fix = _choice(d, "fix", p, MOUNT_FIXES, "axial")
+    return MountSpec(segs, fix, _str(d, "description", p, default=""))  # type: ignore[arg-type]
+
+
+def _floating(d: Any, p: str, regions: tuple[Region, ...]) -> FloatingSpec:
+    if not isinstance(d, dict):
+        raise SpindleError(f"{p[:-1]}: must be a table")
+    name = _str(d, "region", p)
+    match = [g for g in regions if g.name == name]
+    if not match:
+        raise SpindleError(f"{p}region: unknown region {name!r}")
+    surface = _choice(d, "surface", p, SURFACES, "outer")
+    if surface == "inner" and match[0].r0_m == 0.0:
+        raise SpindleError(f"{p}surface: region {name!r} has no inner surface (r0_m = 0)")
+    return FloatingSpec(name, surface)  # type: ignore[arg-type]
+
+
+def _output(d: Any, p: str, regions: tuple[Region, ...]) -> GrowthOutputSpec:
+    if not isinstance(d, dict):
+        raise SpindleError(f"{p[:-1]}: must be a table")
+    r, z = _num(d, "r_m", p, nonneg=True), _num(d, "z_m", p)
+    if not any(g.contains(r, z) for g in regions):
+        raise SpindleError(f"{p}r_m: point (r={r}, z={z}) is not inside any solid region")
+    comp = _choice(d, "component", p, COMPONENTS, "axial")
+    return GrowthOutputSpec(_str(d, "name", p), comp, r, z, _str(d, "description", p, default=""))  # type: ignore[arg-type]
+
+
+def _region_material(
+    d: Mapping[str, Any], regions: tuple[Region, ...], materials: Mapping[str, Material]
+) -> dict[str, str]:
+    names = {g.name for g in regions}
+    out = {}
+    for region, material in d.items():
+        if region not in names:
+            raise SpindleError(f"mechanics.region_material.{region}: unknown region")
+        if not isinstance(material, str) or material not in materials:
+            raise SpindleError(f"mechanics.region_material.{region}: unknown material {material!r}")
+        out[region] = material
+    return out
+
+
+def _check_elastic(regions: tuple[Region, ...], override: Mapping[str, str], materials: Mapping[str, Material]) -> None:
+    for g in regions:
+        name = override.get(g.name, g.material)
+        if materials[name].e_pa is None:
+            raise SpindleError(f"materials.{name}.e_pa: missing (region {g.name!r} needs E, nu, alpha_per_k)")
+
+
+def _mechanics(doc: Any, regions: tuple[Region, ...], materials: Mapping[str, Material]) -> MechanicsSpec:
+    if not isinstance(doc, dict):
+        raise SpindleError("mechanics: must be a table")
+    floating_raw = doc.get("floating", [])
+    if not isinstance(floating_raw, list):
+        raise SpindleError("mechanics.floating: must be a list of tables")
+    floating = tuple(_floating(d, f"mechanics.floating[{i}].", regions) for i, d in enumerate(floating_raw))
+    outs = _list(doc, "outputs", "mechanics.")
+    outputs = tuple(_output(d, f"mechanics.outputs[{i}].", regions) for i, d in enumerate(outs))
+    _unique([o.name for o in outputs], "mechanics.outputs")
+    rm = doc.get("region_material", {})
+    if not isinstance(rm, dict):
+        raise SpindleError("mechanics.region_material: must be a table")
+    override = _region_material(rm, regions, materials)
+    _check_elastic(regions, override, materials)
+    return MechanicsSpec(
+        mount=_mount(_table(doc, "mount", "mechanics.")),
+        floating=floating,
+        outputs=outputs,
+        region_material=override,
+    )
