@@ -1,0 +1,202 @@
+"""Studies of the thermoelastic growth model for docs/growth.md: mesh convergence, the 1-D rule beside the
+2-D result, the cost of the modelling choices, sensor sensitivity and the cost of one evaluation.
+
+The functions are pure (they return rows); ``python -m model.growth_check`` prints them (``--json``).
+Realistic fields are steady states of ``model.fem`` at the paper's Table 4 H, ambient 20 °C, T_ref 20 °C.
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import time
+import tomllib
+from collections.abc import Sequence
+from dataclasses import asdict, dataclass
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from model.fem import FEModel, build_fe_model, steady_state
+from model.geometry import PACKAGED_SPEC, SpindleSpec, load_spindle, spec_from_dict
+from model.growth import reconstruction_h_fit, sensor_sensitivity, steady_jacobian_h
+from model.growth_path import Band, axial_1d_um
+from model.heat import bearing_heat_w
+from model.thermoelastic import GrowthModel, build_growth_model
+
+H_TABLE4 = (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54)
+AMBIENT_C = 20.0
+Array = NDArray[np.float64]
+
+
+def steady_field(spec: SpindleSpec, fe: FEModel, speed_rpm: float, torque_nm: float = 0.0) -> Array:
+    """Steady field (N,) [°C] at Table 4 H, ambient 20 °C, Palmgren heats for the speed and torque."""
+    qf = float(bearing_heat_w(speed_rpm, torque_nm, spec.bearings.front))
+    qr = float(bearing_heat_w(speed_rpm, torque_nm, spec.bearings.rear))
+    return steady_state(fe, H_TABLE4, ambient_c=AMBIENT_C, q_front_w=qf, q_rear_w=qr)
+
+
+@dataclass(frozen=True)
+class MeshRow:
+    """One mesh: size [m], thermal nodes, build time of the growth model [s], outputs [µm], rel. error."""
+
+    mesh_size_m: float
+    n_nodes: int
+    build_s: float
+    growth_um: dict[str, float]
+    rel_err: dict[str, float]
+
+
+def _outputs(spec: SpindleSpec, size: float, speed_rpm: float) -> tuple[int, float, dict[str, float]]:
+    fe = build_fe_model(spec, mesh_size_m=size)
+    started = time.perf_counter()
+    gm = build_growth_model(spec, fe)
+    build_s = time.perf_counter() - started
+    return fe.n_nodes, build_s, gm.as_dict(gm.growth_um(steady_field(spec, fe, speed_rpm), AMBIENT_C))
+
+
+def mesh_study(
+    spec: SpindleSpec, *, sizes_m: Sequence[float], reference_m: float, speed_rpm: float = 5000.0
+) -> list[MeshRow]:
+    """Outputs at each mesh size against a finer reference; each mesh solves its own steady field."""
+    _, _, ref = _outputs(spec, reference_m, speed_rpm)
+    rows = []
+    for size in sizes_m:
+        n, build_s, got = _outputs(spec, size, speed_rpm)
+        err = {k: (got[k] - ref[k]) / ref[k] for k in ref}
+        rows.append(MeshRow(float(size), n, build_s, got, err))
+    return rows
+
+
+def path_bands(z_loc: float, *, line: bool = False) -> tuple[Band, Band]:
+    """Housing wall (r 65-100 mm) from z_loc to the mount, shaft (r 0-40 mm) from z_loc to the nose.
+
+    ``line`` takes one line instead of the section mean: r = 82.5 mm in the housing, the axis in the shaft.
+    """
+    if line:
+        return Band(0.0825, 0.0825, z_loc, 0.550), Band(0.0, 0.0, z_loc, 0.610)
+    return Band(0.065, 0.100, z_loc, 0.550), Band(0.0, 0.040, z_loc, 0.610)
+
+
+ONE_D_RULES: dict[str, tuple[float, bool, bool]] = {
+    # name: (locating plane z [m], one line instead of the section mean, ignore the housing)
+    "1-D, locating plane at bearing A centre": (0.4875, False, False),
+    "1-D, locating plane at the pair centre": (0.505, False, False),
+    "1-D, locating plane at bearing B centre": (0.5225, False, False),
+    "1-D, pair centre, axis / one housing line": (0.505, True, False),
+    "1-D, pair centre, shaft only (housing ignored)": (0.505, False, True),
+}
+
+
+def one_d_table(spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speeds: Sequence[float]) -> list[dict[str, Any]]:
+    """Nose axial growth [µm]: the 2-D model and the 1-D rules, per speed (steady state)."""
+    rows = []
+    for n in speeds:
+        rise = steady_field(spec, fe, n) - AMBIENT_C
+        row: dict[str, Any] = {"speed_rpm": n, "max_rise_c": float(rise.max())}
+        row["2-D model"] = float(gm.operator("nose_axial") @ rise)
+        for name, (z_loc, line, shaft_only) in ONE_D_RULES.items():
+            housing, shaft = path_bands(z_loc, line=line)
+            if shaft_only:
+                housing = Band(0.065, 0.100, 0.550, 0.550 + 1e-9)
+            row[name] = axial_1d_um(spec, fe, rise, housing=housing, shaft=shaft)
+        rows.append(row)
+    return rows
+
+
+def _doc() -> dict[str, Any]:
+    with PACKAGED_SPEC.open("rb") as fh:
+        return copy.deepcopy(tomllib.load(fh))
+
+
+def variants() -> dict[str, dict[str, Any]]:
+    """Modelling choices to compare: name -> edited spindle document."""
+    out = {"packaged": _doc()}
+    stiff = _doc()
+    stiff["materials"]["bearing"]["e_pa"] = 2.1e11
+    out["bearing solid as steel (E 210 GPa)"] = stiff
+    fused = _doc()
+    fused["mechanics"]["floating"] = []
+    out["rear bearing fused (not floating)"] = fused
+    clamped = _doc()
+    clamped["mechanics"]["mount"]["fix"] = "axial_radial"
+    out["mount held radially too"] = clamped
+    spacer = _doc()
+    spacer["mechanics"]["region_material"] = {}
+    out["spacer as solid steel (stiff shaft-housing tie)"] = spacer
+    return out
+
+
+def variant_table(fe: FEModel, speed_rpm: float = 5000.0) -> list[dict[str, Any]]:
+    """Outputs [µm] of each modelling variant for the same steady field (the thermal model is unchanged)."""
+    rows = []
+    for name, doc in variants().items():
+        spec = spec_from_dict(doc)
+        gm = build_growth_model(spec, fe)
+        rise = steady_field(spec, fe, speed_rpm) - AMBIENT_C
+        rows.append({"variant": name, **gm.as_dict(gm.growth_um(rise, 0.0))})
+    return rows
+
+
+def eval_cost_us(gm: GrowthModel, *, repeats: int = 2000, rank: int = 46) -> dict[str, float]:
+    """Median wall time [µs] of one evaluation: all outputs from a nodal field, and from a reduced state."""
+    rng = np.random.default_rng(0)
+    field = 20.0 + rng.normal(size=gm.n_nodes)
+    gphi = gm.reduced(rng.normal(size=(gm.n_nodes, rank)))
+    a = rng.normal(size=rank)
+
+    def median_us(fn: Any) -> float:
+        times = []
+        for _ in range(repeats):
+            t0 = time.perf_counter()
+            fn()
+            times.append(time.perf_counter() - t0)
+        return float(np.median(times) * 1e6)
+
+    return {
+        "nodal_us": median_us(lambda: gm.growth_um(field, 20.0)),
+        "reduced_us": median_us(lambda: gphi @ a),
+        "n_nodes": float(gm.n_nodes),
+        "n_outputs": float(len(gm.names)),
+        "rank": float(rank),
+    }
+
+
+def sensitivity_table(spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speed_rpm: float = 5000.0) -> Array:
+    """(n_out, 32) [µm/°C]: growth per sensor error through a steady-state H fit (sensors -> H -> field)."""
+    qf = float(bearing_heat_w(speed_rpm, 0.0, spec.bearings.front))
+    qr = float(bearing_heat_w(speed_rpm, 0.0, spec.bearings.rear))
+    jac = steady_jacobian_h(fe, H_TABLE4, ambient_c=AMBIENT_C, q_front_w=qf, q_rear_w=qr)
+    return sensor_sensitivity(gm.operators, reconstruction_h_fit(fe, jac))
+
+
+def main(argv: Sequence[str] | None = None) -> None:
+    """Print the studies (markdown-ish tables or one JSON object)."""
+    ap = argparse.ArgumentParser(description=__doc__)
+    ap.add_argument("--json", action="store_true")
+    ap.add_argument("--sizes", type=float, nargs="+", default=[0.005, 0.004, 0.003, 0.0025, 0.002, 0.0015])
+    ap.add_argument("--ref", type=float, default=0.001)
+    args = ap.parse_args(argv)
+    spec = load_spindle()
+    fe = build_fe_model(spec)
+    gm = build_growth_model(spec, fe)
+    out = {
+        "mesh": [asdict(r) for r in mesh_study(spec, sizes_m=args.sizes, reference_m=args.ref)],
+        "one_d": one_d_table(spec, fe, gm, (3000.0, 5000.0, 7000.0)),
+        "variants": variant_table(fe),
+        "eval": eval_cost_us(gm),
+        "sensitivity_um_per_c": dict(zip(gm.names, sensitivity_table(spec, fe, gm).tolist(), strict=True)),
+    }
+    if args.json:
+        print(json.dumps(out, indent=1))
+        return
+    for section, rows in out.items():
+        print(f"## {section}")
+        for row in rows if isinstance(rows, list) else [rows]:
+            print(row)
+
+
+if __name__ == "__main__":
+    main()
