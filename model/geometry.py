@@ -486,7 +486,9 @@ def _region_material(
     return out
 
 
-def _check_elastic(regions: tuple[Region, ...], override: Mapping[str, str], materials: Mapping[str, Material]) -> None:
+def _check_elastic(
+    regions: tuple[Region, ...], override: Mapping[str, str], materials: Mapping[str, Material]
+) -> None:
     for g in regions:
         name = override.get(g.name, g.material)
         if materials[name].e_pa is None:

@@ -15,7 +15,7 @@ All growth values in µm, temperatures in °C, H in W/(m² K), times in s. ``ope
 
 Errors::
 
-    GrowthError(ValueError)   a covariance, field or horizon of the wrong shape or value (the argument is named)
+    GrowthError(ValueError)   a covariance, field or horizon of the wrong shape or value (argument named)
 """
 
 from __future__ import annotations
@@ -139,7 +139,7 @@ def sensor_sensitivity(operators: ArrayLike, reconstruction: ArrayLike) -> Array
 
 @dataclass(frozen=True)
 class ThermalModes:
-    """The slowest thermal modes K(H) v = λ E v: time constants tau_s = 1/λ (k,) [s], vectors (N, k), Vᵀ E V = I."""
+    """Slowest thermal modes K(H) v = λ E v: time constants tau_s = 1/λ (k,) [s], vectors (N, k), VᵀEV = I."""
 
     tau_s: Array
     vectors: Array
@@ -160,7 +160,9 @@ def modal_growth_gap(fe: FEModel, modes: ThermalModes, operator: ArrayLike, devi
     return np.asarray((np.asarray(operator) @ modes.vectors) * (modes.vectors.T @ (fe.E @ d)))
 
 
-def dominant_time_constant(fe: FEModel, modes: ThermalModes, operator: ArrayLike, deviation_c: ArrayLike) -> float:
+def dominant_time_constant(
+    fe: FEModel, modes: ThermalModes, operator: ArrayLike, deviation_c: ArrayLike
+) -> float:
     """τ [s] of the mode that carries the largest part of the remaining growth g·(T − T_ss)."""
     return float(modes.tau_s[int(np.argmax(np.abs(modal_growth_gap(fe, modes, operator, deviation_c))))])
 
@@ -233,7 +235,7 @@ def forecast_growth(
     return GrowthForecast(
         names=growth.names,
         now_um=growth.growth_um(t_now, t_ref_c),
-        horizons_s=steps * dt_s,
+        horizons_s=np.asarray(steps * dt_s, dtype=np.float64),
         at_horizon_um=growth.growth_um(fields[steps], t_ref_c),
         steady_um=growth.growth_um(t_ss, t_ref_c),
         tau_s=np.array(taus),

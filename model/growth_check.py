@@ -90,7 +90,9 @@ ONE_D_RULES: dict[str, tuple[float, bool, bool]] = {
 }
 
 
-def one_d_table(spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speeds: Sequence[float]) -> list[dict[str, Any]]:
+def one_d_table(
+    spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speeds: Sequence[float]
+) -> list[dict[str, Any]]:
     """Nose axial growth [µm]: the 2-D model and the 1-D rules, per speed (steady state)."""
     rows = []
     for n in speeds:
@@ -172,23 +174,28 @@ def sensitivity_table(spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speed_rpm
     return sensor_sensitivity(gm.operators, reconstruction_h_fit(fe, jac))
 
 
+SECTIONS = ("mesh", "one_d", "variants", "eval", "sensitivity")
+
+
 def main(argv: Sequence[str] | None = None) -> None:
     """Print the studies (markdown-ish tables or one JSON object)."""
     ap = argparse.ArgumentParser(description=__doc__)
     ap.add_argument("--json", action="store_true")
     ap.add_argument("--sizes", type=float, nargs="+", default=[0.005, 0.004, 0.003, 0.0025, 0.002, 0.0015])
     ap.add_argument("--ref", type=float, default=0.001)
+    ap.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS), help="sections to run")
     args = ap.parse_args(argv)
     spec = load_spindle()
     fe = build_fe_model(spec)
     gm = build_growth_model(spec, fe)
-    out = {
-        "mesh": [asdict(r) for r in mesh_study(spec, sizes_m=args.sizes, reference_m=args.ref)],
-        "one_d": one_d_table(spec, fe, gm, (3000.0, 5000.0, 7000.0)),
-        "variants": variant_table(fe),
-        "eval": eval_cost_us(gm),
-        "sensitivity_um_per_c": dict(zip(gm.names, sensitivity_table(spec, fe, gm).tolist(), strict=True)),
+    studies: dict[str, Any] = {
+        "mesh": lambda: [asdict(r) for r in mesh_study(spec, sizes_m=args.sizes, reference_m=args.ref)],
+        "one_d": lambda: one_d_table(spec, fe, gm, (3000.0, 5000.0, 7000.0)),
+        "variants": lambda: variant_table(fe),
+        "eval": lambda: eval_cost_us(gm),
+        "sensitivity": lambda: dict(zip(gm.names, sensitivity_table(spec, fe, gm).tolist(), strict=True)),
     }
+    out = {name: studies[name]() for name in SECTIONS if name in args.only}
     if args.json:
         print(json.dumps(out, indent=1))
         return

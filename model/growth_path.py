@@ -74,5 +74,5 @@ def axial_1d_um(
     housing: Band,
     shaft: Band,
 ) -> float:
-    """Nose growth [µm] by the 1-D rule: −∫ housing band (locating plane -> mount) + ∫ shaft band (-> nose)."""
+    """Nose growth [µm] by the 1-D rule: −∫ housing band (locating plane to mount) + ∫ shaft band."""
     return 1e6 * (band_integral_m(spec, fe, rise_c, shaft) - band_integral_m(spec, fe, rise_c, housing))

@@ -7,10 +7,10 @@ elements; strains ε_rr = ∂u_r/∂r, ε_zz = ∂u_z/∂z, ε_θθ = u_r/r, γ_
     K u = B ΔT        K = ∫ [λ tr ε(u) tr ε(v) + 2μ (ε(u):ε(v))] 2πr,   B = ∫ β φ tr ε(v) 2πr,
                       β = E α / (1 − 2ν),   ΔT = T − T_ref (P1 nodal, the thermal model's field)
 
-Boundary conditions (``[mechanics]`` in the spindle TOML, docs/growth.md): u_r = 0 on the axis; u_z = 0 (and
-u_r = 0 with ``fix = "axial_radial"``) on the housing's mounting face; the shaft is held axially only through the
-bearings that are fused into the mesh (the locating front pair); a *floating* bearing gets its own copy of the
-nodes on the sliding surface, tied to the other side in u_r only (frictionless axial slide).
+Boundary conditions (``[mechanics]`` in the spindle TOML, docs/growth.md): u_r = 0 on the axis; u_z = 0
+(and u_r = 0 with ``fix = "axial_radial"``) on the housing's mounting face; the shaft is held axially only
+through the bearings that are fused into the mesh (the locating front pair); a *floating* bearing gets its own
+copy of the nodes on the sliding surface, tied to the other side in u_r only (frictionless axial slide).
 
 Because u is linear in ΔT, each output (a displacement component at a point) is y = g·ΔT with
 g = Pᵀ Bᵀ K⁻¹ c (one adjoint solve per output, done once); a new field then costs a dot product, and a reduced
@@ -18,8 +18,8 @@ basis Φ gives g·Φ. Operators are stored in µm/K.
 
 Errors::
 
-    ThermoelasticError(ValueError)   no [mechanics] section, a mount or floating surface the mesh does not have,
-                                     a field of the wrong shape
+    ThermoelasticError(ValueError)   no [mechanics] section, a mount or floating surface the mesh does not
+                                     have, a field of the wrong shape
 """
 
 from __future__ import annotations
@@ -85,7 +85,7 @@ class ElasticProperties:
 
 @dataclass(frozen=True, eq=False)
 class ElasticSystem:
-    """Assembled K (2Nm, 2Nm) [N/m] and B (2Nm, Nm) [N/K]; ``dofs`` (2, Nm): the u_r and u_z dof of each node."""
+    """Assembled K (2Nm, 2Nm) [N/m] and B (2Nm, Nm) [N/K]; ``dofs`` (2, Nm): u_r and u_z dof of each node."""
 
     mesh: MeshTri
     K: sp.csr_matrix
@@ -129,8 +129,8 @@ def reduction(n_dof: int, fixed: ArrayLike, slaves: ArrayLike, masters: ArrayLik
 class ElasticSolver:
     """K and B reduced by the constraints and factorised once; ``expand`` maps mesh nodes to field nodes.
 
-    ``expand[i]`` is the thermal node whose temperature mechanical node i takes (duplicated nodes of a floating
-    surface take their original's temperature).
+    ``expand[i]`` is the thermal node whose temperature mechanical node i takes (duplicated nodes of a
+    floating surface take their original's temperature).
     """
 
     system: ElasticSystem
@@ -177,7 +177,9 @@ def make_solver(
     except RuntimeError as err:
         raise ThermoelasticError(f"mechanics: stiffness singular ({err}); is the body held axially?") from err
     if not np.all(np.isfinite(lu.U.diagonal())) or np.min(np.abs(lu.U.diagonal())) < 1e-9 * abs(Kr).max():
-        raise ThermoelasticError("mechanics: stiffness singular; is every part held axially (mount, bearings)?")
+        raise ThermoelasticError(
+            "mechanics: stiffness singular; is every part held axially (mount, bearings)?"
+        )
     return ElasticSolver(system, T, exp, int(n_mech if n_field is None else n_field), lu)
 
 
@@ -216,11 +218,13 @@ class GrowthModel:
             raise ThermoelasticError(f"field_c: expected {self.n_nodes} nodes, got shape {t.shape}")
         ref = np.asarray(t_ref_c, dtype=float)
         if ref.ndim and ref.shape != (self.n_nodes,):
-            raise ThermoelasticError(f"t_ref_c: expected a scalar or shape ({self.n_nodes},), got {ref.shape}")
+            raise ThermoelasticError(
+                f"t_ref_c: expected a scalar or shape ({self.n_nodes},), got {ref.shape}"
+            )
         return t - ref
 
     def growth_um(self, field_c: ArrayLike, t_ref_c: float | ArrayLike) -> Array:
-        """All outputs [µm] for a field (N,) -> (n_out,) or fields (n, N) -> (n, n_out); one dot product each."""
+        """All outputs [µm] for a field (N,) -> (n_out,) or fields (n, N) -> (n, n_out), by dot products."""
         return np.asarray(self.rise(field_c, t_ref_c) @ self.operators.T)
 
     def as_dict(self, growth_um: ArrayLike) -> dict[str, float]:

@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 import numpy as np
-import pytest
 
 from model.geometry import Region, SpindleSpec
 from model.growth_check import mesh_study

@@ -44,7 +44,10 @@ def test_uniform_rise_gives_alpha_l_dt_at_every_output(uniform) -> None:
     z_mount = spec.mechanics.mount.segments[0].z0_m
     got = gm.growth_um(np.full(fe.n_nodes, 20.0 + DT), 20.0)
     want = np.array(
-        [ALPHA * DT * (z - z_mount if c == "axial" else r) * 1e6 for (r, z), c in zip(gm.points_rz, gm.components)]
+        [
+            ALPHA * DT * (z - z_mount if c == "axial" else r) * 1e6
+            for (r, z), c in zip(gm.points_rz, gm.components, strict=True)
+        ]
     )
     nonzero = np.abs(want) > 0
     assert np.all(np.abs(got[nonzero] - want[nonzero]) <= 1e-9 * np.abs(want[nonzero]))
@@ -62,7 +65,7 @@ def test_uniform_rise_full_field_is_free_expansion(uniform) -> None:
 
 
 def test_uniform_rise_does_not_depend_on_stiffness(uniform) -> None:
-    spec, fe, gm = uniform
+    _, fe, gm = uniform
     doc = packaged_doc()
     for m in doc["materials"].values():
         m["alpha_per_k"] = ALPHA
@@ -72,7 +75,9 @@ def test_uniform_rise_does_not_depend_on_stiffness(uniform) -> None:
     assert _rel(gm3.growth_um(rise, 0.0), gm.growth_um(rise, 0.0)) < 1e-9
 
 
-def _bar(lengths: tuple[float, float], radius: float, size: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def _bar(
+    lengths: tuple[float, float], radius: float, size: float
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     z1 = lengths[0]
     regions = [
         Region("a", "a", 0.0, radius, 0.0, z1),
@@ -136,7 +141,7 @@ def test_operator_equals_forward_solve(fe: FEModel, growth: GrowthModel) -> None
     field = 20 + 8 * np.exp(-(((z - 0.5) / 0.1) ** 2)) + 3 * r / 0.1 + rng.normal(0, 0.5, fe.n_nodes)
     u = growth.displacement_m(field, 20.0)
     p = growth.solver.system.mesh.p
-    for k, ((pr, pz), comp) in enumerate(zip(growth.points_rz, growth.components)):
+    for k, ((pr, pz), comp) in enumerate(zip(growth.points_rz, growth.components, strict=True)):
         node = int(np.argmin((p[0] - pr) ** 2 + (p[1] - pz) ** 2))
         want = u[node, 1 if comp == "axial" else 0] * 1e6
         assert growth.growth_um(field, 20.0)[k] == pytest.approx(want, rel=1e-9, abs=1e-12)
@@ -149,8 +154,10 @@ def test_reduced_operator_is_g_phi(fe: FEModel, growth: GrowthModel) -> None:
     assert np.allclose(growth.reduced(phi) @ a, growth.growth_um(phi @ a, 0.0), rtol=1e-12, atol=1e-12)
 
 
-def test_floating_bearing_slides_axially_and_stays_in_radial_contact(fe: FEModel, growth: GrowthModel) -> None:
-    r, z = fe.nodes_rz.T
+def test_floating_bearing_slides_axially_and_stays_in_radial_contact(
+    fe: FEModel, growth: GrowthModel
+) -> None:
+    r = fe.nodes_rz[:, 0]
     field = 20 + 15 * (r < 0.0401)  # hot shaft, cold housing: the shaft must slide in the rear bearing
     u = growth.displacement_m(field, 20.0)
     n = fe.n_nodes

@@ -49,11 +49,15 @@ def test_forecast_from_steady_state_stays_there(spec: SpindleSpec, fe: FEModel, 
     assert np.allclose(fc.now_um, fc.steady_um, rtol=1e-9, atol=1e-9)
 
 
-def test_cooling_forecast_matches_direct_simulation(spec: SpindleSpec, fe: FEModel, growth: GrowthModel) -> None:
+def test_cooling_forecast_matches_direct_simulation(
+    spec: SpindleSpec, fe: FEModel, growth: GrowthModel
+) -> None:
     qf, qr = _heats(spec, 7000.0)
     hot = steady_state(fe, H_TABLE4, ambient_c=AMB, q_front_w=qf, q_rear_w=qr)
     fc = _forecast(spec, fe, growth, hot, (600.0, 1200.0), speed=0.0)  # spindle stopped: it cools down
-    inputs = InputSeries(dt_s=10.0, ambient_c=np.full(120, AMB), q_front_w=np.zeros(120), q_rear_w=np.zeros(120))
+    inputs = InputSeries(
+        dt_s=10.0, ambient_c=np.full(120, AMB), q_front_w=np.zeros(120), q_rear_w=np.zeros(120)
+    )
     fields = simulate(fe, H_TABLE4, inputs, hot)
     assert np.allclose(fc.at_horizon_um, growth.growth_um(fields[[60, 120]], AMB), rtol=1e-12)
     assert np.allclose(fc.steady_um, 0.0, atol=1e-9)
@@ -66,7 +70,9 @@ def test_dominant_time_constant_matches_fitted_exponential(
     fc = _forecast(spec, fe, growth, np.full(fe.n_nodes, AMB), (600.0,))
     tau = fc.tau_s[growth.names.index("nose_axial")]
     dt, n = 10.0, 2400  # 400 min step response
-    inputs = InputSeries(dt_s=dt, ambient_c=np.full(n, AMB), q_front_w=np.full(n, qf), q_rear_w=np.full(n, qr))
+    inputs = InputSeries(
+        dt_s=dt, ambient_c=np.full(n, AMB), q_front_w=np.full(n, qf), q_rear_w=np.full(n, qr)
+    )
     y = growth.growth_um(simulate(fe, H_TABLE4, inputs, AMB), AMB)[:, growth.names.index("nose_axial")]
     t = np.arange(n + 1) * dt
     tail = (t > 150 * 60) & (t < 350 * 60)
@@ -85,7 +91,9 @@ def test_thermal_modes_are_e_orthonormal(fe: FEModel) -> None:
     assert np.all(np.diff(modes.tau_s) < 0)
 
 
-def test_horizon_not_a_multiple_of_the_step_is_named(spec: SpindleSpec, fe: FEModel, growth: GrowthModel) -> None:
+def test_horizon_not_a_multiple_of_the_step_is_named(
+    spec: SpindleSpec, fe: FEModel, growth: GrowthModel
+) -> None:
     with pytest.raises(GrowthError, match="horizons_s"):
         _forecast(spec, fe, growth, np.full(fe.n_nodes, AMB), (305.0,))
     with pytest.raises(GrowthError, match="field_c"):
