@@ -174,7 +174,61 @@ def sensitivity_table(spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speed_rpm
     return sensor_sensitivity(gm.operators, reconstruction_h_fit(fe, jac))
 
 
-SECTIONS = ("mesh", "one_d", "variants", "eval", "sensitivity")
+REGION_CHARS = {
+    "shaft_rear_journal": "s",
+    "shaft_body": "s",
+    "shaft_nose": "s",
+    "pulley": "p",
+    "rear_end_cap": "c",
+    "front_end_cap": "c",
+    "housing": "H",
+    "rear_bearing": "R",
+    "front_bearing_a": "F",
+    "front_bearing_b": "F",
+    "spacer": "x",
+}
+
+
+def section_sketch(spec: SpindleSpec, *, dz_m: float = 0.006, dr_m: float = 0.005) -> str:
+    """Text figure of the (r, z) half-section with the mechanical boundary conditions and outputs.
+
+    One character per dz x dr cell (region at the cell centre, ``REGION_CHARS``, else '#'); '~' marks the
+    floating surface, 'v' the mounting face, '*' the outputs, '=' the axis (u_r = 0).
+    """
+    mech = spec.mechanics
+    z_max, r_max = max(g.z1_m for g in spec.regions), max(g.r1_m for g in spec.regions)
+    nz, nr = int(round(z_max / dz_m)), int(round(r_max / dr_m))
+    grid = [[" "] * nz for _ in range(nr)]
+    for i in range(nr):
+        for j in range(nz):
+            r, z = (i + 0.5) * dr_m, (j + 0.5) * dz_m
+            hit = next((g for g in spec.regions if g.contains(r, z, tol=0.0)), None)
+            grid[i][j] = " " if hit is None else REGION_CHARS.get(hit.name, "#")
+    top = [" "] * nz
+    if mech is not None:
+        for fl in mech.floating:
+            g = next(x for x in spec.regions if x.name == fl.region)
+            row = min(int((g.r1_m if fl.surface == "outer" else g.r0_m) / dr_m) - (fl.surface == "outer"), nr - 1)
+            for j in range(int(g.z0_m / dz_m), int(np.ceil(g.z1_m / dz_m))):
+                grid[row][j] = "~"
+        for seg in mech.mount.segments:
+            j = min(int(seg.z0_m / dz_m), nz - 1)
+            top[j] = "v"
+        for out in mech.outputs:
+            grid[min(int(out.r_m / dr_m), nr - 1)][min(int(out.z_m / dz_m), nz - 1)] = "*"
+    lines = ["       " + "".join(top)]
+    lines += [f"{(i + 1) * dr_m * 1e3:5.0f} |" + "".join(grid[i]) for i in reversed(range(nr))]
+    lines.append("    0 =" + "=" * nz + " axis")
+    ticks = [" "] * (nz + 4)
+    for z_mm in range(0, int(z_max * 1e3) + 1, 100):
+        label = str(z_mm)
+        j = int(z_mm * 1e-3 / dz_m)
+        ticks[j : j + len(label)] = list(label)
+    lines.append("  z mm " + "".join(ticks).rstrip())
+    return "\n".join(lines)
+
+
+SECTIONS = ("mesh", "one_d", "variants", "eval", "sensitivity", "sketch")
 
 
 def main(argv: Sequence[str] | None = None) -> None:
@@ -194,6 +248,7 @@ def main(argv: Sequence[str] | None = None) -> None:
         "variants": lambda: variant_table(fe),
         "eval": lambda: eval_cost_us(gm),
         "sensitivity": lambda: dict(zip(gm.names, sensitivity_table(spec, fe, gm).tolist(), strict=True)),
+        "sketch": lambda: section_sketch(spec),
     }
     out = {name: studies[name]() for name in SECTIONS if name in args.only}
     if args.json:
@@ -201,6 +256,9 @@ def main(argv: Sequence[str] | None = None) -> None:
         return
     for section, rows in out.items():
         print(f"## {section}")
+        if isinstance(rows, str):
+            print(rows)
+            continue
         for row in rows if isinstance(rows, list) else [rows]:
             print(row)
 
