@@ -197,7 +197,7 @@ def section_sketch(spec: SpindleSpec, *, dz_m: float = 0.006, dr_m: float = 0.00
     """
     mech = spec.mechanics
     z_max, r_max = max(g.z1_m for g in spec.regions), max(g.r1_m for g in spec.regions)
-    nz, nr = int(round(z_max / dz_m)), int(round(r_max / dr_m))
+    nz, nr = round(z_max / dz_m), round(r_max / dr_m)
     grid = [[" "] * nz for _ in range(nr)]
     for i in range(nr):
         for j in range(nz):
@@ -208,7 +208,8 @@ def section_sketch(spec: SpindleSpec, *, dz_m: float = 0.006, dr_m: float = 0.00
     if mech is not None:
         for fl in mech.floating:
             g = next(x for x in spec.regions if x.name == fl.region)
-            row = min(int((g.r1_m if fl.surface == "outer" else g.r0_m) / dr_m) - (fl.surface == "outer"), nr - 1)
+            outer = fl.surface == "outer"
+            row = min(int((g.r1_m if outer else g.r0_m) / dr_m) - int(outer), nr - 1)
             for j in range(int(g.z0_m / dz_m), int(np.ceil(g.z1_m / dz_m))):
                 grid[row][j] = "~"
         for seg in mech.mount.segments:
