@@ -122,11 +122,25 @@ def reconstruction_basis(phi: ArrayLike, sensor_op: ArrayLike, *, ridge: float =
     return np.asarray(ph @ np.linalg.pinv(gram) @ sp_.T)
 
 
-def reconstruction_h_fit(fe: FEModel, jacobian_h: ArrayLike) -> Array:
-    """M (N, 32) of a least-squares H fit linearised at steady state: δT̂ = J (S J)⁺ δy, J = ∂T/∂H."""
+def reconstruction_h_fit(
+    fe: FEModel, jacobian_h: ArrayLike, *, noise_c: float | None = None, prior_cov_h: ArrayLike | None = None
+) -> Array:
+    """M (N, 32) of an H fit to the 32 sensors, linearised at steady state (J = ∂T/∂H, N x 7).
+
+    Least squares: δT̂ = J (S J)⁺ δy. With ``noise_c`` σ [°C] and ``prior_cov_h`` (7, 7) the maximum a
+    posteriori fit instead: δT̂ = J (JᵀSᵀSJ/σ² + P⁻¹)⁻¹ JᵀSᵀ/σ², which bounds H where the data say little.
+    """
     j = np.asarray(jacobian_h, dtype=float)
     sj = np.asarray(fe.sensor_op @ j)
-    return np.asarray(j @ np.linalg.pinv(sj))
+    if (noise_c is None) != (prior_cov_h is None):
+        raise GrowthError("prior_cov_h: give both noise_c and prior_cov_h, or neither")
+    if noise_c is None or prior_cov_h is None:
+        return np.asarray(j @ np.linalg.pinv(sj))
+    prior = np.asarray(prior_cov_h, dtype=float)
+    if prior.shape != (j.shape[1], j.shape[1]) or not noise_c > 0:
+        raise GrowthError(f"prior_cov_h: expected ({j.shape[1]}, {j.shape[1]}) and noise_c > 0")
+    info = sj.T @ sj / noise_c**2 + np.linalg.inv(prior)
+    return np.asarray(j @ np.linalg.solve(info, sj.T / noise_c**2))
 
 
 def sensor_sensitivity(operators: ArrayLike, reconstruction: ArrayLike) -> Array:

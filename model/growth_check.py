@@ -166,12 +166,27 @@ def eval_cost_us(gm: GrowthModel, *, repeats: int = 2000, rank: int = 46) -> dic
     }
 
 
-def sensitivity_table(spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speed_rpm: float = 5000.0) -> Array:
-    """(n_out, 32) [µm/°C]: growth per sensor error through a steady-state H fit (sensors -> H -> field)."""
+def sensitivity_table(
+    spec: SpindleSpec,
+    fe: FEModel,
+    gm: GrowthModel,
+    speed_rpm: float = 5000.0,
+    *,
+    prior_rel: float | None = None,
+    noise_c: float = 0.15,
+) -> Array:
+    """(n_out, 32) [µm/°C]: growth per sensor error through a steady-state H fit (sensors -> H -> field).
+
+    ``prior_rel``: a prior of that relative 1σ on every H (MAP fit with sensor noise ``noise_c`` [°C]);
+    None: plain least squares.
+    """
     qf = float(bearing_heat_w(speed_rpm, 0.0, spec.bearings.front))
     qr = float(bearing_heat_w(speed_rpm, 0.0, spec.bearings.rear))
     jac = steady_jacobian_h(fe, H_TABLE4, ambient_c=AMBIENT_C, q_front_w=qf, q_rear_w=qr)
-    return sensor_sensitivity(gm.operators, reconstruction_h_fit(fe, jac))
+    if prior_rel is None:
+        return sensor_sensitivity(gm.operators, reconstruction_h_fit(fe, jac))
+    prior = np.diag((prior_rel * np.asarray(H_TABLE4)) ** 2)
+    return sensor_sensitivity(gm.operators, reconstruction_h_fit(fe, jac, noise_c=noise_c, prior_cov_h=prior))
 
 
 REGION_CHARS = {
@@ -248,7 +263,10 @@ def main(argv: Sequence[str] | None = None) -> None:
         "one_d": lambda: one_d_table(spec, fe, gm, (3000.0, 5000.0, 7000.0)),
         "variants": lambda: variant_table(fe),
         "eval": lambda: eval_cost_us(gm),
-        "sensitivity": lambda: dict(zip(gm.names, sensitivity_table(spec, fe, gm).tolist(), strict=True)),
+        "sensitivity": lambda: {
+            label: dict(zip(gm.names, sensitivity_table(spec, fe, gm, prior_rel=p).tolist(), strict=True))
+            for label, p in (("least_squares", None), ("prior_30pct", 0.3))
+        },
         "sketch": lambda: section_sketch(spec),
     }
     out = {name: studies[name]() for name in SECTIONS if name in args.only}

@@ -99,3 +99,16 @@ def test_basis_reconstruction_recovers_fields_in_its_span(fe: FEModel, growth: G
     a = np.array([2.0, -1.0, 3.0, 0.5, 0.7])
     recon = reconstruction_basis(phi, fe.sensor_op)
     assert np.allclose(recon @ (fe.sensor_op @ (phi @ a)), phi @ a, rtol=1e-8, atol=1e-10)
+
+
+def test_map_fit_tends_to_least_squares_and_to_the_prior(
+    spec: SpindleSpec, fe: FEModel, growth: GrowthModel
+) -> None:
+    jac = steady_jacobian_h(fe, H_TABLE4, **_heats(spec))
+    ls = sensor_sensitivity(growth.operators, reconstruction_h_fit(fe, jac))
+    wide = reconstruction_h_fit(fe, jac, noise_c=0.15, prior_cov_h=np.eye(7) * 1e12)
+    tight = reconstruction_h_fit(fe, jac, noise_c=0.15, prior_cov_h=np.eye(7) * 1e-12)
+    assert np.allclose(sensor_sensitivity(growth.operators, wide), ls, rtol=1e-4, atol=1e-6)
+    assert np.max(np.abs(sensor_sensitivity(growth.operators, tight))) < 1e-9
+    with pytest.raises(GrowthError, match="prior_cov_h"):
+        reconstruction_h_fit(fe, jac, noise_c=0.15)
