@@ -231,7 +231,8 @@ def section_sketch(spec: SpindleSpec, *, dz_m: float = 0.006, dr_m: float = 0.00
             j = min(int(seg.z0_m / dz_m), nz - 1)
             top[j] = "v"
         for out in mech.outputs:
-            grid[min(int(out.r_m / dr_m), nr - 1)][min(int(out.z_m / dz_m), nz - 1)] = "*"
+            i, j = (max(0, int(np.ceil(x / d - 1e-9)) - 1) for x, d in ((out.r_m, dr_m), (out.z_m, dz_m)))
+            grid[min(i, nr - 1)][min(j, nz - 1)] = "*"
     lines = ["       " + "".join(top)]
     lines += [f"{(i + 1) * dr_m * 1e3:5.0f} |" + "".join(grid[i]) for i in reversed(range(nr))]
     lines.append("    0 =" + "=" * nz + " axis")

@@ -103,3 +103,12 @@ def test_band_integral_of_a_linear_rise(spec) -> None:  # type: ignore[no-untype
     rise = 100.0 * fe.nodes_rz[:, 1]  # dT = 100 z: exact in P1, integral alpha * 50 (z1^2 - z0^2)
     got = band_integral_m(spec, fe, rise, Band(0.0, 0.04, 0.2, 0.4), n_z=401)
     assert got == pytest.approx(11.5e-6 * 50.0 * (0.4**2 - 0.2**2), rel=1e-6)
+
+
+def test_section_sketch_marks_mount_floating_surface_and_outputs(spec) -> None:  # type: ignore[no-untyped-def]
+    from model.growth_check import section_sketch
+
+    text = section_sketch(spec)
+    assert text.count("*") == len(spec.mechanics.outputs)
+    assert text.splitlines()[0].count("v") == 1
+    assert "~~~~~" in text and text.splitlines()[-2].endswith(" axis")
