@@ -19,11 +19,12 @@ from typing import Any
 import numpy as np
 from numpy.typing import NDArray
 
-from model.fem import FEModel, build_fe_model, steady_state
+from model.fem import FEModel, build_fe_model, simulate, steady_state
 from model.geometry import PACKAGED_SPEC, SpindleSpec, load_spindle, spec_from_dict
 from model.growth import reconstruction_h_fit, sensor_sensitivity, steady_jacobian_h
 from model.growth_path import Band, axial_1d_um
 from model.heat import bearing_heat_w
+from model.inputs import InputSeries
 from model.thermoelastic import GrowthModel, build_growth_model
 
 H_TABLE4 = (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54)
@@ -90,14 +91,44 @@ ONE_D_RULES: dict[str, tuple[float, bool, bool]] = {
 }
 
 
+def _heats(spec: SpindleSpec, speed_rpm: float, torque_nm: float = 0.0) -> tuple[float, float]:
+    return (
+        float(bearing_heat_w(speed_rpm, torque_nm, spec.bearings.front)),
+        float(bearing_heat_w(speed_rpm, torque_nm, spec.bearings.rear)),
+    )
+
+
+def _run(fe: FEModel, start: Array | float, heats: tuple[float, float], minutes: int) -> Array:
+    n = 6 * minutes
+    inputs = InputSeries(
+        dt_s=10.0,
+        ambient_c=np.full(n, AMBIENT_C),
+        q_front_w=np.full(n, heats[0]),
+        q_rear_w=np.full(n, heats[1]),
+    )
+    return np.asarray(simulate(fe, H_TABLE4, inputs, start)[-1])
+
+
+def realistic_fields(spec: SpindleSpec, fe: FEModel) -> dict[str, Array]:
+    """Fields (N,) [°C] of different shape: heating transients, steady states, a cool-down (Table 4 H)."""
+    hot = steady_field(spec, fe, 7000.0)
+    return {
+        "5000 rpm, 10 min from cold": _run(fe, AMBIENT_C, _heats(spec, 5000.0), 10),
+        "5000 rpm, 30 min from cold": _run(fe, AMBIENT_C, _heats(spec, 5000.0), 30),
+        "5000 rpm, steady": steady_field(spec, fe, 5000.0),
+        "3000 rpm 20 N m, steady": steady_field(spec, fe, 3000.0, 20.0),
+        "stop after steady 7000 rpm, +20 min": _run(fe, hot, (0.0, 0.0), 20),
+    }
+
+
 def one_d_table(
-    spec: SpindleSpec, fe: FEModel, gm: GrowthModel, speeds: Sequence[float]
+    spec: SpindleSpec, fe: FEModel, gm: GrowthModel, fields: dict[str, Array]
 ) -> list[dict[str, Any]]:
-    """Nose axial growth [µm]: the 2-D model and the 1-D rules, per speed (steady state)."""
+    """Nose axial growth [µm]: the 2-D model and the 1-D rules, per field."""
     rows = []
-    for n in speeds:
-        rise = steady_field(spec, fe, n) - AMBIENT_C
-        row: dict[str, Any] = {"speed_rpm": n, "max_rise_c": float(rise.max())}
+    for label, field in fields.items():
+        rise = field - AMBIENT_C
+        row: dict[str, Any] = {"field": label, "max_rise_c": float(rise.max())}
         row["2-D model"] = float(gm.operator("nose_axial") @ rise)
         for name, (z_loc, line, shaft_only) in ONE_D_RULES.items():
             housing, shaft = path_bands(z_loc, line=line)
@@ -261,7 +292,7 @@ def main(argv: Sequence[str] | None = None) -> None:
     gm = build_growth_model(spec, fe)
     studies: dict[str, Any] = {
         "mesh": lambda: [asdict(r) for r in mesh_study(spec, sizes_m=args.sizes, reference_m=args.ref)],
-        "one_d": lambda: one_d_table(spec, fe, gm, (3000.0, 5000.0, 7000.0)),
+        "one_d": lambda: one_d_table(spec, fe, gm, realistic_fields(spec, fe)),
         "variants": lambda: variant_table(fe),
         "eval": lambda: eval_cost_us(gm),
         "sensitivity": lambda: {
