@@ -23,16 +23,16 @@ def _heats(spec: SpindleSpec, speed: float) -> tuple[float, float]:
     )
 
 
-def _forecast(spec, fe, growth, field, horizons, speed=5000.0):  # type: ignore[no-untyped-def]
+def _forecast(spec, fe, growth, field, horizons, speed=5000.0, dt_s=10.0):  # type: ignore[no-untyped-def]
     qf, qr = _heats(spec, speed)
     return forecast_growth(
         fe, growth, H_TABLE4, field_c=field, t_ref_c=AMB, ambient_c=AMB, q_front_w=qf, q_rear_w=qr,
-        horizons_s=horizons,
+        horizons_s=horizons, dt_s=dt_s,
     )  # fmt: skip
 
 
 def test_long_horizon_reaches_steady_state(spec: SpindleSpec, fe: FEModel, growth: GrowthModel) -> None:
-    fc = _forecast(spec, fe, growth, np.full(fe.n_nodes, AMB), (300.0, 900.0, 1800.0, 8 * 3600.0))
+    fc = _forecast(spec, fe, growth, np.full(fe.n_nodes, AMB), (300.0, 900.0, 1800.0, 8 * 3600.0), dt_s=60.0)
     assert np.all(fc.now_um == 0.0)
     gap = np.abs(fc.at_horizon_um - fc.steady_um)
     assert np.all(gap[-1] < 1e-3 * np.abs(fc.steady_um))  # 8 h ~ 16 slowest time constants
