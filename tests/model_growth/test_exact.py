@@ -11,6 +11,7 @@ from model.mesh import rect_mesh
 from model.thermoelastic import (
     ElasticProperties,
     GrowthModel,
+    ThermoelasticError,
     assemble_elasticity,
     build_growth_model,
     make_solver,
@@ -166,3 +167,23 @@ def test_floating_bearing_slides_axially_and_stays_in_radial_contact(
     assert dup.size >= 2
     assert np.allclose(u[dup, 0], u[orig, 0], rtol=0, atol=1e-15)
     assert np.max(np.abs(u[dup, 1] - u[orig, 1])) > 1e-6  # more than a micrometre of slip
+
+
+def test_body_not_held_axially_is_refused() -> None:
+    p, t, reg = _bar((0.05, 0.05), 0.02, 0.01)
+    system = assemble_elasticity(p, t, _props(reg))
+    axis = system.dofs[0, np.abs(p[0]) < 1e-12]
+    with pytest.raises(ThermoelasticError, match="held axially"):
+        make_solver(system, fixed=axis)  # only the axis: free to translate along z
+
+
+def test_mount_held_radially_when_asked(fe: FEModel) -> None:
+    doc = packaged_doc()
+    doc["mechanics"]["mount"]["fix"] = "axial_radial"
+    gm = build_growth_model(spec_from_dict(doc), fe)
+    u = gm.displacement_m(np.full(fe.n_nodes, 30.0), 20.0)
+    p = gm.solver.system.mesh.p
+    on_mount = (np.abs(p[1] - 0.550) < 1e-9) & (p[0] > 0.080 - 1e-9)
+    assert on_mount.sum() >= 2
+    assert np.all(u[on_mount] == 0.0)
+    assert np.max(np.abs(u)) > 1e-5  # the rest still grows
