@@ -9,7 +9,9 @@ Figures (one 60-min window = 360 steps of 10 s, the service's default mesh unles
 - ``rom_max_err_c``: reduced vs full FE at the sensors over ``--check`` random H in the box (two random input
   histories each: uniform start and non-uniform start), not used in training;
 - ``rom_build_s`` (fresh build into a temporary cache), ``rom_load_s`` (loading that cache file);
-- ``speedup_rom_vs_full`` = full_forward_ms / rom_batched_ms_per_candidate, measured in the same run.
+- ``speedup_rom_vs_full`` = full_forward_ms / rom_batched_ms_per_candidate, measured in the same run;
+- ``growth_build_s``, ``growth_eval_us``, ``growth_eval_reduced_us``: the thermal-growth operators
+  (docs/growth.md): build time, and one evaluation of all outputs from a field / from a reduced state.
 
 Progress goes to stderr; ``--json`` prints one JSON object, otherwise a table.
 """
@@ -154,6 +156,23 @@ def _rom_figures(fe: Any, spec: Any, args: argparse.Namespace) -> dict[str, Any]
     }
 
 
+def _growth_figures(fe: Any, spec: Any) -> dict[str, Any]:
+    """Thermal growth (docs/growth.md): operator build time [s] and one evaluation [µs], nodal and reduced."""
+    from model.growth_check import eval_cost_us
+    from model.thermoelastic import build_growth_model
+
+    started = time.perf_counter()
+    gm = build_growth_model(spec, fe)
+    build_s = time.perf_counter() - started
+    cost = eval_cost_us(gm)
+    return {
+        "growth_build_s": build_s,
+        "growth_eval_us": cost["nodal_us"],
+        "growth_eval_reduced_us": cost["reduced_us"],
+        "growth_outputs": list(gm.names),
+    }
+
+
 def run(args: argparse.Namespace) -> dict[str, Any]:
     """All figures as one dict (times in ms or s, errors in °C)."""
     from model.fem import build_fe_model
@@ -166,6 +185,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out["window_dt_s"] = 10.0
     out.update(_full_figures(fe, spec, args))
     out.update(_rom_figures(fe, spec, args))
+    out.update(_growth_figures(fe, spec))
     out["speedup_rom_vs_full"] = out["full_forward_ms"] / out["rom_batched_ms_per_candidate"]
     out["speedup_rom_single_vs_full"] = out["full_forward_ms"] / out["rom_forward_ms"]
     out["runs"] = args.runs
@@ -192,6 +212,11 @@ def format_table(res: dict[str, Any]) -> str:
         ("ROM build / load", f"{res['rom_build_s']:.1f} s / {res['rom_load_s'] * 1e3:.0f} ms"),
         ("speed-up ROM (batched) vs full", f"{res['speedup_rom_vs_full']:.0f}x"),
         ("speed-up ROM (single) vs full", f"{res['speedup_rom_single_vs_full']:.0f}x"),
+        (
+            "growth: build / one evaluation",
+            f"{res['growth_build_s']:.2f} s / {res['growth_eval_us']:.1f} µs nodal, "
+            f"{res['growth_eval_reduced_us']:.2f} µs reduced",
+        ),
     ]
     width = max(len(k) for k, _ in rows)
     lines = [

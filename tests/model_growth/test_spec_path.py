@@ -112,3 +112,11 @@ def test_section_sketch_marks_mount_floating_surface_and_outputs(spec) -> None: 
     assert text.count("*") == len(spec.mechanics.outputs)
     assert text.splitlines()[0].count("v") == 1
     assert "~~~~~" in text and text.splitlines()[-2].endswith(" axis")
+
+
+def test_bench_model_growth_figures(spec) -> None:  # type: ignore[no-untyped-def]
+    from service.bench.model import _growth_figures
+
+    res = _growth_figures(build_fe_model(spec, mesh_size_m=0.005), spec)
+    assert res["growth_outputs"][0] == "nose_axial"
+    assert res["growth_build_s"] > 0 and res["growth_eval_us"] > 0 and res["growth_eval_reduced_us"] > 0
