@@ -187,3 +187,14 @@ def test_mount_held_radially_when_asked(fe: FEModel) -> None:
     assert on_mount.sum() >= 2
     assert np.all(u[on_mount] == 0.0)
     assert np.max(np.abs(u)) > 1e-5  # the rest still grows
+
+
+def test_wrong_shapes_name_the_argument(fe: FEModel, growth: GrowthModel) -> None:
+    with pytest.raises(ThermoelasticError, match="field_c"):
+        growth.growth_um(np.zeros(fe.n_nodes + 1), 20.0)
+    with pytest.raises(ThermoelasticError, match="t_ref_c"):
+        growth.growth_um(np.zeros(fe.n_nodes), np.zeros(3))
+    with pytest.raises(ThermoelasticError, match="phi"):
+        growth.reduced(np.zeros((fe.n_nodes - 1, 2)))
+    with pytest.raises(ThermoelasticError, match="name"):
+        growth.operator("tool_tip")
