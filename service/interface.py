@@ -64,7 +64,7 @@ class ChtcStatus(enum.StrEnum):
 
     FRESH = "fresh"  # identified at the current, stable condition from recent data
     IDENTIFYING = "identifying"  # condition changed; a new identification is queued or running
-    STALE = "stale"  # no recent samples (devices down) or the last identification is too old
+    STALE = "stale"  # no recent good data (DAQ/CAN down, hung, frozen) or restored, not re-identified
     NO_DATA = "no-data"  # no samples at all
 
 
@@ -105,6 +105,9 @@ class ChtcSnapshot:
     newest_sample_at: datetime | None  # UTC of the newest sample in the ring buffer
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
+    at_bound: np.ndarray | None = None  # (7,) bool: H on a bound of the search box (not identified)
+    usable_for_compensation: bool = False  # the one flag a controller checks: fresh, identified, in the box
+    reason: str | None = None  # why not usable, "code: detail" (stale, restored, condition_changed, ...)
 
 
 FieldAt = Literal["now", "steady"]
@@ -249,7 +252,8 @@ class IdentificationRecord:
     model_version: str
     nfev: int
     wall_s: float
-    n_sensors_used: int
+    n_sensors_used: int  # channels the fit used (masked-out ones excluded)
+    at_bound: np.ndarray | None = None  # (7,) bool: H on a bound of the search box (then not identified)
 
 
 @dataclass(frozen=True)

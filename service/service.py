@@ -46,7 +46,8 @@ from service.interface import (
     Readiness,
     SensorReading,
 )
-from service.views import age_s, row_to_record
+from model.defaults import BOUND_REL_TOL
+from service.views import Usability, age_s, at_bound, row_to_record, usability
 from service.worker import IdentificationWorker, JobOutcome, JobStatus
 
 __all__ = ["SoftSensorService", "transition_detail"]
@@ -78,7 +79,6 @@ class SoftSensorService:
         session_factory: Any = None,  # sessionmaker for the history endpoints, or None
         sources: Mapping[str, Any] | None = None,  # "modbus"/"can" -> drivers Source (metrics, connected)
         clock: Clock = utc_now,
-        stale_after_s: float = 60.0,
         on_event: Callable[[str], None] | None = None,
     ) -> None:
         self.core = core
@@ -87,7 +87,6 @@ class SoftSensorService:
         self.session_factory = session_factory
         self.sources = dict(sources or {})
         self.clock = clock
-        self.stale_after_s = stale_after_s
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Task[Any]] = set()
@@ -194,15 +193,25 @@ class SoftSensorService:
             if rec is None:
                 return None
             newest = core.newest.t if core.newest is not None else None
-            status = self._status(rec, newest)
-            key = (rec.id, status, newest, core.condition.id if core.condition else None)
+            problems = core.data_problems(self.clock()) if newest is not None else ()
+            status = self._status(rec, newest, problems)
+            cond = core.condition
+            key = (rec.id, status, newest, cond.id if cond else None, cond.state if cond else None, problems)
             if self._snap_cache is not None and self._snap_cache[0] == key:
                 return self._snap_cache[1]
+            bound = at_bound(rec, getattr(core.model.rom, "h_box", None), BOUND_REL_TOL)
+            use = (
+                usability(rec, bound=bound, condition=cond, data_problems=problems, restored=False)
+                if newest is not None
+                else Usability(False, "no_data: no sample acquired yet")
+            )
+            if use.usable and core.current_from_restore:
+                use = Usability(False, "restored: the last stored H, not re-identified since the restart")
             snap = ChtcSnapshot(
                 h=rec.h,
                 ci95_lo=rec.ci95_lo,
                 ci95_hi=rec.ci95_hi,
-                identified=rec.identified,
+                identified=rec.identified & ~bound,
                 identified_at=rec.finished_at,
                 condition=rec.condition,
                 f=float(rec.f if rec.f is not None else np.nan),
@@ -213,15 +222,20 @@ class SoftSensorService:
                 identification_id=rec.id,
                 status=status,
                 newest_sample_at=newest,
+                at_bound=bound,
+                usable_for_compensation=use.usable,
+                reason=use.reason,
             )
             self._snap_cache = (key, snap)
             return snap
 
-    def _status(self, rec: IdentificationRecord, newest: datetime | None) -> ChtcStatus:
+    def _status(
+        self, rec: IdentificationRecord, newest: datetime | None, problems: tuple[str, ...]
+    ) -> ChtcStatus:
         core = self.core
         if newest is None:
             return ChtcStatus.STALE if core.current_from_restore else ChtcStatus.NO_DATA
-        if (self.clock() - newest).total_seconds() > self.stale_after_s or core.current_from_restore:
+        if problems or core.current_from_restore:
             return ChtcStatus.STALE
         cond = core.condition
         if core.scheduler.running is not None or cond is None or cond.id != rec.condition.id:
@@ -428,13 +442,7 @@ class SoftSensorService:
         reasons = []
         if not self.model_loaded:
             reasons.append("model not loaded")
-        newest = self.core.newest
-        if newest is None:
-            reasons.append("no sample yet")
-        else:
-            age = (self.clock() - newest.t).total_seconds()
-            if age > self.stale_after_s:
-                reasons.append(f"no sample for {age:.0f} s")
+        reasons.extend(self.core.data_problems(self.clock()))
         return Readiness(not reasons, tuple(reasons))
 
     def metrics(self) -> MetricsSnapshot:

@@ -1,0 +1,164 @@
+"""Freshness is the age of the newest GOOD data, not of the newest sample (issue 12, item 1).
+
+The acquisition appends a sample every period whatever the devices do, so a service that looks only at the
+newest sample's age stays `fresh`/ready with the DAQ unreachable, hung, answering garbage or frozen. Here the
+service core is driven by the samples the real acquisition (``drivers.acquisition.combine``) builds from what
+the drivers report in each failure, with an injected clock: `/chtc` must go `stale` and `/readyz` not ready
+within ``stale_after_s`` of the last good sample, naming the reason, and `usable_for_compensation` false.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, replace
+from datetime import datetime, timedelta
+
+import numpy as np
+import pytest
+
+from drivers.acquisition import combine
+from drivers.can_codec import SensorStatus
+from drivers.can_sensor import CanReading
+from drivers.modbus_daq import DaqReading
+from drivers.quality import Quality
+from drivers.ringbuffer import Sample
+from model.plant import Segment
+from service.core import ServiceCore
+from service.history import RingHistory
+from service.interface import ChtcStatus
+from service.offline import _run
+from service.runtime import core_config
+from service.service import SoftSensorService
+from service.settings import Settings
+
+from .conftest import plant_run, ring_of, samples_of
+
+PERIOD_S = 10.0
+
+
+class _Sink:
+    def submit(self, record: object) -> bool:
+        return True
+
+
+@dataclass
+class Rig:
+    core: ServiceCore
+    svc: SoftSensorService
+    now: list[datetime]
+    last: Sample
+    ring: object
+
+    def feed(self, sample: Sample) -> None:
+        self.ring.append(sample)  # type: ignore[attr-defined]
+        for launch in self.core.ingest(sample):  # a scheduled re-identification: finish it at once
+            self.core.job_done(_run(self.core.model, launch), finished_at=sample.t)
+        self.now[0] = sample.t + timedelta(seconds=1)
+
+
+@pytest.fixture(scope="module")
+def identified(loaded_model):  # type: ignore[no-untyped-def]
+    """Good samples of a 3000 rpm condition, identified at 10 and 20 min: the core and its last sample."""
+    cfg = core_config(Settings())
+    run = plant_run([Segment(1300.0, 3000.0, 5.0, 22.0)], seed=4)
+    return cfg, samples_of(run)
+
+
+def _rig(loaded_model, identified) -> Rig:  # type: ignore[no-untyped-def]
+    cfg, samples = identified
+    ring = ring_of()
+    core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=_Sink())
+    now = [samples[0].t]
+    svc = SoftSensorService(core, worker=None, clock=lambda: now[0])
+    rig = Rig(core, svc, now, samples[-1], ring)
+    for s in samples:
+        rig.feed(s)
+    return rig
+
+
+def _daq(last: Sample, quality: Quality | np.ndarray) -> DaqReading:
+    q = np.full(32, np.uint8(quality)) if isinstance(quality, Quality) else quality
+    amb_q = Quality.STALE if isinstance(quality, Quality) and quality is Quality.STALE else Quality.OK
+    return DaqReading(
+        t=last.t,
+        temps_c=np.asarray(last.temps_c, float),
+        ambient_c=float(last.ambient_c),
+        status=np.zeros(32, np.int64),
+        counter=1,
+        quality=np.asarray(q, np.uint8),
+        ambient_quality=amb_q,
+    )
+
+
+def _can(last: Sample, quality: Quality = Quality.OK) -> CanReading:
+    status = SensorStatus.FAULT if quality is Quality.FAULT else SensorStatus.OK
+    return CanReading(last.t, float(last.speed_rpm), float(last.torque_nm), status, 0, quality)
+
+
+# What the drivers hand the acquisition in each failure, after their own staleness limit (drivers.md):
+# unreachable, hung, closing connections, garbage replies and a frozen counter all end as the last values
+# with every channel STALE (ModbusDaq.current()); a DAQ never heard from gives None (NO_DATA).
+Failure = Callable[[Sample], tuple[DaqReading | None, CanReading | None]]
+FAILURES: dict[str, tuple[Failure, str]] = {
+    "daq stale (unreachable, hung, dropping, garbage, frozen)": (
+        lambda s: (_daq(s, Quality.STALE), _can(s)),
+        "daq_no_good_data",
+    ),
+    "daq never answered": (lambda s: (None, _can(s)), "daq_no_good_data"),
+    "9 channels open circuit (23 < 24 usable)": (
+        lambda s: (_daq(s, np.array([Quality.OPEN_CIRCUIT] * 9 + [Quality.OK] * 23, np.uint8)), _can(s)),
+        "daq_no_good_data",
+    ),
+    "can silent": (lambda s: (_daq(s, Quality.OK), _can(s, Quality.STALE)), "can_no_good_data"),
+    "can fault status": (lambda s: (_daq(s, Quality.OK), _can(s, Quality.FAULT)), "can_no_good_data"),
+}
+
+
+@pytest.mark.parametrize("name", list(FAILURES))
+def test_stale_and_not_ready_within_the_limit_when_good_data_stop(loaded_model, identified, name) -> None:  # type: ignore[no-untyped-def]
+    failure, code = FAILURES[name]
+    rig = _rig(loaded_model, identified)
+    snap = rig.svc.chtc()
+    assert snap is not None and snap.status is ChtcStatus.FRESH, snap and snap.reason
+    assert rig.svc.ready().ready
+    limit = rig.core.config.stale_after_s
+    t_good = rig.last.t
+    daq, can = failure(rig.last)
+    t = t_good
+    while True:  # the acquisition keeps appending a sample every period
+        t = t + timedelta(seconds=PERIOD_S)
+        rig.feed(combine(daq, can, t=t, n_channels=32))
+        age = (rig.now[0] - t_good).total_seconds()
+        snap = rig.svc.chtc()
+        ready = rig.svc.ready()
+        assert snap is not None
+        if age <= limit:
+            assert snap.status is ChtcStatus.FRESH and ready.ready, (age, ready.reasons)
+            continue
+        assert snap.status is ChtcStatus.STALE, age
+        assert not ready.ready and any(r.startswith(code) for r in ready.reasons), ready.reasons
+        assert not snap.usable_for_compensation and snap.reason is not None
+        assert snap.reason.startswith("stale: ") and code in snap.reason
+        assert age <= limit + PERIOD_S + 1.0
+        break
+
+
+def test_fresh_again_when_good_data_return(loaded_model, identified) -> None:  # type: ignore[no-untyped-def]
+    rig = _rig(loaded_model, identified)
+    t = rig.last.t
+    for _ in range(8):
+        t += timedelta(seconds=PERIOD_S)
+        rig.feed(combine(_daq(rig.last, Quality.STALE), _can(rig.last), t=t, n_channels=32))
+    assert rig.svc.chtc().status is ChtcStatus.STALE  # type: ignore[union-attr]
+    t += timedelta(seconds=PERIOD_S)
+    rig.feed(replace(rig.last, t=t))
+    assert rig.svc.ready().ready
+    assert rig.svc.chtc().status is ChtcStatus.FRESH  # type: ignore[union-attr]
+
+
+def test_no_sample_at_all_for_the_limit_is_stale(loaded_model, identified) -> None:  # type: ignore[no-untyped-def]
+    rig = _rig(loaded_model, identified)
+    rig.now[0] = rig.last.t + timedelta(seconds=rig.core.config.stale_after_s + 1)
+    reasons = rig.svc.ready().reasons
+    assert any(r.startswith("no_sample") for r in reasons), reasons
+    assert rig.svc.chtc().status is ChtcStatus.STALE  # type: ignore[union-attr]
