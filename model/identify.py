@@ -34,8 +34,8 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from model import optim
-from model.defaults import BOUND_REL_TOL, CI_REL_THRESHOLD
 from model.carry import CarryError, carry, check_cov
+from model.defaults import BOUND_REL_TOL, CI_REL_THRESHOLD
 from model.identify_problem import (
     N_H,
     Array,
@@ -106,7 +106,7 @@ class IdentifyOptions:
     warm_hybrid_maxiter: int = 3
     load_box: tuple[float, float] = (0.5, 2.0)
     ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width in log H above which an H is poorly identified
-    bound_rel_tol: float = BOUND_REL_TOL  # H this close to a bound (fraction of the box width) is at the bound
+    bound_rel_tol: float = BOUND_REL_TOL  # H this close to a bound (fraction of box width): at the bound
     t0_shift_box: tuple[float, float] = (-2.0, 2.0)  # °C, the fitted uniform shift of the start field
     min_sensors: int = 4
     min_samples: int = 30

@@ -98,7 +98,7 @@ class CoreConfig:
     method: str = "hybrid"
     seed: int = 0
     estimate_loads: bool = False
-    estimate_t0_shift: str = ESTIMATE_T0_SHIFT  # "never" | "initial" (start from the initial guess) | "always"
+    estimate_t0_shift: str = ESTIMATE_T0_SHIFT  # "never" | "initial" (start from the first guess) | "always"
     carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error (the live state's)
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD
@@ -271,7 +271,8 @@ class ServiceCore:
         """Why the data are not fresh at ``now`` (empty: fresh), each "code: detail". Codes: ``no_sample``
         (nothing acquired for ``stale_after_s``: acquisition stalled), ``daq_no_good_data`` (no sample with
         ``rules.min_good_channels`` usable channels and the ambient for that long: DAQ unreachable, hung,
-        garbled, frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent or fault)."""
+        garbled, frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent, fault).
+        """
         with self.lock:
             limit = self.config.stale_after_s
             if self.newest is None:
@@ -283,7 +284,8 @@ class ServiceCore:
             n = self.config.rules.min_good_channels
             what = f"a sample with >= {n} usable temperature channels and the ambient"
             out += _age_problem("daq_no_good_data", what, self.last_good_daq_t, now, limit)
-            out += _age_problem("can_no_good_data", "speed and torque from CAN", self.last_good_can_t, now, limit)
+            can = "speed and torque from CAN"
+            out += _age_problem("can_no_good_data", can, self.last_good_can_t, now, limit)
             return tuple(out)
 
     def _store_sample(self, sample: Any, ts: float) -> None:

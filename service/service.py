@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from model.defaults import BOUND_REL_TOL
 from service.core import Launch, ServiceCore
 from service.db.records import DeviceEventData
 from service.interface import (
@@ -46,7 +47,6 @@ from service.interface import (
     Readiness,
     SensorReading,
 )
-from model.defaults import BOUND_REL_TOL
 from service.views import Usability, age_s, at_bound, row_to_record, usability
 from service.worker import IdentificationWorker, JobOutcome, JobStatus
 

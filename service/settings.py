@@ -143,7 +143,7 @@ class IdentificationSettings(_Section):
     # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);
     # false: noise-only CIs, which undercover at chained conditions (docs/service.md)
     carry_start_error: bool = CARRY_START_ERROR
-    # 95 % CI half-width of log H (≈ relative half-width) above this → "not identified" (docs/identification.md)
+    # 95 % half-width of log H (≈ relative half-width) above this → "not identified" (docs/identification.md)
     ci_rel_threshold: float = Field(default=CI_REL_THRESHOLD, gt=0)
     timeout_s: float = Field(default=120.0, gt=0)
     seed: int = 0

@@ -66,7 +66,7 @@ class JobRequest:
     seed: int = 0
     estimate_loads: bool = False
     estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
-    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error; result has the end ensemble
+    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error; result: end ensemble
     start_cov: Any = None  # model.carry.StateCovariance of t0_c's error (None: exact, or the initial guess)
     gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
