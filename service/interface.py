@@ -27,6 +27,7 @@ Contract for implementers:
 from __future__ import annotations
 
 import enum
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -332,16 +333,19 @@ class Histogram:
         self._counts = [0] * len(self._ub)
         self._count = 0
         self._sum = 0.0
+        self._lock = threading.Lock()  # observed on the event loop, read by API threads
 
     def observe(self, value: float) -> None:
-        for i, ub in enumerate(self._ub):
-            if value <= ub:
-                self._counts[i] += 1
-        self._count += 1
-        self._sum += float(value)
+        with self._lock:
+            for i, ub in enumerate(self._ub):
+                if value <= ub:
+                    self._counts[i] += 1
+            self._count += 1
+            self._sum += float(value)
 
     def snapshot(self) -> HistogramData:
-        return HistogramData(self._ub, tuple(self._counts), self._count, self._sum)
+        with self._lock:
+            return HistogramData(self._ub, tuple(self._counts), self._count, self._sum)
 
 
 LATENCY_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5)
@@ -352,9 +356,10 @@ DURATION_BUCKETS_S = (0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 300.0)
 class MetricsSnapshot:
     """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
 
-    modbus_poll_latency_s: HistogramData
-    modbus_polls_total: Mapping[str, int]  # by outcome: "ok", "timeout", "exception", "garbled", ...
-    can_frames_total: Mapping[str, int]  # by outcome: "ok", "unknown_id", "bad_dlc", "counter_gap", "fault"
+    modbus_poll_latency_s: HistogramData  # successful polls' round trips (the driver's own timing)
+    # outcomes (every poll / frame has exactly one); events are counted separately below
+    modbus_polls_total: Mapping[str, int]  # "ok", "device_timeout", "short_reply", "link_down", ...
+    can_frames_total: Mapping[str, int]  # "ok", "unknown_frame_id", "wrong_dlc", ...
     channel_age_s: Sequence[float | None]  # 32; seconds since the channel's last good value, None = never
     channel_quality: Sequence[str]  # 32; current Quality value per channel
     identifications_total: Mapping[str, int]  # by outcome: "ok", "failed", "insufficient-data"
@@ -364,6 +369,11 @@ class MetricsSnapshot:
     db_pending_rows: int = 0
     db_errors_total: int = 0
     reconnects_total: Mapping[str, int] = field(default_factory=dict)  # by device
+    modbus_events_total: Mapping[str, int] = field(default_factory=dict)  # "new_samples", "restarts", ...
+    can_events_total: Mapping[str, int] = field(default_factory=dict)  # "counter_gaps", "faults", silence...
+    chtc: ChtcSnapshot | None = None  # the current H, CIs, status, usable_for_compensation (None: none yet)
+    build_version: str = ""  # package version (chtc_build_info)
+    model_version: str | None = None
 
 
 @runtime_checkable

@@ -16,6 +16,7 @@ samples with, so ``chtc demo`` can run the whole service at a speed-up.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -95,6 +96,9 @@ class SoftSensorService:
         self._snap_cache: tuple[tuple[Any, ...], ChtcSnapshot] | None = None
         self._steady_cache: tuple[tuple[Any, ...], FieldSnapshot] | None = None
         self._poll_latency = Histogram(LATENCY_BUCKETS_S)
+        modbus = self.sources.get("modbus")
+        if modbus is not None and hasattr(modbus, "on_read_s"):
+            modbus.on_read_s = self._poll_latency.observe  # the driver's own poll timing (drivers.base)
         self.model_loaded = worker is None or worker.model_version is not None
         self.closed = False
 
@@ -461,9 +465,14 @@ class SoftSensorService:
         if self.worker is not None:
             reconnects["worker"] = self.worker.restarts
         return MetricsSnapshot(
-            modbus_poll_latency_s=_latency_hist(modbus),
-            modbus_polls_total=_outcomes(modbus, ok_key="reads_ok"),
-            can_frames_total=_outcomes(can, ok_key="reads_ok"),
+            modbus_poll_latency_s=self._poll_latency.snapshot(),
+            modbus_polls_total=poll_outcomes(modbus),
+            can_frames_total=frame_outcomes(can),
+            modbus_events_total=poll_events(modbus),
+            can_events_total=frame_events(can),
+            chtc=self.chtc(),
+            build_version=_build_version(),
+            model_version=core.model.version if self.model_loaded else None,
             channel_age_s=ages,
             channel_quality=quality,
             identifications_total=counts,
@@ -476,21 +485,74 @@ class SoftSensorService:
         )
 
 
-def _outcomes(src: Any, *, ok_key: str) -> dict[str, int]:
+def poll_outcomes(src: Any) -> dict[str, int]:
+    """Modbus polls by outcome, one per poll: "ok", each failure by error class ("device_timeout",
+    "short_reply", "modbus_exception", ...) and "link_down" (refused while a reconnect was not yet due)."""
     if src is None:
         return {}
     m = src.metrics
-    out = {"ok": int(getattr(m, ok_key, 0))}
-    for name, n in {**m.errors, **m.events}.items():
-        out[_snake(name)] = int(n)
+    out = {"ok": int(m.reads_ok), "link_down": int(m.events.get("polls_while_down", 0))}
+    for name, n in m.errors.items():
+        out[_snake(name)] = out.get(_snake(name), 0) + int(n)
     return out
 
 
-def _latency_hist(src: Any) -> Any:
-    hist = getattr(src, "latency_histogram", None)
-    if callable(hist):
-        return hist()
-    return Histogram(LATENCY_BUCKETS_S).snapshot()
+def poll_events(src: Any) -> dict[str, int]:
+    """Modbus events (not outcomes): "new_samples", "stale_polls", "restarts", ..."""
+    if src is None:
+        return {}
+    return {_snake(k): int(n) for k, n in src.metrics.events.items() if k != "polls_while_down"}
+
+
+def _frame_error(name: str) -> bool:
+    """Whether an error class name (drivers.errors) is a rejected frame (not a counter gap on a good one)."""
+    from drivers import errors
+
+    cls = getattr(errors, name, None)
+    return (
+        isinstance(cls, type)
+        and issubclass(cls, errors.FrameError)
+        and not issubclass(cls, errors.CounterGapError)
+    )
+
+
+def frame_outcomes(src: Any) -> dict[str, int]:
+    """CAN frames by outcome, one per frame read: "ok" or the reason it was rejected ("unknown_frame_id",
+    "wrong_dlc", "bad_signal", ...)."""
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {"ok": int(m.reads_ok)}
+    for name, n in m.errors.items():
+        if _frame_error(name):
+            out[_snake(name)] = out.get(_snake(name), 0) + int(n)
+    return out
+
+
+def frame_events(src: Any) -> dict[str, int]:
+    """CAN events: the driver's counters ("counter_gaps", "frames_lost", "faults", "warnings", ...) and the
+    errors that are no frame ("device_timeout": silence, "device_unavailable": bus down)."""
+    from drivers import errors
+
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {_snake(k): int(n) for k, n in m.events.items()}
+    for name, n in m.errors.items():
+        cls = getattr(errors, name, None)
+        if not _frame_error(name) and not (isinstance(cls, type) and issubclass(cls, errors.CounterGapError)):
+            out[_snake(name)] = out.get(_snake(name), 0) + int(n)
+    return out
+
+
+@functools.cache
+def _build_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("spindle-chtc")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _snake(name: str) -> str:

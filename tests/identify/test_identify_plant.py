@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 from dataclasses import replace
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
@@ -80,7 +81,35 @@ def test_masked_broken_channel_does_not_spoil_the_fit(
     assert masked.f < 1.05 * hybrid3000.f  # ... and harmless when masked out
     ok = hybrid3000.identified
     assert np.all(np.abs(masked.h[ok] / hybrid3000.h[ok] - 1.0) < 0.15)
-    assert masked.rmse_per_sensor[4] > 5.0  # the broken channel is still reported
+    # the masked channel is out of every reported figure too (issue 12 item 13): no per-sensor RMSE, and
+    # channel 5 is test point 5, which is left out instead of reporting the fault as a model error
+    assert np.isnan(masked.rmse_per_sensor[4])
+    assert np.all(np.isfinite(np.delete(masked.rmse_per_sensor, 4)))
+    assert 5 not in masked.test_points and set(masked.test_points) == {1, 3, 7}
+    assert all(tp["me"] < 1.0 for tp in masked.test_points.values())
+
+
+def test_open_circuit_channel_is_not_counted_in_rmse_or_sensors_used(
+    model: Any, cond3000: Condition, hybrid3000: IdentificationResult
+) -> None:
+    """An open channel reads -327.68 °C (int16 0x8000 × 0.01) and is masked: the stored RMSE and sensor
+    count are those of the 31 channels the fit used (they were 32 sensors and tens of °C)."""
+    from service.db.records import IdentificationData
+
+    window = cond3000.window
+    meas = window.measured_c.copy()
+    meas[:, 11] = -327.68
+    mask = window.mask.copy()
+    mask[11] = False
+    res = identify(model.rom, replace(window, measured_c=meas, mask=mask), rng=0, spec=model.spec)
+    t = datetime(2026, 1, 1, tzinfo=UTC)
+    data = IdentificationData.from_result(
+        res, id=1, condition_id=1, started_at=t, finished_at=t, window_start=t, window_end=t,
+        reason="test", model_version="m",
+    )  # fmt: skip
+    assert data.n_sensors_used == 31
+    assert data.rmse_c is not None and abs(data.rmse_c - np.sqrt(res.f)) < 1e-12
+    assert data.rmse_c < 0.5  # the noise level, not the open circuit
 
 
 def test_warm_start_from_the_neighbouring_condition_needs_fewer_evaluations(
