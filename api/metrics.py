@@ -11,7 +11,13 @@ from collections.abc import Callable, Iterator
 from typing import Any
 
 from prometheus_client import CollectorRegistry, Histogram
-from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    InfoMetricFamily,
+    Metric,
+)
 from prometheus_client.registry import Collector
 
 from service.interface import LATENCY_BUCKETS_S, ChtcService, ChtcSnapshot, HistogramData
@@ -84,11 +90,11 @@ class ServiceCollector(Collector):
         )
         yield _counter("chtc_can_events", "CAN events: gaps, faults, silence", "event", m.can_events_total)
         yield from _chtc_gauges(m.chtc)
-        info = GaugeMetricFamily(
-            "chtc_build", "package and model version", labels=["version", "model_version"]
+        yield InfoMetricFamily(
+            "chtc_build",
+            "package and model version",
+            value={"version": m.build_version, "model_version": m.model_version or ""},
         )
-        info.add_metric([m.build_version, m.model_version or ""], 1.0)
-        yield info
         yield _counter("chtc_reconnects", "device reconnects", "device", m.reconnects_total)
         yield _counter(
             "chtc_identifications", "identifications by outcome", "outcome", m.identifications_total

@@ -282,7 +282,7 @@ class ServiceCore:
             if age > limit:
                 out.append(f"no_sample: newest sample {age:.0f} s old (limit {limit:.0f} s)")
             n = self.config.rules.min_good_channels
-            what = f"a sample with >= {n} usable temperature channels and the ambient"
+            what = f"sample with >= {n} usable temperature channels and the ambient"
             out += _age_problem("daq_no_good_data", what, self.last_good_daq_t, now, limit)
             can = "speed and torque from CAN"
             out += _age_problem("can_no_good_data", can, self.last_good_can_t, now, limit)
@@ -608,7 +608,7 @@ def _age_problem(code: str, what: str, last: datetime | None, now: datetime, lim
     if last is None:
         return [f"{code}: no {what} yet"]
     age = (now - last).total_seconds()
-    return [f"{code}: no {what} for {age:.0f} s (limit {limit_s:.0f} s)"] if age > limit_s else []
+    return [f"{code}: newest {what} is {age:.0f} s old (limit {limit_s:.0f} s)"] if age > limit_s else []
 
 
 def _state_covariance(result: Any, t_end: float) -> StateCovariance | None:
