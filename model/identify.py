@@ -451,7 +451,8 @@ def _interval(theta: Array, half_width: Array, layout: Layout) -> tuple[Array, A
     n_pos = N_H + (2 if layout.loads else 0)
     x = theta[:n_pos]
     z_sd_log = half_width[:n_pos] / np.maximum(np.abs(x), 1e-12)
-    lo[:n_pos], hi[:n_pos] = x * np.exp(-z_sd_log), x * np.exp(z_sd_log)
+    with np.errstate(over="ignore", under="ignore"):  # a hopeless H: [0, inf), honestly unbounded
+        lo[:n_pos], hi[:n_pos] = x * np.exp(-z_sd_log), x * np.exp(z_sd_log)
     return lo, hi
 
 

@@ -10,6 +10,7 @@ import numpy as np
 import pytest
 
 from model.identify import METHODS, IdentificationResult, IdentifyOptions, identify
+from model.inputs import InputSeries
 from tests.identify.conftest import Condition
 
 
@@ -130,3 +131,29 @@ def test_seeded_identification_is_reproducible(model: Any, cond3000: Condition) 
 
 def test_every_method_is_known() -> None:
     assert METHODS == ("empirical", "ga", "woa", "gwo", "igwo", "hybrid")
+
+
+def test_ci_respects_h_positive_and_bound_hits_are_not_identified(model: Any, cond3000: Condition) -> None:
+    """A weak window (20 min, every second channel): several H have a 95 % half-width above H itself. The
+    CI comes from the covariance of log H (lo = H·e^(−zσ), hi = H·e^(zσ)), so it stays positive and
+    asymmetric instead of going negative (issue 12 item 14); an H on a bound of the box is flagged and not
+    identified (item 17)."""
+    w = cond3000.window
+    n = 121
+    inputs = InputSeries(
+        w.inputs.dt_s, *(a[: n - 1] for a in (w.inputs.ambient_c, w.inputs.q_front_w, w.inputs.q_rear_w))
+    )
+    mask = np.zeros(32, dtype=bool)
+    mask[::2] = True
+    res = identify(
+        model.rom, replace(w, inputs=inputs, measured_c=w.measured_c[:n], mask=mask), rng=0, spec=model.spec
+    )
+    lo, hi = res.h_ci95[:, 0], res.h_ci95[:, 1]
+    assert np.all(lo > 0) and np.all(lo < res.h) and np.all(res.h < hi)
+    np.testing.assert_allclose(lo * hi, res.h**2, rtol=1e-9)  # symmetric in log H
+    assert np.any(hi - res.h > res.h)  # a linear ±half-width would have crossed zero here
+    wide = np.log(hi / res.h) > 0.3
+    np.testing.assert_array_equal(res.identified, ~wide & ~res.at_bound)
+    box = model.rom.h_box
+    np.testing.assert_array_equal(res.at_bound, np.isclose(res.h, box[0]) | np.isclose(res.h, box[1]))
+    assert res.at_bound.any()  # this window drives H1 to the 200 W/(m²·K) bound
