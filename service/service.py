@@ -197,7 +197,8 @@ class SoftSensorService:
             if rec is None:
                 return None
             newest = core.newest.t if core.newest is not None else None
-            problems = core.data_problems(self.clock()) if newest is not None else ()
+            # codes only ("daq_no_good_data"): the snapshot and its ETag stay put while stale (ages: /readyz)
+            problems = tuple(p.split(":")[0] for p in core.data_problems(self.clock())) if newest else ()
             status = self._status(rec, newest, problems)
             cond = core.condition
             key = (rec.id, status, newest, cond.id if cond else None, cond.state if cond else None, problems)

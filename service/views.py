@@ -155,7 +155,7 @@ def usability(
     condition is changing), ``at_bound`` (an H on a bound of the search box), ``not_identified`` (an H's
     95 % CI wider than the threshold)."""
     if data_problems:
-        return Usability(False, "stale: " + "; ".join(data_problems))
+        return Usability(False, "stale: " + ", ".join(data_problems) + " (see /readyz)")
     if restored:
         return Usability(False, "restored: the last stored H, not re-identified since the restart")
     if condition is None or condition.id != rec.condition.id or condition.state is not ConditionState.STABLE:

@@ -12,6 +12,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import datetime, timedelta
+from typing import Any
 
 import numpy as np
 import pytest
@@ -49,10 +50,15 @@ class Rig:
     last: Sample
     ring: object
 
+    edit: Callable[[Any], None] = lambda _result: None  # changes a result before the core records it
+
     def feed(self, sample: Sample) -> None:
         self.ring.append(sample)  # type: ignore[attr-defined]
         for launch in self.core.ingest(sample):  # a scheduled re-identification: finish it at once
-            self.core.job_done(_run(self.core.model, launch), finished_at=sample.t)
+            outcome = _run(self.core.model, launch)
+            if outcome.result is not None:
+                self.edit(outcome.result)
+            self.core.job_done(outcome, finished_at=sample.t)
         self.now[0] = sample.t + timedelta(seconds=1)
 
 
@@ -64,13 +70,15 @@ def identified(loaded_model):  # type: ignore[no-untyped-def]
     return cfg, samples_of(run)
 
 
-def _rig(loaded_model, identified) -> Rig:  # type: ignore[no-untyped-def]
+def _rig(loaded_model, identified, edit: Callable[[Any], None] | None = None) -> Rig:  # type: ignore[no-untyped-def]
     cfg, samples = identified
     ring = ring_of()
     core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=_Sink())
     now = [samples[0].t]
     svc = SoftSensorService(core, worker=None, clock=lambda: now[0])
     rig = Rig(core, svc, now, samples[-1], ring)
+    if edit is not None:
+        rig.edit = edit
     for s in samples:
         rig.feed(s)
     return rig
@@ -162,3 +170,49 @@ def test_no_sample_at_all_for_the_limit_is_stale(loaded_model, identified) -> No
     reasons = rig.svc.ready().reasons
     assert any(r.startswith("no_sample") for r in reasons), reasons
     assert rig.svc.chtc().status is ChtcStatus.STALE  # type: ignore[union-attr]
+
+
+def _all_identified(result: Any) -> None:
+    result.identified[:] = True
+
+
+def test_usable_for_compensation_when_fresh_identified_and_inside_the_box(loaded_model, identified) -> None:  # type: ignore[no-untyped-def]
+    rig = _rig(loaded_model, identified, edit=_all_identified)
+    snap = rig.svc.chtc()
+    assert snap is not None and snap.status is ChtcStatus.FRESH
+    assert snap.usable_for_compensation and snap.reason is None
+
+
+def test_h_on_a_bound_is_not_identified_and_not_usable(loaded_model, identified) -> None:  # type: ignore[no-untyped-def]
+    """An identification ending with H3 on the box's upper bound (200 W/(m²·K)), all others identified: the
+    service flags it (from the search box, also for results that do not carry the flag) and says why."""
+
+    def on_bound(result: Any) -> None:
+        _all_identified(result)
+        result.h[2] = loaded_model.rom.h_box[1]
+
+    rig = _rig(loaded_model, identified, edit=on_bound)
+    snap = rig.svc.chtc()
+    assert snap is not None and snap.status is ChtcStatus.FRESH
+    assert snap.at_bound is not None and snap.at_bound.tolist() == [False, False, True] + [False] * 4
+    assert not snap.identified[2] and snap.identified[[0, 1, 3, 4, 5, 6]].all()
+    assert not snap.usable_for_compensation
+    assert snap.reason is not None and snap.reason.startswith("at_bound: H3")
+
+
+def test_not_identified_and_condition_change_are_not_usable(loaded_model, identified) -> None:  # type: ignore[no-untyped-def]
+    def weak_h1(result: Any) -> None:
+        _all_identified(result)
+        result.identified[0] = False
+
+    rig = _rig(loaded_model, identified, edit=weak_h1)
+    snap = rig.svc.chtc()
+    assert snap is not None and not snap.usable_for_compensation
+    assert snap.reason is not None and snap.reason.startswith("not_identified: H1")
+    t = rig.last.t
+    for _ in range(3):  # the speed leaves the condition: the detector sees it change
+        t += timedelta(seconds=PERIOD_S)
+        rig.feed(replace(rig.last, t=t, speed_rpm=4500.0))
+    snap = rig.svc.chtc()
+    assert snap is not None and snap.status is ChtcStatus.IDENTIFYING
+    assert not snap.usable_for_compensation and snap.reason.startswith("condition_changed")  # type: ignore[union-attr]
