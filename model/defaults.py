@@ -3,5 +3,5 @@
 No imports: ``service.settings`` reads these without loading numpy or scipy.
 """
 
-CI_REL_THRESHOLD = 0.3  # z·σ(log H) (≈ relative 95 % half-width) above which an H is "not identified"
+CI_REL_THRESHOLD = 0.5  # 1.96·σ(log H) (≈ relative 95 % half-width) above which H is "not identified"
 BOUND_REL_TOL = 1e-3  # an H within this fraction of the box width of a bound is "at the bound"
