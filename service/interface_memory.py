@@ -254,7 +254,7 @@ class InMemoryService:
                 window_from=now - timedelta(minutes=60),
                 window_to=now,
                 h=hh,
-                ci95_lo=hh * (1 - rel_ci),
+                ci95_lo=hh / (1 + rel_ci),  # symmetric in log H, as the real identification
                 ci95_hi=hh * (1 + rel_ci),
                 identified=np.asarray(identified if identified is not None else [True] * 7, dtype=bool),
                 f=f,
