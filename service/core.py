@@ -608,7 +608,7 @@ def _age_problem(code: str, what: str, last: datetime | None, now: datetime, lim
     if last is None:
         return [f"{code}: no {what} yet"]
     age = (now - last).total_seconds()
-    return [f"{code}: newest {what} is {age:.0f} s old (limit {limit_s:.0f} s)"] if age > limit_s else []
+    return [f"{code}: newest {what} is {age:.1f} s old (limit {limit_s:.0f} s)"] if age > limit_s else []
 
 
 def _state_covariance(result: Any, t_end: float) -> StateCovariance | None:
