@@ -52,7 +52,7 @@ def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> Id
         window_from=data.window_start,
         window_to=data.window_end,
         h=nan_array(data.h),
-        ci95_lo=nan_array(data.ci95_lo),
+        ci95_lo=_ci_lo(data.ci95_lo),
         ci95_hi=nan_array(data.ci95_hi),
         identified=_bool_array(data.identified),
         f=data.f,
@@ -65,6 +65,16 @@ def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> Id
         n_sensors_used=int(data.n_sensors_used),
         at_bound=_at_bound(data.diagnostics),
     )
+
+
+def _ci_lo(values: Any) -> np.ndarray:
+    """Lower CI bounds; a record stored before the CIs were computed in log H (docs/identification.md) may
+    hold a negative one: H is positive, so it is served as 0."""
+    lo = nan_array(values)
+    with np.errstate(invalid="ignore"):
+        out = np.where(lo < 0.0, 0.0, lo)
+    out.setflags(write=False)
+    return out
 
 
 def _at_bound(diagnostics: Any) -> np.ndarray:
@@ -98,7 +108,7 @@ def row_to_record(row: Any) -> IdentificationRecord:
         window_from=row.window_start,
         window_to=row.window_end,
         h=nan_array(row.h),
-        ci95_lo=nan_array(row.ci95_lo),
+        ci95_lo=_ci_lo(row.ci95_lo),
         ci95_hi=nan_array(row.ci95_hi),
         identified=_bool_array(row.identified),
         f=row.f,

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from typing import Any
 
 import numpy as np
@@ -216,3 +216,21 @@ def test_not_identified_and_condition_change_are_not_usable(loaded_model, identi
     snap = rig.svc.chtc()
     assert snap is not None and snap.status is ChtcStatus.IDENTIFYING
     assert not snap.usable_for_compensation and snap.reason.startswith("condition_changed")  # type: ignore[union-attr]
+
+
+def test_a_stored_negative_lower_bound_is_not_served() -> None:
+    """Rows stored with the former linear CI may hold a negative lower bound; H > 0, so 0 is served."""
+    from types import SimpleNamespace
+
+    from service.views import row_to_record
+
+    t = datetime(2026, 1, 1, tzinfo=UTC)
+    cond = SimpleNamespace(id=1, speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0, started_at=t)
+    row = SimpleNamespace(
+        id=1, started_at=t, finished_at=t, reason="r", outcome="ok", message="", condition=cond,
+        window_start=t, window_end=t, h=[50.0] * 7, ci95_lo=[-16.7, 40.0, None, 1, 2, 3, 4],
+        ci95_hi=[116.7] * 7, identified=[False] + [True] * 6, f=0.1, fit=0.9, rmse_c=0.3, method="hybrid",
+        model_version="m", nfev=1, duration_s=0.1, n_sensors_used=32, diagnostics=None,
+    )  # fmt: skip
+    rec = row_to_record(row)
+    assert rec.ci95_lo[0] == 0.0 and rec.ci95_lo[1] == 40.0 and np.isnan(rec.ci95_lo[2])
