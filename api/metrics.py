@@ -5,15 +5,22 @@ scrape time (the service exposes numbers; the API exports them).
 
 from __future__ import annotations
 
+import math
 import time
 from collections.abc import Callable, Iterator
 from typing import Any
 
 from prometheus_client import CollectorRegistry, Histogram
-from prometheus_client.core import CounterMetricFamily, GaugeMetricFamily, HistogramMetricFamily, Metric
+from prometheus_client.core import (
+    CounterMetricFamily,
+    GaugeMetricFamily,
+    HistogramMetricFamily,
+    InfoMetricFamily,
+    Metric,
+)
 from prometheus_client.registry import Collector
 
-from service.interface import LATENCY_BUCKETS_S, ChtcService, HistogramData
+from service.interface import LATENCY_BUCKETS_S, ChtcService, ChtcSnapshot, HistogramData
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 
@@ -31,6 +38,39 @@ def _counter(name: str, doc: str, label: str, values: dict[str, int] | Any) -> C
     return fam
 
 
+STATUSES = ("fresh", "identifying", "stale", "no-data")
+
+
+def _chtc_gauges(snap: ChtcSnapshot | None) -> Iterator[Metric]:
+    """H1-H7 with their 95 % CI bounds (W/(m²·K)), identified / at-bound flags, the status (one-hot) and
+    ``usable_for_compensation``; nothing before the first identification."""
+    if snap is None:
+        return
+    zones = list(snap.zones)
+    bound = snap.at_bound if snap.at_bound is not None else [False] * len(zones)
+    for name, doc, values in (
+        ("chtc_h_w_m2k", "current H, W/(m²·K)", snap.h),
+        ("chtc_h_ci95_lo_w_m2k", "lower 95 % CI bound of H, W/(m²·K)", snap.ci95_lo),
+        ("chtc_h_ci95_hi_w_m2k", "upper 95 % CI bound of H, W/(m²·K)", snap.ci95_hi),
+        ("chtc_h_identified", "1 if H is identified (CI narrow enough, not at a bound)", snap.identified),
+        ("chtc_h_at_bound", "1 if H is on a bound of the search box", bound),
+    ):
+        fam = GaugeMetricFamily(name, doc, labels=["zone"])
+        for zone, v in zip(zones, values, strict=True):
+            if math.isfinite(float(v)):
+                fam.add_metric([zone], float(v))
+        yield fam
+    status = GaugeMetricFamily("chtc_status", "1 for the current /chtc status", labels=["status"])
+    for st in STATUSES:
+        status.add_metric([st], 1.0 if str(snap.status) == st else 0.0)
+    yield status
+    yield GaugeMetricFamily(
+        "chtc_usable_for_compensation",
+        "1 if a controller may apply the current H (/chtc usable_for_compensation)",
+        value=1.0 if snap.usable_for_compensation else 0.0,
+    )
+
+
 class ServiceCollector(Collector):
     """Reads ``service.metrics()`` at each scrape."""
 
@@ -39,9 +79,22 @@ class ServiceCollector(Collector):
 
     def collect(self) -> Iterator[Metric]:
         m = self._service.metrics()
-        yield _hist("chtc_modbus_poll_latency_seconds", "Modbus DAQ poll round trip", m.modbus_poll_latency_s)
-        yield _counter("chtc_modbus_polls", "Modbus polls by outcome", "outcome", m.modbus_polls_total)
-        yield _counter("chtc_can_frames", "CAN frames by outcome", "outcome", m.can_frames_total)
+        lat = m.modbus_poll_latency_s
+        yield _hist("chtc_modbus_poll_latency_seconds", "Modbus DAQ poll round trip (successful polls)", lat)
+        yield _counter(
+            "chtc_modbus_polls", "Modbus polls by outcome, one per poll", "outcome", m.modbus_polls_total
+        )
+        yield _counter("chtc_modbus_events", "Modbus DAQ events", "event", m.modbus_events_total)
+        yield _counter(
+            "chtc_can_frames", "CAN frames by outcome, one per frame", "outcome", m.can_frames_total
+        )
+        yield _counter("chtc_can_events", "CAN events: gaps, faults, silence", "event", m.can_events_total)
+        yield from _chtc_gauges(m.chtc)
+        yield InfoMetricFamily(
+            "chtc_build",
+            "package and model version",
+            value={"version": m.build_version, "model_version": m.model_version or ""},
+        )
         yield _counter("chtc_reconnects", "device reconnects", "device", m.reconnects_total)
         yield _counter(
             "chtc_identifications", "identifications by outcome", "outcome", m.identifications_total

@@ -47,10 +47,21 @@ class ZoneOut(BaseModel):
     h_w_m2k: float | None = Field(description="convective heat transfer coefficient, W/(m²·K)")
     ci95_lo_w_m2k: float | None
     ci95_hi_w_m2k: float | None
-    identified: bool = Field(description="False: practically unidentifiable from this window (wide CI)")
+    identified: bool = Field(
+        description="False: not identified from this window (95 % CI wider than the threshold, or at a bound)"
+    )
+    at_bound: bool = Field(
+        False, description="H lies on a bound of the search box (the optimum may be outside): not identified"
+    )
 
 
-def zones_out(h: np.ndarray, lo: np.ndarray, hi: np.ndarray, identified: np.ndarray) -> list[ZoneOut]:
+def zones_out(
+    h: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    identified: np.ndarray,
+    at_bound: np.ndarray | None = None,
+) -> list[ZoneOut]:
     return [
         ZoneOut(
             name=n,
@@ -58,6 +69,7 @@ def zones_out(h: np.ndarray, lo: np.ndarray, hi: np.ndarray, identified: np.ndar
             ci95_lo_w_m2k=_num(lo[i], 4),
             ci95_hi_w_m2k=_num(hi[i], 4),
             identified=bool(identified[i]),
+            at_bound=bool(at_bound[i]) if at_bound is not None else False,
         )
         for i, n in enumerate(ZONE_NAMES)
     ]
@@ -85,6 +97,14 @@ def condition_out(c: ConditionSnapshot) -> ConditionOut:
 
 class ChtcOut(BaseModel):
     status: Literal["fresh", "identifying", "stale", "no-data"]
+    usable_for_compensation: bool = Field(
+        description="the one flag a controller checks: data fresh, identified at the current stable "
+        "condition, every H identified and inside the search box"
+    )
+    reason: str | None = Field(
+        description="why not usable, 'code: detail'; codes: no_data, stale, restored, condition_changed, "
+        "at_bound, not_identified (null when usable)"
+    )
     unit: str = Field(H_UNIT, description="unit of every h_w_m2k / ci95_*_w_m2k")
     zones: list[ZoneOut]
     identified_at: datetime
@@ -104,8 +124,10 @@ def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     return ChtcOut(
         status=_enum(s.status),
+        usable_for_compensation=bool(s.usable_for_compensation),
+        reason=s.reason,
         unit=s.unit,
-        zones=zones_out(s.h, s.ci95_lo, s.ci95_hi, s.identified),
+        zones=zones_out(s.h, s.ci95_lo, s.ci95_hi, s.identified, s.at_bound),
         identified_at=s.identified_at,
         identification_id=s.identification_id,
         condition=condition_out(s.condition),
@@ -231,7 +253,7 @@ def identification_out(r: IdentificationRecord) -> IdentificationOut:
         condition=condition_out(r.condition),
         window_from=r.window_from,
         window_to=r.window_to,
-        zones=zones_out(r.h, r.ci95_lo, r.ci95_hi, r.identified),
+        zones=zones_out(r.h, r.ci95_lo, r.ci95_hi, r.identified, r.at_bound),
         f_c2=_num(r.f),
         fit=_num(r.fit),
         rmse_c=_num(r.rmse_c),

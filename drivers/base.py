@@ -146,6 +146,8 @@ class Source(Generic[T]):
         self._next_attempt_at = float("-inf")
         self._latest: T | None = None
         self._latest_at = float("-inf")
+        # called with the duration (s, on ``clock``) of every successful read (e.g. a poll-latency histogram)
+        self.on_read_s: Callable[[float], None] | None = None
 
     # --------------------------------------------------------------------------------------------- hooks
     async def _connect(self) -> None:
@@ -215,6 +217,7 @@ class Source(Generic[T]):
             )
         try:
             await self._ensure_connected()
+            started = self._clock()
             if self._connected and self._read_ready():
                 reading = await self._read_internal()
             else:
@@ -226,6 +229,8 @@ class Source(Generic[T]):
             raise
         self._failures = 0
         self._latest, self._latest_at = reading, self._clock()
+        if self.on_read_s is not None:
+            self.on_read_s(self._latest_at - started)
         self.metrics.reads_ok += 1
         self.metrics.last_ok_t = self._now()
         return reading

@@ -35,6 +35,7 @@ from scipy.optimize import least_squares
 
 from model import optim
 from model.carry import CarryError, carry, check_cov
+from model.defaults import BOUND_REL_TOL, CI_REL_THRESHOLD
 from model.identify_problem import (
     N_H,
     Array,
@@ -104,7 +105,8 @@ class IdentifyOptions:
     warm_a_start: float = 0.3  # a warm start must not be scattered by a = 2 exploration
     warm_hybrid_maxiter: int = 3
     load_box: tuple[float, float] = (0.5, 2.0)
-    ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
+    ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width in log H above which an H is poorly identified
+    bound_rel_tol: float = BOUND_REL_TOL  # H this close to a bound (fraction of box width): at the bound
     t0_shift_box: tuple[float, float] = (-2.0, 2.0)  # °C, the fitted uniform shift of the start field
     min_sensors: int = 4
     min_samples: int = 30
@@ -116,15 +118,18 @@ class IdentifyOptions:
 class IdentificationResult:
     """Identified H and its quality. Units: H [W/(m²·K)], f [°C²], temperatures and errors [°C], wall_s [s].
 
-    ``nfev`` counts reduced-model evaluations of the search (the CI Jacobian is extra); ``test_points`` maps
-    test point -> {me (max |error|), mae, rmse} against the window's (offset-corrected) measurements;
+    ``nfev`` counts reduced-model evaluations of the search (the CI Jacobian is extra); ``rmse_per_sensor`` is
+    over the entries the fit used (NaN for a masked-out channel); ``test_points`` maps test point -> {me (max
+    |error|), mae, rmse} against the window's (offset-corrected) usable measurements (a masked-out test point
+    is absent); ``at_bound`` marks an H on a bound of the search box (not identified: the optimum may lie
+    outside the box);
     ``fe_check`` (when a full FE model was given) the RMSE over the usable entries with the reduced model and
     with the full FE at the same H.
     """
 
     h: Array
-    h_ci95: Array  # (7, 2)
-    identified: NDArray[np.bool_]  # (7,)
+    h_ci95: Array  # (7, 2), from the covariance of log H: lo = H·e^(−zσ), hi = H·e^(zσ), always > 0
+    identified: NDArray[np.bool_]  # (7,): CI narrow enough (``ci_threshold``) and not at a bound
     correlation: Array  # (7, 7)
     load_scale: Array | None
     f: float
@@ -143,6 +148,7 @@ class IdentificationResult:
     fe_check: dict[str, float] | None = None
     theta: Array = field(default_factory=lambda: np.zeros(0), repr=False)
     population: Array | None = field(default=None, repr=False)
+    at_bound: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_H, dtype=bool))  # (7,)
 
 
 def _check_window(window: Window, n_nodes: int | None) -> Array:
@@ -407,21 +413,23 @@ def _assemble(
         conf, ensemble = with_cov(conf.sigma_c, carried.cov), carried.ensemble
     f = float(np.mean(r * r))
     pred = problem.predict(theta[None, :])[0]
-    lo, hi = theta - conf.half_width, theta + conf.half_width
+    lo, hi = _interval(theta, conf.half_width, problem.layout)
     h = theta[:N_H]
-    rel = conf.half_width[:N_H] / np.maximum(np.abs(h), 1e-12)
+    rel = conf.half_width[:N_H] / np.maximum(np.abs(h), 1e-12)  # z·σ(log H), delta method
+    at_bound = _at_bound(h, problem.bounds[:N_H], opts.bound_rel_tol)
+    used = np.where(problem.usable.entries, meas, np.nan)  # masked-out channels and NaNs excluded
     lay = problem.layout
     loads, shift = lay.load_scale(theta), lay.shift(theta)
     return IdentificationResult(
         h=h.copy(),
         h_ci95=np.column_stack([lo[:N_H], hi[:N_H]]),
-        identified=np.asarray(rel <= opts.ci_threshold),
+        identified=np.asarray((rel <= opts.ci_threshold) & ~at_bound),
         correlation=conf.correlation[:N_H, :N_H].copy(),
         load_scale=None if loads is None else loads.copy(),
         f=f,
         fit=1.0 / (1.0 + f),
-        rmse_per_sensor=per_sensor_rmse(pred, meas),
-        test_points=point_errors(pred, meas, _test_channels(spec)),
+        rmse_per_sensor=per_sensor_rmse(pred, used),
+        test_points=point_errors(pred, used, _test_channels(spec)),
         nfev=nfev,
         wall_s=0.0,
         method=method,
@@ -432,7 +440,26 @@ def _assemble(
         t0_shift_ci95=None if shift is None else np.array([lo[-1], hi[-1]]),
         end_ensemble=ensemble,
         theta=theta.copy(),
+        at_bound=at_bound,
     )
+
+
+def _interval(theta: Array, half_width: Array, layout: Layout) -> tuple[Array, Array]:
+    """95 % bounds of θ: H and the load scales (positive) from the covariance of their logarithm (delta
+    method, σ(log x) = σ(x)/x): x·e^(∓zσ(log x)), asymmetric and > 0; the start-field shift linear."""
+    lo, hi = theta - half_width, theta + half_width
+    n_pos = N_H + (2 if layout.loads else 0)
+    x = theta[:n_pos]
+    z_sd_log = half_width[:n_pos] / np.maximum(np.abs(x), 1e-12)
+    with np.errstate(over="ignore", under="ignore"):  # a hopeless H: [0, inf), honestly unbounded
+        lo[:n_pos], hi[:n_pos] = x * np.exp(-z_sd_log), x * np.exp(z_sd_log)
+    return lo, hi
+
+
+def _at_bound(h: Array, bounds: Array, rel_tol: float) -> NDArray[np.bool_]:
+    """(7,) True where H lies within ``rel_tol`` × box width of its lower or upper bound."""
+    tol = rel_tol * (bounds[:, 1] - bounds[:, 0])
+    return np.asarray((h <= bounds[:, 0] + tol) | (h >= bounds[:, 1] - tol))
 
 
 def _test_channels(spec: Any) -> Mapping[int, int]:

@@ -227,8 +227,11 @@ def with_cov(sigma_c: float, cov: Array, *, z: float = 1.959964) -> Confidence:
 def per_sensor_rmse(pred: Array, measured: Array, *, skip_first: bool = True) -> Array:
     """RMSE per channel (32,) [°C] over the finite samples (NaN for a channel without any)."""
     err = (pred - measured)[1:] if skip_first else pred - measured
-    with np.errstate(invalid="ignore"):
-        return np.asarray(np.sqrt(np.nanmean(err * err, axis=0)))
+    sq = err * err
+    n = np.isfinite(sq).sum(axis=0)
+    total = np.where(np.isfinite(sq), sq, 0.0).sum(axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.asarray(np.where(n > 0, np.sqrt(total / np.maximum(n, 1)), np.nan))
 
 
 def point_errors(

@@ -33,6 +33,7 @@ from service.db.records import (
     finite,
     finite_list,
 )
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT
 from service.detector import (
     ConditionChanged,
     ConditionDetector,
@@ -97,11 +98,13 @@ class CoreConfig:
     method: str = "hybrid"
     seed: int = 0
     estimate_loads: bool = False
-    estimate_t0_shift: str = "never"  # "never" | "initial" (start field from the initial guess) | "always"
-    carry_start_error: bool = True  # CIs carry the start field's error (the live state's covariance)
+    estimate_t0_shift: str = ESTIMATE_T0_SHIFT  # "never" | "initial" (start from the first guess) | "always"
+    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error (the live state's)
     time_budget_s: float | None = None
-    ci_threshold: float = 0.3
-    stale_after_s: float = 60.0  # sample time without a new sample before H is reported stale
+    ci_threshold: float = CI_REL_THRESHOLD
+    # sample time without good data (a sample, >= rules.min_good_channels usable channels and the ambient,
+    # speed and torque from CAN) before H is reported stale
+    stale_after_s: float = 60.0
     sample_store_period_s: float = 10.0
     min_speed_rpm: float = 100.0  # below: spindle idle, no bearing heat, H not identifiable -> skipped
     initial_h: tuple[float, ...] = (50.0,) * 7  # live-state H before the first identification (no data yet)
@@ -212,6 +215,8 @@ class ServiceCore:
         self.durations = Histogram(DURATION_BUCKETS_S)
         self.samples_total = 0
         self._last_ok_t = np.full(len(model.spec.sensors), np.nan)
+        self.last_good_daq_t: datetime | None = None  # newest sample with enough usable temperatures
+        self.last_good_can_t: datetime | None = None  # newest sample with speed and torque from CAN
 
     # --- samples ------------------------------------------------------------------------------------------
     def ingest(self, sample: Any) -> list[Launch]:
@@ -247,11 +252,41 @@ class ServiceCore:
         self.samples_total += 1
         ok = np.array([q == "ok" for q in self.newest.quality], dtype=bool)[: len(self._last_ok_t)]
         self._last_ok_t[: len(ok)][ok] = sample.t.timestamp()
+        self._track_good_data(self.newest, ok)
         if self.condition is not None and self.detector.status is DetectorStatus.PENDING:
             if self.condition.state is not ConditionState.CHANGING:
                 self._set_condition(replace(self.condition, state=ConditionState.CHANGING))
         elif self.condition is not None and self.condition.state is not ConditionState.STABLE:
             self._set_condition(replace(self.condition, state=ConditionState.STABLE))
+
+    def _track_good_data(self, s: NewestSample, ok: np.ndarray) -> None:
+        """Remember when the data were last good enough to identify from (``data_problems``)."""
+        usable = int(np.sum(ok & np.isfinite(s.temps_c[: len(ok)])))
+        if s.daq_ok and usable >= self.config.rules.min_good_channels and np.isfinite(s.ambient_c):
+            self.last_good_daq_t = s.t
+        if s.can_ok and np.isfinite(s.speed_rpm) and np.isfinite(s.torque_nm):
+            self.last_good_can_t = s.t
+
+    def data_problems(self, now: datetime) -> tuple[str, ...]:
+        """Why the data are not fresh at ``now`` (empty: fresh), each "code: detail". Codes: ``no_sample``
+        (nothing acquired for ``stale_after_s``: acquisition stalled), ``daq_no_good_data`` (no sample with
+        ``rules.min_good_channels`` usable channels and the ambient for that long: DAQ unreachable, hung,
+        garbled, frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent, fault).
+        """
+        with self.lock:
+            limit = self.config.stale_after_s
+            if self.newest is None:
+                return ("no_sample: no sample acquired yet",)
+            out = []
+            age = (now - self.newest.t).total_seconds()
+            if age > limit:
+                out.append(f"no_sample: newest sample {age:.0f} s old (limit {limit:.0f} s)")
+            n = self.config.rules.min_good_channels
+            what = f"sample with >= {n} usable temperature channels and the ambient"
+            out += _age_problem("daq_no_good_data", what, self.last_good_daq_t, now, limit)
+            can = "speed and torque from CAN"
+            out += _age_problem("can_no_good_data", can, self.last_good_can_t, now, limit)
+            return tuple(out)
 
     def _store_sample(self, sample: Any, ts: float) -> None:
         period = self.config.sample_store_period_s
@@ -567,6 +602,13 @@ class ServiceCore:
                 self._manual_reason = None
             start = next(i for i in out if isinstance(i, StartJob))
             return self.jobs[self._job_keys[start.job_id]], launches
+
+
+def _age_problem(code: str, what: str, last: datetime | None, now: datetime, limit_s: float) -> list[str]:
+    if last is None:
+        return [f"{code}: no {what} yet"]
+    age = (now - last).total_seconds()
+    return [f"{code}: newest {what} is {age:.1f} s old (limit {limit_s:.0f} s)"] if age > limit_s else []
 
 
 def _state_covariance(result: Any, t_end: float) -> StateCovariance | None:

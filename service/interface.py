@@ -27,6 +27,7 @@ Contract for implementers:
 from __future__ import annotations
 
 import enum
+import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -64,7 +65,7 @@ class ChtcStatus(enum.StrEnum):
 
     FRESH = "fresh"  # identified at the current, stable condition from recent data
     IDENTIFYING = "identifying"  # condition changed; a new identification is queued or running
-    STALE = "stale"  # no recent samples (devices down) or the last identification is too old
+    STALE = "stale"  # no recent good data (DAQ/CAN down, hung, frozen) or restored, not re-identified
     NO_DATA = "no-data"  # no samples at all
 
 
@@ -105,6 +106,9 @@ class ChtcSnapshot:
     newest_sample_at: datetime | None  # UTC of the newest sample in the ring buffer
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
+    at_bound: np.ndarray | None = None  # (7,) bool: H on a bound of the search box (not identified)
+    usable_for_compensation: bool = False  # the one flag a controller checks: fresh, identified, in the box
+    reason: str | None = None  # why not usable, "code: detail" (stale, restored, condition_changed, ...)
 
 
 FieldAt = Literal["now", "steady"]
@@ -249,7 +253,8 @@ class IdentificationRecord:
     model_version: str
     nfev: int
     wall_s: float
-    n_sensors_used: int
+    n_sensors_used: int  # channels the fit used (masked-out ones excluded)
+    at_bound: np.ndarray | None = None  # (7,) bool: H on a bound of the search box (then not identified)
 
 
 @dataclass(frozen=True)
@@ -328,16 +333,19 @@ class Histogram:
         self._counts = [0] * len(self._ub)
         self._count = 0
         self._sum = 0.0
+        self._lock = threading.Lock()  # observed on the event loop, read by API threads
 
     def observe(self, value: float) -> None:
-        for i, ub in enumerate(self._ub):
-            if value <= ub:
-                self._counts[i] += 1
-        self._count += 1
-        self._sum += float(value)
+        with self._lock:
+            for i, ub in enumerate(self._ub):
+                if value <= ub:
+                    self._counts[i] += 1
+            self._count += 1
+            self._sum += float(value)
 
     def snapshot(self) -> HistogramData:
-        return HistogramData(self._ub, tuple(self._counts), self._count, self._sum)
+        with self._lock:
+            return HistogramData(self._ub, tuple(self._counts), self._count, self._sum)
 
 
 LATENCY_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5)
@@ -348,9 +356,10 @@ DURATION_BUCKETS_S = (0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 300.0)
 class MetricsSnapshot:
     """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
 
-    modbus_poll_latency_s: HistogramData
-    modbus_polls_total: Mapping[str, int]  # by outcome: "ok", "timeout", "exception", "garbled", ...
-    can_frames_total: Mapping[str, int]  # by outcome: "ok", "unknown_id", "bad_dlc", "counter_gap", "fault"
+    modbus_poll_latency_s: HistogramData  # successful polls' round trips (the driver's own timing)
+    # outcomes (every poll / frame has exactly one); events are counted separately below
+    modbus_polls_total: Mapping[str, int]  # "ok", "device_timeout", "short_reply", "link_down", ...
+    can_frames_total: Mapping[str, int]  # "ok", "unknown_frame_id", "wrong_dlc", ...
     channel_age_s: Sequence[float | None]  # 32; seconds since the channel's last good value, None = never
     channel_quality: Sequence[str]  # 32; current Quality value per channel
     identifications_total: Mapping[str, int]  # by outcome: "ok", "failed", "insufficient-data"
@@ -360,6 +369,11 @@ class MetricsSnapshot:
     db_pending_rows: int = 0
     db_errors_total: int = 0
     reconnects_total: Mapping[str, int] = field(default_factory=dict)  # by device
+    modbus_events_total: Mapping[str, int] = field(default_factory=dict)  # "new_samples", "restarts", ...
+    can_events_total: Mapping[str, int] = field(default_factory=dict)  # "counter_gaps", "faults", silence...
+    chtc: ChtcSnapshot | None = None  # the current H, CIs, status, usable_for_compensation (None: none yet)
+    build_version: str = ""  # package version (chtc_build_info)
+    model_version: str | None = None
 
 
 @runtime_checkable

@@ -46,6 +46,8 @@ from service.interface import (
     SensorReading,
 )
 
+MIN_GOOD_CHANNELS = 24  # identification.min_good_channels' default
+
 Clock = Callable[[], datetime]
 
 
@@ -157,6 +159,7 @@ class InMemoryService:
         self._condition: ConditionSnapshot | None = None
         self._conditions: deque[ConditionSnapshot] = deque(maxlen=100)
         self._sample: tuple[datetime, np.ndarray, tuple[str, ...]] | None = None
+        self._last_good: datetime | None = None  # newest sample with >= MIN_GOOD_CHANNELS ok channels
         self._records: dict[int, IdentificationRecord] = {}
         self._jobs: dict[str, IdentificationJob] = {}
         self._job_ids = itertools.count(1)
@@ -214,6 +217,8 @@ class InMemoryService:
         with self._lock:
             q = tuple(quality) if quality is not None else ("ok",) * len(temps_c)
             self._sample = (t or self._clock(), np.asarray(temps_c, dtype=float), q)
+            if sum(v == "ok" for v in q) >= MIN_GOOD_CHANNELS:
+                self._last_good = self._sample[0]
             self._counts["modbus"]["ok"] += 1
             self._counts["can"]["ok"] += 100
             self._poll_latency.observe(poll_latency_s)
@@ -249,7 +254,7 @@ class InMemoryService:
                 window_from=now - timedelta(minutes=60),
                 window_to=now,
                 h=hh,
-                ci95_lo=hh * (1 - rel_ci),
+                ci95_lo=hh / (1 + rel_ci),  # symmetric in log H, as the real identification
                 ci95_hi=hh * (1 + rel_ci),
                 identified=np.asarray(identified if identified is not None else [True] * 7, dtype=bool),
                 f=f,
@@ -306,10 +311,24 @@ class InMemoryService:
         ok = [r for r in self._records.values() if r.outcome == "ok"]
         return ok[-1] if ok else None
 
+    def _problems(self, now: datetime) -> tuple[str, ...]:
+        """Like the running service: the age of the newest good data (enough ok channels) counts."""
+        if self._sample is None:
+            return ("no_sample: no sample acquired yet",)
+        if self._last_good is None:
+            return (f"daq_no_good_data: no sample with >= {MIN_GOOD_CHANNELS} usable channels yet",)
+        age = (now - self._last_good).total_seconds()
+        if age > self._stale_after_s:
+            return (
+                f"daq_no_good_data: newest sample with >= {MIN_GOOD_CHANNELS} usable channels is "
+                f"{age:.0f} s old (limit {self._stale_after_s:.0f} s)",
+            )
+        return ()
+
     def _status(self, rec: IdentificationRecord, now: datetime) -> ChtcStatus:
         if self._sample is None:
             return ChtcStatus.NO_DATA
-        if (now - self._sample[0]).total_seconds() > self._stale_after_s:
+        if self._problems(now):
             return ChtcStatus.STALE
         pending = any(j.state in (JobState.QUEUED, JobState.RUNNING) for j in self._jobs.values())
         cond = self._condition
@@ -325,6 +344,7 @@ class InMemoryService:
             newest = self._sample[0] if self._sample is not None else None
             status = self._status(rec, self._clock())
             key = (rec.id, status, newest)
+            use, reason = _usable(rec, status, self._problems(self._clock()))
             if self._snapshot_cache is not None and self._snapshot_cache[0] == key:
                 return self._snapshot_cache[1]
             snap = ChtcSnapshot(
@@ -342,6 +362,9 @@ class InMemoryService:
                 identification_id=rec.id,
                 status=status,
                 newest_sample_at=newest,
+                at_bound=np.zeros(len(rec.h), dtype=bool),
+                usable_for_compensation=use,
+                reason=reason,
             )
             self._snapshot_cache = (key, snap)
             return snap
@@ -450,15 +473,11 @@ class InMemoryService:
         with self._lock:
             if not self._model_loaded:
                 reasons.append("model not loaded")
-            if self._sample is None:
-                reasons.append("no sample yet")
-            else:
-                age = (self._clock() - self._sample[0]).total_seconds()
-                if age > self._stale_after_s:
-                    reasons.append(f"newest sample is {age:.0f} s old (limit {self._stale_after_s:.0f} s)")
+            reasons.extend(self._problems(self._clock()))
         return Readiness(not reasons, tuple(reasons))
 
     def metrics(self) -> MetricsSnapshot:
+        snap = self.chtc()
         with self._lock:
             n = len(self._section.sensors)
             if self._sample is None:
@@ -479,7 +498,25 @@ class InMemoryService:
                 identification_duration_s=self._ident_duration.snapshot(),
                 last_fit=None if last is None else last.fit,
                 last_rmse_c=None if last is None else last.rmse_c,
+                modbus_events_total={"new_samples": self._counts["modbus"]["ok"]},
+                can_events_total={"counter_gaps": 0},
+                chtc=snap,
+                build_version="test",
+                model_version=self._section.model_version,
             )
+
+
+def _usable(
+    rec: IdentificationRecord, status: ChtcStatus, problems: tuple[str, ...]
+) -> tuple[bool, str | None]:
+    if problems:
+        return False, "stale: " + "; ".join(problems)
+    if status is not ChtcStatus.FRESH:
+        return False, f"condition_changed: status {status.value}"
+    weak = [f"H{i + 1}" for i, ok in enumerate(rec.identified) if not ok]
+    if weak:
+        return False, f"not_identified: {', '.join(weak)} (95 % CI too wide)"
+    return True, None
 
 
 PAPER_H_3000 = (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54)  # SPEC §2, Table 4

@@ -63,11 +63,14 @@ def core_config(settings: Any) -> CoreConfig:
             torque_threshold_nm=det.torque_threshold_nm,
             ambient_threshold_c=det.ambient_threshold_c,
             hold_s=det.hold_s,
+            median_samples=det.median_samples,
+            max_gap_s=det.max_gap_s,
         ),
         scheduler=SchedulerConfig(
             min_data_s=ident.min_window_s,
             schedule_s=schedule,
-            max_window_s=max(schedule[-1], ident.min_window_s),
+            max_window_s=ident.max_window_s,
+            distance_scales=ident.distance_scales,
             tolerance_s=0.5 * acq.sample_period_s,
         ),
         rules=WindowRules(
@@ -147,7 +150,6 @@ class Runtime:
             session_factory=self.persistence.session_factory,
             sources={"modbus": daq, "can": can},
             clock=self.clock,
-            stale_after_s=cfg.stale_after_s,
             on_event=self.on_event,
         )
         core.on_cancel = self.service.on_cancel

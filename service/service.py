@@ -16,6 +16,7 @@ samples with, so ``chtc demo`` can run the whole service at a speed-up.
 from __future__ import annotations
 
 import asyncio
+import functools
 import logging
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -24,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from model.defaults import BOUND_REL_TOL
 from service.core import Launch, ServiceCore
 from service.db.records import DeviceEventData
 from service.interface import (
@@ -46,7 +48,7 @@ from service.interface import (
     Readiness,
     SensorReading,
 )
-from service.views import age_s, row_to_record
+from service.views import Usability, age_s, at_bound, row_to_record, usability
 from service.worker import IdentificationWorker, JobOutcome, JobStatus
 
 __all__ = ["SoftSensorService", "transition_detail"]
@@ -78,7 +80,6 @@ class SoftSensorService:
         session_factory: Any = None,  # sessionmaker for the history endpoints, or None
         sources: Mapping[str, Any] | None = None,  # "modbus"/"can" -> drivers Source (metrics, connected)
         clock: Clock = utc_now,
-        stale_after_s: float = 60.0,
         on_event: Callable[[str], None] | None = None,
     ) -> None:
         self.core = core
@@ -87,7 +88,6 @@ class SoftSensorService:
         self.session_factory = session_factory
         self.sources = dict(sources or {})
         self.clock = clock
-        self.stale_after_s = stale_after_s
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Task[Any]] = set()
@@ -96,6 +96,9 @@ class SoftSensorService:
         self._snap_cache: tuple[tuple[Any, ...], ChtcSnapshot] | None = None
         self._steady_cache: tuple[tuple[Any, ...], FieldSnapshot] | None = None
         self._poll_latency = Histogram(LATENCY_BUCKETS_S)
+        modbus = self.sources.get("modbus")
+        if modbus is not None and hasattr(modbus, "on_read_s"):
+            modbus.on_read_s = self._poll_latency.observe  # the driver's own poll timing (drivers.base)
         self.model_loaded = worker is None or worker.model_version is not None
         self.closed = False
 
@@ -194,15 +197,26 @@ class SoftSensorService:
             if rec is None:
                 return None
             newest = core.newest.t if core.newest is not None else None
-            status = self._status(rec, newest)
-            key = (rec.id, status, newest, core.condition.id if core.condition else None)
+            # codes only ("daq_no_good_data"): the snapshot and its ETag stay put while stale (ages: /readyz)
+            problems = tuple(p.split(":")[0] for p in core.data_problems(self.clock())) if newest else ()
+            status = self._status(rec, newest, problems)
+            cond = core.condition
+            key = (rec.id, status, newest, cond.id if cond else None, cond.state if cond else None, problems)
             if self._snap_cache is not None and self._snap_cache[0] == key:
                 return self._snap_cache[1]
+            bound = at_bound(rec, getattr(core.model.rom, "h_box", None), BOUND_REL_TOL)
+            use = (
+                usability(rec, bound=bound, condition=cond, data_problems=problems, restored=False)
+                if newest is not None
+                else Usability(False, "no_data: no sample acquired yet")
+            )
+            if use.usable and core.current_from_restore:
+                use = Usability(False, "restored: the last stored H, not re-identified since the restart")
             snap = ChtcSnapshot(
                 h=rec.h,
                 ci95_lo=rec.ci95_lo,
                 ci95_hi=rec.ci95_hi,
-                identified=rec.identified,
+                identified=rec.identified & ~bound,
                 identified_at=rec.finished_at,
                 condition=rec.condition,
                 f=float(rec.f if rec.f is not None else np.nan),
@@ -213,15 +227,20 @@ class SoftSensorService:
                 identification_id=rec.id,
                 status=status,
                 newest_sample_at=newest,
+                at_bound=bound,
+                usable_for_compensation=use.usable,
+                reason=use.reason,
             )
             self._snap_cache = (key, snap)
             return snap
 
-    def _status(self, rec: IdentificationRecord, newest: datetime | None) -> ChtcStatus:
+    def _status(
+        self, rec: IdentificationRecord, newest: datetime | None, problems: tuple[str, ...]
+    ) -> ChtcStatus:
         core = self.core
         if newest is None:
             return ChtcStatus.STALE if core.current_from_restore else ChtcStatus.NO_DATA
-        if (self.clock() - newest).total_seconds() > self.stale_after_s or core.current_from_restore:
+        if problems or core.current_from_restore:
             return ChtcStatus.STALE
         cond = core.condition
         if core.scheduler.running is not None or cond is None or cond.id != rec.condition.id:
@@ -428,13 +447,7 @@ class SoftSensorService:
         reasons = []
         if not self.model_loaded:
             reasons.append("model not loaded")
-        newest = self.core.newest
-        if newest is None:
-            reasons.append("no sample yet")
-        else:
-            age = (self.clock() - newest.t).total_seconds()
-            if age > self.stale_after_s:
-                reasons.append(f"no sample for {age:.0f} s")
+        reasons.extend(self.core.data_problems(self.clock()))
         return Readiness(not reasons, tuple(reasons))
 
     def metrics(self) -> MetricsSnapshot:
@@ -453,9 +466,14 @@ class SoftSensorService:
         if self.worker is not None:
             reconnects["worker"] = self.worker.restarts
         return MetricsSnapshot(
-            modbus_poll_latency_s=_latency_hist(modbus),
-            modbus_polls_total=_outcomes(modbus, ok_key="reads_ok"),
-            can_frames_total=_outcomes(can, ok_key="reads_ok"),
+            modbus_poll_latency_s=self._poll_latency.snapshot(),
+            modbus_polls_total=poll_outcomes(modbus),
+            can_frames_total=frame_outcomes(can),
+            modbus_events_total=poll_events(modbus),
+            can_events_total=frame_events(can),
+            chtc=self.chtc(),
+            build_version=_build_version(),
+            model_version=core.model.version if self.model_loaded else None,
             channel_age_s=ages,
             channel_quality=quality,
             identifications_total=counts,
@@ -468,21 +486,74 @@ class SoftSensorService:
         )
 
 
-def _outcomes(src: Any, *, ok_key: str) -> dict[str, int]:
+def poll_outcomes(src: Any) -> dict[str, int]:
+    """Modbus polls by outcome, one per poll: "ok", each failure by error class ("device_timeout",
+    "short_reply", "modbus_exception", ...) and "link_down" (refused while a reconnect was not yet due)."""
     if src is None:
         return {}
     m = src.metrics
-    out = {"ok": int(getattr(m, ok_key, 0))}
-    for name, n in {**m.errors, **m.events}.items():
-        out[_snake(name)] = int(n)
+    out = {"ok": int(m.reads_ok), "link_down": int(m.events.get("polls_while_down", 0))}
+    for name, n in m.errors.items():
+        out[_snake(name)] = out.get(_snake(name), 0) + int(n)
     return out
 
 
-def _latency_hist(src: Any) -> Any:
-    hist = getattr(src, "latency_histogram", None)
-    if callable(hist):
-        return hist()
-    return Histogram(LATENCY_BUCKETS_S).snapshot()
+def poll_events(src: Any) -> dict[str, int]:
+    """Modbus events (not outcomes): "new_samples", "stale_polls", "restarts", ..."""
+    if src is None:
+        return {}
+    return {_snake(k): int(n) for k, n in src.metrics.events.items() if k != "polls_while_down"}
+
+
+def _frame_error(name: str) -> bool:
+    """Whether an error class name (drivers.errors) is a rejected frame (not a counter gap on a good one)."""
+    from drivers import errors
+
+    cls = getattr(errors, name, None)
+    return (
+        isinstance(cls, type)
+        and issubclass(cls, errors.FrameError)
+        and not issubclass(cls, errors.CounterGapError)
+    )
+
+
+def frame_outcomes(src: Any) -> dict[str, int]:
+    """CAN frames by outcome, one per frame read: "ok" or the reason it was rejected ("unknown_frame_id",
+    "wrong_dlc", "bad_signal", ...)."""
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {"ok": int(m.reads_ok)}
+    for name, n in m.errors.items():
+        if _frame_error(name):
+            out[_snake(name)] = out.get(_snake(name), 0) + int(n)
+    return out
+
+
+def frame_events(src: Any) -> dict[str, int]:
+    """CAN events: the driver's counters ("counter_gaps", "frames_lost", "faults", "warnings", ...) and the
+    errors that are no frame ("device_timeout": silence, "device_unavailable": bus down)."""
+    from drivers import errors
+
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {_snake(k): int(n) for k, n in m.events.items()}
+    for name, n in m.errors.items():
+        cls = getattr(errors, name, None)
+        if not _frame_error(name) and not (isinstance(cls, type) and issubclass(cls, errors.CounterGapError)):
+            out[_snake(name)] = out.get(_snake(name), 0) + int(n)
+    return out
+
+
+@functools.cache
+def _build_version() -> str:
+    from importlib.metadata import PackageNotFoundError, version
+
+    try:
+        return version("spindle-chtc")
+    except PackageNotFoundError:
+        return "unknown"
 
 
 def _snake(name: str) -> str:

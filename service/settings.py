@@ -45,6 +45,8 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT
+
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
 
@@ -137,13 +139,12 @@ class IdentificationSettings(_Section):
     estimate_loads: bool = False  # also fit front/rear bearing heat scales
     # also fit a uniform offset of the window's start field: "initial" only for windows that start from the
     # live state's initial guess (uniform at the first sample's mean), "always", or "never"
-    estimate_t0_shift: Literal["never", "initial", "always"] = "initial"
+    estimate_t0_shift: Literal["never", "initial", "always"] = ESTIMATE_T0_SHIFT  # type: ignore[assignment]
     # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);
     # false: noise-only CIs, which undercover at chained conditions (docs/service.md)
-    carry_start_error: bool = True
-    ci_rel_threshold: float = Field(
-        default=0.5, gt=0
-    )  # 95 % CI half-width / H above this → "poorly identified"
+    carry_start_error: bool = CARRY_START_ERROR
+    # 95 % half-width of log H (≈ relative half-width) above this → "not identified" (docs/identification.md)
+    ci_rel_threshold: float = Field(default=CI_REL_THRESHOLD, gt=0)
     timeout_s: float = Field(default=120.0, gt=0)
     seed: int = 0
 

@@ -10,15 +10,16 @@ the third so that the live answer and the stored answer are the same numbers.
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from datetime import datetime
 from typing import Any
 
 import numpy as np
 
 from service.db.records import IdentificationData
-from service.interface import ConditionSnapshot, ConditionState, IdentificationRecord
+from service.interface import ZONE_NAMES, ConditionSnapshot, ConditionState, IdentificationRecord
 
-__all__ = ["condition_from_row", "data_to_record", "nan_array", "row_to_record"]
+__all__ = ["Usability", "condition_from_row", "data_to_record", "nan_array", "row_to_record", "usability"]
 
 N_ZONES = 7
 
@@ -51,7 +52,7 @@ def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> Id
         window_from=data.window_start,
         window_to=data.window_end,
         h=nan_array(data.h),
-        ci95_lo=nan_array(data.ci95_lo),
+        ci95_lo=_ci_lo(data.ci95_lo),
         ci95_hi=nan_array(data.ci95_hi),
         identified=_bool_array(data.identified),
         f=data.f,
@@ -62,7 +63,24 @@ def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> Id
         nfev=int(data.nfev),
         wall_s=float(data.duration_s),
         n_sensors_used=int(data.n_sensors_used),
+        at_bound=_at_bound(data.diagnostics),
     )
+
+
+def _ci_lo(values: Any) -> np.ndarray:
+    """Lower CI bounds; a record stored before the CIs were computed in log H (docs/identification.md) may
+    hold a negative one: H is positive, so it is served as 0."""
+    lo = nan_array(values)
+    with np.errstate(invalid="ignore"):
+        out = np.where(lo < 0.0, 0.0, lo)
+    out.setflags(write=False)
+    return out
+
+
+def _at_bound(diagnostics: Any) -> np.ndarray:
+    """(7,) bool from the stored diagnostics (records before the flag existed: all False)."""
+    values = diagnostics.get("at_bound") if isinstance(diagnostics, dict) else None
+    return _bool_array(values if values is not None and len(values) == N_ZONES else None)
 
 
 def condition_from_row(row: Any, *, state: ConditionState = ConditionState.STABLE) -> ConditionSnapshot:
@@ -90,7 +108,7 @@ def row_to_record(row: Any) -> IdentificationRecord:
         window_from=row.window_start,
         window_to=row.window_end,
         h=nan_array(row.h),
-        ci95_lo=nan_array(row.ci95_lo),
+        ci95_lo=_ci_lo(row.ci95_lo),
         ci95_hi=nan_array(row.ci95_hi),
         identified=_bool_array(row.identified),
         f=row.f,
@@ -101,6 +119,7 @@ def row_to_record(row: Any) -> IdentificationRecord:
         nfev=int(row.nfev or 0),
         wall_s=float(row.duration_s or 0.0),
         n_sensors_used=int(row.n_sensors_used or 0),
+        at_bound=_at_bound(row.diagnostics),
     )
 
 
@@ -111,3 +130,51 @@ def age_s(then: datetime | None, now: datetime) -> float | None:
 
 def is_usable_h(h: np.ndarray) -> bool:
     return bool(len(h) == N_ZONES and all(math.isfinite(float(x)) and x > 0 for x in h))
+
+
+def at_bound(rec: IdentificationRecord, box: tuple[float, float] | None, rel_tol: float) -> np.ndarray:
+    """(7,) bool: the record's own flag, or H within ``rel_tol`` × box width of a bound of ``box``."""
+    flags = np.zeros(N_ZONES, dtype=bool) if rec.at_bound is None else np.asarray(rec.at_bound, dtype=bool)
+    if box is not None:
+        lo, hi = float(box[0]), float(box[1])
+        tol = rel_tol * (hi - lo)
+        with np.errstate(invalid="ignore"):
+            flags = flags | (rec.h <= lo + tol) | (rec.h >= hi - tol)
+    flags.setflags(write=False)
+    return flags
+
+
+@dataclass(frozen=True)
+class Usability:
+    usable: bool
+    reason: str | None  # "code: detail" when not usable
+
+
+def usability(
+    rec: IdentificationRecord,
+    *,
+    bound: np.ndarray,
+    condition: ConditionSnapshot | None,
+    data_problems: tuple[str, ...],
+    restored: bool,
+) -> Usability:
+    """Whether a compensation controller may apply ``rec``'s H now, else the first reason why not.
+
+    Codes, in this order: ``stale`` (the data are not fresh: ``data_problems``), ``restored`` (the last stored
+    H, not re-identified since the restart), ``condition_changed`` (identified at another condition, or the
+    condition is changing), ``at_bound`` (an H on a bound of the search box), ``not_identified`` (an H's
+    95 % CI wider than the threshold)."""
+    if data_problems:
+        return Usability(False, "stale: " + ", ".join(data_problems) + " (see /readyz)")
+    if restored:
+        return Usability(False, "restored: the last stored H, not re-identified since the restart")
+    if condition is None or condition.id != rec.condition.id or condition.state is not ConditionState.STABLE:
+        now = "none" if condition is None else f"{condition.id} ({condition.state.value})"
+        return Usability(False, f"condition_changed: identified at condition {rec.condition.id}, now {now}")
+    if bool(np.any(bound)):
+        names = ", ".join(n for n, b in zip(ZONE_NAMES, bound, strict=True) if b)
+        return Usability(False, f"at_bound: {names} on a bound of the search box (not identified)")
+    weak = [n for n, ok in zip(ZONE_NAMES, rec.identified, strict=True) if not ok]
+    if weak or not is_usable_h(rec.h):
+        return Usability(False, f"not_identified: {', '.join(weak) or 'H'} (95 % CI too wide)")
+    return Usability(True, None)

@@ -31,6 +31,7 @@ from typing import Any
 
 import numpy as np
 
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.window import WindowArrays
 
@@ -65,11 +66,11 @@ class JobRequest:
     seed: int = 0
     estimate_loads: bool = False
     estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
-    carry_start_error: bool = False  # CIs carry the start field's error; the result has the end ensemble
+    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error; result: end ensemble
     start_cov: Any = None  # model.carry.StateCovariance of t0_c's error (None: exact, or the initial guess)
     gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
-    ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
+    ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
 
 
 @dataclass(frozen=True, eq=False)

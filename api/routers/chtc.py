@@ -23,7 +23,7 @@ router = APIRouter(tags=["chtc"], dependencies=[ReadAccess])
 def etag_of(s: ChtcSnapshot) -> str:
     c = s.condition
     key = f"{s.identification_id}|{s.status}|{s.newest_sample_at}|{c.id}|{c.state}"
-    key += f"|{s.model_version}"
+    key += f"|{s.model_version}|{s.reason}"
     return 'W/"' + hashlib.blake2b(key.encode(), digest_size=8).hexdigest() + '"'
 
 

@@ -177,15 +177,20 @@ class IdentificationData:
     def from_result(cls, result: Any, **meta: Any) -> IdentificationData:
         """From a ``model.identify.IdentificationResult``; ``meta`` gives ids, times, reason, model_version...
 
-        ``outcome`` defaults to "ok"; ``rmse_c`` to the RMS of the per-sensor RMSE over usable sensors.
+        ``outcome`` defaults to "ok"; ``rmse_c`` is √f, the RMSE over the entries the fit used (masked-out
+        channels excluded); ``n_sensors_used`` counts the channels with a per-sensor RMSE (the identification
+        gives NaN for a masked-out one, whatever value it showed, e.g. −327.68 °C open circuit).
         """
         ci = [[finite(v) for v in row] for row in result.h_ci95]
         per_sensor = [finite(v) for v in getattr(result, "rmse_per_sensor", ())]
         used = [v for v in per_sensor if v is not None]
         load = getattr(result, "load_scale", None)
+        f = finite(result.f)
+        at_bound = getattr(result, "at_bound", None)
         diagnostics = {
             "test_points": _plain(getattr(result, "test_points", None)),
             "rmse_per_sensor": per_sensor,
+            "at_bound": None if at_bound is None else [bool(v) for v in at_bound],
         }
         values: dict[str, Any] = {
             "outcome": "ok",
@@ -197,7 +202,7 @@ class IdentificationData:
             "load_scale": None if load is None else [float(v) for v in load],
             "f": finite(result.f),
             "fit": finite(result.fit),
-            "rmse_c": math.sqrt(sum(v * v for v in used) / len(used)) if used else None,
+            "rmse_c": math.sqrt(f) if f is not None and f >= 0 else None,
             "nfev": int(result.nfev),
             "duration_s": float(result.wall_s),
             "n_sensors_used": len(used),

@@ -53,3 +53,38 @@ def test_each_app_has_its_own_registry(service: InMemoryService, clock: ManualCl
     a = create_app(Settings(), service, clock=clock)
     b = create_app(Settings(), service, clock=clock)
     assert a.state.metrics.registry is not b.state.metrics.registry
+
+
+def test_h_gauges_status_usable_and_build_info(
+    client: TestClient, service: InMemoryService, clock: ManualClock
+) -> None:
+    fam = _families(client)
+    snap = service.chtc()
+    assert snap is not None
+    for name, values in (
+        ("chtc_h_w_m2k", snap.h),
+        ("chtc_h_ci95_lo_w_m2k", snap.ci95_lo),
+        ("chtc_h_ci95_hi_w_m2k", snap.ci95_hi),
+        ("chtc_h_identified", snap.identified),
+    ):
+        got = {s.labels["zone"]: s.value for s in fam[name]}
+        assert got == {z: float(v) for z, v in zip(snap.zones, values, strict=True)}, name
+    status = {s.labels["status"]: s.value for s in fam["chtc_status"]}
+    assert status == {"fresh": 0.0, "identifying": 0.0, "stale": 0.0, "no-data": 0.0, str(snap.status): 1.0}
+    assert fam["chtc_usable_for_compensation"][0].value == float(snap.usable_for_compensation)
+    info = fam["chtc_build_info"][0]
+    assert info.name == "chtc_build_info" and info.value == 1.0
+    assert info.labels["model_version"] == snap.model_version and info.labels["version"]
+    clock.advance(3600.0)  # no data for an hour: stale, not usable
+    fam = _families(client)
+    assert {s.labels["status"]: s.value for s in fam["chtc_status"]}["stale"] == 1.0
+    assert fam["chtc_usable_for_compensation"][0].value == 0.0
+
+
+def test_outcome_and_event_counters_are_separate(client: TestClient, service: InMemoryService) -> None:
+    fam = _families(client)
+    m = service.metrics()
+    events = {s.labels["event"]: s.value for s in fam["chtc_modbus_events"] if s.name.endswith("_total")}
+    assert events == {k: float(v) for k, v in m.modbus_events_total.items()}
+    outcomes = {s.labels["outcome"] for s in fam["chtc_modbus_polls"] if s.name.endswith("_total")}
+    assert outcomes.isdisjoint(events)

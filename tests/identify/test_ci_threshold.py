@@ -1,0 +1,34 @@
+"""Why the "identified" threshold is 0.5 and not the 30 % docs/identification.md used to state (issue 12,
+item 12): on the best case the product meets (one 60-min condition, all 32 channels, σ = 0.15 °C; the bench's
+two conditions × 20 noise seeds, hybrid), a 30 % threshold never lets H1 pass (its achievable 1σ precision is
+~15 %, SPEC §3), so `usable_for_compensation` (every H identified) would never be true. At 0.5 about half of
+these windows have all seven identified, and the identified H are covered as often as at 0.3. Slow: ~30 s."""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import pytest
+
+from model.identify import IdentifyOptions, identify
+from service.bench.identify import _load, _noisy
+
+pytestmark = pytest.mark.slow
+
+
+def test_threshold_measured_on_the_bench_conditions() -> None:
+    model, data = _load(argparse.Namespace())
+    rel, covered = [], []
+    for d in data:
+        for seed in range(20):
+            r = identify(model.rom, _noisy(d, 500 + seed), rng=seed, spec=model.spec)
+            lo, hi = r.h_ci95[:, 0], r.h_ci95[:, 1]
+            rel.append(np.log(hi / r.h))  # 1.96·σ(log H)
+            covered.append((lo <= d.h_true) & (d.h_true <= hi))
+    rel_a, cov_a = np.array(rel), np.array(covered)
+    at_30, at_50 = rel_a <= 0.3, rel_a <= IdentifyOptions().ci_threshold
+    assert IdentifyOptions().ci_threshold == 0.5
+    assert at_30[:, 0].mean() < 0.1 and at_30.all(axis=1).mean() < 0.1  # H1 (almost) never, so never usable
+    assert at_50.all(axis=1).mean() > 0.4  # measured 0.57 (2026-11-23)
+    assert cov_a[at_50].mean() >= 0.9 and cov_a.mean() >= 0.9  # measured 0.93 and 0.94
