@@ -38,7 +38,9 @@ from drivers.errors import ConfigError, EncodeError, ShortReplyError
 RegType = Literal["int16", "uint16", "uint32", "float32"]
 WordOrder = Literal["big", "little"]
 Role = Literal["bearing", "housing", "ambient", "status", "counter"]
+Table = Literal["input", "holding"]
 
+TABLES: dict[str, int] = {"input": 4, "holding": 3}  # register table → read function code
 TYPES: tuple[str, ...] = ("int16", "uint16", "uint32", "float32")
 WORD_ORDERS: tuple[str, ...] = ("big", "little")
 ROLES: tuple[str, ...] = ("bearing", "housing", "ambient", "status", "counter")
@@ -68,6 +70,11 @@ class RegisterEntry:
     def width(self) -> int:
         """Number of 16-bit registers the entry occupies (1 or 2)."""
         return 2 if self.type in ("uint32", "float32") else 1
+
+    @property
+    def modulus(self) -> int:
+        """2**bits of the entry's raw integer (where an integer counter wraps round)."""
+        return 2 ** (16 * self.width)
 
     @property
     def last_address(self) -> int:
@@ -117,6 +124,7 @@ class RegisterMap:
     entries: tuple[RegisterEntry, ...]
     unit_id: int = 1
     n_channels: int = 32
+    table: Table = "input"
     _by_role: dict[str, tuple[RegisterEntry, ...]] = field(init=False, repr=False, compare=False)
     _plan: _DecodePlan = field(init=False, repr=False, compare=False)
 
@@ -126,6 +134,11 @@ class RegisterMap:
         by_role = {r: tuple(e for e in self.entries if e.role == r) for r in ROLES}
         object.__setattr__(self, "_by_role", by_role)
         object.__setattr__(self, "_plan", _DecodePlan.build(self.entries))
+
+    @property
+    def function_code(self) -> int:
+        """Modbus read function code of the map's table: 4 (input registers) or 3 (holding registers)."""
+        return TABLES[self.table]
 
     def role(self, role: str) -> tuple[RegisterEntry, ...]:
         """Entries with ``role`` in address order."""
@@ -144,6 +157,8 @@ class RegisterMap:
 def _validate_map(m: RegisterMap) -> None:
     if not (0 <= m.unit_id <= 247):
         raise ConfigError(f"unit_id {m.unit_id} outside 0..247", entry="unit_id")
+    if m.table not in TABLES:
+        raise ConfigError(f"table {m.table!r} not one of {tuple(TABLES)}", entry="table")
     if m.n_channels < 1:
         raise ConfigError(f"n_channels {m.n_channels} must be >= 1", entry="n_channels")
     names: set[str] = set()

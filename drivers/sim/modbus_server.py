@@ -9,7 +9,10 @@ is read-only: writes get an "illegal data address" exception. FC3 reads see the 
 
 Faults (``drivers.sim.faults``): channel faults change values/status; ``freeze`` stops sampling; ``hang``
 holds replies back; ``drop`` closes every connection and the listening socket until cleared (the port is
-kept); ``short``/``garbled`` rewrite the outgoing reply; ``exception`` answers with an exception response.
+kept); ``short``/``garbled`` rewrite the outgoing reply; ``exception`` answers with an exception response;
+``wrong-fc``/``wrong-unit``/``wrong-tid`` rewrite the reply's function code, unit id or transaction id.
+``counter_start`` offsets the sample counter (it wraps modulo 2**16 or 2**32 with its register type), so a
+test can cross the wrap-around.
 
 A poll of several register blocks sees one consistent sample: a request that starts at the map's lowest
 address takes a new snapshot, and requests for higher addresses within ``latch_s`` wall seconds (default
@@ -67,6 +70,7 @@ class SimulatedDaq:
         sampling: Sampling = "clock",
         row_counters: Sequence[int] | None = None,
         latch_s: float = 0.05,
+        counter_start: int = 0,
     ) -> None:
         self.source = source
         self.host = host
@@ -77,6 +81,9 @@ class SimulatedDaq:
         self.sampling: Sampling = sampling
         self.row_counters = None if row_counters is None else list(row_counters)
         self.requests_served = 0
+        self.counter_start = counter_start
+        counters = self.register_map.role("counter")
+        self._counter_modulus = counters[0].modulus if counters else 2**32
         self._server: ModbusTcpServer | None = None
         self._supervisor: asyncio.Task[None] | None = None
         self._cache_key: tuple[int, tuple[int, ...]] | None = None
@@ -213,7 +220,11 @@ class SimulatedDaq:
         if self.row_counters is not None and self.sampling == "row" and self.row_counters[k] >= 0:
             counter = self.row_counters[k]
         return RegisterValues(
-            temps_c=temps, ambient_c=snap.ambient_c, status=status, ambient_status=0, counter=counter % 2**32
+            temps_c=temps,
+            ambient_c=snap.ambient_c,
+            status=status,
+            ambient_status=0,
+            counter=(counter + self.counter_start) % self._counter_modulus,
         )
 
     def _refresh(self, address: int) -> None:
@@ -236,9 +247,10 @@ class SimulatedDaq:
 
     # -------------------------------------------------------------------------------------- packet faults
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        """Rewrite outgoing read replies for the ``short`` and ``garbled`` faults."""
+        """Rewrite outgoing read replies for the ``short``, ``garbled`` and wrong-header faults."""
         if not sending or len(data) < 9 or data[7] not in _READ_CODES:
             return data
+        data = self._rewrite_header(data)
         short = self.faults.first(FaultKind.SHORT)
         if short is not None:
             return _shorten(data, max(1, int(short.param())))
@@ -246,6 +258,17 @@ class SimulatedDaq:
         if garbled is not None:
             return _garble(data, int(garbled.value or 1))
         return data
+
+    def _rewrite_header(self, data: bytes) -> bytes:
+        """Apply ``wrong-fc``, ``wrong-unit`` and ``wrong-tid`` to an outgoing reply's MBAP header and FC."""
+        tid, unit, fc = int.from_bytes(data[0:2], "big"), data[6], data[7]
+        if (f := self.faults.first(FaultKind.WRONG_TID)) is not None:
+            tid = (tid + int(f.param())) & 0xFFFF
+        if (f := self.faults.first(FaultKind.WRONG_UNIT)) is not None:
+            unit = int(f.param()) & 0xFF
+        if (f := self.faults.first(FaultKind.WRONG_FC)) is not None:
+            fc = int(f.param()) & 0xFF
+        return tid.to_bytes(2, "big") + data[2:6] + bytes([unit, fc]) + data[8:]
 
 
 def _shorten(packet: bytes, missing: int) -> bytes:
