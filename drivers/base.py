@@ -282,6 +282,10 @@ class Source(Generic[T]):
         """True when the last good reading is older than ``stale_after_s`` (or there is none)."""
         return self.latest_age_s() > self.stale_after_s
 
+    def condition(self) -> str:
+        """A reason the device is degraded now although reads succeed ("" when none). Override."""
+        return ""
+
     def note_error(self, err: DriverError) -> None:
         """Count an error that did not abort the read (e.g. a counter gap) and remember it."""
         self.metrics.count_error(err, self._now())
