@@ -62,7 +62,9 @@ class ErrorLog:
     last line, with the number of repeats in between. ``clock`` is monotonic seconds.
     """
 
-    def __init__(self, logger: logging.Logger, *, every_s: float = 60.0, clock: Clock = time.monotonic) -> None:
+    def __init__(
+        self, logger: logging.Logger, *, every_s: float = 60.0, clock: Clock = time.monotonic
+    ) -> None:
         self.logger, self.every_s, self._clock = logger, every_s, clock
         self._seen: dict[tuple[str, str], tuple[float, int]] = {}  # key -> (last logged at, repeats since)
 

@@ -4,9 +4,9 @@ The bus is created at the edge (``can.Bus(interface=..., channel=..., ignore_con
 ``_connect``) or injected with ``bus=``. ``interface`` is any name python-can knows
 (``can.interfaces.VALID_INTERFACES``: socketcan, pcan, kvaser, vector, ixxat, slcan, socketcand, remote,
 virtual, …; anything else is a ``ConfigError`` naming ``can.interface``); ``bitrate``, ``fd``,
-``data_bitrate``, ``can_filters`` and any further ``bus_kwargs`` go to the interface unchanged. A reader thread hands frames to the event loop; ``read()`` returns the next
-decoded ``SpindleStatus`` frame. Every problem is counted in
-``metrics`` and named:
+``data_bitrate``, ``can_filters`` and any further ``bus_kwargs`` go to the interface unchanged. A reader
+thread hands frames to the event loop; ``read()`` returns the next decoded ``SpindleStatus`` frame. Every
+problem is counted in ``metrics`` and named:
 
 - unknown ID, extended (29-bit) ID, CAN FD, remote or error frame, wrong DLC, undecodable payload →
   ``read()`` raises the ``FrameError`` subclass (counted); the contract is CAN 2.0A;
@@ -26,10 +26,10 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
-from collections.abc import Callable, Sequence
 import threading
 import time
 from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
@@ -38,7 +38,14 @@ from typing import Any
 import can
 
 from drivers.base import Source
-from drivers.can_codec import SPINDLE_STATUS_ID, SensorStatus, counter_gap, decode_frame, frame_counter, load_dbc
+from drivers.can_codec import (
+    SPINDLE_STATUS_ID,
+    SensorStatus,
+    counter_gap,
+    decode_frame,
+    frame_counter,
+    load_dbc,
+)
 from drivers.errors import (
     ConfigError,
     CounterGapError,
@@ -168,7 +175,8 @@ class CanSpindleSensor(Source[CanReading]):
     Either ``bus=`` (an open ``can.BusABC``, not closed by this driver) or ``interface``/``channel``
     (+ ``bitrate``, ``fd``, ``data_bitrate`` in bit/s, ``can_filters`` as python-can's list of
     ``{"can_id", "can_mask", "extended"}``, and ``bus_kwargs`` for anything else the interface takes) to
-    create one per connection with ``bus_factory`` (default ``can.Bus``). ``dbc`` is a path (``None``: packaged DBC).
+    create one per connection with ``bus_factory`` (default ``can.Bus``). ``dbc`` is a path (``None``:
+    packaged DBC).
     ``inbox_size`` frames are buffered between the reader thread and the loop; beyond that frames are
     dropped and counted (``events["frames_dropped"]``). ``batch_s`` (s) groups frames per loop wake-up.
     """
@@ -197,7 +205,9 @@ class CanSpindleSensor(Source[CanReading]):
         super().__init__(name=name, timeout_s=stale_after_s, stale_after_s=stale_after_s, **source_kwargs)
         if bus is None and interface not in can.interfaces.VALID_INTERFACES:
             known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
-            raise ConfigError(f"unknown python-can interface {interface!r} (one of {known})", entry="can.interface")
+            raise ConfigError(
+                f"unknown python-can interface {interface!r} (one of {known})", entry="can.interface"
+            )
         self.interface, self.channel, self.bitrate = interface, channel, bitrate
         self._db = load_dbc(dbc)
         self._injected = bus
@@ -281,7 +291,9 @@ class CanSpindleSensor(Source[CanReading]):
     # ---------------------------------------------------------------------------------------- decoding
     def _process(self, msg: can.Message) -> CanReading:
         self.metrics.count("frames")
-        kind = "error" if msg.is_error_frame else "remote" if msg.is_remote_frame else "fd" if msg.is_fd else ""
+        kind = (
+            "error" if msg.is_error_frame else "remote" if msg.is_remote_frame else "fd" if msg.is_fd else ""
+        )
         if kind:
             self.metrics.count(f"{kind}_frames")
             what = "CAN FD frame (the contract is CAN 2.0A)" if kind == "fd" else f"{kind} frame"
@@ -290,7 +302,7 @@ class CanSpindleSensor(Source[CanReading]):
             status = decode_frame(
                 msg.arbitration_id, bytes(msg.data), is_extended_id=msg.is_extended_id, db=self._db
             )
-        except FrameError as err:
+        except FrameError:
             self._account_rejected(msg)
             raise
         lost = self._check_counter(msg, status.counter)

@@ -420,7 +420,7 @@ def _check_mf4_support(path: Path) -> None:
     if path.suffix.lower() != ".mf4":
         return
     try:
-        import asammdf  # noqa: F401, PLC0415 (optional dependency, only for .mf4)
+        import asammdf  # noqa: F401  (optional dependency, only for .mf4)
     except ImportError as err:
         raise LogFormatError(
             "MF4 logs need the optional package asammdf (pip install 'spindle-chtc[mf4]')", path=path
@@ -442,7 +442,9 @@ def _check_trc_lines(path: Path) -> None:
                 continue
             frames += 1
             if not _TRC_FRAME.match(text):
-                raise LogFormatError(f"unparseable TRC line {lineno}: {stripped[:40]!r}", path=path, frame=frames)
+                raise LogFormatError(
+                    f"unparseable TRC line {lineno}: {stripped[:40]!r}", path=path, frame=frames
+                )
             if not text.endswith("\n"):
                 raise LogFormatError(f"truncated: TRC line {lineno} is cut short", path=path, frame=frames)
 

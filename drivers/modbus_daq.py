@@ -261,7 +261,9 @@ class ModbusDaq(Source[DaqReading]):
             msg = f"connection lost reading {self._describe(start, count)}"
             raise DeviceUnavailableError(msg, device=self.name) from err
         except ModbusException as err:
-            raise ProtocolError(f"bad reply for {self._describe(start, count)}: {err}", device=self.name) from err
+            raise ProtocolError(
+                f"bad reply for {self._describe(start, count)}: {err}", device=self.name
+            ) from err
         except OSError as err:
             msg = f"socket error reading {self._describe(start, count)}: {err}"
             raise DeviceUnavailableError(msg, device=self.name) from err
@@ -272,7 +274,9 @@ class ModbusDaq(Source[DaqReading]):
             return self._reply_error
         received = b"".join(self._rx)
         if not self._connected_client().connected:
-            return DeviceUnavailableError(f"connection lost reading {self._describe(start, count)}", device=self.name)
+            return DeviceUnavailableError(
+                f"connection lost reading {self._describe(start, count)}", device=self.name
+            )
         if received:
             detail = f"garbled reply, {len(received)} bytes: {received[:32].hex(' ')}"
             return ShortReplyError(start=start, count=count, got=0, device=self.name, detail=detail)
@@ -303,7 +307,10 @@ class ModbusDaq(Source[DaqReading]):
         """The decoded reply's function code and unit id (also for an injected client without the hook)."""
         fc = getattr(reply, "function_code", self.function_code)
         unit = getattr(reply, "dev_id", self.unit_id)
-        for what, expected, got in (("function code", self.function_code, fc), ("unit id", self.unit_id, unit)):
+        for what, expected, got in (
+            ("function code", self.function_code, fc),
+            ("unit id", self.unit_id, unit),
+        ):
             if isinstance(got, int) and got != expected and not (what == "unit id" and expected == 0):
                 raise ReplyMismatchError(
                     field=what, expected=expected, got=got, start=start, count=count, device=self.name

@@ -109,6 +109,9 @@ class CanSettings(_Section):
     channel: str = "chtc"  # "can0" for socketcan, "ws://host:port/" for remote, any name for virtual
     dbc: Path | None = None  # None → packaged drivers/data/spindle.dbc
     bitrate: int | None = Field(default=None, gt=0)
+    stale_after_s: float = Field(
+        default=0.5, gt=0
+    )  # no SpindleStatus frame for this long → speed/torque STALE
     fd: bool = False  # open the bus in CAN FD mode (SpindleStatus frames must still be CAN 2.0A)
     data_bitrate: int | None = Field(default=None, gt=0)  # CAN FD data-phase bit rate, bit/s
     filters: list[CanFilter] | None = None  # python-can can_filters, applied by the interface
@@ -117,7 +120,7 @@ class CanSettings(_Section):
     @field_validator("interface")
     @classmethod
     def _known_interface(cls, value: str) -> str:
-        import can.interfaces  # noqa: PLC0415 (only needed when a CAN section is validated)
+        import can.interfaces  # only needed when a CAN section is validated
 
         if value not in can.interfaces.VALID_INTERFACES:
             known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
@@ -129,11 +132,10 @@ class CanSettings(_Section):
     def _no_reserved_options(cls, value: dict[str, Any]) -> dict[str, Any]:
         reserved = sorted(set(value) & _CAN_RESERVED_OPTIONS)
         if reserved:
-            raise ValueError(f"{reserved} have their own keys (interface, channel, bitrate, fd, data_bitrate, filters)")
+            raise ValueError(
+                f"{reserved} have their own keys (interface, channel, bitrate, fd, data_bitrate, filters)"
+            )
         return value
-    stale_after_s: float = Field(
-        default=0.5, gt=0
-    )  # no SpindleStatus frame for this long → speed/torque STALE
 
 
 class AcquisitionSettings(_Section):

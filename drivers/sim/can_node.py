@@ -105,7 +105,11 @@ class SimulatedCanNode:
         out = [self._status_frame()]
         self.counter = (self.counter + 1) % COUNTER_MODULO
         if self.faults.is_active(FaultKind.REMOTE_FRAME):
-            out.append(can.Message(arbitration_id=SPINDLE_STATUS_ID, is_extended_id=False, is_remote_frame=True, dlc=6))
+            out.append(
+                can.Message(
+                    arbitration_id=SPINDLE_STATUS_ID, is_extended_id=False, is_remote_frame=True, dlc=6
+                )
+            )
         foreign = self.faults.first(FaultKind.UNKNOWN_ID)
         if foreign is not None:
             out.append(can.Message(arbitration_id=int(foreign.param()), is_extended_id=False, data=bytes(8)))

@@ -29,7 +29,9 @@ async def _rig(**sensor_kw: Any) -> AsyncIterator[tuple[CanSpindleSensor, FaultC
     faults = FaultController()
     source = TimelineSource(ArrayTimeline.constant(speed_rpm=3000.0, torque_nm=5.0))
     try:
-        async with CanSpindleSensor(interface="virtual", channel=channel, stale_after_s=1.0, **sensor_kw) as s:
+        async with CanSpindleSensor(
+            interface="virtual", channel=channel, stale_after_s=1.0, **sensor_kw
+        ) as s:
             await s.connect()
             async with SimulatedCanNode(source, bus=tx, faults=faults):
                 yield s, faults
@@ -168,7 +170,7 @@ def test_any_python_can_interface_with_options_passed_through() -> None:
     ]
     for name in ("kvaser", "vector", "ixxat", "slcan", "socketcand", "socketcan", "remote"):
         CanSpindleSensor(interface=name, channel="x")
-    with pytest.raises(ConfigError, match="can.interface"):
+    with pytest.raises(ConfigError, match=r"can\.interface"):
         CanSpindleSensor(interface="peak", channel="x")
 
 

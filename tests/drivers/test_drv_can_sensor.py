@@ -153,7 +153,9 @@ def test_injected_bus_is_not_closed_and_never_written() -> None:
 
 
 def test_unknown_interface_is_a_config_error() -> None:
-    with pytest.raises(ConfigError, match=r"can\.interface: unknown python-can interface 'no-such-interface'"):
+    with pytest.raises(
+        ConfigError, match=r"can\.interface: unknown python-can interface 'no-such-interface'"
+    ):
         CanSpindleSensor(interface="no-such-interface", channel="x", backoff=Backoff(max_s=0.1))
 
 

@@ -47,7 +47,7 @@ def test_default_map_matches_spec_section_4() -> None:
     assert m.role("ambient")[0].address == 32
     assert [e.address for e in m.role("status")] == list(range(100, 133))
     (counter,) = m.role("counter")
-    assert (counter.address, counter.type, counter.word_order) == (200, "uint32", "big")
+    assert (counter.address, counter.type, counter.word_order) == (200, "uint32", "ABCD")
     assert m.bearing_channels() == tuple(range(1, 13))
     assert read_blocks(m) == [(0, 33), (100, 33), (200, 2)]
 

@@ -1,6 +1,6 @@
-"""A CAN fault or warning status reaches /healthz: the real CAN driver listens to the simulated sensor node on a
-python-can virtual bus, and the service's health view (served by the API) shows ``can`` degraded with the reason
-within a couple of seconds, and ok again once the sensor reports ok."""
+"""A CAN fault or warning status reaches /healthz: the real CAN driver listens to the simulated sensor node
+on a python-can virtual bus, and the service's health view (served by the API) shows ``can`` degraded with
+the reason within a couple of seconds, and ok again once the sensor reports ok."""
 
 from __future__ import annotations
 

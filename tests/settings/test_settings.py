@@ -117,7 +117,7 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
         ("[modbus]\nport = 70000\n", "modbus.port"),
         ('[can]\ninterface = "peak"\n', "can.interface"),
         ("[modbus]\nunit = 248\n", "modbus.unit"),
-        ('[can]\noptions = { bitrate = 250000 }\n', "can.options"),
+        ("[can]\noptions = { bitrate = 250000 }\n", "can.options"),
         ("[model]\nh_box = [200.0, 5.0]\n", "model.h_box"),
         ("[identification]\nschedule_min = [20, 10]\n", "identification.schedule_min"),
         ("[modbus]\nprot = 502\n", "modbus.prot"),
