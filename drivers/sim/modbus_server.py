@@ -4,8 +4,9 @@ The DAQ "samples" every ``sample_period_s`` wall seconds: sample ``k`` shows the
 ``times_s[0] + speedup * k * sample_period_s`` and the uint32 sample counter reads ``k`` (mod 2**32).
 Registers are refreshed lazily when a request arrives (pymodbus device ``action`` hook), so there is no
 background timer and an injected clock fully controls what a client reads. Values are encoded with
-``drivers.registers.encode`` for any register map (int16 or float32, either word order). The register space
-is read-only: writes get an "illegal data address" exception. FC3 reads see the same words as FC4.
+``drivers.registers.encode`` for any register map (every type, word order, scale/offset and "no value"
+sentinel the map allows). The registers sit in the map's table: input registers (FC4) or holding registers
+(FC3); a read of the other table gets an "illegal function" exception, a write "illegal data address".
 
 Faults (``drivers.sim.faults``): channel faults change values/status; ``freeze`` stops sampling; ``hang``
 holds replies back; ``drop`` closes every connection and the listening socket until cleared (the port is
@@ -43,7 +44,14 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.errors import DeviceUnavailableError, EncodeError
-from drivers.registers import RegisterMap, RegisterValues, default_register_map, encode, read_blocks
+from drivers.registers import (
+    RegisterMap,
+    RegisterValues,
+    default_register_map,
+    encode,
+    read_blocks,
+    value_limits,
+)
 from drivers.sim.faults import FaultController, FaultKind, apply_channel_faults
 from drivers.sim.source import TimelineSource
 
@@ -51,7 +59,6 @@ __all__ = ["SimulatedDaq"]
 
 Sampling = Literal["clock", "row"]
 _READ_CODES = (3, 4)
-_INT16_LIMIT_C = 327.0
 _SUPERVISE_S = 0.02
 
 
@@ -175,8 +182,10 @@ class SimulatedDaq:
         registers: list[int],
         set_values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
-        if set_values is not None or function_code not in _READ_CODES:
+        if set_values is not None:
             return ExcCodes.ILLEGAL_ADDRESS
+        if function_code != self.register_map.function_code:
+            return ExcCodes.ILLEGAL_FUNCTION
         if self.faults.active():  # the common case, no fault at all, skips these checks
             while self.faults.is_active(FaultKind.HANG) or self.faults.is_active(FaultKind.DROP):
                 await asyncio.sleep(0.005)
@@ -288,21 +297,21 @@ def _garble(packet: bytes, mode: int) -> bytes:
 
 
 def _encode_clipped(reg_map: RegisterMap, values: RegisterValues) -> dict[int, int]:
-    """Encode; values an int16 register cannot hold are clipped to ±327 °C and flagged out of range (2)."""
+    """Encode; a temperature its register cannot hold is clipped to the register's range and flagged out of
+    range (status 2), as a DAQ saturates."""
     try:
         return encode(reg_map, values)
     except EncodeError:
-        temps = np.asarray(values.temps_c, dtype=float)
-        bad = np.isfinite(temps) & (np.abs(temps) > _INT16_LIMIT_C)
-        status = np.where(bad, 2, values.status)
+        temps = np.array(values.temps_c, dtype=float, copy=True)
+        status = np.array(values.status, dtype=np.int64, copy=True)
         ambient = values.ambient_c
-        if math.isfinite(ambient):
-            ambient = float(np.clip(ambient, -_INT16_LIMIT_C, _INT16_LIMIT_C))
-        clipped = RegisterValues(
-            temps_c=np.clip(temps, -_INT16_LIMIT_C, _INT16_LIMIT_C),
-            ambient_c=ambient,
-            status=status.astype(np.int64),
-            ambient_status=values.ambient_status,
-            counter=values.counter,
-        )
+        for e in reg_map.entries:
+            lo, hi = value_limits(e)
+            if e.role in ("bearing", "housing"):
+                i = (e.channel or 1) - 1
+                if math.isfinite(temps[i]) and not lo <= temps[i] <= hi:
+                    temps[i], status[i] = float(np.clip(temps[i], lo, hi)), 2
+            elif e.role == "ambient" and math.isfinite(ambient):
+                ambient = float(np.clip(ambient, lo, hi))
+        clipped = RegisterValues(temps, ambient, status, values.ambient_status, values.counter)
         return encode(reg_map, clipped)
