@@ -44,7 +44,12 @@ def _struct_words(fmt: str, value: float, order: str) -> list[int]:
 @pytest.mark.parametrize("order", ["ABCD", "CDAB", "BADC", "DCBA"])
 @pytest.mark.parametrize(
     ("typ", "fmt", "value"),
-    [("int32", "i", -123456789), ("uint32", "I", 0x01020304), ("float32", "f", -12.375), ("float64", "d", 1e-3)],
+    [
+        ("int32", "i", -123456789),
+        ("uint32", "I", 0x01020304),
+        ("float32", "f", -12.375),
+        ("float64", "d", 1e-3),
+    ],
 )
 def test_word_orders_put_the_bytes_where_the_names_say(typ: str, fmt: str, value: float, order: str) -> None:
     e = RegisterEntry("x", 0, typ, 1.0, order, "housing", 1)  # type: ignore[arg-type]
@@ -115,7 +120,14 @@ def _variant(
         "n_channels": 32,
         "group": [
             {"prefix": "T", "address": 0, "count": 32, "first_channel": 1, "role": "housing", **value},
-            {"prefix": "S", "address": 300, "count": 32, "first_channel": 1, "type": "uint16", "role": "status"}
+            {
+                "prefix": "S",
+                "address": 300,
+                "count": 32,
+                "first_channel": 1,
+                "type": "uint16",
+                "role": "status",
+            }
             | {"word_order": order},
         ],
         "register": [
@@ -159,11 +171,17 @@ def test_each_variant_end_to_end_over_loopback(
                 faults.inject(FaultKind.OPEN_CIRCUIT, channels=(9,))
                 r = await daq.read()
                 assert math.isnan(r.temps_c[4]) and r.status[8] == 1
-                np.testing.assert_allclose(np.delete(r.temps_c, 4), np.delete(TEMPS, 4), atol=tol * 1.001, rtol=0)
+                np.testing.assert_allclose(
+                    np.delete(r.temps_c, 4), np.delete(TEMPS, 4), atol=tol * 1.001, rtol=0
+                )
             # a driver reading the other table is refused by the device
-            other = RegisterMap(reg_map.entries, n_channels=32, table="input" if table == "holding" else "holding")
+            other = RegisterMap(
+                reg_map.entries, n_channels=32, table="input" if table == "holding" else "holding"
+            )
             async with ModbusDaq("127.0.0.1", sim.port, register_map=other, timeout_s=1.0) as daq:
-                with pytest.raises(ModbusExceptionError, match=r"exception 1 \(illegal function\) for FC[34]"):
+                with pytest.raises(
+                    ModbusExceptionError, match=r"exception 1 \(illegal function\) for FC[34]"
+                ):
                     await daq.read()
 
     asyncio.run(main())

@@ -70,3 +70,29 @@ def test_replay_sends_the_logged_frames_to_the_driver(tmp_path: Path, suffix: st
             bus.shutdown()
 
     assert asyncio.run(main()) == [3000.0 + k for k in range(45)]
+
+
+def test_a_logged_can_fd_frame_is_replayed_as_fd_and_rejected(tmp_path: Path) -> None:
+    from drivers.errors import FrameError
+    from drivers.logs import read_can_log
+    from drivers.sim.replay import CanReplayer
+
+    path = tmp_path / "fd.log"
+    data = encode_status(3000, 5.0, 0, 0)
+    write_can_log(path, [can.Message(timestamp=T0.timestamp(), arbitration_id=0x181, is_fd=True, data=data)])
+    channel = f"replay-{uuid.uuid4().hex}"
+
+    async def main() -> None:
+        bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
+        try:
+            async with CanSpindleSensor(interface="virtual", channel=channel, stale_after_s=2.0) as sensor:
+                await sensor.connect()
+                replayer = CanReplayer(read_can_log(path), bus=bus)
+                replayer.start()
+                with pytest.raises(FrameError, match="CAN FD frame"):
+                    await sensor.read()
+                replayer.stop()
+        finally:
+            bus.shutdown()
+
+    asyncio.run(main())
