@@ -193,12 +193,19 @@ class RegisterMap:
     n_channels: int = 32
     table: Table = "input"
     _by_role: dict[str, tuple[RegisterEntry, ...]] = field(init=False, repr=False, compare=False)
+    _kinds: tuple[_Kind, ...] = field(init=False, repr=False, compare=False)
+    _size: int = field(init=False, repr=False, compare=False)
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "entries", tuple(sorted(self.entries, key=lambda e: e.address)))
         _validate_map(self)
         by_role = {r: tuple(e for e in self.entries if e.role == r) for r in ROLES}
         object.__setattr__(self, "_by_role", by_role)
+        kinds: dict[tuple[str, str], list[RegisterEntry]] = {}
+        for e in self.entries:
+            kinds.setdefault((e.type, e.word_order), []).append(e)
+        object.__setattr__(self, "_kinds", tuple(_Kind.build(k) for k in kinds.values()))
+        object.__setattr__(self, "_size", max((e.last_address for e in self.entries), default=0) + 1)
 
     @property
     def function_code(self) -> int:
@@ -483,42 +490,116 @@ WordSource = Mapping[int, int] | Iterable[tuple[int, Sequence[int]]]
 def decode(reg_map: RegisterMap, words: WordSource) -> RegisterValues:
     """Engineering values from words: a mapping address → word, or ``(start, words)`` blocks as read.
 
-    Each entry goes through ``decode_value`` (pymodbus' conversion; one poll of the default map decodes in
-    about 0.2 ms). Raises ``ShortReplyError`` naming the entry's registers when a word is missing."""
-    flat = _flat_words(words)
+    Vectorised: the entries of one type and word order are converted together by numpy (byte and word swap
+    on the word array, then a big-endian ``frombuffer`` of the type); a test checks the result against the
+    per-entry ``decode_value`` (pymodbus' conversion) for every type and order. The default map decodes in
+    tens of µs. Raises ``ShortReplyError`` naming the entry's registers when a word is missing."""
+    flat = _flat_words(words, reg_map._size)
     temps = np.full(reg_map.n_channels, np.nan)
     status = np.zeros(reg_map.n_channels, dtype=np.int64)
-    ambient, ambient_status, counter = math.nan, 0, None
-    for e in reg_map.entries:
-        got = [flat.get(a) for a in range(e.address, e.last_address + 1)]
-        if None in got:
-            n = got.index(None)
-            raise ShortReplyError(start=e.address, count=e.width, got=n, detail=f"entry {e.name}")
-        value = decode_value(e, got)  # type: ignore[arg-type]
-        ch = e.channel or 0
-        if e.role in TEMPERATURE_ROLES:
-            temps[ch - 1] = value
-        elif e.role == "ambient":
-            ambient = value
-        elif e.role == "status":
-            code = _int_or(value, 2)  # a status that is no integer is "not ok"
-            status[ch - 1] = code if ch else status[ch - 1]
-            ambient_status = code if not ch else ambient_status
-        else:
-            counter = _int_or(value, 0)
-    return RegisterValues(temps, ambient, status, ambient_status, counter)
+    scalars: dict[str, float] = {}
+    for kind in reg_map._kinds:
+        values = kind.values(flat)
+        temps[kind.temp_ch] = values[kind.temp_idx]
+        codes = values[kind.status_idx]
+        status[kind.status_ch] = np.where(np.isfinite(codes), codes, 2).astype(np.int64)
+        for role, i in kind.scalar_idx:
+            scalars[role] = float(values[i])
+    ambient_status = scalars.get("ambient_status", 0.0)
+    counter = scalars.get("counter")
+    return RegisterValues(
+        temps,
+        scalars.get("ambient", math.nan),
+        status,
+        _int_or(ambient_status, 2),  # a status that is no integer is "not ok"
+        None if counter is None else _int_or(counter, 0),
+    )
+
+
+_NUMPY_TYPES = {
+    "int16": ">i2",
+    "uint16": ">u2",
+    "int32": ">i4",
+    "uint32": ">u4",
+    "float32": ">f4",
+    "float64": ">f8",
+}
+
+
+@dataclass(frozen=True)
+class _Kind:
+    """Entries sharing type and word order, with the index arrays that let ``decode`` convert them at once."""
+
+    entries: tuple[RegisterEntry, ...]
+    addresses: npt.NDArray[np.int64]  # (n, width) register addresses in address order
+    scale: npt.NDArray[np.float64]
+    offset: npt.NDArray[np.float64]
+    no_value: npt.NDArray[np.float64]  # NaN where the entry has no sentinel
+    temp_idx: npt.NDArray[np.int64]
+    temp_ch: npt.NDArray[np.int64]
+    status_idx: npt.NDArray[np.int64]
+    status_ch: npt.NDArray[np.int64]
+    scalar_idx: tuple[tuple[str, int], ...]  # ("ambient" | "ambient_status" | "counter", index)
+
+    @classmethod
+    def build(cls, entries: Sequence[RegisterEntry]) -> _Kind:
+        def where(pred: Any) -> list[int]:
+            return [i for i, e in enumerate(entries) if pred(e)]
+
+        temps = where(lambda e: e.role in TEMPERATURE_ROLES)
+        stat = where(lambda e: e.role == "status" and e.channel)
+        scalar_role = {"ambient": "ambient", "counter": "counter"}
+        scalars = [
+            ("ambient_status" if e.role == "status" else scalar_role[e.role], i)
+            for i, e in enumerate(entries)
+            if e.role in scalar_role or (e.role == "status" and not e.channel)
+        ]
+        return cls(
+            entries=tuple(entries),
+            addresses=np.array([range(e.address, e.last_address + 1) for e in entries], dtype=np.int64),
+            scale=np.array([e.scale for e in entries]),
+            offset=np.array([e.offset for e in entries]),
+            no_value=np.array([math.nan if e.no_value is None else e.no_value for e in entries]),
+            temp_idx=np.array(temps, dtype=np.int64),
+            temp_ch=np.array([(entries[i].channel or 1) - 1 for i in temps], dtype=np.int64),
+            status_idx=np.array(stat, dtype=np.int64),
+            status_ch=np.array([(entries[i].channel or 1) - 1 for i in stat], dtype=np.int64),
+            scalar_idx=tuple(scalars),
+        )
+
+    def values(self, flat: npt.NDArray[np.int64]) -> npt.NDArray[np.float64]:
+        """Engineering value of every entry (NaN for the "no value" sentinel) from the flat word array."""
+        words = flat[self.addresses]
+        missing = words < 0
+        if missing.any():
+            i = int(np.argmax(missing.any(axis=1)))
+            e = self.entries[i]
+            got = int(np.argmax(missing[i]))
+            raise ShortReplyError(start=e.address, count=e.width, got=got, detail=f"entry {e.name}")
+        e0 = self.entries[0]
+        if e0.byte_swap:
+            words = ((words & 0xFF) << 8) | (words >> 8)
+        if e0.word_swap:
+            words = words[:, ::-1]
+        raw = np.frombuffer(words.astype(">u2").tobytes(), dtype=_NUMPY_TYPES[e0.type]).astype(np.float64)
+        raw[raw == self.no_value] = np.nan
+        return raw * self.scale + self.offset
 
 
 def _int_or(value: float, default: int) -> int:
     return int(value) if math.isfinite(value) else default
 
 
-def _flat_words(words: WordSource) -> dict[int, int]:
-    """Address → word (16-bit) from either input form."""
+def _flat_words(words: WordSource, size: int) -> npt.NDArray[np.int64]:
+    """Dense address-indexed array of words (-1 where no word was given)."""
+    flat = np.full(size, -1, dtype=np.int64)
     if isinstance(words, Mapping):
-        return {int(a): int(w) & 0xFFFF for a, w in words.items()}
-    flat: dict[int, int] = {}
+        for addr, w in words.items():
+            if 0 <= addr < size:
+                flat[addr] = int(w) & 0xFFFF
+        return flat
     for start, block in words:
-        for k, w in enumerate(block):
-            flat[start + k] = int(w) & 0xFFFF
+        stop = min(start + len(block), size)
+        if start < stop:
+            flat[start:stop] = np.asarray(block[: stop - start], dtype=np.int64) & 0xFFFF
     return flat
