@@ -17,7 +17,9 @@ problem is counted in ``metrics`` and named:
   makes ``condition()`` name it (the service then shows the device ``degraded`` with that reason);
 - no ``SpindleStatus`` frame for ``stale_after_s`` → ``read()`` raises ``DeviceTimeoutError`` and
   ``current()`` reports ``STALE``;
-- bus errors (interface down, remote server gone) → ``DeviceUnavailableError``, reconnect with backoff.
+- bus errors (interface down, remote server gone) and a bus that cannot be opened (device unplugged, vendor
+  library missing, an option the interface rejects) → ``DeviceUnavailableError`` naming the cause, reconnect
+  with backoff (so the acquisition keeps running and ``/healthz`` shows ``can`` down with the reason).
 
 python-can errors are translated here, once.
 """
@@ -250,10 +252,12 @@ class CanSpindleSensor(Source[CanReading]):
             return self._bus_factory(
                 interface=self.interface, channel=self.channel, ignore_config=True, **kwargs
             )
-        except (can.CanInterfaceNotImplementedError, NotImplementedError) as err:
-            raise ConfigError(f"CAN interface not available: {err}", entry="can.interface") from err
-        except (can.CanError, OSError, ValueError, ImportError) as err:
-            raise DeviceUnavailableError(f"cannot open bus: {err}", device=self.name) from err
+        except Exception as err:  # vendor back-ends fail in many ways (OSError, NameError, TypeError, ...)
+            hint = ""
+            if isinstance(err, NotImplementedError | ImportError | NameError | AttributeError | TypeError):
+                hint = " (the interface is not usable here: vendor library missing, or an option it rejects)"
+            msg = f"cannot open bus: {type(err).__name__}: {err}{hint}"
+            raise DeviceUnavailableError(msg, device=self.name) from err
 
     async def _disconnect(self) -> None:
         reader, bus = self._reader, self._bus

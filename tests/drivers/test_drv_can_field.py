@@ -184,3 +184,36 @@ def test_filters_reach_a_real_virtual_bus() -> None:
             assert isinstance(await sensor.read(), CanReading)
 
     asyncio.run(main())
+
+
+@pytest.mark.parametrize(
+    ("exc", "text"),
+    [
+        (
+            NameError("name 'canGetNumberOfChannels' is not defined"),
+            "NameError: name 'canGetNumberOfChannels'",
+        ),
+        (TypeError("__init__() missing 2 required positional arguments: 'host' and 'port'"), "TypeError"),
+        (can.CanInterfaceNotImplementedError("The serial module is not installed"), "not usable here"),
+        (OSError("pcanbasic library not found"), "OSError: pcanbasic library not found"),
+    ],
+)
+def test_a_bus_that_cannot_be_opened_is_named_and_retried(exc: Exception, text: str) -> None:
+    from drivers.base import Backoff
+    from drivers.errors import DeviceUnavailableError
+
+    def factory(**_kwargs: Any) -> can.BusABC:
+        raise exc
+
+    async def main() -> None:
+        sensor = CanSpindleSensor(
+            interface="kvaser", channel="0", bus_factory=factory, backoff=Backoff(initial_s=0.01, max_s=0.01)
+        )
+        for _ in range(2):
+            with pytest.raises(DeviceUnavailableError, match=text):
+                await sensor.connect()
+            await asyncio.sleep(0.02)
+        assert sensor.metrics.connect_failures == 2
+        await sensor.close()
+
+    asyncio.run(main())
