@@ -12,6 +12,10 @@ implements three hooks:
 saying when the next attempt is, so a poll loop keeps its rhythm and the caller always gets an answer.
 ``run()`` is that poll loop. After an outage the next attempt is at most ``Backoff.max_s`` (default 2 s) away.
 
+Failed reads are logged by ``ErrorLog`` (logger ``drivers``): one line per distinct error (class and message
+with numbers ignored), no traceback; repeats of it within ``log_every_s`` (default 60 s) are counted and
+reported on its next line.
+
 Clocks are injected: ``clock`` is monotonic seconds (timeouts, backoff, staleness), ``now`` is the UTC
 wall clock used for timestamps; ``rng`` draws the jitter; ``sleep`` is what ``run()`` waits with.
 """
@@ -19,7 +23,9 @@ wall clock used for timestamps; ``rng`` draws the jitter; ``sleep`` is what ``ru
 from __future__ import annotations
 
 import asyncio
+import logging
 import random
+import re
 import time
 from collections.abc import Awaitable, Callable
 from dataclasses import dataclass, field
@@ -42,6 +48,38 @@ Sleep = Callable[[float], Awaitable[None]]
 def utc_now() -> datetime:
     """Current time as an aware UTC ``datetime``."""
     return datetime.now(UTC)
+
+
+_NUMBER = re.compile(r"\d+(\.\d+)?")
+
+
+class ErrorLog:
+    """Logs device errors one line each, rate-limited per distinct error.
+
+    Two errors are the same when their class and their message with every number replaced agree (so a
+    transaction id or a byte count that changes from poll to poll does not make a new error). The first
+    occurrence is logged at once; later ones only when ``every_s`` seconds have passed since that error's
+    last line, with the number of repeats in between. ``clock`` is monotonic seconds.
+    """
+
+    def __init__(
+        self, logger: logging.Logger, *, every_s: float = 60.0, clock: Clock = time.monotonic
+    ) -> None:
+        self.logger, self.every_s, self._clock = logger, every_s, clock
+        self._seen: dict[tuple[str, str], tuple[float, int]] = {}  # key -> (last logged at, repeats since)
+
+    def error(self, err: BaseException) -> bool:
+        """Count ``err``; log it if it is new or due. Returns whether a line was written."""
+        key = (type(err).__name__, _NUMBER.sub("#", str(err)))
+        now = self._clock()
+        last = self._seen.get(key)
+        if last is not None and now - last[0] < self.every_s:
+            self._seen[key] = (last[0], last[1] + 1)
+            return False
+        repeats = f" (repeated {last[1]} times in {now - last[0]:.0f} s)" if last and last[1] else ""
+        self.logger.warning("%s: %s%s", type(err).__name__, err, repeats)
+        self._seen[key] = (now, 0)
+        return True
 
 
 @dataclass(frozen=True)
@@ -129,6 +167,7 @@ class Source(Generic[T]):
         now: WallClock = utc_now,
         rng: random.Random | None = None,
         sleep: Sleep = asyncio.sleep,
+        log_every_s: float = 60.0,
     ) -> None:
         if timeout_s <= 0 or stale_after_s <= 0:
             raise ValueError(f"{name}: timeout_s and stale_after_s must be > 0")
@@ -139,6 +178,7 @@ class Source(Generic[T]):
         self.metrics = SourceMetrics()
         self._clock, self._now, self._sleep = clock, now, sleep
         self._rng = rng or random.Random()
+        self.error_log = ErrorLog(logging.getLogger("drivers"), every_s=log_every_s, clock=clock)
         self._connected = False
         self._ever_connected = False
         self._closed = False
@@ -249,6 +289,10 @@ class Source(Generic[T]):
         """True when the last good reading is older than ``stale_after_s`` (or there is none)."""
         return self.latest_age_s() > self.stale_after_s
 
+    def condition(self) -> str:
+        """A reason the device is degraded now although reads succeed ("" when none). Override."""
+        return ""
+
     def note_error(self, err: DriverError) -> None:
         """Count an error that did not abort the read (e.g. a counter gap) and remember it."""
         self.metrics.count_error(err, self._now())
@@ -327,6 +371,7 @@ class Source(Generic[T]):
 
     async def _on_failure(self, err: DeviceError) -> None:
         self.metrics.count_error(err, self._now())
+        self.error_log.error(err)
         if self._needs_reconnect(err) or not self._connected:
             self._failures += 1
             self._next_attempt_at = self._clock() + self.backoff.delay_s(self._failures, self._rng)

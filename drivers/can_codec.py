@@ -129,6 +129,16 @@ def decode_frame(
     )
 
 
+def frame_counter(data: bytes | bytearray, *, db: Database | None = None) -> int | None:
+    """The rolling counter of a ``SpindleStatus`` payload that was rejected for another reason (bad status
+    byte, too long), or ``None`` when the payload is too short to hold it. Reads the DBC's ``Counter``
+    signal position (little-endian), without checking the other signals."""
+    sig = _status_message(db).get_signal_by_name("Counter")
+    if len(data) * 8 < sig.start + sig.length:
+        return None
+    return (int.from_bytes(bytes(data), "little") >> sig.start) & ((1 << sig.length) - 1)
+
+
 def counter_gap(previous: int, current: int) -> int:
     """Frames missed between two rolling-counter values (0 = consecutive; 15 means a repeat or 15 lost)."""
     return (int(current) - int(previous) - 1) % COUNTER_MODULO

@@ -1,16 +1,25 @@
 """CAN driver for the spindle speed/torque sensor, on any python-can interface. Listens only, never sends.
 
-The bus is created at the edge (``can.Bus(interface=..., channel=..., ignore_config=True)`` in ``_connect``)
-or injected with ``bus=``. A reader thread hands frames to the event loop; ``read()`` returns the next
-decoded ``SpindleStatus`` frame. Every problem is counted in
-``metrics`` and named:
+The bus is created at the edge (``can.Bus(interface=..., channel=..., ignore_config=True, **options)`` in
+``_connect``) or injected with ``bus=``. ``interface`` is any name python-can knows
+(``can.interfaces.VALID_INTERFACES``: socketcan, pcan, kvaser, vector, ixxat, slcan, socketcand, remote,
+virtual, …; anything else is a ``ConfigError`` naming ``can.interface``); ``bitrate``, ``fd``,
+``data_bitrate``, ``can_filters`` and any further ``bus_kwargs`` go to the interface unchanged. A reader
+thread hands frames to the event loop; ``read()`` returns the next decoded ``SpindleStatus`` frame. Every
+problem is counted in ``metrics`` and named:
 
-- unknown ID, wrong DLC, undecodable payload → ``read()`` raises the ``FrameError`` subclass (counted);
-- rolling-counter gap or repeat → the reading carries ``frames_lost`` and a ``CounterGapError`` is noted;
-- status byte 1 (warning) / 2 (fault) → counted; a fault makes the reading's quality ``FAULT``;
+- unknown ID, extended (29-bit) ID, CAN FD, remote or error frame, wrong DLC, undecodable payload →
+  ``read()`` raises the ``FrameError`` subclass (counted); the contract is CAN 2.0A;
+- rolling-counter gap or repeat → the reading carries ``frames_lost`` and a ``CounterGapError`` is noted.
+  A rejected ``SpindleStatus`` frame (bad status byte, wrong DLC) arrived, so it is not lost: its counter
+  is taken when the payload holds it, and otherwise it is subtracted from the next gap;
+- status byte 1 (warning) / 2 (fault) → counted; a fault makes the reading's quality ``FAULT``, and either
+  makes ``condition()`` name it (the service then shows the device ``degraded`` with that reason);
 - no ``SpindleStatus`` frame for ``stale_after_s`` → ``read()`` raises ``DeviceTimeoutError`` and
   ``current()`` reports ``STALE``;
-- bus errors (interface down, remote server gone) → ``DeviceUnavailableError``, reconnect with backoff.
+- bus errors (interface down, remote server gone) and a bus that cannot be opened (device unplugged, vendor
+  library missing, an option the interface rejects) → ``DeviceUnavailableError`` naming the cause, reconnect
+  with backoff (so the acquisition keeps running and ``/healthz`` shows ``can`` down with the reason).
 
 python-can errors are translated here, once.
 """
@@ -22,6 +31,7 @@ import contextlib
 import threading
 import time
 from collections import deque
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
 from datetime import datetime
 from pathlib import Path
@@ -30,7 +40,14 @@ from typing import Any
 import can
 
 from drivers.base import Source
-from drivers.can_codec import SensorStatus, counter_gap, decode_frame, load_dbc
+from drivers.can_codec import (
+    SPINDLE_STATUS_ID,
+    SensorStatus,
+    counter_gap,
+    decode_frame,
+    frame_counter,
+    load_dbc,
+)
 from drivers.errors import (
     ConfigError,
     CounterGapError,
@@ -158,7 +175,10 @@ class CanSpindleSensor(Source[CanReading]):
     """Receives ``SpindleStatus`` frames. ``stale_after_s`` (s) of silence marks speed/torque stale.
 
     Either ``bus=`` (an open ``can.BusABC``, not closed by this driver) or ``interface``/``channel``
-    (+ ``bus_kwargs``) to create one per connection. ``dbc`` is a path (``None``: packaged DBC).
+    (+ ``bitrate``, ``fd``, ``data_bitrate`` in bit/s, ``can_filters`` as python-can's list of
+    ``{"can_id", "can_mask", "extended"}``, and ``bus_kwargs`` for anything else the interface takes) to
+    create one per connection with ``bus_factory`` (default ``can.Bus``). ``dbc`` is a path (``None``:
+    packaged DBC).
     ``inbox_size`` frames are buffered between the reader thread and the loop; beyond that frames are
     dropped and counted (``events["frames_dropped"]``). ``batch_s`` (s) groups frames per loop wake-up.
     """
@@ -171,20 +191,37 @@ class CanSpindleSensor(Source[CanReading]):
         interface: str = "virtual",
         channel: str = "chtc",
         bitrate: int | None = None,
+        fd: bool = False,
+        data_bitrate: int | None = None,
+        can_filters: Sequence[dict[str, Any]] | None = None,
         dbc: str | Path | None = None,
         stale_after_s: float = 0.5,
         bus: can.BusABC | None = None,
         bus_kwargs: dict[str, Any] | None = None,
+        bus_factory: Callable[..., can.BusABC] = can.Bus,
         inbox_size: int = INBOX_SIZE,
         batch_s: float = BATCH_S,
         **source_kwargs: Any,
     ) -> None:
         name = "can injected bus" if bus is not None else f"can {interface}:{channel}"
         super().__init__(name=name, timeout_s=stale_after_s, stale_after_s=stale_after_s, **source_kwargs)
+        if bus is None and interface not in can.interfaces.VALID_INTERFACES:
+            known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+            raise ConfigError(
+                f"unknown python-can interface {interface!r} (one of {known})", entry="can.interface"
+            )
         self.interface, self.channel, self.bitrate = interface, channel, bitrate
         self._db = load_dbc(dbc)
         self._injected = bus
+        self._bus_factory = bus_factory
         self._bus_kwargs = dict(bus_kwargs or {})
+        if fd:
+            self._bus_kwargs["fd"] = True
+        if data_bitrate is not None:
+            self._bus_kwargs["data_bitrate"] = data_bitrate
+        if can_filters is not None:
+            self._bus_kwargs["can_filters"] = [dict(f) for f in can_filters]
+        self._unread = 0  # rejected SpindleStatus frames whose counter could not be read
         self._bus: can.BusABC | None = None
         self._reader: _BusReader | None = None
         self._inbox_size, self._batch_s = inbox_size, batch_s
@@ -212,11 +249,15 @@ class CanSpindleSensor(Source[CanReading]):
         if self.bitrate is not None:
             kwargs["bitrate"] = self.bitrate
         try:
-            return can.Bus(interface=self.interface, channel=self.channel, ignore_config=True, **kwargs)
-        except (can.CanInterfaceNotImplementedError, NotImplementedError) as err:
-            raise ConfigError(f"CAN interface not available: {err}", entry="can.interface") from err
-        except (can.CanError, OSError, ValueError) as err:
-            raise DeviceUnavailableError(f"cannot open bus: {err}", device=self.name) from err
+            return self._bus_factory(
+                interface=self.interface, channel=self.channel, ignore_config=True, **kwargs
+            )
+        except Exception as err:  # vendor back-ends fail in many ways (OSError, NameError, TypeError, ...)
+            hint = ""
+            if isinstance(err, NotImplementedError | ImportError | NameError | AttributeError | TypeError):
+                hint = " (the interface is not usable here: vendor library missing, or an option it rejects)"
+            msg = f"cannot open bus: {type(err).__name__}: {err}{hint}"
+            raise DeviceUnavailableError(msg, device=self.name) from err
 
     async def _disconnect(self) -> None:
         reader, bus = self._reader, self._bus
@@ -254,15 +295,20 @@ class CanSpindleSensor(Source[CanReading]):
     # ---------------------------------------------------------------------------------------- decoding
     def _process(self, msg: can.Message) -> CanReading:
         self.metrics.count("frames")
-        if msg.is_error_frame or msg.is_remote_frame:
-            kind = "error" if msg.is_error_frame else "remote"
-            self.metrics.count(f"{kind}_frames")
-            raise FrameError(
-                f"{kind} frame", arbitration_id=msg.arbitration_id, dlc=msg.dlc, device=self.name
-            )
-        status = decode_frame(
-            msg.arbitration_id, bytes(msg.data), is_extended_id=msg.is_extended_id, db=self._db
+        kind = (
+            "error" if msg.is_error_frame else "remote" if msg.is_remote_frame else "fd" if msg.is_fd else ""
         )
+        if kind:
+            self.metrics.count(f"{kind}_frames")
+            what = "CAN FD frame (the contract is CAN 2.0A)" if kind == "fd" else f"{kind} frame"
+            raise FrameError(what, arbitration_id=msg.arbitration_id, dlc=msg.dlc, device=self.name)
+        try:
+            status = decode_frame(
+                msg.arbitration_id, bytes(msg.data), is_extended_id=msg.is_extended_id, db=self._db
+            )
+        except FrameError:
+            self._account_rejected(msg)
+            raise
         lost = self._check_counter(msg, status.counter)
         quality = Quality.OK
         if status.status is SensorStatus.WARNING:
@@ -280,16 +326,28 @@ class CanSpindleSensor(Source[CanReading]):
             frames_lost=lost,
         )
 
+    def _account_rejected(self, msg: can.Message) -> None:
+        """A classic ``SpindleStatus`` frame was rejected: it still took a counter value (not lost)."""
+        if msg.arbitration_id != SPINDLE_STATUS_ID or msg.is_extended_id:
+            return
+        counter = frame_counter(msg.data, db=self._db)
+        if counter is None:
+            self._unread += 1
+        else:
+            self._check_counter(msg, counter)
+
     def _check_counter(self, msg: can.Message, counter: int) -> int:
         previous, self._last_counter = self._last_counter, counter
+        unread, self._unread = self._unread, 0
         if previous is None:
             return 0
         gap = counter_gap(previous, counter)
-        if gap == 0:
+        repeat = counter == previous and unread == 0
+        gap = 0 if repeat else max(0, gap - unread)  # rejected frames in between were received
+        if gap == 0 and not repeat:
             return 0
-        repeat = counter == previous
         self.metrics.count("counter_repeats" if repeat else "counter_gaps")
-        self.metrics.count("frames_lost", 0 if repeat else gap)
+        self.metrics.count("frames_lost", gap)
         expected = (previous + 1) % 16
         self.note_error(
             CounterGapError(
@@ -300,9 +358,20 @@ class CanSpindleSensor(Source[CanReading]):
                 device=self.name,
             )
         )
-        return 0 if repeat else gap
+        return gap
 
     # ---------------------------------------------------------------------------------------- state
+    def condition(self) -> str:
+        """Why the sensor is not fully healthy right now although frames arrive ("" when it is): the
+        latest frame's status byte says warning or fault. Stale data is not a condition (see ``is_stale``)."""
+        if self._latest is None or self.is_stale() or self._latest.status is SensorStatus.OK:
+            return ""
+        r = self._latest
+        return (
+            f"{self.name}: sensor reports {r.status.name.lower()} (status byte {int(r.status)}) "
+            f"at {r.t.isoformat()}"
+        )
+
     def current(self) -> CanReading:
         """The latest reading, with quality ``STALE`` if nothing arrived for ``stale_after_s``.
 

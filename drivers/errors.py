@@ -17,6 +17,8 @@ register range, frame or configuration entry at fault.
         └── ProtocolError(DeviceError)                  an answer that is not a valid reply
             ├── ModbusExceptionError(ProtocolError)     Modbus exception response (.exception_code)
             ├── ShortReplyError(ProtocolError)          fewer registers than asked (.start, .count, .got)
+            ├── ReplyMismatchError(ProtocolError)       reply's function code / unit id / transaction id
+            │                                           differs from the request's (.field, .expected, .got)
             └── FrameError(ProtocolError)               bad CAN frame (.arbitration_id, .dlc)
                 ├── UnknownFrameIdError(FrameError)     ID not in the DBC
                 ├── WrongDlcError(FrameError)           DLC differs from the DBC (.expected_dlc)
@@ -114,6 +116,24 @@ class ShortReplyError(ProtocolError):
         self.start = start
         self.count = count
         self.got = got
+
+
+class ReplyMismatchError(ProtocolError):
+    """A Modbus reply whose header does not belong to the request: ``field`` is ``"function code"``,
+    ``"unit id"`` or ``"transaction id"``; ``expected`` is the request's value, ``got`` the reply's."""
+
+    def __init__(
+        self, *, field: str, expected: int, got: int, start: int, count: int, device: str = ""
+    ) -> None:
+        super().__init__(
+            f"reply for registers {start}-{start + count - 1} has {field} {got}, expected {expected}",
+            device=device,
+        )
+        self.field = field
+        self.expected = expected
+        self.got = got
+        self.start = start
+        self.count = count
 
 
 class FrameError(ProtocolError):

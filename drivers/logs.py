@@ -13,9 +13,12 @@
 The channel count is read from the header (``ch01_c``.. consecutive, matching ``st01``..). Timestamps must not
 go backwards.
 
-**CAN logs**: ``.asc``, ``.blf``, ``.log`` (candump) and ``.csv`` through ``can.Logger``/``can.LogReader``,
-with absolute (epoch) timestamps so that they line up with the CSV. Readers validate each frame and detect
-truncation where the format allows it (BLF header size, ASC end marker, partial lines).
+**CAN logs**: ``.asc``, ``.blf``, ``.log`` (candump), ``.csv``, ``.trc`` (PCAN-View trace) and ``.mf4`` (ASAM
+MDF 4, needs the optional ``asammdf`` package: ``pip install spindle-chtc[mf4]``) through
+``can.Logger``/``can.LogReader``, with absolute (epoch) timestamps so that they line up with the CSV. Readers
+validate each frame and detect truncation where the format allows it (BLF header size, ASC end marker, a
+partial last line of ASC/TRC/candump, an MF4 file cut short); ASC and TRC lines python-can would skip are
+refused, naming the frame.
 
 Errors::
 
@@ -60,7 +63,7 @@ __all__ = [
     "write_can_log",
 ]
 
-CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".csv")
+CAN_LOG_SUFFIXES: tuple[str, ...] = (".asc", ".blf", ".log", ".csv", ".trc", ".mf4")
 _BACKWARDS_TOLERANCE_S = 1e-3
 
 
@@ -293,11 +296,12 @@ def _check_suffix(path: Path) -> str:
 
 
 class CanLogWriter:
-    """Writes CAN frames to a python-can log file chosen by suffix (.asc, .blf, .log, .csv)."""
+    """Writes CAN frames to a python-can log file chosen by suffix (.asc, .blf, .log, .csv, .trc, .mf4)."""
 
     def __init__(self, path: str | Path) -> None:
         self.path = Path(path)
         _check_suffix(self.path)
+        _check_mf4_support(self.path)
         try:
             self._logger: Any = can.Logger(str(self.path))
         except (OSError, ValueError) as err:
@@ -350,8 +354,11 @@ def iter_can_log(path: str | Path) -> Iterator[can.Message]:
     suffix = _check_suffix(path)
     if not path.is_file():
         raise LogFormatError("no such file", path=path)
+    _check_mf4_support(path)
     if suffix == ".asc":
         _check_asc_lines(path)
+    if suffix == ".trc":
+        _check_trc_lines(path)
     count = 0
     last_t = -math.inf
     try:
@@ -407,6 +414,39 @@ def _check_asc_lines(path: Path) -> None:
                         f"unparseable ASC line {lineno}: {text.strip()[:40]!r}", path=path, frame=frames + 1
                     )
                 frames += bool(_ASC_FRAME.match(text))
+
+
+def _check_mf4_support(path: Path) -> None:
+    if path.suffix.lower() != ".mf4":
+        return
+    try:
+        import asammdf  # noqa: F401  (optional dependency, only for .mf4)
+    except ImportError as err:
+        raise LogFormatError(
+            "MF4 logs need the optional package asammdf (pip install 'spindle-chtc[mf4]')", path=path
+        ) from err
+
+
+_TRC_FRAME = re.compile(r"^\s*\d+\)?\s+-?\d+(\.\d+)?\s+\S")
+
+
+def _check_trc_lines(path: Path) -> None:
+    """python-can's TRC reader skips lines it does not understand and reads a line cut short as a shorter
+    frame; refuse both instead (names the frame). TRC has no end marker: a file cut exactly at a line end
+    reads as a shorter log."""
+    frames = 0
+    with path.open("r", encoding="ascii", errors="replace") as f:
+        for lineno, text in enumerate(f, start=1):
+            stripped = text.strip()
+            if not stripped or stripped.startswith(";"):
+                continue
+            frames += 1
+            if not _TRC_FRAME.match(text):
+                raise LogFormatError(
+                    f"unparseable TRC line {lineno}: {stripped[:40]!r}", path=path, frame=frames
+                )
+            if not text.endswith("\n"):
+                raise LogFormatError(f"truncated: TRC line {lineno} is cut short", path=path, frame=frames)
 
 
 def _check_frame(path: Path, index: int, msg: can.Message, last_t: float) -> None:

@@ -1,23 +1,38 @@
-"""Async Modbus TCP driver for the 32-channel temperature DAQ (input registers, FC4 only, never writes).
+"""Async Modbus TCP driver for the 32-channel temperature DAQ (reads input (FC4) or holding (FC3) registers,
+as the register map's ``table`` says; never writes).
 
 Uses pymodbus' ``AsyncModbusTcpClient`` with its own retries and automatic reconnect switched off
 (``retries=0, reconnect_delay=0``; pymodbus' backoff grows to 300 s): reconnecting is ``Source``'s bounded
-backoff. pymodbus errors are translated here, once:
+backoff. The unit id is ``unit_id`` when given (setting ``modbus.unit``), else the register map's ``unit_id``
+(``self.unit_id`` is the one in use). pymodbus errors are translated here, once:
 
 - ``ExceptionResponse`` / ``isError()``         → ``ModbusExceptionError`` (with the exception code)
 - fewer registers than asked                   → ``ShortReplyError`` naming the register range
-- bytes arrived but no valid frame in time     → ``ShortReplyError`` ("garbled reply", with the bytes)
+- a reply whose transaction id, unit id or function code is not the request's → ``ReplyMismatchError``
+  naming the field, the expected and the received value
+- a reply whose byte count disagrees with its length, or bytes that are no frame → ``ShortReplyError``
+  ("garbled reply", with the bytes)
 - nothing arrived in time                      → ``DeviceTimeoutError`` (link dropped, reconnect)
 - connection refused / lost                    → ``DeviceUnavailableError`` (reconnect with backoff)
+
+Every received frame is checked in pymodbus' ``trace_packet`` hook, before pymodbus decodes it: a bad one is
+withheld from pymodbus (which would otherwise skip it and time out, or raise inside the event loop's
+``data_received`` and log an asyncio traceback) and fails the pending request at once with the named error
+(through ``TransactionManager.response_future``; should a pymodbus version lack it, the request times out
+and the same named error is raised). The link is then re-established, since the byte stream may be out of
+step.
 
 Each good poll gives a ``DaqReading`` whose per-channel ``quality`` says: DAQ status 1 → ``OPEN_CIRCUIT``,
 2 → ``OUT_OF_RANGE`` (also outside ``valid_range_c``), NaN → ``NAN``, identical value over
 ``stuck_samples`` device samples → ``STUCK``, device sample counter frozen for ``stale_after_s`` → ``STALE``.
-A counter going backwards is a device restart (counted; stuck history reset).
+The counter is compared modulo its register width (2**32 for uint32): an advance by less than half the range
+is a new sample (so 0xFFFFFFFF → 0 is one), a step back is a device restart (counted; stuck history reset).
 """
 
 from __future__ import annotations
 
+import asyncio
+import struct
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import datetime
@@ -30,17 +45,21 @@ from pymodbus.exceptions import ConnectionException, ModbusException, ModbusIOEx
 
 from drivers.base import Source, StuckDetector
 from drivers.errors import (
+    ConfigError,
     DeviceError,
     DeviceTimeoutError,
     DeviceUnavailableError,
     ModbusExceptionError,
     ProtocolError,
+    ReplyMismatchError,
     ShortReplyError,
 )
 from drivers.quality import PRECEDENCE, Quality
 from drivers.registers import RegisterMap, RegisterValues, decode, default_register_map, read_blocks
 
 FC_READ_INPUT_REGISTERS = 4
+FC_READ_HOLDING_REGISTERS = 3
+_MBAP = struct.Struct(">HHHBB")  # transaction id, protocol id, length, unit id, function code
 _RANK = np.array([PRECEDENCE.index(q) for q in sorted(Quality)])  # lower rank wins
 
 
@@ -55,6 +74,8 @@ class ModbusClient(Protocol):
     def close(self) -> None: ...
 
     def read_input_registers(self, address: int, *, count: int = 1, device_id: int = 1) -> Any: ...
+
+    def read_holding_registers(self, address: int, *, count: int = 1, device_id: int = 1) -> Any: ...
 
 
 @dataclass(frozen=True)
@@ -83,7 +104,8 @@ class ModbusDaq(Source[DaqReading]):
 
     ``timeout_s`` is per Modbus request (s); ``stale_after_s`` how long the device sample counter may stay
     unchanged (s); ``stuck_samples`` identical device samples before a channel is ``STUCK`` (``None``: off);
-    ``valid_range_c`` plausible temperatures (°C). ``client=`` injects a pymodbus-like async client.
+    ``valid_range_c`` plausible temperatures (°C). ``unit_id`` (0–247) overrides the map's ``unit_id``.
+    ``client=`` injects a pymodbus-like async client.
     """
 
     def __init__(
@@ -97,6 +119,7 @@ class ModbusDaq(Source[DaqReading]):
         stuck_samples: int | None = 60,
         stuck_tolerance_c: float = 0.0,
         valid_range_c: tuple[float, float] = (-40.0, 250.0),
+        unit_id: int | None = None,
         client: ModbusClient | None = None,
         **source_kwargs: Any,
     ) -> None:
@@ -105,6 +128,15 @@ class ModbusDaq(Source[DaqReading]):
         )
         self.host, self.port = host, port
         self.register_map = register_map or default_register_map()
+        self.unit_id = self.register_map.unit_id if unit_id is None else unit_id
+        if not 0 <= self.unit_id <= 247:
+            raise ConfigError(f"unit id {self.unit_id} outside 0..247", entry="modbus.unit")
+        self.function_code = self.register_map.function_code
+        counters = self.register_map.role("counter")
+        self._counter_modulus = counters[0].modulus if counters else 2**32
+        self._sent: tuple[int, int, int] | None = None  # (transaction id, unit id, FC) of the last request
+        self._reply_error: ProtocolError | None = None
+        self._request_span = (0, 0)
         self.blocks: list[tuple[int, int]] = read_blocks(self.register_map)
         self.valid_range_c = valid_range_c
         self._rx: list[bytes] = []
@@ -129,9 +161,54 @@ class ModbusDaq(Source[DaqReading]):
         )
 
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        if not sending:
-            self._rx.append(bytes(data))
-        return data
+        if sending:
+            if len(data) >= _MBAP.size:
+                tid, _pid, _len, unit, fc = _MBAP.unpack_from(data)
+                self._sent, self._reply_error = (tid, unit, fc), None
+            return data
+        self._rx.append(bytes(data))
+        problem = self._frame_problem(data)
+        if problem is None:
+            return data
+        self._fail_pending(problem)
+        return b""  # withheld: pymodbus neither skips it silently nor raises inside the event loop
+
+    def _frame_problem(self, data: bytes) -> ProtocolError | None:
+        """What is wrong with a received frame (``None``: fine, or not complete yet)."""
+        if self._sent is None or len(data) < _MBAP.size:
+            return None
+        tid, pid, length, unit, fc = _MBAP.unpack_from(data)
+        if pid != 0 or length < 3:
+            return self._garbled(data, f"MBAP protocol id {pid}, length {length}")
+        start, count = self._request_span
+        for what, expected, got in (
+            ("transaction id", self._sent[0], tid),
+            ("unit id", self._sent[1], unit),
+            ("function code", self._sent[2], fc & 0x7F),
+        ):
+            if got != expected:
+                return ReplyMismatchError(
+                    field=what, expected=expected, got=got, start=start, count=count, device=self.name
+                )
+        if len(data) < 6 + length:
+            return None  # more bytes to come (pymodbus times out if they never do)
+        if fc & 0x80:
+            return None if length == 3 else self._garbled(data, f"exception reply of length {length}")
+        if data[8] != length - 3:
+            return self._garbled(data, f"byte count {data[8]} but {length - 3} data bytes")
+        return None
+
+    def _garbled(self, data: bytes, why: str) -> ShortReplyError:
+        start, count = self._request_span
+        detail = f"garbled reply, {len(data)} bytes: {data[:16].hex(' ')} ({why})"
+        return ShortReplyError(start=start, count=count, got=0, device=self.name, detail=detail)
+
+    def _fail_pending(self, err: ProtocolError) -> None:
+        """Remember ``err`` and fail the request pymodbus is waiting on (if it exposes the future)."""
+        self._reply_error = err
+        future = getattr(getattr(self._client, "ctx", None), "response_future", None)
+        if isinstance(future, asyncio.Future) and not future.done():
+            future.set_exception(err)
 
     # ---------------------------------------------------------------------------------------- Source hooks
     def _read_timeout_s(self) -> float:
@@ -153,7 +230,8 @@ class ModbusDaq(Source[DaqReading]):
 
     def _needs_reconnect(self, err: DeviceError) -> bool:
         # A garbled reply may leave the byte stream out of step: start a fresh connection.
-        return super()._needs_reconnect(err) or (isinstance(err, ShortReplyError) and err.got == 0)
+        garbled = isinstance(err, ShortReplyError) and err.got == 0
+        return super()._needs_reconnect(err) or garbled or isinstance(err, ReplyMismatchError)
 
     async def _read_internal(self) -> DaqReading:
         blocks = [(start, await self._read_block(start, count)) for start, count in self.blocks]
@@ -166,47 +244,77 @@ class ModbusDaq(Source[DaqReading]):
         return self._client
 
     async def _read_block(self, start: int, count: int) -> list[int]:
-        """Read ``count`` input registers from ``start`` (FC4), translating every pymodbus failure."""
+        """Read ``count`` registers from ``start`` (FC4 or FC3), translating every pymodbus failure."""
         self._rx.clear()
-        unit = self.register_map.unit_id
+        self._request_span, self._reply_error = (start, count), None
+        client = self._connected_client()
+        read = (
+            client.read_input_registers
+            if self.function_code == FC_READ_INPUT_REGISTERS
+            else client.read_holding_registers
+        )
         try:
-            reply = await self._connected_client().read_input_registers(start, count=count, device_id=unit)
+            reply = await read(start, count=count, device_id=self.unit_id)
         except ModbusIOException as err:
             raise self._io_error(start, count) from err
         except ConnectionException as err:
-            msg = f"connection lost reading {_span(start, count)}"
+            msg = f"connection lost reading {self._describe(start, count)}"
             raise DeviceUnavailableError(msg, device=self.name) from err
         except ModbusException as err:
-            raise ProtocolError(f"bad reply for {_span(start, count)}: {err}", device=self.name) from err
+            raise ProtocolError(
+                f"bad reply for {self._describe(start, count)}: {err}", device=self.name
+            ) from err
         except OSError as err:
-            msg = f"socket error reading {_span(start, count)}: {err}"
+            msg = f"socket error reading {self._describe(start, count)}: {err}"
             raise DeviceUnavailableError(msg, device=self.name) from err
         return self._check_reply(reply, start, count)
 
     def _io_error(self, start: int, count: int) -> Exception:
+        if self._reply_error is not None:
+            return self._reply_error
         received = b"".join(self._rx)
         if not self._connected_client().connected:
-            return DeviceUnavailableError(f"connection lost reading {_span(start, count)}", device=self.name)
+            return DeviceUnavailableError(
+                f"connection lost reading {self._describe(start, count)}", device=self.name
+            )
         if received:
             detail = f"garbled reply, {len(received)} bytes: {received[:32].hex(' ')}"
             return ShortReplyError(start=start, count=count, got=0, device=self.name, detail=detail)
-        msg = f"no reply for {_span(start, count)} within {self.timeout_s:g} s"
+        msg = f"no reply for {self._describe(start, count)} within {self.timeout_s:g} s"
         return DeviceTimeoutError(msg, device=self.name)
 
     def _check_reply(self, reply: Any, start: int, count: int) -> list[int]:
         if reply.isError():
             code = int(getattr(reply, "exception_code", 0))
             raise ModbusExceptionError(
-                function_code=FC_READ_INPUT_REGISTERS,
+                function_code=self.function_code,
                 exception_code=code,
                 start=start,
                 count=count,
                 device=self.name,
             )
+        self._check_header(reply, start, count)
         registers: Sequence[int] = getattr(reply, "registers", None) or []
         if len(registers) != count:
             raise ShortReplyError(start=start, count=count, got=len(registers), device=self.name)
         return [int(w) & 0xFFFF for w in registers]
+
+    def _describe(self, start: int, count: int) -> str:
+        table = "input" if self.function_code == FC_READ_INPUT_REGISTERS else "holding"
+        return f"{table} registers {start}-{start + count - 1}"
+
+    def _check_header(self, reply: Any, start: int, count: int) -> None:
+        """The decoded reply's function code and unit id (also for an injected client without the hook)."""
+        fc = getattr(reply, "function_code", self.function_code)
+        unit = getattr(reply, "dev_id", self.unit_id)
+        for what, expected, got in (
+            ("function code", self.function_code, fc),
+            ("unit id", self.unit_id, unit),
+        ):
+            if isinstance(got, int) and got != expected and not (what == "unit id" and expected == 0):
+                raise ReplyMismatchError(
+                    field=what, expected=expected, got=got, start=start, count=count, device=self.name
+                )
 
     # ---------------------------------------------------------------------------------------- quality
     def is_stale(self) -> bool:
@@ -230,7 +338,7 @@ class ModbusDaq(Source[DaqReading]):
             self._counter_changed_at = now
         if counter is None or previous is None:
             return True, False
-        restarted = counter < previous
+        restarted = (counter - previous) % self._counter_modulus >= self._counter_modulus // 2
         if restarted:
             self.metrics.count("restarts")
             if self._stuck is not None:
@@ -305,7 +413,3 @@ def quality_counts(quality: npt.NDArray[np.uint8]) -> dict[str, int]:
     """Number of channels per flag label, e.g. ``{"ok": 30, "open_circuit": 2}``."""
     counts = np.bincount(quality, minlength=len(Quality))
     return {Quality(v).label: int(n) for v, n in enumerate(counts) if n}
-
-
-def _span(start: int, count: int) -> str:
-    return f"input registers {start}-{start + count - 1}"

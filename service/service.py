@@ -397,6 +397,9 @@ class SoftSensorService:
         recent_error = m.last_error_t is not None and (now - m.last_error_t).total_seconds() <= 60.0
         if status is DeviceStatus.DEGRADED and not recent_error:
             status = DeviceStatus.OK  # old errors only: healthy again
+        condition = src.condition() if hasattr(src, "condition") else ""  # e.g. CAN fault status
+        if condition and status is DeviceStatus.OK:
+            status = DeviceStatus.DEGRADED
         counters = {
             "polls": m.polls,
             "reads_ok": m.reads_ok,
@@ -404,7 +407,8 @@ class SoftSensorService:
             **m.errors,
             **m.events,
         }
-        return DeviceHealth(name, status, last_ok, age_s(last_ok, now), counters, m.last_error)
+        message = condition or m.last_error
+        return DeviceHealth(name, status, last_ok, age_s(last_ok, now), counters, message)
 
     def _db_health(self, now: datetime) -> DeviceHealth:
         if self.writer is None:

@@ -85,22 +85,59 @@ class ModbusSettings(_Section):
 
     host: str = "127.0.0.1"
     port: int = Field(default=5020, ge=1, le=65535)
-    unit: int = Field(default=1, ge=0, le=255)
+    unit: int | None = Field(default=None, ge=0, le=247)  # None → the register map's unit_id (1 by default)
     timeout_s: float = Field(default=1.0, gt=0)
     poll_interval_s: float = Field(default=1.0, gt=0)
     register_map: Path | None = None  # TOML register map; None → drivers.registers.default_register_map()
 
 
+_CAN_RESERVED_OPTIONS = frozenset(
+    {"interface", "channel", "bitrate", "fd", "data_bitrate", "can_filters", "ignore_config"}
+)
+
+
+class CanFilter(_Section):
+    """One python-can receive filter: a frame passes when ``id & can_mask == can_id & can_mask``."""
+
+    can_id: int = Field(ge=0, le=0x1FFFFFFF)
+    can_mask: int = Field(ge=0, le=0x1FFFFFFF)
+    extended: bool | None = None  # None: both 11- and 29-bit IDs
+
+
 class CanSettings(_Section):
     """Speed/torque sensor over CAN (python-can interface + DBC)."""
 
-    interface: Literal["virtual", "socketcan", "remote"] = "virtual"
+    interface: str = "virtual"  # any python-can interface (can.interfaces.VALID_INTERFACES)
     channel: str = "chtc"  # "can0" for socketcan, "ws://host:port/" for remote, any name for virtual
     dbc: Path | None = None  # None → packaged drivers/data/spindle.dbc
     bitrate: int | None = Field(default=None, gt=0)
     stale_after_s: float = Field(
         default=0.5, gt=0
     )  # no SpindleStatus frame for this long → speed/torque STALE
+    fd: bool = False  # open the bus in CAN FD mode (SpindleStatus frames must still be CAN 2.0A)
+    data_bitrate: int | None = Field(default=None, gt=0)  # CAN FD data-phase bit rate, bit/s
+    filters: list[CanFilter] | None = None  # python-can can_filters, applied by the interface
+    options: dict[str, Any] = Field(default_factory=dict)  # further keyword arguments for the interface
+
+    @field_validator("interface")
+    @classmethod
+    def _known_interface(cls, value: str) -> str:
+        import can.interfaces  # only needed when a CAN section is validated
+
+        if value not in can.interfaces.VALID_INTERFACES:
+            known = ", ".join(sorted(can.interfaces.VALID_INTERFACES))
+            raise ValueError(f"unknown python-can interface {value!r} (one of {known})")
+        return value
+
+    @field_validator("options")
+    @classmethod
+    def _no_reserved_options(cls, value: dict[str, Any]) -> dict[str, Any]:
+        reserved = sorted(set(value) & _CAN_RESERVED_OPTIONS)
+        if reserved:
+            raise ValueError(
+                f"{reserved} have their own keys (interface, channel, bitrate, fd, data_bitrate, filters)"
+            )
+        return value
 
 
 class AcquisitionSettings(_Section):

@@ -8,7 +8,9 @@ processes, ``socketcan`` in production); the node never creates or shuts it down
 
 Faults (``drivers.sim.faults``): ``silence`` sends nothing, ``counter-gap`` skips the counter once per
 activation, ``unknown-id`` adds a frame with a foreign ID each period, ``wrong-dlc`` sends the wrong length,
-``fault-status`` sets the status byte.
+``fault-status`` sets the status byte (2 fault, 1 warning, anything else is invalid), ``fd`` sends
+``SpindleStatus`` as a CAN FD frame, ``extended-id`` with a 29-bit ID 0x181, ``remote`` adds a remote frame
+0x181 each period. Frames sent under a fault still advance the rolling counter, as a real sensor's would.
 
 Errors: ``drivers.errors.DeviceUnavailableError`` when the bus refuses a frame.
 """
@@ -102,6 +104,12 @@ class SimulatedCanNode:
             self.counter = (self.counter + int(gap.param())) % COUNTER_MODULO
         out = [self._status_frame()]
         self.counter = (self.counter + 1) % COUNTER_MODULO
+        if self.faults.is_active(FaultKind.REMOTE_FRAME):
+            out.append(
+                can.Message(
+                    arbitration_id=SPINDLE_STATUS_ID, is_extended_id=False, is_remote_frame=True, dlc=6
+                )
+            )
         foreign = self.faults.first(FaultKind.UNKNOWN_ID)
         if foreign is not None:
             out.append(can.Message(arbitration_id=int(foreign.param()), is_extended_id=False, data=bytes(8)))
@@ -120,7 +128,12 @@ class SimulatedCanNode:
         if wrong is not None:
             dlc = int(wrong.param())
             data = (data + bytes(8))[:dlc]
-        return can.Message(arbitration_id=SPINDLE_STATUS_ID, is_extended_id=False, data=data)
+        return can.Message(
+            arbitration_id=SPINDLE_STATUS_ID,
+            is_extended_id=self.faults.is_active(FaultKind.EXTENDED_ID),
+            is_fd=self.faults.is_active(FaultKind.FD_FRAME),
+            data=data,
+        )
 
     def send_once(self) -> int:
         """Send one period's frames now; returns how many were sent."""

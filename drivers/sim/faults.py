@@ -60,6 +60,12 @@ class FaultKind(StrEnum):
     WRONG_DLC = "wrong-dlc"  # SpindleStatus sent with the wrong length (value: DLC, default 4)
     FAULT_STATUS = "fault-status"  # SpindleStatus status byte 2 (fault) (value: status byte)
     SILENCE = "silence"  # the CAN node sends nothing
+    WRONG_FC = "wrong-fc"  # Modbus reply carries another function code (value: FC, default 3)
+    WRONG_UNIT = "wrong-unit"  # Modbus reply carries another unit id (value: unit id, default 99)
+    WRONG_TID = "wrong-tid"  # Modbus reply carries another transaction id (value: added to it, default 1)
+    FD_FRAME = "fd"  # SpindleStatus sent as a CAN FD frame (the contract is CAN 2.0A)
+    EXTENDED_ID = "extended-id"  # SpindleStatus sent with a 29-bit (extended) ID 0x181
+    REMOTE_FRAME = "remote"  # a remote (RTR) frame with ID 0x181 added each period
 
 
 CHANNEL_FAULTS: frozenset[FaultKind] = frozenset(
@@ -73,6 +79,9 @@ DEFAULT_VALUES: dict[FaultKind, float] = {
     FaultKind.UNKNOWN_ID: 0x7E0,
     FaultKind.WRONG_DLC: 4,
     FaultKind.FAULT_STATUS: 2,
+    FaultKind.WRONG_FC: 3,
+    FaultKind.WRONG_UNIT: 99,
+    FaultKind.WRONG_TID: 1,
 }
 
 

@@ -4,12 +4,16 @@ The DAQ "samples" every ``sample_period_s`` wall seconds: sample ``k`` shows the
 ``times_s[0] + speedup * k * sample_period_s`` and the uint32 sample counter reads ``k`` (mod 2**32).
 Registers are refreshed lazily when a request arrives (pymodbus device ``action`` hook), so there is no
 background timer and an injected clock fully controls what a client reads. Values are encoded with
-``drivers.registers.encode`` for any register map (int16 or float32, either word order). The register space
-is read-only: writes get an "illegal data address" exception. FC3 reads see the same words as FC4.
+``drivers.registers.encode`` for any register map (every type, word order, scale/offset and "no value"
+sentinel the map allows). The registers sit in the map's table: input registers (FC4) or holding registers
+(FC3); a read of the other table gets an "illegal function" exception, a write "illegal data address".
 
 Faults (``drivers.sim.faults``): channel faults change values/status; ``freeze`` stops sampling; ``hang``
 holds replies back; ``drop`` closes every connection and the listening socket until cleared (the port is
-kept); ``short``/``garbled`` rewrite the outgoing reply; ``exception`` answers with an exception response.
+kept); ``short``/``garbled`` rewrite the outgoing reply; ``exception`` answers with an exception response;
+``wrong-fc``/``wrong-unit``/``wrong-tid`` rewrite the reply's function code, unit id or transaction id.
+``counter_start`` offsets the sample counter (it wraps modulo 2**16 or 2**32 with its register type), so a
+test can cross the wrap-around.
 
 A poll of several register blocks sees one consistent sample: a request that starts at the map's lowest
 address takes a new snapshot, and requests for higher addresses within ``latch_s`` wall seconds (default
@@ -40,7 +44,14 @@ from pymodbus.server import ModbusTcpServer
 from pymodbus.simulator import DataType, SimData, SimDevice
 
 from drivers.errors import DeviceUnavailableError, EncodeError
-from drivers.registers import RegisterMap, RegisterValues, default_register_map, encode, read_blocks
+from drivers.registers import (
+    RegisterMap,
+    RegisterValues,
+    default_register_map,
+    encode,
+    read_blocks,
+    value_limits,
+)
 from drivers.sim.faults import FaultController, FaultKind, apply_channel_faults
 from drivers.sim.source import TimelineSource
 
@@ -48,7 +59,6 @@ __all__ = ["SimulatedDaq"]
 
 Sampling = Literal["clock", "row"]
 _READ_CODES = (3, 4)
-_INT16_LIMIT_C = 327.0
 _SUPERVISE_S = 0.02
 
 
@@ -67,6 +77,7 @@ class SimulatedDaq:
         sampling: Sampling = "clock",
         row_counters: Sequence[int] | None = None,
         latch_s: float = 0.05,
+        counter_start: int = 0,
     ) -> None:
         self.source = source
         self.host = host
@@ -77,6 +88,9 @@ class SimulatedDaq:
         self.sampling: Sampling = sampling
         self.row_counters = None if row_counters is None else list(row_counters)
         self.requests_served = 0
+        self.counter_start = counter_start
+        counters = self.register_map.role("counter")
+        self._counter_modulus = counters[0].modulus if counters else 2**32
         self._server: ModbusTcpServer | None = None
         self._supervisor: asyncio.Task[None] | None = None
         self._cache_key: tuple[int, tuple[int, ...]] | None = None
@@ -168,8 +182,10 @@ class SimulatedDaq:
         registers: list[int],
         set_values: list[int] | list[bool] | None,
     ) -> ExcCodes | None:
-        if set_values is not None or function_code not in _READ_CODES:
+        if set_values is not None:
             return ExcCodes.ILLEGAL_ADDRESS
+        if function_code != self.register_map.function_code:
+            return ExcCodes.ILLEGAL_FUNCTION
         if self.faults.active():  # the common case, no fault at all, skips these checks
             while self.faults.is_active(FaultKind.HANG) or self.faults.is_active(FaultKind.DROP):
                 await asyncio.sleep(0.005)
@@ -213,7 +229,11 @@ class SimulatedDaq:
         if self.row_counters is not None and self.sampling == "row" and self.row_counters[k] >= 0:
             counter = self.row_counters[k]
         return RegisterValues(
-            temps_c=temps, ambient_c=snap.ambient_c, status=status, ambient_status=0, counter=counter % 2**32
+            temps_c=temps,
+            ambient_c=snap.ambient_c,
+            status=status,
+            ambient_status=0,
+            counter=(counter + self.counter_start) % self._counter_modulus,
         )
 
     def _refresh(self, address: int) -> None:
@@ -236,9 +256,10 @@ class SimulatedDaq:
 
     # -------------------------------------------------------------------------------------- packet faults
     def _trace_packet(self, sending: bool, data: bytes) -> bytes:
-        """Rewrite outgoing read replies for the ``short`` and ``garbled`` faults."""
+        """Rewrite outgoing read replies for the ``short``, ``garbled`` and wrong-header faults."""
         if not sending or len(data) < 9 or data[7] not in _READ_CODES:
             return data
+        data = self._rewrite_header(data)
         short = self.faults.first(FaultKind.SHORT)
         if short is not None:
             return _shorten(data, max(1, int(short.param())))
@@ -246,6 +267,17 @@ class SimulatedDaq:
         if garbled is not None:
             return _garble(data, int(garbled.value or 1))
         return data
+
+    def _rewrite_header(self, data: bytes) -> bytes:
+        """Apply ``wrong-fc``, ``wrong-unit`` and ``wrong-tid`` to an outgoing reply's MBAP header and FC."""
+        tid, unit, fc = int.from_bytes(data[0:2], "big"), data[6], data[7]
+        if (f := self.faults.first(FaultKind.WRONG_TID)) is not None:
+            tid = (tid + int(f.param())) & 0xFFFF
+        if (f := self.faults.first(FaultKind.WRONG_UNIT)) is not None:
+            unit = int(f.param()) & 0xFF
+        if (f := self.faults.first(FaultKind.WRONG_FC)) is not None:
+            fc = int(f.param()) & 0xFF
+        return tid.to_bytes(2, "big") + data[2:6] + bytes([unit, fc]) + data[8:]
 
 
 def _shorten(packet: bytes, missing: int) -> bytes:
@@ -265,21 +297,21 @@ def _garble(packet: bytes, mode: int) -> bytes:
 
 
 def _encode_clipped(reg_map: RegisterMap, values: RegisterValues) -> dict[int, int]:
-    """Encode; values an int16 register cannot hold are clipped to ±327 °C and flagged out of range (2)."""
+    """Encode; a temperature its register cannot hold is clipped to the register's range and flagged out of
+    range (status 2), as a DAQ saturates."""
     try:
         return encode(reg_map, values)
     except EncodeError:
-        temps = np.asarray(values.temps_c, dtype=float)
-        bad = np.isfinite(temps) & (np.abs(temps) > _INT16_LIMIT_C)
-        status = np.where(bad, 2, values.status)
+        temps = np.array(values.temps_c, dtype=float, copy=True)
+        status = np.array(values.status, dtype=np.int64, copy=True)
         ambient = values.ambient_c
-        if math.isfinite(ambient):
-            ambient = float(np.clip(ambient, -_INT16_LIMIT_C, _INT16_LIMIT_C))
-        clipped = RegisterValues(
-            temps_c=np.clip(temps, -_INT16_LIMIT_C, _INT16_LIMIT_C),
-            ambient_c=ambient,
-            status=status.astype(np.int64),
-            ambient_status=values.ambient_status,
-            counter=values.counter,
-        )
+        for e in reg_map.entries:
+            lo, hi = value_limits(e)
+            if e.role in ("bearing", "housing"):
+                i = (e.channel or 1) - 1
+                if math.isfinite(temps[i]) and not lo <= temps[i] <= hi:
+                    temps[i], status[i] = float(np.clip(temps[i], lo, hi)), 2
+            elif e.role == "ambient" and math.isfinite(ambient):
+                ambient = float(np.clip(ambient, lo, hi))
+        clipped = RegisterValues(temps, ambient, status, values.ambient_status, values.counter)
         return encode(reg_map, clipped)

@@ -27,7 +27,9 @@ from service.commands.identify import record_dict
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("csv", type=Path, help="temperature CSV (chtc record / drivers.logs format)")
-    parser.add_argument("can", type=Path, nargs="?", default=None, help="CAN log (.blf/.asc/.log/.csv)")
+    parser.add_argument(
+        "can", type=Path, nargs="?", default=None, help="CAN log (.blf/.asc/.log/.csv/.trc/.mf4)"
+    )
     parser.add_argument("--config", type=Path, default=None, help="settings TOML")
     parser.add_argument("--speedup", type=float, default=60.0, help="recorded seconds per wall second")
     parser.add_argument("--database-url", default=None, help="SQLAlchemy URL (default: settings)")

@@ -40,12 +40,17 @@ def make_device_drivers(settings: Any, *, clock: Any) -> tuple[Any, Any]:
         register_map=load_register_map(m.register_map) if m.register_map is not None else None,
         timeout_s=m.timeout_s,
         stale_after_s=max(30.0, 3.0 * settings.acquisition.sample_period_s),
+        unit_id=m.unit,
         now=clock,
     )
     can_sensor = CanSpindleSensor(
         interface=c.interface,
         channel=c.channel,
         bitrate=c.bitrate,
+        fd=c.fd,
+        data_bitrate=c.data_bitrate,
+        can_filters=None if c.filters is None else [f.model_dump(exclude_none=True) for f in c.filters],
+        bus_kwargs=dict(c.options),
         dbc=c.dbc,
         stale_after_s=c.stale_after_s,
         now=clock,

@@ -66,9 +66,9 @@ def test_decodes_frames_and_flags_gap_fault_and_bad_frames() -> None:
         tx.send(_frame(3020, 12.7, 4))  # counters 2 and 3 lost
         tx.send(can.Message(arbitration_id=0x200, data=b"\x00" * 8, is_extended_id=False))
         tx.send(can.Message(arbitration_id=0x181, data=encode_status(1, 1, 5, 0)[:4], is_extended_id=False))
-        tx.send(can.Message(arbitration_id=0x181, data=encode_status(1, 1, 5, 9), is_extended_id=False))
-        tx.send(_frame(3030, -1.25, 5, status=SensorStatus.WARNING))
-        tx.send(_frame(3040, -1.5, 6, status=SensorStatus.FAULT))
+        tx.send(can.Message(arbitration_id=0x181, data=encode_status(1, 1, 6, 9), is_extended_id=False))
+        tx.send(_frame(3030, -1.25, 7, status=SensorStatus.WARNING))
+        tx.send(_frame(3040, -1.5, 8, status=SensorStatus.FAULT))
         got = await _read_all(sensor, 8)
         r0, _r1, r2 = got[:3]
         assert isinstance(r0, CanReading) and (r0.speed_rpm, r0.torque_nm, r0.quality) == (
@@ -92,7 +92,7 @@ def test_decodes_frames_and_flags_gap_fault_and_bad_frames() -> None:
         assert m.events["faults"] == 1 and m.events["warnings"] == 1 and m.events["frames"] == 8
         assert m.errors["UnknownFrameIdError"] == 1 and m.errors["WrongDlcError"] == 1
         assert m.errors["CounterGapError"] == 1
-        assert sensor.latest().counter == 6
+        assert sensor.latest().counter == 8
 
     _run(body, stale_after_s=1.0)
 
@@ -153,14 +153,10 @@ def test_injected_bus_is_not_closed_and_never_written() -> None:
 
 
 def test_unknown_interface_is_a_config_error() -> None:
-    async def main() -> None:
-        async with CanSpindleSensor(
-            interface="no-such-interface", channel="x", backoff=Backoff(max_s=0.1)
-        ) as s:
-            with pytest.raises(ConfigError, match=r"can\.interface"):
-                await s.read()
-
-    asyncio.run(main())
+    with pytest.raises(
+        ConfigError, match=r"can\.interface: unknown python-can interface 'no-such-interface'"
+    ):
+        CanSpindleSensor(interface="no-such-interface", channel="x", backoff=Backoff(max_s=0.1))
 
 
 def test_bus_error_reconnects_with_backoff() -> None:

@@ -47,7 +47,7 @@ def test_default_map_matches_spec_section_4() -> None:
     assert m.role("ambient")[0].address == 32
     assert [e.address for e in m.role("status")] == list(range(100, 133))
     (counter,) = m.role("counter")
-    assert (counter.address, counter.type, counter.word_order) == (200, "uint32", "big")
+    assert (counter.address, counter.type, counter.word_order) == (200, "uint32", "ABCD")
     assert m.bearing_channels() == tuple(range(1, 13))
     assert read_blocks(m) == [(0, 33), (100, 33), (200, 2)]
 
@@ -218,28 +218,40 @@ def test_float32_little_endian_map_from_dict() -> None:
 
 
 def test_vectorised_decode_matches_scalar_decode_for_every_type_and_order() -> None:
+    """``decode`` (numpy, all entries at once) equals ``decode_value`` (pymodbus' conversion, per entry)."""
     rng = np.random.default_rng(7)
-    types = ["int16", "uint16", "uint32", "float32"]
+    types = ["int16", "uint16", "int32", "uint32", "float32", "float64"]
+    orders = ["ABCD", "CDAB", "BADC", "DCBA"]
     entries, addr = [], 0
     for c in range(1, 33):
-        typ, order = types[c % 4], "big" if c % 3 else "little"
-        if typ in ("int16", "uint16"):
-            order = "big"
-        e = RegisterEntry(f"T{c}", addr, typ, float(rng.choice([0.01, 0.1, 1.0])), order, "housing", c)  # type: ignore[arg-type]
+        typ, order = types[c % 6], orders[(c // 6) % 4]
+        nodata = {"int16": None, "uint16": 65535.0, "int32": -(2.0**31)}.get(typ)
+        e = RegisterEntry(
+            f"T{c}",
+            addr,
+            typ,
+            float(rng.choice([0.01, 0.1, 1.0])),
+            order,
+            "housing",
+            c,  # type: ignore[arg-type]
+            offset=float(rng.choice([0.0, -273.15])),
+            nodata=nodata,
+        )
         entries.append(e)
         addr += e.width + int(rng.integers(0, 2))
     entries += [
-        RegisterEntry("amb", addr, "float32", 1.0, "little", "ambient", None),
-        RegisterEntry("cnt", addr + 2, "uint32", 1.0, "little", "counter", None),
-        RegisterEntry("S0", addr + 4, "uint16", 1.0, "big", "status", 0),
+        RegisterEntry("amb", addr, "float32", 1.0, "BADC", "ambient", None),
+        RegisterEntry("cnt", addr + 2, "uint32", 1.0, "DCBA", "counter", None),
+        RegisterEntry("S0", addr + 4, "uint16", 1.0, "BADC", "status", 0),
     ]
     m = RegisterMap(tuple(entries))
-    first_int16 = next(e for e in m.entries if e.type == "int16")
+    sentinel_entries = [e for e in m.entries if e.no_value is not None]
     for _ in range(20):
         words = {
             a: int(rng.integers(0, 0x10000)) for e in m.entries for a in range(e.address, e.last_address + 1)
         }
-        words[first_int16.address] = 0x8000  # the "no value" sentinel
+        for e in sentinel_entries[:3]:  # the "no value" sentinels
+            words.update(zip(range(e.address, e.last_address + 1), encode_value(e, math.nan), strict=True))
         out = decode(m, words)
         for e in m.entries:
             expected = decode_value(e, [words[a] for a in range(e.address, e.last_address + 1)])
@@ -247,6 +259,7 @@ def test_vectorised_decode_matches_scalar_decode_for_every_type_and_order() -> N
             assert (math.isnan(got) and math.isnan(expected)) or got == pytest.approx(expected, rel=1e-12), (
                 e.name
             )
+        assert sum(math.isnan(_decoded(out, e)) for e in sentinel_entries[:3]) == 3
 
 
 def _decoded(out: RegisterValues, e: RegisterEntry) -> float:

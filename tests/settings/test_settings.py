@@ -30,7 +30,7 @@ def write(tmp_path: Path, text: str) -> Path:
 
 def test_defaults_work_without_a_file(tmp_path: Path) -> None:
     s = Settings()
-    assert (s.modbus.host, s.modbus.port, s.modbus.unit) == ("127.0.0.1", 5020, 1)
+    assert (s.modbus.host, s.modbus.port, s.modbus.unit) == ("127.0.0.1", 5020, None)
     assert s.can.interface == "virtual"
     assert s.model.rom_rank == 30 and s.model.h_box == (5.0, 200.0)
     assert s.model.rom_cache_dir == tmp_path / "cache"
@@ -115,7 +115,9 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
     ("text", "key"),
     [
         ("[modbus]\nport = 70000\n", "modbus.port"),
-        ('[can]\ninterface = "pcan"\n', "can.interface"),
+        ('[can]\ninterface = "peak"\n', "can.interface"),
+        ("[modbus]\nunit = 248\n", "modbus.unit"),
+        ("[can]\noptions = { bitrate = 250000 }\n", "can.options"),
         ("[model]\nh_box = [200.0, 5.0]\n", "model.h_box"),
         ("[identification]\nschedule_min = [20, 10]\n", "identification.schedule_min"),
         ("[modbus]\nprot = 502\n", "modbus.prot"),
