@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import html
 import re
 import subprocess
 import threading
@@ -14,7 +15,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import STATIC_DIR, create_app
-from service.interface_memory import InMemoryService, demo_service, push_noisy_sample
+from service.interface_memory import InMemoryService, Section, demo_service, model_section, push_noisy_sample
 from service.settings import Settings
 from tests.api.conftest import LiveServer, ManualClock
 
@@ -102,32 +103,148 @@ def test_dashboard_renders_h_field_and_chart_in_chromium(
     assert re.search(r'id="status" class="pill pill-fresh"[^>]*>fresh', dom), re.findall(
         r'id="status"[^<]*', dom
     )
-    assert re.search(r'<div id="banner" class="banner" hidden="">', dom)
+    assert _banner(dom)[1], _banner(dom)  # hidden: nothing wrong
     assert "identification #2" in dom
     shot = tmp_path / "dashboard.png"
     _chromium(chromium_path, tmp_path, server.url + "/", "--window-size=1400,1500", f"--screenshot={shot}")
     assert shot.stat().st_size > 20_000  # a blank page is a few kB
 
 
+def _attr(dom: str, element_id: str, name: str) -> str:
+    """The value of attribute ``name`` of the element with ``id``, from a dumped DOM."""
+    tag = re.search(rf'<[a-z]+ [^>]*id="{element_id}"[^>]*>', dom)
+    assert tag is not None, element_id
+    value = re.search(rf' {name}="([^"]*)"', tag.group(0))
+    assert value is not None, (element_id, name, tag.group(0))
+    return html.unescape(value.group(1))
+
+
+def _banner(dom: str) -> tuple[str, bool, str]:
+    """(class, hidden, text) of the banner."""
+    m = re.search(r'<div id="banner" class="([^"]*)"( hidden="")?[^>]*>(.*?)</div>', dom, re.S)
+    assert m is not None, dom[:1500]
+    return m.group(1), m.group(2) is not None, html.unescape(re.sub(r"<[^>]+>", " ", m.group(3)))
+
+
+@pytest.fixture(scope="module")
+def real_section() -> Section:
+    return model_section()
+
+
+@pytest.mark.browser
+def test_every_chart_has_ticks_and_units_and_the_section_names_its_parts(
+    chromium_path: str, tmp_path: Path, real_section: Section
+) -> None:
+    clock = ManualClock(datetime.now(UTC))
+    svc = demo_service(clock=clock, section=real_section)
+    rng = np.random.default_rng(1)
+    for _ in range(30):
+        clock.advance(10.0)
+        push_noisy_sample(svc, rng=rng)
+    with LiveServer(create_app(Settings(), svc, clock=clock)) as server:
+        dom = _chromium(chromium_path, tmp_path, server.url + "/", "--window-size=1400,1000", "--dump-dom")
+    assert 'data-rendered="1"' in dom, dom[:2000]
+    units = {
+        "h-chart": ("zone", "W/(m²·K)"),
+        "field": ("z, mm", "r, mm"),
+        "sensor-chart": ("time, UTC", "temperature, °C"),
+        "condition-chart": ("time, UTC", "speed, rpm"),
+    }
+    for canvas, (x_title, y_unit) in units.items():
+        assert x_title in _attr(dom, canvas, "data-x-title"), canvas
+        assert y_unit in _attr(dom, canvas, "data-y-title"), canvas
+        assert len(_attr(dom, canvas, "data-x-ticks").split()) >= 3, canvas
+        assert len(_attr(dom, canvas, "data-y-ticks").split()) >= 3, canvas
+    assert _attr(dom, "h-chart", "data-x-ticks").split() == list(svc.chtc().zones)  # type: ignore[union-attr]
+    assert _attr(dom, "field", "data-c-title") == "T, °C"
+    times = _attr(dom, "sensor-chart", "data-x-ticks").split()
+    assert all(re.fullmatch(r"\d\d:\d\d(:\d\d)?", t) for t in times), times
+    # every named part of the spindle description is labelled on the section
+    labelled = set(_attr(dom, "field", "data-parts").split())
+    assert labelled == {p.name for p in real_section.parts}
+    assert {"pulley", "housing", "front_end_cap", "rear_end_cap", "shaft_body", "rear_bearing"} <= labelled
+    # full sensor names (the spindle description's) in the legend, zone surfaces in the H table
+    for ch in (1, 7, 13, 20, 32):
+        name = real_section.sensors[ch - 1][1]
+        assert re.search(rf'data-channel="{ch}">.*?class="sensor-name">{re.escape(name)}<', dom), name
+    assert "rear shaft pulley ↔ ambient" in dom
+    assert "°C" in _attr(dom, "sensor-chart", "data-y-title")
+
+
+@pytest.mark.browser
+def test_chart_history_comes_from_the_server_and_survives_a_reload(chromium_path: str, tmp_path: Path) -> None:
+    clock = ManualClock(datetime.now(UTC))
+    svc = demo_service(clock=clock)
+    rng = np.random.default_rng(2)
+    for _ in range(40):  # 400 s of samples before any page is open
+        clock.advance(10.0)
+        push_noisy_sample(svc, rng=rng)
+    n = len(svc.sensor_history(None).t)
+    with LiveServer(create_app(Settings(), svc, clock=clock)) as server:
+        first = _chromium(chromium_path, tmp_path, server.url + "/", "--dump-dom")
+        for _ in range(3):
+            clock.advance(10.0)
+            push_noisy_sample(svc, rng=rng)
+        reloaded = _chromium(chromium_path, tmp_path, server.url + "/", "--dump-dom")  # a new page, no state
+    assert _attr(first, "sensor-chart", "data-points") == str(n)
+    assert _attr(reloaded, "sensor-chart", "data-points") == str(n + 3)
+    assert f"{n + 3} samples from the server's history" in reloaded
+    ticks = _attr(reloaded, "sensor-chart", "data-x-ticks").split()
+    assert len(ticks) >= 3  # the time axis spans the 430 s of history, not one sample
+
+
+def _stale_with(svc: InMemoryService, clock: ManualClock, device: str, message: str) -> None:
+    last_ok = clock.now
+    clock.advance(300)
+    svc.set_device(device, "down", last_ok_at=last_ok, message=message)
+
+
 @pytest.mark.browser
 @pytest.mark.parametrize(
-    ("status", "banner_class", "prefix"),
-    [("stale", "banner", "STALE"), ("identifying", "banner banner-warn", "IDENTIFYING")],
-)
-def test_dashboard_shows_a_banner(
-    chromium_path: str, tmp_path: Path, status: str, banner_class: str, prefix: str
+    ("case", "banner_class", "first", "also"),
+    [
+        ("daq-down", "banner banner-alarm", "DAQ unreachable", ["modbus 127.0.0.1:502: connection refused",
+                                                              "last ok 5.0 min ago", "H stale", "Not ready"]),
+        ("can-down", "banner banner-alarm", "CAN silent", ["no SpindleStatus frame", "H stale"]),
+        ("db-down", "banner banner-warn", "Database down", ["buffering 12 records"]),
+        ("model", "banner banner-alarm", "Model not loaded", ["Not ready", "model not loaded"]),
+        ("identifying", "banner banner-warn", "Identifying", ["condition #2 (4000 rpm)"]),
+        ("stale", "banner banner-alarm", "H stale", ["newest data 5.0 min old"]),
+    ],
+)  # fmt: skip
+def test_dashboard_banner_names_the_cause(
+    chromium_path: str, tmp_path: Path, case: str, banner_class: str, first: str, also: list[str]
 ) -> None:
     clock = ManualClock(datetime.now(UTC))
     svc = demo_service(clock=clock)
-    if status == "stale":
-        clock.advance(300)
-    else:
+    if case == "daq-down":
+        _stale_with(svc, clock, "modbus", "modbus 127.0.0.1:502: connection refused")
+    elif case == "can-down":
+        _stale_with(svc, clock, "can", "no SpindleStatus frame for 300 s")
+    elif case == "db-down":
+        svc.set_device("db", "down", last_ok_at=clock.now, message="buffering 12 records: connection refused")
+    elif case == "model":
+        svc.set_model_loaded(False)
+    elif case == "identifying":
         svc.set_condition(5000.0, 16.0, 22.0, state="changing")
-    assert (snap := svc.chtc()) is not None and snap.status == status
+    else:
+        clock.advance(300)
     with LiveServer(create_app(Settings(), svc, clock=clock)) as server:
         dom = _chromium(chromium_path, tmp_path, server.url + "/", "--dump-dom")
-    assert re.search(rf'id="status" class="pill pill-{status}"[^>]*>{status}', dom)
-    banner = re.search(r'<div id="banner" class="([^"]*)"( hidden="")?>([^<]*)<', dom)
-    assert banner is not None, dom[:1500]
-    assert banner.group(1) == banner_class and banner.group(2) is None
-    assert banner.group(3).startswith(prefix)
+    cls, hidden, text = _banner(dom)
+    assert not hidden and cls == banner_class, (cls, text)
+    assert text.strip().startswith(first), text
+    for part in also:
+        assert part in text, (part, text)
+    assert "no data" not in text.lower()
+
+
+@pytest.mark.browser
+def test_identify_now_button_and_token_dialog_are_on_the_page(
+    chromium_path: str, tmp_path: Path, live_demo: tuple[LiveServer, InMemoryService]
+) -> None:
+    server, _ = live_demo
+    dom = _chromium(chromium_path, tmp_path, server.url + "/", "--dump-dom")
+    assert re.search(r'<button id="identify-now"[^>]*>Identify now</button>', dom)
+    assert re.search(r'<dialog id="identify-dialog"', dom)
+    assert re.search(r'<input id="write-token" type="password"', dom)
