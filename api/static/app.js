@@ -185,6 +185,9 @@ function banner() {
 }
 
 function setStatus(status, text) {
+  const stale = status === "stale" || status === "no-data" || status === "error";
+  $("card-h").classList.toggle("is-stale", stale);
+  $("h-stale").hidden = !stale;
   const pill = $("status");
   pill.className = "pill pill-" + status;
   pill.textContent = text || status;
