@@ -172,7 +172,9 @@ def test_every_chart_has_ticks_and_units_and_the_section_names_its_parts(
 
 
 @pytest.mark.browser
-def test_chart_history_comes_from_the_server_and_survives_a_reload(chromium_path: str, tmp_path: Path) -> None:
+def test_chart_history_comes_from_the_server_and_survives_a_reload(
+    chromium_path: str, tmp_path: Path
+) -> None:
     clock = ManualClock(datetime.now(UTC))
     svc = demo_service(clock=clock)
     rng = np.random.default_rng(2)

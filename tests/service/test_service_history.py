@@ -32,11 +32,28 @@ def _last_identification(h: np.ndarray) -> IdentificationRecord:
     t = datetime(2026, 1, 5, 7, 0, tzinfo=UTC)
     cond = ConditionSnapshot(1, 3000.0, 5.0, 22.0, t - timedelta(hours=1), ConditionState.STABLE)
     return IdentificationRecord(
-        id=1, started_at=t, finished_at=t, reason="condition-change", outcome="ok", message="", condition=cond,
-        window_from=t - timedelta(hours=1), window_to=t, h=h, ci95_lo=0.9 * h, ci95_hi=1.1 * h,
-        identified=np.ones(7, dtype=bool), f=0.01, fit=0.99, rmse_c=0.1, method="hybrid", model_version="m",
-        nfev=10, wall_s=0.1, n_sensors_used=32,
-    )  # fmt: skip
+        id=1,
+        started_at=t,
+        finished_at=t,
+        reason="condition-change",
+        outcome="ok",
+        message="",
+        condition=cond,
+        window_from=t - timedelta(hours=1),
+        window_to=t,
+        h=h,
+        ci95_lo=0.9 * h,
+        ci95_hi=1.1 * h,
+        identified=np.ones(7, dtype=bool),
+        f=0.01,
+        fit=0.99,
+        rmse_c=0.1,
+        method="hybrid",
+        model_version="m",
+        nfev=10,
+        wall_s=0.1,
+        n_sensors_used=32,
+    )
 
 
 def test_service_keeps_measured_and_predicted_per_sample_with_masked_channels_as_nan(loaded_model) -> None:
