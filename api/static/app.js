@@ -635,7 +635,7 @@ async function submitIdentify(ev) {
   $("identify-now").disabled = true;
   showResult("requesting an identification …");
   try {
-    const r = await api("/identifications", { method: "POST", body: { reason: $("identify-reason").value || "operator request (dashboard)" }, bearer: tok });
+    const r = await api("/identifications", { method: "POST", body: { reason: $("identify-reason").value || "operator request from the dashboard" }, bearer: tok });
     if (r.status === 202) {
       state.job = r.body.job_id;
       showResult(`${r.body.job_id} ${r.body.state}`, "ok");

@@ -3,10 +3,14 @@
 from __future__ import annotations
 
 import html
+import json
+import os
 import re
 import subprocess
 import threading
+import time
 from collections.abc import Iterator
+from typing import Any
 from datetime import UTC, datetime
 from pathlib import Path
 
@@ -17,7 +21,7 @@ from fastapi.testclient import TestClient
 from api.app import STATIC_DIR, create_app
 from service.interface_memory import InMemoryService, Section, demo_service, model_section, push_noisy_sample
 from service.settings import Settings
-from tests.api.conftest import LiveServer, ManualClock
+from tests.api.conftest import WRITE_TOKEN, LiveServer, ManualClock
 
 CHROMIUM_FLAGS = [
     "--headless",
@@ -171,30 +175,6 @@ def test_every_chart_has_ticks_and_units_and_the_section_names_its_parts(
     assert "°C" in _attr(dom, "sensor-chart", "data-y-title")
 
 
-@pytest.mark.browser
-def test_chart_history_comes_from_the_server_and_survives_a_reload(
-    chromium_path: str, tmp_path: Path
-) -> None:
-    clock = ManualClock(datetime.now(UTC))
-    svc = demo_service(clock=clock)
-    rng = np.random.default_rng(2)
-    for _ in range(40):  # 400 s of samples before any page is open
-        clock.advance(10.0)
-        push_noisy_sample(svc, rng=rng)
-    n = len(svc.sensor_history(None).t)
-    with LiveServer(create_app(Settings(), svc, clock=clock)) as server:
-        first = _chromium(chromium_path, tmp_path, server.url + "/", "--dump-dom")
-        for _ in range(3):
-            clock.advance(10.0)
-            push_noisy_sample(svc, rng=rng)
-        reloaded = _chromium(chromium_path, tmp_path, server.url + "/", "--dump-dom")  # a new page, no state
-    assert _attr(first, "sensor-chart", "data-points") == str(n)
-    assert _attr(reloaded, "sensor-chart", "data-points") == str(n + 3)
-    assert f"{n + 3} samples from the server's history" in reloaded
-    ticks = _attr(reloaded, "sensor-chart", "data-x-ticks").split()
-    assert len(ticks) >= 3  # the time axis spans the 430 s of history, not one sample
-
-
 def _stale_with(svc: InMemoryService, clock: ManualClock, device: str, message: str) -> None:
     last_ok = clock.now
     clock.advance(300)
@@ -241,12 +221,137 @@ def test_dashboard_banner_names_the_cause(
     assert "no data" not in text.lower()
 
 
+
+
+class _Page:
+    """One headless Chromium tab driven over the DevTools protocol on a pipe (no extra package).
+
+    Chromium reads commands from fd 3 and writes replies and events to fd 4, each a JSON text ended by NUL.
+    """
+
+    def __init__(self, chromium_path: str, profile: Path) -> None:
+        r_cmd, self._w_cmd = os.pipe()
+        self._r_out, w_out = os.pipe()
+
+        def to_3_and_4() -> None:  # in the child, before exec: the pipe ends become fds 3 and 4
+            a, b = os.dup(r_cmd), os.dup(w_out)
+            os.dup2(a, 3)
+            os.dup2(b, 4)
+
+        cmd = [chromium_path, *CHROMIUM_FLAGS[:-1], "--remote-debugging-pipe", f"--user-data-dir={profile}"]
+        cmd += ["--window-size=1400,1000", "about:blank"]
+        self.proc = subprocess.Popen(
+            cmd, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, close_fds=False, preexec_fn=to_3_and_4
+        )
+        os.close(r_cmd)
+        os.close(w_out)
+        self._buf, self._id, self._session = b"", 0, None
+        target = self.call("Target.createTarget", url="about:blank")["targetId"]
+        self._session = self.call("Target.attachToTarget", targetId=target, flatten=True)["sessionId"]
+
+    def call(self, method: str, **params: Any) -> Any:
+        self._id += 1
+        msg: dict[str, Any] = {"id": self._id, "method": method, "params": params}
+        if self._session is not None:
+            msg["sessionId"] = self._session
+        os.write(self._w_cmd, json.dumps(msg).encode() + b"\0")
+        while True:
+            while b"\0" not in self._buf:
+                chunk = os.read(self._r_out, 1 << 16)
+                assert chunk, "chromium closed the DevTools pipe"
+                self._buf += chunk
+            raw, self._buf = self._buf.split(b"\0", 1)
+            reply = json.loads(raw)
+            if reply.get("id") == self._id:
+                assert "error" not in reply, (method, reply["error"])
+                return reply["result"]
+
+    def eval(self, expression: str) -> Any:
+        out = self.call("Runtime.evaluate", expression=expression, returnByValue=True, awaitPromise=True)
+        assert "exceptionDetails" not in out, out["exceptionDetails"]
+        return out["result"].get("value")
+
+    def wait(self, expression: str, *, timeout_s: float = 20.0) -> Any:
+        """Poll a JavaScript expression until it is truthy (deadline, not a fixed sleep)."""
+        deadline = time.monotonic() + timeout_s
+        while True:
+            value = self.eval(expression)
+            if value:
+                return value
+            assert time.monotonic() < deadline, f"timed out waiting for {expression}"
+            time.sleep(0.05)
+
+    def close(self) -> None:
+        self.proc.kill()
+        self.proc.wait(timeout=10)
+        os.close(self._w_cmd)
+        os.close(self._r_out)
+
+
+@pytest.fixture
+def page(chromium_path: str, tmp_path: Path) -> Iterator[_Page]:
+    p = _Page(chromium_path, tmp_path / "profile")
+    yield p
+    p.close()
+
+
+RENDERED = "document.body?.dataset.rendered === '1'"
+POINTS = "document.getElementById('sensor-chart')?.dataset.points"
+RESULT = "document.getElementById('identify-result').textContent"
+
+
 @pytest.mark.browser
-def test_identify_now_button_and_token_dialog_are_on_the_page(
-    chromium_path: str, tmp_path: Path, live_demo: tuple[LiveServer, InMemoryService]
-) -> None:
-    server, _ = live_demo
-    dom = _chromium(chromium_path, tmp_path, server.url + "/", "--dump-dom")
-    assert re.search(r'<button id="identify-now"[^>]*>Identify now</button>', dom)
-    assert re.search(r'<dialog id="identify-dialog"', dom)
-    assert re.search(r'<input id="write-token" type="password"', dom)
+def test_chart_history_comes_from_the_server_and_survives_a_reload(page: _Page) -> None:
+    clock = ManualClock(datetime.now(UTC))
+    svc = demo_service(clock=clock)
+    rng = np.random.default_rng(2)
+    for _ in range(40):  # 400 s of samples before the page is opened
+        clock.advance(10.0)
+        push_noisy_sample(svc, rng=rng)
+    n = len(svc.sensor_history(None).t)
+    with LiveServer(create_app(Settings(), svc, clock=clock)) as server:
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(RENDERED)
+        assert page.wait(POINTS) == str(n)
+        for _ in range(3):
+            clock.advance(10.0)
+            push_noisy_sample(svc, rng=rng)
+        page.eval("window.beforeReload = true")  # gone with the old page's window
+        page.call("Page.reload", ignoreCache=True)
+        page.wait(f"!window.beforeReload && {RENDERED} && {POINTS} === '{n + 3}'")
+        ticks = page.eval("document.getElementById('sensor-chart').dataset.xTicks").split()
+        meta = page.eval("document.getElementById('sensor-meta').textContent")
+    assert f"{n + 3} samples from the server's history" in meta
+    assert len(ticks) >= 3  # the time axis spans the 430 s of history, not one sample
+
+
+@pytest.mark.browser
+def test_identify_now_asks_for_the_token_posts_and_shows_the_result(page: _Page) -> None:
+    svc = demo_service()
+    with LiveServer(create_app(Settings(api={"token": WRITE_TOKEN}), svc)) as server:
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(RENDERED)
+        page.eval("document.getElementById('identify-now').click()")
+        assert page.eval("document.getElementById('identify-dialog').open") is True
+        page.eval("document.getElementById('write-token').value = 'not-the-token'")
+        page.eval("document.getElementById('identify-submit').click()")
+        refused = page.wait(f"{RESULT}.startsWith('refused') && {RESULT}")
+        assert "403" in refused and "not valid for writes" in refused
+        assert page.eval("sessionStorage.getItem('chtc-write-token')") is None  # a refused token is forgotten
+
+        page.eval("document.getElementById('identify-now').click()")
+        page.eval(f"document.getElementById('write-token').value = '{WRITE_TOKEN}'")
+        page.eval("document.getElementById('identify-submit').click()")
+        queued = page.wait(f"{RESULT}.startsWith('job-') && {RESULT}")
+        job_id = queued.split()[0]
+        assert svc.job(job_id).reason == "operator request from the dashboard"
+        rec = svc.finish_job(job_id, h=[60.0, 40.0, 55.0, 40.0, 45.0, 65.0, 12.0])
+        done = page.wait(f"{RESULT}.includes('done') && {RESULT}")
+        assert done == f"{job_id} done: identification #{rec.id}"
+        # the token stays in this tab only
+        assert page.eval("sessionStorage.getItem('chtc-write-token')") == WRITE_TOKEN
+        assert page.eval("localStorage.length") == 0 and page.eval("document.cookie") == ""
+        page.eval("document.getElementById('identify-now').click()")
+        page.eval("document.getElementById('identify-submit').click()")  # the kept token, no retyping
+        busy = page.wait(f"{RESULT}.startsWith('job-') && !{RESULT}.startsWith('{job_id}') && {RESULT}")
+        assert busy.split()[0] != job_id
