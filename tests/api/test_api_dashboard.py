@@ -10,9 +10,9 @@ import subprocess
 import threading
 import time
 from collections.abc import Iterator
-from typing import Any
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -219,8 +219,6 @@ def test_dashboard_banner_names_the_cause(
     for part in also:
         assert part in text, (part, text)
     assert "no data" not in text.lower()
-
-
 
 
 class _Page:
