@@ -68,6 +68,12 @@ function setupCanvas(canvas) {
   return { ctx, W, H };
 }
 
+function placeholder(canvas, text) {
+  const { ctx, W, H } = setupCanvas(canvas);
+  ctx.fillStyle = MUTED; ctx.textAlign = "center"; ctx.font = "14px system-ui, sans-serif";
+  ctx.fillText(text, W / 2, H / 2);
+}
+
 function niceTicks(lo, hi, n = 5) {
   const span = hi - lo || 1;
   const step0 = Math.pow(10, Math.floor(Math.log10(span / n)));
@@ -185,7 +191,7 @@ function banner() {
 }
 
 function setStatus(status, text) {
-  const stale = status === "stale" || status === "no-data" || status === "error";
+  const stale = Boolean(state.chtc) && (status === "stale" || status === "no-data" || status === "error");
   $("card-h").classList.toggle("is-stale", stale);
   $("h-stale").hidden = !stale;
   const pill = $("status");
@@ -255,7 +261,13 @@ async function pollChtc() {
       setStatus(state.chtc.status, `${state.chtc.status} · ${ageText(age)}`);
       return;
     }
-    if (r.status === 503) { state.noIdentification = true; setStatus("no-data", "no identification yet"); return; }
+    if (r.status === 503) {
+      state.noIdentification = true;
+      setStatus("waiting", "no identification yet");
+      placeholder($("h-chart"), "waiting for the first identification");
+      if (!state.field) placeholder($("field"), "the field is shown after the first identification");
+      return;
+    }
     if (r.status !== 200) { state.apiError = r.body?.error?.message || "HTTP " + r.status; setStatus("error", "API error"); return; }
     state.noIdentification = false;
     state.etag = r.headers.get("ETag");
