@@ -192,6 +192,7 @@ def _stale_with(svc: InMemoryService, clock: ManualClock, device: str, message: 
         ("model", "banner banner-alarm", "Model not loaded", ["Not ready", "model not loaded"]),
         ("identifying", "banner banner-warn", "Identifying", ["condition #2 (4000 rpm)"]),
         ("stale", "banner banner-alarm", "H stale", ["newest data 5.0 min old"]),
+        ("first", "banner banner-warn", "No identification yet", ["waiting for the first identification"]),
     ],
 )  # fmt: skip
 def test_dashboard_banner_names_the_cause(
@@ -199,6 +200,10 @@ def test_dashboard_banner_names_the_cause(
 ) -> None:
     clock = ManualClock(datetime.now(UTC))
     svc = demo_service(clock=clock)
+    if case == "first":  # samples, no identification yet
+        svc = InMemoryService(clock=clock)
+        svc.set_condition(0.0, 0.0, 23.0)
+        svc.add_sample(np.full(32, 23.0))
     if case == "daq-down":
         _stale_with(svc, clock, "modbus", "modbus 127.0.0.1:502: connection refused")
     elif case == "can-down":
