@@ -204,7 +204,7 @@ def test_dashboard_banner_names_the_cause(
         svc = InMemoryService(clock=clock)
         svc.set_condition(0.0, 0.0, 23.0)
         svc.add_sample(np.full(32, 23.0))
-    if case == "daq-down":
+    elif case == "daq-down":
         _stale_with(svc, clock, "modbus", "modbus 127.0.0.1:502: connection refused")
     elif case == "can-down":
         _stale_with(svc, clock, "can", "no SpindleStatus frame for 300 s")
