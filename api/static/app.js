@@ -83,6 +83,12 @@ function niceTicks(lo, hi, n = 5) {
   return out;
 }
 
+function stepDigits(ticks) { // decimals that tell the ticks apart (2.5 steps need one)
+  const step = ticks.length > 1 ? Math.abs(ticks[1] - ticks[0]) : 1;
+  for (let d = 0; d < 4; d++) if (Math.abs(step * 10 ** d - Math.round(step * 10 ** d)) < 1e-6) return d;
+  return 4;
+}
+
 const TIME_STEPS_S = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400];
 function timeTicks(t0, t1, n = 7) { // ms since epoch, UTC-aligned steps
   const span = (t1 - t0) / 1000;
@@ -94,9 +100,10 @@ function timeTicks(t0, t1, n = 7) { // ms since epoch, UTC-aligned steps
 function hhmm(t, withSeconds) { return new Date(t).toISOString().slice(11, withSeconds ? 19 : 16); }
 
 // A y axis with grid lines, tick labels and a rotated title; the drawn ticks are mirrored in data-* attributes.
-function yAxis(canvas, ctx, box, lo, hi, { title, digits = 1, ticks }) {
+function yAxis(canvas, ctx, box, lo, hi, { title, ticks }) {
   const y = (v) => box.T + (box.H - box.T - box.B) * (1 - (v - lo) / ((hi - lo) || 1));
   const tv = ticks || niceTicks(lo, hi);
+  const digits = stepDigits(tv);
   ctx.textAlign = "right"; ctx.textBaseline = "middle";
   for (const v of tv) {
     ctx.strokeStyle = GRID; ctx.beginPath(); ctx.moveTo(box.L, y(v)); ctx.lineTo(box.W - box.R, y(v)); ctx.stroke();
@@ -211,7 +218,7 @@ function drawH(c) {
   const ticks = niceTicks(0, Math.max(hmax * 1.25, ...cis), 5);
   const top = ticks[ticks.length - 1] < Math.max(hmax * 1.15, ...cis) ? ticks[ticks.length - 1] + (ticks[1] - ticks[0]) : ticks[ticks.length - 1];
   if (top !== ticks[ticks.length - 1]) ticks.push(top);
-  const y = yAxis(canvas, ctx, box, 0, top, { title: `H, ${c.unit}`, digits: 0, ticks });
+  const y = yAxis(canvas, ctx, box, 0, top, { title: `H, ${c.unit}`, ticks });
   const slot = (W - box.L - box.R) / zones.length;
   const desc = new Map((state.layout?.zones || []).map((z) => [z.name, z.description]));
   zones.forEach((z, i) => {
@@ -336,79 +343,90 @@ function labelParts(ctx, parts, m, topY) {
   return drawn;
 }
 
+function drawMesh(ctx, f, m, lo, span) {
+  const r = f.nodes_r_m, z = f.nodes_z_m, T = f.temps_c;
+  const px = (i) => m.x0 + (z[i] - m.zmin) * m.s;
+  for (const sign of [-1, 1]) { // both halves of the axisymmetric section
+    const py = (i) => m.yAxis - sign * r[i] * m.s;
+    for (const [a, b, c] of f.triangles) {
+      ctx.fillStyle = ctx.strokeStyle = colour(((T[a] + T[b] + T[c]) / 3 - lo) / span);
+      ctx.beginPath(); ctx.moveTo(px(a), py(a)); ctx.lineTo(px(b), py(b)); ctx.lineTo(px(c), py(c));
+      ctx.closePath(); ctx.fill(); ctx.stroke();
+    }
+  }
+}
+
+function drawOutlines(ctx, parts, m, zLen) {
+  ctx.strokeStyle = "rgba(10,12,15,0.45)";
+  for (const p of parts) for (const sign of [-1, 1]) {
+    const ya = m.yAxis - sign * p.r0_m * m.s, yb = m.yAxis - sign * p.r1_m * m.s;
+    ctx.strokeRect(m.x0 + (p.z0_m - m.zmin) * m.s, Math.min(ya, yb), (p.z1_m - p.z0_m) * m.s, Math.abs(yb - ya));
+  }
+  ctx.setLineDash([8, 3, 2, 3]); ctx.strokeStyle = MUTED; ctx.beginPath(); // axis of rotation
+  ctx.moveTo(m.x0 - 6, m.yAxis); ctx.lineTo(m.x0 + zLen * m.s + 6, m.yAxis); ctx.stroke(); ctx.setLineDash([]);
+  for (const sr of state.sensorsNow || []) { // sensor positions, upper half
+    ctx.fillStyle = sr.quality === "ok" ? "#fff" : "#e5484d"; ctx.strokeStyle = "#000"; ctx.beginPath();
+    ctx.arc(m.x0 + (sr.z_m - m.zmin) * m.s, m.yAxis - sr.r_m * m.s, 2.5, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+  }
+}
+
+// z along the bottom and r (mirrored) on the left, both in mm; mirrored in data-* like the other charts.
+function drawSectionAxes(canvas, ctx, m, zmax, rmax, H) {
+  const zLen = zmax - m.zmin, yb = m.yAxis + rmax * m.s + 4, x0 = m.x0;
+  ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(x0, yb); ctx.lineTo(x0 + zLen * m.s, yb); ctx.stroke();
+  ctx.fillStyle = MUTED; ctx.textAlign = "center";
+  const zt = niceTicks(m.zmin * 1e3, zmax * 1e3, 8);
+  for (const v of zt) {
+    const px = x0 + (v / 1e3 - m.zmin) * m.s;
+    ctx.beginPath(); ctx.moveTo(px, yb); ctx.lineTo(px, yb + 4); ctx.stroke(); ctx.fillText(v.toFixed(0), px, yb + 16);
+  }
+  const zTitle = "z, mm (0 = rear, pulley end → front, tool end)";
+  ctx.fillStyle = TEXT; ctx.fillText(zTitle, x0 + zLen * m.s / 2, H - 5);
+  const rt = niceTicks(0, rmax * 1e3, 2);
+  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.fillStyle = MUTED;
+  ctx.beginPath(); ctx.moveTo(x0 - 6, m.yAxis - rmax * m.s); ctx.lineTo(x0 - 6, m.yAxis + rmax * m.s); ctx.stroke();
+  for (const v of rt) for (const sign of v === 0 ? [1] : [-1, 1]) {
+    const py = m.yAxis - sign * v / 1e3 * m.s;
+    ctx.beginPath(); ctx.moveTo(x0 - 10, py); ctx.lineTo(x0 - 6, py); ctx.stroke(); ctx.fillText(v.toFixed(0), x0 - 12, py);
+  }
+  ctx.textBaseline = "alphabetic";
+  ctx.save(); ctx.translate(12, m.yAxis); ctx.rotate(-Math.PI / 2); ctx.textAlign = "center"; ctx.fillStyle = TEXT;
+  ctx.fillText("r, mm", 0, 0); ctx.restore();
+  canvas.dataset.xTitle = zTitle; canvas.dataset.xTicks = zt.map((v) => v.toFixed(0)).join(" ");
+  canvas.dataset.yTitle = "r, mm"; canvas.dataset.yTicks = rt.map((v) => v.toFixed(0)).join(" ");
+}
+
+function drawColourScale(canvas, ctx, x, y, h, lo, hi) {
+  const span = (hi - lo) || 1;
+  for (let i = 0; i < h; i++) { ctx.fillStyle = colour(1 - i / h); ctx.fillRect(x, y + i, 14, 1); }
+  ctx.strokeStyle = AXIS; ctx.strokeRect(x, y, 14, h);
+  ctx.textAlign = "left"; ctx.textBaseline = "middle";
+  const ticks = niceTicks(lo, hi, 6);
+  for (const tv of ticks) {
+    const py = y + h * (1 - (tv - lo) / span);
+    ctx.fillStyle = AXIS; ctx.fillRect(x + 14, py, 4, 1); ctx.fillStyle = MUTED; ctx.fillText(tv.toFixed(stepDigits(ticks)), x + 20, py);
+  }
+  ctx.textBaseline = "alphabetic"; ctx.fillStyle = TEXT; ctx.fillText("T, °C", x - 4, y - 8);
+  canvas.dataset.cTitle = "T, °C"; canvas.dataset.cTicks = ticks.map((v) => v.toFixed(stepDigits(ticks))).join(" ");
+}
+
 function drawField(f) {
   const canvas = $("field");
-  const r = f.nodes_r_m, z = f.nodes_z_m, T = f.temps_c;
-  const zmin = Math.min(...z), zmax = Math.max(...z), rmax = Math.max(...r);
+  const zmin = Math.min(...f.nodes_z_m), zmax = Math.max(...f.nodes_z_m), rmax = Math.max(...f.nodes_r_m);
   const L = 52, R = 86, top = 72, bottom = 42; // label rows above, z axis below, colour scale right
   const sw = (Math.max(canvas.clientWidth, 200) - L - R) / (zmax - zmin); // height follows the section's aspect
   canvas.dataset.h = String(Math.round(Math.min(Math.max(top + bottom + 2 * rmax * sw, 240), 480)));
   const { ctx, W, H } = setupCanvas(canvas);
   const s = Math.min((W - L - R) / (zmax - zmin), (H - top - bottom) / (2 * rmax));
-  const x0 = L, yAxis = top + rmax * s;
-  const m = { x0, yAxis, s, zmin };
+  const m = { x0: L, yAxis: top + rmax * s, s, zmin };
   state.fieldMap = m;
-  const lo = f.t_min_c, hi = f.t_max_c, span = (hi - lo) || 1;
-  for (const sign of [-1, 1]) { // both halves of the axisymmetric section
-    for (const [a, b, c] of f.triangles) {
-      const tv = (T[a] + T[b] + T[c]) / 3;
-      ctx.fillStyle = ctx.strokeStyle = colour((tv - lo) / span);
-      ctx.beginPath();
-      ctx.moveTo(x0 + (z[a] - zmin) * s, yAxis - sign * r[a] * s);
-      ctx.lineTo(x0 + (z[b] - zmin) * s, yAxis - sign * r[b] * s);
-      ctx.lineTo(x0 + (z[c] - zmin) * s, yAxis - sign * r[c] * s);
-      ctx.closePath(); ctx.fill(); ctx.stroke();
-    }
-  }
+  const lo = f.t_min_c, hi = f.t_max_c;
+  drawMesh(ctx, f, m, lo, (hi - lo) || 1);
   const parts = state.layout?.parts || [];
-  ctx.strokeStyle = "rgba(10,12,15,0.45)";
-  for (const p of parts) for (const sign of [-1, 1]) {
-    const ya = yAxis - sign * p.r0_m * s, yb = yAxis - sign * p.r1_m * s;
-    ctx.strokeRect(x0 + (p.z0_m - zmin) * s, Math.min(ya, yb), (p.z1_m - p.z0_m) * s, Math.abs(yb - ya));
-  }
-  ctx.setLineDash([8, 3, 2, 3]); ctx.strokeStyle = MUTED; ctx.beginPath(); // axis of rotation
-  ctx.moveTo(x0 - 6, yAxis); ctx.lineTo(x0 + (zmax - zmin) * s + 6, yAxis); ctx.stroke(); ctx.setLineDash([]);
-  for (const sr of state.sensorsNow || []) { // sensor positions, upper half
-    ctx.fillStyle = sr.quality === "ok" ? "#fff" : "#e5484d"; ctx.strokeStyle = "#000"; ctx.beginPath();
-    ctx.arc(x0 + (sr.z_m - zmin) * s, yAxis - sr.r_m * s, 2.5, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
-  }
+  drawOutlines(ctx, parts, m, zmax - zmin);
   canvas.dataset.parts = labelParts(ctx, parts, m, top - 6).join(" ");
-  // axes: z along the bottom, r (mirrored) on the left, both in mm
-  const box = { L, R: W - (x0 + (zmax - zmin) * s), T: yAxis - rmax * s, B: H - (yAxis + rmax * s), W, H };
-  const yb = H - box.B + 4;
-  ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(x0, yb); ctx.lineTo(x0 + (zmax - zmin) * s, yb); ctx.stroke();
-  ctx.fillStyle = MUTED; ctx.textAlign = "center";
-  const zt = niceTicks(zmin * 1e3, zmax * 1e3, 8);
-  for (const v of zt) {
-    const px = x0 + (v / 1e3 - zmin) * s;
-    ctx.beginPath(); ctx.moveTo(px, yb); ctx.lineTo(px, yb + 4); ctx.stroke(); ctx.fillText(v.toFixed(0), px, yb + 16);
-  }
-  const zTitle = "z, mm (0 = rear, pulley end → front, tool end)";
-  ctx.fillStyle = TEXT; ctx.fillText(zTitle, x0 + (zmax - zmin) * s / 2, H - 5);
-  const rt = niceTicks(0, rmax * 1e3, 2);
-  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.fillStyle = MUTED;
-  ctx.beginPath(); ctx.moveTo(x0 - 6, yAxis - rmax * s); ctx.lineTo(x0 - 6, yAxis + rmax * s); ctx.stroke();
-  for (const v of rt) for (const sign of v === 0 ? [1] : [-1, 1]) {
-    const py = yAxis - sign * v / 1e3 * s;
-    ctx.beginPath(); ctx.moveTo(x0 - 10, py); ctx.lineTo(x0 - 6, py); ctx.stroke(); ctx.fillText(v.toFixed(0), x0 - 12, py);
-  }
-  ctx.textBaseline = "alphabetic";
-  ctx.save(); ctx.translate(12, yAxis); ctx.rotate(-Math.PI / 2); ctx.textAlign = "center"; ctx.fillStyle = TEXT;
-  ctx.fillText("r, mm", 0, 0); ctx.restore();
-  canvas.dataset.xTitle = zTitle; canvas.dataset.xTicks = zt.map((v) => v.toFixed(0)).join(" ");
-  canvas.dataset.yTitle = "r, mm"; canvas.dataset.yTicks = rt.map((v) => v.toFixed(0)).join(" ");
-  // colour scale
-  const sx = W - R + 22, sy = top, sh = H - top - bottom;
-  for (let i = 0; i < sh; i++) { ctx.fillStyle = colour(1 - i / sh); ctx.fillRect(sx, sy + i, 14, 1); }
-  ctx.strokeStyle = AXIS; ctx.strokeRect(sx, sy, 14, sh);
-  ctx.textAlign = "left"; ctx.textBaseline = "middle";
-  const ct = niceTicks(lo, hi, 6);
-  for (const tv of ct) {
-    const py = sy + sh * (1 - (tv - lo) / span);
-    ctx.fillStyle = AXIS; ctx.fillRect(sx + 14, py, 4, 1); ctx.fillStyle = MUTED; ctx.fillText(tv.toFixed(1), sx + 20, py);
-  }
-  ctx.textBaseline = "alphabetic"; ctx.fillStyle = TEXT; ctx.fillText("T, °C", sx - 4, sy - 8);
-  canvas.dataset.cTitle = "T, °C"; canvas.dataset.cTicks = ct.map((v) => v.toFixed(1)).join(" ");
+  drawSectionAxes(canvas, ctx, m, zmax, rmax, H);
+  drawColourScale(canvas, ctx, W - R + 22, top, H - top - bottom, lo, hi);
   ctx.fillStyle = MUTED; ctx.textAlign = "left";
   ctx.fillText("● sensor", W - R + 8, H - 26);
   $("field-meta").textContent = `${f.at === "now" ? "current (state estimate)" : "steady-state"} field of identification ` +
@@ -504,7 +522,7 @@ function drawSensors() {
   let lo = Math.min(...vals), hi = Math.max(...vals);
   if (!vals.length) { lo = 0; hi = 1; }
   const pad = Math.max((hi - lo) * 0.06, 0.25); lo -= pad; hi += pad;
-  const y = yAxis(canvas, ctx, box, lo, hi, { title: "temperature, °C", digits: hi - lo < 4 ? 1 : 0 });
+  const y = yAxis(canvas, ctx, box, lo, hi, { title: "temperature, °C" });
   const x = xTimeAxis(canvas, ctx, box, t0, t1, "time, UTC");
   ctx.save(); ctx.beginPath(); ctx.rect(box.L, box.T, W - box.L - box.R, H - box.T - box.B); ctx.clip();
   chans.forEach((c, k) => {
@@ -571,7 +589,7 @@ function drawConditions(current, recent, servedAt) {
   const now = Date.parse(servedAt); // the server's clock, not ours
   const t0 = Math.min(...segs.map((c) => Date.parse(c.since)), now - 600e3);
   const maxS = Math.max(...segs.map((c) => c.speed_rpm), 1000) * 1.15;
-  const y = yAxis(canvas, ctx, box, 0, maxS, { title: "speed, rpm", digits: 0, ticks: niceTicks(0, maxS, 4) });
+  const y = yAxis(canvas, ctx, box, 0, maxS, { title: "speed, rpm", ticks: niceTicks(0, maxS, 4) });
   const x = xTimeAxis(canvas, ctx, box, t0, now, "time, UTC");
   segs.forEach((c, i) => {
     const a = x(Date.parse(c.since)), b = i + 1 < segs.length ? x(Date.parse(segs[i + 1].since)) : x(now);

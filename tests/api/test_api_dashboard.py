@@ -158,7 +158,10 @@ def test_every_chart_has_ticks_and_units_and_the_section_names_its_parts(
         assert x_title in _attr(dom, canvas, "data-x-title"), canvas
         assert y_unit in _attr(dom, canvas, "data-y-title"), canvas
         assert len(_attr(dom, canvas, "data-x-ticks").split()) >= 3, canvas
-        assert len(_attr(dom, canvas, "data-y-ticks").split()) >= 3, canvas
+        y_ticks = [float(v) for v in _attr(dom, canvas, "data-y-ticks").split()]
+        assert len(y_ticks) >= 3, canvas
+        steps = np.diff(y_ticks)  # the labels as printed are evenly spaced (no rounding 32.5 to 33)
+        np.testing.assert_allclose(steps, steps[0], rtol=1e-9, err_msg=canvas)
     assert _attr(dom, "h-chart", "data-x-ticks").split() == list(svc.chtc().zones)  # type: ignore[union-attr]
     assert _attr(dom, "field", "data-c-title") == "T, °C"
     times = _attr(dom, "sensor-chart", "data-x-ticks").split()
