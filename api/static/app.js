@@ -447,6 +447,16 @@ async function pollField() {
   markRendered();
 }
 
+function hoverField(ev) { // the sensor under the pointer, as the canvas's tooltip
+  const m = state.fieldMap, canvas = $("field");
+  if (!m) return;
+  const rect = canvas.getBoundingClientRect(), px = ev.clientX - rect.left, py = ev.clientY - rect.top;
+  const near = (state.sensorsNow || []).find((s) =>
+    Math.hypot(m.x0 + (s.z_m - m.zmin) * m.s - px, m.yAxis - s.r_m * m.s - py) <= 6);
+  canvas.title = near ? `ch ${near.channel} ${near.name} (${near.role}): measured ${fmt(near.measured_c, 2)} °C, ` +
+    `predicted ${fmt(near.predicted_c, 2)} °C, ${near.quality}` : "";
+}
+
 function partAt(rm, zm) {
   const p = (state.layout?.parts || []).find((q) => rm >= q.r0_m && rm <= q.r1_m && zm >= q.z0_m && zm <= q.z1_m);
   return p ? pretty(p.name) : null;
@@ -707,6 +717,7 @@ function start() {
   setInterval(() => { $("clock").textContent = new Date(serverNow()).toISOString().slice(0, 19).replace("T", " ") + " UTC"; }, 1000);
   $("field-at").addEventListener("change", pollField);
   $("field").addEventListener("click", probeField);
+  $("field").addEventListener("mousemove", hoverField);
   $("channels").addEventListener("change", () => { state.hist = null; pollSensors(); });
   $("window").addEventListener("change", drawSensors);
   $("identify-now").addEventListener("click", openIdentify);
