@@ -361,3 +361,22 @@ def test_identify_now_asks_for_the_token_posts_and_shows_the_result(page: _Page)
         page.eval("document.getElementById('identify-submit').click()")  # the kept token, no retyping
         busy = page.wait(f"{RESULT}.startsWith('job-') && !{RESULT}.startsWith('{job_id}') && {RESULT}")
         assert busy.split()[0] != job_id
+
+
+@pytest.mark.browser
+def test_hovering_a_sensor_on_the_section_names_its_channel(page: _Page, real_section: Section) -> None:
+    svc = demo_service(section=real_section)
+    with LiveServer(create_app(Settings(), svc)) as server:
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(f"{RENDERED} && state.sensorsNow && state.fieldMap")
+        ch = 13
+        x, y = page.eval(
+            f"(() => {{ const m = state.fieldMap, s = state.sensorsNow[{ch - 1}];"
+            " const c = document.getElementById('field'); c.scrollIntoView();"
+            " const r = c.getBoundingClientRect();"
+            " return [r.left + m.x0 + (s.z_m - m.zmin) * m.s, r.top + m.yAxis - s.r_m * m.s]; })()"
+        )
+        page.call("Input.dispatchMouseEvent", type="mouseMoved", x=x, y=y)
+        title = page.wait("document.getElementById('field').title")
+    assert title.startswith(f"ch {ch} {real_section.sensors[ch - 1][1]} (housing): measured ")
+    assert "°C" in title
