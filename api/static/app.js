@@ -179,9 +179,19 @@ function chtcCauses(c) {
   return out;
 }
 
+const UNREACHABLE = { title: "API unreachable", detail: "no answer from the service; values on this page are not being updated" };
+
+function apiProblem(r) {
+  const msg = r.body?.error?.message || "HTTP " + r.status;
+  if (r.status === 401 || r.status === 403) {
+    return { title: "Read token needed", detail: `${msg}; open the page as /#token=<read token> (kept in this tab only)` };
+  }
+  return { title: "API error", detail: `${msg}; values on this page are not being updated` };
+}
+
 function banner() {
   const causes = [];
-  if (state.apiError) causes.push({ sev: "alarm", title: "API unreachable", detail: state.apiError + "; values on this page are not being updated" });
+  if (state.apiError) causes.push({ sev: "alarm", ...state.apiError });
   causes.push(...deviceCauses(state.health));
   causes.push(...chtcCauses(state.chtc));
   if (state.noIdentification) causes.push({ sev: "warn", title: "No identification yet", detail: "waiting for the first identification at a stable condition" });
@@ -275,7 +285,7 @@ async function pollChtc() {
       if (!state.field) placeholder($("field"), "the field is shown after the first identification");
       return;
     }
-    if (r.status !== 200) { state.apiError = r.body?.error?.message || "HTTP " + r.status; setStatus("error", "API error"); return; }
+    if (r.status !== 200) { state.apiError = apiProblem(r); setStatus("error", state.apiError.title); return; }
     state.noIdentification = false;
     state.etag = r.headers.get("ETag");
     state.chtc = r.body;
@@ -284,7 +294,7 @@ async function pollChtc() {
     drawH(r.body);
     const key = r.body.identification_id + "|" + $("field-at").value;
     if (key !== state.fieldKey) pollField();
-  } catch (e) { state.apiError = "no answer from the service"; setStatus("error", "API unreachable"); }
+  } catch (e) { state.apiError = UNREACHABLE; setStatus("error", "API unreachable"); }
   markRendered();
 }
 
@@ -639,7 +649,7 @@ async function pollHealth() {
     state.ready = rd.status === 200 ? { ready: true, reasons: [] } : { ready: false, reasons: rd.body?.error?.detail?.reasons || [rd.body?.error?.message || "HTTP " + rd.status] };
     $("ready-meta").textContent = state.ready.ready ? "service ready" : "NOT READY";
     $("ready-meta").className = state.ready.ready ? "unit" : "unit bad";
-  } catch (e) { state.apiError = "no answer from the service"; }
+  } catch (e) { state.apiError = UNREACHABLE; }
   banner();
 }
 

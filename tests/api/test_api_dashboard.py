@@ -380,3 +380,18 @@ def test_hovering_a_sensor_on_the_section_names_its_channel(page: _Page, real_se
         title = page.wait("document.getElementById('field').title")
     assert title.startswith(f"ch {ch} {real_section.sensors[ch - 1][1]} (housing): measured ")
     assert "°C" in title
+
+
+@pytest.mark.browser
+def test_a_missing_read_token_is_named_and_the_token_in_the_url_fragment_is_used(page: _Page) -> None:
+    svc = demo_service()
+    settings = Settings(api={"token": WRITE_TOKEN, "read_token": "reader"})
+    with LiveServer(create_app(settings, svc)) as server:
+        page.call("Page.navigate", url=server.url + "/")
+        causes = page.wait("document.getElementById('banner')?.dataset.causes")
+        assert causes.split("|")[0] == "Read token needed"
+        assert "/#token=" in page.eval("document.getElementById('banner').textContent")
+        page.call("Page.navigate", url=server.url + "/#token=reader")
+        page.call("Page.reload")
+        page.wait(f"{RENDERED} && document.getElementById('banner')?.hidden")
+        assert page.eval("sessionStorage.getItem('chtc-token')") == "reader"
