@@ -660,7 +660,7 @@ async function pollIdents() {
     $("ident-table").querySelector("tbody").innerHTML = r.body.items.map((i) =>
       `<tr><td>${i.id}</td><td>${utc(i.finished_at)}</td><td>#${i.condition.id} · ${fmt(i.condition.speed_rpm, 0)} rpm, ` +
       `${fmt(i.condition.ambient_c, 1)} °C</td><td class="num">${fmt(i.rmse_c, 3)} °C</td><td>${esc(i.method)}</td>` +
-      `<td class="${i.outcome === "ok" ? "" : "no"}">${esc(i.outcome)} · ${esc(i.reason)}</td></tr>`).join("");
+      `<td class="wrap ${i.outcome === "ok" ? "" : "no"}">${esc(i.outcome)} · ${esc(i.reason)}</td></tr>`).join("");
   } catch (e) { /* shown by the other panels */ }
 }
 
