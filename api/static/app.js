@@ -5,7 +5,7 @@
 
 const API = "/api/v1";
 const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000 };
-const HISTORY_MAX = 2160; // samples per channel kept client-side (the server keeps as many)
+const HISTORY_MAX = 2160; // samples asked for on a (re)load; the page keeps as many as the server does
 const COLORS = ["#4c9be8", "#f0883e", "#3fb950", "#c297ff", "#e3b341", "#39c5cf", "#ff7b72", "#a5d6ff"];
 const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
 
@@ -523,7 +523,7 @@ async function loadHistory() {
     for (const c of b.channels) { const s = h.series.get(c.channel); s.m.push(c.measured_c[i]); s.p.push(c.predicted_c[i]); }
   });
   if (b.t.length) h.lastIso = b.t[b.t.length - 1];
-  const extra = h.t.length - HISTORY_MAX;
+  const extra = h.t.length - Math.max(h.capacity || 0, HISTORY_MAX);
   if (extra > 0) { h.t.splice(0, extra); for (const s of h.series.values()) { s.m.splice(0, extra); s.p.splice(0, extra); } }
 }
 
