@@ -218,6 +218,14 @@ function setStatus(status, text) {
 }
 
 // ---------- H1..H7 ----------
+function hTable(zones, desc) {
+  $("h-table").querySelector("tbody").innerHTML = zones.map((z) =>
+    `<tr data-zone="${z.name}"><td><b>${z.name}</b></td><td class="wrap desc">${esc((desc.get(z.name) || "").replace(/<->/g, "↔"))}</td>` +
+    `<td class="num" id="h-${z.name}">${fmt(z.h_w_m2k, 2)}</td>` +
+    `<td class="num">${fmt(z.ci95_lo_w_m2k)} – ${fmt(z.ci95_hi_w_m2k)}</td><td class="${z.identified ? "" : "no"}">` +
+    `${z.identified ? "yes" : "no (weak)"}</td></tr>`).join("");
+}
+
 function drawH(c) {
   const canvas = $("h-chart");
   const { ctx, W, H } = setupCanvas(canvas);
@@ -257,11 +265,7 @@ function drawH(c) {
   ctx.fillStyle = MUTED; ctx.textAlign = "center";
   ctx.fillText("zone (see table for the surface)", (box.L + W - box.R) / 2, H - 5);
   canvas.dataset.xTitle = "zone"; canvas.dataset.xTicks = zones.map((z) => z.name).join(" ");
-  $("h-table").querySelector("tbody").innerHTML = zones.map((z) =>
-    `<tr data-zone="${z.name}"><td><b>${z.name}</b></td><td class="wrap desc">${esc((desc.get(z.name) || "").replace(/<->/g, "↔"))}</td>` +
-    `<td class="num" id="h-${z.name}">${fmt(z.h_w_m2k, 2)}</td>` +
-    `<td class="num">${fmt(z.ci95_lo_w_m2k)} – ${fmt(z.ci95_hi_w_m2k)}</td><td class="${z.identified ? "" : "no"}">` +
-    `${z.identified ? "yes" : "no (weak)"}</td></tr>`).join("");
+  hTable(zones, desc);
   $("h-unit").textContent = c.unit;
   $("h-meta").textContent = `identification #${c.identification_id} at ${utc(c.identified_at)} · ${c.method} · ` +
     `RMSE ${fmt(c.rmse_c, 2)} °C · fit ${fmt(c.fit, 3)} · condition #${c.condition.id} ` +
