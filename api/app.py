@@ -18,7 +18,7 @@ from fastapi.staticfiles import StaticFiles
 from api.deps import AuthConfig, Clock
 from api.errors import install_error_handlers
 from api.metrics import ApiMetrics, RequestTimer
-from api.routers import chtc, condition, field, health, identifications, sensors
+from api.routers import chtc, condition, field, health, history, identifications, sensors, spindle
 from service.interface import ChtcService
 
 API_PREFIX = "/api/v1"
@@ -54,6 +54,8 @@ def create_app(settings: Any, service: ChtcService, *, clock: Clock = utc_now) -
     app.state.metrics = ApiMetrics(service)
     install_error_handlers(app)
     for module in (chtc, field, sensors, condition, identifications, health):
+        app.include_router(module.router, prefix=API_PREFIX)
+    for module in (history, spindle):
         app.include_router(module.router, prefix=API_PREFIX)
     _mount_dashboard(app)
     app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)

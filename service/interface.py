@@ -426,3 +426,93 @@ class ChtcService(Protocol):
     def ready(self) -> Readiness: ...
 
     def metrics(self) -> MetricsSnapshot: ...
+
+    def sensor_history(self, since: datetime | None) -> SensorHistory:
+        """Measured and predicted temperatures of the samples after ``since`` (all kept ones if None), oldest
+        first; empty before the first sample. Cheap: a copy out of a bounded in-memory buffer."""
+        ...
+
+    def layout(self) -> SpindleLayout:
+        """The spindle's solid parts and convective zones (static, for labelling the section)."""
+        ...
+
+
+@dataclass(frozen=True, eq=False)
+class SensorHistory:
+    """Per-sample measured and predicted temperatures, oldest first (measured vs predicted over time)."""
+
+    t: tuple[datetime, ...]  # (n,) UTC sample times
+    measured_c: np.ndarray  # (n, C) °C; NaN where the channel had no usable value (quality not "ok")
+    predicted_c: np.ndarray  # (n, C) °C; NaN before the first identification
+    channels: tuple[int, ...]  # (C,) channel numbers of the columns
+    names: tuple[str, ...]  # (C,) sensor names (the spindle description's)
+    roles: tuple[str, ...]  # (C,) "bearing" | "housing"
+    capacity: int  # samples the buffer keeps; older ones are gone
+
+
+class SensorHistoryBuffer:
+    """A thread-safe ring of the last ``capacity`` samples (measured, predicted, °C) for ``sensor_history``.
+
+    Kept in memory by the service, so it survives a dashboard reload but not a service restart.
+    """
+
+    def __init__(self, capacity: int, sensors: Sequence[tuple[int, str, str]]) -> None:
+        if capacity < 1:
+            raise ValueError(f"capacity: must be >= 1, got {capacity}")
+        self._lock = threading.Lock()
+        self._channels = tuple(int(c) for c, _, _ in sensors)
+        self._names = tuple(n for _, n, _ in sensors)
+        self._roles = tuple(r for _, _, r in sensors)
+        self._cap = int(capacity)
+        self._t: list[datetime | None] = [None] * self._cap
+        self._m = np.full((self._cap, len(self._channels)), np.nan)
+        self._p = np.full((self._cap, len(self._channels)), np.nan)
+        self._n = 0  # samples appended so far; slot of sample k is k % capacity
+
+    def append(self, t: datetime, measured_c: np.ndarray, predicted_c: np.ndarray | None) -> None:
+        """Add one sample; ``measured_c`` with NaN for unusable channels, ``predicted_c`` None if none yet."""
+        with self._lock:
+            i = self._n % self._cap
+            self._t[i] = t
+            self._m[i] = measured_c
+            self._p[i] = np.nan if predicted_c is None else predicted_c
+            self._n += 1
+
+    def since(self, since: datetime | None) -> SensorHistory:
+        """The kept samples later than ``since`` (UTC), oldest first."""
+        with self._lock:
+            n = min(self._n, self._cap)
+            rows = [(self._n - n + k) % self._cap for k in range(n)]
+            rows = [i for i in rows if since is None or _after(self._t[i], since)]
+            ts = tuple(t for t in (self._t[i] for i in rows) if t is not None)
+            m, p = self._m[rows], self._p[rows]  # fancy indexing copies
+        return SensorHistory(ts, m, p, self._channels, self._names, self._roles, self._cap)
+
+
+def _after(t: datetime | None, since: datetime) -> bool:
+    return t is not None and t > since
+
+
+@dataclass(frozen=True)
+class SectionPart:
+    """A solid part of the (r, z) section: a rectangle in m (``[[regions]]`` of the spindle TOML)."""
+
+    name: str  # e.g. "housing", "front_end_cap", "rear_bearing"
+    material: str
+    r0_m: float
+    r1_m: float
+    z0_m: float
+    z1_m: float
+
+
+@dataclass(frozen=True)
+class ZoneInfo:
+    name: str  # "H1" .. "H7"
+    description: str  # e.g. "rear shaft pulley <-> ambient"
+
+
+@dataclass(frozen=True)
+class SpindleLayout:
+    name: str  # the spindle description's name
+    parts: tuple[SectionPart, ...]
+    zones: tuple[ZoneInfo, ...]

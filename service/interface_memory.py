@@ -43,7 +43,12 @@ from service.interface import (
     NotFoundError,
     NotReadyError,
     Readiness,
+    SectionPart,
+    SensorHistory,
+    SensorHistoryBuffer,
     SensorReading,
+    SpindleLayout,
+    ZoneInfo,
 )
 
 MIN_GOOD_CHANNELS = 24  # identification.min_good_channels' default
@@ -67,6 +72,20 @@ class Section:
     sensors: Sequence[tuple[int, str, str, float, float]]  # (channel, name, role, r_m, z_m)
     model_version: str
     steady: SteadySolver | None = None  # None: the analytic stand-in (analytic_field)
+    parts: tuple[SectionPart, ...] = ()  # named solid parts (for labels); () = unnamed
+    zones: tuple[ZoneInfo, ...] = ()
+
+
+_PART_NAMES = ("shaft", "front_bearing", "rear_bearing", "housing", "pulley")
+_ZONE_TEXT = (  # SPEC §2
+    "rear shaft pulley <-> ambient air",
+    "right end face of the rear bearing <-> air gap",
+    "intermediate bearing <-> air gap",
+    "left end face of the rear bearing <-> air gap",
+    "front shaft shoulder <-> ambient air",
+    "housing <-> air gap",
+    "housing <-> ambient air",
+)
 
 
 # Synthetic spindle: (r0, r1, z0, z1) rectangles in m: shaft, front/rear bearings, housing, pulley.
@@ -105,7 +124,12 @@ def synthetic_section(*, nr: int = 45, nz: int = 113) -> Section:
         )
     for i in range(20):
         sensors.append((13 + i, f"S{i + 1:02d}", "housing", 0.075 + 0.03 * (i % 2), 0.05 + 0.018 * i))
-    return Section(nodes[used], remap[tris], tuple(sensors), "synthetic-section-v1")
+    parts = tuple(
+        SectionPart(name, "steel", r0, r1, z0, z1)
+        for name, (r0, r1, z0, z1) in zip(_PART_NAMES, _PARTS, strict=True)
+    )
+    zones = tuple(ZoneInfo(f"H{i + 1}", text) for i, text in enumerate(_ZONE_TEXT))
+    return Section(nodes[used], remap[tris], tuple(sensors), "synthetic-section-v1", parts=parts, zones=zones)
 
 
 def model_section(*, mesh_size_m: float | None = None) -> Section:
@@ -121,8 +145,16 @@ def model_section(*, mesh_size_m: float | None = None) -> Section:
         return fem.steady_state(fe, h, ambient_c=cond.ambient_c, q_front_w=q_front, q_rear_w=q_rear)
 
     sensors = tuple((s.channel, s.name, s.role, s.r_m, s.z_m) for s in spec.sensors)
+    parts = tuple(SectionPart(r.name, r.material, r.r0_m, r.r1_m, r.z0_m, r.z1_m) for r in spec.regions)
+    zones = tuple(ZoneInfo(z.name, z.description) for z in spec.zones)
     return Section(
-        np.asarray(fe.nodes_rz), np.asarray(fe.triangles), sensors, f"fe-{fe.n_nodes}-nodes", steady
+        np.asarray(fe.nodes_rz),
+        np.asarray(fe.triangles),
+        sensors,
+        f"fe-{fe.n_nodes}-nodes",
+        steady,
+        parts=parts,
+        zones=zones,
     )
 
 
@@ -149,9 +181,11 @@ class InMemoryService:
         clock: Clock = utc_now,
         stale_after_s: float = 60.0,
         rng: np.random.Generator | None = None,
+        history_capacity: int = 2160,
     ) -> None:
         self._lock = threading.Lock()
         self._section = section if section is not None else synthetic_section()
+        self._history = SensorHistoryBuffer(history_capacity, [s[:3] for s in self._section.sensors])
         self._clock = clock
         self._stale_after_s = stale_after_s
         self._rng = rng if rng is not None else np.random.default_rng(0)
@@ -213,12 +247,15 @@ class InMemoryService:
         quality: Sequence[str] | None = None,
         poll_latency_s: float = 0.004,
     ) -> None:
-        """Record the newest 32-channel sample (°C)."""
+        """Record the newest 32-channel sample (°C), and it with the current prediction in the history."""
+        pred = self.predicted_at_sensors()
         with self._lock:
             q = tuple(quality) if quality is not None else ("ok",) * len(temps_c)
             self._sample = (t or self._clock(), np.asarray(temps_c, dtype=float), q)
             if sum(v == "ok" for v in q) >= MIN_GOOD_CHANNELS:
                 self._last_good = self._sample[0]
+            ok = np.array([x == "ok" for x in q]) & np.isfinite(self._sample[1])
+            self._history.append(self._sample[0], np.where(ok, self._sample[1], np.nan), pred)
             self._counts["modbus"]["ok"] += 1
             self._counts["can"]["ok"] += 100
             self._poll_latency.observe(poll_latency_s)
@@ -504,6 +541,13 @@ class InMemoryService:
                 build_version="test",
                 model_version=self._section.model_version,
             )
+
+    def sensor_history(self, since: datetime | None) -> SensorHistory:
+        return self._history.since(since)
+
+    def layout(self) -> SpindleLayout:
+        sec = self._section
+        return SpindleLayout(sec.model_version, sec.parts, sec.zones)
 
 
 def _usable(

@@ -46,7 +46,12 @@ from service.interface import (
     NoDataError,
     NotFoundError,
     Readiness,
+    SectionPart,
+    SensorHistory,
+    SensorHistoryBuffer,
     SensorReading,
+    SpindleLayout,
+    ZoneInfo,
 )
 from service.views import Usability, age_s, at_bound, row_to_record, usability
 from service.worker import IdentificationWorker, JobOutcome, JobStatus
@@ -81,6 +86,7 @@ class SoftSensorService:
         sources: Mapping[str, Any] | None = None,  # "modbus"/"can" -> drivers Source (metrics, connected)
         clock: Clock = utc_now,
         on_event: Callable[[str], None] | None = None,
+        history_capacity: int = 2160,  # samples of measured vs predicted kept for the API (6 h at 10 s)
     ) -> None:
         self.core = core
         self.worker = worker
@@ -101,6 +107,8 @@ class SoftSensorService:
             modbus.on_read_s = self._poll_latency.observe  # the driver's own poll timing (drivers.base)
         self.model_loaded = worker is None or worker.model_version is not None
         self.closed = False
+        sensors = [(sp.channel, sp.name, sp.role) for sp in core.model.spec.sensors]
+        self._history = SensorHistoryBuffer(history_capacity, sensors)
 
     # --- lifecycle ------------------------------------------------------------------------------------------
     async def start(self) -> None:
@@ -133,6 +141,20 @@ class SoftSensorService:
         """Feed one acquisition sample (called on the event loop by the acquisition)."""
         for launch in self.core.ingest(sample):
             self._launch(launch)
+        self._remember_history()
+
+    def _remember_history(self) -> None:
+        """Measured (usable channels only) and predicted temperatures of the newest sample, for the API."""
+        core = self.core
+        with core.lock:
+            s = core.newest
+            if s is None:
+                return
+            ok = np.array([q == "ok" for q in s.quality], dtype=bool)
+            measured = np.where(ok & np.isfinite(s.temps_c), s.temps_c, np.nan)
+            live = core.current is not None and core.live.initialized
+            predicted = core.live.sensors_now() if live else None
+        self._history.append(s.t, measured, predicted)
 
     def on_cancel(self, job_id: int) -> None:
         if self.worker is not None:
@@ -296,6 +318,15 @@ class SoftSensorService:
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
         with self.core.lock:
             return list(self.core.conditions)[: max(0, limit)]
+
+    def sensor_history(self, since: datetime | None) -> SensorHistory:
+        return self._history.since(since)
+
+    def layout(self) -> SpindleLayout:
+        spec = self.core.model.spec
+        parts = tuple(SectionPart(r.name, r.material, r.r0_m, r.r1_m, r.z0_m, r.z1_m) for r in spec.regions)
+        zones = tuple(ZoneInfo(z.name, z.description) for z in spec.zones)
+        return SpindleLayout(spec.name, parts, zones)
 
     # --- ChtcService: history ---------------------------------------------------------------------------
     def list_identifications(

@@ -1,18 +1,22 @@
 // spindle-chtc operator dashboard: polls /api/v1 and draws on canvases. Vanilla JS, no build step, no CDN.
 // A read token (if the API needs one) can be given once as #token=... in the URL; it stays in sessionStorage.
+// The write token for "Identify now" is asked for in a dialog and kept in sessionStorage (this tab only).
 "use strict";
 
 const API = "/api/v1";
-const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 5000, field: 10000, idents: 10000 };
-const HISTORY_MAX = 900; // samples per channel kept client-side (30 min at 2 s)
-const COLORS = ["#58a6ff", "#f78166", "#3fb950", "#d2a8ff", "#e3b341", "#39c5cf", "#ff7b72", "#a5d6ff"];
+const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000 };
+const HISTORY_MAX = 2160; // samples asked for on a (re)load; the page keeps as many as the server does
+const COLORS = ["#4c9be8", "#f0883e", "#3fb950", "#c297ff", "#e3b341", "#39c5cf", "#ff7b72", "#a5d6ff"];
+const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
 
 const state = {
-  etag: null, chtc: null, field: null, fieldKey: null, history: new Map(), conditions: [], lastOk: {},
+  etag: null, chtc: null, chtcAt: 0, field: null, fieldKey: null, layout: null, sensorsNow: null,
+  hist: null, health: null, ready: null, apiError: null, job: null,
   rendered: { h: false, field: false, sensors: false },
 };
 
 const $ = (id) => document.getElementById(id);
+const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 
 function token() {
   const m = location.hash.match(/token=([^&]+)/);
@@ -20,19 +24,22 @@ function token() {
   return sessionStorage.getItem("chtc-token");
 }
 
-async function api(path, { etag } = {}) {
+async function api(path, { etag, method = "GET", body, bearer } = {}) {
   const headers = {};
-  const t = token();
+  const t = bearer || token();
   if (t) headers.Authorization = "Bearer " + t;
   if (etag) headers["If-None-Match"] = etag;
-  const res = await fetch(API + path, { headers, cache: "no-store" });
+  if (body !== undefined) headers["Content-Type"] = "application/json";
+  const res = await fetch(API + path, {
+    method, headers, cache: "no-store", body: body === undefined ? undefined : JSON.stringify(body),
+  });
   if (res.status === 304) return { status: 304, headers: res.headers, body: null };
-  let body = null;
-  try { body = await res.json(); } catch (e) { body = null; }
-  return { status: res.status, headers: res.headers, body };
+  let data = null;
+  try { data = await res.json(); } catch (e) { data = null; }
+  return { status: res.status, headers: res.headers, body: data };
 }
 
-function fmt(v, digits = 1) { return v === null || v === undefined ? "–" : Number(v).toFixed(digits); }
+function fmt(v, digits = 1) { return v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits); }
 function utc(iso) { return iso ? iso.replace("T", " ").replace(/\.\d+/, "").replace("Z", " UTC") : "–"; }
 function ageText(s) {
   if (s === null || s === undefined) return "–";
@@ -40,96 +47,252 @@ function ageText(s) {
   if (s < 7200) return (s / 60).toFixed(1) + " min";
   return (s / 3600).toFixed(1) + " h";
 }
+function pretty(name) { return String(name).replace(/_/g, " "); }
+function serverNow() { // the server's clock (a demo runs it faster than ours), else ours
+  return state.chtc ? Date.parse(state.chtc.served_at) + (Date.now() - state.chtcAt) : Date.now();
+}
 
+// ---------- canvas and axes ----------
 function setupCanvas(canvas) {
+  const W = Math.max(canvas.clientWidth, 200), H = Number(canvas.dataset.h || 240);
+  const dpr = window.devicePixelRatio || 1;
+  canvas.style.height = H + "px";
+  if (canvas.width !== Math.round(W * dpr) || canvas.height !== Math.round(H * dpr)) {
+    canvas.width = Math.round(W * dpr); canvas.height = Math.round(H * dpr);
+  }
   const ctx = canvas.getContext("2d");
-  ctx.setTransform(1, 0, 0, 1, 0, 0);
-  ctx.clearRect(0, 0, canvas.width, canvas.height);
+  ctx.setTransform(dpr, 0, 0, dpr, 0, 0);
+  ctx.clearRect(0, 0, W, H);
   ctx.font = "12px system-ui, sans-serif";
-  return ctx;
+  ctx.lineWidth = 1;
+  return { ctx, W, H };
+}
+
+function placeholder(canvas, text) {
+  const { ctx, W, H } = setupCanvas(canvas);
+  ctx.fillStyle = MUTED; ctx.textAlign = "center"; ctx.font = "14px system-ui, sans-serif";
+  ctx.fillText(text, W / 2, H / 2);
 }
 
 function niceTicks(lo, hi, n = 5) {
   const span = hi - lo || 1;
   const step0 = Math.pow(10, Math.floor(Math.log10(span / n)));
-  const step = [1, 2, 5, 10].map((k) => k * step0).find((s) => span / s <= n) || step0 * 10;
+  const step = [1, 2, 2.5, 5, 10].map((k) => k * step0).find((s) => span / s <= n) || step0 * 10;
   const out = [];
-  for (let v = Math.ceil(lo / step) * step; v <= hi + 1e-9; v += step) out.push(+v.toFixed(10));
+  for (let v = Math.ceil(lo / step - 1e-9) * step; v <= hi + 1e-9 * span; v += step) out.push(+v.toFixed(10));
   return out;
 }
 
-// ---------- status banner ----------
+function stepDigits(ticks) { // decimals that tell the ticks apart (2.5 steps need one)
+  const step = ticks.length > 1 ? Math.abs(ticks[1] - ticks[0]) : 1;
+  for (let d = 0; d < 4; d++) if (Math.abs(step * 10 ** d - Math.round(step * 10 ** d)) < 1e-6) return d;
+  return 4;
+}
+
+const TIME_STEPS_S = [1, 2, 5, 10, 15, 30, 60, 120, 300, 600, 900, 1800, 3600, 7200, 10800, 21600, 43200, 86400];
+function timeTicks(t0, t1, n = 7) { // ms since epoch, UTC-aligned steps
+  const span = (t1 - t0) / 1000;
+  const step = (TIME_STEPS_S.find((s) => span / s <= n) || 86400) * 1000;
+  const out = [];
+  for (let t = Math.ceil(t0 / step) * step; t <= t1; t += step) out.push(t);
+  return { ticks: out, withSeconds: step < 60000 };
+}
+function hhmm(t, withSeconds) { return new Date(t).toISOString().slice(11, withSeconds ? 19 : 16); }
+
+// A y axis with grid lines, tick labels and a rotated title; the drawn ticks are mirrored in data-* attributes.
+function yAxis(canvas, ctx, box, lo, hi, { title, ticks }) {
+  const y = (v) => box.T + (box.H - box.T - box.B) * (1 - (v - lo) / ((hi - lo) || 1));
+  const tv = ticks || niceTicks(lo, hi);
+  const digits = stepDigits(tv);
+  ctx.textAlign = "right"; ctx.textBaseline = "middle";
+  for (const v of tv) {
+    ctx.strokeStyle = GRID; ctx.beginPath(); ctx.moveTo(box.L, y(v)); ctx.lineTo(box.W - box.R, y(v)); ctx.stroke();
+    ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(box.L - 4, y(v)); ctx.lineTo(box.L, y(v)); ctx.stroke();
+    ctx.fillStyle = MUTED; ctx.fillText(v.toFixed(digits), box.L - 7, y(v));
+  }
+  ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(box.L, box.T); ctx.lineTo(box.L, box.H - box.B); ctx.stroke();
+  ctx.save(); ctx.translate(13, (box.T + box.H - box.B) / 2); ctx.rotate(-Math.PI / 2);
+  ctx.textAlign = "center"; ctx.fillStyle = TEXT; ctx.fillText(title, 0, 0); ctx.restore();
+  ctx.textBaseline = "alphabetic";
+  canvas.dataset.yTitle = title;
+  canvas.dataset.yTicks = tv.map((v) => v.toFixed(digits)).join(" ");
+  return y;
+}
+
+// A UTC time x axis: tick marks, HH:MM labels, faint vertical grid, title.
+function xTimeAxis(canvas, ctx, box, t0, t1, title) {
+  const x = (t) => box.L + (box.W - box.L - box.R) * (t - t0) / ((t1 - t0) || 1);
+  const { ticks, withSeconds } = timeTicks(t0, t1, Math.max(3, Math.floor((box.W - box.L - box.R) / 90)));
+  const yb = box.H - box.B;
+  ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(box.L, yb); ctx.lineTo(box.W - box.R, yb); ctx.stroke();
+  ctx.textAlign = "center"; ctx.fillStyle = MUTED;
+  const labels = [];
+  for (const t of ticks) {
+    ctx.strokeStyle = GRID; ctx.beginPath(); ctx.moveTo(x(t), box.T); ctx.lineTo(x(t), yb); ctx.stroke();
+    ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(x(t), yb); ctx.lineTo(x(t), yb + 4); ctx.stroke();
+    labels.push(hhmm(t, withSeconds)); ctx.fillText(labels[labels.length - 1], x(t), yb + 16);
+  }
+  ctx.fillStyle = TEXT; ctx.fillText(title, (box.L + box.W - box.R) / 2, box.H - 5);
+  canvas.dataset.xTitle = title;
+  canvas.dataset.xTicks = labels.join(" ");
+  return x;
+}
+
+// ---------- banner: the cause, from /healthz, /readyz and /chtc ----------
+const DEVICE_CAUSES = {
+  modbus: { down: "DAQ unreachable", degraded: "DAQ degraded", what: "temperature DAQ (Modbus)" },
+  can: { down: "CAN silent", degraded: "CAN faults", what: "speed/torque sensor (CAN)" },
+  db: { down: "Database down", degraded: "Database slow", what: "database" },
+  worker: { down: "Identification worker down", degraded: "Identification worker degraded", what: "worker" },
+};
+
+function deviceCauses(health) {
+  const out = [];
+  for (const d of health?.devices || []) {
+    if (d.status !== "down" && d.status !== "degraded") continue;
+    const names = DEVICE_CAUSES[d.name] || { down: `${d.name} down`, degraded: `${d.name} degraded` };
+    const since = d.age_s !== null && d.age_s !== undefined ? `last ok ${ageText(d.age_s)} ago` : "never ok";
+    const detail = [d.message, since].filter(Boolean).join("; ");
+    // the database down loses nothing (records are buffered): a warning, not an alarm
+    const sev = d.status === "down" && d.name !== "db" ? "alarm" : "warn";
+    out.push({ sev, title: names[d.status], detail });
+  }
+  if (health && health.model_loaded === false) out.push({ sev: "alarm", title: "Model not loaded", detail: "the FE/reduced model is still loading or failed" });
+  return out;
+}
+
+function chtcCauses(c) {
+  if (!c) return [];
+  const out = [];
+  if (c.status === "stale") {
+    out.push({ sev: "alarm", title: "H stale", detail: `newest data ${ageText(c.sample_age_s)} old; the values shown are the last identified ones, do not use them for compensation` });
+  } else if (c.status === "no-data") {
+    out.push({ sev: "alarm", title: "No data", detail: "the service has no samples yet" });
+  } else if (c.status === "identifying") {
+    const k = c.condition;
+    out.push({ sev: "warn", title: "Identifying", detail: "the operating condition changed; H are still those of condition " + (k ? `#${k.id} (${fmt(k.speed_rpm, 0)} rpm)` : "before the change") + " until the new identification finishes" });
+  }
+  if (c.usable_for_compensation === false) {
+    const why = c.reason || "see /api/v1/chtc";
+    // a condition change is transient (the new identification is on its way): amber, not red
+    const sev = why.startsWith("condition_changed") ? "warn" : "alarm";
+    out.push({ sev, title: "Not usable for compensation", detail: why });
+  }
+  return out;
+}
+
+const UNREACHABLE = { title: "API unreachable", detail: "no answer from the service; values on this page are not being updated" };
+
+function apiProblem(r) {
+  const msg = r.body?.error?.message || "HTTP " + r.status;
+  if (r.status === 401 || r.status === 403) {
+    return { title: "Read token needed", detail: `${msg}; open the page as /#token=<read token> (kept in this tab only)` };
+  }
+  return { title: "API error", detail: `${msg}; values on this page are not being updated` };
+}
+
+function banner() {
+  const causes = [];
+  if (state.apiError) causes.push({ sev: "alarm", ...state.apiError });
+  causes.push(...deviceCauses(state.health));
+  causes.push(...chtcCauses(state.chtc));
+  if (state.noIdentification) causes.push({ sev: "warn", title: "No identification yet", detail: "waiting for the first identification at a stable condition" });
+  if (state.ready && !state.ready.ready && (state.ready.reasons || []).length) {
+    causes.push({ sev: "alarm", title: "Not ready", detail: state.ready.reasons.join("; ") });
+  }
+  causes.sort((a, b) => (a.sev === b.sev ? 0 : a.sev === "alarm" ? -1 : 1));
+  const el = $("banner");
+  if (!causes.length) { el.hidden = true; el.innerHTML = ""; el.className = "banner"; el.dataset.causes = ""; return; }
+  el.hidden = false;
+  el.className = causes[0].sev === "alarm" ? "banner banner-alarm" : "banner banner-warn";
+  el.innerHTML = causes.map((c) => `<span class="cause cause-${c.sev}"><b>${esc(c.title)}</b>${esc(c.detail)}</span>`).join("");
+  el.dataset.causes = causes.map((c) => c.title).join("|");
+}
+
 function setStatus(status, text) {
+  const stale = Boolean(state.chtc) && (status === "stale" || status === "no-data" || status === "error");
+  $("card-h").classList.toggle("is-stale", stale);
+  $("h-stale").hidden = !stale;
   const pill = $("status");
   pill.className = "pill pill-" + status;
   pill.textContent = text || status;
-  const banner = $("banner");
-  const c = state.chtc?.condition;
-  const msgs = {
-    stale: "STALE: no recent data. The H values below are the last identified ones and must not be trusted.",
-    "no-data": "NO DATA: the service has no samples yet.",
-    error: "API unreachable or failing: values on this page are not being updated.",
-    identifying: "IDENTIFYING: the operating condition changed; the H values below are still those of condition " +
-      (c ? `#${c.id} (${fmt(c.speed_rpm, 0)} rpm)` : "before the change") + " until the new identification finishes.",
-  };
-  banner.className = status === "identifying" ? "banner banner-warn" : "banner";
-  if (msgs[status]) { banner.hidden = false; banner.textContent = msgs[status]; } else { banner.hidden = true; }
+  banner();
 }
 
 // ---------- H1..H7 ----------
+function hTable(zones, desc) {
+  $("h-table").querySelector("tbody").innerHTML = zones.map((z) =>
+    `<tr data-zone="${z.name}"><td><b>${z.name}</b></td><td class="wrap desc">${esc((desc.get(z.name) || "").replace(/<->/g, "↔"))}</td>` +
+    `<td class="num" id="h-${z.name}">${fmt(z.h_w_m2k, 2)}</td>` +
+    `<td class="num">${fmt(z.ci95_lo_w_m2k)} – ${fmt(z.ci95_hi_w_m2k)}</td><td class="${z.identified ? "" : "no"}">` +
+    `${z.identified ? "yes" : "no (weak)"}</td></tr>`).join("");
+}
+
 function drawH(c) {
   const canvas = $("h-chart");
-  const ctx = setupCanvas(canvas);
-  const W = canvas.width, H = canvas.height, L = 48, R = 12, T = 14, B = 28;
+  const { ctx, W, H } = setupCanvas(canvas);
+  const box = { L: 60, R: 10, T: 16, B: 40, W, H };
   const zones = c.zones;
-  const hiVal = Math.max(...zones.map((z) => z.ci95_hi_w_m2k ?? z.h_w_m2k ?? 0), 1) * 1.1;
-  const y = (v) => T + (H - T - B) * (1 - Math.max(v, 0) / hiVal); // H > 0: a CI reaching below 0 is clipped
-  ctx.strokeStyle = "#2b3642"; ctx.fillStyle = "#8b98a5"; ctx.textAlign = "right";
-  for (const tv of niceTicks(0, hiVal)) {
-    ctx.beginPath(); ctx.moveTo(L, y(tv)); ctx.lineTo(W - R, y(tv)); ctx.stroke();
-    ctx.fillText(String(tv), L - 6, y(tv) + 4);
-  }
-  const slot = (W - L - R) / zones.length;
+  const hmax = Math.max(...zones.map((z) => z.h_w_m2k ?? 0), 1);
+  const cis = zones.map((z) => z.ci95_hi_w_m2k).filter((v) => v !== null && v <= 1.6 * hmax);
+  const ticks = niceTicks(0, Math.max(hmax * 1.25, ...cis), 5);
+  const top = ticks[ticks.length - 1] < Math.max(hmax * 1.15, ...cis) ? ticks[ticks.length - 1] + (ticks[1] - ticks[0]) : ticks[ticks.length - 1];
+  if (top !== ticks[ticks.length - 1]) ticks.push(top);
+  const y = yAxis(canvas, ctx, box, 0, top, { title: `H, ${c.unit}`, ticks });
+  const slot = (W - box.L - box.R) / zones.length;
+  const desc = new Map((state.layout?.zones || []).map((z) => [z.name, z.description]));
   zones.forEach((z, i) => {
-    const x = L + slot * i + slot * 0.2, w = slot * 0.6;
+    const x = box.L + slot * i + slot * 0.22, w = slot * 0.56, cx = x + w / 2;
     if (z.h_w_m2k !== null) {
-      ctx.fillStyle = z.identified ? "#58a6ff" : "rgba(210,153,34,0.55)";
-      ctx.fillRect(x, y(z.h_w_m2k), w, y(0) - y(z.h_w_m2k));
+      ctx.fillStyle = z.identified ? "#4c9be8" : "rgba(217,162,27,0.6)";
+      ctx.fillRect(x, y(Math.min(z.h_w_m2k, top)), w, y(0) - y(Math.min(z.h_w_m2k, top)));
     }
     if (z.ci95_lo_w_m2k !== null && z.ci95_hi_w_m2k !== null) {
-      const cx = x + w / 2;
-      ctx.strokeStyle = "#e6edf3"; ctx.lineWidth = 1.5; ctx.beginPath();
-      ctx.moveTo(cx, y(z.ci95_lo_w_m2k)); ctx.lineTo(cx, y(z.ci95_hi_w_m2k));
-      ctx.moveTo(cx - 6, y(z.ci95_lo_w_m2k)); ctx.lineTo(cx + 6, y(z.ci95_lo_w_m2k));
-      ctx.moveTo(cx - 6, y(z.ci95_hi_w_m2k)); ctx.lineTo(cx + 6, y(z.ci95_hi_w_m2k));
+      const lo = y(Math.max(z.ci95_lo_w_m2k, 0)), hi = y(Math.min(z.ci95_hi_w_m2k, top));
+      ctx.strokeStyle = TEXT; ctx.lineWidth = 1.5; ctx.beginPath();
+      ctx.moveTo(cx, lo); ctx.lineTo(cx, hi);
+      ctx.moveTo(cx - 6, lo); ctx.lineTo(cx + 6, lo);
+      if (z.ci95_hi_w_m2k > top) { ctx.moveTo(cx - 5, hi + 7); ctx.lineTo(cx, hi); ctx.lineTo(cx + 5, hi + 7); } // off scale
+      else { ctx.moveTo(cx - 6, hi); ctx.lineTo(cx + 6, hi); }
       ctx.stroke(); ctx.lineWidth = 1;
     }
-    ctx.fillStyle = "#e6edf3"; ctx.textAlign = "center";
-    ctx.fillText(z.name, x + w / 2, H - 10);
-    if (z.h_w_m2k !== null) ctx.fillText(fmt(z.h_w_m2k), x + w / 2, Math.max(y(z.ci95_hi_w_m2k ?? z.h_w_m2k) - 4, 12));
+    ctx.fillStyle = TEXT; ctx.textAlign = "center";
+    ctx.font = "600 12px system-ui, sans-serif"; ctx.fillText(z.name, cx, H - box.B + 16);
+    ctx.font = "12px system-ui, sans-serif";
+    if (z.h_w_m2k !== null) {
+      const yl = y(Math.min(z.ci95_hi_w_m2k ?? z.h_w_m2k, top)) - 5;
+      ctx.fillStyle = "#fff"; ctx.fillText(fmt(z.h_w_m2k), cx + (z.ci95_hi_w_m2k > top ? 20 : 0), Math.max(yl, 12));
+    }
   });
-  const rows = zones.map((z) => `<tr data-zone="${z.name}"><td>${z.name}</td><td id="h-${z.name}">${fmt(z.h_w_m2k, 2)}</td>` +
-    `<td>${fmt(z.ci95_lo_w_m2k)} – ${fmt(z.ci95_hi_w_m2k)}</td><td class="${z.identified ? "" : "no"}">` +
-    `${z.identified ? "yes" : "no (weakly identifiable)"}</td></tr>`).join("");
-  $("h-table").querySelector("tbody").innerHTML = rows;
+  ctx.fillStyle = MUTED; ctx.textAlign = "center";
+  ctx.fillText("zone (see table for the surface)", (box.L + W - box.R) / 2, H - 5);
+  canvas.dataset.xTitle = "zone"; canvas.dataset.xTicks = zones.map((z) => z.name).join(" ");
+  hTable(zones, desc);
   $("h-unit").textContent = c.unit;
   $("h-meta").textContent = `identification #${c.identification_id} at ${utc(c.identified_at)} · ${c.method} · ` +
-    `RMSE ${fmt(c.rmse_c, 2)} °C · fit ${fmt(c.fit, 3)} · model ${c.model_version} · ` +
-    `newest sample ${ageText(c.sample_age_s)} old`;
+    `RMSE ${fmt(c.rmse_c, 2)} °C · fit ${fmt(c.fit, 3)} · condition #${c.condition.id} ` +
+    `(${fmt(c.condition.speed_rpm, 0)} rpm) · model ${c.model_version}`;
   state.rendered.h = true;
 }
 
 async function pollChtc() {
   try {
     const r = await api("/chtc", { etag: state.etag });
+    state.apiError = null;
     if (r.status === 304 && state.chtc) {
-      // the server's clock may differ from ours (or run faster in a demo): age from its last answer
       const age = state.chtc.sample_age_s === null ? null : state.chtc.sample_age_s + (Date.now() - state.chtcAt) / 1000;
       setStatus(state.chtc.status, `${state.chtc.status} · ${ageText(age)}`);
       return;
     }
-    if (r.status === 503) { setStatus("no-data", "waiting for first identification"); return; }
-    if (r.status !== 200) { setStatus("error", r.body?.error?.message || "HTTP " + r.status); return; }
+    if (r.status === 503) {
+      state.noIdentification = true;
+      setStatus("waiting", "no identification yet");
+      placeholder($("h-chart"), "waiting for the first identification");
+      if (!state.field) placeholder($("field"), "the field is shown after the first identification");
+      return;
+    }
+    if (r.status !== 200) { state.apiError = apiProblem(r); setStatus("error", state.apiError.title); return; }
+    state.noIdentification = false;
     state.etag = r.headers.get("ETag");
     state.chtc = r.body;
     state.chtcAt = Date.now();
@@ -137,7 +300,7 @@ async function pollChtc() {
     drawH(r.body);
     const key = r.body.identification_id + "|" + $("field-at").value;
     if (key !== state.fieldKey) pollField();
-  } catch (e) { setStatus("error", "API unreachable"); }
+  } catch (e) { state.apiError = UNREACHABLE; setStatus("error", "API unreachable"); }
   markRendered();
 }
 
@@ -153,42 +316,138 @@ function colour(u) {
   return `rgb(${c[0]},${c[1]},${c[2]})`;
 }
 
-function drawField(f) {
-  const canvas = $("field");
-  const ctx = setupCanvas(canvas);
-  const W = canvas.width, H = canvas.height, pad = 16, scaleW = 70;
+// Labels of the named parts: inside the part (lower half) when the name fits, else in rows above the section
+// with a leader line to the part (upper half). Returns the names drawn.
+function labelParts(ctx, parts, m, topY) {
+  const drawn = [], rows = [[], [], [], []], rowH = 14;
+  const rect = (p, sign) => {
+    const xa = m.x0 + (p.z0_m - m.zmin) * m.s, xb = m.x0 + (p.z1_m - m.zmin) * m.s;
+    const ya = m.yAxis - sign * p.r0_m * m.s, yb = m.yAxis - sign * p.r1_m * m.s;
+    return { x: Math.min(xa, xb), y: Math.min(ya, yb), w: Math.abs(xb - xa), h: Math.abs(yb - ya) };
+  };
+  ctx.font = "11px system-ui, sans-serif";
+  const leader = [];
+  for (const p of parts) {
+    const text = pretty(p.name), tw = ctx.measureText(text).width;
+    const lo = rect(p, -1);
+    if (lo.w >= tw + 8 && lo.h >= 15) {
+      ctx.fillStyle = "rgba(10,12,15,0.55)"; ctx.fillRect(lo.x + lo.w / 2 - tw / 2 - 3, lo.y + lo.h / 2 - 8, tw + 6, 15);
+      ctx.fillStyle = "#fff"; ctx.textAlign = "center"; ctx.fillText(text, lo.x + lo.w / 2, lo.y + lo.h / 2 + 4);
+      drawn.push(p.name);
+    } else {
+      const up = rect(p, 1);
+      leader.push({ text, tw, tx: up.x + up.w / 2, ty: up.y, name: p.name });
+    }
+  }
+  leader.sort((a, b) => a.tx - b.tx);
+  for (const l of leader) { // the row where the label moves least
+    let best = null;
+    rows.forEach((row, k) => {
+      const end = row.length ? row[row.length - 1] : -Infinity;
+      const x = Math.max(l.tx - l.tw / 2, end + 8);
+      const cost = Math.abs(x + l.tw / 2 - l.tx) + k * 6;
+      if (best === null || cost < best.cost) best = { k, x, cost };
+    });
+    rows[best.k].push(best.x + l.tw);
+    const ly = topY - 4 - (rows.length - 1 - best.k) * rowH;
+    ctx.strokeStyle = "rgba(201,209,217,0.55)"; ctx.beginPath();
+    ctx.moveTo(best.x + l.tw / 2, ly + 3); ctx.lineTo(l.tx, l.ty - 1); ctx.stroke();
+    ctx.fillStyle = TEXT; ctx.textAlign = "left"; ctx.fillText(l.text, best.x, ly);
+    drawn.push(l.name);
+  }
+  ctx.font = "12px system-ui, sans-serif";
+  return drawn;
+}
+
+function drawMesh(ctx, f, m, lo, span) {
   const r = f.nodes_r_m, z = f.nodes_z_m, T = f.temps_c;
-  const zmin = Math.min(...z), zmax = Math.max(...z), rmax = Math.max(...r);
-  const s = Math.min((W - 2 * pad - scaleW) / (zmax - zmin), (H - 2 * pad) / (2 * rmax));
-  const x0 = pad, yAxis = H / 2;
-  state.fieldMap = { x0, yAxis, s, zmin };
-  const lo = f.t_min_c, hi = f.t_max_c, span = (hi - lo) || 1;
+  const px = (i) => m.x0 + (z[i] - m.zmin) * m.s;
   for (const sign of [-1, 1]) { // both halves of the axisymmetric section
+    const py = (i) => m.yAxis - sign * r[i] * m.s;
     for (const [a, b, c] of f.triangles) {
-      const tv = (T[a] + T[b] + T[c]) / 3;
-      ctx.fillStyle = ctx.strokeStyle = colour((tv - lo) / span);
-      ctx.beginPath();
-      ctx.moveTo(x0 + (z[a] - zmin) * s, yAxis - sign * r[a] * s);
-      ctx.lineTo(x0 + (z[b] - zmin) * s, yAxis - sign * r[b] * s);
-      ctx.lineTo(x0 + (z[c] - zmin) * s, yAxis - sign * r[c] * s);
+      ctx.fillStyle = ctx.strokeStyle = colour(((T[a] + T[b] + T[c]) / 3 - lo) / span);
+      ctx.beginPath(); ctx.moveTo(px(a), py(a)); ctx.lineTo(px(b), py(b)); ctx.lineTo(px(c), py(c));
       ctx.closePath(); ctx.fill(); ctx.stroke();
     }
   }
-  ctx.setLineDash([6, 4]); ctx.strokeStyle = "#8b98a5"; ctx.beginPath();
-  ctx.moveTo(x0 - 6, yAxis); ctx.lineTo(x0 + (zmax - zmin) * s + 6, yAxis); ctx.stroke(); ctx.setLineDash([]);
-  for (const sr of state.sensorsNow || []) { // sensor positions, upper half
-    ctx.fillStyle = "#fff"; ctx.strokeStyle = "#000"; ctx.beginPath();
-    ctx.arc(x0 + (sr.z_m - zmin) * s, yAxis - sr.r_m * s, 2.5, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+}
+
+function drawOutlines(ctx, parts, m, zLen) {
+  ctx.strokeStyle = "rgba(10,12,15,0.45)";
+  for (const p of parts) for (const sign of [-1, 1]) {
+    const ya = m.yAxis - sign * p.r0_m * m.s, yb = m.yAxis - sign * p.r1_m * m.s;
+    ctx.strokeRect(m.x0 + (p.z0_m - m.zmin) * m.s, Math.min(ya, yb), (p.z1_m - p.z0_m) * m.s, Math.abs(yb - ya));
   }
-  const sx = W - scaleW + 14, sy = pad, sh = H - 2 * pad; // colour scale
-  for (let i = 0; i < sh; i++) { ctx.fillStyle = colour(1 - i / sh); ctx.fillRect(sx, sy + i, 14, 1); }
-  ctx.fillStyle = "#e6edf3"; ctx.textAlign = "left";
-  for (const tv of niceTicks(lo, hi, 6)) ctx.fillText(tv.toFixed(1), sx + 18, sy + sh * (1 - (tv - lo) / span) + 4);
-  ctx.fillText("°C", sx - 2, sy + sh + 12);
-  ctx.fillStyle = "#8b98a5";
-  ctx.fillText(`z: ${zmin.toFixed(2)}–${zmax.toFixed(2)} m, r ≤ ${rmax.toFixed(3)} m`, pad, H - 4);
-  $("field-meta").textContent = `${f.at === "now" ? "current" : "steady-state"} field of identification ` +
-    `#${f.identification_id} at ${utc(f.t)} · ${fmt(lo)}–${fmt(hi)} °C · ${f.nodes_r_m.length} nodes`;
+  ctx.setLineDash([8, 3, 2, 3]); ctx.strokeStyle = MUTED; ctx.beginPath(); // axis of rotation
+  ctx.moveTo(m.x0 - 6, m.yAxis); ctx.lineTo(m.x0 + zLen * m.s + 6, m.yAxis); ctx.stroke(); ctx.setLineDash([]);
+  for (const sr of state.sensorsNow || []) { // sensor positions, upper half
+    ctx.fillStyle = sr.quality === "ok" ? "#fff" : "#e5484d"; ctx.strokeStyle = "#000"; ctx.beginPath();
+    ctx.arc(m.x0 + (sr.z_m - m.zmin) * m.s, m.yAxis - sr.r_m * m.s, 2.5, 0, 2 * Math.PI); ctx.fill(); ctx.stroke();
+  }
+}
+
+// z along the bottom and r (mirrored) on the left, both in mm; mirrored in data-* like the other charts.
+function drawSectionAxes(canvas, ctx, m, zmax, rmax, H) {
+  const zLen = zmax - m.zmin, yb = m.yAxis + rmax * m.s + 4, x0 = m.x0;
+  ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(x0, yb); ctx.lineTo(x0 + zLen * m.s, yb); ctx.stroke();
+  ctx.fillStyle = MUTED; ctx.textAlign = "center";
+  const zt = niceTicks(m.zmin * 1e3, zmax * 1e3, 8);
+  for (const v of zt) {
+    const px = x0 + (v / 1e3 - m.zmin) * m.s;
+    ctx.beginPath(); ctx.moveTo(px, yb); ctx.lineTo(px, yb + 4); ctx.stroke(); ctx.fillText(v.toFixed(0), px, yb + 16);
+  }
+  const zTitle = "z, mm (0 = rear, pulley end → front, tool end)";
+  ctx.fillStyle = TEXT; ctx.fillText(zTitle, x0 + zLen * m.s / 2, H - 5);
+  const rt = niceTicks(0, rmax * 1e3, 2);
+  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.fillStyle = MUTED;
+  ctx.beginPath(); ctx.moveTo(x0 - 6, m.yAxis - rmax * m.s); ctx.lineTo(x0 - 6, m.yAxis + rmax * m.s); ctx.stroke();
+  for (const v of rt) for (const sign of v === 0 ? [1] : [-1, 1]) {
+    const py = m.yAxis - sign * v / 1e3 * m.s;
+    ctx.beginPath(); ctx.moveTo(x0 - 10, py); ctx.lineTo(x0 - 6, py); ctx.stroke(); ctx.fillText(v.toFixed(0), x0 - 12, py);
+  }
+  ctx.textBaseline = "alphabetic";
+  ctx.save(); ctx.translate(12, m.yAxis); ctx.rotate(-Math.PI / 2); ctx.textAlign = "center"; ctx.fillStyle = TEXT;
+  ctx.fillText("r, mm", 0, 0); ctx.restore();
+  canvas.dataset.xTitle = zTitle; canvas.dataset.xTicks = zt.map((v) => v.toFixed(0)).join(" ");
+  canvas.dataset.yTitle = "r, mm"; canvas.dataset.yTicks = rt.map((v) => v.toFixed(0)).join(" ");
+}
+
+function drawColourScale(canvas, ctx, x, y, h, lo, hi) {
+  const span = (hi - lo) || 1;
+  for (let i = 0; i < h; i++) { ctx.fillStyle = colour(1 - i / h); ctx.fillRect(x, y + i, 14, 1); }
+  ctx.strokeStyle = AXIS; ctx.strokeRect(x, y, 14, h);
+  ctx.textAlign = "left"; ctx.textBaseline = "middle";
+  const ticks = niceTicks(lo, hi, 6);
+  for (const tv of ticks) {
+    const py = y + h * (1 - (tv - lo) / span);
+    ctx.fillStyle = AXIS; ctx.fillRect(x + 14, py, 4, 1); ctx.fillStyle = MUTED; ctx.fillText(tv.toFixed(stepDigits(ticks)), x + 20, py);
+  }
+  ctx.textBaseline = "alphabetic"; ctx.fillStyle = TEXT; ctx.fillText("T, °C", x - 4, y - 8);
+  canvas.dataset.cTitle = "T, °C"; canvas.dataset.cTicks = ticks.map((v) => v.toFixed(stepDigits(ticks))).join(" ");
+}
+
+function drawField(f) {
+  const canvas = $("field");
+  const zmin = Math.min(...f.nodes_z_m), zmax = Math.max(...f.nodes_z_m), rmax = Math.max(...f.nodes_r_m);
+  const L = 52, R = 86, top = 72, bottom = 42; // label rows above, z axis below, colour scale right
+  const sw = (Math.max(canvas.clientWidth, 200) - L - R) / (zmax - zmin); // height follows the section's aspect
+  canvas.dataset.h = String(Math.round(Math.min(Math.max(top + bottom + 2 * rmax * sw, 240), 480)));
+  const { ctx, W, H } = setupCanvas(canvas);
+  const s = Math.min((W - L - R) / (zmax - zmin), (H - top - bottom) / (2 * rmax));
+  const m = { x0: L, yAxis: top + rmax * s, s, zmin };
+  state.fieldMap = m;
+  const lo = f.t_min_c, hi = f.t_max_c;
+  drawMesh(ctx, f, m, lo, (hi - lo) || 1);
+  const parts = state.layout?.parts || [];
+  drawOutlines(ctx, parts, m, zmax - zmin);
+  canvas.dataset.parts = labelParts(ctx, parts, m, top - 6).join(" ");
+  drawSectionAxes(canvas, ctx, m, zmax, rmax, H);
+  drawColourScale(canvas, ctx, W - R + 22, top, H - top - bottom, lo, hi);
+  ctx.fillStyle = MUTED; ctx.textAlign = "left";
+  ctx.fillText("● sensor", W - R + 8, H - 26);
+  $("field-meta").textContent = `${f.at === "now" ? "current (state estimate)" : "steady-state"} field of identification ` +
+    `#${f.identification_id} at ${utc(f.t)} · ${fmt(lo)}–${fmt(hi)} °C · ${f.nodes_r_m.length} nodes · ` +
+    `shown mirrored about the axis; sensors in the upper half (red = masked)`;
   state.rendered.field = true;
 }
 
@@ -204,86 +463,139 @@ async function pollField() {
   markRendered();
 }
 
+function hoverField(ev) { // the sensor under the pointer, as the canvas's tooltip
+  const m = state.fieldMap, canvas = $("field");
+  if (!m) return;
+  const rect = canvas.getBoundingClientRect(), px = ev.clientX - rect.left, py = ev.clientY - rect.top;
+  const near = (state.sensorsNow || []).find((s) =>
+    Math.hypot(m.x0 + (s.z_m - m.zmin) * m.s - px, m.yAxis - s.r_m * m.s - py) <= 6);
+  canvas.title = near ? `ch ${near.channel} ${near.name} (${near.role}): measured ${fmt(near.measured_c, 2)} °C, ` +
+    `predicted ${fmt(near.predicted_c, 2)} °C, ${near.quality}` : "";
+}
+
+function partAt(rm, zm) {
+  const p = (state.layout?.parts || []).find((q) => rm >= q.r0_m && rm <= q.r1_m && zm >= q.z0_m && zm <= q.z1_m);
+  return p ? pretty(p.name) : null;
+}
+
 async function probeField(ev) { // click on the section: T at that (r, z) from the API (format=points)
   const m = state.fieldMap;
   if (!m) return;
-  const canvas = $("field"), rect = canvas.getBoundingClientRect();
-  const px = (ev.clientX - rect.left) * canvas.width / rect.width;
-  const py = (ev.clientY - rect.top) * canvas.height / rect.height;
+  const rect = $("field").getBoundingClientRect();
+  const px = ev.clientX - rect.left, py = ev.clientY - rect.top;
   const r = Math.abs(m.yAxis - py) / m.s, z = m.zmin + (px - m.x0) / m.s;
   const at = $("field-at").value;
   const res = await api(`/temperature-field?format=points&at=${at}&points=${r.toFixed(5)},${z.toFixed(5)}`);
   const p = res.body?.points?.[0];
+  const part = p ? partAt(p.r_m, p.z_m) : null;
   $("field-probe").textContent = !p ? (res.body?.error?.message || "probe failed")
-    : `r = ${(p.r_m * 1e3).toFixed(1)} mm, z = ${(p.z_m * 1e3).toFixed(1)} mm: ` +
+    : `r = ${(p.r_m * 1e3).toFixed(1)} mm, z = ${(p.z_m * 1e3).toFixed(1)} mm` + (part ? ` (${part})` : "") + ": " +
       (p.inside ? `${fmt(p.temp_c, 2)} °C` : "outside the section");
 }
 
-// ---------- measured vs predicted ----------
+async function loadLayout() {
+  try {
+    const r = await api("/spindle");
+    if (r.status !== 200) return;
+    state.layout = r.body;
+    $("spindle-name").textContent = `${r.body.name} · convective heat transfer coefficients H1–H7`;
+    if (state.chtc) drawH(state.chtc);
+    if (state.field) drawField(state.field);
+  } catch (e) { /* retried on the next field poll */ }
+}
+
+// ---------- measured vs predicted (server-side history) ----------
 function chosenChannels() {
-  return $("channels").value.split(",").map((s) => parseInt(s, 10)).filter((n) => n >= 1 && n <= 64);
+  return [...new Set($("channels").value.split(",").map((s) => parseInt(s, 10)).filter((n) => n >= 1 && n <= 64))];
+}
+
+async function loadHistory() {
+  const chans = chosenChannels();
+  if (!chans.length) return;
+  const key = chans.join(",");
+  const fresh = !state.hist || state.hist.key !== key;
+  const q = `channels=${key}&limit=${HISTORY_MAX}` + (fresh ? "" : `&since=${encodeURIComponent(state.hist.lastIso)}`);
+  const r = await api(`/sensors/history?${q}`);
+  if (r.status !== 200) {
+    $("sensor-meta").textContent = "history: " + (r.body?.error?.message || "HTTP " + r.status);
+    return;
+  }
+  const b = r.body;
+  if (fresh) state.hist = { key, t: [], series: new Map(), lastIso: null, capacity: b.capacity };
+  const h = state.hist;
+  for (const c of b.channels) if (!h.series.has(c.channel)) h.series.set(c.channel, { name: c.name, role: c.role, m: [], p: [] });
+  b.t.forEach((iso, i) => {
+    h.t.push(Date.parse(iso));
+    for (const c of b.channels) { const s = h.series.get(c.channel); s.m.push(c.measured_c[i]); s.p.push(c.predicted_c[i]); }
+  });
+  if (b.t.length) h.lastIso = b.t[b.t.length - 1];
+  const extra = h.t.length - Math.max(h.capacity || 0, HISTORY_MAX);
+  if (extra > 0) { h.t.splice(0, extra); for (const s of h.series.values()) { s.m.splice(0, extra); s.p.splice(0, extra); } }
 }
 
 function drawSensors() {
   const canvas = $("sensor-chart");
-  const ctx = setupCanvas(canvas);
-  const W = canvas.width, H = canvas.height, L = 48, R = 250, T = 10, B = 24;
-  const chans = chosenChannels().filter((c) => state.history.has(c));
-  const all = chans.flatMap((c) => state.history.get(c));
-  if (!all.length) { ctx.fillStyle = "#8b98a5"; ctx.fillText("no samples yet", L, H / 2); return; }
-  const t1 = Math.max(...all.map((p) => p.t)), t0 = Math.min(...all.map((p) => p.t), t1 - 60e3); // ms
-  const vals = all.flatMap((p) => [p.m, p.p]).filter((v) => v !== null);
+  const { ctx, W, H } = setupCanvas(canvas);
+  const box = { L: 60, R: 14, T: 12, B: 40, W, H };
+  const h = state.hist;
+  canvas.dataset.points = h ? String(h.t.length) : "0";
+  if (!h || !h.t.length) { ctx.fillStyle = MUTED; ctx.fillText("no samples yet", box.L + 10, H / 2); return; }
+  const win = Number($("window").value) * 1000;
+  const t1 = h.t[h.t.length - 1], t0 = Math.min(Math.max(h.t[0], t1 - win), t1 - 60e3);
+  const first = h.t.findIndex((t) => t >= t0);
+  const chans = [...h.series.keys()];
+  const vals = chans.flatMap((c) => [...h.series.get(c).m.slice(first), ...h.series.get(c).p.slice(first)]).filter((v) => v !== null);
   let lo = Math.min(...vals), hi = Math.max(...vals);
-  if (hi - lo < 1) { lo -= 0.5; hi += 0.5; }
-  const x = (t) => L + (W - L - R) * (t - t0) / ((t1 - t0) || 1);
-  const y = (v) => T + (H - T - B) * (1 - (v - lo) / (hi - lo));
-  ctx.strokeStyle = "#2b3642"; ctx.fillStyle = "#8b98a5"; ctx.textAlign = "right";
-  for (const tv of niceTicks(lo, hi)) {
-    ctx.beginPath(); ctx.moveTo(L, y(tv)); ctx.lineTo(W - R, y(tv)); ctx.stroke(); ctx.fillText(tv.toFixed(1), L - 6, y(tv) + 4);
-  }
-  ctx.textAlign = "center";
-  ctx.fillText(`${((t1 - t0) / 60e3).toFixed(1)} min window, ending ${new Date(t1).toISOString().slice(11, 19)} UTC`, (L + W - R) / 2, H - 6);
+  if (!vals.length) { lo = 0; hi = 1; }
+  const pad = Math.max((hi - lo) * 0.06, 0.25); lo -= pad; hi += pad;
+  const y = yAxis(canvas, ctx, box, lo, hi, { title: "temperature, °C" });
+  const x = xTimeAxis(canvas, ctx, box, t0, t1, "time, UTC");
+  ctx.save(); ctx.beginPath(); ctx.rect(box.L, box.T, W - box.L - box.R, H - box.T - box.B); ctx.clip();
   chans.forEach((c, k) => {
-    const pts = state.history.get(c), col = COLORS[k % COLORS.length];
-    for (const [key, dash] of [["m", []], ["p", [5, 4]]]) {
-      ctx.strokeStyle = col; ctx.setLineDash(dash); ctx.lineWidth = key === "m" ? 1.8 : 1.2; ctx.beginPath();
+    const s = h.series.get(c), col = COLORS[k % COLORS.length];
+    for (const [key, dash, lw] of [["p", [6, 4], 1.4], ["m", [], 2]]) {
+      ctx.strokeStyle = col; ctx.setLineDash(dash); ctx.lineWidth = lw; ctx.beginPath();
       let pen = false;
-      for (const p of pts) {
-        if (p[key] === null) { pen = false; continue; }
-        if (pen) ctx.lineTo(x(p.t), y(p[key])); else ctx.moveTo(x(p.t), y(p[key]));
+      for (let i = first; i < h.t.length; i++) {
+        const v = s[key][i];
+        if (v === null) { pen = false; continue; }
+        if (pen) ctx.lineTo(x(h.t[i]), y(v)); else ctx.moveTo(x(h.t[i]), y(v));
         pen = true;
       }
       ctx.stroke();
     }
-    ctx.setLineDash([]); ctx.lineWidth = 1; ctx.fillStyle = col;
-    for (const p of pts.slice(-120)) {
-      if (p.m !== null) { ctx.beginPath(); ctx.arc(x(p.t), y(p.m), 2, 0, 2 * Math.PI); ctx.fill(); }
-    }
-    const last = pts[pts.length - 1];
-    ctx.fillStyle = col; ctx.textAlign = "left";
-    ctx.fillText(`ch ${c} ${last.name.slice(0, 14)}: ${fmt(last.m, 2)} / ${fmt(last.p, 2)}`, W - R + 8, T + 14 + 16 * k);
   });
-  ctx.fillStyle = "#8b98a5"; ctx.fillText("— measured / - - predicted, °C", W - R + 8, H - 8);
+  ctx.restore(); ctx.setLineDash([]); ctx.lineWidth = 1;
+  drawLegend(chans);
   state.rendered.sensors = true;
+}
+
+function drawLegend(chans) {
+  const now = new Map((state.sensorsNow || []).map((s) => [s.channel, s]));
+  $("sensor-legend").querySelector("tbody").innerHTML = chans.map((c, k) => {
+    const s = state.hist.series.get(c), n = now.get(c) || {};
+    const q = n.quality || "–";
+    return `<tr data-channel="${c}"><td><span class="line" data-k="${k}"></span></td>` +
+      `<td>${c}</td><td class="sensor-name">${esc(s.name)}</td><td>${esc(s.role)}</td>` +
+      `<td class="num">${fmt(n.measured_c, 2)} °C</td><td class="num">${fmt(n.predicted_c, 2)} °C</td>` +
+      `<td class="num">${fmt(n.residual_c, 2)} °C</td><td class="${q === "ok" ? "" : "bad"}">${esc(q)}</td></tr>`;
+  }).join("");
+  // the page's CSP forbids inline style attributes; CSSOM is allowed
+  for (const el of $("sensor-legend").querySelectorAll(".line")) el.style.borderColor = COLORS[Number(el.dataset.k) % COLORS.length];
 }
 
 async function pollSensors() {
   try {
-    const r = await api("/sensors");
-    if (r.status !== 200) { $("sensor-meta").textContent = r.body?.error?.message || "HTTP " + r.status; return; }
+    const [r] = await Promise.all([api("/sensors"), loadHistory()]);
+    if (r.status !== 200) { $("sensor-meta").textContent = r.body?.error?.message || "HTTP " + r.status; drawSensors(); return; }
     state.sensorsNow = r.body.channels;
-    for (const s of r.body.channels) {
-      const buf = state.history.get(s.channel) || [];
-      const t = Date.parse(s.t);
-      if (!buf.length || buf[buf.length - 1].t !== t) buf.push({ t, m: s.measured_c, p: s.predicted_c, name: s.name });
-      if (buf.length > HISTORY_MAX) buf.shift();
-      state.history.set(s.channel, buf);
-    }
     const bad = r.body.channels.filter((s) => s.quality !== "ok").map((s) => `${s.channel} (${s.quality})`);
     const res = r.body.channels.map((s) => s.residual_c).filter((v) => v !== null);
     const rms = res.length ? Math.sqrt(res.reduce((a, v) => a + v * v, 0) / res.length) : null;
-    $("sensor-meta").textContent = `sample ${utc(r.body.t)} (${ageText(r.body.sample_age_s)} old) · ` +
-      `RMS residual ${fmt(rms, 2)} °C over ${res.length} channels` + (bad.length ? ` · masked: ${bad.join(", ")}` : "");
+    const n = state.hist ? state.hist.t.length : 0;
+    $("sensor-meta").textContent = `newest sample ${utc(r.body.t)} (${ageText(r.body.sample_age_s)} old) · ` +
+      `RMS residual ${fmt(rms, 2)} °C over ${res.length} channels · ${n} samples from the server's history` +
+      (bad.length ? ` · masked: ${bad.join(", ")}` : "");
     drawSensors();
   } catch (e) { $("sensor-meta").textContent = "sensors unavailable"; }
   markRendered();
@@ -291,29 +603,31 @@ async function pollSensors() {
 
 // ---------- condition timeline ----------
 function drawConditions(current, recent, servedAt) {
+  const stateCls = current.state === "stable" ? "" : "no";
   $("condition-now").innerHTML = `<b>${fmt(current.speed_rpm, 0)} rpm</b> · ${fmt(current.torque_nm, 2)} N·m · ` +
-    `ambient ${fmt(current.ambient_c, 1)} °C · <span class="${current.state === "stable" ? "" : "no"}">${current.state}</span>` +
-    ` <span class="muted">since ${utc(current.since)}</span>`;
+    `T<sub>i</sub> ${fmt(current.ambient_c, 1)} °C · <span class="${stateCls}">${current.state}</span>`;
+  $("header-condition").innerHTML = `<b>${fmt(current.speed_rpm, 0)}</b> rpm · ${fmt(current.torque_nm, 2)} N·m · ` +
+    `T<sub>i</sub> ${fmt(current.ambient_c, 1)} °C · <span class="${stateCls}">${current.state}</span>`;
   const canvas = $("condition-chart");
-  const ctx = setupCanvas(canvas);
-  const W = canvas.width, H = canvas.height, L = 48, R = 10, T = 10, B = 22;
+  const { ctx, W, H } = setupCanvas(canvas);
+  const box = { L: 60, R: 12, T: 10, B: 40, W, H };
   const segs = [...recent].reverse();
   const now = Date.parse(servedAt); // the server's clock, not ours
   const t0 = Math.min(...segs.map((c) => Date.parse(c.since)), now - 600e3);
   const maxS = Math.max(...segs.map((c) => c.speed_rpm), 1000) * 1.15;
-  const x = (t) => L + (W - L - R) * (t - t0) / ((now - t0) || 1);
-  const y = (v) => T + (H - T - B) * (1 - v / maxS);
-  ctx.strokeStyle = "#2b3642"; ctx.fillStyle = "#8b98a5"; ctx.textAlign = "right";
-  for (const tv of niceTicks(0, maxS, 3)) { ctx.beginPath(); ctx.moveTo(L, y(tv)); ctx.lineTo(W - R, y(tv)); ctx.stroke(); ctx.fillText(String(tv), L - 6, y(tv) + 4); }
+  const y = yAxis(canvas, ctx, box, 0, maxS, { title: "speed, rpm", ticks: niceTicks(0, maxS, 4) });
+  const x = xTimeAxis(canvas, ctx, box, t0, now, "time, UTC");
   segs.forEach((c, i) => {
     const a = x(Date.parse(c.since)), b = i + 1 < segs.length ? x(Date.parse(segs[i + 1].since)) : x(now);
-    ctx.fillStyle = COLORS[c.id % COLORS.length] + "aa";
+    ctx.fillStyle = "rgba(76,155,232,0.28)";
     ctx.fillRect(a, y(c.speed_rpm), Math.max(b - a, 1), y(0) - y(c.speed_rpm));
-    ctx.fillStyle = "#e6edf3"; ctx.textAlign = "left";
-    if (b - a > 50) ctx.fillText(`#${c.id} ${c.speed_rpm.toFixed(0)} rpm`, a + 4, y(c.speed_rpm) + 14);
+    ctx.strokeStyle = "#4c9be8"; ctx.lineWidth = 2; ctx.beginPath();
+    ctx.moveTo(a, y(c.speed_rpm)); ctx.lineTo(b, y(c.speed_rpm)); ctx.stroke(); ctx.lineWidth = 1;
+    ctx.fillStyle = TEXT; ctx.textAlign = "left";
+    if (b - a > 46) ctx.fillText(`#${c.id}`, a + 4, Math.max(y(c.speed_rpm) - 4, 10));
   });
-  ctx.fillStyle = "#8b98a5"; ctx.textAlign = "center";
-  ctx.fillText(`speed, rpm · last ${((now - t0) / 60e3).toFixed(0)} min`, (L + W) / 2, H - 6);
+  const dur = (now - Date.parse(current.since)) / 1000;
+  $("condition-since").textContent = `#${current.id} since ${utc(current.since)} (${ageText(dur)})`;
 }
 
 async function pollCondition() {
@@ -325,16 +639,24 @@ async function pollCondition() {
 }
 
 // ---------- health and identifications ----------
+const DEVICE_LABEL = { modbus: "temperature DAQ (Modbus)", can: "speed/torque (CAN)", db: "database", worker: "identification worker" };
+
 async function pollHealth() {
   try {
     const [h, rd] = await Promise.all([api("/healthz"), api("/readyz")]);
     if (h.status === 200) {
+      state.health = h.body;
       $("health-table").querySelector("tbody").innerHTML = h.body.devices.map((d) =>
-        `<tr><td>${d.name}</td><td class="st-${d.status}">${d.status}</td><td>${d.age_s === null ? "–" : ageText(d.age_s) + " ago"}</td>` +
-        `<td class="muted">${Object.entries(d.counters).map(([k, v]) => `${k} ${v}`).join(", ")}${d.message ? " · " + d.message : ""}</td></tr>`).join("");
+        `<tr data-device="${esc(d.name)}"><td>${esc(DEVICE_LABEL[d.name] || d.name)}</td><td><span class="badge st-${d.status}">${d.status}</span></td>` +
+        `<td>${d.age_s === null ? "–" : ageText(d.age_s) + " ago"}</td>` +
+        `<td class="wrap detail">${d.message ? `<div>${esc(d.message)}</div>` : ""}` +
+        `<div class="muted">${Object.entries(d.counters).map(([k, v]) => `${esc(k)} ${v}`).join(" · ")}</div></td></tr>`).join("");
     }
-    $("ready-meta").textContent = rd.status === 200 ? "ready" : "NOT READY: " + (rd.body?.error?.message || rd.status);
-  } catch (e) { $("ready-meta").textContent = "health unavailable"; }
+    state.ready = rd.status === 200 ? { ready: true, reasons: [] } : { ready: false, reasons: rd.body?.error?.detail?.reasons || [rd.body?.error?.message || "HTTP " + rd.status] };
+    $("ready-meta").textContent = state.ready.ready ? "service ready" : "NOT READY";
+    $("ready-meta").className = state.ready.ready ? "unit" : "unit bad";
+  } catch (e) { state.apiError = UNREACHABLE; }
+  banner();
 }
 
 async function pollIdents() {
@@ -342,11 +664,65 @@ async function pollIdents() {
     const r = await api("/identifications?limit=6");
     if (r.status !== 200) return;
     $("ident-table").querySelector("tbody").innerHTML = r.body.items.map((i) =>
-      `<tr><td>${i.id}</td><td>${utc(i.finished_at)}</td><td>${fmt(i.condition.speed_rpm, 0)} rpm, ` +
-      `${fmt(i.condition.ambient_c, 1)} °C</td><td>${fmt(i.rmse_c, 2)} °C</td><td>${i.method} (${i.outcome})</td></tr>`).join("");
+      `<tr><td>${i.id}</td><td>${utc(i.finished_at)}</td><td>#${i.condition.id} · ${fmt(i.condition.speed_rpm, 0)} rpm, ` +
+      `${fmt(i.condition.ambient_c, 1)} °C</td><td class="num">${fmt(i.rmse_c, 3)} °C</td><td>${esc(i.method)}</td>` +
+      `<td class="wrap ${i.outcome === "ok" ? "" : "no"}">${esc(i.outcome)} · ${esc(i.reason)}</td></tr>`).join("");
   } catch (e) { /* shown by the other panels */ }
 }
 
+// ---------- identify now ----------
+function showResult(text, cls) {
+  const el = $("identify-result");
+  el.textContent = text; el.className = "action-result " + (cls || ""); el.title = text;
+}
+
+function openIdentify() {
+  $("write-token").value = sessionStorage.getItem("chtc-write-token") || "";
+  $("identify-dialog").showModal();
+  ($("write-token").value ? $("identify-submit") : $("write-token")).focus();
+}
+
+async function submitIdentify(ev) {
+  ev.preventDefault();
+  const tok = $("write-token").value.trim();
+  if (!tok) { $("write-token").focus(); return; }
+  sessionStorage.setItem("chtc-write-token", tok);
+  $("identify-dialog").close();
+  $("identify-now").disabled = true;
+  showResult("requesting an identification …");
+  try {
+    const r = await api("/identifications", { method: "POST", body: { reason: $("identify-reason").value || "operator request from the dashboard" }, bearer: tok });
+    if (r.status === 202) {
+      state.job = r.body.job_id;
+      showResult(`${r.body.job_id} ${r.body.state}`, "ok");
+      followJob(r.body.job_id);
+      return;
+    }
+    if (r.status === 401 || r.status === 403) sessionStorage.removeItem("chtc-write-token");
+    const msg = r.body?.error?.message || "HTTP " + r.status;
+    showResult(`refused (${r.status} ${r.body?.error?.code || ""}): ${msg}`, "err");
+  } catch (e) {
+    showResult("failed: the service did not answer", "err");
+  }
+  $("identify-now").disabled = false;
+}
+
+async function followJob(jobId) {
+  const deadline = Date.now() + 15 * 60e3;
+  while (Date.now() < deadline) {
+    await new Promise((res) => setTimeout(res, 1000));
+    let r;
+    try { r = await api(`/identifications/jobs/${encodeURIComponent(jobId)}`); } catch (e) { continue; }
+    if (r.status !== 200) { showResult(`${jobId}: ${r.body?.error?.message || "HTTP " + r.status}`, "err"); break; }
+    const j = r.body;
+    if (j.state === "done") { showResult(`${jobId} done: identification #${j.identification_id}`, "ok"); pollIdents(); break; }
+    if (j.state === "failed") { showResult(`${jobId} failed: ${j.message || "no message"}`, "err"); pollIdents(); break; }
+    showResult(`${jobId} ${j.state} …`, "ok");
+  }
+  $("identify-now").disabled = false;
+}
+
+// ---------- start ----------
 function markRendered() {
   if (state.rendered.h && state.rendered.field && state.rendered.sensors) document.body.dataset.rendered = "1";
 }
@@ -354,19 +730,28 @@ function markRendered() {
 function every(fn, ms) { fn(); setInterval(fn, ms); }
 
 function start() {
-  setInterval(() => { // the server's time (its clock can run faster in a demo), else ours
-    const t = state.chtc ? Date.parse(state.chtc.served_at) + (Date.now() - state.chtcAt) : Date.now();
-    $("clock").textContent = new Date(t).toISOString().slice(0, 19).replace("T", " ") + " UTC";
-  }, 1000);
+  setInterval(() => { $("clock").textContent = new Date(serverNow()).toISOString().slice(0, 19).replace("T", " ") + " UTC"; }, 1000);
   $("field-at").addEventListener("change", pollField);
   $("field").addEventListener("click", probeField);
-  $("channels").addEventListener("change", drawSensors);
-  every(pollSensors, POLL_MS.sensors);
-  every(pollChtc, POLL_MS.chtc);
-  every(pollCondition, POLL_MS.condition);
-  every(pollHealth, POLL_MS.health);
-  every(pollIdents, POLL_MS.idents);
-  setInterval(pollField, POLL_MS.field);
+  $("field").addEventListener("mousemove", hoverField);
+  $("channels").addEventListener("change", () => { state.hist = null; pollSensors(); });
+  $("window").addEventListener("change", drawSensors);
+  $("identify-now").addEventListener("click", openIdentify);
+  $("identify-form").addEventListener("submit", submitIdentify);
+  $("identify-cancel").addEventListener("click", () => $("identify-dialog").close());
+  let resizeTimer = null;
+  window.addEventListener("resize", () => {
+    clearTimeout(resizeTimer);
+    resizeTimer = setTimeout(() => { if (state.chtc) drawH(state.chtc); if (state.field) drawField(state.field); drawSensors(); }, 150);
+  });
+  loadLayout().then(() => {
+    every(pollSensors, POLL_MS.sensors);
+    every(pollChtc, POLL_MS.chtc);
+    every(pollCondition, POLL_MS.condition);
+    every(pollHealth, POLL_MS.health);
+    every(pollIdents, POLL_MS.idents);
+    setInterval(pollField, POLL_MS.field);
+  });
 }
 
 start();

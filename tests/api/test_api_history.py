@@ -1,0 +1,125 @@
+"""GET /api/v1/sensors/history and GET /api/v1/spindle against the in-memory service."""
+
+from __future__ import annotations
+
+from datetime import datetime
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from service.interface import SensorHistoryBuffer
+from service.interface_memory import InMemoryService
+from tests.api.conftest import ManualClock
+
+
+def _push(service: InMemoryService, clock: ManualClock, n: int, *, seed: int = 0) -> list[np.ndarray]:
+    """n samples 10 s apart (°C), channel 5 open-circuit in the last one."""
+    rng = np.random.default_rng(seed)
+    pushed = []
+    for k in range(n):
+        clock.advance(10.0)
+        temps = 25.0 + rng.normal(0.0, 1.0, 32)
+        quality = ["ok"] * 32
+        if k == n - 1:
+            quality[4] = "open_circuit"
+        service.add_sample(temps, quality=quality)
+        pushed.append(temps)
+    return pushed
+
+
+def _iso(t: datetime) -> str:
+    return t.isoformat().replace("+00:00", "Z")
+
+
+def test_history_gives_every_sample_with_units_utc_times_and_the_prediction(
+    client: TestClient, service: InMemoryService, clock: ManualClock
+) -> None:
+    before = service.sensor_history(None).t  # the demo's own first sample
+    pushed = _push(service, clock, 6)
+    body = client.get("/api/v1/sensors/history", params={"channels": "1,5,32"}).json()
+    assert body["unit"] == "°C" and body["since"] is None and body["truncated"] is False
+    assert len(body["t"]) == len(before) + 6 and all(t.endswith("Z") for t in body["t"])
+    assert body["t"][-1] == _iso(clock.now) and body["t"] == sorted(body["t"])
+    assert [c["channel"] for c in body["channels"]] == [1, 5, 32]
+    ch1, ch5, ch32 = body["channels"]
+    assert ch1["name"] == "B01" and ch1["role"] == "bearing" and ch32["name"] == "S20"
+    np.testing.assert_allclose(ch32["measured_c"][-6:], [p[31] for p in pushed], atol=5e-4)
+    assert ch5["measured_c"][-1] is None and ch5["measured_c"][-2] is not None  # masked, not dropped
+    want = service.predicted_at_sensors()
+    np.testing.assert_allclose(ch1["predicted_c"][-1], want[0], atol=5e-4)
+
+
+def test_history_since_is_strict_and_limit_keeps_the_newest(
+    client: TestClient, service: InMemoryService, clock: ManualClock
+) -> None:
+    _push(service, clock, 5)
+    full = client.get("/api/v1/sensors/history").json()
+    assert len(full["channels"]) == 32
+    since = full["t"][-3]
+    later = client.get("/api/v1/sensors/history", params={"since": since}).json()
+    assert later["t"] == full["t"][-2:] and later["since"] == since
+    newest = client.get("/api/v1/sensors/history", params={"limit": 2, "channels": "7"}).json()
+    assert newest["t"] == full["t"][-2:] and newest["truncated"] is True
+    assert newest["channels"][0]["measured_c"] == full["channels"][6]["measured_c"][-2:]
+
+
+@pytest.mark.parametrize(
+    ("query", "field"),
+    [
+        ({"channels": "1,x"}, "channels"),
+        ({"channels": "0"}, "channels"),
+        ({"channels": "33"}, "channels"),
+        ({"since": "2026-11-22T08:00:00"}, "since"),  # no zone
+        ({"since": "yesterday"}, "since"),
+        ({"limit": "0"}, "limit"),
+        ({"limit": "10001"}, "limit"),
+    ],
+)
+def test_history_rejects_bad_parameters_naming_the_field(client: TestClient, query: dict, field: str) -> None:
+    r = client.get("/api/v1/sensors/history", params=query)
+    assert r.status_code == 422, r.text
+    err = r.json()["error"]
+    assert err["code"] == "invalid" and err["field"] == field and err["message"].startswith(field)
+
+
+def test_unknown_channel_message_names_the_channel_and_the_range(client: TestClient) -> None:
+    msg = client.get("/api/v1/sensors/history", params={"channels": "2,40"}).json()["error"]["message"]
+    assert msg == "channels: no channel 40 (channels: 1-32)"
+
+
+def test_history_buffer_keeps_the_last_capacity_samples_in_order() -> None:
+    buf = SensorHistoryBuffer(3, [(1, "a", "bearing"), (2, "b", "housing")])
+    t0 = datetime.fromisoformat("2026-11-22T08:00:00+00:00")
+    assert buf.since(None).t == () and buf.since(None).measured_c.shape == (0, 2)
+    times = [t0.replace(second=k) for k in range(5)]
+    for k, t in enumerate(times):
+        buf.append(t, np.array([k, -k], dtype=float), None if k < 2 else np.array([10.0 + k, 20.0]))
+    h = buf.since(None)
+    assert h.t == tuple(times[2:])
+    np.testing.assert_array_equal(h.measured_c[:, 0], [2, 3, 4])
+    np.testing.assert_array_equal(h.predicted_c[:, 0], [12, 13, 14])
+    assert buf.since(times[3]).t == (times[4],)
+    with pytest.raises(ValueError, match="capacity"):
+        SensorHistoryBuffer(0, [])
+
+
+def test_spindle_lists_named_parts_and_zone_descriptions(client: TestClient) -> None:
+    body = client.get("/api/v1/spindle").json()
+    names = [p["name"] for p in body["parts"]]
+    assert {"shaft", "housing", "pulley", "front_bearing", "rear_bearing"} <= set(names)
+    housing = body["parts"][names.index("housing")]
+    assert housing["r0_m"] < housing["r1_m"] and housing["z0_m"] < housing["z1_m"]
+    assert [z["name"] for z in body["zones"]] == [f"H{i}" for i in range(1, 8)]
+    assert "pulley" in body["zones"][0]["description"]
+
+
+def test_model_section_names_the_parts_of_the_spindle_description() -> None:
+    from model.geometry import load_spindle
+    from service.interface_memory import model_section
+
+    spec = load_spindle()
+    sec = model_section(mesh_size_m=0.01)
+    assert [p.name for p in sec.parts] == [r.name for r in spec.regions]
+    assert {"pulley", "housing", "front_end_cap", "rear_end_cap", "shaft_body"} <= {p.name for p in sec.parts}
+    assert [z.description for z in sec.zones] == [z.description for z in spec.zones]

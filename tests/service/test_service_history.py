@@ -1,0 +1,88 @@
+"""The running service keeps measured and predicted temperatures per sample for ``GET /sensors/history``."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+
+from drivers.quality import Quality
+from model.plant import Segment
+from service.core import Restored, ServiceCore
+from service.history import RingHistory
+from service.interface import ConditionSnapshot, ConditionState, IdentificationRecord
+from service.runtime import core_config
+from service.service import SoftSensorService
+from service.settings import Settings
+
+from .conftest import plant_run, ring_of, samples_of
+
+
+class _Sink:
+    def __init__(self) -> None:
+        self.records: list[object] = []
+
+    def submit(self, record: object) -> bool:
+        self.records.append(record)
+        return True
+
+
+def _last_identification(h: np.ndarray) -> IdentificationRecord:
+    t = datetime(2026, 1, 5, 7, 0, tzinfo=UTC)
+    cond = ConditionSnapshot(1, 3000.0, 5.0, 22.0, t - timedelta(hours=1), ConditionState.STABLE)
+    return IdentificationRecord(
+        id=1,
+        started_at=t,
+        finished_at=t,
+        reason="condition-change",
+        outcome="ok",
+        message="",
+        condition=cond,
+        window_from=t - timedelta(hours=1),
+        window_to=t,
+        h=h,
+        ci95_lo=0.9 * h,
+        ci95_hi=1.1 * h,
+        identified=np.ones(7, dtype=bool),
+        f=0.01,
+        fit=0.99,
+        rmse_c=0.1,
+        method="hybrid",
+        model_version="m",
+        nfev=10,
+        wall_s=0.1,
+        n_sensors_used=32,
+    )
+
+
+def test_service_keeps_measured_and_predicted_per_sample_with_masked_channels_as_nan(loaded_model) -> None:
+    h = np.array([88.2, 46.3, 68.5, 46.7, 52.1, 70.2, 16.5])
+    core = ServiceCore(
+        core_config(Settings()),
+        model=loaded_model,
+        history=RingHistory(ring_of()),
+        sink=_Sink(),
+        restored=Restored(last=_last_identification(h)),
+    )
+    svc = SoftSensorService(core, worker=None, history_capacity=15)
+    samples = samples_of(plant_run([Segment(300.0, 3000.0, 5.0, 22.0)], seed=4))[:20]
+    quality = np.full(32, int(Quality.OK), dtype=np.uint8)
+    quality[4] = int(Quality.OPEN_CIRCUIT)
+    samples[-1] = replace(samples[-1], quality=quality)
+    predicted = []
+    for smp in samples:
+        svc.on_sample(smp)
+        predicted.append(core.live.sensors_now())
+
+    hist = svc.sensor_history(None)
+    assert hist.capacity == 15 and hist.channels == tuple(range(1, 33))
+    assert hist.names[0] == loaded_model.spec.sensors[0].name
+    assert hist.t == tuple(s.t for s in samples[-15:])  # the oldest 5 are gone
+    np.testing.assert_allclose(hist.measured_c[:-1], np.array([s.temps_c for s in samples[-15:-1]]))
+    assert np.isnan(hist.measured_c[-1, 4]) and np.isfinite(np.delete(hist.measured_c[-1], 4)).all()
+    np.testing.assert_allclose(hist.predicted_c, np.array(predicted[-15:]))
+    assert np.ptp(hist.predicted_c[:, 0]) > 0  # the prediction moves with the live state, not one copy
+
+    later = svc.sensor_history(samples[-3].t)
+    assert later.t == (samples[-2].t, samples[-1].t)
