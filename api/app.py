@@ -17,6 +17,7 @@ from fastapi.staticfiles import StaticFiles
 
 from api.deps import AuthConfig, Clock
 from api.errors import install_error_handlers
+from api.guard import GuardLimits, RequestGuard, route_rules
 from api.metrics import ApiMetrics, RequestTimer
 from api.routers import chtc, condition, field, health, identifications, sensors
 from service.interface import ChtcService
@@ -38,8 +39,14 @@ def utc_now() -> datetime:
     return datetime.now(UTC)
 
 
-def create_app(settings: Any, service: ChtcService, *, clock: Clock = utc_now) -> FastAPI:
-    """Build the app around an already running service; nothing is opened here."""
+def create_app(
+    settings: Any, service: ChtcService, *, clock: Clock = utc_now, limits: GuardLimits | None = None
+) -> FastAPI:
+    """Build the app around an already running service; nothing is opened here.
+
+    ``limits`` bounds bodies, URLs and slow bodies (``api/guard.py``); the defaults suit this API.
+    """
+    limits = limits or GuardLimits()
     app = FastAPI(
         title="spindle-chtc",
         version="1",
@@ -53,9 +60,12 @@ def create_app(settings: Any, service: ChtcService, *, clock: Clock = utc_now) -
     app.state.auth = AuthConfig.from_settings(settings.api)
     app.state.metrics = ApiMetrics(service)
     install_error_handlers(app)
-    for module in (chtc, field, sensors, condition, identifications, health):
+    modules = (chtc, field, sensors, condition, identifications, health)
+    for module in modules:
         app.include_router(module.router, prefix=API_PREFIX)
     _mount_dashboard(app)
+    rules = route_rules((r for m in modules for r in m.router.routes), API_PREFIX)
+    app.add_middleware(RequestGuard, rules=rules, auth=app.state.auth, limits=limits)
     app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)
     return app
 
