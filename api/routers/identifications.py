@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import re
+from datetime import UTC, datetime
 from typing import Annotated
 
 from fastapi import APIRouter, Body, Path, Query, Request
 from fastapi.responses import JSONResponse
-from pydantic import AwareDatetime
+from pydantic import AfterValidator, AwareDatetime, BeforeValidator
 
 from api.deps import ReadAccess, ServiceDep, WriteAccess
 from api.errors import invalid
@@ -21,6 +23,25 @@ from api.schemas import (
 
 router = APIRouter(tags=["identifications"])
 PREFIX = "/api/v1"
+MAX_ID = 2**63 - 1  # the database's BIGINT; larger ids cannot exist (and would overflow the driver)
+_ISO_DATE_TIME = re.compile(r"^\d{4}-\d{2}-\d{2}[Tt ]\d{2}:\d{2}")
+
+
+def _iso_text(value: object) -> object:
+    """Only ISO-8601 text: pydantic alone would also read ``0.5`` as a Unix time."""
+    if not isinstance(value, str) or not _ISO_DATE_TIME.match(value):
+        raise ValueError("must be an ISO-8601 date-time with a UTC offset, e.g. 2026-11-22T08:00:00Z")
+    return value
+
+
+def _in_utc(value: datetime) -> datetime:
+    try:
+        return value.astimezone(UTC)
+    except OverflowError:
+        raise ValueError("is out of range once converted to UTC") from None
+
+
+UtcDateTime = Annotated[AwareDatetime, BeforeValidator(_iso_text), AfterValidator(_in_utc)]
 
 
 @router.get(
@@ -31,8 +52,10 @@ PREFIX = "/api/v1"
 )
 def list_identifications(
     service: ServiceDep,
-    since: Annotated[AwareDatetime | None, Query(description="finished at or after (UTC ISO-8601)")] = None,
-    until: Annotated[AwareDatetime | None, Query(description="finished before (UTC ISO-8601)")] = None,
+    since: Annotated[
+        UtcDateTime | None, Query(description="finished at or after (ISO-8601 with offset)")
+    ] = None,
+    until: Annotated[UtcDateTime | None, Query(description="finished before (ISO-8601 with offset)")] = None,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> IdentificationPageOut:
@@ -46,6 +69,8 @@ def list_identifications(
         limit=limit,
         offset=offset,
         next_offset=nxt if nxt < page.total else None,
+        partial=page.partial_reason is not None,
+        partial_reason=page.partial_reason,
     )
 
 
@@ -66,7 +91,7 @@ def get_job(service: ServiceDep, job_id: Annotated[str, Path(max_length=64)]) ->
     summary="one stored identification",
 )
 def get_identification(
-    service: ServiceDep, identification_id: Annotated[int, Path(ge=1)]
+    service: ServiceDep, identification_id: Annotated[int, Path(ge=1, le=MAX_ID)]
 ) -> IdentificationOut:
     return identification_out(service.get_identification(identification_id))
 

@@ -41,6 +41,10 @@ def _error(r: object) -> dict:  # type: ignore[type-arg]
         ),
         ("/api/v1/identifications/abc", {}, "identification_id"),
         ("/api/v1/identifications/0", {}, "identification_id"),
+        ("/api/v1/identifications/9223372036854775808", {}, "identification_id"),
+        ("/api/v1/identifications", {"until": "0.5"}, "until"),
+        ("/api/v1/identifications", {"since": "1700000000"}, "since"),
+        ("/api/v1/identifications", {"since": "0001-01-01T00:00:00+01:00"}, "since"),
     ],
 )
 def test_422_names_the_field(client: TestClient, path: str, params: dict[str, object], field: str) -> None:
