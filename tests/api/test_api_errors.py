@@ -29,6 +29,8 @@ def _error(r: object) -> dict:  # type: ignore[type-arg]
         ("/api/v1/temperature-field", {"format": "mesh", "points": "0.01,0.1"}, "points"),
         ("/api/v1/sensors", {"channels": "1,x"}, "channels"),
         ("/api/v1/sensors", {"channels": "0"}, "channels"),
+        ("/api/v1/sensors", {"channels": "99"}, "channels"),
+        ("/api/v1/sensors", {"channels": "1,33"}, "channels"),
         ("/api/v1/condition", {"limit": 0}, "limit"),
         ("/api/v1/identifications", {"limit": 1000}, "limit"),
         ("/api/v1/identifications", {"offset": -1}, "offset"),
