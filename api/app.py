@@ -17,8 +17,9 @@ from fastapi.staticfiles import StaticFiles
 
 from api.deps import AuthConfig, Clock
 from api.errors import install_error_handlers
-from api.guard import GuardLimits, RequestGuard, route_rules
+from api.guard import GuardLimits, RequestGuard, RouteRule, route_rules
 from api.metrics import ApiMetrics, RequestTimer
+from api.openapi import build_openapi
 from api.routers import chtc, condition, field, health, identifications, sensors
 from service.interface import ChtcService
 
@@ -66,8 +67,18 @@ def create_app(
     _mount_dashboard(app)
     rules = route_rules((r for m in modules for r in m.router.routes), API_PREFIX)
     app.add_middleware(RequestGuard, rules=rules, auth=app.state.auth, limits=limits)
+    _install_openapi(app, rules)
     app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)
     return app
+
+
+def _install_openapi(app: FastAPI, rules: list[RouteRule]) -> None:
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            app.openapi_schema = build_openapi(app, rules=rules, auth=app.state.auth, prefix=API_PREFIX)
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def _mount_dashboard(app: FastAPI) -> None:

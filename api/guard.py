@@ -52,6 +52,7 @@ class GuardLimits:
 
 @dataclass(frozen=True)
 class RouteRule:
+    path: str  # the template, e.g. /api/v1/identifications/{identification_id}
     pattern: re.Pattern[str]
     methods: frozenset[str]
     access: Access
@@ -74,7 +75,7 @@ def route_access(route: APIRoute) -> Access:
 def route_rules(routes: Iterable[Any], prefix: str) -> list[RouteRule]:
     """One rule per API route, in the order the app tries them."""
     return [
-        RouteRule(compile_path(prefix + r.path)[0], frozenset(r.methods), route_access(r))
+        RouteRule(prefix + r.path, compile_path(prefix + r.path)[0], frozenset(r.methods), route_access(r))
         for r in routes
         if isinstance(r, APIRoute)
     ]
