@@ -46,7 +46,7 @@ Access = Literal["open", "read", "write"]
 @dataclass(frozen=True, kw_only=True)
 class GuardLimits:
     max_body_bytes: int = 4096  # the largest legitimate body is {"reason": "<= 64 chars"}
-    max_url_bytes: int = 48 * 1024  # format=points takes up to 40 000 characters of points
+    max_url_bytes: int = 64 * 1024  # format=points takes up to 20 000 characters (percent-encoded: more)
     body_timeout_s: float = 10.0  # per received chunk of a body
 
 
