@@ -28,7 +28,7 @@ class ServerLimits:
     header_timeout_s: float = 10.0  # the request head must be complete this long after connect / last reply
     timeout_keep_alive_s: float = 5.0  # an idle keep-alive connection is closed after this
     limit_concurrency: int = 200  # connections + running requests; beyond: 503
-    max_head_bytes: int = 256 * 1024  # request line + headers (h11); the guard's 414 applies below it
+    max_head_bytes: int = 512 * 1024  # request line + headers (h11); the guard's 414 applies below it
     backlog: int = 128
 
 

@@ -77,8 +77,13 @@ def test_head_on_a_get_route_gives_the_headers_without_body(client: TestClient) 
     assert head.headers["content-type"] == "application/json"
 
 
-def test_oversized_url_is_414_in_the_error_shape(client: TestClient) -> None:
-    r = client.get("/api/v1/sensors", params={"channels": "9" * 50_000})
+def test_oversized_url_is_414_in_the_error_shape(service: InMemoryService, clock: ManualClock) -> None:
+    limits = GuardLimits(max_url_bytes=2000)
+    with TestClient(
+        create_app(Settings(api={"token": WRITE_TOKEN}), service, clock=clock, limits=limits)
+    ) as c:
+        assert c.get("/api/v1/sensors", params={"channels": "9" * 1900}).status_code == 422
+        r = c.get("/api/v1/sensors", params={"channels": "9" * 2000})
     assert r.status_code == 414
     assert _error(r)["code"] == "uri_too_long"
 

@@ -85,7 +85,7 @@ def test_keep_alive_connection_serves_requests_then_idles_out(server: int) -> No
 def test_oversized_url_below_the_head_cap_is_the_json_414(server: int) -> None:
     target = (
         "/api/v1/sensors?channels=" + "9" * 100_000
-    )  # over the guard's 64 KiB, under the 256 KiB head cap
+    )  # over the guard's 64 KiB, under the 512 KiB head cap
     with socket.create_connection(("127.0.0.1", server), timeout=10) as s:
         s.sendall(f"GET {target} HTTP/1.1\r\nHost: x\r\n\r\n".encode())
         data = b""
@@ -100,5 +100,5 @@ def test_oversized_url_below_the_head_cap_is_the_json_414(server: int) -> None:
 
 def test_config_carries_the_limits() -> None:
     cfg = server_config(object(), host="127.0.0.1", port=1, limits=ServerLimits(limit_concurrency=7))
-    assert cfg.limit_concurrency == 7 and cfg.h11_max_incomplete_event_size == 256 * 1024
+    assert cfg.limit_concurrency == 7 and cfg.h11_max_incomplete_event_size == 512 * 1024
     assert cfg.timeout_keep_alive == 5
