@@ -271,7 +271,7 @@ class Settings(BaseSettings):
         env_nested_delimiter="__",
         extra="forbid",
         frozen=True,
-        hide_input_in_errors=True,  # a raw ValidationError must not echo a token (format_validation_error masks)
+        hide_input_in_errors=True,  # a raw ValidationError must not echo a token
     )
 
     modbus: ModbusSettings = Field(default_factory=ModbusSettings)
