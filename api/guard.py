@@ -75,7 +75,9 @@ def route_access(route: APIRoute) -> Access:
 def route_rules(routes: Iterable[Any], prefix: str) -> list[RouteRule]:
     """One rule per API route, in the order the app tries them."""
     return [
-        RouteRule(prefix + r.path, compile_path(prefix + r.path)[0], frozenset(r.methods), route_access(r))
+        RouteRule(
+            prefix + r.path, compile_path(prefix + r.path)[0], frozenset(r.methods or ()), route_access(r)
+        )
         for r in routes
         if isinstance(r, APIRoute)
     ]
