@@ -117,7 +117,11 @@ def get_field(
     nz: Annotated[int, Query(ge=2, le=MAX_GRID, description="grid points along z (format=grid)")] = 120,
     points: Annotated[
         str | None,
-        Query(max_length=MAX_POINTS_CHARS, pattern=POINTS_PATTERN, description="'r1,z1;r2,z2' in m"),
+        Query(
+            max_length=MAX_POINTS_CHARS,
+            pattern=POINTS_PATTERN,
+            description="'r1,z1;r2,z2' in m; required with format=points, refused (422) otherwise",
+        ),
     ] = None,
 ) -> Response:
     if format == "points":

@@ -55,7 +55,10 @@ def list_identifications(
     since: Annotated[
         UtcDateTime | None, Query(description="finished at or after (ISO-8601 with offset)")
     ] = None,
-    until: Annotated[UtcDateTime | None, Query(description="finished before (ISO-8601 with offset)")] = None,
+    until: Annotated[
+        UtcDateTime | None,
+        Query(description="finished before (ISO-8601 with offset); later than since (else 422)"),
+    ] = None,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> IdentificationPageOut:
