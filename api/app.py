@@ -66,6 +66,7 @@ def create_app(
         app.include_router(module.router, prefix=API_PREFIX)
     _mount_dashboard(app)
     rules = route_rules((r for m in modules for r in m.router.routes), API_PREFIX)
+    app.state.guard_rules = rules
     app.add_middleware(RequestGuard, rules=rules, auth=app.state.auth, limits=limits)
     _install_openapi(app, rules)
     app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)
