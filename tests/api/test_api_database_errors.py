@@ -20,15 +20,16 @@ from api.app import create_app
 from service.service import SoftSensorService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock
+from tests.db.conftest import db_url, engine, factory, pg_schema  # noqa: F401 - real SQLite and PostgreSQL
 
 
 @pytest.fixture
 def down_client(tmp_path: Path, service: Any, clock: ManualClock) -> TestClient:
-    engine = create_engine(f"sqlite:///{tmp_path / 'missing-dir' / 'chtc.db'}")
+    dead = create_engine(f"sqlite:///{tmp_path / 'missing-dir' / 'chtc.db'}")
     in_memory = list(service.list_identifications(since=None, until=None, limit=2, offset=0).items)
     # only the parts the history paths use: the lock and the records this process remembers
     core = SimpleNamespace(lock=threading.Lock(), records=in_memory)
-    svc = SoftSensorService(cast(Any, core), worker=None, session_factory=sessionmaker(engine), clock=clock)
+    svc = SoftSensorService(cast(Any, core), worker=None, session_factory=sessionmaker(dead), clock=clock)
     return TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), cast(Any, svc), clock=clock))
 
 
@@ -53,3 +54,26 @@ def test_get_during_an_outage_is_503_naming_the_database(down_client: TestClient
 def test_complete_page_is_not_partial(client: TestClient) -> None:
     body = client.get("/api/v1/identifications").json()
     assert body["partial"] is False and body["partial_reason"] is None
+
+
+@pytest.fixture
+def db_client(factory: Any, clock: ManualClock) -> TestClient:  # noqa: F811
+    core = SimpleNamespace(lock=threading.Lock(), records=[])
+    svc = SoftSensorService(cast(Any, core), worker=None, session_factory=factory, clock=clock)
+    return TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), cast(Any, svc), clock=clock))
+
+
+def test_ids_at_the_bigint_edge_on_a_real_database(db_client: TestClient) -> None:
+    """2**63 - 1 reaches the database and is simply not there; 2**63 is refused before (it overflowed)."""
+    assert db_client.get(f"/api/v1/identifications/{2**63 - 1}").status_code == 404
+    r = db_client.get(f"/api/v1/identifications/{2**63}")
+    assert r.status_code == 422 and r.json()["error"]["field"] == "identification_id"
+
+
+@pytest.mark.parametrize(
+    "since", ["0001-01-01T00:00:00Z", "9999-12-31T23:59:59Z", "0001-01-01T00:00:00-10:00"]
+)
+def test_extreme_times_on_a_real_database_are_complete_pages(db_client: TestClient, since: str) -> None:
+    r = db_client.get("/api/v1/identifications", params={"since": since})
+    assert r.status_code == 200, r.text
+    assert r.json()["partial"] is False
