@@ -17,7 +17,9 @@ from fastapi.staticfiles import StaticFiles
 
 from api.deps import AuthConfig, Clock
 from api.errors import install_error_handlers
+from api.guard import GuardLimits, RequestGuard, RouteRule, route_rules
 from api.metrics import ApiMetrics, RequestTimer
+from api.openapi import build_openapi
 from api.routers import chtc, condition, field, health, history, identifications, sensors, spindle
 from service.interface import ChtcService
 
@@ -38,8 +40,14 @@ def utc_now() -> datetime:
     return datetime.now(UTC)
 
 
-def create_app(settings: Any, service: ChtcService, *, clock: Clock = utc_now) -> FastAPI:
-    """Build the app around an already running service; nothing is opened here."""
+def create_app(
+    settings: Any, service: ChtcService, *, clock: Clock = utc_now, limits: GuardLimits | None = None
+) -> FastAPI:
+    """Build the app around an already running service; nothing is opened here.
+
+    ``limits`` bounds bodies, URLs and slow bodies (``api/guard.py``); the defaults suit this API.
+    """
+    limits = limits or GuardLimits()
     app = FastAPI(
         title="spindle-chtc",
         version="1",
@@ -53,13 +61,25 @@ def create_app(settings: Any, service: ChtcService, *, clock: Clock = utc_now) -
     app.state.auth = AuthConfig.from_settings(settings.api)
     app.state.metrics = ApiMetrics(service)
     install_error_handlers(app)
-    for module in (chtc, field, sensors, condition, identifications, health):
-        app.include_router(module.router, prefix=API_PREFIX)
-    for module in (history, spindle):
+    modules = (chtc, field, sensors, history, spindle, condition, identifications, health)
+    for module in modules:
         app.include_router(module.router, prefix=API_PREFIX)
     _mount_dashboard(app)
+    rules = route_rules((r for m in modules for r in m.router.routes), API_PREFIX)
+    app.state.guard_rules = rules
+    app.add_middleware(RequestGuard, rules=rules, auth=app.state.auth, limits=limits)
+    _install_openapi(app, rules)
     app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)
     return app
+
+
+def _install_openapi(app: FastAPI, rules: list[RouteRule]) -> None:
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            app.openapi_schema = build_openapi(app, rules=rules, auth=app.state.auth, prefix=API_PREFIX)
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
 
 
 def _mount_dashboard(app: FastAPI) -> None:

@@ -9,13 +9,15 @@
 
 from __future__ import annotations
 
+import re
 import secrets
 from collections.abc import Callable
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Annotated, Any
 
 from fastapi import Depends, Request
+from pydantic import AfterValidator, AwareDatetime, BeforeValidator
 
 from api.errors import ApiError
 from service.interface import ChtcService
@@ -42,19 +44,19 @@ def _secret(value: Any) -> str | None:
     return text or None
 
 
-def _bearer(request: Request) -> str | None:
-    header = request.headers.get("authorization")
+def _unauthorized(message: str) -> ApiError:
+    return ApiError(
+        401, "unauthorized", message, field="Authorization", headers={"WWW-Authenticate": "Bearer"}
+    )
+
+
+def bearer_token(header: str | None) -> str | None:
+    """The token of an ``Authorization: Bearer <token>`` header; None without one; 401 for another scheme."""
     if header is None:
         return None
     scheme, _, token = header.partition(" ")
     if scheme.lower() != "bearer" or not token.strip():
-        raise ApiError(
-            401,
-            "unauthorized",
-            "Authorization header must be 'Bearer <token>'",
-            field="Authorization",
-            headers={"WWW-Authenticate": "Bearer"},
-        )
+        raise _unauthorized("Authorization header must be 'Bearer <token>'")
     return token.strip()
 
 
@@ -62,43 +64,51 @@ def _matches(given: str, *expected: str | None) -> bool:
     return any(e is not None and secrets.compare_digest(given.encode(), e.encode()) for e in expected)
 
 
-async def require_write(request: Request) -> None:
-    auth: AuthConfig = request.app.state.auth
-    token = _bearer(request)
+def write_denial(auth: AuthConfig, header: str | None) -> ApiError | None:
+    """Why a write with this ``Authorization`` header is refused (401/403), or None when it is allowed."""
+    try:
+        token = bearer_token(header)
+    except ApiError as err:
+        return err
     if token is None:
-        raise ApiError(
-            401,
-            "unauthorized",
-            "this endpoint needs 'Authorization: Bearer <token>'",
-            field="Authorization",
-            headers={"WWW-Authenticate": "Bearer"},
-        )
+        return _unauthorized("this endpoint needs 'Authorization: Bearer <token>'")
     if auth.write_token is None:
-        raise ApiError(
+        return ApiError(
             403,
             "forbidden",
             "writes are disabled: no API token is configured (api.token)",
             field="Authorization",
         )
     if not _matches(token, auth.write_token):
-        raise ApiError(403, "forbidden", "the bearer token is not valid for writes", field="Authorization")
+        return ApiError(403, "forbidden", "the bearer token is not valid for writes", field="Authorization")
+    return None
+
+
+def read_denial(auth: AuthConfig, header: str | None) -> ApiError | None:
+    """Why a read with this ``Authorization`` header is refused (401/403), or None when it is allowed."""
+    if auth.read_token is None:
+        return None
+    try:
+        token = bearer_token(header)
+    except ApiError as err:
+        return err
+    if token is None:
+        return _unauthorized("reads need 'Authorization: Bearer <read token>'")
+    if not _matches(token, auth.read_token, auth.write_token):
+        return ApiError(403, "forbidden", "the bearer token is not valid", field="Authorization")
+    return None
+
+
+async def require_write(request: Request) -> None:
+    denial = write_denial(request.app.state.auth, request.headers.get("authorization"))
+    if denial is not None:
+        raise denial
 
 
 async def require_read(request: Request) -> None:
-    auth: AuthConfig = request.app.state.auth
-    if auth.read_token is None:
-        return
-    token = _bearer(request)
-    if token is None:
-        raise ApiError(
-            401,
-            "unauthorized",
-            "reads need 'Authorization: Bearer <read token>'",
-            field="Authorization",
-            headers={"WWW-Authenticate": "Bearer"},
-        )
-    if not _matches(token, auth.read_token, auth.write_token):
-        raise ApiError(403, "forbidden", "the bearer token is not valid", field="Authorization")
+    denial = read_denial(request.app.state.auth, request.headers.get("authorization"))
+    if denial is not None:
+        raise denial
 
 
 async def get_service(request: Request) -> ChtcService:
@@ -113,3 +123,24 @@ ServiceDep = Annotated[ChtcService, Depends(get_service)]
 ClockDep = Annotated[Clock, Depends(get_clock)]
 ReadAccess = Depends(require_read)
 WriteAccess = Annotated[None, Depends(require_write)]
+
+
+# Query date-times: ISO-8601 text only (not a Unix number), converted to UTC.
+_ISO_DATE_TIME = re.compile(r"^\d{4}-\d{2}-\d{2}[Tt ]\d{2}:\d{2}")
+
+
+def _iso_text(value: object) -> object:
+    """Only ISO-8601 text: pydantic alone would also read ``0.5`` as a Unix time."""
+    if not isinstance(value, str) or not _ISO_DATE_TIME.match(value):
+        raise ValueError("must be an ISO-8601 date-time with a UTC offset, e.g. 2026-11-22T08:00:00Z")
+    return value
+
+
+def _in_utc(value: datetime) -> datetime:
+    try:
+        return value.astimezone(UTC)
+    except OverflowError:
+        raise ValueError("is out of range once converted to UTC") from None
+
+
+UtcDateTime = Annotated[AwareDatetime, BeforeValidator(_iso_text), AfterValidator(_in_utc)]

@@ -9,8 +9,9 @@ Error tree (API layer)::
         NotFoundError  -> 404 not_found       BusyError     -> 409 busy
         NoDataError    -> 503 no_data         NotReadyError -> 503 not_ready
 
-FastAPI's ``RequestValidationError`` becomes 422 ``invalid`` naming the first bad field; Starlette's
-``HTTPException`` (unknown route, wrong method) keeps its status with a code derived from it.
+FastAPI's ``RequestValidationError`` becomes 422 ``invalid`` naming the first bad field (``body`` and the
+character position for malformed JSON); Starlette's ``HTTPException`` (unknown route, a body over the cap or
+too slow, see ``api/guard.py``) keeps its status with a code derived from it.
 """
 
 from __future__ import annotations
@@ -63,7 +64,16 @@ _SERVICE_ERRORS: tuple[tuple[type[ServiceError], int, str], ...] = (
     (NotReadyError, 503, "not_ready"),
 )
 
-_HTTP_CODES = {401: "unauthorized", 403: "forbidden", 404: "not_found", 405: "method_not_allowed"}
+_HTTP_CODES = {
+    400: "bad_request",
+    401: "unauthorized",
+    403: "forbidden",
+    404: "not_found",
+    405: "method_not_allowed",
+    408: "timeout",
+    413: "too_large",
+    414: "uri_too_long",
+}
 
 
 def _field_of(loc: tuple[Any, ...] | list[Any]) -> str | None:
@@ -85,9 +95,17 @@ async def _service_error(_: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(error_body("service_error", str(exc)), status_code=500)
 
 
+def _validation_item(e: dict[str, Any]) -> dict[str, Any]:
+    if e["type"] == "json_invalid":  # loc is ("body", <character position>): name the body and the place
+        pos = e["loc"][-1] if len(e["loc"]) > 1 else None
+        reason = (e.get("ctx") or {}).get("error", "not valid JSON")
+        return {"field": "body", "message": f"invalid JSON at character {pos}: {reason}", "type": e["type"]}
+    return {"field": _field_of(e["loc"]), "message": e["msg"], "type": e["type"]}
+
+
 async def _validation_error(_: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
-    errors = [{"field": _field_of(e["loc"]), "message": e["msg"], "type": e["type"]} for e in exc.errors()]
+    errors = [_validation_item(e) for e in exc.errors()]
     first = errors[0] if errors else {"field": None, "message": "invalid request"}
     message = f"{first['field']}: {first['message']}" if first["field"] else str(first["message"])
     return JSONResponse(error_body("invalid", message, field=first["field"], detail=errors), status_code=422)

@@ -271,6 +271,8 @@ class IdentificationPageOut(BaseModel):
     limit: int
     offset: int
     next_offset: int | None
+    partial: bool = Field(False, description="true: the database could not be read; only records in memory")
+    partial_reason: str | None = Field(None, description="why the page is partial (null when complete)")
 
 
 class IdentificationRequest(BaseModel):

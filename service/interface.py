@@ -263,6 +263,7 @@ class IdentificationPage:
     total: int  # matching the filter, over all pages
     limit: int
     offset: int
+    partial_reason: str | None = None  # set when the database could not be read: only records in memory
 
 
 class JobState(enum.StrEnum):

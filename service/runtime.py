@@ -171,12 +171,11 @@ class Runtime:
         import uvicorn
 
         from api.app import create_app
+        from api.server import server_config
 
         assert self.service is not None
         app = create_app(self.settings, self.service, clock=self.clock)
-        config = uvicorn.Config(
-            app, host=self.settings.api.host, port=self.settings.api.port, log_level="warning", lifespan="off"
-        )
+        config = server_config(app, host=self.settings.api.host, port=self.settings.api.port)
         self.api_server = uvicorn.Server(config)
         await self.api_server.serve()
 

@@ -45,6 +45,7 @@ from service.interface import (
     MetricsSnapshot,
     NoDataError,
     NotFoundError,
+    NotReadyError,
     Readiness,
     SectionPart,
     SensorHistory,
@@ -332,11 +333,13 @@ class SoftSensorService:
     def list_identifications(
         self, *, since: datetime | None, until: datetime | None, limit: int, offset: int
     ) -> IdentificationPage:
+        partial = None
         if self.session_factory is not None:
             try:
                 return self._db_page(since, until, limit, offset)
-            except Exception as err:  # database down: serve what this process remembers
+            except Exception as err:  # database down: serve what this process remembers, marked partial
                 log.warning("identification history from memory (database: %s)", err)
+                partial = f"database not readable, only the records in memory: {err}"
         with self.core.lock:
             rows = [
                 r
@@ -344,7 +347,7 @@ class SoftSensorService:
                 if (since is None or r.finished_at >= since) and (until is None or r.finished_at < until)
             ]
         rows.sort(key=lambda r: (r.finished_at, r.id), reverse=True)
-        return IdentificationPage(rows[offset : offset + limit], len(rows), limit, offset)
+        return IdentificationPage(rows[offset : offset + limit], len(rows), limit, offset, partial)
 
     def _db_page(
         self, since: datetime | None, until: datetime | None, limit: int, offset: int
@@ -384,7 +387,7 @@ class SoftSensorService:
                 if r.id == identification_id:
                     return r
         if self.session_factory is not None:
-            from service.db.errors import RecordNotFoundError
+            from service.db.errors import DatabaseError, RecordNotFoundError
             from service.db.repository import get_identification, session_scope
 
             try:
@@ -392,6 +395,8 @@ class SoftSensorService:
                     return row_to_record(get_identification(session, identification_id))
             except RecordNotFoundError:
                 pass
+            except DatabaseError as err:  # down or refusing: a 503 naming the reason, not a 500
+                raise NotReadyError(f"identification {identification_id}: {err}") from err
         raise NotFoundError(f"identification {identification_id} not found")
 
     # --- ChtcService: requests --------------------------------------------------------------------------

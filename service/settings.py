@@ -231,6 +231,26 @@ class DetectorSettings(_Section):
     max_gap_s: float = Field(default=120.0, gt=0)  # a longer gap inside a hold period restarts it
 
 
+MIN_TOKEN_CHARS = 16
+PLACEHOLDER_TOKENS = ("change-me", "changeme", "replace-me", "your-token", "example")
+
+
+def check_token(text: str) -> str:
+    """A bearer token without surrounding whitespace (a secret file's trailing newline); refuses one that is
+    short or a placeholder, naming why but never the token."""
+    token = text.strip()
+    if len(token) < MIN_TOKEN_CHARS:
+        raise ValueError(
+            f"too short ({len(token)} characters): use at least {MIN_TOKEN_CHARS} random characters, "
+            "e.g. `openssl rand -hex 32`"
+        )
+    if any(p in token.lower() for p in PLACEHOLDER_TOKENS):
+        raise ValueError(
+            "still the placeholder from the example: set a random token, e.g. `openssl rand -hex 32`"
+        )
+    return token
+
+
 class ApiSettings(_Section):
     host: str = "127.0.0.1"
     port: int = Field(default=8000, ge=1, le=65535)
@@ -241,6 +261,11 @@ class ApiSettings(_Section):
     @classmethod
     def _empty_is_unset(cls, value: Any) -> Any:
         return None if isinstance(value, str) and not value.strip() else value
+
+    @field_validator("token", "read_token")
+    @classmethod
+    def _strong_token(cls, value: SecretStr | None) -> SecretStr | None:
+        return None if value is None else SecretStr(check_token(value.get_secret_value()))
 
 
 class DatabaseSettings(_Section):
@@ -284,6 +309,7 @@ class Settings(BaseSettings):
         env_nested_delimiter="__",
         extra="forbid",
         frozen=True,
+        hide_input_in_errors=True,  # a raw ValidationError must not echo a token
     )
 
     modbus: ModbusSettings = Field(default_factory=ModbusSettings)

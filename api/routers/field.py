@@ -22,6 +22,10 @@ router = APIRouter(tags=["temperature field"], dependencies=[ReadAccess])
 
 MAX_GRID = 200
 MAX_POINTS = 1000
+MAX_POINTS_CHARS = 20_000  # 1000 pairs of 9-digit numbers
+# 'r1,z1;r2,z2;...' in m; bounded digits and exponents keep every number finite
+_NUMBER = r"[+-]?(?:[0-9]{1,15}(?:\.[0-9]{0,15})?|\.[0-9]{1,15})(?:[eE][+-]?[0-9]{1,2})?"
+POINTS_PATTERN = rf"^{_NUMBER},{_NUMBER}(?:;{_NUMBER},{_NUMBER})*;?$"
 
 
 def parse_points(text: str) -> np.ndarray:
@@ -111,7 +115,14 @@ def get_field(
     format: Annotated[Literal["mesh", "grid", "points"], Query(description="response layout")] = "mesh",
     nr: Annotated[int, Query(ge=2, le=MAX_GRID, description="grid points along r (format=grid)")] = 60,
     nz: Annotated[int, Query(ge=2, le=MAX_GRID, description="grid points along z (format=grid)")] = 120,
-    points: Annotated[str | None, Query(max_length=40_000, description="'r1,z1;r2,z2' in m")] = None,
+    points: Annotated[
+        str | None,
+        Query(
+            max_length=MAX_POINTS_CHARS,
+            pattern=POINTS_PATTERN,
+            description="'r1,z1;r2,z2' in m; required with format=points, refused (422) otherwise",
+        ),
+    ] = None,
 ) -> Response:
     if format == "points":
         if points is None:

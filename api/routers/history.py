@@ -12,9 +12,9 @@ from typing import Annotated
 
 import numpy as np
 from fastapi import APIRouter, Query, Response
-from pydantic import AwareDatetime, BaseModel, Field
+from pydantic import BaseModel, Field
 
-from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.deps import ClockDep, ReadAccess, ServiceDep, UtcDateTime
 from api.errors import invalid
 from api.routers.sensors import parse_channels
 
@@ -55,7 +55,7 @@ def _values(column: np.ndarray) -> list[float | None]:
 async def get_sensor_history(
     service: ServiceDep,
     clock: ClockDep,
-    since: Annotated[AwareDatetime | None, Query(description="only samples after this UTC instant")] = None,
+    since: Annotated[UtcDateTime | None, Query(description="only samples after this UTC instant")] = None,
     channels: Annotated[str | None, Query(description="comma-separated channel numbers, e.g. 1,7,20")] = None,
     limit: Annotated[
         int, Query(ge=1, le=MAX_LIMIT, description="at most this many samples, the newest")

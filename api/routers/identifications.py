@@ -6,9 +6,8 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body, Path, Query, Request
 from fastapi.responses import JSONResponse
-from pydantic import AwareDatetime
 
-from api.deps import ReadAccess, ServiceDep, WriteAccess
+from api.deps import ReadAccess, ServiceDep, UtcDateTime, WriteAccess
 from api.errors import invalid
 from api.schemas import (
     IdentificationOut,
@@ -21,6 +20,7 @@ from api.schemas import (
 
 router = APIRouter(tags=["identifications"])
 PREFIX = "/api/v1"
+MAX_ID = 2**63 - 1  # the database's BIGINT; larger ids cannot exist (and would overflow the driver)
 
 
 @router.get(
@@ -31,8 +31,13 @@ PREFIX = "/api/v1"
 )
 def list_identifications(
     service: ServiceDep,
-    since: Annotated[AwareDatetime | None, Query(description="finished at or after (UTC ISO-8601)")] = None,
-    until: Annotated[AwareDatetime | None, Query(description="finished before (UTC ISO-8601)")] = None,
+    since: Annotated[
+        UtcDateTime | None, Query(description="finished at or after (ISO-8601 with offset)")
+    ] = None,
+    until: Annotated[
+        UtcDateTime | None,
+        Query(description="finished before (ISO-8601 with offset); later than since (else 422)"),
+    ] = None,
     limit: Annotated[int, Query(ge=1, le=100)] = 20,
     offset: Annotated[int, Query(ge=0, le=1_000_000)] = 0,
 ) -> IdentificationPageOut:
@@ -46,6 +51,8 @@ def list_identifications(
         limit=limit,
         offset=offset,
         next_offset=nxt if nxt < page.total else None,
+        partial=page.partial_reason is not None,
+        partial_reason=page.partial_reason,
     )
 
 
@@ -66,7 +73,7 @@ def get_job(service: ServiceDep, job_id: Annotated[str, Path(max_length=64)]) ->
     summary="one stored identification",
 )
 def get_identification(
-    service: ServiceDep, identification_id: Annotated[int, Path(ge=1)]
+    service: ServiceDep, identification_id: Annotated[int, Path(ge=1, le=MAX_ID)]
 ) -> IdentificationOut:
     return identification_out(service.get_identification(identification_id))
 

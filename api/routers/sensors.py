@@ -12,6 +12,10 @@ from api.schemas import SensorsOut, sensor_out
 
 router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
 
+# channel numbers 1..32 (the spindle's 32 sensors), comma-separated, e.g. 1,7,20
+_CHANNEL = r"(?:[1-9]|[12][0-9]|3[0-2])"
+CHANNELS_PATTERN = rf"^{_CHANNEL}(?:,{_CHANNEL})*$"
+
 
 def parse_channels(text: str) -> set[int]:
     """``"1,2,17"`` -> {1, 2, 17}; a 422 naming ``channels`` otherwise."""
@@ -24,17 +28,27 @@ def parse_channels(text: str) -> set[int]:
     return chosen
 
 
+def _only_known(chosen: set[int], known: set[int]) -> None:
+    unknown = sorted(chosen - known)
+    if unknown and known:
+        raise invalid("channels", f"no channel {unknown[0]}; channels are {min(known)}..{max(known)}")
+
+
 @router.get(
     "/sensors", response_model=SensorsOut, summary="newest sample per channel with the model prediction"
 )
 async def get_sensors(
     service: ServiceDep,
     clock: ClockDep,
-    channels: Annotated[str | None, Query(description="comma-separated channel numbers, e.g. 1,7,20")] = None,
+    channels: Annotated[
+        str | None,
+        Query(max_length=200, pattern=CHANNELS_PATTERN, description="comma-separated channel numbers 1..32"),
+    ] = None,
 ) -> Response:
     readings = service.sensors()
     if channels is not None:
         chosen = parse_channels(channels)
+        _only_known(chosen, {r.channel for r in readings})
         readings = [r for r in readings if r.channel in chosen]
     now = clock()
     newest = max((r.t for r in readings), default=None)

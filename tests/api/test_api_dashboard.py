@@ -398,7 +398,7 @@ def test_hovering_a_sensor_on_the_section_names_its_channel(page: _Page, real_se
 def test_a_missing_read_token_is_named_and_the_token_in_the_url_fragment_is_used(page: _Page) -> None:
     svc = demo_service()
     svc.add_identification(PAPER_H_4000, identified=[True] * 7, rmse_c=0.45, wall_s=0.7)  # nothing else wrong
-    settings = Settings(api={"token": WRITE_TOKEN, "read_token": "reader"})
+    settings = Settings(api={"token": WRITE_TOKEN, "read_token": "reader-token-for-tests"})
     with LiveServer(create_app(settings, svc)) as server:
         page.call("Page.navigate", url=server.url + "/")
         causes = page.wait("document.getElementById('banner')?.dataset.causes")
@@ -406,6 +406,6 @@ def test_a_missing_read_token_is_named_and_the_token_in_the_url_fragment_is_used
         assert "/#token=" in page.eval("document.getElementById('banner').textContent")
         page.eval("window.withoutToken = true")  # gone once the page is loaded anew
         page.call("Page.navigate", url=server.url + "/index-with-token")  # a 404 page in between
-        page.call("Page.navigate", url=server.url + "/#token=reader")
+        page.call("Page.navigate", url=server.url + "/#token=reader-token-for-tests")
         page.wait(f"!window.withoutToken && {RENDERED} && document.getElementById('banner')?.hidden")
-        assert page.eval("sessionStorage.getItem('chtc-token')") == "reader"
+        assert page.eval("sessionStorage.getItem('chtc-token')") == "reader-token-for-tests"

@@ -29,6 +29,8 @@ def _error(r: object) -> dict:  # type: ignore[type-arg]
         ("/api/v1/temperature-field", {"format": "mesh", "points": "0.01,0.1"}, "points"),
         ("/api/v1/sensors", {"channels": "1,x"}, "channels"),
         ("/api/v1/sensors", {"channels": "0"}, "channels"),
+        ("/api/v1/sensors", {"channels": "99"}, "channels"),
+        ("/api/v1/sensors", {"channels": "1,33"}, "channels"),
         ("/api/v1/condition", {"limit": 0}, "limit"),
         ("/api/v1/identifications", {"limit": 1000}, "limit"),
         ("/api/v1/identifications", {"offset": -1}, "offset"),
@@ -41,6 +43,10 @@ def _error(r: object) -> dict:  # type: ignore[type-arg]
         ),
         ("/api/v1/identifications/abc", {}, "identification_id"),
         ("/api/v1/identifications/0", {}, "identification_id"),
+        ("/api/v1/identifications/9223372036854775808", {}, "identification_id"),
+        ("/api/v1/identifications", {"until": "0.5"}, "until"),
+        ("/api/v1/identifications", {"since": "1700000000"}, "since"),
+        ("/api/v1/identifications", {"since": "0001-01-01T00:00:00+01:00"}, "since"),
     ],
 )
 def test_422_names_the_field(client: TestClient, path: str, params: dict[str, object], field: str) -> None:

@@ -10,6 +10,7 @@ from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock
 
 AUTH = {"Authorization": f"Bearer {WRITE_TOKEN}"}
+READ_TOKEN = "read-token-for-tests"
 
 
 def _error(r: object) -> dict:  # type: ignore[type-arg]
@@ -79,11 +80,11 @@ def test_unknown_job_is_404(client: TestClient) -> None:
 
 
 def test_read_token_guards_reads_but_not_probes(service: InMemoryService, clock: ManualClock) -> None:
-    settings = Settings(api={"token": WRITE_TOKEN, "read_token": "reader"})
+    settings = Settings(api={"token": WRITE_TOKEN, "read_token": READ_TOKEN})
     with TestClient(create_app(settings, service, clock=clock)) as c:
         assert c.get("/api/v1/chtc").status_code == 401
         assert c.get("/api/v1/chtc", headers={"Authorization": "Bearer wrong"}).status_code == 403
-        assert c.get("/api/v1/chtc", headers={"Authorization": "Bearer reader"}).status_code == 200
+        assert c.get("/api/v1/chtc", headers={"Authorization": f"Bearer {READ_TOKEN}"}).status_code == 200
         assert c.get("/api/v1/sensors", headers=AUTH).status_code == 200
         assert c.get("/api/v1/metrics").status_code == 401
         assert c.get("/api/v1/healthz").status_code == 200
@@ -91,5 +92,6 @@ def test_read_token_guards_reads_but_not_probes(service: InMemoryService, clock:
         assert c.get("/").status_code == 200
         # the read token does not allow writes
         assert (
-            c.post("/api/v1/identifications", headers={"Authorization": "Bearer reader"}).status_code == 403
+            c.post("/api/v1/identifications", headers={"Authorization": f"Bearer {READ_TOKEN}"}).status_code
+            == 403
         )

@@ -66,7 +66,8 @@ def _unit_environment() -> dict[str, str]:
 
 
 def example_compose() -> dict[str, Any]:
-    return load_compose(read_env_file(ENV_EXAMPLE))
+    """The compose file as run after following env.example: a real token (chtc refuses the placeholder)."""
+    return load_compose(read_env_file(ENV_EXAMPLE) | {"CHTC_API_TOKEN": "0123456789abcdef0123456789abcdef"})
 
 
 def run_tool(*argv: str) -> subprocess.CompletedProcess[str]:

@@ -71,11 +71,11 @@ def test_keyword_dict_overrides_merge_with_env(monkeypatch: pytest.MonkeyPatch) 
 
 
 def test_toml_values_are_used(tmp_path: Path) -> None:
-    path = write(tmp_path, '[modbus]\nhost = "10.1.2.3"\nport = 502\n[api]\ntoken = "s3cret"\n')
+    path = write(tmp_path, '[modbus]\nhost = "10.1.2.3"\nport = 502\n[api]\ntoken = "s3cret-s3cret-s3cret"\n')
     s = load_settings(path)
     assert (s.modbus.host, s.modbus.port) == ("10.1.2.3", 502)
     assert s.modbus.timeout_s == Settings().modbus.timeout_s
-    assert s.api.token is not None and s.api.token.get_secret_value() == "s3cret"
+    assert s.api.token is not None and s.api.token.get_secret_value() == "s3cret-s3cret-s3cret"
     assert "s3cret" not in repr(s) and "s3cret" not in str(s.redacted())
 
 
