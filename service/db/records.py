@@ -245,9 +245,9 @@ class SampleDecimator:
 
     The grid is ``k * period_s`` (epoch seconds); a sample belongs to the grid instant nearest to it
     (tolerance ``period_s / 2``), and ``keep(t)`` is True for the first sample of each grid slot after the
-    last kept one. Jittered stamps (a 10 s acquisition arriving at 9.7 s, 10.4 s, ...) therefore keep every
-    sample, where "at least ``period_s`` after the last kept one" dropped about a third of them. A sample in an
-    earlier slot than the last kept one (the clock stepped back) restarts the grid there.
+    last kept one. Jittered stamps (a 10 s acquisition arriving at 9.7 s, 10.4 s, ...) therefore keep
+    every sample, where "at least ``period_s`` after the last kept one" dropped about a third of them. A
+    sample in an earlier slot than the last kept one (the clock stepped back) restarts the grid there.
     """
 
     def __init__(self, period_s: float) -> None:
