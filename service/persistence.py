@@ -20,6 +20,7 @@ import logging
 import time
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any
 
 from service.core import Restored
@@ -37,7 +38,7 @@ log = logging.getLogger(__name__)
 def restore(session_factory: Any, *, limit: int = 100) -> Restored:
     """The state of the previous run from the database (raises ``service.db.errors.DatabaseError``)."""
     from service.db.repository import (
-        last_identification,
+        last_served_identification,
         latest_per_condition,
         list_conditions,
         max_ids,
@@ -46,7 +47,7 @@ def restore(session_factory: Any, *, limit: int = 100) -> Restored:
 
     with session_scope(session_factory, "restore state") as session:
         cond_max, ident_max = max_ids(session)
-        last_row = last_identification(session)
+        last_row = last_served_identification(session)
         last = row_to_record(last_row) if last_row is not None else None
         latest = latest_per_condition(session, limit=limit)
         history = tuple(
@@ -131,6 +132,7 @@ class Persistence:
     settings: Any
     migrate: bool
     on_event: Callable[[str], None] = field(default=lambda _m: None)
+    clock: Callable[[], datetime] | None = None  # the service's clock (None: UTC wall clock)
     _task: asyncio.Task[None] | None = None
 
     async def ensure_open(self, *, retry_s: float = 2.0) -> None:
@@ -142,7 +144,7 @@ class Persistence:
                 log.info("database not ready: %s", err)
                 await asyncio.sleep(retry_s)
                 continue
-            self.sink.open(_start_writer(self.session_factory, self.settings))
+            self.sink.open(_start_writer(self.session_factory, self.settings, clock=self.clock))
             self.on_event(
                 f"db: connected ({_safe_url(self.url)}), writing {len(self.sink.held)} held records"
             )
@@ -174,11 +176,12 @@ def _prepare_schema(engine: Any, migrate: bool) -> None:
         )
 
 
-def _start_writer(session_factory: Any, db: Any) -> Any:
+def _start_writer(session_factory: Any, db: Any, *, clock: Callable[[], datetime] | None) -> Any:
     from service.db.writer import DbWriter
 
     return DbWriter(
         session_factory,
+        **({} if clock is None else {"clock": clock}),
         batch_size=db.batch_size,
         buffer_max=db.buffer_max,
         retry_initial_s=db.retry_initial_s,
@@ -192,8 +195,18 @@ def _safe_url(url: str) -> str:
     return make_url(url).render_as_string(hide_password=True)
 
 
-def open_persistence(db: Any, *, migrate: bool, on_event: Callable[[str], None] | None = None) -> Persistence:
-    """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage."""
+def open_persistence(
+    db: Any,
+    *,
+    migrate: bool,
+    on_event: Callable[[str], None] | None = None,
+    clock: Callable[[], datetime] | None = None,
+) -> Persistence:
+    """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage.
+
+    ``clock`` is the service's one clock (``service.runtime.ScaledClock`` in the demo): the writer stamps its
+    outage events and ``last_ok_at`` with it, so database health ages are on the same time axis as the rest.
+    """
     from service.db.engine import create_db_engine, make_session_factory
 
     say = on_event or (lambda _m: None)
@@ -204,8 +217,8 @@ def open_persistence(db: Any, *, migrate: bool, on_event: Callable[[str], None] 
         _prepare_schema(engine, migrate)
         restored = restore(factory)
         from_db = True
-        sink.open(_start_writer(factory, db))
+        sink.open(_start_writer(factory, db, clock=clock))
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background
         say(f"db: not available at start-up ({err}); buffering records and retrying")
         restored, from_db = fallback_restored(), False
-    return Persistence(db.url, engine, factory, sink, restored, from_db, db, migrate, say)
+    return Persistence(db.url, engine, factory, sink, restored, from_db, db, migrate, say, clock)

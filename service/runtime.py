@@ -127,7 +127,9 @@ class Runtime:
 
         s = self.settings
         model = self.load()
-        self.persistence = open_persistence(s.database, migrate=self.migrate, on_event=self.on_event)
+        self.persistence = open_persistence(
+            s.database, migrate=self.migrate, on_event=self.on_event, clock=self.clock
+        )
         self.persistence.start_background()
         self.ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))
         cfg = core_config(s)
