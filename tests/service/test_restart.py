@@ -68,9 +68,9 @@ def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_mod
 
 
 def test_restore_picks_the_last_served_not_the_latest_stamped(tmp_path):
-    """Issue 13.11: a demo run stamps simulated time hours ahead; the next run's clock starts at the wall clock
-    again, so its identification (id 3) carries an earlier finished_at than the first run's (id 2). The restore
-    must pick id 3, the one served last."""
+    """Issue 13.11: a demo run stamps simulated time hours ahead; the next run's clock starts at the wall
+    clock again, so its identification (id 3) carries an earlier finished_at than the first run's (id 2).
+    The restore must pick id 3, the one served last."""
     from service.db.records import ConditionStart
     from tests.db.test_db_repository import ident
 
