@@ -10,6 +10,9 @@ model checks it (``CancellableModel``) and stops the run. A job that does not st
 its timeout) has its process terminated and the pool is recreated (the next job pays the model load
 again, about a second with a warm cache).
 
+A worker whose parent died (the service was killed with SIGKILL) notices within half a second and exits
+(``watch_parent``), so a kill -9 leaves neither the worker nor multiprocessing's resource tracker behind.
+
 Errors::
 
     WorkerError(RuntimeError)           the pool is closed
@@ -24,8 +27,9 @@ import contextlib
 import enum
 import multiprocessing
 import os
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -91,10 +95,32 @@ class JobCancelled(Exception):
     """Raised inside the worker process when the running job was cancelled."""
 
 
-def _init_worker(ref: ModelRef, cancel: Any) -> None:
+def _init_worker(ref: ModelRef, cancel: Any, parent_pid: int | None = None) -> None:
     global _MODEL, _CANCEL
+    if parent_pid is not None:
+        watch_parent(parent_pid)
     _CANCEL = cancel
     _MODEL = load_model(ref)
+
+
+def watch_parent(
+    parent_pid: int, *, poll_s: float = 0.5, exit: Callable[[int], Any] = os._exit
+) -> threading.Thread:
+    """Exit this process when ``parent_pid`` is gone (a daemon thread polls ``os.getppid()``).
+
+    A service killed with SIGKILL runs no clean-up, and the pool's worker would wait for jobs for ever (it
+    holds both ends of its call queue, so it never sees EOF), keeping multiprocessing's resource tracker alive
+    too. When the parent dies the worker is re-parented (to init or a subreaper), so ``getppid()`` changes.
+    """
+
+    def run() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        exit(0)
+
+    thread = threading.Thread(target=run, name="chtc-watch-parent", daemon=True)
+    thread.start()
+    return thread
 
 
 def _ping() -> str:
@@ -271,7 +297,7 @@ class IdentificationWorker:
                 max_workers=1,
                 mp_context=self._ctx,
                 initializer=_init_worker,
-                initargs=(self.ref, self._cancel),
+                initargs=(self.ref, self._cancel, os.getpid()),
             )
         return self._pool
 
