@@ -147,6 +147,7 @@ class Runtime:
             worker=worker,
             writer=self.persistence.sink,
             session_factory=self.persistence.session_factory,
+            db_reads=self.persistence.reads,
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             stale_after_s=cfg.stale_after_s,
