@@ -1,0 +1,135 @@
+"""Issue 13.2: a hung PostgreSQL (a frozen link: no RST, no FIN) is visible within 10 s and loses nothing.
+
+A real PostgreSQL behind ``tests.db.tcp_proxy.TcpProxy``, which ``freeze()``s: connections stay open, nothing
+is forwarded. The service is assembled as in production (``open_persistence`` + ``SoftSensorService`` + the
+API), only with short timeouts.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from datetime import UTC, datetime, timedelta
+from types import SimpleNamespace
+from typing import Any
+
+import pytest
+import sqlalchemy as sa
+from fastapi.testclient import TestClient
+
+from service.db import repository as repo
+from service.db.engine import create_db_engine, make_session_factory
+from service.db.models import SampleRow
+from service.db.records import ConditionStart, SampleData
+from service.interface import DeviceStatus
+from service.persistence import Persistence, open_persistence
+from service.service import SoftSensorService
+from service.settings import Settings
+from tests.db.conftest import pg_schema_url
+from tests.db.tcp_proxy import TcpProxy, free_port
+
+pytestmark = pytest.mark.postgres
+
+T0 = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
+FREEZE_S = 15.0
+
+
+def sample(i: int) -> SampleData:
+    return SampleData(T0 + timedelta(seconds=10 * i), [20.0 + 0.01 * i] * 32, 22.0, 4000.0, 10.0, ["ok"] * 32)
+
+
+def db_health(svc: SoftSensorService) -> Any:
+    (dev,) = [d for d in svc.health().devices if d.name == "db"]
+    return dev
+
+
+@pytest.fixture
+def proxied(pg_url: str, pg_schema: str) -> Iterator[tuple[TcpProxy, Persistence, str]]:
+    target = sa.engine.make_url(pg_url)
+    port = free_port()
+    proxy = TcpProxy(port, (target.host or "127.0.0.1", target.port or 5432)).start()
+    db = Settings().database.model_copy(
+        update={
+            "url": pg_schema_url(pg_url, pg_schema, port=port),
+            "connect_timeout_s": 2.0,
+            "statement_timeout_s": 2.0,
+            "heartbeat_s": 1.0,
+            "stall_s": 2.0,
+            "read_timeout_s": 1.0,
+            "read_threads": 2,
+            "retry_initial_s": 0.2,
+            "retry_max_s": 1.0,
+        }
+    )
+    p = open_persistence(db, migrate=True)
+    assert p.restored_from_db
+    try:
+        yield proxy, p, pg_schema_url(pg_url, pg_schema)
+    finally:
+        proxy.thaw()
+        p.close(timeout_s=5.0)
+        proxy.stop()
+
+
+def test_frozen_database_is_degraded_within_10_s_and_nothing_is_lost(
+    proxied: tuple[TcpProxy, Persistence, str],
+) -> None:
+    from api.app import create_app
+
+    proxy, p, direct = proxied
+    svc = SoftSensorService(
+        # the core as far as health and history need it: no model work, no records in memory
+        SimpleNamespace(model=SimpleNamespace(version="test"), lock=threading.Lock(), records=()),  # type: ignore[arg-type]
+        worker=None,
+        writer=p.sink,
+        session_factory=p.session_factory,
+        db_reads=p.reads,
+    )
+    client = TestClient(create_app(Settings(), svc))
+    sink = p.sink
+    sink.submit(ConditionStart(1, T0, 3000.0, 5.0, 22.0))
+    submitted = 0
+    for _ in range(20):
+        sink.submit(sample(submitted))
+        submitted += 1
+    assert sink.writer.flush(15.0)
+    assert db_health(svc).status is DeviceStatus.OK
+
+    proxy.freeze()
+    frozen_at = time.monotonic()
+    seen: list[tuple[float, DeviceStatus, str]] = []
+    read_statuses: list[tuple[int, float]] = []
+    while time.monotonic() - frozen_at < FREEZE_S:
+        sink.submit(sample(submitted))  # the service keeps producing rows (one per 50 ms here)
+        submitted += 1
+        dev = db_health(svc)
+        if not seen or seen[-1][1] is not dev.status:
+            seen.append((time.monotonic() - frozen_at, dev.status, dev.message))
+        if len(read_statuses) < 3 and time.monotonic() - frozen_at > 1.0:
+            t = time.monotonic()
+            r = client.get("/api/v1/identifications/424242")  # not in memory: a database read
+            read_statuses.append((r.status_code, time.monotonic() - t))
+            assert r.json()["error"]["code"] == "not_ready" and "Retry-After" in r.headers
+        time.sleep(0.05)
+    proxy.thaw()
+
+    changed = [s for s in seen if s[1] is not DeviceStatus.OK]
+    assert changed, f"db health never left ok during a {FREEZE_S:.0f} s freeze: {seen}"
+    first_t, first_status, first_msg = changed[0]
+    assert first_t <= 10.0 and first_status is DeviceStatus.DEGRADED, seen
+    assert "not answering" in first_msg
+    # reads answer 503 within the read timeout (+ slack), never hang with the database
+    assert read_statuses and all(code == 503 and dt < 3.0 for code, dt in read_statuses), read_statuses
+
+    deadline = time.monotonic() + 30.0
+    while sink.status().pending and time.monotonic() < deadline:
+        time.sleep(0.05)
+    assert sink.status().pending == 0
+    assert db_health(svc).status is DeviceStatus.OK
+    eng = create_db_engine(direct)
+    with repo.session_scope(make_session_factory(eng)) as s:
+        stored = [r.t for r in repo.list_samples(s, limit=10_000)]
+        assert repo.count_rows(s, SampleRow) == submitted  # every row once: none lost, none doubled
+    eng.dispose()
+    assert stored == [sample(i).t for i in range(submitted)]
