@@ -22,9 +22,12 @@ def test_watchdog_aborts_a_statement_that_runs_too_long(tmp_path: Path) -> None:
     dog = StatementWatchdog(eng, abort_after_s=0.5, poll_s=0.05).start()
     try:
         started = time.monotonic()
-        with pytest.raises(sa.exc.OperationalError, match="interrupted"), dog.guard("endless"):
-            with eng.connect() as conn:
-                conn.execute(sa.text(ENDLESS))
+        with (
+            pytest.raises(sa.exc.OperationalError, match="interrupted"),
+            dog.guard("endless"),
+            eng.connect() as conn,
+        ):
+            conn.execute(sa.text(ENDLESS))
         assert 0.5 <= time.monotonic() - started < 5.0
         assert dog.aborts == 1 and dog.busy() is None
     finally:
@@ -57,7 +60,7 @@ def test_reads_time_out_and_are_bounded(tmp_path: Path) -> None:
         assert reads.run(lambda s: int(s.execute(sa.text("SELECT 2")).scalar_one()), "quick") == 2
         for _ in range(2):  # each waits 0.3 s, then leaves its read holding a slot
             t = time.monotonic()
-            with pytest.raises(DatabaseTimeoutError, match="within 0.3 s"):
+            with pytest.raises(DatabaseTimeoutError, match=r"within 0\.3 s"):
                 reads.run(hung, "list identifications")
             assert time.monotonic() - t < 2.0
         t = time.monotonic()
