@@ -1,5 +1,5 @@
-"""GET /temperature-field under load (issue 13.4): the locator is built once per mesh, bodies are cached per
-field with an ETag and gzip, identical to the pydantic schema's serialisation, and excess requests are shed."""
+"""GET /temperature-field under load (issue 13.4): the locator is built once per mesh, bodies are cached
+per field with an ETag and gzip, equal to the pydantic serialisation, and excess requests are shed."""
 
 from __future__ import annotations
 
