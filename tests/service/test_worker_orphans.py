@@ -88,3 +88,21 @@ def test_kill_9_of_the_service_leaves_no_process_behind(loaded_model) -> None:
     finally:
         if proc.poll() is None:
             proc.kill()
+
+
+def test_worker_runs_at_a_lower_priority(model_ref) -> None:
+    """The identification process is niced (WORKER_NICE) so /chtc keeps its latency during identification."""
+    import asyncio
+
+    from service.worker import WORKER_NICE, IdentificationWorker
+
+    async def nice_of_worker() -> list[int]:
+        worker = IdentificationWorker(model_ref)
+        try:
+            await worker.start()
+            return [os.getpriority(os.PRIO_PROCESS, pid) for pid in worker.pids()]
+        finally:
+            worker.close()
+
+    mine = os.getpriority(os.PRIO_PROCESS, 0)
+    assert asyncio.run(nice_of_worker()) == [min(19, mine + WORKER_NICE)]
