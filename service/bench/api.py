@@ -412,7 +412,11 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
         "with_field": with_field,
     }
     out["meets_idle_target"] = out["chtc_p99_ms"] <= TARGET_P99_MS
-    out["meets_busy_target"] = None if busy is None else out["busy_over_idle_p99"] <= TARGET_BUSY_RATIO
+    # the service runs its identification worker at nice WORKER_NICE (service.worker): the niced phase is the
+    # service's configuration when it ran; the default-priority phase is shown beside it
+    busy_ratio = out["busy_niced_over_idle_p99"] if niced else out["busy_over_idle_p99"]
+    out["busy_target_ratio"] = busy_ratio
+    out["meets_busy_target"] = None if busy_ratio is None else busy_ratio <= TARGET_BUSY_RATIO
     out["meets_field_target"] = (
         None if with_field is None else out["field_over_idle_p99"] <= TARGET_BUSY_RATIO
     )
@@ -475,7 +479,8 @@ def _table(r: dict[str, Any]) -> str:
         f"sends behind schedule, p99: raw {f(r['late_ms_p99'])} ms, httpx {f(r['httpx_late_ms_p99'])} ms "
         "(large = the client itself is saturated)",
         f"targets (raw /chtc p99): idle <= {r['target_p99_ms']:.0f} ms: {_met(r['meets_idle_target'])}; "
-        f"during identification <= {r['target_busy_ratio']:.0f}x idle ({f(r['busy_over_idle_p99'])}x): "
+        f"during identification (worker at nice {r['busy_nice']}) <= {r['target_busy_ratio']:.0f}x idle "
+        f"({f(r['busy_target_ratio'])}x; default priority {f(r['busy_over_idle_p99'])}x): "
         f"{_met(r['meets_busy_target'])}; with field requests beside <= {r['target_busy_ratio']:.0f}x idle "
         f"({f(r.get('field_over_idle_p99'))}x): {_met(r.get('meets_field_target'))}",
         f"field load beside /chtc: {_field_line(r.get('field_load'))}",
