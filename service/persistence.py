@@ -19,6 +19,7 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
@@ -144,7 +145,7 @@ class Persistence:
         """Retry migration/check until the database answers, then open the writer (background task)."""
         while self.sink.writer is None:
             try:
-                await asyncio.to_thread(_prepare_schema, self.engine, self.migrate)
+                await asyncio.to_thread(self._prepare_guarded)
             except Exception as err:  # database down: keep buffering, try again
                 log.info("database not ready: %s", err)
                 await asyncio.sleep(retry_s)
@@ -157,6 +158,11 @@ class Persistence:
             self.on_event(
                 f"db: connected ({_safe_url(self.url)}), writing {len(self.sink.held)} held records"
             )
+
+    def _prepare_guarded(self) -> None:
+        guard = self.read_watchdog.guard("migrate") if self.read_watchdog is not None else nullcontext()
+        with guard:
+            _prepare_schema(self.engine, self.migrate)
 
     def start_background(self) -> None:
         if self.sink.writer is None and self._task is None:
@@ -195,11 +201,11 @@ def _prepare_schema(engine: Any, migrate: bool) -> None:
 def _start_writer(
     session_factory: Any, db: Any, *, clock: Callable[[], datetime] | None, watchdog: Any = None
 ) -> Any:
-    from service.db.writer import DbWriter
+    from service.db.writer import DbWriter, utc_now
 
     return DbWriter(
         session_factory,
-        **({} if clock is None else {"clock": clock}),
+        clock=clock or utc_now,
         batch_size=db.batch_size,
         buffer_max=db.buffer_max,
         retry_initial_s=db.retry_initial_s,
@@ -251,8 +257,9 @@ def open_persistence(
     w_engine, w_factory, w_watchdog = _engine(db)
     sink = GateSink(max_held=db.buffer_max)
     try:
-        _prepare_schema(engine, migrate)
-        restored = restore(factory)
+        with read_watchdog.guard("migrate and restore"):  # a hung database cannot hold the start-up
+            _prepare_schema(engine, migrate)
+            restored = restore(factory)
         from_db = True
         sink.open(_start_writer(w_factory, db, clock=clock, watchdog=w_watchdog))
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background

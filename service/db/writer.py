@@ -43,7 +43,7 @@ from service.db.watchdog import StatementWatchdog
 log = logging.getLogger(__name__)
 
 
-def _utcnow() -> datetime:
+def utc_now() -> datetime:
     return datetime.now(UTC)
 
 
@@ -74,7 +74,7 @@ class DbWriter:
         buffer_max: int = 100_000,
         retry_initial_s: float = 0.5,
         retry_max_s: float = 30.0,
-        clock: Callable[[], datetime] = _utcnow,
+        clock: Callable[[], datetime] = utc_now,
         watchdog: StatementWatchdog | None = None,
         heartbeat_s: float | None = None,
         stall_s: float = 3.0,
