@@ -7,6 +7,7 @@ API), only with short timeouts.
 
 from __future__ import annotations
 
+import os
 import threading
 import time
 from collections.abc import Iterator
@@ -30,7 +31,7 @@ from tests.db.tcp_proxy import TcpProxy, free_port
 pytestmark = pytest.mark.postgres
 
 T0 = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
-FREEZE_S = 15.0
+FREEZE_S = float(os.environ.get("CHTC_TEST_FREEZE_S", "15"))  # the outage was 60 s: set it to 60
 
 
 def sample(i: int) -> SampleData:
@@ -113,6 +114,7 @@ def test_frozen_database_is_degraded_within_10_s_and_nothing_is_lost(
             assert r.json()["error"]["code"] == "not_ready" and "Retry-After" in r.headers
         time.sleep(0.05)
     proxy.thaw()
+    print(f"freeze {FREEZE_S:.0f} s: health transitions {seen}; reads {read_statuses}; {submitted} rows")
 
     changed = [s for s in seen if s[2] != "ok"]
     assert changed, f"db health never left ok during a {FREEZE_S:.0f} s freeze: {seen}"
