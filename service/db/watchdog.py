@@ -134,11 +134,14 @@ class StatementWatchdog:
                 return 0
             self._aborted.update(k for k, _, _ in late)
             conns = list(self._conns.values())
-        n = sum(abort_connection(c) for c in conns)
-        self.aborts += 1
+        n = self._abort(conns)
         _, what, age = late[0]
         log.warning("database: %s not answered for %.1f s: aborted %d connection(s)", what, age, n)
         return n
+
+    def _abort(self, conns: list[Any]) -> int:
+        self.aborts += 1
+        return sum(abort_connection(c) for c in conns)
 
     # --- thread -----------------------------------------------------------------------------------
     def start(self) -> StatementWatchdog:
@@ -146,9 +149,19 @@ class StatementWatchdog:
         return self
 
     def close(self) -> None:
+        """Stop checking; an operation still running is aborted (a thread stuck on a hung database would
+        otherwise keep the process from exiting: a read pool's threads are joined at interpreter exit)."""
         self._stop.set()
         if self._thread.is_alive():
             self._thread.join(timeout=2.0)
+        deadline = self._monotonic() + 2.0
+        if self.busy() is not None:
+            log.warning("database: closing with an operation still waiting: aborting its connections")
+        while self.busy() is not None and self._monotonic() < deadline:
+            with self._lock:
+                conns = list(self._conns.values())
+            self._abort(conns)  # again until it ends: a statement may start just after an abort
+            time.sleep(self.poll_s)
 
     def _run(self) -> None:
         while not self._stop.wait(self.poll_s):

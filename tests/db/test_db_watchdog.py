@@ -81,3 +81,28 @@ def test_reads_time_out_and_are_bounded(tmp_path: Path) -> None:
         release.set()
         reads.close()
         eng.dispose()
+
+
+def test_close_aborts_an_operation_still_waiting(tmp_path: Path) -> None:
+    """A read stuck at shutdown would keep the process alive (pool threads are joined at exit)."""
+    eng = create_db_engine(f"sqlite:///{tmp_path / 'c.db'}")
+    dog = StatementWatchdog(eng, abort_after_s=60.0, poll_s=0.05).start()
+    errors: list[BaseException] = []
+
+    def endless() -> None:
+        try:
+            with dog.guard("endless"), eng.connect() as conn:
+                conn.execute(sa.text(ENDLESS))
+        except sa.exc.OperationalError as err:
+            errors.append(err)
+
+    t = threading.Thread(target=endless)
+    t.start()
+    deadline = time.monotonic() + 10.0
+    while dog.busy() is None:
+        assert time.monotonic() < deadline
+        time.sleep(0.01)
+    dog.close()
+    t.join(5.0)
+    assert not t.is_alive() and len(errors) == 1 and "interrupted" in str(errors[0])
+    eng.dispose()
