@@ -23,7 +23,7 @@ from starlette.concurrency import run_in_threadpool
 from api.deps import ReadAccess, ServiceDep
 from api.errors import ApiError, invalid
 from api.routers.chtc import _matches
-from api.routers.field_render import GZIP_MIN_BYTES, FieldGate, FieldRenderer, Rendered
+from api.routers.field_render import GZIP_MIN_BYTES, FieldGate, FieldRenderer, Rendered, _clean
 from api.schemas import FieldGridOut, FieldMeshOut, FieldPointsOut, PointOut
 from service.interface import ChtcService, FieldAt, FieldSnapshot
 
@@ -66,10 +66,8 @@ def _meta(f: FieldSnapshot) -> dict[str, object]:
     }
 
 
-def _clean(values: np.ndarray) -> list[float | None]:
-    return [None if not math.isfinite(v) else v for v in np.round(values, 4).tolist()]
-
-
+# mesh_out / grid_out: the schema-level forms of the bodies. The route serves field_render's cached bodies,
+# which must parse to exactly these (tests/api/test_api_field.py compares them).
 def mesh_out(f: FieldSnapshot) -> FieldMeshOut:
     return FieldMeshOut(
         **_meta(f),  # type: ignore[arg-type]

@@ -43,6 +43,7 @@ def _dumps(value: Any) -> str:
 
 
 def _clean(values: np.ndarray) -> list[float | None]:
+    """Rounded to 0.1 mK, None for NaN (outside the section) or inf."""
     return [None if not math.isfinite(v) else v for v in np.round(values, 4).tolist()]
 
 
