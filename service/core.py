@@ -30,6 +30,7 @@ from service.db.records import (
     IdentificationData,
     Record,
     SampleData,
+    SampleDecimator,
     finite,
     finite_list,
 )
@@ -210,7 +211,7 @@ class ServiceCore:
         self._ident_ids = itertools.count(restored.next_identification_id)
         self._resumed = self.condition is not None
         self.newest: NewestSample | None = None
-        self._last_stored_t: float | None = None
+        self._decimator = SampleDecimator(config.sample_store_period_s)
         self.counts: dict[str, int] = {"ok": 0, "failed": 0, "insufficient-data": 0, "cancelled": 0}
         self.durations = Histogram(DURATION_BUCKETS_S)
         self.samples_total = 0
@@ -289,10 +290,8 @@ class ServiceCore:
             return tuple(out)
 
     def _store_sample(self, sample: Any, ts: float) -> None:
-        period = self.config.sample_store_period_s
-        if self._last_stored_t is not None and ts - self._last_stored_t < period - 1e-6:
+        if not self._decimator.keep(ts):
             return
-        self._last_stored_t = ts
         assert self.newest is not None
         s = self.newest
         self.sink.submit(

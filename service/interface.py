@@ -31,10 +31,11 @@ import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
-from functools import cached_property
 from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
+
+from service.locator import TriangleLocator, locator_for
 
 H_UNIT = "W/(m²·K)"
 ZONE_NAMES: tuple[str, ...] = ("H1", "H2", "H3", "H4", "H5", "H6", "H7")
@@ -132,85 +133,15 @@ class FieldSnapshot:
         hi = self.nodes_rz.max(axis=0)
         return float(lo[0]), float(hi[0]), float(lo[1]), float(hi[1])
 
-    @cached_property
-    def _locator(self) -> _TriangleLocator:
-        return _TriangleLocator(self.nodes_rz, self.triangles)
+    @property
+    def locator(self) -> TriangleLocator:
+        """The mesh's point locator, shared by every snapshot on the same mesh arrays (built once)."""
+        return locator_for(self.nodes_rz, self.triangles)
 
     def evaluate(self, points_rz: np.ndarray) -> np.ndarray:
         """Temperatures (°C) at (P, 2) points (r, z) in m, by P1 interpolation; NaN outside the section."""
         pts = np.asarray(points_rz, dtype=float).reshape(-1, 2)
-        tri, bary = self._locator.locate(pts)
-        out = np.full(len(pts), np.nan)
-        ok = tri >= 0
-        nodes = self.triangles[tri[ok]]
-        out[ok] = np.einsum("pk,pk->p", bary[ok], self.temps_c[nodes])
-        return out
-
-
-class _TriangleLocator:
-    """Finds the triangle containing each point: k nearest centroids first, brute force for the rest."""
-
-    def __init__(self, nodes_rz: np.ndarray, triangles: np.ndarray, *, k: int = 4) -> None:
-        from scipy.spatial import cKDTree
-
-        self._p = np.asarray(nodes_rz, dtype=float)
-        self._t = np.asarray(triangles, dtype=np.int64)
-        self._k = min(k, len(self._t))
-        v = self._p[self._t]  # (M, 3, 2)
-        self._v0 = v[:, 0, :]
-        e1 = v[:, 1, :] - self._v0
-        e2 = v[:, 2, :] - self._v0
-        det = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
-        self._inv = np.stack([np.stack([e2[:, 1], -e2[:, 0]], -1), np.stack([-e1[:, 1], e1[:, 0]], -1)], 1)
-        self._inv /= det[:, None, None]
-        centroids = v.mean(axis=1)
-        self._tree = cKDTree(centroids)
-        # any point of a triangle lies within this distance of the triangle's centroid
-        self._reach = float(np.linalg.norm(v - centroids[:, None, :], axis=-1).max()) * (1 + 1e-9)
-        self._bbox = (self._p.min(axis=0), self._p.max(axis=0))
-
-    def _bary(self, pts: np.ndarray, tri: np.ndarray) -> np.ndarray:
-        d = pts - self._v0[tri]
-        lam = np.einsum("...ij,...j->...i", self._inv[tri], d)
-        return np.concatenate([1.0 - lam.sum(-1, keepdims=True), lam], -1)
-
-    def locate(self, pts: np.ndarray, *, tol: float = 1e-9) -> tuple[np.ndarray, np.ndarray]:
-        tri = np.full(len(pts), -1, dtype=np.int64)
-        bary = np.zeros((len(pts), 3))
-        inside_box = np.all((pts >= self._bbox[0] - 1e-12) & (pts <= self._bbox[1] + 1e-12), axis=1)
-        idx = np.flatnonzero(inside_box)
-        if len(idx) == 0:
-            return tri, bary
-        dist, cand = self._tree.query(pts[idx], k=self._k, distance_upper_bound=self._reach)
-        dist, cand = dist.reshape(len(idx), -1), cand.reshape(len(idx), -1)
-        near = np.isfinite(dist)  # beyond reach of every centroid: certainly outside
-        cand = np.where(near, cand, 0)
-        b = self._bary(pts[idx][:, None, :], cand)  # (P, k, 3)
-        hit = np.all(b >= -tol, axis=-1) & near
-        found = hit.any(axis=1)
-        first = hit.argmax(axis=1)
-        tri[idx[found]] = cand[found, first[found]]
-        bary[idx[found]] = b[found, first[found]]
-        self._exhaustive(pts, idx[~found & near[:, 0]], tri, bary, tol)
-        return tri, bary
-
-    def _exhaustive(
-        self, pts: np.ndarray, rest: np.ndarray, tri: np.ndarray, bary: np.ndarray, tol: float
-    ) -> None:
-        """Exact second pass for points the k-nearest search missed: every triangle within reach."""
-        if len(rest) == 0:
-            return
-        balls = self._tree.query_ball_point(pts[rest], r=self._reach)
-        owner = np.repeat(rest, [len(b) for b in balls])
-        cand = np.fromiter((c for b in balls for c in b), dtype=np.int64, count=len(owner))
-        if len(cand) == 0:
-            return
-        b = self._bary(pts[owner], cand)
-        hit = np.flatnonzero(np.all(b >= -tol, axis=-1))
-        _, first = np.unique(owner[hit], return_index=True)
-        sel = hit[first]
-        tri[owner[sel]] = cand[sel]
-        bary[owner[sel]] = b[sel]
+        return self.locator.interpolate(self.temps_c, self.locator.locate(pts))
 
 
 @dataclass(frozen=True)

@@ -19,7 +19,9 @@ import asyncio
 import logging
 import time
 from collections.abc import Callable
+from contextlib import nullcontext
 from dataclasses import dataclass, field
+from datetime import datetime
 from typing import Any
 
 from service.core import Restored
@@ -37,7 +39,7 @@ log = logging.getLogger(__name__)
 def restore(session_factory: Any, *, limit: int = 100) -> Restored:
     """The state of the previous run from the database (raises ``service.db.errors.DatabaseError``)."""
     from service.db.repository import (
-        last_identification,
+        last_served_identification,
         latest_per_condition,
         list_conditions,
         max_ids,
@@ -46,7 +48,7 @@ def restore(session_factory: Any, *, limit: int = 100) -> Restored:
 
     with session_scope(session_factory, "restore state") as session:
         cond_max, ident_max = max_ids(session)
-        last_row = last_identification(session)
+        last_row = last_served_identification(session)
         last = row_to_record(last_row) if last_row is not None else None
         latest = latest_per_condition(session, limit=limit)
         history = tuple(
@@ -131,21 +133,36 @@ class Persistence:
     settings: Any
     migrate: bool
     on_event: Callable[[str], None] = field(default=lambda _m: None)
+    clock: Callable[[], datetime] | None = None  # the service's clock (None: UTC wall clock)
+    writer_engine: Any = None  # the writer's own engine and pool (a hung read never blocks a write)
+    writer_factory: Any = None
+    writer_watchdog: Any = None
+    reads: Any = None  # service.db.reads.DbReads: API reads, bounded and with a deadline
+    read_watchdog: Any = None
     _task: asyncio.Task[None] | None = None
 
     async def ensure_open(self, *, retry_s: float = 2.0) -> None:
         """Retry migration/check until the database answers, then open the writer (background task)."""
         while self.sink.writer is None:
             try:
-                await asyncio.to_thread(_prepare_schema, self.engine, self.migrate)
+                await asyncio.to_thread(self._prepare_guarded)
             except Exception as err:  # database down: keep buffering, try again
                 log.info("database not ready: %s", err)
                 await asyncio.sleep(retry_s)
                 continue
-            self.sink.open(_start_writer(self.session_factory, self.settings))
+            self.sink.open(
+                _start_writer(
+                    self.writer_factory, self.settings, clock=self.clock, watchdog=self.writer_watchdog
+                )
+            )
             self.on_event(
                 f"db: connected ({_safe_url(self.url)}), writing {len(self.sink.held)} held records"
             )
+
+    def _prepare_guarded(self) -> None:
+        guard = self.read_watchdog.guard("migrate") if self.read_watchdog is not None else nullcontext()
+        with guard:
+            _prepare_schema(self.engine, self.migrate)
 
     def start_background(self) -> None:
         if self.sink.writer is None and self._task is None:
@@ -157,7 +174,14 @@ class Persistence:
         status = None
         if self.sink.writer is not None:
             status = self.sink.writer.close(timeout_s)
+        if self.reads is not None:
+            self.reads.close()
+        for watchdog in (self.writer_watchdog, self.read_watchdog):
+            if watchdog is not None:
+                watchdog.close()
         self.engine.dispose()
+        if self.writer_engine is not None:
+            self.writer_engine.dispose()
         return status
 
 
@@ -174,16 +198,38 @@ def _prepare_schema(engine: Any, migrate: bool) -> None:
         )
 
 
-def _start_writer(session_factory: Any, db: Any) -> Any:
-    from service.db.writer import DbWriter
+def _start_writer(
+    session_factory: Any, db: Any, *, clock: Callable[[], datetime] | None, watchdog: Any = None
+) -> Any:
+    from service.db.writer import DbWriter, utc_now
 
     return DbWriter(
         session_factory,
+        clock=clock or utc_now,
         batch_size=db.batch_size,
         buffer_max=db.buffer_max,
         retry_initial_s=db.retry_initial_s,
         retry_max_s=db.retry_max_s,
+        watchdog=watchdog,
+        heartbeat_s=getattr(db, "heartbeat_s", None),
+        stall_s=getattr(db, "stall_s", 3.0),
     ).start()
+
+
+def _engine(db: Any) -> tuple[Any, Any, Any]:
+    """(engine, session factory, watchdog): one per use (the writer's, the API reads'), each its own pool."""
+    from service.db.engine import create_db_engine, make_session_factory
+    from service.db.watchdog import StatementWatchdog
+
+    statement_s = float(getattr(db, "statement_timeout_s", 5.0))
+    engine = create_db_engine(
+        db.url,
+        echo=db.echo,
+        connect_timeout_s=float(getattr(db, "connect_timeout_s", 5.0)),
+        statement_timeout_s=statement_s,
+    )
+    watchdog = StatementWatchdog(engine, abort_after_s=statement_s + 1.0).start()
+    return engine, make_session_factory(engine), watchdog
 
 
 def _safe_url(url: str) -> str:
@@ -192,20 +238,53 @@ def _safe_url(url: str) -> str:
     return make_url(url).render_as_string(hide_password=True)
 
 
-def open_persistence(db: Any, *, migrate: bool, on_event: Callable[[str], None] | None = None) -> Persistence:
-    """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage."""
-    from service.db.engine import create_db_engine, make_session_factory
+def open_persistence(
+    db: Any,
+    *,
+    migrate: bool,
+    on_event: Callable[[str], None] | None = None,
+    clock: Callable[[], datetime] | None = None,
+) -> Persistence:
+    """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage.
+
+    ``clock`` is the service's one clock (``service.runtime.ScaledClock`` in the demo): the writer stamps its
+    outage events and ``last_ok_at`` with it, so database health ages are on the same time axis as the rest.
+    """
+    from service.db.reads import DbReads
 
     say = on_event or (lambda _m: None)
-    engine = create_db_engine(db.url, echo=db.echo)
-    factory = make_session_factory(engine)
+    engine, factory, read_watchdog = _engine(db)
+    w_engine, w_factory, w_watchdog = _engine(db)
     sink = GateSink(max_held=db.buffer_max)
     try:
-        _prepare_schema(engine, migrate)
-        restored = restore(factory)
+        with read_watchdog.guard("migrate and restore"):  # a hung database cannot hold the start-up
+            _prepare_schema(engine, migrate)
+            restored = restore(factory)
         from_db = True
-        sink.open(_start_writer(factory, db))
+        sink.open(_start_writer(w_factory, db, clock=clock, watchdog=w_watchdog))
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background
         say(f"db: not available at start-up ({err}); buffering records and retrying")
         restored, from_db = fallback_restored(), False
-    return Persistence(db.url, engine, factory, sink, restored, from_db, db, migrate, say)
+    reads = DbReads(
+        factory,
+        threads=int(getattr(db, "read_threads", 4)),
+        timeout_s=float(getattr(db, "read_timeout_s", 2.0)),
+        watchdog=read_watchdog,
+    )
+    return Persistence(
+        db.url,
+        engine,
+        factory,
+        sink,
+        restored,
+        from_db,
+        db,
+        migrate,
+        say,
+        clock,
+        writer_engine=w_engine,
+        writer_factory=w_factory,
+        writer_watchdog=w_watchdog,
+        reads=reads,
+        read_watchdog=read_watchdog,
+    )

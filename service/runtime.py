@@ -130,7 +130,9 @@ class Runtime:
 
         s = self.settings
         model = self.load()
-        self.persistence = open_persistence(s.database, migrate=self.migrate, on_event=self.on_event)
+        self.persistence = open_persistence(
+            s.database, migrate=self.migrate, on_event=self.on_event, clock=self.clock
+        )
         self.persistence.start_background()
         self.ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))
         cfg = core_config(s)
@@ -148,6 +150,7 @@ class Runtime:
             worker=worker,
             writer=self.persistence.sink,
             session_factory=self.persistence.session_factory,
+            db_reads=self.persistence.reads,
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             on_event=self.on_event,

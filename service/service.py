@@ -84,6 +84,7 @@ class SoftSensorService:
         worker: IdentificationWorker | None,
         writer: Any = None,  # service.db.writer.DbWriter (submit/status) or None
         session_factory: Any = None,  # sessionmaker for the history endpoints, or None
+        db_reads: Any = None,  # service.db.reads.DbReads: history reads bounded and with a deadline, or None
         sources: Mapping[str, Any] | None = None,  # "modbus"/"can" -> drivers Source (metrics, connected)
         clock: Clock = utc_now,
         on_event: Callable[[str], None] | None = None,
@@ -93,6 +94,7 @@ class SoftSensorService:
         self.worker = worker
         self.writer = writer
         self.session_factory = session_factory
+        self.db_reads = db_reads
         self.sources = dict(sources or {})
         self.clock = clock
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
@@ -337,6 +339,8 @@ class SoftSensorService:
         if self.session_factory is not None:
             try:
                 return self._db_page(since, until, limit, offset)
+            except NotReadyError:  # the database is hung (read timed out or every read slot taken): 503
+                raise
             except Exception as err:  # database down: serve what this process remembers, marked partial
                 log.warning("identification history from memory (database: %s)", err)
                 partial = f"database not readable, only the records in memory: {err}"
@@ -352,12 +356,22 @@ class SoftSensorService:
     def _db_page(
         self, since: datetime | None, until: datetime | None, limit: int, offset: int
     ) -> IdentificationPage:
-        from service.db.repository import list_identifications, session_scope
+        from service.db.repository import list_identifications
 
-        with session_scope(self.session_factory, "list identifications") as session:
+        def read(session: Any) -> IdentificationPage:
             page = list_identifications(session, since=since, until=until, limit=limit, offset=offset)
-            items = [row_to_record(r) for r in page.items]
-        return self._merge_pending(IdentificationPage(items, page.total, limit, offset), since, until)
+            return IdentificationPage([row_to_record(r) for r in page.items], page.total, limit, offset)
+
+        return self._merge_pending(self._db_read(read, "list identifications"), since, until)
+
+    def _db_read(self, fn: Callable[[Any], Any], what: str) -> Any:
+        """``fn(session)`` through the bounded read pool (503 when the database hangs), else inline."""
+        if self.db_reads is not None:
+            return self.db_reads.run(fn, what)
+        from service.db.repository import session_scope
+
+        with session_scope(self.session_factory, what) as session:
+            return fn(session)
 
     def _merge_pending(
         self, page: IdentificationPage, since: datetime | None, until: datetime | None
@@ -388,11 +402,13 @@ class SoftSensorService:
                     return r
         if self.session_factory is not None:
             from service.db.errors import DatabaseError, RecordNotFoundError
-            from service.db.repository import get_identification, session_scope
+            from service.db.repository import get_identification
 
             try:
-                with session_scope(self.session_factory, "get identification") as session:
-                    return row_to_record(get_identification(session, identification_id))
+                return self._db_read(
+                    lambda session: row_to_record(get_identification(session, identification_id)),
+                    "get identification",
+                )
             except RecordNotFoundError:
                 pass
             except DatabaseError as err:  # down or refusing: a 503 naming the reason, not a 500
@@ -451,7 +467,9 @@ class SoftSensorService:
             return DeviceHealth("db", DeviceStatus.DISABLED, None, None, {}, "no database configured")
         st = self.writer.status()
         status = DeviceStatus.OK if st.connected else DeviceStatus.DOWN
-        if st.connected and st.pending > 1000:
+        busy_s = getattr(st, "busy_s", None)
+        hung = busy_s is not None and busy_s > getattr(st, "stall_s", 3.0)
+        if st.connected and (st.pending > 1000 or hung):
             status = DeviceStatus.DEGRADED
         counters = {
             "pending": st.pending,
@@ -463,6 +481,8 @@ class SoftSensorService:
         msg = (
             "" if st.connected else f"buffering {st.pending} records: {st.last_error or 'not connected yet'}"
         )
+        if hung:
+            msg = f"database not answering for {busy_s:.0f} s; buffering {st.pending} records"
         return DeviceHealth("db", status, st.last_ok_at, age_s(st.last_ok_at, now), counters, msg)
 
     def _worker_health(self) -> DeviceHealth:

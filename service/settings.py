@@ -278,6 +278,12 @@ class DatabaseSettings(_Section):
         default=100_000, ge=1
     )  # records held while the DB is down; beyond: dropped, counted
     echo: bool = False
+    connect_timeout_s: float = Field(default=5.0, gt=0)  # PostgreSQL connect_timeout (whole seconds, >= 1)
+    statement_timeout_s: float = Field(default=5.0, gt=0)  # server-side; the client aborts 1 s later
+    heartbeat_s: float = Field(default=2.0, gt=0)  # an idle writer probes (SELECT 1) this often
+    stall_s: float = Field(default=3.0, gt=0)  # a write/probe waiting longer: health says db "degraded"
+    read_timeout_s: float = Field(default=2.0, gt=0)  # API reads of the database: 503 after this
+    read_threads: int = Field(default=4, ge=1)  # at most this many API reads wait on the database
 
     @field_validator("url")
     @classmethod

@@ -10,6 +10,11 @@ model checks it (``CancellableModel``) and stops the run. A job that does not st
 its timeout) has its process terminated and the pool is recreated (the next job pays the model load
 again, about a second with a warm cache).
 
+The worker process runs at ``nice`` 10 (``WORKER_NICE``): the API's latency matters more than an
+identification finishing a few milliseconds earlier. A worker whose parent died (the service was killed
+with SIGKILL) notices within half a second and exits (``watch_parent``), so a kill -9 leaves neither the
+worker nor multiprocessing's resource tracker behind.
+
 Errors::
 
     WorkerError(RuntimeError)           the pool is closed
@@ -24,8 +29,9 @@ import contextlib
 import enum
 import multiprocessing
 import os
+import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from typing import Any
 
@@ -92,10 +98,35 @@ class JobCancelled(Exception):
     """Raised inside the worker process when the running job was cancelled."""
 
 
-def _init_worker(ref: ModelRef, cancel: Any) -> None:
+def _init_worker(ref: ModelRef, cancel: Any, parent_pid: int | None = None, nice: int = 0) -> None:
     global _MODEL, _CANCEL
+    if parent_pid is not None:
+        watch_parent(parent_pid)
+    if nice > 0:
+        with contextlib.suppress(OSError):  # lowering one's own priority needs no privilege; be safe anyway
+            os.nice(nice)
     _CANCEL = cancel
     _MODEL = load_model(ref)
+
+
+def watch_parent(
+    parent_pid: int, *, poll_s: float = 0.5, exit: Callable[[int], Any] = os._exit
+) -> threading.Thread:
+    """Exit this process when ``parent_pid`` is gone (a daemon thread polls ``os.getppid()``).
+
+    A service killed with SIGKILL runs no clean-up, and the pool's worker would wait for jobs for ever (it
+    holds both ends of its call queue, so it never sees EOF), keeping multiprocessing's resource tracker alive
+    too. When the parent dies the worker is re-parented (to init or a subreaper), so ``getppid()`` changes.
+    """
+
+    def run() -> None:
+        while os.getppid() == parent_pid:
+            time.sleep(poll_s)
+        exit(0)
+
+    thread = threading.Thread(target=run, name="chtc-watch-parent", daemon=True)
+    thread.start()
+    return thread
 
 
 def _ping() -> str:
@@ -224,6 +255,9 @@ def run_job_in_process(req: JobRequest) -> JobOutcome:
 
 
 # --- in the service process -----------------------------------------------------------------------
+# The worker runs at a lower priority so that an identification (a whole core for up to a second) does not
+# push the API's /chtc p99 above twice its idle value on a 2-core machine (docs/api.md, chtc bench api).
+WORKER_NICE = 10
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
@@ -252,8 +286,10 @@ class IdentificationWorker:
         context: str = "spawn",
         timeout_s: float = 120.0,
         cancel_grace_s: float = 5.0,
+        nice: int = WORKER_NICE,
     ) -> None:
         self.ref = ref
+        self.nice = nice
         self.timeout_s = timeout_s
         self.cancel_grace_s = cancel_grace_s
         self._ctx = multiprocessing.get_context(context)
@@ -272,7 +308,7 @@ class IdentificationWorker:
                 max_workers=1,
                 mp_context=self._ctx,
                 initializer=_init_worker,
-                initargs=(self.ref, self._cancel),
+                initargs=(self.ref, self._cancel, os.getpid(), self.nice),
             )
         return self._pool
 
@@ -306,6 +342,12 @@ class IdentificationWorker:
             return JobOutcome(req.job_id, JobStatus.FAILED, None, f"worker process died: {err}", 0.0)
         finally:
             self.running_job = None
+
+    def pids(self) -> list[int]:
+        """Process ids of the live worker processes (none before ``start()`` or after ``close()``)."""
+        pool = self._pool
+        procs = getattr(pool, "_processes", None) or {}
+        return [p.pid for p in list(procs.values()) if p.pid is not None and p.is_alive()]
 
     def cancel(self, job_id: int) -> None:
         """Ask the running job ``job_id`` to stop at its next reduced-model evaluation."""

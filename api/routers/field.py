@@ -3,20 +3,29 @@
 ``format=mesh`` returns the P1 mesh (nodes, triangles, nodal °C); ``format=grid`` samples it on a regular
 ``nr`` x ``nz`` grid over the section's bounding box (null outside the section); ``format=points``
 evaluates it at ``points=r1,z1;r2,z2;...`` (m). Sizes are bounded so one request cannot monopolise the CPU.
+
+The work runs in a worker thread, never on the event loop; mesh and grid bodies are cached per field content
+with an ETag (304 when unchanged) and sent gzip-compressed when the client accepts it
+(``api.routers.field_render``). At most ``MAX_IN_PROGRESS`` field requests are served at once; the next gets a
+503 ``overloaded`` with ``Retry-After: 1`` at once, so a burst of field requests never queues up in front of
+``/chtc``.
 """
 
 from __future__ import annotations
 
 import math
-from typing import Annotated, Literal
+from typing import Annotated, Any, Literal
 
 import numpy as np
-from fastapi import APIRouter, Query, Response
+from fastapi import APIRouter, Query, Request, Response
+from starlette.concurrency import run_in_threadpool
 
 from api.deps import ReadAccess, ServiceDep
-from api.errors import invalid
+from api.errors import ApiError, invalid
+from api.routers.chtc import _matches
+from api.routers.field_render import GZIP_MIN_BYTES, FieldGate, FieldRenderer, Rendered, _clean
 from api.schemas import FieldGridOut, FieldMeshOut, FieldPointsOut, PointOut
-from service.interface import FieldSnapshot
+from service.interface import ChtcService, FieldAt, FieldSnapshot
 
 router = APIRouter(tags=["temperature field"], dependencies=[ReadAccess])
 
@@ -26,6 +35,7 @@ MAX_POINTS_CHARS = 20_000  # 1000 pairs of 9-digit numbers
 # 'r1,z1;r2,z2;...' in m; bounded digits and exponents keep every number finite
 _NUMBER = r"[+-]?(?:[0-9]{1,15}(?:\.[0-9]{0,15})?|\.[0-9]{1,15})(?:[eE][+-]?[0-9]{1,2})?"
 POINTS_PATTERN = rf"^{_NUMBER},{_NUMBER}(?:;{_NUMBER},{_NUMBER})*;?$"
+MAX_IN_PROGRESS = 4  # field requests being served at once; more get a 503 with Retry-After (load shedding)
 
 
 def parse_points(text: str) -> np.ndarray:
@@ -60,10 +70,8 @@ def _meta(f: FieldSnapshot) -> dict[str, object]:
     }
 
 
-def _clean(values: np.ndarray) -> list[float | None]:
-    return [None if not math.isfinite(v) else v for v in np.round(values, 4).tolist()]
-
-
+# mesh_out / grid_out: the schema-level forms of the bodies. The route serves field_render's cached bodies,
+# which must parse to exactly these (tests/api/test_api_field.py compares them).
 def mesh_out(f: FieldSnapshot) -> FieldMeshOut:
     return FieldMeshOut(
         **_meta(f),  # type: ignore[arg-type]
@@ -104,12 +112,46 @@ def points_out(f: FieldSnapshot, pts: np.ndarray) -> FieldPointsOut:
     )
 
 
+def _renderer(request: Request) -> tuple[FieldRenderer, FieldGate]:
+    state = request.app.state
+    if getattr(state, "field_renderer", None) is None:
+        state.field_renderer = FieldRenderer()
+        state.field_gate = FieldGate(MAX_IN_PROGRESS)
+    return state.field_renderer, state.field_gate
+
+
+def _accepts_gzip(request: Request) -> bool:
+    for part in request.headers.get("accept-encoding", "").split(","):
+        coding, _, params = part.strip().partition(";")
+        if coding.strip().lower() == "gzip" and params.replace(" ", "") not in ("q=0", "q=0.0"):
+            return True
+    return False
+
+
+def _render(
+    service: ChtcService, renderer: FieldRenderer, at: FieldAt, format: str, nr: int, nz: int, pts: Any
+) -> Rendered | bytes:
+    """The body (a worker thread runs this: reading the service may wait for its lock, and a new field's
+    body is serialised here)."""
+    snap = service.field(at)
+    if format == "mesh":
+        return renderer.mesh(snap)
+    if format == "grid":
+        return renderer.grid(snap, nr, nz)
+    return points_out(snap, pts).model_dump_json().encode()
+
+
 @router.get(
     "/temperature-field",
     response_model=FieldMeshOut | FieldGridOut | FieldPointsOut,
+    responses={
+        304: {"description": "not modified since the ETag (mesh and grid)"},
+        503: {"description": "no field yet, or too many field requests in progress (Retry-After)"},
+    },
     summary="predicted temperature field (°C) on the (r, z) section: mesh, grid or points",
 )
-def get_field(
+async def get_field(
+    request: Request,
     service: ServiceDep,
     at: Annotated[Literal["now", "steady"], Query(description="current state or steady state")] = "now",
     format: Annotated[Literal["mesh", "grid", "points"], Query(description="response layout")] = "mesh",
@@ -124,17 +166,32 @@ def get_field(
         ),
     ] = None,
 ) -> Response:
+    pts = None
     if format == "points":
         if points is None:
             raise invalid("points", "required with format=points, e.g. points=0.03,0.1;0.08,0.2")
         pts = parse_points(points)
     elif points is not None:
         raise invalid("points", "only allowed with format=points")
-    snap = service.field(at)
-    if format == "mesh":
-        out: FieldMeshOut | FieldGridOut | FieldPointsOut = mesh_out(snap)
-    elif format == "grid":
-        out = grid_out(snap, nr, nz)
-    else:
-        out = points_out(snap, pts)
-    return Response(out.model_dump_json(), media_type="application/json")
+    renderer, gate = _renderer(request)
+    if not gate.try_enter():
+        raise ApiError(
+            503,
+            "overloaded",
+            f"{gate.limit} temperature-field requests are in progress; retry in a second",
+            headers={"Retry-After": "1"},
+        )
+    try:
+        out = await run_in_threadpool(_render, service, renderer, at, format, nr, nz, pts)
+        if isinstance(out, bytes):
+            return Response(out, media_type="application/json")
+        headers = {"ETag": out.etag, "Cache-Control": "no-cache", "Vary": "Accept-Encoding"}
+        if _matches(request.headers.get("if-none-match"), out.etag):
+            return Response(status_code=304, headers=headers)
+        body = out.body
+        if len(body) >= GZIP_MIN_BYTES and _accepts_gzip(request):
+            body = await run_in_threadpool(out.gzip)
+            headers["Content-Encoding"] = "gzip"
+        return Response(body, media_type="application/json", headers=headers)
+    finally:
+        gate.leave()

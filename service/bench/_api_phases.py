@@ -37,6 +37,40 @@ def stop_process(proc: subprocess.Popen[Any] | mp.process.BaseProcess) -> None:
             proc.join()
 
 
+# --- the server's service: the in-memory one on the real mesh, with a live-like field -------------------
+class LiveLikeField:
+    """Wraps ``demo_service(section=model_section())``: ``field("now")`` returns a new snapshot on every call
+    (as the running service does) whose temperatures change every ``period_s`` (as a new sample does)."""
+
+    def __init__(self, inner: Any, *, period_s: float = 10.0) -> None:
+        self.inner = inner
+        self.period_s = period_s
+
+    def field(self, at: Any) -> Any:
+        from dataclasses import replace
+
+        f = self.inner.field(at)
+        if at != "now":
+            return f
+        k = int(time.time() // self.period_s)
+        return replace(f, temps_c=f.temps_c + 0.01 * (k % 100))
+
+    def __getattr__(self, name: str) -> Any:
+        return getattr(self.inner, name)
+
+
+def bench_service(*, field_period_s: float = 10.0) -> tuple[Any, str]:
+    """The service the benchmark's API serves, and which mesh it uses."""
+    from service.interface_memory import demo_service, model_section
+
+    try:
+        svc, mesh = demo_service(section=model_section()), "the service's FE mesh"
+    except Exception as err:  # the model package cannot build its mesh here: the synthetic section
+        svc, mesh = demo_service(), f"synthetic section ({type(err).__name__})"
+    f = svc.field("now")
+    return LiveLikeField(svc, period_s=field_period_s), f"{mesh}: {len(f.nodes_rz)} nodes"
+
+
 # --- busy: an identification loop in another process -----------------------------------------------------
 def _identification_setup() -> tuple[Any, Any, str]:
     from model.identify import Window, identify

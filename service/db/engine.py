@@ -1,8 +1,11 @@
 """Engine and session factory, built at the edge from ``settings.database`` (nothing opens at import).
 
 SQLite gets WAL journaling (readers never block the writer thread), ``foreign_keys=ON`` and a busy timeout on
-every new connection; its parent directory is created. PostgreSQL gets a connect timeout and pre-ping so a
-restarted server is noticed on the next checkout instead of failing a write.
+every new connection; its parent directory is created. PostgreSQL gets a connect timeout, pre-ping (a
+restarted server is noticed on the next checkout instead of failing a write), a server-side
+``statement_timeout`` (a slow statement is cancelled), TCP keepalives and ``tcp_user_timeout`` (a dead peer
+is noticed by the kernel).
+None of these sees a link that freezes without a reset; ``service.db.watchdog`` covers that on the client.
 """
 
 from __future__ import annotations
@@ -22,17 +25,42 @@ def create_db_engine(
     *,
     echo: bool = False,
     connect_timeout_s: float = 5.0,
+    statement_timeout_s: float | None = None,
     sqlite_busy_timeout_ms: int = 5000,
     create_dirs: bool = True,
+    pool_size: int | None = None,
 ) -> Engine:
-    """An engine for ``url`` (``sqlite:///path`` or ``postgresql+psycopg://…``), configured as above."""
+    """An engine for ``url`` (``sqlite:///path`` or ``postgresql+psycopg://…``), configured as above.
+
+    ``statement_timeout_s`` (PostgreSQL) is set per connection with ``SET``, so a ``options`` query parameter
+    in the URL (a ``search_path``) is kept; ``pool_size`` bounds the pool (None: SQLAlchemy's default, 5).
+    """
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":
         return _sqlite_engine(url, echo=echo, busy_timeout_ms=sqlite_busy_timeout_ms, create_dirs=create_dirs)
-    connect_args: dict[str, Any] = {}
-    if parsed.get_backend_name() == "postgresql":
-        connect_args["connect_timeout"] = max(1, round(connect_timeout_s))
-    return create_engine(url, echo=echo, pool_pre_ping=True, connect_args=connect_args)
+    kwargs: dict[str, Any] = {} if pool_size is None else {"pool_size": pool_size, "max_overflow": 0}
+    if parsed.get_backend_name() != "postgresql":
+        return create_engine(url, echo=echo, pool_pre_ping=True, **kwargs)
+    timeout = max(1, round(connect_timeout_s))
+    connect_args: dict[str, Any] = {
+        "connect_timeout": timeout,
+        "keepalives": 1,
+        "keepalives_idle": 10,
+        "keepalives_interval": 5,
+        "keepalives_count": 3,
+        "tcp_user_timeout": 1000 * max(timeout, 10),
+    }
+    engine = create_engine(url, echo=echo, pool_pre_ping=True, connect_args=connect_args, **kwargs)
+    if statement_timeout_s is not None:
+        ms = max(1, round(1000 * statement_timeout_s))
+
+        @event.listens_for(engine, "connect")
+        def _on_connect(dbapi_conn: Any, _record: Any) -> None:
+            with dbapi_conn.cursor() as cursor:
+                cursor.execute(f"SET statement_timeout = {ms}")
+            dbapi_conn.commit()
+
+    return engine
 
 
 def _sqlite_engine(url: str, *, echo: bool, busy_timeout_ms: int, create_dirs: bool) -> Engine:

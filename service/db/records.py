@@ -246,22 +246,31 @@ class IdentificationData:
 
 
 class SampleDecimator:
-    """Keep at most one sample per ``period_s`` (``database.sample_store_period_s``) of sample time.
+    """Keep one sample per ``period_s`` (``database.sample_store_period_s``) of sample time, on a grid.
 
-    ``keep(t)`` is True for the first sample and then for the first one at least ``period_s`` after the last
-    kept one; a sample older than the last kept one (clock step back) restarts the period.
+    The grid is ``k * period_s`` (epoch seconds); a sample belongs to the grid instant nearest to it
+    (tolerance ``period_s / 2``), and ``keep(t)`` is True for the first sample of each grid slot after the
+    last kept one. Jittered stamps (a 10 s acquisition arriving at 9.7 s, 10.4 s, ...) therefore keep
+    every sample, where "at least ``period_s`` after the last kept one" dropped about a third of them. A
+    sample in an earlier slot than the last kept one (the clock stepped back) restarts the grid there.
     """
 
     def __init__(self, period_s: float) -> None:
         if not period_s > 0:
             raise ValueError(f"database.sample_store_period_s must be > 0, got {period_s!r}")
         self.period_s = period_s
-        self._last: datetime | None = None
+        self._last_slot: int | None = None
 
-    def keep(self, t: datetime) -> bool:
-        if self._last is not None and 0 <= (t - self._last).total_seconds() < self.period_s:
+    def slot(self, t: datetime | float) -> int:
+        """The grid slot of ``t`` (a UTC ``datetime`` or epoch seconds)."""
+        ts = t.timestamp() if isinstance(t, datetime) else float(t)
+        return math.floor(ts / self.period_s + 0.5)
+
+    def keep(self, t: datetime | float) -> bool:
+        k = self.slot(t)
+        if self._last_slot is not None and k == self._last_slot:
             return False
-        self._last = t
+        self._last_slot = k
         return True
 
 

@@ -9,15 +9,23 @@ for good (duplicate id, missing condition) is isolated, counted in ``rejected`` 
 record never blocks the rest. Outages are themselves recorded as ``DeviceEventData(device="db")`` rows,
 written once the database is back.
 
+With a ``watchdog`` (``service.db.watchdog.StatementWatchdog``) every write and probe is guarded: one that
+waits longer than the watchdog's ``abort_after_s`` (a hung database) is aborted and handled like an outage;
+``status().busy_s`` says how long the current one has been waiting (health: ``degraded`` after a few
+seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
+database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh.
+
 ``flush(timeout_s)`` waits until everything submitted so far is written; ``close(timeout_s)`` flushes, stops
 the thread and counts what could not be written as ``lost_on_close``.
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import logging
 import threading
+import time
 from collections import deque
 from collections.abc import Callable, Iterable, Sequence
 from dataclasses import dataclass
@@ -30,11 +38,12 @@ from sqlalchemy.orm import Session, sessionmaker
 from service.db.errors import DatabaseUnavailableError
 from service.db.records import RECORD_TYPES, DeviceEventData, Record
 from service.db.repository import session_scope, write_records
+from service.db.watchdog import StatementWatchdog
 
 log = logging.getLogger(__name__)
 
 
-def _utcnow() -> datetime:
+def utc_now() -> datetime:
     return datetime.now(UTC)
 
 
@@ -50,6 +59,8 @@ class WriterStatus:
     last_error: str | None
     last_error_at: datetime | None  # UTC
     last_ok_at: datetime | None  # UTC of the last successful write or probe
+    busy_s: float | None = None  # wall seconds the current write/probe has been waiting (None: idle)
+    stall_s: float = 3.0  # busy_s above this: the database is hung (health: degraded)
 
 
 class DbWriter:
@@ -63,7 +74,11 @@ class DbWriter:
         buffer_max: int = 100_000,
         retry_initial_s: float = 0.5,
         retry_max_s: float = 30.0,
-        clock: Callable[[], datetime] = _utcnow,
+        clock: Callable[[], datetime] = utc_now,
+        watchdog: StatementWatchdog | None = None,
+        heartbeat_s: float | None = None,
+        stall_s: float = 3.0,
+        monotonic: Callable[[], float] = time.monotonic,
         name: str = "chtc-db-writer",
     ) -> None:
         if batch_size < 1 or buffer_max < 1 or not 0 < retry_initial_s <= retry_max_s:
@@ -73,6 +88,11 @@ class DbWriter:
         self._buffer_max = buffer_max
         self._retry = (retry_initial_s, retry_max_s)
         self._clock = clock
+        self._watchdog = watchdog
+        self._heartbeat_s = heartbeat_s
+        self._stall_s = stall_s
+        self._monotonic = monotonic
+        self._last_ok_mono = -float("inf")
         self._queue: deque[Record] = deque()
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -137,6 +157,8 @@ class DbWriter:
                 last_error=err[0] if err else None,
                 last_error_at=err[1] if err else None,
                 last_ok_at=self._last_ok_at,
+                busy_s=None if self._watchdog is None else self._watchdog.busy_s(),
+                stall_s=self._stall_s,
                 **self._counts,
             )
 
@@ -156,7 +178,7 @@ class DbWriter:
             try:
                 if batch:
                     self._write(batch)
-                elif not self._connected:
+                elif not self._connected or self._heartbeat_due():
                     self._probe()
                 else:
                     continue
@@ -171,15 +193,24 @@ class DbWriter:
                 self._note_error(f"unexpected: {err!r}")
                 self._stop.wait(self._retry[0])
 
+    def _heartbeat_due(self) -> bool:
+        hb = self._heartbeat_s
+        return hb is not None and self._monotonic() - self._last_ok_mono >= hb
+
     def _next_batch(self) -> list[Record]:
         with self._cond:
             if not self._queue and self._connected:
-                self._cond.wait_for(lambda: self._queue or self._stop.is_set(), timeout=1.0)
+                wait = 1.0 if self._heartbeat_s is None else min(1.0, self._heartbeat_s)
+                self._cond.wait_for(lambda: self._queue or self._stop.is_set(), timeout=wait)
             return list(itertools.islice(self._queue, self._batch_size))
+
+    def _guard(self, what: str) -> contextlib.AbstractContextManager[None]:
+        return contextlib.nullcontext() if self._watchdog is None else self._watchdog.guard(what)
 
     def _write(self, batch: Sequence[Record]) -> None:
         try:
-            with session_scope(self._factory, f"write {len(batch)} records") as session:
+            what = f"write {len(batch)} records"
+            with self._guard(what), session_scope(self._factory, what) as session:
                 write_records(session, batch)
         except DatabaseUnavailableError:
             raise
@@ -192,7 +223,8 @@ class DbWriter:
         """Write one by one to find the records the database refuses; skip those, keep order for the rest."""
         for record in batch:
             try:
-                with session_scope(self._factory, f"write {type(record).__name__}") as session:
+                what = f"write {type(record).__name__}"
+                with self._guard(what), session_scope(self._factory, what) as session:
                     write_records(session, [record])
             except DatabaseUnavailableError:
                 raise
@@ -204,7 +236,7 @@ class DbWriter:
                 self._done(1, "written")
 
     def _probe(self) -> None:
-        with session_scope(self._factory, "probe") as session:
+        with self._guard("probe"), session_scope(self._factory, "probe") as session:
             session.execute(text("SELECT 1"))
         self._mark_ok()
 
@@ -221,6 +253,7 @@ class DbWriter:
             was = self._connected
             self._connected = True
             self._last_ok_at = self._clock()
+            self._last_ok_mono = self._monotonic()
             reported, self._outage_reported = self._outage_reported, False
         if not was:
             log.info("database writer: connected")

@@ -46,3 +46,14 @@ def test_histogram_quantile_interpolates_like_prometheus() -> None:
     assert histogram_quantile(0.5, before, after) == pytest.approx(0.001)
     assert histogram_quantile(0.99, before, after) == pytest.approx(0.001 + 0.001 * 49 / 50)
     assert histogram_quantile(0.5, after, after) is None  # nothing observed in between
+
+
+def test_field_phase_loads_chtc_mesh_and_points_together(server: LiveServer) -> None:
+    import argparse
+
+    from service.bench.api import field_phase
+
+    args = argparse.Namespace(runs=1, duration=1.0, rate=20.0, clients=2, mesh_rate=2.0, points_rate=10.0)
+    out = field_phase(server.url, args)
+    assert out["errors"] == 0 and out["raw"]["runs"][0]["requests"] == 20
+    assert out["mesh"]["statuses"] == {"200": 2} and out["points"]["statuses"] == {"200": 10}

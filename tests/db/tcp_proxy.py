@@ -1,4 +1,9 @@
-"""A tiny TCP forwarder on 127.0.0.1 used to make a real PostgreSQL appear and disappear on a port."""
+"""A tiny TCP forwarder on 127.0.0.1 used to make a real PostgreSQL appear, disappear or hang on a port.
+
+``stop()`` is a server going away (connections reset); ``freeze()`` is a hung server or a frozen link: the
+proxy keeps every connection open and keeps accepting, but forwards nothing (data read meanwhile is held, in
+order) until ``thaw()``. No RST, no FIN: only a client-side timeout can notice it.
+"""
 
 from __future__ import annotations
 
@@ -22,6 +27,16 @@ class TcpProxy:
         self._listener: socket.socket | None = None
         self._conns: list[socket.socket] = []
         self._lock = threading.Lock()
+        self._flowing = threading.Event()
+        self._flowing.set()
+
+    def freeze(self) -> None:
+        """Stop forwarding without closing anything (new connections are accepted and wait too)."""
+        self._flowing.clear()
+
+    def thaw(self) -> None:
+        """Forward again, held data first."""
+        self._flowing.set()
 
     def start(self) -> TcpProxy:
         listener = socket.socket()
@@ -44,6 +59,7 @@ class TcpProxy:
             with contextlib.suppress(OSError):
                 conn.shutdown(socket.SHUT_RDWR)
             conn.close()
+        self._flowing.set()  # let frozen pipe threads run into the closed sockets and end
 
     def _accept(self, listener: socket.socket) -> None:
         while True:
@@ -51,24 +67,31 @@ class TcpProxy:
                 client, _ = listener.accept()
             except OSError:
                 return
-            try:
-                upstream = socket.create_connection(self.target, timeout=5)
-            except OSError:
-                client.close()
-                continue
-            upstream.settimeout(None)
             with self._lock:
-                self._conns += [client, upstream]
-            threading.Thread(target=self._pipe, args=(client, upstream), daemon=True).start()
-            threading.Thread(target=self._pipe, args=(upstream, client), daemon=True).start()
+                self._conns.append(client)
+            threading.Thread(target=self._connect, args=(client,), daemon=True).start()
 
-    @staticmethod
-    def _pipe(src: socket.socket, dst: socket.socket) -> None:
+    def _connect(self, client: socket.socket) -> None:
+        self._flowing.wait()  # frozen: the client is connected but its startup message goes nowhere
+        try:
+            upstream = socket.create_connection(self.target, timeout=5)
+        except OSError:
+            client.close()
+            return
+        upstream.settimeout(None)
+        with self._lock:
+            self._conns.append(upstream)
+        threading.Thread(target=self._pipe, args=(client, upstream), daemon=True).start()
+        threading.Thread(target=self._pipe, args=(upstream, client), daemon=True).start()
+
+    def _pipe(self, src: socket.socket, dst: socket.socket) -> None:
         try:
             while data := src.recv(65536):
+                self._flowing.wait()
                 dst.sendall(data)
         except OSError:
             pass
         finally:
+            self._flowing.wait()  # an EOF is not forwarded while frozen either
             with contextlib.suppress(OSError):
                 dst.shutdown(socket.SHUT_WR)

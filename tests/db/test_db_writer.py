@@ -209,17 +209,6 @@ def test_postgres_unreachable_then_back_then_dropped_loses_nothing(
     eng.dispose()
 
 
-def test_sample_decimator_keeps_one_per_period() -> None:
-    from service.db.records import SampleDecimator
-
-    dec = SampleDecimator(10.0)
-    offsets = [0.0, 1.0, 9.99, 10.0, 12.0, 25.0, 34.9, 35.0, 5.0, 6.0]  # 5.0: the clock stepped back
-    kept = [o for o in offsets if dec.keep(T0 + timedelta(seconds=o))]
-    assert kept == [0.0, 10.0, 25.0, 35.0, 5.0]
-    with pytest.raises(ValueError, match="sample_store_period_s"):
-        SampleDecimator(0.0)
-
-
 def test_concurrent_submitters_never_wait_for_a_locked_database(
     tmp_path: Path, writer_for: list[DbWriter]
 ) -> None:

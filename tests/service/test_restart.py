@@ -65,3 +65,46 @@ def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_mod
     page = svc.list_identifications(since=None, until=None, limit=10, offset=0)
     assert page.items[0].id == ok[-1].id and page.total == len(result.records)
     second.close()
+
+
+def test_restore_picks_the_last_served_not_the_latest_stamped(tmp_path):
+    """Issue 13.11: a demo run stamps simulated time hours ahead; the next run's clock starts at the wall
+    clock again, so its identification (id 3) carries an earlier finished_at than the first run's (id 2).
+    The restore must pick id 3, the one served last."""
+    from service.db.records import ConditionStart
+    from tests.db.test_db_repository import ident
+
+    db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
+    wall = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
+    first = open_persistence(db, migrate=True)
+    first.sink.submit(ConditionStart(1, wall + timedelta(hours=2), 3000.0, 5.0, 22.0))
+    first.sink.submit(ident(1, 1, wall + timedelta(hours=2.5)))
+    first.sink.submit(ident(2, 1, wall + timedelta(hours=2.8)))  # the demo ran 2.8 h of plant time ahead
+    first.close()
+    second = open_persistence(db, migrate=True)
+    assert second.restored.last is not None and second.restored.last.id == 2
+    second.sink.submit(ConditionStart(2, wall + timedelta(minutes=5), 4000.0, 5.0, 22.0))
+    second.sink.submit(ident(3, 2, wall + timedelta(minutes=15)))  # restarted: the clock is back at the wall
+    second.close()
+    third = open_persistence(db, migrate=True)
+    try:
+        assert third.restored.last is not None and third.restored.last.id == 3
+        assert third.restored.next_identification_id == 4
+    finally:
+        third.close()
+
+
+def test_writer_stamps_with_the_service_clock(tmp_path):
+    """Issue 13.11 / 12.23: the database writer's last_ok_at (what /health ages) uses the injected clock, so
+    the database is not "last ok 2.8 h ago" in a demo running hours ahead of the wall clock."""
+    from service.db.records import ConditionStart
+
+    db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
+    simulated = datetime.now(UTC) + timedelta(hours=2.8)
+    p = open_persistence(db, migrate=True, clock=lambda: simulated)
+    try:
+        assert p.sink.submit(ConditionStart(1, simulated, 3000.0, 5.0, 22.0))
+        assert p.sink.writer.flush(15.0)
+        assert p.sink.status().last_ok_at == simulated
+    finally:
+        p.close()

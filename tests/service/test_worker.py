@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import asyncio
 import dataclasses
+from datetime import timedelta
 
 import numpy as np
 import pytest
@@ -79,6 +80,22 @@ def test_too_few_good_channels_is_skipped_with_reason(loaded_model):
     assert core.counts["insufficient-data"] == 2
     samples = [r for r in sink.records if type(r).__name__ == "SampleData"]
     assert samples[-1].quality[0] == "open_circuit" and samples[-1].quality[20] == "ok"
+
+
+def test_jittered_samples_are_all_stored(loaded_model):
+    """Issue 13.6: stamps jittered around the 10 s period: one stored row per sample, none dropped."""
+    run = plant_run([Segment(600.0, 3000.0, 2.0, 23.2)])
+    rng = np.random.default_rng(3)
+    samples = [
+        dataclasses.replace(s, t=s.t + timedelta(seconds=float(rng.uniform(-2.0, 2.0))))
+        for s in samples_of(run)
+    ]
+    ring = ring_of()
+    sink = ListSink()
+    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=sink)
+    feed(core, ring, samples)
+    stored = [r.t for r in sink.records if type(r).__name__ == "SampleData"]
+    assert stored == [s.t for s in samples]
 
 
 @pytest.fixture(scope="module")

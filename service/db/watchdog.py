@@ -1,0 +1,171 @@
+"""Client-side statement timeout: a hung database (a frozen link, no RST) cannot hold a thread for ever.
+
+A frozen network path between the service and PostgreSQL is invisible to every server-side or kernel timeout:
+the server never sees the statement (``statement_timeout`` never starts), and the kernel of whatever sits in
+between keeps acknowledging data and keepalive probes. psycopg then waits in ``recv`` without limit. So the
+service measures its own database operations:
+
+- ``StatementWatchdog.guard(what)`` brackets one operation (a write batch, a probe, an API read);
+- ``busy_s()`` is the age of the oldest operation still running: ``/healthz`` says db ``degraded`` when it
+  exceeds a few seconds (``service.service``), long before anything times out;
+- a daemon thread aborts every open connection of the engine once an operation runs longer than
+  ``abort_after_s``: for psycopg it shuts the socket down (the blocked ``recv`` returns, psycopg raises
+  ``OperationalError``, translated to ``DatabaseUnavailableError``: the writer buffers and retries); for
+  SQLite it calls ``sqlite3.Connection.interrupt()``.
+
+All connections are aborted, not just the stuck one: an operation older than ``abort_after_s`` (longer than
+the server-side ``statement_timeout`` that cancels a merely slow statement) means the link itself is frozen,
+and the other connections of the pool share it. Each engine (the writer's, the API reads') has its own
+watchdog. Times here are wall (monotonic) seconds, not the service's clock: they bound real waiting.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import itertools
+import logging
+import os
+import socket
+import threading
+import time
+from collections.abc import Callable, Iterator
+from typing import Any
+
+from sqlalchemy import Engine, event
+
+log = logging.getLogger(__name__)
+
+__all__ = ["StatementWatchdog", "abort_connection"]
+
+
+def abort_connection(dbapi_conn: Any) -> bool:
+    """Make a blocked call on ``dbapi_conn`` (psycopg 3 or sqlite3) return with an error; True if done."""
+    pgconn = getattr(dbapi_conn, "pgconn", None)
+    if pgconn is not None:
+        try:
+            fd = os.dup(pgconn.socket)
+        except Exception:  # closed already
+            return False
+        with socket.socket(fileno=fd) as sock, contextlib.suppress(OSError):
+            sock.shutdown(socket.SHUT_RDWR)
+        return True
+    interrupt = getattr(dbapi_conn, "interrupt", None)
+    if callable(interrupt):
+        with contextlib.suppress(Exception):
+            interrupt()
+            return True
+    return False
+
+
+class StatementWatchdog:
+    """See the module docstring. ``start()`` the checking thread; ``close()`` stops it."""
+
+    def __init__(
+        self,
+        engine: Engine,
+        *,
+        abort_after_s: float,
+        poll_s: float = 0.25,
+        monotonic: Callable[[], float] = time.monotonic,
+        name: str = "chtc-db-watchdog",
+    ) -> None:
+        if not abort_after_s > 0 or not poll_s > 0:
+            raise ValueError("need abort_after_s > 0 and poll_s > 0")
+        self.abort_after_s = abort_after_s
+        self.poll_s = poll_s
+        self._monotonic = monotonic
+        self._lock = threading.Lock()
+        self._running: dict[int, tuple[str, float]] = {}
+        self._aborted: set[int] = set()  # operations whose connections were aborted already
+        self._ids = itertools.count()
+        self._conns: dict[int, Any] = {}
+        self.aborts = 0
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        event.listen(engine, "connect", self._on_connect)
+        event.listen(engine, "close", self._on_close)
+        event.listen(engine, "close_detached", self._on_close)
+
+    # --- connections ------------------------------------------------------------------------------
+    def _on_connect(self, dbapi_conn: Any, _record: Any) -> None:
+        with self._lock:
+            self._conns[id(dbapi_conn)] = dbapi_conn
+
+    def _on_close(self, dbapi_conn: Any, *_: Any) -> None:
+        with self._lock:
+            self._conns.pop(id(dbapi_conn), None)
+
+    # --- operations -------------------------------------------------------------------------------
+    @contextlib.contextmanager
+    def guard(self, what: str) -> Iterator[None]:
+        """Bracket one database operation (thread-safe, nestable)."""
+        key = next(self._ids)
+        with self._lock:
+            self._running[key] = (what, self._monotonic())
+        try:
+            yield
+        finally:
+            with self._lock:
+                self._running.pop(key, None)
+                self._aborted.discard(key)
+
+    def busy(self) -> tuple[str, float] | None:
+        """(what, seconds) of the oldest operation still running, or None when idle."""
+        with self._lock:
+            if not self._running:
+                return None
+            what, t0 = min(self._running.values(), key=lambda v: v[1])
+        return what, self._monotonic() - t0
+
+    def busy_s(self) -> float | None:
+        b = self.busy()
+        return None if b is None else b[1]
+
+    def check(self) -> int:
+        """Abort every connection once per operation older than ``abort_after_s``; returns how many."""
+        now = self._monotonic()
+        with self._lock:
+            late = [
+                (k, what, now - t0)
+                for k, (what, t0) in self._running.items()
+                if now - t0 > self.abort_after_s and k not in self._aborted
+            ]
+            if not late:
+                return 0
+            self._aborted.update(k for k, _, _ in late)
+            conns = list(self._conns.values())
+        n = self._abort(conns)
+        _, what, age = late[0]
+        log.warning("database: %s not answered for %.1f s: aborted %d connection(s)", what, age, n)
+        return n
+
+    def _abort(self, conns: list[Any]) -> int:
+        self.aborts += 1
+        return sum(abort_connection(c) for c in conns)
+
+    # --- thread -----------------------------------------------------------------------------------
+    def start(self) -> StatementWatchdog:
+        self._thread.start()
+        return self
+
+    def close(self) -> None:
+        """Stop checking; an operation still running is aborted (a thread stuck on a hung database would
+        otherwise keep the process from exiting: a read pool's threads are joined at interpreter exit)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join(timeout=2.0)
+        deadline = self._monotonic() + 2.0
+        if self.busy() is not None:
+            log.warning("database: closing with an operation still waiting: aborting its connections")
+        while self.busy() is not None and self._monotonic() < deadline:
+            with self._lock:
+                conns = list(self._conns.values())
+            self._abort(conns)  # again until it ends: a statement may start just after an abort
+            time.sleep(self.poll_s)
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.poll_s):
+            try:
+                self.check()
+            except Exception:  # never let the watchdog die
+                log.exception("database watchdog")
