@@ -16,9 +16,9 @@ semi-definite).
 Process noise (``NoiseModel``; docs/estimator.md for the figures). The errors of H and of the bearing heats
 are persistent, not white: treated as white noise per step they left the filter 3–4× overconfident (sensor
 error 0.05–0.07 °C against a claimed 1σ of 0.016 °C with H 30 % off). They are therefore *considered*
-parameters (Schmidt–Kalman filter; Simon 2006, sec. 7.5): relative errors p (9,) of H1..H7, Q_f, Q_r with zero
-mean and 1σ ``h_rel``, ``load_rel``, first-order Gauss–Markov in time (correlation time ``param_tau_s``), whose
-effect on the step a⁺ = A·a + G·z_r + J·p is linearised about the predicted mean,
+parameters (Schmidt–Kalman filter; Simon 2006, sec. 7.5): relative errors p (9,) of H1..H7, Q_f, Q_r with
+zero mean and 1σ ``h_rel``, ``load_rel``, first-order Gauss–Markov in time (correlation time ``param_tau_s``),
+whose effect on the step a⁺ = A·a + G·z_r + J·p is linearised about the predicted mean,
 
     ∂a⁺/∂p_i = G·(T_amb·z_i,r − K_i,r·(θ·a⁺ + (1−θ)·a))·H_i,   ∂a⁺/∂p_Q = G·q_r·Q,
 
@@ -27,7 +27,7 @@ identification estimates H). White parts: the ambient's error (``ambient_c`` [°
 one-step defect vs the full FE (``model_cov``, ``model.estimator_noise.rom_defect_cov``).
 
 Measurement noise R = (σ_meas² + σ_model²)·I over the used channels: the DAQ's noise plus the model's error
-at the sensors that does not live in the reduced state (mesh and ROM error, ~0.02–0.05 °C).
+at the sensors that does not live in the reduced state (mesh and ROM error; default 0.02 °C).
 
 State: only a. No augmentation: a uniform offset of the field is already a state direction (the uniform
 field is the first basis vector), and per-channel offsets come from calibration (``offsets_c``).
@@ -294,7 +294,8 @@ class Convergence:
 
 @lru_cache(maxsize=256)
 def chi2_band(dof: int, alpha: float) -> tuple[float, float]:
-    """Two-sided (1 − alpha) region of a χ²(dof) variable ((0, inf) for dof 0); cached (scipy's ppf is slow)."""
+    """Two-sided (1 − alpha) region of a χ²(dof) variable ((0, inf) for dof 0); cached (scipy's ppf is
+    slow)."""
     if dof <= 0:
         return (0.0, float("inf"))
     return float(chi2.ppf(alpha / 2, dof)), float(chi2.ppf(1.0 - alpha / 2, dof))
@@ -338,8 +339,8 @@ class NisWindow:
         return self.verdict() == "ok"
 
     def verdict(self) -> str:
-        """ "filling" (not full), "high" (Σ NIS above the band: the filter is overconfident or the model misses
-        something), "low" (below: the filter is more cautious than it needs to be) or "ok"."""
+        """One of "filling" (not full), "high" (Σ NIS above the band: the filter is overconfident or the model
+        misses something), "low" (below: more cautious than it needs to be) or "ok"."""
         if not self.full:
             return "filling"
         lo, hi = self.band()

@@ -192,7 +192,7 @@ def test_bad_arguments_name_the_field(model: Any) -> None:
         est.predict(StepInput(-H, 22.0, 0.0, 0.0))
     with pytest.raises(EstimatorError, match="dt_s"):
         est.predict(StepInput(H, 22.0, 0.0, 0.0, dt_s=0.0))
-    with pytest.raises(EstimatorError, match="inputs.ambient_c"):
+    with pytest.raises(EstimatorError, match=r"inputs\.ambient_c"):
         est.predict(StepInput(H, float("nan"), 0.0, 0.0))
     with pytest.raises(EstimatorError, match="mask"):
         est.update(np.zeros(32), np.ones(31, bool))
