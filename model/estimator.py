@@ -16,9 +16,9 @@ semi-definite).
 Process noise (``NoiseModel``; docs/estimator.md for the figures). The errors of H and of the bearing heats
 are persistent, not white: treated as white noise per step they left the filter 3–4× overconfident (sensor
 error 0.05–0.07 °C against a claimed 1σ of 0.016 °C with H 30 % off). They are therefore *considered*
-parameters (Schmidt–Kalman filter; Simon 2006, sec. 7.5): relative errors p (9,) of H1..H7, Q_f, Q_r with
-zero mean and 1σ ``h_rel``, ``load_rel``, first-order Gauss–Markov in time (correlation time ``param_tau_s``),
-whose effect on the step a⁺ = A·a + G·z_r + J·p is linearised about the predicted mean,
+parameters (Schmidt–Kalman or "consider" filter, Schmidt 1966; Simon 2006): relative errors p (9,) of
+H1..H7, Q_f, Q_r with zero mean and 1σ ``h_rel``, ``load_rel``, first-order Gauss–Markov in time (correlation
+time ``param_tau_s``), whose effect on the step a⁺ = A·a + G·z_r + J·p is linearised about the predicted mean,
 
     ∂a⁺/∂p_i = G·(T_amb·z_i,r − K_i,r·(θ·a⁺ + (1−θ)·a))·H_i,   ∂a⁺/∂p_Q = G·q_r·Q,
 
@@ -27,7 +27,8 @@ identification estimates H). White parts: the ambient's error (``ambient_c`` [°
 one-step defect vs the full FE (``model_cov``, ``model.estimator_noise.rom_defect_cov``).
 
 Measurement noise R = (σ_meas² + σ_model²)·I over the used channels: the DAQ's noise plus the model's error
-at the sensors that does not live in the reduced state (mesh and ROM error; default 0.02 °C).
+at the sensors that does not live in the reduced state (mesh and ROM error; default 0.02 °C). σ_meas comes
+from a setting or from the innovations (``matched_sigma_c``, covariance matching).
 
 State: only a. No augmentation: a uniform offset of the field is already a state direction (the uniform
 field is the first basis vector), and per-channel offsets come from calibration (``offsets_c``).
@@ -276,6 +277,21 @@ def field_std(basis: Array, cov: Array) -> Array:
     """1σ [°C] per row of ``basis`` (nodes (N, r) or sensors (32, r)): √diag(B·P·Bᵀ), O(N·r²)."""
     var = np.einsum("nr,nr->n", basis @ cov, basis)
     return np.asarray(np.sqrt(np.maximum(var, 0.0)))
+
+
+def matched_sigma_c(innovations: ArrayLike, predicted_std_c: ArrayLike, r_var: float) -> float:
+    """Online estimate of the measurement noise 1σ [°C] by covariance matching (Mehra 1972): over a run of
+    samples (n, 32) of ``StepResult.innovation`` (NaN: unused) and ``predicted_std_c``, E[ν²] = C·P⁻·Cᵀ + R,
+    so R ≈ mean(ν² − (S_cc − ``r_var``)). Needs a filter whose P⁻ is about right (after convergence)."""
+    nu = np.asarray(innovations, dtype=np.float64)
+    s = np.asarray(predicted_std_c, dtype=np.float64)
+    if nu.shape != s.shape:
+        raise EstimatorError(f"predicted_std_c: expected shape {nu.shape}, got {s.shape}")
+    ok = np.isfinite(nu) & np.isfinite(s)
+    if not ok.any():
+        raise EstimatorError("innovations: no finite value")
+    excess = nu[ok] ** 2 - (s[ok] ** 2 - float(r_var))
+    return float(np.sqrt(max(float(np.mean(excess)), 0.0)))
 
 
 @dataclass(frozen=True)

@@ -8,7 +8,7 @@ from typing import Any
 import numpy as np
 import pytest
 
-from model.estimator import NisWindow, StateEstimator, convergence, wide_prior
+from model.estimator import NisWindow, NoiseModel, StateEstimator, convergence, matched_sigma_c, wide_prior
 from tests.model_estimator.conftest import PlantData
 
 # an identified H is off by ~20 % (1σ) on the poorly determined coefficients, the filter's default h_rel;
@@ -127,3 +127,24 @@ def test_restart_field_coverage_over_eight_h_errors(model: Any, plant_data: Plan
         coverage.append(_field_check(model, plant_data, res, 60 * SAMPLES_PER_MIN, h_factor)[0])
     assert np.median(coverage) >= 0.99, coverage
     assert min(coverage) >= 0.7, coverage
+
+
+def test_measurement_noise_is_recovered_from_the_innovations(model: Any, plant_data: PlantData) -> None:
+    """A filter told σ = 0.3 °C (twice the plant's 0.15 °C): covariance matching over the innovations after
+    the first 10 min gives back the plant's noise (measured 0.145 °C; 0.148 and 0.150 when told 0.15 and
+    0.08 °C)."""
+    run = plant_data.run
+    est = StateEstimator(
+        model.rom,
+        wide_prior(model.rom, ambient_c=float(run.ambient_c[0])),
+        noise=NoiseModel(sigma_meas_c=0.3),
+    )
+    est.update(run.temps_c[0])
+    innov, std = [], []
+    for k in range(plant_data.inputs.n_steps):
+        res = est.step(plant_data.step_input(k), run.temps_c[k + 1])
+        innov.append(res.innovation)
+        std.append(res.predicted_std_c)
+    sigma = matched_sigma_c(np.asarray(innov)[60:], np.asarray(std)[60:], est.noise.r_var)
+    # the estimate is σ_meas² + σ_model² seen by the data: the plant's noise plus what the model misses
+    assert 0.14 <= sigma <= 0.17, sigma
