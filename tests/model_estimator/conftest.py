@@ -3,15 +3,22 @@ on the plant's finer mesh with its own truth (never the filter's own model outpu
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 
 from model.estimator import StepInput
+from model.fem import build_fe_model
+from model.geometry import load_spindle
 from model.inputs import InputSeries, inputs_from_operation
 from model.plant import PlantRun, Segment, VirtualPlant
+from model.rom import load_or_build_rom
+
+SERVICE_RANK = 30  # service settings' model.rom_rank default
 
 # the issue's restart profile, shortened: 5 min idle, 3000 rpm 60 min, 4000 rpm 45 min (10 N·m, 22 °C)
 PROFILE = (
@@ -34,12 +41,31 @@ class PlantData:
         return StepInput(h, float(inp.ambient_c[k]), float(inp.q_front_w[k]), float(inp.q_rear_w[k]))
 
 
-@pytest.fixture(scope="session")
-def model() -> Any:
-    from service.modelload import ModelRef, load_model
-    from service.settings import default_cache_dir
+@dataclass(frozen=True)
+class Model:
+    spec: Any
+    fe: Any
+    rom: Any
 
-    return load_model(ModelRef(cache_dir=str(default_cache_dir())))
+
+def _cache_dir() -> Path:
+    """The service's reduced-model cache (same rule as ``service.settings.default_cache_dir``), so the
+    rank-30 model is built once per machine and shared with the service and the other tests."""
+    if env := os.environ.get("CHTC_CACHE_DIR"):
+        return Path(env).expanduser()
+    base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
+    return Path(base).expanduser() / "spindle-chtc"
+
+
+@pytest.fixture(scope="session")
+def model() -> Model:
+    """The service's model from ``model/`` alone: packaged spindle, default mesh, reduced model at the
+    service's default rank 30 and box (the service settings' defaults; ~15–40 s to build on a cache miss)."""
+    spec = load_spindle()
+    fe = build_fe_model(spec)
+    cache = _cache_dir()
+    cache.mkdir(parents=True, exist_ok=True)
+    return Model(spec, fe, load_or_build_rom(fe, spec, cache, rank=SERVICE_RANK, box=(5.0, 200.0)))
 
 
 @pytest.fixture(scope="session")
