@@ -59,7 +59,7 @@ class EstimatorError(ValueError):
     """A bad argument to the state estimator; the message names the field."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, eq=False)
 class NoiseModel:
     """Noise levels of the filter (1σ).
 
@@ -78,6 +78,21 @@ class NoiseModel:
     param_tau_s: float = 1800.0
     ambient_c: float = 0.0
     model_cov: Array | None = field(default=None, repr=False)
+
+    def __post_init__(self) -> None:
+        if not (np.isfinite(self.sigma_meas_c) and self.sigma_meas_c > 0.0):
+            raise EstimatorError(f"noise.sigma_meas_c: must be > 0 °C, got {self.sigma_meas_c!r}")
+        for name in ("sigma_model_c", "load_rel", "ambient_c"):
+            value = getattr(self, name)
+            if not (np.isfinite(value) and value >= 0.0):
+                raise EstimatorError(f"noise.{name}: must be finite and >= 0, got {value!r}")
+        h = np.asarray(self.h_rel, dtype=np.float64)
+        if h.shape not in ((), (N_H,)) or not np.all(np.isfinite(h)) or np.any(h < 0.0):
+            raise EstimatorError(f"noise.h_rel: expected one or {N_H} finite values >= 0, got {self.h_rel!r}")
+        if not self.param_tau_s > 0.0:
+            raise EstimatorError(
+                f"noise.param_tau_s: must be > 0 s (inf: constant), got {self.param_tau_s!r}"
+            )
 
     @property
     def r_var(self) -> float:

@@ -200,6 +200,12 @@ def test_bad_arguments_name_the_field(model: Any) -> None:
         est.update(np.zeros(30))
     with pytest.raises(EstimatorError, match="offsets_c"):
         StateEstimator(rom, wide_prior(rom, ambient_c=22.0), offsets_c=np.zeros(3))
+    with pytest.raises(EstimatorError, match=r"noise\.sigma_meas_c"):
+        NoiseModel(sigma_meas_c=0.0)
+    with pytest.raises(EstimatorError, match=r"noise\.h_rel"):
+        NoiseModel(h_rel=(0.1, 0.2))
+    with pytest.raises(EstimatorError, match=r"noise\.param_tau_s"):
+        NoiseModel(param_tau_s=0.0)
     with pytest.raises(EstimatorError, match="estimate"):
         StateEstimator(rom, Estimate(np.zeros(3), np.eye(3), np.zeros((3, N_PARAMS))))
 
