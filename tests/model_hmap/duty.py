@@ -1,0 +1,52 @@
+"""Seeded machining duty cycles on the virtual plant (its finer mesh and its own h_true) for the H-map tests."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+
+from model.hmap_identify import SpeedWindow
+from model.inputs import inputs_from_operation
+from model.plant import PlantRun, Segment, VirtualPlant
+
+SPEEDS_RPM = np.arange(0.0, 7001.0, 500.0)
+
+
+def duty_profile(seed: int, *, duration_s: float, ambient_c: float = 22.0) -> list[Segment]:
+    """Speed changes every 1–6 min (whole minutes) among 0, 500, ..., 7000 rpm, torque 3–15 N·m (0 at rest),
+    ambient drifting within ±1 °C (a slow sinusoid of random phase, held per segment)."""
+    rng = np.random.default_rng(seed)
+    phase, period_s = rng.uniform(0, 2 * np.pi), rng.uniform(2.0, 4.0) * 3600.0
+    out: list[Segment] = []
+    t, last = 0.0, -1.0
+    while t < duration_s - 1e-9:
+        dur = min(60.0 * int(rng.integers(1, 7)), duration_s - t)
+        speed = float(rng.choice(SPEEDS_RPM[SPEEDS_RPM != last]))
+        torque = 0.0 if speed == 0 else float(rng.uniform(3.0, 15.0))
+        amb = ambient_c + np.sin(phase + 2 * np.pi * (t + 0.5 * dur) / period_s)
+        out.append(Segment(dur, speed, torque, round(float(amb), 2)))
+        t, last = t + dur, speed
+    return out
+
+
+@dataclass(frozen=True)
+class DutyRun:
+    profile: list[Segment]
+    run: PlantRun
+
+
+def run_duty(plant: VirtualPlant, seed: int, *, duration_s: float, dt_s: float = 10.0) -> DutyRun:
+    profile = duty_profile(seed, duration_s=duration_s)
+    return DutyRun(profile, plant.run(profile, dt_s=dt_s, rng=np.random.default_rng(seed + 1000)))
+
+
+def window(spec: Any, run: PlantRun, k0: int, k1: int, t0: Any) -> SpeedWindow:
+    """Samples k0..k1 of a plant run as a SpeedWindow (steps k0..k1-1) starting from t0."""
+    speed = run.speed_rpm[k0:k1]
+    inputs = inputs_from_operation(
+        spec, dt_s=float(run.times_s[1] - run.times_s[0]), speed_rpm=speed, torque_nm=run.torque_nm[k0:k1],
+        ambient_c=run.ambient_c[k0:k1],
+    )  # fmt: skip
+    return SpeedWindow(inputs, speed, run.temps_c[k0 : k1 + 1], np.ones(32, dtype=bool), t0)
