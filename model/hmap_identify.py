@@ -35,8 +35,8 @@ import numpy as np
 from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
-from model import hmap, rom_segments
-from model.hmap import Gaussian
+from model import rom_segments
+from model.hmap import DEFAULT_FAMILY, T_REF_C, Family, Gaussian
 
 Array = NDArray[np.float64]
 N_CHANNELS = 32
@@ -88,6 +88,7 @@ class MapFit:
 
     posterior: Gaussian
     prior: Gaussian
+    family: Family
     sigma_c: float
     rmse_c: float
     visited_rpm: Array
@@ -97,16 +98,18 @@ class MapFit:
     wall_s: float = 0.0
     message: str = ""
 
-    def h_at(self, speed_rpm: Any, ambient_c: Any = hmap.T_REF_C) -> tuple[Array, Array, Array]:
+    def h_at(self, speed_rpm: Any, ambient_c: Any = T_REF_C) -> tuple[Array, Array, Array]:
         """H and its 95 % band (each (S, 7) [W/(m²·K)]) at speeds [rpm] and ambient [°C]."""
-        return hmap.h_ci95_at(self.posterior.mean, self.posterior.cov, speed_rpm, ambient_c)
+        return self.family.h_ci95_at(self.posterior.mean, self.posterior.cov, speed_rpm, ambient_c)
 
 
 def _check(window: SpeedWindow, rom: Any) -> tuple[Array, NDArray[np.bool_]]:
     n = int(np.asarray(window.inputs.ambient_c).shape[0])
     meas = np.asarray(window.measured_c, dtype=np.float64)
     if meas.shape != (n + 1, N_CHANNELS):
-        raise HMapIdentifyError(f"window.measured_c: expected shape ({n + 1}, {N_CHANNELS}), got {meas.shape}")
+        raise HMapIdentifyError(
+            f"window.measured_c: expected shape ({n + 1}, {N_CHANNELS}), got {meas.shape}"
+        )
     if np.asarray(window.speed_rpm).shape != (n,):
         raise HMapIdentifyError(f"window.speed_rpm: expected shape ({n},), got {np.shape(window.speed_rpm)}")
     mask = np.asarray(window.mask)
@@ -122,8 +125,17 @@ def _check(window: SpeedWindow, rom: Any) -> tuple[Array, NDArray[np.bool_]]:
 class _Objective:
     """Whitened MAP residuals and their exact Jacobian; one model run per distinct θ."""
 
-    def __init__(self, rom: Any, window: SpeedWindow, prior: Gaussian, meas: Array, usable: Array, sigma: float):
-        self.rom, self.window, self.sigma = rom, window, sigma
+    def __init__(
+        self,
+        rom: Any,
+        window: SpeedWindow,
+        prior: Gaussian,
+        family: Family,
+        data: tuple[Array, Array],
+        sigma: float,
+    ) -> None:
+        meas, usable = data
+        self.rom, self.window, self.sigma, self.family = rom, window, sigma, family
         self.plan = rom_segments.plan_from_speed(window.speed_rpm)
         self.speeds = np.abs(np.asarray(window.speed_rpm, dtype=np.float64)[self.plan.start])
         self.ambients = rom_segments.segment_means(self.plan, window.inputs.ambient_c)
@@ -138,8 +150,8 @@ class _Objective:
 
     def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
         if self._val is None or x.tobytes() != self._key:
-            h = hmap.h_at(x, self.speeds, self.ambients)  # (S, 7)
-            dh = h[:, :, None] * hmap.log_h_jacobian(x, self.speeds, self.ambients)  # (S, 7, p)
+            h = self.family.h_at(x, self.speeds, self.ambients)  # (S, 7)
+            dh = h[:, :, None] * self.family.log_h_jacobian(x, self.speeds, self.ambients)  # (S, 7, p)
             tg = rom_segments.simulate_tangents(
                 self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
             )
@@ -159,21 +171,31 @@ class _Objective:
 
 
 def identify_map(
-    rom: Any, window: SpeedWindow, prior: Gaussian, *, options: MapOptions | None = None
+    rom: Any,
+    window: SpeedWindow,
+    prior: Gaussian,
+    *,
+    family: Family = DEFAULT_FAMILY,
+    options: MapOptions | None = None,
 ) -> MapFit:
-    """MAP fit of θ (21,) of ``model.hmap`` to ``window`` with the reduced model ``rom`` and prior ``prior``.
+    """MAP fit of θ (``family.n_theta``,) to ``window`` with the reduced model ``rom`` and prior ``prior``
+    (a cold start: ``family.prior(spec)``; later: ``forget(previous.posterior, cold, ...)``).
 
-    Raises HMapIdentifyError for a bad window (shapes, mask, too few usable entries) or option.
+    Raises HMapIdentifyError for a bad window (shapes, mask, too few usable entries), prior or option.
     """
     started = time.perf_counter()
     opts = options or MapOptions()
     if not (np.isfinite(opts.sigma_c) and opts.sigma_c > 0):
         raise HMapIdentifyError(f"options.sigma_c: must be > 0 °C, got {opts.sigma_c}")
     meas, usable = _check(window, rom)
-    obj = _Objective(rom, window, prior, meas, usable, opts.sigma_c)
-    lo, hi = hmap.bounds()
+    if prior.mean.shape != (family.n_theta,):
+        raise HMapIdentifyError(
+            f"prior.mean: expected {family.n_theta} values for {family.kind!r}, got {prior.mean.shape}"
+        )
+    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c)
+    lo, hi = family.bounds()
     x0 = np.clip(prior.mean, lo + 1e-9, hi - 1e-9)
-    if opts.level_first:
+    if opts.level_first and family.kind == "physics":
         x0 = _levels_first(obj, x0, lo, hi, opts)
     if opts.method == "trf":
         sol = least_squares(
@@ -192,6 +214,7 @@ def identify_map(
     return MapFit(
         posterior=Gaussian(x, 0.5 * (cov + cov.T)),
         prior=prior,
+        family=family,
         sigma_c=sigma,
         rmse_c=rmse,
         visited_rpm=visited,
@@ -204,7 +227,13 @@ def identify_map(
 
 
 def _levenberg_marquardt(
-    obj: _Objective, x0: Array, lo: Array, hi: Array, opts: MapOptions, *, free: Array | None = None,
+    obj: _Objective,
+    x0: Array,
+    lo: Array,
+    hi: Array,
+    opts: MapOptions,
+    *,
+    free: Array | None = None,
     max_iter: int | None = None,
 ) -> tuple[Array, str]:
     """Bounded Levenberg–Marquardt on the normal equations over the parameters ``free`` (default all):
@@ -242,7 +271,9 @@ def _levels_first(obj: _Objective, x0: Array, lo: Array, hi: Array, opts: MapOpt
     """A start for the full fit: only the levels l0, l1 fitted with the crossovers held (a better
     conditioned 14-parameter problem; the crossovers are the weakly determined, nonlinear part)."""
     idx = np.flatnonzero(np.arange(x0.size) % 3 != 2)
-    x, _ = _levenberg_marquardt(obj, x0, lo, hi, replace(opts, chi2_tol=1.0), free=idx, max_iter=opts.level_nfev)
+    x, _ = _levenberg_marquardt(
+        obj, x0, lo, hi, replace(opts, chi2_tol=1.0), free=idx, max_iter=opts.level_nfev
+    )
     return x
 
 
@@ -252,7 +283,9 @@ def _visited(window: SpeedWindow) -> tuple[Array, Array]:
     return uniq, np.bincount(inv).astype(np.float64) * float(window.inputs.dt_s)
 
 
-def forget(posterior: Gaussian, cold: Gaussian, *, elapsed_h: float, tau_h: float = DEFAULT_TAU_H) -> Gaussian:
+def forget(
+    posterior: Gaussian, cold: Gaussian, *, elapsed_h: float, tau_h: float = DEFAULT_TAU_H
+) -> Gaussian:
     """The next window's prior: information decayed toward the cold-start prior's over ``elapsed_h`` hours,
     Λ' = λΛ + (1−λ)Λ₀ with λ = e^(−elapsed/τ); the mean is kept. Never wider than the cold start."""
     if not (np.isfinite(elapsed_h) and elapsed_h >= 0):

@@ -129,7 +129,11 @@ def simulate_states(
     w = np.empty((p, plan.n_steps, out.shape[2]))
     ends = np.append(plan.start[1:], plan.n_steps)
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
-        z = amb[None, k0:k1, None] * hz[:, s, None, :] + qf[k0:k1, None] * rom.q_front + qr[k0:k1, None] * rom.q_rear
+        z = (
+            amb[None, k0:k1, None] * hz[:, s, None, :]
+            + qf[k0:k1, None] * rom.q_front
+            + qr[k0:k1, None] * rom.q_rear
+        )
         w[:, k0:k1] = z @ np.swapaxes(m_op[:, s], 1, 2)  # M_s·z_k for all steps of the segment
     _recur(out, w, a_op, plan)
     return out
