@@ -5,9 +5,10 @@ MAP estimate: minimise
     Σ_usable (T_model(θ) − T_measured)² / σ²  +  (θ − μ₀)ᵀ Σ₀⁻¹ (θ − μ₀)
 
 with the reduced model evaluated segment by segment (``model.rom_segments``: H_s = F(n_s, Ti_s; θ) for each
-constant-speed segment), by bounded trust-region least squares (scipy TRF, as ``model.identify``'s hybrid
-polish) started at the prior mean. The Jacobian is exact: the tangent-linear model of the reduced θ-method
-times dH/dθ of the family (``model.hmap.log_h_jacobian``). The prior is a regularisation term, so directions
+constant-speed segment), by bounded Levenberg–Marquardt on the normal equations (default; ``method="trf"``
+runs scipy's bounded TRF, as ``model.identify``'s hybrid polish, same optimum, but its SVD of the whole
+m×p Jacobian per iteration costs as much as a model run) started at the prior mean. The Jacobian is exact:
+the tangent-linear model of the reduced θ-method times dH/dθ of the family (``Family.log_h_jacobian``). The prior is a regularisation term, so directions
 that the window does not determine stay at the prior. Posterior covariance (Laplace / Gauss–Newton at the
 optimum): Σ = (JᵀJ/σ̂² + Σ₀⁻¹)⁻¹ with σ̂ = max(σ, RMS residual), so a fit worse than the noise widens the bands.
 
@@ -66,10 +67,13 @@ class SpeedWindow:
 @dataclass(frozen=True)
 class MapOptions:
     """Tuning: ``sigma_c`` the assumed measurement noise [°C] that weighs the data against the prior;
-    ``max_nfev`` TRF evaluations; ``tol`` TRF's ftol/xtol/gtol."""
+    ``max_nfev`` iterations (LM) or evaluations (TRF); ``tol`` TRF's ftol/xtol/gtol; ``method`` "lm" or
+    "trf"; LM: start damping, stop when an accepted step lowers χ² by less than ``chi2_tol`` or moves θ by
+    less than ``step_tol``; ``level_first`` (physics family only): first fit the levels with the crossovers
+    held, ``level_nfev`` iterations."""
 
     sigma_c: float = 0.15
-    max_nfev: int = 40
+    max_nfev: int = 60
     tol: float = 1e-6
     level_first: bool = True
     level_nfev: int = 8
@@ -131,7 +135,7 @@ class _Objective:
         window: SpeedWindow,
         prior: Gaussian,
         family: Family,
-        data: tuple[Array, Array],
+        data: tuple[Array, NDArray[np.bool_]],
         sigma: float,
     ) -> None:
         meas, usable = data
@@ -187,6 +191,8 @@ def identify_map(
     opts = options or MapOptions()
     if not (np.isfinite(opts.sigma_c) and opts.sigma_c > 0):
         raise HMapIdentifyError(f"options.sigma_c: must be > 0 °C, got {opts.sigma_c}")
+    if opts.method not in ("lm", "trf"):
+        raise HMapIdentifyError(f"options.method: expected 'lm' or 'trf', got {opts.method!r}")
     meas, usable = _check(window, rom)
     if prior.mean.shape != (family.n_theta,):
         raise HMapIdentifyError(
@@ -233,7 +239,7 @@ def _levenberg_marquardt(
     hi: Array,
     opts: MapOptions,
     *,
-    free: Array | None = None,
+    free: NDArray[np.intp] | None = None,
     max_iter: int | None = None,
 ) -> tuple[Array, str]:
     """Bounded Levenberg–Marquardt on the normal equations over the parameters ``free`` (default all):

@@ -220,7 +220,7 @@ def fe_sensors(
 
     h = _check_h(np.asarray(h_seg, dtype=np.float64)[None], plan)[0]
     ends = np.append(plan.start[1:], plan.n_steps)
-    field: float | Array = t0 if np.ndim(t0) else float(np.asarray(t0))
+    field: float | Array = np.asarray(t0, dtype=np.float64) if np.ndim(t0) else float(np.asarray(t0))
     parts = []
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
         sens, field = fe_simulate(fe, h[s], inputs.slice(k0, k1), field, theta=theta)

@@ -88,6 +88,15 @@ def test_a_direction_the_window_does_not_see_keeps_its_value(
     assert sd0_after[6] < 0.8 * sd0_before[6]
 
 
+def test_trf_reaches_the_same_optimum(model: Any, duty: DutyRun, cold: Gaussian, fit1: hi.MapFit) -> None:
+    w = window(model.spec, duty.run, 0, 360, float(duty.run.ambient_c[0]))
+    trf = hi.identify_map(model.rom, w, cold, options=hi.MapOptions(method="trf", max_nfev=100, tol=1e-10))
+    speeds = np.unique(w.speed_rpm)
+    sd = NODES.log_h_sd(fit1.posterior.mean, fit1.posterior.cov, speeds)
+    diff = np.abs(NODES.log_h(trf.posterior.mean, speeds) - NODES.log_h(fit1.posterior.mean, speeds))
+    assert np.all(diff < 0.1 * sd)  # LM stops when χ² falls by < 0.1: far inside the band
+
+
 def test_cost_in_model_runs(fit1: hi.MapFit, fit2: hi.MapFit) -> None:
     assert fit1.nfev <= 30  # cold start
     assert fit2.nfev <= 12  # warm: the previous posterior is the start
@@ -119,5 +128,7 @@ def test_window_errors_name_the_field(model: Any, duty: DutyRun, cold: Gaussian)
         hi.identify_map(model.rom, replace(w, mask=np.ones(31, dtype=bool)), cold)
     with pytest.raises(hi.HMapIdentifyError, match="prior.mean"):
         hi.identify_map(model.rom, w, hmap.PHYSICS.prior(model.spec))
+    with pytest.raises(hi.HMapIdentifyError, match="options.method"):
+        hi.identify_map(model.rom, w, cold, options=hi.MapOptions(method="cg"))
     with pytest.raises(hi.HMapIdentifyError, match="sigma_c"):
         hi.identify_map(model.rom, w, cold, options=hi.MapOptions(sigma_c=0.0))
