@@ -1,16 +1,18 @@
-"""Identification of the H map θ (``model.hmap``) from a window in which the speed changes any number of times.
+"""Identification of the H map θ (``model.hmap``) from a window in which the speed changes any number of
+times.
 
 MAP estimate: minimise
 
     Σ_usable (T_model(θ) − T_measured)² / σ²  +  (θ − μ₀)ᵀ Σ₀⁻¹ (θ − μ₀)
 
 with the reduced model evaluated segment by segment (``model.rom_segments``: H_s = F(n_s, Ti_s; θ) for each
-constant-speed segment), by bounded Levenberg–Marquardt on the normal equations (default; ``method="trf"``
-runs scipy's bounded TRF, as ``model.identify``'s hybrid polish, same optimum, but its SVD of the whole
-m×p Jacobian per iteration costs as much as a model run) started at the prior mean. The Jacobian is exact:
-the tangent-linear model of the reduced θ-method times dH/dθ of the family (``Family.log_h_jacobian``). The prior is a regularisation term, so directions
-that the window does not determine stay at the prior. Posterior covariance (Laplace / Gauss–Newton at the
-optimum): Σ = (JᵀJ/σ̂² + Σ₀⁻¹)⁻¹ with σ̂ = max(σ, RMS residual), so a fit worse than the noise widens the bands.
+constant-speed segment), started at the prior mean, by bounded Levenberg–Marquardt on the normal equations
+(default; ``method="trf"`` runs scipy's bounded TRF, as ``model.identify``'s hybrid polish: same optimum,
+but its SVD of the whole m×p Jacobian per iteration costs as much as a model run). The Jacobian is exact:
+the tangent-linear model of the reduced θ-method times dH/dθ of the family (``Family.log_h_jacobian``).
+The prior is a regularisation term, so directions that the window does not determine stay at the prior.
+Posterior covariance (Laplace / Gauss–Newton at the optimum): Σ = (JᵀJ/σ̂² + Σ₀⁻¹)⁻¹ with
+σ̂ = max(σ, RMS residual), so a fit worse than the noise widens the bands.
 
 Chaining: the posterior of one window, passed through ``forget`` for the time elapsed, is the next window's
 prior. ``forget`` decays the information exponentially toward the cold-start prior's information::
@@ -281,6 +283,18 @@ def _levels_first(obj: _Objective, x0: Array, lo: Array, hi: Array, opts: MapOpt
         obj, x0, lo, hi, replace(opts, chi2_tol=1.0), free=idx, max_iter=opts.level_nfev
     )
     return x
+
+
+def predict(rom: Any, window: SpeedWindow, thetas: Any, *, family: Family = DEFAULT_FAMILY) -> Array:
+    """Sensors (P, n_steps+1, 32) [°C] of the reduced model over ``window`` for a population θ (P, p): H per
+    segment from the family at the segment's speed and mean ambient (no fit)."""
+    plan = rom_segments.plan_from_speed(window.speed_rpm)
+    speeds = np.abs(np.asarray(window.speed_rpm, dtype=np.float64)[plan.start])
+    ambients = rom_segments.segment_means(plan, window.inputs.ambient_c)
+    theta = family.check_theta(np.atleast_2d(thetas))
+    return rom_segments.simulate_sensors(
+        rom, family.h_at(theta, speeds, ambients), plan, window.inputs, window.t0
+    )
 
 
 def _visited(window: SpeedWindow) -> tuple[Array, Array]:

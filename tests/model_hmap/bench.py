@@ -17,9 +17,8 @@ import time
 
 import numpy as np
 
-from model import hmap
+from model import hmap, rom_segments
 from model import hmap_identify as hi
-from model import rom_segments
 from model.identify import Window, identify
 from model.inputs import inputs_from_operation
 from model.plant import Segment, VirtualPlant

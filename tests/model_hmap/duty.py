@@ -1,4 +1,4 @@
-"""Seeded machining duty cycles on the virtual plant (its finer mesh and its own h_true) for the H-map tests."""
+"""Seeded machining duty cycles on the virtual plant (finer mesh, its own h_true) for the H-map tests."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ def duty_profile(seed: int, *, duration_s: float, ambient_c: float = 22.0) -> li
     t, last = 0.0, -1.0
     while t < duration_s - 1e-9:
         dur = min(60.0 * int(rng.integers(1, 7)), duration_s - t)
-        speed = float(rng.choice(SPEEDS_RPM[SPEEDS_RPM != last]))
+        speed = float(rng.choice(SPEEDS_RPM[last != SPEEDS_RPM]))
         torque = 0.0 if speed == 0 else float(rng.uniform(3.0, 15.0))
         amb = ambient_c + np.sin(phase + 2 * np.pi * (t + 0.5 * dur) / period_s)
         out.append(Segment(dur, speed, torque, round(float(amb), 2)))

@@ -97,6 +97,18 @@ def test_trf_reaches_the_same_optimum(model: Any, duty: DutyRun, cold: Gaussian,
     assert np.all(diff < 0.1 * sd)  # LM stops when χ² falls by < 0.1: far inside the band
 
 
+def test_predict_population_and_fit_residual(
+    model: Any, duty: DutyRun, cold: Gaussian, fit1: hi.MapFit
+) -> None:
+    w = window(model.spec, duty.run, 0, 360, float(duty.run.ambient_c[0]))
+    thetas = np.stack([fit1.posterior.mean, cold.mean])
+    pred = hi.predict(model.rom, w, thetas)
+    assert pred.shape == (2, 361, 32)
+    rmse = np.sqrt(np.mean((pred[:, 1:] - w.measured_c[1:]) ** 2, axis=(1, 2)))
+    assert rmse[0] == pytest.approx(fit1.rmse_c, rel=1e-9)
+    assert rmse[1] > 5 * rmse[0]  # the cold prior (empirical H) is far off
+
+
 def test_cost_in_model_runs(fit1: hi.MapFit, fit2: hi.MapFit) -> None:
     assert fit1.nfev <= 30  # cold start
     assert fit2.nfev <= 12  # warm: the previous posterior is the start
@@ -126,9 +138,9 @@ def test_window_errors_name_the_field(model: Any, duty: DutyRun, cold: Gaussian)
         hi.identify_map(model.rom, replace(w, speed_rpm=w.speed_rpm[:-1]), cold)
     with pytest.raises(hi.HMapIdentifyError, match="mask"):
         hi.identify_map(model.rom, replace(w, mask=np.ones(31, dtype=bool)), cold)
-    with pytest.raises(hi.HMapIdentifyError, match="prior.mean"):
+    with pytest.raises(hi.HMapIdentifyError, match=r"prior\.mean"):
         hi.identify_map(model.rom, w, hmap.PHYSICS.prior(model.spec))
-    with pytest.raises(hi.HMapIdentifyError, match="options.method"):
+    with pytest.raises(hi.HMapIdentifyError, match=r"options\.method"):
         hi.identify_map(model.rom, w, cold, options=hi.MapOptions(method="cg"))
     with pytest.raises(hi.HMapIdentifyError, match="sigma_c"):
         hi.identify_map(model.rom, w, cold, options=hi.MapOptions(sigma_c=0.0))
