@@ -267,6 +267,11 @@ class Family:
             jac[:, i, i * k : (i + 1) * k] = w
         return jac
 
+    def h_jacobian(self, theta: ArrayLike, speed_rpm: ArrayLike, ambient_c: ArrayLike = T_REF_C) -> Array:
+        """dH_i/dθ (S, 7, p) [W/(m²·K) per unit θ] for one θ (p,): H·d ln H/dθ."""
+        h = self.h_at(theta, speed_rpm, ambient_c)
+        return np.asarray(h[:, :, None] * self.log_h_jacobian(theta, speed_rpm, ambient_c))
+
     def log_h_sd(
         self, theta: ArrayLike, cov: ArrayLike, speed_rpm: ArrayLike, ambient_c: ArrayLike = T_REF_C
     ) -> Array:

@@ -157,7 +157,7 @@ class _Objective:
     def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
         if self._val is None or x.tobytes() != self._key:
             h = self.family.h_at(x, self.speeds, self.ambients)  # (S, 7)
-            dh = h[:, :, None] * self.family.log_h_jacobian(x, self.speeds, self.ambients)  # (S, 7, p)
+            dh = self.family.h_jacobian(x, self.speeds, self.ambients)  # (S, 7, p)
             tg = rom_segments.simulate_tangents(
                 self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
             )

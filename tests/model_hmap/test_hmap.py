@@ -34,6 +34,11 @@ def test_jacobian_matches_finite_differences(family: Family, spec) -> None:  # t
         axis=-1,
     )
     np.testing.assert_allclose(jac, fd, atol=1e-7)
+    e0 = np.eye(family.n_theta)[0]
+    fd_h = (family.h_at(theta + eps * e0, SPEEDS, amb) - family.h_at(theta - eps * e0, SPEEDS, amb)) / (
+        2 * eps
+    )
+    np.testing.assert_allclose(family.h_jacobian(theta, SPEEDS, amb)[:, :, 0], fd_h, rtol=1e-6, atol=1e-7)
 
 
 @pytest.mark.parametrize("family", FAMILIES, ids=lambda f: f.kind)
