@@ -236,7 +236,8 @@ class Family:
         """Lower and upper bounds of θ (p,) each (ln H in ln(0.5..500) W/(m²K); n_c in 30..1e5 rpm)."""
         if self.kind == "nodes":
             return np.full(self.n_theta, LEVEL_BOUNDS[0]), np.full(self.n_theta, LEVEL_BOUNDS[1])
-        return (np.tile([b[k] for b in PHYSICS_BOUNDS], N_ZONES) for k in (0, 1))  # type: ignore[return-value]
+        lo = np.tile([b[0] for b in PHYSICS_BOUNDS], N_ZONES)
+        return lo, np.tile([b[1] for b in PHYSICS_BOUNDS], N_ZONES)
 
     def log_h(self, theta: ArrayLike, speed_rpm: ArrayLike, ambient_c: ArrayLike = T_REF_C) -> Array:
         """ln H [ln W/(m²K)] for θ (..., p) at S conditions (speed [rpm], ambient [°C]): (..., S, 7)."""
