@@ -22,8 +22,7 @@ from model import hmap_identify as hi
 from model.identify import Window, identify
 from model.inputs import inputs_from_operation
 from model.plant import Segment, VirtualPlant
-from tests.model_hmap.coverage import load
-from tests.model_hmap.duty import window
+from tests.model_hmap.duty import load_service_model, window
 
 
 def forty_segments(seed: int) -> list[Segment]:
@@ -44,7 +43,7 @@ def main() -> None:
     parser.add_argument("--repeat", type=int, default=5)
     parser.add_argument("--family", choices=("nodes", "physics"), default="nodes")
     args = parser.parse_args()
-    model = load()
+    model = load_service_model()
     spec, rom = model.spec, model.rom
     plant = VirtualPlant(spec, seed=3)
     run = plant.run(forty_segments(3), dt_s=10.0)

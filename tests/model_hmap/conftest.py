@@ -8,15 +8,12 @@ from typing import Any
 import pytest
 
 from model.plant import VirtualPlant
-from tests.model_hmap.duty import DutyRun, run_duty
+from tests.model_hmap.duty import DutyRun, load_service_model, run_duty
 
 
 @pytest.fixture(scope="session")
 def model() -> Any:
-    from service.modelload import ModelRef, load_model
-    from service.settings import default_cache_dir
-
-    return load_model(ModelRef(cache_dir=str(default_cache_dir())))
+    return load_service_model()
 
 
 @pytest.fixture(scope="session")

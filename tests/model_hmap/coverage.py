@@ -23,14 +23,7 @@ import numpy as np
 from model import hmap
 from model import hmap_identify as hi
 from model.plant import VirtualPlant, h_true
-from tests.model_hmap.duty import run_duty, window
-
-
-def load() -> Any:
-    from service.modelload import ModelRef, load_model
-    from service.settings import default_cache_dir
-
-    return load_model(ModelRef(cache_dir=str(default_cache_dir())))
+from tests.model_hmap.duty import load_service_model, run_duty, window
 
 
 def score(fit: hi.MapFit, run: Any, k0: int, k1: int) -> dict[str, Any]:
@@ -85,7 +78,7 @@ def main() -> None:
     parser.add_argument("--family", choices=("nodes", "physics"), default="nodes")
     parser.add_argument("--json", action="store_true")
     args = parser.parse_args()
-    model = load()
+    model = load_service_model()
     started = time.perf_counter()
     family = hmap.Family(args.family)
     results = [one_seed(model, s, family) for s in args.seeds]

@@ -2,7 +2,10 @@
 
 from __future__ import annotations
 
+import os
 from dataclasses import dataclass
+from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -12,6 +15,24 @@ from model.inputs import inputs_from_operation
 from model.plant import PlantRun, Segment, VirtualPlant
 
 SPEEDS_RPM = np.arange(0.0, 7001.0, 500.0)
+SERVICE_ROM_RANK = 30  # the service's default (service.modelload.ModelRef), same cache file
+
+
+def load_service_model() -> Any:
+    """Spec, FE model (service mesh) and the cached reduced model the service uses by default, loaded with
+    ``model`` only (the service layer is being restructured): ``.spec``, ``.fe``, ``.rom``."""
+    from model.fem import build_fe_model
+    from model.geometry import load_spindle
+    from model.rom import load_or_build_rom
+
+    cache = os.environ.get("CHTC_CACHE_DIR") or str(
+        Path(os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "spindle-chtc"
+    )
+    Path(cache).mkdir(parents=True, exist_ok=True)
+    spec = load_spindle()
+    fe = build_fe_model(spec)
+    rom = load_or_build_rom(fe, spec, Path(cache), rank=SERVICE_ROM_RANK, box=(5.0, 200.0))
+    return SimpleNamespace(spec=spec, fe=fe, rom=rom)
 
 
 def duty_profile(seed: int, *, duration_s: float, ambient_c: float = 22.0) -> list[Segment]:
