@@ -1,0 +1,318 @@
+"""Identification of the H map θ (``model.hmap``) from a window in which the speed changes any number of
+times.
+
+MAP estimate: minimise
+
+    Σ_usable (T_model(θ) − T_measured)² / σ²  +  (θ − μ₀)ᵀ Σ₀⁻¹ (θ − μ₀)
+
+with the reduced model evaluated segment by segment (``model.rom_segments``: H_s = F(n_s, Ti_s; θ) for each
+constant-speed segment), started at the prior mean, by bounded Levenberg–Marquardt on the normal equations
+(default; ``method="trf"`` runs scipy's bounded TRF, as ``model.identify``'s hybrid polish: same optimum,
+but its SVD of the whole m×p Jacobian per iteration costs as much as a model run). The Jacobian is exact:
+the tangent-linear model of the reduced θ-method times dH/dθ of the family (``Family.log_h_jacobian``).
+The prior is a regularisation term, so directions that the window does not determine stay at the prior.
+Posterior covariance (Laplace / Gauss–Newton at the optimum): Σ = (JᵀJ/σ̂² + Σ₀⁻¹)⁻¹ with
+σ̂ = max(σ, RMS residual), so a fit worse than the noise widens the bands.
+
+Chaining: the posterior of one window, passed through ``forget`` for the time elapsed, is the next window's
+prior. ``forget`` decays the information exponentially toward the cold-start prior's information::
+
+    Λ' = e^(−Δt/τ)·Λ + (1 − e^(−Δt/τ))·Λ₀,    Λ = Σ⁻¹,  mean kept
+
+so a direction no window determines relaxes back to the cold-start uncertainty (never wider), and a direction
+that was determined loses half its information in τ·ln 2 (τ = 4 h by default: a change of the machine, e.g. a
+new lubricant state, is followed within a shift).
+
+Errors::
+
+    HMapIdentifyError(ValueError)   bad window, prior or option (the field is named)
+"""
+
+from __future__ import annotations
+
+import time
+from dataclasses import dataclass, field, replace
+from typing import Any
+
+import numpy as np
+from numpy.typing import NDArray
+from scipy.optimize import least_squares
+
+from model import rom_segments
+from model.hmap import DEFAULT_FAMILY, T_REF_C, Family, Gaussian
+
+Array = NDArray[np.float64]
+N_CHANNELS = 32
+DEFAULT_TAU_H = 4.0
+
+
+class HMapIdentifyError(ValueError):
+    """The map identification cannot run as asked; the message names the field."""
+
+
+@dataclass(frozen=True)
+class SpeedWindow:
+    """Data of one map identification.
+
+    inputs: ``model.inputs.InputSeries`` (n_steps; entry k applies on step k → k+1); speed_rpm: (n_steps,)
+    the speed on each step [rpm] (sets the segments); measured_c: (n_steps+1, 32) [°C], NaN = missing;
+    mask: (32,) bool usable channels; t0: uniform start [°C] or (N,) start field of the fitted model's mesh.
+    """
+
+    inputs: Any
+    speed_rpm: Array
+    measured_c: Array
+    mask: NDArray[np.bool_]
+    t0: float | Array
+
+
+@dataclass(frozen=True)
+class MapOptions:
+    """Tuning: ``sigma_c`` the assumed measurement noise [°C] that weighs the data against the prior;
+    ``max_nfev`` iterations (LM) or evaluations (TRF); ``tol`` TRF's ftol/xtol/gtol; ``method`` "lm" or
+    "trf"; LM: start damping, stop when an accepted step lowers χ² by less than ``chi2_tol`` or moves θ by
+    less than ``step_tol``; ``level_first`` (physics family only): first fit the levels with the crossovers
+    held, ``level_nfev`` iterations."""
+
+    sigma_c: float = 0.15
+    max_nfev: int = 60
+    tol: float = 1e-6
+    level_first: bool = True
+    level_nfev: int = 8
+    method: str = "lm"
+    lm_damping: float = 1e-2
+    chi2_tol: float = 0.1
+    step_tol: float = 1e-4
+
+
+@dataclass(frozen=True)
+class MapFit:
+    """Result: ``posterior`` (θ mean and covariance), the ``prior`` it used, ``sigma_c`` the noise level used
+    for the covariance [°C], ``rmse_c`` the fit's RMS residual [°C], the visited speeds [rpm] and seconds
+    spent at each, the window-end field (N,) [°C] of the fitted model (the next window's start), counts and
+    wall time [s]."""
+
+    posterior: Gaussian
+    prior: Gaussian
+    family: Family
+    sigma_c: float
+    rmse_c: float
+    visited_rpm: Array
+    visited_s: Array
+    end_field_c: Array = field(repr=False)
+    nfev: int = 0
+    wall_s: float = 0.0
+    message: str = ""
+
+    def h_at(self, speed_rpm: Any, ambient_c: Any = T_REF_C) -> tuple[Array, Array, Array]:
+        """H and its 95 % band (each (S, 7) [W/(m²·K)]) at speeds [rpm] and ambient [°C]."""
+        return self.family.h_ci95_at(self.posterior.mean, self.posterior.cov, speed_rpm, ambient_c)
+
+
+def _check(window: SpeedWindow, rom: Any) -> tuple[Array, NDArray[np.bool_]]:
+    n = int(np.asarray(window.inputs.ambient_c).shape[0])
+    meas = np.asarray(window.measured_c, dtype=np.float64)
+    if meas.shape != (n + 1, N_CHANNELS):
+        raise HMapIdentifyError(
+            f"window.measured_c: expected shape ({n + 1}, {N_CHANNELS}), got {meas.shape}"
+        )
+    if np.asarray(window.speed_rpm).shape != (n,):
+        raise HMapIdentifyError(f"window.speed_rpm: expected shape ({n},), got {np.shape(window.speed_rpm)}")
+    mask = np.asarray(window.mask)
+    if mask.shape != (N_CHANNELS,) or mask.dtype != bool:
+        raise HMapIdentifyError(f"window.mask: expected ({N_CHANNELS},) bool, got {mask.shape} {mask.dtype}")
+    usable = np.isfinite(meas) & mask[None, :]
+    usable[0] = False
+    if usable.sum() < 30:
+        raise HMapIdentifyError(f"window.measured_c: {int(usable.sum())} usable entries, at least 30 needed")
+    return meas, usable
+
+
+class _Objective:
+    """Whitened MAP residuals and their exact Jacobian; one model run per distinct θ."""
+
+    def __init__(
+        self,
+        rom: Any,
+        window: SpeedWindow,
+        prior: Gaussian,
+        family: Family,
+        data: tuple[Array, NDArray[np.bool_]],
+        sigma: float,
+    ) -> None:
+        meas, usable = data
+        self.rom, self.window, self.sigma, self.family = rom, window, sigma, family
+        self.plan = rom_segments.plan_from_speed(window.speed_rpm)
+        self.speeds = np.abs(np.asarray(window.speed_rpm, dtype=np.float64)[self.plan.start])
+        self.ambients = rom_segments.segment_means(self.plan, window.inputs.ambient_c)
+        self.flat = np.flatnonzero(usable.ravel())
+        self.target = meas.ravel()[self.flat]
+        chol = np.linalg.cholesky(prior.cov)
+        self.whiten = np.linalg.solve(chol, np.eye(chol.shape[0]))  # C⁻¹ with Σ₀ = C·Cᵀ
+        self.mu0 = prior.mean
+        self._key: bytes = b""
+        self._val: tuple[Array, Array, rom_segments.Tangents] | None = None
+        self.runs = 0
+
+    def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
+        if self._val is None or x.tobytes() != self._key:
+            h = self.family.h_at(x, self.speeds, self.ambients)  # (S, 7)
+            dh = self.family.h_jacobian(x, self.speeds, self.ambients)  # (S, 7, p)
+            tg = rom_segments.simulate_tangents(
+                self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
+            )
+            r = tg.sensors.ravel()[self.flat] - self.target
+            j = tg.d_sensors.reshape(dh.shape[2], -1)[:, self.flat].T
+            self._key, self._val, self.runs = x.tobytes(), (r, j, tg), self.runs + 1
+        assert self._val is not None
+        return self._val
+
+    def fun(self, x: Array) -> Array:
+        r, _, _ = self._eval(x)
+        return np.concatenate([r / self.sigma, self.whiten @ (x - self.mu0)])
+
+    def jac(self, x: Array) -> Array:
+        _, j, _ = self._eval(x)
+        return np.vstack([j / self.sigma, self.whiten])
+
+
+def identify_map(
+    rom: Any,
+    window: SpeedWindow,
+    prior: Gaussian,
+    *,
+    family: Family = DEFAULT_FAMILY,
+    options: MapOptions | None = None,
+) -> MapFit:
+    """MAP fit of θ (``family.n_theta``,) to ``window`` with the reduced model ``rom`` and prior ``prior``
+    (a cold start: ``family.prior(spec)``; later: ``forget(previous.posterior, cold, ...)``).
+
+    Raises HMapIdentifyError for a bad window (shapes, mask, too few usable entries), prior or option.
+    """
+    started = time.perf_counter()
+    opts = options or MapOptions()
+    if not (np.isfinite(opts.sigma_c) and opts.sigma_c > 0):
+        raise HMapIdentifyError(f"options.sigma_c: must be > 0 °C, got {opts.sigma_c}")
+    if opts.method not in ("lm", "trf"):
+        raise HMapIdentifyError(f"options.method: expected 'lm' or 'trf', got {opts.method!r}")
+    meas, usable = _check(window, rom)
+    if prior.mean.shape != (family.n_theta,):
+        raise HMapIdentifyError(
+            f"prior.mean: expected {family.n_theta} values for {family.kind!r}, got {prior.mean.shape}"
+        )
+    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c)
+    lo, hi = family.bounds()
+    x0 = np.clip(prior.mean, lo + 1e-9, hi - 1e-9)
+    if opts.level_first and family.kind == "physics":
+        x0 = _levels_first(obj, x0, lo, hi, opts)
+    if opts.method == "trf":
+        sol = least_squares(
+            obj.fun, x0, jac=obj.jac, bounds=(lo, hi), method="trf", x_scale="jac",
+            ftol=opts.tol, xtol=opts.tol, gtol=opts.tol, max_nfev=opts.max_nfev,
+        )  # fmt: skip
+        x, message = np.asarray(sol.x), f"TRF: {sol.message}"
+    else:
+        x, message = _levenberg_marquardt(obj, x0, lo, hi, opts)
+    r, j, tg = obj._eval(x)
+    rmse = float(np.sqrt(np.mean(r**2)))
+    sigma = max(opts.sigma_c, rmse)
+    info = j.T @ j / sigma**2 + obj.whiten.T @ obj.whiten
+    cov = np.linalg.inv(info)
+    visited, seconds = _visited(window)
+    return MapFit(
+        posterior=Gaussian(x, 0.5 * (cov + cov.T)),
+        prior=prior,
+        family=family,
+        sigma_c=sigma,
+        rmse_c=rmse,
+        visited_rpm=visited,
+        visited_s=seconds,
+        end_field_c=np.asarray(rom.lift(tg.states[-1])),
+        nfev=obj.runs,
+        wall_s=time.perf_counter() - started,
+        message=f"{message} ({obj.runs} model runs)",
+    )
+
+
+def _levenberg_marquardt(
+    obj: _Objective,
+    x0: Array,
+    lo: Array,
+    hi: Array,
+    opts: MapOptions,
+    *,
+    free: NDArray[np.intp] | None = None,
+    max_iter: int | None = None,
+) -> tuple[Array, str]:
+    """Bounded Levenberg–Marquardt on the normal equations over the parameters ``free`` (default all):
+    Marquardt's diagonal scaling, steps projected on the bounds, stop when an accepted step lowers χ² by
+    less than ``chi2_tol`` (the residuals are whitened, so that is a change far inside the posterior) or
+    moves θ by less than ``step_tol``. One model run per trial gives residuals and the exact Jacobian;
+    the normal equations are p×p, where scipy's TRF takes an SVD of the whole m×p Jacobian per iteration
+    (as costly as a model run here)."""
+    idx = np.arange(x0.size) if free is None else free
+    x = x0.copy()
+    r, j = obj.fun(x), obj.jac(x)[:, idx]
+    cost, damping = float(r @ r), opts.lm_damping
+    n_iter = opts.max_nfev if max_iter is None else max_iter
+    for it in range(n_iter):
+        a, g = j.T @ j, j.T @ r
+        step = np.linalg.solve(a + damping * np.diag(np.maximum(np.diag(a), 1e-12)), -g)
+        trial = x.copy()
+        trial[idx] = np.clip(x[idx] + step, lo[idx], hi[idx])
+        r_t = obj.fun(trial)
+        cost_t = float(r_t @ r_t)
+        if cost_t >= cost:
+            damping *= 4.0
+            if damping > 1e8:
+                return x, f"LM: no further decrease after {it + 1} iterations"
+            continue
+        gain = cost - cost_t  # decrease of χ²
+        x, r, j, cost = trial, r_t, obj.jac(trial)[:, idx], cost_t
+        damping = max(damping / 3.0, 1e-7)
+        if gain < opts.chi2_tol or np.max(np.abs(step)) < opts.step_tol:
+            return x, f"LM: converged in {it + 1} iterations"
+    return x, f"LM: stopped after {n_iter} iterations"
+
+
+def _levels_first(obj: _Objective, x0: Array, lo: Array, hi: Array, opts: MapOptions) -> Array:
+    """A start for the full fit: only the levels l0, l1 fitted with the crossovers held (a better
+    conditioned 14-parameter problem; the crossovers are the weakly determined, nonlinear part)."""
+    idx = np.flatnonzero(np.arange(x0.size) % 3 != 2)
+    x, _ = _levenberg_marquardt(
+        obj, x0, lo, hi, replace(opts, chi2_tol=1.0), free=idx, max_iter=opts.level_nfev
+    )
+    return x
+
+
+def predict(rom: Any, window: SpeedWindow, thetas: Any, *, family: Family = DEFAULT_FAMILY) -> Array:
+    """Sensors (P, n_steps+1, 32) [°C] of the reduced model over ``window`` for a population θ (P, p): H per
+    segment from the family at the segment's speed and mean ambient (no fit)."""
+    plan = rom_segments.plan_from_speed(window.speed_rpm)
+    speeds = np.abs(np.asarray(window.speed_rpm, dtype=np.float64)[plan.start])
+    ambients = rom_segments.segment_means(plan, window.inputs.ambient_c)
+    theta = family.check_theta(np.atleast_2d(thetas))
+    return rom_segments.simulate_sensors(
+        rom, family.h_at(theta, speeds, ambients), plan, window.inputs, window.t0
+    )
+
+
+def _visited(window: SpeedWindow) -> tuple[Array, Array]:
+    speeds = np.abs(np.asarray(window.speed_rpm, dtype=np.float64))
+    uniq, inv = np.unique(speeds, return_inverse=True)
+    return uniq, np.bincount(inv).astype(np.float64) * float(window.inputs.dt_s)
+
+
+def forget(
+    posterior: Gaussian, cold: Gaussian, *, elapsed_h: float, tau_h: float = DEFAULT_TAU_H
+) -> Gaussian:
+    """The next window's prior: information decayed toward the cold-start prior's over ``elapsed_h`` hours,
+    Λ' = λΛ + (1−λ)Λ₀ with λ = e^(−elapsed/τ); the mean is kept. Never wider than the cold start."""
+    if not (np.isfinite(elapsed_h) and elapsed_h >= 0):
+        raise HMapIdentifyError(f"elapsed_h: must be >= 0 h, got {elapsed_h}")
+    if not (np.isfinite(tau_h) and tau_h > 0):
+        raise HMapIdentifyError(f"tau_h: must be > 0 h, got {tau_h}")
+    lam = float(np.exp(-elapsed_h / tau_h))
+    info = lam * np.linalg.inv(posterior.cov) + (1.0 - lam) * np.linalg.inv(cold.cov)
+    cov = np.linalg.inv(info)
+    return Gaussian(posterior.mean.copy(), 0.5 * (cov + cov.T))

@@ -1,0 +1,85 @@
+"""The reduced model over windows whose H change from segment to segment (model.rom_segments)."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pytest
+
+from model import rom_segments as rs
+from model.inputs import InputSeries, inputs_from_operation
+from model.rom_segments import SegmentError, SegmentPlan
+
+
+def _window(spec: Any, n_seg: int = 12, seed: int = 0) -> tuple[SegmentPlan, InputSeries, np.ndarray]:
+    rng = np.random.default_rng(seed)
+    lengths = 1 + rng.multinomial(120 - n_seg, np.ones(n_seg) / n_seg)
+    speeds = np.repeat(np.arange(n_seg) * 500.0 + 500.0, lengths)  # consecutive speeds differ
+    inputs = inputs_from_operation(
+        spec, dt_s=10.0, speed_rpm=speeds, torque_nm=np.repeat(rng.uniform(3, 15, n_seg), lengths),
+        ambient_c=22.0 + 0.5 * np.sin(np.arange(speeds.size) / 30.0),
+    )  # fmt: skip
+    return rs.plan_from_speed(speeds), inputs, rng.uniform(8.0, 150.0, (n_seg, 7))
+
+
+def test_plan_from_speed() -> None:
+    plan = rs.plan_from_speed([0.0, 0.0, 3000.0, 3000.0, 3000.0, 0.0])
+    np.testing.assert_array_equal(plan.start, [0, 2, 5])
+    np.testing.assert_array_equal(plan.of_step, [0, 0, 1, 1, 1, 2])
+    np.testing.assert_allclose(rs.segment_means(plan, [1, 3, 2, 2, 5, 7]), [2.0, 3.0, 7.0])
+
+
+def test_one_h_for_all_segments_is_the_reduced_model(model: Any) -> None:
+    plan, inputs, h = _window(model.spec)
+    same = np.repeat(h[:1], plan.n_segments, axis=0)[None]
+    ours = rs.simulate_sensors(model.rom, same, plan, inputs, 21.0)
+    ref = model.rom.simulate_sensors(h[:1], inputs, 21.0)
+    np.testing.assert_allclose(ours, ref, atol=1e-9)
+
+
+def test_switching_h_matches_the_full_fe_to_the_rom_accuracy(model: Any) -> None:
+    """Full FE with K(H_s) switched at each segment start (field carried over) vs the reduced model."""
+    plan, inputs, h = _window(model.spec)
+    ours = rs.simulate_sensors(model.rom, h[None], plan, inputs, 21.0)[0]
+    ref, _ = rs.fe_sensors(model.fe, h, plan, inputs, 21.0, theta=model.rom.theta)
+    assert (ref - 21.0).max() > 3.0  # the window heats the spindle: the comparison is not trivial
+    assert np.abs(ours - ref).max() <= 1.5 * model.rom.error_report["max_err_c"]
+
+
+def test_population_equals_single_runs(model: Any) -> None:
+    plan, inputs, h = _window(model.spec)
+    pop = np.stack([h, h * 0.7, h * 1.3])
+    out = rs.simulate_sensors(model.rom, pop, plan, inputs, 21.0)
+    assert out.shape == (3, plan.n_steps + 1, 32)
+    for p in range(3):
+        np.testing.assert_allclose(
+            out[p], rs.simulate_sensors(model.rom, pop[p : p + 1], plan, inputs, 21.0)[0]
+        )
+
+
+def test_tangents_are_the_derivative(model: Any) -> None:
+    plan, inputs, h = _window(model.spec)
+    dh = np.random.default_rng(1).normal(size=(3, plan.n_segments, 7))
+    tg = rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0)
+    eps = 1e-4
+    plus = rs.simulate_sensors(model.rom, h[None] + eps * dh, plan, inputs, 21.0)
+    minus = rs.simulate_sensors(model.rom, h[None] - eps * dh, plan, inputs, 21.0)
+    fd = (plus - minus) / (2 * eps)
+    assert np.abs(tg.d_sensors).max() > 1e-3
+    np.testing.assert_allclose(tg.d_sensors, fd, atol=1e-8)
+    np.testing.assert_allclose(tg.sensors, rs.simulate_sensors(model.rom, h[None], plan, inputs, 21.0)[0])
+
+
+def test_errors_name_the_argument(model: Any) -> None:
+    plan, inputs, h = _window(model.spec)
+    with pytest.raises(SegmentError, match="h_seg"):
+        rs.simulate_sensors(model.rom, h, plan, inputs, 21.0)
+    with pytest.raises(SegmentError, match="h_seg"):
+        rs.simulate_sensors(model.rom, -h[None], plan, inputs, 21.0)
+    with pytest.raises(SegmentError, match=r"inputs\.ambient_c"):
+        rs.simulate_sensors(model.rom, h[None], plan, inputs.slice(0, 10), 21.0)
+    with pytest.raises(SegmentError, match="dh_seg"):
+        rs.simulate_tangents(model.rom, h, h, plan, inputs, 21.0)
+    with pytest.raises(SegmentError, match="speed_rpm"):
+        rs.plan_from_speed([])
