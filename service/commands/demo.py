@@ -18,13 +18,14 @@ import asyncio
 import contextlib
 import logging
 import signal
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from service.commands._common import check_listen, override, port_number, positive_float
 
 SPEEDS_RPM = (3000.0, 4000.0, 5000.0, 4000.0, 3000.0)
 AMBIENT_C = (23.2, 21.8, 22.0, 22.5, 23.0)
@@ -35,13 +36,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
     )
-    parser.add_argument("--host", default="127.0.0.1", help="API/dashboard host (default 127.0.0.1)")
-    parser.add_argument("--port", type=int, default=8000, help="API/dashboard port; 0 picks a free one")
+    parser.add_argument("--host", default="127.0.0.1", help="API/dashboard host")
+    parser.add_argument(
+        "--port", type=port_number, default=8000, help="API/dashboard port; 0 picks a free one"
+    )
     parser.add_argument(
         "--speedup",
-        type=float,
+        type=positive_float,
         default=60.0,
-        help="plant seconds per wall second (default 60: 1 h per minute)",
+        help="plant seconds per wall second (60: 1 h/min)",
     )
     parser.add_argument(
         "--database-url", default=None, help="SQLAlchemy URL (default: a fresh SQLite file in a temp dir)"
@@ -50,9 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--duration", type=float, default=None, help="stop after this many wall seconds (default: Ctrl-C)"
     )
     parser.add_argument("--seed", type=int, default=0, help="plant noise seed and identification seed")
-    parser.add_argument(
-        "--segment-min", type=float, default=60.0, help="plant minutes per speed (default 60)"
-    )
+    parser.add_argument("--segment-min", type=positive_float, default=60.0, help="plant minutes per speed")
     parser.add_argument("--quiet", action="store_true", help="only print the URL and errors")
 
 
@@ -71,7 +72,8 @@ def build_profile(segment_min: float, *, idle_min: float = 5.0) -> list[Any]:
 
 
 def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
-    """Settings from ``--config`` with the demo's API address, database and seed."""
+    """Settings from ``--config`` with the demo's API address, database and seed, validated
+    (``SettingsError`` / ``CommandError`` naming the key)."""
     from service.settings import load_settings
 
     s = load_settings(args.config)
@@ -80,13 +82,9 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
         from service.runtime import free_port
 
         port = free_port(args.host)
-    return s.model_copy(
-        update={
-            "api": s.api.model_copy(update={"host": args.host, "port": port}),
-            "database": s.database.model_copy(update={"url": db_url}),
-            "identification": s.identification.model_copy(update={"seed": args.seed}),
-        }
-    )
+    s = override(s, "api", host=args.host, port=port)
+    s = override(s, "database", url=db_url)
+    return override(s, "identification", seed=args.seed)
 
 
 class Printer:
@@ -114,19 +112,13 @@ class Printer:
         print(line, flush=True)
 
 
-async def run_demo(args: argparse.Namespace) -> int:
+async def run_demo(args: argparse.Namespace, settings: Any) -> int:
     from model.geometry import load_spindle
     from model.plant import VirtualPlant
     from service.runtime import Runtime, ScaledClock
     from service.simrig import SimAddress, make_drivers, plant_rig
 
-    tmp = None
-    if args.database_url is None:
-        tmp = tempfile.TemporaryDirectory(prefix="chtc-demo-")
-        db_url = f"sqlite:///{Path(tmp.name) / 'demo.db'}"
-    else:
-        db_url = args.database_url
-    settings = demo_settings(args, db_url)
+    db_url = settings.database.url
     clock = ScaledClock(args.speedup)
     print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
     runtime = Runtime(settings, clock=clock, on_event=lambda m: None)
@@ -165,8 +157,6 @@ async def run_demo(args: argparse.Namespace) -> int:
         await runtime.stop()
         if rig is not None:
             await rig.stop()
-        if tmp is not None:
-            tmp.cleanup()
     print("demo stopped", flush=True)
     return 0
 
@@ -191,8 +181,10 @@ def quiet_third_party_logs() -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Settings and the API port are checked before anything slow starts; a problem is one line (exit 2)."""
     quiet_third_party_logs()
-    if args.speedup <= 0:
-        print("chtc demo: --speedup must be > 0", file=sys.stderr)
-        return 2
-    return asyncio.run(run_demo(args))
+    with tempfile.TemporaryDirectory(prefix="chtc-demo-") as tmp:
+        db_url = args.database_url or f"sqlite:///{Path(tmp) / 'demo.db'}"
+        settings = demo_settings(args, db_url)
+        check_listen(settings.api.host, settings.api.port)
+        return asyncio.run(run_demo(args, settings))

@@ -18,13 +18,18 @@ from typing import Any
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("csv", type=Path, help="temperature CSV (chtc record / drivers.logs format)")
     parser.add_argument("can", type=Path, nargs="?", default=None, help="CAN log (.blf/.asc/.log/.csv)")
-    parser.add_argument("--config", type=Path, default=None, help="settings TOML")
+    parser.add_argument(
+        "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
+    )
     parser.add_argument("--seed", type=int, default=None, help="rng seed (default identification.seed)")
     parser.add_argument(
         "--method", default=None, help="identification method (default identification.method)"
     )
     parser.add_argument(
-        "--json", dest="json_out", default=None, help="write the identifications as JSON here"
+        "--json",
+        dest="json_out",
+        default=None,
+        help="write the identifications as JSON to this file, - for stdout (default: no JSON)",
     )
 
 

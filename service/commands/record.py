@@ -158,9 +158,11 @@ async def _poll_once(daq: ModbusDaq, writer: TemperatureCsvWriter, stats: Record
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``chtc record``."""
     parser.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
-    parser.add_argument("--modbus-host", default="127.0.0.1")
-    parser.add_argument("--modbus-port", type=int, default=5020)
-    parser.add_argument("--register-map", type=Path, help="register map TOML (default: SPEC §4 map)")
+    parser.add_argument("--modbus-host", default="127.0.0.1", help="DAQ address")
+    parser.add_argument("--modbus-port", type=int, default=5020, help="DAQ port")
+    parser.add_argument(
+        "--register-map", type=Path, help="register map TOML (default: the device contract, docs/drivers.md)"
+    )
     parser.add_argument("--modbus-timeout", type=float, default=1.0, help="per-request timeout, s")
     parser.add_argument("--interval", type=float, default=1.0, help="DAQ poll period, s (default 1)")
     parser.add_argument("--can-interface", default="remote", help="python-can interface (default remote)")

@@ -22,17 +22,28 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from service.commands._common import CommandError, check_listen, override, port_number, positive_float
 from service.commands.identify import record_dict
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("csv", type=Path, help="temperature CSV (chtc record / drivers.logs format)")
     parser.add_argument("can", type=Path, nargs="?", default=None, help="CAN log (.blf/.asc/.log/.csv)")
-    parser.add_argument("--config", type=Path, default=None, help="settings TOML")
-    parser.add_argument("--speedup", type=float, default=60.0, help="recorded seconds per wall second")
-    parser.add_argument("--database-url", default=None, help="SQLAlchemy URL (default: settings)")
+    parser.add_argument(
+        "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
+    )
+    parser.add_argument(
+        "--speedup", type=positive_float, default=60.0, help="recorded seconds per wall second"
+    )
+    parser.add_argument(
+        "--database-url", default=None, help="SQLAlchemy URL (default: database.url of the settings)"
+    )
     parser.add_argument("--out", type=Path, default=Path("identifications.json"), help=".json or .csv output")
-    parser.add_argument("--api", action="store_true", help="also serve the API/dashboard on settings.api")
+    parser.add_argument("--api", action="store_true", help="also serve the API/dashboard (on --host:--port)")
+    parser.add_argument("--host", default=None, help="with --api: API host (default: api.host, 127.0.0.1)")
+    parser.add_argument(
+        "--port", type=port_number, default=None, help="with --api: API port (default: api.port, 8000)"
+    )
     parser.add_argument(
         "--grace", type=float, default=30.0, help="wall s to wait for running identifications"
     )
@@ -71,6 +82,9 @@ async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
     daq, can_sensor = make_drivers(settings, address, clock=clock)
     try:
         await runtime.start(daq=daq, can=can_sensor, api=args.api)
+        if args.api:
+            await runtime.wait_api()
+            print(f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc)", flush=True)
         await _begin_in_phase(rig, clock, settings.acquisition.sample_period_s / args.speedup)
         await asyncio.sleep(rig.replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
         deadline = time.monotonic() + args.grace
@@ -104,13 +118,15 @@ def main(args: argparse.Namespace) -> int:
     quiet_third_party_logs()
     try:
         settings = load_settings(args.config)
-    except SettingsError as err:
+        if args.database_url is not None:
+            settings = override(settings, "database", url=args.database_url)
+        api = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
+        settings = override(settings, "api", **api) if api else settings
+        if args.api:
+            check_listen(settings.api.host, settings.api.port)
+    except (SettingsError, CommandError) as err:
         print(f"chtc replay: {err}", file=sys.stderr)
         return 2
-    if args.database_url is not None:
-        settings = settings.model_copy(
-            update={"database": settings.database.model_copy(update={"url": args.database_url})}
-        )
     try:
         records = asyncio.run(run_replay(args, settings))
     except (LogFormatError, OSError) as err:
