@@ -1,4 +1,4 @@
-"""The ``chtc`` command line as a newcomer meets it: defaults in ``--help``, one-line errors, early port check."""
+"""The ``chtc`` command line as a newcomer meets it: defaults in ``--help``, one-line errors, port checks."""
 
 from __future__ import annotations
 
