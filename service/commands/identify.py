@@ -121,7 +121,7 @@ def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
             f"{settings.detector.hold_s:g} s)"
         )
     ends = [c.since for c in result.conditions[1:]] + [result.last]
-    for cond, end in zip(result.conditions, ends, strict=True):
+    for cond, end in zip(result.conditions, ends[: len(result.conditions)], strict=True):
         lasted_s = (end - cond.since).total_seconds()
         head = f"condition {cond.id} ({cond.speed_rpm:.0f} rpm, {cond.ambient_c:.1f} °C)"
         if abs(cond.speed_rpm) < 100.0:
@@ -143,7 +143,7 @@ def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
 
 
 def main(args: argparse.Namespace) -> int:
-    from drivers.logs import LogFormatError
+    from drivers.logs import LogFormatError, read_temperature_csv
     from service.logsamples import samples_from_logs
     from service.modelload import ModelRef, load_model
     from service.offline import run_offline
@@ -153,6 +153,7 @@ def main(args: argparse.Namespace) -> int:
     try:
         settings = load_settings(args.config)
         if args.can is None and args.speed_rpm is None:
+            read_temperature_csv(args.csv)  # a broken file is reported first, with its line
             raise ValueError(
                 "no CAN log: the speed and torque are unknown; give the CAN log recorded with the "
                 "temperatures, or state a constant condition with --speed-rpm and --torque-nm"

@@ -1,13 +1,15 @@
 """``chtc replay``: recorded logs -> simulated devices -> the unchanged service; every identification saved.
 
-The temperature CSV is served by the simulated Modbus DAQ row by row and the CAN log is replayed on a private
-virtual CAN channel (``drivers.sim.replay``), at ``--speedup`` recorded seconds per wall second. The service
-runs exactly as in production (drivers, ring buffer, detector, scheduler, worker process, database writer);
-its clock reads the recorded time, so stored timestamps are the log's. When the log ends (plus the time for
-running identifications) every identification is in the database and in ``--out`` (JSON, or CSV by suffix).
+The simulated Modbus DAQ serves the temperature CSV and the CAN log is replayed on a private virtual CAN
+channel (``drivers.sim.replay``), at ``--speedup`` recorded seconds per wall second. The service runs exactly
+as in production (drivers, ring buffer, detector, scheduler, worker process, database writer); its clock
+reads the recorded time, so stored timestamps are the log's. When the log ends (plus the time for running
+identifications) every identification is in the database and in ``--out`` (JSON, or CSV by suffix).
 
-Sample times come from the service's clock, not from the CSV rows, so a replay reproduces ``chtc identify``
-on the same files up to the acquisition's sampling jitter (within one row period); see docs/service.md.
+The DAQ serves the recording reduced to the rows the acquisition samples (``write_acquisition_csv``: one row
+per ``acquisition.sample_period_s``, the newest recorded row at each sample instant), and the acquisition is
+started in phase with them, so a replay sees the same samples as ``chtc identify`` on the same files, also for
+real-time recordings with one jittered row per second; see docs/service.md for what can still differ.
 """
 
 from __future__ import annotations
@@ -17,6 +19,7 @@ import asyncio
 import csv
 import json
 import sys
+import tempfile
 import time
 from datetime import UTC, datetime
 from pathlib import Path
@@ -24,6 +27,7 @@ from typing import Any
 
 from service.commands._common import CommandError, check_listen, override, port_number, positive_float
 from service.commands.identify import record_dict
+from service.logsamples import REPLAY_PHASE, write_acquisition_csv
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -71,6 +75,14 @@ def write_out(path: Path, records: list[Any]) -> None:
 
 
 async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
+    with tempfile.TemporaryDirectory(prefix="chtc-replay-") as tmp:
+        served = Path(tmp) / "acquired.csv"
+        period_s = settings.acquisition.sample_period_s
+        await asyncio.to_thread(write_acquisition_csv, args.csv, args.can, served, period_s=period_s)
+        return await _replay(args, settings, served)
+
+
+async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> list[Any]:
     from service.runtime import Runtime, ScaledClock
     from service.simrig import SimAddress, make_drivers, replay_rig
 
@@ -78,7 +90,7 @@ async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
     runtime = Runtime(settings, clock=clock, on_event=lambda m: print(m, flush=True))
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
-    rig = await replay_rig(args.csv, args.can, address=address, begin=False)
+    rig = await replay_rig(served_csv, args.can, address=address, begin=False)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
     try:
         await runtime.start(daq=daq, can=can_sensor, api=args.api)
@@ -97,7 +109,7 @@ async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
         await rig.stop()
 
 
-async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = 0.3) -> None:
+async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = REPLAY_PHASE) -> None:
     """Start the replay so the acquisition samples ``phase`` of a row period after each recorded row.
 
     The sampler ticks every period from when it started (just now); beginning the replay 0.7 periods before

@@ -54,6 +54,88 @@ def logs(tmp_path_factory):
     return csv_path, can_path
 
 
+@pytest.fixture(scope="module")
+def realtime_logs(tmp_path_factory):
+    """The same plant as ``logs`` recorded as ``chtc record`` does in real time: one row per second at a
+    jittered receive time (each row with its own sensor noise), CAN frames every 0.1 s, also jittered."""
+    run = plant_run(PROFILE, seed=5, mesh_size_m=0.003)
+    rng = np.random.default_rng(11)
+    d = tmp_path_factory.mktemp("realtime")
+    csv_path, can_path = d / "temperatures.csv", d / "can.blf"
+    t_end = float(run.times_s[-1])
+    with TemperatureCsvWriter(csv_path) as w:
+        for j, t in enumerate(np.arange(0.4, t_end, 1.0)):
+            k = min(int(t // 10), len(run.times_s) - 1)
+            stamp = START + timedelta(seconds=float(t + rng.uniform(-0.3, 0.3)))
+            temps = run.temps_c[k] + rng.normal(0.0, 0.05, size=run.temps_c.shape[1])
+            w.write(stamp, temps_c=temps, ambient_c=float(run.ambient_c[k]), status=run.status[k], counter=j)
+    frames = []
+    for j, t in enumerate(np.arange(0.05, t_end, 0.1)):
+        k = min(int(t // 10), len(run.times_s) - 1)
+        data = encode_status(float(run.speed_rpm[k]), float(run.torque_nm[k]), j % 16, 0)
+        ts = (START + timedelta(seconds=float(t + rng.uniform(0.0, 0.02)))).timestamp()
+        frames.append(
+            can.Message(timestamp=ts, arbitration_id=SPINDLE_STATUS_ID, data=data, is_extended_id=False)
+        )
+    write_can_log(can_path, frames)
+    return csv_path, can_path
+
+
+def _rewrite_csv(src, dst, *, keep=lambda t: True, scale=1.0):
+    """A copy of a temperature CSV with only the rows ``keep(t_s after the first row)`` and times scaled."""
+    from drivers.logs import read_temperature_csv
+
+    log = read_temperature_csv(src)
+    t0 = float(log.t_s[0])
+    with TemperatureCsvWriter(dst) as w:
+        for k in range(log.n_rows):
+            rel = float(log.t_s[k]) - t0
+            if keep(rel):
+                stamp = datetime.fromtimestamp(t0 + scale * rel, tz=UTC)
+                w.write(
+                    stamp, temps_c=log.temps_c[k], ambient_c=float(log.ambient_c[k]), status=log.status[k]
+                )
+    return dst
+
+
+def test_acquisition_ticks_follow_the_replay_grid() -> None:
+    from service.logsamples import acquisition_ticks
+
+    rows = np.array([100.2, 101.1, 102.3, 112.9, 125.0])
+    ticks, idx = acquisition_ticks(rows, 100.0, period_s=10.0, phase=0.3)
+    assert ticks.tolist() == pytest.approx([103.0, 113.0, 123.0])  # grid 100, 110, 120 (<= last row 125)
+    assert idx.tolist() == [2, 3, 3]  # newest row at or before each tick
+    ticks, idx = acquisition_ticks(rows, 95.0, period_s=10.0, phase=0.3)
+    assert idx[0] == 0  # before the first row, the first row (as the replayed DAQ shows it)
+
+
+def test_identify_without_a_can_log_says_what_is_missing(logs, capsys):
+    assert cli_main(["identify", str(logs[0])]) == 2
+    err = capsys.readouterr().err
+    assert "no CAN log" in err and "--speed-rpm" in err and "Traceback" not in err
+
+
+def test_identify_with_a_stated_speed_and_torque(logs, tmp_path, capsys):
+    """Without a CAN log, a stated constant condition identifies (here the 3000 rpm part of the log)."""
+    part = _rewrite_csv(logs[0], tmp_path / "t3000.csv", keep=lambda t: 300.0 <= t < 1800.0)
+    out = tmp_path / "stated.json"
+    argv = ["identify", str(part), "--speed-rpm", "3000", "--torque-nm", "5", "--json", str(out)]
+    assert cli_main(argv) == 0
+    ok = [r for r in json.loads(out.read_text()) if r["outcome"] == "ok"]
+    assert ok and all(r["condition"]["speed_rpm"] == 3000.0 for r in ok)
+    assert "stated 3000 rpm, 5 N·m" in capsys.readouterr().out
+
+
+def test_identify_says_why_nothing_was_identified(logs, tmp_path, capsys):
+    """A sped-up simulation recorded with wall-time stamps: 55 min of plant squeezed into 55 s."""
+    squeezed = _rewrite_csv(logs[0], tmp_path / "wall.csv", scale=1.0 / 60.0)
+    assert cli_main(["identify", str(squeezed), "--speed-rpm", "3000", "--torque-nm", "5"]) == 1
+    err = capsys.readouterr().err
+    assert "nothing identified" in err
+    assert "the log covers 0.8 min" in err and "needs 10.0 min of data at one condition" in err
+    assert "chtc record --speedup" in err
+
+
 def _identify(logs, out):
     assert cli_main(["identify", str(logs[0]), str(logs[1]), "--json", str(out)]) == 0
     return json.loads(out.read_text())
@@ -108,6 +190,25 @@ def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path):
         exact,
         [(r.h, o["h_w_m2k"]) for r, o in zip(replayed, offline, strict=True)],
     )
+
+
+@pytest.mark.slow
+def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_path):
+    """One jittered row per second (as chtc record writes): replay used to sample rows one poll apart from
+    identify's, and identify fed every row as a sample, so windows and H differed (13 s and H1 52 vs 200)."""
+    from service.commands.replay import run_replay
+
+    offline = [r for r in _identify(realtime_logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
+    settings = Settings()
+    settings = settings.model_copy(
+        update={"database": settings.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'r.db'}"})}
+    )
+    args = argparse.Namespace(csv=realtime_logs[0], can=realtime_logs[1], speedup=60.0, api=False, grace=30.0)
+    replayed = [r for r in asyncio.run(run_replay(args, settings)) if r.outcome == "ok"]
+    assert len(replayed) == len(offline) >= 4
+    for r, o in zip(replayed, offline, strict=True):
+        assert r.window_from.isoformat() == o["window_from"] and r.window_to.isoformat() == o["window_to"]
+        assert np.allclose(r.h, o["h_w_m2k"], rtol=0.02, atol=0.2), (r.h, o["h_w_m2k"])
 
 
 def _minutes(o: dict) -> float:
