@@ -88,10 +88,16 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
 
 
 class Printer:
-    """Progress lines stamped with the plant time and, for identifications, the plant's true H."""
+    """Progress lines stamped with the plant time and, for identifications, the plant's true H.
 
-    def __init__(self, run: Any, *, quiet: bool) -> None:
+    The truth is the plant's H at the middle of the identified window (``current()``, the record just
+    stored), not at the moment the line is printed: by then the plant may run at the next speed.
+    ``clock`` is the service's (simulated UTC) clock; ``rig.plant_time_s()`` the plant time now.
+    """
+
+    def __init__(self, run: Any, *, quiet: bool, clock: Any = None, current: Any = None) -> None:
         self.run, self.quiet = run, quiet
+        self.clock, self.current = clock, current
         self.rig: Any = None
 
     def __call__(self, msg: str) -> None:
@@ -101,15 +107,23 @@ class Printer:
         h, rem = divmod(int(elapsed), 3600)
         line = f"[plant +{h:02d}:{rem // 60:02d}:{rem % 60:02d}] {msg}"
         if msg.startswith("identification") and " ok:" in msg:
-            k = min(int(np.searchsorted(self.run.times_s, elapsed)), len(self.run.times_s) - 1)
-            line += (
-                "\n"
-                + " " * 17
-                + "plant truth H = ["
-                + ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
-                + "]"
-            )
+            k, where = self._truth_row(elapsed)
+            truth = ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
+            line += f"\n{' ' * 17}plant truth H = [{truth}] ({where})"
         print(line, flush=True)
+
+    def _truth_row(self, elapsed: float) -> tuple[int, str]:
+        """The plant row at the identified window's middle, and how it was chosen."""
+        t_plant, where = elapsed, "now"
+        rec = self.current() if self.current is not None else None
+        if rec is not None and self.clock is not None:
+            mid = rec.window_from + (rec.window_to - rec.window_from) / 2
+            t_plant = elapsed - (self.clock() - mid).total_seconds()
+            where = f"mid-window, {float(self.run.speed_rpm[self._row(t_plant)]):.0f} rpm"
+        return self._row(t_plant), where
+
+    def _row(self, t_plant: float) -> int:
+        return min(int(np.searchsorted(self.run.times_s, t_plant)), len(self.run.times_s) - 1)
 
 
 async def run_demo(args: argparse.Namespace, settings: Any) -> int:
@@ -126,7 +140,7 @@ async def run_demo(args: argparse.Namespace, settings: Any) -> int:
     print("running the virtual plant over the demo profile ...", flush=True)
     plant = VirtualPlant(load_spindle(settings.model.spindle), seed=args.seed)
     run = await asyncio.to_thread(plant.run, build_profile(args.segment_min), dt_s=10.0)
-    printer = Printer(run, quiet=args.quiet)
+    printer = Printer(run, quiet=args.quiet, clock=clock, current=lambda: _current(runtime))
     runtime.on_event = printer
     address = SimAddress.free(speedup=args.speedup)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
@@ -159,6 +173,12 @@ async def run_demo(args: argparse.Namespace, settings: Any) -> int:
             await rig.stop()
     print("demo stopped", flush=True)
     return 0
+
+
+def _current(runtime: Any) -> Any:
+    """The identification record the core stored last (None before the first)."""
+    service = runtime.service
+    return None if service is None else service.core.current
 
 
 def _install_signals(stop: asyncio.Event) -> None:
