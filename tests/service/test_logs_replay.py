@@ -223,3 +223,21 @@ def _minutes(o: dict) -> float:
     a = datetime.fromisoformat(o["window_from"])
     b = datetime.fromisoformat(o["window_to"])
     return (b - a).total_seconds() / 60
+
+
+def test_identify_on_the_shipped_example_recording(tmp_path, capsys):
+    """README's first step: the recording under service/data (made with chtc simulate + chtc record
+    --speedup 10) identifies both conditions."""
+    from pathlib import Path
+
+    data = Path(__file__).resolve().parents[2] / "service" / "data"
+    out = tmp_path / "example.json"
+    argv = ["identify", str(data / "example_temperatures.csv"), str(data / "example_can.blf")]
+    assert cli_main([*argv, "--json", str(out)]) == 0
+    ok = [r for r in json.loads(out.read_text()) if r["outcome"] == "ok"]
+    assert {r["condition"]["speed_rpm"] for r in ok} == {3000.0, 4000.0}
+    assert all(
+        lo <= h <= hi
+        for r in ok
+        for h, lo, hi in zip(r["h_w_m2k"], r["ci95_lo_w_m2k"], r["ci95_hi_w_m2k"], strict=True)
+    )
