@@ -35,7 +35,7 @@ __all__ = [
 ]
 
 
-REPLAY_PHASE = 0.3  # chtc replay's acquisition samples 0.3 periods after each grid point of the recording
+REPLAY_PHASE = 0.5  # chtc replay's acquisition samples half a period after each grid point of the recording
 
 
 @dataclass

@@ -21,7 +21,7 @@ import json
 import sys
 import tempfile
 import time
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
@@ -87,10 +87,13 @@ async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> 
     from service.simrig import SimAddress, make_drivers, replay_rig
 
     clock = ScaledClock(args.speedup)
+    period_s = settings.acquisition.sample_period_s
     runtime = Runtime(settings, clock=clock, on_event=lambda m: print(m, flush=True))
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)
+    origin = datetime.fromtimestamp(rig.replay.t_ref + REPLAY_PHASE * period_s, tz=UTC)
+    runtime.sample_clock = GridClock(clock, origin=origin, period_s=period_s)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
     try:
         await runtime.start(daq=daq, can=can_sensor, api=args.api)
@@ -109,12 +112,32 @@ async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> 
         await rig.stop()
 
 
-async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = REPLAY_PHASE) -> None:
-    """Start the replay so the acquisition samples ``phase`` of a row period after each recorded row.
+class GridClock:
+    """``clock`` snapped to the nearest instant ``origin + k·period_s``: the replay's sample stamps.
 
-    The sampler ticks every period from when it started (just now); beginning the replay 0.7 periods before
-    its next tick makes every sample see the row recorded 0.3 periods earlier (held), with the speed of the
-    same row, after a few DAQ polls: the recorded rows, shifted by a constant 0.3 periods.
+    The acquisition samples on that grid (``_begin_in_phase``), but the event loop wakes it a little late, by
+    more on a loaded machine; stamped with the late time, the live state was stepped over 10 ± δ s and later
+    windows started from a slightly different field than ``chtc identify``'s, which moved poorly identified H
+    far along the fit's flat directions. Snapped, the stamps are exactly identify's (a wake-up later than
+    half a period still snaps to the wrong instant, and one later than 0.7 periods sees the next row).
+    """
+
+    def __init__(self, clock: Any, *, origin: datetime, period_s: float) -> None:
+        self.clock, self.origin, self.period_s = clock, origin, period_s
+
+    def __call__(self) -> datetime:
+        k = round((self.clock() - self.origin).total_seconds() / self.period_s)
+        return self.origin + timedelta(seconds=k * self.period_s)
+
+
+async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = REPLAY_PHASE) -> None:
+    """Start the replay so the acquisition samples ``phase`` of a period after each row it serves.
+
+    The sampler ticks every period from when it started (just now); beginning the replay ``1 − phase``
+    periods before its next tick makes every sample see the served row of the grid point ``phase`` periods
+    earlier (held for a whole period), with the speed at the sample instant. Half a period on either side:
+    a DAQ poll up to half a period late, or a sampler wake-up up to half a period late (``GridClock`` snaps
+    the stamp back), still gives identify's sample.
     """
     await asyncio.sleep(0)  # let the sampler task take its first time reading
     await asyncio.sleep((1.0 - phase) * period_wall_s)

@@ -28,6 +28,13 @@ PROFILE = [
 ]
 
 
+PROFILE_RT = [
+    Segment(300.0, 0.0, 0.0, 22.0),
+    Segment(900.0, 3000.0, 5.0, 22.0),
+    Segment(900.0, 4000.0, 6.0, 22.0),
+]
+
+
 @pytest.fixture(scope="module")
 def logs(tmp_path_factory):
     run = plant_run(PROFILE, seed=5, mesh_size_m=0.003)
@@ -57,8 +64,9 @@ def logs(tmp_path_factory):
 @pytest.fixture(scope="module")
 def realtime_logs(tmp_path_factory):
     """The same plant as ``logs`` recorded as ``chtc record`` does in real time: one row per second at a
-    jittered receive time (each row with its own sensor noise), CAN frames every 0.1 s, also jittered."""
-    run = plant_run(PROFILE, seed=5, mesh_size_m=0.003)
+    jittered receive time (each row with its own sensor noise), CAN frames every 0.1 s, also jittered.
+    Shorter than ``logs``: one 10-min identification per condition, so the test can replay it at 10x."""
+    run = plant_run(PROFILE_RT, seed=5, mesh_size_m=0.003)
     rng = np.random.default_rng(11)
     d = tmp_path_factory.mktemp("realtime")
     csv_path, can_path = d / "temperatures.csv", d / "can.blf"
@@ -182,7 +190,7 @@ def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path):
         assert r.condition.speed_rpm == pytest.approx(o["condition"]["speed_rpm"])
         assert (r.window_to - r.window_from).total_seconds() / 60 == pytest.approx(_minutes(o))
         exact += bool(np.allclose(r.h, o["h_w_m2k"], rtol=0.02, atol=0.2))
-    # The replay samples each recorded row 0.3 periods after it: the same data, the same seeded fit, and the
+    # The replay samples each served row half a period after it: the same data, the same seeded fit, and the
     # same live state at every window start (a rebase replays from half a step before the window end, so a
     # job that finishes samples later, as in the running service, rebases exactly as offline, where it
     # finishes at once). The second condition's windows start from that rebased state.
@@ -203,20 +211,17 @@ def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_
     settings = settings.model_copy(
         update={"database": settings.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'r.db'}"})}
     )
-    # 30x, not 60x: the test shares two cores with other work, and a stall longer than 0.3 periods of wall
-    # time (100 ms here) moves a sample to the next row (docs/service.md)
-    args = argparse.Namespace(csv=realtime_logs[0], can=realtime_logs[1], speedup=30.0, api=False, grace=30.0)
+    # 10x: the test shares two cores with other work (load 10-15 seen), and an event-loop stall longer than
+    # half a period of wall time (500 ms here, 83 ms at 60x) gives a sample other than identify's
+    args = argparse.Namespace(csv=realtime_logs[0], can=realtime_logs[1], speedup=10.0, api=False, grace=30.0)
     replayed = [r for r in asyncio.run(run_replay(args, settings)) if r.outcome == "ok"]
-    assert len(replayed) == len(offline) >= 4
+    assert len(replayed) == len(offline) == 2
     for r, o in zip(replayed, offline, strict=True):
-        for ours, theirs in ((r.window_from, o["window_from"]), (r.window_to, o["window_to"])):
-            assert abs((ours - datetime.fromisoformat(theirs)).total_seconds()) < 5.0  # half a period
-        h, lo, hi = (np.asarray(o[k]) for k in ("h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k"))
-        # sample stamps jitter by event-loop delays, so the live state is stepped over slightly different
-        # intervals and later windows start from a slightly different field; the fit moves along its flat
-        # directions by a small part of the CI (measured: up to 10 % of the CI width, docs/service.md)
-        allowed = np.maximum(0.02 * h + 0.2, 0.1 * (hi - lo))
-        assert np.all(np.abs(np.asarray(r.h) - h) <= allowed), (r.h, h.tolist())
+        assert (r.window_from, r.window_to) == tuple(
+            datetime.fromisoformat(o[k]) for k in ("window_from", "window_to")
+        )  # the sample stamps are identify's (GridClock)
+        h = np.asarray(o["h_w_m2k"])
+        assert np.allclose(r.h, h, rtol=0.02, atol=0.2), (r.h, h.tolist())
 
 
 def _minutes(o: dict) -> float:
