@@ -220,8 +220,11 @@ def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_
         assert (r.window_from, r.window_to) == tuple(
             datetime.fromisoformat(o[k]) for k in ("window_from", "window_to")
         )  # the sample stamps are identify's (GridClock)
-        h = np.asarray(o["h_w_m2k"])
-        assert np.allclose(r.h, h, rtol=0.02, atol=0.2), (r.h, h.tolist())
+        h, lo, hi = (np.asarray(o[k]) for k in ("h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k"))
+        # identified H equal; a poorly identified one (CI half-width > 50 %: the fit is flat along it, and a
+        # worker process's floating point or one sample delayed by a stall moves it) within 5 % of its CI
+        allowed = np.where(o["identified"], 0.02 * h + 0.2, np.maximum(0.02 * h + 0.2, 0.05 * (hi - lo)))
+        assert np.all(np.abs(np.asarray(r.h) - h) <= allowed), (r.h, h.tolist(), o["identified"])
 
 
 def _minutes(o: dict) -> float:
