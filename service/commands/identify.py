@@ -31,10 +31,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--speed-rpm",
         type=float,
         default=None,
-        help="without a CAN log: the spindle speed, constant over the whole log (needs --torque-nm)",
+        help="without a CAN log: the spindle speed, constant over the whole log (default: from the CAN log)",
     )
     parser.add_argument(
-        "--torque-nm", type=float, default=None, help="without a CAN log: the spindle torque, constant"
+        "--torque-nm",
+        type=float,
+        default=None,
+        help="without a CAN log: the spindle torque, constant (default: from the CAN log)",
     )
     parser.add_argument("--seed", type=int, default=None, help="rng seed (default identification.seed)")
     parser.add_argument(
