@@ -140,8 +140,10 @@ class Persistence:
             try:
                 await asyncio.to_thread(_prepare_schema, self.engine, self.migrate)
             except Exception as err:  # database down or schema missing: keep buffering, try again
-                self.sink.last_error = _describe(err)
-                log.info("database not ready: %s", err)
+                text = _describe(err)
+                if text != self.sink.last_error:  # logged once per distinct problem, not every retry
+                    log.info("database not ready: %s", text)
+                self.sink.last_error = text
                 await asyncio.sleep(retry_s)
                 continue
             self.sink.open(_start_writer(self.session_factory, self.settings))

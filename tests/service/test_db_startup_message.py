@@ -29,3 +29,26 @@ def test_unreachable_database_says_so() -> None:
         assert p.sink.status().last_error.startswith("database not reachable")
     finally:
         p.close()
+
+
+def test_retries_log_a_problem_once(tmp_path, caplog) -> None:
+    """The background retry (every 2 s) used to log "database not ready" on every attempt."""
+    import asyncio
+    import logging
+
+    db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'new.db'}"})
+    p = open_persistence(db, migrate=False)
+
+    async def retry_a_few_times() -> None:
+        task = asyncio.ensure_future(p.ensure_open(retry_s=0.01))
+        deadline = asyncio.get_running_loop().time() + 0.5  # dozens of retries at 10 ms
+        while asyncio.get_running_loop().time() < deadline:
+            await asyncio.sleep(0.05)
+        task.cancel()
+
+    try:
+        with caplog.at_level(logging.INFO, logger="service.persistence"):
+            asyncio.run(retry_a_few_times())
+        assert [r for r in caplog.records if "not ready" in r.getMessage()] == []
+    finally:
+        p.close()
