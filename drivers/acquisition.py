@@ -109,14 +109,16 @@ class Acquisition:
     async def run_sampler(self) -> None:
         """Call ``sample()`` every ``period_s`` (on the injected clock, without drift) until cancelled.
 
-        If the loop falls more than one period behind it skips the missed ticks instead of bursting."""
+        If the loop falls more than one period behind it skips the missed ticks instead of bursting, and keeps
+        the phase of the ticks (a replay relies on it: ``chtc replay`` starts the log in phase with them)."""
         next_tick = self._clock() + self.period_s
         while True:
             await self._sleep(max(0.0, next_tick - self._clock()))
             self.sample()
             next_tick += self.period_s
-            if next_tick < self._clock():
-                next_tick = self._clock() + self.period_s
+            behind = self._clock() - next_tick
+            if behind > 0:
+                next_tick += math.ceil(behind / self.period_s) * self.period_s
 
     async def run(self, *, poll_interval_s: float = 1.0) -> None:
         """Run the DAQ poll loop, the CAN receive loop and the sampler together until cancelled."""

@@ -272,8 +272,9 @@ def _validate_channels(m: RegisterMap) -> None:
 
 
 def default_register_map(*, unit_id: int = 1) -> RegisterMap:
-    """The SPEC §4 map: 0–31 channel temperatures and 32 ambient (int16, 0.01 °C/bit), 100–132 status, 200–201
-    uint32 sample counter (big-endian words). Channels 1–12 are bearing sensors, 13–32 housing sensors."""
+    """The device contract's map (docs/drivers.md): 0–31 channel temperatures and 32 ambient (int16,
+    0.01 °C/bit), 100–132 status, 200–201 uint32 sample counter (big-endian words). Channels 1–12 are bearing
+    sensors, 13–32 housing sensors."""
     entries: list[RegisterEntry] = []
     for ch in range(1, 33):
         role: Role = "bearing" if ch <= N_BEARING_CHANNELS else "housing"

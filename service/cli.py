@@ -20,6 +20,8 @@ import sys
 from collections.abc import Sequence
 from types import ModuleType
 
+from service.commands._common import DefaultsHelpFormatter, user_errors
+
 COMMANDS: dict[str, str] = {
     "run": "run the soft sensor against real devices (Modbus DAQ + CAN), with the API and dashboard",
     "demo": "simulated devices + virtual plant + service + API + dashboard on SQLite; prints the URL",
@@ -53,7 +55,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     sub = parser.add_subparsers(dest="command", metavar="COMMAND", required=True)
     wanted = argv[0] if argv else None
     for name, text in COMMANDS.items():
-        p = sub.add_parser(name, help=text, description=text)
+        p = sub.add_parser(name, help=text, description=text, formatter_class=DefaultsHelpFormatter)
         if name == wanted:
             module = _load("service.commands", name)
             module.add_arguments(p)
@@ -62,7 +64,7 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
     bench_sub = bench.add_subparsers(dest="benchmark", metavar="BENCHMARK", required=True)
     wanted_bench = argv[1] if wanted == "bench" and len(argv) > 1 else None
     for name, text in BENCHMARKS.items():
-        p = bench_sub.add_parser(name, help=text, description=text)
+        p = bench_sub.add_parser(name, help=text, description=text, formatter_class=DefaultsHelpFormatter)
         if name == wanted_bench:
             module = _load("service.bench", name)
             module.add_arguments(p)
@@ -87,6 +89,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     except KeyboardInterrupt:
         print("interrupted", file=sys.stderr)
         return 130
+    except Exception as err:  # a user error (bad config, option, file) is one line, not a traceback
+        if not isinstance(err, user_errors()):
+            raise
+        name = args.command if args.command != "bench" else f"bench {args.benchmark}"
+        print(f"chtc {name}: {err}", file=sys.stderr)
+        return 2
 
 
 if __name__ == "__main__":

@@ -29,6 +29,9 @@ class OfflineResult:
     records: list[IdentificationRecord]  # oldest first
     stored: list[Any] = field(default_factory=list)  # the records the database writer would have got
     samples: int = 0
+    conditions: list[Any] = field(default_factory=list)  # ConditionSnapshot, oldest first
+    first: datetime | None = None  # time of the first and the last sample
+    last: datetime | None = None
 
 
 class _ListSink:
@@ -84,10 +87,11 @@ def run_offline(
         restored=restored,
         on_event=on_event,
     )
-    n = 0
+    n, first, last = 0, None, None
     for sample in samples:
         ring.append(sample)
         n += 1
+        first, last = first or sample.t, sample.t
         pending = core.ingest(sample)
         while pending:
             launch = pending.pop(0)
@@ -97,7 +101,14 @@ def run_offline(
             if outcome.status is JobStatus.OK:
                 stepper = core.live.prepare(np.asarray(outcome.result.h, dtype=float))
             pending += core.job_done(outcome, finished_at=finished, stepper=stepper)
-    return OfflineResult(records=list(reversed(core.records)), stored=listed.records, samples=n)
+    return OfflineResult(
+        records=list(reversed(core.records)),
+        stored=listed.records,
+        samples=n,
+        conditions=list(reversed(core.conditions)),
+        first=first,
+        last=last,
+    )
 
 
 def _finished_at(t: datetime, outcome: JobOutcome) -> datetime:

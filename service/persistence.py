@@ -85,6 +85,7 @@ class GateSink:
         self.held: list[Record] = []
         self.max_held = max_held
         self.dropped = 0
+        self.last_error = "database not reachable at start-up (schema not checked yet)"
 
     def submit(self, record: Record) -> bool:
         if self.writer is not None:
@@ -114,7 +115,7 @@ class GateSink:
             rejected=0,
             errors=0,
             lost_on_close=0,
-            last_error="database not reachable at start-up (schema not checked yet)",
+            last_error=self.last_error,
             last_error_at=None,
             last_ok_at=None,
         )
@@ -146,8 +147,11 @@ class Persistence:
         while self.sink.writer is None:
             try:
                 await asyncio.to_thread(self._prepare_guarded)
-            except Exception as err:  # database down: keep buffering, try again
-                log.info("database not ready: %s", err)
+            except Exception as err:  # database down or schema missing: keep buffering, try again
+                text = _describe(err)
+                if text != self.sink.last_error:  # logged once per distinct problem, not every retry
+                    log.info("database not ready: %s", text)
+                self.sink.last_error = text
                 await asyncio.sleep(retry_s)
                 continue
             self.sink.open(
@@ -185,6 +189,17 @@ class Persistence:
         return status
 
 
+class SchemaError(RuntimeError):
+    """The database answers, but its schema is missing or older than this version (``--migrate``)."""
+
+
+def _describe(err: BaseException) -> str:
+    """What the writer's status and the start-up event say: the schema problem, or the unreachable server."""
+    if isinstance(err, SchemaError):
+        return str(err)
+    return f"database not reachable: {err}"
+
+
 def _prepare_schema(engine: Any, migrate: bool) -> None:
     from service.db.migrate import current_revision, head_revision, upgrade
 
@@ -193,8 +208,10 @@ def _prepare_schema(engine: Any, migrate: bool) -> None:
         return
     rev = current_revision(engine)
     if rev != head_revision():
-        raise RuntimeError(
-            f"database schema is at {rev or 'nothing'}, need {head_revision()}: run with --migrate"
+        missing = "has no chtc schema" if rev is None else f"schema is at revision {rev}"
+        raise SchemaError(
+            f"database reachable, but it {missing}; this version needs revision {head_revision()}: "
+            "run once with --migrate (chtc run --migrate)"
         )
 
 
@@ -263,7 +280,8 @@ def open_persistence(
         from_db = True
         sink.open(_start_writer(w_factory, db, clock=clock, watchdog=w_watchdog))
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background
-        say(f"db: not available at start-up ({err}); buffering records and retrying")
+        sink.last_error = _describe(err)
+        say(f"db: not available at start-up ({sink.last_error}); buffering records and retrying")
         restored, from_db = fallback_restored(), False
     reads = DbReads(
         factory,

@@ -111,6 +111,7 @@ class Runtime:
     ring: Any = None
     api_server: Any = None
     acquisition_task: asyncio.Task[Any] | None = None
+    sample_clock: Callable[[], datetime] | None = None  # stamps samples (default: clock); replay: a grid
     api_task: asyncio.Task[Any] | None = None
 
     @property
@@ -163,7 +164,7 @@ class Runtime:
             self.ring,
             period_s=s.acquisition.sample_period_s / self.speedup,
             on_sample=self.service.on_sample,
-            now=self.clock,
+            now=self.sample_clock or self.clock,
         )
         poll = min(s.modbus.poll_interval_s, s.acquisition.sample_period_s / 2.0) / self.speedup
         self.acquisition_task = asyncio.ensure_future(self.acquisition.run(poll_interval_s=poll))

@@ -28,6 +28,7 @@ import numpy as np
 from model.defaults import BOUND_REL_TOL
 from service.core import Launch, ServiceCore
 from service.db.records import DeviceEventData
+from service.devicewatch import DeviceWatch, transition_detail
 from service.interface import (
     LATENCY_BUCKETS_S,
     ChtcSnapshot,
@@ -67,13 +68,6 @@ def utc_now() -> datetime:
     return datetime.now(UTC)
 
 
-def transition_detail(status: DeviceStatus, message: str) -> str:
-    """The detail of a device-state event: on recovery the device's message is its last error, now cleared."""
-    if status is DeviceStatus.OK and message:
-        return f"recovered (last error: {message})"
-    return message
-
-
 class SoftSensorService:
     """See the module docstring. Construct with the parts, ``start()`` on the loop, ``close()`` at the end."""
 
@@ -101,7 +95,7 @@ class SoftSensorService:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._tasks: set[asyncio.Task[Any]] = set()
         self._started_mono = time.monotonic()
-        self._device_state: dict[str, DeviceStatus] = {}
+        self._device_watch = DeviceWatch()
         self._snap_cache: tuple[tuple[Any, ...], ChtcSnapshot] | None = None
         self._steady_cache: tuple[tuple[Any, ...], FieldSnapshot] | None = None
         self._poll_latency = Histogram(LATENCY_BUCKETS_S)
@@ -201,12 +195,8 @@ class SoftSensorService:
     # --- device health (event-loop thread) --------------------------------------------------------------
     async def _watch_health(self, period_s: float = 1.0) -> None:
         while not self.closed:
-            for dev in self._devices():
-                prev = self._device_state.get(dev.name)
-                if prev is not None and prev != dev.status:
-                    detail = transition_detail(dev.status, dev.message)
-                    self.record_event(dev.name, f"{prev.value}->{dev.status.value}", detail)
-                self._device_state[dev.name] = dev.status
+            for event in self._device_watch.observe(self._devices()):
+                self.record_event(event.device, event.kind, event.detail)
             await asyncio.sleep(period_s)
 
     def record_event(self, device: str, kind: str, detail: str = "") -> None:
@@ -459,7 +449,8 @@ class SoftSensorService:
             **m.errors,
             **m.events,
         }
-        message = condition or m.last_error
+        # a recovered device's error is history; a CAN warning/fault status is the reason while it lasts
+        message = condition or (m.last_error if status is not DeviceStatus.OK else "")
         return DeviceHealth(name, status, last_ok, age_s(last_ok, now), counters, message)
 
     def _db_health(self, now: datetime) -> DeviceHealth:

@@ -25,6 +25,8 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import Any
 
+from service.bench.targets import format_verdicts
+
 DEFAULT_PG = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 SAMPLE_PERIOD_S = 10.0
 
@@ -165,4 +167,5 @@ def _table(report: dict[str, Any]) -> str:
     rows.append(
         f"(medians of {report['runs']} runs of {report['seconds']} s; load {report['load_average_1min']})"
     )
+    rows.append(format_verdicts([]) + " (a capacity figure: instances one server carries)")
     return "\n".join(rows)

@@ -31,6 +31,15 @@ from typing import Any
 
 import numpy as np
 
+from service.bench.targets import Target, format_verdicts, verdicts
+
+TARGETS = (  # docs/rom.md, "Target check"
+    Target("full_vs_reference_max_err_c", "<=", 0.02, "°C"),
+    Target("rom_max_err_c", "<=", 0.05, "°C"),
+    Target("speedup_rom_vs_full", ">=", 500.0, "x"),
+    Target("rom_build_s", "<=", 60.0, "s"),
+    Target("rom_load_s", "<=", 1.0, "s"),
+)
 PAPER_H = (
     (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54),  # Table 4, 3000 rpm
     (79.75, 46.25, 61.89, 45.31, 46.20, 68.23, 11.12),  # Table 10, 4000 rpm
@@ -191,6 +200,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
     out["runs"] = args.runs
     out["load_avg_1m"] = os.getloadavg()[0]  # other work on the machine inflates every timing
     out["timestamp_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
+    out["targets"] = verdicts(TARGETS, out)
     return out
 
 
@@ -224,6 +234,7 @@ def format_table(res: dict[str, Any]) -> str:
         f"load average {res['load_avg_1m']:.1f})"
     ]
     lines += [f"  {k.ljust(width)}  {v}" for k, v in rows]
+    lines.append(format_verdicts(res["targets"]))
     return "\n".join(lines)
 
 

@@ -22,6 +22,7 @@ import numpy as np
 from model.optim import OptimizeResult, genetic, grey_wolf, whale
 from model.optim import benchfuncs as bf
 from model.optim.grey_wolf import Variant, Weights, expected_evals_per_iteration
+from service.bench.targets import format_verdicts
 
 Runner = Callable[[bf.BenchmarkFunction, int, int, int], OptimizeResult]
 METHODS = ("igwo-paper", "igwo-normalized", "gwo", "woa", "ga")
@@ -201,6 +202,7 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
         "functions": results,
         "ranking": {n: _ranking(m) for n, m in results.items()},
         "verdict": _verdict(results),
+        "targets": [],
         "total_wall_s": time.perf_counter() - t0,
     }
 
@@ -221,6 +223,7 @@ def _print_tables(out: dict[str, Any]) -> None:
     for name, order in out["ranking"].items():
         print(f"ranking {name:4s}: {' < '.join(order)}")
     print(out["verdict"]["summary"])
+    print(format_verdicts(out["targets"]) + " (a comparison of methods: the ranking above is the result)")
     print(f"total {out['total_wall_s']:.1f} s")
 
 

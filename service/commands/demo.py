@@ -18,13 +18,14 @@ import asyncio
 import contextlib
 import logging
 import signal
-import sys
 import tempfile
 import time
 from pathlib import Path
 from typing import Any
 
 import numpy as np
+
+from service.commands._common import check_listen, override, port_number, positive_float
 
 SPEEDS_RPM = (3000.0, 4000.0, 5000.0, 4000.0, 3000.0)
 AMBIENT_C = (23.2, 21.8, 22.0, 22.5, 23.0)
@@ -35,13 +36,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
     )
-    parser.add_argument("--host", default="127.0.0.1", help="API/dashboard host (default 127.0.0.1)")
-    parser.add_argument("--port", type=int, default=8000, help="API/dashboard port; 0 picks a free one")
+    parser.add_argument("--host", default="127.0.0.1", help="API/dashboard host")
+    parser.add_argument(
+        "--port", type=port_number, default=8000, help="API/dashboard port; 0 picks a free one"
+    )
     parser.add_argument(
         "--speedup",
-        type=float,
+        type=positive_float,
         default=60.0,
-        help="plant seconds per wall second (default 60: 1 h per minute)",
+        help="plant seconds per wall second (60: 1 h/min)",
     )
     parser.add_argument(
         "--database-url", default=None, help="SQLAlchemy URL (default: a fresh SQLite file in a temp dir)"
@@ -50,9 +53,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--duration", type=float, default=None, help="stop after this many wall seconds (default: Ctrl-C)"
     )
     parser.add_argument("--seed", type=int, default=0, help="plant noise seed and identification seed")
-    parser.add_argument(
-        "--segment-min", type=float, default=60.0, help="plant minutes per speed (default 60)"
-    )
+    parser.add_argument("--segment-min", type=positive_float, default=60.0, help="plant minutes per speed")
     parser.add_argument("--quiet", action="store_true", help="only print the URL and errors")
 
 
@@ -71,7 +72,8 @@ def build_profile(segment_min: float, *, idle_min: float = 5.0) -> list[Any]:
 
 
 def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
-    """Settings from ``--config`` with the demo's API address, database and seed."""
+    """Settings from ``--config`` with the demo's API address, database and seed, validated
+    (``SettingsError`` / ``CommandError`` naming the key)."""
     from service.settings import load_settings
 
     s = load_settings(args.config)
@@ -80,20 +82,22 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
         from service.runtime import free_port
 
         port = free_port(args.host)
-    return s.model_copy(
-        update={
-            "api": s.api.model_copy(update={"host": args.host, "port": port}),
-            "database": s.database.model_copy(update={"url": db_url}),
-            "identification": s.identification.model_copy(update={"seed": args.seed}),
-        }
-    )
+    s = override(s, "api", host=args.host, port=port)
+    s = override(s, "database", url=db_url)
+    return override(s, "identification", seed=args.seed)
 
 
 class Printer:
-    """Progress lines stamped with the plant time and, for identifications, the plant's true H."""
+    """Progress lines stamped with the plant time and, for identifications, the plant's true H.
 
-    def __init__(self, run: Any, *, quiet: bool) -> None:
+    The truth is the plant's H at the middle of the identified window (``current()``, the record just
+    stored), not at the moment the line is printed: by then the plant may run at the next speed.
+    ``clock`` is the service's (simulated UTC) clock; ``rig.plant_time_s()`` the plant time now.
+    """
+
+    def __init__(self, run: Any, *, quiet: bool, clock: Any = None, current: Any = None) -> None:
         self.run, self.quiet = run, quiet
+        self.clock, self.current = clock, current
         self.rig: Any = None
 
     def __call__(self, msg: str) -> None:
@@ -103,30 +107,32 @@ class Printer:
         h, rem = divmod(int(elapsed), 3600)
         line = f"[plant +{h:02d}:{rem // 60:02d}:{rem % 60:02d}] {msg}"
         if msg.startswith("identification") and " ok:" in msg:
-            k = min(int(np.searchsorted(self.run.times_s, elapsed)), len(self.run.times_s) - 1)
-            line += (
-                "\n"
-                + " " * 17
-                + "plant truth H = ["
-                + ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
-                + "]"
-            )
+            k, where = self._truth_row(elapsed)
+            truth = ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
+            line += f"\n{' ' * 17}plant truth H = [{truth}] ({where})"
         print(line, flush=True)
 
+    def _truth_row(self, elapsed: float) -> tuple[int, str]:
+        """The plant row at the identified window's middle, and how it was chosen."""
+        t_plant, where = elapsed, "now"
+        rec = self.current() if self.current is not None else None
+        if rec is not None and self.clock is not None:
+            mid = rec.window_from + (rec.window_to - rec.window_from) / 2
+            t_plant = elapsed - (self.clock() - mid).total_seconds()
+            where = f"mid-window, {float(self.run.speed_rpm[self._row(t_plant)]):.0f} rpm"
+        return self._row(t_plant), where
 
-async def run_demo(args: argparse.Namespace) -> int:
+    def _row(self, t_plant: float) -> int:
+        return min(int(np.searchsorted(self.run.times_s, t_plant)), len(self.run.times_s) - 1)
+
+
+async def run_demo(args: argparse.Namespace, settings: Any) -> int:
     from model.geometry import load_spindle
     from model.plant import VirtualPlant
     from service.runtime import Runtime, ScaledClock
     from service.simrig import SimAddress, make_drivers, plant_rig
 
-    tmp = None
-    if args.database_url is None:
-        tmp = tempfile.TemporaryDirectory(prefix="chtc-demo-")
-        db_url = f"sqlite:///{Path(tmp.name) / 'demo.db'}"
-    else:
-        db_url = args.database_url
-    settings = demo_settings(args, db_url)
+    db_url = settings.database.url
     clock = ScaledClock(args.speedup)
     print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
     runtime = Runtime(settings, clock=clock, on_event=lambda m: None)
@@ -134,7 +140,7 @@ async def run_demo(args: argparse.Namespace) -> int:
     print("running the virtual plant over the demo profile ...", flush=True)
     plant = VirtualPlant(load_spindle(settings.model.spindle), seed=args.seed)
     run = await asyncio.to_thread(plant.run, build_profile(args.segment_min), dt_s=10.0)
-    printer = Printer(run, quiet=args.quiet)
+    printer = Printer(run, quiet=args.quiet, clock=clock, current=lambda: _current(runtime))
     runtime.on_event = printer
     address = SimAddress.free(speedup=args.speedup)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
@@ -165,10 +171,14 @@ async def run_demo(args: argparse.Namespace) -> int:
         await runtime.stop()
         if rig is not None:
             await rig.stop()
-        if tmp is not None:
-            tmp.cleanup()
     print("demo stopped", flush=True)
     return 0
+
+
+def _current(runtime: Any) -> Any:
+    """The identification record the core stored last (None before the first)."""
+    service = runtime.service
+    return None if service is None else service.core.current
 
 
 def _install_signals(stop: asyncio.Event) -> None:
@@ -191,8 +201,10 @@ def quiet_third_party_logs() -> None:
 
 
 def main(args: argparse.Namespace) -> int:
+    """Settings and the API port are checked before anything slow starts; a problem is one line (exit 2)."""
     quiet_third_party_logs()
-    if args.speedup <= 0:
-        print("chtc demo: --speedup must be > 0", file=sys.stderr)
-        return 2
-    return asyncio.run(run_demo(args))
+    with tempfile.TemporaryDirectory(prefix="chtc-demo-") as tmp:
+        db_url = args.database_url or f"sqlite:///{Path(tmp) / 'demo.db'}"
+        settings = demo_settings(args, db_url)
+        check_listen(settings.api.host, settings.api.port)
+        return asyncio.run(run_demo(args, settings))

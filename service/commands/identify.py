@@ -4,6 +4,12 @@ The log's samples go through the service's own core (detector, scheduler, live s
 identification run inline with the configured seed (``identification.seed``, ``--seed``): the same files
 always give the same H. Prints one line per identification with H and its 95 % confidence intervals, and
 writes them as JSON with ``--json FILE`` (``-`` for stdout).
+
+The log is sampled as the live acquisition samples it in ``chtc replay`` (one sample per
+``acquisition.sample_period_s``; ``service.logsamples``), so both commands fit the same data. Without a CAN
+log the speed and torque must be stated (``--speed-rpm``/``--torque-nm``, constant over the log). Exit status:
+0 when at least one identification succeeded; 1 when none did, with the reason on stderr (each condition's
+length against what an identification needs, or why no condition was detected); 2 for unusable input.
 """
 
 from __future__ import annotations
@@ -20,13 +26,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "can", type=Path, nargs="?", default=None, help="CAN log (.blf/.asc/.log/.csv/.trc/.mf4)"
     )
-    parser.add_argument("--config", type=Path, default=None, help="settings TOML")
+    parser.add_argument(
+        "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
+    )
+    parser.add_argument(
+        "--speed-rpm",
+        type=float,
+        default=None,
+        help="without a CAN log: the spindle speed, constant over the whole log (default: from the CAN log)",
+    )
+    parser.add_argument(
+        "--torque-nm",
+        type=float,
+        default=None,
+        help="without a CAN log: the spindle torque, constant (default: from the CAN log)",
+    )
     parser.add_argument("--seed", type=int, default=None, help="rng seed (default identification.seed)")
     parser.add_argument(
         "--method", default=None, help="identification method (default identification.method)"
     )
     parser.add_argument(
-        "--json", dest="json_out", default=None, help="write the identifications as JSON here"
+        "--json",
+        dest="json_out",
+        default=None,
+        help="write the identifications as JSON to this file, - for stdout (default: no JSON)",
     )
 
 
@@ -78,8 +101,54 @@ def format_record(r: Any) -> str:
     return f"{head}\n    W/(m²·K), 95 % CI ('?' = poorly identified): {zones}\n    {tail}"
 
 
+def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
+    """Why a log gave no successful identification: per detected condition, how long it lasted against what an
+    identification needs; or why no condition was detected (``can_ok``: samples with a fresh speed/torque)."""
+    ident = settings.identification
+    need_s = max(ident.min_window_s, 60.0 * ident.schedule_min[0])
+    need = (
+        f"an identification needs {need_s / 60:.1f} min of data at one condition "
+        f"(identification.min_window_s = {ident.min_window_s:g} s, first run {ident.schedule_min[0]:g} min "
+        "after the condition starts)"
+    )
+    if result.samples == 0 or result.first is None:
+        return ["the temperature log has no rows"]
+    span_s = (result.last - result.first).total_seconds()
+    lines = [
+        f"the log covers {span_s / 60:.1f} min "
+        f"({result.first:%Y-%m-%dT%H:%M:%SZ} .. {result.last:%H:%M:%SZ}); {need}"
+    ]
+    if not result.conditions:
+        lines.append(
+            f"no operating condition was detected: {can_ok} of {result.samples} samples had a fresh speed "
+            "and torque (the CAN log is missing, does not cover the rows' times, or reports FAULT), "
+            f"or the log is shorter than the detector's hold time (detector.hold_s = "
+            f"{settings.detector.hold_s:g} s)"
+        )
+    ends = [c.since for c in result.conditions[1:]] + [result.last]
+    for cond, end in zip(result.conditions, ends[: len(result.conditions)], strict=True):
+        lasted_s = (end - cond.since).total_seconds()
+        head = f"condition {cond.id} ({cond.speed_rpm:.0f} rpm, {cond.ambient_c:.1f} °C)"
+        if abs(cond.speed_rpm) < 100.0:
+            lines.append(
+                f"{head}: spindle idle for {lasted_s / 60:.1f} min (no bearing heat: not identifiable)"
+            )
+        elif lasted_s < need_s:
+            lines.append(f"{head} lasted {lasted_s / 60:.1f} min: too short, {need_s / 60:.1f} min needed")
+    if result.records:
+        lines.append(
+            f"{len(result.records)} identifications ran and none succeeded: see their messages above"
+        )
+    if span_s < need_s:
+        lines.append(
+            "a recording of a sped-up simulation stamped with wall time looks this short: record it with "
+            "`chtc record --speedup` equal to the simulator's (docs/simulation.md)"
+        )
+    return lines
+
+
 def main(args: argparse.Namespace) -> int:
-    from drivers.logs import LogFormatError
+    from drivers.logs import LogFormatError, read_temperature_csv
     from service.logsamples import samples_from_logs
     from service.modelload import ModelRef, load_model
     from service.offline import run_offline
@@ -88,8 +157,20 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         settings = load_settings(args.config)
-        data = samples_from_logs(args.csv, args.can)
-    except (SettingsError, LogFormatError, OSError) as err:
+        if args.can is None and args.speed_rpm is None:
+            read_temperature_csv(args.csv)  # a broken file is reported first, with its line
+            raise ValueError(
+                "no CAN log: the speed and torque are unknown; give the CAN log recorded with the "
+                "temperatures, or state a constant condition with --speed-rpm and --torque-nm"
+            )
+        data = samples_from_logs(
+            args.csv,
+            args.can,
+            period_s=settings.acquisition.sample_period_s,
+            speed_rpm=args.speed_rpm,
+            torque_nm=args.torque_nm,
+        )
+    except (SettingsError, LogFormatError, OSError, ValueError) as err:
         print(f"chtc identify: {err}", file=sys.stderr)
         return 2
     ident = settings.identification.model_copy(
@@ -98,9 +179,14 @@ def main(args: argparse.Namespace) -> int:
     settings = settings.model_copy(update={"identification": ident})
     model = load_model(ModelRef.from_settings(settings.model))
     result = run_offline(data.samples, model=model, config=core_config(settings))
+    source = (
+        f"{data.frames} CAN frames ({data.bad_frames} undecodable)"
+        if args.can is not None
+        else f"stated {args.speed_rpm:g} rpm, {args.torque_nm:g} N·m"
+    )
     print(
-        f"{data.rows} samples, {data.frames} CAN frames ({data.bad_frames} undecodable); "
-        f"{len(result.records)} identifications (seed {settings.identification.seed})"
+        f"{data.rows} rows -> {len(data.samples)} samples every {settings.acquisition.sample_period_s:g} s, "
+        f"{source}; {len(result.records)} identifications (seed {settings.identification.seed})"
     )
     for r in result.records:
         print(format_record(r))
@@ -110,4 +196,9 @@ def main(args: argparse.Namespace) -> int:
             print(text)
         else:
             Path(args.json_out).write_text(text + "\n", encoding="utf-8")
+    if not any(r.outcome == "ok" for r in result.records):
+        can_ok = sum(bool(x.can_ok) for x in data.samples)
+        why = explain_nothing(result, settings, can_ok=can_ok)
+        print("chtc identify: nothing identified: " + "\n  ".join(why), file=sys.stderr)
+        return 1
     return 0

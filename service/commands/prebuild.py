@@ -28,7 +28,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
     )
     parser.add_argument(
-        "--cache-dir", type=Path, default=None, help="reduced-model cache directory (overrides the settings)"
+        "--cache-dir",
+        type=Path,
+        default=None,
+        help="reduced-model cache directory (default: model.rom_cache_dir of the settings)",
     )
     parser.add_argument("--rebuild", action="store_true", help="rebuild even when the cache file exists")
     parser.add_argument("--json", action="store_true", help="print one JSON object instead of text")

@@ -6,7 +6,14 @@ bus is logged raw (every frame as received, including unknown IDs and bad frames
 faults too) through a ``can.Notifier``; frames are also decoded with ``drivers.can_codec`` only to count
 decode errors for the progress line. Files: ``DIR/temperatures.csv`` and ``DIR/can.<format>``.
 
-Stops after ``--duration`` seconds or on Ctrl-C; files are closed (BLF/ASC footers written) either way.
+Time stamps are the source's time: with ``--speedup S`` (a simulator running ``chtc simulate --speedup S``)
+every CSV row and every CAN frame is stamped ``t0 + S × (receive time − t0)``, ``t0`` the recording's start
+(UTC), so a sped-up simulation is recorded in its own (simulated) time and ``chtc identify``/``chtc replay``
+see the durations the plant ran. ``S`` = 1 (the default) is the wall clock, for real devices. The DAQ must be
+polled often enough for the simulated sample period: ``--interval`` is wall seconds (one poll per
+``interval × S`` simulated seconds).
+
+Stops after ``--duration`` wall seconds or on Ctrl-C; files are closed (BLF/ASC footers written) either way.
 """
 
 from __future__ import annotations
@@ -17,6 +24,7 @@ import sys
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from pathlib import Path
 
 import can
@@ -26,9 +34,27 @@ from drivers.errors import DeviceError, FrameError
 from drivers.logs import CAN_LOG_SUFFIXES, CanLogWriter, LogFormatError, TemperatureCsvWriter
 from drivers.modbus_daq import ModbusDaq
 from drivers.registers import RegisterMap, default_register_map, load_register_map
+from service.commands._common import positive_float
 
 CSV_NAME = "temperatures.csv"
 CAN_STEM = "can"
+
+
+@dataclass(frozen=True)
+class SourceTime:
+    """Receive (wall) time -> the source's time: ``t0 + speedup·(t − t0)``, POSIX s; speedup 1: wall time."""
+
+    t0: float
+    speedup: float = 1.0
+    wall: Callable[[], float] = time.time
+
+    def of(self, wall_s: float) -> float:
+        """The source's time (POSIX s) of a receive time ``wall_s`` (POSIX s)."""
+        return self.t0 + self.speedup * (wall_s - self.t0)
+
+    def now(self) -> datetime:
+        """The source's time now, UTC (the DAQ driver's clock)."""
+        return datetime.fromtimestamp(self.of(self.wall()), tz=UTC)
 
 
 @dataclass
@@ -57,13 +83,17 @@ class RecordStats:
 class _CanRecorder(can.Listener):
     """Writes every received frame to the log and counts frames that do not decode."""
 
-    def __init__(self, writer: CanLogWriter, stats: RecordStats) -> None:
-        self.writer, self.stats = writer, stats
+    def __init__(
+        self, writer: CanLogWriter, stats: RecordStats, source_time: SourceTime | None = None
+    ) -> None:
+        self.writer, self.stats, self.source_time = writer, stats, source_time
         self.closed = False
 
     def on_message_received(self, msg: can.Message) -> None:
         if self.closed:
             return
+        if self.source_time is not None:
+            msg.timestamp = self.source_time.of(msg.timestamp)
         try:
             self.writer.write(msg)
         except LogFormatError as err:
@@ -95,15 +125,17 @@ async def record(
     progress: Callable[[RecordStats], None] | None = None,
     progress_every_s: float = 5.0,
     clock: Callable[[], float] = time.monotonic,
+    source_time: SourceTime | None = None,
 ) -> RecordStats:
     """Record ``daq`` into ``csv_path`` and ``bus`` into ``can_path`` for ``duration_s`` s (None: until
-    cancelled). Returns the final statistics; files are closed on every exit path."""
+    cancelled). ``source_time`` restamps CAN frames in the source's time (give the DAQ driver the same clock
+    as its ``now``). Returns the final statistics; files are closed on every exit path."""
     stats = RecordStats()
     csv_writer = TemperatureCsvWriter(csv_path) if daq is not None and csv_path is not None else None
     can_writer = CanLogWriter(can_path) if bus is not None and can_path is not None else None
     notifier, recorder = None, None
     if bus is not None and can_writer is not None:
-        recorder = _CanRecorder(can_writer, stats)
+        recorder = _CanRecorder(can_writer, stats, source_time)
         notifier = can.Notifier(bus, [recorder], timeout=0.05, loop=asyncio.get_running_loop())
     start = clock()
     next_progress = progress_every_s
@@ -158,11 +190,19 @@ async def _poll_once(daq: ModbusDaq, writer: TemperatureCsvWriter, stats: Record
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``chtc record``."""
     parser.add_argument("--out", type=Path, required=True, help="output directory (created if missing)")
-    parser.add_argument("--modbus-host", default="127.0.0.1")
-    parser.add_argument("--modbus-port", type=int, default=5020)
-    parser.add_argument("--register-map", type=Path, help="register map TOML (default: SPEC §4 map)")
+    parser.add_argument("--modbus-host", default="127.0.0.1", help="DAQ address")
+    parser.add_argument("--modbus-port", type=int, default=5020, help="DAQ port")
+    parser.add_argument(
+        "--register-map", type=Path, help="register map TOML (default: the device contract, docs/drivers.md)"
+    )
     parser.add_argument("--modbus-timeout", type=float, default=1.0, help="per-request timeout, s")
-    parser.add_argument("--interval", type=float, default=1.0, help="DAQ poll period, s (default 1)")
+    parser.add_argument("--interval", type=float, default=1.0, help="DAQ poll period, wall s (default 1)")
+    parser.add_argument(
+        "--speedup",
+        type=positive_float,
+        default=1.0,
+        help="the source's seconds per wall second: the simulator's --speedup; stamps are the source's time",
+    )
     parser.add_argument("--can-interface", default="remote", help="python-can interface (default remote)")
     parser.add_argument("--can-channel", default="ws://127.0.0.1:54701/", help="python-can channel")
     parser.add_argument(
@@ -188,6 +228,7 @@ async def _amain(args: argparse.Namespace) -> RecordStats:
     out.mkdir(parents=True, exist_ok=True)
     csv_path = None if args.no_modbus else out / CSV_NAME
     can_path = None if args.no_can else out / f"{CAN_STEM}.{args.can_format}"
+    source_time = SourceTime(time.time(), args.speedup)
     daq = None
     if not args.no_modbus:
         daq = ModbusDaq(
@@ -195,6 +236,7 @@ async def _amain(args: argparse.Namespace) -> RecordStats:
             args.modbus_port,
             register_map=_register_map(args.register_map),
             timeout_s=args.modbus_timeout,
+            now=source_time.now,
         )
     bus = None
     if not args.no_can:
@@ -210,6 +252,7 @@ async def _amain(args: argparse.Namespace) -> RecordStats:
             interval_s=args.interval,
             progress=lambda s: print(s.line(), flush=True),
             progress_every_s=args.progress_every,
+            source_time=source_time if args.speedup != 1.0 else None,
         )
     finally:
         if daq is not None:

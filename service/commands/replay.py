@@ -1,13 +1,15 @@
 """``chtc replay``: recorded logs -> simulated devices -> the unchanged service; every identification saved.
 
-The temperature CSV is served by the simulated Modbus DAQ row by row and the CAN log is replayed on a private
-virtual CAN channel (``drivers.sim.replay``), at ``--speedup`` recorded seconds per wall second. The service
-runs exactly as in production (drivers, ring buffer, detector, scheduler, worker process, database writer);
-its clock reads the recorded time, so stored timestamps are the log's. When the log ends (plus the time for
-running identifications) every identification is in the database and in ``--out`` (JSON, or CSV by suffix).
+The simulated Modbus DAQ serves the temperature CSV and the CAN log is replayed on a private virtual CAN
+channel (``drivers.sim.replay``), at ``--speedup`` recorded seconds per wall second. The service runs exactly
+as in production (drivers, ring buffer, detector, scheduler, worker process, database writer); its clock
+reads the recorded time, so stored timestamps are the log's. When the log ends (plus the time for running
+identifications) every identification is in the database and in ``--out`` (JSON, or CSV by suffix).
 
-Sample times come from the service's clock, not from the CSV rows, so a replay reproduces ``chtc identify``
-on the same files up to the acquisition's sampling jitter (within one row period); see docs/service.md.
+The DAQ serves the recording reduced to the rows the acquisition samples (``write_acquisition_csv``: one row
+per ``acquisition.sample_period_s``, the newest recorded row at each sample instant), and the acquisition is
+started in phase with them, so a replay sees the same samples as ``chtc identify`` on the same files, also for
+real-time recordings with one jittered row per second; see docs/service.md for what can still differ.
 """
 
 from __future__ import annotations
@@ -17,12 +19,15 @@ import asyncio
 import csv
 import json
 import sys
+import tempfile
 import time
-from datetime import UTC, datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import Any
 
+from service.commands._common import CommandError, check_listen, override, port_number, positive_float
 from service.commands.identify import record_dict
+from service.logsamples import REPLAY_PHASE, write_acquisition_csv
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -30,11 +35,21 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "can", type=Path, nargs="?", default=None, help="CAN log (.blf/.asc/.log/.csv/.trc/.mf4)"
     )
-    parser.add_argument("--config", type=Path, default=None, help="settings TOML")
-    parser.add_argument("--speedup", type=float, default=60.0, help="recorded seconds per wall second")
-    parser.add_argument("--database-url", default=None, help="SQLAlchemy URL (default: settings)")
+    parser.add_argument(
+        "--config", type=Path, default=None, help="settings TOML (default: built-in defaults)"
+    )
+    parser.add_argument(
+        "--speedup", type=positive_float, default=60.0, help="recorded seconds per wall second"
+    )
+    parser.add_argument(
+        "--database-url", default=None, help="SQLAlchemy URL (default: database.url of the settings)"
+    )
     parser.add_argument("--out", type=Path, default=Path("identifications.json"), help=".json or .csv output")
-    parser.add_argument("--api", action="store_true", help="also serve the API/dashboard on settings.api")
+    parser.add_argument("--api", action="store_true", help="also serve the API/dashboard (on --host:--port)")
+    parser.add_argument("--host", default=None, help="with --api: API host (default: api.host, 127.0.0.1)")
+    parser.add_argument(
+        "--port", type=port_number, default=None, help="with --api: API port (default: api.port, 8000)"
+    )
     parser.add_argument(
         "--grace", type=float, default=30.0, help="wall s to wait for running identifications"
     )
@@ -62,17 +77,31 @@ def write_out(path: Path, records: list[Any]) -> None:
 
 
 async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
+    with tempfile.TemporaryDirectory(prefix="chtc-replay-") as tmp:
+        served = Path(tmp) / "acquired.csv"
+        period_s = settings.acquisition.sample_period_s
+        await asyncio.to_thread(write_acquisition_csv, args.csv, args.can, served, period_s=period_s)
+        return await _replay(args, settings, served)
+
+
+async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> list[Any]:
     from service.runtime import Runtime, ScaledClock
     from service.simrig import SimAddress, make_drivers, replay_rig
 
     clock = ScaledClock(args.speedup)
+    period_s = settings.acquisition.sample_period_s
     runtime = Runtime(settings, clock=clock, on_event=lambda m: print(m, flush=True))
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
-    rig = await replay_rig(args.csv, args.can, address=address, begin=False)
+    rig = await replay_rig(served_csv, args.can, address=address, begin=False)
+    origin = datetime.fromtimestamp(rig.replay.t_ref + REPLAY_PHASE * period_s, tz=UTC)
+    runtime.sample_clock = GridClock(clock, origin=origin, period_s=period_s)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
     try:
         await runtime.start(daq=daq, can=can_sensor, api=args.api)
+        if args.api:
+            await runtime.wait_api()
+            print(f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc)", flush=True)
         await _begin_in_phase(rig, clock, settings.acquisition.sample_period_s / args.speedup)
         await asyncio.sleep(rig.replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
         deadline = time.monotonic() + args.grace
@@ -85,12 +114,32 @@ async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
         await rig.stop()
 
 
-async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = 0.3) -> None:
-    """Start the replay so the acquisition samples ``phase`` of a row period after each recorded row.
+class GridClock:
+    """``clock`` snapped to the nearest instant ``origin + k·period_s``: the replay's sample stamps.
 
-    The sampler ticks every period from when it started (just now); beginning the replay 0.7 periods before
-    its next tick makes every sample see the row recorded 0.3 periods earlier (held), with the speed of the
-    same row, after a few DAQ polls: the recorded rows, shifted by a constant 0.3 periods.
+    The acquisition samples on that grid (``_begin_in_phase``), but the event loop wakes it a little late, by
+    more on a loaded machine; stamped with the late time, the live state was stepped over 10 ± δ s and later
+    windows started from a slightly different field than ``chtc identify``'s, which moved poorly identified H
+    far along the fit's flat directions. Snapped, the stamps are exactly identify's (a wake-up later than
+    half a period still snaps to the wrong instant, and one later than 0.7 periods sees the next row).
+    """
+
+    def __init__(self, clock: Any, *, origin: datetime, period_s: float) -> None:
+        self.clock, self.origin, self.period_s = clock, origin, period_s
+
+    def __call__(self) -> datetime:
+        k = round((self.clock() - self.origin).total_seconds() / self.period_s)
+        return self.origin + timedelta(seconds=k * self.period_s)
+
+
+async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = REPLAY_PHASE) -> None:
+    """Start the replay so the acquisition samples ``phase`` of a period after each row it serves.
+
+    The sampler ticks every period from when it started (just now); beginning the replay ``1 − phase``
+    periods before its next tick makes every sample see the served row of the grid point ``phase`` periods
+    earlier (held for a whole period), with the speed at the sample instant. Half a period on either side:
+    a DAQ poll up to half a period late, or a sampler wake-up up to half a period late (``GridClock`` snaps
+    the stamp back), still gives identify's sample.
     """
     await asyncio.sleep(0)  # let the sampler task take its first time reading
     await asyncio.sleep((1.0 - phase) * period_wall_s)
@@ -106,13 +155,15 @@ def main(args: argparse.Namespace) -> int:
     quiet_third_party_logs()
     try:
         settings = load_settings(args.config)
-    except SettingsError as err:
+        if args.database_url is not None:
+            settings = override(settings, "database", url=args.database_url)
+        api = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
+        settings = override(settings, "api", **api) if api else settings
+        if args.api:
+            check_listen(settings.api.host, settings.api.port)
+    except (SettingsError, CommandError) as err:
         print(f"chtc replay: {err}", file=sys.stderr)
         return 2
-    if args.database_url is not None:
-        settings = settings.model_copy(
-            update={"database": settings.database.model_copy(update={"url": args.database_url})}
-        )
     try:
         records = asyncio.run(run_replay(args, settings))
     except (LogFormatError, OSError) as err:

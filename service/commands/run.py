@@ -1,10 +1,12 @@
 """``chtc run --config FILE``: the soft sensor against real devices, with the API and the dashboard.
 
 Settings come from the TOML file and ``CHTC_<SECTION>__<KEY>`` environment variables (``service.settings``).
-The Modbus DAQ is ``modbus.host:port`` (register map ``modbus.register_map`` or the default of SPEC §4), the
-speed/torque sensor any python-can interface (``can.interface``/``can.channel``); the API listens on
-``api.host:api.port``. ``--migrate`` brings the database schema up to date first (retried in the background
-while the database is unreachable; records are buffered meanwhile). Stops cleanly on SIGINT/SIGTERM.
+The Modbus DAQ is ``modbus.host:port`` (register map ``modbus.register_map`` or the default of
+docs/drivers.md, "Device contract"), the speed/torque sensor any python-can interface
+(``can.interface``/``can.channel``); the API listens on ``api.host:api.port`` (``--host``/``--port``
+override them; a busy port is reported before the model loads). ``--migrate`` brings the database schema up
+to date first (retried in the background while the database is unreachable; records are buffered
+meanwhile). Stops cleanly on SIGINT/SIGTERM.
 """
 
 from __future__ import annotations
@@ -18,11 +20,24 @@ import sys
 from pathlib import Path
 from typing import Any
 
+from service.commands._common import CommandError, check_listen, override, port_number
+
 log = logging.getLogger("chtc")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
-    parser.add_argument("--config", type=Path, default=None, help="settings TOML (env CHTC_... overrides it)")
+    parser.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="settings TOML; env CHTC_<SECTION>__<KEY> overrides it (default: built-in defaults)",
+    )
+    parser.add_argument(
+        "--host", default=None, help="API/dashboard host (default: api.host of the settings, 127.0.0.1)"
+    )
+    parser.add_argument(
+        "--port", type=port_number, default=None, help="API/dashboard port (default: api.port, 8000)"
+    )
     parser.add_argument("--migrate", action="store_true", help="upgrade the database schema before starting")
     parser.add_argument("--print-config", action="store_true", help="print the effective settings and exit")
 
@@ -94,14 +109,17 @@ def main(args: argparse.Namespace) -> int:
     logging.getLogger("service").setLevel(logging.INFO)
     try:
         settings = load_settings(args.config)
-    except SettingsError as err:
+        api = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
+        settings = override(settings, "api", **api) if api else settings
+    except (SettingsError, CommandError) as err:
         print(f"chtc run: {err}", file=sys.stderr)
         return 2
     if args.print_config:
         print(json.dumps(settings.redacted(), indent=2))
         return 0
     try:
+        check_listen(settings.api.host, settings.api.port)
         return asyncio.run(serve(settings, migrate=args.migrate))
-    except ConfigError as err:
+    except (ConfigError, CommandError) as err:
         print(f"chtc run: {err}", file=sys.stderr)
         return 2

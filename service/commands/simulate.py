@@ -226,9 +226,11 @@ async def _wait(duration_s: float | None) -> None:
 # ------------------------------------------------------------------------------------------------- CLI
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``chtc simulate``."""
-    parser.add_argument("--modbus-host", default="127.0.0.1")
+    parser.add_argument("--modbus-host", default="127.0.0.1", help="DAQ listen address")
     parser.add_argument("--modbus-port", type=int, default=5020, help="0: any free port (printed)")
-    parser.add_argument("--register-map", type=Path, help="register map TOML (default: SPEC §4 map)")
+    parser.add_argument(
+        "--register-map", type=Path, help="register map TOML (default: the device contract, docs/drivers.md)"
+    )
     parser.add_argument("--sample-period", type=float, default=0.1, help="DAQ sample period, wall s")
     parser.add_argument("--can-interface", default="remote", help="remote (hub), virtual, socketcan ...")
     parser.add_argument("--can-channel", default="ws://127.0.0.1:54701/", help="hub URL or bus channel")
@@ -242,7 +244,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--noise", type=float, default=0.15, help="plant sensor noise, °C (1 sigma)")
     parser.add_argument("--dt", type=float, default=10.0, help="plant time step, s")
     parser.add_argument("--loop", action="store_true", help="start the profile again at its end")
-    parser.add_argument("--duration", type=float, default=None, help="stop after this many wall seconds")
+    parser.add_argument(
+        "--duration", type=float, default=None, help="stop after this many wall seconds (default: Ctrl-C)"
+    )
     parser.add_argument(
         "--fault",
         action="append",
@@ -251,9 +255,15 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         help="inject a fault (repeatable), e.g. open:ch=5,at=30,for=60 | drop:at=10,for=10 | counter-gap",
     )
     parser.add_argument(
-        "--replay-csv", type=Path, help="serve a recorded temperature CSV instead of the plant"
+        "--replay-csv",
+        type=Path,
+        help="serve a recorded temperature CSV instead of the plant (default: the plant)",
     )
-    parser.add_argument("--replay-can", type=Path, help="send a recorded CAN log (with --replay-csv)")
+    parser.add_argument(
+        "--replay-can",
+        type=Path,
+        help="send a recorded CAN log (with --replay-csv; default: no CAN frames in a replay)",
+    )
 
 
 def main(args: argparse.Namespace) -> int:

@@ -1,6 +1,7 @@
 """The same driver checks against real devices, only when the environment says where they are.
 
-``CHTC_TEST_MODBUS=host:port`` (a DAQ serving the SPEC §4 register map, read-only) and/or
+``CHTC_TEST_MODBUS=host:port`` (a DAQ serving the device contract's register map, docs/drivers.md, read-only)
+and/or
 ``CHTC_TEST_CAN=interface:channel`` (a bus carrying ``SpindleStatus`` frames). Skipped otherwise.
 """
 

@@ -37,3 +37,16 @@ def test_bench_identify_json_shape(capsys: pytest.CaptureFixture[str]) -> None:
         assert methods["hybrid"]["objective_gap_pct"] <= 0.1
     assert 0.0 <= out["ci_coverage_95"] <= 1.0
     assert out["warm_vs_cold_nfev_ratio"] > 0.0
+
+
+def test_bench_identify_tables_without_28x150_print_every_target(capsys: pytest.CaptureFixture[str]) -> None:
+    """Without ``--json`` and with ``--skip-28x150`` the tables used to crash (TypeError on the skipped
+    figure); now every target is printed with its verdict, the skipped one as not measured."""
+    args = ["bench", "identify", "--seeds", "1", "--ci-seeds", "1", "--warm-seeds", "1", "--skip-28x150"]
+    assert main(args) == 0
+    out = capsys.readouterr().out
+    assert "IGWO 28x150 on the reduced model: skipped" in out
+    lines = out[out.index("targets:") :].splitlines()
+    skipped = [line for line in lines if line.strip().startswith("igwo_28x150_wall_s <= 2 s")]
+    assert len(skipped) == 1 and "not measured" in skipped[0]
+    assert sum(line.rstrip().endswith(("met", "MISSED", "measured", "condition)")) for line in lines) >= 5

@@ -194,3 +194,54 @@ def test_simulate_rejects_a_bad_fault() -> None:
     )
     assert run.returncode == 1
     assert "fault kind 'melt' unknown" in run.stderr
+
+
+@pytest.mark.slow
+def test_record_of_a_sped_up_simulation_stamps_the_simulated_time(tmp_path: Path) -> None:
+    """``chtc record --speedup S`` against ``chtc simulate --speedup S``: rows and frames in plant time
+    (before, both were stamped with wall time, so 3 s of recording covered 3 s instead of 3 x 30 s)."""
+    profile = tmp_path / "p.json"
+    profile.write_text(json.dumps([{"duration_s": 600, "speed_rpm": 3000, "torque_nm": 5, "ambient_c": 22}]))
+    port, hub = _free_port(), _free_port()
+    where = ["--modbus-port", str(port), "--can-channel", f"ws://127.0.0.1:{hub}/"]
+    cli = [sys.executable, "-m", "service.cli"]
+    sim = subprocess.Popen(
+        [*cli, "simulate", "--profile", str(profile), "--speedup", "30", *where, "--duration", "60"],
+        stdout=subprocess.PIPE,
+        stderr=subprocess.STDOUT,
+        text=True,
+    )
+    try:
+        _wait_for_line(sim, "Ctrl-C to stop")
+        out = tmp_path / "rec"
+        rec = subprocess.run(
+            [
+                *cli,
+                "record",
+                "--out",
+                str(out),
+                "--speedup",
+                "30",
+                *where,
+                "--duration",
+                "3",
+                "--interval",
+                "0.05",
+                "--can-format",
+                "asc",
+            ],
+            capture_output=True,
+            text=True,
+            timeout=60,
+        )
+        assert rec.returncode == 0, rec.stdout + rec.stderr
+    finally:
+        sim.terminate()
+        sim.wait(10)
+    log = read_temperature_csv(out / "temperatures.csv")
+    span = float(log.t_s[-1] - log.t_s[0])
+    assert 60.0 <= span <= 95.0, span  # ~3 s wall x 30, less the first and last poll
+    frames = read_can_log(out / "can.asc")
+    frame_span = frames[-1].timestamp - frames[0].timestamp
+    assert 60.0 <= frame_span <= 95.0, frame_span
+    assert abs(frames[0].timestamp - float(log.t_s[0])) < 10.0  # one time base for both files

@@ -1,0 +1,32 @@
+"""``chtc demo``'s progress lines: the plant truth printed with an identification is the truth of the
+identified window, not of the moment the line is printed (the plant may run at the next speed by then)."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from types import SimpleNamespace
+
+import numpy as np
+
+from service.commands.demo import Printer
+
+T0 = datetime(2026, 3, 2, 6, 0, tzinfo=UTC)
+
+
+def _run() -> SimpleNamespace:
+    times = np.arange(0.0, 7200.0, 10.0)
+    speed = np.where(times < 3600.0, 3000.0, 4000.0)
+    truth = np.where(times[:, None] < 3600.0, 1.0, 2.0) * np.arange(1.0, 8.0)
+    return SimpleNamespace(times_s=times, speed_rpm=speed, h_true=truth)
+
+
+def test_truth_is_the_identified_windows(capsys) -> None:
+    plant_now = 3630.0  # 30 s into the 4000 rpm segment
+    record = SimpleNamespace(window_from=T0 + timedelta(seconds=1200), window_to=T0 + timedelta(seconds=3600))
+    printer = Printer(
+        _run(), quiet=False, clock=lambda: T0 + timedelta(seconds=plant_now), current=lambda: record
+    )
+    printer.rig = SimpleNamespace(plant_time_s=lambda: plant_now)
+    printer("identification job-3 ok: H = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] W/(m²·K), fit 0.97")
+    out = capsys.readouterr().out
+    assert "plant truth H = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] (mid-window, 3000 rpm)" in out
