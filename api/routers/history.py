@@ -16,7 +16,7 @@ from pydantic import BaseModel, Field
 
 from api.deps import ClockDep, ReadAccess, ServiceDep, UtcDateTime
 from api.errors import invalid
-from api.routers.sensors import parse_channels
+from api.routers.sensors import CHANNELS_PATTERN, parse_channels
 
 router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
 
@@ -56,7 +56,10 @@ async def get_sensor_history(
     service: ServiceDep,
     clock: ClockDep,
     since: Annotated[UtcDateTime | None, Query(description="only samples after this UTC instant")] = None,
-    channels: Annotated[str | None, Query(description="comma-separated channel numbers, e.g. 1,7,20")] = None,
+    channels: Annotated[
+        str | None,
+        Query(max_length=200, pattern=CHANNELS_PATTERN, description="comma-separated channel numbers 1..32"),
+    ] = None,
     limit: Annotated[
         int, Query(ge=1, le=MAX_LIMIT, description="at most this many samples, the newest")
     ] = 2000,
