@@ -162,7 +162,7 @@ def test_compose_stack_serves_fresh_h_from_the_simulator(stack: dict[str, Any], 
 
 
 def assert_metrics_named_in_the_operations_guide_exist(api: str) -> None:
-    named = set(re.findall(r"\b(chtc_[a-z_]+)", OPERATIONS.read_text(encoding="utf-8")))
+    named = set(re.findall(r"\b(chtc_[a-z0-9_]+)", OPERATIONS.read_text(encoding="utf-8")))
     assert named, "the operations guide names no metric"
     text = httpx.get(f"{api}/api/v1/metrics", timeout=10).text
     exposed = {
