@@ -312,8 +312,8 @@ class ServiceCore:
         if self.live.initialized:
             self.live.push(ts, ambient_c=inputs[0], speed_rpm=inputs[1], torque_nm=inputs[2])
             return
-        if not np.isfinite(inputs[0]):
-            return  # wait for an ambient temperature before starting the state
+        if not np.isfinite(inputs).all():
+            return  # wait for ambient, speed and torque (CAN may come up after the DAQ) before starting
         temps = np.asarray(sample.temps_c, dtype=float)
         good = np.array([q == "ok" for q in _quality_names(sample.quality)]) & np.isfinite(temps)
         start = float(np.mean(temps[good])) if good.any() else inputs[0]
