@@ -69,6 +69,27 @@ def _chtc_gauges(snap: ChtcSnapshot | None) -> Iterator[Metric]:
         "1 if a controller may apply the current H (/chtc usable_for_compensation)",
         value=1.0 if snap.usable_for_compensation else 0.0,
     )
+    why = GaugeMetricFamily(
+        "chtc_not_usable_reason", "1 for the code of /chtc reason while not usable", labels=["code"]
+    )
+    if not snap.usable_for_compensation and snap.reason:
+        why.add_metric([reason_code(snap.reason)], 1.0)
+    yield why
+
+
+def reason_code(reason: str) -> str:
+    """``"stale: daq_no_good_data ..."`` -> ``"stale"``: the code before the first colon (bounded labels)."""
+    return reason.split(":", 1)[0].strip() or "unknown"
+
+
+def _readiness(service: ChtcService) -> Iterator[Metric]:
+    """``/readyz`` as gauges: ready 0/1 and one series per reason code (``can_no_good_data`` ...)."""
+    r = service.ready()
+    yield GaugeMetricFamily("chtc_ready", "1 if /readyz answers 200", value=1.0 if r.ready else 0.0)
+    fam = GaugeMetricFamily("chtc_not_ready_reason", "1 for each /readyz reason code", labels=["code"])
+    for code in sorted({reason_code(x) for x in r.reasons}):
+        fam.add_metric([code], 1.0)
+    yield fam
 
 
 class ServiceCollector(Collector):
@@ -90,6 +111,7 @@ class ServiceCollector(Collector):
         )
         yield _counter("chtc_can_events", "CAN events: gaps, faults, silence", "event", m.can_events_total)
         yield from _chtc_gauges(m.chtc)
+        yield from _readiness(self._service)
         yield InfoMetricFamily(
             "chtc_build",
             "package and model version",

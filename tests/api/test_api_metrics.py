@@ -79,6 +79,16 @@ def test_h_gauges_status_usable_and_build_info(
     fam = _families(client)
     assert {s.labels["status"]: s.value for s in fam["chtc_status"]}["stale"] == 1.0
     assert fam["chtc_usable_for_compensation"][0].value == 0.0
+    # the reason is named in the metrics too (issue 12 "Done when"), as bounded codes
+    snap = service.chtc()
+    assert snap is not None and snap.reason
+    assert {s.labels["code"]: s.value for s in fam["chtc_not_usable_reason"]} == {
+        snap.reason.split(":")[0]: 1.0
+    }
+    ready = service.ready()
+    assert fam["chtc_ready"][0].value == float(ready.ready)
+    codes = {s.labels["code"] for s in fam["chtc_not_ready_reason"]}
+    assert codes == {x.split(":")[0].strip() for x in ready.reasons} and (ready.ready or codes)
 
 
 def test_outcome_and_event_counters_are_separate(client: TestClient, service: InMemoryService) -> None:
