@@ -85,6 +85,12 @@ def record_dict(r: Any) -> dict[str, Any]:
     }
 
 
+def _bound(x: float) -> str:
+    """A CI bound, W/(m²·K): 0.1 resolution in the plausible range, 3 significant digits outside (a bound of
+    a hopeless H can be 1e-30 or 1e+60: the CI is computed in log H and is > 0)."""
+    return f"{x:.1f}" if 0.1 <= x < 1e5 else f"{x:.3g}"
+
+
 def format_record(r: Any) -> str:
     head = (
         f"#{r.id} {r.outcome:<17} condition {r.condition.id} ({r.condition.speed_rpm:.0f} rpm, "
@@ -94,7 +100,7 @@ def format_record(r: Any) -> str:
     if r.outcome != "ok":
         return f"{head}\n    {r.message}"
     zones = "  ".join(
-        f"H{i + 1}={h:.1f} [{lo:.1f}, {hi:.1f}]{'' if ok else '?'}"
+        f"H{i + 1}={h:.1f} [{_bound(lo)}, {_bound(hi)}]{'' if ok else '?'}"
         for i, (h, lo, hi, ok) in enumerate(zip(r.h, r.ci95_lo, r.ci95_hi, r.identified, strict=True))
     )
     tail = f"fit {r.fit:.4f}, RMSE {r.rmse_c:.3f} °C"
