@@ -20,7 +20,7 @@ def test_exact_step_is_the_limit_of_theta_substeps() -> None:
     np.testing.assert_allclose(fine, exact, atol=1e-5)
     one, g1 = rom_modal.step_factors(lam, 10.0, 1.0, 1)
     np.testing.assert_allclose(one, 1.0 / (1.0 + 10.0 * lam), rtol=1e-14)
-    np.testing.assert_allclose(g1, 1.0 / (0.1 + lam), rtol=1e-14)
+    np.testing.assert_allclose(g1, 1.0 / (0.1 + lam), rtol=1e-12)  # (1 − μ)/λ loses a few digits
 
 
 def test_exact_rom_equals_its_own_matrix_exponential(toy_rom: ReducedModel) -> None:
