@@ -126,7 +126,8 @@ class VirtualPlant:
     ``substeps``: backward-Euler steps per sample (dt_s / substeps internally); the default 4 (2.5-s steps)
     keeps the plant's time discretisation apart from the service's (exact over each held 10-s step), so no
     bench shares the service's time-step error (issue 15). ``h_law``: the truth H(speed [rpm], ambient [°C],
-    torque [N·m]) -> (7,) [W/(m²·K)]; None is ``h_true``. ``steady_tol_c``: within a segment, once the sensors change by less than this over
+    torque [N·m]) -> (7,) [W/(m²·K)]; None is ``h_true``.
+    ``steady_tol_c``: within a segment, once the sensors change by less than this over
     30 samples, the rest of the segment is filled with the converged values (fast long profiles); 0 disables
     the shortcut.
     """

@@ -212,7 +212,8 @@ class ReducedModel:
         """The window in the candidates' modal coordinates (start, μ, modal loads per unit input); the
         reduced start ``a0`` is (r,), shared, or (P, r), per candidate."""
         seg = _segments(inputs)  # validates the inputs (dt first) before anything uses them
-        mu, _ = rom_modal.step_factors(md.lam, float(inputs.dt_s), self.theta, self.substeps)  # γ·c = (1-μ)·c/λ
+        # γ·c = (1-μ)·c/λ
+        mu, _ = rom_modal.step_factors(md.lam, float(inputs.dt_s), self.theta, self.substeps)
         phi_t = np.swapaxes(md.phi, 1, 2)
         forcing = (
             np.einsum("prs,ps->pr", phi_t, rom_modal.ambient_load(self.z_zone, h)),

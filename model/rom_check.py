@@ -100,7 +100,9 @@ def random_case(
     return Case(h=h, inputs=inputs, t0=np.column_stack([uniform, field]))
 
 
-def case_reference(fe: AffineSystem, case: Case, *, theta: float, ref_substeps: int = 1) -> tuple[Array, float]:
+def case_reference(
+    fe: AffineSystem, case: Case, *, theta: float, ref_substeps: int = 1
+) -> tuple[Array, float]:
     """Full-FE sensors (2, n_steps+1, 32) [°C] of both histories of a case, and an estimate of their own
     time-step error [°C]. ``ref_substeps`` 1: the θ-method at the input step (estimate 0: the same scheme as
     the ROM's projection check). s > 1: Richardson extrapolation 2·X(Δt/2s) − X(Δt/s) of two backward-Euler

@@ -62,7 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--converged-check",
         type=int,
         default=20,
-        help="random H for rom_vs_converged_max_err_c (served ROM vs a full FE converged in time), default 20",
+        help="random H for rom_vs_converged_max_err_c (served ROM vs a time-converged full FE), default 20",
     )
 
 

@@ -82,10 +82,17 @@ def test_served_rom_is_within_0_02_c_of_a_converged_full_fe(rom: ReducedModel, f
     case = rom_check.Case(
         h=h,
         inputs=(
-            rom_check.CaseInputs(10.0, np.where(k < 10, 21.8, 26.0), np.where(k < 15, 0.0, 250.0), np.full(n, 100.0)),
+            rom_check.CaseInputs(
+                10.0, np.where(k < 10, 21.8, 26.0), np.where(k < 15, 0.0, 250.0), np.full(n, 100.0)
+            ),
             rom_check.CaseInputs(10.0, np.full(n, 22.0), np.where(k < 5, 250.0, 20.0), np.full(n, 30.0)),
         ),
-        t0=np.column_stack([np.full(fe.n_nodes, 18.0), steady_state(fe, 0.5 * h, ambient_c=22.0, q_front_w=80.0, q_rear_w=40.0)]),
+        t0=np.column_stack(
+            [
+                np.full(fe.n_nodes, 18.0),
+                steady_state(fe, 0.5 * h, ambient_c=22.0, q_front_w=80.0, q_rear_w=40.0),
+            ]
+        ),
     )
     full, ref_err = rom_check.case_reference(fe, case, theta=1.0, ref_substeps=20)
     assert ref_err < 0.01

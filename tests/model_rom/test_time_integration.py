@@ -35,7 +35,11 @@ def test_exact_rom_equals_its_own_matrix_exponential(toy_rom: ReducedModel) -> N
     kr = rom_modal.conductance(rom.k0, rom.k_zone, h[None, :])[0]
     x = rom.initial_state(18.0)
     for n in range(2):
-        z = inputs.ambient_c[n] * (h @ rom.z_zone) + inputs.q_front_w[n] * rom.q_front + inputs.q_rear_w[n] * rom.q_rear
+        z = (
+            inputs.ambient_c[n] * (h @ rom.z_zone)
+            + inputs.q_front_w[n] * rom.q_front
+            + inputs.q_rear_w[n] * rom.q_rear
+        )
         star = np.linalg.solve(kr, z)
         x = star + expm(-10.0 * kr) @ (x - star)
         np.testing.assert_allclose(a[n + 1], x, atol=1e-9)
