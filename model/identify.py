@@ -113,7 +113,7 @@ class IdentifyOptions:
     lsq_tol: float = 1e-10
     # °C, 1σ of a constant per-channel model error carried in the CIs (``channel_bias_cov``): what is left of
     # the reduced model's and the plant's differences at the sensors (docs/identification.md, "Model error")
-    model_error_c: float = 0.0
+    model_error_c: float = 0.01
 
 
 @dataclass

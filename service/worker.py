@@ -70,6 +70,8 @@ class JobRequest:
     gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
     ci_threshold: float = 0.3  # relative 95 % half-width above which an H counts as poorly identified
+    offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.calibration)
+    offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
 
 
 @dataclass(frozen=True, eq=False)
@@ -155,6 +157,8 @@ def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any 
         warm_start=None if req.warm_start is None else np.asarray(req.warm_start, dtype=float),
         estimate_loads=req.estimate_loads,
         estimate_t0_shift=req.estimate_t0_shift,
+        offsets_c=req.offsets_c,
+        offset_sd_c=req.offset_sd_c,
         start_cov=start_covariance(model, req) if req.carry_start_error else None,
         spec=model.spec,
         options=IdentifyOptions(time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold),
