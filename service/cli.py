@@ -38,7 +38,7 @@ BENCHMARKS: dict[str, str] = {
     "api": "GET /chtc latency idle and during identification; condition change to fresh H",
     "chain": "the service's answers over a chain of conditions: H error and CI coverage vs the plant's truth",
     "fleet": "PostgreSQL write capacity: concurrent instances' sample commits/s (scaling note)",
-    "truth": "hidden random truths (6000-7000 rpm, ambient drift, torque steps, offsets): H error, CI coverage",
+    "truth": "hidden random truths (6000-7000 rpm, drift, torque steps, offsets): H error, CI coverage",
 }
 
 

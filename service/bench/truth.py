@@ -94,7 +94,7 @@ def segments(levels: list[Level], ambient0_c: float) -> list[Any]:
 
     out = [Segment(REST_S, 0.0, 0.0, ambient0_c)]
     for lv in levels:
-        n = int(round(lv.duration_s / STEP_S))
+        n = round(lv.duration_s / STEP_S)
         for k in range(n):
             amb = lv.ambient_from_c + (lv.ambient_to_c - lv.ambient_from_c) * (k + 0.5) / n
             out.append(Segment(STEP_S, lv.speed_rpm, lv.torque_nm, round(amb, 2)))
@@ -224,7 +224,8 @@ def _print(out: dict[str, Any]) -> None:
             continue
         r = out[name]
         print(
-            f"\n{name}: {r['seeds']} seeds, {r['cases']} conditions (median window {r['window_min_median']} min)"
+            f"\n{name}: {r['seeds']} seeds, {r['cases']} conditions "
+            f"(median window {r['window_min_median']} min)"
         )
         print(f"{'':28}{head}")
         for key, label in (
@@ -242,11 +243,13 @@ def _print(out: dict[str, Any]) -> None:
             return "met" if ok else "MISSED"
 
         print(
-            f"coverage per H: min {min(r['coverage']):.2f} (target >= {t['coverage_min']}): {mark(met['coverage'])}"
+            f"coverage per H: min {min(r['coverage']):.2f} "
+            f"(target >= {t['coverage_min']}): {mark(met['coverage'])}"
         )
         if "covers_all" in met:
             print(
-                f"all seven covered: {r['covers_all']:.2f} (target >= {t['covers_all_min']}): {mark(met['covers_all'])}"
+                f"all seven covered: {r['covers_all']:.2f} "
+                f"(target >= {t['covers_all_min']}): {mark(met['covers_all'])}"
             )
         if "h67_err" in met:
             print(
@@ -258,7 +261,8 @@ def _print(out: dict[str, Any]) -> None:
             f"{mark(met['flag_miss'])}"
         )
         print(
-            f"identification wall: median {r['wall_s_median']} s, max {r['wall_s_max']} s (target <= 1 s): {mark(met['wall_s'])}"
+            f"identification wall: median {r['wall_s_median']} s, max {r['wall_s_max']} s "
+            f"(target <= 1 s): {mark(met['wall_s'])}"
         )
 
 
