@@ -50,6 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--seeds", type=int, default=20, help="random truths and profiles (default 20)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument("--scenario", choices=(*SCENARIOS, "both"), default="both")
+    parser.add_argument("--first-seed", type=int, default=0, help="first seed (split a long run), default 0")
+    parser.add_argument("--raw", action="store_true", help="with --json: add every case's arrays ('raw')")
 
 
 @dataclass(frozen=True)
@@ -142,20 +144,34 @@ def cases(records: list[Any], levels: list[Level]) -> list[tuple[np.ndarray, Any
     return out
 
 
+def raw_rows(rows: list[tuple[np.ndarray, Any]]) -> dict[str, list[Any]]:
+    """The cases as plain arrays: truth, h, ci95 lo/hi (W/(m²·K)), identified, wall s, window min."""
+    return {
+        "truth": [np.asarray(t, dtype=float).tolist() for t, _ in rows],
+        "h": [np.asarray(r.h, dtype=float).tolist() for _, r in rows],
+        "lo": [np.asarray(r.ci95_lo, dtype=float).tolist() for _, r in rows],
+        "hi": [np.asarray(r.ci95_hi, dtype=float).tolist() for _, r in rows],
+        "identified": [np.asarray(r.identified, dtype=bool).tolist() for _, r in rows],
+        "wall_s": [float(r.wall_s) for _, r in rows],
+        "window_min": [(r.window_to - r.window_from).total_seconds() / 60.0 for _, r in rows],
+    }
+
+
 def summarise(rows: list[tuple[np.ndarray, Any]], seeds: int) -> dict[str, Any]:
     """Per-H median |error| %, coverage, flag misses and all-seven coverage over the cases."""
-    truth = np.array([t for t, _ in rows])
-    h = np.array([np.asarray(r.h, dtype=float) for _, r in rows])
-    lo = np.array([np.asarray(r.ci95_lo, dtype=float) for _, r in rows])
-    hi = np.array([np.asarray(r.ci95_hi, dtype=float) for _, r in rows])
-    flags = np.array([np.asarray(r.identified, dtype=bool) for _, r in rows])
+    return summarise_raw(raw_rows(rows), seeds)
+
+
+def summarise_raw(raw: dict[str, list[Any]], seeds: int) -> dict[str, Any]:
+    """``summarise`` of ``raw_rows`` (also of several runs' raw rows concatenated)."""
+    truth, h, lo, hi = (np.array(raw[k], dtype=float) for k in ("truth", "h", "lo", "hi"))
+    flags = np.array(raw["identified"], dtype=bool)
     covered = (lo <= truth) & (truth <= hi)
     n_flags = int(flags.sum())
-    wall = np.array([float(r.wall_s) for _, r in rows])
-    window_min = np.array([(r.window_to - r.window_from).total_seconds() / 60.0 for _, r in rows])
+    wall, window_min = np.array(raw["wall_s"]), np.array(raw["window_min"])
     return {
         "seeds": seeds,
-        "cases": len(rows),
+        "cases": len(truth),
         "coverage": np.round(covered.mean(axis=0), 3).tolist(),
         "h_err_pct_median": np.round(100 * np.median(np.abs(h / truth - 1), axis=0), 1).tolist(),
         "covers_all": round(float(np.mean(covered.all(axis=1))), 3),
@@ -184,7 +200,9 @@ def verdict(name: str, res: dict[str, Any]) -> dict[str, bool]:
     return out
 
 
-def run(seeds: int, scenarios: tuple[str, ...], *, progress: Any = None) -> dict[str, Any]:
+def run(
+    seeds: int, scenarios: tuple[str, ...], *, first_seed: int = 0, raw: bool = False, progress: Any = None
+) -> dict[str, Any]:
     from model.fem import build_fe_model
     from service.logsamples import samples_from_plant
     from service.modelload import ModelRef, load_model
@@ -203,13 +221,15 @@ def run(seeds: int, scenarios: tuple[str, ...], *, progress: Any = None) -> dict
     }
     for name in scenarios:
         rows: list[tuple[np.ndarray, Any]] = []
-        for seed in range(seeds):
+        for seed in range(first_seed, first_seed + seeds):
             run_, levels = plant_run(seed, name, model.spec, plant_fe)
             result = run_offline(samples_from_plant(run_, t0_s=T0), model=model, config=core_config(settings))
             rows += cases(result.records, levels)
             if progress is not None:
-                progress(f"{name}: seed {seed + 1}/{seeds} ({time.perf_counter() - started:.0f} s)")
+                progress(f"{name}: seed {seed} ({time.perf_counter() - started:.0f} s)")
         out[name] = summarise(rows, seeds)
+        if raw:
+            out[name]["raw"] = raw_rows(rows)
         out[name]["met"] = verdict(name, out[name])
     out["targets"] = TARGETS
     out["wall_s"] = round(time.perf_counter() - started, 1)
@@ -271,7 +291,13 @@ def main(args: argparse.Namespace) -> int:
         print("error: --seeds must be >= 1", file=sys.stderr)
         return 2
     scenarios = SCENARIOS if args.scenario == "both" else (args.scenario,)
-    out = run(args.seeds, scenarios, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
+    out = run(
+        args.seeds,
+        scenarios,
+        first_seed=args.first_seed,
+        raw=args.raw,
+        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+    )
     if args.json:
         print(json.dumps(out, indent=2))
     else:
