@@ -29,6 +29,7 @@ class OfflineResult:
     records: list[IdentificationRecord]  # oldest first
     stored: list[Any] = field(default_factory=list)  # the records the database writer would have got
     samples: int = 0
+    calibration: Any = None  # service.calibration.Calibration of the newest offset baseline (None: none)
 
 
 class _ListSink:
@@ -97,7 +98,10 @@ def run_offline(
             if outcome.status is JobStatus.OK:
                 stepper = core.live.prepare(np.asarray(outcome.result.h, dtype=float))
             pending += core.job_done(outcome, finished_at=finished, stepper=stepper)
-    return OfflineResult(records=list(reversed(core.records)), stored=listed.records, samples=n)
+    cal = core.calibrator.current if core.calibrator is not None else None
+    return OfflineResult(
+        records=list(reversed(core.records)), stored=listed.records, samples=n, calibration=cal
+    )
 
 
 def _finished_at(t: datetime, outcome: JobOutcome) -> datetime:

@@ -14,6 +14,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("csv", type=Path, help="temperature CSV (chtc record / drivers.logs format)")
@@ -76,6 +78,23 @@ def format_record(r: Any) -> str:
     return f"{head}\n    W/(m²·K), 95 % CI ('?' = poorly identified): {zones}\n    {tail}"
 
 
+def offsets_line(calibration: Any, ident: Any) -> str:
+    """What happened to the sensor offsets (service.calibration)."""
+    if not ident.offset_calibration:
+        return "sensor offsets: calibration off (measurements as recorded)"
+    if calibration is None:
+        return (
+            "sensor offsets: no baseline (the log never rests at the ambient long enough); "
+            f"their 1σ {ident.offset_sd_c:.3f} °C is carried in the CIs"
+        )
+    c = calibration
+    return (
+        f"sensor offsets: zeroed against a baseline at rest, {c.t_from.isoformat(timespec='seconds')} to "
+        f"{c.t_to.isoformat(timespec='seconds')} ({c.samples} samples): {np.nanmin(c.offsets_c):+.3f} to "
+        f"{np.nanmax(c.offsets_c):+.3f} °C, 1σ ≤ {np.max(c.sd_c):.3f} °C"
+    )
+
+
 def main(args: argparse.Namespace) -> int:
     from drivers.logs import LogFormatError
     from service.logsamples import samples_from_logs
@@ -100,6 +119,7 @@ def main(args: argparse.Namespace) -> int:
         f"{data.rows} samples, {data.frames} CAN frames ({data.bad_frames} undecodable); "
         f"{len(result.records)} identifications (seed {settings.identification.seed})"
     )
+    print(offsets_line(result.calibration, settings.identification))
     for r in result.records:
         print(format_record(r))
     if args.json_out is not None:
