@@ -433,12 +433,12 @@ def _assemble(
 ) -> IdentificationResult:
     jac, r = problem.jacobian(theta)
     conf = confidence(jac, r)
+    if bias_sd is not None:  # before the carry: the end ensemble must carry the biases' H error too
+        conf = with_cov(conf.sigma_c, conf.cov + channel_bias_cov(jac, problem.channels, bias_sd))
     ensemble = None
     if start_cov is not None:
         carried = carry(problem, theta, jac, conf.cov, start_cov)
         conf, ensemble = with_cov(conf.sigma_c, carried.cov), carried.ensemble
-    if bias_sd is not None:
-        conf = with_cov(conf.sigma_c, conf.cov + channel_bias_cov(jac, problem.channels, bias_sd))
     f = float(np.mean(r * r))
     pred = problem.predict(theta[None, :])[0]
     lo, hi = theta - conf.half_width, theta + conf.half_width
