@@ -6,7 +6,7 @@ from typing import Any
 
 import numpy as np
 
-from model.identify import identify
+from model.identify import IdentifyOptions, identify
 from model.identify_problem import channel_bias_cov
 
 from .conftest import Condition
@@ -33,8 +33,11 @@ def test_offset_uncertainty_widens_the_cis_instead_of_flagging_biased_h(
     w = cond3000.window
     offsets = np.random.default_rng(3).uniform(-0.2, 0.2, 32)
     shifted = type(w)(w.inputs, w.measured_c + offsets[None, :], w.mask, w.t0, w.speed_rpm)
-    plain = identify(model.rom, shifted, rng=0, spec=model.spec)
-    carried = identify(model.rom, shifted, rng=0, spec=model.spec, offset_sd_c=0.2 / np.sqrt(3))
+    noise_only = IdentifyOptions(model_error_c=0.0)
+    plain = identify(model.rom, shifted, rng=0, spec=model.spec, options=noise_only)
+    carried = identify(
+        model.rom, shifted, rng=0, spec=model.spec, offset_sd_c=0.2 / np.sqrt(3), options=noise_only
+    )
     np.testing.assert_allclose(carried.h, plain.h)
 
     def wrong_flags(res: Any) -> int:
