@@ -23,6 +23,7 @@ from service.interface import (
     HealthSnapshot,
     IdentificationJob,
     IdentificationRecord,
+    OffsetBaseline,
     SensorReading,
 )
 
@@ -190,6 +191,31 @@ class SensorOut(BaseModel):
     residual_c: float | None = Field(description="measured - predicted, °C")
     quality: str
     t: datetime
+    offset_c: float | None = Field(
+        default=None, description="sensor offset zeroed against the baseline (subtracted before the fit), °C"
+    )
+    offset_sd_c: float | None = Field(default=None, description="1σ of the offset still unknown, °C")
+    offset_calibrated_at: datetime | None = Field(default=None, description="UTC end of the baseline")
+
+
+class BaselineOut(BaseModel):
+    t_from: datetime
+    t_to: datetime = Field(description="UTC calibration time (end of the rest window)")
+    source: str = Field(description='"auto" (detected equilibrium) or "manual"')
+    samples: int
+    offsets_c: list[float | None] = Field(description="per channel 1..32, °C (null: no data at rest)")
+    sd_c: list[float] = Field(description="per channel 1σ of the offset, °C")
+
+
+def baseline_out(b: OffsetBaseline) -> BaselineOut:
+    return BaselineOut(
+        t_from=b.t_from,
+        t_to=b.t_to,
+        source=b.source,
+        samples=b.samples,
+        offsets_c=[_num(x, 4) for x in b.offsets_c],
+        sd_c=[round(x, 4) for x in b.sd_c],
+    )
 
 
 def sensor_out(s: SensorReading) -> SensorOut:
@@ -204,6 +230,9 @@ def sensor_out(s: SensorReading) -> SensorOut:
         residual_c=_num(s.residual_c, 4),
         quality=s.quality,
         t=s.t,
+        offset_c=_num(s.offset_c, 4),
+        offset_sd_c=_num(s.offset_sd_c, 4),
+        offset_calibrated_at=s.offset_calibrated_at,
     )
 
 

@@ -94,7 +94,7 @@ def factor(cov: Array, *, rtol: float = 1e-10) -> Array:
 
 def _modes(rom: Any, h: Array, dt_s: float) -> tuple[Array, Array]:
     md = rom_modal.modes(rom.k0, rom.k_zone, np.asarray(h, dtype=np.float64).reshape(1, N_H))
-    mu, _ = rom_modal.step_factors(md.lam, float(dt_s), float(rom.theta))
+    mu, _ = rom_modal.step_factors(md.lam, float(dt_s), float(rom.theta), int(getattr(rom, "substeps", 1)))
     return np.asarray(md.phi[0]), np.asarray(mu[0])
 
 

@@ -43,6 +43,7 @@ from model.identify_problem import (
     Problem,
     SensorModel,
     baseline_offsets,
+    channel_bias_cov,
     confidence,
     per_sensor_rmse,
     point_errors,
@@ -112,6 +113,11 @@ class IdentifyOptions:
     min_samples: int = 30
     lsq_max_nfev: int = 60
     lsq_tol: float = 1e-10
+    # °C, 1σ of a constant per-channel model error carried in the CIs (``channel_bias_cov``): what is left of
+    # the reduced model's and the plant's differences at the sensors, at its measured peak (projection
+    # ≤ 0.011 °C, mesh ≤ 0.02 °C at 7000 rpm); 0.01 (the mesh's RMS) left H6/H7 at 0.86-0.89 coverage
+    # (docs/identification.md, "Model error and sensor offsets", "Hidden-truth bench")
+    model_error_c: float = 0.02
 
 
 @dataclass
@@ -299,6 +305,7 @@ def identify(
     estimate_loads: bool = False,
     estimate_t0_shift: bool = False,
     offsets_c: ArrayLike | None = None,
+    offset_sd_c: ArrayLike | None = None,
     start_cov: ArrayLike | None = None,
     fe: Any = None,
     spec: Any = None,
@@ -319,6 +326,9 @@ def identify(
         estimate_t0_shift: also fit a uniform shift of ``window.t0`` [°C] (box ``options.t0_shift_box``):
             for a start field that is known only up to a common offset (a service's live state).
         offsets_c: (32,) constant sensor offsets [°C] subtracted from the measurements.
+        offset_sd_c: 1σ [°C] (scalar or (32,)) of the offsets still unknown (no baseline: the sensors'
+            offset tolerance; after a baseline: its own error): carried in the CIs, with
+            ``options.model_error_c``, as a constant bias per channel (``channel_bias_cov``).
         start_cov: (r, r) covariance [°C²] of the error of the reduced start state (a ``ReducedModel``'s
             coordinates; zeros for an exact start): the CIs then also carry that error, and the result's
             ``end_ensemble`` is the window-end state's error (``model.carry``).
@@ -362,14 +372,37 @@ def identify(
     else:
         theta, message, population = _metaheuristic(problem, method, generator, x0, opts)
     nfev = problem.nfev
+    bias_sd = _bias_sd(offset_sd_c, opts.model_error_c)
     result = _assemble(
-        problem, theta, meas, spec, method=method, message=message, nfev=nfev, opts=opts, start_cov=p0
+        problem,
+        theta,
+        meas,
+        spec,
+        method=method,
+        message=message,
+        nfev=nfev,
+        opts=opts,
+        start_cov=p0,
+        bias_sd=bias_sd,
     )
     result.population = population
     if fe is not None:
         result.fe_check = _fe_check(fe, problem, theta, window)
     result.wall_s = time.perf_counter() - started
     return result
+
+
+def _bias_sd(offset_sd_c: ArrayLike | None, model_error_c: float) -> Array | None:
+    """Per-channel 1σ [°C] of the constant biases carried in the CIs, or None when there are none."""
+    sd = (
+        np.zeros(N_CHANNELS)
+        if offset_sd_c is None
+        else np.broadcast_to(np.asarray(offset_sd_c, float), (N_CHANNELS,))
+    )
+    if not np.all(np.isfinite(sd)) or np.any(sd < 0):
+        raise IdentificationError("offset_sd_c: expected finite values >= 0 °C (a scalar or 32)")
+    total = np.sqrt(sd**2 + float(model_error_c) ** 2)
+    return total if np.any(total > 0) else None
 
 
 def _start_cov(rom: Any, start_cov: ArrayLike) -> Array:
@@ -404,9 +437,12 @@ def _assemble(
     nfev: int,
     opts: IdentifyOptions,
     start_cov: Array | None = None,
+    bias_sd: Array | None = None,
 ) -> IdentificationResult:
     jac, r = problem.jacobian(theta)
     conf = confidence(jac, r)
+    if bias_sd is not None:  # before the carry: the end ensemble must carry the biases' H error too
+        conf = with_cov(conf.sigma_c, conf.cov + channel_bias_cov(jac, problem.channels, bias_sd))
     ensemble = None
     if start_cov is not None:
         carried = carry(problem, theta, jac, conf.cov, start_cov)

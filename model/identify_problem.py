@@ -166,6 +166,11 @@ class Problem:
         """r = model − measured over the usable entries, (P, m) [°C]."""
         return np.asarray(self.select(self.predict(theta)) - self._target[None, :])
 
+    @property
+    def channels(self) -> NDArray[np.int64]:
+        """Channel index (0..n_channels-1) of each usable entry, in the residuals' order."""
+        return np.asarray(self._flat % self.measured.shape[1], dtype=np.int64)
+
     def select(self, values: Array) -> Array:
         """The usable entries (K, m) of model-shaped values (K, n_steps + 1, 32), in the residuals' order."""
         flat = values.reshape(values.shape[0], int(np.prod(values.shape[1:])))  # also for K = 0
@@ -212,6 +217,21 @@ def confidence(jac: Array, residual: Array, *, z: float = 1.959964) -> Confidenc
     ssr = float(residual @ residual)
     sigma2 = ssr / max(m - p, 1)
     return with_cov(float(np.sqrt(sigma2)), sigma2 * np.linalg.pinv(jac.T @ jac), z=z)
+
+
+def channel_bias_cov(jac: Array, channels: NDArray[np.int64], sd_c: Array) -> Array:
+    """θ's covariance (p, p) from an unknown constant bias per channel with standard deviation ``sd_c`` (32,)
+    [°C]: a sensor offset left after (or without) a baseline, and the model error's slow part.
+
+    A bias b_c on channel c shifts the residuals of that channel's entries by b_c; the least-squares answer
+    moves by δθ = −(JᵀJ)⁺·Jᵀ·B·b with B (m, 32) the entries' channel indicator, so cov = G·diag(sd²)·Gᵀ with
+    G = (JᵀJ)⁺·Jᵀ·B. Unlike the noise this does not average out over the window, which is why it goes into
+    the covariance rather than into σ. ``channels`` (m,) is the channel index (0..31) of each residual entry.
+    """
+    per_channel = np.zeros((jac.shape[1], sd_c.size))
+    np.add.at(per_channel.T, channels, jac)  # Jᵀ·B: the sum of each channel's Jacobian rows
+    gain = np.linalg.pinv(jac.T @ jac) @ per_channel * sd_c[None, :]
+    return np.asarray(gain @ gain.T)
 
 
 def with_cov(sigma_c: float, cov: Array, *, z: float = 1.959964) -> Confidence:

@@ -18,7 +18,7 @@ Errors::
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass, field
 from typing import Literal
 
@@ -43,6 +43,7 @@ _D = (H_TABLE10 / H_TABLE4 * np.exp(AMBIENT_COEF_PER_K * (TI_B - TI_A)) - 1.0) /
 OPEN_CIRCUIT_C = -327.68  # int16 minimum at 0.01 degC/bit
 OUT_OF_RANGE_C = 327.67  # int16 maximum
 STATUS_OK, STATUS_OPEN, STATUS_RANGE = 0, 1, 2
+DEFAULT_SUBSTEPS = 4  # backward Euler at 2.5 s for 10-s samples: not the service's time integration
 
 
 class PlantError(ValueError):
@@ -122,8 +123,11 @@ def _check_faults(faults: Sequence[ChannelFault]) -> tuple[ChannelFault, ...]:
 class VirtualPlant:
     """The simulated spindle. ``mesh_size_m`` None uses ``spec.plant_mesh_size_m`` (finer than the service).
 
-    ``substeps``: time steps per sample (dt_s / substeps internally), to make the plant's time error smaller
-    than the service's. ``steady_tol_c``: within a segment, once the sensors change by less than this over
+    ``substeps``: backward-Euler steps per sample (dt_s / substeps internally); the default 4 (2.5-s steps)
+    keeps the plant's time discretisation apart from the service's (exact over each held 10-s step), so no
+    bench shares the service's time-step error (issue 15). ``h_law``: the truth H(speed [rpm], ambient [°C],
+    torque [N·m]) -> (7,) [W/(m²·K)]; None is ``h_true``.
+    ``steady_tol_c``: within a segment, once the sensors change by less than this over
     30 samples, the rest of the segment is filled with the converged values (fast long profiles); 0 disables
     the shortcut.
     """
@@ -139,7 +143,8 @@ class VirtualPlant:
         faults: Sequence[ChannelFault] = (),
         seed: int = 0,
         theta: float = 1.0,
-        substeps: int = 1,
+        substeps: int = DEFAULT_SUBSTEPS,
+        h_law: Callable[[float, float, float], NDArray[np.float64]] | None = None,
         steady_tol_c: float = 1e-3,
         fe: FEModel | None = None,
     ) -> None:
@@ -159,6 +164,7 @@ class VirtualPlant:
         self.offsets_c = off
         self.faults = _check_faults(faults)
         self.steady_tol_c = steady_tol_c
+        self.h_law = h_law if h_law is not None else h_true
         self._steppers: dict[tuple[bytes, float], Stepper] = {}
 
     def _stepper(self, h: NDArray[np.float64], dt_s: float) -> Stepper:
@@ -172,7 +178,8 @@ class VirtualPlant:
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
         """Sensors (n, 32) after each step of one segment, and the final field."""
         sub = self.substeps
-        stepper = self._stepper(h_true(seg.speed_rpm, seg.ambient_c, seg.torque_nm), dt_s / sub)
+        h = np.asarray(self.h_law(seg.speed_rpm, seg.ambient_c, seg.torque_nm), dtype=np.float64)
+        stepper = self._stepper(h, dt_s / sub)
         out = np.empty((n, N_CHANNELS))
         done, T = 0, field0
         while done < n:
@@ -226,7 +233,7 @@ class VirtualPlant:
         def col(name: str) -> NDArray[np.float64]:
             return np.array([getattr(profile[int(i)], name) for i in idx], dtype=np.float64)
 
-        h = np.array([h_true(s.speed_rpm, s.ambient_c, s.torque_nm) for s in profile])[idx]
+        h = np.array([self.h_law(s.speed_rpm, s.ambient_c, s.torque_nm) for s in profile])[idx]
         z = np.zeros((n, N_CHANNELS))
         return PlantRun(
             times_s=np.arange(n, dtype=np.float64) * dt_s,

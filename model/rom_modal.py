@@ -77,10 +77,22 @@ def modes(k0: Array, k_zone: Array, h: Array) -> Modes:
     return Modes(lam=lam, phi=phi)
 
 
-def step_factors(lam: Array, dt_s: float, theta: float) -> tuple[Array, Array]:
-    """θ-method amplification μ and input gain γ per mode (same shape as ``lam``)."""
-    denom = 1.0 / dt_s + theta * lam
-    return (1.0 / dt_s - (1.0 - theta) * lam) / denom, 1.0 / denom
+def step_factors(lam: Array, dt_s: float, theta: float, substeps: int = 1) -> tuple[Array, Array]:
+    """Amplification μ over one input step of ``dt_s`` [s] and input gain γ = (1 − μ)/λ per mode (same shape
+    as ``lam``).
+
+    ``substeps`` s ≥ 1: s θ-method steps of Δt/s with the input held, μ = μ_θ(Δt/s)^s (s = 1: the plain
+    θ-method, γ = 1/(1/Δt + θλ)). ``substeps`` 0: the exact solution of the reduced ODE with the input held
+    over the step (zero-order hold), μ = exp(−λΔt) — the limit s → ∞, free of time-step error.
+    """
+    if substeps == 0:
+        mu = np.exp(-lam * dt_s)
+    else:
+        h = dt_s / substeps
+        mu = ((1.0 / h - (1.0 - theta) * lam) / (1.0 / h + theta * lam)) ** substeps
+    with np.errstate(divide="ignore", invalid="ignore"):
+        gamma = np.where(lam > 0.0, (1.0 - mu) / np.where(lam > 0.0, lam, 1.0), dt_s)
+    return mu, gamma
 
 
 def power_table(mu: Array, n_max: int) -> Array:

@@ -24,6 +24,14 @@ import numpy as np
 
 from drivers.quality import Quality
 from model.carry import StateCovariance
+from service.calibration import (
+    BaselineRequest,
+    BaselineTaken,
+    Calibration,
+    CalibrationConfig,
+    OffsetCalibrator,
+    Reading,
+)
 from service.db.records import (
     ConditionEnd,
     ConditionStart,
@@ -109,6 +117,9 @@ class CoreConfig:
     sample_store_period_s: float = 10.0
     min_speed_rpm: float = 100.0  # below: spindle idle, no bearing heat, H not identifiable -> skipped
     initial_h: tuple[float, ...] = (50.0,) * 7  # live-state H before the first identification (no data yet)
+    # sensor offsets zeroed against a baseline at thermal equilibrium (service.calibration); None: the
+    # measurements are taken as they come and no offset uncertainty is carried in the CIs
+    calibration: CalibrationConfig | None = field(default_factory=CalibrationConfig)
 
 
 @dataclass(frozen=True)
@@ -218,6 +229,8 @@ class ServiceCore:
         self._last_ok_t = np.full(len(model.spec.sensors), np.nan)
         self.last_good_daq_t: datetime | None = None  # newest sample with enough usable temperatures
         self.last_good_can_t: datetime | None = None  # newest sample with speed and torque from CAN
+        cal = config.calibration
+        self.calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
 
     # --- samples ------------------------------------------------------------------------------------------
     def ingest(self, sample: Any) -> list[Launch]:
@@ -225,6 +238,7 @@ class ServiceCore:
         with self.lock:
             ts = sample.t.timestamp()
             self._remember(sample)
+            self._calibrate(sample)
             self._store_sample(sample, ts)
             self._advance_live(sample, ts)
             out: list[Instruction] = []
@@ -288,6 +302,38 @@ class ServiceCore:
             can = "speed and torque from CAN"
             out += _age_problem("can_no_good_data", can, self.last_good_can_t, now, limit)
             return tuple(out)
+
+    def _calibrate(self, sample: Any) -> None:
+        if self.calibrator is None or self.newest is None:
+            return
+        s = self.newest
+        ok = np.array([q == "ok" for q in s.quality], dtype=bool) & np.isfinite(s.temps_c)
+        reading = Reading(s.t, s.temps_c, ok, s.ambient_c, s.speed_rpm)
+        self._calibrated(self.calibrator.handle(reading))
+
+    def _calibrated(self, instructions: Sequence[Any]) -> Calibration | None:
+        for ins in instructions:
+            if isinstance(ins, BaselineTaken):
+                c = ins.calibration
+                self.on_event(
+                    f"sensor offsets zeroed ({c.source} baseline, {c.samples} samples at rest until "
+                    f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."
+                    f"{np.nanmax(c.offsets_c):+.2f} °C"
+                )
+                return c
+        return None
+
+    def request_baseline(self) -> Calibration:
+        """Take a baseline now from the newest samples at rest; ``NotReadyError`` naming why not."""
+        with self.lock:
+            if self.calibrator is None:
+                raise NotReadyError("sensor calibration is disabled")
+            t = self.newest.t if self.newest is not None else datetime.now(UTC)
+            out = self.calibrator.handle(BaselineRequest(t))
+            taken = self._calibrated(out)
+            if taken is None:
+                raise NotReadyError(getattr(out[0], "reason", "no baseline") if out else "no baseline")
+            return taken
 
     def _store_sample(self, sample: Any, ts: float) -> None:
         if not self._decimator.keep(ts):
@@ -408,6 +454,8 @@ class ServiceCore:
             gap=self._gap(start_cov, snap.t),
             time_budget_s=self.config.time_budget_s,
             ci_threshold=self.config.ci_threshold,
+            offsets_c=None if self.calibrator is None else self.calibrator.offsets(),
+            offset_sd_c=None if self.calibrator is None else self.calibrator.offset_sd(),
         )
         launch = Launch(job, request, key, now, utc(snap.t), utc(float(arrays.times_s[-1])))
         self._launches[job.job_id] = launch

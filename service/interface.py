@@ -158,6 +158,22 @@ class SensorReading:
     residual_c: float | None  # measured - predicted
     quality: str  # drivers.quality.Quality value: "ok", "stale", "open_circuit", ...
     t: datetime  # UTC of the sample
+    offset_c: float | None = None  # zeroed sensor offset (subtracted before the fit); None: no baseline
+    offset_sd_c: float | None = None  # 1σ of the offset still unknown, carried in the CIs
+    offset_calibrated_at: datetime | None = None  # UTC end of the baseline (service.calibration)
+
+
+@dataclass(frozen=True)
+class OffsetBaseline:
+    """A sensor-offset baseline taken at thermal equilibrium (``service.calibration``): the window
+    [t_from, t_to] (UTC), "auto" or "manual", and per channel the offset and its 1σ (°C; None: no data)."""
+
+    t_from: datetime
+    t_to: datetime
+    source: str
+    samples: int
+    offsets_c: tuple[float | None, ...]
+    sd_c: tuple[float, ...]
 
 
 @dataclass(frozen=True, eq=False)
@@ -329,6 +345,10 @@ class ChtcService(Protocol):
 
     def condition(self) -> ConditionSnapshot:
         """The current operating condition; raises NoDataError before the first CAN frame."""
+        ...
+
+    def request_baseline(self) -> OffsetBaseline:
+        """Take a sensor-offset baseline now (spindle at rest, at the ambient); NotReadyError says why not."""
         ...
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:

@@ -42,6 +42,7 @@ from service.interface import (
     NoDataError,
     NotFoundError,
     NotReadyError,
+    OffsetBaseline,
     Readiness,
     SectionPart,
     SensorHistory,
@@ -446,6 +447,13 @@ class InMemoryService:
             res = None if m is None or p is None else m - p
             out.append(SensorReading(ch, name, role, r, z, m, p, res, quality[i], t))
         return out
+
+    baseline: OffsetBaseline | None = None  # what request_baseline answers (tests set it)
+
+    def request_baseline(self) -> OffsetBaseline:
+        if self.baseline is None:
+            raise NotReadyError("no baseline: no samples at rest")
+        return self.baseline
 
     def condition(self) -> ConditionSnapshot:
         if self._condition is None:

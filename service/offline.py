@@ -32,6 +32,7 @@ class OfflineResult:
     conditions: list[Any] = field(default_factory=list)  # ConditionSnapshot, oldest first
     first: datetime | None = None  # time of the first and the last sample
     last: datetime | None = None
+    calibration: Any = None  # service.calibration.Calibration of the newest offset baseline (None: none)
 
 
 class _ListSink:
@@ -101,6 +102,7 @@ def run_offline(
             if outcome.status is JobStatus.OK:
                 stepper = core.live.prepare(np.asarray(outcome.result.h, dtype=float))
             pending += core.job_done(outcome, finished_at=finished, stepper=stepper)
+    cal = core.calibrator.current if core.calibrator is not None else None
     return OfflineResult(
         records=list(reversed(core.records)),
         stored=listed.records,
@@ -108,6 +110,7 @@ def run_offline(
         conditions=list(reversed(core.conditions)),
         first=first,
         last=last,
+        calibration=cal,
     )
 
 

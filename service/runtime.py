@@ -19,6 +19,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
+from service.calibration import CalibrationConfig
 from service.core import CoreConfig, ServiceCore
 from service.detector import DetectorConfig
 from service.history import RingHistory
@@ -86,6 +87,13 @@ def core_config(settings: Any) -> CoreConfig:
         ci_threshold=ident.ci_rel_threshold,
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
+        calibration=CalibrationConfig(
+            rest_s=ident.offset_rest_s,
+            no_baseline_sd_c=ident.offset_sd_c,
+            min_channels=ident.min_good_channels,
+        )
+        if ident.offset_calibration
+        else None,
     )
 
 

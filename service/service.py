@@ -47,6 +47,7 @@ from service.interface import (
     NoDataError,
     NotFoundError,
     NotReadyError,
+    OffsetBaseline,
     Readiness,
     SectionPart,
     SensorHistory,
@@ -291,16 +292,35 @@ class SoftSensorService:
             if s is None:
                 raise NoDataError("no sample yet")
             pred = core.live.sensors_now() if core.current is not None and core.live.initialized else None
+            cal = core.calibrator.current if core.calibrator is not None else None
+            sd = core.calibrator.offset_sd() if core.calibrator is not None else None
             out = []
             for i, spec in enumerate(core.model.spec.sensors):
                 q = s.quality[i] if i < len(s.quality) else "no_data"
                 m = float(s.temps_c[i]) if q == "ok" and np.isfinite(s.temps_c[i]) else None
                 p = float(pred[i]) if pred is not None else None
-                res = m - p if m is not None and p is not None else None
+                off = float(cal.applied()[i]) if cal is not None else None
+                res = m - (off or 0.0) - p if m is not None and p is not None else None  # offset-corrected
                 out.append(
-                    SensorReading(spec.channel, spec.name, spec.role, spec.r_m, spec.z_m, m, p, res, q, s.t)
+                    SensorReading(
+                        *(spec.channel, spec.name, spec.role, spec.r_m, spec.z_m, m, p, res, q, s.t),
+                        offset_c=off,
+                        offset_sd_c=None if sd is None else float(sd[i]),
+                        offset_calibrated_at=None if cal is None else cal.t_to,
+                    )
                 )
             return out
+
+    def request_baseline(self) -> OffsetBaseline:
+        c = self.core.request_baseline()
+        return OffsetBaseline(
+            c.t_from,
+            c.t_to,
+            c.source,
+            c.samples,
+            tuple(float(x) if np.isfinite(x) else None for x in c.offsets_c),
+            tuple(float(x) for x in c.sd_c),
+        )
 
     def condition(self) -> ConditionSnapshot:
         cond = self.core.condition

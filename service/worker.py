@@ -77,6 +77,8 @@ class JobRequest:
     gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
+    offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.calibration)
+    offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
 
 
 @dataclass(frozen=True, eq=False)
@@ -187,6 +189,8 @@ def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any 
         warm_start=None if req.warm_start is None else np.asarray(req.warm_start, dtype=float),
         estimate_loads=req.estimate_loads,
         estimate_t0_shift=req.estimate_t0_shift,
+        offsets_c=req.offsets_c,
+        offset_sd_c=req.offset_sd_c,
         start_cov=start_covariance(model, req) if req.carry_start_error else None,
         spec=model.spec,
         options=IdentifyOptions(time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold),

@@ -1,4 +1,5 @@
-"""GET /sensors: the 32 channels at the newest sample, measured vs predicted (°C)."""
+"""GET /sensors: the 32 channels at the newest sample, measured vs predicted (°C), with the zeroed offsets.
+POST /sensors/baseline (token): take a sensor-offset baseline now (service.calibration)."""
 
 from __future__ import annotations
 
@@ -6,9 +7,9 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 
-from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.deps import ClockDep, ReadAccess, ServiceDep, WriteAccess
 from api.errors import invalid
-from api.schemas import SensorsOut, sensor_out
+from api.schemas import BaselineOut, SensorsOut, baseline_out, sensor_out
 
 router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
 
@@ -58,4 +59,14 @@ async def get_sensors(
         served_at=now,
         channels=[sensor_out(r) for r in readings],
     )
+    return Response(out.model_dump_json(), media_type="application/json")
+
+
+@router.post(
+    "/sensors/baseline",
+    response_model=BaselineOut,
+    summary="take a sensor-offset baseline now (spindle at rest, at the ambient); 503 names why not",
+)
+async def post_baseline(service: ServiceDep, _: WriteAccess) -> Response:
+    out = baseline_out(service.request_baseline())
     return Response(out.model_dump_json(), media_type="application/json")

@@ -20,6 +20,8 @@ import sys
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("csv", type=Path, help="temperature CSV (chtc record / drivers.logs format)")
@@ -153,6 +155,23 @@ def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
     return lines
 
 
+def offsets_line(calibration: Any, ident: Any) -> str:
+    """What happened to the sensor offsets (service.calibration)."""
+    if not ident.offset_calibration:
+        return "sensor offsets: calibration off (measurements as recorded)"
+    if calibration is None:
+        return (
+            "sensor offsets: no baseline (the log never rests at the ambient long enough); "
+            f"their 1σ {ident.offset_sd_c:.3f} °C is carried in the CIs"
+        )
+    c = calibration
+    return (
+        f"sensor offsets: zeroed against a baseline at rest, {c.t_from.isoformat(timespec='seconds')} to "
+        f"{c.t_to.isoformat(timespec='seconds')} ({c.samples} samples): {np.nanmin(c.offsets_c):+.3f} to "
+        f"{np.nanmax(c.offsets_c):+.3f} °C, 1σ ≤ {np.max(c.sd_c):.3f} °C"
+    )
+
+
 def main(args: argparse.Namespace) -> int:
     from drivers.logs import LogFormatError, read_temperature_csv
     from service.logsamples import samples_from_logs
@@ -194,6 +213,7 @@ def main(args: argparse.Namespace) -> int:
         f"{data.rows} rows -> {len(data.samples)} samples every {settings.acquisition.sample_period_s:g} s, "
         f"{source}; {len(result.records)} identifications (seed {settings.identification.seed})"
     )
+    print(offsets_line(result.calibration, settings.identification))
     for r in result.records:
         print(format_record(r))
     if args.json_out is not None:

@@ -61,7 +61,7 @@ def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
     doc = _doc(client)
     assert doc["components"]["securitySchemes"]["bearerAuth"] == {"type": "http", "scheme": "bearer"}
     secured = {(p, m) for p, m, op in _operations(doc) if op.get("security")}
-    assert secured == {("/api/v1/identifications", "post")}
+    assert secured == {("/api/v1/identifications", "post"), ("/api/v1/sensors/baseline", "post")}
     settings = Settings(api={"token": WRITE_TOKEN, "read_token": "read-token-for-openapi"})
     with TestClient(create_app(settings, service, clock=clock)) as c:
         doc = _doc(c)

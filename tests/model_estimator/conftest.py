@@ -4,7 +4,7 @@ on the plant's finer mesh with its own truth (never the filter's own model outpu
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -65,7 +65,10 @@ def model() -> Model:
     fe = build_fe_model(spec)
     cache = _cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
-    return Model(spec, fe, load_or_build_rom(fe, spec, cache, rank=SERVICE_RANK, box=(5.0, 200.0)))
+    rom = load_or_build_rom(fe, spec, cache, rank=SERVICE_RANK, box=(5.0, 200.0))
+    # model.estimator predicts with the plain θ-step (substeps=1); the served model integrates each held step
+    # exactly since issue 15 (docs/estimator.md, "Hand-off"): the filter's open loop is that θ-step model
+    return Model(spec, fe, replace(rom, substeps=1))
 
 
 @pytest.fixture(scope="session")

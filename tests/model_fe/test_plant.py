@@ -8,6 +8,7 @@ import pytest
 from model.fem import build_fe_model, simulate_sensors
 from model.inputs import inputs_from_operation
 from model.plant import (
+    DEFAULT_SUBSTEPS,
     OPEN_CIRCUIT_C,
     OUT_OF_RANGE_C,
     ChannelFault,
@@ -55,12 +56,19 @@ def test_plant_truth_equals_the_fe_model_under_h_true(spec, plant_fe) -> None:  
     assert run.times_s.shape == (91,) and run.temps_c.shape == (91, 32)
     assert run.speed_rpm[59] == 3000.0 and run.speed_rpm[60] == 5000.0 and run.speed_rpm[-1] == 5000.0
     assert np.allclose(run.h_true[0], TABLE4)
-    # first segment: the FE model itself, driven by the plant's recorded condition
+    # first segment: the FE model itself at the plant's default 4 substeps (2.5 s), driven by the plant's
+    # recorded condition and sampled every 10 s
+    sub = DEFAULT_SUBSTEPS
     inputs = inputs_from_operation(
-        spec, dt_s=10.0, speed_rpm=run.speed_rpm[:60], torque_nm=run.torque_nm[:60], ambient_c=23.2
+        spec,
+        dt_s=10.0 / sub,
+        speed_rpm=np.repeat(run.speed_rpm[:60], sub),
+        torque_nm=np.repeat(run.torque_nm[:60], sub),
+        ambient_c=23.2,
     )
     expected, _ = simulate_sensors(plant_fe, TABLE4, inputs, 23.2)
-    assert np.allclose(run.truth_c[:61], expected, atol=1e-10)
+    assert sub >= 4
+    assert np.allclose(run.truth_c[:61], expected[::sub], atol=1e-10)
     assert run.truth_c[-1, 0] > run.truth_c[60, 0] > run.truth_c[0, 0]
 
 

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any
@@ -32,7 +32,9 @@ def load_service_model() -> Any:
     spec = load_spindle()
     fe = build_fe_model(spec)
     rom = load_or_build_rom(fe, spec, Path(cache), rank=SERVICE_ROM_RANK, box=(5.0, 200.0))
-    return SimpleNamespace(spec=spec, fe=fe, rom=rom)
+    # model.rom_segments implements the plain θ-step (substeps=1); the served model integrates each held step
+    # exactly since issue 15 (docs/hmap.md, "Hand-off"): compare like with like
+    return SimpleNamespace(spec=spec, fe=fe, rom=replace(rom, substeps=1))
 
 
 def duty_profile(seed: int, *, duration_s: float, ambient_c: float = 22.0) -> list[Segment]:

@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from model import rom_train
+from model import rom_check, rom_train
 from model.fem import FEModel, build_fe_model, simulate, steady_state
 from model.geometry import SpindleSpec, load_spindle
 from model.inputs import InputSeries
@@ -63,12 +64,42 @@ def test_rom_vs_full_fe_with_mid_window_step(rom: ReducedModel, fe: FEModel, spe
     )
     t0 = steady_state(fe, np.full(7, 50.0), ambient_c=21.8, q_front_w=80.0, q_rear_w=40.0)
     hs = lo * (hi / lo) ** rng.random((3, 7))
-    red = rom.simulate_sensors(hs, inputs, t0)
+    red = replace(rom, substeps=1).simulate_sensors(hs, inputs, t0)  # the projection: same θ-steps as the FE
     bound = rom.error_report["max_err_c"]
     for p in range(3):
         full = fe.sensors(simulate(fe, hs[p], inputs, t0))
         err = np.max(np.abs(red[p] - full))
         assert err < max(1.5 * bound, 0.02), (hs[p], err, bound)
+
+
+def test_served_rom_is_within_0_02_c_of_a_converged_full_fe(rom: ReducedModel, fe: FEModel) -> None:
+    """Issue 15: the served reduced model (exact over each held step) against the full FE converged in time
+    (Richardson of backward Euler at 0.5 s and 0.25 s); backward Euler at the 10-s input step, the model's
+    integration before, is ~0.1 °C off right after the steps of this window."""
+    h = np.array([79.75, 46.25, 61.89, 45.31, 46.20, 68.23, 11.12])
+    n = 30
+    k = np.arange(n)
+    case = rom_check.Case(
+        h=h,
+        inputs=(
+            rom_check.CaseInputs(
+                10.0, np.where(k < 10, 21.8, 26.0), np.where(k < 15, 0.0, 250.0), np.full(n, 100.0)
+            ),
+            rom_check.CaseInputs(10.0, np.full(n, 22.0), np.where(k < 5, 250.0, 20.0), np.full(n, 30.0)),
+        ),
+        t0=np.column_stack(
+            [
+                np.full(fe.n_nodes, 18.0),
+                steady_state(fe, 0.5 * h, ambient_c=22.0, q_front_w=80.0, q_rear_w=40.0),
+            ]
+        ),
+    )
+    full, ref_err = rom_check.case_reference(fe, case, theta=1.0, ref_substeps=20)
+    assert ref_err < 0.01
+    served = rom_check.rom_errors(rom, case, full)
+    backward_euler = rom_check.rom_errors(replace(rom, substeps=1), case, full)
+    assert rom.substeps == 0 and served.max() <= 0.02, served
+    assert backward_euler.max() > 3 * served.max(), (backward_euler, served)
 
 
 def test_cache_reloads_fast_and_identical(

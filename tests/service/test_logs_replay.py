@@ -162,6 +162,9 @@ def test_identify_is_deterministic_and_finds_both_conditions(logs, tmp_path, cap
     )
     printed = capsys.readouterr().out
     assert "H1=" in printed and "95 % CI" in printed
+    # the log starts with 5 min at rest at the ambient: the offsets are zeroed against that baseline
+    # (samples are taken half a period after each 10-s grid point, docs/service.md)
+    assert "sensor offsets: zeroed against a baseline at rest, 2026-03-02T06:00:05+00:00" in printed
 
 
 def test_identify_names_a_bad_line(tmp_path, capsys, logs):

@@ -1,0 +1,147 @@
+"""Sensor offset calibration: the equilibrium detector, the baseline state machine, its wiring in the core."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+
+from model.plant import Segment
+from service.calibration import (
+    BaselineRejected,
+    BaselineRequest,
+    BaselineTaken,
+    CalibrationConfig,
+    CalibrationStatus,
+    OffsetCalibrator,
+    Reading,
+    equilibrium,
+)
+from service.core import CoreConfig, ServiceCore
+from service.history import RingHistory
+from service.modelload import LoadedModel
+
+from .conftest import plant_run, ring_of, samples_of
+
+T = datetime(2026, 3, 1, 6, 0, tzinfo=UTC)
+OFFSETS = np.random.default_rng(5).uniform(-0.2, 0.2, 32)
+
+
+def readings(
+    n: int, *, start: int = 0, speed: float = 0.0, excess: float = 0.0, decay_s: float = 0.0, seed: int = 0
+):  # type: ignore[no-untyped-def]
+    """n samples every 10 s at 20 °C ambient: offsets + noise (σ 0.15 °C) + a spindle excess decaying
+    with ``decay_s`` (0: constant)."""
+    rng = np.random.default_rng(seed)
+    out = []
+    for k in range(start, start + n):
+        warm = excess * (np.exp(-10.0 * k / decay_s) if decay_s else 1.0)
+        temps = 20.0 + warm + OFFSETS + 0.15 * rng.standard_normal(32)
+        out.append(Reading(T + timedelta(seconds=10 * k), temps, np.ones(32, bool), 20.0, speed))
+    return out
+
+
+def feed(cal: OffsetCalibrator, items) -> list:  # type: ignore[no-untyped-def]
+    out = []
+    for r in items:
+        out += cal.handle(r)
+    return out
+
+
+def test_a_rest_at_the_ambient_gives_a_baseline_with_the_offsets() -> None:
+    cal = OffsetCalibrator()
+    assert cal.status is CalibrationStatus.NO_BASELINE
+    assert np.allclose(cal.offset_sd(), 0.3 / np.sqrt(3))  # unknown offsets: ±0.3 °C uniform
+    taken = feed(cal, readings(31))
+    assert len(taken) == 1 and isinstance(taken[0], BaselineTaken)
+    c = taken[0].calibration
+    # 30 samples span 290 s: the detector allows 5 % for the sample times' jitter around the 10-s grid
+    assert cal.status is CalibrationStatus.CALIBRATED and c.source == "auto" and c.samples == 30
+    assert c.t_to == T + timedelta(seconds=290)
+    sd = 0.15 / np.sqrt(30)
+    assert np.all(np.abs(c.offsets_c - OFFSETS) < 4.5 * sd)
+    expected = np.sqrt(sd**2 + 0.005**2)  # the channel's scatter / √n, plus the equilibrium's own 1σ
+    assert np.median(c.sd_c) == pytest.approx(expected, rel=0.15)
+    assert np.all((c.sd_c > 0.5 * expected) & (c.sd_c < 1.5 * expected))
+    assert cal.current is not None and cal.current.samples == 31  # the 31st sample refined it
+    np.testing.assert_allclose(cal.offsets(), cal.current.offsets_c)
+
+
+def test_a_longer_rest_refines_the_same_baseline_silently() -> None:
+    cal = OffsetCalibrator()
+    first = feed(cal, readings(31))
+    later = feed(cal, readings(150, start=31, seed=1))
+    assert len(first) == 1 and later == []
+    assert cal.current is not None and cal.current.samples == 181
+    assert np.all(np.abs(cal.current.offsets_c - OFFSETS) < 4.5 * 0.15 / np.sqrt(181))
+    assert cal.current.t_from == T
+    assert np.median(cal.current.sd_c) < 0.5 * np.median(first[0].calibration.sd_c)
+
+
+def test_a_cooling_or_warm_spindle_is_not_an_equilibrium() -> None:
+    cooling = OffsetCalibrator()
+    assert feed(cooling, readings(60, excess=3.0, decay_s=1800.0)) == []
+    assert cooling.current is None and cooling.status is CalibrationStatus.SETTLING
+    warm = readings(31, excess=0.5)  # flat but 0.5 °C above the ambient
+    assert equilibrium(warm, CalibrationConfig()) == "the spindle is not at the ambient temperature"
+    assert "drifting" in str(equilibrium(readings(31, excess=3.0, decay_s=1800.0), CalibrationConfig()))
+
+
+def test_running_resets_the_rest_and_rearms_the_automatic_baseline() -> None:
+    cal = OffsetCalibrator()
+    feed(cal, readings(31))
+    feed(cal, readings(5, start=31, speed=3000.0))
+    assert cal.status is CalibrationStatus.CALIBRATED  # the offsets are kept while the spindle runs
+    rejected = cal.handle(BaselineRequest(T + timedelta(seconds=400)))
+    assert isinstance(rejected[0], BaselineRejected) and "no samples at rest" in rejected[0].reason
+    again = feed(cal, readings(31, start=40, seed=2))
+    assert len(again) == 1 and isinstance(again[0], BaselineTaken)
+
+
+def test_a_manual_request_takes_a_baseline_or_names_why_not() -> None:
+    cal = OffsetCalibrator()
+    feed(cal, readings(10))
+    short = cal.handle(BaselineRequest(T))
+    assert isinstance(short[0], BaselineRejected) and "at rest for 90 s only" in short[0].reason
+    feed(cal, readings(25, start=10, seed=3))
+    manual = cal.handle(BaselineRequest(T))
+    assert isinstance(manual[0], BaselineTaken) and manual[0].calibration.source == "manual"
+
+
+def test_an_open_channel_keeps_no_offset_and_the_prior_uncertainty() -> None:
+    cal = OffsetCalibrator()
+    items = readings(31)
+    items = [Reading(r.t, r.temps_c, np.arange(32) != 4, r.ambient_c, r.speed_rpm) for r in items]
+    c = feed(cal, items)[0].calibration
+    assert np.isnan(c.offsets_c[4]) and cal.offsets()[4] == 0.0
+    assert c.sd_c[4] == pytest.approx(np.hypot(0.3 / np.sqrt(3), 0.005))
+
+
+def test_the_core_zeroes_the_offsets_of_its_jobs(loaded_model: LoadedModel) -> None:
+    """A log that starts at rest: the core takes the baseline and every identification job carries the
+    offsets (close to the plant's) and their 1σ; with calibration off the job carries none."""
+    profile = [Segment(900.0, 0.0, 0.0, 21.0), Segment(900.0, 3000.0, 5.0, 21.0)]
+    run = plant_run(profile, offsets_c=OFFSETS)
+
+    def first_request(config: CoreConfig):  # type: ignore[no-untyped-def]
+        ring = ring_of()
+        core = ServiceCore(config, model=loaded_model, history=RingHistory(ring), sink=_Sink())
+        for s in samples_of(run):
+            ring.append(s)
+            launches = core.ingest(s)
+            if launches and launches[0].request is not None:
+                return core, launches[0].request
+        raise AssertionError("no identification was launched")
+
+    core, req = first_request(CoreConfig())
+    assert core.calibrator is not None and core.calibrator.current is not None
+    assert np.all(np.abs(req.offsets_c - OFFSETS) < 4.5 * 0.15 / np.sqrt(85))
+    assert np.all(req.offset_sd_c < 0.03)
+    _, plain = first_request(CoreConfig(calibration=None))
+    assert plain.offsets_c is None and plain.offset_sd_c is None
+
+
+class _Sink:
+    def submit(self, record: object) -> bool:
+        return True
