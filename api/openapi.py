@@ -33,7 +33,7 @@ _DESCRIPTIONS = {
     "403": "wrong token, or writes disabled (no api.token)",
     "404": "unknown id",
     "408": "the body stalled",
-    "409": "an identification is already queued or running",
+    "409": "not possible now: an identification is already queued or running, or no baseline at rest",
     "413": "body larger than the cap",
     "414": "request target (path + query) too long",
     "422": "invalid input; `field` names it",

@@ -8,8 +8,9 @@ from typing import Annotated
 from fastapi import APIRouter, Query, Response
 
 from api.deps import ClockDep, ReadAccess, ServiceDep, WriteAccess
-from api.errors import invalid
+from api.errors import ApiError, invalid
 from api.schemas import BaselineOut, SensorsOut, baseline_out, sensor_out
+from service.interface import NotReadyError
 
 router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
 
@@ -65,8 +66,12 @@ async def get_sensors(
 @router.post(
     "/sensors/baseline",
     response_model=BaselineOut,
-    summary="take a sensor-offset baseline now (spindle at rest, at the ambient); 503 names why not",
+    summary="take a sensor-offset baseline now (spindle at rest, at the ambient); 409 names why not",
 )
 async def post_baseline(service: ServiceDep, _: WriteAccess) -> Response:
-    out = baseline_out(service.request_baseline())
+    try:
+        taken = service.request_baseline()
+    except NotReadyError as err:  # the spindle's state refuses it (running, not at rest): a conflict
+        raise ApiError(409, "conflict", f"no baseline taken: {err}") from err
+    out = baseline_out(taken)
     return Response(out.model_dump_json(), media_type="application/json")

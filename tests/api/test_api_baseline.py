@@ -19,7 +19,7 @@ def test_baseline_needs_the_token_and_names_why_it_cannot_be_taken(
 ) -> None:
     assert client.post("/api/v1/sensors/baseline").status_code == 401
     r = client.post("/api/v1/sensors/baseline", headers=AUTH)
-    assert r.status_code == 503 and "no samples at rest" in r.text
+    assert r.status_code == 409 and "no samples at rest" in r.text  # a state conflict, not a 5xx
     t0, t1 = datetime(2026, 11, 22, 6, 0, tzinfo=UTC), datetime(2026, 11, 22, 6, 30, tzinfo=UTC)
     service.baseline = OffsetBaseline(t0, t1, "manual", 181, (0.12345678,) + (None,) * 31, (0.011,) * 32)
     r = client.post("/api/v1/sensors/baseline", headers=AUTH)
