@@ -1,6 +1,7 @@
 """``create_app(settings, service) -> FastAPI``: the REST API under ``/api/v1`` and the dashboard at ``/``.
 
-The app reads the service only through :class:`service.interface.ChtcService`. ``settings`` is the service's
+The app reads the service only through :class:`service.serve.interface.ChtcService`. ``settings`` is the
+service's
 ``Settings`` (only ``settings.api`` is read: ``token``, ``read_token``); binding (``api.host``/``api.port``,
 127.0.0.1 by default) is the caller's job (``chtc run`` / ``chtc demo`` run uvicorn with them).
 """
@@ -21,7 +22,7 @@ from api.guard import GuardLimits, RequestGuard, RouteRule, route_rules
 from api.metrics import ApiMetrics, RequestTimer
 from api.openapi import build_openapi
 from api.routers import chtc, condition, field, health, history, identifications, sensors, spindle
-from service.interface import ChtcService
+from service.serve.interface import ChtcService
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).parent / "static"

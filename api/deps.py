@@ -1,6 +1,6 @@
 """Dependencies of the routers, as ``Annotated`` aliases.
 
-- ``ServiceDep``: the :class:`service.interface.ChtcService` the app was built with.
+- ``ServiceDep``: the :class:`service.serve.interface.ChtcService` the app was built with.
 - ``ClockDep``: a callable returning the current UTC ``datetime`` (injected, so tests control "now").
 - ``ReadAccess`` / ``WriteAccess``: bearer-token checks. Writes need ``settings.api.token`` (401 when the
   header is missing, 403 when it is wrong or no token is configured). Reads are open unless
@@ -20,7 +20,7 @@ from fastapi import Depends, Request
 from pydantic import AfterValidator, AwareDatetime, BeforeValidator
 
 from api.errors import ApiError
-from service.interface import ChtcService
+from service.serve.interface import ChtcService
 
 Clock = Callable[[], datetime]
 

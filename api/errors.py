@@ -5,7 +5,7 @@ Shape: ``{"error": {"code": str, "message": str, "field": str | None, "detail": 
 Error tree (API layer)::
 
     ApiError(Exception)              status, code, message, field, detail; raised by routers and deps
-    service.interface.ServiceError   translated once, here:
+    service.serve.interface.ServiceError   translated once, here:
         NotFoundError  -> 404 not_found       BusyError     -> 409 busy
         NoDataError    -> 503 no_data         NotReadyError -> 503 not_ready
 
@@ -23,7 +23,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.interface import BusyError, NoDataError, NotFoundError, NotReadyError, ServiceError
+from service.serve.interface import BusyError, NoDataError, NotFoundError, NotReadyError, ServiceError
 
 
 class ApiError(Exception):

@@ -1,5 +1,6 @@
 """Prometheus exposition: a per-app ``CollectorRegistry`` with the API's own request-latency histogram and a
-collector that turns the service's :class:`service.interface.MetricsSnapshot` into ``chtc_*`` families at
+collector that turns the service's :class:`service.serve.interface.MetricsSnapshot` into ``chtc_*`` families
+at
 scrape time (the service exposes numbers; the API exports them).
 """
 
@@ -20,7 +21,7 @@ from prometheus_client.core import (
 )
 from prometheus_client.registry import Collector
 
-from service.interface import LATENCY_BUCKETS_S, ChtcService, ChtcSnapshot, HistogramData
+from service.serve.interface import LATENCY_BUCKETS_S, ChtcService, ChtcSnapshot, HistogramData
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 

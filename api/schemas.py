@@ -2,7 +2,7 @@
 
 Naming: every number carries its unit in its name (``h_w_m2k``, ``ambient_c``, ``speed_rpm``, ``r_m``,
 ``age_s``); every timestamp is UTC ISO-8601 and ends in ``_at`` (or is ``t``/``since``). Conversion functions
-``*_out()`` build these from :mod:`service.interface` snapshots.
+``*_out()`` build these from :mod:`service.serve.interface` snapshots.
 """
 
 from __future__ import annotations
@@ -14,7 +14,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
-from service.interface import (
+from service.serve.interface import (
     H_UNIT,
     ZONE_NAMES,
     ChtcSnapshot,

@@ -185,7 +185,8 @@ class IdentificationSettings(_Section):
     timeout_s: float = Field(default=120.0, gt=0)
     seed: int = 0
     # zero the sensor offsets against a baseline at thermal equilibrium (spindle idle offset_rest_s, sensors
-    # flat, at the ambient: service.calibration); without a baseline their 1σ offset_sd_c widens the CIs
+    # flat, at the ambient: service.acquire.calibration); without a baseline their 1σ offset_sd_c widens the
+    # CIs
     offset_calibration: bool = True
     offset_rest_s: float = Field(default=300.0, gt=0)
     offset_sd_c: float = Field(default=0.173, ge=0)  # ±0.3 °C uniform, unknown until a baseline

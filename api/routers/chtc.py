@@ -15,7 +15,7 @@ from fastapi import APIRouter, Request, Response
 from api.deps import ClockDep, ReadAccess, ServiceDep
 from api.errors import ApiError
 from api.schemas import ChtcOut, chtc_out
-from service.interface import ChtcSnapshot
+from service.serve.interface import ChtcSnapshot
 
 router = APIRouter(tags=["chtc"], dependencies=[ReadAccess])
 

@@ -25,7 +25,7 @@ from api.errors import ApiError, invalid
 from api.routers.chtc import _matches
 from api.routers.field_render import GZIP_MIN_BYTES, FieldGate, FieldRenderer, Rendered, _clean
 from api.schemas import FieldGridOut, FieldMeshOut, FieldPointsOut, PointOut
-from service.interface import ChtcService, FieldAt, FieldSnapshot
+from service.serve.interface import ChtcService, FieldAt, FieldSnapshot
 
 router = APIRouter(tags=["temperature field"], dependencies=[ReadAccess])
 

@@ -1,5 +1,5 @@
 """GET /sensors: the 32 channels at the newest sample, measured vs predicted (°C), with the zeroed offsets.
-POST /sensors/baseline (token): take a sensor-offset baseline now (service.calibration)."""
+POST /sensors/baseline (token): take a sensor-offset baseline now (service.acquire.calibration)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Response
 from api.deps import ClockDep, ReadAccess, ServiceDep, WriteAccess
 from api.errors import ApiError, invalid
 from api.schemas import BaselineOut, SensorsOut, baseline_out, sensor_out
-from service.interface import NotReadyError
+from service.serve.interface import NotReadyError
 
 router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
 

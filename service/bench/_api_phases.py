@@ -61,7 +61,7 @@ class LiveLikeField:
 
 def bench_service(*, field_period_s: float = 10.0) -> tuple[Any, str]:
     """The service the benchmark's API serves, and which mesh it uses."""
-    from service.interface_memory import demo_service, model_section
+    from service.serve.interface_memory import demo_service, model_section
 
     try:
         svc, mesh = demo_service(section=model_section()), "the service's FE mesh"

@@ -3,7 +3,8 @@
 Set-up (all on loopback):
 
 - the API (``api.app.create_app``) runs under uvicorn in a **subprocess**, one worker, around the in-memory
-  service (``service.interface_memory.demo_service``: prebuilt snapshots, as the running service serves them);
+  service (``service.serve.interface_memory.demo_service``: prebuilt snapshots, as the running service serves
+  them);
 - the load is open-loop: ``--rate`` requests/s spread over ``--clients`` concurrent clients (one keep-alive
   connection each), each request sent at its scheduled instant; latency is measured at the client from send
   to full body; ``late_ms_p99`` says how far behind schedule sends were (client saturation). Two client kinds
@@ -412,7 +413,8 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
         "with_field": with_field,
     }
     out["meets_idle_target"] = out["chtc_p99_ms"] <= TARGET_P99_MS
-    # the service runs its identification worker at nice WORKER_NICE (service.worker): the niced phase is the
+    # the service runs its identification worker at nice WORKER_NICE (service.identify.worker): the niced
+    # phase is the
     # service's configuration when it ran; the default-priority phase is shown beside it
     busy_ratio = out["busy_niced_over_idle_p99"] if niced else out["busy_over_idle_p99"]
     out["busy_target_ratio"] = busy_ratio

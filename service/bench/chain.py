@@ -2,11 +2,11 @@
 
 ``chtc bench identify`` fits one window that starts from the plant's true (uniform) initial field. The
 service cannot do that after the first condition: each window starts from its live state, which was
-advanced with earlier, imperfect H (``service.live``). This bench measures what that costs.
+advanced with earlier, imperfect H (``service.estimate.live``). This bench measures what that costs.
 
 Data are SYNTHETIC: per seed the virtual plant (finer mesh, its own truth ``model.plant.h_true``, σ = 0.15 °C)
 runs the end-to-end test's profile (5 min idle, then 3000 → 4000 → 5000 rpm, 45 min each, from a cold
-spindle), and the samples go through the service's own core offline (``service.offline.run_offline``:
+spindle), and the samples go through the service's own core offline (``service.engine.offline.run_offline``:
 detector, scheduler, live state, windows, identification; deterministic). For the last identification of
 each condition (the 40-min window) it reports, per H, the median and maximum relative error against the truth
 over the seeds, the median relative 95 % half-width of the CI as served (with the carried start-field error
@@ -48,7 +48,7 @@ def plant_samples(seed: int) -> list[Any]:
     """The profile's plant run as acquisition samples every 10 s."""
     from model.geometry import load_spindle
     from model.plant import Segment, VirtualPlant
-    from service.logsamples import samples_from_plant
+    from service.sim.logsamples import samples_from_plant
 
     run = VirtualPlant(load_spindle(), seed=seed).run([Segment(*s) for s in PROFILE], dt_s=10.0)
     return samples_from_plant(run, t0_s=T0)
@@ -79,9 +79,9 @@ def summarise(errors: np.ndarray, half_widths: np.ndarray, covered: np.ndarray) 
 
 def run(seeds: int, *, progress: Any = None) -> dict[str, Any]:
     from model.plant import h_true
+    from service.engine.offline import run_offline
+    from service.engine.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.offline import run_offline
-    from service.runtime import core_config
     from service.settings import Settings
 
     settings = Settings()

@@ -1,10 +1,10 @@
 """``chtc bench fleet``: how many soft-sensor instances one PostgreSQL server holds (the write side).
 
 Each instance writes about one sample row per ``database.sample_store_period_s`` (10 s), plus rare condition,
-identification and device-event rows, each batch in its own transaction (``service.db.writer``). This bench
+identification and device-event rows, each batch in its own transaction (``service.store.writer``). This bench
 starts K writer threads, each standing for one instance with its own database on the server (the layout
 deploy/OPERATIONS.md recommends: one database per spindle), and commits single-sample transactions through
-the real repository code (``service.db.repository.write_records``) as fast as it can for ``--seconds``.
+the real repository code (``service.store.repository.write_records``) as fast as it can for ``--seconds``.
 Figures per K: committed transactions/s, commit latency median and p99, and the number of instances that
 rate carries at one sample per 10 s. The same loop against a local SQLite file (one writer) is the peer.
 The bench client shares the machine with the server, so the figures are lower bounds for a dedicated server.
@@ -41,7 +41,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _sample(i: int) -> Any:
-    from service.db.records import SampleData
+    from service.store.records import SampleData
 
     return SampleData(
         t=datetime.now(UTC),
@@ -54,7 +54,7 @@ def _sample(i: int) -> Any:
 
 
 def _writer_loop(factory: Any, stop_at: float, latencies: list[float]) -> None:
-    from service.db.repository import write_records
+    from service.store.repository import write_records
 
     i = 0
     while (start := time.perf_counter()) < stop_at:
@@ -94,8 +94,8 @@ def _pg_databases(pg_url: str, k: int) -> tuple[list[Any], Any]:
     import sqlalchemy as sa
     from sqlalchemy.engine import make_url
 
-    from service.db.engine import create_db_engine, make_session_factory
-    from service.db.migrate import upgrade
+    from service.store.engine import create_db_engine, make_session_factory
+    from service.store.migrate import upgrade
 
     admin = sa.create_engine(pg_url, isolation_level="AUTOCOMMIT")
     engines = []
@@ -124,8 +124,8 @@ def _drop_pg(handles: Any, k: int) -> None:
 
 
 def _sqlite_run(seconds: float, runs: int) -> dict[str, float]:
-    from service.db.engine import create_db_engine, make_session_factory
-    from service.db.migrate import upgrade
+    from service.store.engine import create_db_engine, make_session_factory
+    from service.store.migrate import upgrade
 
     with tempfile.TemporaryDirectory() as tmp:
         engine = create_db_engine(f"sqlite:///{Path(tmp) / 'bench.db'}")

@@ -13,7 +13,8 @@ Data are SYNTHETIC, but nothing in them is shared with the service's model or wi
 - scenario ``clean``: nothing else; scenario ``offsets``: per-channel offsets uniform in ±0.2 °C and one
   channel open circuit from the start.
 
-The samples go through ``chtc identify``'s code path (``service.offline.run_offline`` with the settings'
+The samples go through ``chtc identify``'s code path (``service.engine.offline.run_offline`` with the
+settings'
 defaults: detector, scheduler, live state, offset calibration, windows, identification). For the last
 successful identification of every condition (its longest window) it reports, per H, the median |error|
 and the CI coverage, the fraction of ``identified`` flags whose CI misses the truth, the fraction of cases
@@ -206,11 +207,11 @@ def run(
     seeds: int, scenarios: tuple[str, ...], *, first_seed: int = 0, raw: bool = False, progress: Any = None
 ) -> dict[str, Any]:
     from model.fem import build_fe_model
-    from service.logsamples import samples_from_plant
+    from service.engine.offline import run_offline
+    from service.engine.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.offline import run_offline
-    from service.runtime import core_config
     from service.settings import Settings
+    from service.sim.logsamples import samples_from_plant
 
     settings = Settings()
     model = load_model(ModelRef.from_settings(settings.model))

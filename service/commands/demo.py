@@ -79,7 +79,7 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
     s = load_settings(args.config)
     port = args.port
     if port == 0:
-        from service.runtime import free_port
+        from service.engine.runtime import free_port
 
         port = free_port(args.host)
     s = override(s, "api", host=args.host, port=port)
@@ -129,8 +129,8 @@ class Printer:
 async def run_demo(args: argparse.Namespace, settings: Any) -> int:
     from model.geometry import load_spindle
     from model.plant import VirtualPlant
-    from service.runtime import Runtime, ScaledClock
-    from service.simrig import SimAddress, make_drivers, plant_rig
+    from service.engine.runtime import Runtime, ScaledClock
+    from service.sim.simrig import SimAddress, make_drivers, plant_rig
 
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)

@@ -6,7 +6,8 @@ always give the same H. Prints one line per identification with H and its 95 % c
 writes them as JSON with ``--json FILE`` (``-`` for stdout).
 
 The log is sampled as the live acquisition samples it in ``chtc replay`` (one sample per
-``acquisition.sample_period_s``; ``service.logsamples``), so both commands fit the same data. Without a CAN
+``acquisition.sample_period_s``; ``service.sim.logsamples``), so both commands fit the same data. Without a
+CAN
 log the speed and torque must be stated (``--speed-rpm``/``--torque-nm``, constant over the log). Exit status:
 0 when at least one identification succeeded; 1 when none did, with the reason on stderr (each condition's
 length against what an identification needs, or why no condition was detected); 2 for unusable input.
@@ -156,7 +157,7 @@ def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
 
 
 def offsets_line(calibration: Any, ident: Any) -> str:
-    """What happened to the sensor offsets (service.calibration)."""
+    """What happened to the sensor offsets (service.acquire.calibration)."""
     if not ident.offset_calibration:
         return "sensor offsets: calibration off (measurements as recorded)"
     if calibration is None:
@@ -174,11 +175,11 @@ def offsets_line(calibration: Any, ident: Any) -> str:
 
 def main(args: argparse.Namespace) -> int:
     from drivers.logs import LogFormatError, read_temperature_csv
-    from service.logsamples import samples_from_logs
+    from service.engine.offline import run_offline
+    from service.engine.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.offline import run_offline
-    from service.runtime import core_config
     from service.settings import SettingsError, load_settings
+    from service.sim.logsamples import samples_from_logs
 
     try:
         settings = load_settings(args.config)

@@ -27,7 +27,7 @@ from typing import Any
 
 from service.commands._common import CommandError, check_listen, override, port_number, positive_float
 from service.commands.identify import record_dict
-from service.logsamples import REPLAY_PHASE, write_acquisition_csv
+from service.sim.logsamples import REPLAY_PHASE, write_acquisition_csv
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -85,8 +85,8 @@ async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
 
 
 async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> list[Any]:
-    from service.runtime import Runtime, ScaledClock
-    from service.simrig import SimAddress, make_drivers, replay_rig
+    from service.engine.runtime import Runtime, ScaledClock
+    from service.sim.simrig import SimAddress, make_drivers, replay_rig
 
     clock = ScaledClock(args.speedup)
     period_s = settings.acquisition.sample_period_s

@@ -74,7 +74,7 @@ def make_device_drivers(settings: Any, *, clock: Any) -> tuple[Any, Any]:
 
 
 async def serve(settings: Any, *, migrate: bool) -> int:
-    from service.runtime import Runtime, ScaledClock
+    from service.engine.runtime import Runtime, ScaledClock
 
     clock = ScaledClock(1.0)
     runtime = Runtime(settings, clock=clock, migrate=migrate, on_event=lambda m: log.info("%s", m))

@@ -8,8 +8,8 @@ import os
 from alembic import context
 from sqlalchemy.engine import Connection
 
-from service.db.engine import create_db_engine
-from service.db.models import Base
+from service.store.engine import create_db_engine
+from service.store.models import Base
 
 config = context.config
 target_metadata = Base.metadata

@@ -15,7 +15,7 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.interface_memory import InMemoryService, demo_service
+from service.serve.interface_memory import InMemoryService, demo_service
 from service.settings import Settings
 
 WRITE_TOKEN = "write-token-for-tests"

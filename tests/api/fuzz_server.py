@@ -15,7 +15,7 @@ import uvicorn
 
 from api.app import create_app
 from api.server import server_config
-from service.interface_memory import demo_service
+from service.serve.interface_memory import demo_service
 from service.settings import Settings
 
 WRITE_TOKEN = "fuzz-write-token-0123456789"

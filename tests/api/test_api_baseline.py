@@ -6,8 +6,8 @@ from datetime import UTC, datetime
 
 from fastapi.testclient import TestClient
 
-from service.interface import OffsetBaseline
-from service.interface_memory import InMemoryService
+from service.serve.interface import OffsetBaseline
+from service.serve.interface_memory import InMemoryService
 
 from .conftest import WRITE_TOKEN
 

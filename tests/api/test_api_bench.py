@@ -10,7 +10,7 @@ import pytest
 
 from api.app import create_app
 from service.bench.api import RawClient, _load, histogram_quantile
-from service.interface_memory import demo_service
+from service.serve.interface_memory import demo_service
 from service.settings import Settings
 from tests.api.conftest import LiveServer
 

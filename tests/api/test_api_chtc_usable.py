@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from fastapi.testclient import TestClient
 
-from service.interface_memory import PAPER_H_4000, InMemoryService
+from service.serve.interface_memory import PAPER_H_4000, InMemoryService
 from tests.api.conftest import ManualClock
 
 

@@ -19,7 +19,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import STATIC_DIR, create_app
-from service.interface_memory import (
+from service.serve.interface_memory import (
     PAPER_H_4000,
     InMemoryService,
     Section,

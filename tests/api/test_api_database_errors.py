@@ -18,7 +18,7 @@ from sqlalchemy.orm import sessionmaker
 
 from api.app import create_app
 from model.geometry import load_spindle
-from service.service import SoftSensorService
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock
 from tests.db.conftest import db_url, engine, factory, pg_schema  # noqa: F401 - real SQLite and PostgreSQL

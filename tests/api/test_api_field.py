@@ -18,9 +18,9 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from api.routers.field import grid_out, mesh_out
 from api.routers.field_render import FieldRenderer
-from service.interface import FieldSnapshot
-from service.interface_memory import InMemoryService
-from service.locator import TriangleLocator, locator_for
+from service.estimate.locator import TriangleLocator, locator_for
+from service.serve.interface import FieldSnapshot
+from service.serve.interface_memory import InMemoryService
 from service.settings import Settings
 
 URL = "/api/v1/temperature-field"

@@ -11,7 +11,7 @@ from fastapi.testclient import TestClient
 
 from api.app import create_app
 from api.guard import GuardLimits
-from service.interface_memory import InMemoryService
+from service.serve.interface_memory import InMemoryService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, LiveServer, ManualClock
 

@@ -8,8 +8,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from service.interface import SensorHistoryBuffer
-from service.interface_memory import InMemoryService
+from service.serve.interface import SensorHistoryBuffer
+from service.serve.interface_memory import InMemoryService
 from tests.api.conftest import ManualClock
 
 
@@ -121,7 +121,7 @@ def test_spindle_lists_named_parts_and_zone_descriptions(client: TestClient) -> 
 
 def test_model_section_names_the_parts_of_the_spindle_description() -> None:
     from model.geometry import load_spindle
-    from service.interface_memory import model_section
+    from service.serve.interface_memory import model_section
 
     spec = load_spindle()
     sec = model_section(mesh_size_m=0.01)

@@ -5,7 +5,7 @@ from __future__ import annotations
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
-from service.interface_memory import InMemoryService
+from service.serve.interface_memory import InMemoryService
 from tests.api.conftest import ManualClock
 
 

@@ -7,7 +7,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.interface_memory import InMemoryService
+from service.serve.interface_memory import InMemoryService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock
 

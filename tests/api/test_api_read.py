@@ -10,8 +10,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.interface import ZONE_NAMES
-from service.interface_memory import PAPER_H_4000, InMemoryService, push_noisy_sample
+from service.serve.interface import ZONE_NAMES
+from service.serve.interface_memory import PAPER_H_4000, InMemoryService, push_noisy_sample
 from service.settings import Settings
 from tests.api.conftest import ManualClock
 

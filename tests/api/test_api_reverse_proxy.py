@@ -21,7 +21,7 @@ import httpx
 import pytest
 
 from api.app import create_app
-from service.interface_memory import InMemoryService
+from service.serve.interface_memory import InMemoryService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, LiveServer, ManualClock, free_port
 

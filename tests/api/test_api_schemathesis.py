@@ -17,7 +17,7 @@ from schemathesis.checks import positive_data_acceptance
 from schemathesis.config import SchemathesisConfig
 
 from api.app import create_app
-from service.interface_memory import demo_service
+from service.serve.interface_memory import demo_service
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN
 

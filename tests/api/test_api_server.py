@@ -13,7 +13,7 @@ import uvicorn
 
 from api.app import create_app
 from api.server import ServerLimits, server_config
-from service.interface_memory import InMemoryService
+from service.serve.interface_memory import InMemoryService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock, free_port
 

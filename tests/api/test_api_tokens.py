@@ -9,7 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.interface_memory import InMemoryService
+from service.serve.interface_memory import InMemoryService
 from service.settings import Settings, SettingsError, load_settings
 from tests.api.conftest import ManualClock
 

@@ -1,4 +1,4 @@
-"""service.interface helpers and the in-memory service (with the synthetic and the real FE section)."""
+"""service.serve.interface helpers and the in-memory service (with the synthetic and the real FE section)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from service.interface import ChtcService, FieldSnapshot, Histogram
-from service.interface_memory import InMemoryService, demo_service, model_section, synthetic_section
+from service.serve.interface import ChtcService, FieldSnapshot, Histogram
+from service.serve.interface_memory import InMemoryService, demo_service, model_section, synthetic_section
 
 
 def _linear_field(nodes: np.ndarray) -> np.ndarray:
@@ -68,7 +68,7 @@ def _protocol_methods() -> dict[str, inspect.Signature]:
 
 
 @pytest.mark.parametrize(
-    "impl", ["service.service:SoftSensorService", "service.interface_memory:InMemoryService"]
+    "impl", ["service.engine.shell:SoftSensorService", "service.serve.interface_memory:InMemoryService"]
 )
 def test_implementations_match_the_protocol_signatures(impl: str) -> None:
     module, _, cls_name = impl.partition(":")

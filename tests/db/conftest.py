@@ -11,8 +11,8 @@ import sqlalchemy as sa
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.db import migrate
-from service.db.engine import create_db_engine, make_session_factory
+from service.store import migrate
+from service.store.engine import create_db_engine, make_session_factory
 
 
 def pg_schema_url(base_url: str, schema: str, *, port: int | None = None) -> str:

@@ -19,13 +19,13 @@ import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
 from model.geometry import load_spindle
-from service.db import repository as repo
-from service.db.engine import create_db_engine, make_session_factory
-from service.db.models import SampleRow
-from service.db.records import ConditionStart, SampleData
-from service.persistence import Persistence, open_persistence
-from service.service import SoftSensorService
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.store import repository as repo
+from service.store.engine import create_db_engine, make_session_factory
+from service.store.models import SampleRow
+from service.store.persistence import Persistence, open_persistence
+from service.store.records import ConditionStart, SampleData
 from tests.db.conftest import pg_schema_url
 from tests.db.tcp_proxy import TcpProxy, free_port
 

@@ -11,10 +11,10 @@ from alembic.autogenerate import compare_metadata
 from alembic.config import Config
 from alembic.migration import MigrationContext
 
-from service.db import migrate
-from service.db.engine import create_db_engine
-from service.db.errors import DatabaseUnavailableError
-from service.db.models import Base
+from service.store import migrate
+from service.store.engine import create_db_engine
+from service.store.errors import DatabaseUnavailableError
+from service.store.models import Base
 from tests.db.tcp_proxy import free_port
 
 TABLES = {"conditions", "identifications", "device_events", "samples"}

@@ -9,11 +9,11 @@ import numpy as np
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.db import convert
-from service.db import repository as repo
-from service.db.errors import RecordError, RecordNotFoundError
-from service.db.models import Condition, DeviceEvent, Identification, SampleRow
-from service.db.records import (
+from service.store import convert
+from service.store import repository as repo
+from service.store.errors import RecordError, RecordNotFoundError
+from service.store.models import Condition, DeviceEvent, Identification, SampleRow
+from service.store.records import (
     ConditionEnd,
     ConditionStart,
     DeviceEventData,

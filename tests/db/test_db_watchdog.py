@@ -9,10 +9,10 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from service.db.engine import create_db_engine, make_session_factory
-from service.db.reads import DatabaseBusyError, DatabaseTimeoutError, DbReads
-from service.db.watchdog import StatementWatchdog
-from service.interface import NotReadyError
+from service.serve.interface import NotReadyError
+from service.store.engine import create_db_engine, make_session_factory
+from service.store.reads import DatabaseBusyError, DatabaseTimeoutError, DbReads
+from service.store.watchdog import StatementWatchdog
 
 ENDLESS = "WITH RECURSIVE c(x) AS (SELECT 1 UNION ALL SELECT x + 1 FROM c) SELECT max(x) FROM c"
 

@@ -173,7 +173,7 @@ def assert_metrics_named_in_the_operations_guide_exist(api: str) -> None:
 
 
 def assert_database_migrated(pg_url: str) -> None:
-    from service.db.migrate import current_revision, head_revision
+    from service.store.migrate import current_revision, head_revision
 
     url = make_url(pg_url).set(database=DATABASE).render_as_string(hide_password=False)
     assert current_revision(url) == head_revision()

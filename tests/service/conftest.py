@@ -13,9 +13,9 @@ import pytest
 from drivers.ringbuffer import RingBuffer, Sample
 from model.geometry import load_spindle
 from model.plant import PlantRun, Segment, VirtualPlant
-from service.logsamples import samples_from_plant
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
+from service.sim.logsamples import samples_from_plant
 
 T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
 

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from model.plant import Segment
-from service.calibration import (
+from service.acquire.calibration import (
     BaselineRejected,
     BaselineRequest,
     BaselineTaken,
@@ -18,8 +18,8 @@ from service.calibration import (
     Reading,
     equilibrium,
 )
-from service.core import CoreConfig, ServiceCore
-from service.history import RingHistory
+from service.acquire.history import RingHistory
+from service.engine.core import CoreConfig, ServiceCore
 from service.modelload import LoadedModel
 
 from .conftest import plant_run, ring_of, samples_of

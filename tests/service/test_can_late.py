@@ -13,11 +13,11 @@ from dataclasses import replace
 
 from drivers.ringbuffer import RingBuffer
 from model.plant import Segment
-from service.core import ServiceCore
-from service.history import RingHistory
+from service.acquire.history import RingHistory
+from service.engine.core import ServiceCore
+from service.engine.offline import run_offline
+from service.engine.runtime import core_config
 from service.modelload import LoadedModel
-from service.offline import run_offline
-from service.runtime import core_config
 from service.settings import Settings
 
 from .conftest import plant_run, samples_of

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.detector import (
+from service.identify.detector import (
     ConditionChanged,
     ConditionDetector,
     DetectorConfig,

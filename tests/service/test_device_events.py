@@ -5,9 +5,9 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 
 from drivers.base import SourceMetrics
-from service.devicewatch import DeviceWatch
-from service.interface import DeviceHealth, DeviceStatus
-from service.service import transition_detail
+from service.acquire.devicewatch import DeviceWatch
+from service.engine.shell import transition_detail
+from service.serve.interface import DeviceHealth, DeviceStatus
 
 
 def test_recovery_names_the_cleared_error() -> None:
@@ -21,7 +21,8 @@ def test_other_transitions_keep_the_current_message() -> None:
     assert transition_detail(DeviceStatus.OK, "") == ""
 
 
-# --- transitions from health observations (service.devicewatch) ------------------------------------------
+# --- transitions from health observations (service.acquire.devicewatch)
+# ------------------------------------------
 
 
 def _dev(status: DeviceStatus, message: str = "", name: str = "modbus") -> DeviceHealth:
@@ -70,9 +71,9 @@ class _Source:
 
 
 def test_a_recovered_device_no_longer_shows_its_old_error(loaded_model) -> None:
-    from service.core import CoreConfig, ServiceCore
-    from service.history import RingHistory
-    from service.service import SoftSensorService
+    from service.acquire.history import RingHistory
+    from service.engine.core import CoreConfig, ServiceCore
+    from service.engine.shell import SoftSensorService
 
     from .conftest import ring_of
 

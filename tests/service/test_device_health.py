@@ -16,10 +16,10 @@ from drivers.can_sensor import CanSpindleSensor
 from drivers.sim.can_node import SimulatedCanNode
 from drivers.sim.faults import FaultController, FaultKind
 from drivers.sim.source import ArrayTimeline, TimelineSource
-from service.core import ServiceCore
-from service.history import RingHistory
-from service.runtime import core_config
-from service.service import SoftSensorService
+from service.acquire.history import RingHistory
+from service.engine.core import ServiceCore
+from service.engine.runtime import core_config
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
 
 from .conftest import ring_of

@@ -18,9 +18,9 @@ import pytest
 
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant, h_true
-from service.runtime import Runtime, ScaledClock, free_port
+from service.engine.runtime import Runtime, ScaledClock, free_port
 from service.settings import Settings
-from service.simrig import SimAddress, make_drivers, plant_rig
+from service.sim.simrig import SimAddress, make_drivers, plant_rig
 
 SPEEDUP = 100.0
 SEGMENTS = [
@@ -83,7 +83,7 @@ def _window_min(runtime: Runtime, body: dict) -> float:
 
 
 def _stored(runtime: Runtime) -> list[dict]:
-    from service.db.repository import list_identifications, session_scope
+    from service.store.repository import list_identifications, session_scope
 
     runtime.persistence.sink.writer.flush(10.0)
     with session_scope(runtime.persistence.session_factory) as session:
@@ -126,7 +126,8 @@ def test_three_conditions_detected_identified_and_served(tmp_path):
     hi = np.array([z["ci95_hi_w_m2k"] for z in body["zones"]])
     identified = np.array([z["identified"] for z in body["zones"]])
     # Was "at least 2 flagged identified": the 5-min idle at the start now gives the sensor-offset baseline
-    # (service.calibration), whose own error (σ/√30 ≈ 0.027 °C per channel) is carried in the CIs (constant
+    # (service.acquire.calibration), whose own error (σ/√30 ≈ 0.027 °C per channel) is carried in the CIs
+    # (constant
     # biases that small move H2/H4 by tens of per cent), so this run may flag none; asserted instead: every
     # H that is flagged identified covers the truth (no silent bias)
     covered = (lo <= truth) & (truth <= hi)

@@ -24,12 +24,12 @@ from drivers.modbus_daq import DaqReading
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from model.plant import Segment
-from service.core import ServiceCore
-from service.history import RingHistory
-from service.interface import ChtcStatus
-from service.offline import _run
-from service.runtime import core_config
-from service.service import SoftSensorService
+from service.acquire.history import RingHistory
+from service.engine.core import ServiceCore
+from service.engine.offline import _run
+from service.engine.runtime import core_config
+from service.engine.shell import SoftSensorService
+from service.serve.interface import ChtcStatus
 from service.settings import Settings
 
 from .conftest import plant_run, ring_of, samples_of
@@ -222,7 +222,7 @@ def test_a_stored_negative_lower_bound_is_not_served() -> None:
     """Rows stored with the former linear CI may hold a negative lower bound; H > 0, so 0 is served."""
     from types import SimpleNamespace
 
-    from service.views import row_to_record
+    from service.serve.views import row_to_record
 
     t = datetime(2026, 1, 1, tzinfo=UTC)
     cond = SimpleNamespace(id=1, speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0, started_at=t)

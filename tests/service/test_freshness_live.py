@@ -12,9 +12,9 @@ import pytest
 
 from drivers.sim.faults import FaultKind
 from model.plant import Segment
-from service.runtime import Runtime, ScaledClock, free_port
+from service.engine.runtime import Runtime, ScaledClock, free_port
 from service.settings import Settings
-from service.simrig import SimAddress, make_drivers, plant_rig
+from service.sim.simrig import SimAddress, make_drivers, plant_rig
 
 from .conftest import plant_run
 

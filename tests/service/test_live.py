@@ -8,7 +8,7 @@ import pytest
 from model.fem import build_fe_model, simulate, steady_state
 from model.geometry import load_spindle
 from model.inputs import inputs_from_operation
-from service.live import LiveModel, LiveStateError
+from service.estimate.live import LiveModel, LiveStateError
 
 H = np.array([88.0, 46.0, 68.0, 47.0, 52.0, 70.0, 16.0])
 

@@ -107,7 +107,7 @@ def _rewrite_csv(src, dst, *, keep=lambda t: True, scale=1.0):
 
 
 def test_acquisition_ticks_follow_the_replay_grid() -> None:
-    from service.logsamples import acquisition_ticks
+    from service.sim.logsamples import acquisition_ticks
 
     rows = np.array([100.2, 101.1, 102.3, 112.9, 125.0])
     ticks, idx = acquisition_ticks(rows, 100.0, period_s=10.0, phase=0.3)

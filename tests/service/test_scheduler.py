@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import pytest
 
-from service.detector import OperatingPoint
-from service.scheduler import (
+from service.identify.detector import OperatingPoint
+from service.identify.scheduler import (
     CancelJob,
     ConditionStarted,
     IdentificationScheduler,

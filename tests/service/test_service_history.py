@@ -9,11 +9,11 @@ import numpy as np
 
 from drivers.quality import Quality
 from model.plant import Segment
-from service.core import Restored, ServiceCore
-from service.history import RingHistory
-from service.interface import ConditionSnapshot, ConditionState, IdentificationRecord
-from service.runtime import core_config
-from service.service import SoftSensorService
+from service.acquire.history import RingHistory
+from service.engine.core import Restored, ServiceCore
+from service.engine.runtime import core_config
+from service.engine.shell import SoftSensorService
+from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.settings import Settings
 
 from .conftest import plant_run, ring_of, samples_of

@@ -14,10 +14,10 @@ from drivers.base import Backoff, SourceMetrics
 from drivers.errors import DeviceError
 from drivers.modbus_daq import ModbusDaq
 from drivers.registers import RegisterValues, default_register_map, encode
-from service.core import ServiceCore
-from service.history import RingHistory
-from service.runtime import core_config
-from service.service import SoftSensorService, frame_events, frame_outcomes
+from service.acquire.history import RingHistory
+from service.engine.core import ServiceCore
+from service.engine.runtime import core_config
+from service.engine.shell import SoftSensorService, frame_events, frame_outcomes
 from service.settings import Settings
 from tests.drivers.drvhelpers import PymodbusDaqServer, free_port
 

@@ -14,10 +14,10 @@ from typing import Any
 import pytest
 
 from model.identify import IdentifyOptions
-from service.core import CoreConfig
-from service.detector import ConditionDetector, SampleEvent
-from service.runtime import core_config
-from service.scheduler import (
+from service.engine.core import CoreConfig
+from service.engine.runtime import core_config
+from service.identify.detector import ConditionDetector, SampleEvent
+from service.identify.scheduler import (
     ConditionStarted,
     IdentificationScheduler,
     OperatingPoint,
@@ -25,8 +25,8 @@ from service.scheduler import (
     StartJob,
     Tick,
 )
+from service.identify.worker import JobRequest
 from service.settings import Settings
-from service.worker import JobRequest
 
 
 def _settings(**sections: dict[str, Any]) -> Settings:

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.window import InsufficientDataError, RawWindow, WindowRules, resample_window
+from service.identify.window import InsufficientDataError, RawWindow, WindowRules, resample_window
 
 RULES = WindowRules(
     dt_s=10.0, min_window_s=600.0, min_good_channels=24, min_good_fraction=0.9, max_gap_s=60.0

@@ -11,12 +11,18 @@ import numpy as np
 import pytest
 
 from model.plant import ChannelFault, Segment
-from service.core import CoreConfig, ServiceCore
-from service.detector import DetectorConfig
-from service.history import RingHistory
-from service.scheduler import SchedulerConfig
-from service.window import WindowRules
-from service.worker import IdentificationWorker, JobRequest, JobStatus, final_field, run_identification
+from service.acquire.history import RingHistory
+from service.engine.core import CoreConfig, ServiceCore
+from service.identify.detector import DetectorConfig
+from service.identify.scheduler import SchedulerConfig
+from service.identify.window import WindowRules
+from service.identify.worker import (
+    IdentificationWorker,
+    JobRequest,
+    JobStatus,
+    final_field,
+    run_identification,
+)
 
 from .conftest import T0, plant_run, ring_of, samples_of
 
@@ -114,7 +120,7 @@ def test_core_asks_for_the_start_offset_as_configured(loaded_model, mode, expect
     """ "initial": only a window whose start field still descends from the live state's initial guess (here
     the first condition, from the cold start) gets the fitted offset; the second condition starts from the
     state rebased on the first identification."""
-    from service.offline import _run
+    from service.engine.offline import _run
 
     run = plant_run([Segment(700.0, 3000.0, 2.0, 23.2), Segment(700.0, 4000.0, 3.0, 23.2)])
     ring = ring_of()
@@ -183,7 +189,7 @@ def test_worker_process_runs_and_cancels(model_ref, window_request, loaded_model
 
 
 def test_manual_requests_and_idle_condition(loaded_model):
-    from service.interface import BusyError, NotReadyError
+    from service.serve.interface import BusyError, NotReadyError
 
     run = plant_run([Segment(700.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)])
     ring = ring_of()
@@ -207,12 +213,12 @@ def test_manual_requests_and_idle_condition(loaded_model):
 def test_chained_windows_carry_the_start_field_error(loaded_model):
     """With ``carry_start_error`` the first condition (from the initial guess, offset fitted) is unchanged;
     the second starts from a state that the first's H made, and its CIs widen while its H stay the same."""
-    from service.offline import run_offline
+    from service.engine.offline import run_offline
 
     run = plant_run([Segment(1300.0, 3000.0, 2.0, 23.2), Segment(1300.0, 4000.0, 3.0, 23.2)])
     samples = samples_of(run)
     # calibration off: this profile never rests, and the no-baseline offset uncertainty (0.17 °C per
-    # channel, service.calibration) would dominate every CI width and hide the start-field term
+    # channel, service.acquire.calibration) would dominate every CI width and hide the start-field term
     base = dataclasses.replace(CFG, estimate_t0_shift="initial", carry_start_error=False, calibration=None)
     off, on = (
         [r for r in run_offline(samples, model=loaded_model, config=cfg).records if r.outcome == "ok"]

@@ -20,7 +20,7 @@ SERVICE = textwrap.dedent(
     import asyncio, os
     from service.modelload import ModelRef
     from service.settings import Settings
-    from service.worker import IdentificationWorker
+    from service.identify.worker import IdentificationWorker
 
     async def main():
         worker = IdentificationWorker(ModelRef.from_settings(Settings().model))
@@ -94,7 +94,7 @@ def test_worker_runs_at_a_lower_priority(model_ref) -> None:
     """The identification process is niced (WORKER_NICE) so /chtc keeps its latency during identification."""
     import asyncio
 
-    from service.worker import WORKER_NICE, IdentificationWorker
+    from service.identify.worker import WORKER_NICE, IdentificationWorker
 
     async def nice_of_worker() -> list[int]:
         worker = IdentificationWorker(model_ref)

@@ -176,8 +176,8 @@ def test_methods_match_the_model() -> None:
 
 
 def test_sections_build_the_pure_cores_configs() -> None:
-    from service.detector import DetectorConfig
-    from service.scheduler import SchedulerConfig
+    from service.identify.detector import DetectorConfig
+    from service.identify.scheduler import SchedulerConfig
 
     s = Settings()
     detector = DetectorConfig(**s.detector.model_dump())

@@ -9,11 +9,12 @@ the server's worker threads for as long as a hung database wants. ``DbReads.run(
   or the engine's ``StatementWatchdog`` aborts it, and holds its slot until then (so a hung database costs at
   most ``threads`` threads, never the API's pool).
 
-Both are ``service.interface.NotReadyError``: the API answers 503 in its error shape, with ``Retry-After``.
+Both are ``service.serve.interface.NotReadyError``: the API answers 503 in its error shape, with
+``Retry-After``.
 
 ::
 
-    NotReadyError (service.interface)
+    NotReadyError (service.serve.interface)
     ├── DatabaseBusyError      every read slot is taken
     └── DatabaseTimeoutError   no answer within timeout_s
 """
@@ -28,9 +29,9 @@ from typing import TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.db.repository import session_scope
-from service.db.watchdog import StatementWatchdog
-from service.interface import NotReadyError
+from service.serve.interface import NotReadyError
+from service.store.repository import session_scope
+from service.store.watchdog import StatementWatchdog
 
 __all__ = ["DatabaseBusyError", "DatabaseTimeoutError", "DbReads"]
 

@@ -3,7 +3,7 @@
 Each accepted sample advances the full FE state (``model.fem.FEModel``, backward Euler like
 ``model.fem.simulate``'s default θ = 1) on a fixed grid of ``dt_s`` (the sample period: jittered sample
 times never refactorise) with the previous sample's inputs held (zero-order hold: the convention of the
-identification window, ``service.window``, of ``model.inputs.InputSeries`` and of the plant) and the
+identification window, ``service.identify.window``, of ``model.inputs.InputSeries`` and of the plant) and the
 bearing heat from ``model.inputs.inputs_from_operation``. The factorised step
 (``model.fem.make_stepper``) is cached per H; ``prepare(h)`` builds it off the event loop so that a new H
 never stalls the service, and a step is then a pair of sparse triangular solves.
@@ -176,7 +176,8 @@ class LiveModel:
 
         Used when an identification finishes: the fitted model's field at the window end (computed with the
         new H from the window's initial field) replaces the state that was advanced with the old H.
-        ``raw`` is a ``service.window.RawWindow`` from at least half a step before ``t`` up to the newest
+        ``raw`` is a ``service.identify.window.RawWindow`` from at least half a step before ``t`` up to the
+        newest
         sample. Every sample of it is pushed again from ``t`` (the ``push`` convention): the ones within half
         a step of ``t`` or before only set the inputs held from ``t`` on, the later ones advance the state.
         With no sample in ``raw`` the state restarts at ``t`` holding the current inputs. ``covariance`` is

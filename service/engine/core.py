@@ -3,7 +3,8 @@
 It owns the condition detector, the identification scheduler and the live FE state, and keeps what the API
 reads (newest sample, current condition, current identification, job table). It does no I/O of its own:
 records go to an injected ``sink`` (the buffered database writer), jobs are returned as :class:`Launch`
-objects that the asyncio shell (``service.service``) hands to the worker process. Every public method takes
+objects that the asyncio shell (``service.engine.shell``) hands to the worker process. Every public method
+takes
 the lock, so the API threads may read while the event loop writes.
 
 Time: the detector, the scheduler and the live state run on the sample time axis (UTC epoch seconds of the
@@ -24,7 +25,7 @@ import numpy as np
 
 from drivers.quality import Quality
 from model.carry import StateCovariance
-from service.calibration import (
+from service.acquire.calibration import (
     BaselineRequest,
     BaselineTaken,
     Calibration,
@@ -32,18 +33,9 @@ from service.calibration import (
     OffsetCalibrator,
     Reading,
 )
-from service.db.records import (
-    ConditionEnd,
-    ConditionStart,
-    IdentificationData,
-    Record,
-    SampleData,
-    SampleDecimator,
-    finite,
-    finite_list,
-)
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT
-from service.detector import (
+from service.estimate.live import LiveModel, LiveStateError
+from service.identify.detector import (
     ConditionChanged,
     ConditionDetector,
     DetectorConfig,
@@ -51,20 +43,7 @@ from service.detector import (
     OperatingPoint,
     SampleEvent,
 )
-from service.interface import (
-    DURATION_BUCKETS_S,
-    BusyError,
-    ConditionSnapshot,
-    ConditionState,
-    Histogram,
-    IdentificationJob,
-    IdentificationRecord,
-    JobState,
-    NotReadyError,
-)
-from service.live import LiveModel, LiveStateError
-from service.modelload import LoadedModel
-from service.scheduler import (
+from service.identify.scheduler import (
     CancelJob,
     ConditionStarted,
     IdentificationScheduler,
@@ -80,9 +59,37 @@ from service.scheduler import (
     StartJob,
     Tick,
 )
-from service.views import data_to_record
-from service.window import InsufficientDataError, RawWindow, WindowArrays, WindowRules, resample_window
-from service.worker import JobOutcome, JobRequest, JobStatus
+from service.identify.window import (
+    InsufficientDataError,
+    RawWindow,
+    WindowArrays,
+    WindowRules,
+    resample_window,
+)
+from service.identify.worker import JobOutcome, JobRequest, JobStatus
+from service.modelload import LoadedModel
+from service.serve.interface import (
+    DURATION_BUCKETS_S,
+    BusyError,
+    ConditionSnapshot,
+    ConditionState,
+    Histogram,
+    IdentificationJob,
+    IdentificationRecord,
+    JobState,
+    NotReadyError,
+)
+from service.serve.views import data_to_record
+from service.store.records import (
+    ConditionEnd,
+    ConditionStart,
+    IdentificationData,
+    Record,
+    SampleData,
+    SampleDecimator,
+    finite,
+    finite_list,
+)
 
 __all__ = ["CoreConfig", "Launch", "Restored", "SampleHistory", "ServiceCore"]
 
@@ -117,7 +124,7 @@ class CoreConfig:
     sample_store_period_s: float = 10.0
     min_speed_rpm: float = 100.0  # below: spindle idle, no bearing heat, H not identifiable -> skipped
     initial_h: tuple[float, ...] = (50.0,) * 7  # live-state H before the first identification (no data yet)
-    # sensor offsets zeroed against a baseline at thermal equilibrium (service.calibration); None: the
+    # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the
     # measurements are taken as they come and no offset uncertainty is carried in the CIs
     calibration: CalibrationConfig | None = field(default_factory=CalibrationConfig)
 

@@ -15,11 +15,11 @@ from typing import Any
 
 import numpy as np
 
-from service.core import CoreConfig, Restored, ServiceCore
-from service.history import RingHistory
-from service.interface import IdentificationRecord
+from service.acquire.history import RingHistory
+from service.engine.core import CoreConfig, Restored, ServiceCore
+from service.identify.worker import JobOutcome, JobStatus, final_field, run_identification
 from service.modelload import LoadedModel
-from service.worker import JobOutcome, JobStatus, final_field, run_identification
+from service.serve.interface import IdentificationRecord
 
 __all__ = ["OfflineResult", "run_offline"]
 
@@ -32,7 +32,9 @@ class OfflineResult:
     conditions: list[Any] = field(default_factory=list)  # ConditionSnapshot, oldest first
     first: datetime | None = None  # time of the first and the last sample
     last: datetime | None = None
-    calibration: Any = None  # service.calibration.Calibration of the newest offset baseline (None: none)
+    calibration: Any = (
+        None  # service.acquire.calibration.Calibration of the newest offset baseline (None: none)
+    )
 
 
 class _ListSink:

@@ -19,9 +19,9 @@ from sqlalchemy import func, insert, select, update
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
-from service.db.errors import RecordNotFoundError, translate
-from service.db.models import Condition, DeviceEvent, Identification, SampleRow
-from service.db.records import (
+from service.store.errors import RecordNotFoundError, translate
+from service.store.models import Condition, DeviceEvent, Identification, SampleRow
+from service.store.records import (
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
@@ -172,7 +172,8 @@ def last_identification(
 
 def last_served_identification(session: Session) -> Identification | None:
     """The successful identification served last: the highest id (ids grow in launch order across restarts,
-    ``service.persistence.restore``), not the newest ``finished_at``: in the demo each run's simulated clock
+    ``service.store.persistence.restore``), not the newest ``finished_at``: in the demo each run's simulated
+    clock
     starts again at the wall clock, so a later run's results can carry earlier times. None if there is none.
     """
     query = (

@@ -2,7 +2,7 @@
 
 Everything is built at the edge from ``settings.database``; nothing connects at import. API::
 
-    from service.db import engine, migrate, repository as repo, writer, records, convert
+    from service.store import engine, migrate, repository as repo, writer, records, convert
 
     eng = engine.create_db_engine(settings.database.url, echo=settings.database.echo)  # SQLite: WAL, FKs on
     migrate.upgrade(eng)                       # or URL; to "head"; current_revision(eng), head_revision()
@@ -11,9 +11,9 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
     # one session per job/request; SQLAlchemy errors → DatabaseUnavailableError / RecordError
     with repo.session_scope(factory, "list identifications") as s:
         page = repo.list_identifications(s, since=t0, until=t1, limit=50, offset=0, outcome=None)
-        api_page = convert.identification_page(page)      # -> service.interface.IdentificationPage
+        api_page = convert.identification_page(page)      # -> service.serve.interface.IdentificationPage
         row = repo.get_identification(s, 12)              # RecordNotFoundError if absent
-        rec = convert.identification_record(row)          # -> service.interface.IdentificationRecord
+        rec = convert.identification_record(row)          # -> service.serve.interface.IdentificationRecord
         last = repo.last_identification(s)                # newest "ok" one, or None if there is none
         warm = repo.nearest_identification(s, speed_rpm=4000, torque_nm=10, ambient_c=22,
                                            before=now, exclude_condition_id=7,
@@ -45,5 +45,5 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
 Ids of conditions and identifications are assigned by the service (start from ``repo.max_ids`` + 1; if the
 database is down at start, any larger unique integers, e.g. epoch milliseconds, work): the writer may hold
 the rows for a while, and the API needs the id at once. All datetimes are aware UTC (naive ones are refused).
-Errors: see ``service.db.errors``.
+Errors: see ``service.store.errors``.
 """

@@ -19,16 +19,16 @@ from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any
 
-from service.calibration import CalibrationConfig
-from service.core import CoreConfig, ServiceCore
-from service.detector import DetectorConfig
-from service.history import RingHistory
+from service.acquire.calibration import CalibrationConfig
+from service.acquire.history import RingHistory
+from service.engine.core import CoreConfig, ServiceCore
+from service.engine.shell import SoftSensorService
+from service.identify.detector import DetectorConfig
+from service.identify.scheduler import SchedulerConfig
+from service.identify.window import WindowRules
+from service.identify.worker import IdentificationWorker
 from service.modelload import LoadedModel, ModelRef, load_model
-from service.persistence import Persistence, open_persistence
-from service.scheduler import SchedulerConfig
-from service.service import SoftSensorService
-from service.window import WindowRules
-from service.worker import IdentificationWorker
+from service.store.persistence import Persistence, open_persistence
 
 __all__ = ["Runtime", "ScaledClock", "core_config", "free_port"]
 

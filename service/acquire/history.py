@@ -10,7 +10,7 @@ from typing import Any
 
 import numpy as np
 
-from service.window import RawWindow
+from service.identify.window import RawWindow
 
 __all__ = ["RingHistory"]
 

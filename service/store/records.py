@@ -14,8 +14,8 @@ from dataclasses import dataclass, field, fields
 from datetime import datetime
 from typing import Any
 
-from service.db.errors import RecordError
-from service.db.models import OUTCOMES
+from service.store.errors import RecordError
+from service.store.models import OUTCOMES
 
 N_ZONES = 7
 

@@ -1,7 +1,8 @@
 """The narrow interface through which the API reads (and pokes) the running service.
 
-``api/`` imports only this module from ``service/``. The running service (``service/service.py``) implements
-:class:`ChtcService`; the API tests use the in-memory implementation in ``service/interface_memory.py``.
+``api/`` imports only this module from ``service/``. The running service (``service/engine/shell.py``)
+implements
+:class:`ChtcService`; the API tests use the in-memory implementation in ``service/serve/interface_memory.py``.
 
 Contract for implementers:
 
@@ -35,7 +36,7 @@ from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
 
-from service.locator import TriangleLocator, locator_for
+from service.estimate.locator import TriangleLocator, locator_for
 
 H_UNIT = "W/(m²·K)"
 ZONE_NAMES: tuple[str, ...] = ("H1", "H2", "H3", "H4", "H5", "H6", "H7")
@@ -160,12 +161,12 @@ class SensorReading:
     t: datetime  # UTC of the sample
     offset_c: float | None = None  # zeroed sensor offset (subtracted before the fit); None: no baseline
     offset_sd_c: float | None = None  # 1σ of the offset still unknown, carried in the CIs
-    offset_calibrated_at: datetime | None = None  # UTC end of the baseline (service.calibration)
+    offset_calibrated_at: datetime | None = None  # UTC end of the baseline (service.acquire.calibration)
 
 
 @dataclass(frozen=True)
 class OffsetBaseline:
-    """A sensor-offset baseline taken at thermal equilibrium (``service.calibration``): the window
+    """A sensor-offset baseline taken at thermal equilibrium (``service.acquire.calibration``): the window
     [t_from, t_to] (UTC), "auto" or "manual", and per channel the offset and its 1σ (°C; None: no data)."""
 
     t_from: datetime

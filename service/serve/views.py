@@ -1,9 +1,11 @@
 """Conversions between the service's records, the database rows and the API snapshots (pure functions).
 
-One identification exists in three shapes: ``service.db.records.IdentificationData`` (what the writer
+One identification exists in three shapes: ``service.store.records.IdentificationData`` (what the writer
 stores; built from ``model.identify.IdentificationResult`` by ``IdentificationData.from_result``), the ORM
-row ``service.db.models.Identification`` (what comes back after a restart or from the history endpoints) and
-``service.interface.IdentificationRecord`` (what the API serves). The functions here map the first two to
+row ``service.store.models.Identification`` (what comes back after a restart or from the history endpoints)
+and
+``service.serve.interface.IdentificationRecord`` (what the API serves). The functions here map the first two
+to
 the third so that the live answer and the stored answer are the same numbers.
 """
 
@@ -16,8 +18,8 @@ from typing import Any
 
 import numpy as np
 
-from service.db.records import IdentificationData
-from service.interface import ZONE_NAMES, ConditionSnapshot, ConditionState, IdentificationRecord
+from service.serve.interface import ZONE_NAMES, ConditionSnapshot, ConditionState, IdentificationRecord
+from service.store.records import IdentificationData
 
 __all__ = ["Usability", "condition_from_row", "data_to_record", "nan_array", "row_to_record", "usability"]
 
@@ -84,7 +86,7 @@ def _at_bound(diagnostics: Any) -> np.ndarray:
 
 
 def condition_from_row(row: Any, *, state: ConditionState = ConditionState.STABLE) -> ConditionSnapshot:
-    """The API view of a stored ``service.db.models.Condition`` row."""
+    """The API view of a stored ``service.store.models.Condition`` row."""
     return ConditionSnapshot(
         id=int(row.id),
         speed_rpm=float(row.speed_rpm),
@@ -96,7 +98,7 @@ def condition_from_row(row: Any, *, state: ConditionState = ConditionState.STABL
 
 
 def row_to_record(row: Any) -> IdentificationRecord:
-    """The API view of a stored ``service.db.models.Identification`` row (its condition loaded)."""
+    """The API view of a stored ``service.store.models.Identification`` row (its condition loaded)."""
     return IdentificationRecord(
         id=int(row.id),
         started_at=row.started_at,

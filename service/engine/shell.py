@@ -1,4 +1,4 @@
-"""The running soft sensor: the asyncio shell around :class:`service.core.ServiceCore`.
+"""The running soft sensor: the asyncio shell around :class:`service.engine.core.ServiceCore`.
 
 Data flow::
 
@@ -6,7 +6,8 @@ Data flow::
          --Launch--> worker process (identification) --JobOutcome--> core.job_done --> records
     records --> DbWriter (buffers while the database is down) ;  API threads --> ChtcService methods
 
-:class:`SoftSensorService` implements ``service.interface.ChtcService`` for the API. Everything the API polls
+:class:`SoftSensorService` implements ``service.serve.interface.ChtcService`` for the API. Everything the API
+polls
 is prebuilt under the core's lock; nothing here blocks the event loop for long (the worker is a separate
 process, the writer a thread). Device health is sampled once a second and transitions are stored as device
 events. Time comes from an injected ``clock`` (UTC ``datetime``), the same clock the acquisition stamps
@@ -26,10 +27,10 @@ from typing import Any
 import numpy as np
 
 from model.defaults import BOUND_REL_TOL
-from service.core import Launch, ServiceCore
-from service.db.records import DeviceEventData
-from service.devicewatch import DeviceWatch, transition_detail
-from service.interface import (
+from service.acquire.devicewatch import DeviceWatch, transition_detail
+from service.engine.core import Launch, ServiceCore
+from service.identify.worker import IdentificationWorker, JobOutcome, JobStatus
+from service.serve.interface import (
     LATENCY_BUCKETS_S,
     ChtcSnapshot,
     ChtcStatus,
@@ -56,8 +57,8 @@ from service.interface import (
     SpindleLayout,
     ZoneInfo,
 )
-from service.views import Usability, age_s, at_bound, row_to_record, usability
-from service.worker import IdentificationWorker, JobOutcome, JobStatus
+from service.serve.views import Usability, age_s, at_bound, row_to_record, usability
+from service.store.records import DeviceEventData
 
 __all__ = ["SoftSensorService", "transition_detail"]
 
@@ -77,9 +78,10 @@ class SoftSensorService:
         core: ServiceCore,
         *,
         worker: IdentificationWorker | None,
-        writer: Any = None,  # service.db.writer.DbWriter (submit/status) or None
+        writer: Any = None,  # service.store.writer.DbWriter (submit/status) or None
         session_factory: Any = None,  # sessionmaker for the history endpoints, or None
-        db_reads: Any = None,  # service.db.reads.DbReads: history reads bounded and with a deadline, or None
+        # service.store.reads.DbReads: history reads bounded and with a deadline, or None
+        db_reads: Any = None,
         sources: Mapping[str, Any] | None = None,  # "modbus"/"can" -> drivers Source (metrics, connected)
         clock: Clock = utc_now,
         on_event: Callable[[str], None] | None = None,
@@ -366,7 +368,7 @@ class SoftSensorService:
     def _db_page(
         self, since: datetime | None, until: datetime | None, limit: int, offset: int
     ) -> IdentificationPage:
-        from service.db.repository import list_identifications
+        from service.store.repository import list_identifications
 
         def read(session: Any) -> IdentificationPage:
             page = list_identifications(session, since=since, until=until, limit=limit, offset=offset)
@@ -378,7 +380,7 @@ class SoftSensorService:
         """``fn(session)`` through the bounded read pool (503 when the database hangs), else inline."""
         if self.db_reads is not None:
             return self.db_reads.run(fn, what)
-        from service.db.repository import session_scope
+        from service.store.repository import session_scope
 
         with session_scope(self.session_factory, what) as session:
             return fn(session)
@@ -411,8 +413,8 @@ class SoftSensorService:
                 if r.id == identification_id:
                     return r
         if self.session_factory is not None:
-            from service.db.errors import DatabaseError, RecordNotFoundError
-            from service.db.repository import get_identification
+            from service.store.errors import DatabaseError, RecordNotFoundError
+            from service.store.repository import get_identification
 
             try:
                 return self._db_read(

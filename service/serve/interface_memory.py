@@ -1,4 +1,5 @@
-"""An in-memory :class:`service.interface.ChtcService` for API tests, the API benchmark and dashboard work.
+"""An in-memory :class:`service.serve.interface.ChtcService` for API tests, the API benchmark and dashboard
+work.
 
 It holds the same state the running service does (newest sample, identifications, jobs, device health) and
 derives the same statuses from it, but everything is driven explicitly: ``add_sample()``,
@@ -20,7 +21,7 @@ from datetime import UTC, datetime, timedelta
 
 import numpy as np
 
-from service.interface import (
+from service.serve.interface import (
     DURATION_BUCKETS_S,
     LATENCY_BUCKETS_S,
     BusyError,

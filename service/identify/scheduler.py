@@ -28,7 +28,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 
-from service.detector import OperatingPoint
+from service.identify.detector import OperatingPoint
 
 __all__ = [
     "CancelJob",

@@ -16,8 +16,8 @@ from alembic.script import ScriptDirectory
 from sqlalchemy import Engine
 from sqlalchemy import exc as sa_exc
 
-from service.db.engine import create_db_engine
-from service.db.errors import translate
+from service.store.engine import create_db_engine
+from service.store.errors import translate
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
 

@@ -3,7 +3,7 @@
 One ``concurrent.futures.ProcessPoolExecutor`` with ``max_workers=1`` and a ``spawn`` context (no forked copy
 of the event loop, sockets or database connections). Its initializer loads the model once per worker process
 from the reduced-model cache (``service.modelload.load_model``); a job carries only the resampled window
-(``service.window.WindowArrays``), the initial field, the warm start and the options.
+(``service.identify.window.WindowArrays``), the initial field, the warm start and the options.
 
 Cancellation: a shared integer holds the id of the job to cancel; every batch evaluation of the reduced
 model checks it (``CancellableModel``) and stops the run. A job that does not stop in time (or exceeds
@@ -38,8 +38,8 @@ from typing import Any
 import numpy as np
 
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD
+from service.identify.window import WindowArrays
 from service.modelload import LoadedModel, ModelRef, load_model
-from service.window import WindowArrays
 
 __all__ = [
     "IdentificationWorker",
@@ -77,7 +77,7 @@ class JobRequest:
     gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
-    offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.calibration)
+    offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.acquire.calibration)
     offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
 
 

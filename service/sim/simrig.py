@@ -17,7 +17,7 @@ from typing import Any
 
 import can
 
-from service.runtime import ScaledClock, free_port
+from service.engine.runtime import ScaledClock, free_port
 
 __all__ = ["SimAddress", "SimRig", "make_drivers", "plant_rig", "replay_rig"]
 

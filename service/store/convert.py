@@ -1,12 +1,17 @@
-"""ORM rows → the frozen snapshots of ``service/interface.py`` (what the API serves)."""
+"""ORM rows → the frozen snapshots of ``service/serve/interface.py`` (what the API serves)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from service.db.models import Condition, Identification
-from service.db.repository import Page
-from service.interface import ConditionSnapshot, ConditionState, IdentificationPage, IdentificationRecord
+from service.serve.interface import (
+    ConditionSnapshot,
+    ConditionState,
+    IdentificationPage,
+    IdentificationRecord,
+)
+from service.store.models import Condition, Identification
+from service.store.repository import Page
 
 
 def _array(values: object, n: int = 7) -> np.ndarray:

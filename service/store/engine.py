@@ -5,7 +5,7 @@ every new connection; its parent directory is created. PostgreSQL gets a connect
 restarted server is noticed on the next checkout instead of failing a write), a server-side
 ``statement_timeout`` (a slow statement is cancelled), TCP keepalives and ``tcp_user_timeout`` (a dead peer
 is noticed by the kernel).
-None of these sees a link that freezes without a reset; ``service.db.watchdog`` covers that on the client.
+None of these sees a link that freezes without a reset; ``service.store.watchdog`` covers that on the client.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.db.errors import DatabaseUnavailableError
+from service.store.errors import DatabaseUnavailableError
 
 
 def create_db_engine(

@@ -3,7 +3,7 @@
 ``open_persistence(settings.database, migrate=...)`` builds the engine and the session factory, optionally
 migrates, reads back what the service needs to resume (``Restored``: the last successful identification,
 the newest result per condition for warm starts, recent conditions, the next free ids) and starts the
-buffered writer (``service.db.writer.DbWriter``).
+buffered writer (``service.store.writer.DbWriter``).
 
 The database being down never stops the service:
 
@@ -24,12 +24,12 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
-from service.core import Restored
-from service.db.records import Record
-from service.detector import OperatingPoint
-from service.interface import ConditionState
-from service.scheduler import PastResult
-from service.views import condition_from_row, row_to_record
+from service.engine.core import Restored
+from service.identify.detector import OperatingPoint
+from service.identify.scheduler import PastResult
+from service.serve.interface import ConditionState
+from service.serve.views import condition_from_row, row_to_record
+from service.store.records import Record
 
 __all__ = ["GateSink", "Persistence", "open_persistence", "restore"]
 
@@ -37,8 +37,8 @@ log = logging.getLogger(__name__)
 
 
 def restore(session_factory: Any, *, limit: int = 100) -> Restored:
-    """The state of the previous run from the database (raises ``service.db.errors.DatabaseError``)."""
-    from service.db.repository import (
+    """The state of the previous run from the database (raises ``service.store.errors.DatabaseError``)."""
+    from service.store.repository import (
         last_served_identification,
         latest_per_condition,
         list_conditions,
@@ -105,7 +105,7 @@ class GateSink:
     def status(self) -> Any:
         if self.writer is not None:
             return self.writer.status()
-        from service.db.writer import WriterStatus
+        from service.store.writer import WriterStatus
 
         return WriterStatus(
             connected=False,
@@ -138,7 +138,7 @@ class Persistence:
     writer_engine: Any = None  # the writer's own engine and pool (a hung read never blocks a write)
     writer_factory: Any = None
     writer_watchdog: Any = None
-    reads: Any = None  # service.db.reads.DbReads: API reads, bounded and with a deadline
+    reads: Any = None  # service.store.reads.DbReads: API reads, bounded and with a deadline
     read_watchdog: Any = None
     _task: asyncio.Task[None] | None = None
 
@@ -201,7 +201,7 @@ def _describe(err: BaseException) -> str:
 
 
 def _prepare_schema(engine: Any, migrate: bool) -> None:
-    from service.db.migrate import current_revision, head_revision, upgrade
+    from service.store.migrate import current_revision, head_revision, upgrade
 
     if migrate:
         upgrade(engine)
@@ -218,7 +218,7 @@ def _prepare_schema(engine: Any, migrate: bool) -> None:
 def _start_writer(
     session_factory: Any, db: Any, *, clock: Callable[[], datetime] | None, watchdog: Any = None
 ) -> Any:
-    from service.db.writer import DbWriter, utc_now
+    from service.store.writer import DbWriter, utc_now
 
     return DbWriter(
         session_factory,
@@ -235,8 +235,8 @@ def _start_writer(
 
 def _engine(db: Any) -> tuple[Any, Any, Any]:
     """(engine, session factory, watchdog): one per use (the writer's, the API reads'), each its own pool."""
-    from service.db.engine import create_db_engine, make_session_factory
-    from service.db.watchdog import StatementWatchdog
+    from service.store.engine import create_db_engine, make_session_factory
+    from service.store.watchdog import StatementWatchdog
 
     statement_s = float(getattr(db, "statement_timeout_s", 5.0))
     engine = create_db_engine(
@@ -264,10 +264,11 @@ def open_persistence(
 ) -> Persistence:
     """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage.
 
-    ``clock`` is the service's one clock (``service.runtime.ScaledClock`` in the demo): the writer stamps its
+    ``clock`` is the service's one clock (``service.engine.runtime.ScaledClock`` in the demo): the writer
+    stamps its
     outage events and ``last_ok_at`` with it, so database health ages are on the same time axis as the rest.
     """
-    from service.db.reads import DbReads
+    from service.store.reads import DbReads
 
     say = on_event or (lambda _m: None)
     engine, factory, read_watchdog = _engine(db)

@@ -57,7 +57,7 @@ class RawWindow:
 
 @dataclass(frozen=True, eq=False)
 class WindowArrays:
-    """A uniform-grid window ready for ``model.identify.Window`` (see ``service.worker``)."""
+    """A uniform-grid window ready for ``model.identify.Window`` (see ``service.identify.worker``)."""
 
     times_s: np.ndarray  # (n_steps+1,) grid instants, s
     measured_c: np.ndarray  # (n_steps+1, 32) °C, holes filled

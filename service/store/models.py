@@ -1,7 +1,7 @@
 """SQLAlchemy 2.0 typed declarative models (the schema of migration ``0001_initial``).
 
 Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``. Every timestamp is
-:class:`~service.db.types.UtcDateTime` (aware UTC in and out, on SQLite too).
+:class:`~service.store.types.UtcDateTime` (aware UTC in and out, on SQLite too).
 Units: °C, rpm, N·m, W/(m²·K), s.
 
 Ids of conditions and identifications are assigned by the service (it needs them before the row is stored,
@@ -21,7 +21,7 @@ from typing import Any
 from sqlalchemy import JSON, BigInteger, Boolean, Double, ForeignKey, Integer, MetaData, String, Text
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
-from service.db.types import UtcDateTime
+from service.store.types import UtcDateTime
 
 OUTCOMES = ("ok", "failed", "insufficient-data", "skipped", "cancelled")
 

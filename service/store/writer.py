@@ -9,7 +9,7 @@ for good (duplicate id, missing condition) is isolated, counted in ``rejected`` 
 record never blocks the rest. Outages are themselves recorded as ``DeviceEventData(device="db")`` rows,
 written once the database is back.
 
-With a ``watchdog`` (``service.db.watchdog.StatementWatchdog``) every write and probe is guarded: one that
+With a ``watchdog`` (``service.store.watchdog.StatementWatchdog``) every write and probe is guarded: one that
 waits longer than the watchdog's ``abort_after_s`` (a hung database) is aborted and handled like an outage;
 ``status().busy_s`` says how long the current one has been waiting (health: ``degraded`` after a few
 seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
@@ -35,10 +35,10 @@ from types import TracebackType
 from sqlalchemy import text
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.db.errors import DatabaseUnavailableError
-from service.db.records import RECORD_TYPES, DeviceEventData, Record
-from service.db.repository import session_scope, write_records
-from service.db.watchdog import StatementWatchdog
+from service.store.errors import DatabaseUnavailableError
+from service.store.records import RECORD_TYPES, DeviceEventData, Record
+from service.store.repository import session_scope, write_records
+from service.store.watchdog import StatementWatchdog
 
 log = logging.getLogger(__name__)
 
