@@ -30,12 +30,12 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.identify.worker import JobOutcome, JobStatus, final_field, run_identification
+from service.identify.worker import JobOutcome, JobRequest, JobStatus, final_field, run_identification
 from service.modelload import LoadedModel
 from service.serve.interface import ConditionSnapshot, IdentificationRecord
 from service.store.records import Record
 
-__all__ = ["OfflineResult", "RecordSink", "run_launch", "run_offline"]
+__all__ = ["OfflineResult", "RecordSink", "run_job", "run_offline"]
 
 
 class RecordSink(Protocol):
@@ -54,17 +54,15 @@ class OfflineResult:
     instructions: list[Instruction] = field(default_factory=list)  # every instruction, in order
 
 
-def run_launch(model: LoadedModel, launch: Launch) -> JobOutcome:
+def run_job(model: LoadedModel, request: JobRequest) -> JobOutcome:
     """Run one job in this process; a failure is an outcome, as from the worker process."""
     try:
-        result, window = run_identification(model, launch.request)
+        result, window = run_identification(model, request)
         field_c = final_field(model, window, result)
     except Exception as err:  # same contract as the worker process: a failed job is an outcome
         status = JobStatus.INSUFFICIENT_DATA if isinstance(err, InsufficientDataError) else JobStatus.FAILED
-        return JobOutcome(launch.request.job_id, status, None, f"{type(err).__name__}: {err}", 0.0)
-    return JobOutcome(
-        launch.request.job_id, JobStatus.OK, result, str(result.message), result.wall_s, field_c
-    )
+        return JobOutcome(request.job_id, status, None, f"{type(err).__name__}: {err}", 0.0)
+    return JobOutcome(request.job_id, JobStatus.OK, result, str(result.message), result.wall_s, field_c)
 
 
 def run_offline(
@@ -107,7 +105,7 @@ def run_offline(
 
 
 def _outcome(core: ServiceCore, model: LoadedModel, launch: Launch, t: datetime) -> JobOutcomeReceived:
-    outcome = run_launch(model, launch)
+    outcome = run_job(model, launch.request)
     stepper = None
     if outcome.status is JobStatus.OK and outcome.result is not None:
         stepper = core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))

@@ -13,6 +13,8 @@ When started, events are handled on the event loop: an API thread's request (``r
 ``request_baseline``) is handed over to the loop and waited for; before ``start()`` the caller's thread
 handles it (one thread at a time). After each event the shell publishes the core's immutable snapshot
 (``service.engine.view.CoreView``) by swapping one reference, which the API threads read without a lock.
+Jobs run in the worker process; with ``run_job`` (offline use, tests) they run inline, synchronously, and
+their outcome is handled right after the event that launched them.
 
 :class:`SoftSensorService` implements ``service.serve.interface.ChtcService`` for the API. Device health is
 sampled once a second and transitions are stored as device events. Time comes from an injected ``clock``
@@ -69,7 +71,7 @@ from service.engine.health import (
 )
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
-from service.identify.worker import IdentificationWorker, JobOutcome, JobStatus
+from service.identify.worker import IdentificationWorker, JobOutcome, JobRequest, JobStatus
 from service.serve.interface import (
     LATENCY_BUCKETS_S,
     BusyError,
@@ -139,6 +141,7 @@ class SoftSensorService:
         clock: Clock = utc_now,
         on_event: Callable[[str], None] | None = None,
         history_capacity: int = 2160,  # samples of measured vs predicted kept for the API (6 h at 10 s)
+        run_job: Callable[[JobRequest], JobOutcome] | None = None,
     ) -> None:
         self.core = core
         self.worker = worker
@@ -148,6 +151,7 @@ class SoftSensorService:
         self.sources = dict(sources or {})
         self.clock = clock
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
+        self.run_job = run_job
         self._view: CoreView = core.view()
         self._event_ids: dict[str, itertools.count[int]] = {}
         self._deferred: list[Event] = []
@@ -274,7 +278,15 @@ class SoftSensorService:
         return np.asarray(self.core.model.fe.sensor_op @ v.live.field_c).ravel()
 
     def _launch(self, launch: Launch) -> None:
-        """Run a job on the event loop (without a loop and a worker, its failed outcome comes at once)."""
+        """Run a job: inline with ``run_job``, else on the event loop in the worker process (without a loop
+        and a worker, its failed outcome comes at once)."""
+        if self.run_job is not None:
+            outcome = self.run_job(launch.request)
+            stepper = None
+            if outcome.status is JobStatus.OK and outcome.result is not None:
+                stepper = self.core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))
+            self._deferred.append(self._outcome_event(outcome, stepper))
+            return
         if self._loop is None and self.worker is None:
             self._deferred.append(self._outcome_event(_no_worker(launch), None))
             return
