@@ -15,7 +15,7 @@ from service.serve.interface import ConditionSnapshot, IdentificationRecord
 __all__ = ["CoreConfig", "Restored"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CoreConfig:
     detector: DetectorConfig = field(default_factory=DetectorConfig)
     scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
@@ -38,7 +38,7 @@ class CoreConfig:
     calibration: CalibrationConfig | None = field(default_factory=CalibrationConfig)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Restored:
     """What the database knew at start-up (``service.store.persistence.restore``)."""
 

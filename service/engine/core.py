@@ -107,7 +107,7 @@ class CoreError(ValueError):
     """An event the core does not know."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class _Job:
     """A job the scheduler started, with what is needed to record its outcome."""
 
@@ -148,6 +148,9 @@ class _Out:
 
     def log(self, message: str) -> None:
         self.instructions.append(Log(self.event_id, message))
+
+    def reject(self, kind: RejectKind, reason: str) -> None:
+        self.instructions.append(Rejected(event_id=self.event_id, kind=kind, reason=reason))
 
 
 def utc(ts: float) -> datetime:
@@ -353,15 +356,13 @@ class ServiceCore:
     def _on_baseline(self, t: datetime, out: _Out) -> None:
         """Take a baseline now from the newest samples at rest; ``Rejected`` naming why not."""
         if self._calibrator is None:
-            out.instructions.append(
-                Rejected(out.event_id, RejectKind.NOT_READY, "sensor calibration is disabled")
-            )
+            out.reject(RejectKind.NOT_READY, "sensor calibration is disabled")
             return
         at = self._newest.t if self._newest is not None else t
         result = self._calibrator.handle(BaselineRequest(at))
         if self._calibrated(result, out) is None:
             why = next((r.reason for r in result if isinstance(r, BaselineRejected)), "no baseline")
-            out.instructions.append(Rejected(out.event_id, RejectKind.NOT_READY, why))
+            out.reject(RejectKind.NOT_READY, why)
 
     def _store_sample(self, s: NewestSample, ts: float, out: _Out) -> None:
         if not self._decimator.keep(ts):
@@ -441,7 +442,15 @@ class ServiceCore:
         """Build the job's window and launch it, or end it at once (idle spindle, too few data)."""
         now = utc(ts)
         reason = (manual_reason or "manual") if start.trigger == "manual" else self._trigger(start)
-        job = _Job(start, _key(start.job_id), reason, now, utc(start.t_from), utc(start.t_to), out.event_id)
+        job = _Job(
+            start=start,
+            key=_key(start.job_id),
+            reason=reason,
+            requested_at=now,
+            window_from=utc(start.t_from),
+            window_to=utc(start.t_to),
+            started_by=out.event_id,
+        )
         self._set_job(IdentificationJob(job.key, reason, JobState.QUEUED, now))
         if abs(start.point.speed_rpm) < self.config.min_speed_rpm:
             msg = (
@@ -463,7 +472,7 @@ class ServiceCore:
         job = replace(job, window_from=utc(snap.t), window_to=utc(float(arrays.times_s[-1])))
         self._running[start.job_id] = job
         self._set_job(replace(self._jobs[job.key], state=JobState.RUNNING))
-        out.instructions.append(Launch(out.event_id, job.key, request))
+        out.instructions.append(Launch(event_id=out.event_id, job_key=job.key, request=request))
         out.log(
             f"identification {job.key}: condition {start.condition_id}, "
             f"window {arrays.n_steps * arrays.dt_s / 60:.0f} min, "
@@ -476,7 +485,7 @@ class ServiceCore:
         return "condition-change" if first else "scheduled"
 
     def _cancel(self, ins: sched.CancelJob, out: _Out) -> None:
-        out.instructions.append(Cancel(out.event_id, ins.job_id, ins.reason))
+        out.instructions.append(Cancel(event_id=out.event_id, job_id=ins.job_id, reason=ins.reason))
         job = self._running.get(ins.job_id)
         key = _key(ins.job_id)
         if key in self._jobs and self._jobs[key].state in (JobState.QUEUED, JobState.RUNNING):
@@ -596,19 +605,19 @@ class ServiceCore:
         """An identification requested through the API: ``ManualAccepted`` or ``Rejected``."""
         if self._newest is None:
             why = "no samples yet: nothing to identify from"
-            out.instructions.append(Rejected(out.event_id, RejectKind.NOT_READY, why))
+            out.reject(RejectKind.NOT_READY, why)
             return
         running = self._scheduler.running
         if running is not None:
             why = f"identification {_key(running.job_id)} is already running"
-            out.instructions.append(Rejected(out.event_id, RejectKind.BUSY, why))
+            out.reject(RejectKind.BUSY, why)
             return
         ts = self._newest.t.timestamp()
         todo = self._scheduler.handle(sched.ManualRequest(ts, requested_by=reason))
         for ins in todo:
             if isinstance(ins, sched.ManualRejected | sched.ManualQueued):
                 kind = RejectKind.NOT_READY if isinstance(ins, sched.ManualRejected) else RejectKind.BUSY
-                out.instructions.append(Rejected(out.event_id, kind, ins.reason))
+                out.reject(kind, ins.reason)
                 return
         self._execute(todo, ts, out, manual_reason=(reason or "manual")[:32])
         start = next(i for i in todo if isinstance(i, sched.StartJob))

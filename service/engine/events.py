@@ -68,7 +68,7 @@ class SampleReceived:
     sample: Sample
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class JobOutcomeReceived:
     """What the worker returned for a launched job; ``stepper``: the live model's step for the result's H."""
 
@@ -114,7 +114,7 @@ class Store:
     record: Record
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Launch:
     """Run ``request`` in the worker process and send back its outcome (``JobOutcomeReceived``)."""
 
@@ -123,7 +123,7 @@ class Launch:
     request: JobRequest
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Cancel:
     """Cancel the worker's job ``job_id`` (its outcome, when it comes, is stored as cancelled)."""
 
@@ -161,7 +161,7 @@ class RejectKind(enum.StrEnum):
     NOT_READY = "not_ready"  # no samples, no condition, too little data, calibration off or not at rest (503)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Rejected:
     """A request the core refused, with the reason the API shows."""
 

@@ -35,7 +35,7 @@ class Offsets:
     sd_c: np.ndarray
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class JobWindow:
     """A job's window: the live state's field at its start, the resampled arrays, the start field's error."""
 
@@ -58,7 +58,7 @@ def job_window(job: StartJob, live: LiveModel, history: SampleHistory, config: C
     start_cov = live.covariance_at(snap.t) if config.carry_start_error else None
     raw = raw_window(history, snap.t, job.t_to, config.rules.dt_s)
     arrays = resample_window(raw, snap.t, job.t_to, config.rules)
-    return JobWindow(snap, arrays, start_cov)
+    return JobWindow(start=snap, arrays=arrays, start_cov=start_cov)
 
 
 def job_request(

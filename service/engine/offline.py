@@ -42,7 +42,7 @@ class RecordSink(Protocol):
     def submit(self, record: Record) -> bool: ...
 
 
-@dataclass
+@dataclass(kw_only=True)
 class OfflineResult:
     records: list[IdentificationRecord]  # oldest first
     stored: list[Record] = field(default_factory=list)  # the records the database writer would have got
@@ -109,4 +109,6 @@ def _outcome(core: ServiceCore, model: LoadedModel, launch: Launch, t: datetime)
     stepper = None
     if outcome.status is JobStatus.OK and outcome.result is not None:
         stepper = core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))
-    return JobOutcomeReceived(f"outcome-{launch.request.job_id}", outcome, t, stepper)
+    return JobOutcomeReceived(
+        event_id=f"outcome-{launch.request.job_id}", outcome=outcome, finished_at=t, stepper=stepper
+    )

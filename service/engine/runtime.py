@@ -15,7 +15,7 @@ import logging
 import socket
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from datetime import UTC, datetime, timedelta
 from typing import TYPE_CHECKING, Protocol
 
@@ -128,6 +128,7 @@ class Runtime:
     """One running soft sensor. ``await start(daq=..., can=...)``, ``await stop()``."""
 
     settings: Settings
+    _: KW_ONLY
     clock: ScaledClock
     on_event: Callable[[str], None]
     migrate: bool = True

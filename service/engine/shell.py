@@ -314,7 +314,9 @@ class SoftSensorService:
         self.handle(self._outcome_event(outcome, stepper))
 
     def _outcome_event(self, outcome: JobOutcome, stepper: Stepper | None) -> JobOutcomeReceived:
-        return JobOutcomeReceived(self._next_id("outcome"), outcome, self.clock(), stepper)
+        return JobOutcomeReceived(
+            event_id=self._next_id("outcome"), outcome=outcome, finished_at=self.clock(), stepper=stepper
+        )
 
     # --- device health (event-loop thread) --------------------------------------------------------------
     async def _watch_health(self, period_s: float = 1.0) -> None:

@@ -26,7 +26,7 @@ from service.serve.interface import (
 __all__ = ["CoreView", "NewestSample", "observed"]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class NewestSample:
     """The newest acquisition sample: t UTC; temps_c (n,) °C read-only; quality names per channel."""
 
@@ -40,7 +40,7 @@ class NewestSample:
     daq_ok: bool
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class CoreView:
     """What the core knows after one event (see the module docstring)."""
 

@@ -56,7 +56,7 @@ class _Inputs:
     torque_nm: float
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LiveView:
     """An immutable copy of what readers need from the live state (``LiveModel.view``): the field now
     (read-only (N,) °C at ``t`` s), the H (7,) W/(m²·K), the bearing-heat scales and the held inputs (ambient
@@ -244,7 +244,9 @@ class LiveModel:
         field_c = self._T.copy()
         field_c.setflags(write=False)
         h = tuple(float(x) for x in self.h)
-        return LiveView(self._t, field_c, h, self.load_scale, _astuple(self._last_inputs))
+        return LiveView(
+            t=self._t, field_c=field_c, h=h, load_scale=self.load_scale, inputs=_astuple(self._last_inputs)
+        )
 
     def sensors_now(self) -> np.ndarray:
         """Predicted temperatures (32,) °C at the sensors."""

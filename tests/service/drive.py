@@ -43,7 +43,9 @@ def outcome_event(core: ServiceCore, outcome: JobOutcome, t: datetime) -> JobOut
     stepper = None
     if outcome.status is JobStatus.OK and outcome.result is not None:
         stepper = core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))
-    return JobOutcomeReceived(f"outcome-{outcome.job_id}", outcome, t, stepper)
+    return JobOutcomeReceived(
+        event_id=f"outcome-{outcome.job_id}", outcome=outcome, finished_at=t, stepper=stepper
+    )
 
 
 def launches(instructions: Iterable[Instruction]) -> list[Launch]:

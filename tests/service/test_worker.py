@@ -168,7 +168,11 @@ def test_manual_requests_and_idle_condition(loaded_model):
     run = plant_run([Segment(700.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)])
     core = ServiceCore(CFG, model=loaded_model)
     assert _manual(core, 1) == [
-        Rejected("manual-1", RejectKind.NOT_READY, "no samples yet: nothing to identify from")
+        Rejected(
+            event_id="manual-1",
+            kind=RejectKind.NOT_READY,
+            reason="no samples yet: nothing to identify from",
+        )
     ]
     samples = samples_of(run)
     feed(core, samples[:71])  # the idle condition, 10 min: its scheduled job is skipped
