@@ -22,7 +22,7 @@ Errors::
 from __future__ import annotations
 
 import itertools
-from collections.abc import Iterable, Sequence
+from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from types import MappingProxyType
@@ -30,7 +30,6 @@ from typing import TypedDict
 
 import numpy as np
 
-from drivers.quality import Quality
 from drivers.ringbuffer import RingBuffer, Sample
 from model.carry import StateCovariance
 from model.identify import IdentificationResult
@@ -63,6 +62,7 @@ from service.engine.events import (
     Store,
 )
 from service.engine.jobs import Offsets, job_request, job_window, raw_window
+from service.engine.samples import SampleBook
 from service.engine.view import CoreView, NewestSample, observed
 from service.estimate.live import LiveModel, LiveStateError
 from service.identify import scheduler as sched
@@ -91,10 +91,6 @@ from service.store.records import (
     ConditionStart,
     IdentificationData,
     Record,
-    SampleData,
-    SampleDecimator,
-    finite,
-    finite_list,
 )
 
 __all__ = ["CoreConfig", "CoreError", "Restored", "ServiceCore"]
@@ -157,17 +153,6 @@ def utc(ts: float) -> datetime:
     return datetime.fromtimestamp(ts, tz=UTC)
 
 
-def _quality_names(quality: Iterable[int]) -> tuple[str, ...]:
-    """``drivers.quality.Quality`` codes (uint8 or enum) -> "ok", "stale", "open_circuit", ..."""
-    names = []
-    for q in quality:
-        try:
-            names.append(Quality(int(q)).name.lower())
-        except ValueError:
-            names.append(f"unknown_{int(q)}")
-    return tuple(names)
-
-
 class ServiceCore:
     """See the module docstring. ``history_capacity``: samples kept for identification windows."""
 
@@ -210,13 +195,13 @@ class ServiceCore:
         self._cond_ids = itertools.count(restored.next_condition_id)
         self._ident_ids = itertools.count(restored.next_identification_id)
         self._resumed = self._condition is not None
-        self._newest: NewestSample | None = None
-        self._decimator = SampleDecimator(config.sample_store_period_s)
+        self._samples = SampleBook(
+            n_sensors,
+            min_good_channels=config.rules.min_good_channels,
+            store_period_s=config.sample_store_period_s,
+        )
         self._counts: dict[str, int] = {"ok": 0, "failed": 0, "insufficient-data": 0, "cancelled": 0}
         self._durations = HistogramData(DURATION_BUCKETS_S, (0,) * len(DURATION_BUCKETS_S), 0, 0.0)
-        self._last_ok_t = np.full(n_sensors, np.nan)
-        self._last_good_daq_t: datetime | None = None
-        self._last_good_can_t: datetime | None = None
         cal = config.calibration
         self._calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
 
@@ -247,9 +232,9 @@ class ServiceCore:
         if cal is not None:
             sd = np.array(cal.offset_sd(), dtype=float)
             sd.setflags(write=False)
-        last_ok = tuple(float(x) for x in self._last_ok_t)
+        book = self._samples
         return CoreView(
-            newest=self._newest,
+            newest=book.newest,
             condition=self._condition,
             conditions=self._conditions,
             current=self._current,
@@ -259,9 +244,9 @@ class ServiceCore:
             running_job=None if running is None else _key(running.job_id),
             counts=MappingProxyType(dict(self._counts)),
             durations=self._durations,
-            last_ok_t=last_ok,
-            last_good_daq_t=self._last_good_daq_t,
-            last_good_can_t=self._last_good_can_t,
+            last_ok_t=tuple(float(x) for x in book.last_ok_t),
+            last_good_daq_t=book.last_good_daq_t,
+            last_good_can_t=book.last_good_can_t,
             calibration=None if cal is None else cal.current,
             offset_sd_c=sd,
             live=self._live.view() if self._live.initialized else None,
@@ -285,9 +270,12 @@ class ServiceCore:
         """Store, advance the live state, detect, schedule."""
         self._ring.append(sample)  # first: an out-of-order sample raises before anything changed
         ts = sample.t.timestamp()
-        newest = self._remember(sample)
+        newest = self._samples.observe(sample)
+        self._follow_condition()
         self._calibrate(newest, out)
-        self._store_sample(newest, ts, out)
+        row = self._samples.to_store(newest)
+        if row is not None:
+            out.store(row)
         self._advance_live(newest, ts)
         todo: list[sched.Instruction] = []
         if self._resumed:
@@ -299,37 +287,14 @@ class ServiceCore:
         todo += self._scheduler.handle(sched.Tick(ts))
         self._execute(todo, ts, out)
 
-    def _remember(self, sample: Sample) -> NewestSample:
-        temps = np.asarray(sample.temps_c, dtype=float).copy()
-        temps.setflags(write=False)
-        s = self._newest = NewestSample(
-            t=sample.t,
-            temps_c=temps,
-            quality=_quality_names(sample.quality),
-            ambient_c=float(sample.ambient_c),
-            speed_rpm=float(sample.speed_rpm),
-            torque_nm=float(sample.torque_nm),
-            can_ok=bool(sample.can_ok),
-            daq_ok=bool(sample.daq_ok),
-        )
-        ok = np.array([q == "ok" for q in s.quality], dtype=bool)[: len(self._last_ok_t)]
-        self._last_ok_t[: len(ok)][ok] = sample.t.timestamp()
-        self._track_good_data(s, ok)
+    def _follow_condition(self) -> None:
+        """The current condition is CHANGING while the detector holds a candidate, else STABLE."""
         cond = self._condition
         if cond is not None and self._detector.status is DetectorStatus.PENDING:
             if cond.state is not ConditionState.CHANGING:
                 self._set_condition(replace(cond, state=ConditionState.CHANGING))
         elif cond is not None and cond.state is not ConditionState.STABLE:
             self._set_condition(replace(cond, state=ConditionState.STABLE))
-        return s
-
-    def _track_good_data(self, s: NewestSample, ok: np.ndarray) -> None:
-        """Remember when the data were last good enough to identify from (``CoreView.data_problems``)."""
-        usable = int(np.sum(ok & np.isfinite(s.temps_c[: len(ok)])))
-        if s.daq_ok and usable >= self.config.rules.min_good_channels and np.isfinite(s.ambient_c):
-            self._last_good_daq_t = s.t
-        if s.can_ok and np.isfinite(s.speed_rpm) and np.isfinite(s.torque_nm):
-            self._last_good_can_t = s.t
 
     def _calibrate(self, s: NewestSample, out: _Out) -> None:
         if self._calibrator is None:
@@ -358,27 +323,12 @@ class ServiceCore:
         if self._calibrator is None:
             out.reject(RejectKind.NOT_READY, "sensor calibration is disabled")
             return
-        at = self._newest.t if self._newest is not None else t
+        newest = self._samples.newest
+        at = newest.t if newest is not None else t
         result = self._calibrator.handle(BaselineRequest(at))
         if self._calibrated(result, out) is None:
             why = next((r.reason for r in result if isinstance(r, BaselineRejected)), "no baseline")
             out.reject(RejectKind.NOT_READY, why)
-
-    def _store_sample(self, s: NewestSample, ts: float, out: _Out) -> None:
-        if not self._decimator.keep(ts):
-            return
-        out.store(
-            SampleData(
-                t=s.t,
-                temps_c=tuple(finite_list(s.temps_c)),
-                ambient_c=finite(s.ambient_c),
-                speed_rpm=finite(s.speed_rpm),
-                torque_nm=finite(s.torque_nm),
-                quality=s.quality,
-                can_ok=s.can_ok,
-                daq_ok=s.daq_ok,
-            )
-        )
 
     def _advance_live(self, s: NewestSample, ts: float) -> None:
         inputs = (s.ambient_c, s.speed_rpm, s.torque_nm)
@@ -504,7 +454,8 @@ class ServiceCore:
         job = self._running.pop(outcome.job_id, None)
         if job is None:
             return
-        ts = self._newest.t.timestamp() if self._newest is not None else ev.finished_at.timestamp()
+        newest = self._samples.newest
+        ts = (newest.t if newest is not None else ev.finished_at).timestamp()
         self._durations = observed(self._durations, outcome.wall_s)
         running = self._scheduler.running
         if outcome.status is JobStatus.CANCELLED or running is None or running.job_id != outcome.job_id:
@@ -593,7 +544,8 @@ class ServiceCore:
         if final is None or not self._live.initialized:
             return
         t_end = job.window_to.timestamp()
-        t_now = self._live.t if self._newest is None else max(self._live.t, self._newest.t.timestamp())
+        newest = self._samples.newest
+        t_now = self._live.t if newest is None else max(self._live.t, newest.t.timestamp())
         try:
             raw = raw_window(self._history, t_end, t_now, self.config.rules.dt_s)
         except Exception:  # the history cannot replay: keep the current state (it has the new H already)
@@ -603,16 +555,16 @@ class ServiceCore:
     # --- manual requests ------------------------------------------------------------------------------------
     def _on_manual(self, reason: str, out: _Out) -> None:
         """An identification requested through the API: ``ManualAccepted`` or ``Rejected``."""
-        if self._newest is None:
-            why = "no samples yet: nothing to identify from"
-            out.reject(RejectKind.NOT_READY, why)
+        newest = self._samples.newest
+        if newest is None:
+            out.reject(RejectKind.NOT_READY, "no samples yet: nothing to identify from")
             return
         running = self._scheduler.running
         if running is not None:
             why = f"identification {_key(running.job_id)} is already running"
             out.reject(RejectKind.BUSY, why)
             return
-        ts = self._newest.t.timestamp()
+        ts = newest.t.timestamp()
         todo = self._scheduler.handle(sched.ManualRequest(ts, requested_by=reason))
         for ins in todo:
             if isinstance(ins, sched.ManualRejected | sched.ManualQueued):
