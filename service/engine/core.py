@@ -26,7 +26,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from types import MappingProxyType
-from typing import TypedDict
 
 import numpy as np
 
@@ -61,9 +60,10 @@ from service.engine.events import (
     StepperPrepared,
     Store,
 )
+from service.engine.jobbook import Job, JobBook, job_key
 from service.engine.jobs import Offsets, job_request, job_window, raw_window
 from service.engine.samples import SampleBook
-from service.engine.view import CoreView, NewestSample, observed
+from service.engine.view import CoreView, NewestSample
 from service.estimate.live import LiveModel, LiveStateError
 from service.identify import scheduler as sched
 from service.identify.detector import (
@@ -77,59 +77,23 @@ from service.identify.window import InsufficientDataError
 from service.identify.worker import JobOutcome, JobStatus
 from service.modelload import LoadedModel
 from service.serve.interface import (
-    DURATION_BUCKETS_S,
     ConditionSnapshot,
     ConditionState,
-    HistogramData,
-    IdentificationJob,
     IdentificationRecord,
-    JobState,
 )
-from service.serve.views import data_to_record
 from service.store.records import (
     ConditionEnd,
     ConditionStart,
-    IdentificationData,
     Record,
 )
 
 __all__ = ["CoreConfig", "CoreError", "Restored", "ServiceCore"]
 
-RECORDS_KEPT = 500  # identifications this process remembers for the API (the database has them all)
 CONDITIONS_KEPT = 200
 
 
 class CoreError(ValueError):
     """An event the core does not know."""
-
-
-@dataclass(frozen=True, kw_only=True)
-class _Job:
-    """A job the scheduler started, with what is needed to record its outcome."""
-
-    start: sched.StartJob
-    key: str
-    reason: str
-    requested_at: datetime
-    window_from: datetime
-    window_to: datetime
-    started_by: str  # id of the event that started it
-
-
-class _Meta(TypedDict):
-    """The fields of an ``IdentificationData`` that the core knows whatever the outcome."""
-
-    id: int
-    condition_id: int
-    started_at: datetime
-    finished_at: datetime
-    window_start: datetime
-    window_end: datetime
-    reason: str
-    model_version: str
-    warm_start_source: str | None
-    started_by_event: str | None
-    finished_by_event: str | None
 
 
 @dataclass
@@ -188,20 +152,18 @@ class ServiceCore:
         self._conditions: tuple[ConditionSnapshot, ...] = tuple(restored.conditions[:CONDITIONS_KEPT])
         self._current: IdentificationRecord | None = restored.last
         self._current_from_restore = restored.last is not None
-        self._records: tuple[IdentificationRecord, ...] = ()
-        self._jobs: dict[str, IdentificationJob] = {}
-        self._jobs_view: MappingProxyType[str, IdentificationJob] = MappingProxyType({})
-        self._running: dict[int, _Job] = {}
+        self._jobs = JobBook(
+            next_identification_id=restored.next_identification_id,
+            model_version=model.version,
+            method=config.method,
+        )
         self._cond_ids = itertools.count(restored.next_condition_id)
-        self._ident_ids = itertools.count(restored.next_identification_id)
         self._resumed = self._condition is not None
         self._samples = SampleBook(
             n_sensors,
             min_good_channels=config.rules.min_good_channels,
             store_period_s=config.sample_store_period_s,
         )
-        self._counts: dict[str, int] = {"ok": 0, "failed": 0, "insufficient-data": 0, "cancelled": 0}
-        self._durations = HistogramData(DURATION_BUCKETS_S, (0,) * len(DURATION_BUCKETS_S), 0, 0.0)
         cal = config.calibration
         self._calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
 
@@ -239,11 +201,11 @@ class ServiceCore:
             conditions=self._conditions,
             current=self._current,
             current_from_restore=self._current_from_restore,
-            records=self._records,
-            jobs=self._jobs_view,
-            running_job=None if running is None else _key(running.job_id),
-            counts=MappingProxyType(dict(self._counts)),
-            durations=self._durations,
+            records=self._jobs.records,
+            jobs=self._jobs.jobs_view,
+            running_job=None if running is None else job_key(running.job_id),
+            counts=MappingProxyType(dict(self._jobs.counts)),
+            durations=self._jobs.durations,
             last_ok_t=tuple(float(x) for x in book.last_ok_t),
             last_good_daq_t=book.last_good_daq_t,
             last_good_can_t=book.last_good_can_t,
@@ -391,17 +353,11 @@ class ServiceCore:
     ) -> list[sched.Instruction]:
         """Build the job's window and launch it, or end it at once (idle spindle, too few data)."""
         now = utc(ts)
-        reason = (manual_reason or "manual") if start.trigger == "manual" else self._trigger(start)
-        job = _Job(
-            start=start,
-            key=_key(start.job_id),
-            reason=reason,
-            requested_at=now,
-            window_from=utc(start.t_from),
-            window_to=utc(start.t_to),
-            started_by=out.event_id,
-        )
-        self._set_job(IdentificationJob(job.key, reason, JobState.QUEUED, now))
+        if start.trigger == "manual":
+            reason = manual_reason or "manual"
+        else:
+            reason = "condition-change" if self._jobs.first_of(start.condition_id) else "scheduled"
+        job = self._jobs.open(start, reason=reason, now=now, event_id=out.event_id)
         if abs(start.point.speed_rpm) < self.config.min_speed_rpm:
             msg = (
                 f"spindle idle ({start.point.speed_rpm:.0f} rpm < {self.config.min_speed_rpm:.0f} rpm): "
@@ -419,9 +375,7 @@ class ServiceCore:
         offsets = None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
         request = job_request(start, window, history=self._history, config=self.config, offsets=offsets)
         snap, arrays = window.start, window.arrays
-        job = replace(job, window_from=utc(snap.t), window_to=utc(float(arrays.times_s[-1])))
-        self._running[start.job_id] = job
-        self._set_job(replace(self._jobs[job.key], state=JobState.RUNNING))
+        job = self._jobs.launched(job, window_from=utc(snap.t), window_to=utc(float(arrays.times_s[-1])))
         out.instructions.append(Launch(event_id=out.event_id, job_key=job.key, request=request))
         out.log(
             f"identification {job.key}: condition {start.condition_id}, "
@@ -430,33 +384,22 @@ class ServiceCore:
         )
         return []
 
-    def _trigger(self, start: sched.StartJob) -> str:
-        first = all(r.condition.id != start.condition_id for r in self._records)
-        return "condition-change" if first else "scheduled"
-
     def _cancel(self, ins: sched.CancelJob, out: _Out) -> None:
         out.instructions.append(Cancel(event_id=out.event_id, job_id=ins.job_id, reason=ins.reason))
-        job = self._running.get(ins.job_id)
-        key = _key(ins.job_id)
-        if key in self._jobs and self._jobs[key].state in (JobState.QUEUED, JobState.RUNNING):
-            self._set_job(replace(self._jobs[key], state=JobState.FAILED, message=ins.reason))
+        job = self._jobs.waiting(ins.job_id)
+        self._jobs.cancelling(ins.job_id, ins.reason)
         if job is not None:
             out.log(f"identification {job.key} cancelling: {ins.reason}")
-
-    def _set_job(self, job: IdentificationJob) -> None:
-        self._jobs[job.job_id] = job
-        self._jobs_view = MappingProxyType(dict(self._jobs))
 
     # --- outcomes -------------------------------------------------------------------------------------------
     def _on_outcome(self, ev: JobOutcomeReceived, out: _Out) -> None:
         """Record a worker outcome; launch what the scheduler wants next."""
         outcome = ev.outcome
-        job = self._running.pop(outcome.job_id, None)
+        job = self._jobs.take(outcome.job_id, outcome.wall_s)
         if job is None:
             return
         newest = self._samples.newest
         ts = (newest.t if newest is not None else ev.finished_at).timestamp()
-        self._durations = observed(self._durations, outcome.wall_s)
         running = self._scheduler.running
         if outcome.status is JobStatus.CANCELLED or running is None or running.job_id != outcome.job_id:
             self._store_outcome(job, "cancelled", outcome.message or "cancelled", ev.finished_at, out)
@@ -475,37 +418,23 @@ class ServiceCore:
             more = self._scheduler.handle(sched.JobFinished(ts, outcome.job_id, h))
         self._execute(more, ts, out)
 
-    def _meta(self, job: _Job, finished_at: datetime, out: _Out) -> _Meta:
-        return {
-            "id": next(self._ident_ids),
-            "condition_id": job.start.condition_id,
-            "started_at": job.requested_at,
-            "finished_at": finished_at,
-            "window_start": job.window_from,
-            "window_end": job.window_to,
-            "reason": job.reason,
-            "model_version": self.model.version,
-            "warm_start_source": job.start.warm_source,
-            "started_by_event": job.started_by,
-            "finished_by_event": out.event_id,
-        }
-
     def _store_result(
         self,
-        job: _Job,
+        job: Job,
         outcome: JobOutcome,
         result: IdentificationResult,
         ev: JobOutcomeReceived,
         out: _Out,
     ) -> IdentificationRecord:
-        data = IdentificationData.from_result(result, **self._meta(job, ev.finished_at, out))
-        rec = self._record(data, job, out)
+        data, rec = self._jobs.identified(
+            job, result, finished_at=ev.finished_at, event_id=out.event_id, condition=self._condition_of(job)
+        )
+        out.store(data)
         self._current = rec
         self._current_from_restore = False
         ls = result.load_scale
         load = None if ls is None else (float(ls[0]), float(ls[1]))
         self._live.set_h(rec.h, load, stepper=ev.stepper)
-        self._counts["ok"] += 1
         h_txt = ", ".join(f"{x:.1f}" for x in rec.h)
         out.log(
             f"identification {job.key} ok: H = [{h_txt}] W/(m²·K), fit {rec.fit:.4f}, "
@@ -513,32 +442,25 @@ class ServiceCore:
         )
         return rec
 
-    def _store_outcome(self, job: _Job, outcome: str, message: str, finished_at: datetime, out: _Out) -> None:
-        meta = self._meta(job, finished_at, out)
-        data = IdentificationData(outcome=outcome, method=self.config.method, message=message, **meta)
-        self._record(data, job, out)
-        self._counts[outcome] = self._counts.get(outcome, 0) + 1
+    def _store_outcome(self, job: Job, outcome: str, message: str, finished_at: datetime, out: _Out) -> None:
+        data, _ = self._jobs.ended(
+            job,
+            outcome=outcome,
+            message=message,
+            finished_at=finished_at,
+            event_id=out.event_id,
+            condition=self._condition_of(job),
+        )
+        out.store(data)
         out.log(f"identification {job.key} {outcome}: {message}")
 
-    def _record(self, data: IdentificationData, job: _Job, out: _Out) -> IdentificationRecord:
-        out.store(data)
-        cond = next((c for c in self._conditions if c.id == data.condition_id), self._condition)
+    def _condition_of(self, job: Job) -> ConditionSnapshot:
+        cid = job.start.condition_id
+        cond = next((c for c in self._conditions if c.id == cid), self._condition)
         assert cond is not None
-        rec = data_to_record(data, cond)
-        self._records = (rec, *self._records[: RECORDS_KEPT - 1])
-        state = JobState.DONE if data.outcome == "ok" else JobState.FAILED
-        self._set_job(
-            replace(
-                self._jobs[job.key],
-                state=state,
-                finished_at=data.finished_at,
-                identification_id=data.id,
-                message=data.message,
-            )
-        )
-        return rec
+        return cond
 
-    def _rebase_live(self, outcome: JobOutcome, result: IdentificationResult, job: _Job) -> None:
+    def _rebase_live(self, outcome: JobOutcome, result: IdentificationResult, job: Job) -> None:
         """Restart the live state from the fitted model's field at the window end, then catch up."""
         final = outcome.final_field_c
         if final is None or not self._live.initialized:
@@ -561,7 +483,7 @@ class ServiceCore:
             return
         running = self._scheduler.running
         if running is not None:
-            why = f"identification {_key(running.job_id)} is already running"
+            why = f"identification {job_key(running.job_id)} is already running"
             out.reject(RejectKind.BUSY, why)
             return
         ts = newest.t.timestamp()
@@ -573,11 +495,8 @@ class ServiceCore:
                 return
         self._execute(todo, ts, out, manual_reason=(reason or "manual")[:32])
         start = next(i for i in todo if isinstance(i, sched.StartJob))
-        out.instructions.append(ManualAccepted(out.event_id, self._jobs[_key(start.job_id)]))
-
-
-def _key(job_id: int) -> str:
-    return f"job-{job_id}"
+        job = self._jobs.jobs_view[job_key(start.job_id)]
+        out.instructions.append(ManualAccepted(out.event_id, job))
 
 
 def _state_covariance(result: IdentificationResult, t_end: float) -> StateCovariance | None:

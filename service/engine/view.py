@@ -23,7 +23,7 @@ from service.serve.interface import (
     IdentificationRecord,
 )
 
-__all__ = ["CoreView", "NewestSample", "observed"]
+__all__ = ["CoreView", "NewestSample"]
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -94,9 +94,3 @@ def _age_problem(code: str, what: str, last: datetime | None, now: datetime, lim
         return [f"{code}: no {what} yet"]
     age = (now - last).total_seconds()
     return [f"{code}: newest {what} is {age:.1f} s old (limit {limit_s:.0f} s)"] if age > limit_s else []
-
-
-def observed(h: HistogramData, value: float) -> HistogramData:
-    """``h`` with one more observation (a cumulative histogram, as ``Histogram.observe`` keeps it)."""
-    counts = tuple(c + 1 if value <= ub else c for c, ub in zip(h.counts, h.upper_bounds, strict=True))
-    return HistogramData(h.upper_bounds, counts, h.count + 1, h.sum + float(value))
