@@ -33,13 +33,14 @@ import threading
 import time
 from collections.abc import Callable, Coroutine, Mapping, Sequence
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Protocol, TypeVar
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from drivers.ringbuffer import Sample
 from model.defaults import BOUND_REL_TOL
 from service.acquire.devicewatch import DeviceWatch
+from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
 from service.engine.events import (
     BaselineRequested,
@@ -100,7 +101,7 @@ from service.serve.interface import (
     SpindleLayout,
     ZoneInfo,
 )
-from service.serve.views import Usability, at_bound, row_to_record, usability
+from service.serve.views import Usability, at_bound, usability
 from service.store.records import DeviceEventData, Record
 
 if TYPE_CHECKING:
@@ -112,7 +113,6 @@ __all__ = ["RecordWriter", "SoftSensorService"]
 
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
-T = TypeVar("T")
 HANDOVER_TIMEOUT_S = 30.0  # an API thread waits this long for the event loop to handle its request
 
 
@@ -146,8 +146,7 @@ class SoftSensorService:
         self.core = core
         self.worker = worker
         self.writer = writer
-        self.session_factory = session_factory
-        self.db_reads = db_reads
+        self._archive = IdentificationArchive(session_factory, db_reads)
         self.sources = dict(sources or {})
         self.clock = clock
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
@@ -457,76 +456,11 @@ class SoftSensorService:
     def list_identifications(
         self, *, since: datetime | None, until: datetime | None, limit: int, offset: int
     ) -> IdentificationPage:
-        partial = None
-        if self.session_factory is not None:
-            try:
-                return self._db_page(since, until, limit, offset)
-            except NotReadyError:  # the database is hung (read timed out or every read slot taken): 503
-                raise
-            except Exception as err:  # database down: serve what this process remembers, marked partial
-                log.warning("identification history from memory (database: %s)", err)
-                partial = f"database not readable, only the records in memory: {err}"
-        rows = [r for r in self._view.records if _within(r, since, until)]
-        rows.sort(key=lambda r: (r.finished_at, r.id), reverse=True)
-        return IdentificationPage(rows[offset : offset + limit], len(rows), limit, offset, partial)
-
-    def _db_page(
-        self, since: datetime | None, until: datetime | None, limit: int, offset: int
-    ) -> IdentificationPage:
-        from service.store.repository import list_identifications
-
-        def read(session: Session) -> IdentificationPage:
-            page = list_identifications(session, since=since, until=until, limit=limit, offset=offset)
-            return IdentificationPage([row_to_record(r) for r in page.items], page.total, limit, offset)
-
-        return self._merge_pending(self._db_read(read, "list identifications"), since, until)
-
-    def _db_read(self, fn: Callable[[Session], T], what: str) -> T:
-        """``fn(session)`` through the bounded read pool (503 when the database hangs), else inline."""
-        if self.db_reads is not None:
-            return self.db_reads.run(fn, what)
-        from service.store.repository import session_scope
-
-        assert self.session_factory is not None
-        with session_scope(self.session_factory, what) as session:
-            return fn(session)
-
-    def _merge_pending(
-        self, page: IdentificationPage, since: datetime | None, until: datetime | None
-    ) -> IdentificationPage:
-        """Records still in the writer's buffer are not in the database yet: show them on the first page."""
-        if page.offset != 0:
-            return page
-        stored = {r.id for r in page.items}
-        newest_stored = max((r.id for r in page.items), default=0)
-        extra = [
-            r
-            for r in self._view.records
-            if r.id not in stored and r.id > newest_stored and _within(r, since, until)
-        ]
-        if not extra:
-            return page
-        items = sorted([*extra, *page.items], key=lambda r: (r.finished_at, r.id), reverse=True)
-        return IdentificationPage(items[: page.limit], page.total + len(extra), page.limit, page.offset)
+        records = self._view.records
+        return self._archive.page(records, since=since, until=until, limit=limit, offset=offset)
 
     def get_identification(self, identification_id: int) -> IdentificationRecord:
-        for r in self._view.records:
-            if r.id == identification_id:
-                return r
-        if self.session_factory is not None:
-            from service.store.errors import DatabaseError, RecordNotFoundError
-            from service.store.repository import get_identification
-
-            try:
-                return self._db_read(
-                    lambda session: row_to_record(get_identification(session, identification_id)),
-                    "get identification",
-                )
-            except RecordNotFoundError:
-                pass
-            except DatabaseError as err:  # down or refusing: a 503 naming the reason, not a 500
-                raise NotReadyError(f"identification {identification_id}: {err}") from err
-        raise NotFoundError(f"identification {identification_id} not found")
+        return self._archive.get(self._view.records, identification_id)
 
     # --- ChtcService: requests --------------------------------------------------------------------------
     def request_identification(self, reason: str) -> IdentificationJob:
@@ -622,10 +556,6 @@ def _status(
     if cond.state.value != "stable":
         return ChtcStatus.IDENTIFYING
     return ChtcStatus.FRESH
-
-
-def _within(r: IdentificationRecord, since: datetime | None, until: datetime | None) -> bool:
-    return (since is None or r.finished_at >= since) and (until is None or r.finished_at < until)
 
 
 def _no_worker(launch: Launch) -> JobOutcome:
