@@ -220,7 +220,12 @@ class SoftSensorService:
                 done.set_exception(err)
 
         loop.call_soon_threadsafe(run)
-        return done.result(timeout=HANDOVER_TIMEOUT_S)
+        try:
+            return done.result(timeout=HANDOVER_TIMEOUT_S)
+        except cf.TimeoutError as err:
+            raise NotReadyError(
+                f"the service did not take the request within {HANDOVER_TIMEOUT_S:.0f} s"
+            ) from err
 
     def _handle_here(self, event: Event) -> list[Instruction]:
         instructions = self._step(event)
