@@ -178,7 +178,7 @@ async def run_demo(args: argparse.Namespace, settings: Any) -> int:
 def _current(runtime: Any) -> Any:
     """The identification record the core stored last (None before the first)."""
     service = runtime.service
-    return None if service is None else service.core.current
+    return None if service is None else service.view.current
 
 
 def _install_signals(stop: asyncio.Event) -> None:

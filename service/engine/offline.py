@@ -1,9 +1,10 @@
 """The service's core run offline over a recorded sample sequence: deterministic identifications.
 
-Used by ``chtc identify`` (recorded log files) and by tests. The samples go through exactly the same
-``ServiceCore`` (ring buffer, live state, detector, scheduler, window building) as in the running service;
-the only difference is that each identification runs synchronously in this process (``run_identification``
-with the same seeded rng) instead of in the worker process, so the same log always gives the same H.
+Used by ``chtc identify`` (recorded log files), the benches and tests. The samples go through exactly the
+same ``ServiceCore`` (sample history, live state, detector, scheduler, window building) and the same events
+as in the running service (``service.engine.shell``); the only difference is that each ``Launch`` runs
+synchronously in this process (``run_identification`` with the same seeded rng) instead of in the worker
+process, so the same log always gives the same H.
 """
 
 from __future__ import annotations
@@ -11,112 +12,103 @@ from __future__ import annotations
 from collections.abc import Callable, Iterable
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any
+from typing import Protocol
 
 import numpy as np
 
-from service.acquire.history import RingHistory
-from service.engine.core import CoreConfig, Restored, ServiceCore
-from service.identify.worker import JobOutcome, JobStatus, final_field, run_identification
+from drivers.ringbuffer import Sample
+from model.identify import InsufficientDataError
+from service.acquire.calibration import Calibration
+from service.engine.config import CoreConfig, Restored
+from service.engine.core import ServiceCore
+from service.engine.events import (
+    Event,
+    Instruction,
+    JobOutcomeReceived,
+    Launch,
+    Log,
+    SampleReceived,
+    Store,
+)
+from service.identify.worker import JobOutcome, JobRequest, JobStatus, final_field, run_identification
 from service.modelload import LoadedModel
-from service.serve.interface import IdentificationRecord
+from service.serve.interface import ConditionSnapshot, IdentificationRecord
+from service.store.records import Record
 
-__all__ = ["OfflineResult", "run_offline"]
+__all__ = ["OfflineResult", "RecordSink", "run_job", "run_offline"]
 
 
-@dataclass
+class RecordSink(Protocol):
+    def submit(self, record: Record) -> bool: ...
+
+
+@dataclass(kw_only=True)
 class OfflineResult:
     records: list[IdentificationRecord]  # oldest first
-    stored: list[Any] = field(default_factory=list)  # the records the database writer would have got
+    stored: list[Record] = field(default_factory=list)  # the records the database writer would have got
     samples: int = 0
-    conditions: list[Any] = field(default_factory=list)  # ConditionSnapshot, oldest first
+    conditions: list[ConditionSnapshot] = field(default_factory=list)  # oldest first
     first: datetime | None = None  # time of the first and the last sample
     last: datetime | None = None
-    calibration: Any = (
-        None  # service.acquire.calibration.Calibration of the newest offset baseline (None: none)
-    )
+    calibration: Calibration | None = None  # the newest offset baseline (None: none)
+    instructions: list[Instruction] = field(default_factory=list)  # every instruction, in order
 
 
-class _ListSink:
-    def __init__(self) -> None:
-        self.records: list[Any] = []
-
-    def submit(self, record: Any) -> bool:
-        self.records.append(record)
-        return True
-
-
-class _Tee:
-    def __init__(self, first: _ListSink, second: Any) -> None:
-        self.first, self.second = first, second
-
-    def submit(self, record: Any) -> bool:
-        self.first.submit(record)
-        return True if self.second is None else bool(self.second.submit(record))
-
-
-def _run(model: LoadedModel, launch: Any) -> JobOutcome:
+def run_job(model: LoadedModel, request: JobRequest) -> JobOutcome:
+    """Run one job in this process; a failure is an outcome, as from the worker process."""
     try:
-        result, window = run_identification(model, launch.request)
+        result, window = run_identification(model, request)
         field_c = final_field(model, window, result)
     except Exception as err:  # same contract as the worker process: a failed job is an outcome
-        from model.identify import InsufficientDataError
-
         status = JobStatus.INSUFFICIENT_DATA if isinstance(err, InsufficientDataError) else JobStatus.FAILED
-        return JobOutcome(launch.start.job_id, status, None, f"{type(err).__name__}: {err}", 0.0)
-    return JobOutcome(launch.start.job_id, JobStatus.OK, result, str(result.message), result.wall_s, field_c)
+        return JobOutcome(request.job_id, status, None, f"{type(err).__name__}: {err}", 0.0)
+    return JobOutcome(request.job_id, JobStatus.OK, result, str(result.message), result.wall_s, field_c)
 
 
 def run_offline(
-    samples: Iterable[Any],
+    samples: Iterable[Sample],
     *,
     model: LoadedModel,
     config: CoreConfig,
     ring_capacity: int = 100_000,
     on_event: Callable[[str], None] | None = None,
     restored: Restored | None = None,
-    sink: Any = None,
+    sink: RecordSink | None = None,
 ) -> OfflineResult:
-    """Feed ``samples`` (``drivers.ringbuffer.Sample``, time-ordered) through the core; identify inline."""
-    from drivers.ringbuffer import RingBuffer
+    """Feed ``samples`` (time-ordered) through the core; identify inline.
 
-    ring = RingBuffer(ring_capacity, len(model.spec.sensors))
-    listed = _ListSink()
-    core = ServiceCore(
-        config,
-        model=model,
-        history=RingHistory(ring),
-        sink=_Tee(listed, sink),
-        restored=restored,
-        on_event=on_event,
-    )
-    n, first, last = 0, None, None
-    for sample in samples:
-        ring.append(sample)
-        n += 1
-        first, last = first or sample.t, sample.t
-        pending = core.ingest(sample)
+    Event ids: ``sample-<n>`` (1-based sample number) and ``outcome-<job id>``. An identification finishes
+    at the sample that triggered it (no wall time passes offline).
+    """
+    core = ServiceCore(config, model=model, restored=restored, history_capacity=ring_capacity)
+    res = OfflineResult(records=[])
+    for n, sample in enumerate(samples, start=1):
+        res.samples = n
+        res.first, res.last = res.first or sample.t, sample.t
+        pending: list[Event] = [SampleReceived(f"sample-{n}", sample)]
         while pending:
-            launch = pending.pop(0)
-            outcome = _run(model, launch)
-            finished = _finished_at(sample.t, outcome)
-            stepper = None
-            if outcome.status is JobStatus.OK:
-                stepper = core.live.prepare(np.asarray(outcome.result.h, dtype=float))
-            pending += core.job_done(outcome, finished_at=finished, stepper=stepper)
-    cal = core.calibrator.current if core.calibrator is not None else None
-    return OfflineResult(
-        records=list(reversed(core.records)),
-        stored=listed.records,
-        samples=n,
-        conditions=list(reversed(core.conditions)),
-        first=first,
-        last=last,
-        calibration=cal,
+            for ins in core.handle(pending.pop(0)):
+                res.instructions.append(ins)
+                if isinstance(ins, Store):
+                    res.stored.append(ins.record)
+                    if sink is not None:
+                        sink.submit(ins.record)
+                elif isinstance(ins, Log) and on_event is not None:
+                    on_event(ins.message)
+                elif isinstance(ins, Launch):
+                    pending.append(_outcome(core, model, ins, sample.t))
+    view = core.view()
+    res.records = list(reversed(view.records))
+    res.conditions = list(reversed(view.conditions))
+    res.calibration = view.calibration
+    return res
+
+
+def _outcome(core: ServiceCore, model: LoadedModel, launch: Launch, t: datetime) -> JobOutcomeReceived:
+    outcome = run_job(model, launch.request)
+    stepper = None
+    if outcome.status is JobStatus.OK and outcome.result is not None:
+        stepper = core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))
+    return JobOutcomeReceived(
+        event_id=f"outcome-{launch.request.job_id}", outcome=outcome, finished_at=t, stepper=stepper
     )
-
-
-def _finished_at(t: datetime, outcome: JobOutcome) -> datetime:
-    """Offline, an identification finishes at the sample that triggered it (no wall time passes)."""
-    del outcome
-    return t

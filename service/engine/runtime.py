@@ -15,22 +15,29 @@ import logging
 import socket
 import time
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any
+from typing import TYPE_CHECKING, Protocol
 
+from drivers.acquisition import Acquisition, CanSource, DaqSource
+from drivers.ringbuffer import RingBuffer
 from service.acquire.calibration import CalibrationConfig
-from service.acquire.history import RingHistory
-from service.engine.core import CoreConfig, ServiceCore
+from service.engine.config import CoreConfig
+from service.engine.core import ServiceCore
+from service.engine.health import HealthSource
 from service.engine.shell import SoftSensorService
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
 from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.modelload import LoadedModel, ModelRef, load_model
+from service.settings import Settings
 from service.store.persistence import Persistence, open_persistence
 
-__all__ = ["Runtime", "ScaledClock", "core_config", "free_port"]
+if TYPE_CHECKING:
+    import uvicorn
+
+__all__ = ["CanDevice", "DaqDevice", "Runtime", "ScaledClock", "core_config", "free_port"]
 
 log = logging.getLogger(__name__)
 
@@ -54,7 +61,19 @@ class ScaledClock:
         return self._utc0 + timedelta(seconds=self.speedup * (self.monotonic() - self._mono0))
 
 
-def core_config(settings: Any) -> CoreConfig:
+class DaqDevice(DaqSource, HealthSource, Protocol):
+    """The DAQ driver as the runtime uses it (``drivers.modbus_daq.ModbusDaq``)."""
+
+    async def close(self) -> None: ...
+
+
+class CanDevice(CanSource, HealthSource, Protocol):
+    """The CAN driver as the runtime uses it (``drivers.can_sensor.CanSpindleSensor``)."""
+
+    async def close(self) -> None: ...
+
+
+def core_config(settings: Settings) -> CoreConfig:
     """The core's configuration from ``Settings`` (minutes -> s; the window grid is the sample period)."""
     ident, det, acq = settings.identification, settings.detector, settings.acquisition
     schedule = tuple(60.0 * m for m in ident.schedule_min)
@@ -108,19 +127,21 @@ def free_port(host: str = "127.0.0.1") -> int:
 class Runtime:
     """One running soft sensor. ``await start(daq=..., can=...)``, ``await stop()``."""
 
-    settings: Any
+    settings: Settings
+    _: KW_ONLY
     clock: ScaledClock
     on_event: Callable[[str], None]
     migrate: bool = True
     model: LoadedModel | None = None
     persistence: Persistence | None = None
     service: SoftSensorService | None = None
-    acquisition: Any = None
-    ring: Any = None
-    api_server: Any = None
-    acquisition_task: asyncio.Task[Any] | None = None
+    acquisition: Acquisition | None = None
+    ring: RingBuffer | None = None  # the acquisition's (the core keeps a history of its own)
+    api_server: uvicorn.Server | None = None
+    acquisition_task: asyncio.Task[None] | None = None
     sample_clock: Callable[[], datetime] | None = None  # stamps samples (default: clock); replay: a grid
-    api_task: asyncio.Task[Any] | None = None
+    api_task: asyncio.Task[None] | None = None
+    devices: tuple[DaqDevice, CanDevice] | None = None  # closed at stop()
 
     @property
     def speedup(self) -> float:
@@ -132,11 +153,8 @@ class Runtime:
             self.model = load_model(ModelRef.from_settings(self.settings.model), progress=progress)
         return self.model
 
-    async def start(self, *, daq: Any, can: Any, api: bool = True) -> None:
+    async def start(self, *, daq: DaqDevice, can: CanDevice, api: bool = True) -> None:
         """Open the database, start the worker process, the acquisition and (optionally) the API server."""
-        from drivers.acquisition import Acquisition
-        from drivers.ringbuffer import RingBuffer
-
         s = self.settings
         model = self.load()
         self.persistence = open_persistence(
@@ -144,14 +162,11 @@ class Runtime:
         )
         self.persistence.start_background()
         self.ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))
-        cfg = core_config(s)
         core = ServiceCore(
-            cfg,
+            core_config(s),
             model=model,
-            history=RingHistory(self.ring),
-            sink=self.persistence.sink,
             restored=self.persistence.restored,
-            on_event=self.on_event,
+            history_capacity=s.acquisition.ring_capacity,
         )
         worker = IdentificationWorker(ModelRef.from_settings(s.model), timeout_s=s.identification.timeout_s)
         self.service = SoftSensorService(
@@ -164,8 +179,8 @@ class Runtime:
             clock=self.clock,
             on_event=self.on_event,
         )
-        core.on_cancel = self.service.on_cancel
         await self.service.start()
+        self.devices = (daq, can)
         self.acquisition = Acquisition(
             daq,
             can,
@@ -223,8 +238,8 @@ class Runtime:
                     self.on_event(f"shutdown: {task.get_name()} did not stop within 10 s; abandoned")
                 elif not task.cancelled():
                     task.exception()  # retrieved: a failure at shutdown was already reported by the task
-        if self.acquisition is not None:
-            for src in (self.acquisition.daq, self.acquisition.can):
+        if self.devices is not None:
+            for src in self.devices:
                 with contextlib.suppress(Exception):
                     await src.close()
         if self.service is not None:

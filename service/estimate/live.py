@@ -33,7 +33,7 @@ from typing import Any
 
 import numpy as np
 
-__all__ = ["LiveModel", "LiveStateError", "Snapshot"]
+__all__ = ["LiveModel", "LiveStateError", "LiveView", "Snapshot", "steady_field"]
 
 
 class LiveStateError(RuntimeError):
@@ -56,6 +56,30 @@ class _Inputs:
     torque_nm: float
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
+class LiveView:
+    """An immutable copy of what readers need from the live state (``LiveModel.view``): the field now
+    (read-only (N,) °C at ``t`` s), the H (7,) W/(m²·K), the bearing-heat scales and the held inputs (ambient
+    °C, speed rpm, torque N·m) that the steady field is computed for (``steady_field``)."""
+
+    t: float
+    field_c: np.ndarray
+    h: tuple[float, ...]
+    load_scale: tuple[float, float]
+    inputs: tuple[float, float, float]
+
+
+def steady_field(fe: Any, spec: Any, view: LiveView) -> np.ndarray:
+    """Steady field (N,) °C for ``view``'s H, inputs and load scales (pure: any thread may call it)."""
+    from model.fem import steady_state
+
+    ambient, speed, torque = view.inputs
+    qf, qr = _heat_of(spec, _Inputs(ambient, speed, torque), view.load_scale)
+    return np.asarray(
+        steady_state(fe, np.asarray(view.h, dtype=float), ambient_c=ambient, q_front_w=qf, q_rear_w=qr)
+    )
+
+
 class LiveModel:
     """FE state estimate; ``fe`` is a ``model.fem.FEModel``, ``spec`` a ``model.geometry.SpindleSpec``."""
 
@@ -75,7 +99,7 @@ class LiveModel:
         self.spec = spec
         self.h = np.asarray(h, dtype=float).copy()
         self.dt_s = float(dt_s)
-        self.load_scale = tuple(float(x) for x in load_scale)
+        self.load_scale: tuple[float, float] = (float(load_scale[0]), float(load_scale[1]))
         self.snapshot_every_s = snapshot_every_s
         self._snapshots: deque[Snapshot] = deque(maxlen=max(2, int(keep_s / snapshot_every_s) + 2))
         self._recent: deque[Snapshot] = deque(maxlen=max(1, recent_steps))
@@ -84,7 +108,7 @@ class LiveModel:
         self._t: float | None = None
         self._T: np.ndarray | None = None
         self._last_inputs: _Inputs | None = None
-        self._stepper_key: tuple[Any, ...] | None = None
+        self._stepper_key: bytes | None = None
         self._stepper: Any = None
         self._steady_key: tuple[Any, ...] | None = None
         self._steady: np.ndarray | None = None
@@ -104,7 +128,8 @@ class LiveModel:
     def initialize(self, t: float, field_c: float | np.ndarray, inputs: tuple[float, float, float]) -> None:
         """Start at ``t`` (s) from a uniform temperature or an (N,) field; inputs (ambient, speed, torque)."""
         n = self.fe.n_nodes
-        self._T = np.full(n, float(field_c)) if np.isscalar(field_c) else np.asarray(field_c, float).copy()
+        arr = np.asarray(field_c, dtype=float)
+        self._T = np.full(n, float(arr)) if arr.ndim == 0 else arr.copy()
         self._t = float(t)
         self._last_inputs = _Inputs(*inputs)
         self._snapshots.clear()
@@ -129,7 +154,7 @@ class LiveModel:
         """
         self.h = np.asarray(h, dtype=float).copy()
         if load_scale is not None:
-            self.load_scale = tuple(float(x) for x in load_scale)
+            self.load_scale = (float(load_scale[0]), float(load_scale[1]))
         if stepper is not None and np.array_equal(np.asarray(stepper.h), self.h):
             self._stepper, self._stepper_key = stepper, self.h.tobytes()
 
@@ -212,6 +237,17 @@ class LiveModel:
             raise LiveStateError("the live state has not been initialised (no sample yet)")
         return Snapshot(self._t, self._T.copy(), initial=not self._rebases)
 
+    def view(self) -> LiveView:
+        """An immutable copy of the state for readers on other threads (raises before ``initialize``)."""
+        if self._T is None or self._t is None or self._last_inputs is None:
+            raise LiveStateError("the live state has not been initialised (no sample yet)")
+        field_c = self._T.copy()
+        field_c.setflags(write=False)
+        h = tuple(float(x) for x in self.h)
+        return LiveView(
+            t=self._t, field_c=field_c, h=h, load_scale=self.load_scale, inputs=_astuple(self._last_inputs)
+        )
+
     def sensors_now(self) -> np.ndarray:
         """Predicted temperatures (32,) °C at the sensors."""
         return np.asarray(self.fe.sensor_op @ self.field_now().field_c).ravel()
@@ -259,19 +295,7 @@ class LiveModel:
         return _Inputs(*(v if math.isfinite(v) else o for v, o in zip(vals, olds, strict=True)))
 
     def _heat(self, inp: _Inputs) -> tuple[float, float]:
-        from model.inputs import inputs_from_operation
-
-        series = inputs_from_operation(
-            self.spec,
-            dt_s=1.0,
-            speed_rpm=np.array([inp.speed_rpm]),
-            torque_nm=np.array([inp.torque_nm]),
-            ambient_c=np.array([inp.ambient_c]),
-        )
-        return (
-            float(series.q_front_w[0]) * self.load_scale[0],
-            float(series.q_rear_w[0]) * self.load_scale[1],
-        )
+        return _heat_of(self.spec, inp, self.load_scale)
 
     def _march(self, T: np.ndarray, n: int, inp: _Inputs) -> list[tuple[int, np.ndarray]]:
         """``n`` steps of ``dt_s`` from ``T`` with constant inputs -> [(step number, field)].
@@ -290,6 +314,20 @@ class LiveModel:
         if keep:
             return [(k + 1, np.asarray(fields[k + 1])) for k in range(n)]
         return [(n, np.asarray(fields[-1]))]
+
+
+def _heat_of(spec: Any, inp: _Inputs, load_scale: tuple[float, float]) -> tuple[float, float]:
+    """Front and rear bearing heat (W) for the held inputs, scaled."""
+    from model.inputs import inputs_from_operation
+
+    series = inputs_from_operation(
+        spec,
+        dt_s=1.0,
+        speed_rpm=np.array([inp.speed_rpm]),
+        torque_nm=np.array([inp.torque_nm]),
+        ambient_c=np.array([inp.ambient_c]),
+    )
+    return (float(series.q_front_w[0]) * load_scale[0], float(series.q_rear_w[0]) * load_scale[1])
 
 
 def _astuple(x: _Inputs) -> tuple[float, float, float]:

@@ -166,7 +166,7 @@ class ConditionDetector:
 
     def _filtered(self) -> tuple[float, float, float]:
         cols = zip(*self._window, strict=True)
-        return tuple(statistics.median(c) for c in cols)  # type: ignore[return-value]
+        return tuple(statistics.median(c) for c in cols)
 
     def _deviates(self, value: tuple[float, float, float], anchor: tuple[float, float, float]) -> bool:
         return any(abs(v - a) > thr for v, a, thr in zip(value, anchor, self.config.thresholds, strict=True))

@@ -182,7 +182,6 @@ class _Current:
     t_start: float
     next_entry: int = 0
     due: str | None = None  # "schedule" / "manual": a request waiting for the running job to end
-    finished_jobs: int = 0
     last_h: tuple[float, ...] | None = None
 
 
@@ -263,7 +262,6 @@ class IdentificationScheduler:
         assert cur is not None and cur.condition_id == run.condition_id
         if isinstance(ev, JobFinished):
             cur.last_h = tuple(ev.h)
-            cur.finished_jobs += 1
             self.history.append(PastResult(cur.condition_id, cur.point, tuple(ev.h)))
         self.status = self._idle_status()
         due, cur.due = cur.due, None

@@ -55,7 +55,7 @@ def restore(session_factory: Any, *, limit: int = 100) -> Restored:
             PastResult(
                 int(r.condition_id),
                 OperatingPoint(r.condition.speed_rpm, r.condition.torque_nm, r.condition.ambient_c),
-                tuple(float(x) for x in r.h),
+                tuple(float(x) for x in r.h if x is not None),  # all set: filtered below
             )
             for r in reversed(latest)  # oldest first: the scheduler prefers the newest on ties
             if all(x is not None for x in r.h)

@@ -4,6 +4,7 @@ They carry no session state, so a batch that failed can be retried as is. Valida
 construction and raises ``RecordError`` naming the field (naive datetime, wrong length, unknown outcome).
 Non-finite floats (NaN, ±inf) are stored as NULL. ``SampleData.from_sample`` and
 ``IdentificationData.from_result`` adapt a ``drivers`` ``Sample`` and a ``model.identify`` result.
+This module imports no SQLAlchemy: the service core builds these records without loading the database code.
 """
 
 from __future__ import annotations
@@ -15,9 +16,9 @@ from datetime import datetime
 from typing import Any
 
 from service.store.errors import RecordError
-from service.store.models import OUTCOMES
 
 N_ZONES = 7
+OUTCOMES = ("ok", "failed", "insufficient-data", "skipped", "cancelled")  # IdentificationData.outcome
 
 
 def finite(value: Any) -> float | None:
@@ -146,7 +147,7 @@ class IdentificationData:
     window_start: datetime
     window_end: datetime
     reason: str  # trigger: "schedule" | "manual" | ...
-    outcome: str  # one of models.OUTCOMES
+    outcome: str  # one of OUTCOMES
     method: str
     model_version: str
     h: Sequence[float | None] | None = None  # 7; None when nothing was identified
@@ -164,6 +165,10 @@ class IdentificationData:
     warm_start_id: int | None = None
     message: str = ""
     diagnostics: Mapping[str, Any] | None = field(default=None)
+    # ids of the service core's events that started and ended the job (service.engine.events), stored in
+    # the diagnostics as {"events": {"started_by": ..., "finished_by": ...}}: a story to follow when debugging
+    started_by_event: str | None = None
+    finished_by_event: str | None = None
 
     def __post_init__(self) -> None:
         _check_times(self)
@@ -241,8 +246,14 @@ class IdentificationData:
             "n_sensors_used": int(self.n_sensors_used),
             "warm_start_source": None if self.warm_start_source is None else self.warm_start_source[:64],
             "warm_start_id": self.warm_start_id,
-            "diagnostics": None if self.diagnostics is None else _plain(self.diagnostics),
+            "diagnostics": self._stored_diagnostics(),
         }
+
+    def _stored_diagnostics(self) -> Any:
+        events = {"started_by": self.started_by_event, "finished_by": self.finished_by_event}
+        if all(v is None for v in events.values()):
+            return None if self.diagnostics is None else _plain(self.diagnostics)
+        return _plain({**(self.diagnostics or {}), "events": events})
 
 
 class SampleDecimator:

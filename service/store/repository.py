@@ -19,7 +19,7 @@ from sqlalchemy import func, insert, select, update
 from sqlalchemy.orm import Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
-from service.store.errors import RecordNotFoundError, translate
+from service.store.errors import RecordNotFoundError
 from service.store.models import Condition, DeviceEvent, Identification, SampleRow
 from service.store.records import (
     ConditionEnd,
@@ -29,6 +29,7 @@ from service.store.records import (
     Record,
     SampleData,
 )
+from service.store.translate import translate
 
 T = TypeVar("T")
 DEFAULT_DISTANCE_SCALES = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: one "unit" of condition distance each

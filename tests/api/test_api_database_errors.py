@@ -6,7 +6,6 @@ a directory that does not exist), so every read raises the persistence layer's `
 
 from __future__ import annotations
 
-import threading
 from pathlib import Path
 from types import SimpleNamespace
 from typing import Any, cast
@@ -31,8 +30,8 @@ _MODEL = SimpleNamespace(spec=load_spindle())
 def down_client(tmp_path: Path, service: Any, clock: ManualClock) -> TestClient:
     dead = create_engine(f"sqlite:///{tmp_path / 'missing-dir' / 'chtc.db'}")
     in_memory = list(service.list_identifications(since=None, until=None, limit=2, offset=0).items)
-    # only the parts the history paths use: the lock and the records this process remembers
-    core = SimpleNamespace(lock=threading.Lock(), records=in_memory, model=_MODEL)
+    # only the parts the history paths use: the records this process remembers (in the core's view)
+    core = SimpleNamespace(view=lambda: SimpleNamespace(records=tuple(in_memory)), model=_MODEL)
     svc = SoftSensorService(cast(Any, core), worker=None, session_factory=sessionmaker(dead), clock=clock)
     return TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), cast(Any, svc), clock=clock))
 
@@ -62,7 +61,7 @@ def test_complete_page_is_not_partial(client: TestClient) -> None:
 
 @pytest.fixture
 def db_client(factory: Any, clock: ManualClock) -> TestClient:  # noqa: F811
-    core = SimpleNamespace(lock=threading.Lock(), records=[], model=_MODEL)
+    core = SimpleNamespace(view=lambda: SimpleNamespace(records=()), model=_MODEL)
     svc = SoftSensorService(cast(Any, core), worker=None, session_factory=factory, clock=clock)
     return TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), cast(Any, svc), clock=clock))
 

@@ -8,7 +8,6 @@ API), only with short timeouts.
 from __future__ import annotations
 
 import os
-import threading
 import time
 from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
@@ -85,7 +84,8 @@ def test_frozen_database_is_degraded_within_10_s_and_nothing_is_lost(
     svc = SoftSensorService(
         # the core as far as health and history need it: no model work, no records in memory
         SimpleNamespace(
-            model=SimpleNamespace(version="test", spec=load_spindle()), lock=threading.Lock(), records=()
+            model=SimpleNamespace(version="test", spec=load_spindle()),
+            view=lambda: SimpleNamespace(records=()),
         ),  # type: ignore[arg-type]
         worker=None,
         writer=p.sink,

@@ -18,11 +18,11 @@ from service.acquire.calibration import (
     Reading,
     equilibrium,
 )
-from service.acquire.history import RingHistory
 from service.engine.core import CoreConfig, ServiceCore
+from service.engine.events import Launch, SampleReceived
 from service.modelload import LoadedModel
 
-from .conftest import plant_run, ring_of, samples_of
+from .conftest import plant_run, samples_of
 
 T = datetime(2026, 3, 1, 6, 0, tzinfo=UTC)
 OFFSETS = np.random.default_rng(5).uniform(-0.2, 0.2, 32)
@@ -125,23 +125,16 @@ def test_the_core_zeroes_the_offsets_of_its_jobs(loaded_model: LoadedModel) -> N
     run = plant_run(profile, offsets_c=OFFSETS)
 
     def first_request(config: CoreConfig):  # type: ignore[no-untyped-def]
-        ring = ring_of()
-        core = ServiceCore(config, model=loaded_model, history=RingHistory(ring), sink=_Sink())
-        for s in samples_of(run):
-            ring.append(s)
-            launches = core.ingest(s)
-            if launches and launches[0].request is not None:
-                return core, launches[0].request
+        core = ServiceCore(config, model=loaded_model)
+        for n, s in enumerate(samples_of(run), start=1):
+            started = [i for i in core.handle(SampleReceived(f"sample-{n}", s)) if isinstance(i, Launch)]
+            if started:
+                return core, started[0].request
         raise AssertionError("no identification was launched")
 
     core, req = first_request(CoreConfig())
-    assert core.calibrator is not None and core.calibrator.current is not None
+    assert core.view().calibration is not None
     assert np.all(np.abs(req.offsets_c - OFFSETS) < 4.5 * 0.15 / np.sqrt(85))
     assert np.all(req.offset_sd_c < 0.03)
     _, plain = first_request(CoreConfig(calibration=None))
     assert plain.offsets_c is None and plain.offset_sd_c is None
-
-
-class _Sink:
-    def submit(self, record: object) -> bool:
-        return True

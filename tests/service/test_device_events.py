@@ -5,8 +5,7 @@ from __future__ import annotations
 from datetime import UTC, datetime, timedelta
 
 from drivers.base import SourceMetrics
-from service.acquire.devicewatch import DeviceWatch
-from service.engine.shell import transition_detail
+from service.acquire.devicewatch import DeviceWatch, transition_detail
 from service.serve.interface import DeviceHealth, DeviceStatus
 
 
@@ -69,19 +68,18 @@ class _Source:
     def is_stale(self) -> bool:
         return False
 
+    def condition(self) -> str:
+        return ""
+
 
 def test_a_recovered_device_no_longer_shows_its_old_error(loaded_model) -> None:
-    from service.acquire.history import RingHistory
     from service.engine.core import CoreConfig, ServiceCore
     from service.engine.shell import SoftSensorService
-
-    from .conftest import ring_of
 
     now = [datetime(2026, 3, 2, 6, 0, tzinfo=UTC)]
     src = _Source()
     src.metrics.count_error(TimeoutError("modbus 127.0.0.1:5020: no answer within 1 s"), now[0])
-    sink = type("Sink", (), {"submit": lambda self, record: True})()
-    core = ServiceCore(CoreConfig(), model=loaded_model, history=RingHistory(ring_of()), sink=sink)
+    core = ServiceCore(CoreConfig(), model=loaded_model)
     svc = SoftSensorService(core, worker=None, sources={"modbus": src}, clock=lambda: now[0])
     dev = next(d for d in svc.health().devices if d.name == "modbus")
     assert dev.status is DeviceStatus.DEGRADED and "no answer" in dev.message

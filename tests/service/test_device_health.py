@@ -16,13 +16,10 @@ from drivers.can_sensor import CanSpindleSensor
 from drivers.sim.can_node import SimulatedCanNode
 from drivers.sim.faults import FaultController, FaultKind
 from drivers.sim.source import ArrayTimeline, TimelineSource
-from service.acquire.history import RingHistory
 from service.engine.core import ServiceCore
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.settings import Settings
-
-from .conftest import ring_of
 
 
 async def _can_health(client: httpx.AsyncClient) -> dict:
@@ -42,7 +39,7 @@ async def _wait_status(client: httpx.AsyncClient, status: str, timeout_s: float 
 
 def test_can_fault_status_shows_as_degraded_with_the_reason(loaded_model) -> None:
     settings = Settings()
-    core = ServiceCore(core_config(settings), model=loaded_model, history=RingHistory(ring_of()), sink=None)
+    core = ServiceCore(core_config(settings), model=loaded_model)
     channel = f"health-{uuid.uuid4().hex}"
 
     async def main() -> None:

@@ -24,22 +24,17 @@ from drivers.modbus_daq import DaqReading
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from model.plant import Segment
-from service.acquire.history import RingHistory
 from service.engine.core import ServiceCore
-from service.engine.offline import _run
+from service.engine.offline import run_job
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
+from service.identify.worker import JobOutcome, JobRequest
 from service.serve.interface import ChtcStatus
 from service.settings import Settings
 
-from .conftest import plant_run, ring_of, samples_of
+from .conftest import plant_run, samples_of
 
 PERIOD_S = 10.0
-
-
-class _Sink:
-    def submit(self, record: object) -> bool:
-        return True
 
 
 @dataclass
@@ -48,17 +43,9 @@ class Rig:
     svc: SoftSensorService
     now: list[datetime]
     last: Sample
-    ring: object
-
-    edit: Callable[[Any], None] = lambda _result: None  # changes a result before the core records it
 
     def feed(self, sample: Sample) -> None:
-        self.ring.append(sample)  # type: ignore[attr-defined]
-        for launch in self.core.ingest(sample):  # a scheduled re-identification: finish it at once
-            outcome = _run(self.core.model, launch)
-            if outcome.result is not None:
-                self.edit(outcome.result)
-            self.core.job_done(outcome, finished_at=sample.t)
+        self.svc.on_sample(sample)  # a scheduled re-identification runs at once (run_job)
         self.now[0] = sample.t + timedelta(seconds=1)
 
 
@@ -72,13 +59,17 @@ def identified(loaded_model):  # type: ignore[no-untyped-def]
 
 def _rig(loaded_model, identified, edit: Callable[[Any], None] | None = None) -> Rig:  # type: ignore[no-untyped-def]
     cfg, samples = identified
-    ring = ring_of()
-    core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=_Sink())
+    core = ServiceCore(cfg, model=loaded_model)
     now = [samples[0].t]
-    svc = SoftSensorService(core, worker=None, clock=lambda: now[0])
-    rig = Rig(core, svc, now, samples[-1], ring)
-    if edit is not None:
-        rig.edit = edit
+
+    def run(request: JobRequest) -> JobOutcome:  # changes a result before the core records it
+        outcome = run_job(loaded_model, request)
+        if outcome.result is not None and edit is not None:
+            edit(outcome.result)
+        return outcome
+
+    svc = SoftSensorService(core, worker=None, clock=lambda: now[0], run_job=run)
+    rig = Rig(core, svc, now, samples[-1])
     for s in samples:
         rig.feed(s)
     return rig

@@ -8,7 +8,6 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 
 from model.plant import Segment
-from service.acquire.history import RingHistory
 from service.engine.core import ServiceCore
 from service.engine.offline import run_offline
 from service.engine.runtime import core_config
@@ -17,7 +16,7 @@ from service.serve.interface import ChtcStatus
 from service.settings import Settings
 from service.store.persistence import open_persistence
 
-from .conftest import plant_run, ring_of, samples_of
+from .conftest import plant_run, samples_of
 
 
 def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_model):
@@ -42,10 +41,7 @@ def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_mod
     assert restored.conditions[0].speed_rpm == ok[-1].condition.speed_rpm
 
     now = [datetime.now(UTC)]
-    ring = ring_of()
-    core = ServiceCore(
-        cfg, model=loaded_model, history=RingHistory(ring), sink=second.sink, restored=restored
-    )
+    core = ServiceCore(cfg, model=loaded_model, restored=restored)
     svc = SoftSensorService(
         core, worker=None, writer=second.sink, session_factory=second.session_factory, clock=lambda: now[0]
     )
@@ -57,8 +53,7 @@ def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_mod
     # samples of the same condition arrive: the stored condition continues (no new condition), H stays stale
     later = samples_of(run, t0=now[0].timestamp())[:5]
     for smp in later:
-        ring.append(smp)
-        core.ingest(smp)
+        svc.on_sample(smp)
     now[0] = later[-1].t + timedelta(seconds=1)
     assert svc.condition().id == ok[-1].condition.id
     assert svc.chtc().status is ChtcStatus.STALE

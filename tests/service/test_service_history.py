@@ -9,23 +9,13 @@ import numpy as np
 
 from drivers.quality import Quality
 from model.plant import Segment
-from service.acquire.history import RingHistory
 from service.engine.core import Restored, ServiceCore
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.settings import Settings
 
-from .conftest import plant_run, ring_of, samples_of
-
-
-class _Sink:
-    def __init__(self) -> None:
-        self.records: list[object] = []
-
-    def submit(self, record: object) -> bool:
-        self.records.append(record)
-        return True
+from .conftest import plant_run, samples_of
 
 
 def _last_identification(h: np.ndarray) -> IdentificationRecord:
@@ -61,8 +51,6 @@ def test_service_keeps_measured_and_predicted_per_sample_with_masked_channels_as
     core = ServiceCore(
         core_config(Settings()),
         model=loaded_model,
-        history=RingHistory(ring_of()),
-        sink=_Sink(),
         restored=Restored(last=_last_identification(h)),
     )
     svc = SoftSensorService(core, worker=None, history_capacity=15)
@@ -73,7 +61,7 @@ def test_service_keeps_measured_and_predicted_per_sample_with_masked_channels_as
     predicted = []
     for smp in samples:
         svc.on_sample(smp)
-        predicted.append(core.live.sensors_now())
+        predicted.append([r.predicted_c for r in svc.sensors()])
 
     hist = svc.sensor_history(None)
     assert hist.capacity == 15 and hist.channels == tuple(range(1, 33))

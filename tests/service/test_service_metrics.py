@@ -14,26 +14,19 @@ from drivers.base import Backoff, SourceMetrics
 from drivers.errors import DeviceError
 from drivers.modbus_daq import ModbusDaq
 from drivers.registers import RegisterValues, default_register_map, encode
-from service.acquire.history import RingHistory
 from service.engine.core import ServiceCore
+from service.engine.health import frame_events, frame_outcomes
 from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService, frame_events, frame_outcomes
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from tests.drivers.drvhelpers import PymodbusDaqServer, free_port
-
-from .conftest import ring_of
-
-
-class _Sink:
-    def submit(self, record: object) -> bool:
-        return True
 
 
 def _can_stand_in() -> SimpleNamespace:
     m = SourceMetrics(polls=14, reads_ok=8)
     m.errors = {"UnknownFrameIdError": 2, "WrongDlcError": 1, "CounterGapError": 1, "DeviceTimeoutError": 3}
     m.events = {"frames": 11, "counter_gaps": 1, "frames_lost": 3, "faults": 2}
-    return SimpleNamespace(metrics=m, connected=True, is_stale=lambda: False)
+    return SimpleNamespace(metrics=m, connected=True, is_stale=lambda: False, condition=lambda: "")
 
 
 def test_can_frame_outcomes_and_events_are_separate() -> None:
@@ -54,9 +47,7 @@ def test_modbus_latency_from_the_driver_and_one_outcome_per_poll(loaded_model) -
     async def main() -> tuple[SoftSensorService, ModbusDaq]:
         server = await PymodbusDaqServer(free_port(), words).start()
         daq = ModbusDaq("127.0.0.1", server.port, timeout_s=0.3, backoff=Backoff(initial_s=5.0, max_s=5.0))
-        core = ServiceCore(
-            core_config(Settings()), model=loaded_model, history=RingHistory(ring_of()), sink=_Sink()
-        )
+        core = ServiceCore(core_config(Settings()), model=loaded_model)
         svc = SoftSensorService(core, worker=None, sources={"modbus": daq, "can": _can_stand_in()})
         for _ in range(5):
             await daq.read()

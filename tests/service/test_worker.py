@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from model.plant import ChannelFault, Segment
-from service.acquire.history import RingHistory
 from service.engine.core import CoreConfig, ServiceCore
+from service.engine.events import Log, ManualRequested, Rejected, RejectKind
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
 from service.identify.window import WindowRules
@@ -24,7 +24,8 @@ from service.identify.worker import (
     run_identification,
 )
 
-from .conftest import T0, plant_run, ring_of, samples_of
+from .conftest import T0, plant_run, samples_of
+from .drive import feed, feed_and_run, launches, stored
 
 CFG = CoreConfig(
     detector=DetectorConfig(hold_s=60.0),
@@ -33,34 +34,17 @@ CFG = CoreConfig(
 )
 
 
-class ListSink:
-    def __init__(self) -> None:
-        self.records: list[object] = []
-
-    def submit(self, record: object) -> bool:
-        self.records.append(record)
-        return True
-
-
-def feed(core: ServiceCore, ring, samples) -> list:
-    launches = []
-    for s in samples:
-        ring.append(s)
-        launches += core.ingest(s)
-    return launches
-
-
 def test_window_of_the_first_launch(loaded_model):
     run = plant_run([Segment(900.0, 3000.0, 2.0, 23.2)])
-    ring = ring_of()
-    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=ListSink())
-    launches = feed(core, ring, samples_of(run))
-    assert len(launches) == 1  # the 1200 s entry is not due within 900 s
-    (launch,) = launches
-    job = launch.start
-    assert job.t_from == pytest.approx(T0) and job.t_to == pytest.approx(T0 + 600.0)
-    assert job.warm_start is None and job.warm_source == "none"
+    core = ServiceCore(CFG, model=loaded_model)
+    out = feed(core, samples_of(run))
+    assert len(launches(out)) == 1  # the 1200 s entry is not due within 900 s
+    (launch,) = launches(out)
     w = launch.request.window
+    assert w.times_s[0] == pytest.approx(T0) and w.times_s[-1] == pytest.approx(T0 + 600.0)
+    assert launch.request.warm_start is None
+    (said,) = [i.message for i in out if isinstance(i, Log) and i.event_id == launch.event_id]
+    assert said.startswith(f"identification {launch.job_key}:") and said.endswith("warm start from none")
     assert w.n_steps == 60 and w.dt_s == 10.0 and w.mask.all()
     np.testing.assert_allclose(w.measured_c, run.temps_c[:61])
     _, speed, _ = w.step_inputs()
@@ -68,23 +52,23 @@ def test_window_of_the_first_launch(loaded_model):
     # the initial field is the live state at the condition start: the first sample's uniform field
     assert np.ptp(launch.request.t0_c) == 0.0
     assert launch.request.t0_c[0] == pytest.approx(np.mean(run.temps_c[0]))
-    assert core.jobs[launch.job_key].state.value == "running"
+    assert core.view().jobs[launch.job_key].state.value == "running"
 
 
 def test_too_few_good_channels_is_skipped_with_reason(loaded_model):
     faults = [ChannelFault(channel=c, kind="open", start_s=100.0) for c in range(1, 11)]
     run = plant_run([Segment(1300.0, 3000.0, 2.0, 23.2)], faults=faults)
-    ring = ring_of()
-    sink = ListSink()
-    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=sink)
-    assert feed(core, ring, samples_of(run)) == []
-    skipped = [r for r in core.records if r.outcome == "insufficient-data"]
+    core = ServiceCore(CFG, model=loaded_model)
+    out = feed(core, samples_of(run))
+    assert launches(out) == []
+    view = core.view()
+    skipped = [r for r in view.records if r.outcome == "insufficient-data"]
     assert len(skipped) == 2  # the 600 s and the 1200 s entries
     assert "only 22 channels" in skipped[0].message and "ch1 (" in skipped[0].message
-    stored = [r for r in sink.records if type(r).__name__ == "IdentificationData"]
-    assert [r.outcome for r in stored] == ["insufficient-data", "insufficient-data"]
-    assert core.counts["insufficient-data"] == 2
-    samples = [r for r in sink.records if type(r).__name__ == "SampleData"]
+    idents = [r for r in stored(out) if type(r).__name__ == "IdentificationData"]
+    assert [r.outcome for r in idents] == ["insufficient-data", "insufficient-data"]
+    assert view.counts["insufficient-data"] == 2
+    samples = [r for r in stored(out) if type(r).__name__ == "SampleData"]
     assert samples[-1].quality[0] == "open_circuit" and samples[-1].quality[20] == "ok"
 
 
@@ -96,20 +80,17 @@ def test_jittered_samples_are_all_stored(loaded_model):
         dataclasses.replace(s, t=s.t + timedelta(seconds=float(rng.uniform(-2.0, 2.0))))
         for s in samples_of(run)
     ]
-    ring = ring_of()
-    sink = ListSink()
-    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=sink)
-    feed(core, ring, samples)
-    stored = [r.t for r in sink.records if type(r).__name__ == "SampleData"]
-    assert stored == [s.t for s in samples]
+    core = ServiceCore(CFG, model=loaded_model)
+    out = feed(core, samples)
+    kept = [r.t for r in stored(out) if type(r).__name__ == "SampleData"]
+    assert kept == [s.t for s in samples]
 
 
 @pytest.fixture(scope="module")
 def window_request(loaded_model):
     run = plant_run([Segment(1800.0, 3000.0, 2.0, 23.2)])
-    ring = ring_of()
-    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=ListSink())
-    (launch,) = feed(core, ring, samples_of(run))
+    core = ServiceCore(CFG, model=loaded_model)
+    (launch,) = launches(feed(core, samples_of(run)))
     return launch.request
 
 
@@ -120,30 +101,21 @@ def test_core_asks_for_the_start_offset_as_configured(loaded_model, mode, expect
     """ "initial": only a window whose start field still descends from the live state's initial guess (here
     the first condition, from the cold start) gets the fitted offset; the second condition starts from the
     state rebased on the first identification."""
-    from service.engine.offline import _run
-
     run = plant_run([Segment(700.0, 3000.0, 2.0, 23.2), Segment(700.0, 4000.0, 3.0, 23.2)])
-    ring = ring_of()
     cfg = dataclasses.replace(CFG, estimate_t0_shift=mode)
-    core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=ListSink())
-    launches = []
-    for s in samples_of(run):
-        ring.append(s)
-        for launch in core.ingest(s):
-            launches.append(launch)
-            core.job_done(_run(loaded_model, launch), finished_at=s.t)
-    assert [launch.request.estimate_t0_shift for launch in launches] == expected
+    core = ServiceCore(cfg, model=loaded_model)
+    out = feed_and_run(core, loaded_model, samples_of(run))
+    assert [launch.request.estimate_t0_shift for launch in launches(out)] == expected
 
 
 def test_without_a_rebase_the_next_condition_still_starts_from_the_initial_guess(loaded_model):
     """No identification finished (none rebased the live state): the second condition's start field is the
     initial guess advanced with the initial H, so "initial" still fits its uniform offset."""
     run = plant_run([Segment(700.0, 3000.0, 2.0, 23.2), Segment(700.0, 4000.0, 3.0, 23.2)])
-    ring = ring_of()
     cfg = dataclasses.replace(CFG, estimate_t0_shift="initial")
-    core = ServiceCore(cfg, model=loaded_model, history=RingHistory(ring), sink=ListSink())
-    launches = feed(core, ring, samples_of(run))
-    assert [launch.request.estimate_t0_shift for launch in launches] == [True, True]
+    core = ServiceCore(cfg, model=loaded_model)
+    out = feed(core, samples_of(run))
+    assert [launch.request.estimate_t0_shift for launch in launches(out)] == [True, True]
 
 
 def test_start_offset_is_fitted_and_carried_into_the_final_field(loaded_model, window_request):
@@ -188,26 +160,34 @@ def test_worker_process_runs_and_cancels(model_ref, window_request, loaded_model
     assert cancelled.status is JobStatus.CANCELLED
 
 
-def test_manual_requests_and_idle_condition(loaded_model):
-    from service.serve.interface import BusyError, NotReadyError
+def _manual(core: ServiceCore, n: int, reason: str = "manual") -> list:
+    return core.handle(ManualRequested(f"manual-{n}", reason))
 
+
+def test_manual_requests_and_idle_condition(loaded_model):
     run = plant_run([Segment(700.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)])
-    ring = ring_of()
-    core = ServiceCore(CFG, model=loaded_model, history=RingHistory(ring), sink=ListSink())
-    with pytest.raises(NotReadyError, match="no samples"):
-        core.request("manual")
+    core = ServiceCore(CFG, model=loaded_model)
+    assert _manual(core, 1) == [
+        Rejected(
+            event_id="manual-1",
+            kind=RejectKind.NOT_READY,
+            reason="no samples yet: nothing to identify from",
+        )
+    ]
     samples = samples_of(run)
-    feed(core, ring, samples[:71])  # the idle condition, 10 min: its scheduled job is skipped
-    (idle,) = [r for r in core.records if r.outcome == "skipped"]
+    feed(core, samples[:71])  # the idle condition, 10 min: its scheduled job is skipped
+    (idle,) = [r for r in core.view().records if r.outcome == "skipped"]
     assert "idle" in idle.message and "not identifiable" in idle.message
-    launches = feed(core, ring, samples[71:100])  # ~4 min of the 3000 rpm condition
-    assert launches == []
-    with pytest.raises(NotReadyError, match="min_data_s"):
-        core.request("manual")
-    launches = feed(core, ring, samples[100:])
-    assert len(launches) == 1 and launches[0].start.point.speed_rpm == pytest.approx(3000.0)
-    with pytest.raises(BusyError, match="already running"):
-        core.request("manual")
+    assert launches(feed(core, samples[71:100], first=72)) == []  # ~4 min of the 3000 rpm condition
+    (refused,) = _manual(core, 2)
+    assert isinstance(refused, Rejected) and refused.kind is RejectKind.NOT_READY
+    assert "min_data_s" in refused.reason
+    started = launches(feed(core, samples[100:], first=101))
+    assert len(started) == 1 and started[0].request.window.step_inputs()[1][0] == pytest.approx(
+        3000.0, rel=0.05
+    )
+    (busy,) = _manual(core, 3)
+    assert isinstance(busy, Rejected) and busy.kind is RejectKind.BUSY and "already running" in busy.reason
 
 
 def test_chained_windows_carry_the_start_field_error(loaded_model):

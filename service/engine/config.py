@@ -1,0 +1,49 @@
+"""The service core's configuration (``CoreConfig``, built from ``Settings`` by ``runtime.core_config``) and
+what the database knew at start-up (``Restored``, read by ``service.store.persistence.restore``)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from service.acquire.calibration import CalibrationConfig
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT
+from service.identify.detector import DetectorConfig
+from service.identify.scheduler import PastResult, SchedulerConfig
+from service.identify.window import WindowRules
+from service.serve.interface import ConditionSnapshot, IdentificationRecord
+
+__all__ = ["CoreConfig", "Restored"]
+
+
+@dataclass(frozen=True, kw_only=True)
+class CoreConfig:
+    detector: DetectorConfig = field(default_factory=DetectorConfig)
+    scheduler: SchedulerConfig = field(default_factory=SchedulerConfig)
+    rules: WindowRules = field(default_factory=WindowRules)
+    method: str = "hybrid"
+    seed: int = 0
+    estimate_loads: bool = False
+    estimate_t0_shift: str = ESTIMATE_T0_SHIFT  # "never" | "initial" (start from the first guess) | "always"
+    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error (the live state's)
+    time_budget_s: float | None = None
+    ci_threshold: float = CI_REL_THRESHOLD
+    # sample time without good data (a sample, >= rules.min_good_channels usable channels and the ambient,
+    # speed and torque from CAN) before H is reported stale
+    stale_after_s: float = 60.0
+    sample_store_period_s: float = 10.0
+    min_speed_rpm: float = 100.0  # below: spindle idle, no bearing heat, H not identifiable -> skipped
+    initial_h: tuple[float, ...] = (50.0,) * 7  # live-state H before the first identification (no data yet)
+    # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the
+    # measurements are taken as they come and no offset uncertainty is carried in the CIs
+    calibration: CalibrationConfig | None = field(default_factory=CalibrationConfig)
+
+
+@dataclass(frozen=True, kw_only=True)
+class Restored:
+    """What the database knew at start-up (``service.store.persistence.restore``)."""
+
+    last: IdentificationRecord | None = None
+    history: tuple[PastResult, ...] = ()
+    conditions: tuple[ConditionSnapshot, ...] = ()  # newest first
+    next_condition_id: int = 1
+    next_identification_id: int = 1

@@ -1,0 +1,162 @@
+"""Device health and metric counters from the acquisition sources and the database writer (pure readers).
+
+The shell (``service.engine.shell``) calls these for ``/healthz`` and ``/metrics``; the sources are
+``drivers.base.Source`` objects (read only here), the writer is the buffered database writer.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from datetime import datetime
+from typing import Protocol
+
+from drivers.base import SourceMetrics
+from service.serve.interface import DeviceHealth, DeviceStatus
+from service.serve.views import age_s
+from service.store.writer import WriterStatus
+
+__all__ = [
+    "HealthSource",
+    "StatusSource",
+    "db_health",
+    "frame_events",
+    "frame_outcomes",
+    "poll_events",
+    "poll_outcomes",
+    "source_health",
+]
+
+
+class HealthSource(Protocol):
+    """What health and metrics read from an acquisition source (``drivers.base.Source``)."""
+
+    metrics: SourceMetrics
+    on_read_s: Callable[[float], None] | None
+
+    @property
+    def connected(self) -> bool: ...
+
+    def is_stale(self) -> bool: ...
+
+    def condition(self) -> str: ...
+
+
+class StatusSource(Protocol):
+    """The database writer as health reads it (``DbWriter`` / ``GateSink``)."""
+
+    def status(self) -> WriterStatus: ...
+
+
+def source_health(name: str, src: HealthSource, now: datetime) -> DeviceHealth:
+    m = src.metrics
+    last_ok = m.last_ok_t
+    if not src.connected:
+        status = DeviceStatus.DOWN
+    elif src.is_stale() or m.errors:
+        status = DeviceStatus.DEGRADED if not src.is_stale() else DeviceStatus.DOWN
+    else:
+        status = DeviceStatus.OK
+    recent_error = m.last_error_t is not None and (now - m.last_error_t).total_seconds() <= 60.0
+    if status is DeviceStatus.DEGRADED and not recent_error:
+        status = DeviceStatus.OK  # old errors only: healthy again
+    condition = src.condition()  # e.g. CAN fault status
+    if condition and status is DeviceStatus.OK:
+        status = DeviceStatus.DEGRADED
+    counters = {
+        "polls": m.polls,
+        "reads_ok": m.reads_ok,
+        "reconnects": m.reconnects,
+        **m.errors,
+        **m.events,
+    }
+    # a recovered device's error is history; a CAN warning/fault status is the reason while it lasts
+    message = condition or (m.last_error if status is not DeviceStatus.OK else "")
+    return DeviceHealth(name, status, last_ok, age_s(last_ok, now), counters, message)
+
+
+def db_health(writer: StatusSource | None, now: datetime) -> DeviceHealth:
+    """The database writer's health (DISABLED without a database)."""
+    if writer is None:
+        return DeviceHealth("db", DeviceStatus.DISABLED, None, None, {}, "no database configured")
+    st = writer.status()
+    status = DeviceStatus.OK if st.connected else DeviceStatus.DOWN
+    busy_s = st.busy_s
+    hung = busy_s is not None and busy_s > st.stall_s
+    if st.connected and (st.pending > 1000 or hung):
+        status = DeviceStatus.DEGRADED
+    counters = {
+        "pending": st.pending,
+        "written": st.written,
+        "dropped": st.dropped,
+        "rejected": st.rejected,
+        "errors": st.errors,
+    }
+    msg = "" if st.connected else f"buffering {st.pending} records: {st.last_error or 'not connected yet'}"
+    if hung:
+        msg = f"database not answering for {busy_s:.0f} s; buffering {st.pending} records"
+    return DeviceHealth("db", status, st.last_ok_at, age_s(st.last_ok_at, now), counters, msg)
+
+
+def poll_outcomes(src: HealthSource | None) -> dict[str, int]:
+    """Modbus polls by outcome, one per poll: "ok", each failure by error class ("device_timeout",
+    "short_reply", "modbus_exception", ...) and "link_down" (refused while a reconnect was not yet due)."""
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {"ok": int(m.reads_ok), "link_down": int(m.events.get("polls_while_down", 0))}
+    for name, n in m.errors.items():
+        out[_snake(name)] = out.get(_snake(name), 0) + int(n)
+    return out
+
+
+def poll_events(src: HealthSource | None) -> dict[str, int]:
+    """Modbus events (not outcomes): "new_samples", "stale_polls", "restarts", ..."""
+    if src is None:
+        return {}
+    return {_snake(k): int(n) for k, n in src.metrics.events.items() if k != "polls_while_down"}
+
+
+def _frame_error(name: str) -> bool:
+    """Whether an error class name (drivers.errors) is a rejected frame (not a counter gap on a good one)."""
+    from drivers import errors
+
+    cls = getattr(errors, name, None)
+    return (
+        isinstance(cls, type)
+        and issubclass(cls, errors.FrameError)
+        and not issubclass(cls, errors.CounterGapError)
+    )
+
+
+def frame_outcomes(src: HealthSource | None) -> dict[str, int]:
+    """CAN frames by outcome, one per frame read: "ok" or the reason it was rejected ("unknown_frame_id",
+    "wrong_dlc", "bad_signal", ...)."""
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {"ok": int(m.reads_ok)}
+    for name, n in m.errors.items():
+        if _frame_error(name):
+            out[_snake(name)] = out.get(_snake(name), 0) + int(n)
+    return out
+
+
+def frame_events(src: HealthSource | None) -> dict[str, int]:
+    """CAN events: the driver's counters ("counter_gaps", "frames_lost", "faults", "warnings", ...) and the
+    errors that are no frame ("device_timeout": silence, "device_unavailable": bus down)."""
+    from drivers import errors
+
+    if src is None:
+        return {}
+    m = src.metrics
+    out = {_snake(k): int(n) for k, n in m.events.items()}
+    for name, n in m.errors.items():
+        cls = getattr(errors, name, None)
+        if not _frame_error(name) and not (isinstance(cls, type) and issubclass(cls, errors.CounterGapError)):
+            out[_snake(name)] = out.get(_snake(name), 0) + int(n)
+    return out
+
+
+def _snake(name: str) -> str:
+    out = "".join("_" + c.lower() if c.isupper() else c for c in name).lstrip("_")
+    return out.removesuffix("_error") or out

@@ -1,0 +1,96 @@
+"""The immutable snapshot of the service core that the API threads read: :class:`CoreView`.
+
+The shell publishes one after each event it handled (``ServiceCore.view()``) by swapping a reference, so a
+reader takes no lock and always sees one consistent state. Everything in it is frozen: tuples, read-only
+numpy arrays, ``MappingProxyType`` copies and frozen dataclasses. Ages and data problems are computed from it
+at the reader's ``now`` (the data go stale while no event arrives).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from dataclasses import dataclass
+from datetime import datetime
+
+import numpy as np
+
+from service.acquire.calibration import Calibration
+from service.estimate.live import LiveView
+from service.serve.interface import (
+    ConditionSnapshot,
+    HistogramData,
+    IdentificationJob,
+    IdentificationRecord,
+)
+
+__all__ = ["CoreView", "NewestSample"]
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class NewestSample:
+    """The newest acquisition sample: t UTC; temps_c (n,) °C read-only; quality names per channel."""
+
+    t: datetime
+    temps_c: np.ndarray
+    quality: tuple[str, ...]
+    ambient_c: float
+    speed_rpm: float
+    torque_nm: float
+    can_ok: bool
+    daq_ok: bool
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class CoreView:
+    """What the core knows after one event (see the module docstring)."""
+
+    newest: NewestSample | None
+    condition: ConditionSnapshot | None
+    conditions: tuple[ConditionSnapshot, ...]  # newest first
+    current: IdentificationRecord | None  # the newest ok identification (or the restored one)
+    current_from_restore: bool  # ``current`` is the stored one, not re-identified since the restart
+    records: tuple[IdentificationRecord, ...]  # this process's identifications, newest first
+    jobs: Mapping[str, IdentificationJob]
+    running_job: str | None  # key of the job the scheduler waits for
+    counts: Mapping[str, int]  # identifications by outcome
+    durations: HistogramData  # worker wall time per job, s
+    last_ok_t: tuple[float, ...]  # per channel, epoch s of its last OK value (NaN: never)
+    last_good_daq_t: datetime | None  # newest sample with enough usable temperatures and the ambient
+    last_good_can_t: datetime | None  # newest sample with speed and torque from CAN
+    calibration: Calibration | None  # the current offset baseline (None: none, or calibration off)
+    offset_sd_c: np.ndarray | None  # (n,) °C 1σ of the offsets still unknown (None: calibration off)
+    live: LiveView | None  # the live FE state (None before it started)
+    stale_after_s: float
+    min_good_channels: int
+
+    def data_problems(self, now: datetime) -> tuple[str, ...]:
+        """Why the data are not fresh at ``now`` (empty: fresh), each "code: detail". Codes: ``no_sample``
+        (nothing acquired for ``stale_after_s``: acquisition stalled), ``daq_no_good_data`` (no sample with
+        ``min_good_channels`` usable channels and the ambient for that long: DAQ unreachable, hung,
+        garbled, frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent, fault).
+        """
+        limit = self.stale_after_s
+        if self.newest is None:
+            return ("no_sample: no sample acquired yet",)
+        out = []
+        age = (now - self.newest.t).total_seconds()
+        if age > limit:
+            out.append(f"no_sample: newest sample {age:.0f} s old (limit {limit:.0f} s)")
+        n = self.min_good_channels
+        what = f"sample with >= {n} usable temperature channels and the ambient"
+        out += _age_problem("daq_no_good_data", what, self.last_good_daq_t, now, limit)
+        can = "speed and torque from CAN"
+        out += _age_problem("can_no_good_data", can, self.last_good_can_t, now, limit)
+        return tuple(out)
+
+    def channel_ages(self, now: datetime) -> list[float | None]:
+        """Seconds since each channel's last OK value (None: never)."""
+        ts = now.timestamp()
+        return [None if not np.isfinite(t) else max(0.0, ts - float(t)) for t in self.last_ok_t]
+
+
+def _age_problem(code: str, what: str, last: datetime | None, now: datetime, limit_s: float) -> list[str]:
+    if last is None:
+        return [f"{code}: no {what} yet"]
+    age = (now - last).total_seconds()
+    return [f"{code}: newest {what} is {age:.1f} s old (limit {limit_s:.0f} s)"] if age > limit_s else []
