@@ -33,6 +33,7 @@ from service.acquire.calibration import (
     OffsetCalibrator,
     Reading,
 )
+from service.acquire.decimate import SampleDecimator
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT
 from service.estimate.live import LiveModel, LiveStateError
 from service.identify.detector import (
@@ -60,7 +61,7 @@ from service.identify.scheduler import (
     Tick,
 )
 from service.identify.window import (
-    InsufficientDataError,
+    InsufficientWindowError,
     RawWindow,
     WindowArrays,
     WindowRules,
@@ -68,12 +69,11 @@ from service.identify.window import (
 )
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.modelload import LoadedModel
+from service.serve.histogram import DURATION_BUCKETS_S, Histogram
 from service.serve.interface import (
-    DURATION_BUCKETS_S,
     BusyError,
     ConditionSnapshot,
     ConditionState,
-    Histogram,
     IdentificationJob,
     IdentificationRecord,
     JobState,
@@ -86,7 +86,6 @@ from service.store.records import (
     IdentificationData,
     Record,
     SampleData,
-    SampleDecimator,
     finite,
     finite_list,
 )
@@ -443,7 +442,7 @@ class ServiceCore:
             start_cov = self.live.covariance_at(snap.t) if self.config.carry_start_error else None
             raw = self._raw(snap.t, job.t_to)
             arrays = resample_window(raw, snap.t, job.t_to, self.config.rules)
-        except (InsufficientDataError, LiveStateError) as err:
+        except (InsufficientWindowError, LiveStateError) as err:
             msg = getattr(err, "reason", str(err))
             self._finish_without_result(job, key, reason, now, "insufficient-data", msg, utc(job.t_from))
             return None, self.scheduler.handle(JobSkipped(ts, job.job_id, msg))
@@ -483,7 +482,7 @@ class ServiceCore:
         try:
             raw = self._raw(start_cov.t_s, t_start)
             return resample_window(raw, start_cov.t_s, t_start, rules)
-        except (InsufficientDataError, LiveStateError, ValueError):
+        except (InsufficientWindowError, LiveStateError, ValueError):
             return None
 
     def _raw(self, t_from: float, t_to: float) -> RawWindow:

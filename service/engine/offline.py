@@ -2,8 +2,8 @@
 
 Used by ``chtc identify`` (recorded log files) and by tests. The samples go through exactly the same
 ``ServiceCore`` (ring buffer, live state, detector, scheduler, window building) as in the running service;
-the only difference is that each identification runs synchronously in this process (``run_identification``
-with the same seeded rng) instead of in the worker process, so the same log always gives the same H.
+the only difference is that each identification runs synchronously in this process (``run_job``, the
+worker process's function, with the same seeded rng), so the same log always gives the same H.
 """
 
 from __future__ import annotations
@@ -17,7 +17,7 @@ import numpy as np
 
 from service.acquire.history import RingHistory
 from service.engine.core import CoreConfig, Restored, ServiceCore
-from service.identify.worker import JobOutcome, JobStatus, final_field, run_identification
+from service.identify.worker import JobOutcome, JobStatus, run_job
 from service.modelload import LoadedModel
 from service.serve.interface import IdentificationRecord
 
@@ -55,18 +55,6 @@ class _Tee:
         return True if self.second is None else bool(self.second.submit(record))
 
 
-def _run(model: LoadedModel, launch: Any) -> JobOutcome:
-    try:
-        result, window = run_identification(model, launch.request)
-        field_c = final_field(model, window, result)
-    except Exception as err:  # same contract as the worker process: a failed job is an outcome
-        from model.identify import InsufficientDataError
-
-        status = JobStatus.INSUFFICIENT_DATA if isinstance(err, InsufficientDataError) else JobStatus.FAILED
-        return JobOutcome(launch.start.job_id, status, None, f"{type(err).__name__}: {err}", 0.0)
-    return JobOutcome(launch.start.job_id, JobStatus.OK, result, str(result.message), result.wall_s, field_c)
-
-
 def run_offline(
     samples: Iterable[Any],
     *,
@@ -98,7 +86,8 @@ def run_offline(
         pending = core.ingest(sample)
         while pending:
             launch = pending.pop(0)
-            outcome = _run(model, launch)
+            assert launch.request is not None
+            outcome = run_job(model, launch.request)  # the worker process's own function, in this process
             finished = _finished_at(sample.t, outcome)
             stepper = None
             if outcome.status is JobStatus.OK:

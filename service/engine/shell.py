@@ -26,12 +26,11 @@ from typing import Any
 
 import numpy as np
 
-from model.defaults import BOUND_REL_TOL
 from service.acquire.devicewatch import DeviceWatch, transition_detail
 from service.engine.core import Launch, ServiceCore
 from service.identify.worker import IdentificationWorker, JobOutcome, JobStatus
+from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
-    LATENCY_BUCKETS_S,
     ChtcSnapshot,
     ChtcStatus,
     ConditionSnapshot,
@@ -40,12 +39,11 @@ from service.serve.interface import (
     FieldAt,
     FieldSnapshot,
     HealthSnapshot,
-    Histogram,
     IdentificationJob,
     IdentificationPage,
     IdentificationRecord,
     MetricsSnapshot,
-    NoDataError,
+    NoDataYetError,
     NotFoundError,
     NotReadyError,
     OffsetBaseline,
@@ -57,7 +55,7 @@ from service.serve.interface import (
     SpindleLayout,
     ZoneInfo,
 )
-from service.serve.views import Usability, age_s, at_bound, row_to_record, usability
+from service.serve.views import age_s, chtc_snapshot, row_to_record
 from service.store.records import DeviceEventData
 
 __all__ = ["SoftSensorService", "transition_detail"]
@@ -222,32 +220,14 @@ class SoftSensorService:
             key = (rec.id, status, newest, cond.id if cond else None, cond.state if cond else None, problems)
             if self._snap_cache is not None and self._snap_cache[0] == key:
                 return self._snap_cache[1]
-            bound = at_bound(rec, getattr(core.model.rom, "h_box", None), BOUND_REL_TOL)
-            use = (
-                usability(rec, bound=bound, condition=cond, data_problems=problems, restored=False)
-                if newest is not None
-                else Usability(False, "no_data: no sample acquired yet")
-            )
-            if use.usable and core.current_from_restore:
-                use = Usability(False, "restored: the last stored H, not re-identified since the restart")
-            snap = ChtcSnapshot(
-                h=rec.h,
-                ci95_lo=rec.ci95_lo,
-                ci95_hi=rec.ci95_hi,
-                identified=rec.identified & ~bound,
-                identified_at=rec.finished_at,
-                condition=rec.condition,
-                f=float(rec.f if rec.f is not None else np.nan),
-                fit=float(rec.fit if rec.fit is not None else np.nan),
-                rmse_c=float(rec.rmse_c if rec.rmse_c is not None else np.nan),
-                method=rec.method,
-                model_version=rec.model_version,
-                identification_id=rec.id,
+            snap = chtc_snapshot(
+                rec,
                 status=status,
                 newest_sample_at=newest,
-                at_bound=bound,
-                usable_for_compensation=use.usable,
-                reason=use.reason,
+                condition=cond,
+                data_problems=problems,
+                restored=core.current_from_restore,
+                box=core.model.ref.h_box,
             )
             self._snap_cache = (key, snap)
             return snap
@@ -272,9 +252,9 @@ class SoftSensorService:
         with core.lock:
             rec = core.current
             if rec is None:
-                raise NoDataError("no identification yet: no temperature field")
+                raise NoDataYetError("no identification yet: no temperature field")
             if not core.live.initialized:
-                raise NoDataError("no sample yet: the live temperature field has not started")
+                raise NoDataYetError("no sample yet: the live temperature field has not started")
             fe = core.model.fe
             if at == "now":
                 snap = core.live.field_now()
@@ -292,7 +272,7 @@ class SoftSensorService:
         with core.lock:
             s = core.newest
             if s is None:
-                raise NoDataError("no sample yet")
+                raise NoDataYetError("no sample yet")
             pred = core.live.sensors_now() if core.current is not None and core.live.initialized else None
             cal = core.calibrator.current if core.calibrator is not None else None
             sd = core.calibrator.offset_sd() if core.calibrator is not None else None
@@ -327,7 +307,7 @@ class SoftSensorService:
     def condition(self) -> ConditionSnapshot:
         cond = self.core.condition
         if cond is None:
-            raise NoDataError("no operating condition yet")
+            raise NoDataYetError("no operating condition yet")
         return cond
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:

@@ -25,6 +25,8 @@ from typing import Any
 
 import numpy as np
 
+from drivers.quality import from_daq_status
+
 __all__ = [
     "REPLAY_PHASE",
     "LogSamples",
@@ -45,17 +47,6 @@ class LogSamples:
     frames: int
     bad_frames: int
     t_ref: float = 0.0  # POSIX s: the earlier of the first row and the first CAN frame
-
-
-def _quality(status: Any) -> np.ndarray:
-    """DAQ status codes (0 ok, 1 open circuit, 2 out of range; anything else out of range) -> ``Quality``."""
-    from drivers.quality import Quality
-
-    codes = np.asarray(status, dtype=np.int64)
-    q = np.full(codes.shape, Quality.OUT_OF_RANGE, dtype=np.uint8)
-    q[codes == 0] = Quality.OK
-    q[codes == 1] = Quality.OPEN_CIRCUIT
-    return q
 
 
 def _can_track(frames: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
@@ -151,7 +142,7 @@ def _sample(log: Any, k: int, t: float, track: Any, stated: tuple[Any, Any], can
         speed = float(cs[i]) if fresh else float("nan")
         torque = float(cm[i]) if fresh else float("nan")
     temps = np.asarray(log.temps_c[k], dtype=float)
-    q = _quality(log.status[k])
+    q = from_daq_status(log.status[k])
     q[~np.isfinite(temps)] = Quality.NAN
     return Sample(
         t=datetime.fromtimestamp(t, tz=UTC),
@@ -205,7 +196,7 @@ def samples_from_plant(run: Any, *, t0_s: float) -> list[Any]:
     """One sample per row of a ``model.plant.PlantRun``, at UTC epoch ``t0_s`` + the row's plant time."""
     from drivers.ringbuffer import Sample
 
-    quality = _quality(run.status)
+    quality = from_daq_status(run.status)
     return [
         Sample(
             t=datetime.fromtimestamp(t0_s + float(t), tz=UTC),

@@ -7,12 +7,11 @@
     ├── RecordNotFoundError(DatabaseError, LookupError)            unknown id (names the table and id)
     └── RecordError(DatabaseError, ValueError)                     a record the database refuses (names why)
 
-SQLAlchemy errors are translated in :func:`translate` (used by the repository helpers and the writer).
+SQLAlchemy errors are translated into these in ``service.store.sqlerrors`` (this module imports no SQLAlchemy,
+so the pure records can raise ``RecordError``).
 """
 
 from __future__ import annotations
-
-from sqlalchemy import exc as sa_exc
 
 
 class DatabaseError(Exception):
@@ -29,20 +28,3 @@ class RecordNotFoundError(DatabaseError, LookupError):
 
 class RecordError(DatabaseError, ValueError):
     """The database rejects this record (duplicate id, missing parent, bad value); retrying will not help."""
-
-
-def is_transient(err: BaseException) -> bool:
-    """True for errors a retry can fix: lost connection, locks, timeouts, tables missing (not migrated)."""
-    if isinstance(err, sa_exc.IntegrityError | sa_exc.DataError):
-        return False
-    if isinstance(err, sa_exc.DBAPIError):
-        return True
-    return isinstance(err, sa_exc.TimeoutError | sa_exc.DisconnectionError | ConnectionError | TimeoutError)
-
-
-def translate(err: Exception, what: str) -> DatabaseError:
-    """The typed error for a SQLAlchemy error raised while doing ``what`` (e.g. "insert identifications")."""
-    detail = str(getattr(err, "orig", None) or err).strip().splitlines()[0]
-    if is_transient(err):
-        return DatabaseUnavailableError(f"{what}: database unavailable: {detail}")
-    return RecordError(f"{what}: rejected: {detail}")

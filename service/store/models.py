@@ -23,9 +23,6 @@ from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 from service.store.types import UtcDateTime
 
-OUTCOMES = ("ok", "failed", "insufficient-data", "skipped", "cancelled")
-
-
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
     "uq": "uq_%(table_name)s_%(column_0_N_name)s",
@@ -71,7 +68,7 @@ class Identification(Base):
     window_start: Mapped[datetime]
     window_end: Mapped[datetime]
     reason: Mapped[str] = mapped_column(String(32))  # trigger: "schedule", "manual", ...
-    outcome: Mapped[str] = mapped_column(String(32))  # one of OUTCOMES
+    outcome: Mapped[str] = mapped_column(String(32))  # a service.identify.outcome.Outcome value
     message: Mapped[str] = mapped_column(Text, default="")
     method: Mapped[str] = mapped_column(String(32))
     model_version: Mapped[str] = mapped_column(String(128))

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from service.identify.window import InsufficientDataError, RawWindow, WindowRules, resample_window
+from service.identify.window import InsufficientWindowError, RawWindow, WindowRules, resample_window
 
 RULES = WindowRules(
     dt_s=10.0, min_window_s=600.0, min_good_channels=24, min_good_fraction=0.9, max_gap_s=60.0
@@ -60,19 +60,19 @@ def test_too_few_good_channels_is_insufficient_with_reason():
     q[:, :10] = 2
     r2 = RawWindow(r.times_s, r.temps_c, q, r.ambient_c, r.speed_rpm, r.torque_nm)
     with pytest.raises(
-        InsufficientDataError, match=r"only 22 channels .*min_good_channels=24.*ch1 \(0 % ok\)"
+        InsufficientWindowError, match=r"only 22 channels .*min_good_channels=24.*ch1 \(0 % ok\)"
     ):
         resample_window(r2, 1000.0, 2200.0, RULES)
 
 
 def test_short_window_and_missing_can_are_insufficient():
-    with pytest.raises(InsufficientDataError, match="shorter than min_window_s"):
+    with pytest.raises(InsufficientWindowError, match="shorter than min_window_s"):
         resample_window(raw(), 1000.0, 1500.0, RULES)
     r = raw()
     speed = r.speed_rpm.copy()
     speed[:40] = np.nan
     r2 = RawWindow(r.times_s, r.temps_c, r.quality, r.ambient_c, speed, r.torque_nm)
-    with pytest.raises(InsufficientDataError, match="speed_rpm was missing on 33 %"):
+    with pytest.raises(InsufficientWindowError, match="speed_rpm was missing on 33 %"):
         resample_window(r2, 1000.0, 2200.0, RULES)
 
 
@@ -83,7 +83,7 @@ def test_samples_missing_in_time_count_as_bad():
     r2 = RawWindow(
         *(a[keep] for a in (r.times_s, r.temps_c, r.quality, r.ambient_c, r.speed_rpm, r.torque_nm))
     )
-    with pytest.raises(InsufficientDataError, match="ambient_c was missing on 17 %"):
+    with pytest.raises(InsufficientWindowError, match="ambient_c was missing on 17 %"):
         resample_window(r2, 1000.0, 2200.0, RULES)
-    with pytest.raises(InsufficientDataError, match="no samples"):
+    with pytest.raises(InsufficientWindowError, match="no samples"):
         resample_window(r, 5000.0, 6000.0, RULES)
