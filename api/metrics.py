@@ -21,7 +21,8 @@ from prometheus_client.core import (
 )
 from prometheus_client.registry import Collector
 
-from service.serve.interface import LATENCY_BUCKETS_S, ChtcService, ChtcSnapshot, HistogramData
+from service.serve.histogram import LATENCY_BUCKETS_S
+from service.serve.interface import ChtcService, ChtcSnapshot, HistogramData
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 

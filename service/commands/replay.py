@@ -105,10 +105,12 @@ async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> 
         await _begin_in_phase(rig, clock, settings.acquisition.sample_period_s / args.speedup)
         await asyncio.sleep(rig.replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
         deadline = time.monotonic() + args.grace
-        while runtime.service.core.scheduler.running is not None and time.monotonic() < deadline:
+        service = runtime.service
+        assert service is not None  # started above
+        while service.core.scheduler.running is not None and time.monotonic() < deadline:
             await asyncio.sleep(0.1)
-        with runtime.service.core.lock:
-            return list(reversed(runtime.service.core.records))
+        with service.core.lock:
+            return list(reversed(service.core.records))
     finally:
         await runtime.stop()
         await rig.stop()

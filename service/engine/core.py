@@ -573,6 +573,7 @@ class ServiceCore:
     def _store_result(
         self, launch: Launch, outcome: JobOutcome, finished_at: datetime, stepper: Any = None
     ) -> IdentificationRecord:
+        assert outcome.result is not None  # an OK outcome carries its result
         data = IdentificationData.from_result(outcome.result, **self._meta(launch, finished_at))
         rec = self._record(data, launch)
         self.current = rec

@@ -90,7 +90,7 @@ def run_offline(
             outcome = run_job(model, launch.request)  # the worker process's own function, in this process
             finished = _finished_at(sample.t, outcome)
             stepper = None
-            if outcome.status is JobStatus.OK:
+            if outcome.status is JobStatus.OK and outcome.result is not None:
                 stepper = core.live.prepare(np.asarray(outcome.result.h, dtype=float))
             pending += core.job_done(outcome, finished_at=finished, stepper=stepper)
     cal = core.calibrator.current if core.calibrator is not None else None

@@ -84,7 +84,7 @@ class LiveModel:
         self._t: float | None = None
         self._T: np.ndarray | None = None
         self._last_inputs: _Inputs | None = None
-        self._stepper_key: tuple[Any, ...] | None = None
+        self._stepper_key: bytes | None = None  # the H the stepper was built for
         self._stepper: Any = None
         self._steady_key: tuple[Any, ...] | None = None
         self._steady: np.ndarray | None = None
@@ -104,7 +104,8 @@ class LiveModel:
     def initialize(self, t: float, field_c: float | np.ndarray, inputs: tuple[float, float, float]) -> None:
         """Start at ``t`` (s) from a uniform temperature or an (N,) field; inputs (ambient, speed, torque)."""
         n = self.fe.n_nodes
-        self._T = np.full(n, float(field_c)) if np.isscalar(field_c) else np.asarray(field_c, float).copy()
+        uniform = isinstance(field_c, float | int)
+        self._T = np.full(n, field_c) if uniform else np.asarray(field_c, float).copy()
         self._t = float(t)
         self._last_inputs = _Inputs(*inputs)
         self._snapshots.clear()

@@ -180,9 +180,8 @@ class IdentificationRecord:
     nfev: int
     wall_s: float
     n_sensors_used: int  # channels the fit used (masked-out ones excluded)
-    at_bound: BoolArray = field(
-        default_factory=lambda: np.zeros(len(ZONE_NAMES), dtype=bool)
-    )  # (7,) on a bound
+    # (7,) H on a bound of the search box (then not identified)
+    at_bound: BoolArray = field(default_factory=lambda: np.zeros(len(ZONE_NAMES), dtype=bool))
 
 
 @dataclass(frozen=True, eq=False)

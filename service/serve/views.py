@@ -192,7 +192,8 @@ def usability(
     Codes, in this order: ``no_data`` (no sample acquired yet), ``stale`` (the data are not fresh:
     ``data_problems``), ``condition_changed`` (identified at another condition, or the condition is changing),
     ``at_bound`` (an H on a bound of the search box), ``not_identified`` (an H's 95 % CI wider than the
-    threshold), ``restored`` (otherwise usable, but the last stored H, not re-identified since the restart)."""
+    threshold), ``restored`` (otherwise usable, but the last stored H, not re-identified since the
+    restart)."""
     if not has_sample:
         return Usability(False, "no_data: no sample acquired yet")
     if data_problems:

@@ -55,10 +55,10 @@ def restore(session_factory: Any, *, limit: int = 100) -> Restored:
             PastResult(
                 int(r.condition_id),
                 OperatingPoint(r.condition.speed_rpm, r.condition.torque_nm, r.condition.ambient_c),
-                tuple(float(x) for x in r.h),
+                h,
             )
             for r in reversed(latest)  # oldest first: the scheduler prefers the newest on ties
-            if all(x is not None for x in r.h)
+            if (h := _complete(r.h)) is not None
         )
         rows = list_conditions(session, limit=50).items
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
@@ -307,3 +307,9 @@ def open_persistence(
         reads=reads,
         read_watchdog=read_watchdog,
     )
+
+
+def _complete(h: tuple[float | None, ...]) -> tuple[float, ...] | None:
+    """H1..H7 when every one is stored, else None (a row without H is no warm start)."""
+    values = tuple(x for x in h if x is not None)
+    return values if len(values) == len(h) else None

@@ -14,7 +14,7 @@ import math
 from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from datetime import datetime
-from typing import TYPE_CHECKING, Protocol, SupportsFloat
+from typing import TYPE_CHECKING, Protocol, SupportsFloat, TypeVar
 
 import numpy as np
 
@@ -27,6 +27,7 @@ if TYPE_CHECKING:
     from model.identify import IdentificationResult
 
 N_ZONES = 7
+K = TypeVar("K")
 
 # What a JSON column holds (``diagnostics``): built by ``_plain`` from numpy values.
 JsonValue = None | bool | int | float | str | list["JsonValue"] | dict[str, "JsonValue"]
@@ -236,8 +237,8 @@ class IdentificationData:
         warm_start_source: str | None = None,
         warm_start_id: int | None = None,
     ) -> IdentificationData:
-        """A successful identification from its ``model.identify.IdentificationResult`` and the job's ids, times
-        and provenance.
+        """A successful identification from its ``model.identify.IdentificationResult`` and the job's ids,
+        times and provenance.
 
         ``rmse_c`` is √f, the RMSE over the entries the fit used (masked-out channels excluded);
         ``n_sensors_used`` counts the channels with a per-sensor RMSE (the identification gives NaN for a
@@ -363,5 +364,5 @@ def _plain(value: object) -> JsonValue:
     raise RecordError(f"diagnostics: {type(value).__name__} is not JSON")
 
 
-def _plain_dict(value: Mapping[object, object]) -> dict[str, JsonValue]:
+def _plain_dict(value: Mapping[K, object]) -> dict[str, JsonValue]:
     return {str(k): _plain(v) for k, v in value.items()}
