@@ -120,7 +120,7 @@ def test_core_asks_for_the_start_offset_as_configured(loaded_model, mode, expect
     """ "initial": only a window whose start field still descends from the live state's initial guess (here
     the first condition, from the cold start) gets the fitted offset; the second condition starts from the
     state rebased on the first identification."""
-    from service.engine.offline import _run
+    from service.identify.worker import run_job
 
     run = plant_run([Segment(700.0, 3000.0, 2.0, 23.2), Segment(700.0, 4000.0, 3.0, 23.2)])
     ring = ring_of()
@@ -131,7 +131,7 @@ def test_core_asks_for_the_start_offset_as_configured(loaded_model, mode, expect
         ring.append(s)
         for launch in core.ingest(s):
             launches.append(launch)
-            core.job_done(_run(loaded_model, launch), finished_at=s.t)
+            core.job_done(run_job(loaded_model, launch.request), finished_at=s.t)
     assert [launch.request.estimate_t0_shift for launch in launches] == expected
 
 
