@@ -38,6 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from service.estimate.locator import TriangleLocator, locator_for
+from service.store.records import IdentificationData
 
 H_UNIT = "W/(m²·K)"
 FloatArray = npt.NDArray[np.float64]
@@ -157,31 +158,89 @@ class OffsetBaseline:
 
 @dataclass(frozen=True, eq=False)
 class IdentificationRecord:
-    """One finished (or failed) identification, as stored."""
+    """One finished (or failed, skipped, cancelled) identification as served: the stored ``data``, the
+    condition it was taken at, and its per-zone values as read-only (7,) arrays.
 
-    id: int
-    started_at: datetime
-    finished_at: datetime
-    reason: str  # "condition-change" | "manual" | "scheduled" | ...
-    outcome: str  # "ok" | "failed" | "insufficient-data"
-    message: str
+    Built by ``service.serve.views.data_to_record`` only. Every other value is the stored record's, read
+    through ``data`` (the properties below name the ones the service and the API use).
+    """
+
+    data: IdentificationData
     condition: ConditionSnapshot
-    window_from: datetime
-    window_to: datetime
-    h: FloatArray  # (7,) W/(m²·K); NaN when failed
-    ci95_lo: FloatArray
+    h: FloatArray  # (7,) W/(m²·K); NaN when not identified (failed, skipped)
+    ci95_lo: FloatArray  # (7,) W/(m²·K), >= 0
     ci95_hi: FloatArray
-    identified: BoolArray  # (7,)
-    f: float | None  # °C²
-    fit: float | None
-    rmse_c: float | None
-    method: str
-    model_version: str
-    nfev: int
-    wall_s: float
-    n_sensors_used: int  # channels the fit used (masked-out ones excluded)
-    # (7,) H on a bound of the search box (then not identified)
-    at_bound: BoolArray = field(default_factory=lambda: np.zeros(len(ZONE_NAMES), dtype=bool))
+    identified: BoolArray  # (7,) 95 % CI narrow enough and not at a bound
+    at_bound: BoolArray  # (7,) H on a bound of the search box (then not identified)
+
+    @property
+    def id(self) -> int:
+        return self.data.id
+
+    @property
+    def started_at(self) -> datetime:
+        return self.data.started_at
+
+    @property
+    def finished_at(self) -> datetime:
+        return self.data.finished_at
+
+    @property
+    def reason(self) -> str:
+        """Trigger: "condition-change" | "scheduled" | "manual" | ..."""
+        return self.data.reason
+
+    @property
+    def outcome(self) -> str:
+        """A ``service.identify.outcome.Outcome`` value: "ok", "failed", "insufficient-data", ..."""
+        return self.data.outcome
+
+    @property
+    def message(self) -> str:
+        return self.data.message
+
+    @property
+    def window_from(self) -> datetime:
+        return self.data.window_start
+
+    @property
+    def window_to(self) -> datetime:
+        return self.data.window_end
+
+    @property
+    def f(self) -> float | None:
+        """Objective: mean squared residual, °C²."""
+        return self.data.f
+
+    @property
+    def fit(self) -> float | None:
+        """1 / (1 + f)."""
+        return self.data.fit
+
+    @property
+    def rmse_c(self) -> float | None:
+        return self.data.rmse_c
+
+    @property
+    def method(self) -> str:
+        return self.data.method
+
+    @property
+    def model_version(self) -> str:
+        return self.data.model_version
+
+    @property
+    def nfev(self) -> int:
+        return self.data.nfev
+
+    @property
+    def wall_s(self) -> float:
+        return self.data.duration_s
+
+    @property
+    def n_sensors_used(self) -> int:
+        """Channels the fit used (masked-out ones excluded)."""
+        return self.data.n_sensors_used
 
 
 @dataclass(frozen=True, eq=False)

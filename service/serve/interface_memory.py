@@ -50,7 +50,8 @@ from service.serve.interface import (
     SpindleLayout,
     ZoneInfo,
 )
-from service.serve.views import chtc_snapshot
+from service.serve.views import chtc_snapshot, data_to_record
+from service.store.records import IdentificationData
 
 MIN_GOOD_CHANNELS = 24  # identification.min_good_channels' default
 
@@ -281,29 +282,30 @@ class InMemoryService:
             now = finished_at or self._clock()
             hh = np.asarray(h, dtype=float)
             f = rmse_c**2
-            rec = IdentificationRecord(
+            data = IdentificationData(
                 id=len(self._records) + 1,
+                condition_id=self._condition.id,
                 started_at=now - timedelta(seconds=wall_s),
                 finished_at=now,
+                window_start=now - timedelta(minutes=60),
+                window_end=now,
                 reason=reason,
                 outcome=outcome,
                 message="converged" if outcome == "ok" else outcome,
-                condition=self._condition,
-                window_from=now - timedelta(minutes=60),
-                window_to=now,
-                h=hh,
-                ci95_lo=hh / (1 + rel_ci),  # symmetric in log H, as the real identification
-                ci95_hi=hh * (1 + rel_ci),
-                identified=np.asarray(identified if identified is not None else [True] * 7, dtype=bool),
+                method=method,
+                model_version=self._section.model_version,
+                h=[float(x) for x in hh],
+                ci95_lo=[float(x) for x in hh / (1 + rel_ci)],  # symmetric in log H, as the real one
+                ci95_hi=[float(x) for x in hh * (1 + rel_ci)],
+                identified=[bool(x) for x in (identified if identified is not None else [True] * 7)],
                 f=f,
                 fit=1.0 / (1.0 + f),
                 rmse_c=rmse_c,
-                method=method,
-                model_version=self._section.model_version,
                 nfev=120,
-                wall_s=wall_s,
+                duration_s=wall_s,
                 n_sensors_used=32,
             )
+            rec = data_to_record(data, self._condition)
             self._records[rec.id] = rec
             self._counts["ident"][outcome] = self._counts["ident"].get(outcome, 0) + 1
             self._ident_duration.observe(wall_s)

@@ -12,9 +12,10 @@ turns it, with the condition it was taken at, into the ``IdentificationRecord`` 
                                                 v
                             IdentificationRecord --chtc_snapshot--> ChtcSnapshot --api.schemas--> JSON
 
-A value that should reach ``/chtc`` is a field of the result, of ``IdentificationData`` (set in
-``from_result``; stored in ``diagnostics`` it needs no column) and of the schema: ``data_to_record`` is the
-one place that maps it to the served record.
+A value that should reach ``/chtc`` is a field of the result, set in the one mapper
+``IdentificationData.from_result`` (stored in ``diagnostics`` it needs no column; a column needs a
+migration), and a field of the schema (``api/schemas.py``), read as ``snapshot.record.data.<name>``: the
+served record holds the stored one.
 """
 
 from __future__ import annotations
@@ -111,27 +112,12 @@ def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> Id
     """The API view of an identification, just finished (or skipped, or failed) or read back from the
     database: the one mapping from the stored record to the served one."""
     return IdentificationRecord(
-        id=data.id,
-        started_at=data.started_at,
-        finished_at=data.finished_at,
-        reason=data.reason,
-        outcome=data.outcome,
-        message=data.message,
+        data=data,
         condition=condition,
-        window_from=data.window_start,
-        window_to=data.window_end,
         h=_floats(data.h),
         ci95_lo=_ci_lo(data.ci95_lo),
         ci95_hi=_floats(data.ci95_hi),
         identified=_bools(data.identified),
-        f=data.f,
-        fit=data.fit,
-        rmse_c=data.rmse_c,
-        method=data.method,
-        model_version=data.model_version,
-        nfev=int(data.nfev),
-        wall_s=float(data.duration_s),
-        n_sensors_used=int(data.n_sensors_used),
         at_bound=_at_bound_flags(data),
     )
 
