@@ -129,7 +129,7 @@ def _accepts_gzip(request: Request) -> bool:
 
 
 def _render(
-    service: ChtcService, renderer: FieldRenderer, at: FieldAt, format: str, nr: int, nz: int, pts: Any
+    service: ChtcService, renderer: FieldRenderer, *, at: FieldAt, format: str, nr: int, nz: int, pts: Any
 ) -> Rendered | bytes:
     """The body (a worker thread runs this: reading the service may wait for its lock, and a new field's
     body is serialised here)."""
@@ -182,7 +182,7 @@ async def get_field(
             headers={"Retry-After": "1"},
         )
     try:
-        out = await run_in_threadpool(_render, service, renderer, at, format, nr, nz, pts)
+        out = await run_in_threadpool(_render, service, renderer, at=at, format=format, nr=nr, nz=nz, pts=pts)
         if isinstance(out, bytes):
             return Response(out, media_type="application/json")
         headers = {"ETag": out.etag, "Cache-Control": "no-cache", "Vary": "Accept-Encoding"}

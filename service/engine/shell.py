@@ -172,7 +172,9 @@ class SoftSensorService:
     async def _run_job(self, launch: Launch) -> None:
         assert launch.request is not None
         if self.worker is None:
-            outcome = JobOutcome(launch.start.job_id, JobStatus.FAILED, None, "no identification worker", 0.0)
+            outcome = JobOutcome(
+                job_id=launch.start.job_id, status=JobStatus.FAILED, message="no identification worker"
+            )
         else:
             try:
                 outcome = await self.worker.run(launch.request)
@@ -180,7 +182,9 @@ class SoftSensorService:
                 raise
             except Exception as err:  # the worker façade should not raise; never lose the job silently
                 outcome = JobOutcome(
-                    launch.start.job_id, JobStatus.FAILED, None, f"{type(err).__name__}: {err}", 0.0
+                    job_id=launch.start.job_id,
+                    status=JobStatus.FAILED,
+                    message=f"{type(err).__name__}: {err}",
                 )
         if self.worker is not None and self.worker.restarts:
             self.record_event("worker", "restarted", f"{self.worker.restarts} restart(s) so far")

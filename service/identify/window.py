@@ -96,7 +96,8 @@ def resample_window(raw: RawWindow, t_from: float, t_to: float, rules: WindowRul
     temps = np.where(hit[:, None], np.asarray(raw.temps_c, dtype=float)[idx], np.nan)
     q_ok = hit[:, None] & usable(np.asarray(raw.quality)[idx]) & np.isfinite(temps)
     inputs = [
-        _input(np.asarray(a, dtype=float), idx, hit, rules, name, grid) for a, name in _named_inputs(raw)
+        _input(np.asarray(a, dtype=float), idx=idx, hit=hit, rules=rules, name=name, grid=grid)
+        for a, name in _named_inputs(raw)
     ]
     good_fraction = q_ok.mean(axis=0)
     max_run = rules.max_gap_s / rules.dt_s
@@ -128,7 +129,7 @@ def _named_inputs(raw: RawWindow) -> list[tuple[np.ndarray, str]]:
 
 
 def _input(
-    values: np.ndarray, idx: np.ndarray, hit: np.ndarray, rules: WindowRules, name: str, grid: np.ndarray
+    values: np.ndarray, *, idx: np.ndarray, hit: np.ndarray, rules: WindowRules, name: str, grid: np.ndarray
 ) -> np.ndarray:
     v = np.where(hit, values[idx], np.nan)
     ok = np.isfinite(v)

@@ -87,13 +87,13 @@ class JobRequest:
     offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class JobOutcome:
     job_id: int
     status: Outcome
-    result: IdentificationResult | None  # when OK
     message: str
-    wall_s: float
+    wall_s: float = 0.0
+    result: IdentificationResult | None = None  # when OK
     final_field_c: np.ndarray | None = None  # (N,) fitted model's field at the window end, °C (when OK)
 
 
@@ -270,8 +270,15 @@ def run_job(
         field = final_field(model, window, result)
     except Exception as err:  # the boundary of a job: report, never crash the pool or the offline run
         status, msg = job_outcome_of(err)
-        return JobOutcome(req.job_id, status, None, msg, time.perf_counter() - started)
-    return JobOutcome(req.job_id, Outcome.OK, result, result.message, time.perf_counter() - started, field)
+        return JobOutcome(job_id=req.job_id, status=status, message=msg, wall_s=time.perf_counter() - started)
+    return JobOutcome(
+        job_id=req.job_id,
+        status=Outcome.OK,
+        message=result.message,
+        wall_s=time.perf_counter() - started,
+        result=result,
+        final_field_c=field,
+    )
 
 
 def run_job_in_process(req: JobRequest) -> JobOutcome:
@@ -361,14 +368,18 @@ class IdentificationWorker:
             except TimeoutError:
                 self.cancel(req.job_id)
                 msg = f"identification exceeded timeout_s={self.timeout_s:.0f} s"
-                return await self._after_cancel(fut, req.job_id, msg, started, Outcome.FAILED)
+                return await self._after_cancel(
+                    fut, req.job_id, message=msg, started=started, status=Outcome.FAILED
+                )
             except asyncio.CancelledError:
                 self.cancel(req.job_id)
-                await self._after_cancel(fut, req.job_id, "cancelled", started, Outcome.CANCELLED)
+                await self._after_cancel(
+                    fut, req.job_id, message="cancelled", started=started, status=Outcome.CANCELLED
+                )
                 raise
         except cf.process.BrokenProcessPool as err:
             self._discard_pool()
-            return JobOutcome(req.job_id, Outcome.FAILED, None, f"worker process died: {err}", 0.0)
+            return JobOutcome(job_id=req.job_id, status=Outcome.FAILED, message=f"worker process died: {err}")
         finally:
             self.running_job = None
 
@@ -383,13 +394,19 @@ class IdentificationWorker:
         self._cancel.value = job_id
 
     async def _after_cancel(
-        self, fut: asyncio.Future[JobOutcome], job_id: int, msg: str, started: float, status: Outcome
+        self,
+        fut: asyncio.Future[JobOutcome],
+        job_id: int,
+        *,
+        message: str,
+        started: float,
+        status: Outcome,
     ) -> JobOutcome:
         try:
             await asyncio.wait_for(asyncio.shield(fut), timeout=self.cancel_grace_s)
         except (TimeoutError, cf.process.BrokenProcessPool):
             self._discard_pool()
-        return JobOutcome(job_id, status, None, msg, time.perf_counter() - started)
+        return JobOutcome(job_id=job_id, status=status, message=message, wall_s=time.perf_counter() - started)
 
     def _discard_pool(self) -> None:
         pool, self._pool = self._pool, None

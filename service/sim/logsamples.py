@@ -21,11 +21,21 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
-from drivers.quality import from_daq_status
+from drivers.quality import Quality, from_daq_status
+from drivers.ringbuffer import Sample
+
+if TYPE_CHECKING:
+    import can
+
+    from drivers.logs import TemperatureLog
+    from model.plant import PlantRun
+
+# The CAN state over a log: frame times (POSIX s), speed rpm, torque N·m, status ok (all (m,))
+CanTrack = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 __all__ = [
     "REPLAY_PHASE",
@@ -42,14 +52,14 @@ REPLAY_PHASE = 0.5  # chtc replay's acquisition samples half a period after each
 
 @dataclass
 class LogSamples:
-    samples: list[Any]
+    samples: list[Sample]
     rows: int
     frames: int
     bad_frames: int
     t_ref: float = 0.0  # POSIX s: the earlier of the first row and the first CAN frame
 
 
-def _can_track(frames: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+def _can_track(frames: list[can.Message]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     from drivers.can_codec import SensorStatus, decode_frame
     from drivers.errors import FrameError
 
@@ -123,18 +133,24 @@ def samples_from_logs(
         )
     track = (ct, cs, cm, cok) if speed_rpm is None else None
     out = [
-        _sample(log, int(k), float(t), track, stated, can_stale_s) for t, k in zip(ticks, rows, strict=True)
+        _sample(log, int(k), t=float(t), track=track, stated=stated, can_stale_s=can_stale_s)
+        for t, k in zip(ticks, rows, strict=True)
     ]
     return LogSamples(out, log.n_rows, len(frames), bad, t_ref=t_ref)
 
 
-def _sample(log: Any, k: int, t: float, track: Any, stated: tuple[Any, Any], can_stale_s: float) -> Any:
+def _sample(
+    log: TemperatureLog,
+    k: int,
+    *,
+    t: float,
+    track: CanTrack | None,
+    stated: tuple[float | None, float | None],
+    can_stale_s: float,
+) -> Sample:
     """Row ``k`` as the sample at time ``t``, with the CAN state then (or the stated speed and torque)."""
-    from drivers.quality import Quality
-    from drivers.ringbuffer import Sample
-
     if track is None:
-        speed, torque, fresh = float(stated[0]), float(stated[1]), True
+        speed, torque, fresh = float(stated[0] or 0.0), float(stated[1] or 0.0), True
     else:
         ct, cs, cm, cok = track
         i = int(np.searchsorted(ct, t, side="right")) - 1
@@ -192,10 +208,8 @@ def write_acquisition_csv(
     return int(ticks.size)
 
 
-def samples_from_plant(run: Any, *, t0_s: float) -> list[Any]:
+def samples_from_plant(run: PlantRun, *, t0_s: float) -> list[Sample]:
     """One sample per row of a ``model.plant.PlantRun``, at UTC epoch ``t0_s`` + the row's plant time."""
-    from drivers.ringbuffer import Sample
-
     quality = from_daq_status(run.status)
     return [
         Sample(

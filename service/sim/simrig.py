@@ -42,7 +42,7 @@ class SimAddress:
         return cls(host, free_port(host), _channel(), float(speedup))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SimRig:
     """Running simulated devices: DAQ on ``host:port``, CAN frames on virtual ``channel``."""
 
@@ -92,7 +92,9 @@ async def plant_rig(timeline: Any, *, address: SimAddress, daq_period_s: float =
     source.start()
     await daq.start()
     await node.start()
-    return SimRig(a.host, a.port, a.channel, a.speedup, daq, can_node=node, bus=bus)
+    return SimRig(
+        host=a.host, port=a.port, channel=a.channel, speedup=a.speedup, daq_server=daq, can_node=node, bus=bus
+    )
 
 
 async def replay_rig(
@@ -107,7 +109,15 @@ async def replay_rig(
     await replay.listen()
     if begin:
         replay.begin()
-    return SimRig(a.host, a.port, a.channel, a.speedup, replay.daq, replay=replay, bus=bus)
+    return SimRig(
+        host=a.host,
+        port=a.port,
+        channel=a.channel,
+        speedup=a.speedup,
+        daq_server=replay.daq,
+        replay=replay,
+        bus=bus,
+    )
 
 
 def make_drivers(settings: Any, rig: SimAddress | SimRig, *, clock: ScaledClock) -> tuple[Any, Any]:
