@@ -467,7 +467,7 @@ class ChtcService(Protocol):
         ...
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class SensorHistory:
     """Per-sample measured and predicted temperatures, oldest first (measured vs predicted over time)."""
 
@@ -516,7 +516,15 @@ class SensorHistoryBuffer:
             rows = [i for i in rows if since is None or _after(self._t[i], since)]
             ts = tuple(t for t in (self._t[i] for i in rows) if t is not None)
             m, p = self._m[rows], self._p[rows]  # fancy indexing copies
-        return SensorHistory(ts, m, p, self._channels, self._names, self._roles, self._cap)
+        return SensorHistory(
+            t=ts,
+            measured_c=m,
+            predicted_c=p,
+            channels=self._channels,
+            names=self._names,
+            roles=self._roles,
+            capacity=self._cap,
+        )
 
 
 def _after(t: datetime | None, since: datetime) -> bool:
