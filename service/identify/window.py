@@ -32,7 +32,7 @@ class InsufficientWindowError(ValueError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WindowRules:
     """What counts as enough data; times in s."""
 
@@ -43,7 +43,7 @@ class WindowRules:
     max_gap_s: float = 300.0  # longest run of missing/bad points of a channel that is interpolated
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class RawWindow:
     """Samples from the ring buffer: times (n,) s, temps (n,32) °C, quality (n,32) uint8, inputs (n,)."""
 
@@ -55,7 +55,7 @@ class RawWindow:
     torque_nm: np.ndarray
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class WindowArrays:
     """A uniform-grid window ready for ``model.identify.Window`` (see ``service.identify.worker``)."""
 

@@ -68,7 +68,7 @@ class WorkerError(RuntimeError):
 JobStatus = Outcome
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class JobRequest:
     job_id: int
     window: WindowArrays

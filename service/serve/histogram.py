@@ -30,7 +30,9 @@ class Histogram:
 
     def snapshot(self) -> HistogramData:
         with self._lock:
-            return HistogramData(self._ub, tuple(self._counts), self._count, self._sum)
+            return HistogramData(
+                upper_bounds=self._ub, counts=tuple(self._counts), count=self._count, sum=self._sum
+            )
 
 
 LATENCY_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5)

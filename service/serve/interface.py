@@ -368,7 +368,7 @@ class Readiness:
     reasons: Sequence[str] = ()  # why not, e.g. ("model not loaded", "no sample for 35 s")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class HistogramData:
     """A cumulative histogram as Prometheus wants it: counts[i] = observations <= upper_bounds[i]."""
 

@@ -50,7 +50,7 @@ __all__ = [
 REPLAY_PHASE = 0.5  # chtc replay's acquisition samples half a period after each grid point of the recording
 
 
-@dataclass
+@dataclass(kw_only=True)
 class LogSamples:
     samples: list[Sample]
     rows: int
@@ -136,7 +136,7 @@ def samples_from_logs(
         _sample(log, int(k), t=float(t), track=track, stated=stated, can_stale_s=can_stale_s)
         for t, k in zip(ticks, rows, strict=True)
     ]
-    return LogSamples(out, log.n_rows, len(frames), bad, t_ref=t_ref)
+    return LogSamples(samples=out, rows=log.n_rows, frames=len(frames), bad_frames=bad, t_ref=t_ref)
 
 
 def _sample(

@@ -108,7 +108,7 @@ class DeviceEventData:
         return {"t": self.t, "device": self.device[:16], "kind": self.kind[:64], "detail": self.detail}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SampleData:
     """One acquisition instant: temperatures °C per channel, ambient °C, speed rpm, torque N·m."""
 
@@ -173,7 +173,7 @@ class IdentificationRow(Protocol):
     def h(self) -> tuple[float | None, ...]: ...
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class IdentificationData:
     """One identification outcome (ids from the service). H, CIs in W/(m²·K); f in °C²; rmse in °C.
 

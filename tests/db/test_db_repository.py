@@ -125,7 +125,16 @@ def test_device_event_and_sample_round_trip(factory: sessionmaker[Session]) -> N
     temps[6] = math.nan
     quality = ["ok"] * 32
     quality[6] = "open_circuit"
-    sample = SampleData(T0, temps, 22.5, 4000.0, -1.25, quality, can_ok=True, daq_ok=False)
+    sample = SampleData(
+        t=T0,
+        temps_c=temps,
+        ambient_c=22.5,
+        speed_rpm=4000.0,
+        torque_nm=-1.25,
+        quality=quality,
+        can_ok=True,
+        daq_ok=False,
+    )
     with repo.session_scope(factory) as s:
         repo.add_device_event(
             s, DeviceEventData(T0.astimezone(CEST), "modbus", "timeout", "unit 1 after 1.0 s")
@@ -218,7 +227,14 @@ def test_device_event_filters_and_sample_window(factory: sessionmaker[Session]) 
         DeviceEventData(T0 + timedelta(seconds=i), "modbus" if i % 2 else "can", f"k{i}") for i in range(10)
     ]
     samples = [
-        SampleData(T0 + timedelta(seconds=10 * i), [20.0 + i] * 32, 22.0, 4000.0, 10.0, ["ok"] * 32)
+        SampleData(
+            t=T0 + timedelta(seconds=10 * i),
+            temps_c=[20.0 + i] * 32,
+            ambient_c=22.0,
+            speed_rpm=4000.0,
+            torque_nm=10.0,
+            quality=["ok"] * 32,
+        )
         for i in range(20)
     ]
     with repo.session_scope(factory) as s:
