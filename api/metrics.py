@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from prometheus_client import CollectorRegistry, Histogram
@@ -33,7 +33,7 @@ def _hist(name: str, doc: str, h: HistogramData) -> HistogramMetricFamily:
     return HistogramMetricFamily(name, doc, buckets=buckets, sum_value=h.sum)
 
 
-def _counter(name: str, doc: str, label: str, values: dict[str, int] | Any) -> CounterMetricFamily:
+def _counter(name: str, doc: str, label: str, values: Mapping[str, int]) -> CounterMetricFamily:
     fam = CounterMetricFamily(name, doc, labels=[label])
     for key, value in sorted(dict(values).items()):
         fam.add_metric([key], value)

@@ -137,7 +137,7 @@ def test_every_listed_method_runs_and_an_unknown_one_is_refused(model: Any, cond
     for method in METHODS:
         res = identify(model.rom, cond3000.window, rng=0, method=method, spec=model.spec, options=opts)
         assert res.method == method and np.all(np.isfinite(res.h)), method
-    with pytest.raises(IdentificationError, match="method: expected one of empirical, ga, .*hybrid"):
+    with pytest.raises(IdentificationError, match=r"method: expected one of empirical, ga, .*hybrid"):
         identify(model.rom, cond3000.window, rng=0, method="newton", spec=model.spec)
 
 

@@ -260,7 +260,7 @@ def test_identify_on_the_shipped_example_recording(tmp_path, capsys):
     assert cli_main([*argv, "--json", str(out)]) == 0
     ok = [r for r in json.loads(out.read_text()) if r["outcome"] == "ok"]
     assert {r["condition"]["speed_rpm"] for r in ok} == {3000.0, 4000.0}
-    # made with chtc simulate --profile service/data/example_profile.toml (docs/simulation.md): the plant's truth
+    # made by chtc simulate --profile service/data/example_profile.toml (docs/simulation.md): plant truth
     _assert_well_determined_h_covered(ok)
 
 
