@@ -94,7 +94,9 @@ async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> 
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)
-    origin = datetime.fromtimestamp(rig.replay.t_ref + REPLAY_PHASE * period_s, tz=UTC)
+    replay = rig.replay
+    assert replay is not None  # a replay rig
+    origin = datetime.fromtimestamp(replay.t_ref + REPLAY_PHASE * period_s, tz=UTC)
     runtime.sample_clock = GridClock(clock, origin=origin, period_s=period_s)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
     try:
@@ -103,7 +105,7 @@ async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> 
             await runtime.wait_api()
             print(f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc)", flush=True)
         await _begin_in_phase(rig, clock, settings.acquisition.sample_period_s / args.speedup)
-        await asyncio.sleep(rig.replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
+        await asyncio.sleep(replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
         deadline = time.monotonic() + args.grace
         service = runtime.service
         assert service is not None  # started above

@@ -33,7 +33,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -99,14 +99,22 @@ class JobOutcome:
 
 # --- inside the worker process --------------------------------------------------------------------
 _MODEL: LoadedModel | None = None
-_CANCEL: Any = None  # multiprocessing.Value("q"): id of the job to cancel, -1 for none
+
+
+class CancelFlag(Protocol):
+    """A shared ``multiprocessing.Value("q")``: the id of the job to cancel, -1 for none."""
+
+    value: int
+
+
+_CANCEL: CancelFlag | None = None
 
 
 class JobCancelled(Exception):
     """Raised inside the worker process when the running job was cancelled."""
 
 
-def _init_worker(ref: ModelRef, cancel: Any, parent_pid: int | None = None, nice: int = 0) -> None:
+def _init_worker(ref: ModelRef, cancel: CancelFlag, parent_pid: int | None = None, nice: int = 0) -> None:
     global _MODEL, _CANCEL
     if parent_pid is not None:
         watch_parent(parent_pid)
@@ -329,7 +337,7 @@ class IdentificationWorker:
         self.timeout_s = timeout_s
         self.cancel_grace_s = cancel_grace_s
         self._ctx = multiprocessing.get_context(context)
-        self._cancel = self._ctx.Value("q", -1)
+        self._cancel: CancelFlag = self._ctx.Value("q", -1)
         self._pool: cf.ProcessPoolExecutor | None = None
         self._closed = False
         self.running_job: int | None = None
