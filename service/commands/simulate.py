@@ -26,7 +26,7 @@ import tomllib
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -38,6 +38,9 @@ from drivers.sim.faults import FaultController, FaultSpecError, parse_fault
 from drivers.sim.modbus_server import SimulatedDaq
 from drivers.sim.replay import Replay
 from drivers.sim.source import TimelineSource
+
+if TYPE_CHECKING:
+    from model.plant import PlantRun
 
 SEGMENT_KEYS = ("duration_s", "speed_rpm", "torque_nm", "ambient_c")
 NAMED_PROFILES: dict[str, list[tuple[float, float, float, float]]] = {
@@ -94,7 +97,7 @@ def _segment(path: Path, i: int, item: Any) -> ProfileSegment:
     return ProfileSegment(*values)
 
 
-def plant_timeline(profile: Sequence[ProfileSegment], *, seed: int, dt_s: float, noise_c: float) -> Any:
+def plant_timeline(profile: Sequence[ProfileSegment], *, seed: int, dt_s: float, noise_c: float) -> PlantRun:
     """Run the virtual plant over ``profile`` (returns a ``model.plant.PlantRun``)."""
     from model.geometry import load_spindle
     from model.plant import Segment, VirtualPlant
