@@ -10,7 +10,7 @@ from __future__ import annotations
 
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI
 from fastapi.responses import FileResponse
@@ -23,6 +23,9 @@ from api.metrics import ApiMetrics, RequestTimer
 from api.openapi import build_openapi
 from api.routers import chtc, condition, field, health, history, identifications, sensors, spindle
 from service.serve.interface import ChtcService
+
+if TYPE_CHECKING:
+    from service.settings import Settings
 
 API_PREFIX = "/api/v1"
 STATIC_DIR = Path(__file__).parent / "static"
@@ -42,7 +45,7 @@ def utc_now() -> datetime:
 
 
 def create_app(
-    settings: Any, service: ChtcService, *, clock: Clock = utc_now, limits: GuardLimits | None = None
+    settings: Settings, service: ChtcService, *, clock: Clock = utc_now, limits: GuardLimits | None = None
 ) -> FastAPI:
     """Build the app around an already running service; nothing is opened here.
 

@@ -14,7 +14,7 @@ import secrets
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Annotated, Any
+from typing import TYPE_CHECKING, Annotated
 
 from fastapi import Depends, Request
 from pydantic import AfterValidator, AwareDatetime, BeforeValidator
@@ -22,26 +22,26 @@ from pydantic import AfterValidator, AwareDatetime, BeforeValidator
 from api.errors import ApiError
 from service.serve.interface import ChtcService
 
+if TYPE_CHECKING:
+    from pydantic import SecretStr
+
+    from service.settings import ApiSettings
+
 Clock = Callable[[], datetime]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class AuthConfig:
     write_token: str | None
     read_token: str | None
 
     @classmethod
-    def from_settings(cls, api_settings: Any) -> AuthConfig:
-        return cls(
-            _secret(getattr(api_settings, "token", None)), _secret(getattr(api_settings, "read_token", None))
-        )
+    def from_settings(cls, api_settings: ApiSettings) -> AuthConfig:
+        return cls(write_token=_secret(api_settings.token), read_token=_secret(api_settings.read_token))
 
 
-def _secret(value: Any) -> str | None:
-    if value is None:
-        return None
-    text = value.get_secret_value() if hasattr(value, "get_secret_value") else str(value)
-    return text or None
+def _secret(value: SecretStr | None) -> str | None:
+    return None if value is None else value.get_secret_value() or None
 
 
 def _unauthorized(message: str) -> ApiError:

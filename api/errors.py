@@ -7,7 +7,7 @@ Error tree (API layer)::
     ApiError(Exception)              status, code, message, field, detail; raised by routers and deps
     service.serve.interface.ServiceError   translated once, here:
         NotFoundError  -> 404 not_found       BusyError     -> 409 busy
-        NoDataError    -> 503 no_data         NotReadyError -> 503 not_ready
+        NoDataYetError -> 503 no_data       NotReadyError -> 503 not_ready
 
 FastAPI's ``RequestValidationError`` becomes 422 ``invalid`` naming the first bad field (``body`` and the
 character position for malformed JSON); Starlette's ``HTTPException`` (unknown route, a body over the cap or
@@ -23,7 +23,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.serve.interface import BusyError, NoDataError, NotFoundError, NotReadyError, ServiceError
+from service.serve.interface import BusyError, NoDataYetError, NotFoundError, NotReadyError, ServiceError
 
 
 class ApiError(Exception):
@@ -60,7 +60,7 @@ def error_body(code: str, message: str, *, field: str | None = None, detail: Any
 _SERVICE_ERRORS: tuple[tuple[type[ServiceError], int, str], ...] = (
     (NotFoundError, 404, "not_found"),
     (BusyError, 409, "busy"),
-    (NoDataError, 503, "no_data"),
+    (NoDataYetError, 503, "no_data"),
     (NotReadyError, 503, "not_ready"),
 )
 

@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator
+from collections.abc import Callable, Iterator, Mapping
 from typing import Any
 
 from prometheus_client import CollectorRegistry, Histogram
@@ -21,7 +21,8 @@ from prometheus_client.core import (
 )
 from prometheus_client.registry import Collector
 
-from service.serve.interface import LATENCY_BUCKETS_S, ChtcService, ChtcSnapshot, HistogramData
+from service.serve.histogram import LATENCY_BUCKETS_S
+from service.serve.interface import ChtcService, ChtcSnapshot, HistogramData
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 
@@ -32,7 +33,7 @@ def _hist(name: str, doc: str, h: HistogramData) -> HistogramMetricFamily:
     return HistogramMetricFamily(name, doc, buckets=buckets, sum_value=h.sum)
 
 
-def _counter(name: str, doc: str, label: str, values: dict[str, int] | Any) -> CounterMetricFamily:
+def _counter(name: str, doc: str, label: str, values: Mapping[str, int]) -> CounterMetricFamily:
     fam = CounterMetricFamily(name, doc, labels=[label])
     for key, value in sorted(dict(values).items()):
         fam.add_metric([key], value)

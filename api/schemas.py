@@ -58,6 +58,7 @@ class ZoneOut(BaseModel):
 
 def zones_out(
     h: np.ndarray,
+    *,
     lo: np.ndarray,
     hi: np.ndarray,
     identified: np.ndarray,
@@ -128,7 +129,7 @@ def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
         usable_for_compensation=bool(s.usable_for_compensation),
         reason=s.reason,
         unit=s.unit,
-        zones=zones_out(s.h, s.ci95_lo, s.ci95_hi, s.identified, s.at_bound),
+        zones=zones_out(s.h, lo=s.ci95_lo, hi=s.ci95_hi, identified=s.identified, at_bound=s.at_bound),
         identified_at=s.identified_at,
         identification_id=s.identification_id,
         condition=condition_out(s.condition),
@@ -282,7 +283,7 @@ def identification_out(r: IdentificationRecord) -> IdentificationOut:
         condition=condition_out(r.condition),
         window_from=r.window_from,
         window_to=r.window_to,
-        zones=zones_out(r.h, r.ci95_lo, r.ci95_hi, r.identified, r.at_bound),
+        zones=zones_out(r.h, lo=r.ci95_lo, hi=r.ci95_hi, identified=r.identified, at_bound=r.at_bound),
         f_c2=_num(r.f),
         fit=_num(r.fit),
         rmse_c=_num(r.rmse_c),

@@ -16,7 +16,10 @@ from __future__ import annotations
 
 import asyncio
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from fastapi import FastAPI
 
 import h11
 import uvicorn
@@ -71,7 +74,9 @@ class HeadDeadlineH11Protocol(H11Protocol):
             self.transport.close()
 
 
-def server_config(app: Any, *, host: str, port: int, limits: ServerLimits | None = None) -> uvicorn.Config:
+def server_config(
+    app: FastAPI, *, host: str, port: int, limits: ServerLimits | None = None
+) -> uvicorn.Config:
     """The uvicorn ``Config`` the service runs the API with (``chtc run`` / ``chtc demo``)."""
     limits = limits or ServerLimits()
     protocol = type(

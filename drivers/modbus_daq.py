@@ -54,7 +54,7 @@ from drivers.errors import (
     ReplyMismatchError,
     ShortReplyError,
 )
-from drivers.quality import PRECEDENCE, Quality
+from drivers.quality import PRECEDENCE, Quality, from_daq_status
 from drivers.registers import RegisterMap, RegisterValues, decode, default_register_map, read_blocks
 
 FC_READ_INPUT_REGISTERS = 4
@@ -399,11 +399,7 @@ def channel_quality(
         Quality.OUT_OF_RANGE: out_of_range,
         Quality.STUCK: np.zeros(temps_c.shape, bool) if stuck is None else stuck,
     }
-    q = np.where(
-        status == 0,
-        np.uint8(Quality.OK),
-        np.where(status == 1, np.uint8(Quality.OPEN_CIRCUIT), np.uint8(Quality.OUT_OF_RANGE)),
-    ).astype(np.uint8)
+    q = from_daq_status(status)
     for flag, mask in masks.items():
         q = np.where(mask & (_RANK[flag] < _RANK[q]), np.uint8(flag), q).astype(np.uint8)
     return q

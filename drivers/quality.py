@@ -44,23 +44,18 @@ PRECEDENCE: tuple[Quality, ...] = (
     Quality.OK,
 )
 
-_DAQ_STATUS: dict[int, Quality] = {0: Quality.OK, 1: Quality.OPEN_CIRCUIT, 2: Quality.OUT_OF_RANGE}
 
+def from_daq_status(status: npt.ArrayLike) -> npt.NDArray[np.uint8]:
+    """Per-channel flags (uint8) from DAQ status registers: 0 ``OK``, 1 ``OPEN_CIRCUIT``, 2 ``OUT_OF_RANGE``.
 
-def from_daq_status(code: int) -> Quality:
-    """Map a DAQ per-channel status register (0 ok, 1 open circuit, 2 out of range) to a flag.
-
-    Unknown codes are reported as ``OUT_OF_RANGE`` (the device says "not ok" without saying why).
+    Any other code is reported as ``OUT_OF_RANGE`` (the device says "not ok" without saying why). The one
+    mapping of the status codes: the Modbus driver and the recorded-log reader both use it.
     """
-    return _DAQ_STATUS.get(int(code), Quality.OUT_OF_RANGE)
-
-
-def worst(*flags: Quality) -> Quality:
-    """The flag that wins by ``PRECEDENCE`` among ``flags`` (``OK`` when empty)."""
-    for q in PRECEDENCE:
-        if q in flags:
-            return q
-    return Quality.OK
+    codes = np.asarray(status, dtype=np.int64)
+    out = np.full(codes.shape, np.uint8(Quality.OUT_OF_RANGE), dtype=np.uint8)
+    out[codes == 0] = np.uint8(Quality.OK)
+    out[codes == 1] = np.uint8(Quality.OPEN_CIRCUIT)
+    return out
 
 
 def usable(quality: npt.ArrayLike) -> npt.NDArray[np.bool_]:

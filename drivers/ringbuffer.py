@@ -45,7 +45,7 @@ class Sample:
 
 
 @dataclass(frozen=True)
-class Window:
+class SampleSpan:
     """Copies of the samples with ``t_from <= t <= t_to``, oldest first (k samples).
 
     t (k,) epoch seconds UTC; temps_c (k, n) °C; ambient_c, speed_rpm, torque_nm (k,); quality (k, n) uint8;
@@ -148,7 +148,7 @@ class RingBuffer:
             self._seq += 1
 
     # ------------------------------------------------------------------------------------------ readers
-    def window(self, t_from: datetime | float, t_to: datetime | float) -> Window:
+    def window(self, t_from: datetime | float, t_to: datetime | float) -> SampleSpan:
         """Copies of all samples with ``t_from <= t <= t_to`` (UTC datetimes or epoch s); may be empty."""
         lo, hi = _epoch_s(t_from), _epoch_s(t_to)
         return self._consistent(lambda: self._copy(self._slices(lo, hi)))
@@ -209,13 +209,13 @@ class RingBuffer:
                 out.append(slice(i, j))
         return out
 
-    def _copy(self, parts: list[slice]) -> Window:
+    def _copy(self, parts: list[slice]) -> SampleSpan:
         def take(arr: npt.NDArray[Any]) -> npt.NDArray[Any]:
             if not parts:
                 return arr[:0].copy()
             return np.concatenate([arr[s] for s in parts])
 
-        return Window(
+        return SampleSpan(
             t=take(self._t),
             temps_c=take(self._temps),
             ambient_c=take(self._ambient),

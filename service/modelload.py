@@ -10,7 +10,13 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from model.fem import FEModel
+    from model.geometry import SpindleSpec
+    from model.rom import ReducedModel
+    from service.settings import ModelSettings
 
 __all__ = ["LoadedModel", "ModelRef", "load_model"]
 
@@ -26,7 +32,7 @@ class ModelRef:
     h_box: tuple[float, float] = (5.0, 200.0)
 
     @classmethod
-    def from_settings(cls, model_settings: Any) -> ModelRef:
+    def from_settings(cls, model_settings: ModelSettings) -> ModelRef:
         """From ``service.settings.ModelSettings``."""
         return cls(
             spindle=str(model_settings.spindle) if model_settings.spindle is not None else None,
@@ -39,15 +45,15 @@ class ModelRef:
 
 @dataclass(frozen=True, eq=False)
 class LoadedModel:
-    spec: Any  # model.geometry.SpindleSpec
-    fe: Any  # model.fem.FEModel
-    rom: Any  # model.rom.ReducedModel
+    spec: SpindleSpec
+    fe: FEModel
+    rom: ReducedModel
     ref: ModelRef
 
     @property
     def version(self) -> str:
         """Short model id: the reduced-model cache key (geometry + mesh + options)."""
-        key = str(getattr(self.rom, "key", "") or "")
+        key = str(self.rom.key or "")
         return key[:16] or "unversioned"
 
 

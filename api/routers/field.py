@@ -14,7 +14,7 @@ with an ETag (304 when unchanged) and sent gzip-compressed when the client accep
 from __future__ import annotations
 
 import math
-from typing import Annotated, Any, Literal
+from typing import Annotated, Literal
 
 import numpy as np
 from fastapi import APIRouter, Query, Request, Response
@@ -129,7 +129,14 @@ def _accepts_gzip(request: Request) -> bool:
 
 
 def _render(
-    service: ChtcService, renderer: FieldRenderer, at: FieldAt, format: str, nr: int, nz: int, pts: Any
+    service: ChtcService,
+    renderer: FieldRenderer,
+    *,
+    at: FieldAt,
+    format: str,
+    nr: int,
+    nz: int,
+    pts: np.ndarray | None,
 ) -> Rendered | bytes:
     """The body (a worker thread runs this: reading the service may wait for its lock, and a new field's
     body is serialised here)."""
@@ -138,6 +145,7 @@ def _render(
         return renderer.mesh(snap)
     if format == "grid":
         return renderer.grid(snap, nr, nz)
+    assert pts is not None  # format=points requires them (checked in get_field)
     return points_out(snap, pts).model_dump_json().encode()
 
 
@@ -182,7 +190,7 @@ async def get_field(
             headers={"Retry-After": "1"},
         )
     try:
-        out = await run_in_threadpool(_render, service, renderer, at, format, nr, nz, pts)
+        out = await run_in_threadpool(_render, service, renderer, at=at, format=format, nr=nr, nz=nz, pts=pts)
         if isinstance(out, bytes):
             return Response(out, media_type="application/json")
         headers = {"ETag": out.etag, "Cache-Control": "no-cache", "Vary": "Accept-Encoding"}

@@ -24,6 +24,7 @@ import math
 import threading
 import zlib
 from collections import OrderedDict
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -38,7 +39,7 @@ GZIP_MIN_BYTES = 1024
 _GZIP_LEVEL = 6
 
 
-def _dumps(value: Any) -> str:
+def _dumps(value: object) -> str:
     return json.dumps(value, separators=(",", ":"), ensure_ascii=False, allow_nan=False)
 
 
@@ -67,7 +68,8 @@ class Rendered:
     body: bytes
     etag: str
     _gz: bytes | None = None
-    _gzip_tail: Any = None  # (compressor copy source, compressed head, dynamic part) for the mesh
+    # (compressor copy source, compressed head, dynamic part) for the mesh
+    _gzip_tail: tuple[zlib._Compress, bytes, bytes] | None = None
     _lock: threading.Lock = field(default_factory=threading.Lock)
 
     def gzip(self) -> bytes:
@@ -128,7 +130,7 @@ class FieldRenderer:
         h.update(np.ascontiguousarray(f.nodes_rz, dtype=float).tobytes()[:4096])  # the mesh, cheaply
         return 'W/"' + h.hexdigest() + '"'
 
-    def _cached(self, key: str, build: Any) -> Rendered:
+    def _cached(self, key: str, build: Callable[[], Rendered]) -> Rendered:
         with self._lock:
             hit = self._bodies.get(key)
             if hit is not None:

@@ -137,10 +137,6 @@ class CanReplayer:
         if self._thread is not None:
             self._thread.join(timeout)
 
-    async def wait_done(self, timeout: float | None = None) -> bool:
-        """Await the end of the replay; False on timeout."""
-        return await asyncio.to_thread(self.done.wait, timeout)
-
 
 class Replay:
     """A recorded CSV + CAN log served by a simulated DAQ and sent on a bus; an async context manager."""

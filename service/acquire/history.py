@@ -6,10 +6,9 @@ treated as missing, like the ambient temperature the acquisition already sets to
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 
+from drivers.ringbuffer import RingBuffer
 from service.identify.window import RawWindow
 
 __all__ = ["RingHistory"]
@@ -18,7 +17,7 @@ __all__ = ["RingHistory"]
 class RingHistory:
     """``raw_window(t_from, t_to)`` over a ring buffer (epoch seconds, inclusive)."""
 
-    def __init__(self, ring: Any) -> None:
+    def __init__(self, ring: RingBuffer) -> None:
         self.ring = ring
 
     def raw_window(self, t_from: float, t_to: float) -> RawWindow:

@@ -227,7 +227,7 @@ def _send_paced(bus: can.BusABC, frames: list[can.Message], rate_per_s: float) -
             time.sleep(delay)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CanRun:
     """One CAN rate run: frames offered, decoded, missing by counter; send and decode durations (s)."""
 
@@ -277,7 +277,9 @@ async def _driver_run(frames: list[can.Message], rate_per_s: float | None) -> Ca
             got, gaps = got + 1, gaps + reading.frames_lost
             t_last = time.perf_counter()
         sender.join()
-        return CanRun(len(frames), got, gaps, sent_at[0] - t0, t_last - t0)
+        return CanRun(
+            offered=len(frames), decoded=got, gap_frames=gaps, send_s=sent_at[0] - t0, decode_s=t_last - t0
+        )
     finally:
         await sensor.close()
         tx.shutdown()
@@ -336,7 +338,14 @@ def bench_ring(*, appends: int) -> dict[str, float]:
     quality = np.zeros(32, dtype=np.uint8)
     t0 = datetime(2026, 1, 1, tzinfo=UTC).timestamp()
     samples = [
-        Sample(datetime.fromtimestamp(t0 + i, UTC), np.full(32, 20.0 + i * 1e-3), 21.0, 3000.0, 5.0, quality)
+        Sample(
+            t=datetime.fromtimestamp(t0 + i, UTC),
+            temps_c=np.full(32, 20.0 + i * 1e-3),
+            ambient_c=21.0,
+            speed_rpm=3000.0,
+            torque_nm=5.0,
+            quality=quality,
+        )
         for i in range(appends)
     ]
     t = time.perf_counter()

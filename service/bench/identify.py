@@ -36,11 +36,11 @@ DT_S = 10.0
 NOISE_C = 0.15
 QUANT_C = 0.01
 TARGETS = (
-    Target("hybrid_objective_gap_pct", "<=", 0.1, "%", "worst condition"),
-    Target("hybrid_wall_s", "<=", 1.0, "s", "worst condition"),
+    Target("hybrid_objective_gap_pct", "<=", 0.1, unit="%", note="worst condition"),
+    Target("hybrid_wall_s", "<=", 1.0, unit="s", note="worst condition"),
     Target("ci_coverage_95", "in", (0.85, 1.0)),
     Target("warm_vs_cold_nfev_ratio", ">=", 2.0),
-    Target("igwo_28x150_wall_s", "<=", 2.0, "s"),
+    Target("igwo_28x150_wall_s", "<=", 2.0, unit="s"),
 )
 
 
@@ -54,7 +54,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--skip-28x150", action="store_true", help="skip the IGWO 28 x 150 timing")
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Data:
     """One condition: model inputs, noise-free plant sensors and the plant's true H."""
 
@@ -80,7 +80,10 @@ def _load(args: argparse.Namespace) -> tuple[Any, list[Data]]:
             model.spec, dt_s=DT_S, speed_rpm=speed, torque_nm=TORQUE_NM, ambient_c=run.ambient_c[:-1]
         )
         window = Window(inputs, run.truth_c, np.ones(32, dtype=bool), ambient, speed_rpm=speed)
-        data.append(Data(speed, ambient, window, run.truth_c, h_true(speed, ambient, TORQUE_NM)))
+        truth = h_true(speed, ambient, TORQUE_NM)
+        data.append(
+            Data(speed_rpm=speed, ambient_c=ambient, window=window, truth_c=run.truth_c, h_true=truth)
+        )
     return model, data
 
 

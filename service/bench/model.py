@@ -39,12 +39,13 @@ import numpy as np
 from service.bench.targets import Target, format_verdicts, verdicts
 
 TARGETS = (  # docs/rom.md, "Target check"
-    Target("full_vs_reference_max_err_c", "<=", 0.02, "°C"),
-    Target("rom_max_err_c", "<=", 0.05, "°C"),
-    Target("rom_vs_converged_max_err_c", "<=", 0.02, "°C"),  # issue 15's model error budget (docs/rom.md)
-    Target("speedup_rom_vs_full", ">=", 500.0, "x"),
-    Target("rom_build_s", "<=", 60.0, "s"),
-    Target("rom_load_s", "<=", 1.0, "s"),
+    Target("full_vs_reference_max_err_c", "<=", 0.02, unit="°C"),
+    Target("rom_max_err_c", "<=", 0.05, unit="°C"),
+    # issue 15's model error budget (docs/rom.md)
+    Target("rom_vs_converged_max_err_c", "<=", 0.02, unit="°C"),
+    Target("speedup_rom_vs_full", ">=", 500.0, unit="x"),
+    Target("rom_build_s", "<=", 60.0, unit="s"),
+    Target("rom_load_s", "<=", 1.0, unit="s"),
 )
 
 CONVERGED_STEPS = 60  # 10-min windows: every jump's first steps, at an affordable cost for 2 × 60 substeps

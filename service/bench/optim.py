@@ -109,7 +109,15 @@ def _mealpy_runner(popsize: int, budget: int) -> Runner | None:
         x = np.asarray(best.solution, dtype=float)
         hist = np.asarray(model.history.list_global_best_fit, dtype=float)
         return OptimizeResult(
-            x, float(best.target.fitness), count[0], epochs, True, "mealpy", hist, x[None], hist[-1:]
+            x=x,
+            fun=float(best.target.fitness),
+            nfev=count[0],
+            nit=epochs,
+            success=True,
+            message="mealpy",
+            history=hist,
+            population=x[None],
+            population_fun=hist[-1:],
         )
 
     return run

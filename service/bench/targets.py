@@ -7,7 +7,7 @@ the exit status stays 0. A figure that was not measured (e.g. ``--skip-28x150``)
 from __future__ import annotations
 
 from collections.abc import Iterable, Mapping
-from dataclasses import dataclass
+from dataclasses import KW_ONLY, dataclass
 from typing import Any
 
 __all__ = ["Target", "format_verdicts", "verdicts"]
@@ -15,7 +15,7 @@ __all__ = ["Target", "format_verdicts", "verdicts"]
 
 @dataclass(frozen=True)
 class Target:
-    """``figure op limit`` with its unit, e.g. ``Target("rom_max_err_c", "<=", 0.05, "°C")``.
+    """``figure op limit`` with its unit, e.g. ``Target("rom_max_err_c", "<=", 0.05, unit="°C")``.
 
     ``op`` is ``<=``, ``>=`` or ``in`` (``limit`` then a (low, high) pair, both inclusive).
     """
@@ -23,6 +23,7 @@ class Target:
     figure: str
     op: str
     limit: float | tuple[float, float]
+    _: KW_ONLY
     unit: str = ""
     note: str = ""
 

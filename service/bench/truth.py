@@ -57,7 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--raw", action="store_true", help="with --json: add every case's arrays ('raw')")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Level:
     """One plant condition: duration s, speed rpm, torque N·m, ambient at its start and end °C, truth H."""
 
@@ -84,7 +84,16 @@ def draw_levels(rng: np.random.Generator) -> list[Level]:
     levels = []
     for which, tq, dur in plan:
         drift = float(rng.uniform(-0.8, 0.8))
-        levels.append(Level(dur, float(speeds[which]), float(tq), amb, amb + drift, h[which]))
+        levels.append(
+            Level(
+                duration_s=dur,
+                speed_rpm=float(speeds[which]),
+                torque_nm=float(tq),
+                ambient_from_c=amb,
+                ambient_to_c=amb + drift,
+                h=h[which],
+            )
+        )
         amb += drift
     return levels
 

@@ -13,7 +13,10 @@ from __future__ import annotations
 
 import argparse
 import socket
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from service.settings import Settings
 
 __all__ = [
     "CommandError",
@@ -72,7 +75,7 @@ def positive_float(text: str) -> float:
     return value
 
 
-def override(settings: Any, section: str, **values: Any) -> Any:
+def override(settings: Settings, section: str, **values: object) -> Settings:
     """``settings`` with ``section.key = value`` replaced and validated like the config file would be.
 
     ``model_copy(update=...)`` does not validate, so a garbage ``--database-url`` or port used to pass and

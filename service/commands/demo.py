@@ -20,12 +20,21 @@ import logging
 import signal
 import tempfile
 import time
+from collections.abc import Callable
+from datetime import datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from service.commands._common import check_listen, override, port_number, positive_float
+
+if TYPE_CHECKING:
+    from model.plant import PlantRun, Segment
+    from service.engine.runtime import Runtime
+    from service.serve.interface import IdentificationRecord
+    from service.settings import Settings
+    from service.sim.simrig import SimRig
 
 SPEEDS_RPM = (3000.0, 4000.0, 5000.0, 4000.0, 3000.0)
 AMBIENT_C = (23.2, 21.8, 22.0, 22.5, 23.0)
@@ -57,7 +66,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="only print the URL and errors")
 
 
-def build_profile(segment_min: float, *, idle_min: float = 5.0) -> list[Any]:
+def build_profile(segment_min: float, *, idle_min: float = 5.0) -> list[Segment]:
     """The demo's operating profile as ``model.plant.Segment`` (s, rpm, N·m, °C).
 
     It starts with the spindle idle (cold, uniform at ambient) for ``idle_min``: the service sees the machine
@@ -71,7 +80,7 @@ def build_profile(segment_min: float, *, idle_min: float = 5.0) -> list[Any]:
     ]
 
 
-def demo_settings(args: argparse.Namespace, db_url: str) -> Any:
+def demo_settings(args: argparse.Namespace, db_url: str) -> Settings:
     """Settings from ``--config`` with the demo's API address, database and seed, validated
     (``SettingsError`` / ``CommandError`` naming the key)."""
     from service.settings import load_settings
@@ -95,10 +104,17 @@ class Printer:
     ``clock`` is the service's (simulated UTC) clock; ``rig.plant_time_s()`` the plant time now.
     """
 
-    def __init__(self, run: Any, *, quiet: bool, clock: Any = None, current: Any = None) -> None:
+    def __init__(
+        self,
+        run: PlantRun,
+        *,
+        quiet: bool,
+        clock: Callable[[], datetime] | None = None,
+        current: Callable[[], IdentificationRecord | None] | None = None,
+    ) -> None:
         self.run, self.quiet = run, quiet
         self.clock, self.current = clock, current
-        self.rig: Any = None
+        self.rig: SimRig | None = None
 
     def __call__(self, msg: str) -> None:
         if self.quiet:
@@ -126,7 +142,7 @@ class Printer:
         return min(int(np.searchsorted(self.run.times_s, t_plant)), len(self.run.times_s) - 1)
 
 
-async def run_demo(args: argparse.Namespace, settings: Any) -> int:
+async def run_demo(args: argparse.Namespace, settings: Settings) -> int:
     from model.geometry import load_spindle
     from model.plant import VirtualPlant
     from service.engine.runtime import Runtime, ScaledClock
@@ -175,7 +191,7 @@ async def run_demo(args: argparse.Namespace, settings: Any) -> int:
     return 0
 
 
-def _current(runtime: Any) -> Any:
+def _current(runtime: Runtime) -> IdentificationRecord | None:
     """The identification record the core stored last (None before the first)."""
     service = runtime.service
     return None if service is None else service.view.current

@@ -19,9 +19,15 @@ import argparse
 import json
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from service.acquire.calibration import Calibration
+    from service.engine.offline import OfflineResult
+    from service.serve.interface import IdentificationRecord
+    from service.settings import IdentificationSettings, Settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -56,12 +62,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def record_dict(r: Any) -> dict[str, Any]:
+def num(x: float | None) -> float | None:
+    """A JSON/CSV number: None for None and NaN, else rounded to 6 decimals."""
+    return None if x is None or x != x else round(float(x), 6)
+
+
+def record_dict(r: IdentificationRecord) -> dict[str, object]:
     """One identification as plain JSON (units in the keys, UTC ISO-8601 times)."""
-
-    def num(x: Any) -> float | None:
-        return None if x is None or x != x else round(float(x), 6)
-
     return {
         "id": r.id,
         "outcome": r.outcome,
@@ -94,7 +101,7 @@ def _bound(x: float) -> str:
     return f"{x:.1f}" if 0.1 <= x < 1e5 else f"{x:.3g}"
 
 
-def format_record(r: Any) -> str:
+def format_record(r: IdentificationRecord) -> str:
     head = (
         f"#{r.id} {r.outcome:<17} condition {r.condition.id} ({r.condition.speed_rpm:.0f} rpm, "
         f"{r.condition.ambient_c:.1f} °C) "
@@ -110,7 +117,7 @@ def format_record(r: Any) -> str:
     return f"{head}\n    W/(m²·K), 95 % CI ('?' = poorly identified): {zones}\n    {tail}"
 
 
-def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
+def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -> list[str]:
     """Why a log gave no successful identification: per detected condition, how long it lasted against what an
     identification needs; or why no condition was detected (``can_ok``: samples with a fresh speed/torque)."""
     ident = settings.identification
@@ -120,7 +127,7 @@ def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
         f"(identification.min_window_s = {ident.min_window_s:g} s, first run {ident.schedule_min[0]:g} min "
         "after the condition starts)"
     )
-    if result.samples == 0 or result.first is None:
+    if result.samples == 0 or result.first is None or result.last is None:
         return ["the temperature log has no rows"]
     span_s = (result.last - result.first).total_seconds()
     lines = [
@@ -156,7 +163,7 @@ def explain_nothing(result: Any, settings: Any, *, can_ok: int) -> list[str]:
     return lines
 
 
-def offsets_line(calibration: Any, ident: Any) -> str:
+def offsets_line(calibration: Calibration | None, ident: IdentificationSettings) -> str:
     """What happened to the sensor offsets (service.acquire.calibration)."""
     if not ident.offset_calibration:
         return "sensor offsets: calibration off (measurements as recorded)"

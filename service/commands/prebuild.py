@@ -18,8 +18,12 @@ import json
 import os
 import sys
 import time
+from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from service.settings import ModelSettings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -65,13 +69,19 @@ def main(args: argparse.Namespace) -> int:
     return 0
 
 
-def _progress(args: argparse.Namespace) -> Any:
+def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
     if args.quiet or args.json:
         return None
     return lambda text: print(f"  {text}", flush=True)
 
 
-def build(model_settings: Any, cache_dir: Path, *, rebuild: bool = False, progress: Any = None) -> dict:
+def build(
+    model_settings: ModelSettings,
+    cache_dir: Path,
+    *,
+    rebuild: bool = False,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
     """Build (or find) the FE model and reduced model for ``model_settings`` in ``cache_dir``; a report."""
     from model import rom_cache
     from model.fem import build_fe_model
@@ -105,9 +115,9 @@ def build(model_settings: Any, cache_dir: Path, *, rebuild: bool = False, progre
     }
 
 
-def _scalars(report: dict) -> dict:
+def _scalars(report: Mapping[str, object]) -> dict[str, bool | int | str | float]:
     """The JSON-friendly scalar entries of the reduced model's error report."""
-    out: dict[str, Any] = {}
+    out: dict[str, bool | int | str | float] = {}
     for key, value in report.items():
         if isinstance(value, bool | int | str):
             out[key] = value
@@ -116,7 +126,7 @@ def _scalars(report: dict) -> dict:
     return out
 
 
-def format_report(report: dict) -> str:
+def format_report(report: Mapping[str, Any]) -> str:
     """A readable summary of :func:`build`'s report."""
     how = "found in cache" if report["from_cache"] else f"built in {report['rom_build_s']:.1f} s"
     lines = [

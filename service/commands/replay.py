@@ -21,12 +21,19 @@ import json
 import sys
 import tempfile
 import time
+from collections.abc import Callable
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from drivers.sim.replay import Replay
+    from service.engine.runtime import ScaledClock
+    from service.serve.interface import IdentificationRecord
+    from service.settings import Settings
 
 from service.commands._common import CommandError, check_listen, override, port_number, positive_float
-from service.commands.identify import record_dict
+from service.commands.identify import num, record_dict
 from service.sim.logsamples import REPLAY_PHASE, write_acquisition_csv
 
 
@@ -55,8 +62,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
 
 
-def write_out(path: Path, records: list[Any]) -> None:
-    rows = [record_dict(r) for r in records]
+def write_out(path: Path, records: list[IdentificationRecord]) -> None:
     if path.suffix.lower() == ".csv":
         with path.open("w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
@@ -67,16 +73,17 @@ def write_out(path: Path, records: list[Any]) -> None:
                 + [f"h{i}_ci95_hi" for i in range(1, 8)]
                 + ["fit", "rmse_c", "message"]
             )
-            for r in rows:
-                c = r["condition"]
-                head = [r["id"], r["outcome"], c["id"], c["speed_rpm"], c["ambient_c"], r["window_from"]]
-                zones = [*r["h_w_m2k"], *r["ci95_lo_w_m2k"], *r["ci95_hi_w_m2k"]]
-                w.writerow([*head, r["window_to"], *zones, r["fit"], r["rmse_c"], r["message"]])
+            for r in records:
+                c = r.condition
+                head = [r.id, r.outcome, c.id, num(c.speed_rpm), num(c.ambient_c), r.window_from.isoformat()]
+                zones = [num(x) for x in (*r.h, *r.ci95_lo, *r.ci95_hi)]
+                w.writerow([*head, r.window_to.isoformat(), *zones, num(r.fit), num(r.rmse_c), r.message])
     else:
+        rows = [record_dict(r) for r in records]
         path.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
 
 
-async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
+async def run_replay(args: argparse.Namespace, settings: Settings) -> list[IdentificationRecord]:
     with tempfile.TemporaryDirectory(prefix="chtc-replay-") as tmp:
         served = Path(tmp) / "acquired.csv"
         period_s = settings.acquisition.sample_period_s
@@ -84,7 +91,9 @@ async def run_replay(args: argparse.Namespace, settings: Any) -> list[Any]:
         return await _replay(args, settings, served)
 
 
-async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> list[Any]:
+async def _replay(
+    args: argparse.Namespace, settings: Settings, served_csv: Path
+) -> list[IdentificationRecord]:
     from service.engine.runtime import Runtime, ScaledClock
     from service.sim.simrig import SimAddress, make_drivers, replay_rig
 
@@ -94,7 +103,9 @@ async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> 
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)
-    origin = datetime.fromtimestamp(rig.replay.t_ref + REPLAY_PHASE * period_s, tz=UTC)
+    replay = rig.replay
+    assert replay is not None  # a replay rig
+    origin = datetime.fromtimestamp(replay.t_ref + REPLAY_PHASE * period_s, tz=UTC)
     runtime.sample_clock = GridClock(clock, origin=origin, period_s=period_s)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
     try:
@@ -102,8 +113,8 @@ async def _replay(args: argparse.Namespace, settings: Any, served_csv: Path) -> 
         if args.api:
             await runtime.wait_api()
             print(f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc)", flush=True)
-        await _begin_in_phase(rig, clock, settings.acquisition.sample_period_s / args.speedup)
-        await asyncio.sleep(rig.replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
+        await _begin_in_phase(replay, clock, settings.acquisition.sample_period_s / args.speedup)
+        await asyncio.sleep(replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
         deadline = time.monotonic() + args.grace
         service = runtime.service
         assert service is not None
@@ -125,7 +136,7 @@ class GridClock:
     half a period still snaps to the wrong instant, and one later than 0.7 periods sees the next row).
     """
 
-    def __init__(self, clock: Any, *, origin: datetime, period_s: float) -> None:
+    def __init__(self, clock: Callable[[], datetime], *, origin: datetime, period_s: float) -> None:
         self.clock, self.origin, self.period_s = clock, origin, period_s
 
     def __call__(self) -> datetime:
@@ -133,7 +144,9 @@ class GridClock:
         return self.origin + timedelta(seconds=k * self.period_s)
 
 
-async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: float = REPLAY_PHASE) -> None:
+async def _begin_in_phase(
+    replay: Replay, clock: ScaledClock, period_wall_s: float, *, phase: float = REPLAY_PHASE
+) -> None:
     """Start the replay so the acquisition samples ``phase`` of a period after each row it serves.
 
     The sampler ticks every period from when it started (just now); beginning the replay ``1 − phase``
@@ -144,8 +157,8 @@ async def _begin_in_phase(rig: Any, clock: Any, period_wall_s: float, *, phase: 
     """
     await asyncio.sleep(0)  # let the sampler task take its first time reading
     await asyncio.sleep((1.0 - phase) * period_wall_s)
-    clock.start(at=datetime.fromtimestamp(rig.replay.t_ref, tz=UTC))
-    rig.replay.begin()
+    clock.start(at=datetime.fromtimestamp(replay.t_ref, tz=UTC))
+    replay.begin()
 
 
 def main(args: argparse.Namespace) -> int:

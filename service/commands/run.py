@@ -18,7 +18,13 @@ import logging
 import signal
 import sys
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    from drivers.can_sensor import CanSpindleSensor
+    from drivers.modbus_daq import ModbusDaq
+    from service.engine.runtime import ScaledClock
+    from service.settings import Settings
 
 from service.commands._common import CommandError, check_listen, override, port_number
 
@@ -42,7 +48,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--print-config", action="store_true", help="print the effective settings and exit")
 
 
-def make_device_drivers(settings: Any, *, clock: Any) -> tuple[Any, Any]:
+def make_device_drivers(settings: Settings, *, clock: ScaledClock) -> tuple[ModbusDaq, CanSpindleSensor]:
     """The production drivers from ``settings.modbus`` / ``settings.can``."""
     from drivers.can_sensor import CanSpindleSensor
     from drivers.modbus_daq import ModbusDaq
@@ -73,7 +79,7 @@ def make_device_drivers(settings: Any, *, clock: Any) -> tuple[Any, Any]:
     return daq, can_sensor
 
 
-async def serve(settings: Any, *, migrate: bool) -> int:
+async def serve(settings: Settings, *, migrate: bool) -> int:
     from service.engine.runtime import Runtime, ScaledClock
 
     clock = ScaledClock(1.0)

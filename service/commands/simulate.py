@@ -26,7 +26,7 @@ import tomllib
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import can
 
@@ -38,6 +38,9 @@ from drivers.sim.faults import FaultController, FaultSpecError, parse_fault
 from drivers.sim.modbus_server import SimulatedDaq
 from drivers.sim.replay import Replay
 from drivers.sim.source import TimelineSource
+
+if TYPE_CHECKING:
+    from model.plant import PlantRun
 
 SEGMENT_KEYS = ("duration_s", "speed_rpm", "torque_nm", "ambient_c")
 NAMED_PROFILES: dict[str, list[tuple[float, float, float, float]]] = {
@@ -94,7 +97,7 @@ def _segment(path: Path, i: int, item: Any) -> ProfileSegment:
     return ProfileSegment(*values)
 
 
-def plant_timeline(profile: Sequence[ProfileSegment], *, seed: int, dt_s: float, noise_c: float) -> Any:
+def plant_timeline(profile: Sequence[ProfileSegment], *, seed: int, dt_s: float, noise_c: float) -> PlantRun:
     """Run the virtual plant over ``profile`` (returns a ``model.plant.PlantRun``)."""
     from model.geometry import load_spindle
     from model.plant import Segment, VirtualPlant
@@ -135,13 +138,14 @@ async def _serve(args: argparse.Namespace) -> int:
     reg_map = load_register_map(args.register_map) if args.register_map else default_register_map()
     async with can_bus(args) as (bus, where):
         if args.replay_csv:
-            return await _serve_replay(args, bus, where, reg_map, faults)
-        return await _serve_plant(args, bus, where, reg_map, faults)
+            return await _serve_replay(args, bus, where=where, reg_map=reg_map, faults=faults)
+        return await _serve_plant(args, bus, where=where, reg_map=reg_map, faults=faults)
 
 
 async def _serve_plant(
     args: argparse.Namespace,
     bus: can.BusABC | None,
+    *,
     where: str,
     reg_map: RegisterMap,
     faults: FaultController,
@@ -166,9 +170,8 @@ async def _serve_plant(
             await stack.enter_async_context(daq)
         if node is not None:
             await stack.enter_async_context(node)
-        _announce(
-            args, daq, where, f"virtual plant, profile '{args.profile}', {total:.0f} s simulated", faults
-        )
+        what = f"virtual plant, profile '{args.profile}', {total:.0f} s simulated"
+        _announce(args, daq, where=where, what=what, faults=faults)
         print(f"at {args.speedup:g}x the timeline lasts {total / args.speedup:.0f} s wall", flush=True)
         await _wait(args.duration)
     return 0
@@ -177,6 +180,7 @@ async def _serve_plant(
 async def _serve_replay(
     args: argparse.Namespace,
     bus: can.BusABC | None,
+    *,
     where: str,
     reg_map: RegisterMap,
     faults: FaultController,
@@ -193,14 +197,14 @@ async def _serve_replay(
     )
     async with replay:
         what = f"replay of {args.replay_csv}" + (f" + {args.replay_can}" if args.replay_can else "")
-        _announce(args, replay.daq, where, what, faults)
+        _announce(args, replay.daq, where=where, what=what, faults=faults)
         print(f"replay lasts {replay.duration_s:.1f} s wall at {args.speedup:g}x", flush=True)
         await _wait(args.duration if args.duration is not None else replay.duration_s + 1.0)
     return 0
 
 
 def _announce(
-    args: argparse.Namespace, daq: SimulatedDaq, where: str, what: str, faults: FaultController
+    args: argparse.Namespace, daq: SimulatedDaq, *, where: str, what: str, faults: FaultController
 ) -> None:
     if not args.no_modbus:
         m = daq.register_map

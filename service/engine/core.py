@@ -73,7 +73,7 @@ from service.identify.detector import (
     OperatingPoint,
     SampleEvent,
 )
-from service.identify.window import InsufficientDataError
+from service.identify.window import InsufficientWindowError
 from service.identify.worker import JobOutcome, JobStatus
 from service.modelload import LoadedModel
 from service.serve.interface import (
@@ -367,8 +367,8 @@ class ServiceCore:
             return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, msg))
         try:
             window = job_window(start, self._live, self._history, self.config)
-        except (InsufficientDataError, LiveStateError) as err:
-            msg = err.reason if isinstance(err, InsufficientDataError) else str(err)
+        except (InsufficientWindowError, LiveStateError) as err:
+            msg = err.reason if isinstance(err, InsufficientWindowError) else str(err)
             self._store_outcome(job, "insufficient-data", msg, now, out)
             return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, msg))
         cal = self._calibrator

@@ -16,8 +16,8 @@ from typing import TypedDict
 
 from model.identify import IdentificationResult
 from service.identify.scheduler import StartJob
+from service.serve.histogram import DURATION_BUCKETS_S
 from service.serve.interface import (
-    DURATION_BUCKETS_S,
     ConditionSnapshot,
     HistogramData,
     IdentificationJob,
@@ -73,7 +73,9 @@ class JobBook:
         self.method = method
         self.records: tuple[IdentificationRecord, ...] = ()  # newest first
         self.counts: dict[str, int] = {"ok": 0, "failed": 0, "insufficient-data": 0, "cancelled": 0}
-        self.durations = HistogramData(DURATION_BUCKETS_S, (0,) * len(DURATION_BUCKETS_S), 0, 0.0)
+        self.durations = HistogramData(
+            upper_bounds=DURATION_BUCKETS_S, counts=(0,) * len(DURATION_BUCKETS_S), count=0, sum=0.0
+        )
         self.jobs_view: MappingProxyType[str, IdentificationJob] = MappingProxyType({})
         self._jobs: dict[str, IdentificationJob] = {}
         self._waiting: dict[int, Job] = {}
@@ -193,4 +195,6 @@ def _utc(ts: float) -> datetime:
 def _observed(h: HistogramData, value: float) -> HistogramData:
     """``h`` with one more observation (a cumulative histogram, as ``Histogram.observe`` keeps it)."""
     counts = tuple(c + 1 if value <= ub else c for c, ub in zip(h.counts, h.upper_bounds, strict=True))
-    return HistogramData(h.upper_bounds, counts, h.count + 1, h.sum + float(value))
+    return HistogramData(
+        upper_bounds=h.upper_bounds, counts=counts, count=h.count + 1, sum=h.sum + float(value)
+    )

@@ -15,7 +15,7 @@ from model.carry import StateCovariance
 from service.engine.config import CoreConfig
 from service.estimate.live import LiveModel, LiveStateError, Snapshot
 from service.identify.scheduler import StartJob
-from service.identify.window import InsufficientDataError, RawWindow, WindowArrays, resample_window
+from service.identify.window import InsufficientWindowError, RawWindow, WindowArrays, resample_window
 from service.identify.worker import JobRequest
 
 __all__ = ["JobWindow", "Offsets", "SampleHistory", "job_request", "job_window", "raw_window"]
@@ -53,7 +53,7 @@ def raw_window(history: SampleHistory, t_from: float, t_to: float, dt_s: float) 
 
 
 def job_window(job: StartJob, live: LiveModel, history: SampleHistory, config: CoreConfig) -> JobWindow:
-    """The window of ``job``; raises ``InsufficientDataError`` or ``LiveStateError`` naming why not."""
+    """The window of ``job``; raises ``InsufficientWindowError`` or ``LiveStateError`` naming why not."""
     snap = live.field_at(job.t_from)
     start_cov = live.covariance_at(snap.t) if config.carry_start_error else None
     raw = raw_window(history, snap.t, job.t_to, config.rules.dt_s)
@@ -107,5 +107,5 @@ def _gap(
     try:
         raw = raw_window(history, start_cov.t_s, t_start, config.rules.dt_s)
         return resample_window(raw, start_cov.t_s, t_start, rules)
-    except (InsufficientDataError, LiveStateError, ValueError):
+    except (InsufficientWindowError, LiveStateError, ValueError):
         return None

@@ -3,8 +3,8 @@
 Used by ``chtc identify`` (recorded log files), the benches and tests. The samples go through exactly the
 same ``ServiceCore`` (sample history, live state, detector, scheduler, window building) and the same events
 as in the running service (``service.engine.shell``); the only difference is that each ``Launch`` runs
-synchronously in this process (``run_identification`` with the same seeded rng) instead of in the worker
-process, so the same log always gives the same H.
+synchronously in this process (``service.identify.worker.run_job``, the worker process's own function, with
+the same seeded rng) instead of in the worker process, so the same log always gives the same H.
 """
 
 from __future__ import annotations
@@ -17,7 +17,6 @@ from typing import Protocol
 import numpy as np
 
 from drivers.ringbuffer import Sample
-from model.identify import InsufficientDataError
 from service.acquire.calibration import Calibration
 from service.engine.config import CoreConfig, Restored
 from service.engine.core import ServiceCore
@@ -30,7 +29,7 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.identify.worker import JobOutcome, JobRequest, JobStatus, final_field, run_identification
+from service.identify.worker import JobStatus, run_job
 from service.modelload import LoadedModel
 from service.serve.interface import ConditionSnapshot, IdentificationRecord
 from service.store.records import Record
@@ -52,17 +51,6 @@ class OfflineResult:
     last: datetime | None = None
     calibration: Calibration | None = None  # the newest offset baseline (None: none)
     instructions: list[Instruction] = field(default_factory=list)  # every instruction, in order
-
-
-def run_job(model: LoadedModel, request: JobRequest) -> JobOutcome:
-    """Run one job in this process; a failure is an outcome, as from the worker process."""
-    try:
-        result, window = run_identification(model, request)
-        field_c = final_field(model, window, result)
-    except Exception as err:  # same contract as the worker process: a failed job is an outcome
-        status = JobStatus.INSUFFICIENT_DATA if isinstance(err, InsufficientDataError) else JobStatus.FAILED
-        return JobOutcome(request.job_id, status, None, f"{type(err).__name__}: {err}", 0.0)
-    return JobOutcome(request.job_id, JobStatus.OK, result, str(result.message), result.wall_s, field_c)
 
 
 def run_offline(

@@ -13,8 +13,9 @@ import numpy as np
 
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
+from service.acquire.decimate import SampleDecimator
 from service.engine.view import NewestSample
-from service.store.records import SampleData, SampleDecimator, finite, finite_list
+from service.store.records import SampleData, finite, finite_list
 
 __all__ = ["SampleBook", "quality_names"]
 

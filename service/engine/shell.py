@@ -38,7 +38,6 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from drivers.ringbuffer import Sample
-from model.defaults import BOUND_REL_TOL
 from service.acquire.devicewatch import DeviceWatch
 from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
@@ -73,8 +72,8 @@ from service.engine.health import (
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
 from service.identify.worker import IdentificationWorker, JobOutcome, JobRequest, JobStatus
+from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
-    LATENCY_BUCKETS_S,
     BusyError,
     ChtcSnapshot,
     ChtcStatus,
@@ -84,12 +83,11 @@ from service.serve.interface import (
     FieldAt,
     FieldSnapshot,
     HealthSnapshot,
-    Histogram,
     IdentificationJob,
     IdentificationPage,
     IdentificationRecord,
     MetricsSnapshot,
-    NoDataError,
+    NoDataYetError,
     NotFoundError,
     NotReadyError,
     OffsetBaseline,
@@ -101,7 +99,7 @@ from service.serve.interface import (
     SpindleLayout,
     ZoneInfo,
 )
-from service.serve.views import Usability, at_bound, usability
+from service.serve.views import chtc_snapshot
 from service.store.records import DeviceEventData, Record
 
 if TYPE_CHECKING:
@@ -306,7 +304,9 @@ class SoftSensorService:
                 raise
             except Exception as err:  # the worker façade should not raise; never lose the job silently
                 outcome = JobOutcome(
-                    launch.request.job_id, JobStatus.FAILED, None, f"{type(err).__name__}: {err}", 0.0
+                    job_id=launch.request.job_id,
+                    status=JobStatus.FAILED,
+                    message=f"{type(err).__name__}: {err}",
                 )
         if self.worker is not None and self.worker.restarts:
             self.record_event("worker", "restarted", f"{self.worker.restarts} restart(s) so far")
@@ -349,32 +349,14 @@ class SoftSensorService:
         cached = self._snap_cache
         if cached is not None and cached[0] == key:
             return cached[1]
-        bound = at_bound(rec, getattr(self.core.model.rom, "h_box", None), BOUND_REL_TOL)
-        use = (
-            usability(rec, bound=bound, condition=cond, data_problems=problems, restored=False)
-            if newest is not None
-            else Usability(False, "no_data: no sample acquired yet")
-        )
-        if use.usable and v.current_from_restore:
-            use = Usability(False, "restored: the last stored H, not re-identified since the restart")
-        snap = ChtcSnapshot(
-            h=rec.h,
-            ci95_lo=rec.ci95_lo,
-            ci95_hi=rec.ci95_hi,
-            identified=rec.identified & ~bound,
-            identified_at=rec.finished_at,
-            condition=rec.condition,
-            f=float(rec.f if rec.f is not None else np.nan),
-            fit=float(rec.fit if rec.fit is not None else np.nan),
-            rmse_c=float(rec.rmse_c if rec.rmse_c is not None else np.nan),
-            method=rec.method,
-            model_version=rec.model_version,
-            identification_id=rec.id,
+        snap = chtc_snapshot(
+            rec,
             status=status,
             newest_sample_at=newest,
-            at_bound=bound,
-            usable_for_compensation=use.usable,
-            reason=use.reason,
+            condition=cond,
+            data_problems=problems,
+            restored=v.current_from_restore,
+            box=self.core.model.ref.h_box,
         )
         self._snap_cache = (key, snap)
         return snap
@@ -383,9 +365,9 @@ class SoftSensorService:
         v = self._view
         rec = v.current
         if rec is None:
-            raise NoDataError("no identification yet: no temperature field")
+            raise NoDataYetError("no identification yet: no temperature field")
         if v.live is None:
-            raise NoDataError("no sample yet: the live temperature field has not started")
+            raise NoDataYetError("no sample yet: the live temperature field has not started")
         fe = self.core.model.fe
         if at == "now":
             return FieldSnapshot(_utc(v.live.t), "now", fe.nodes_rz, fe.triangles, v.live.field_c, rec.id)
@@ -402,7 +384,7 @@ class SoftSensorService:
         v = self._view
         s = v.newest
         if s is None:
-            raise NoDataError("no sample yet")
+            raise NoDataYetError("no sample yet")
         pred = self._predicted(v)
         cal, sd = v.calibration, v.offset_sd_c
         applied = cal.applied() if cal is not None else None
@@ -442,7 +424,7 @@ class SoftSensorService:
     def condition(self) -> ConditionSnapshot:
         cond = self._view.condition
         if cond is None:
-            raise NoDataError("no operating condition yet")
+            raise NoDataYetError("no operating condition yet")
         return cond
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
@@ -564,7 +546,9 @@ def _status(
 
 
 def _no_worker(launch: Launch) -> JobOutcome:
-    return JobOutcome(launch.request.job_id, JobStatus.FAILED, None, "no identification worker", 0.0)
+    return JobOutcome(
+        job_id=launch.request.job_id, status=JobStatus.FAILED, message="no identification worker"
+    )
 
 
 @functools.cache

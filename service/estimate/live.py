@@ -108,7 +108,7 @@ class LiveModel:
         self._t: float | None = None
         self._T: np.ndarray | None = None
         self._last_inputs: _Inputs | None = None
-        self._stepper_key: bytes | None = None
+        self._stepper_key: bytes | None = None  # the H the stepper was built for
         self._stepper: Any = None
         self._steady_key: tuple[Any, ...] | None = None
         self._steady: np.ndarray | None = None

@@ -95,7 +95,7 @@ class TriangleLocator:
         first = hit.argmax(axis=1)
         tri[idx[found]] = cand[found, first[found]]
         bary[idx[found]] = b[found, first[found]]
-        self._exhaustive(pts, idx[~found & near[:, 0]], tri, bary, tol)
+        self._exhaustive(pts, idx[~found & near[:, 0]], tri=tri, bary=bary, tol=tol)
         return Located(tri, bary)
 
     def interpolate(self, values: np.ndarray, at: Located) -> np.ndarray:
@@ -122,7 +122,7 @@ class TriangleLocator:
             return hit
 
     def _exhaustive(
-        self, pts: np.ndarray, rest: np.ndarray, tri: np.ndarray, bary: np.ndarray, tol: float
+        self, pts: np.ndarray, rest: np.ndarray, *, tri: np.ndarray, bary: np.ndarray, tol: float
     ) -> None:
         """Exact second pass for points the k-nearest search missed: every triangle within reach."""
         if len(rest) == 0:

@@ -166,7 +166,8 @@ class ConditionDetector:
 
     def _filtered(self) -> tuple[float, float, float]:
         cols = zip(*self._window, strict=True)
-        return tuple(statistics.median(c) for c in cols)
+        speed, torque, ambient = (statistics.median(c) for c in cols)
+        return speed, torque, ambient
 
     def _deviates(self, value: tuple[float, float, float], anchor: tuple[float, float, float]) -> bool:
         return any(abs(v - a) > thr for v, a, thr in zip(value, anchor, self.config.thresholds, strict=True))

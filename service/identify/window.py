@@ -10,7 +10,7 @@ grid point, the nearest sample within ``dt_s/2``. A channel enters the fit (``ma
 
 Errors::
 
-    InsufficientDataError(ValueError)   too little good data; ``reason`` says which rule failed
+    InsufficientWindowError(ValueError)   too little good data; ``reason`` says which rule failed
 """
 
 from __future__ import annotations
@@ -19,12 +19,12 @@ from dataclasses import dataclass
 
 import numpy as np
 
-__all__ = ["InsufficientDataError", "RawWindow", "WindowArrays", "WindowRules", "resample_window"]
+from drivers.quality import usable
 
-QUALITY_OK = 0
+__all__ = ["InsufficientWindowError", "RawWindow", "WindowArrays", "WindowRules", "resample_window"]
 
 
-class InsufficientDataError(ValueError):
+class InsufficientWindowError(ValueError):
     """Too little good data for an identification (the message is the user-facing reason)."""
 
     def __init__(self, reason: str) -> None:
@@ -32,7 +32,7 @@ class InsufficientDataError(ValueError):
         self.reason = reason
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WindowRules:
     """What counts as enough data; times in s."""
 
@@ -43,7 +43,7 @@ class WindowRules:
     max_gap_s: float = 300.0  # longest run of missing/bad points of a channel that is interpolated
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class RawWindow:
     """Samples from the ring buffer: times (n,) s, temps (n,32) °C, quality (n,32) uint8, inputs (n,)."""
 
@@ -55,7 +55,7 @@ class RawWindow:
     torque_nm: np.ndarray
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class WindowArrays:
     """A uniform-grid window ready for ``model.identify.Window`` (see ``service.identify.worker``)."""
 
@@ -82,21 +82,22 @@ class WindowArrays:
 
 
 def resample_window(raw: RawWindow, t_from: float, t_to: float, rules: WindowRules) -> WindowArrays:
-    """Resample ``raw`` onto the uniform grid over [t_from, t_to]; raises InsufficientDataError."""
+    """Resample ``raw`` onto the uniform grid over [t_from, t_to]; raises InsufficientWindowError."""
     span = t_to - t_from
     if span < rules.min_window_s - 0.5 * rules.dt_s:
-        raise InsufficientDataError(
+        raise InsufficientWindowError(
             f"window of {span:.0f} s is shorter than min_window_s {rules.min_window_s:.0f} s"
         )
     n_steps = int(np.floor(span / rules.dt_s + 0.5))  # sample times jitter around the grid
     grid = t_from + rules.dt_s * np.arange(n_steps + 1)
     idx, hit = _nearest(np.asarray(raw.times_s, dtype=float), grid, rules.dt_s / 2)
     if hit.sum() == 0:
-        raise InsufficientDataError(f"no samples between t={t_from:.0f} s and t={t_to:.0f} s")
+        raise InsufficientWindowError(f"no samples between t={t_from:.0f} s and t={t_to:.0f} s")
     temps = np.where(hit[:, None], np.asarray(raw.temps_c, dtype=float)[idx], np.nan)
-    q_ok = hit[:, None] & (np.asarray(raw.quality)[idx] == QUALITY_OK) & np.isfinite(temps)
+    q_ok = hit[:, None] & usable(np.asarray(raw.quality)[idx]) & np.isfinite(temps)
     inputs = [
-        _input(np.asarray(a, dtype=float), idx, hit, rules, name, grid) for a, name in _named_inputs(raw)
+        _input(np.asarray(a, dtype=float), idx=idx, hit=hit, rules=rules, name=name, grid=grid)
+        for a, name in _named_inputs(raw)
     ]
     good_fraction = q_ok.mean(axis=0)
     max_run = rules.max_gap_s / rules.dt_s
@@ -104,7 +105,7 @@ def resample_window(raw: RawWindow, t_from: float, t_to: float, rules: WindowRul
         [_longest_false_run(q_ok[:, c]) <= max_run for c in range(q_ok.shape[1])]
     )
     if mask.sum() < rules.min_good_channels:
-        raise InsufficientDataError(
+        raise InsufficientWindowError(
             f"only {int(mask.sum())} channels had good data over the window "
             f"(need min_good_channels={rules.min_good_channels}); "
             f"bad: {_bad_channel_list(mask, good_fraction)}"
@@ -128,12 +129,12 @@ def _named_inputs(raw: RawWindow) -> list[tuple[np.ndarray, str]]:
 
 
 def _input(
-    values: np.ndarray, idx: np.ndarray, hit: np.ndarray, rules: WindowRules, name: str, grid: np.ndarray
+    values: np.ndarray, *, idx: np.ndarray, hit: np.ndarray, rules: WindowRules, name: str, grid: np.ndarray
 ) -> np.ndarray:
     v = np.where(hit, values[idx], np.nan)
     ok = np.isfinite(v)
     if ok.mean() < rules.min_good_fraction:
-        raise InsufficientDataError(
+        raise InsufficientWindowError(
             f"{name} was missing on {100 * (1 - ok.mean()):.0f} % of the window "
             f"(allowed {100 * (1 - rules.min_good_fraction):.0f} %)"
         )

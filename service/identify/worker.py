@@ -18,7 +18,8 @@ worker nor multiprocessing's resource tracker behind.
 Errors::
 
     WorkerError(RuntimeError)           the pool is closed
-    (a failed job is not an exception: it is a JobOutcome with status FAILED and the message)
+    (a failed job is not an exception: it is a JobOutcome whose status is a service.identify.outcome.Outcome,
+    mapped from the job's exception in one place, ``job_outcome_of``)
 """
 
 from __future__ import annotations
@@ -26,20 +27,26 @@ from __future__ import annotations
 import asyncio
 import concurrent.futures as cf
 import contextlib
-import enum
 import multiprocessing
 import os
 import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import Any
+from typing import TYPE_CHECKING, Any, Protocol
 
 import numpy as np
+import numpy.typing as npt
 
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD
-from service.identify.window import WindowArrays
+from service.identify.outcome import Outcome
+from service.identify.window import InsufficientWindowError, WindowArrays
 from service.modelload import LoadedModel, ModelRef, load_model
+
+if TYPE_CHECKING:
+    from model.carry import StateCovariance
+    from model.identify import IdentificationResult, Window
+    from model.rom import InputLike, ReducedModel
 
 __all__ = [
     "IdentificationWorker",
@@ -47,6 +54,8 @@ __all__ = [
     "JobRequest",
     "JobStatus",
     "WorkerError",
+    "job_outcome_of",
+    "run_job",
     "run_job_in_process",
 ]
 
@@ -55,14 +64,11 @@ class WorkerError(RuntimeError):
     """The worker cannot take jobs (closed)."""
 
 
-class JobStatus(enum.StrEnum):
-    OK = "ok"
-    FAILED = "failed"
-    CANCELLED = "cancelled"
-    INSUFFICIENT_DATA = "insufficient-data"  # the identification itself found too few usable data
+# A job's status is the outcome that is stored: OK, FAILED, CANCELLED or INSUFFICIENT_DATA (never SKIPPED).
+JobStatus = Outcome
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class JobRequest:
     job_id: int
     window: WindowArrays
@@ -73,7 +79,7 @@ class JobRequest:
     estimate_loads: bool = False
     estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
     carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error; result: end ensemble
-    start_cov: Any = None  # model.carry.StateCovariance of t0_c's error (None: exact, or the initial guess)
+    start_cov: StateCovariance | None = None  # t0_c's error (None: exact, or the initial guess)
     gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
@@ -81,26 +87,34 @@ class JobRequest:
     offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class JobOutcome:
     job_id: int
-    status: JobStatus
-    result: Any | None  # model.identify.IdentificationResult when OK
+    status: Outcome
     message: str
-    wall_s: float
+    wall_s: float = 0.0
+    result: IdentificationResult | None = None  # when OK
     final_field_c: np.ndarray | None = None  # (N,) fitted model's field at the window end, °C (when OK)
 
 
 # --- inside the worker process --------------------------------------------------------------------
 _MODEL: LoadedModel | None = None
-_CANCEL: Any = None  # multiprocessing.Value("q"): id of the job to cancel, -1 for none
+
+
+class CancelFlag(Protocol):
+    """A shared ``multiprocessing.Value("q")``: the id of the job to cancel, -1 for none."""
+
+    value: int
+
+
+_CANCEL: CancelFlag | None = None
 
 
 class JobCancelled(Exception):
     """Raised inside the worker process when the running job was cancelled."""
 
 
-def _init_worker(ref: ModelRef, cancel: Any, parent_pid: int | None = None, nice: int = 0) -> None:
+def _init_worker(ref: ModelRef, cancel: CancelFlag, parent_pid: int | None = None, nice: int = 0) -> None:
     global _MODEL, _CANCEL
     if parent_pid is not None:
         watch_parent(parent_pid)
@@ -136,7 +150,7 @@ def _ping() -> str:
     return _MODEL.version
 
 
-def to_model_window(model: LoadedModel, window: WindowArrays, t0_c: float | np.ndarray) -> Any:
+def to_model_window(model: LoadedModel, window: WindowArrays, t0_c: float | np.ndarray) -> Window:
     """``model.identify.Window`` from the resampled arrays (bearing heat from speed and torque)."""
     from model.identify import Window
     from model.inputs import inputs_from_operation
@@ -161,20 +175,30 @@ class CancellableModel:
     where a cancelled job stops (within one batch, milliseconds).
     """
 
-    def __init__(self, rom: Any, should_stop: Any) -> None:
+    def __init__(self, rom: ReducedModel, should_stop: Callable[[], bool]) -> None:
         self._rom = rom
         self._should_stop = should_stop
 
-    def simulate_sensors(self, *args: Any, **kwargs: Any) -> Any:
+    def simulate_sensors(
+        self,
+        h: npt.NDArray[np.float64],
+        inputs: InputLike,
+        t0: float | npt.NDArray[np.float64],
+        *,
+        load_scale: npt.NDArray[np.float64] | None = None,
+        t0_shift: npt.NDArray[np.float64] | None = None,
+    ) -> npt.NDArray[np.float64]:
         if self._should_stop():
             raise JobCancelled
-        return self._rom.simulate_sensors(*args, **kwargs)
+        return self._rom.simulate_sensors(h, inputs, t0, load_scale=load_scale, t0_shift=t0_shift)
 
-    def __getattr__(self, name: str) -> Any:
+    def __getattr__(self, name: str) -> Any:  # a proxy: everything else is the ReducedModel's
         return getattr(self._rom, name)
 
 
-def run_identification(model: LoadedModel, req: JobRequest, *, should_stop: Any = None) -> tuple[Any, Any]:
+def run_identification(
+    model: LoadedModel, req: JobRequest, *, should_stop: Callable[[], bool] | None = None
+) -> tuple[IdentificationResult, Window]:
     """``model.identify.identify`` for one request -> (result, model window); the rng is seeded from it."""
     from model.identify import IdentifyOptions, identify
 
@@ -210,14 +234,14 @@ def start_covariance(model: LoadedModel, req: JobRequest) -> np.ndarray:
     return propagate(model.rom, req.start_cov, float(req.window.times_s[0]), req.window.dt_s, gap)
 
 
-def final_field(model: LoadedModel, window: Any, result: Any) -> np.ndarray:
+def final_field(model: LoadedModel, window: Window, result: IdentificationResult) -> np.ndarray:
     """The reduced model's field (N,) °C at the end of the window with the identified H (and load scales),
     from the window's start field plus the fitted uniform shift (if any)."""
-    ens = getattr(result, "end_ensemble", None)
+    ens = result.end_ensemble
     if ens is not None:  # the identification already ran the window with these parameters
         return np.asarray(model.rom.lift(ens.a_end))
-    ls = getattr(result, "load_scale", None)
-    shift = getattr(result, "t0_shift_c", None)
+    ls = result.load_scale
+    shift = result.t0_shift_c
     traj = model.rom.simulate_state(
         np.asarray(result.h, dtype=float),
         window.inputs,
@@ -227,35 +251,51 @@ def final_field(model: LoadedModel, window: Any, result: Any) -> np.ndarray:
     return np.asarray(model.rom.lift(traj[-1]))
 
 
-def _insufficient_data_error() -> type[Exception]:
-    from model.identify import InsufficientDataError
+def job_outcome_of(err: Exception) -> tuple[Outcome, str]:
+    """The stored outcome and message of a job that raised ``err`` (the one mapping): too few usable data,
+    found by the window rules or by the identification itself, is INSUFFICIENT_DATA with its reason; a
+    cancelled job CANCELLED; anything else FAILED, naming the error class."""
+    from model.identify import InsufficientDataError  # the service process imports no optimizer
 
-    return InsufficientDataError
+    if isinstance(err, JobCancelled):
+        return Outcome.CANCELLED, "cancelled"
+    if isinstance(err, InsufficientWindowError):
+        return Outcome.INSUFFICIENT_DATA, err.reason
+    if isinstance(err, InsufficientDataError):
+        return Outcome.INSUFFICIENT_DATA, str(err)
+    return Outcome.FAILED, f"{type(err).__name__}: {err}"
+
+
+def run_job(
+    model: LoadedModel | None, req: JobRequest, *, should_stop: Callable[[], bool] | None = None
+) -> JobOutcome:
+    """Run one job; never raises: every failure becomes an outcome (``job_outcome_of``). Wall time in s."""
+    started = time.perf_counter()
+    try:
+        if model is None:
+            raise RuntimeError("worker process has no model (initializer failed)")
+        result, window = run_identification(model, req, should_stop=should_stop)
+        field = final_field(model, window, result)
+    except Exception as err:  # the boundary of a job: report, never crash the pool or the offline run
+        status, msg = job_outcome_of(err)
+        return JobOutcome(job_id=req.job_id, status=status, message=msg, wall_s=time.perf_counter() - started)
+    return JobOutcome(
+        job_id=req.job_id,
+        status=Outcome.OK,
+        message=result.message,
+        wall_s=time.perf_counter() - started,
+        result=result,
+        final_field_c=field,
+    )
 
 
 def run_job_in_process(req: JobRequest) -> JobOutcome:
-    """The function the pool runs: never raises, every failure becomes a FAILED outcome with its message."""
-    started = time.perf_counter()
+    """The function the pool runs: ``run_job`` on the process's model, stopping when the job is cancelled."""
 
     def should_stop() -> bool:
         return _CANCEL is not None and _CANCEL.value == req.job_id
 
-    try:
-        if _MODEL is None:
-            raise RuntimeError("worker process has no model (initializer failed)")
-        result, window = run_identification(_MODEL, req, should_stop=should_stop)
-        field = final_field(_MODEL, window, result)
-    except _insufficient_data_error() as err:
-        return JobOutcome(
-            req.job_id, JobStatus.INSUFFICIENT_DATA, None, str(err), time.perf_counter() - started
-        )
-    except JobCancelled:
-        return JobOutcome(req.job_id, JobStatus.CANCELLED, None, "cancelled", time.perf_counter() - started)
-    except Exception as err:  # the boundary of the worker process: report, never crash the pool
-        msg = f"{type(err).__name__}: {err}"
-        return JobOutcome(req.job_id, JobStatus.FAILED, None, msg, time.perf_counter() - started)
-    wall = time.perf_counter() - started
-    return JobOutcome(req.job_id, JobStatus.OK, result, str(getattr(result, "message", "")), wall, field)
+    return run_job(_MODEL, req, should_stop=should_stop)
 
 
 # --- in the service process -----------------------------------------------------------------------
@@ -297,7 +337,7 @@ class IdentificationWorker:
         self.timeout_s = timeout_s
         self.cancel_grace_s = cancel_grace_s
         self._ctx = multiprocessing.get_context(context)
-        self._cancel = self._ctx.Value("q", -1)
+        self._cancel: CancelFlag = self._ctx.Value("q", -1)
         self._pool: cf.ProcessPoolExecutor | None = None
         self._closed = False
         self.running_job: int | None = None
@@ -336,14 +376,18 @@ class IdentificationWorker:
             except TimeoutError:
                 self.cancel(req.job_id)
                 msg = f"identification exceeded timeout_s={self.timeout_s:.0f} s"
-                return await self._after_cancel(fut, req.job_id, msg, started, JobStatus.FAILED)
+                return await self._after_cancel(
+                    fut, req.job_id, message=msg, started=started, status=Outcome.FAILED
+                )
             except asyncio.CancelledError:
                 self.cancel(req.job_id)
-                await self._after_cancel(fut, req.job_id, "cancelled", started, JobStatus.CANCELLED)
+                await self._after_cancel(
+                    fut, req.job_id, message="cancelled", started=started, status=Outcome.CANCELLED
+                )
                 raise
         except cf.process.BrokenProcessPool as err:
             self._discard_pool()
-            return JobOutcome(req.job_id, JobStatus.FAILED, None, f"worker process died: {err}", 0.0)
+            return JobOutcome(job_id=req.job_id, status=Outcome.FAILED, message=f"worker process died: {err}")
         finally:
             self.running_job = None
 
@@ -358,13 +402,19 @@ class IdentificationWorker:
         self._cancel.value = job_id
 
     async def _after_cancel(
-        self, fut: asyncio.Future[JobOutcome], job_id: int, msg: str, started: float, status: JobStatus
+        self,
+        fut: asyncio.Future[JobOutcome],
+        job_id: int,
+        *,
+        message: str,
+        started: float,
+        status: Outcome,
     ) -> JobOutcome:
         try:
             await asyncio.wait_for(asyncio.shield(fut), timeout=self.cancel_grace_s)
         except (TimeoutError, cf.process.BrokenProcessPool):
             self._discard_pool()
-        return JobOutcome(job_id, status, None, msg, time.perf_counter() - started)
+        return JobOutcome(job_id=job_id, status=status, message=message, wall_s=time.perf_counter() - started)
 
     def _discard_pool(self) -> None:
         pool, self._pool = self._pool, None

@@ -18,7 +18,7 @@ Contract for implementers:
 
       ServiceError
       ├── NotFoundError(ServiceError, LookupError)        unknown identification id / job id      -> 404
-      ├── NoDataError(ServiceError)                       nothing to show yet (no field, no data)  -> 503
+      ├── NoDataYetError(ServiceError)                    nothing to show yet (no field, no data)  -> 503
       ├── BusyError(ServiceError)                         an identification is already running    -> 409
       └── NotReadyError(ServiceError)                     model not loaded / not enough good data -> 503
 
@@ -35,10 +35,14 @@ from datetime import datetime
 from typing import Literal, Protocol, runtime_checkable
 
 import numpy as np
+import numpy.typing as npt
 
 from service.estimate.locator import TriangleLocator, locator_for
+from service.store.records import IdentificationData
 
 H_UNIT = "W/(m²·K)"
+FloatArray = npt.NDArray[np.float64]
+BoolArray = npt.NDArray[np.bool_]
 ZONE_NAMES: tuple[str, ...] = ("H1", "H2", "H3", "H4", "H5", "H6", "H7")
 
 
@@ -50,7 +54,7 @@ class NotFoundError(ServiceError, LookupError):
     """An identification or job id that does not exist."""
 
 
-class NoDataError(ServiceError):
+class NoDataYetError(ServiceError):
     """Nothing to show yet (no field before the first identification, no samples)."""
 
 
@@ -86,31 +90,6 @@ class ConditionSnapshot:
     ambient_c: float
     since: datetime  # UTC start of this condition
     state: ConditionState
-
-
-@dataclass(frozen=True, eq=False)
-class ChtcSnapshot:
-    """The current H1-H7 and where they came from."""
-
-    h: np.ndarray  # (7,) W/(m²·K)
-    ci95_lo: np.ndarray  # (7,) W/(m²·K)
-    ci95_hi: np.ndarray  # (7,) W/(m²·K)
-    identified: np.ndarray  # (7,) bool: False = practically unidentifiable from this window
-    identified_at: datetime  # UTC end of the identification
-    condition: ConditionSnapshot  # the condition the window was taken at
-    f: float  # objective: mean squared residual, °C²
-    fit: float  # 1 / (1 + f)
-    rmse_c: float  # over usable sensors and samples, °C
-    method: str  # "hybrid", "igwo", ...
-    model_version: str  # geometry + mesh + ROM hash
-    identification_id: int
-    status: ChtcStatus
-    newest_sample_at: datetime | None  # UTC of the newest sample in the ring buffer
-    unit: str = H_UNIT
-    zones: tuple[str, ...] = ZONE_NAMES
-    at_bound: np.ndarray | None = None  # (7,) bool: H on a bound of the search box (not identified)
-    usable_for_compensation: bool = False  # the one flag a controller checks: fresh, identified, in the box
-    reason: str | None = None  # why not usable, "code: detail" (stale, restored, condition_changed, ...)
 
 
 FieldAt = Literal["now", "steady"]
@@ -179,30 +158,155 @@ class OffsetBaseline:
 
 @dataclass(frozen=True, eq=False)
 class IdentificationRecord:
-    """One finished (or failed) identification, as stored."""
+    """One finished (or failed, skipped, cancelled) identification as served: the stored ``data``, the
+    condition it was taken at, and its per-zone values as read-only (7,) arrays.
 
-    id: int
-    started_at: datetime
-    finished_at: datetime
-    reason: str  # "condition-change" | "manual" | "scheduled" | ...
-    outcome: str  # "ok" | "failed" | "insufficient-data"
-    message: str
+    Built by ``service.serve.views.data_to_record`` only. Every other value is the stored record's, read
+    through ``data`` (the properties below name the ones the service and the API use).
+    """
+
+    data: IdentificationData
     condition: ConditionSnapshot
-    window_from: datetime
-    window_to: datetime
-    h: np.ndarray  # (7,) W/(m²·K); NaN when failed
-    ci95_lo: np.ndarray
-    ci95_hi: np.ndarray
-    identified: np.ndarray  # (7,) bool
-    f: float | None  # °C²
-    fit: float | None
-    rmse_c: float | None
-    method: str
-    model_version: str
-    nfev: int
-    wall_s: float
-    n_sensors_used: int  # channels the fit used (masked-out ones excluded)
-    at_bound: np.ndarray | None = None  # (7,) bool: H on a bound of the search box (then not identified)
+    h: FloatArray  # (7,) W/(m²·K); NaN when not identified (failed, skipped)
+    ci95_lo: FloatArray  # (7,) W/(m²·K), >= 0
+    ci95_hi: FloatArray
+    identified: BoolArray  # (7,) 95 % CI narrow enough and not at a bound
+    at_bound: BoolArray  # (7,) H on a bound of the search box (then not identified)
+
+    @property
+    def id(self) -> int:
+        return self.data.id
+
+    @property
+    def started_at(self) -> datetime:
+        return self.data.started_at
+
+    @property
+    def finished_at(self) -> datetime:
+        return self.data.finished_at
+
+    @property
+    def reason(self) -> str:
+        """Trigger: "condition-change" | "scheduled" | "manual" | ..."""
+        return self.data.reason
+
+    @property
+    def outcome(self) -> str:
+        """A ``service.identify.outcome.Outcome`` value: "ok", "failed", "insufficient-data", ..."""
+        return self.data.outcome
+
+    @property
+    def message(self) -> str:
+        return self.data.message
+
+    @property
+    def window_from(self) -> datetime:
+        return self.data.window_start
+
+    @property
+    def window_to(self) -> datetime:
+        return self.data.window_end
+
+    @property
+    def f(self) -> float | None:
+        """Objective: mean squared residual, °C²."""
+        return self.data.f
+
+    @property
+    def fit(self) -> float | None:
+        """1 / (1 + f)."""
+        return self.data.fit
+
+    @property
+    def rmse_c(self) -> float | None:
+        return self.data.rmse_c
+
+    @property
+    def method(self) -> str:
+        return self.data.method
+
+    @property
+    def model_version(self) -> str:
+        return self.data.model_version
+
+    @property
+    def nfev(self) -> int:
+        return self.data.nfev
+
+    @property
+    def wall_s(self) -> float:
+        return self.data.duration_s
+
+    @property
+    def n_sensors_used(self) -> int:
+        """Channels the fit used (masked-out ones excluded)."""
+        return self.data.n_sensors_used
+
+
+@dataclass(frozen=True, eq=False)
+class ChtcSnapshot:
+    """The current H1-H7 (the identification ``record``) and whether a controller may use them now.
+
+    Built by ``service.serve.views.chtc_snapshot`` only; the record's values are read through it.
+    """
+
+    record: IdentificationRecord  # the identification served: H, CIs, fit, provenance
+    status: ChtcStatus
+    newest_sample_at: datetime | None  # UTC of the newest sample in the ring buffer
+    identified: BoolArray  # (7,) the record's flag and not at a bound of the search box
+    at_bound: BoolArray  # (7,) H on a bound of the search box (not identified)
+    usable_for_compensation: bool = False  # the one flag a controller checks: fresh, identified, in the box
+    reason: str | None = None  # why not usable, "code: detail" (stale, restored, condition_changed, ...)
+    unit: str = H_UNIT
+    zones: tuple[str, ...] = ZONE_NAMES
+
+    @property
+    def h(self) -> FloatArray:
+        """(7,) W/(m²·K)."""
+        return self.record.h
+
+    @property
+    def ci95_lo(self) -> FloatArray:
+        return self.record.ci95_lo
+
+    @property
+    def ci95_hi(self) -> FloatArray:
+        return self.record.ci95_hi
+
+    @property
+    def identified_at(self) -> datetime:
+        """UTC end of the identification."""
+        return self.record.finished_at
+
+    @property
+    def condition(self) -> ConditionSnapshot:
+        """The condition the window was taken at."""
+        return self.record.condition
+
+    @property
+    def identification_id(self) -> int:
+        return self.record.id
+
+    @property
+    def f(self) -> float | None:
+        """Objective: mean squared residual, °C²."""
+        return self.record.f
+
+    @property
+    def fit(self) -> float | None:
+        return self.record.fit
+
+    @property
+    def rmse_c(self) -> float | None:
+        return self.record.rmse_c
+
+    @property
+    def method(self) -> str:
+        return self.record.method
+
+    @property
+    def model_version(self) -> str:
+        return self.record.model_version
 
 
 @dataclass(frozen=True)
@@ -264,7 +368,7 @@ class Readiness:
     reasons: Sequence[str] = ()  # why not, e.g. ("model not loaded", "no sample for 35 s")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class HistogramData:
     """A cumulative histogram as Prometheus wants it: counts[i] = observations <= upper_bounds[i]."""
 
@@ -272,33 +376,6 @@ class HistogramData:
     counts: tuple[int, ...]  # cumulative, same length as upper_bounds
     count: int  # total (the +Inf bucket)
     sum: float
-
-
-class Histogram:
-    """A small thread-compatible accumulator the service can use to produce :class:`HistogramData`."""
-
-    def __init__(self, upper_bounds: Sequence[float]) -> None:
-        self._ub = tuple(float(b) for b in upper_bounds)
-        self._counts = [0] * len(self._ub)
-        self._count = 0
-        self._sum = 0.0
-        self._lock = threading.Lock()  # observed on the event loop, read by API threads
-
-    def observe(self, value: float) -> None:
-        with self._lock:
-            for i, ub in enumerate(self._ub):
-                if value <= ub:
-                    self._counts[i] += 1
-            self._count += 1
-            self._sum += float(value)
-
-    def snapshot(self) -> HistogramData:
-        with self._lock:
-            return HistogramData(self._ub, tuple(self._counts), self._count, self._sum)
-
-
-LATENCY_BUCKETS_S = (0.001, 0.0025, 0.005, 0.01, 0.025, 0.05, 0.1, 0.25, 0.5, 1.0, 2.5)
-DURATION_BUCKETS_S = (0.1, 0.25, 0.5, 1.0, 2.5, 5.0, 10.0, 30.0, 60.0, 300.0)
 
 
 @dataclass(frozen=True)
@@ -336,16 +413,16 @@ class ChtcService(Protocol):
     def field(self, at: FieldAt) -> FieldSnapshot:
         """Temperature field now (state estimate) or at steady state for the current H and condition.
 
-        Raises NoDataError before the first identification.
+        Raises NoDataYetError before the first identification.
         """
         ...
 
     def sensors(self) -> Sequence[SensorReading]:
-        """The 32 channels at the newest sample; raises NoDataError before the first sample."""
+        """The 32 channels at the newest sample; raises NoDataYetError before the first sample."""
         ...
 
     def condition(self) -> ConditionSnapshot:
-        """The current operating condition; raises NoDataError before the first CAN frame."""
+        """The current operating condition; raises NoDataYetError before the first CAN frame."""
         ...
 
     def request_baseline(self) -> OffsetBaseline:
@@ -390,7 +467,7 @@ class ChtcService(Protocol):
         ...
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class SensorHistory:
     """Per-sample measured and predicted temperatures, oldest first (measured vs predicted over time)."""
 
@@ -439,7 +516,15 @@ class SensorHistoryBuffer:
             rows = [i for i in rows if since is None or _after(self._t[i], since)]
             ts = tuple(t for t in (self._t[i] for i in rows) if t is not None)
             m, p = self._m[rows], self._p[rows]  # fancy indexing copies
-        return SensorHistory(ts, m, p, self._channels, self._names, self._roles, self._cap)
+        return SensorHistory(
+            t=ts,
+            measured_c=m,
+            predicted_c=p,
+            channels=self._channels,
+            names=self._names,
+            roles=self._roles,
+            capacity=self._cap,
+        )
 
 
 def _after(t: datetime | None, since: datetime) -> bool:

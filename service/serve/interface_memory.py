@@ -21,9 +21,8 @@ from datetime import UTC, datetime, timedelta
 
 import numpy as np
 
+from service.serve.histogram import DURATION_BUCKETS_S, LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
-    DURATION_BUCKETS_S,
-    LATENCY_BUCKETS_S,
     BusyError,
     ChtcSnapshot,
     ChtcStatus,
@@ -34,13 +33,12 @@ from service.serve.interface import (
     FieldAt,
     FieldSnapshot,
     HealthSnapshot,
-    Histogram,
     IdentificationJob,
     IdentificationPage,
     IdentificationRecord,
     JobState,
     MetricsSnapshot,
-    NoDataError,
+    NoDataYetError,
     NotFoundError,
     NotReadyError,
     OffsetBaseline,
@@ -52,6 +50,8 @@ from service.serve.interface import (
     SpindleLayout,
     ZoneInfo,
 )
+from service.serve.views import chtc_snapshot, data_to_record
+from service.store.records import IdentificationData
 
 MIN_GOOD_CHANNELS = 24  # identification.min_good_channels' default
 
@@ -278,33 +278,34 @@ class InMemoryService:
         """Store a finished identification at the current condition and make it the current H."""
         with self._lock:
             if self._condition is None:
-                raise NoDataError("set_condition() before add_identification()")
+                raise NoDataYetError("set_condition() before add_identification()")
             now = finished_at or self._clock()
             hh = np.asarray(h, dtype=float)
             f = rmse_c**2
-            rec = IdentificationRecord(
+            data = IdentificationData(
                 id=len(self._records) + 1,
+                condition_id=self._condition.id,
                 started_at=now - timedelta(seconds=wall_s),
                 finished_at=now,
+                window_start=now - timedelta(minutes=60),
+                window_end=now,
                 reason=reason,
                 outcome=outcome,
                 message="converged" if outcome == "ok" else outcome,
-                condition=self._condition,
-                window_from=now - timedelta(minutes=60),
-                window_to=now,
-                h=hh,
-                ci95_lo=hh / (1 + rel_ci),  # symmetric in log H, as the real identification
-                ci95_hi=hh * (1 + rel_ci),
-                identified=np.asarray(identified if identified is not None else [True] * 7, dtype=bool),
+                method=method,
+                model_version=self._section.model_version,
+                h=[float(x) for x in hh],
+                ci95_lo=[float(x) for x in hh / (1 + rel_ci)],  # symmetric in log H, as the real one
+                ci95_hi=[float(x) for x in hh * (1 + rel_ci)],
+                identified=[bool(x) for x in (identified if identified is not None else [True] * 7)],
                 f=f,
                 fit=1.0 / (1.0 + f),
                 rmse_c=rmse_c,
-                method=method,
-                model_version=self._section.model_version,
                 nfev=120,
-                wall_s=wall_s,
+                duration_s=wall_s,
                 n_sensors_used=32,
             )
+            rec = data_to_record(data, self._condition)
             self._records[rec.id] = rec
             self._counts["ident"][outcome] = self._counts["ident"].get(outcome, 0) + 1
             self._ident_duration.observe(wall_s)
@@ -383,27 +384,16 @@ class InMemoryService:
             newest = self._sample[0] if self._sample is not None else None
             status = self._status(rec, self._clock())
             key = (rec.id, status, newest)
-            use, reason = _usable(rec, status, self._problems(self._clock()))
             if self._snapshot_cache is not None and self._snapshot_cache[0] == key:
                 return self._snapshot_cache[1]
-            snap = ChtcSnapshot(
-                h=rec.h,
-                ci95_lo=rec.ci95_lo,
-                ci95_hi=rec.ci95_hi,
-                identified=rec.identified,
-                identified_at=rec.finished_at,
-                condition=rec.condition,
-                f=float(rec.f or 0.0),
-                fit=float(rec.fit or 0.0),
-                rmse_c=float(rec.rmse_c or 0.0),
-                method=rec.method,
-                model_version=rec.model_version,
-                identification_id=rec.id,
+            snap = chtc_snapshot(
+                rec,
                 status=status,
                 newest_sample_at=newest,
-                at_bound=np.zeros(len(rec.h), dtype=bool),
-                usable_for_compensation=use,
-                reason=reason,
+                condition=self._condition,
+                data_problems=tuple(p.split(":")[0] for p in self._problems(self._clock())),
+                restored=False,
+                box=None,
             )
             self._snapshot_cache = (key, snap)
             return snap
@@ -427,7 +417,7 @@ class InMemoryService:
     def field(self, at: FieldAt) -> FieldSnapshot:
         snap = self.chtc()
         if snap is None:
-            raise NoDataError("no identification yet: no temperature field")
+            raise NoDataYetError("no identification yet: no temperature field")
         return self._field(snap, at)
 
     def _sensor_prediction(self, snap: ChtcSnapshot) -> np.ndarray:
@@ -438,7 +428,7 @@ class InMemoryService:
 
     def sensors(self) -> Sequence[SensorReading]:
         if self._sample is None:
-            raise NoDataError("no sample yet")
+            raise NoDataYetError("no sample yet")
         t, temps, quality = self._sample
         pred = self.predicted_at_sensors()
         out = []
@@ -458,7 +448,7 @@ class InMemoryService:
 
     def condition(self) -> ConditionSnapshot:
         if self._condition is None:
-            raise NoDataError("no operating condition yet (no CAN frame)")
+            raise NoDataYetError("no operating condition yet (no CAN frame)")
         return self._condition
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
@@ -557,19 +547,6 @@ class InMemoryService:
     def layout(self) -> SpindleLayout:
         sec = self._section
         return SpindleLayout(sec.model_version, sec.parts, sec.zones)
-
-
-def _usable(
-    rec: IdentificationRecord, status: ChtcStatus, problems: tuple[str, ...]
-) -> tuple[bool, str | None]:
-    if problems:
-        return False, "stale: " + "; ".join(problems)
-    if status is not ChtcStatus.FRESH:
-        return False, f"condition_changed: status {status.value}"
-    weak = [f"H{i + 1}" for i, ok in enumerate(rec.identified) if not ok]
-    if weak:
-        return False, f"not_identified: {', '.join(weak)} (95 % CI too wide)"
-    return True, None
 
 
 PAPER_H_3000 = (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54)  # SPEC §2, Table 4

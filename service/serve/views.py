@@ -1,92 +1,131 @@
-"""Conversions between the service's records, the database rows and the API snapshots (pure functions).
+"""The one mapping from an identification to what the API serves (pure functions).
 
-One identification exists in three shapes: ``service.store.records.IdentificationData`` (what the writer
-stores; built from ``model.identify.IdentificationResult`` by ``IdentificationData.from_result``), the ORM
-row ``service.store.models.Identification`` (what comes back after a restart or from the history endpoints)
-and
-``service.serve.interface.IdentificationRecord`` (what the API serves). The functions here map the first two
-to
-the third so that the live answer and the stored answer are the same numbers.
+An identification exists as ``service.store.records.IdentificationData``: built from the
+``model.identify.IdentificationResult`` by ``IdentificationData.from_result``, stored as is (``values()``) and
+read back after a restart or by the history endpoints (``IdentificationData.from_row``). ``data_to_record``
+turns it, with the condition it was taken at, into the ``IdentificationRecord`` the API serves, and
+``chtc_snapshot`` wraps the current record with what makes it trustworthy now (status, bounds, usability)::
+
+    IdentificationResult --from_result--> IdentificationData --values()/from_row--> database row
+                                                |
+                                          data_to_record  (+ ConditionSnapshot)
+                                                v
+                            IdentificationRecord --chtc_snapshot--> ChtcSnapshot --api.schemas--> JSON
+
+A value that should reach ``/chtc`` is a field of the result, set in the one mapper
+``IdentificationData.from_result`` (stored in ``diagnostics`` it needs no column; a column needs a
+migration), and a field of the schema (``api/schemas.py``), read as ``snapshot.record.data.<name>``: the
+served record holds the stored one.
 """
 
 from __future__ import annotations
 
 import math
+from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Any
+from typing import Protocol
 
 import numpy as np
+import numpy.typing as npt
 
-from service.serve.interface import ZONE_NAMES, ConditionSnapshot, ConditionState, IdentificationRecord
-from service.store.records import IdentificationData
+from model.defaults import BOUND_REL_TOL
+from service.serve.interface import (
+    ZONE_NAMES,
+    ChtcSnapshot,
+    ChtcStatus,
+    ConditionSnapshot,
+    ConditionState,
+    IdentificationRecord,
+)
+from service.store.records import IdentificationData, IdentificationRow, JsonValue
 
-__all__ = ["Usability", "condition_from_row", "data_to_record", "nan_array", "row_to_record", "usability"]
+__all__ = [
+    "ConditionRow",
+    "StoredIdentification",
+    "Usability",
+    "age_s",
+    "at_bound",
+    "chtc_snapshot",
+    "condition_from_row",
+    "data_to_record",
+    "row_to_record",
+    "usability",
+]
 
-N_ZONES = 7
+N_ZONES = len(ZONE_NAMES)
+BoolArray = npt.NDArray[np.bool_]
+FloatArray = npt.NDArray[np.float64]
 
 
-def nan_array(values: Any, n: int = N_ZONES) -> np.ndarray:
-    """Float array of length ``n`` with None -> NaN (None itself -> all NaN)."""
-    if values is None:
-        return np.full(n, np.nan)
-    out = np.array([np.nan if v is None else float(v) for v in values], dtype=float)
+class ConditionRow(Protocol):
+    """The columns of a stored condition (``service.store.models.Condition``)."""
+
+    id: int
+    speed_rpm: float
+    torque_nm: float
+    ambient_c: float
+    started_at: datetime
+
+
+class StoredIdentification(IdentificationRow, Protocol):
+    """A stored identification with its condition loaded (the repository's list/get functions load it)."""
+
+    @property
+    def condition(self) -> ConditionRow: ...
+
+
+def _floats(values: Sequence[float | None] | None) -> FloatArray:
+    """Read-only (7,) float array, None -> NaN (None itself -> all NaN)."""
+    out = np.full(N_ZONES, np.nan)
+    if values is not None:
+        out = np.array([np.nan if v is None else float(v) for v in values], dtype=float)
     out.setflags(write=False)
     return out
 
 
-def _bool_array(values: Any) -> np.ndarray:
-    out = np.zeros(N_ZONES, dtype=bool) if values is None else np.array([bool(v) for v in values], dtype=bool)
+def _bools(values: Sequence[bool] | Sequence[JsonValue] | None) -> BoolArray:
+    """Read-only (7,) bool array (None or a wrong length -> all False: records from before the field)."""
+    out = np.zeros(N_ZONES, dtype=bool)
+    if values is not None and len(values) == N_ZONES:
+        out = np.array([bool(v) for v in values], dtype=bool)
     out.setflags(write=False)
     return out
+
+
+def _ci_lo(values: Sequence[float | None] | None) -> FloatArray:
+    """Lower CI bounds; a record stored before the CIs were computed in log H (docs/identification.md) may
+    hold a negative one: H is positive, so it is served as 0."""
+    with np.errstate(invalid="ignore"):
+        out = np.where(_floats(values) < 0.0, 0.0, _floats(values))
+    out.setflags(write=False)
+    return out
+
+
+def _at_bound_flags(data: IdentificationData) -> BoolArray:
+    diagnostics = data.diagnostics or {}
+    flags = diagnostics.get("at_bound")
+    return _bools(flags if isinstance(flags, list) else None)
 
 
 def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> IdentificationRecord:
-    """The API view of an identification the service just finished (or skipped, or failed)."""
+    """The API view of an identification, just finished (or skipped, or failed) or read back from the
+    database: the one mapping from the stored record to the served one."""
     return IdentificationRecord(
-        id=data.id,
-        started_at=data.started_at,
-        finished_at=data.finished_at,
-        reason=data.reason,
-        outcome=data.outcome,
-        message=data.message,
+        data=data,
         condition=condition,
-        window_from=data.window_start,
-        window_to=data.window_end,
-        h=nan_array(data.h),
+        h=_floats(data.h),
         ci95_lo=_ci_lo(data.ci95_lo),
-        ci95_hi=nan_array(data.ci95_hi),
-        identified=_bool_array(data.identified),
-        f=data.f,
-        fit=data.fit,
-        rmse_c=data.rmse_c,
-        method=data.method,
-        model_version=data.model_version,
-        nfev=int(data.nfev),
-        wall_s=float(data.duration_s),
-        n_sensors_used=int(data.n_sensors_used),
-        at_bound=_at_bound(data.diagnostics),
+        ci95_hi=_floats(data.ci95_hi),
+        identified=_bools(data.identified),
+        at_bound=_at_bound_flags(data),
     )
 
 
-def _ci_lo(values: Any) -> np.ndarray:
-    """Lower CI bounds; a record stored before the CIs were computed in log H (docs/identification.md) may
-    hold a negative one: H is positive, so it is served as 0."""
-    lo = nan_array(values)
-    with np.errstate(invalid="ignore"):
-        out = np.where(lo < 0.0, 0.0, lo)
-    out.setflags(write=False)
-    return out
-
-
-def _at_bound(diagnostics: Any) -> np.ndarray:
-    """(7,) bool from the stored diagnostics (records before the flag existed: all False)."""
-    values = diagnostics.get("at_bound") if isinstance(diagnostics, dict) else None
-    return _bool_array(values if values is not None and len(values) == N_ZONES else None)
-
-
-def condition_from_row(row: Any, *, state: ConditionState = ConditionState.STABLE) -> ConditionSnapshot:
-    """The API view of a stored ``service.store.models.Condition`` row."""
+def condition_from_row(
+    row: ConditionRow, *, state: ConditionState = ConditionState.STABLE
+) -> ConditionSnapshot:
+    """The API view of a stored condition (the detector's live state is not stored: STABLE by default)."""
     return ConditionSnapshot(
         id=int(row.id),
         speed_rpm=float(row.speed_rpm),
@@ -97,32 +136,9 @@ def condition_from_row(row: Any, *, state: ConditionState = ConditionState.STABL
     )
 
 
-def row_to_record(row: Any) -> IdentificationRecord:
-    """The API view of a stored ``service.store.models.Identification`` row (its condition loaded)."""
-    return IdentificationRecord(
-        id=int(row.id),
-        started_at=row.started_at,
-        finished_at=row.finished_at,
-        reason=row.reason,
-        outcome=row.outcome,
-        message=row.message or "",
-        condition=condition_from_row(row.condition),
-        window_from=row.window_start,
-        window_to=row.window_end,
-        h=nan_array(row.h),
-        ci95_lo=_ci_lo(row.ci95_lo),
-        ci95_hi=nan_array(row.ci95_hi),
-        identified=_bool_array(row.identified),
-        f=row.f,
-        fit=row.fit,
-        rmse_c=row.rmse_c,
-        method=row.method,
-        model_version=row.model_version,
-        nfev=int(row.nfev or 0),
-        wall_s=float(row.duration_s or 0.0),
-        n_sensors_used=int(row.n_sensors_used or 0),
-        at_bound=_at_bound(row.diagnostics),
-    )
+def row_to_record(row: StoredIdentification) -> IdentificationRecord:
+    """The API view of a stored identification (its condition loaded)."""
+    return data_to_record(IdentificationData.from_row(row), condition_from_row(row.condition))
 
 
 def age_s(then: datetime | None, now: datetime) -> float | None:
@@ -130,13 +146,9 @@ def age_s(then: datetime | None, now: datetime) -> float | None:
     return None if then is None else max(0.0, (now - then).total_seconds())
 
 
-def is_usable_h(h: np.ndarray) -> bool:
-    return bool(len(h) == N_ZONES and all(math.isfinite(float(x)) and x > 0 for x in h))
-
-
-def at_bound(rec: IdentificationRecord, box: tuple[float, float] | None, rel_tol: float) -> np.ndarray:
+def at_bound(rec: IdentificationRecord, box: tuple[float, float] | None, rel_tol: float) -> BoolArray:
     """(7,) bool: the record's own flag, or H within ``rel_tol`` × box width of a bound of ``box``."""
-    flags = np.zeros(N_ZONES, dtype=bool) if rec.at_bound is None else np.asarray(rec.at_bound, dtype=bool)
+    flags = np.asarray(rec.at_bound, dtype=bool)
     if box is not None:
         lo, hi = float(box[0]), float(box[1])
         tol = rel_tol * (hi - lo)
@@ -155,21 +167,23 @@ class Usability:
 def usability(
     rec: IdentificationRecord,
     *,
-    bound: np.ndarray,
+    bound: BoolArray,
     condition: ConditionSnapshot | None,
     data_problems: tuple[str, ...],
     restored: bool,
+    has_sample: bool = True,
 ) -> Usability:
     """Whether a compensation controller may apply ``rec``'s H now, else the first reason why not.
 
-    Codes, in this order: ``stale`` (the data are not fresh: ``data_problems``), ``restored`` (the last stored
-    H, not re-identified since the restart), ``condition_changed`` (identified at another condition, or the
-    condition is changing), ``at_bound`` (an H on a bound of the search box), ``not_identified`` (an H's
-    95 % CI wider than the threshold)."""
+    Codes, in this order: ``no_data`` (no sample acquired yet), ``stale`` (the data are not fresh:
+    ``data_problems``), ``condition_changed`` (identified at another condition, or the condition is changing),
+    ``at_bound`` (an H on a bound of the search box), ``not_identified`` (an H's 95 % CI wider than the
+    threshold), ``restored`` (otherwise usable, but the last stored H, not re-identified since the
+    restart)."""
+    if not has_sample:
+        return Usability(False, "no_data: no sample acquired yet")
     if data_problems:
         return Usability(False, "stale: " + ", ".join(data_problems) + " (see /readyz)")
-    if restored:
-        return Usability(False, "restored: the last stored H, not re-identified since the restart")
     if condition is None or condition.id != rec.condition.id or condition.state is not ConditionState.STABLE:
         now = "none" if condition is None else f"{condition.id} ({condition.state.value})"
         return Usability(False, f"condition_changed: identified at condition {rec.condition.id}, now {now}")
@@ -177,6 +191,46 @@ def usability(
         names = ", ".join(n for n, b in zip(ZONE_NAMES, bound, strict=True) if b)
         return Usability(False, f"at_bound: {names} on a bound of the search box (not identified)")
     weak = [n for n, ok in zip(ZONE_NAMES, rec.identified, strict=True) if not ok]
-    if weak or not is_usable_h(rec.h):
+    positive = len(rec.h) == N_ZONES and all(math.isfinite(float(x)) and x > 0 for x in rec.h)
+    if weak or not positive:
         return Usability(False, f"not_identified: {', '.join(weak) or 'H'} (95 % CI too wide)")
+    if restored:
+        return Usability(False, "restored: the last stored H, not re-identified since the restart")
     return Usability(True, None)
+
+
+def chtc_snapshot(
+    rec: IdentificationRecord,
+    *,
+    status: ChtcStatus,
+    newest_sample_at: datetime | None,
+    condition: ConditionSnapshot | None,
+    data_problems: tuple[str, ...],
+    restored: bool,
+    box: tuple[float, float] | None,
+) -> ChtcSnapshot:
+    """What ``/chtc`` serves: the current identification ``rec`` and whether a controller may use it now.
+
+    ``data_problems``: codes of ``core.data_problems`` (empty: fresh); ``restored``: ``rec`` is the last
+    stored one, not re-identified since the restart; ``box``: the search box of H (an H within
+    ``BOUND_REL_TOL`` of a bound is not identified)."""
+    bound = at_bound(rec, box, BOUND_REL_TOL)
+    use = usability(
+        rec,
+        bound=bound,
+        condition=condition,
+        data_problems=data_problems,
+        restored=restored,
+        has_sample=newest_sample_at is not None,
+    )
+    identified = rec.identified & ~bound
+    identified.setflags(write=False)
+    return ChtcSnapshot(
+        record=rec,
+        status=status,
+        newest_sample_at=newest_sample_at,
+        identified=identified,
+        at_bound=bound,
+        usable_for_compensation=use.usable,
+        reason=use.reason,
+    )

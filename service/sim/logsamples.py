@@ -21,9 +21,21 @@ from __future__ import annotations
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import numpy as np
+
+from drivers.quality import Quality, from_daq_status
+from drivers.ringbuffer import Sample
+
+if TYPE_CHECKING:
+    import can
+
+    from drivers.logs import TemperatureLog
+    from model.plant import PlantRun
+
+# The CAN state over a log: frame times (POSIX s), speed rpm, torque N·m, status ok (all (m,))
+CanTrack = tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]
 
 __all__ = [
     "REPLAY_PHASE",
@@ -38,27 +50,16 @@ __all__ = [
 REPLAY_PHASE = 0.5  # chtc replay's acquisition samples half a period after each grid point of the recording
 
 
-@dataclass
+@dataclass(kw_only=True)
 class LogSamples:
-    samples: list[Any]
+    samples: list[Sample]
     rows: int
     frames: int
     bad_frames: int
     t_ref: float = 0.0  # POSIX s: the earlier of the first row and the first CAN frame
 
 
-def _quality(status: Any) -> np.ndarray:
-    """DAQ status codes (0 ok, 1 open circuit, 2 out of range; anything else out of range) -> ``Quality``."""
-    from drivers.quality import Quality
-
-    codes = np.asarray(status, dtype=np.int64)
-    q = np.full(codes.shape, Quality.OUT_OF_RANGE, dtype=np.uint8)
-    q[codes == 0] = Quality.OK
-    q[codes == 1] = Quality.OPEN_CIRCUIT
-    return q
-
-
-def _can_track(frames: list[Any]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
+def _can_track(frames: list[can.Message]) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
     from drivers.can_codec import SensorStatus, decode_frame
     from drivers.errors import FrameError
 
@@ -132,18 +133,24 @@ def samples_from_logs(
         )
     track = (ct, cs, cm, cok) if speed_rpm is None else None
     out = [
-        _sample(log, int(k), float(t), track, stated, can_stale_s) for t, k in zip(ticks, rows, strict=True)
+        _sample(log, int(k), t=float(t), track=track, stated=stated, can_stale_s=can_stale_s)
+        for t, k in zip(ticks, rows, strict=True)
     ]
-    return LogSamples(out, log.n_rows, len(frames), bad, t_ref=t_ref)
+    return LogSamples(samples=out, rows=log.n_rows, frames=len(frames), bad_frames=bad, t_ref=t_ref)
 
 
-def _sample(log: Any, k: int, t: float, track: Any, stated: tuple[Any, Any], can_stale_s: float) -> Any:
+def _sample(
+    log: TemperatureLog,
+    k: int,
+    *,
+    t: float,
+    track: CanTrack | None,
+    stated: tuple[float | None, float | None],
+    can_stale_s: float,
+) -> Sample:
     """Row ``k`` as the sample at time ``t``, with the CAN state then (or the stated speed and torque)."""
-    from drivers.quality import Quality
-    from drivers.ringbuffer import Sample
-
     if track is None:
-        speed, torque, fresh = float(stated[0]), float(stated[1]), True
+        speed, torque, fresh = float(stated[0] or 0.0), float(stated[1] or 0.0), True
     else:
         ct, cs, cm, cok = track
         i = int(np.searchsorted(ct, t, side="right")) - 1
@@ -151,7 +158,7 @@ def _sample(log: Any, k: int, t: float, track: Any, stated: tuple[Any, Any], can
         speed = float(cs[i]) if fresh else float("nan")
         torque = float(cm[i]) if fresh else float("nan")
     temps = np.asarray(log.temps_c[k], dtype=float)
-    q = _quality(log.status[k])
+    q = from_daq_status(log.status[k])
     q[~np.isfinite(temps)] = Quality.NAN
     return Sample(
         t=datetime.fromtimestamp(t, tz=UTC),
@@ -201,11 +208,9 @@ def write_acquisition_csv(
     return int(ticks.size)
 
 
-def samples_from_plant(run: Any, *, t0_s: float) -> list[Any]:
+def samples_from_plant(run: PlantRun, *, t0_s: float) -> list[Sample]:
     """One sample per row of a ``model.plant.PlantRun``, at UTC epoch ``t0_s`` + the row's plant time."""
-    from drivers.ringbuffer import Sample
-
-    quality = _quality(run.status)
+    quality = from_daq_status(run.status)
     return [
         Sample(
             t=datetime.fromtimestamp(t0_s + float(t), tz=UTC),

@@ -13,11 +13,20 @@ import itertools
 import os
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING
 
 import can
 
 from service.engine.runtime import ScaledClock, free_port
+
+if TYPE_CHECKING:
+    from drivers.can_sensor import CanSpindleSensor
+    from drivers.modbus_daq import ModbusDaq
+    from drivers.sim.can_node import SimulatedCanNode
+    from drivers.sim.modbus_server import SimulatedDaq
+    from drivers.sim.replay import Replay
+    from model.plant import PlantRun
+    from service.settings import Settings
 
 __all__ = ["SimAddress", "SimRig", "make_drivers", "plant_rig", "replay_rig"]
 
@@ -42,7 +51,7 @@ class SimAddress:
         return cls(host, free_port(host), _channel(), float(speedup))
 
 
-@dataclass
+@dataclass(kw_only=True)
 class SimRig:
     """Running simulated devices: DAQ on ``host:port``, CAN frames on virtual ``channel``."""
 
@@ -50,10 +59,10 @@ class SimRig:
     port: int
     channel: str
     speedup: float
-    daq_server: Any
-    can_node: Any = None
-    replay: Any = None
-    bus: Any = None
+    daq_server: SimulatedDaq
+    can_node: SimulatedCanNode | None = None
+    replay: Replay | None = None
+    bus: can.BusABC | None = None
 
     def plant_time_s(self) -> float:
         """Simulated time of the timeline being served, s (0 at its first row)."""
@@ -72,7 +81,7 @@ class SimRig:
                 self.bus.shutdown()
 
 
-async def plant_rig(timeline: Any, *, address: SimAddress, daq_period_s: float = 1.0) -> SimRig:
+async def plant_rig(timeline: PlantRun, *, address: SimAddress, daq_period_s: float = 1.0) -> SimRig:
     """The DAQ and the CAN node playing ``timeline`` (a ``model.plant.PlantRun``) from now on.
 
     Start it after the service: the plant's first row is served once the service is listening, as when a
@@ -92,7 +101,9 @@ async def plant_rig(timeline: Any, *, address: SimAddress, daq_period_s: float =
     source.start()
     await daq.start()
     await node.start()
-    return SimRig(a.host, a.port, a.channel, a.speedup, daq, can_node=node, bus=bus)
+    return SimRig(
+        host=a.host, port=a.port, channel=a.channel, speedup=a.speedup, daq_server=daq, can_node=node, bus=bus
+    )
 
 
 async def replay_rig(
@@ -107,10 +118,20 @@ async def replay_rig(
     await replay.listen()
     if begin:
         replay.begin()
-    return SimRig(a.host, a.port, a.channel, a.speedup, replay.daq, replay=replay, bus=bus)
+    return SimRig(
+        host=a.host,
+        port=a.port,
+        channel=a.channel,
+        speedup=a.speedup,
+        daq_server=replay.daq,
+        replay=replay,
+        bus=bus,
+    )
 
 
-def make_drivers(settings: Any, rig: SimAddress | SimRig, *, clock: ScaledClock) -> tuple[Any, Any]:
+def make_drivers(
+    settings: Settings, rig: SimAddress | SimRig, *, clock: ScaledClock
+) -> tuple[ModbusDaq, CanSpindleSensor]:
     """The service's Modbus and CAN drivers connected to ``rig`` (wall-clock limits scaled to speed-up)."""
     from drivers.can_sensor import CanSpindleSensor
     from drivers.modbus_daq import ModbusDaq

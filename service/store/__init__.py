@@ -2,7 +2,8 @@
 
 Everything is built at the edge from ``settings.database``; nothing connects at import. API::
 
-    from service.store import engine, migrate, repository as repo, writer, records, convert
+    from service.store import engine, migrate, repository as repo, writer, records
+    from service.serve.views import row_to_record
 
     eng = engine.create_db_engine(settings.database.url, echo=settings.database.echo)  # SQLite: WAL, FKs on
     migrate.upgrade(eng)                       # or URL; to "head"; current_revision(eng), head_revision()
@@ -11,13 +12,10 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
     # one session per job/request; SQLAlchemy errors → DatabaseUnavailableError / RecordError
     with repo.session_scope(factory, "list identifications") as s:
         page = repo.list_identifications(s, since=t0, until=t1, limit=50, offset=0, outcome=None)
-        api_page = convert.identification_page(page)      # -> service.serve.interface.IdentificationPage
         row = repo.get_identification(s, 12)              # RecordNotFoundError if absent
-        rec = convert.identification_record(row)          # -> service.serve.interface.IdentificationRecord
+        data = records.IdentificationData.from_row(row)   # the stored record back (inverse of values())
+        rec = row_to_record(row)                          # -> service.serve.interface.IdentificationRecord
         last = repo.last_identification(s)                # newest "ok" one, or None if there is none
-        warm = repo.nearest_identification(s, speed_rpm=4000, torque_nm=10, ambient_c=22,
-                                           before=now, exclude_condition_id=7,
-                                           scales=(1000.0, 5.0, 5.0))   # or None; warm.h -> 7 floats
         seeds = repo.latest_per_condition(s, limit=100)   # newest ok result per condition (scheduler history)
         max_cond_id, max_ident_id = repo.max_ids(s)       # resume id counters after a restart
         repo.list_conditions(s, since=..., until=..., limit=..., offset=...)        # Page[Condition]
@@ -35,8 +33,8 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
              finished_at=.., window_start=.., window_end=.., reason="schedule", model_version="...",
              warm_start_source="condition 6", warm_start_id=11))
     # or IdentificationData(...) directly, with outcome="failed"/"skipped"/"cancelled"/... and a message
-    dec = records.SampleDecimator(settings.database.sample_store_period_s)
-    if dec.keep(sample.t): w.submit(records.SampleData.from_sample(sample))   # a drivers Sample
+    w.submit(records.SampleData(t=t, temps_c=temps, ambient_c=22.0, speed_rpm=4000.0, torque_nm=10.0,
+                                quality=("ok",) * 32))   # quality: drivers.quality.Quality labels
     w.submit(records.DeviceEventData(t=t, device="modbus", kind="timeout", detail="unit 1, 1.0 s"))
     w.status()   # WriterStatus(connected, pending, written, dropped, rejected, errors, lost_on_close,
                  #              last_error, last_error_at, last_ok_at)  -> health / metrics
@@ -45,5 +43,5 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
 Ids of conditions and identifications are assigned by the service (start from ``repo.max_ids`` + 1; if the
 database is down at start, any larger unique integers, e.g. epoch milliseconds, work): the writer may hold
 the rows for a while, and the API needs the id at once. All datetimes are aware UTC (naive ones are refused).
-Errors: see ``service.store.errors``.
+Errors: see ``service.store.errors`` (SQLAlchemy errors are translated in ``service.store.sqlerrors``).
 """

@@ -7,9 +7,8 @@
     ├── RecordNotFoundError(DatabaseError, LookupError)            unknown id (names the table and id)
     └── RecordError(DatabaseError, ValueError)                     a record the database refuses (names why)
 
-SQLAlchemy errors are translated in ``service.store.translate`` (used by the repository helpers and the
-writer); this module imports no SQLAlchemy, so the records (``service.store.records``) and the service core
-that raise or name these errors do not load it.
+SQLAlchemy errors are translated into these in ``service.store.sqlerrors`` (this module imports no SQLAlchemy,
+so the pure records can raise ``RecordError``).
 """
 
 from __future__ import annotations

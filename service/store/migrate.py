@@ -17,7 +17,7 @@ from sqlalchemy import Engine
 from sqlalchemy import exc as sa_exc
 
 from service.store.engine import create_db_engine
-from service.store.translate import translate
+from service.store.sqlerrors import translate
 
 MIGRATIONS_DIR = Path(__file__).resolve().parent.parent / "migrations"
 

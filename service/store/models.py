@@ -68,7 +68,7 @@ class Identification(Base):
     window_start: Mapped[datetime]
     window_end: Mapped[datetime]
     reason: Mapped[str] = mapped_column(String(32))  # trigger: "schedule", "manual", ...
-    outcome: Mapped[str] = mapped_column(String(32))  # one of service.store.records.OUTCOMES
+    outcome: Mapped[str] = mapped_column(String(32))  # a service.identify.outcome.Outcome value
     message: Mapped[str] = mapped_column(Text, default="")
     method: Mapped[str] = mapped_column(String(32))
     model_version: Mapped[str] = mapped_column(String(128))

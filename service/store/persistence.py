@@ -22,7 +22,7 @@ from collections.abc import Callable
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING
 
 from service.engine.core import Restored
 from service.identify.detector import OperatingPoint
@@ -31,12 +31,21 @@ from service.serve.interface import ConditionState
 from service.serve.views import condition_from_row, row_to_record
 from service.store.records import Record
 
+if TYPE_CHECKING:
+    from sqlalchemy.engine import Engine
+    from sqlalchemy.orm import Session, sessionmaker
+
+    from service.settings import DatabaseSettings
+    from service.store.reads import DbReads
+    from service.store.watchdog import StatementWatchdog
+    from service.store.writer import DbWriter, WriterStatus
+
 __all__ = ["GateSink", "Persistence", "open_persistence", "restore"]
 
 log = logging.getLogger(__name__)
 
 
-def restore(session_factory: Any, *, limit: int = 100) -> Restored:
+def restore(session_factory: sessionmaker[Session], *, limit: int = 100) -> Restored:
     """The state of the previous run from the database (raises ``service.store.errors.DatabaseError``)."""
     from service.store.repository import (
         last_served_identification,
@@ -55,10 +64,10 @@ def restore(session_factory: Any, *, limit: int = 100) -> Restored:
             PastResult(
                 int(r.condition_id),
                 OperatingPoint(r.condition.speed_rpm, r.condition.torque_nm, r.condition.ambient_c),
-                tuple(float(x) for x in r.h if x is not None),  # all set: filtered below
+                h,
             )
             for r in reversed(latest)  # oldest first: the scheduler prefers the newest on ties
-            if all(x is not None for x in r.h)
+            if (h := _complete(r.h)) is not None
         )
         rows = list_conditions(session, limit=50).items
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
@@ -81,7 +90,7 @@ class GateSink:
     """Holds records until ``open(writer)``, then forwards everything (in order) to the writer."""
 
     def __init__(self, *, max_held: int = 1_000_000) -> None:
-        self.writer: Any = None
+        self.writer: DbWriter | None = None
         self.held: list[Record] = []
         self.max_held = max_held
         self.dropped = 0
@@ -96,13 +105,13 @@ class GateSink:
         self.held.append(record)
         return True
 
-    def open(self, writer: Any) -> None:
+    def open(self, writer: DbWriter) -> None:
         held, self.held = self.held, []
         self.writer = writer
         for record in held:
             writer.submit(record)
 
-    def status(self) -> Any:
+    def status(self) -> WriterStatus:
         if self.writer is not None:
             return self.writer.status()
         from service.store.writer import WriterStatus
@@ -121,25 +130,26 @@ class GateSink:
         )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Persistence:
     """Engine, sessions, the gated writer and what was restored."""
 
     url: str
-    engine: Any
-    session_factory: Any
+    engine: Engine
+    session_factory: sessionmaker[Session]
     sink: GateSink
     restored: Restored
     restored_from_db: bool
-    settings: Any
+    settings: DatabaseSettings
     migrate: bool
     on_event: Callable[[str], None] = field(default=lambda _m: None)
     clock: Callable[[], datetime] | None = None  # the service's clock (None: UTC wall clock)
-    writer_engine: Any = None  # the writer's own engine and pool (a hung read never blocks a write)
-    writer_factory: Any = None
-    writer_watchdog: Any = None
-    reads: Any = None  # service.store.reads.DbReads: API reads, bounded and with a deadline
-    read_watchdog: Any = None
+    # the writer's own engine and pool (a hung read never blocks a write)
+    writer_engine: Engine | None = None
+    writer_factory: sessionmaker[Session] | None = None
+    writer_watchdog: StatementWatchdog | None = None
+    reads: DbReads | None = None  # API reads, bounded and with a deadline
+    read_watchdog: StatementWatchdog | None = None
     _task: asyncio.Task[None] | None = None
 
     async def ensure_open(self, *, retry_s: float = 2.0) -> None:
@@ -154,10 +164,9 @@ class Persistence:
                 self.sink.last_error = text
                 await asyncio.sleep(retry_s)
                 continue
+            factory = self.writer_factory or self.session_factory
             self.sink.open(
-                _start_writer(
-                    self.writer_factory, self.settings, clock=self.clock, watchdog=self.writer_watchdog
-                )
+                _start_writer(factory, self.settings, clock=self.clock, watchdog=self.writer_watchdog)
             )
             self.on_event(
                 f"db: connected ({_safe_url(self.url)}), writing {len(self.sink.held)} held records"
@@ -172,7 +181,7 @@ class Persistence:
         if self.sink.writer is None and self._task is None:
             self._task = asyncio.ensure_future(self.ensure_open())
 
-    def close(self, timeout_s: float = 10.0) -> Any:
+    def close(self, timeout_s: float = 10.0) -> WriterStatus | None:
         if self._task is not None:
             self._task.cancel()
         status = None
@@ -200,7 +209,7 @@ def _describe(err: BaseException) -> str:
     return f"database not reachable: {err}"
 
 
-def _prepare_schema(engine: Any, migrate: bool) -> None:
+def _prepare_schema(engine: Engine, migrate: bool) -> None:
     from service.store.migrate import current_revision, head_revision, upgrade
 
     if migrate:
@@ -216,8 +225,12 @@ def _prepare_schema(engine: Any, migrate: bool) -> None:
 
 
 def _start_writer(
-    session_factory: Any, db: Any, *, clock: Callable[[], datetime] | None, watchdog: Any = None
-) -> Any:
+    session_factory: sessionmaker[Session],
+    db: DatabaseSettings,
+    *,
+    clock: Callable[[], datetime] | None,
+    watchdog: StatementWatchdog | None = None,
+) -> DbWriter:
     from service.store.writer import DbWriter, utc_now
 
     return DbWriter(
@@ -228,21 +241,21 @@ def _start_writer(
         retry_initial_s=db.retry_initial_s,
         retry_max_s=db.retry_max_s,
         watchdog=watchdog,
-        heartbeat_s=getattr(db, "heartbeat_s", None),
-        stall_s=getattr(db, "stall_s", 3.0),
+        heartbeat_s=db.heartbeat_s,
+        stall_s=db.stall_s,
     ).start()
 
 
-def _engine(db: Any) -> tuple[Any, Any, Any]:
+def _engine(db: DatabaseSettings) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
     """(engine, session factory, watchdog): one per use (the writer's, the API reads'), each its own pool."""
     from service.store.engine import create_db_engine, make_session_factory
     from service.store.watchdog import StatementWatchdog
 
-    statement_s = float(getattr(db, "statement_timeout_s", 5.0))
+    statement_s = float(db.statement_timeout_s)
     engine = create_db_engine(
         db.url,
         echo=db.echo,
-        connect_timeout_s=float(getattr(db, "connect_timeout_s", 5.0)),
+        connect_timeout_s=float(db.connect_timeout_s),
         statement_timeout_s=statement_s,
     )
     watchdog = StatementWatchdog(engine, abort_after_s=statement_s + 1.0).start()
@@ -256,7 +269,7 @@ def _safe_url(url: str) -> str:
 
 
 def open_persistence(
-    db: Any,
+    db: DatabaseSettings,
     *,
     migrate: bool,
     on_event: Callable[[str], None] | None = None,
@@ -286,24 +299,30 @@ def open_persistence(
         restored, from_db = fallback_restored(), False
     reads = DbReads(
         factory,
-        threads=int(getattr(db, "read_threads", 4)),
-        timeout_s=float(getattr(db, "read_timeout_s", 2.0)),
+        threads=db.read_threads,
+        timeout_s=db.read_timeout_s,
         watchdog=read_watchdog,
     )
     return Persistence(
-        db.url,
-        engine,
-        factory,
-        sink,
-        restored,
-        from_db,
-        db,
-        migrate,
-        say,
-        clock,
+        url=db.url,
+        engine=engine,
+        session_factory=factory,
+        sink=sink,
+        restored=restored,
+        restored_from_db=from_db,
+        settings=db,
+        migrate=migrate,
+        on_event=say,
+        clock=clock,
         writer_engine=w_engine,
         writer_factory=w_factory,
         writer_watchdog=w_watchdog,
         reads=reads,
         read_watchdog=read_watchdog,
     )
+
+
+def _complete(h: tuple[float | None, ...]) -> tuple[float, ...] | None:
+    """H1..H7 when every one is stored, else None (a row without H is no warm start)."""
+    values = tuple(x for x in h if x is not None)
+    return values if len(values) == len(h) else None

@@ -2,26 +2,39 @@
 
 They carry no session state, so a batch that failed can be retried as is. Validation happens at
 construction and raises ``RecordError`` naming the field (naive datetime, wrong length, unknown outcome).
-Non-finite floats (NaN, ±inf) are stored as NULL. ``SampleData.from_sample`` and
-``IdentificationData.from_result`` adapt a ``drivers`` ``Sample`` and a ``model.identify`` result.
-This module imports no SQLAlchemy: the service core builds these records without loading the database code.
+Non-finite floats (NaN, ±inf) are stored as NULL. ``IdentificationData.from_result`` adapts a
+``model.identify`` result and ``IdentificationData.from_row`` reads a stored row back (the inverse of
+``values()``); ``service.serve.views`` maps an ``IdentificationData`` to what the API serves. This module
+imports neither SQLAlchemy nor the model.
 """
 
 from __future__ import annotations
 
 import math
-from collections.abc import Mapping, Sequence
+from collections.abc import Iterable, Mapping, Sequence
 from dataclasses import dataclass, field, fields
 from datetime import datetime
-from typing import Any
+from typing import TYPE_CHECKING, Protocol, SupportsFloat, TypeVar
 
+import numpy as np
+
+from service.identify.outcome import OUTCOMES
 from service.store.errors import RecordError
 
+if TYPE_CHECKING:
+    from _typeshed import DataclassInstance
+
+    from model.identify import IdentificationResult
+
 N_ZONES = 7
-OUTCOMES = ("ok", "failed", "insufficient-data", "skipped", "cancelled")  # IdentificationData.outcome
+K = TypeVar("K")
+
+# What a JSON column holds (``diagnostics``): built by ``_plain`` from numpy values.
+JsonValue = None | bool | int | float | str | list["JsonValue"] | dict[str, "JsonValue"]
+Column = datetime | int | float | str | bool | None | list[float | None] | list[bool] | dict[str, JsonValue]
 
 
-def finite(value: Any) -> float | None:
+def finite(value: SupportsFloat | None) -> float | None:
     """``float(value)``, or None for None/NaN/±inf (JSON and SQL have no NaN)."""
     if value is None:
         return None
@@ -29,12 +42,12 @@ def finite(value: Any) -> float | None:
     return x if math.isfinite(x) else None
 
 
-def finite_list(values: Any) -> list[float | None]:
+def finite_list(values: Iterable[SupportsFloat | None]) -> list[float | None]:
     return [finite(v) for v in values]
 
 
-def _check_times(record: object) -> None:
-    for f in fields(record):  # type: ignore[arg-type]
+def _check_times(record: DataclassInstance) -> None:
+    for f in fields(record):
         value = getattr(record, f.name)
         if isinstance(value, datetime) and (value.tzinfo is None or value.utcoffset() is None):
             raise RecordError(
@@ -42,7 +55,7 @@ def _check_times(record: object) -> None:
             )
 
 
-def _check_len(record: object, name: str, value: Sequence[Any] | None, n: int) -> None:
+def _check_len(record: object, name: str, value: Sequence[object] | None, n: int) -> None:
     if value is not None and len(value) != n:
         raise RecordError(f"{type(record).__name__}.{name}: expected {n} values, got {len(value)}")
 
@@ -60,8 +73,14 @@ class ConditionStart:
     def __post_init__(self) -> None:
         _check_times(self)
 
-    def values(self) -> dict[str, Any]:
-        return {f.name: getattr(self, f.name) for f in fields(self)}
+    def values(self) -> dict[str, Column]:
+        return {
+            "id": self.id,
+            "started_at": self.started_at,
+            "speed_rpm": self.speed_rpm,
+            "torque_nm": self.torque_nm,
+            "ambient_c": self.ambient_c,
+        }
 
 
 @dataclass(frozen=True)
@@ -85,11 +104,11 @@ class DeviceEventData:
     def __post_init__(self) -> None:
         _check_times(self)
 
-    def values(self) -> dict[str, Any]:
+    def values(self) -> dict[str, Column]:
         return {"t": self.t, "device": self.device[:16], "kind": self.kind[:64], "detail": self.detail}
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SampleData:
     """One acquisition instant: temperatures °C per channel, ambient °C, speed rpm, torque N·m."""
 
@@ -106,23 +125,8 @@ class SampleData:
         _check_times(self)
         _check_len(self, "quality", self.quality, len(self.temps_c))
 
-    @classmethod
-    def from_sample(cls, sample: Any) -> SampleData:
-        """From a ``drivers`` ``Sample`` (t, temps_c, ambient_c, speed_rpm, torque_nm, quality, *_ok)."""
-        quality = [str(getattr(q, "value", q)) for q in sample.quality]
-        return cls(
-            t=sample.t,
-            temps_c=tuple(finite_list(sample.temps_c)),
-            ambient_c=finite(sample.ambient_c),
-            speed_rpm=finite(sample.speed_rpm),
-            torque_nm=finite(sample.torque_nm),
-            quality=tuple(quality),
-            can_ok=bool(getattr(sample, "can_ok", True)),
-            daq_ok=bool(getattr(sample, "daq_ok", True)),
-        )
-
-    def values(self) -> dict[str, Any]:
-        bad = {str(i + 1): q for i, q in enumerate(self.quality) if q != "ok"}
+    def values(self) -> dict[str, Column]:
+        bad: dict[str, JsonValue] = {str(i + 1): q for i, q in enumerate(self.quality) if q != "ok"}
         return {
             "t": self.t,
             "temps_c": finite_list(self.temps_c),
@@ -136,9 +140,8 @@ class SampleData:
         }
 
 
-@dataclass(frozen=True)
-class IdentificationData:
-    """One identification outcome (ids from the service). H, CIs in W/(m²·K); f in °C²; rmse in °C."""
+class IdentificationRow(Protocol):
+    """The columns of a stored identification (``service.store.models.Identification``) that are read back."""
 
     id: int
     condition_id: int
@@ -146,15 +149,53 @@ class IdentificationData:
     finished_at: datetime
     window_start: datetime
     window_end: datetime
-    reason: str  # trigger: "schedule" | "manual" | ...
-    outcome: str  # one of OUTCOMES
+    reason: str
+    outcome: str
+    message: str
+    method: str
+    model_version: str
+    ci95_lo: list[float | None] | None
+    ci95_hi: list[float | None] | None
+    identified: list[bool] | None
+    load_scale_front: float | None
+    load_scale_rear: float | None
+    f: float | None
+    fit: float | None
+    rmse_c: float | None
+    nfev: int
+    duration_s: float
+    n_sensors_used: int
+    warm_start_source: str | None
+    warm_start_id: int | None
+    diagnostics: dict[str, JsonValue] | None
+
+    @property
+    def h(self) -> tuple[float | None, ...]: ...
+
+
+@dataclass(frozen=True, kw_only=True)
+class IdentificationData:
+    """One identification outcome (ids from the service). H, CIs in W/(m²·K); f in °C²; rmse in °C.
+
+    What is stored and, with its condition, what is served (``service.serve.views.data_to_record``): a value
+    that should reach ``/chtc`` and ``/identifications`` is a field here, set in ``from_result``.
+    """
+
+    id: int
+    condition_id: int
+    started_at: datetime
+    finished_at: datetime
+    window_start: datetime
+    window_end: datetime
+    reason: str  # trigger: "condition-change" | "scheduled" | "manual" | ...
+    outcome: str  # a service.identify.outcome.Outcome value
     method: str
     model_version: str
     h: Sequence[float | None] | None = None  # 7; None when nothing was identified
     ci95_lo: Sequence[float | None] | None = None
     ci95_hi: Sequence[float | None] | None = None
     identified: Sequence[bool] | None = None
-    load_scale: Sequence[float] | None = None  # (front, rear)
+    load_scale: Sequence[float | None] | None = None  # (front, rear)
     f: float | None = None
     fit: float | None = None
     rmse_c: float | None = None
@@ -164,7 +205,8 @@ class IdentificationData:
     warm_start_source: str | None = None
     warm_start_id: int | None = None
     message: str = ""
-    diagnostics: Mapping[str, Any] | None = field(default=None)
+    # test_points, rmse_per_sensor, at_bound: JSON, so a new diagnostic needs no column
+    diagnostics: Mapping[str, JsonValue] | None = field(default=None)
     # ids of the service core's events that started and ended the job (service.engine.events), stored in
     # the diagnostics as {"events": {"started_by": ..., "finished_by": ...}}: a story to follow when debugging
     started_by_event: str | None = None
@@ -174,50 +216,111 @@ class IdentificationData:
         _check_times(self)
         if self.outcome not in OUTCOMES:
             raise RecordError(f"IdentificationData.outcome: {self.outcome!r} is not one of {OUTCOMES}")
-        for name in ("h", "ci95_lo", "ci95_hi", "identified"):
-            _check_len(self, name, getattr(self, name), N_ZONES)
+        for name, value in (
+            ("h", self.h),
+            ("ci95_lo", self.ci95_lo),
+            ("ci95_hi", self.ci95_hi),
+            ("identified", self.identified),
+        ):
+            _check_len(self, name, value, N_ZONES)
         _check_len(self, "load_scale", self.load_scale, 2)
 
     @classmethod
-    def from_result(cls, result: Any, **meta: Any) -> IdentificationData:
-        """From a ``model.identify.IdentificationResult``; ``meta`` gives ids, times, reason, model_version...
+    def from_result(
+        cls,
+        result: IdentificationResult,
+        *,
+        id: int,
+        condition_id: int,
+        started_at: datetime,
+        finished_at: datetime,
+        window_start: datetime,
+        window_end: datetime,
+        reason: str,
+        model_version: str,
+        warm_start_source: str | None = None,
+        warm_start_id: int | None = None,
+        started_by_event: str | None = None,
+        finished_by_event: str | None = None,
+    ) -> IdentificationData:
+        """A successful identification from its ``model.identify.IdentificationResult`` and the job's ids,
+        times and provenance.
 
-        ``outcome`` defaults to "ok"; ``rmse_c`` is √f, the RMSE over the entries the fit used (masked-out
-        channels excluded); ``n_sensors_used`` counts the channels with a per-sensor RMSE (the identification
-        gives NaN for a masked-out one, whatever value it showed, e.g. −327.68 °C open circuit).
+        ``rmse_c`` is √f, the RMSE over the entries the fit used (masked-out channels excluded);
+        ``n_sensors_used`` counts the channels with a per-sensor RMSE (the identification gives NaN for a
+        masked-out one, whatever value it showed, e.g. −327.68 °C open circuit).
         """
         ci = [[finite(v) for v in row] for row in result.h_ci95]
-        per_sensor = [finite(v) for v in getattr(result, "rmse_per_sensor", ())]
-        used = [v for v in per_sensor if v is not None]
-        load = getattr(result, "load_scale", None)
+        per_sensor = finite_list(result.rmse_per_sensor)
         f = finite(result.f)
-        at_bound = getattr(result, "at_bound", None)
-        diagnostics = {
-            "test_points": _plain(getattr(result, "test_points", None)),
-            "rmse_per_sensor": per_sensor,
-            "at_bound": None if at_bound is None else [bool(v) for v in at_bound],
+        diagnostics: dict[str, JsonValue] = {
+            "test_points": _plain(result.test_points),
+            "rmse_per_sensor": list(per_sensor),
+            "at_bound": [bool(v) for v in result.at_bound],
         }
-        values: dict[str, Any] = {
-            "outcome": "ok",
-            "method": str(result.method),
-            "h": finite_list(result.h),
-            "ci95_lo": [row[0] for row in ci],
-            "ci95_hi": [row[1] for row in ci],
-            "identified": [bool(v) for v in result.identified],
-            "load_scale": None if load is None else [float(v) for v in load],
-            "f": finite(result.f),
-            "fit": finite(result.fit),
-            "rmse_c": math.sqrt(f) if f is not None and f >= 0 else None,
-            "nfev": int(result.nfev),
-            "duration_s": float(result.wall_s),
-            "n_sensors_used": len(used),
-            "message": str(getattr(result, "message", "")),
-            "diagnostics": diagnostics,
-        }
-        values.update(meta)
-        return cls(**values)
+        return cls(
+            id=id,
+            condition_id=condition_id,
+            started_at=started_at,
+            finished_at=finished_at,
+            window_start=window_start,
+            window_end=window_end,
+            reason=reason,
+            outcome="ok",
+            method=str(result.method),
+            model_version=model_version,
+            h=finite_list(result.h),
+            ci95_lo=[row[0] for row in ci],
+            ci95_hi=[row[1] for row in ci],
+            identified=[bool(v) for v in result.identified],
+            load_scale=None if result.load_scale is None else [float(v) for v in result.load_scale],
+            f=f,
+            fit=finite(result.fit),
+            rmse_c=math.sqrt(f) if f is not None and f >= 0 else None,
+            nfev=int(result.nfev),
+            duration_s=float(result.wall_s),
+            n_sensors_used=sum(v is not None for v in per_sensor),
+            warm_start_source=warm_start_source,
+            warm_start_id=warm_start_id,
+            message=str(result.message),
+            diagnostics=diagnostics,
+            started_by_event=started_by_event,
+            finished_by_event=finished_by_event,
+        )
 
-    def values(self) -> dict[str, Any]:
+    @classmethod
+    def from_row(cls, row: IdentificationRow) -> IdentificationData:
+        """A stored identification read back: the inverse of ``values()`` (NULL stays None)."""
+        scales = (row.load_scale_front, row.load_scale_rear)
+        return cls(
+            id=int(row.id),
+            condition_id=int(row.condition_id),
+            started_at=row.started_at,
+            finished_at=row.finished_at,
+            window_start=row.window_start,
+            window_end=row.window_end,
+            reason=row.reason,
+            outcome=row.outcome,
+            method=row.method,
+            model_version=row.model_version,
+            h=None if all(v is None for v in row.h) else list(row.h),
+            ci95_lo=row.ci95_lo,
+            ci95_hi=row.ci95_hi,
+            identified=row.identified,
+            load_scale=None if all(v is None for v in scales) else list(scales),
+            f=row.f,
+            fit=row.fit,
+            rmse_c=row.rmse_c,
+            nfev=int(row.nfev or 0),
+            duration_s=float(row.duration_s or 0.0),
+            n_sensors_used=int(row.n_sensors_used or 0),
+            warm_start_source=row.warm_start_source,
+            warm_start_id=row.warm_start_id,
+            message=row.message or "",
+            diagnostics=row.diagnostics,
+        )
+
+    def values(self) -> dict[str, Column]:
         h = list(self.h) if self.h is not None else [None] * N_ZONES
         load = list(self.load_scale) if self.load_scale is not None else [None, None]
         return {
@@ -249,54 +352,31 @@ class IdentificationData:
             "diagnostics": self._stored_diagnostics(),
         }
 
-    def _stored_diagnostics(self) -> Any:
+    def _stored_diagnostics(self) -> dict[str, JsonValue] | None:
         events = {"started_by": self.started_by_event, "finished_by": self.finished_by_event}
         if all(v is None for v in events.values()):
-            return None if self.diagnostics is None else _plain(self.diagnostics)
-        return _plain({**(self.diagnostics or {}), "events": events})
-
-
-class SampleDecimator:
-    """Keep one sample per ``period_s`` (``database.sample_store_period_s``) of sample time, on a grid.
-
-    The grid is ``k * period_s`` (epoch seconds); a sample belongs to the grid instant nearest to it
-    (tolerance ``period_s / 2``), and ``keep(t)`` is True for the first sample of each grid slot after the
-    last kept one. Jittered stamps (a 10 s acquisition arriving at 9.7 s, 10.4 s, ...) therefore keep
-    every sample, where "at least ``period_s`` after the last kept one" dropped about a third of them. A
-    sample in an earlier slot than the last kept one (the clock stepped back) restarts the grid there.
-    """
-
-    def __init__(self, period_s: float) -> None:
-        if not period_s > 0:
-            raise ValueError(f"database.sample_store_period_s must be > 0, got {period_s!r}")
-        self.period_s = period_s
-        self._last_slot: int | None = None
-
-    def slot(self, t: datetime | float) -> int:
-        """The grid slot of ``t`` (a UTC ``datetime`` or epoch seconds)."""
-        ts = t.timestamp() if isinstance(t, datetime) else float(t)
-        return math.floor(ts / self.period_s + 0.5)
-
-    def keep(self, t: datetime | float) -> bool:
-        k = self.slot(t)
-        if self._last_slot is not None and k == self._last_slot:
-            return False
-        self._last_slot = k
-        return True
+            return None if self.diagnostics is None else _plain_dict(self.diagnostics)
+        return _plain_dict({**(self.diagnostics or {}), "events": events})
 
 
 Record = ConditionStart | ConditionEnd | IdentificationData | DeviceEventData | SampleData
 RECORD_TYPES = (ConditionStart, ConditionEnd, IdentificationData, DeviceEventData, SampleData)
 
 
-def _plain(value: Any) -> Any:
+def _plain(value: object) -> JsonValue:
     """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None, keys to str."""
     if isinstance(value, Mapping):
-        return {str(k): _plain(v) for k, v in value.items()}
-    if hasattr(value, "tolist"):
+        return _plain_dict(value)
+    if isinstance(value, np.ndarray | np.generic):
         value = value.tolist()
     if isinstance(value, list | tuple):
         return [_plain(v) for v in value]
     if isinstance(value, float):
         return finite(value)
-    return value
+    if value is None or isinstance(value, bool | int | str):
+        return value
+    raise RecordError(f"diagnostics: {type(value).__name__} is not JSON")
+
+
+def _plain_dict(value: Mapping[K, object]) -> dict[str, JsonValue]:
+    return {str(k): _plain(v) for k, v in value.items()}

@@ -1,7 +1,7 @@
 """Queries and writes on one ``Session`` (one session per job or request: use ``session_scope``).
 
-Lookups by id raise ``RecordNotFoundError``; ``last_identification`` and ``nearest_identification`` return
-None only with their documented meaning ("there is none"). SQLAlchemy errors inside ``session_scope`` are
+Lookups by id raise ``RecordNotFoundError``; ``last_identification`` returns
+None only with its documented meaning ("there is none"). SQLAlchemy errors inside ``session_scope`` are
 translated once into ``DatabaseUnavailableError`` / ``RecordError``.
 """
 
@@ -29,10 +29,9 @@ from service.store.records import (
     Record,
     SampleData,
 )
-from service.store.translate import translate
+from service.store.sqlerrors import translate
 
 T = TypeVar("T")
-DEFAULT_DISTANCE_SCALES = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: one "unit" of condition distance each
 
 
 @dataclass(frozen=True)
@@ -184,38 +183,6 @@ def last_served_identification(session: Session) -> Identification | None:
         .order_by(Identification.id.desc())
         .limit(1)
     )
-    return session.scalars(query).first()
-
-
-def nearest_identification(
-    session: Session,
-    *,
-    speed_rpm: float,
-    torque_nm: float,
-    ambient_c: float,
-    before: datetime | None = None,
-    exclude_condition_id: int | None = None,
-    scales: tuple[float, float, float] = DEFAULT_DISTANCE_SCALES,
-) -> Identification | None:
-    """The successful identification whose condition is nearest to (speed, torque, ambient), for a warm start.
-
-    Distance: Σ((x - x_c) / scale)², scales in (rpm, N·m, °C). Ties go to the newest. Only identifications
-    finished before ``before`` count. None if there is no earlier successful identification.
-    """
-    ds = (Condition.speed_rpm - speed_rpm) / scales[0]
-    dt = (Condition.torque_nm - torque_nm) / scales[1]
-    da = (Condition.ambient_c - ambient_c) / scales[2]
-    query = (
-        select(Identification)
-        .join(Identification.condition)
-        .where(Identification.outcome == "ok", Identification.h1.is_not(None))
-        .options(joinedload(Identification.condition))
-    )
-    if before is not None:
-        query = query.where(Identification.finished_at < before)
-    if exclude_condition_id is not None:
-        query = query.where(Identification.condition_id != exclude_condition_id)
-    query = query.order_by(ds * ds + dt * dt + da * da, Identification.finished_at.desc()).limit(1)
     return session.scalars(query).first()
 
 

@@ -9,7 +9,8 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from service.serve.interface import ChtcService, FieldSnapshot, Histogram
+from service.serve.histogram import Histogram
+from service.serve.interface import ChtcService, FieldSnapshot
 from service.serve.interface_memory import InMemoryService, demo_service, model_section, synthetic_section
 
 

@@ -35,7 +35,14 @@ FREEZE_S = float(os.environ.get("CHTC_TEST_FREEZE_S", "15"))  # the issue's outa
 
 
 def sample(i: int) -> SampleData:
-    return SampleData(T0 + timedelta(seconds=10 * i), [20.0 + 0.01 * i] * 32, 22.0, 4000.0, 10.0, ["ok"] * 32)
+    return SampleData(
+        t=T0 + timedelta(seconds=10 * i),
+        temps_c=[20.0 + 0.01 * i] * 32,
+        ambient_c=22.0,
+        speed_rpm=4000.0,
+        torque_nm=10.0,
+        quality=["ok"] * 32,
+    )
 
 
 def db_health(client: TestClient) -> tuple[str, str, str]:

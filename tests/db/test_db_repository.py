@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.store import convert
+from service.serve.views import row_to_record
 from service.store import repository as repo
 from service.store.errors import RecordError, RecordNotFoundError
 from service.store.models import Condition, DeviceEvent, Identification, SampleRow
@@ -99,7 +99,8 @@ def test_identification_round_trip_every_field(factory: sessionmaker[Session]) -
     assert row.diagnostics == {"test_points": {"1": {"me": 0.5}}, "rmse_per_sensor": [0.1, None]}
     for name in ("started_at", "finished_at", "window_start", "window_end"):
         assert getattr(row, name) == getattr(data, name) and getattr(row, name).tzinfo is UTC, name
-    record = convert.identification_record(row)
+    assert IdentificationData.from_row(row).values() == data.values()  # the stored record reads back whole
+    record = row_to_record(row)
     assert record.condition.id == 1 and record.condition.speed_rpm == 3000.0
     np.testing.assert_array_equal(record.h, data.h)
     assert np.isnan(record.ci95_lo[6]) and record.identified.dtype == bool
@@ -116,7 +117,7 @@ def test_failed_identification_without_h(factory: sessionmaker[Session]) -> None
         assert row.h == (None,) * 7 and row.outcome == "insufficient-data"
         assert repo.last_identification(s) is None  # only successful ones by default
         assert repo.last_identification(s, outcome=None) is not None
-    assert np.isnan(convert.identification_record(row).h).all()
+    assert np.isnan(row_to_record(row).h).all()
 
 
 def test_device_event_and_sample_round_trip(factory: sessionmaker[Session]) -> None:
@@ -124,7 +125,16 @@ def test_device_event_and_sample_round_trip(factory: sessionmaker[Session]) -> N
     temps[6] = math.nan
     quality = ["ok"] * 32
     quality[6] = "open_circuit"
-    sample = SampleData(T0, temps, 22.5, 4000.0, -1.25, quality, can_ok=True, daq_ok=False)
+    sample = SampleData(
+        t=T0,
+        temps_c=temps,
+        ambient_c=22.5,
+        speed_rpm=4000.0,
+        torque_nm=-1.25,
+        quality=quality,
+        can_ok=True,
+        daq_ok=False,
+    )
     with repo.session_scope(factory) as s:
         repo.add_device_event(
             s, DeviceEventData(T0.astimezone(CEST), "modbus", "timeout", "unit 1 after 1.0 s")
@@ -189,43 +199,6 @@ def test_pagination_and_time_filter(factory: sessionmaker[Session]) -> None:
         repo.list_identifications(s, limit=0)
 
 
-def test_nearest_identification_for_warm_start(factory: sessionmaker[Session]) -> None:
-    points = {
-        1: (3000.0, 10.0, 22.0),
-        2: (4000.0, 10.0, 22.0),
-        3: (5000.0, 10.0, 22.0),
-        4: (4000.0, 30.0, 22.0),
-    }
-    for cid, point in points.items():
-        add_condition(factory, cid, point, T0 + timedelta(hours=cid))
-    records = [ident(10 + cid, cid, T0 + timedelta(hours=cid, minutes=30)) for cid in points]
-    records.append(ident(99, 2, T0 + timedelta(hours=9), outcome="failed", h=None))  # never a warm start
-    with repo.session_scope(factory) as s:
-        repo.write_records(s, records)
-    scales = (1000.0, 5.0, 5.0)
-
-    def expected(query: tuple[float, float, float], allowed: set[int]) -> int:
-        def dist(cid: int) -> float:
-            return sum(((a - b) / k) ** 2 for a, b, k in zip(points[cid], query, scales, strict=True))
-
-        return 10 + min(allowed, key=dist)
-
-    query = (4400.0, 14.0, 22.5)
-    with repo.session_scope(factory) as s:
-        near = repo.nearest_identification(s, speed_rpm=query[0], torque_nm=query[1], ambient_c=query[2])
-        assert near is not None and near.id == expected(query, set(points))
-        excl = repo.nearest_identification(
-            s, speed_rpm=query[0], torque_nm=query[1], ambient_c=query[2], exclude_condition_id=2
-        )
-        assert excl is not None and excl.id == expected(query, {1, 3, 4})
-        early = repo.nearest_identification(
-            s, speed_rpm=query[0], torque_nm=query[1], ambient_c=query[2], before=T0 + timedelta(hours=2)
-        )
-        assert early is not None and early.id == expected(query, {1})
-        none = repo.nearest_identification(s, speed_rpm=1.0, torque_nm=1.0, ambient_c=1.0, before=T0)
-        assert none is None
-
-
 def test_latest_per_condition_last_and_max_ids(factory: sessionmaker[Session]) -> None:
     add_condition(factory, 1, (3000.0, 10.0, 22.0), T0)
     add_condition(factory, 2, (4000.0, 10.0, 22.0), T0 + timedelta(hours=2))
@@ -254,7 +227,14 @@ def test_device_event_filters_and_sample_window(factory: sessionmaker[Session]) 
         DeviceEventData(T0 + timedelta(seconds=i), "modbus" if i % 2 else "can", f"k{i}") for i in range(10)
     ]
     samples = [
-        SampleData(T0 + timedelta(seconds=10 * i), [20.0 + i] * 32, 22.0, 4000.0, 10.0, ["ok"] * 32)
+        SampleData(
+            t=T0 + timedelta(seconds=10 * i),
+            temps_c=[20.0 + i] * 32,
+            ambient_c=22.0,
+            speed_rpm=4000.0,
+            torque_nm=10.0,
+            quality=["ok"] * 32,
+        )
         for i in range(20)
     ]
     with repo.session_scope(factory) as s:

@@ -28,7 +28,14 @@ FAST = {"retry_initial_s": 0.02, "retry_max_s": 0.1}
 
 def samples(n: int, start: int = 0) -> list[SampleData]:
     return [
-        SampleData(T0 + timedelta(seconds=10 * i), [20.0 + 0.01 * i] * 32, 22.0, 4000.0, 10.0, ["ok"] * 32)
+        SampleData(
+            t=T0 + timedelta(seconds=10 * i),
+            temps_c=[20.0 + 0.01 * i] * 32,
+            ambient_c=22.0,
+            speed_rpm=4000.0,
+            torque_nm=10.0,
+            quality=["ok"] * 32,
+        )
         for i in range(start, start + n)
     ]
 

@@ -10,8 +10,7 @@ import numpy as np
 from drivers.ringbuffer import Sample
 from service.engine.core import ServiceCore
 from service.engine.events import Event, Instruction, JobOutcomeReceived, Launch, SampleReceived, Store
-from service.engine.offline import run_job
-from service.identify.worker import JobOutcome, JobStatus
+from service.identify.worker import JobOutcome, JobStatus, run_job
 from service.modelload import LoadedModel
 from service.store.records import Record
 

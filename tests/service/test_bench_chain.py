@@ -21,6 +21,8 @@ def test_summarise_per_h_over_seeds() -> None:
     assert out["ci_half_width_pct_median"] == [7.0, 30.0]
     assert out["ci_coverage"] == [0.67, 0.67]
     assert out["ci_covers_all"] == 0.33 and out["ci_covers_all_but_one"] == 1.0
+    # per seed, the median |error| over its H: 30, 25, 10 %
+    assert out["seed_median_err_pct_median"] == 25.0 and out["seed_median_err_pct_max"] == 30.0
 
 
 @pytest.mark.slow

@@ -7,10 +7,10 @@ from service.bench.targets import Target, format_verdicts, verdicts
 
 def test_verdicts_met_missed_and_not_measured() -> None:
     targets = (
-        Target("a_s", "<=", 1.0, "s"),
+        Target("a_s", "<=", 1.0, unit="s"),
         Target("b", ">=", 2.0),
         Target("c", "in", (0.85, 1.0)),
-        Target("d_s", "<=", 2.0, "s"),
+        Target("d_s", "<=", 2.0, unit="s"),
     )
     items = verdicts(targets, {"a_s": 1.5, "b": 2.0, "c": 0.9})
     assert [v["met"] for v in items] == [False, True, True, None]

@@ -29,11 +29,11 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.engine.offline import run_job
 from service.engine.shell import SoftSensorService
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
 from service.identify.window import WindowRules
+from service.identify.worker import run_job
 from service.modelload import LoadedModel
 from service.serve.interface import JobState, NotReadyError
 from service.store.records import IdentificationData

@@ -125,28 +125,25 @@ def test_three_conditions_detected_identified_and_served(tmp_path):
     lo = np.array([z["ci95_lo_w_m2k"] for z in body["zones"]])
     hi = np.array([z["ci95_hi_w_m2k"] for z in body["zones"]])
     identified = np.array([z["identified"] for z in body["zones"]])
-    # Was "at least 2 flagged identified": the 5-min idle at the start now gives the sensor-offset baseline
-    # (service.acquire.calibration), whose own error (σ/√30 ≈ 0.027 °C per channel) is carried in the CIs
-    # (constant
-    # biases that small move H2/H4 by tens of per cent), so this run may flag none; asserted instead: every
-    # H that is flagged identified covers the truth (no silent bias)
+    # Every H flagged identified covers the truth (no silent bias). The 5-min idle at the start gives the
+    # sensor-offset baseline (service.acquire.calibration), whose own error (σ/√30 ≈ 0.027 °C per channel) is
+    # carried in the CIs, so a run may flag none.
     covered = (lo <= truth) & (truth <= hi)
-    assert np.all((lo <= h) & (h <= hi)) and np.all(covered[identified]), (h, lo, hi, truth)
-    # The served CIs carry the start field's error (`identification.carry_start_error`, default on): over 20
-    # seeds of this profile through the same core offline (`chtc bench chain --seeds 20`, docs/service.md)
-    # each H's CI covers the truth at 5000 rpm in 0.90-1.0 of the seeds; the live run gives the offline H
-    # (the rebase is the same whenever the job finishes; tests/service/test_logs_replay.py). Asserted: at
-    # least 6 of the 7 CIs cover the truth (7 and 6 in two inspected runs of this seed, 2026-11-23), the H
-    # with the narrowest CI (H6: median error 1.8 %, max 5.1 % over the seeds) within 15 %, and the median
-    # error of the identified H at most 35 %.
     err = np.abs(h - truth) / truth
-    rel = (hi - lo) / 2 / h
-    covered = (lo <= truth) & (truth <= hi)
-    # the narrowest CI among all seven: a run may flag none identified (above), and argmin over an all-inf
-    # array picked H1 (a CI of 0..1e9) as "narrowest"
-    narrowest = int(np.argmin(rel))
     detail = {"h": h, "lo": lo, "hi": hi, "truth": truth, "identified": identified}
+    assert np.all(covered[identified]), detail
+    # What the offline bench establishes for this very profile (`chtc bench chain --seeds 20 --json`: the same
+    # segments through the same service core, plant noise seeds 0-19, this test's seed 3 among them;
+    # 2026-11-24): at 5000 rpm every H's 95 % CI covered the truth in 20 of 20 seeds; H6, the best-determined
+    # H, had |error| at most 8.4 % (median 3.7 %); a seed's median |error| over the seven H was at most 25.8 %
+    # (median 15.8 %). The live run differs only by event-loop timing (which sample lands on a grid point,
+    # docs/service.md) and by its window (>= 35 min here, 40 in the bench). Asserted, with tolerances set from
+    # those figures and not from a run of this test:
+    # - the CIs of H6 and H7 cover the truth (0 misses in 40 seed x H trials offline; 5 % each nominally);
+    # - at least 6 of the 7 CIs cover the truth (7 in every seed offline; one miss allowed for the timing);
+    # - H6's error within 1.5 x the bench's maximum (8.4 % -> 12.5 %);
+    # - the median error over the seven H within 1.25 x the bench's worst seed (25.8 % -> 32 %).
+    assert covered[5] and covered[6], detail
     assert covered.sum() >= 6, detail
-    assert err[narrowest] < 0.15, detail
-    if identified.any():
-        assert np.median(err[identified]) < 0.35, detail
+    assert err[5] < 0.125, detail
+    assert np.median(err) < 0.32, detail

@@ -25,10 +25,9 @@ from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from model.plant import Segment
 from service.engine.core import ServiceCore
-from service.engine.offline import run_job
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
-from service.identify.worker import JobOutcome, JobRequest
+from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.serve.interface import ChtcStatus
 from service.settings import Settings
 
@@ -210,18 +209,18 @@ def test_not_identified_and_condition_change_are_not_usable(loaded_model, identi
 
 
 def test_a_stored_negative_lower_bound_is_not_served() -> None:
-    """Rows stored with the former linear CI may hold a negative lower bound; H > 0, so 0 is served."""
-    from types import SimpleNamespace
-
-    from service.serve.views import row_to_record
+    """Rows stored with the former linear CI may hold a negative lower bound; H > 0, so 0 is served (the
+    same mapping serves a row read back and a record just finished)."""
+    from service.serve.interface import ConditionSnapshot, ConditionState
+    from service.serve.views import data_to_record
+    from service.store.records import IdentificationData
 
     t = datetime(2026, 1, 1, tzinfo=UTC)
-    cond = SimpleNamespace(id=1, speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0, started_at=t)
-    row = SimpleNamespace(
-        id=1, started_at=t, finished_at=t, reason="r", outcome="ok", message="", condition=cond,
-        window_start=t, window_end=t, h=[50.0] * 7, ci95_lo=[-16.7, 40.0, None, 1, 2, 3, 4],
-        ci95_hi=[116.7] * 7, identified=[False] + [True] * 6, f=0.1, fit=0.9, rmse_c=0.3, method="hybrid",
-        model_version="m", nfev=1, duration_s=0.1, n_sensors_used=32, diagnostics=None,
+    cond = ConditionSnapshot(1, 3000.0, 5.0, 22.0, t, ConditionState.STABLE)
+    data = IdentificationData(
+        id=1, condition_id=1, started_at=t, finished_at=t, window_start=t, window_end=t, reason="r",
+        outcome="ok", method="hybrid", model_version="m", h=[50.0] * 7,
+        ci95_lo=[-16.7, 40.0, None, 1, 2, 3, 4], ci95_hi=[116.7] * 7, identified=[False] + [True] * 6,
     )  # fmt: skip
-    rec = row_to_record(row)
+    rec = data_to_record(data, cond)
     assert rec.ci95_lo[0] == 0.0 and rec.ci95_lo[1] == 40.0 and np.isnan(rec.ci95_lo[2])

@@ -14,7 +14,7 @@ import pytest
 
 from drivers.can_codec import SPINDLE_STATUS_ID, encode_status
 from drivers.logs import TemperatureCsvWriter, write_can_log
-from model.plant import Segment
+from model.plant import Segment, h_true
 from service.cli import main as cli_main
 from service.settings import Settings
 
@@ -155,11 +155,7 @@ def test_identify_is_deterministic_and_finds_both_conditions(logs, tmp_path, cap
     assert first == second
     ok = [r for r in first if r["outcome"] == "ok"]
     assert {round(r["condition"]["speed_rpm"], -2) for r in ok} == {3000, 4000}
-    assert all(
-        lo <= h <= hi
-        for r in ok
-        for h, lo, hi in zip(r["h_w_m2k"], r["ci95_lo_w_m2k"], r["ci95_hi_w_m2k"], strict=True)
-    )
+    _assert_well_determined_h_covered(ok)
     printed = capsys.readouterr().out
     assert "H1=" in printed and "95 % CI" in printed
     # the log starts with 5 min at rest at the ambient: the offsets are zeroed against that baseline
@@ -230,6 +226,23 @@ def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_
         assert np.all(np.abs(np.asarray(r.h) - h) <= allowed), (r.h, h.tolist(), o["identified"])
 
 
+def _assert_well_determined_h_covered(records: list[dict]) -> None:
+    """The 95 % CIs of H6 and H7, the two best-determined H, cover the virtual plant's truth at the record's
+    condition (``model.plant.h_true``; both recordings come from the plant at a constant 22 °C ambient).
+
+    What the offline bench establishes: ``chtc bench chain --seeds 20`` (the service core over 20 plant noise
+    seeds, three chained conditions, 2026-11-24) covered H6 and H7 in 20 of 20 seeds at each of 3000, 4000 and
+    5000 rpm (median |error| 3.7-4.5 % for H6, 7.7-15.4 % for H7). These windows are shorter (10-20 min
+    instead of 40), so the CIs are wider; a miss is allowed nowhere, since the nominal level (5 % per H) and
+    the bench's 0 misses in 120 seed-condition-H trials make one unlikely, and ``chtc identify`` is
+    deterministic for a given recording (a miss is a change of the numbers, not bad luck)."""
+    for r in records:
+        c = r["condition"]
+        truth = h_true(c["speed_rpm"], c["ambient_c"])[5:]
+        lo, hi = np.asarray(r["ci95_lo_w_m2k"])[5:], np.asarray(r["ci95_hi_w_m2k"])[5:]
+        assert np.all((lo <= truth) & (truth <= hi)), (c, lo, hi, truth)
+
+
 def _minutes(o: dict) -> float:
     a = datetime.fromisoformat(o["window_from"])
     b = datetime.fromisoformat(o["window_to"])
@@ -247,11 +260,8 @@ def test_identify_on_the_shipped_example_recording(tmp_path, capsys):
     assert cli_main([*argv, "--json", str(out)]) == 0
     ok = [r for r in json.loads(out.read_text()) if r["outcome"] == "ok"]
     assert {r["condition"]["speed_rpm"] for r in ok} == {3000.0, 4000.0}
-    assert all(
-        lo <= h <= hi
-        for r in ok
-        for h, lo, hi in zip(r["h_w_m2k"], r["ci95_lo_w_m2k"], r["ci95_hi_w_m2k"], strict=True)
-    )
+    # made by chtc simulate --profile service/data/example_profile.toml (docs/simulation.md): plant truth
+    _assert_well_determined_h_covered(ok)
 
 
 def test_the_sampler_keeps_its_phase_after_a_stall() -> None:

@@ -13,7 +13,9 @@ from service.engine.core import Restored, ServiceCore
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
+from service.serve.views import data_to_record
 from service.settings import Settings
+from service.store.records import IdentificationData
 
 from .conftest import plant_run, samples_of
 
@@ -21,29 +23,29 @@ from .conftest import plant_run, samples_of
 def _last_identification(h: np.ndarray) -> IdentificationRecord:
     t = datetime(2026, 1, 5, 7, 0, tzinfo=UTC)
     cond = ConditionSnapshot(1, 3000.0, 5.0, 22.0, t - timedelta(hours=1), ConditionState.STABLE)
-    return IdentificationRecord(
+    data = IdentificationData(
         id=1,
+        condition_id=cond.id,
         started_at=t,
         finished_at=t,
+        window_start=t - timedelta(hours=1),
+        window_end=t,
         reason="condition-change",
         outcome="ok",
-        message="",
-        condition=cond,
-        window_from=t - timedelta(hours=1),
-        window_to=t,
-        h=h,
-        ci95_lo=0.9 * h,
-        ci95_hi=1.1 * h,
-        identified=np.ones(7, dtype=bool),
+        method="hybrid",
+        model_version="m",
+        h=list(h),
+        ci95_lo=list(0.9 * h),
+        ci95_hi=list(1.1 * h),
+        identified=[True] * 7,
         f=0.01,
         fit=0.99,
         rmse_c=0.1,
-        method="hybrid",
-        model_version="m",
         nfev=10,
-        wall_s=0.1,
+        duration_s=0.1,
         n_sensors_used=32,
     )
+    return data_to_record(data, cond)
 
 
 def test_service_keeps_measured_and_predicted_per_sample_with_masked_channels_as_nan(loaded_model) -> None:

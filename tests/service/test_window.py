@@ -2,10 +2,12 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
-from service.identify.window import InsufficientDataError, RawWindow, WindowRules, resample_window
+from service.identify.window import InsufficientWindowError, RawWindow, WindowRules, resample_window
 
 RULES = WindowRules(
     dt_s=10.0, min_window_s=600.0, min_good_channels=24, min_good_fraction=0.9, max_gap_s=60.0
@@ -47,7 +49,7 @@ def test_bad_channels_are_masked_and_short_holes_filled():
     q[30:32, 9] = 1  # a 20 s hole: filled
     temps = r.temps_c.copy()
     temps[30:32, 9] = 999.0
-    r2 = RawWindow(r.times_s, temps, q, r.ambient_c, r.speed_rpm, r.torque_nm)
+    r2 = replace(r, temps_c=temps, quality=q)
     w = resample_window(r2, 1000.0, 2200.0, RULES)
     assert not w.mask[4] and not w.mask[7] and w.mask[9]
     assert w.mask.sum() == 30
@@ -58,21 +60,21 @@ def test_too_few_good_channels_is_insufficient_with_reason():
     r = raw()
     q = r.quality.copy()
     q[:, :10] = 2
-    r2 = RawWindow(r.times_s, r.temps_c, q, r.ambient_c, r.speed_rpm, r.torque_nm)
+    r2 = replace(r, quality=q)
     with pytest.raises(
-        InsufficientDataError, match=r"only 22 channels .*min_good_channels=24.*ch1 \(0 % ok\)"
+        InsufficientWindowError, match=r"only 22 channels .*min_good_channels=24.*ch1 \(0 % ok\)"
     ):
         resample_window(r2, 1000.0, 2200.0, RULES)
 
 
 def test_short_window_and_missing_can_are_insufficient():
-    with pytest.raises(InsufficientDataError, match="shorter than min_window_s"):
+    with pytest.raises(InsufficientWindowError, match="shorter than min_window_s"):
         resample_window(raw(), 1000.0, 1500.0, RULES)
     r = raw()
     speed = r.speed_rpm.copy()
     speed[:40] = np.nan
-    r2 = RawWindow(r.times_s, r.temps_c, r.quality, r.ambient_c, speed, r.torque_nm)
-    with pytest.raises(InsufficientDataError, match="speed_rpm was missing on 33 %"):
+    r2 = replace(r, speed_rpm=speed)
+    with pytest.raises(InsufficientWindowError, match="speed_rpm was missing on 33 %"):
         resample_window(r2, 1000.0, 2200.0, RULES)
 
 
@@ -80,10 +82,9 @@ def test_samples_missing_in_time_count_as_bad():
     r = raw()
     keep = np.ones(len(r.times_s), dtype=bool)
     keep[20:40] = False  # 200 s with no sample at all
-    r2 = RawWindow(
-        *(a[keep] for a in (r.times_s, r.temps_c, r.quality, r.ambient_c, r.speed_rpm, r.torque_nm))
-    )
-    with pytest.raises(InsufficientDataError, match="ambient_c was missing on 17 %"):
+    names = ("times_s", "temps_c", "quality", "ambient_c", "speed_rpm", "torque_nm")
+    r2 = RawWindow(**{n: getattr(r, n)[keep] for n in names})
+    with pytest.raises(InsufficientWindowError, match="ambient_c was missing on 17 %"):
         resample_window(r2, 1000.0, 2200.0, RULES)
-    with pytest.raises(InsufficientDataError, match="no samples"):
+    with pytest.raises(InsufficientWindowError, match="no samples"):
         resample_window(r, 5000.0, 6000.0, RULES)

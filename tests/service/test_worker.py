@@ -212,3 +212,30 @@ def test_chained_windows_carry_the_start_field_error(loaded_model):
             np.testing.assert_allclose(width(b), width(a), rtol=1e-9)
         else:
             assert np.all(width(b) >= width(a) * (1 - 1e-9)) and np.any(width(b) > 1.05 * width(a))
+
+
+def test_one_mapping_from_a_job_failure_to_its_stored_outcome(loaded_model, window_request):
+    """``run_job`` (the worker process's function, also run offline) never raises: too few usable data,
+    whether the window rules or the identification itself find it, is "insufficient-data" with the reason;
+    a cancelled job "cancelled"; anything else "failed", naming the error."""
+    from service.identify.outcome import Outcome
+    from service.identify.window import InsufficientWindowError
+    from service.identify.worker import JobCancelled, job_outcome_of, run_job
+
+    blind = dataclasses.replace(window_request.window, mask=np.zeros(32, dtype=bool))
+    out = run_job(loaded_model, dataclasses.replace(window_request, window=blind))
+    assert out.status is Outcome.INSUFFICIENT_DATA and "channels" in out.message, out.message
+    assert out.result is None and out.final_field_c is None
+    bad_t0 = dataclasses.replace(window_request, t0_c=np.zeros(3))
+    out = run_job(loaded_model, bad_t0)
+    assert out.status is Outcome.FAILED and out.message.startswith("IdentificationError: window.t0")
+    out = run_job(None, window_request)
+    assert (out.status, out.message) == (
+        Outcome.FAILED,
+        "RuntimeError: worker process has no model (initializer failed)",
+    )
+    assert job_outcome_of(InsufficientWindowError("only 3 channels")) == (
+        Outcome.INSUFFICIENT_DATA,
+        "only 3 channels",
+    )
+    assert job_outcome_of(JobCancelled()) == (Outcome.CANCELLED, "cancelled")

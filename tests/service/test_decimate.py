@@ -10,7 +10,7 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 
-from service.store.records import SampleDecimator
+from service.acquire.decimate import SampleDecimator
 
 T0 = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
 DAY_S = 86_400.0

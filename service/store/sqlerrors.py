@@ -1,4 +1,4 @@
-"""SQLAlchemy errors -> the persistence layer's typed errors (``service.store.errors``), in one place."""
+"""SQLAlchemy errors translated once into the typed tree of ``service.store.errors``."""
 
 from __future__ import annotations
 

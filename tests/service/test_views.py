@@ -1,0 +1,108 @@
+"""The one mapping from an identification to what the API serves: ``data_to_record`` and ``chtc_snapshot``."""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import numpy as np
+
+from api.schemas import chtc_out
+from service.serve.interface import ChtcSnapshot, ChtcStatus, ConditionSnapshot, ConditionState
+from service.serve.views import chtc_snapshot, data_to_record
+from service.store.records import IdentificationData
+
+T = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
+COND = ConditionSnapshot(7, 3000.0, 5.0, 22.0, T - timedelta(hours=1), ConditionState.STABLE)
+H = [88.2, 46.3, 68.5, 46.7, 52.1, 70.2, 16.5]
+
+
+def _data(**changes: Any) -> IdentificationData:
+    data = IdentificationData(
+        id=3,
+        condition_id=COND.id,
+        started_at=T,
+        finished_at=T,
+        window_start=T - timedelta(minutes=40),
+        window_end=T,
+        reason="scheduled",
+        outcome="ok",
+        method="hybrid",
+        model_version="m",
+        h=H,
+        ci95_lo=[0.9 * x for x in H],
+        ci95_hi=[1.1 * x for x in H],
+        identified=[True] * 7,
+        f=0.0225,
+        fit=1 / 1.0225,
+        rmse_c=0.15,
+        diagnostics={"at_bound": [False] * 7},
+    )
+    return replace(data, **changes)
+
+
+def _snap(
+    data: IdentificationData,
+    *,
+    newest_sample_at: datetime | None = T,
+    condition: ConditionSnapshot = COND,
+    data_problems: tuple[str, ...] = (),
+    restored: bool = False,
+    box: tuple[float, float] | None = (5.0, 200.0),
+) -> ChtcSnapshot:
+    return chtc_snapshot(
+        data_to_record(data, COND),
+        status=ChtcStatus.FRESH,
+        newest_sample_at=newest_sample_at,
+        condition=condition,
+        data_problems=data_problems,
+        restored=restored,
+        box=box,
+    )
+
+
+def test_the_record_is_the_stored_data_with_read_only_arrays() -> None:
+    data = _data(h=[*H[:6], None], identified=[True] * 6 + [False])
+    rec = data_to_record(data, COND)
+    assert rec.data is data and rec.condition is COND
+    assert np.isnan(rec.h[6]) and rec.h[0] == 88.2 and not rec.identified[6]
+    assert (rec.window_from, rec.wall_s, rec.fit) == (data.window_start, data.duration_s, data.fit)
+    assert not rec.h.flags.writeable and not rec.identified.flags.writeable
+
+
+def test_a_value_the_identification_did_not_give_is_served_as_null() -> None:
+    """The running service served a missing f as NaN and the in-memory one as 0.0; one builder, one answer."""
+    snap = _snap(_data(f=None, fit=None, rmse_c=None))
+    assert (snap.f, snap.fit, snap.rmse_c) == (None, None, None)
+    body = chtc_out(snap, T)
+    assert (body.f_c2, body.fit, body.rmse_c) == (None, None, None)
+    assert _snap(_data()).f == 0.0225
+
+
+def test_an_h_on_the_search_box_bound_is_not_identified_and_not_usable() -> None:
+    snap = _snap(_data(h=[*H[:6], 5.0]))  # H7 on the lower bound of the 5..200 box
+    assert snap.at_bound.tolist() == [False] * 6 + [True]
+    assert snap.identified.tolist() == [True] * 6 + [False]
+    assert not snap.usable_for_compensation and snap.reason is not None
+    assert snap.reason.startswith("at_bound: H7")
+    flagged = _snap(_data(diagnostics={"at_bound": [True] + [False] * 6}), box=None)  # the fit's own flag
+    assert flagged.at_bound.tolist() == [True] + [False] * 6
+
+
+def test_usability_says_the_first_reason_in_order() -> None:
+    assert _snap(_data()).usable_for_compensation and _snap(_data()).reason is None
+    assert _snap(_data(), newest_sample_at=None).reason == "no_data: no sample acquired yet"
+    stale = _snap(_data(), data_problems=("daq_no_good_data",), restored=True)
+    assert stale.reason == "stale: daq_no_good_data (see /readyz)"
+    moved = _snap(_data(), condition=replace(COND, id=8), restored=True)
+    assert moved.reason == "condition_changed: identified at condition 7, now 8 (stable)"
+    changing = replace(COND, state=ConditionState.CHANGING)
+    assert _snap(_data(), condition=changing).reason == (
+        "condition_changed: identified at condition 7, now 7 (changing)"
+    )
+    weak = _snap(_data(identified=[False, True, True, False, True, True, True]), restored=True)
+    assert weak.reason == "not_identified: H1, H4 (95 % CI too wide)"
+    restored = _snap(_data(), restored=True)
+    assert not restored.usable_for_compensation
+    assert restored.reason == "restored: the last stored H, not re-identified since the restart"
