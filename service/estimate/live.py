@@ -104,8 +104,8 @@ class LiveModel:
     def initialize(self, t: float, field_c: float | np.ndarray, inputs: tuple[float, float, float]) -> None:
         """Start at ``t`` (s) from a uniform temperature or an (N,) field; inputs (ambient, speed, torque)."""
         n = self.fe.n_nodes
-        uniform = isinstance(field_c, float | int)
-        self._T = np.full(n, field_c) if uniform else np.asarray(field_c, float).copy()
+        uniform = np.ndim(field_c) == 0
+        self._T = np.full(n, field_c, dtype=float) if uniform else np.asarray(field_c, float).copy()
         self._t = float(t)
         self._last_inputs = _Inputs(*inputs)
         self._snapshots.clear()
