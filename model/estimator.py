@@ -310,6 +310,37 @@ def wide_prior(
     return Estimate(ambient_c * u, cov, np.zeros((r, N_PARAMS)))
 
 
+def heated_prior(
+    rom: Any,
+    *,
+    ambient_c: float,
+    sigma_uniform_c: float = 5.0,
+    q_max_w: tuple[float, float] = (300.0, 150.0),
+    sigma_shape_c: float = 0.1,
+    samples: int = 256,
+    seed: int = 0,
+) -> Estimate:
+    """A wide prior for a restart whose shape is physical: mean the uniform field at ``ambient_c`` [°C];
+    covariance the second moment of the heated fields the spindle can be in, the steady states' rise above
+    the ambient for ``samples`` random H (log-uniform in ``rom.h_box``) and bearing heats (uniform in
+    0..``q_max_w`` [W]) (a warm spindle is roughly a fraction of such a field), plus 1σ ``sigma_uniform_c``
+    [°C] of a uniform offset and an isotropic part scaled like ``wide_prior``'s to ``sigma_shape_c`` [°C] at
+    the sensors (transient shapes). Unlike ``wide_prior``'s isotropic shape, the unmeasured interior is
+    tied to the measured surface as the heat paths tie them, so a few samples pin the whole field."""
+    if not (np.isfinite(ambient_c) and sigma_uniform_c >= 0.0 and sigma_shape_c >= 0.0 and samples > 0):
+        raise EstimatorError("heated_prior: ambient_c must be finite, the sigmas >= 0 °C, samples > 0")
+    rng = np.random.default_rng(seed)
+    lo, hi = (float(x) for x in getattr(rom, "h_box", (5.0, 200.0)))
+    h = np.exp(rng.uniform(np.log(lo), np.log(hi), (samples, N_H)))
+    q = rng.uniform(0.0, 1.0, (samples, 2)) * np.asarray(q_max_w, dtype=np.float64)
+    r = int(rom.k0.shape[0])
+    kr = rom.k0[None] + (h @ rom.k_zone.reshape(N_H, r * r)).reshape(samples, r, r)
+    rise = np.linalg.solve(kr, (q[:, :1] * rom.q_front + q[:, 1:] * rom.q_rear)[..., None])[..., 0]
+    base = wide_prior(rom, ambient_c=ambient_c, sigma_uniform_c=sigma_uniform_c, sigma_shape_c=sigma_shape_c)
+    cov = base.cov + rise.T @ rise / samples
+    return Estimate(base.mean, 0.5 * (cov + cov.T), base.cross)
+
+
 def uniform_state(rom: Any) -> Array:
     """The reduced coordinates (r,) of the uniform 1 °C field (exact: it is in the basis)."""
     return np.asarray(rom.basis_t_mass.sum(axis=1))

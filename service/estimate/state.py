@@ -32,7 +32,7 @@ from __future__ import annotations
 
 import math
 from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
 
@@ -48,6 +48,7 @@ from model.estimator import (
     StepResult,
     convergence,
     field_std,
+    heated_prior,
     wide_prior,
 )
 from service.estimate.live import LiveStateError
@@ -61,13 +62,16 @@ Array = NDArray[np.float64]
 class FilterSettings:
     """Tuning of the filtered state (docs/estimator.md): noise, prior, convergence test and memory.
 
-    ``prior_sigma_c`` [°C] 1σ of the wide prior's uniform offset and of its shape part; ``nis_window``
+    ``prior`` the restart prior's shape: "heated" (the steady heated fields' second moment plus a small
+    isotropic part, ``model.estimator.heated_prior``) or "wide" (isotropic, ``wide_prior``);
+    ``prior_sigma_c`` [°C] 1σ of the prior's uniform offset (and of the "wide" shape part); ``nis_window``
     samples of the NIS test; ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
     ``max_gap_s`` [s] a longer gap between samples restarts from the wide prior; snapshots every
     ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``.
     """
 
     noise: NoiseModel = field(default_factory=NoiseModel)
+    prior: str = "heated"  # "heated" (model.estimator.heated_prior) or "wide" (isotropic shape, wide_prior)
     prior_sigma_c: float = 5.0
     nis_window: int = 30
     sensor_std_bound_c: float = 0.1
@@ -141,6 +145,7 @@ class FilteredState:
         self.dt_s = float(dt_s)
         self.load_scale = (float(load_scale[0]), float(load_scale[1]))
         self.settings = settings or FilterSettings()
+        self._noise = self.settings.noise
         self.offsets_c = None if offsets_c is None else np.asarray(offsets_c, dtype=np.float64)
         st = self.settings
         self._snapshots: deque[StateSnapshot] = deque(maxlen=max(2, int(st.keep_s / st.snapshot_every_s) + 2))
@@ -184,8 +189,11 @@ class FilteredState:
         if not math.isfinite(ambient):
             raise LiveStateError("initialize: the ambient temperature is needed for the prior (CAN down?)")
         sig = self.settings.prior_sigma_c
-        prior = wide_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig, sigma_shape_c=sig)
-        self._filter = StateEstimator(self.rom, prior, noise=self.settings.noise, offsets_c=self.offsets_c)
+        if self.settings.prior == "heated":
+            prior = heated_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig)
+        else:
+            prior = wide_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig, sigma_shape_c=sig)
+        self._filter = StateEstimator(self.rom, prior, noise=self._noise, offsets_c=self.offsets_c)
         self._t = float(t)
         self._inputs = _Inputs(*(float(x) for x in inputs))
         self._window = NisWindow(self.settings.nis_window)
@@ -195,15 +203,31 @@ class FilteredState:
             dq.clear()
         return self._after_step(0, self._measure(temps_c, usable), restarted=True)
 
-    def set_h(self, h: ArrayLike, load_scale: tuple[float, float] | None = None, **_: Any) -> None:
-        """Use H (7,) [W/(m²·K)] (and bearing-heat scales) from the next step on (extra keywords of
-        ``LiveModel.set_h`` such as ``stepper`` are accepted and ignored)."""
+    def set_h(
+        self,
+        h: ArrayLike,
+        load_scale: tuple[float, float] | None = None,
+        *,
+        h_rel: ArrayLike | None = None,
+        **_: Any,
+    ) -> None:
+        """Use H (7,) [W/(m²·K)] (and bearing-heat scales) from the next step on; ``h_rel`` (scalar or 7)
+        the relative 1σ of these H (e.g. from the identification's CI: σ(log H)), the filter's considered
+        H error from now on (clipped to 0.05–1; None: unchanged). Extra keywords of ``LiveModel.set_h``
+        such as ``stepper`` are accepted and ignored."""
         arr = np.asarray(h, dtype=np.float64)
         if arr.shape != (7,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
             raise LiveStateError(f"set_h: expected 7 finite H > 0 W/(m²·K), got {arr!r}")
         self.h = arr.copy()
         if load_scale is not None:
             self.load_scale = (float(load_scale[0]), float(load_scale[1]))
+        if h_rel is not None:
+            rel = np.broadcast_to(np.asarray(h_rel, dtype=np.float64), (7,))
+            if not np.all(np.isfinite(rel)):
+                raise LiveStateError(f"set_h: h_rel must be finite, got {h_rel!r}")
+            self._noise = replace(self._noise, h_rel=tuple(float(x) for x in np.clip(rel, 0.05, 1.0)))
+            if self._filter is not None:
+                self._filter.noise = self._noise
 
     def set_offsets(self, offsets_c: ArrayLike | None) -> None:
         """Per-channel offsets (32,) [°C] subtracted before each update (a new calibration)."""
