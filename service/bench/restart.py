@@ -15,13 +15,15 @@ Modes (``--mode``):
   (``service.engine.offline.run_offline``, as ``chtc identify`` and ``chtc bench chain``): whatever the
   service does today;
 - ``filter``: what wiring the filtered live state would give, without the core: the samples are pushed
-  through ``service.estimate.state.FilteredState`` (Schmidt–Kalman filter, wide prior at the start) and
-  each identification window (the settings' schedule after each speed change: 10, 20, 40, 60 min) starts
-  from the filtered snapshot at max(condition start, convergence time) with its covariance as ``start_cov``
+  through ``service.estimate.state.FilteredState`` (Schmidt–Kalman filter, wide "heated" prior at the
+  start) and each identification window (the settings' schedule, 10, 20, 40, 60 min, counted from the
+  speed change or, after a restart, from the filter's convergence) starts from the filtered snapshot at
+  max(condition start, convergence time) with its covariance as ``start_cov``
   (``model.identify``; ``--start-modes K`` also fits the start's K leading uncertain directions with their
-  Gaussian prior). H: 50 W/(m²·K) each until the first identification, then the newest result (as the
-  core). Offsets: a baseline over the first 5 min when the start is at minute 0 (spindle idle and cold),
-  else unknown (the settings' ``offset_sd_c`` carried in the CIs).
+  Gaussian prior). H: 50 W/(m²·K) each until the first identification (considered error 100 %), then the
+  newest result (as the core) with its CI's σ(log H) as the filter's considered H error. Offsets: a
+  baseline over the first 5 min when the start is at minute 0 (spindle idle and cold), else unknown (the
+  settings' ``offset_sd_c`` carried in the CIs).
 """
 
 from __future__ import annotations

@@ -1,8 +1,9 @@
 """``chtc bench restart --mode filter``: the filtered live state and the identification without the core.
 
 What wiring ``service.estimate.state.FilteredState`` into the service would give (``service.bench.restart``):
-samples pushed through the filter from the start index on; at each speed change the condition's schedule
-(``identification.schedule_min`` after the change) asks for a window ending then, starting at the latest
+samples pushed through the filter from the start index on; the condition's schedule
+(``identification.schedule_min`` after the speed change, or after the filter's convergence when that is
+later: a (re)start) asks for a window ending then, starting at the latest
 filtered snapshot at or before max(condition start, convergence time), at most ``max_window_s`` long and
 at least ``min_window_s``; ``model.identify`` fits it from the snapshot's mean with its covariance as
 ``start_cov`` (and ``start_modes`` fitted directions), warm-started from the condition's previous result.
@@ -58,7 +59,10 @@ class FilterRestart:
                 usable=self.usable[k],
             )
             speed = float(run.speed_rpm[k - 1])  # the condition of the window ending at sample k
-            if k - cond_start in schedule and abs(speed) >= MIN_SPEED_RPM:
+            ready = state.ready_at()
+            # the schedule counts from the condition's start, or from the convergence after a (re)start
+            origin = None if ready is None else max(cond_start, round((ready - T0) / DT_S))
+            if origin is not None and k - origin in schedule and abs(speed) >= MIN_SPEED_RPM:
                 result = self._identify(state, cond_start, k, offsets, offset_sd, warm)
                 if result is not None:
                     warm = result

@@ -20,6 +20,7 @@ from model.estimator import (
     StepInput,
     convergence,
     field_std,
+    heated_prior,
     param_jacobian,
     predict_mean,
     transition,
@@ -170,6 +171,21 @@ def test_wide_prior_is_uniform_at_ambient_with_the_requested_spread(model: Any) 
     assert sens_var.mean() == pytest.approx(4.0**2 + 3.0**2, rel=1e-9)
     u = uniform_state(rom)
     np.testing.assert_allclose(rom.lift(u), 1.0, rtol=0, atol=1e-9)
+
+
+def test_heated_prior_holds_the_heated_steady_fields(model: Any) -> None:
+    """Mean uniform at the ambient; a steady heated field of an H and load inside the draw's ranges lies
+    within its 3σ ellipsoid (Mahalanobis distance² ≤ χ²(r) 99.9 %), far outside the isotropic prior's
+    sensor-scaled shape part at the same uniform spread."""
+    rom = model.rom
+    prior = heated_prior(rom, ambient_c=21.0)
+    np.testing.assert_allclose(rom.lift(prior.mean), 21.0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(prior.cov, prior.cov.T)
+    rise = rom.steady_state(H, ambient_c=0.0, q_front_w=150.0, q_rear_w=70.0)
+    d2 = float(rise @ np.linalg.solve(prior.cov, rise))
+    assert d2 <= chi2.ppf(0.999, rom.rank), d2
+    narrow = wide_prior(rom, ambient_c=21.0, sigma_shape_c=0.1)
+    assert float(rise @ np.linalg.solve(narrow.cov, rise)) > 100.0 * d2
 
 
 def test_field_std_is_the_diagonal_of_the_lifted_covariance(model: Any) -> None:
