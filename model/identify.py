@@ -35,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from model import optim
+from model import optim, rom_modal
 from model.carry import CarryError, carry, check_cov
 from model.defaults import BOUND_REL_TOL, CI_REL_THRESHOLD
 from model.identify_problem import (
@@ -438,17 +438,28 @@ class StartFitProblem(Problem):
         self.noise_var = float(noise_c) ** 2
         self.last_coefficients = np.zeros((0, self.directions.shape[1]))
 
-    def predict(self, theta: Array) -> Array:
-        from model.carry import start_responses
+    def responses(self, h: Array) -> Array:
+        """Sensor responses (k, n_steps + 1, 32) [°C] to the start directions under H (7,): C·Φ·μⁿ·Φᵀ·u_j
+        (as ``model.carry.start_responses``, in one matrix product)."""
+        rom = self.model
+        md = rom_modal.modes(rom.k0, rom.k_zone, np.asarray(h, dtype=float).reshape(1, N_H))
+        dt, n = float(self.inputs.dt_s), len(self.inputs.ambient_c)
+        mu, _ = rom_modal.step_factors(md.lam, dt, float(rom.theta), int(getattr(rom, "substeps", 1)))
+        phi = md.phi[0]
+        powers = rom_modal.power_table(mu, n)[:, 0, :]  # (n+1, r)
+        coeff = phi.T @ self.directions  # (r, k)
+        gain_t = (np.asarray(rom.sensors) @ phi).T  # (r, 32)
+        modal = powers[:, None, :] * coeff.T[None, :, :]  # (n+1, k, r)
+        return np.ascontiguousarray(np.swapaxes(modal @ gain_t, 0, 1))  # (k, n+1, 32)
 
+    def predict(self, theta: Array) -> Array:
         theta = np.atleast_2d(theta)
         base = super().predict(theta)
         out = base.copy()
-        dt, n = float(self.inputs.dt_s), len(self.inputs.ambient_c)
         k = self.directions.shape[1]
         coeffs = np.zeros((len(theta), k))
         for i in range(len(theta)):
-            resp = start_responses(self.model, theta[i, :N_H], dt, n, self.directions)  # (k, n+1, 32)
+            resp = self.responses(theta[i, :N_H])  # (k, n+1, 32)
             d = self.select(resp)  # (k, m)
             r0 = self.select(base[i : i + 1])[0] - self._target
             c = -np.linalg.solve(d @ d.T + self.noise_var * np.eye(k), d @ r0)
