@@ -5,7 +5,8 @@ default settings) runs the issue's profile from a cold spindle: 5 min idle, 3000
 min, 5000 rpm 45 min. The service sees the samples from minute S on (S = 0, 30, 60, 90: a restart after an
 update, a power cut, a crash) and starts with no stored state. Per start and condition it reports, over the
 seeds, for the condition's last served identification: the median |H error| per H against the plant's truth,
-the CI coverage per H, the fraction of seeds whose CIs cover all seven, and the minutes from the start to
+the CI coverage per H, the fraction of seeds whose CIs cover all seven, the median relative 95 % CI
+half-width per H (a covering CI is only useful if it is narrow), and the minutes from the start to
 the first served H (the first successful identification's window end); for S > 0 also each H's median
 |error| as a multiple of the minute-0 start's (the issue's bar: ≤ 1.5).
 
@@ -129,12 +130,13 @@ def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
             last = [s for s in seed_served if s.speed_rpm == speed]
             if last:
                 s = last[-1]
-                rows.append(((s.h - h_true) / h_true, (s.lo <= h_true) & (h_true <= s.hi)))
+                rows.append(
+                    ((s.h - h_true) / h_true, (s.lo <= h_true) & (h_true <= s.hi), (s.hi - s.lo) / 2 / s.h)
+                )
         if not rows:
             conditions.append({"speed_rpm": speed, "seeds_served": 0})
             continue
-        err = np.array([r[0] for r in rows])
-        cov = np.array([r[1] for r in rows])
+        err, cov, half = (np.array([r[i] for r in rows]) for i in range(3))
         conditions.append(
             {
                 "speed_rpm": speed,
@@ -142,6 +144,7 @@ def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
                 "coverage": np.round(cov.mean(axis=0), 2).tolist(),
                 "h_err_pct_median": np.round(100 * np.median(np.abs(err), axis=0), 1).tolist(),
                 "covers_all": round(float(np.mean(cov.all(axis=1))), 2),
+                "ci_half_width_pct_median": np.round(100 * np.median(half, axis=0), 0).tolist(),
             }
         )
     firsts = [min(s.end_s for s in seed_served) for seed_served in served if seed_served]
@@ -218,6 +221,7 @@ def _print_table(out: dict[str, Any]) -> None:
             tag = f"{c['speed_rpm']:.0f} rpm ({c['seeds_served']} seeds)"
             print(f"{tag:20}{'|error| % median':>14}{_fmt(c.get('h_err_pct_median'), '7.1f')}")
             print(f"{'':20}{'coverage':>14}{_fmt(c.get('coverage'), '7.2f')}  all 7: {c.get('covers_all')}")
+            print(f"{'':20}{'CI half-width %':>14}{_fmt(c.get('ci_half_width_pct_median'), '7.0f')}")
             if "h_err_ratio_vs_start0" in c:
                 print(f"{'':20}{'× start 0':>14}{_fmt(c['h_err_ratio_vs_start0'], '7.1f')}")
 

@@ -29,6 +29,7 @@ def test_summary_takes_each_conditions_last_result_per_seed() -> None:
     assert c3["h_err_pct_median"] == pytest.approx([1.0] * 7)  # median of 0 % and 2 %
     assert c4["coverage"][0] == 0.5 and c4["coverage"][1:] == [1.0] * 6 and c4["covers_all"] == 0.5
     assert c4["h_err_pct_median"][0] == pytest.approx(25.0)
+    assert c4["ci_half_width_pct_median"] == [10.0] * 7
     assert c5 == {"speed_rpm": 5000.0, "seeds_served": 0}
 
 
