@@ -441,7 +441,7 @@ class StartFitProblem(Problem):
     def responses(self, h: Array) -> Array:
         """Sensor responses (k, n_steps + 1, 32) [°C] to the start directions under H (7,): C·Φ·μⁿ·Φᵀ·u_j
         (as ``model.carry.start_responses``, in one matrix product)."""
-        rom = self.model
+        rom: Any = self.model  # a ReducedModel (checked by ``_start_cov``)
         md = rom_modal.modes(rom.k0, rom.k_zone, np.asarray(h, dtype=float).reshape(1, N_H))
         dt, n = float(self.inputs.dt_s), len(self.inputs.ambient_c)
         mu, _ = rom_modal.step_factors(md.lam, dt, float(rom.theta), int(getattr(rom, "substeps", 1)))
