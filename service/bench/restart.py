@@ -24,7 +24,8 @@ Modes (``--mode``):
   Gaussian prior). H: 50 W/(m²·K) each until the first identification (considered error 100 %), then the
   newest result (as the core) with its CI's σ(log H) as the filter's considered H error. Offsets: a
   baseline over the first 5 min when the start is at minute 0 (spindle idle and cold), else unknown (the
-  settings' ``offset_sd_c`` carried in the CIs).
+  settings' ``offset_sd_c`` carried in the CIs); with ``--stored-offsets`` that baseline survives the
+  restart (a calibration kept in the database).
 """
 
 from __future__ import annotations
@@ -61,6 +62,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--mode", choices=("core", "filter"), default="core", help="see the description")
     parser.add_argument(
         "--start-modes", type=int, default=0, help="filter mode: start directions fitted in identify (0)"
+    )
+    parser.add_argument(
+        "--stored-offsets",
+        action="store_true",
+        help="filter mode: the minute-0 offset baseline survives the restart (a stored calibration)",
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -170,7 +176,13 @@ def add_ratios(starts: list[dict[str, Any]]) -> None:
 
 
 def run_bench(
-    seeds: list[int], starts_min: list[int], *, mode: str, start_modes: int = 0, progress: Any = None
+    seeds: list[int],
+    starts_min: list[int],
+    *,
+    mode: str,
+    start_modes: int = 0,
+    stored_offsets: bool = False,
+    progress: Any = None,
 ) -> dict[str, Any]:
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
@@ -187,7 +199,15 @@ def run_bench(
                 served[s_min].append(run_core(model, settings, run, idx))
             else:
                 served[s_min].append(
-                    run_filter(model, settings, run, idx, seed=seed, start_modes=start_modes)
+                    run_filter(
+                        model,
+                        settings,
+                        run,
+                        idx,
+                        seed=seed,
+                        start_modes=start_modes,
+                        stored_offsets=stored_offsets,
+                    )
                 )
         if progress is not None:
             progress(f"seed {seed} done ({time.perf_counter() - started:.0f} s)")
@@ -197,6 +217,7 @@ def run_bench(
         "synthetic": True,
         "mode": mode,
         "start_modes": start_modes if mode == "filter" else None,
+        "stored_offsets": stored_offsets if mode == "filter" else None,
         "rom_rank": int(model.rom.rank),
         "seeds": len(seeds),
         "starts": starts,
@@ -240,6 +261,7 @@ def main(args: argparse.Namespace) -> int:
         list(args.starts),
         mode=args.mode,
         start_modes=args.start_modes,
+        stored_offsets=args.stored_offsets,
         progress=lambda msg: print(msg, file=sys.stderr, flush=True),
     )
     if args.json:

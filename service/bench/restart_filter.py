@@ -26,12 +26,22 @@ MIN_SPEED_RPM = 500.0  # below: no bearing heat, the core skips the window
 class FilterRestart:
     """One seed's plant run from one start index: ``run(start)`` -> the served results, oldest first."""
 
-    def __init__(self, model: Any, settings: Any, run: Any, *, seed: int, start_modes: int = 0) -> None:
+    def __init__(
+        self,
+        model: Any,
+        settings: Any,
+        run: Any,
+        *,
+        seed: int,
+        start_modes: int = 0,
+        stored_offsets: bool = False,
+    ) -> None:
         self.model = model
         self.settings = settings
         self.run_data = run
         self.seed = seed
         self.start_modes = start_modes
+        self.stored_offsets = stored_offsets
         ok = (np.asarray(run.status) == 0) & np.isfinite(run.temps_c)
         self.usable = ok
 
@@ -116,11 +126,12 @@ class FilterRestart:
             return None
 
     def _offsets(self, start: int) -> tuple[np.ndarray | None, float]:
-        """A baseline over the idle, cold first 5 min when the start is at minute 0, else unknown offsets
+        """A baseline over the idle, cold first 5 min when the start is at minute 0 (or, with
+        ``stored_offsets``, at any start: the calibration kept across the restart), else unknown offsets
         (the settings' ``offset_sd_c``)."""
         run = self.run_data
         sd_unknown = float(self.settings.identification.offset_sd_c)
-        if start > 0 or run.speed_rpm[:BASELINE_SAMPLES].any():
+        if (start > 0 and not self.stored_offsets) or run.speed_rpm[:BASELINE_SAMPLES].any():
             return None, sd_unknown
         from model.identify import baseline_offsets
 
