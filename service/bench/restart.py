@@ -118,12 +118,15 @@ def run_core(model: Any, settings: Any, run: Any, start: int) -> list[Served]:
 
 
 def run_filter(
-    model: Any, settings: Any, run: Any, start: int, *, seed: int, start_modes: int
+    model: Any, settings: Any, run: Any, start: int, *, seed: int, start_modes: int, stored_offsets: bool
 ) -> list[Served]:
     """The filtered live state and ``model.identify`` directly (module docstring, ``filter``)."""
     from service.bench.restart_filter import FilterRestart
 
-    return FilterRestart(model, settings, run, seed=seed, start_modes=start_modes).run(start)
+    runner = FilterRestart(
+        model, settings, run, seed=seed, start_modes=start_modes, stored_offsets=stored_offsets
+    )
+    return runner.run(start)
 
 
 def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
