@@ -186,8 +186,10 @@ class FilteredState:
         """Start at ``t`` [s] from the wide prior at the ambient (``inputs`` = ambient [°C], speed [rpm],
         torque [N·m]), then update with the sample's temperatures (32,) [°C] and usable mask, if given."""
         ambient = float(inputs[0])
-        if not math.isfinite(ambient):
-            raise LiveStateError("initialize: the ambient temperature is needed for the prior (CAN down?)")
+        if not all(math.isfinite(float(x)) for x in inputs):
+            raise LiveStateError(
+                f"initialize: ambient, speed and torque must be finite (CAN down?), got {inputs}"
+            )
         sig = self.settings.prior_sigma_c
         if self.settings.prior == "heated":
             prior = heated_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig)

@@ -169,3 +169,20 @@ def test_snapshots_marks_gaps_and_errors(case: Case) -> None:
     assert np.trace(state.field_now().cov) > before
     with pytest.raises(LiveStateError, match="set_h"):
         state.set_h(-np.ones(7))
+
+
+def test_considered_h_error_follows_set_h(case: Case) -> None:
+    """``set_h(h_rel=...)``: a stale H with 100 % relative 1σ leaves the field's interior less certain on a
+    running spindle than one identified to 5 %, with the same data."""
+    run = case.run
+    stds = []
+    for rel in (0.05, 1.0):
+        state = _filter(case, 120, run.h_true[120])
+        state.set_h(run.h_true[120], h_rel=rel)
+        assert state.estimator.noise.h_rel == (rel,) * 7
+        for k in range(121, 181):
+            state.push(float(run.times_s[k]), **_sample(run, k))
+        stds.append(float(np.sqrt(np.mean(state.field_std_now() ** 2))))
+    assert stds[1] > 1.2 * stds[0], stds  # measured 0.37 vs 0.28 °C RMS (the prior not yet forgotten)
+    with pytest.raises(LiveStateError, match="finite"):
+        FilteredState(case.model.rom, case.model.spec, h=run.h_true[0]).initialize(0.0, (22.0, np.nan, 0.0))
