@@ -233,9 +233,10 @@ class FilteredState:
 
     def set_offsets(self, offsets_c: ArrayLike | None) -> None:
         """Per-channel offsets (32,) [°C] subtracted before each update (a new calibration)."""
-        self.offsets_c = None if offsets_c is None else np.asarray(offsets_c, dtype=np.float64)
+        offsets = None if offsets_c is None else np.asarray(offsets_c, dtype=np.float64)
+        self.offsets_c = offsets
         if self._filter is not None:
-            self._filter.offsets_c = np.zeros(32) if offsets_c is None else self.offsets_c.copy()
+            self._filter.offsets_c = np.zeros(32) if offsets is None else offsets.copy()
 
     def push(
         self,
