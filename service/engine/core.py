@@ -2,11 +2,14 @@
 
 Events and instructions are defined in ``service.engine.events``. The core owns the condition detector, the
 identification scheduler, the offset calibrator, the sample history (a ring buffer of its own) and the live
-FE state, and keeps what the API reads. It does no I/O, takes no lock and imports no database code: records
-to store, jobs to launch or cancel and lines to log come out as instructions, which the asyncio shell
-(``service.engine.shell``) or the offline runner (``service.engine.offline``) executes. After each event
-``view()`` gives an immutable snapshot (``service.engine.view.CoreView``) that the shell publishes for the
-API threads.
+state, and keeps what the API reads. The live state is closed loop (``service.estimate.state.FilteredState``:
+a Kalman filter on the reduced model, corrected by each sample's usable, offset-corrected channels); an
+identification window starts from it (mean and covariance) and is not scheduled before it has
+converged since the (re)start (``state_converging``). It does no I/O, takes no lock and imports no
+database code: records to store, jobs to launch or cancel and lines to log come out as instructions, which
+the asyncio shell (``service.engine.shell``) or the offline runner (``service.engine.offline``)
+executes. After each event ``view()`` gives an immutable snapshot (``service.engine.view.CoreView``) that
+the shell publishes for the API threads.
 
 One caller drives a core, from one thread. The same events on a fresh core give the same instructions.
 
@@ -30,7 +33,6 @@ from types import MappingProxyType
 import numpy as np
 
 from drivers.ringbuffer import RingBuffer, Sample
-from model.carry import StateCovariance
 from model.identify import IdentificationResult
 from service.acquire.calibration import (
     BaselineRejected,
@@ -56,15 +58,14 @@ from service.engine.events import (
     Rejected,
     RejectKind,
     SampleReceived,
-    Stepper,
-    StepperPrepared,
     Store,
 )
 from service.engine.jobbook import Job, JobBook, job_key
-from service.engine.jobs import Offsets, job_request, job_window, raw_window
+from service.engine.jobs import Offsets, converging_reason, job_request, job_window
 from service.engine.samples import SampleBook
 from service.engine.view import CoreView, NewestSample
-from service.estimate.live import LiveModel, LiveStateError
+from service.estimate.live import LiveStateError
+from service.estimate.state import FilteredState
 from service.identify import scheduler as sched
 from service.identify.detector import (
     ConditionChanged,
@@ -140,14 +141,17 @@ class ServiceCore:
             last_point = OperatingPoint(c.speed_rpm, c.torque_nm, c.ambient_c)
         self._detector = ConditionDetector(config.detector, reference=last_point)
         self._scheduler = sched.IdentificationScheduler(config.scheduler, history=list(restored.history))
-        h0 = restored.last.h if restored.last is not None else np.asarray(config.initial_h, dtype=float)
-        self._live = LiveModel(
-            model.fe,
+        last = restored.last
+        h0 = np.asarray(last.h if last is not None else config.initial_h, dtype=float)
+        self._live = FilteredState(
+            model.rom,
             model.spec,
-            h=np.asarray(h0, dtype=float),
+            h=h0,
             dt_s=config.rules.dt_s,
-            keep_s=3 * config.scheduler.max_window_s,
+            settings=replace(config.filter, keep_s=3 * config.scheduler.max_window_s),
         )
+        # the considered H error: the stored result's CI, 100 % for the guessed initial H
+        self._live.set_h(h0, h_rel=1.0 if last is None else _h_rel(last.h, last.ci95_hi))
         self._condition: ConditionSnapshot | None = restored.conditions[0] if restored.conditions else None
         self._conditions: tuple[ConditionSnapshot, ...] = tuple(restored.conditions[:CONDITIONS_KEPT])
         self._current: IdentificationRecord | None = restored.last
@@ -166,6 +170,8 @@ class ServiceCore:
         )
         cal = config.calibration
         self._calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
+        if self._calibrator is not None:
+            self._live.set_offsets(self._calibrator.offsets())
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -180,8 +186,6 @@ class ServiceCore:
                 self._on_manual(event.reason, out)
             case BaselineRequested():
                 self._on_baseline(event.t, out)
-            case StepperPrepared():
-                self._live.set_h(self._live.h, stepper=event.stepper)
             case _:
                 raise CoreError(f"unknown core event {type(event).__name__}")
         return out.instructions
@@ -212,19 +216,14 @@ class ServiceCore:
             calibration=None if cal is None else cal.current,
             offset_sd_c=sd,
             live=self._live.view() if self._live.initialized else None,
+            converging=None if self._live.ready_at() is not None else converging_reason(self._live),
             stale_after_s=self.config.stale_after_s,
             min_good_channels=self.config.rules.min_good_channels,
         )
 
-    def prepare_stepper(self, h: np.ndarray) -> Stepper:
-        """The live model's factorised step for H (7,): pure (reads only the FE model), any thread may call
-        it; the shell does, off the event loop, and hands the result back in an event."""
-        stepper: Stepper = self._live.prepare(h)
-        return stepper
-
     @property
     def live_h(self) -> np.ndarray:
-        """The live model's current H (7,) W/(m²·K) (a copy)."""
+        """The live state's current H (7,) W/(m²·K) (a copy)."""
         return np.array(self._live.h, dtype=float)
 
     # --- samples --------------------------------------------------------------------------------------------
@@ -277,6 +276,7 @@ class ServiceCore:
                     f"{np.nanmax(c.offsets_c):+.2f} °C"
                 )
                 out.instructions.append(Calibrated(out.event_id, c))
+                self._live.set_offsets(c.applied())
                 return c
         return None
 
@@ -293,15 +293,24 @@ class ServiceCore:
             out.reject(RejectKind.NOT_READY, why)
 
     def _advance_live(self, s: NewestSample, ts: float) -> None:
+        """Predict to the sample and correct with its usable channels (quality OK, finite; the calibration's
+        offsets are subtracted inside the filter)."""
         inputs = (s.ambient_c, s.speed_rpm, s.torque_nm)
+        usable = np.array([q == "ok" for q in s.quality], dtype=bool) & np.isfinite(s.temps_c)
+        temps = np.where(usable, s.temps_c, 0.0)
         if self._live.initialized:
-            self._live.push(ts, ambient_c=inputs[0], speed_rpm=inputs[1], torque_nm=inputs[2])
+            self._live.push(
+                ts,
+                ambient_c=inputs[0],
+                speed_rpm=inputs[1],
+                torque_nm=inputs[2],
+                temps_c=temps,
+                usable=usable,
+            )
             return
         if not np.isfinite(inputs).all():
             return  # wait for ambient, speed and torque (CAN may come up after the DAQ) before starting
-        good = np.array([q == "ok" for q in s.quality]) & np.isfinite(s.temps_c)
-        start = float(np.mean(s.temps_c[good])) if good.any() else inputs[0]
-        self._live.initialize(ts, start, inputs)
+        self._live.initialize(ts, inputs, temps, usable)
 
     def _resume(self, ts: float, out: _Out) -> list[sched.Instruction]:
         """After a restart the stored condition continues; its data start now (the ring buffer is empty)."""
@@ -353,6 +362,11 @@ class ServiceCore:
     ) -> list[sched.Instruction]:
         """Build the job's window and launch it, or end it at once (idle spindle, too few data)."""
         now = utc(ts)
+        if self._live.ready_at() is None:
+            # no job and no stored outcome: the scheduler retries at its next time (/chtc says why meanwhile)
+            why = converging_reason(self._live)
+            out.log(f"identification for condition {start.condition_id} deferred: {why}")
+            return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, why))
         if start.trigger == "manual":
             reason = manual_reason or "manual"
         else:
@@ -373,7 +387,7 @@ class ServiceCore:
             return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, msg))
         cal = self._calibrator
         offsets = None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
-        request = job_request(start, window, history=self._history, config=self.config, offsets=offsets)
+        request = job_request(start, window, config=self.config, offsets=offsets)
         snap, arrays = window.start, window.arrays
         job = self._jobs.launched(job, window_from=utc(snap.t), window_to=utc(float(arrays.times_s[-1])))
         out.instructions.append(Launch(event_id=out.event_id, job_key=job.key, request=request))
@@ -413,7 +427,6 @@ class ServiceCore:
         else:
             result: IdentificationResult = outcome.result
             rec = self._store_result(job, outcome, result, ev, out)
-            self._rebase_live(outcome, result, job)
             h = tuple(float(x) for x in rec.h)
             more = self._scheduler.handle(sched.JobFinished(ts, outcome.job_id, h))
         self._execute(more, ts, out)
@@ -434,7 +447,7 @@ class ServiceCore:
         self._current_from_restore = False
         ls = result.load_scale
         load = None if ls is None else (float(ls[0]), float(ls[1]))
-        self._live.set_h(rec.h, load, stepper=ev.stepper)
+        self._live.set_h(rec.h, load, h_rel=_h_rel(rec.h, rec.ci95_hi))
         h_txt = ", ".join(f"{x:.1f}" for x in rec.h)
         out.log(
             f"identification {job.key} ok: H = [{h_txt}] W/(m²·K), fit {rec.fit:.4f}, "
@@ -459,20 +472,6 @@ class ServiceCore:
         cond = next((c for c in self._conditions if c.id == cid), self._condition)
         assert cond is not None
         return cond
-
-    def _rebase_live(self, outcome: JobOutcome, result: IdentificationResult, job: Job) -> None:
-        """Restart the live state from the fitted model's field at the window end, then catch up."""
-        final = outcome.final_field_c
-        if final is None or not self._live.initialized:
-            return
-        t_end = job.window_to.timestamp()
-        newest = self._samples.newest
-        t_now = self._live.t if newest is None else max(self._live.t, newest.t.timestamp())
-        try:
-            raw = raw_window(self._history, t_end, t_now, self.config.rules.dt_s)
-        except Exception:  # the history cannot replay: keep the current state (it has the new H already)
-            return
-        self._live.rebase(t_end, final, raw, covariance=_state_covariance(result, t_end))
 
     # --- manual requests ------------------------------------------------------------------------------------
     def _on_manual(self, reason: str, out: _Out) -> None:
@@ -499,14 +498,10 @@ class ServiceCore:
         out.instructions.append(ManualAccepted(out.event_id, job))
 
 
-def _state_covariance(result: IdentificationResult, t_end: float) -> StateCovariance | None:
-    """The rebased state's error (the result's end ensemble), or None when the window did not carry it."""
-    if result.end_ensemble is None:
-        return None
-    ls = result.load_scale
-    return StateCovariance(
-        t_end,
-        result.end_ensemble,
-        np.asarray(result.h, np.float64),
-        None if ls is None else np.asarray(ls, np.float64),
-    )
+def _h_rel(h: np.ndarray, hi: np.ndarray) -> np.ndarray:
+    """The relative 1σ of H (7,) from its 95 % CI's upper end (7,): σ(log H) = log(hi/h)/1.96 (the
+    filter's considered H error; ``FilteredState.set_h`` clips it to 0.05–1)."""
+    h = np.asarray(h, dtype=float)
+    hi = np.asarray(hi, dtype=float)
+    rel = np.log(np.maximum(hi / h, 1.0)) / 1.96
+    return np.where(np.isfinite(rel), rel, 1.0)

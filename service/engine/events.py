@@ -10,7 +10,6 @@ one that ended it), so a story can be followed from a sample to the stored row w
     JobOutcomeReceived    -> Store(identification), Log, Launch (the next job that fell due)
     ManualRequested       -> ManualAccepted + Launch | Store (skipped at once) | Rejected(BUSY | NOT_READY)
     BaselineRequested     -> Calibrated + Log | Rejected(NOT_READY)
-    StepperPrepared       -> []  (the live model uses the factorised step the shell built off the loop)
 
 Refused requests are instructions (``Rejected`` with a :class:`RejectKind`), not exceptions: ``handle`` is
 total for well-formed events. The shell turns ``Rejected`` into ``BusyError`` / ``NotReadyError`` for the API.
@@ -21,10 +20,6 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Protocol
-
-import numpy as np
-import numpy.typing as npt
 
 from drivers.ringbuffer import Sample
 from service.acquire.calibration import Calibration
@@ -46,17 +41,8 @@ __all__ = [
     "RejectKind",
     "Rejected",
     "SampleReceived",
-    "Stepper",
-    "StepperPrepared",
     "Store",
 ]
-
-
-class Stepper(Protocol):
-    """A factorised FE step for one H (``model.fem.make_stepper``), built off the event loop."""
-
-    @property
-    def h(self) -> npt.NDArray[np.float64]: ...
 
 
 # --- events ------------------------------------------------------------------------------------------------
@@ -70,12 +56,11 @@ class SampleReceived:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class JobOutcomeReceived:
-    """What the worker returned for a launched job; ``stepper``: the live model's step for the result's H."""
+    """What the worker returned for a launched job."""
 
     event_id: str
     outcome: JobOutcome
     finished_at: datetime
-    stepper: Stepper | None = None
 
 
 @dataclass(frozen=True)
@@ -94,15 +79,7 @@ class BaselineRequested:
     t: datetime
 
 
-@dataclass(frozen=True, eq=False)
-class StepperPrepared:
-    """The live model's factorised step for its current H, built off the event loop at start-up."""
-
-    event_id: str
-    stepper: Stepper
-
-
-Event = SampleReceived | JobOutcomeReceived | ManualRequested | BaselineRequested | StepperPrepared
+Event = SampleReceived | JobOutcomeReceived | ManualRequested | BaselineRequested
 
 
 # --- instructions ------------------------------------------------------------------------------------------

@@ -11,6 +11,7 @@ from datetime import datetime
 from typing import Protocol
 
 from drivers.base import SourceMetrics
+from service.engine.view import CoreView
 from service.serve.interface import DeviceHealth, DeviceStatus
 from service.serve.views import age_s
 from service.store.writer import WriterStatus
@@ -19,6 +20,7 @@ __all__ = [
     "HealthSource",
     "StatusSource",
     "db_health",
+    "filter_health",
     "frame_events",
     "frame_outcomes",
     "poll_events",
@@ -160,3 +162,33 @@ def frame_events(src: HealthSource | None) -> dict[str, int]:
 def _snake(name: str) -> str:
     out = "".join("_" + c.lower() if c.isupper() else c for c in name).lstrip("_")
     return out.removesuffix("_error") or out
+
+
+def filter_health(view: CoreView, now: datetime) -> DeviceHealth:
+    """The live state's Kalman filter as a ``/healthz`` device ("filter").
+
+    ``ok`` when converged and its innovations are consistent (the NIS window in its χ² band, or filling,
+    or below it: cautious); ``degraded`` while converging after a (re)start (reason ``state_converging``)
+    or when the NIS has been above its band for ``FilterSettings.inconsistent_after_s`` (reason
+    ``filter_inconsistent``: the model misses something, a heat source or a drifting sensor); ``down``
+    before the first sample with ambient, speed and torque. Counters: the NIS window's Σ dof; the message
+    gives the verdict, Σ NIS against its band and the last sample's NIS/dof."""
+    live = view.live
+    if live is None:
+        return DeviceHealth("filter", DeviceStatus.DOWN, None, None, {}, "not started: no sample with inputs")
+    t = datetime.fromtimestamp(live.t, tz=now.tzinfo)
+    lo, hi = live.nis_band
+    figures = (
+        f"NIS {live.verdict}: Σ {live.nis_sum:.1f} over {live.nis_sum_dof} dof, band [{lo:.1f}, {hi:.1f}]; "
+        f"last sample {live.nis:.1f}/{live.nis_dof}"
+    )
+    counters = {"nis_window_dof": live.nis_sum_dof, "last_sample_dof": live.nis_dof}
+    age = age_s(t, now)
+    if not live.converged:
+        msg = f"state_converging: {live.reason}; {figures}"
+        return DeviceHealth("filter", DeviceStatus.DEGRADED, t, age, counters, msg)
+    if live.inconsistent(live.t):
+        since = live.t - (live.high_since or live.t)
+        msg = f"filter_inconsistent: NIS above its band for {since / 60:.0f} min; {figures}"
+        return DeviceHealth("filter", DeviceStatus.DEGRADED, t, age, counters, msg)
+    return DeviceHealth("filter", DeviceStatus.OK, t, age, counters, figures)

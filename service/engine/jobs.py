@@ -1,24 +1,43 @@
 """An identification job's inputs from the core's state: the window, its start field and the request.
 
-Pure functions of the live state (``service.estimate.live.LiveModel``, read only), the sample history and the
-configuration; the core (``service.engine.core``) calls them when the scheduler starts a job.
+Pure functions of the live state (``service.estimate.state.FilteredState``, read only), the sample history and
+the configuration; the core (``service.engine.core``) calls them when the scheduler starts a job. A window
+starts from the filtered state at its start (mean and covariance: ``start_cov``), never before the state has
+converged since the (re)start (``FilteredState.ready_at``).
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
+from datetime import UTC, datetime
 from typing import Protocol
 
 import numpy as np
 
-from model.carry import StateCovariance
 from service.engine.config import CoreConfig
-from service.estimate.live import LiveModel, LiveStateError, Snapshot
+from service.estimate.live import LiveStateError
+from service.estimate.state import FilteredState, StateSnapshot
 from service.identify.scheduler import StartJob
-from service.identify.window import InsufficientWindowError, RawWindow, WindowArrays, resample_window
+from service.identify.window import RawWindow, WindowArrays, resample_window
 from service.identify.worker import JobRequest
 
-__all__ = ["JobWindow", "Offsets", "SampleHistory", "job_request", "job_window", "raw_window"]
+__all__ = [
+    "STATE_CONVERGING",
+    "JobWindow",
+    "Offsets",
+    "SampleHistory",
+    "StateConverging",
+    "job_request",
+    "job_window",
+    "raw_window",
+]
+
+STATE_CONVERGING = "state_converging"
+
+
+class StateConverging(LiveStateError):
+    """No window yet: the live state has not converged since the (re)start (message starts with the code
+    ``state_converging``)."""
 
 
 class SampleHistory(Protocol):
@@ -37,35 +56,46 @@ class Offsets:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class JobWindow:
-    """A job's window: the live state's field at its start, the resampled arrays, the start field's error."""
+    """A job's window: the filtered state at its start (mean, covariance, field) and the resampled arrays."""
 
-    start: Snapshot
+    start: StateSnapshot
     arrays: WindowArrays
-    start_cov: StateCovariance | None
 
 
 def raw_window(history: SampleHistory, t_from: float, t_to: float, dt_s: float) -> RawWindow:
     """The history's samples for the grid [t_from, t_to] (s): sample times jitter around the grid, so
     the samples within half a step outside it belong to its end points (``resample_window``,
-    ``LiveModel.push``) and are included."""
+    ``FilteredState.push``) and are included."""
     half = 0.5 * dt_s
     return history.raw_window(t_from - half, t_to + half)
 
 
-def job_window(job: StartJob, live: LiveModel, history: SampleHistory, config: CoreConfig) -> JobWindow:
-    """The window of ``job``; raises ``InsufficientWindowError`` or ``LiveStateError`` naming why not."""
-    snap = live.field_at(job.t_from)
-    start_cov = live.covariance_at(snap.t) if config.carry_start_error else None
+def job_window(job: StartJob, live: FilteredState, history: SampleHistory, config: CoreConfig) -> JobWindow:
+    """The window of ``job`` from max(its start, the state's convergence time); raises ``StateConverging``
+    (not converged yet), ``InsufficientWindowError`` or ``LiveStateError`` naming why not."""
+    ready = live.ready_at() if live.initialized else None
+    if ready is None:
+        raise StateConverging(converging_reason(live))
+    snap = live.field_at(max(job.t_from, ready))
     raw = raw_window(history, snap.t, job.t_to, config.rules.dt_s)
     arrays = resample_window(raw, snap.t, job.t_to, config.rules)
-    return JobWindow(start=snap, arrays=arrays, start_cov=start_cov)
+    return JobWindow(start=snap, arrays=arrays)
+
+
+def converging_reason(live: FilteredState) -> str:
+    """``state_converging: ...`` with the convergence test's figures (or why the state has not started)."""
+    if not live.initialized:
+        return (
+            f"{STATE_CONVERGING}: the live state has not started (no sample with ambient, speed and torque)"
+        )
+    since = datetime.fromtimestamp(live.started_at or live.t, tz=UTC).isoformat(timespec="seconds")
+    return f"{STATE_CONVERGING}: live state not converged since {since} ({live.convergence().reason})"
 
 
 def job_request(
     job: StartJob,
     window: JobWindow,
     *,
-    history: SampleHistory,
     config: CoreConfig,
     offsets: Offsets | None,
 ) -> JobRequest:
@@ -78,34 +108,12 @@ def job_request(
         method=config.method,
         seed=config.seed,
         estimate_loads=config.estimate_loads,
-        estimate_t0_shift=fit_start_offset(config.estimate_t0_shift, window.start),
+        estimate_t0_shift=config.estimate_t0_shift == "always",
         carry_start_error=config.carry_start_error,
-        start_cov=window.start_cov,
-        gap=_gap(history, window.start_cov, window.start.t, config),
+        start_cov=np.array(window.start.cov) if config.carry_start_error else None,
+        start_modes=config.start_modes if config.carry_start_error else 0,
         time_budget_s=config.time_budget_s,
         ci_threshold=config.ci_threshold,
         offsets_c=None if offsets is None else offsets.offsets_c,
         offset_sd_c=None if offsets is None else offsets.sd_c,
     )
-
-
-def fit_start_offset(mode: str, snap: Snapshot) -> bool:
-    """Whether the window's start field gets a fitted uniform offset (``estimate_t0_shift``): "initial"
-    only while it still descends from the live state's initial guess (no rebase since), whose error is
-    uniform (the first sample's noise)."""
-    return mode == "always" or (mode == "initial" and snap.initial)
-
-
-def _gap(
-    history: SampleHistory, start_cov: StateCovariance | None, t_start: float, config: CoreConfig
-) -> WindowArrays | None:
-    """The inputs from the rebase that ``start_cov`` belongs to up to the window start (None: no gap,
-    or the history no longer has it; the worker then only decays the covariance)."""
-    if start_cov is None or t_start - start_cov.t_s < 0.5 * config.rules.dt_s:
-        return None
-    rules = replace(config.rules, min_window_s=0.0, min_good_channels=0)
-    try:
-        raw = raw_window(history, start_cov.t_s, t_start, config.rules.dt_s)
-        return resample_window(raw, start_cov.t_s, t_start, rules)
-    except (InsufficientWindowError, LiveStateError, ValueError):
-        return None

@@ -14,8 +14,6 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Protocol
 
-import numpy as np
-
 from drivers.ringbuffer import Sample
 from service.acquire.calibration import Calibration
 from service.engine.config import CoreConfig, Restored
@@ -29,7 +27,7 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.identify.worker import JobStatus, run_job
+from service.identify.worker import run_job
 from service.modelload import LoadedModel
 from service.serve.interface import ConditionSnapshot, IdentificationRecord
 from service.store.records import Record
@@ -94,9 +92,4 @@ def run_offline(
 
 def _outcome(core: ServiceCore, model: LoadedModel, launch: Launch, t: datetime) -> JobOutcomeReceived:
     outcome = run_job(model, launch.request)
-    stepper = None
-    if outcome.status is JobStatus.OK and outcome.result is not None:
-        stepper = core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))
-    return JobOutcomeReceived(
-        event_id=f"outcome-{launch.request.job_id}", outcome=outcome, finished_at=t, stepper=stepper
-    )
+    return JobOutcomeReceived(event_id=f"outcome-{launch.request.job_id}", outcome=outcome, finished_at=t)

@@ -103,6 +103,7 @@ def core_config(settings: Settings) -> CoreConfig:
         estimate_loads=ident.estimate_loads,
         estimate_t0_shift=ident.estimate_t0_shift,
         carry_start_error=ident.carry_start_error,
+        start_modes=ident.start_modes,
         ci_threshold=ident.ci_rel_threshold,
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,

@@ -55,14 +55,13 @@ from service.engine.events import (
     Rejected,
     RejectKind,
     SampleReceived,
-    Stepper,
-    StepperPrepared,
     Store,
 )
 from service.engine.health import (
     HealthSource,
     StatusSource,
     db_health,
+    filter_health,
     frame_events,
     frame_outcomes,
     poll_events,
@@ -178,8 +177,6 @@ class SoftSensorService:
         """Remember the loop, start the worker process (loads the model there) and the health watcher."""
         self._loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
-        stepper = await asyncio.to_thread(self.core.prepare_stepper, self.core.live_h)
-        self.handle(StepperPrepared(self._next_id("stepper"), stepper))
         if self.worker is not None:
             version = await self.worker.start()
             self.model_loaded = True
@@ -270,27 +267,17 @@ class SoftSensorService:
             return
         ok = np.array([q == "ok" for q in s.quality], dtype=bool)
         measured = np.where(ok & np.isfinite(s.temps_c), s.temps_c, np.nan)
-        predicted = self._predicted(v)
+        predicted = None if v.live is None else v.live.sensors_c
         self._history.append(s.t, measured, predicted)
-
-    def _predicted(self, v: CoreView) -> np.ndarray | None:
-        """Predicted sensor temperatures (n,) °C now (None before the first identification)."""
-        if v.current is None or v.live is None:
-            return None
-        return np.asarray(self.core.model.fe.sensor_op @ v.live.field_c).ravel()
 
     def _launch(self, launch: Launch) -> None:
         """Run a job: inline with ``run_job``, else on the event loop in the worker process (without a loop
         and a worker, its failed outcome comes at once)."""
         if self.run_job is not None:
-            outcome = self.run_job(launch.request)
-            stepper = None
-            if outcome.status is JobStatus.OK and outcome.result is not None:
-                stepper = self.core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))
-            self._deferred.append(self._outcome_event(outcome, stepper))
+            self._deferred.append(self._outcome_event(self.run_job(launch.request)))
             return
         if self._loop is None and self.worker is None:
-            self._deferred.append(self._outcome_event(_no_worker(launch), None))
+            self._deferred.append(self._outcome_event(_no_worker(launch)))
             return
         self._spawn(self._run_job(launch))
 
@@ -310,16 +297,11 @@ class SoftSensorService:
                 )
         if self.worker is not None and self.worker.restarts:
             self.record_event("worker", "restarted", f"{self.worker.restarts} restart(s) so far")
-        stepper = None
-        if outcome.status is JobStatus.OK and outcome.result is not None:
-            # factorise the live model's step for the new H in a thread, not on the event loop
-            h = np.asarray(outcome.result.h, dtype=float)
-            stepper = await asyncio.to_thread(self.core.prepare_stepper, h)
-        self.handle(self._outcome_event(outcome, stepper))
+        self.handle(self._outcome_event(outcome))
 
-    def _outcome_event(self, outcome: JobOutcome, stepper: Stepper | None) -> JobOutcomeReceived:
+    def _outcome_event(self, outcome: JobOutcome) -> JobOutcomeReceived:
         return JobOutcomeReceived(
-            event_id=self._next_id("outcome"), outcome=outcome, finished_at=self.clock(), stepper=stepper
+            event_id=self._next_id("outcome"), outcome=outcome, finished_at=self.clock()
         )
 
     # --- device health (event-loop thread) --------------------------------------------------------------
@@ -345,7 +327,17 @@ class SoftSensorService:
         problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
         status = _status(v, rec, newest, problems)
         cond = v.condition
-        key = (rec.id, status, newest, cond.id if cond else None, cond.state if cond else None, problems)
+        live = v.live
+        since = None if live is None or live.converged else _utc(live.started_at)
+        key = (
+            rec.id,
+            status,
+            newest,
+            cond.id if cond else None,
+            cond.state if cond else None,
+            problems,
+            since,
+        )
         cached = self._snap_cache
         if cached is not None and cached[0] == key:
             return cached[1]
@@ -357,6 +349,7 @@ class SoftSensorService:
             data_problems=problems,
             restored=v.current_from_restore,
             box=self.core.model.ref.h_box,
+            converging_since=since,
         )
         self._snap_cache = (key, snap)
         return snap
@@ -366,16 +359,20 @@ class SoftSensorService:
         rec = v.current
         if rec is None:
             raise NoDataYetError("no identification yet: no temperature field")
-        if v.live is None:
+        live = v.live
+        if live is None:
             raise NoDataYetError("no sample yet: the live temperature field has not started")
         fe = self.core.model.fe
         if at == "now":
-            return FieldSnapshot(_utc(v.live.t), "now", fe.nodes_rz, fe.triangles, v.live.field_c, rec.id)
+            # the filtered estimate and its 1σ (computed once per view, on the first request)
+            return FieldSnapshot(
+                _utc(live.t), "now", fe.nodes_rz, fe.triangles, live.field_c, rec.id, std_c=live.field_std_c
+            )
         key = (rec.id, v.condition.id if v.condition else None)
         cached = self._steady_cache
         if cached is not None and cached[0] == key:
             return cached[1]
-        steady = steady_field(fe, self.core.model.spec, v.live)
+        steady = steady_field(fe, self.core.model.spec, live)
         out = FieldSnapshot(self.clock(), "steady", fe.nodes_rz, fe.triangles, steady, rec.id)
         self._steady_cache = (key, out)
         return out
@@ -385,7 +382,9 @@ class SoftSensorService:
         s = v.newest
         if s is None:
             raise NoDataYetError("no sample yet")
-        pred = self._predicted(v)
+        live = v.live
+        pred = None if live is None else live.sensors_c
+        pred_sd = None if live is None else live.sensors_std_c
         cal, sd = v.calibration, v.offset_sd_c
         applied = cal.applied() if cal is not None else None
         out = []
@@ -401,6 +400,7 @@ class SoftSensorService:
                     offset_c=off,
                     offset_sd_c=None if sd is None else float(sd[i]),
                     offset_calibrated_at=None if cal is None else cal.t_to,
+                    predicted_sd_c=None if pred_sd is None else float(pred_sd[i]),
                 )
             )
         return out
@@ -470,6 +470,7 @@ class SoftSensorService:
         out = [source_health(name, src, now) for name, src in self.sources.items()]
         out.append(db_health(self.writer, now))
         out.append(self._worker_health())
+        out.append(filter_health(self._view, now))
         return out
 
     def _worker_health(self) -> DeviceHealth:
@@ -535,7 +536,7 @@ def _status(
 ) -> ChtcStatus:
     if newest is None:
         return ChtcStatus.STALE if v.current_from_restore else ChtcStatus.NO_DATA
-    if problems or v.current_from_restore:
+    if problems or v.current_from_restore or (v.live is not None and not v.live.converged):
         return ChtcStatus.STALE
     cond = v.condition
     if v.running_job is not None or cond is None or cond.id != rec.condition.id:

@@ -15,7 +15,7 @@ from datetime import datetime
 import numpy as np
 
 from service.acquire.calibration import Calibration
-from service.estimate.live import LiveView
+from service.estimate.state import FilterView
 from service.serve.interface import (
     ConditionSnapshot,
     HistogramData,
@@ -59,7 +59,8 @@ class CoreView:
     last_good_can_t: datetime | None  # newest sample with speed and torque from CAN
     calibration: Calibration | None  # the current offset baseline (None: none, or calibration off)
     offset_sd_c: np.ndarray | None  # (n,) °C 1σ of the offsets still unknown (None: calibration off)
-    live: LiveView | None  # the live FE state (None before it started)
+    live: FilterView | None  # the filtered live state (None before it started)
+    converging: str | None  # "state_converging: ..." while the live state has not converged (None: converged)
     stale_after_s: float
     min_good_channels: int
 

@@ -53,7 +53,7 @@ from model.estimator import (
 )
 from service.estimate.live import LiveStateError
 
-__all__ = ["FilterSettings", "FilteredState", "LiveStateError", "SampleUpdate", "StateSnapshot"]
+__all__ = ["FilterSettings", "FilterView", "FilteredState", "LiveStateError", "SampleUpdate", "StateSnapshot"]
 
 Array = NDArray[np.float64]
 
@@ -67,7 +67,8 @@ class FilterSettings:
     ``prior_sigma_c`` [°C] 1σ of the prior's uniform offset (and of the "wide" shape part); ``nis_window``
     samples of the NIS test; ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
     ``max_gap_s`` [s] a longer gap between samples restarts from the wide prior; snapshots every
-    ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``.
+    ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``;
+    ``inconsistent_after_s`` [s]: the NIS window above its band this long is reported (``FilterView``).
     """
 
     noise: NoiseModel = field(default_factory=NoiseModel)
@@ -80,6 +81,7 @@ class FilterSettings:
     snapshot_every_s: float = 60.0
     keep_s: float = 3 * 3600.0
     recent_steps: int = 64
+    inconsistent_after_s: float = 600.0  # NIS window "high" this long [s]: a persistent inconsistency
 
 
 @dataclass(frozen=True, eq=False)
@@ -116,6 +118,76 @@ class SampleUpdate:
     dof: int
     verdict: str
     restarted: bool = False
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class FilterView:
+    """An immutable copy of the filtered state for readers on other threads (``FilteredState.view``).
+
+    ``t`` [s] of the estimate; reduced ``mean`` (r,) [°C] and ``cov`` (r, r) [°C²] (read-only copies);
+    ``basis`` (N, r) and ``sensor_rows`` (32, r) the reduced model's (shared, read-only); ``sigma_model_c``
+    [°C] the model's error at the sensors outside the state; ``h`` (7,) [W/(m²·K)], ``load_scale`` and the
+    held ``inputs`` (ambient °C, speed rpm, torque N·m) that the steady field is computed for
+    (``service.estimate.live.steady_field``). Health: ``started_at``/``converged_at`` [s] (None: not yet
+    converged since the (re)start, then ``reason`` says why), the last sample's ``nis`` over ``nis_dof``
+    channels, the NIS window's ``verdict``, Σ NIS / Σ dof and its χ² ``nis_band``, and ``high_since`` [s]
+    (the verdict "high" since then; None: not high). The field's 1σ is computed on first use (O(N·r²))."""
+
+    t: float
+    mean: Array
+    cov: Array
+    basis: Array = field(repr=False)
+    sensor_rows: Array = field(repr=False)
+    sigma_model_c: float
+    h: tuple[float, ...]
+    load_scale: tuple[float, float]
+    inputs: tuple[float, float, float]
+    started_at: float
+    converged_at: float | None
+    reason: str
+    nis: float
+    nis_dof: int
+    verdict: str
+    nis_sum: float
+    nis_sum_dof: int
+    nis_band: tuple[float, float]
+    high_since: float | None
+    inconsistent_after_s: float
+
+    @property
+    def converged(self) -> bool:
+        return self.converged_at is not None
+
+    @cached_property
+    def field_c(self) -> Array:
+        """Mean field V·a [°C] per node (N,), read-only."""
+        return _frozen(self.basis @ self.mean)
+
+    @cached_property
+    def field_std_c(self) -> Array:
+        """1σ of the field [°C] per node (N,), read-only."""
+        return _frozen(field_std(self.basis, self.cov))
+
+    @cached_property
+    def sensors_c(self) -> Array:
+        """Estimated true temperatures (32,) [°C] at the sensors (offset-corrected frame), read-only."""
+        return _frozen(self.sensor_rows @ self.mean)
+
+    @cached_property
+    def sensors_std_c(self) -> Array:
+        """1σ (32,) [°C] of the sensors' true temperatures (state and model error), read-only."""
+        state = field_std(self.sensor_rows, self.cov)
+        return _frozen(np.sqrt(state**2 + self.sigma_model_c**2))
+
+    def inconsistent(self, t: float) -> bool:
+        """Whether the NIS has been above its band for at least ``inconsistent_after_s`` at ``t`` [s]."""
+        return self.high_since is not None and t - self.high_since >= self.inconsistent_after_s
+
+
+def _frozen(a: Array) -> Array:
+    out = np.asarray(a, dtype=np.float64)
+    out.setflags(write=False)
+    return out
 
 
 @dataclass(frozen=True)
@@ -156,6 +228,9 @@ class FilteredState:
         self._inputs: _Inputs | None = None
         self.converged_at: float | None = None  # [s] first converged sample since the (re)start
         self.started_at: float | None = None
+        self.high_since: float | None = None  # [s] the NIS window "high" since (None: not high)
+        self._last: tuple[float, int] = (0.0, 0)
+        self._convergence: Convergence | None = None
         self.nis_history: deque[tuple[float, float, int]] = deque(maxlen=max(1, int(st.keep_s / self.dt_s)))
         self.steps = 0
 
@@ -201,6 +276,8 @@ class FilteredState:
         self._window = NisWindow(self.settings.nis_window)
         self.converged_at = None
         self.started_at = float(t)
+        self.high_since = None
+        self._convergence = None
         for dq in (self._snapshots, self._recent):
             dq.clear()
         return self._after_step(0, self._measure(temps_c, usable), restarted=True)
@@ -351,6 +428,36 @@ class FilteredState:
         "low"."""
         return self._window.verdict()
 
+    def view(self) -> FilterView:
+        """An immutable copy of the state now for readers on other threads (raises before ``initialize``)."""
+        est, inp = self.estimator.estimate, self._inputs
+        assert inp is not None and self.started_at is not None
+        conv = self._convergence
+        reason = "converged" if self.converged_at is not None else conv.reason if conv else "starting"
+        total, dof = self._window.totals()
+        return FilterView(
+            t=self.t,
+            mean=_frozen(est.mean.copy()),
+            cov=_frozen(est.cov.copy()),
+            basis=self.rom.basis,
+            sensor_rows=np.asarray(self.rom.sensors),
+            sigma_model_c=float(self.settings.noise.sigma_model_c),
+            h=tuple(float(x) for x in self.h),
+            load_scale=self.load_scale,
+            inputs=(inp.ambient_c, inp.speed_rpm, inp.torque_nm),
+            started_at=self.started_at,
+            converged_at=self.converged_at,
+            reason=reason,
+            nis=self._last[0],
+            nis_dof=self._last[1],
+            verdict=self._window.verdict(),
+            nis_sum=total,
+            nis_sum_dof=dof,
+            nis_band=self._window.band(),
+            high_since=self.high_since,
+            inconsistent_after_s=self.settings.inconsistent_after_s,
+        )
+
     def steady(self) -> Array:
         """Steady field (N,) [°C] for the current H and the last inputs (``rom.steady_state``)."""
         if self._inputs is None:
@@ -371,12 +478,21 @@ class FilteredState:
         self._window.push(nis, dof)
         if dof:
             self.nis_history.append((self._t, nis, dof))
-        newly = self.converged_at is None and self.convergence().converged
+        self._last = (nis, dof)
+        verdict = self._window.verdict()
+        if verdict != "high":
+            self.high_since = None
+        elif self.high_since is None:
+            self.high_since = self._t
+        newly = False
+        if self.converged_at is None:
+            self._convergence = self.convergence()
+            newly = self._convergence.converged
         if newly:
             self.converged_at = self._t
         self._keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
         self.steps += n
-        return SampleUpdate(self._t, n, nis, dof, self._window.verdict(), restarted)
+        return SampleUpdate(self._t, n, nis, dof, verdict, restarted)
 
     def _snapshot(self) -> StateSnapshot:
         est = self.estimator.estimate

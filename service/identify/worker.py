@@ -45,7 +45,6 @@ from service.identify.window import InsufficientWindowError, WindowArrays
 from service.modelload import LoadedModel, ModelRef, load_model
 
 if TYPE_CHECKING:
-    from model.carry import StateCovariance
     from model.identify import IdentificationResult, Window
     from model.rom import InputLike, ReducedModel
 
@@ -78,10 +77,12 @@ class JobRequest:
     method: str = "hybrid"
     seed: int = 0
     estimate_loads: bool = False
-    estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too (the live state's common error)
-    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error; result: end ensemble
-    start_cov: StateCovariance | None = None  # t0_c's error (None: exact, or the initial guess)
-    gap: WindowArrays | None = None  # the inputs from start_cov's rebase to the window start
+    estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too
+    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error (start_cov)
+    # (r, r) °C² covariance of t0_c's error in reduced coordinates: the filtered live state's at the window
+    # start (None: exact)
+    start_cov: np.ndarray | None = None
+    start_modes: int = 0  # fit the start's leading uncertain directions too (IdentifyOptions.start_modes)
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
     offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.acquire.calibration)
@@ -218,21 +219,19 @@ def run_identification(
         offset_sd_c=req.offset_sd_c,
         start_cov=start_covariance(model, req) if req.carry_start_error else None,
         spec=model.spec,
-        options=IdentifyOptions(time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold),
+        options=IdentifyOptions(
+            time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold, start_modes=req.start_modes
+        ),
     )
     return result, window
 
 
 def start_covariance(model: LoadedModel, req: JobRequest) -> np.ndarray:
-    """The error covariance (r, r) [°C², reduced] of the window's start field: the live state's error at its
-    last rebase carried through the gap's inputs to the window start (``model.carry.propagate``), zeros when
-    it has none."""
-    from model.carry import propagate
-
+    """The error covariance (r, r) [°C², reduced] of the window's start field (the filtered live state's),
+    zeros when it has none."""
     if req.start_cov is None:
         return np.zeros((model.rom.rank, model.rom.rank))
-    gap = None if req.gap is None else to_model_window(model, req.gap, 0.0).inputs
-    return propagate(model.rom, req.start_cov, float(req.window.times_s[0]), req.window.dt_s, gap)
+    return np.asarray(req.start_cov, dtype=np.float64)
 
 
 def final_field(model: LoadedModel, window: Window, result: IdentificationResult) -> np.ndarray:

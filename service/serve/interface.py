@@ -105,6 +105,8 @@ class FieldSnapshot:
     triangles: np.ndarray  # (M, 3) node indices
     temps_c: np.ndarray  # (N,) °C
     identification_id: int | None = None
+    # (N,) °C 1σ of temps_c: the filtered live state's uncertainty ("now"); None for "steady" (a model output)
+    std_c: np.ndarray | None = None
 
     @property
     def bounds_rz(self) -> tuple[float, float, float, float]:
@@ -134,13 +136,16 @@ class SensorReading:
     r_m: float
     z_m: float
     measured_c: float | None  # None when the channel has no usable value (see quality)
-    predicted_c: float | None  # None before the first identification
-    residual_c: float | None  # measured - predicted
+    predicted_c: (
+        float | None
+    )  # the filtered live state at the sensor, offset-corrected; None before it started
+    residual_c: float | None  # measured - offset - predicted
     quality: str  # drivers.quality.Quality value: "ok", "stale", "open_circuit", ...
     t: datetime  # UTC of the sample
     offset_c: float | None = None  # zeroed sensor offset (subtracted before the fit); None: no baseline
     offset_sd_c: float | None = None  # 1σ of the offset still unknown, carried in the CIs
     offset_calibrated_at: datetime | None = None  # UTC end of the baseline (service.acquire.calibration)
+    predicted_sd_c: float | None = None  # 1σ of predicted_c (the filtered state's and the model's error)
 
 
 @dataclass(frozen=True)
@@ -345,7 +350,7 @@ class DeviceStatus(enum.StrEnum):
 
 @dataclass(frozen=True)
 class DeviceHealth:
-    name: str  # "modbus" | "can" | "db" | "worker"
+    name: str  # "modbus" | "can" | "db" | "worker" | "filter"
     status: DeviceStatus
     last_ok_at: datetime | None  # UTC of the last good read/frame/write
     age_s: float | None  # seconds since last_ok_at, at the time of health()

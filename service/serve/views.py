@@ -172,11 +172,14 @@ def usability(
     data_problems: tuple[str, ...],
     restored: bool,
     has_sample: bool = True,
+    converging_since: datetime | None = None,
 ) -> Usability:
     """Whether a compensation controller may apply ``rec``'s H now, else the first reason why not.
 
     Codes, in this order: ``no_data`` (no sample acquired yet), ``stale`` (the data are not fresh:
-    ``data_problems``), ``condition_changed`` (identified at another condition, or the condition is changing),
+    ``data_problems``), ``state_converging`` (the live state has not converged since ``converging_since``,
+    a restart or a data gap: no identification window may start yet, the H are the last ones),
+    ``condition_changed`` (identified at another condition, or the condition is changing),
     ``at_bound`` (an H on a bound of the search box), ``not_identified`` (an H's 95 % CI wider than the
     threshold), ``restored`` (otherwise usable, but the last stored H, not re-identified since the
     restart)."""
@@ -184,6 +187,13 @@ def usability(
         return Usability(False, "no_data: no sample acquired yet")
     if data_problems:
         return Usability(False, "stale: " + ", ".join(data_problems) + " (see /readyz)")
+    if converging_since is not None:
+        since = converging_since.isoformat(timespec="seconds")
+        return Usability(
+            False,
+            f"state_converging: the live temperature state has not converged since {since} (restart or data "
+            "gap): no identification window starts before it has, the H are the last identified ones",
+        )
     if condition is None or condition.id != rec.condition.id or condition.state is not ConditionState.STABLE:
         now = "none" if condition is None else f"{condition.id} ({condition.state.value})"
         return Usability(False, f"condition_changed: identified at condition {rec.condition.id}, now {now}")
@@ -208,12 +218,14 @@ def chtc_snapshot(
     data_problems: tuple[str, ...],
     restored: bool,
     box: tuple[float, float] | None,
+    converging_since: datetime | None = None,
 ) -> ChtcSnapshot:
     """What ``/chtc`` serves: the current identification ``rec`` and whether a controller may use it now.
 
     ``data_problems``: codes of ``core.data_problems`` (empty: fresh); ``restored``: ``rec`` is the last
     stored one, not re-identified since the restart; ``box``: the search box of H (an H within
-    ``BOUND_REL_TOL`` of a bound is not identified)."""
+    ``BOUND_REL_TOL`` of a bound is not identified); ``converging_since``: the live state's (re)start while
+    it has not converged (``usability``)."""
     bound = at_bound(rec, box, BOUND_REL_TOL)
     use = usability(
         rec,
@@ -222,6 +234,7 @@ def chtc_snapshot(
         data_problems=data_problems,
         restored=restored,
         has_sample=newest_sample_at is not None,
+        converging_since=converging_since,
     )
     identified = rec.identified & ~bound
     identified.setflags(write=False)

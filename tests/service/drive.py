@@ -5,12 +5,10 @@ from __future__ import annotations
 from collections.abc import Iterable
 from datetime import datetime
 
-import numpy as np
-
 from drivers.ringbuffer import Sample
 from service.engine.core import ServiceCore
 from service.engine.events import Event, Instruction, JobOutcomeReceived, Launch, SampleReceived, Store
-from service.identify.worker import JobOutcome, JobStatus, run_job
+from service.identify.worker import JobOutcome, run_job
 from service.modelload import LoadedModel
 from service.store.records import Record
 
@@ -39,12 +37,7 @@ def feed_and_run(
 
 
 def outcome_event(core: ServiceCore, outcome: JobOutcome, t: datetime) -> JobOutcomeReceived:
-    stepper = None
-    if outcome.status is JobStatus.OK and outcome.result is not None:
-        stepper = core.prepare_stepper(np.asarray(outcome.result.h, dtype=float))
-    return JobOutcomeReceived(
-        event_id=f"outcome-{outcome.job_id}", outcome=outcome, finished_at=t, stepper=stepper
-    )
+    return JobOutcomeReceived(event_id=f"outcome-{outcome.job_id}", outcome=outcome, finished_at=t)
 
 
 def launches(instructions: Iterable[Instruction]) -> list[Launch]:

@@ -110,8 +110,7 @@ def test_same_events_give_the_same_instructions_on_a_fresh_core(loaded_model, tw
     first = ServiceCore(CFG, model=loaded_model)
 
     def run(launch: Launch) -> JobOutcomeReceived:
-        ev = outcome_event(first, run_job(loaded_model, launch.request), two_conditions[-1].t)
-        return dataclasses.replace(ev, stepper=None)  # the same event for both cores
+        return outcome_event(first, run_job(loaded_model, launch.request), two_conditions[-1].t)
 
     seen, out1 = _drive(first, events, run)
     _, out2 = _drive(ServiceCore(CFG, model=loaded_model), seen, None)
@@ -220,5 +219,5 @@ def test_an_api_thread_request_is_handled_on_the_event_loop(loaded_model) -> Non
 
     message = asyncio.run(main())
     assert "no samples yet" in message
-    assert len(threads) == 2 and threads[0] == threads[1]  # the start-up stepper and the request: the loop's
-    assert threads[1] == threading.get_ident()  # asyncio.run ran the loop on this thread
+    assert len(threads) == 1  # the request, handled on the loop's thread
+    assert threads[0] == threading.get_ident()  # asyncio.run ran the loop on this thread
