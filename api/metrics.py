@@ -22,7 +22,7 @@ from prometheus_client.core import (
 from prometheus_client.registry import Collector
 
 from service.serve.histogram import LATENCY_BUCKETS_S
-from service.serve.interface import ChtcService, ChtcSnapshot, HistogramData
+from service.serve.interface import ChtcService, ChtcSnapshot, FilterMetrics, HistogramData
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 
@@ -149,6 +149,39 @@ class ServiceCollector(Collector):
             "chtc_db_pending_rows", "rows buffered for the database", value=m.db_pending_rows
         )
         yield CounterMetricFamily("chtc_db_errors", "database write errors", value=m.db_errors_total)
+        yield from _filter_gauges(m.filter)
+
+
+def _filter_gauges(f: FilterMetrics | None) -> Iterator[Metric]:
+    """The live state's Kalman filter: NIS of the last sample, window ratio, consistency, convergence."""
+    if f is None:
+        return
+    yield GaugeMetricFamily(
+        "chtc_filter_nis", "normalised innovation squared of the last sample (E = its dof)", value=f.nis
+    )
+    yield GaugeMetricFamily("chtc_filter_nis_dof", "channels used in the last sample's update", value=f.dof)
+    if f.window_ratio is not None:
+        yield GaugeMetricFamily(
+            "chtc_filter_nis_ratio",
+            "NIS window: sum NIS / sum dof (about 1 when consistent)",
+            value=f.window_ratio,
+        )
+    yield GaugeMetricFamily(
+        "chtc_filter_consistent",
+        "0 while the NIS has been above its chi-squared band long enough to be reported, else 1",
+        value=0.0 if f.inconsistent else 1.0,
+    )
+    verdict = GaugeMetricFamily(
+        "chtc_filter_nis_verdict", "1 for the NIS window's verdict", labels=["verdict"]
+    )
+    for v in ("filling", "ok", "high", "low"):
+        verdict.add_metric([v], 1.0 if f.verdict == v else 0.0)
+    yield verdict
+    yield GaugeMetricFamily(
+        "chtc_filter_converged",
+        "1 once the live state converged since the (re)start",
+        value=float(f.converged),
+    )
 
 
 class ApiMetrics:

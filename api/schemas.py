@@ -152,6 +152,10 @@ class FieldMeta(BaseModel):
     length_unit: str = "m"
     t_min_c: float | None
     t_max_c: float | None
+    std_max_c: float | None = Field(
+        default=None,
+        description="largest 1σ of the field, °C (at=now: the filtered state's; null for steady)",
+    )
 
 
 class FieldMeshOut(FieldMeta):
@@ -159,6 +163,10 @@ class FieldMeshOut(FieldMeta):
     nodes_r_m: list[float]
     nodes_z_m: list[float]
     temps_c: list[float | None]
+    std_c: list[float | None] | None = Field(
+        default=None,
+        description="1σ per node, °C (at=now: the filtered live state's; null for steady); 95 %: ±1.96σ",
+    )
     triangles: list[list[int]]
 
 
@@ -167,6 +175,9 @@ class FieldGridOut(FieldMeta):
     r_m: list[float] = Field(description="nr grid abscissae, m")
     z_m: list[float] = Field(description="nz grid ordinates, m")
     temps_c: list[list[float | None]] = Field(description="[i_r][i_z], null outside the section")
+    std_c: list[list[float | None]] | None = Field(
+        default=None, description="1σ [i_r][i_z], °C (P1-interpolated; null for steady); 95 %: ±1.96σ"
+    )
 
 
 class PointOut(BaseModel):
@@ -174,6 +185,8 @@ class PointOut(BaseModel):
     z_m: float
     temp_c: float | None = Field(description="null when the point is outside the section")
     inside: bool
+    std_c: float | None = Field(default=None, description="1σ, °C (P1-interpolated; null for steady)")
+    ci95_c: tuple[float, float] | None = Field(default=None, description="temp_c ± 1.96σ, °C")
 
 
 class FieldPointsOut(FieldMeta):
@@ -189,7 +202,11 @@ class SensorOut(BaseModel):
     z_m: float
     measured_c: float | None
     predicted_c: float | None
-    residual_c: float | None = Field(description="measured - predicted, °C")
+    residual_c: float | None = Field(description="measured - offset - predicted, °C")
+    predicted_sd_c: float | None = Field(
+        default=None, description="1σ of predicted_c (the filtered live state's and the model's error), °C"
+    )
+    predicted_ci95_c: tuple[float, float] | None = Field(default=None, description="predicted_c ± 1.96σ, °C")
     quality: str
     t: datetime
     offset_c: float | None = Field(
@@ -229,6 +246,8 @@ def sensor_out(s: SensorReading) -> SensorOut:
         measured_c=_num(s.measured_c, 4),
         predicted_c=_num(s.predicted_c, 4),
         residual_c=_num(s.residual_c, 4),
+        predicted_sd_c=_num(s.predicted_sd_c, 4),
+        predicted_ci95_c=_ci95(s.predicted_c, s.predicted_sd_c),
         quality=s.quality,
         t=s.t,
         offset_c=_num(s.offset_c, 4),
@@ -379,3 +398,10 @@ class ReadyOut(BaseModel):
     ready: bool
     reasons: list[str]
     t: datetime
+
+
+def _ci95(mean: float | None, sd: float | None) -> tuple[float, float] | None:
+    """mean ± 1.96·sd rounded to 0.1 mK (None when either is missing or not finite)."""
+    if mean is None or sd is None or not (math.isfinite(mean) and math.isfinite(sd)):
+        return None
+    return (round(mean - 1.96 * sd, 4), round(mean + 1.96 * sd, 4))

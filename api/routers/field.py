@@ -25,6 +25,7 @@ from api.errors import ApiError, invalid
 from api.routers.chtc import _matches
 from api.routers.field_render import GZIP_MIN_BYTES, FieldGate, FieldRenderer, Rendered, _clean
 from api.schemas import FieldGridOut, FieldMeshOut, FieldPointsOut, PointOut
+from api.stdmax import std_max
 from service.serve.interface import ChtcService, FieldAt, FieldSnapshot
 
 router = APIRouter(tags=["temperature field"], dependencies=[ReadAccess])
@@ -67,6 +68,7 @@ def _meta(f: FieldSnapshot) -> dict[str, object]:
         "identification_id": f.identification_id,
         "t_min_c": round(float(finite.min()), 4) if finite.size else None,
         "t_max_c": round(float(finite.max()), 4) if finite.size else None,
+        "std_max_c": std_max(f),
     }
 
 
@@ -78,6 +80,7 @@ def mesh_out(f: FieldSnapshot) -> FieldMeshOut:
         nodes_r_m=np.round(f.nodes_rz[:, 0], 7).tolist(),
         nodes_z_m=np.round(f.nodes_rz[:, 1], 7).tolist(),
         temps_c=_clean(f.temps_c),
+        std_c=None if f.std_c is None else _clean(f.std_c),
         triangles=np.asarray(f.triangles, dtype=int).tolist(),
     )
 
@@ -87,28 +90,40 @@ def grid_out(f: FieldSnapshot, nr: int, nz: int) -> FieldGridOut:
     r = np.linspace(r0, r1, nr)
     z = np.linspace(z0, z1, nz)
     rr, zz = np.meshgrid(r, z, indexing="ij")
-    temps = f.evaluate(np.c_[rr.ravel(), zz.ravel()]).reshape(nr, nz)
+    pts = np.c_[rr.ravel(), zz.ravel()]
+    temps = f.evaluate(pts).reshape(nr, nz)
+    std = f.evaluate_std(pts)
     return FieldGridOut(
         **_meta(f),  # type: ignore[arg-type]
         r_m=np.round(r, 7).tolist(),
         z_m=np.round(z, 7).tolist(),
         temps_c=[_clean(row) for row in temps],
+        std_c=None if std is None else [_clean(row) for row in std.reshape(nr, nz)],
     )
 
 
 def points_out(f: FieldSnapshot, pts: np.ndarray) -> FieldPointsOut:
     temps = f.evaluate(pts)
+    std = f.evaluate_std(pts)
+    stds = [math.nan] * len(temps) if std is None else std.tolist()
     return FieldPointsOut(
         **_meta(f),  # type: ignore[arg-type]
         points=[
-            PointOut(
-                r_m=float(r),
-                z_m=float(z),
-                temp_c=None if not math.isfinite(t) else round(float(t), 4),
-                inside=bool(math.isfinite(t)),
-            )
-            for (r, z), t in zip(pts, temps, strict=True)
+            _point(float(r), float(z), float(t), float(s))
+            for (r, z), t, s in zip(pts, temps, stds, strict=True)
         ],
+    )
+
+
+def _point(r: float, z: float, t: float, s: float) -> PointOut:
+    inside, known = math.isfinite(t), math.isfinite(t) and math.isfinite(s)
+    return PointOut(
+        r_m=r,
+        z_m=z,
+        temp_c=round(t, 4) if inside else None,
+        inside=inside,
+        std_c=round(s, 4) if known else None,
+        ci95_c=(round(t - 1.96 * s, 4), round(t + 1.96 * s, 4)) if known else None,
     )
 
 

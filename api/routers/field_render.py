@@ -31,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from api.schemas import FieldMeta
+from api.stdmax import std_max
 from service.serve.interface import FieldSnapshot
 
 __all__ = ["FieldGate", "FieldRenderer", "Rendered"]
@@ -57,6 +58,7 @@ def meta_json(f: FieldSnapshot) -> str:
         identification_id=f.identification_id,
         t_min_c=round(float(finite.min()), 4) if finite.size else None,
         t_max_c=round(float(finite.max()), 4) if finite.size else None,
+        std_max_c=std_max(f),
     )
     return meta.model_dump_json()[1:-1]
 
@@ -127,6 +129,8 @@ class FieldRenderer:
         h = hashlib.blake2b(digest_size=12)
         h.update(f"{kind}|{f.at}|{f.t.isoformat()}|{f.identification_id}|".encode())
         h.update(np.ascontiguousarray(f.temps_c, dtype=float).tobytes())
+        if f.std_c is not None:
+            h.update(np.ascontiguousarray(f.std_c, dtype=float).tobytes())
         h.update(np.ascontiguousarray(f.nodes_rz, dtype=float).tobytes()[:4096])  # the mesh, cheaply
         return 'W/"' + h.hexdigest() + '"'
 
@@ -153,7 +157,10 @@ class FieldRenderer:
 
         def build() -> Rendered:
             geom = self._geometry_of(f)
-            dynamic = (f'"format":"mesh",{meta_json(f)},"temps_c":{_dumps(_clean(f.temps_c))}}}').encode()
+            std = "null" if f.std_c is None else _dumps(_clean(f.std_c))
+            dynamic = (
+                f'"format":"mesh",{meta_json(f)},"temps_c":{_dumps(_clean(f.temps_c))},"std_c":{std}}}'
+            ).encode()
             return Rendered(geom.head + dynamic, key, _gzip_tail=(geom.compressor, geom.head_gz, dynamic))
 
         return self._cached(key, build)
@@ -164,10 +171,14 @@ class FieldRenderer:
         def build() -> Rendered:
             r, z, located = f.locator.grid(nr, nz)
             temps = f.locator.interpolate(f.temps_c, located).reshape(nr, nz)
+            std = "null"
+            if f.std_c is not None:
+                sd = f.locator.interpolate(f.std_c, located).reshape(nr, nz)
+                std = _dumps([_clean(row) for row in sd])
             body = (
                 f'{{"format":"grid",{meta_json(f)},"r_m":{_dumps(np.round(r, 7).tolist())},'
                 f'"z_m":{_dumps(np.round(z, 7).tolist())},'
-                f'"temps_c":{_dumps([_clean(row) for row in temps])}}}'
+                f'"temps_c":{_dumps([_clean(row) for row in temps])},"std_c":{std}}}'
             )
             return Rendered(body.encode(), key)
 

@@ -81,6 +81,7 @@ from service.serve.interface import (
     DeviceStatus,
     FieldAt,
     FieldSnapshot,
+    FilterMetrics,
     HealthSnapshot,
     IdentificationJob,
     IdentificationPage,
@@ -528,7 +529,22 @@ class SoftSensorService:
             db_pending_rows=0 if st is None else int(st.pending),
             db_errors_total=0 if st is None else int(st.errors),
             reconnects_total=reconnects,
+            filter=_filter_metrics(v),
         )
+
+
+def _filter_metrics(v: CoreView) -> FilterMetrics | None:
+    live = v.live
+    if live is None:
+        return None
+    return FilterMetrics(
+        nis=live.nis,
+        dof=live.nis_dof,
+        window_ratio=live.nis_sum / live.nis_sum_dof if live.nis_sum_dof else None,
+        verdict=live.verdict,
+        converged=live.converged,
+        inconsistent=live.inconsistent(live.t),
+    )
 
 
 def _status(

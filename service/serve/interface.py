@@ -125,6 +125,14 @@ class FieldSnapshot:
         pts = np.asarray(points_rz, dtype=float).reshape(-1, 2)
         return self.locator.interpolate(self.temps_c, self.locator.locate(pts))
 
+    def evaluate_std(self, points_rz: np.ndarray) -> np.ndarray | None:
+        """1σ (°C) at (P, 2) points by P1 interpolation of the nodal 1σ (an upper bound of the interpolated
+        temperature's 1σ: σ of a convex combination ≤ the combination of the σ); None without ``std_c``."""
+        if self.std_c is None:
+            return None
+        pts = np.asarray(points_rz, dtype=float).reshape(-1, 2)
+        return self.locator.interpolate(self.std_c, self.locator.locate(pts))
+
 
 @dataclass(frozen=True)
 class SensorReading:
@@ -383,6 +391,22 @@ class HistogramData:
     sum: float
 
 
+@dataclass(frozen=True, kw_only=True)
+class FilterMetrics:
+    """The live state's Kalman filter (docs/estimator.md): the last sample's normalised innovation squared
+    ``nis`` over ``dof`` used channels (E[nis] = dof under a consistent filter), the NIS window's Σ NIS / Σ
+    dof (``window_ratio``, ≈ 1 when consistent), its verdict ("filling", "ok", "high", "low"), whether the
+    state has ``converged`` since the (re)start and whether the NIS has been above its band long enough to
+    be reported (``inconsistent``)."""
+
+    nis: float
+    dof: int
+    window_ratio: float | None
+    verdict: str
+    converged: bool
+    inconsistent: bool
+
+
 @dataclass(frozen=True)
 class MetricsSnapshot:
     """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
@@ -405,6 +429,7 @@ class MetricsSnapshot:
     chtc: ChtcSnapshot | None = None  # the current H, CIs, status, usable_for_compensation (None: none yet)
     build_version: str = ""  # package version (chtc_build_info)
     model_version: str | None = None
+    filter: FilterMetrics | None = None  # None before the live state started
 
 
 @runtime_checkable
