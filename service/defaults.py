@@ -6,11 +6,8 @@ No imports beyond ``model.defaults`` (which has none): settings load fast.
 
 from model.defaults import CI_REL_THRESHOLD
 
-__all__ = ["CARRY_START_ERROR", "CI_REL_THRESHOLD", "ESTIMATE_T0_SHIFT", "START_MODES"]
+__all__ = ["CARRY_START_ERROR", "CI_REL_THRESHOLD", "START_MODES"]
 
-# fit a uniform offset of a window's start field: "always", or "never"/"initial" (the filtered live state's
-# covariance carries that offset; "initial" is a legacy name: windows no longer start from a first guess)
-ESTIMATE_T0_SHIFT = "never"
 # windows start from the filtered live state: fit its leading uncertain directions too (docs/estimator.md,
 # "Identification after a restart": without them the restarted H6/H7 are 1.5-4x worse)
 START_MODES = 6

@@ -45,7 +45,7 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
-from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT, START_MODES
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
@@ -174,9 +174,6 @@ class IdentificationSettings(_Section):
     distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: warm-start "nearness"
     min_good_channels: int = Field(default=24, ge=1, le=32)
     estimate_loads: bool = False  # also fit front/rear bearing heat scales
-    # also fit a uniform offset of the window's start field: "always", or "never" ("initial" is a legacy
-    # name for "never": windows start from the converged filtered state, whose covariance carries the offset)
-    estimate_t0_shift: Literal["never", "initial", "always"] = ESTIMATE_T0_SHIFT  # type: ignore[assignment]
     # the filtered start state's leading uncertain directions fitted in each window (0: only carried)
     start_modes: int = Field(default=START_MODES, ge=0)
     # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from service.acquire.calibration import CalibrationConfig
-from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT, START_MODES
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import PastResult, SchedulerConfig
@@ -24,9 +24,6 @@ class CoreConfig:
     method: str = "hybrid"
     seed: int = 0
     estimate_loads: bool = False
-    # also fit a uniform offset of the window's start field: "always"; "never" and "initial" (a legacy name:
-    # windows no longer start from an unconverged guess) do not
-    estimate_t0_shift: str = ESTIMATE_T0_SHIFT
     carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error (the filtered state's)
     start_modes: int = START_MODES  # the start's leading uncertain directions fitted (IdentifyOptions)
     filter: FilterSettings = field(default_factory=FilterSettings)  # the live state's Kalman filter

@@ -171,7 +171,7 @@ class ServiceCore:
         cal = config.calibration
         self._calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
         if self._calibrator is not None:
-            self._live.set_offsets(self._calibrator.offsets())
+            self._live.set_offsets(self._calibrator.offsets(), self._calibrator.offset_sd())
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -276,7 +276,7 @@ class ServiceCore:
                     f"{np.nanmax(c.offsets_c):+.2f} °C"
                 )
                 out.instructions.append(Calibrated(out.event_id, c))
-                self._live.set_offsets(c.applied())
+                self._live.set_offsets(c.applied(), c.sd_c)
                 return c
         return None
 

@@ -108,7 +108,6 @@ def job_request(
         method=config.method,
         seed=config.seed,
         estimate_loads=config.estimate_loads,
-        estimate_t0_shift=config.estimate_t0_shift == "always",
         carry_start_error=config.carry_start_error,
         start_cov=np.array(window.start.cov) if config.carry_start_error else None,
         start_modes=config.start_modes if config.carry_start_error else 0,

@@ -101,7 +101,6 @@ def core_config(settings: Settings) -> CoreConfig:
         method=ident.method,
         seed=ident.seed,
         estimate_loads=ident.estimate_loads,
-        estimate_t0_shift=ident.estimate_t0_shift,
         carry_start_error=ident.carry_start_error,
         start_modes=ident.start_modes,
         ci_threshold=ident.ci_rel_threshold,

@@ -308,12 +308,24 @@ class FilteredState:
             if self._filter is not None:
                 self._filter.noise = self._noise
 
-    def set_offsets(self, offsets_c: ArrayLike | None) -> None:
-        """Per-channel offsets (32,) [°C] subtracted before each update (a new calibration)."""
+    def set_offsets(self, offsets_c: ArrayLike | None, sd_c: ArrayLike | None = None) -> None:
+        """Per-channel offsets (32,) [°C] subtracted before each update (a new calibration) and the 1σ (32,)
+        [°C] of what is still unknown of them (``OffsetCalibrator.offset_sd``: 0.17 °C before a baseline,
+        ~0.02 °C after). That remainder is a constant error per channel; the filter takes its RMS as extra
+        white measurement noise (σ² = ``noise.sigma_meas_c``² + RMS(sd)²), so unknown offsets widen the
+        update instead of making the innovations inconsistent (None: unchanged)."""
         offsets = None if offsets_c is None else np.asarray(offsets_c, dtype=np.float64)
         self.offsets_c = offsets
         if self._filter is not None:
             self._filter.offsets_c = np.zeros(32) if offsets is None else offsets.copy()
+        if sd_c is not None:
+            sd = np.asarray(sd_c, dtype=np.float64)
+            sd = sd[np.isfinite(sd)]
+            rms = float(np.sqrt(np.mean(sd**2))) if sd.size else 0.0
+            sigma = math.hypot(self.settings.noise.sigma_meas_c, rms)
+            self._noise = replace(self._noise, sigma_meas_c=sigma)
+            if self._filter is not None:
+                self._filter.noise = self._noise
 
     def push(
         self,

@@ -50,9 +50,11 @@ class Rig:
 
 @pytest.fixture(scope="module")
 def identified(loaded_model):  # type: ignore[no-untyped-def]
-    """Good samples of a 3000 rpm condition, identified at 10 and 20 min: the core and its last sample."""
+    """Good samples of a 3000 rpm condition after 5 min idle, identified at 10 and 20 min: the config and
+    the samples."""
     cfg = core_config(Settings())
-    run = plant_run([Segment(1300.0, 3000.0, 5.0, 22.0)], seed=4)
+    # 5 min idle (the filtered state converges at rest), then 3000 rpm
+    run = plant_run([Segment(300.0, 0.0, 0.0, 22.0), Segment(1300.0, 3000.0, 5.0, 22.0)], seed=4)
     return cfg, samples_of(run)
 
 

@@ -23,7 +23,8 @@ def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_mod
     s = Settings()
     db = s.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
     cfg = core_config(s)
-    run = plant_run([Segment(1300.0, 3000.0, 5.0, 22.0)], seed=2)
+    # 5 min idle (the filtered state converges at rest), then 3000 rpm
+    run = plant_run([Segment(300.0, 0.0, 0.0, 22.0), Segment(1300.0, 3000.0, 5.0, 22.0)], seed=2)
     first = open_persistence(db, migrate=True)
     assert first.restored_from_db and first.restored.last is None
     result = run_offline(samples_of(run), model=loaded_model, config=cfg, sink=first.sink)
@@ -51,12 +52,15 @@ def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_mod
     np.testing.assert_allclose(snap.h, ok[-1].h)
     assert svc.condition().id == ok[-1].condition.id
     # samples of the same condition arrive: the stored condition continues (no new condition), H stays stale
-    later = samples_of(run, t0=now[0].timestamp())[:5]
+    later = samples_of(run, t0=now[0].timestamp())[60:65]  # at 3000 rpm
     for smp in later:
         svc.on_sample(smp)
     now[0] = later[-1].t + timedelta(seconds=1)
     assert svc.condition().id == ok[-1].condition.id
-    assert svc.chtc().status is ChtcStatus.STALE
+    snap = svc.chtc()
+    assert snap.status is ChtcStatus.STALE
+    # the live state restarted from its wide prior: /chtc says why no fresh H may come yet
+    assert snap.reason is not None and snap.reason.startswith("state_converging"), snap.reason
     page = svc.list_identifications(since=None, until=None, limit=10, offset=0)
     assert page.items[0].id == ok[-1].id and page.total == len(result.records)
     second.close()

@@ -4,7 +4,7 @@
 ``detector.max_gap_s`` were accepted and documented but ``runtime.core_config`` dropped them. Each test
 changes one setting and sees the effect in the state machines built from ``core_config(settings)`` (the
 configuration the running service's core gets), not in a copy of the setting. The defaults of the CI
-threshold, ``estimate_t0_shift`` and ``carry_start_error`` are one value in every layer.
+threshold, ``start_modes`` and ``carry_start_error`` are one value in every layer.
 """
 
 from __future__ import annotations
@@ -108,7 +108,7 @@ def test_defaults_are_one_value_in_every_layer() -> None:
     )  # docs/identification.md "Identified" (measured: 30 % never passes H1)
     for value in (cfg.ci_threshold, default_core.ci_threshold, IdentifyOptions().ci_threshold):
         assert value == ident.ci_rel_threshold
-    assert cfg.estimate_t0_shift == default_core.estimate_t0_shift == ident.estimate_t0_shift
+    assert cfg.start_modes == default_core.start_modes == ident.start_modes
     assert cfg.carry_start_error == default_core.carry_start_error == ident.carry_start_error
     assert JobRequest.__dataclass_fields__["carry_start_error"].default == ident.carry_start_error
     assert JobRequest.__dataclass_fields__["ci_threshold"].default == ident.ci_rel_threshold

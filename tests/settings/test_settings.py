@@ -36,7 +36,7 @@ def test_defaults_work_without_a_file(tmp_path: Path) -> None:
     assert s.model.rom_cache_dir == tmp_path / "cache"
     assert s.database.url == f"sqlite:///{tmp_path / 'data' / 'chtc.db'}"
     assert s.identification.schedule_min == (10.0, 20.0, 40.0, 60.0)
-    assert s.identification.estimate_t0_shift == "initial" and s.identification.estimate_loads is False
+    assert s.identification.start_modes == 6 and s.identification.estimate_loads is False
     assert s.api.token is None
 
 
