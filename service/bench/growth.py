@@ -196,7 +196,7 @@ class _Evaluator:
         self.cond = cond
         # last sample of each held condition >= 30 min: where the steady forecast is checked
         change = np.flatnonzero(np.any(np.diff(cond, axis=0) != 0, axis=1)) + 1
-        starts, ends = np.r_[0, change], np.r_[change, len(cond) - 1]
+        starts, ends = np.r_[0, change], np.r_[change - 1, len(cond) - 1]
         self.checkpoints = {
             int(e - (e % every)) for s, e in zip(starts, ends, strict=True) if e - s >= HORIZON_STEPS[-1]
         }
@@ -235,7 +235,7 @@ class _Evaluator:
         sc = core.live.covariance_at(t_now)
         if sc is None:
             return FieldBelief(mean_c=field_c, includes_h=False)
-        i0 = max(int(round((sc.t_s - T0) / DT_S)), 0)
+        i0 = max(round((sc.t_s - T0) / DT_S), 0)
         gap = None
         if k > i0:
             s = self.samples[i0:k]
@@ -377,7 +377,7 @@ def run(seeds: int, profiles: list[str], every_s: float, *, progress: Any = None
     from service.settings import Settings
     from service.sim.logsamples import samples_from_plant
 
-    every = int(round(every_s / DT_S))
+    every = round(every_s / DT_S)
     if every < 1 or any(n % every for n in HORIZON_STEPS):
         raise ValueError(f"--every-s: must be a multiple of {DT_S:g} s dividing 5 min, got {every_s}")
     settings = Settings()
@@ -419,26 +419,32 @@ def run(seeds: int, profiles: list[str], every_s: float, *, progress: Any = None
 
 def _print(out: dict[str, Any]) -> None:
     print(
-        f"served growth vs the plant's (plant mesh), synthetic, {out['seeds']} seeds per profile, wall {out['wall_s']} s"
+        f"served growth vs the plant's (plant mesh), synthetic, {out['seeds']} seeds per profile, "
+        f"wall {out['wall_s']} s"
     )
-    blocks = [("all", out), *out["profiles"].items()]
-    for name, b in blocks:
+    for name, b in [("all", out), *out["profiles"].items()]:
         print(f"\n[{name}] {b['evaluations']} evaluations")
         print(
-            f"  axial |error| median {b['axial_err_um_median']} µm, max {b['axial_err_um_max']} µm; 95 % CI coverage {b['coverage']} (median half-width {b['ci_half_width_um_median']} µm)"
+            f"  axial |error| median {b['axial_err_um_median']} µm, max {b['axial_err_um_max']} µm; "
+            f"95 % CI coverage {b['coverage']} (median half-width {b['ci_half_width_um_median']} µm)"
         )
         print(
-            f"  radial |error| median {b['radial_err_um_median']} µm, max {b['radial_err_um_max']} µm; coverage {b['radial_coverage']}"
+            f"  radial |error| median {b['radial_err_um_median']} µm, max {b['radial_err_um_max']} µm; "
+            f"coverage {b['radial_coverage']}"
         )
+        ss = b["steady_forecast_err_um"]
         print(
-            f"  steady forecast covered {b['steady_forecast_covered']} (|error| {b['steady_forecast_err_um']})"
+            f"  steady forecast covered {b['steady_forecast_covered']} "
+            f"(|error| median {ss['median']} max {ss['max']} µm, n {ss['n']})"
         )
         for h, s in b["forecast_err_um"].items():
             print(
-                f"  forecast +{h}: |error| median {s['median']} max {s['max']} µm (n {s['n']}), coverage {b['forecast_coverage'][h]}"
+                f"  forecast +{h}: |error| median {s['median']} max {s['max']} µm (n {s['n']}), "
+                f"coverage {b['forecast_coverage'][h]}"
             )
     print(
-        f"\none evaluation: served dot products {out['eval_ms']} ms, whole estimate_growth {out['estimate_ms']} ms"
+        f"\none evaluation: served dot products {out['eval_ms']} ms, "
+        f"whole estimate_growth {out['estimate_ms']} ms"
     )
     print(format_verdicts(out["targets"]))
 
