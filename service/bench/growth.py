@@ -147,12 +147,14 @@ class _Plant:
 def serve_offline(
     samples: list[Any], model: Any, config: Any, on_sample: Callable[[Any, int, Any], None]
 ) -> None:
-    """``run_offline``'s loop (``service.engine.offline``), calling ``on_sample(core, k, last_ok_result)``
-    after sample k and its identifications are done, so that the live state can be read."""
+    """``run_offline``'s loop (``service.engine.offline``, with its job runner ``_run``: the same outcomes),
+    calling ``on_sample(core, k, last_ok_result)`` after sample k and its identifications, so that the live
+    state can be read (``run_offline`` returns only the records)."""
     from drivers.ringbuffer import RingBuffer
     from service.acquire.history import RingHistory
     from service.engine.core import ServiceCore
-    from service.identify.worker import JobOutcome, JobStatus, final_field, run_identification
+    from service.engine.offline import _run
+    from service.identify.worker import JobStatus
 
     class _Sink:
         def submit(self, record: Any) -> bool:
@@ -166,16 +168,11 @@ def serve_offline(
         ring.append(sample)
         pending = core.ingest(sample)
         while pending:
-            launch = pending.pop(0)
-            try:
-                result, window = run_identification(model, launch.request)
-                ff = final_field(model, window, result)
-                outcome = JobOutcome(launch.start.job_id, JobStatus.OK, result, str(result.message), 0.0, ff)
-                last_ok = result
-                stepper = core.live.prepare(np.asarray(result.h, dtype=float))
-            except Exception as err:  # the worker's contract: a failed job is an outcome
-                outcome = JobOutcome(launch.start.job_id, JobStatus.FAILED, None, str(err), 0.0)
-                stepper = None
+            outcome = _run(model, pending.pop(0))
+            stepper = None
+            if outcome.status is JobStatus.OK and outcome.result is not None:
+                last_ok = outcome.result
+                stepper = core.live.prepare(np.asarray(last_ok.h, dtype=float))
             pending += core.job_done(outcome, finished_at=sample.t, stepper=stepper)
         on_sample(core, k, last_ok)
 
@@ -191,7 +188,7 @@ class _Evaluator:
         self.t_ref = float(run.truth_c[0].mean()) if run.fields_c.size == 0 else float(run.fields_c[0].mean())
         self.rows = _Rows()
         self._terms_key: Any = None
-        self._terms: Any = None
+        self.last_terms: Any = None
         cond = np.column_stack([run.speed_rpm, run.torque_nm, run.ambient_c])
         self.cond = cond
         # last sample of each held condition >= 30 min: where the steady forecast is checked
@@ -215,7 +212,7 @@ class _Evaluator:
         ls = (1.0, 1.0) if load_scale is None else (float(load_scale[0]), float(load_scale[1]))
         key = (h.tobytes(), cov_h.tobytes(), float(inp.ambient_c[0]), float(inp.q_front_w[0]), ls)
         if key != self._terms_key:
-            self._terms = condition_terms(
+            self.last_terms = condition_terms(
                 self.ctx,
                 h=h,
                 cov_h=cov_h,
@@ -225,7 +222,7 @@ class _Evaluator:
                 load_scale=ls,
             )
             self._terms_key = key
-        return self._terms
+        return self.last_terms
 
     def belief(self, core: Any, k: int, t_now: float, field_c: np.ndarray) -> Any:
         from model.carry import propagate
@@ -258,7 +255,7 @@ class _Evaluator:
         sample = self.samples[k]
         h = np.asarray(core.live.h, dtype=float)
         cov_h = h_cov_from_ci(result.h, result.h_ci95, result.correlation)
-        cov_h = cov_h * np.outer(h / result.h, h / result.h)  # the live H (the served one) in relative terms
+        cov_h = cov_h * np.outer(h / result.h, h / result.h)  # the CI relative to the H the live state uses
         terms = self.terms(h, cov_h, sample, getattr(result, "load_scale", None))
         belief = self.belief(core, k, snap.t, np.asarray(snap.field_c, dtype=float))
         started = time.perf_counter()
@@ -395,7 +392,7 @@ def run(seeds: int, profiles: list[str], every_s: float, *, progress: Any = None
             ev = _Evaluator(model=model, ctx=ctx, plant=plant, run=plant_run, samples=samples, every=every)
             serve_offline(samples, model, config, ev)
             per.setdefault(name, []).append(ev.rows)
-            last = ev if ev._terms is not None else last
+            last = ev if ev.last_terms is not None else last
             if progress is not None:
                 progress(f"{name} seed {seed + 1}/{seeds} done ({time.perf_counter() - started:.0f} s)")
     out: dict[str, Any] = {"synthetic": True, "seeds": seeds, "every_s": every * DT_S}
@@ -405,8 +402,8 @@ def run(seeds: int, profiles: list[str], every_s: float, *, progress: Any = None
     if last is not None:
         from service.estimate.growth import FieldBelief
 
-        belief = FieldBelief(mean_c=np.asarray(last._terms.t_ss), includes_h=False)
-        eval_ms, estimate_ms = _eval_cost(ctx, last._terms, belief, last.t_ref)
+        belief = FieldBelief(mean_c=np.asarray(last.last_terms.t_ss), includes_h=False)
+        eval_ms, estimate_ms = _eval_cost(ctx, last.last_terms, belief, last.t_ref)
     out["eval_ms"] = None if eval_ms is None else round(eval_ms, 4)
     out["estimate_ms"] = None if estimate_ms is None else round(estimate_ms, 4)
     out["targets"] = verdicts(
