@@ -41,23 +41,18 @@ from typing import Any
 
 import numpy as np
 
+from service.bench.chain import PROFILE as CHAIN
+from service.bench.chain import T0
 from service.bench.targets import Target, format_verdicts, verdicts
 
 DT_S = 10.0
 HORIZON_STEPS = (30, 90, 180)  # 5, 15, 30 min of 10-s samples
-CHAIN = (
-    (300.0, 0.0, 0.0, 23.2),
-    (2700.0, 3000.0, 5.0, 23.2),
-    (2700.0, 4000.0, 6.0, 21.8),
-    (2700.0, 5000.0, 8.0, 22.0),
-)
 TARGETS = (
     Target("axial_err_um_median", "<=", 2.0, "µm"),
     Target("coverage", "in", (0.85, 1.0), note="axial, every evaluation after the first identification"),
     Target("steady_forecast_covered", ">=", 0.85, note="end of every held condition (>= 30 min)"),
     Target("eval_ms", "<=", 0.1, "ms", note="the served growth from the live field (dot products)"),
 )
-T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
