@@ -89,6 +89,7 @@ class _Rows:
     axial_in: list[bool] = field(default_factory=list)
     radial_in: list[bool] = field(default_factory=list)
     half_width: list[float] = field(default_factory=list)
+    z: list[float] = field(default_factory=list)  # axial error / served 1σ
     steady_in: list[bool] = field(default_factory=list)
     steady_err: list[float] = field(default_factory=list)
     horizon_err: dict[int, list[float]] = field(default_factory=lambda: {n: [] for n in HORIZON_STEPS})
@@ -271,6 +272,8 @@ class _Evaluator:
             err.append(value.um - t)
             inside.append(value.ci95_um[0] <= t <= value.ci95_um[1])
         r.half_width.append(0.5 * (est.axial.ci95_um[1] - est.axial.ci95_um[0]))
+        if est.axial.std_um > 0:
+            r.z.append((est.axial.um - truth[0]) / est.axial.std_um)
         if k in self.checkpoints:
             speed, torque, amb = (float(v) for v in self.cond[k])
             ss = self.plant.steady_um(speed, torque, amb, self.t_ref)[0]
@@ -309,6 +312,8 @@ def summarise(r: _Rows) -> dict[str, Any]:
         "coverage": _frac(r.axial_in),
         "radial_coverage": _frac(r.radial_in),
         "ci_half_width_um_median": None if not r.half_width else round(float(np.median(r.half_width)), 3),
+        # 0.674 for a calibrated Gaussian 1σ; lower: the CI is wider than the errors need
+        "err_over_std_median": None if not r.z else round(float(np.median(np.abs(r.z))), 3),
         "steady_forecast_covered": _frac(r.steady_in),
         "steady_forecast_err_um": _stats(r.steady_err),
         "forecast_err_um": {f"{n * DT_S / 60:.0f}min": _stats(r.horizon_err[n]) for n in HORIZON_STEPS},
@@ -323,6 +328,7 @@ def _merge(rows: list[_Rows]) -> _Rows:
         for name in (
             "axial_err",
             "radial_err",
+            "z",
             "axial_in",
             "radial_in",
             "half_width",
@@ -418,7 +424,8 @@ def _print(out: dict[str, Any]) -> None:
         print(f"\n[{name}] {b['evaluations']} evaluations")
         print(
             f"  axial |error| median {b['axial_err_um_median']} µm, max {b['axial_err_um_max']} µm; "
-            f"95 % CI coverage {b['coverage']} (median half-width {b['ci_half_width_um_median']} µm)"
+            f"95 % CI coverage {b['coverage']} (median half-width {b['ci_half_width_um_median']} µm, "
+            f"median |error|/σ {b['err_over_std_median']})"
         )
         print(
             f"  radial |error| median {b['radial_err_um_median']} µm, max {b['radial_err_um_max']} µm; "
