@@ -122,8 +122,13 @@ def h_cov_from_ci(h: ArrayLike, ci95: ArrayLike, correlation: ArrayLike | None =
     hv, ci = np.asarray(h, dtype=float), np.asarray(ci95, dtype=float)
     if hv.shape != (N_H,) or not np.all(hv > 0):
         raise GrowthEstimateError(f"h: expected {N_H} values > 0, got {hv!r}")
-    if ci.shape != (N_H, 2) or np.any(ci[:, 0] <= 0) or np.any(ci[:, 1] < ci[:, 0]):
-        raise GrowthEstimateError(f"ci95: expected ({N_H}, 2) with 0 < low <= high, got {ci!r}")
+    if (
+        ci.shape != (N_H, 2)
+        or not np.all(np.isfinite(ci))
+        or np.any(ci[:, 0] <= 0)
+        or np.any(ci[:, 1] < ci[:, 0])
+    ):
+        raise GrowthEstimateError(f"ci95: expected ({N_H}, 2) finite with 0 < low <= high, got {ci!r}")
     sigma_log = 0.5 * np.log(ci[:, 1] / ci[:, 0]) / Z95
     corr = np.eye(N_H) if correlation is None else np.asarray(correlation, dtype=float)
     if corr.shape != (N_H, N_H):

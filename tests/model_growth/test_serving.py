@@ -228,6 +228,8 @@ def test_h_cov_from_log_ci_round_trip() -> None:
     assert cov[4, 6] == pytest.approx(-0.5 * H[4] * sigma_log[4] * H[6] * sigma_log[6], rel=1e-12)
     with pytest.raises(GrowthEstimateError, match="ci95"):
         h_cov_from_ci(H, ci[:, ::-1])
+    with pytest.raises(GrowthEstimateError, match="ci95"):
+        h_cov_from_ci(H, np.where(np.arange(7)[:, None] == 3, np.inf, ci))
 
 
 def test_plc_mapping_units_and_sign() -> None:
