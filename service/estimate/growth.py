@@ -417,6 +417,10 @@ def estimate_growth(
         raise GrowthEstimateError("at: must be timezone-aware (UTC)")
     if not np.isfinite(t_ref_c):
         raise GrowthEstimateError(f"t_ref_c: must be finite, got {t_ref_c!r}")
+    if terms.w.shape[-1] != ctx.g.shape[1]:
+        raise GrowthEstimateError(
+            "terms: built for another mesh than the context (condition_terms(ctx, ...))"
+        )
     x, gx = _mean_growth(ctx, belief)
     reduced_mean = belief.state is not None
     g1 = ctx.g.sum(axis=1)  # growth per uniform kelvin (2,)
