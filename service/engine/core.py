@@ -163,6 +163,8 @@ class ServiceCore:
         )
         self._cond_ids = itertools.count(restored.next_condition_id)
         self._resumed = self._condition is not None
+        # a condition that started while the live state converges: its schedule counts from the convergence
+        self._held: sched.ConditionStarted | None = None
         self._samples = SampleBook(
             n_sensors,
             min_good_channels=config.rules.min_good_channels,
@@ -241,6 +243,11 @@ class ServiceCore:
         todo: list[sched.Instruction] = []
         if self._resumed:
             todo += self._resume(ts, out)
+        ready = self._live.ready_at()
+        if self._held is not None and ready is not None:
+            held, self._held = self._held, None
+            out.log(f"live state converged: condition {held.condition_id}'s schedule counts from now")
+            todo += self._scheduler.handle(replace(held, t=ts, t_start=max(held.t_start, ready)))
         for change in self._detector.handle(
             SampleEvent(ts, float(sample.speed_rpm), float(sample.torque_nm), float(sample.ambient_c))
         ):
@@ -319,7 +326,7 @@ class ServiceCore:
         assert cond is not None
         point = OperatingPoint(cond.speed_rpm, cond.torque_nm, cond.ambient_c)
         out.log(f"resumed condition {cond.id} ({cond.speed_rpm:.0f} rpm) from the database")
-        return self._scheduler.handle(sched.ConditionStarted(ts, cond.id, point, ts))
+        return self._condition_started(sched.ConditionStarted(ts, cond.id, point, ts))
 
     def _on_change(self, change: ConditionChanged, out: _Out) -> list[sched.Instruction]:
         cid = next(self._cond_ids)
@@ -336,7 +343,16 @@ class ServiceCore:
             f"condition {cid}: {p.speed_rpm:.0f} rpm, {p.torque_nm:.2f} N·m, {p.ambient_c:.2f} °C "
             f"since {started.isoformat(timespec='seconds')} ({change.reason})"
         )
-        return self._scheduler.handle(sched.ConditionStarted(change.t_confirmed, cid, p, change.t_start))
+        return self._condition_started(sched.ConditionStarted(change.t_confirmed, cid, p, change.t_start))
+
+    def _condition_started(self, ev: sched.ConditionStarted) -> list[sched.Instruction]:
+        """Tell the scheduler, counting the condition's schedule from max(its start, the live state's
+        convergence): while the state converges after a (re)start the start is held (the newest wins)."""
+        ready = self._live.ready_at()
+        if ready is None:
+            self._held = ev
+            return []
+        return self._scheduler.handle(replace(ev, t_start=max(ev.t_start, ready)))
 
     def _set_condition(self, snap: ConditionSnapshot, *, new: bool = False) -> None:
         self._condition = snap

@@ -68,8 +68,9 @@ def test_the_core_holds_no_lock_and_no_callbacks(loaded_model: LoadedModel) -> N
 
 @pytest.fixture(scope="module")
 def two_conditions():  # type: ignore[no-untyped-def]
-    """An idle condition (its job is skipped), then 3000 rpm (identified at 10 min)."""
-    run = plant_run([Segment(700.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)], seed=5)
+    """An idle condition (the live state converges in ~5 min; its job 10 min later is skipped), then 3000 rpm
+    (identified at 10 min)."""
+    run = plant_run([Segment(1000.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)], seed=5)
     return samples_of(run)
 
 
@@ -106,7 +107,7 @@ def _fingerprint(ins: Instruction) -> object:
 
 def test_same_events_give_the_same_instructions_on_a_fresh_core(loaded_model, two_conditions) -> None:  # type: ignore[no-untyped-def]
     events: list[Event] = [SampleReceived(f"sample-{n}", s) for n, s in enumerate(two_conditions, start=1)]
-    events.insert(100, ManualRequested("manual-1", "too early"))
+    events.insert(130, ManualRequested("manual-1", "too early"))
     first = ServiceCore(CFG, model=loaded_model)
 
     def run(launch: Launch) -> JobOutcomeReceived:
@@ -182,11 +183,11 @@ def test_the_shell_publishes_immutable_views(loaded_model, two_conditions) -> No
     core = ServiceCore(CFG, model=loaded_model)
     svc = SoftSensorService(core, worker=None, run_job=lambda req: run_job(loaded_model, req))
     before = svc.view
-    for s in two_conditions[:80]:
+    for s in two_conditions[:100]:
         svc.on_sample(s)
     after = svc.view
     assert before.newest is None and before.records == ()  # an old view does not change
-    assert after.newest is not None and after.newest.t == two_conditions[79].t
+    assert after.newest is not None and after.newest.t == two_conditions[99].t
     assert [r.outcome for r in after.records] == ["skipped"]
     with pytest.raises(dataclasses.FrozenInstanceError):
         after.current = None  # type: ignore[misc]

@@ -64,13 +64,13 @@ def test_window_of_the_first_launch(loaded_model):
 
 def test_too_few_good_channels_is_skipped_with_reason(loaded_model):
     faults = [ChannelFault(channel=c, kind="open", start_s=100.0) for c in range(1, 11)]
-    run = plant_run([Segment(1300.0, 3000.0, 2.0, 23.2)], faults=faults)
+    run = plant_run([Segment(1900.0, 3000.0, 2.0, 23.2)], faults=faults)
     core = ServiceCore(CFG, model=loaded_model)
     out = feed(core, samples_of(run))
     assert launches(out) == []
     view = core.view()
     skipped = [r for r in view.records if r.outcome == "insufficient-data"]
-    assert len(skipped) == 2  # the 600 s and the 1200 s entries
+    assert len(skipped) == 2  # the 600 s and the 1200 s entries, counted from the live state's convergence
     assert "only 22 channels" in skipped[0].message and "ch1 (" in skipped[0].message
     idents = [r for r in stored(out) if type(r).__name__ == "IdentificationData"]
     assert [r.outcome for r in idents] == ["insufficient-data", "insufficient-data"]
@@ -148,7 +148,7 @@ def _manual(core: ServiceCore, n: int, reason: str = "manual") -> list:
 
 
 def test_manual_requests_and_idle_condition(loaded_model):
-    run = plant_run([Segment(700.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)])
+    run = plant_run([Segment(1000.0, 0.0, 0.0, 22.0), Segment(700.0, 3000.0, 5.0, 22.0)])
     core = ServiceCore(CFG, model=loaded_model)
     assert _manual(core, 1) == [
         Rejected(
@@ -158,14 +158,15 @@ def test_manual_requests_and_idle_condition(loaded_model):
         )
     ]
     samples = samples_of(run)
-    feed(core, samples[:71])  # the idle condition, 10 min: its scheduled job is skipped
+    # the idle condition: the live state converges (~5 min), its job 10 min later is skipped
+    feed(core, samples[:101])
     (idle,) = [r for r in core.view().records if r.outcome == "skipped"]
     assert "idle" in idle.message and "not identifiable" in idle.message
-    assert launches(feed(core, samples[71:100], first=72)) == []  # ~4 min of the 3000 rpm condition
+    assert launches(feed(core, samples[101:130], first=102)) == []  # ~4 min of the 3000 rpm condition
     (refused,) = _manual(core, 2)
     assert isinstance(refused, Rejected) and refused.kind is RejectKind.NOT_READY
     assert "min_data_s" in refused.reason
-    started = launches(feed(core, samples[100:], first=101))
+    started = launches(feed(core, samples[130:], first=131))
     assert len(started) == 1 and started[0].request.window.step_inputs()[1][0] == pytest.approx(
         3000.0, rel=0.05
     )
