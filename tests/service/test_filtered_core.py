@@ -1,0 +1,156 @@
+"""The filtered live state wired into the service (issue 16): a restart in the middle of a run, convergence
+gating with its ``/chtc`` reason, the filter's innovations on the virtual plant, a persistent inconsistency
+reported in ``/healthz``, and the served field and sensors with their 1σ.
+
+Data: the virtual plant (finer mesh, its own truth), through the service's core and shell offline (jobs run
+inline with the worker's own function).
+"""
+
+from __future__ import annotations
+
+from dataclasses import replace
+from datetime import timedelta
+
+import numpy as np
+import pytest
+
+from model.plant import Segment
+from service.engine.config import Restored
+from service.engine.core import ServiceCore
+from service.engine.events import SampleReceived
+from service.engine.health import filter_health
+from service.engine.runtime import core_config
+from service.engine.shell import SoftSensorService
+from service.identify.detector import OperatingPoint
+from service.identify.scheduler import PastResult
+from service.identify.worker import run_job
+from service.serve.interface import ChtcStatus, DeviceStatus
+from service.settings import Settings
+
+from .conftest import plant_run, samples_of
+from .drive import feed_and_run, launches
+
+RESTART_K = 150  # the restart: at minute 25 (sample 150), 3000 rpm since minute 5
+
+
+@pytest.fixture(scope="module")
+def run_samples():  # type: ignore[no-untyped-def]
+    """5 min idle, 3000 rpm for 40 min, from cold."""
+    run = plant_run([Segment(300.0, 0.0, 0.0, 22.0), Segment(2400.0, 3000.0, 5.0, 22.0)], seed=3)
+    return run, samples_of(run)
+
+
+def _restored(core: ServiceCore) -> Restored:
+    """What the database would give the next process (service.store.persistence.restore)."""
+    v = core.view()
+    assert v.current is not None
+    rec = v.current
+    c = rec.condition
+    past = PastResult(
+        c.id, OperatingPoint(c.speed_rpm, c.torque_nm, c.ambient_c), tuple(float(x) for x in rec.h)
+    )
+    return Restored(
+        last=rec,
+        history=(past,),
+        conditions=v.conditions,
+        next_condition_id=max(c.id for c in v.conditions) + 1,
+        next_identification_id=max(r.id for r in v.records) + 1,
+    )
+
+
+def test_a_restart_mid_run_waits_for_convergence_then_serves_fresh_h(loaded_model, run_samples) -> None:  # type: ignore[no-untyped-def]
+    """The service runs 25 min, restarts with what it stored (not its live state): the new live state starts
+    from the wide prior; /chtc serves the stored H as stale with reason ``state_converging``; no window is
+    launched before the state has converged, none starts before the convergence time, and fresh H come
+    within 15 min of the restart."""
+    run, samples = run_samples
+    cfg = core_config(Settings())
+    first = ServiceCore(cfg, model=loaded_model)
+    feed_and_run(first, loaded_model, samples[:RESTART_K])
+    assert first.view().current is not None  # identified before the restart
+
+    core = ServiceCore(cfg, model=loaded_model, restored=_restored(first))
+    now = [samples[RESTART_K].t]
+    svc = SoftSensorService(
+        core, worker=None, clock=lambda: now[0], run_job=lambda req: run_job(loaded_model, req)
+    )
+    restart_t = samples[RESTART_K].t.timestamp()
+    launched: list[tuple[float, float, float]] = []  # (sample t, window start, convergence t)
+    first_fresh = None
+    for k, s in enumerate(samples[RESTART_K:], start=RESTART_K):
+        now[0] = s.t
+        for ins in launches(svc.handle(SampleReceived(f"sample-{k}", s))):
+            live = svc.view.live
+            assert live is not None and live.converged_at is not None
+            launched.append((s.t.timestamp(), float(ins.request.window.times_s[0]), live.converged_at))
+        live = svc.view.live
+        snap = svc.chtc()
+        assert snap is not None
+        if live is not None and not live.converged:
+            assert snap.status is ChtcStatus.STALE
+            assert snap.reason is not None and snap.reason.startswith("state_converging"), snap.reason
+            assert snap.identification_id == first.view().current.id  # the stored H, with its time
+        if first_fresh is None and not svc.view.current_from_restore:
+            first_fresh = s.t.timestamp()
+    live = svc.view.live
+    assert live is not None and live.converged_at is not None and live.converged_at > restart_t
+    assert launched, "no identification after the restart"
+    for t_sample, t_window, t_conv in launched:
+        assert t_sample >= t_conv and t_window >= t_conv - 5.0  # half a sample period of jitter
+    assert first_fresh is not None and first_fresh - restart_t <= 15 * 60 + 10, (first_fresh - restart_t) / 60
+    h_truth = run.h_true[-1]
+    rec = svc.view.current
+    assert rec is not None and rec.ci95_lo[5] <= h_truth[5] <= rec.ci95_hi[5]  # H6, the best-identified
+
+
+def test_the_filter_is_consistent_on_the_virtual_plant_and_healthy(loaded_model, run_samples) -> None:  # type: ignore[no-untyped-def]
+    """After convergence the NIS window stays inside its χ² band or below it (never persistently above), so
+    the filter device is ok; the served predictions are the filtered state's, within their 95 % of the
+    measured (offset-corrected) values for most channels."""
+    _, samples = run_samples
+    core = ServiceCore(core_config(Settings()), model=loaded_model)
+    svc = SoftSensorService(core, worker=None, run_job=lambda req: run_job(loaded_model, req))
+    verdicts = []
+    for k, s in enumerate(samples):
+        svc.handle(SampleReceived(f"sample-{k}", s))
+        live = svc.view.live
+        if live is not None and live.converged:
+            verdicts.append(live.verdict)
+            assert not live.inconsistent(live.t)
+    assert verdicts and verdicts.count("high") <= 0.05 * len(verdicts), verdicts.count("high")
+    health = filter_health(svc.view, samples[-1].t)
+    assert health.status is DeviceStatus.OK, health.message
+    readings = svc.sensors()
+    inside = [
+        abs(r.residual_c) <= 1.96 * np.hypot(r.predicted_sd_c, 0.15) + 0.05
+        for r in readings
+        if r.residual_c is not None and r.predicted_sd_c is not None
+    ]
+    assert len(inside) == 32 and sum(inside) >= 28
+    field = svc.field("now")
+    assert field.std_c is not None and field.std_c.shape == field.temps_c.shape
+    assert np.all(np.isfinite(field.std_c)) and np.all(field.std_c > 0.0)
+    assert svc.field("steady").std_c is None  # the model's steady state: no filtered uncertainty
+
+
+def test_a_drifting_sensor_is_reported_as_a_persistent_inconsistency(loaded_model, run_samples) -> None:  # type: ignore[no-untyped-def]
+    """Eight channels drift by +2 °C/h from minute 10 on (quality stays ok): the NIS rises above its band
+    and, after ``inconsistent_after_s``, the filter device is degraded with ``filter_inconsistent``."""
+    _, samples = run_samples
+    drifted = []
+    for k, s in enumerate(samples):
+        t_h = max(0.0, (k - 60) * 10.0 / 3600.0)
+        temps = np.array(s.temps_c, dtype=float)
+        temps[:8] += 2.0 * t_h
+        drifted.append(replace(s, temps_c=temps))
+    core = ServiceCore(core_config(Settings()), model=loaded_model)
+    svc = SoftSensorService(core, worker=None, run_job=lambda req: run_job(loaded_model, req))
+    seen = set()
+    for k, s in enumerate(drifted):
+        svc.handle(SampleReceived(f"sample-{k}", s))
+        health = filter_health(svc.view, s.t + timedelta(seconds=1))
+        seen.add(health.message.split(":")[0])
+    assert "filter_inconsistent" in seen, seen
+    live = svc.view.live
+    assert live is not None and live.inconsistent(live.t) and live.verdict == "high"
+    assert filter_health(svc.view, drifted[-1].t).status is DeviceStatus.DEGRADED
