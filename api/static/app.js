@@ -359,8 +359,8 @@ function labelParts(ctx, parts, m, topY) {
   return drawn;
 }
 
-function drawMesh(ctx, f, m, lo, span) {
-  const r = f.nodes_r_m, z = f.nodes_z_m, T = f.temps_c;
+function drawMesh(ctx, f, m, lo, span, T) {
+  const r = f.nodes_r_m, z = f.nodes_z_m;
   const px = (i) => m.x0 + (z[i] - m.zmin) * m.s;
   for (const sign of [-1, 1]) { // both halves of the axisymmetric section
     const py = (i) => m.yAxis - sign * r[i] * m.s;
@@ -412,7 +412,7 @@ function drawSectionAxes(canvas, ctx, m, zmax, rmax, H) {
   canvas.dataset.yTitle = "r, mm"; canvas.dataset.yTicks = rt.map((v) => v.toFixed(0)).join(" ");
 }
 
-function drawColourScale(canvas, ctx, x, y, h, lo, hi) {
+function drawColourScale(canvas, ctx, x, y, h, lo, hi, title = "T, °C") {
   const span = (hi - lo) || 1;
   for (let i = 0; i < h; i++) { ctx.fillStyle = colour(1 - i / h); ctx.fillRect(x, y + i, 14, 1); }
   ctx.strokeStyle = AXIS; ctx.strokeRect(x, y, 14, h);
@@ -422,8 +422,8 @@ function drawColourScale(canvas, ctx, x, y, h, lo, hi) {
     const py = y + h * (1 - (tv - lo) / span);
     ctx.fillStyle = AXIS; ctx.fillRect(x + 14, py, 4, 1); ctx.fillStyle = MUTED; ctx.fillText(tv.toFixed(stepDigits(ticks)), x + 20, py);
   }
-  ctx.textBaseline = "alphabetic"; ctx.fillStyle = TEXT; ctx.fillText("T, °C", x - 4, y - 8);
-  canvas.dataset.cTitle = "T, °C"; canvas.dataset.cTicks = ticks.map((v) => v.toFixed(stepDigits(ticks))).join(" ");
+  ctx.textBaseline = "alphabetic"; ctx.fillStyle = TEXT; ctx.fillText(title, x - 4, y - 8);
+  canvas.dataset.cTitle = title; canvas.dataset.cTicks = ticks.map((v) => v.toFixed(stepDigits(ticks))).join(" ");
 }
 
 function drawField(f) {
@@ -436,18 +436,22 @@ function drawField(f) {
   const s = Math.min((W - L - R) / (zmax - zmin), (H - top - bottom) / (2 * rmax));
   const m = { x0: L, yAxis: top + rmax * s, s, zmin };
   state.fieldMap = m;
-  const lo = f.t_min_c, hi = f.t_max_c;
-  drawMesh(ctx, f, m, lo, (hi - lo) || 1);
+  // colour: the temperature, or its 1σ (the filtered state's uncertainty; at=now only)
+  const sigma = $("field-show").value === "std" && Array.isArray(f.std_c);
+  const lo = sigma ? 0 : f.t_min_c, hi = sigma ? f.std_max_c : f.t_max_c;
+  drawMesh(ctx, f, m, lo, (hi - lo) || 1, sigma ? f.std_c : f.temps_c);
   const parts = state.layout?.parts || [];
   drawOutlines(ctx, parts, m, zmax - zmin);
   canvas.dataset.parts = labelParts(ctx, parts, m, top - 6).join(" ");
   drawSectionAxes(canvas, ctx, m, zmax, rmax, H);
-  drawColourScale(canvas, ctx, W - R + 22, top, H - top - bottom, lo, hi);
+  drawColourScale(canvas, ctx, W - R + 22, top, H - top - bottom, lo, hi, sigma ? "1σ, °C" : "T, °C");
   ctx.fillStyle = MUTED; ctx.textAlign = "left";
   ctx.fillText("● sensor", W - R + 8, H - 26);
-  $("field-meta").textContent = `${f.at === "now" ? "current (state estimate)" : "steady-state"} field of identification ` +
-    `#${f.identification_id} at ${utc(f.t)} · ${fmt(lo)}–${fmt(hi)} °C · ${f.nodes_r_m.length} nodes · ` +
-    `shown mirrored about the axis; sensors in the upper half (red = masked)`;
+  const unc = f.std_max_c == null ? (f.at === "steady" ? " · no uncertainty for the steady state" : "")
+    : ` · 1σ up to ${fmt(f.std_max_c, 2)} °C`;
+  $("field-meta").textContent = `${f.at === "now" ? "current (filtered state estimate)" : "steady-state"} field of identification ` +
+    `#${f.identification_id} at ${utc(f.t)} · ${fmt(f.t_min_c)}–${fmt(f.t_max_c)} °C${unc} · ${f.nodes_r_m.length} nodes · ` +
+    `${sigma ? "coloured by its 1σ · " : ""}shown mirrored about the axis; sensors in the upper half (red = masked)`;
   state.rendered.field = true;
 }
 
@@ -470,7 +474,7 @@ function hoverField(ev) { // the sensor under the pointer, as the canvas's toolt
   const near = (state.sensorsNow || []).find((s) =>
     Math.hypot(m.x0 + (s.z_m - m.zmin) * m.s - px, m.yAxis - s.r_m * m.s - py) <= 6);
   canvas.title = near ? `ch ${near.channel} ${near.name} (${near.role}): measured ${fmt(near.measured_c, 2)} °C, ` +
-    `predicted ${fmt(near.predicted_c, 2)} °C, ${near.quality}` : "";
+    `predicted ${fmt(near.predicted_c, 2)} ± ${fmt(near.predicted_sd_c, 2)} °C (1σ), ${near.quality}` : "";
 }
 
 function partAt(rm, zm) {
@@ -490,7 +494,8 @@ async function probeField(ev) { // click on the section: T at that (r, z) from t
   const part = p ? partAt(p.r_m, p.z_m) : null;
   $("field-probe").textContent = !p ? (res.body?.error?.message || "probe failed")
     : `r = ${(p.r_m * 1e3).toFixed(1)} mm, z = ${(p.z_m * 1e3).toFixed(1)} mm` + (part ? ` (${part})` : "") + ": " +
-      (p.inside ? `${fmt(p.temp_c, 2)} °C` : "outside the section");
+      (p.inside ? `${fmt(p.temp_c, 2)} °C` + (p.std_c == null ? "" : ` ± ${fmt(p.std_c, 2)} °C (1σ; 95 %: ${fmt(p.ci95_c[0], 2)}–${fmt(p.ci95_c[1], 2)} °C)`)
+        : "outside the section");
 }
 
 async function loadLayout() {
@@ -577,7 +582,7 @@ function drawLegend(chans) {
     const q = n.quality || "–";
     return `<tr data-channel="${c}"><td><span class="line" data-k="${k}"></span></td>` +
       `<td>${c}</td><td class="sensor-name">${esc(s.name)}</td><td>${esc(s.role)}</td>` +
-      `<td class="num">${fmt(n.measured_c, 2)} °C</td><td class="num">${fmt(n.predicted_c, 2)} °C</td>` +
+      `<td class="num">${fmt(n.measured_c, 2)} °C</td><td class="num">${fmt(n.predicted_c, 2)} ± ${fmt(n.predicted_sd_c, 2)} °C</td>` +
       `<td class="num">${fmt(n.residual_c, 2)} °C</td><td class="${q === "ok" ? "" : "bad"}">${esc(q)}</td></tr>`;
   }).join("");
   // the page's CSP forbids inline style attributes; CSSOM is allowed
@@ -732,6 +737,7 @@ function every(fn, ms) { fn(); setInterval(fn, ms); }
 function start() {
   setInterval(() => { $("clock").textContent = new Date(serverNow()).toISOString().slice(0, 19).replace("T", " ") + " UTC"; }, 1000);
   $("field-at").addEventListener("change", pollField);
+  $("field-show").addEventListener("change", () => { if (state.field) drawField(state.field); });
   $("field").addEventListener("click", probeField);
   $("field").addEventListener("mousemove", hoverField);
   $("channels").addEventListener("change", () => { state.hist = null; pollSensors(); });

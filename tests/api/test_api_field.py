@@ -45,9 +45,16 @@ def test_cached_grid_locations_equal_fresh_ones(service: InMemoryService) -> Non
     assert f.locator.grid(12, 30)[2] is located
 
 
-@pytest.mark.parametrize("fmt", ["mesh", "grid"])
-def test_fast_bodies_equal_the_schema_serialisation(service: InMemoryService, fmt: str) -> None:
+@pytest.mark.parametrize(
+    ("fmt", "with_std"), [("mesh", False), ("grid", False), ("mesh", True), ("grid", True)]
+)
+def test_fast_bodies_equal_the_schema_serialisation(
+    service: InMemoryService, fmt: str, with_std: bool
+) -> None:
+    """Also with a 1σ per node (the filtered state's, at=now): ``std_c`` and ``std_max_c`` in both."""
     f = service.field("steady")
+    if with_std:
+        f = replace(f, std_c=0.05 + 0.01 * np.abs(f.temps_c - f.temps_c.mean()))
     renderer = FieldRenderer()
     if fmt == "mesh":
         fast, reference = renderer.mesh(f), mesh_out(f)
@@ -55,6 +62,23 @@ def test_fast_bodies_equal_the_schema_serialisation(service: InMemoryService, fm
         fast, reference = renderer.grid(f, 12, 30), grid_out(f, 12, 30)
     assert json.loads(fast.body) == json.loads(reference.model_dump_json())
     assert gzip.decompress(fast.gzip()) == fast.body
+    body = json.loads(fast.body)
+    assert (body["std_c"] is not None) == with_std and (body["std_max_c"] is not None) == with_std
+    if with_std and fmt == "mesh":
+        assert body["std_max_c"] == pytest.approx(float(np.max(f.std_c)), abs=1e-4)
+        np.testing.assert_allclose(body["std_c"], f.std_c, atol=1e-4)
+
+
+def test_points_carry_their_1_sigma_and_95_percent(service: InMemoryService) -> None:
+    from api.routers.field import points_out
+
+    f = service.field("steady")
+    sd = np.full_like(f.temps_c, 0.1)
+    inside = f.nodes_rz[:1] * 0.999 + f.nodes_rz[1:2] * 0.001
+    p = points_out(replace(f, std_c=sd), inside).points[0]
+    assert p.inside and p.std_c == pytest.approx(0.1, abs=1e-4)
+    assert p.ci95_c is not None and p.ci95_c[1] - p.ci95_c[0] == pytest.approx(2 * 1.96 * 0.1, abs=2e-4)
+    assert points_out(f, inside).points[0].std_c is None  # the steady state has no filtered uncertainty
 
 
 def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(service: InMemoryService) -> None:
