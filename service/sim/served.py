@@ -198,8 +198,10 @@ class Served:
         worker: InlineWorker,
         persistence: Persistence,
         samples: tuple[Sample, ...],
+        sources: Mapping[str, Any] | None = None,
     ) -> None:
         self.service = service
+        self.sources = dict(sources or {})
         self.clock = clock
         self.ring = ring
         self.worker = worker
@@ -269,6 +271,8 @@ class Served:
             return
 
         async def stop() -> None:
+            for src in self.sources.values():
+                await src.close()
             await self.service.close()
             await asyncio.to_thread(self.persistence.close, 10.0)
 
@@ -347,7 +351,13 @@ def served_service(
     )
     core.on_cancel = service.on_cancel
     served = Served(
-        service=service, clock=clock, ring=ring, worker=worker, persistence=persistence, samples=samples
+        service=service,
+        clock=clock,
+        ring=ring,
+        worker=worker,
+        persistence=persistence,
+        samples=samples,
+        sources=sources,
     )
     try:
         served.start()

@@ -7,6 +7,7 @@ the ROM cache): most tests change the service's state (its clock, samples, jobs)
 
 from __future__ import annotations
 
+import contextlib
 import socket
 import threading
 import time
@@ -20,6 +21,9 @@ from fastapi import FastAPI
 from fastapi.testclient import TestClient
 
 from api.app import create_app
+from drivers.can_sensor import CanSpindleSensor
+from drivers.errors import DeviceError
+from drivers.modbus_daq import ModbusDaq
 from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from service.sim.served import DEMO_FED, ManualClock, Served, served_service
@@ -44,6 +48,22 @@ def served(tmp_path: Path) -> Iterator[Served]:
     threshold); ``served.feed_next()`` feeds up to 30 more samples at 4000 rpm."""
     with served_service(database_url=sqlite_url(tmp_path), feed_samples=DEMO_FED) as s:
         yield s
+
+
+@pytest.fixture(scope="session")
+def served_ro(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """The same service, shared by the tests that only read it and never move its clock (request
+    validation, the OpenAPI document): built once per session."""
+    url = sqlite_url(tmp_path_factory.mktemp("served-ro"))
+    with served_service(database_url=url, feed_samples=DEMO_FED) as s:
+        yield s
+
+
+@pytest.fixture
+def ro_client(served_ro: Served) -> Iterator[TestClient]:
+    app = create_app(Settings(api={"token": WRITE_TOKEN}), served_ro.service, clock=served_ro.clock)
+    with TestClient(app) as c:
+        yield c
 
 
 @pytest.fixture
@@ -111,4 +131,23 @@ def served_db_down(tmp_path: Path) -> Iterator[Served]:
     (tmp_path / "a-directory").mkdir()
     url = sqlite_url(tmp_path, "a-directory")
     with served_service(database_url=url, feed_samples=DEMO_FED) as s:
+        yield s
+
+
+@pytest.fixture
+def served_devices_down(tmp_path: Path) -> Iterator[Served]:
+    """The demo service with real drivers that cannot reach their devices, each read twice: a Modbus DAQ on a
+    loopback port nobody listens on (refused) and a CAN sensor on a virtual channel nobody sends on."""
+    daq = ModbusDaq("127.0.0.1", free_port(), timeout_s=0.5)
+    can = CanSpindleSensor(interface="virtual", channel=f"chtc-silent-{tmp_path.name}", stale_after_s=0.2)
+
+    async def read_twice() -> None:
+        for src in (daq, can):
+            for _ in range(2):
+                with contextlib.suppress(DeviceError):
+                    await src.read()
+
+    url = sqlite_url(tmp_path)
+    with served_service(database_url=url, feed_samples=DEMO_FED, sources={"modbus": daq, "can": can}) as s:
+        s.call(read_twice)
         yield s
