@@ -7,7 +7,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.serve.interface_memory import InMemoryService
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock
 
@@ -56,7 +56,7 @@ def test_statuses_where_they_occur(client: TestClient) -> None:
 
 
 def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
-    client: TestClient, service: InMemoryService, clock: ManualClock
+    client: TestClient, service: SoftSensorService, clock: ManualClock
 ) -> None:
     doc = _doc(client)
     assert doc["components"]["securitySchemes"]["bearerAuth"] == {"type": "http", "scheme": "bearer"}
