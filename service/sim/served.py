@@ -265,6 +265,18 @@ class Served:
         for s in self.samples[self.fed : end]:
             feed(self, s)
 
+    def feed_every(self, period_s: float) -> threading.Event:
+        """Feed the plan's next sample every ``period_s`` wall seconds from a thread, until the plan runs out
+        or the returned event is set (a live-like service for a browser or a load test)."""
+        stop = threading.Event()
+
+        def run() -> None:
+            while self.fed < len(self.samples) and not stop.wait(period_s):
+                self.feed_next(1)
+
+        threading.Thread(target=run, name="served-feeder", daemon=True).start()
+        return stop
+
     def close(self) -> None:
         """Stop the shell, then the database (flushing the writer), as ``Runtime.stop`` does."""
         if self.loop.is_closed():
