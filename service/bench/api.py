@@ -91,7 +91,9 @@ def serve(port: int, field_period_s: float = 10.0) -> None:
 
     from api.app import create_app
     from service.settings import Settings
+    from service.sim.served import exit_on_sigterm
 
+    exit_on_sigterm()
     with tempfile.TemporaryDirectory(prefix="chtc-bench-api-") as tmp:
         with bench_service(Path(tmp), field_period_s=field_period_s) as (served, what):
             print(f"service: {what}", file=sys.stderr, flush=True)

@@ -24,10 +24,12 @@ from __future__ import annotations
 
 import asyncio
 import functools
+import signal
+import sys
 import threading
 import time
-from collections.abc import Awaitable, Callable, Iterable, Mapping
-from dataclasses import dataclass, replace
+from collections.abc import Awaitable, Callable, Mapping
+from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from typing import Any, TypeVar
 
@@ -381,7 +383,9 @@ def served_service(
     return served
 
 
-def shifted(samples: Iterable[Sample], **changes: Any) -> list[Sample]:
-    """Copies of ``samples`` with fields replaced (e.g. ``speed_rpm``), for a condition the plan lacks."""
-    return [replace(s, **changes) for s in samples]
+def exit_on_sigterm() -> None:
+    """Make SIGTERM raise ``SystemExit`` in the main thread, so that a served service run by uvicorn in a
+    server process is closed and its temporary database removed (uvicorn shuts down gracefully on SIGTERM,
+    then re-raises the signal to the handler that was installed before it)."""
+    signal.signal(signal.SIGTERM, lambda _sig, _frame: sys.exit(0))
 
