@@ -11,7 +11,7 @@ import contextlib
 import socket
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from pathlib import Path
 
 import httpx
@@ -134,20 +134,33 @@ def served_db_down(tmp_path: Path) -> Iterator[Served]:
         yield s
 
 
-@pytest.fixture
-def served_devices_down(tmp_path: Path) -> Iterator[Served]:
+def served_with_dead_devices(
+    tmp_path: Path, *, devices: tuple[str, ...] = ("modbus", "can"), settings: Settings | None = None
+) -> Served:
     """The demo service with real drivers that cannot reach their devices, each read twice: a Modbus DAQ on a
     loopback port nobody listens on (refused) and a CAN sensor on a virtual channel nobody sends on."""
-    daq = ModbusDaq("127.0.0.1", free_port(), timeout_s=0.5)
-    can = CanSpindleSensor(interface="virtual", channel=f"chtc-silent-{tmp_path.name}", stale_after_s=0.2)
+    make: dict[str, Callable[[], ModbusDaq | CanSpindleSensor]] = {
+        "modbus": lambda: ModbusDaq("127.0.0.1", free_port(), timeout_s=0.5),
+        "can": lambda: CanSpindleSensor(
+            interface="virtual", channel=f"chtc-silent-{tmp_path.name}", stale_after_s=0.2
+        ),
+    }
+    sources = {name: make[name]() for name in devices}
 
     async def read_twice() -> None:
-        for src in (daq, can):
+        for src in sources.values():
             for _ in range(2):
                 with contextlib.suppress(DeviceError):
                     await src.read()
 
-    url = sqlite_url(tmp_path)
-    with served_service(database_url=url, feed_samples=DEMO_FED, sources={"modbus": daq, "can": can}) as s:
-        s.call(read_twice)
+    s = served_service(
+        database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED, sources=sources
+    )
+    s.call(read_twice)
+    return s
+
+
+@pytest.fixture
+def served_devices_down(tmp_path: Path) -> Iterator[Served]:
+    with served_with_dead_devices(tmp_path) as s:
         yield s
