@@ -4,56 +4,53 @@ Found in review of issue 12 (items 1, 18, 22): the live state started at the fir
 temperature and took its NaN speed/torque; the next sample raised ``InputError: q_front_w: contains
 non-finite values`` out of ``ServiceCore.ingest``. In ``chtc run`` that exception ended the acquisition's task
 group, so the DAQ and CAN loops stopped silently and `/healthz` then reported the (healthy) DAQ as `down`.
+
+Here the real service (``service.sim.served``: core, shell, SQLite) takes the samples as the acquisition
+hands them over; what is checked is what it serves.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
-from drivers.ringbuffer import RingBuffer
+import numpy as np
+
 from model.plant import Segment
-from service.acquire.history import RingHistory
-from service.engine.core import ServiceCore
-from service.engine.offline import run_offline
-from service.engine.runtime import core_config
-from service.modelload import LoadedModel
-from service.settings import Settings
+from service.sim.served import Plan, feed, served_service
 
-from .conftest import plant_run, samples_of
+PLAN = Plan(profile=(Segment(780.0, 3000.0, 5.0, 22.0),))  # 13 min: one identification at 10 min of data
+N_SILENT = 6  # the first minute: the DAQ answers, CAN does not (yet)
 
 
-class _Sink:
-    def submit(self, record: object) -> bool:
-        return True
+def _without_can(sample):  # type: ignore[no-untyped-def]
+    return replace(sample, speed_rpm=math.nan, torque_nm=math.nan, can_ok=False)
 
 
-def test_samples_without_speed_and_torque_do_not_break_the_core(loaded_model: LoadedModel) -> None:
-    run = plant_run([Segment(1200.0, 3000.0, 5.0, 22.0)])
-    samples = samples_of(run)
-    n_silent = 6  # the first minute: the DAQ answers, CAN does not (yet)
-    silent = [replace(s, speed_rpm=math.nan, torque_nm=math.nan, can_ok=False) for s in samples[:n_silent]]
-    ring = RingBuffer(1000, len(loaded_model.spec.sensors))
-    core = ServiceCore(core_config(Settings()), model=loaded_model, history=RingHistory(ring), sink=_Sink())
-
-    for s in silent:
-        ring.append(s)
-        core.ingest(s)
-        assert not core.live.initialized  # no speed/torque yet: the heat input is unknown
-    for s in samples[n_silent : n_silent + 3]:
-        ring.append(s)
-        core.ingest(s)
-
-    # the live state started at the first sample with speed and torque, and advances from there
-    assert core.live.initialized
-    assert core.live.t > samples[n_silent].t.timestamp()
-    assert all(math.isfinite(x) for x in core.live.sensors_now())
+def test_samples_without_speed_and_torque_do_not_break_the_service(tmp_path: Path) -> None:
+    with served_service(database_url=f"sqlite:///{tmp_path / 'chtc.db'}", plan=PLAN, feed_samples=0) as s:
+        for smp in s.samples[:N_SILENT]:
+            feed(s, _without_can(smp))  # raised InputError out of the core before the fix
+        assert s.service.chtc() is None
+        assert any(r.startswith("can_no_good_data") for r in s.service.ready().reasons)
+        for smp in s.samples[N_SILENT:]:
+            feed(s, smp)
+        snap = s.service.chtc()
+        assert s.service.ready().ready
+        # identified once CAN came up: the live state runs from the first sample with speed and torque
+        assert snap is not None and snap.condition.speed_rpm == 3000.0
+        assert snap.condition.since == s.samples[N_SILENT].t
+        predicted = [r.predicted_c for r in s.service.sensors()]
+        assert all(p is not None and math.isfinite(p) for p in predicted)
+        assert np.isfinite(s.service.field("now").temps_c).all()
 
 
-def test_no_can_at_all_gives_no_identification_and_no_error(loaded_model: LoadedModel) -> None:
-    run = plant_run([Segment(1200.0, 3000.0, 5.0, 22.0)])
-    samples = [replace(s, speed_rpm=math.nan, torque_nm=math.nan, can_ok=False) for s in samples_of(run)]
-
-    result = run_offline(samples, model=loaded_model, config=core_config(Settings()))
-
-    assert result.records == []
+def test_no_can_at_all_gives_no_identification_and_no_error(tmp_path: Path) -> None:
+    with served_service(database_url=f"sqlite:///{tmp_path / 'chtc.db'}", plan=PLAN, feed_samples=0) as s:
+        for smp in s.samples:
+            feed(s, _without_can(smp))
+        assert s.service.chtc() is None
+        assert s.service.list_identifications(since=None, until=None, limit=10, offset=0).total == 0
+        reasons = s.service.ready().reasons
+        assert [r.split(":")[0] for r in reasons] == ["can_no_good_data"], reasons
