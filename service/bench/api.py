@@ -94,11 +94,13 @@ def serve(port: int, field_period_s: float = 10.0) -> None:
     from service.sim.served import exit_on_sigterm
 
     exit_on_sigterm()
-    with tempfile.TemporaryDirectory(prefix="chtc-bench-api-") as tmp:
-        with bench_service(Path(tmp), field_period_s=field_period_s) as (served, what):
-            print(f"service: {what}", file=sys.stderr, flush=True)
-            app = create_app(Settings(), served.service, clock=served.clock)
-            uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
+    with (
+        tempfile.TemporaryDirectory(prefix="chtc-bench-api-") as tmp,
+        bench_service(Path(tmp), field_period_s=field_period_s) as (served, what),
+    ):
+        print(f"service: {what}", file=sys.stderr, flush=True)
+        app = create_app(Settings(), served.service, clock=served.clock)
+        uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
 
 
 def _free_port() -> int:

@@ -1,5 +1,5 @@
-"""The real soft sensor, served from a virtual-plant run: for the API tests, ``chtc bench api`` and the fuzzing
-server.
+"""The real soft sensor, served from a virtual-plant run: for the API tests, ``chtc bench api`` and the
+fuzzing server.
 
 ``served_service(database_url=..., plan=...)`` builds the service as ``service.engine.runtime.Runtime`` does
 (the real ``ServiceCore`` and ``SoftSensorService``, the model from the ROM cache, a real database through
@@ -118,7 +118,6 @@ def _job(model: LoadedModel, req: JobRequest, should_stop: Callable[[], bool]) -
     """One identification as the worker process runs it (``run_identification`` + the field at the window
     end); a failure is an outcome, never an exception."""
     from model.identify import InsufficientDataError
-
     from service.identify.worker import JobCancelled
 
     started = time.perf_counter()
@@ -388,4 +387,3 @@ def exit_on_sigterm() -> None:
     server process is closed and its temporary database removed (uvicorn shuts down gracefully on SIGTERM,
     then re-raises the signal to the handler that was installed before it)."""
     signal.signal(signal.SIGTERM, lambda _sig, _frame: sys.exit(0))
-

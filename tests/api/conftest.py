@@ -1,5 +1,5 @@
-"""Fixtures for the API tests: the real service (``service.sim.served``: the core and shell fed a virtual-plant
-run, real SQLite in the test's tmp dir), its hand-moved clock, the app, a live uvicorn server.
+"""Fixtures for the API tests: the real service (``service.sim.served``: the core and shell fed a
+virtual-plant run, real SQLite in the test's tmp dir), its hand-moved clock, the app, a live uvicorn server.
 
 ``served`` is function-scoped (about 0.5 s: the plant run is computed once per process, the model comes from
 the ROM cache): most tests change the service's state (its clock, samples, jobs).

@@ -21,9 +21,11 @@ from tests.api.conftest import LENIENT_CI, sqlite_url
 def lenient(tmp_path: Path) -> Iterator[tuple[Served, TestClient]]:
     """The demo plan with a CI threshold under which the newest identification has every H identified."""
     settings = Settings(identification={"ci_rel_threshold": LENIENT_CI})
-    with served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED) as s:
-        with TestClient(create_app(settings, s.service, clock=s.clock)) as c:
-            yield s, c
+    with (
+        served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED) as s,
+        TestClient(create_app(settings, s.service, clock=s.clock)) as c,
+    ):
+        yield s, c
 
 
 def test_not_usable_while_an_h_is_not_identified(client: TestClient) -> None:

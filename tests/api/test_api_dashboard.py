@@ -339,7 +339,7 @@ def test_identify_now_asks_for_the_token_posts_and_shows_the_result(page: _Page,
         page.eval("document.getElementById('identify-submit').click()")
         queued = page.wait(f"{RESULT}.startsWith('job-') && {RESULT}")
         job_id = queued.split()[0]
-        # the page sends "operator request from the dashboard"; the service keeps a reason's first 32 characters
+        # the page sends "operator request from the dashboard"; the service keeps 32 characters of it
         assert svc.job(job_id).reason == "operator request from the dashboard"[:32]
         served.worker.release()
         served.settle()

@@ -8,6 +8,7 @@ persistence layer's error.
 from __future__ import annotations
 
 from collections.abc import Iterator
+
 import pytest
 from fastapi.testclient import TestClient
 
@@ -59,9 +60,11 @@ def test_complete_page_is_not_partial(client: TestClient) -> None:
 @pytest.fixture
 def db_client(db_url: str) -> Iterator[TestClient]:  # noqa: F811
     """The real service on an empty, migrated SQLite or PostgreSQL database (no samples)."""
-    with served_service(database_url=db_url, plan=None) as s:
-        with TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)) as c:
-            yield c
+    with (
+        served_service(database_url=db_url, plan=None) as s,
+        TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)) as c,
+    ):
+        yield c
 
 
 def test_ids_at_the_bigint_edge_on_a_real_database(db_client: TestClient) -> None:

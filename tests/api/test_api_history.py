@@ -55,9 +55,7 @@ def test_history_gives_every_sample_with_units_utc_times_and_the_prediction(
     assert all(p is not None for p in ch1["predicted_c"][-6:])
 
 
-def test_history_since_is_strict_and_limit_keeps_the_newest(
-    client: TestClient, served: Served
-) -> None:
+def test_history_since_is_strict_and_limit_keeps_the_newest(client: TestClient, served: Served) -> None:
     _push(served, 5)
     full = client.get("/api/v1/sensors/history").json()
     assert len(full["channels"]) == 32

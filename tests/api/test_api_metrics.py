@@ -106,9 +106,7 @@ def test_outcome_and_event_counters_are_separate(served_devices_down: Served) ->
         }
         want = m.modbus_events_total if device == "modbus" else m.can_events_total
         assert events == {k: float(v) for k, v in want.items()}
-        outcomes = {
-            x.labels["outcome"]: x.value for x in fam[outcome_family] if x.name.endswith("_total")
-        }
+        outcomes = {x.labels["outcome"]: x.value for x in fam[outcome_family] if x.name.endswith("_total")}
         assert outcomes.keys().isdisjoint(events)
     polls = {x.labels["outcome"]: x.value for x in fam["chtc_modbus_polls"] if x.name.endswith("_total")}
     assert polls == {"ok": 0.0, "link_down": 1.0, "device_unavailable": 1.0}

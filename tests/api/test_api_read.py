@@ -1,4 +1,5 @@
-"""Read endpoints against the real service (``tests/api/conftest.py``): values, units, timestamps, ETag, statuses."""
+"""Read endpoints against the real service (``tests/api/conftest.py``): values, units, timestamps, ETag,
+statuses."""
 
 from __future__ import annotations
 
@@ -81,10 +82,12 @@ def test_chtc_is_identifying_after_a_condition_change(client: TestClient, served
 
 def test_chtc_before_any_identification_is_503_no_data(tmp_path: Path) -> None:
     """Five minutes of samples, half the first window: no identification yet."""
-    with served_service(database_url=sqlite_url(tmp_path), feed_samples=30) as s:
-        with TestClient(create_app(Settings(), s.service, clock=s.clock)) as c:
-            r = c.get("/api/v1/chtc")
-            assert c.get("/api/v1/sensors").status_code == 200  # the samples are there
+    with (
+        served_service(database_url=sqlite_url(tmp_path), feed_samples=30) as s,
+        TestClient(create_app(Settings(), s.service, clock=s.clock)) as c,
+    ):
+        r = c.get("/api/v1/chtc")
+        assert c.get("/api/v1/sensors").status_code == 200  # the samples are there
     assert r.status_code == 503
     assert r.json()["error"]["code"] == "no_data"
     assert r.headers["retry-after"]
@@ -215,14 +218,16 @@ def test_readyz_ready_then_503_when_data_old(client: TestClient, served: Served,
 
 
 def test_readyz_503_while_the_model_loads(tmp_path: Path) -> None:
-    with served_service(database_url=sqlite_url(tmp_path), loading=True) as s:
-        with TestClient(create_app(Settings(), s.service, clock=s.clock)) as c:
-            r = c.get("/api/v1/readyz")
-            assert r.status_code == 503 and "model not loaded" in r.json()["error"]["message"]
-            assert c.get("/api/v1/healthz").json()["model_loaded"] is False
-            s.started()
-            s.feed_next(1)
-            assert c.get("/api/v1/readyz").status_code == 200
+    with (
+        served_service(database_url=sqlite_url(tmp_path), loading=True) as s,
+        TestClient(create_app(Settings(), s.service, clock=s.clock)) as c,
+    ):
+        r = c.get("/api/v1/readyz")
+        assert r.status_code == 503 and "model not loaded" in r.json()["error"]["message"]
+        assert c.get("/api/v1/healthz").json()["model_loaded"] is False
+        s.started()
+        s.feed_next(1)
+        assert c.get("/api/v1/readyz").status_code == 200
 
 
 def test_chtc_body_equals_the_schema_serialisation(
