@@ -60,9 +60,23 @@ def served_ro(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
 
 
 @pytest.fixture
-def ro_client(served_ro: Served) -> Iterator[TestClient]:
-    app = create_app(Settings(api={"token": WRITE_TOKEN}), served_ro.service, clock=served_ro.clock)
-    with TestClient(app) as c:
+def ro_service(served_ro: Served) -> SoftSensorService:
+    return served_ro.service
+
+
+@pytest.fixture
+def ro_clock(served_ro: Served) -> ManualClock:
+    return served_ro.clock
+
+
+@pytest.fixture
+def ro_app(settings: Settings, served_ro: Served) -> FastAPI:
+    return create_app(settings, served_ro.service, clock=served_ro.clock)
+
+
+@pytest.fixture
+def ro_client(ro_app: FastAPI) -> Iterator[TestClient]:
+    with TestClient(ro_app) as c:
         yield c
 
 

@@ -41,13 +41,13 @@ CHROMIUM_FLAGS = [
 ]
 
 
-def test_dashboard_is_served_with_its_assets(client: TestClient) -> None:
-    page = client.get("/")
+def test_dashboard_is_served_with_its_assets(ro_client: TestClient) -> None:
+    page = ro_client.get("/")
     assert page.status_code == 200 and "text/html" in page.headers["content-type"]
     assert "default-src 'self'" in page.headers["content-security-policy"]
     for asset in ("/static/app.js", "/static/style.css"):
         assert asset in page.text
-        assert client.get(asset).status_code == 200
+        assert ro_client.get(asset).status_code == 200
 
 
 def test_dashboard_loads_nothing_from_outside() -> None:

@@ -27,9 +27,9 @@ from service.sim.served import Served
 URL = "/api/v1/temperature-field"
 
 
-def test_locator_is_shared_by_every_snapshot_of_a_mesh(service: SoftSensorService) -> None:
+def test_locator_is_shared_by_every_snapshot_of_a_mesh(ro_service: SoftSensorService) -> None:
     """The running service builds a new snapshot for every at=now request: its locator must not be rebuilt."""
-    f = service.field("now")
+    f = ro_service.field("now")
     again = FieldSnapshot(f.t, "now", f.nodes_rz, f.triangles, f.temps_c + 1.0, f.identification_id)
     assert again.locator is f.locator
     other_mesh = FieldSnapshot(f.t, "now", f.nodes_rz.copy(), f.triangles, f.temps_c)
@@ -37,8 +37,8 @@ def test_locator_is_shared_by_every_snapshot_of_a_mesh(service: SoftSensorServic
     assert locator_for(f.nodes_rz, f.triangles) is f.locator
 
 
-def test_cached_grid_locations_equal_fresh_ones(service: SoftSensorService) -> None:
-    f = service.field("now")
+def test_cached_grid_locations_equal_fresh_ones(ro_service: SoftSensorService) -> None:
+    f = ro_service.field("now")
     r, z, located = f.locator.grid(12, 30)
     rr, zz = np.meshgrid(r, z, indexing="ij")
     fresh = TriangleLocator(f.nodes_rz, f.triangles).locate(np.c_[rr.ravel(), zz.ravel()])
@@ -47,8 +47,8 @@ def test_cached_grid_locations_equal_fresh_ones(service: SoftSensorService) -> N
 
 
 @pytest.mark.parametrize("fmt", ["mesh", "grid"])
-def test_fast_bodies_equal_the_schema_serialisation(service: SoftSensorService, fmt: str) -> None:
-    f = service.field("steady")
+def test_fast_bodies_equal_the_schema_serialisation(ro_service: SoftSensorService, fmt: str) -> None:
+    f = ro_service.field("steady")
     renderer = FieldRenderer()
     if fmt == "mesh":
         fast, reference = renderer.mesh(f), mesh_out(f)
@@ -58,8 +58,8 @@ def test_fast_bodies_equal_the_schema_serialisation(service: SoftSensorService, 
     assert gzip.decompress(fast.gzip()) == fast.body
 
 
-def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(service: SoftSensorService) -> None:
-    f = service.field("now")
+def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(ro_service: SoftSensorService) -> None:
+    f = ro_service.field("now")
     renderer = FieldRenderer()
     a = renderer.mesh(f)
     assert renderer.mesh(replace(f)) is a  # same content: cached
@@ -99,8 +99,8 @@ class BlockingField:
         return getattr(self.inner, name)
 
 
-def test_excess_field_requests_are_shed_with_retry_after(service: SoftSensorService) -> None:
-    slow = BlockingField(service)
+def test_excess_field_requests_are_shed_with_retry_after(ro_service: SoftSensorService) -> None:
+    slow = BlockingField(ro_service)
     app: FastAPI = create_app(Settings(), slow)  # type: ignore[arg-type]
     with TestClient(app) as client:
         statuses: list[int] = []

@@ -116,8 +116,8 @@ def test_history_buffer_keeps_the_last_capacity_samples_in_order() -> None:
         SensorHistoryBuffer(0, [])
 
 
-def test_spindle_lists_the_named_parts_and_zones_of_the_spindle_description(client: TestClient) -> None:
-    body = client.get("/api/v1/spindle").json()
+def test_spindle_lists_the_named_parts_and_zones_of_the_spindle_description(ro_client: TestClient) -> None:
+    body = ro_client.get("/api/v1/spindle").json()
     spec = load_spindle()
     names = [p["name"] for p in body["parts"]]
     assert names == [r.name for r in spec.regions]

@@ -35,11 +35,11 @@ def test_metrics_parse_and_carry_service_numbers(
     assert fit == m.last_fit
 
 
-def test_request_latency_histogram_counts_requests(client: TestClient) -> None:
+def test_request_latency_histogram_counts_requests(ro_client: TestClient) -> None:
     for _ in range(3):
-        client.get("/api/v1/chtc")
-    client.get("/api/v1/identifications/999")
-    fam = _families(client)
+        ro_client.get("/api/v1/chtc")
+    ro_client.get("/api/v1/identifications/999")
+    fam = _families(ro_client)
     counts = {
         (s.labels["route"], s.labels["status"]): s.value
         for s in fam["chtc_http_request_duration_seconds"]
@@ -49,12 +49,12 @@ def test_request_latency_histogram_counts_requests(client: TestClient) -> None:
     assert counts[("/api/v1/identifications/{identification_id}", "404")] == 1
 
 
-def test_each_app_has_its_own_registry(service: SoftSensorService, clock: ManualClock) -> None:
+def test_each_app_has_its_own_registry(ro_service: SoftSensorService, ro_clock: ManualClock) -> None:
     from api.app import create_app
     from service.settings import Settings
 
-    a = create_app(Settings(), service, clock=clock)
-    b = create_app(Settings(), service, clock=clock)
+    a = create_app(Settings(), ro_service, clock=ro_clock)
+    b = create_app(Settings(), ro_service, clock=ro_clock)
     assert a.state.metrics.registry is not b.state.metrics.registry
 
 

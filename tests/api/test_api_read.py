@@ -22,18 +22,18 @@ from tests.api.conftest import ManualClock, sqlite_url
 
 
 def test_chtc_returns_current_h_with_units_ci_and_provenance(
-    client: TestClient, service: SoftSensorService
+    ro_client: TestClient, ro_service: SoftSensorService
 ) -> None:
-    r = client.get("/api/v1/chtc")
+    r = ro_client.get("/api/v1/chtc")
     assert r.status_code == 200
     body = r.json()
-    snap = service.chtc()
+    snap = ro_service.chtc()
     assert snap is not None
     assert body["unit"] == "W/(m²·K)"
     assert [z["name"] for z in body["zones"]] == list(ZONE_NAMES)
-    stored = service.get_identification(snap.identification_id)  # the newest, at the current condition
+    stored = ro_service.get_identification(snap.identification_id)  # the newest, at the current condition
     np.testing.assert_allclose([z["h_w_m2k"] for z in body["zones"]], stored.h, atol=1e-4)
-    assert snap.identification_id == 2 and stored.condition.id == service.condition().id == 2
+    assert snap.identification_id == 2 and stored.condition.id == ro_service.condition().id == 2
     np.testing.assert_allclose([z["ci95_lo_w_m2k"] for z in body["zones"]], snap.ci95_lo, atol=1e-4)
     np.testing.assert_allclose([z["ci95_hi_w_m2k"] for z in body["zones"]], snap.ci95_hi, atol=1e-4)
     assert [z["identified"] for z in body["zones"]] == snap.identified.tolist()
@@ -93,9 +93,9 @@ def test_chtc_before_any_identification_is_503_no_data(tmp_path: Path) -> None:
     assert r.headers["retry-after"]
 
 
-def test_field_mesh_matches_the_service_field(client: TestClient, service: SoftSensorService) -> None:
-    body = client.get("/api/v1/temperature-field", params={"format": "mesh", "at": "now"}).json()
-    f = service.field("now")
+def test_field_mesh_matches_the_service_field(ro_client: TestClient, ro_service: SoftSensorService) -> None:
+    body = ro_client.get("/api/v1/temperature-field", params={"format": "mesh", "at": "now"}).json()
+    f = ro_service.field("now")
     assert body["format"] == "mesh"
     assert body["temperature_unit"] == "°C"
     assert body["length_unit"] == "m"
@@ -105,18 +105,20 @@ def test_field_mesh_matches_the_service_field(client: TestClient, service: SoftS
     assert body["t_max_c"] == pytest.approx(f.temps_c.max(), abs=1e-4)
 
 
-def test_field_steady_differs_from_now(client: TestClient) -> None:
-    now = client.get("/api/v1/temperature-field", params={"at": "now"}).json()
-    steady = client.get("/api/v1/temperature-field", params={"at": "steady"}).json()
+def test_field_steady_differs_from_now(ro_client: TestClient) -> None:
+    now = ro_client.get("/api/v1/temperature-field", params={"at": "now"}).json()
+    steady = ro_client.get("/api/v1/temperature-field", params={"at": "steady"}).json()
     assert steady["at"] == "steady"
     assert steady["t_max_c"] > now["t_max_c"]
 
 
-def test_field_points_at_nodes_equal_nodal_values(client: TestClient, service: SoftSensorService) -> None:
-    f = service.field("now")
+def test_field_points_at_nodes_equal_nodal_values(
+    ro_client: TestClient, ro_service: SoftSensorService
+) -> None:
+    f = ro_service.field("now")
     idx = [0, len(f.nodes_rz) // 2, len(f.nodes_rz) - 1]
     pts = ";".join(f"{float(f.nodes_rz[i, 0])!r},{float(f.nodes_rz[i, 1])!r}" for i in idx) + ";1.0,1.0"
-    body = client.get("/api/v1/temperature-field", params={"format": "points", "points": pts}).json()
+    body = ro_client.get("/api/v1/temperature-field", params={"format": "points", "points": pts}).json()
     temps = [p["temp_c"] for p in body["points"]]
     np.testing.assert_allclose(temps[:3], f.temps_c[idx], atol=1e-3)
     assert temps[3] is None
@@ -124,12 +126,12 @@ def test_field_points_at_nodes_equal_nodal_values(client: TestClient, service: S
 
 
 def test_field_grid_has_requested_shape_and_nulls_outside(
-    client: TestClient, service: SoftSensorService
+    ro_client: TestClient, ro_service: SoftSensorService
 ) -> None:
-    body = client.get("/api/v1/temperature-field", params={"format": "grid", "nr": 12, "nz": 30}).json()
+    body = ro_client.get("/api/v1/temperature-field", params={"format": "grid", "nr": 12, "nz": 30}).json()
     assert len(body["r_m"]) == 12 and len(body["z_m"]) == 30
     assert len(body["temps_c"]) == 12 and all(len(row) == 30 for row in body["temps_c"])
-    f = service.field("now")
+    f = ro_service.field("now")
     r0, _, _, z1 = f.bounds_rz
     assert body["r_m"][0] == pytest.approx(r0) and body["z_m"][-1] == pytest.approx(z1)
     # null exactly where the grid point lies outside the section (the spindle is not a rectangle)
@@ -139,12 +141,12 @@ def test_field_grid_has_requested_shape_and_nulls_outside(
     assert [[t is None for t in row] for row in body["temps_c"]] == outside.tolist()
 
 
-def test_sensors_have_residual_and_honour_channel_filter(client: TestClient) -> None:
-    body = client.get("/api/v1/sensors").json()
+def test_sensors_have_residual_and_honour_channel_filter(ro_client: TestClient) -> None:
+    body = ro_client.get("/api/v1/sensors").json()
     assert len(body["channels"]) == 32
     for ch in body["channels"]:
         assert ch["residual_c"] == pytest.approx(ch["measured_c"] - ch["predicted_c"], abs=2e-4)
-    picked = client.get("/api/v1/sensors", params={"channels": "3,17"}).json()["channels"]
+    picked = ro_client.get("/api/v1/sensors", params={"channels": "3,17"}).json()["channels"]
     assert [c["channel"] for c in picked] == [3, 17]
 
 
@@ -158,8 +160,8 @@ def test_sensors_mask_bad_channels(client: TestClient, served: Served) -> None:
     assert ch5["measured_c"] is None and ch5["residual_c"] is None
 
 
-def test_condition_current_and_recent(client: TestClient) -> None:
-    body = client.get("/api/v1/condition").json()
+def test_condition_current_and_recent(ro_client: TestClient) -> None:
+    body = ro_client.get("/api/v1/condition").json()
     assert body["current"]["speed_rpm"] == 4000.0
     assert [c["id"] for c in body["recent"]] == [2, 1]
     assert body["current"]["since"].endswith("Z")
@@ -184,12 +186,12 @@ def test_identifications_list_paginates_and_filters(
     assert [i["id"] for i in older["items"]] == [2, 1]
 
 
-def test_identification_by_id(client: TestClient, service: SoftSensorService) -> None:
-    body = client.get("/api/v1/identifications/1").json()
+def test_identification_by_id(ro_client: TestClient, ro_service: SoftSensorService) -> None:
+    body = ro_client.get("/api/v1/identifications/1").json()
     assert body["id"] == 1
     assert body["condition"]["speed_rpm"] == 3000.0
     assert body["unit"] == "W/(m²·K)"
-    h1 = service.get_identification(1).h[0]
+    h1 = ro_service.get_identification(1).h[0]
     assert body["zones"][0]["h_w_m2k"] == pytest.approx(h1, abs=1e-4)
 
 

@@ -23,26 +23,26 @@ def _error(r: object) -> dict:  # type: ignore[type-arg]
     return body["error"]  # type: ignore[no-any-return]
 
 
-def test_post_without_token_is_401(client: TestClient) -> None:
-    r = client.post("/api/v1/identifications")
+def test_post_without_token_is_401(ro_client: TestClient) -> None:
+    r = ro_client.post("/api/v1/identifications")
     assert r.status_code == 401
     assert r.headers["www-authenticate"] == "Bearer"
     assert _error(r)["field"] == "Authorization"
 
 
-def test_post_with_other_scheme_is_401(client: TestClient) -> None:
-    r = client.post("/api/v1/identifications", headers={"Authorization": f"Basic {WRITE_TOKEN}"})
+def test_post_with_other_scheme_is_401(ro_client: TestClient) -> None:
+    r = ro_client.post("/api/v1/identifications", headers={"Authorization": f"Basic {WRITE_TOKEN}"})
     assert r.status_code == 401
 
 
-def test_post_with_wrong_token_is_403(client: TestClient) -> None:
-    r = client.post("/api/v1/identifications", headers={"Authorization": "Bearer nope"})
+def test_post_with_wrong_token_is_403(ro_client: TestClient) -> None:
+    r = ro_client.post("/api/v1/identifications", headers={"Authorization": "Bearer nope"})
     assert r.status_code == 403
     assert _error(r)["code"] == "forbidden"
 
 
-def test_post_when_no_token_configured_is_403(service: SoftSensorService, clock: ManualClock) -> None:
-    with TestClient(create_app(Settings(), service, clock=clock)) as c:
+def test_post_when_no_token_configured_is_403(ro_service: SoftSensorService, ro_clock: ManualClock) -> None:
+    with TestClient(create_app(Settings(), ro_service, clock=ro_clock)) as c:
         r = c.post("/api/v1/identifications", headers=AUTH)
     assert r.status_code == 403
     assert "no API token" in _error(r)["message"]
@@ -69,10 +69,10 @@ def test_post_starts_a_job_then_busy_then_done(client: TestClient, served: Serve
     assert chtc["identification_id"] == 3 and chtc["status"] == "fresh"
 
 
-def test_post_body_is_validated(client: TestClient) -> None:
-    r = client.post("/api/v1/identifications", headers=AUTH, json={"reason": "x", "force": True})
+def test_post_body_is_validated(ro_client: TestClient) -> None:
+    r = ro_client.post("/api/v1/identifications", headers=AUTH, json={"reason": "x", "force": True})
     assert r.status_code == 422 and _error(r)["field"] == "force"
-    r = client.post("/api/v1/identifications", headers=AUTH, json={"reason": "<script>"})
+    r = ro_client.post("/api/v1/identifications", headers=AUTH, json={"reason": "<script>"})
     assert r.status_code == 422 and _error(r)["field"] == "reason"
 
 
@@ -86,14 +86,14 @@ def test_post_when_not_ready_is_503(tmp_path: Path) -> None:
     assert "no samples" in _error(r)["message"]
 
 
-def test_unknown_job_is_404(client: TestClient) -> None:
-    r = client.get("/api/v1/identifications/jobs/job-99")
+def test_unknown_job_is_404(ro_client: TestClient) -> None:
+    r = ro_client.get("/api/v1/identifications/jobs/job-99")
     assert r.status_code == 404 and _error(r)["code"] == "not_found"
 
 
-def test_read_token_guards_reads_but_not_probes(service: SoftSensorService, clock: ManualClock) -> None:
+def test_read_token_guards_reads_but_not_probes(ro_service: SoftSensorService, ro_clock: ManualClock) -> None:
     settings = Settings(api={"token": WRITE_TOKEN, "read_token": READ_TOKEN})
-    with TestClient(create_app(settings, service, clock=clock)) as c:
+    with TestClient(create_app(settings, ro_service, clock=ro_clock)) as c:
         assert c.get("/api/v1/chtc").status_code == 401
         assert c.get("/api/v1/chtc", headers={"Authorization": "Bearer wrong"}).status_code == 403
         assert c.get("/api/v1/chtc", headers={"Authorization": f"Bearer {READ_TOKEN}"}).status_code == 200
