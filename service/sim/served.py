@@ -156,6 +156,10 @@ class InlineWorker:
             self._loaded.set()
         self._cancel = -1
 
+    @property
+    def loading(self) -> bool:
+        return not self._loaded.is_set()
+
     def hold(self) -> None:
         self._go.clear()
 
@@ -234,7 +238,7 @@ class Served:
             await asyncio.sleep(0)
 
         self.call(begin)
-        if self.worker._loaded.is_set():
+        if not self.worker.loading:
             self.started()
 
     def started(self, timeout_s: float = 60.0) -> None:
