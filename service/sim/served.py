@@ -217,7 +217,8 @@ class Served:
         self._thread = threading.Thread(target=self.loop.run_forever, name="served-loop", daemon=True)
         self._thread.start()
         self._resident: set[asyncio.Task[Any]] = set()  # tasks that live as long as the service
-        self._starting: Any = None
+        self._starting: asyncio.Future[None] | None = None
+        self._feeders: list[tuple[threading.Event, threading.Thread]] = []
 
     def call(self, fn: Callable[[], Awaitable[T]], timeout_s: float = 60.0) -> T:
         """Run ``fn()`` (a coroutine) on the service's loop and wait for its result."""
@@ -245,6 +246,7 @@ class Served:
         """Wait for ``service.start()`` (after ``worker.release_model()`` when the model was loading)."""
 
         async def wait() -> None:
+            assert self._starting is not None, "start() first"
             await self._starting
             self._resident = asyncio.all_tasks() - {asyncio.current_task()}
 
@@ -279,13 +281,18 @@ class Served:
             while self.fed < len(self.samples) and not stop.wait(period_s):
                 self.feed_next(1)
 
-        threading.Thread(target=run, name="served-feeder", daemon=True).start()
+        thread = threading.Thread(target=run, name="served-feeder", daemon=True)
+        self._feeders.append((stop, thread))
+        thread.start()
         return stop
 
     def close(self) -> None:
         """Stop the shell, then the database (flushing the writer), as ``Runtime.stop`` does."""
         if self.loop.is_closed():
             return
+        for stop_feeding, feeder in self._feeders:
+            stop_feeding.set()
+            feeder.join(30.0)
 
         async def stop() -> None:
             for src in self.sources.values():
