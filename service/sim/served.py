@@ -6,14 +6,16 @@ fuzzing server.
 ``open_persistence``: SQLite in a temporary directory in the tests) and runs its asyncio shell on a loop in a
 background thread. Only the devices differ: instead of the acquisition polling drivers, :func:`feed` hands it
 the samples of a ``model.plant.VirtualPlant`` run (``service.sim.logsamples.samples_from_plant``), and the
-identification worker is :class:`InlineWorker`, the worker's job function in a thread of this process (no
-second process, same seeded result), so a fed sample's identification is recorded before :func:`feed`
+identification worker is :class:`InlineWorker` (the shell's ``Worker`` protocol), the worker process's job
+function ``service.identify.worker.run_job`` in a thread of this process (no second process, same seeded
+result, the same job->outcome mapping), so a fed sample's identification is recorded before :func:`feed`
 returns.
 
-Every event enters the service through :func:`feed` (samples) or through the service's own methods (the
-API's requests); everything else here is construction. Time is a :class:`ManualClock`: :func:`feed` moves
-it to the sample's time (the acquisition stamps samples with the service's clock), a test moves it further
-by hand (stale data) without sleeping.
+Every event enters the service through the shell's public API: :func:`feed` hands samples to ``on_sample``
+on the service's loop, the API's requests go through the service's own methods (which hand them over to the
+loop); what is served is read from the published ``view``. Everything else here is construction. Time is a
+:class:`ManualClock`: :func:`feed` moves it to the sample's time (the acquisition stamps samples with the
+service's clock), a test moves it further by hand (stale data) without sleeping.
 
 Errors::
 
@@ -27,20 +29,18 @@ import functools
 import signal
 import sys
 import threading
-import time
 from collections.abc import Awaitable, Callable, Mapping
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
-from typing import Any, TypeVar
+from typing import TypeVar
 
-from drivers.ringbuffer import RingBuffer, Sample
+from drivers.ringbuffer import Sample
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
-from service.acquire.history import RingHistory
 from service.engine.core import ServiceCore
-from service.engine.runtime import core_config
+from service.engine.runtime import CanDevice, DaqDevice, core_config
 from service.engine.shell import SoftSensorService
-from service.identify.worker import JobOutcome, JobRequest, JobStatus, final_field, run_identification
+from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
 from service.sim.logsamples import samples_from_plant
@@ -114,34 +114,13 @@ def _model(ref: ModelRef) -> LoadedModel:
     return load_model(ref)
 
 
-def _job(model: LoadedModel, req: JobRequest, should_stop: Callable[[], bool]) -> JobOutcome:
-    """One identification as the worker process runs it (``run_identification`` + the field at the window
-    end); a failure is an outcome, never an exception."""
-    from model.identify import InsufficientDataError
-    from service.identify.worker import JobCancelled
-
-    started = time.perf_counter()
-    try:
-        result, window = run_identification(model, req, should_stop=should_stop)
-        field = final_field(model, window, result)
-    except InsufficientDataError as err:
-        status, msg = JobStatus.INSUFFICIENT_DATA, str(err)
-    except JobCancelled:
-        status, msg = JobStatus.CANCELLED, "cancelled"
-    except Exception as err:  # the worker's boundary: report, never crash the shell
-        status, msg = JobStatus.FAILED, f"{type(err).__name__}: {err}"
-    else:
-        wall = time.perf_counter() - started
-        return JobOutcome(req.job_id, JobStatus.OK, result, str(getattr(result, "message", "")), wall, field)
-    return JobOutcome(req.job_id, status, None, msg, time.perf_counter() - started)
-
-
 class InlineWorker:
-    """``service.identify.worker.IdentificationWorker``'s façade, running the job in a thread of this process.
+    """The shell's ``Worker`` (as ``service.identify.worker.IdentificationWorker``), running each job with
+    ``run_job`` in a thread of this process.
 
     ``hold()`` keeps the next jobs waiting before they start (a job "running" for as long as a test needs),
-    ``release()`` lets them go; ``loading=True`` keeps the model "loading" (``start()`` waits) until
-    ``release_model()``.
+    ``release()`` lets them go; ``loading=True`` keeps the model "loading" (``start()`` waits, and so do jobs,
+    as they queue behind the model in the worker process) until ``release_model()``.
     """
 
     def __init__(self, model: LoadedModel, *, loading: bool = False) -> None:
@@ -177,10 +156,15 @@ class InlineWorker:
     async def run(self, req: JobRequest) -> JobOutcome:
         self.running_job = req.job_id
         try:
+            await asyncio.to_thread(self._loaded.wait)
             await asyncio.to_thread(self._go.wait)
-            return await asyncio.to_thread(_job, self.model, req, lambda: self._cancel == req.job_id)
+            stop = functools.partial(self._cancelled, req.job_id)
+            return await asyncio.to_thread(run_job, self.model, req, should_stop=stop)
         finally:
             self.running_job = None
+
+    def _cancelled(self, job_id: int) -> bool:
+        return self._cancel == job_id
 
     def cancel(self, job_id: int) -> None:
         self._cancel = job_id
@@ -191,24 +175,23 @@ class InlineWorker:
 
 
 class Served:
-    """A running served service: ``service`` (the ``ChtcService``), its ``clock``, the plan's ``samples``
-    (``fed`` of them so far), the ``worker`` and the database's ``persistence``. ``close()`` at the end."""
+    """A running served service: ``service`` (the shell, a ``ChtcService``), its ``clock``, the plan's
+    ``samples`` (``fed`` of them so far), the ``worker`` and the database's ``persistence``. ``close()`` at
+    the end."""
 
     def __init__(
         self,
         *,
         service: SoftSensorService,
         clock: ManualClock,
-        ring: RingBuffer,
         worker: InlineWorker,
         persistence: Persistence,
         samples: tuple[Sample, ...],
-        sources: Mapping[str, Any] | None = None,
+        sources: Mapping[str, DaqDevice | CanDevice] | None = None,
     ) -> None:
         self.service = service
         self.sources = dict(sources or {})
         self.clock = clock
-        self.ring = ring
         self.worker = worker
         self.persistence = persistence
         self.samples = samples
@@ -216,7 +199,7 @@ class Served:
         self.loop = asyncio.new_event_loop()
         self._thread = threading.Thread(target=self.loop.run_forever, name="served-loop", daemon=True)
         self._thread.start()
-        self._resident: set[asyncio.Task[Any]] = set()  # tasks that live as long as the service
+        self._resident: set[asyncio.Task[object]] = set()  # tasks that live as long as the service
         self._starting: asyncio.Future[None] | None = None
         self._feeders: list[tuple[threading.Event, threading.Thread]] = []
 
@@ -237,6 +220,7 @@ class Served:
             self.persistence.start_background()
             self._starting = asyncio.ensure_future(self.service.start())
             await asyncio.sleep(0)
+            self._resident = asyncio.all_tasks() - {asyncio.current_task()}  # settle() ignores the start
 
         self.call(begin)
         if not self.worker.loading:
@@ -314,12 +298,11 @@ class Served:
 
 
 def feed(served: Served, sample: Sample) -> None:
-    """The one way samples enter the served service: as the acquisition does (ring buffer, then the shell's
+    """The one way samples enter the served service: as the acquisition hands them over (the shell's
     ``on_sample`` on its loop), then wait until the identifications the sample started are recorded."""
     if served.fed < len(served.samples) and sample is served.samples[served.fed]:
         served.fed += 1
     served.clock.at_least(sample.t)
-    served.ring.append(sample)
 
     async def deliver() -> None:
         served.service.on_sample(sample)
@@ -334,7 +317,7 @@ def served_service(
     plan: Plan | None = Plan(),
     settings: Settings | None = None,
     feed_samples: int | None = None,
-    sources: Mapping[str, Any] | None = None,
+    sources: Mapping[str, DaqDevice | CanDevice] | None = None,
     clock: ManualClock | None = None,
     loading: bool = False,
     on_event: Callable[[str], None] | None = None,
@@ -344,7 +327,8 @@ def served_service(
 
     ``settings``: the service's settings (the database URL is replaced); ``sources``: drivers whose health
     the service reports ("modbus", "can"; none by default: no device runs); ``loading``: the model is still
-    loading (``served.started()`` finishes it).
+    loading (``served.started()`` finishes it); nothing is fed then, samples fed by hand are taken, their jobs
+    wait for the model.
     """
     s = settings if settings is not None else Settings()
     s = s.model_copy(update={"database": s.database.model_copy(update={"url": database_url})})
@@ -353,19 +337,16 @@ def served_service(
     say = on_event or (lambda _msg: None)
     model = _model(ModelRef.from_settings(s.model))
     persistence = open_persistence(s.database, migrate=True, on_event=say, clock=clock)
-    ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))
     core = ServiceCore(
         core_config(s),
         model=model,
-        history=RingHistory(ring),
-        sink=persistence.sink,
         restored=persistence.restored,
-        on_event=say,
+        history_capacity=s.acquisition.ring_capacity,
     )
     worker = InlineWorker(model, loading=loading)
     service = SoftSensorService(
         core,
-        worker=worker,  # type: ignore[arg-type]  # the worker's façade, in-process
+        worker=worker,
         writer=persistence.sink,
         session_factory=persistence.session_factory,
         db_reads=persistence.reads,
@@ -373,11 +354,9 @@ def served_service(
         clock=clock,
         on_event=say,
     )
-    core.on_cancel = service.on_cancel
     served = Served(
         service=service,
         clock=clock,
-        ring=ring,
         worker=worker,
         persistence=persistence,
         samples=samples,

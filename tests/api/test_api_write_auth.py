@@ -86,6 +86,25 @@ def test_post_when_not_ready_is_503(tmp_path: Path) -> None:
     assert "no samples" in _error(r)["message"]
 
 
+def test_post_while_the_model_loads_is_503_then_accepted(tmp_path: Path) -> None:
+    """Samples are there, but the worker is still loading the model: a manual job could not run yet."""
+    # a manual job needs min_window_s of the condition's data; no scheduled job (it would wait for the model)
+    settings = Settings(identification={"min_window_s": 120.0, "schedule_min": (30.0,)})
+    with served_service(database_url=sqlite_url(tmp_path), settings=settings, loading=True) as s:
+        s.feed_next(20)  # 200 s of the first condition: only the loading model stands in the way
+        app = create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)
+        with TestClient(app) as c:
+            r = c.post("/api/v1/identifications", headers=AUTH)
+            assert r.status_code == 503 and _error(r)["code"] == "not_ready"
+            assert "model is still loading" in _error(r)["message"]
+            assert s.service.view.jobs == {}  # refused before the core: no job was made
+            s.started()
+            r = c.post("/api/v1/identifications", headers=AUTH)
+            assert r.status_code == 202, r.text
+            s.settle()
+            assert c.get(r.json()["href"]).json()["state"] != "running"
+
+
 def test_unknown_job_is_404(ro_client: TestClient) -> None:
     r = ro_client.get("/api/v1/identifications/jobs/job-99")
     assert r.status_code == 404 and _error(r)["code"] == "not_found"
