@@ -1,12 +1,13 @@
 """Closed-loop live state: a Kalman filter on the reduced model's coordinates (pure numpy/scipy).
 
-The reduced model (``model.rom``) has an E-orthonormal basis V (N, r), so T ≈ V·a, E_r = I and one θ-step
-with inputs held over the step is (docs/rom.md)
+The reduced model (``model.rom``) has an E-orthonormal basis V (N, r), so T ≈ V·a, E_r = I, and its step over
+one sample with the inputs held (docs/rom.md) is, with K_r(H) = Φ·diag(λ)·Φᵀ,
 
-    (I/Δt + θ·K_r(H))·a⁺ = (I/Δt − (1−θ)·K_r(H))·a + z_r,   z_r = T_amb·Σ H_i·z_i,r + Q_f·q_f,r + Q_r·q_r,r
+    a⁺ = A·a + G·z_r,   A = Φ·diag(μ)·Φᵀ,  G = Φ·diag(γ)·Φᵀ,  z_r = T_amb·Σ H_i·z_i,r + Q_f·q_f,r + Q_r·q_r,r
 
-i.e. a⁺ = A·a + G·z_r with A = Φ·diag(μ)·Φᵀ and G = Φ·diag(γ)·Φᵀ from K_r = Φ·diag(λ)·Φᵀ: the same μ, γ as
-``model.rom_modal`` uses, so with no measurement the filter's mean *is* the open-loop reduced trajectory.
+with μ, γ = ``model.rom_modal.step_factors(λ, Δt, θ, rom.substeps)``: the same step as the served reduced
+model (``substeps`` 0: exact with the input held over the step; s ≥ 1: s θ-steps), so with no measurement
+the filter's mean *is* the open-loop reduced trajectory.
 The measurement of the 32 channels is y = C·a + v (C = ``rom.sensors``). Each sample runs the linear Kalman
 filter (Kalman 1960; Simon, *Optimal State Estimation*, 2006, ch. 5): predict mean and covariance with A
 and the process noise Q, then update with the sample's usable channels only (mask, finite values), after
@@ -18,9 +19,12 @@ are persistent, not white: treated as white noise per step they left the filter 
 error 0.05–0.07 °C against a claimed 1σ of 0.016 °C with H 30 % off). They are therefore *considered*
 parameters (Schmidt–Kalman or "consider" filter, Schmidt 1966; Simon 2006): relative errors p (9,) of
 H1..H7, Q_f, Q_r with zero mean and 1σ ``h_rel``, ``load_rel``, first-order Gauss–Markov in time (correlation
-time ``param_tau_s``), whose effect on the step a⁺ = A·a + G·z_r + J·p is linearised about the predicted mean,
+time ``param_tau_s``), whose effect on the step a⁺ = A·a + G·z_r + J·p is linearised about the mean
+before the step (exactly: A and G are matrix functions of K_r, differentiated with Daleckii–Krein divided
+differences, ``model.rom_segments.loewner``),
 
-    ∂a⁺/∂p_i = G·(T_amb·z_i,r − K_i,r·(θ·a⁺ + (1−θ)·a))·H_i,   ∂a⁺/∂p_Q = G·q_r·Q,
+    ∂a⁺/∂p_i = H_i·(T_amb·G·z_i,r + Φ·((L_μ ∘ K̃_i)·Φᵀ·a + (L_γ ∘ K̃_i)·Φᵀ·z_r)),   K̃_i = Φᵀ·K_i,r·Φ,
+    ∂a⁺/∂p_Q = G·q_r·Q,
 
 and whose covariance with the state (``Estimate.cross``) is carried; they are never estimated (gain 0: the
 identification estimates H). White parts: the ambient's error (``ambient_c`` [°C]) and the reduced model's
@@ -48,6 +52,9 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
+
+from model.rom_modal import step_factors
+from model.rom_segments import loewner, step_derivatives
 
 Array = NDArray[np.float64]
 N_H = 7
@@ -152,8 +159,10 @@ class StepResult:
 
 @dataclass(frozen=True, eq=False)
 class Transition:
-    """One θ-step of the reduced model for fixed H and Δt: a⁺ = A·a + G·z_r, with the load directions
-    G·(Σ H_i z_i,r) per °C ambient, G·q_f,r and G·q_r,r per W."""
+    """The reduced model's step for fixed H and Δt: a⁺ = A·a + G·z_r, with the load directions
+    G·(Σ H_i z_i,r) per °C ambient, G·q_f,r and G·q_r,r per W; for the parameter Jacobian the eigenvectors
+    ``phi`` of K_r(H), the zones' loads G·z_i,r (r, 7) and the divided-difference weighted zone conductances
+    L_μ ∘ K̃_i and L_γ ∘ K̃_i (7, r, r) (``param_jacobian``)."""
 
     h: Array
     dt_s: float
@@ -162,6 +171,10 @@ class Transition:
     per_ambient: Array
     per_front: Array
     per_rear: Array
+    phi: Array
+    zone_loads: Array
+    d_mu: Array
+    d_gamma: Array
 
 
 def _check_h(h: ArrayLike) -> Array:
@@ -172,7 +185,8 @@ def _check_h(h: ArrayLike) -> Array:
 
 
 def transition(rom: Any, h: ArrayLike, dt_s: float) -> Transition:
-    """The reduced model's θ-step (A, G and the load directions) for H (7,) and Δt [s]."""
+    """The reduced model's step (A, G, the load directions and the parameter-derivative terms) for H (7,)
+    and Δt [s], with the ROM's own integration (``rom.substeps``, ``model.rom_modal.step_factors``)."""
     h_arr = _check_h(h)
     dt = float(dt_s)
     if not np.isfinite(dt) or dt <= 0.0:
@@ -180,12 +194,25 @@ def transition(rom: Any, h: ArrayLike, dt_s: float) -> Transition:
     r = int(rom.k0.shape[0])
     kr = rom.k0 + (h_arr @ rom.k_zone.reshape(N_H, r * r)).reshape(r, r)
     lam, phi = np.linalg.eigh(kr)
-    theta = float(rom.theta)
-    denom = 1.0 / dt + theta * lam
-    mu, gamma = (1.0 / dt - (1.0 - theta) * lam) / denom, 1.0 / denom
+    theta, substeps = float(rom.theta), int(getattr(rom, "substeps", 1))
+    mu, gamma = step_factors(lam, dt, theta, substeps)
+    dmu, dgamma = step_derivatives(lam, dt, theta, substeps)
     a = (phi * mu) @ phi.T
     g = (phi * gamma) @ phi.T
-    return Transition(h_arr, dt, a, g, g @ (h_arr @ rom.z_zone), g @ rom.q_front, g @ rom.q_rear)
+    k_modal = phi.T[None, :, :] @ rom.k_zone @ phi[None, :, :]  # (7, r, r): Φᵀ·K_i,r·Φ
+    return Transition(
+        h_arr,
+        dt,
+        a,
+        g,
+        g @ (h_arr @ rom.z_zone),
+        g @ rom.q_front,
+        g @ rom.q_rear,
+        phi,
+        g @ rom.z_zone.T,
+        loewner(lam, mu, dmu)[None] * k_modal,
+        loewner(lam, gamma, dgamma)[None] * k_modal,
+    )
 
 
 def predict_mean(tr: Transition, mean: Array, u: StepInput) -> Array:
@@ -195,14 +222,14 @@ def predict_mean(tr: Transition, mean: Array, u: StepInput) -> Array:
     )
 
 
-def param_jacobian(rom: Any, tr: Transition, u: StepInput, prior: Array, post: Array) -> Array:
-    """∂a⁺/∂p (r, 9) per unit relative error p of H1..H7, Q_f, Q_r, linearised about the predicted mean
-    ``post`` (``prior``: the mean before the step): G·(T_amb·z_i,r − K_i,r·(θ·a⁺ + (1−θ)·a))·H_i, G·q·Q."""
-    r = prior.size
-    theta = float(rom.theta)
-    a_mid = theta * post + (1.0 - theta) * prior
-    k_a = (rom.k_zone.reshape(N_H * r, r) @ a_mid).reshape(N_H, r)  # K_i,r·a per zone
-    per_h = tr.g @ ((u.ambient_c * rom.z_zone - k_a).T * tr.h[None, :])
+def param_jacobian(rom: Any, tr: Transition, u: StepInput, prior: Array) -> Array:
+    """∂a⁺/∂p (r, 9) per unit relative error p of H1..H7, Q_f, Q_r at the mean ``prior`` before the step:
+    H_i·(T_amb·G·z_i,r + Φ·((L_μ ∘ K̃_i)·Φᵀ·a + (L_γ ∘ K̃_i)·Φᵀ·z_r)) and G·q·Q (exact derivative of the
+    step; ``Transition``)."""
+    load = u.ambient_c * (tr.h @ rom.z_zone) + u.q_front_w * rom.q_front + u.q_rear_w * rom.q_rear
+    b, c = tr.phi.T @ prior, tr.phi.T @ load
+    modal = tr.d_mu @ b + tr.d_gamma @ c  # (7, r)
+    per_h = (u.ambient_c * tr.zone_loads + tr.phi @ modal.T) * tr.h[None, :]
     return np.concatenate(
         [per_h, (tr.per_front * u.q_front_w)[:, None], (tr.per_rear * u.q_rear_w)[:, None]], 1
     )
@@ -222,7 +249,7 @@ def predict(rom: Any, tr: Transition, est: Estimate, u: StepInput, noise: NoiseM
     E[p] = 0, p⁺ = ρ·p + w (stationary covariance Σ = diag(``param_std``²)), so
     P⁺ = A·P·Aᵀ + A·X·Jᵀ + J·Xᵀ·Aᵀ + J·Σ·Jᵀ (+ white Q) and X⁺ = ρ·(A·X + J·Σ)."""
     mean = predict_mean(tr, est.mean, u)
-    jac = param_jacobian(rom, tr, u, est.mean, mean)
+    jac = param_jacobian(rom, tr, u, est.mean)
     sigma = noise.param_var
     ax = tr.a @ est.cross
     axj = ax @ jac.T
@@ -281,6 +308,37 @@ def wide_prior(
     per_unit = float(np.mean(np.sum(sens * sens, axis=1)))  # mean diag(C·I·Cᵀ)
     cov = sigma_uniform_c**2 * np.outer(u, u) + (sigma_shape_c**2 / per_unit) * np.eye(r)
     return Estimate(ambient_c * u, cov, np.zeros((r, N_PARAMS)))
+
+
+def heated_prior(
+    rom: Any,
+    *,
+    ambient_c: float,
+    sigma_uniform_c: float = 5.0,
+    q_max_w: tuple[float, float] = (300.0, 150.0),
+    sigma_shape_c: float = 0.1,
+    samples: int = 256,
+    seed: int = 0,
+) -> Estimate:
+    """A wide prior for a restart whose shape is physical: mean the uniform field at ``ambient_c`` [°C];
+    covariance the second moment of the heated fields the spindle can be in, the steady states' rise above
+    the ambient for ``samples`` random H (log-uniform in ``rom.h_box``) and bearing heats (uniform in
+    0..``q_max_w`` [W]) (a warm spindle is roughly a fraction of such a field), plus 1σ ``sigma_uniform_c``
+    [°C] of a uniform offset and an isotropic part scaled like ``wide_prior``'s to ``sigma_shape_c`` [°C] at
+    the sensors (transient shapes). Unlike ``wide_prior``'s isotropic shape, the unmeasured interior is
+    tied to the measured surface as the heat paths tie them, so a few samples pin the whole field."""
+    if not (np.isfinite(ambient_c) and sigma_uniform_c >= 0.0 and sigma_shape_c >= 0.0 and samples > 0):
+        raise EstimatorError("heated_prior: ambient_c must be finite, the sigmas >= 0 °C, samples > 0")
+    rng = np.random.default_rng(seed)
+    lo, hi = (float(x) for x in getattr(rom, "h_box", (5.0, 200.0)))
+    h = np.exp(rng.uniform(np.log(lo), np.log(hi), (samples, N_H)))
+    q = rng.uniform(0.0, 1.0, (samples, 2)) * np.asarray(q_max_w, dtype=np.float64)
+    r = int(rom.k0.shape[0])
+    kr = rom.k0[None] + (h @ rom.k_zone.reshape(N_H, r * r)).reshape(samples, r, r)
+    rise = np.linalg.solve(kr, (q[:, :1] * rom.q_front + q[:, 1:] * rom.q_rear)[..., None])[..., 0]
+    base = wide_prior(rom, ambient_c=ambient_c, sigma_uniform_c=sigma_uniform_c, sigma_shape_c=sigma_shape_c)
+    cov = base.cov + rise.T @ rise / samples
+    return Estimate(base.mean, 0.5 * (cov + cov.T), base.cross)
 
 
 def uniform_state(rom: Any) -> Array:
@@ -453,7 +511,7 @@ class StateEstimator:
             raise EstimatorError("estimate: mean, cov and cross must be finite")
 
     def transition(self, h: ArrayLike, dt_s: float) -> Transition:
-        """The (cached) θ-step for H and Δt."""
+        """The (cached) step for H and Δt."""
         h_arr = np.asarray(h, dtype=np.float64)
         key = (h_arr.tobytes(), float(dt_s))
         tr = self._cache.get(key)

@@ -1,6 +1,6 @@
 """Cost of one estimator sample (predict + update with 32 channels) on a reduced model.
 
-Run: ``OPENBLAS_NUM_THREADS=1 python -m model.estimator_bench [--rank 30] [--cache-dir DIR] [--runs 7]``
+Run: ``OPENBLAS_NUM_THREADS=1 python -m model.estimator_bench [--rank 46] [--cache-dir DIR] [--runs 7]``
 (reads or builds the reduced model in the cache directory, as the service does; prints the median over the
 runs of the mean time per sample [ms], plus the field-σ and convergence-test costs).
 """
@@ -16,6 +16,7 @@ from typing import Any
 import numpy as np
 
 from model.estimator import NisWindow, StateEstimator, StepInput, convergence, wide_prior
+from model.rom import DEFAULT_RANK
 
 
 def bench_step(rom: Any, *, runs: int = 7, steps: int = 360, seed: int = 0) -> dict[str, float]:
@@ -73,7 +74,7 @@ def main(argv: list[str] | None = None) -> None:
     from model.rom import load_or_build_rom
 
     parser = argparse.ArgumentParser(description=__doc__)
-    parser.add_argument("--rank", type=int, default=30)
+    parser.add_argument("--rank", type=int, default=DEFAULT_RANK)
     parser.add_argument("--cache-dir", type=Path, default=Path.home() / ".cache" / "spindle-chtc")
     parser.add_argument("--runs", type=int, default=7)
     args = parser.parse_args(argv)

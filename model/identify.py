@@ -14,7 +14,9 @@ offsets subtracted (``offsets_c``, see ``baseline_offsets``); initial field ``wi
 previous solution; channel mask. Every result carries 95 % confidence intervals from the Jacobian at the
 optimum (σ² = SSR/(m − p), cov = σ²(JᵀJ)⁻¹), the correlation matrix, and per-sensor and test-point errors.
 With ``start_cov`` (the start field's error covariance, reduced coordinates) the covariance also carries the
-start field's error (``model.carry``) and the result has the window-end state's covariance for the next one.
+start field's error (``model.carry``) and the result has the window-end state's covariance for the next one;
+with ``options.start_modes`` k > 0 the start's k leading uncertain directions are fitted too (a Gaussian
+prior from ``start_cov``, ``StartFitProblem``) and only the rest is carried.
 
 Errors::
 
@@ -33,7 +35,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
-from model import optim
+from model import optim, rom_modal
 from model.carry import CarryError, carry, check_cov
 from model.defaults import BOUND_REL_TOL, CI_REL_THRESHOLD
 from model.identify_problem import (
@@ -118,6 +120,12 @@ class IdentifyOptions:
     # ≤ 0.011 °C, mesh ≤ 0.02 °C at 7000 rpm); 0.01 (the mesh's RMS) left H6/H7 at 0.86-0.89 coverage
     # (docs/identification.md, "Model error and sensor offsets", "Hidden-truth bench")
     model_error_c: float = 0.02
+    # with ``start_cov``: also fit the start state along its k leading uncertain directions (eigenvectors of
+    # start_cov scaled by √eigenvalue, each with a N(0, 1) prior), profiled out per candidate H by a ridge
+    # least squares whose weight is ``start_noise_c`` [°C] (the measurement noise 1σ); the remaining
+    # directions are only carried in the CIs. 0: no fit (the carry alone)
+    start_modes: int = 0
+    start_noise_c: float = 0.15
 
 
 @dataclass
@@ -358,9 +366,19 @@ def identify(
     p0 = None if start_cov is None else _start_cov(rom, start_cov)
     layout = Layout(loads=estimate_loads, t0_shift=estimate_t0_shift)
     bounds = _bounds(box or tuple(getattr(rom, "h_box", (5.0, 200.0))), layout, opts)
-    problem = Problem(
-        rom, inputs=window.inputs, measured_c=meas, usable=usable, t0=window.t0, bounds=bounds, layout=layout
-    )
+    kwargs: dict[str, Any] = {
+        "inputs": window.inputs,
+        "measured_c": meas,
+        "usable": usable,
+        "t0": window.t0,
+        "bounds": bounds,
+        "layout": layout,
+    }
+    if p0 is not None and opts.start_modes > 0:
+        directions, p0 = split_start_cov(p0, opts.start_modes)
+        problem: Problem = StartFitProblem(rom, directions=directions, noise_c=opts.start_noise_c, **kwargs)
+    else:
+        problem = Problem(rom, **kwargs)
     generator = as_rng(rng)
     x0 = _warm_vector(warm_start, layout, bounds)
     spec = _spec_or_default(spec)
@@ -390,6 +408,65 @@ def identify(
         result.fe_check = _fe_check(fe, problem, theta, window)
     result.wall_s = time.perf_counter() - started
     return result
+
+
+def split_start_cov(cov: Array, k: int) -> tuple[Array, Array]:
+    """The k leading directions of ``cov`` (r, r) [°C²] as columns (r, k) scaled by √eigenvalue (a unit
+    Gaussian prior on their coefficients) and the covariance that remains, ``cov`` − U·Uᵀ."""
+    lam, vec = np.linalg.eigh(cov)
+    top = np.argsort(lam)[::-1][: max(int(k), 0)]
+    u = vec[:, top] * np.sqrt(np.maximum(lam[top], 0.0))[None, :]
+    rest = cov - u @ u.T
+    return np.asarray(u), np.asarray(0.5 * (rest + rest.T))
+
+
+class StartFitProblem(Problem):
+    """The window's problem with the start state also fitted along ``directions`` (r, k) (reduced
+    coordinates, coefficients c with a N(0, I) prior).
+
+    The reduced model is linear in its start state for fixed H, so the sensors are T(θ, a₀ + U·c) =
+    T(θ, a₀) + Σ c_j·R_j(H) with R_j the free response to u_j (``model.carry.start_responses``), and for each
+    candidate the best c is a ridge least squares, c = −(DᵀD + σ²I)⁻¹·Dᵀ·r₀ (D: the responses over the usable
+    entries, r₀ the residual from a₀, σ the measurement noise): the coefficients are profiled out
+    (variable projection), and the optimizers and the finite-difference Jacobian see H (and the other θ)
+    only. ``last_coefficients`` holds c of the last evaluated population.
+    """
+
+    def __init__(self, model: Any, *, directions: Array, noise_c: float, **kwargs: Any) -> None:
+        super().__init__(model, **kwargs)
+        self.directions = np.asarray(directions, dtype=float)
+        self.noise_var = float(noise_c) ** 2
+        self.last_coefficients = np.zeros((0, self.directions.shape[1]))
+
+    def responses(self, h: Array) -> Array:
+        """Sensor responses (k, n_steps + 1, 32) [°C] to the start directions under H (7,): C·Φ·μⁿ·Φᵀ·u_j
+        (as ``model.carry.start_responses``, in one matrix product)."""
+        rom: Any = self.model  # a ReducedModel (checked by ``_start_cov``)
+        md = rom_modal.modes(rom.k0, rom.k_zone, np.asarray(h, dtype=float).reshape(1, N_H))
+        dt, n = float(self.inputs.dt_s), len(self.inputs.ambient_c)
+        mu, _ = rom_modal.step_factors(md.lam, dt, float(rom.theta), int(getattr(rom, "substeps", 1)))
+        phi = md.phi[0]
+        powers = rom_modal.power_table(mu, n)[:, 0, :]  # (n+1, r)
+        coeff = phi.T @ self.directions  # (r, k)
+        gain_t = (np.asarray(rom.sensors) @ phi).T  # (r, 32)
+        modal = powers[:, None, :] * coeff.T[None, :, :]  # (n+1, k, r)
+        return np.ascontiguousarray(np.swapaxes(modal @ gain_t, 0, 1))  # (k, n+1, 32)
+
+    def predict(self, theta: Array) -> Array:
+        theta = np.atleast_2d(theta)
+        base = super().predict(theta)
+        out = base.copy()
+        k = self.directions.shape[1]
+        coeffs = np.zeros((len(theta), k))
+        for i in range(len(theta)):
+            resp = self.responses(theta[i, :N_H])  # (k, n+1, 32)
+            d = self.select(resp)  # (k, m)
+            r0 = self.select(base[i : i + 1])[0] - self._target
+            c = -np.linalg.solve(d @ d.T + self.noise_var * np.eye(k), d @ r0)
+            out[i] += np.tensordot(c, resp, axes=1)
+            coeffs[i] = c
+        self.last_coefficients = coeffs
+        return out
 
 
 def _bias_sd(offset_sd_c: ArrayLike | None, model_error_c: float) -> Array | None:

@@ -3,15 +3,20 @@
 ``model.rom.ReducedModel`` evaluates one H per candidate over a whole window. A window with speed changes
 has H_s for segment s (S segments): K_r(H_s) = K0_r + Σ H_s,i·K_i,r switches at each segment start while the
 reduced state carries over (the state is continuous; only the operator changes, as in the full FE with a
-time-varying K(H)). This module steps the reduced θ-method directly::
+time-varying K(H)). This module steps the reduced model with the ROM's own discrete step
+(``rom.substeps``, ``model.rom_modal.step_factors``: 0 = the exact solution with the input held over each
+step, s ≥ 1 = s θ-steps of Δt/s)::
 
-    (I/Δt + θ·K_s)·a(k+1) = (I/Δt − (1−θ)·K_s)·a(k) + z_k,   z_k = Ti_k·Σ H_s,i·z_i + Qf_k·q_f + Qr_k·q_r
+    a(k+1) = A_s·a(k) + G_s·z_k,   A_s = Φ_s·diag(μ)·Φ_sᵀ,  G_s = Φ_s·diag(γ)·Φ_sᵀ,
+    z_k = Ti_k·Σ H_s,i·z_i + Qf_k·q_f + Qr_k·q_r,   K_s = K0_r + Σ H_s,i·K_i,r = Φ_s·diag(λ)·Φ_sᵀ
 
-with one inverse of I/Δt + θ·K_s per (candidate, segment) (batched LAPACK), the per-step loads mapped by it
-in one product per segment, and one batched matrix–vector product per step for the whole population. It
-reads the public arrays of a ``ReducedModel`` (k0, k_zone, z_zone, q_front, q_rear, sensors, theta,
-initial_state, lift) and changes nothing there; with one segment it reproduces ``simulate_sensors`` to
-round-off (a test checks it).
+with one eigendecomposition of K_s per (candidate, segment) (batched LAPACK), the per-step loads mapped by
+G_s in one product per segment, and one batched matrix–vector product per step for the whole population.
+The tangent model differentiates A_s and G_s as matrix functions of K_s (Daleckii–Krein: the derivative of
+f(K) along δK is Φ·(L_f ∘ Φᵀ·δK·Φ)·Φᵀ with L_f the divided differences of f over the eigenvalues), so it is
+exact for every ``substeps``. It reads the public arrays of a ``ReducedModel`` (k0, k_zone, z_zone, q_front,
+q_rear, sensors, theta, substeps, initial_state, lift) and changes nothing there; with one segment it
+reproduces ``simulate_sensors`` to round-off (a test checks it).
 
 Errors::
 
@@ -25,6 +30,8 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+
+from model import rom_modal
 
 Array = NDArray[np.float64]
 
@@ -92,16 +99,62 @@ def _check_h(h_seg: ArrayLike, plan: SegmentPlan) -> Array:
     return h
 
 
-def _operators(rom: Any, h: Array, dt: float) -> tuple[Array, Array]:
-    """Per (candidate, segment): the step matrix A = M·(I/Δt − (1−θ)K) and M = (I/Δt + θK)⁻¹, (P, S, r, r)."""
+@dataclass(frozen=True)
+class Operators:
+    """Per (candidate, segment), (P, S, ...): the step matrices A = Φ·diag(μ)·Φᵀ and G = Φ·diag(γ)·Φᵀ, the
+    eigenpairs ``lam``, ``phi`` of K_s and the divided differences ``l_mu``, ``l_gamma`` (P, S, r, r) of μ(λ)
+    and γ(λ) (``loewner``) that give their derivatives."""
+
+    a: Array
+    g: Array
+    lam: Array
+    phi: Array
+    l_mu: Array
+    l_gamma: Array
+
+
+def step_derivatives(lam: Array, dt_s: float, theta: float, substeps: int) -> tuple[Array, Array]:
+    """dμ/dλ and dγ/dλ [s, s²] of ``rom_modal.step_factors`` (same shape as ``lam``; λ > 0 [1/s])."""
+    mu, gamma = rom_modal.step_factors(lam, dt_s, theta, substeps)
+    if substeps == 0:
+        dmu = -dt_s * mu
+    else:
+        inv_h = substeps / dt_s
+        m = (inv_h - (1.0 - theta) * lam) / (inv_h + theta * lam)
+        dmu = substeps * m ** (substeps - 1) * (-inv_h / (inv_h + theta * lam) ** 2)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        dgamma = np.where(lam > 0.0, (-dmu - gamma) / np.where(lam > 0.0, lam, 1.0), -0.5 * dt_s**2)
+    return np.asarray(dmu), np.asarray(dgamma)
+
+
+def loewner(lam: Array, f: Array, df: Array) -> Array:
+    """Divided differences (..., r, r) of f over the eigenvalues (..., r): (f_j − f_k)/(λ_j − λ_k), and the
+    mean of f′ where λ_j ≈ λ_k. Then d f(K)[δK] = Φ·(L ∘ Φᵀ·δK·Φ)·Φᵀ (Daleckii–Krein)."""
+    dl = lam[..., :, None] - lam[..., None, :]
+    close = np.abs(dl) <= 1e-9 * np.max(np.abs(lam), axis=-1, keepdims=True)[..., None]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        diff = (f[..., :, None] - f[..., None, :]) / np.where(close, 1.0, dl)
+    return np.asarray(np.where(close, 0.5 * (df[..., :, None] + df[..., None, :]), diff))
+
+
+def operators(rom: Any, h: Array, dt: float) -> Operators:
+    """The step of every (candidate, segment) for H (P, S, 7) and Δt [s] (``Operators``)."""
     r = rom.k0.shape[0]
     p, s, _ = h.shape
     k = (h.reshape(p * s, 7) @ rom.k_zone.reshape(7, r * r)).reshape(p, s, r, r) + rom.k0
-    eye = np.eye(r) / dt
-    theta = float(rom.theta)
-    m = np.linalg.inv(eye + theta * k)
-    a = m / dt if theta == 1.0 else m @ (eye - (1.0 - theta) * k)
-    return a, m
+    lam, phi = np.linalg.eigh(k)
+    theta, substeps = float(rom.theta), int(getattr(rom, "substeps", 1))
+    mu, gamma = rom_modal.step_factors(lam, dt, theta, substeps)
+    dmu, dgamma = step_derivatives(lam, dt, theta, substeps)
+    phi_t = np.swapaxes(phi, -1, -2)
+    return Operators(
+        (phi * mu[..., None, :]) @ phi_t,
+        (phi * gamma[..., None, :]) @ phi_t,
+        lam,
+        phi,
+        loewner(lam, mu, dmu),
+        loewner(lam, gamma, dgamma),
+    )
 
 
 def _start(rom: Any, t0: float | ArrayLike, p: int) -> Array:
@@ -121,7 +174,7 @@ def simulate_states(
     """
     h = _check_h(h_seg, plan)
     dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
-    a_op, m_op = _operators(rom, h, dt)
+    ops = operators(rom, h, dt)
     p = h.shape[0]
     hz = h @ rom.z_zone  # (P, S, r): ambient load per °C
     out = np.empty((p, plan.n_steps + 1, rom.k0.shape[0]))
@@ -134,8 +187,8 @@ def simulate_states(
             + qf[k0:k1, None] * rom.q_front
             + qr[k0:k1, None] * rom.q_rear
         )
-        w[:, k0:k1] = z @ np.swapaxes(m_op[:, s], 1, 2)  # M_s·z_k for all steps of the segment
-    _recur(out, w, a_op, plan)
+        w[:, k0:k1] = z @ np.swapaxes(ops.g[:, s], 1, 2)  # G_s·z_k for all steps of the segment
+    _recur(out, w, ops.a, plan)
     return out
 
 
@@ -170,34 +223,41 @@ def simulate_tangents(
     rom: Any, h_seg: ArrayLike, dh_seg: ArrayLike, plan: SegmentPlan, inputs: Any, t0: float | ArrayLike
 ) -> Tangents:
     """Sensors for one H per segment ``h_seg`` (S, 7) and their derivatives along J directions ``dh_seg``
-    (J, S, 7) of H (tangent-linear model of the discrete θ-method, exact to round-off).
+    (J, S, 7) of H (tangent-linear model of the discrete step, exact to round-off).
 
-    Differentiating (I/Δt + θK_s)·a⁺ = (I/Δt − (1−θ)K_s)·a + z gives
-    δa⁺ = A_s·δa + M_s·(δz − δK_s·(θa⁺ + (1−θ)a)): the J tangents reuse the candidate's S inverses, so a
-    full Jacobian costs about two runs instead of J + 1 (one per finite-difference point).
+    Differentiating a⁺ = A_s·a + G_s·z gives δa⁺ = A_s·δa + δA_s·a + δG_s·z + G_s·δz, with δA_s·a =
+    Φ·(L_μ ∘ Φᵀ·δK_s·Φ)·Φᵀ·a and likewise δG_s (``loewner``): the J tangents reuse the candidate's S
+    eigendecompositions, so a full Jacobian costs about two runs instead of J + 1.
     """
     h = _check_h(np.asarray(h_seg, dtype=np.float64)[None], plan)
     dh = np.asarray(dh_seg, dtype=np.float64)
     if dh.ndim != 3 or dh.shape[1:] != (plan.n_segments, 7) or not np.all(np.isfinite(dh)):
         raise SegmentError(f"dh_seg: expected finite (J, {plan.n_segments}, 7), got shape {dh.shape}")
-    dt, amb, _, _ = _inputs(inputs, plan.n_steps)
+    dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
     states = simulate_states(rom, h, plan, inputs, t0)[0]  # (n+1, r)
-    a_op, m_op = _operators(rom, h, dt)
-    theta = float(rom.theta)
-    mid = theta * states[1:] + (1.0 - theta) * states[:-1]  # (n, r)
-    k_a = np.swapaxes(mid @ np.swapaxes(rom.k_zone, 1, 2), 0, 1)  # (n, 7, r): K_i·(θa⁺ + (1−θ)a)
-    dh_step = np.ascontiguousarray(np.swapaxes(dh[:, plan.of_step], 0, 1))  # (n, J, 7)
-    src = amb[:, None, None] * (dh_step @ rom.z_zone) - dh_step @ k_a  # (n, J, r)
-    src = np.swapaxes(src, 0, 1)
-    w = np.empty_like(src)
+    ops = operators(rom, h, dt)
+    r = states.shape[1]
+    w = np.empty((dh.shape[0], plan.n_steps, r))
     ends = np.append(plan.start[1:], plan.n_steps)
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
-        w[:, k0:k1] = src[:, k0:k1] @ m_op[0, s].T
-    d_states = np.zeros((1, dh.shape[0], plan.n_steps + 1, states.shape[1]))
-    _recur_shared(d_states[0], w, a_op[0], plan)
+        phi = ops.phi[0, s]
+        load = amb[k0:k1, None] * (h[0, s] @ rom.z_zone) + qf[k0:k1, None] * rom.q_front
+        load += qr[k0:k1, None] * rom.q_rear  # (n_s, r): z_k
+        dk = (dh[:, s] @ rom.k_zone.reshape(7, r * r)).reshape(-1, r, r)  # (J, r, r): δK_s
+        d_modal = phi.T @ dk @ phi  # Φᵀ·δK·Φ
+        b, c = states[k0:k1] @ phi, load @ phi  # (n_s, r) modal state and load
+        src = b @ np.swapaxes(ops.l_mu[0, s] * d_modal, 1, 2) + c @ np.swapaxes(
+            ops.l_gamma[0, s] * d_modal, 1, 2
+        )
+        src = src @ phi.T  # (J, n_s, r): δA·a + δG·z
+        dz = dh[:, s] @ rom.z_zone  # (J, r) per °C ambient
+        src += amb[None, k0:k1, None] * (dz @ ops.g[0, s].T)[:, None, :]
+        w[:, k0:k1] = src
+    d_states = np.zeros((dh.shape[0], plan.n_steps + 1, r))
+    _recur_shared(d_states, w, ops.a[0], plan)
     return Tangents(
         sensors=np.asarray(states @ rom.sensors.T),
-        d_sensors=np.asarray(d_states[0] @ rom.sensors.T),
+        d_sensors=np.asarray(d_states @ rom.sensors.T),
         states=states,
     )
 

@@ -6,7 +6,7 @@ broken optional component cannot break the others:
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
   ``replay``, ``identify``, ``prebuild``);
 - ``service.bench.<name>`` for the benchmarks
-  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth``).
+  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -41,6 +41,7 @@ BENCHMARKS: dict[str, str] = {
     "chain": "the service's answers over a chain of conditions: H error and CI coverage vs the plant's truth",
     "fleet": "PostgreSQL write capacity: concurrent instances' sample commits/s (scaling note)",
     "truth": "hidden random truths (6000-7000 rpm, drift, torque steps, offsets): H error, CI coverage",
+    "restart": "restart on a warm spindle (minute 0/30/60/90): H error, CI coverage, time to the first H",
 }
 
 

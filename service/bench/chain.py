@@ -20,12 +20,17 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from service.bench.targets import Target, format_verdicts, verdicts
+
+if TYPE_CHECKING:
+    from drivers.ringbuffer import Sample
+    from service.serve.interface import IdentificationRecord
 
 TARGETS_NOTE = "mean over H1-H7, every condition; the nominal 95 % range chtc bench identify uses"
 TARGETS = (Target("ci_coverage_mean_worst", "in", (0.85, 1.0), note=TARGETS_NOTE),)
@@ -44,7 +49,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-def plant_samples(seed: int) -> list[Any]:
+def plant_samples(seed: int) -> list[Sample]:
     """The profile's plant run as acquisition samples every 10 s."""
     from model.geometry import load_spindle
     from model.plant import Segment, VirtualPlant
@@ -54,9 +59,9 @@ def plant_samples(seed: int) -> list[Any]:
     return samples_from_plant(run, t0_s=T0)
 
 
-def last_per_condition(records: list[Any]) -> dict[float, Any]:
+def last_per_condition(records: list[IdentificationRecord]) -> dict[float, IdentificationRecord]:
     """The last successful identification of each condition, keyed by its speed (rounded to 100 rpm)."""
-    out: dict[float, Any] = {}
+    out: dict[float, IdentificationRecord] = {}
     for rec in records:  # oldest first
         if rec.outcome == "ok":
             out[round(rec.condition.speed_rpm, -2)] = rec
@@ -81,7 +86,7 @@ def summarise(errors: np.ndarray, half_widths: np.ndarray, covered: np.ndarray) 
     }
 
 
-def run(seeds: int, *, progress: Any = None) -> dict[str, Any]:
+def run(seeds: int, *, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
     from model.plant import h_true
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config

@@ -23,9 +23,15 @@ import threading
 import time
 from datetime import UTC, datetime
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 from service.bench.targets import format_verdicts
+
+if TYPE_CHECKING:
+    from sqlalchemy.engine import Engine
+    from sqlalchemy.orm import Session, sessionmaker
+
+    from service.store.records import SampleData
 
 DEFAULT_PG = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 SAMPLE_PERIOD_S = 10.0
@@ -40,7 +46,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true")
 
 
-def _sample(i: int) -> Any:
+def _sample(i: int) -> SampleData:
     from service.store.records import SampleData
 
     return SampleData(
@@ -53,7 +59,7 @@ def _sample(i: int) -> Any:
     )
 
 
-def _writer_loop(factory: Any, stop_at: float, latencies: list[float]) -> None:
+def _writer_loop(factory: sessionmaker[Session], stop_at: float, latencies: list[float]) -> None:
     from service.store.repository import write_records
 
     i = 0
@@ -64,7 +70,7 @@ def _writer_loop(factory: Any, stop_at: float, latencies: list[float]) -> None:
         i += 1
 
 
-def measure(factories: list[Any], seconds: float) -> dict[str, float]:
+def measure(factories: list[sessionmaker[Session]], seconds: float) -> dict[str, float]:
     """K threads (one per session factory) committing single-sample transactions for ``seconds``."""
     per_thread: list[list[float]] = [[] for _ in factories]
     stop_at = time.perf_counter() + seconds
@@ -90,7 +96,7 @@ def _medians(runs: list[dict[str, float]]) -> dict[str, float]:
     return {k: round(statistics.median(r[k] for r in runs), 3) for k in runs[0]}
 
 
-def _pg_databases(pg_url: str, k: int) -> tuple[list[Any], Any]:
+def _pg_databases(pg_url: str, k: int) -> tuple[list[sessionmaker[Session]], tuple[Engine, list[Engine]]]:
     import sqlalchemy as sa
     from sqlalchemy.engine import make_url
 
@@ -111,7 +117,7 @@ def _pg_databases(pg_url: str, k: int) -> tuple[list[Any], Any]:
     return [make_session_factory(e) for e in engines], (admin, engines)
 
 
-def _drop_pg(handles: Any, k: int) -> None:
+def _drop_pg(handles: tuple[Engine, list[Engine]], k: int) -> None:
     import sqlalchemy as sa
 
     admin, engines = handles

@@ -19,15 +19,19 @@ import argparse
 import json
 import os
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from model.identify import METHODS, IdentificationResult, IdentifyOptions, Window, identify
 from model.optim import OptimizeResult, grey_wolf
 from service.bench.targets import Target, format_verdicts, verdicts
+
+if TYPE_CHECKING:
+    from service.modelload import LoadedModel
 
 CONDITIONS = ((3000.0, 23.2), (4000.0, 21.8))
 TORQUE_NM = 10.0
@@ -65,7 +69,7 @@ class Data:
     h_true: np.ndarray
 
 
-def _load(args: argparse.Namespace) -> tuple[Any, list[Data]]:
+def _load(args: argparse.Namespace) -> tuple[LoadedModel, list[Data]]:
     from model.inputs import inputs_from_operation
     from model.plant import Segment, VirtualPlant, h_true
     from service.modelload import ModelRef, load_model
@@ -93,7 +97,7 @@ def _noisy(d: Data, seed: int) -> Window:
     return replace(d.window, measured_c=np.round(meas / QUANT_C) * QUANT_C)
 
 
-def _truth_test_points(model: Any, res: IdentificationResult, d: Data) -> dict[str, dict[str, float]]:
+def _truth_test_points(model: LoadedModel, res: IdentificationResult, d: Data) -> dict[str, dict[str, float]]:
     scale = None if res.load_scale is None else res.load_scale[None, :]
     pred = model.rom.simulate_sensors(res.h[None, :], d.window.inputs, d.window.t0, load_scale=scale)[0]
     out = {}
@@ -107,7 +111,7 @@ def _truth_test_points(model: Any, res: IdentificationResult, d: Data) -> dict[s
     return out
 
 
-def _one_seed(model: Any, d: Data, seed: int) -> dict[str, dict[str, Any]]:
+def _one_seed(model: LoadedModel, d: Data, seed: int) -> dict[str, dict[str, Any]]:
     window = _noisy(d, seed)
     runs, cpu = {}, {}
     for m in METHODS:
@@ -139,7 +143,7 @@ def _median_tree(items: list[Any]) -> Any:
     return float(np.median(np.array(items, dtype=float)))
 
 
-def _condition(model: Any, d: Data, seeds: int) -> dict[str, Any]:
+def _condition(model: LoadedModel, d: Data, seeds: int) -> dict[str, Any]:
     per_seed = [_one_seed(model, d, s) for s in range(seeds)]
     return {
         "speed_rpm": d.speed_rpm,
@@ -150,7 +154,7 @@ def _condition(model: Any, d: Data, seeds: int) -> dict[str, Any]:
     }
 
 
-def _coverage(model: Any, data: list[Data], seeds: int) -> dict[str, Any]:
+def _coverage(model: LoadedModel, data: list[Data], seeds: int) -> dict[str, Any]:
     covered, identified_cov, n_ident, widths = [], 0, 0, []
     for d in data:
         for s in range(seeds):
@@ -177,7 +181,7 @@ def _nfev_to_reach(trace: list[tuple[int, float]], target: float) -> int:
     return trace[-1][0]
 
 
-def _warm_ratio(model: Any, data: list[Data], seeds: int) -> dict[str, Any]:
+def _warm_ratio(model: LoadedModel, data: list[Data], seeds: int) -> dict[str, Any]:
     first, second = data
     ratios, cold_n, warm_n, gaps = [], [], [], []
     hybrid: list[tuple[float, float, float]] = []
@@ -219,7 +223,15 @@ def _warm_ratio(model: Any, data: list[Data], seeds: int) -> dict[str, Any]:
     }
 
 
-def _igwo(model: Any, window: Window, seed: int, *, callback: Any = None, pop: int = 7, it: int = 100) -> Any:
+def _igwo(
+    model: LoadedModel,
+    window: Window,
+    seed: int,
+    *,
+    callback: Callable[..., object] | None = None,
+    pop: int = 7,
+    it: int = 100,
+) -> OptimizeResult:
     from model.identify_problem import Problem
 
     bounds = np.array([model.rom.h_box] * 7, dtype=float)
@@ -227,7 +239,7 @@ def _igwo(model: Any, window: Window, seed: int, *, callback: Any = None, pop: i
     return grey_wolf(problem.objective, bounds, rng=seed, popsize=pop, maxiter=it, callback=callback)
 
 
-def _igwo_28x150(model: Any, d: Data) -> dict[str, float]:
+def _igwo_28x150(model: LoadedModel, d: Data) -> dict[str, float]:
     window = _noisy(d, 0)
     t0, c0 = time.perf_counter(), time.process_time()
     res = _igwo(model, window, 0, pop=28, it=150)

@@ -32,11 +32,16 @@ import time
 from collections.abc import Callable
 from dataclasses import replace
 from pathlib import Path
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from service.bench.targets import Target, format_verdicts, verdicts
+
+if TYPE_CHECKING:
+    from model.fem import FEModel
+    from model.geometry import SpindleSpec
+    from model.inputs import InputSeries
 
 TARGETS = (  # docs/rom.md, "Target check"
     Target("full_vs_reference_max_err_c", "<=", 0.02, unit="°C"),
@@ -89,7 +94,7 @@ def _median_ms(fn: Callable[[], Any], runs: int) -> float:
     return 1e3 * statistics.median(times)
 
 
-def _window(n_steps: int = 360) -> Any:
+def _window(n_steps: int = 360) -> InputSeries:
     """A 60-min window: front/rear heat step after 20 min, ambient drifting by 1 °C."""
     from model.inputs import InputSeries
 
@@ -106,7 +111,7 @@ def _progress(text: str) -> None:
     print(f"[bench model {time.strftime('%H:%M:%S')}] {text}", file=sys.stderr, flush=True)
 
 
-def _full_figures(fe: Any, spec: Any, args: argparse.Namespace) -> dict[str, Any]:
+def _full_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> dict[str, Any]:
     from model.fem import build_fe_model, simulate_sensors
 
     inputs = _window()
@@ -132,7 +137,7 @@ def _full_figures(fe: Any, spec: Any, args: argparse.Namespace) -> dict[str, Any
     }
 
 
-def _rom_figures(fe: Any, spec: Any, args: argparse.Namespace) -> dict[str, Any]:
+def _rom_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> dict[str, Any]:
     from model import rom_check
     from model.rom import load_or_build_rom
 
@@ -199,7 +204,7 @@ def _rom_figures(fe: Any, spec: Any, args: argparse.Namespace) -> dict[str, Any]
     }
 
 
-def _growth_figures(fe: Any, spec: Any) -> dict[str, Any]:
+def _growth_figures(fe: FEModel, spec: SpindleSpec) -> dict[str, Any]:
     """Thermal growth (docs/growth.md): operator build time [s] and one evaluation [µs], nodal and reduced."""
     from model.growth_check import eval_cost_us
     from model.thermoelastic import build_growth_model

@@ -27,11 +27,18 @@ import argparse
 import json
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from model.fem import FEModel
+    from model.geometry import SpindleSpec
+    from model.plant import PlantRun, Segment
+    from service.serve.interface import IdentificationRecord
 
 T0 = datetime(2026, 2, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 H_REF = np.array([88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54])  # paper Table 4: the draw's centre
@@ -102,7 +109,7 @@ def _draw_h(rng: np.random.Generator) -> np.ndarray:
     return np.asarray(np.clip(H_REF * np.exp(rng.uniform(np.log(0.5), np.log(2.0), 7)), *H_LIMITS))
 
 
-def segments(levels: list[Level], ambient0_c: float) -> list[Any]:
+def segments(levels: list[Level], ambient0_c: float) -> list[Segment]:
     """Plant segments: the rest, then every level in ``STEP_S`` pieces with the ambient ramped stepwise."""
     from model.plant import Segment
 
@@ -115,7 +122,7 @@ def segments(levels: list[Level], ambient0_c: float) -> list[Any]:
     return out
 
 
-def h_law(levels: list[Level]) -> Any:
+def h_law(levels: list[Level]) -> Callable[[float, float, float], np.ndarray]:
     """The plant's truth: each level's H at its speed (rest: the first level's; H needs no bearing heat)."""
 
     def law(speed_rpm: float, ambient_c: float, torque_nm: float) -> np.ndarray:
@@ -127,7 +134,7 @@ def h_law(levels: list[Level]) -> Any:
     return law
 
 
-def plant_run(seed: int, scenario: str, spec: Any, plant_fe: Any) -> tuple[Any, list[Level]]:
+def plant_run(seed: int, scenario: str, spec: SpindleSpec, plant_fe: FEModel) -> tuple[PlantRun, list[Level]]:
     """The seed's plant run (``model.plant.PlantRun``) and its levels."""
     from model.plant import ChannelFault, VirtualPlant
 
@@ -141,9 +148,11 @@ def plant_run(seed: int, scenario: str, spec: Any, plant_fe: Any) -> tuple[Any, 
     return plant.run(segments(levels, levels[0].ambient_from_c), dt_s=10.0), levels
 
 
-def cases(records: list[Any], levels: list[Level]) -> list[tuple[np.ndarray, Any]]:
+def cases(
+    records: list[IdentificationRecord], levels: list[Level]
+) -> list[tuple[np.ndarray, IdentificationRecord]]:
     """(truth H, record) of the last successful identification of each condition."""
-    last: dict[int, Any] = {}
+    last: dict[int, IdentificationRecord] = {}
     for rec in records:  # oldest first
         if rec.outcome == "ok":
             last[rec.condition.id] = rec
@@ -156,7 +165,7 @@ def cases(records: list[Any], levels: list[Level]) -> list[tuple[np.ndarray, Any
     return out
 
 
-def raw_rows(rows: list[tuple[np.ndarray, Any]]) -> dict[str, list[Any]]:
+def raw_rows(rows: list[tuple[np.ndarray, IdentificationRecord]]) -> dict[str, list[Any]]:
     """The cases as plain arrays: truth, h, ci95 lo/hi (W/(m²·K)), identified, wall s, window min."""
     return {
         "truth": [np.asarray(t, dtype=float).tolist() for t, _ in rows],
@@ -169,7 +178,7 @@ def raw_rows(rows: list[tuple[np.ndarray, Any]]) -> dict[str, list[Any]]:
     }
 
 
-def summarise(rows: list[tuple[np.ndarray, Any]], seeds: int) -> dict[str, Any]:
+def summarise(rows: list[tuple[np.ndarray, IdentificationRecord]], seeds: int) -> dict[str, Any]:
     """Per-H median |error| %, coverage, flag misses and all-seven coverage over the cases."""
     return summarise_raw(raw_rows(rows), seeds)
 
@@ -232,7 +241,7 @@ def run(
         "rom_substeps": model.rom.substeps,
     }
     for name in scenarios:
-        rows: list[tuple[np.ndarray, Any]] = []
+        rows: list[tuple[np.ndarray, IdentificationRecord]] = []
         for seed in range(first_seed, first_seed + seeds):
             run_, levels = plant_run(seed, name, model.spec, plant_fe)
             result = run_offline(samples_from_plant(run_, t0_s=T0), model=model, config=core_config(settings))

@@ -39,6 +39,7 @@ import numpy as np
 import numpy.typing as npt
 
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD
+from service.estimate.live import LiveStateError
 from service.identify.outcome import Outcome
 from service.identify.window import InsufficientWindowError, WindowArrays
 from service.modelload import LoadedModel, ModelRef, load_model
@@ -253,15 +254,16 @@ def final_field(model: LoadedModel, window: Window, result: IdentificationResult
 
 def job_outcome_of(err: Exception) -> tuple[Outcome, str]:
     """The stored outcome and message of a job that raised ``err`` (the one mapping): too few usable data,
-    found by the window rules or by the identification itself, is INSUFFICIENT_DATA with its reason; a
-    cancelled job CANCELLED; anything else FAILED, naming the error class."""
+    found by the window rules, the live state (no start field that old) or the identification itself, is
+    INSUFFICIENT_DATA with its reason; a cancelled job CANCELLED; anything else FAILED, naming the error
+    class."""
     from model.identify import InsufficientDataError  # the service process imports no optimizer
 
     if isinstance(err, JobCancelled):
         return Outcome.CANCELLED, "cancelled"
     if isinstance(err, InsufficientWindowError):
         return Outcome.INSUFFICIENT_DATA, err.reason
-    if isinstance(err, InsufficientDataError):
+    if isinstance(err, InsufficientDataError | LiveStateError):
         return Outcome.INSUFFICIENT_DATA, str(err)
     return Outcome.FAILED, f"{type(err).__name__}: {err}"
 

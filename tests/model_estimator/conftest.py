@@ -1,10 +1,10 @@
-"""Fixtures of the estimator tests: the service's reduced model (cached, rank 30) and one virtual-plant run
-on the plant's finer mesh with its own truth (never the filter's own model output)."""
+"""Fixtures of the estimator tests: the service's reduced model (cached, default settings) and one
+virtual-plant run on the plant's finer mesh with its own truth (never the filter's own model output)."""
 
 from __future__ import annotations
 
 import os
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -16,9 +16,9 @@ from model.fem import build_fe_model
 from model.geometry import load_spindle
 from model.inputs import InputSeries, inputs_from_operation
 from model.plant import PlantRun, Segment, VirtualPlant
-from model.rom import load_or_build_rom
+from model.rom import DEFAULT_RANK, load_or_build_rom
 
-SERVICE_RANK = 30  # service settings' model.rom_rank default
+SERVICE_RANK = DEFAULT_RANK  # the service settings' model.rom_rank default follows it (46 today)
 
 # the issue's restart profile, shortened: 5 min idle, 3000 rpm 60 min, 4000 rpm 45 min (10 N·m, 22 °C)
 PROFILE = (
@@ -50,7 +50,7 @@ class Model:
 
 def _cache_dir() -> Path:
     """The service's reduced-model cache (same rule as ``service.settings.default_cache_dir``), so the
-    rank-30 model is built once per machine and shared with the service and the other tests."""
+    model is built once per machine and shared with the service and the other tests."""
     if env := os.environ.get("CHTC_CACHE_DIR"):
         return Path(env).expanduser()
     base = os.environ.get("XDG_CACHE_HOME") or str(Path.home() / ".cache")
@@ -60,15 +60,14 @@ def _cache_dir() -> Path:
 @pytest.fixture(scope="session")
 def model() -> Model:
     """The service's model from ``model/`` alone: packaged spindle, default mesh, reduced model at the
-    service's default rank 30 and box (the service settings' defaults; ~15–40 s to build on a cache miss)."""
+    default rank and box with the default step (exact over each held 10-s step, ``rom.substeps`` 0): the
+    service settings' defaults (~15–40 s to build on a cache miss)."""
     spec = load_spindle()
     fe = build_fe_model(spec)
     cache = _cache_dir()
     cache.mkdir(parents=True, exist_ok=True)
     rom = load_or_build_rom(fe, spec, cache, rank=SERVICE_RANK, box=(5.0, 200.0))
-    # model.estimator predicts with the plain θ-step (substeps=1); the served model integrates each held step
-    # exactly since issue 15 (docs/estimator.md, "Hand-off"): the filter's open loop is that θ-step model
-    return Model(spec, fe, replace(rom, substeps=1))
+    return Model(spec, fe, rom)
 
 
 @pytest.fixture(scope="session")

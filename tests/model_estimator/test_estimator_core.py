@@ -3,6 +3,7 @@ offsets, the considered parameter errors against Monte Carlo, prior, field σ, N
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -19,11 +20,16 @@ from model.estimator import (
     StepInput,
     convergence,
     field_std,
+    heated_prior,
+    param_jacobian,
+    predict_mean,
+    transition,
     uniform_state,
     wide_prior,
 )
 from model.estimator_noise import DefectCase, rom_defect_cov
 from model.inputs import InputSeries
+from model.rom import DEFAULT_SUBSTEPS
 
 H = np.array([88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54])
 
@@ -55,6 +61,7 @@ def _filter(rom: Any, start: np.ndarray, **kw: Any) -> StateEstimator:
 
 def test_without_measurements_the_mean_is_the_open_loop_reduced_model(model: Any) -> None:
     rom, inputs = model.rom, _inputs()
+    assert rom.substeps == DEFAULT_SUBSTEPS  # the served model's step (exact over each held step)
     start = _hot_start(rom)
     est = _filter(rom, start)
     states = rom.simulate_state(H, inputs, start)
@@ -70,6 +77,26 @@ def test_without_measurements_the_mean_is_the_open_loop_reduced_model(model: Any
         np.testing.assert_allclose(est.sensors_mean(), sensors[k + 1], rtol=0, atol=1e-9)
     np.testing.assert_allclose(est.field_mean(), rom.lift(states[-1]), rtol=0, atol=1e-9)
     np.testing.assert_allclose(est.field_mean([5, 500]), rom.lift(states[-1])[[5, 500]], rtol=0, atol=1e-9)
+
+
+@pytest.mark.parametrize("substeps", [0, 1, 4])
+def test_parameter_jacobian_is_the_derivative_of_the_step(model: Any, substeps: int) -> None:
+    """∂a⁺/∂p against central differences of the step with H_i·(1 ± ε) and Q·(1 ± ε), from a hot field."""
+    rom = replace(model.rom, substeps=substeps)
+    a0 = rom.initial_state(_hot_start(rom))
+    u = StepInput(H, 22.5, 180.0, 90.0)
+    jac = param_jacobian(rom, transition(rom, H, 10.0), u, a0)
+    eps = 1e-4  # the reduced coordinates are ~1e4 (√heat capacity): a smaller step loses digits
+    for i in range(N_PARAMS):
+        scale = np.ones(N_PARAMS)
+        cols = []
+        for sign in (1.0, -1.0):
+            scale[i] = 1.0 + sign * eps
+            ui = StepInput(H * scale[:7], u.ambient_c, u.q_front_w * scale[7], u.q_rear_w * scale[8])
+            cols.append(predict_mean(transition(rom, ui.h, 10.0), a0, ui))
+        fd = (cols[0] - cols[1]) / (2 * eps)
+        assert np.abs(fd).max() > 1e-3
+        np.testing.assert_allclose(jac[:, i], fd, rtol=0, atol=1e-6 * np.abs(fd).max())
 
 
 def _textbook_update(sensors: np.ndarray, est: Estimate, y: np.ndarray, use: np.ndarray, r_var: float) -> Any:
@@ -144,6 +171,21 @@ def test_wide_prior_is_uniform_at_ambient_with_the_requested_spread(model: Any) 
     assert sens_var.mean() == pytest.approx(4.0**2 + 3.0**2, rel=1e-9)
     u = uniform_state(rom)
     np.testing.assert_allclose(rom.lift(u), 1.0, rtol=0, atol=1e-9)
+
+
+def test_heated_prior_holds_the_heated_steady_fields(model: Any) -> None:
+    """Mean uniform at the ambient; a steady heated field of an H and load inside the draw's ranges lies
+    within its 3σ ellipsoid (Mahalanobis distance² ≤ χ²(r) 99.9 %), far outside the isotropic prior's
+    sensor-scaled shape part at the same uniform spread."""
+    rom = model.rom
+    prior = heated_prior(rom, ambient_c=21.0)
+    np.testing.assert_allclose(rom.lift(prior.mean), 21.0, rtol=0, atol=1e-9)
+    np.testing.assert_allclose(prior.cov, prior.cov.T)
+    rise = rom.steady_state(H, ambient_c=0.0, q_front_w=150.0, q_rear_w=70.0)
+    d2 = float(rise @ np.linalg.solve(prior.cov, rise))
+    assert d2 <= chi2.ppf(0.999, rom.rank), d2
+    narrow = wide_prior(rom, ambient_c=21.0, sigma_shape_c=0.1)
+    assert float(rise @ np.linalg.solve(narrow.cov, rise)) > 100.0 * d2
 
 
 def test_field_std_is_the_diagonal_of_the_lifted_covariance(model: Any) -> None:

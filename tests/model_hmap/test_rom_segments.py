@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
 import pytest
 
+from model import rom_modal
 from model import rom_segments as rs
 from model.inputs import InputSeries, inputs_from_operation
 from model.rom_segments import SegmentError, SegmentPlan
@@ -30,11 +32,17 @@ def test_plan_from_speed() -> None:
     np.testing.assert_allclose(rs.segment_means(plan, [1, 3, 2, 2, 5, 7]), [2.0, 3.0, 7.0])
 
 
-def test_one_h_for_all_segments_is_the_reduced_model(model: Any) -> None:
+# the ROM's own step: 0 exact over each held step (the service's default), 1 the θ-step, 3 three θ-substeps
+SUBSTEPS = [0, 1, 3]
+
+
+@pytest.mark.parametrize("substeps", SUBSTEPS)
+def test_one_h_for_all_segments_is_the_reduced_model(model: Any, substeps: int) -> None:
     plan, inputs, h = _window(model.spec)
+    rom = replace(model.rom, substeps=substeps)
     same = np.repeat(h[:1], plan.n_segments, axis=0)[None]
-    ours = rs.simulate_sensors(model.rom, same, plan, inputs, 21.0)
-    ref = model.rom.simulate_sensors(h[:1], inputs, 21.0)
+    ours = rs.simulate_sensors(rom, same, plan, inputs, 21.0)
+    ref = rom.simulate_sensors(h[:1], inputs, 21.0)
     np.testing.assert_allclose(ours, ref, atol=1e-9)
 
 
@@ -58,17 +66,43 @@ def test_population_equals_single_runs(model: Any) -> None:
         )
 
 
-def test_tangents_are_the_derivative(model: Any) -> None:
+@pytest.mark.parametrize("substeps", SUBSTEPS)
+def test_tangents_are_the_derivative(model: Any, substeps: int) -> None:
     plan, inputs, h = _window(model.spec)
+    rom = replace(model.rom, substeps=substeps)
     dh = np.random.default_rng(1).normal(size=(3, plan.n_segments, 7))
-    tg = rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0)
+    tg = rs.simulate_tangents(rom, h, dh, plan, inputs, 21.0)
     eps = 1e-4
-    plus = rs.simulate_sensors(model.rom, h[None] + eps * dh, plan, inputs, 21.0)
-    minus = rs.simulate_sensors(model.rom, h[None] - eps * dh, plan, inputs, 21.0)
+    plus = rs.simulate_sensors(rom, h[None] + eps * dh, plan, inputs, 21.0)
+    minus = rs.simulate_sensors(rom, h[None] - eps * dh, plan, inputs, 21.0)
     fd = (plus - minus) / (2 * eps)
     assert np.abs(tg.d_sensors).max() > 1e-3
     np.testing.assert_allclose(tg.d_sensors, fd, atol=1e-8)
-    np.testing.assert_allclose(tg.sensors, rs.simulate_sensors(model.rom, h[None], plan, inputs, 21.0)[0])
+    np.testing.assert_allclose(tg.sensors, rs.simulate_sensors(rom, h[None], plan, inputs, 21.0)[0])
+
+
+def test_loewner_matrix_gives_the_derivative_of_a_matrix_function() -> None:
+    """Daleckii–Krein on a small SPD matrix with two nearly equal eigenvalues, against central differences."""
+    rng = np.random.default_rng(4)
+    q, _ = np.linalg.qr(rng.normal(size=(4, 4)))
+    k = (q * np.array([0.01, 0.02, 0.02 + 1e-13, 0.3])) @ q.T
+    e = rng.normal(size=(4, 4))
+    e = e + e.T
+    for substeps in SUBSTEPS:
+
+        def f(m: np.ndarray, which: int, substeps: int = substeps) -> np.ndarray:
+            lam, phi = np.linalg.eigh(m)
+            vals = rom_modal.step_factors(lam, 10.0, 1.0, substeps)[which]
+            return np.asarray((phi * vals) @ phi.T)
+
+        lam, phi = np.linalg.eigh(k)
+        mu, gamma = rom_modal.step_factors(lam, 10.0, 1.0, substeps)
+        dmu, dgamma = rs.step_derivatives(lam, 10.0, 1.0, substeps)
+        for which, (vals, dvals) in enumerate(((mu, dmu), (gamma, dgamma))):
+            exact = phi @ (rs.loewner(lam, vals, dvals) * (phi.T @ e @ phi)) @ phi.T
+            eps = 1e-6
+            fd = (f(k + eps * e, which) - f(k - eps * e, which)) / (2 * eps)
+            np.testing.assert_allclose(exact, fd, atol=1e-7 * np.abs(fd).max())
 
 
 def test_errors_name_the_argument(model: Any) -> None:

@@ -218,6 +218,7 @@ def test_one_mapping_from_a_job_failure_to_its_stored_outcome(loaded_model, wind
     """``run_job`` (the worker process's function, also run offline) never raises: too few usable data,
     whether the window rules or the identification itself find it, is "insufficient-data" with the reason;
     a cancelled job "cancelled"; anything else "failed", naming the error."""
+    from service.estimate.live import LiveStateError
     from service.identify.outcome import Outcome
     from service.identify.window import InsufficientWindowError
     from service.identify.worker import JobCancelled, job_outcome_of, run_job
@@ -237,5 +238,9 @@ def test_one_mapping_from_a_job_failure_to_its_stored_outcome(loaded_model, wind
     assert job_outcome_of(InsufficientWindowError("only 3 channels")) == (
         Outcome.INSUFFICIENT_DATA,
         "only 3 channels",
+    )
+    assert job_outcome_of(LiveStateError("no snapshot at t=5 s")) == (
+        Outcome.INSUFFICIENT_DATA,
+        "no snapshot at t=5 s",
     )
     assert job_outcome_of(JobCancelled()) == (Outcome.CANCELLED, "cancelled")

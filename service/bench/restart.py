@@ -1,0 +1,274 @@
+"""``chtc bench restart``: the service's answers after a restart on a warm spindle (issue 16).
+
+Data are SYNTHETIC: per seed the virtual plant (finer mesh, its own truth ``model.plant.h_true``, σ = 0.15 °C,
+default settings) runs the issue's profile from a cold spindle: 5 min idle, 3000 rpm 60 min, 4000 rpm 45
+min, 5000 rpm 45 min. The service sees the samples from minute S on (S = 0, 30, 60, 90: a restart after an
+update, a power cut, a crash) and starts with no stored state. Per start and condition it reports, over the
+seeds, for the condition's last served identification: the median |H error| per H against the plant's truth,
+the CI coverage per H, the fraction of seeds whose CIs cover all seven, the median relative 95 % CI
+half-width per H (a covering CI is only useful if it is narrow), and the minutes from the start to
+the first served H (the first successful identification's window end); for S > 0 also each H's median
+|error| as a multiple of the minute-0 start's (the issue's bar: ≤ 1.5).
+
+Modes (``--mode``):
+
+- ``core`` (default): the samples go through the service's own core offline
+  (``service.engine.offline.run_offline``, as ``chtc identify`` and ``chtc bench chain``): whatever the
+  service does today;
+- ``filter``: what wiring the filtered live state would give, without the core: the samples are pushed
+  through ``service.estimate.state.FilteredState`` (Schmidt–Kalman filter, wide "heated" prior at the
+  start) and each identification window (the settings' schedule, 10, 20, 40, 60 min, counted from the
+  speed change or, after a restart, from the filter's convergence) starts from the filtered snapshot at
+  max(condition start, convergence time) with its covariance as ``start_cov``
+  (``model.identify``; ``--start-modes K`` also fits the start's K leading uncertain directions with their
+  Gaussian prior). H: 50 W/(m²·K) each until the first identification (considered error 100 %), then the
+  newest result (as the core) with its CI's σ(log H) as the filter's considered H error. Offsets: a
+  baseline over the first 5 min when the start is at minute 0 (spindle idle and cold), else unknown (the
+  settings' ``offset_sd_c`` carried in the CIs); with ``--stored-offsets`` that baseline survives the
+  restart (a calibration kept in the database).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import Any
+
+import numpy as np
+
+PROFILE = (
+    (300.0, 0.0, 0.0, 22.0),  # idle and cold
+    (3600.0, 3000.0, 5.0, 22.0),
+    (2700.0, 4000.0, 6.0, 22.0),
+    (2700.0, 5000.0, 8.0, 22.0),
+)
+STARTS_MIN = (0, 30, 60, 90)
+T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
+DT_S = 10.0
+BASELINE_SAMPLES = 30  # the idle 5 min at minute 0: the offset baseline of the filter mode
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Options of ``chtc bench restart``."""
+    parser.add_argument("--seeds", type=int, default=5, help="virtual-plant noise seeds (default 5)")
+    parser.add_argument("--first-seed", type=int, default=0, help="first seed (split a long run), default 0")
+    parser.add_argument(
+        "--starts", type=int, nargs="+", default=list(STARTS_MIN), help="start minutes (default 0 30 60 90)"
+    )
+    parser.add_argument("--mode", choices=("core", "filter"), default="core", help="see the description")
+    parser.add_argument(
+        "--start-modes", type=int, default=0, help="filter mode: start directions fitted in identify (0)"
+    )
+    parser.add_argument(
+        "--stored-offsets",
+        action="store_true",
+        help="filter mode: the minute-0 offset baseline survives the restart (a stored calibration)",
+    )
+    parser.add_argument("--json", action="store_true", help="print one JSON object")
+
+
+@dataclass(frozen=True)
+class Served:
+    """One successful identification: the condition's speed [rpm], H and CI [W/(m²·K)], window end [s]."""
+
+    speed_rpm: float
+    h: np.ndarray
+    lo: np.ndarray
+    hi: np.ndarray
+    end_s: float
+
+
+def plant_run(seed: int) -> Any:
+    """The profile's plant run (``model.plant.PlantRun``), samples every 10 s."""
+    from model.geometry import load_spindle
+    from model.plant import Segment, VirtualPlant
+
+    return VirtualPlant(load_spindle(), seed=seed).run([Segment(*s) for s in PROFILE], dt_s=DT_S)
+
+
+def truth(speed_rpm: float) -> np.ndarray:
+    """The plant's H (7,) [W/(m²·K)] at the profile's condition of that speed."""
+    from model.plant import h_true
+
+    ambient = next(p[3] for p in PROFILE if p[1] == speed_rpm)
+    return np.asarray(h_true(speed_rpm, ambient), dtype=float)
+
+
+def run_core(model: Any, settings: Any, run: Any, start: int) -> list[Served]:
+    """The service's core offline over the samples from index ``start`` on."""
+    from service.engine.offline import run_offline
+    from service.engine.runtime import core_config
+    from service.sim.logsamples import samples_from_plant
+
+    samples = samples_from_plant(run, t0_s=T0)[start:]
+    result = run_offline(samples, model=model, config=core_config(settings))
+    out = []
+    for rec in result.records:  # oldest first
+        if rec.outcome != "ok":
+            continue
+        speed = float(round(rec.condition.speed_rpm, -2))
+        end = rec.window_to.timestamp() - T0
+        h, lo, hi = (np.asarray(a, dtype=float) for a in (rec.h, rec.ci95_lo, rec.ci95_hi))
+        out.append(Served(speed, h, lo, hi, end))
+    return out
+
+
+def run_filter(
+    model: Any, settings: Any, run: Any, start: int, *, seed: int, start_modes: int, stored_offsets: bool
+) -> list[Served]:
+    """The filtered live state and ``model.identify`` directly (module docstring, ``filter``)."""
+    from service.bench.restart_filter import FilterRestart
+
+    runner = FilterRestart(
+        model, settings, run, seed=seed, start_modes=start_modes, stored_offsets=stored_offsets
+    )
+    return runner.run(start)
+
+
+def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
+    """Per condition over the seeds (each seed's list of served results): the last result's figures."""
+    conditions = []
+    for _, speed, _, _ in PROFILE[1:]:
+        h_true = truth(speed)
+        rows = []
+        for seed_served in served:
+            last = [s for s in seed_served if s.speed_rpm == speed]
+            if last:
+                s = last[-1]
+                rows.append(
+                    ((s.h - h_true) / h_true, (s.lo <= h_true) & (h_true <= s.hi), (s.hi - s.lo) / 2 / s.h)
+                )
+        if not rows:
+            conditions.append({"speed_rpm": speed, "seeds_served": 0})
+            continue
+        err, cov, half = (np.array([r[i] for r in rows]) for i in range(3))
+        conditions.append(
+            {
+                "speed_rpm": speed,
+                "seeds_served": len(rows),
+                "coverage": np.round(cov.mean(axis=0), 2).tolist(),
+                "h_err_pct_median": np.round(100 * np.median(np.abs(err), axis=0), 1).tolist(),
+                "covers_all": round(float(np.mean(cov.all(axis=1))), 2),
+                "ci_half_width_pct_median": np.round(100 * np.median(half, axis=0), 0).tolist(),
+            }
+        )
+    firsts = [min(s.end_s for s in seed_served) for seed_served in served if seed_served]
+    first = round((float(np.median(firsts)) - start_s) / 60.0, 1) if firsts else None
+    return {"first_served_min": first, "conditions": conditions}
+
+
+def add_ratios(starts: list[dict[str, Any]]) -> None:
+    """Each H's median |error| as a multiple of the minute-0 start's at the same condition (starts > 0)."""
+    base = next((s for s in starts if s["start_min"] == 0), None)
+    if base is None:
+        return
+    ref = {c["speed_rpm"]: c.get("h_err_pct_median") for c in base["conditions"]}
+    for s in starts:
+        if s["start_min"] == 0:
+            continue
+        for c in s["conditions"]:
+            r0 = ref.get(c["speed_rpm"])
+            if r0 and c.get("h_err_pct_median"):
+                c["h_err_ratio_vs_start0"] = [
+                    round(e / max(b, 0.1), 1) for e, b in zip(c["h_err_pct_median"], r0, strict=True)
+                ]
+
+
+def run_bench(
+    seeds: list[int],
+    starts_min: list[int],
+    *,
+    mode: str,
+    start_modes: int = 0,
+    stored_offsets: bool = False,
+    progress: Any = None,
+) -> dict[str, Any]:
+    from service.modelload import ModelRef, load_model
+    from service.settings import Settings
+
+    settings = Settings()
+    model = load_model(ModelRef.from_settings(settings.model))
+    started = time.perf_counter()
+    served: dict[int, list[list[Served]]] = {s: [] for s in starts_min}
+    for seed in seeds:
+        run = plant_run(seed)
+        for s_min in starts_min:
+            idx = round(s_min * 60.0 / DT_S)
+            if mode == "core":
+                served[s_min].append(run_core(model, settings, run, idx))
+            else:
+                served[s_min].append(
+                    run_filter(
+                        model,
+                        settings,
+                        run,
+                        idx,
+                        seed=seed,
+                        start_modes=start_modes,
+                        stored_offsets=stored_offsets,
+                    )
+                )
+        if progress is not None:
+            progress(f"seed {seed} done ({time.perf_counter() - started:.0f} s)")
+    starts = [{"start_min": s_min} | summarise(served[s_min], s_min * 60.0) for s_min in starts_min]
+    add_ratios(starts)
+    return {
+        "synthetic": True,
+        "mode": mode,
+        "start_modes": start_modes if mode == "filter" else None,
+        "stored_offsets": stored_offsets if mode == "filter" else None,
+        "rom_rank": int(model.rom.rank),
+        "seeds": len(seeds),
+        "starts": starts,
+        "wall_s": round(time.perf_counter() - started, 1),
+    }
+
+
+def _fmt(values: list[float] | None, spec: str) -> str:
+    return "".join(f"{v:{spec}}" for v in values) if values else "   –"
+
+
+def _print_table(out: dict[str, Any]) -> None:
+    print(
+        f"restart on a warm spindle, mode {out['mode']}, {out['seeds']} seeds, reduced model rank "
+        f"{out['rom_rank']}; last served H per condition; synthetic data; wall {out['wall_s']} s"
+    )
+    head = "".join(f"{'H' + str(i + 1):>7}" for i in range(7))
+    for s in out["starts"]:
+        print(f"\nstart at minute {s['start_min']}: first served H after {s['first_served_min']} min")
+        print(f"{'':34}{head}")
+        for c in s["conditions"]:
+            tag = f"{c['speed_rpm']:.0f} rpm ({c['seeds_served']} seeds)"
+            print(f"{tag:20}{'|error| % median':>14}{_fmt(c.get('h_err_pct_median'), '7.1f')}")
+            print(f"{'':20}{'coverage':>14}{_fmt(c.get('coverage'), '7.2f')}  all 7: {c.get('covers_all')}")
+            print(f"{'':20}{'CI half-width %':>14}{_fmt(c.get('ci_half_width_pct_median'), '7.0f')}")
+            if "h_err_ratio_vs_start0" in c:
+                print(f"{'':20}{'× start 0':>14}{_fmt(c['h_err_ratio_vs_start0'], '7.1f')}")
+
+
+def main(args: argparse.Namespace) -> int:
+    if args.seeds < 1 or args.start_modes < 0:
+        print("error: --seeds must be >= 1 and --start-modes >= 0", file=sys.stderr)
+        return 2
+    bad = [s for s in args.starts if not 0 <= s < sum(p[0] for p in PROFILE) / 60.0 - 10.0]
+    if bad:
+        print(f"error: --starts: {bad} outside the profile (0 to its end minus 10 min)", file=sys.stderr)
+        return 2
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    out = run_bench(
+        seeds,
+        list(args.starts),
+        mode=args.mode,
+        start_modes=args.start_modes,
+        stored_offsets=args.stored_offsets,
+        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+    )
+    if args.json:
+        print(json.dumps(out, indent=2))
+    else:
+        _print_table(out)
+    return 0

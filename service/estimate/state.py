@@ -1,0 +1,414 @@
+"""The filtered live state: ``model.estimator`` behind the interface the service's core uses (pure, no I/O).
+
+Replaces the open-loop ``service.estimate.live.LiveModel`` (docs/estimator.md, "Service adapter"). Each sample
+is ``push``-ed with its inputs (ambient, speed, torque: the bearing heats from
+``model.inputs.inputs_from_operation``), its 32 temperatures, the usable mask (quality OK) and the
+calibration's offsets: the reduced state advances on a fixed grid of ``dt_s`` with the previous sample's
+inputs held (the ``LiveModel.push`` convention) and is corrected by the usable channels (Schmidt–Kalman
+filter, ``model.estimator``). It serves the mean and 1σ of the field and of the sensors now, keeps
+snapshots of the estimate (mean and covariance) for identification windows (``field_at``,
+``covariance_at``, ``mark``), the NIS per sample and the convergence test that gates identification after a
+(re)start.
+
+Compared with ``LiveModel``:
+
+- ``set_h`` takes effect from the next step; no ``prepare``/stepper (a new H costs one r × r
+  eigendecomposition, < 1 ms); ``load_scale`` as there.
+- no ``rebase``: the measurements keep the field right, so an identification's end field is not needed (and
+  replaying samples would count them twice). ``covariance_at`` returns the filter's own covariance (r, r)
+  [°C², reduced coordinates] at the snapshot: ``identify(start_cov=...)`` directly, no gap propagation.
+- ``initialize`` starts from a wide prior (``model.estimator.wide_prior``) at the ambient, not from a
+  confident uniform guess; a gap longer than ``max_gap_s`` restarts from it.
+- ``Snapshot.initial`` is True while the state has not yet passed the convergence test since the (re)start:
+  windows should not start there (``ready_at``).
+
+Errors::
+
+    LiveStateError(RuntimeError)   (``service.estimate.live``) asked before ``initialize`` / no snapshot
+    model.estimator.EstimatorError bad arrays (shape, H <= 0), the field named
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from dataclasses import dataclass, field, replace
+from functools import cached_property
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from model.estimator import (
+    Convergence,
+    NisWindow,
+    NoiseModel,
+    StateEstimator,
+    StepInput,
+    StepResult,
+    convergence,
+    field_std,
+    heated_prior,
+    wide_prior,
+)
+from service.estimate.live import LiveStateError
+
+__all__ = ["FilterSettings", "FilteredState", "LiveStateError", "SampleUpdate", "StateSnapshot"]
+
+Array = NDArray[np.float64]
+
+
+@dataclass(frozen=True)
+class FilterSettings:
+    """Tuning of the filtered state (docs/estimator.md): noise, prior, convergence test and memory.
+
+    ``prior`` the restart prior's shape: "heated" (the steady heated fields' second moment plus a small
+    isotropic part, ``model.estimator.heated_prior``) or "wide" (isotropic, ``wide_prior``);
+    ``prior_sigma_c`` [°C] 1σ of the prior's uniform offset (and of the "wide" shape part); ``nis_window``
+    samples of the NIS test; ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
+    ``max_gap_s`` [s] a longer gap between samples restarts from the wide prior; snapshots every
+    ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``.
+    """
+
+    noise: NoiseModel = field(default_factory=NoiseModel)
+    prior: str = "heated"  # "heated" (model.estimator.heated_prior) or "wide" (isotropic shape, wide_prior)
+    prior_sigma_c: float = 5.0
+    nis_window: int = 30
+    sensor_std_bound_c: float = 0.1
+    field_rms_bound_c: float = 1.0
+    max_gap_s: float = 300.0
+    snapshot_every_s: float = 60.0
+    keep_s: float = 3 * 3600.0
+    recent_steps: int = 64
+
+
+@dataclass(frozen=True, eq=False)
+class StateSnapshot:
+    """The estimate at ``t`` [s]: reduced ``mean`` (r,) [°C] and ``cov`` (r, r) [°C²]; ``initial`` while
+    not yet converged since the (re)start. ``field_c`` (N,) [°C] is lifted on first use."""
+
+    t: float
+    mean: Array
+    cov: Array
+    initial: bool
+    basis: Array = field(repr=False)
+
+    @cached_property
+    def field_c(self) -> Array:
+        """Mean field V·a [°C] on the service mesh (N,)."""
+        return np.asarray(self.basis @ self.mean)
+
+    @property
+    def field_std_c(self) -> Array:
+        """1σ of the field [°C] per node (N,)."""
+        return field_std(self.basis, self.cov)
+
+
+@dataclass(frozen=True)
+class SampleUpdate:
+    """What one ``push`` did: ``t`` [s] of the state, ``steps`` advanced, ``nis`` over ``dof`` used channels
+    (0, 0 without an update), the NIS window's ``verdict`` ("filling", "ok", "high", "low"), and whether the
+    state ``restarted`` from the wide prior (a long gap)."""
+
+    t: float
+    steps: int
+    nis: float
+    dof: int
+    verdict: str
+    restarted: bool = False
+
+
+@dataclass(frozen=True)
+class _Inputs:
+    ambient_c: float
+    speed_rpm: float
+    torque_nm: float
+
+
+class FilteredState:
+    """Closed-loop live state on a ``ReducedModel`` ``rom`` for the spindle ``spec``; H (7,) [W/(m²·K)]."""
+
+    def __init__(
+        self,
+        rom: Any,
+        spec: Any,
+        *,
+        h: ArrayLike,
+        dt_s: float = 10.0,
+        load_scale: tuple[float, float] = (1.0, 1.0),
+        settings: FilterSettings | None = None,
+        offsets_c: ArrayLike | None = None,
+    ) -> None:
+        self.rom = rom
+        self.spec = spec
+        self.h = np.asarray(h, dtype=np.float64).copy()
+        self.dt_s = float(dt_s)
+        self.load_scale = (float(load_scale[0]), float(load_scale[1]))
+        self.settings = settings or FilterSettings()
+        self._noise = self.settings.noise
+        self.offsets_c = None if offsets_c is None else np.asarray(offsets_c, dtype=np.float64)
+        st = self.settings
+        self._snapshots: deque[StateSnapshot] = deque(maxlen=max(2, int(st.keep_s / st.snapshot_every_s) + 2))
+        self._recent: deque[StateSnapshot] = deque(maxlen=max(1, st.recent_steps))
+        self._filter: StateEstimator | None = None
+        self._window = NisWindow(st.nis_window)
+        self._t: float | None = None
+        self._inputs: _Inputs | None = None
+        self.converged_at: float | None = None  # [s] first converged sample since the (re)start
+        self.started_at: float | None = None
+        self.nis_history: deque[tuple[float, float, int]] = deque(maxlen=max(1, int(st.keep_s / self.dt_s)))
+        self.steps = 0
+
+    # --- state ----------------------------------------------------------------------------------------
+    @property
+    def initialized(self) -> bool:
+        return self._filter is not None
+
+    @property
+    def t(self) -> float:
+        if self._t is None:
+            raise LiveStateError("the live state has not been initialised (no sample yet)")
+        return self._t
+
+    @property
+    def estimator(self) -> StateEstimator:
+        if self._filter is None:
+            raise LiveStateError("the live state has not been initialised (no sample yet)")
+        return self._filter
+
+    def initialize(
+        self,
+        t: float,
+        inputs: tuple[float, float, float],
+        temps_c: ArrayLike | None = None,
+        usable: ArrayLike | None = None,
+    ) -> SampleUpdate:
+        """Start at ``t`` [s] from the wide prior at the ambient (``inputs`` = ambient [°C], speed [rpm],
+        torque [N·m]), then update with the sample's temperatures (32,) [°C] and usable mask, if given."""
+        ambient = float(inputs[0])
+        if not all(math.isfinite(float(x)) for x in inputs):
+            raise LiveStateError(
+                f"initialize: ambient, speed and torque must be finite (CAN down?), got {inputs}"
+            )
+        sig = self.settings.prior_sigma_c
+        if self.settings.prior == "heated":
+            prior = heated_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig)
+        else:
+            prior = wide_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig, sigma_shape_c=sig)
+        self._filter = StateEstimator(self.rom, prior, noise=self._noise, offsets_c=self.offsets_c)
+        self._t = float(t)
+        self._inputs = _Inputs(*(float(x) for x in inputs))
+        self._window = NisWindow(self.settings.nis_window)
+        self.converged_at = None
+        self.started_at = float(t)
+        for dq in (self._snapshots, self._recent):
+            dq.clear()
+        return self._after_step(0, self._measure(temps_c, usable), restarted=True)
+
+    def set_h(
+        self,
+        h: ArrayLike,
+        load_scale: tuple[float, float] | None = None,
+        *,
+        h_rel: ArrayLike | None = None,
+        **_: Any,
+    ) -> None:
+        """Use H (7,) [W/(m²·K)] (and bearing-heat scales) from the next step on; ``h_rel`` (scalar or 7)
+        the relative 1σ of these H (e.g. from the identification's CI: σ(log H)), the filter's considered
+        H error from now on (clipped to 0.05–1; None: unchanged). Extra keywords of ``LiveModel.set_h``
+        such as ``stepper`` are accepted and ignored."""
+        arr = np.asarray(h, dtype=np.float64)
+        if arr.shape != (7,) or not np.all(np.isfinite(arr)) or np.any(arr <= 0.0):
+            raise LiveStateError(f"set_h: expected 7 finite H > 0 W/(m²·K), got {arr!r}")
+        self.h = arr.copy()
+        if load_scale is not None:
+            self.load_scale = (float(load_scale[0]), float(load_scale[1]))
+        if h_rel is not None:
+            rel = np.broadcast_to(np.asarray(h_rel, dtype=np.float64), (7,))
+            if not np.all(np.isfinite(rel)):
+                raise LiveStateError(f"set_h: h_rel must be finite, got {h_rel!r}")
+            self._noise = replace(self._noise, h_rel=tuple(float(x) for x in np.clip(rel, 0.05, 1.0)))
+            if self._filter is not None:
+                self._filter.noise = self._noise
+
+    def set_offsets(self, offsets_c: ArrayLike | None) -> None:
+        """Per-channel offsets (32,) [°C] subtracted before each update (a new calibration)."""
+        offsets = None if offsets_c is None else np.asarray(offsets_c, dtype=np.float64)
+        self.offsets_c = offsets
+        if self._filter is not None:
+            self._filter.offsets_c = np.zeros(32) if offsets is None else offsets.copy()
+
+    def push(
+        self,
+        t: float,
+        *,
+        ambient_c: float,
+        speed_rpm: float,
+        torque_nm: float,
+        temps_c: ArrayLike | None = None,
+        usable: ArrayLike | None = None,
+    ) -> SampleUpdate:
+        """Advance to sample time ``t`` [s] with the previous sample's inputs held, then correct with this
+        sample's temperatures (32,) [°C] over the ``usable`` channels (True = quality OK; None: all finite).
+
+        The state moves on a fixed grid of ``dt_s``: ``round((t − t_state)/dt_s)`` steps, predictions only
+        except the last, which is updated. A gap over ``max_gap_s`` restarts from the wide prior. Non-finite
+        inputs hold the last valid ones.
+        """
+        if self._filter is None or self._t is None or self._inputs is None:
+            raise LiveStateError("initialize() the live state before pushing samples")
+        new = self._valid(ambient_c, speed_rpm, torque_nm)
+        n = int(np.floor((float(t) - self._t) / self.dt_s + 0.5))
+        if n * self.dt_s > self.settings.max_gap_s:
+            return self.initialize(float(t), (new.ambient_c, new.speed_rpm, new.torque_nm), temps_c, usable)
+        if n <= 0:
+            self._inputs = new
+            return SampleUpdate(self._t, 0, 0.0, 0, self._window.verdict())
+        step = self._step_input(self._inputs)
+        for _ in range(n - 1):
+            self._filter.predict(step)
+            self._t += self.dt_s
+            self._keep(self._snapshot())
+        self._filter.predict(step)
+        self._t += self.dt_s
+        self._inputs = new
+        return self._after_step(n, self._measure(temps_c, usable))
+
+    def mark(self, t: float) -> StateSnapshot:
+        """Keep the estimate of the latest step at or before ``t`` [s] as a snapshot (a window can start
+        there); called at a condition change, whose start lies up to the hold time in the past."""
+        older = [s for s in self._recent if s.t <= t + 0.5 * self.dt_s]
+        if not older:
+            return self.field_at(t)
+        snap = older[-1]
+        if all(s.t != snap.t for s in self._snapshots):
+            kept = sorted([*self._snapshots, snap], key=lambda s: s.t)
+            self._snapshots.clear()
+            self._snapshots.extend(kept[-(self._snapshots.maxlen or len(kept)) :])
+        return snap
+
+    # --- queries --------------------------------------------------------------------------------------
+    def field_now(self) -> StateSnapshot:
+        """The current estimate (mean, covariance, field)."""
+        return self._snapshot()
+
+    def sensors_now(self) -> Array:
+        """Predicted temperatures (32,) [°C] at the sensors, in the readings' frame (offsets added back)."""
+        mean = self.estimator.sensors_mean()
+        return mean if self.offsets_c is None else mean + self.offsets_c
+
+    def sensors_std_now(self) -> Array:
+        """1σ (32,) [°C] of the sensors' true temperatures: the state's part √diag(C·P·Cᵀ) and, in quadrature,
+        the model's error at the sensors outside the reduced state (``NoiseModel.sigma_model_c``: mesh and
+        reduction), not the DAQ's noise."""
+        state = self.estimator.sensors_std()
+        return np.asarray(np.sqrt(state**2 + self.settings.noise.sigma_model_c**2))
+
+    def field_std_now(self, nodes: ArrayLike | None = None) -> Array:
+        """1σ [°C] of the field now at all nodes (N,) or at ``nodes``."""
+        return self.estimator.field_std(nodes)
+
+    def field_at(self, t: float) -> StateSnapshot:
+        """The latest snapshot at or before ``t`` [s], up to half a step later (sample-time jitter)."""
+        older = [s for s in self._snapshots if s.t <= t + 0.5 * self.dt_s]
+        if not older:
+            raise LiveStateError(f"no live-state snapshot at or before t={t:.0f} s")
+        return older[-1]
+
+    def covariance_at(self, t: float) -> Array:
+        """The covariance (r, r) [°C²] of the snapshot ``field_at(t)``: ``identify(start_cov=...)``."""
+        return np.array(self.field_at(t).cov)
+
+    def start_cov(self, t: float) -> Array:
+        """Alias of ``covariance_at``: the start uncertainty of a window beginning at ``t`` [s]."""
+        return self.covariance_at(t)
+
+    def first_snapshot_after(self, t: float) -> StateSnapshot:
+        """The earliest snapshot at or after ``t`` [s]."""
+        newer = [s for s in self._snapshots if s.t >= t - 1e-9]
+        if not newer:
+            raise LiveStateError(f"no live-state snapshot at or after t={t:.0f} s")
+        return newer[0]
+
+    def convergence(self) -> Convergence:
+        """The convergence test now (``model.estimator.convergence``): covariance bounds, NIS window."""
+        st = self.settings
+        return convergence(
+            self.rom,
+            self.estimator.estimate,
+            self._window,
+            sensor_std_bound_c=st.sensor_std_bound_c,
+            field_rms_bound_c=st.field_rms_bound_c,
+        )
+
+    def ready_at(self) -> float | None:
+        """Earliest window start [s] allowed: the first converged sample since the (re)start (None: not
+        yet)."""
+        return self.converged_at
+
+    def nis_verdict(self) -> str:
+        """The NIS window's verdict: "filling", "ok", "high" (inconsistent: the model misses something) or
+        "low"."""
+        return self._window.verdict()
+
+    def steady(self) -> Array:
+        """Steady field (N,) [°C] for the current H and the last inputs (``rom.steady_state``)."""
+        if self._inputs is None:
+            raise LiveStateError("the live state has not been initialised (no sample yet)")
+        qf, qr = self._heat(self._inputs)
+        a = self.rom.steady_state(self.h, ambient_c=self._inputs.ambient_c, q_front_w=qf, q_rear_w=qr)
+        return np.asarray(self.rom.lift(a))
+
+    # --- internals ------------------------------------------------------------------------------------
+    def _measure(self, temps_c: ArrayLike | None, usable: ArrayLike | None) -> StepResult | None:
+        if temps_c is None:
+            return None
+        return self.estimator.update(np.asarray(temps_c, dtype=np.float64), usable)
+
+    def _after_step(self, n: int, res: StepResult | None, *, restarted: bool = False) -> SampleUpdate:
+        assert self._t is not None
+        nis, dof = (0.0, 0) if res is None else (res.nis, res.dof)
+        self._window.push(nis, dof)
+        if dof:
+            self.nis_history.append((self._t, nis, dof))
+        newly = self.converged_at is None and self.convergence().converged
+        if newly:
+            self.converged_at = self._t
+        self._keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
+        self.steps += n
+        return SampleUpdate(self._t, n, nis, dof, self._window.verdict(), restarted)
+
+    def _snapshot(self) -> StateSnapshot:
+        est = self.estimator.estimate
+        return StateSnapshot(self.t, est.mean, est.cov, self.converged_at is None, self.rom.basis)
+
+    def _keep(self, snap: StateSnapshot, *, force: bool = False) -> None:
+        self._recent.append(snap)
+        every = self.settings.snapshot_every_s
+        if force or not self._snapshots or snap.t - self._snapshots[-1].t >= every - 1e-9:
+            self._snapshots.append(snap)
+
+    def _valid(self, ambient_c: float, speed_rpm: float, torque_nm: float) -> _Inputs:
+        old = self._inputs
+        vals = (ambient_c, speed_rpm, torque_nm)
+        olds = (math.nan,) * 3 if old is None else (old.ambient_c, old.speed_rpm, old.torque_nm)
+        return _Inputs(*(float(v) if math.isfinite(v) else o for v, o in zip(vals, olds, strict=True)))
+
+    def _heat(self, inp: _Inputs) -> tuple[float, float]:
+        from model.inputs import inputs_from_operation
+
+        series = inputs_from_operation(
+            self.spec,
+            dt_s=1.0,
+            speed_rpm=np.array([inp.speed_rpm]),
+            torque_nm=np.array([inp.torque_nm]),
+            ambient_c=np.array([inp.ambient_c]),
+        )
+        return (
+            float(series.q_front_w[0]) * self.load_scale[0],
+            float(series.q_rear_w[0]) * self.load_scale[1],
+        )
+
+    def _step_input(self, inp: _Inputs) -> StepInput:
+        qf, qr = self._heat(inp)
+        return StepInput(self.h, inp.ambient_c, qf, qr, self.dt_s)

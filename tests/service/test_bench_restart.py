@@ -1,0 +1,53 @@
+"""``chtc bench restart``: the aggregation over seeds and the command's registration (the full bench is a
+measurement; docs/estimator.md has its figures)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from service.bench import restart
+from service.bench.restart import Served
+
+
+def _served(speed: float, factor: np.ndarray, end_s: float, ci: float = 0.1) -> Served:
+    h = restart.truth(speed) * factor
+    return Served(speed, h, h * (1 - ci), h * (1 + ci), end_s)
+
+
+def test_summary_takes_each_conditions_last_result_per_seed() -> None:
+    ones = np.ones(7)
+    off = np.r_[1.5, np.ones(6)]  # H1 50 % high: its CI (±10 %) misses
+    seeds = [
+        [_served(3000.0, off, 1200.0), _served(3000.0, ones, 3900.0), _served(4000.0, off, 6000.0)],
+        [_served(3000.0, ones * 1.02, 2400.0), _served(4000.0, ones, 6600.0)],
+    ]
+    out = restart.summarise(seeds, start_s=600.0)
+    assert out["first_served_min"] == pytest.approx((np.median([1200.0, 2400.0]) - 600.0) / 60.0, abs=0.05)
+    c3, c4, c5 = out["conditions"]
+    assert c3["seeds_served"] == 2 and c3["covers_all"] == 1.0
+    assert c3["h_err_pct_median"] == pytest.approx([1.0] * 7)  # median of 0 % and 2 %
+    assert c4["coverage"][0] == 0.5 and c4["coverage"][1:] == [1.0] * 6 and c4["covers_all"] == 0.5
+    assert c4["h_err_pct_median"][0] == pytest.approx(25.0)
+    assert c4["ci_half_width_pct_median"] == [10.0] * 7
+    assert c5 == {"speed_rpm": 5000.0, "seeds_served": 0}
+
+
+def test_ratios_against_the_start_at_minute_zero() -> None:
+    starts = [
+        {"start_min": 0, "conditions": [{"speed_rpm": 4000.0, "h_err_pct_median": [10.0] * 6 + [0.0]}]},
+        {"start_min": 60, "conditions": [{"speed_rpm": 4000.0, "h_err_pct_median": [15.0] * 6 + [0.2]}]},
+    ]
+    restart.add_ratios(starts)
+    assert "h_err_ratio_vs_start0" not in starts[0]["conditions"][0]
+    assert starts[1]["conditions"][0]["h_err_ratio_vs_start0"] == [1.5] * 6 + [2.0]  # 0 % floored at 0.1 %
+
+
+def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFixture[str]) -> None:
+    from service import cli
+
+    with pytest.raises(SystemExit):
+        cli.main(["bench", "restart", "--help"])
+    assert "--start-modes" in capsys.readouterr().out
+    assert cli.main(["bench", "restart", "--starts", "200"]) == 2
+    assert "outside the profile" in capsys.readouterr().err
