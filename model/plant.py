@@ -27,7 +27,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from model.fem import FEModel, Stepper, build_fe_model, make_stepper
 from model.geometry import N_CHANNELS, SpindleSpec
-from model.inputs import inputs_from_operation
+from model.inputs import InputSeries, inputs_from_operation
 
 H_TABLE4 = np.array([88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54])  # 3000 rpm, 23.2 degC
 H_TABLE10 = np.array([79.75, 46.25, 61.89, 45.31, 46.20, 68.23, 11.12])  # 4000 rpm, 21.8 degC
@@ -95,6 +95,10 @@ class PlantRun:
     h_true: NDArray[np.float64]  # (n, 7) [W/(m^2 K)]
     status: NDArray[np.int64]  # (n, 32): 0 ok, 1 open circuit, 2 out of range
     final_field_c: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))  # plant mesh (N,)
+    # with ``run(keep_fields_every=k)``: the full field (m, N) [degC] on the plant mesh at samples 0, k, ...
+    # (times ``field_times_s`` (m,) [s]); empty otherwise
+    fields_c: NDArray[np.float64] = field(default_factory=lambda: np.zeros((0, 0)))
+    field_times_s: NDArray[np.float64] = field(default_factory=lambda: np.zeros(0))
 
 
 def _check_profile(profile: Sequence[Segment], dt_s: float) -> list[int]:
@@ -118,6 +122,49 @@ def _check_faults(faults: Sequence[ChannelFault]) -> tuple[ChannelFault, ...]:
         if f.kind not in ("open", "stuck", "range"):
             raise PlantError(f"faults[{i}].kind: must be open, stuck or range, got {f.kind!r}")
     return tuple(faults)
+
+
+class _FieldKeeper:
+    """Collects the field at every ``every``-th sample while a run marches (``VirtualPlant.run``)."""
+
+    def __init__(self, every: int, field0: NDArray[np.float64]) -> None:
+        self.every = every
+        self.sample = 0  # samples done so far
+        self.samples: list[int] = [0]
+        self.fields: list[NDArray[np.float64]] = [field0.copy()]
+
+    def march(
+        self, stepper: Stepper, inp: InputSeries, T: NDArray[np.float64], sub: int
+    ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
+        """``stepper.march`` over ``inp`` (sub steps per sample) in pieces ending on kept samples."""
+        m = inp.n_steps // sub
+        sens = [stepper.fe.sensor_op @ T]
+        done = 0
+        while done < m:
+            piece = min(self.every - self.sample % self.every, m - done)
+            part = InputSeries(
+                dt_s=inp.dt_s,
+                ambient_c=inp.ambient_c[done * sub : (done + piece) * sub],
+                q_front_w=inp.q_front_w[done * sub : (done + piece) * sub],
+                q_rear_w=inp.q_rear_w[done * sub : (done + piece) * sub],
+            )
+            last, fine = stepper.march(part, T, keep_fields=False)
+            T = last[0]
+            sens.append(fine[1:])
+            done += piece
+            self.sample += piece
+            if self.sample % self.every == 0:
+                self.samples.append(self.sample)
+                self.fields.append(T.copy())
+        return np.vstack(sens), T
+
+    def fill(self, n: int, T: NDArray[np.float64]) -> None:
+        """``n`` more samples at the converged field ``T`` (the plant's steady shortcut)."""
+        for _ in range(n):
+            self.sample += 1
+            if self.sample % self.every == 0:
+                self.samples.append(self.sample)
+                self.fields.append(T.copy())
 
 
 class VirtualPlant:
@@ -174,9 +221,15 @@ class VirtualPlant:
         return self._steppers[key]
 
     def _segment(
-        self, seg: Segment, n: int, dt_s: float, field0: NDArray[np.float64], chunk: int = 30
+        self,
+        seg: Segment,
+        n: int,
+        dt_s: float,
+        field0: NDArray[np.float64],
+        chunk: int = 30,
+        keep: _FieldKeeper | None = None,
     ) -> tuple[NDArray[np.float64], NDArray[np.float64]]:
-        """Sensors (n, 32) after each step of one segment, and the final field."""
+        """Sensors (n, 32) after each step of one segment, and the final field (``keep``: record fields)."""
         sub = self.substeps
         h = np.asarray(self.h_law(seg.speed_rpm, seg.ambient_c, seg.torque_nm), dtype=np.float64)
         stepper = self._stepper(h, dt_s / sub)
@@ -191,12 +244,18 @@ class VirtualPlant:
                 torque_nm=seg.torque_nm,
                 ambient_c=seg.ambient_c,
             )
-            last, fine = stepper.march(inp, T, keep_fields=False)
+            if keep is None:
+                last, fine = stepper.march(inp, T, keep_fields=False)
+                T = last[0]
+            else:  # the same steps in pieces that end on the kept samples (identical numerics)
+                fine, T = keep.march(stepper, inp, T, sub)
             sens = fine[::sub]
             out[done : done + m] = sens[1:]
-            T, done = last[0], done + m
+            done += m
             if self.steady_tol_c > 0 and m == chunk and np.abs(sens[-1] - sens[0]).max() < self.steady_tol_c:
                 out[done:] = sens[-1]
+                if keep is not None:
+                    keep.fill(n - done, T)
                 break
         return out, T
 
@@ -207,21 +266,32 @@ class VirtualPlant:
         dt_s: float = 10.0,
         t0_c: float | ArrayLike | None = None,
         rng: np.random.Generator | None = None,
+        keep_fields_every: int = 0,
     ) -> PlantRun:
-        """Simulate ``profile`` sampled every ``dt_s`` [s] from t0_c (None: uniform at the first ambient)."""
+        """Simulate ``profile`` sampled every ``dt_s`` [s] from t0_c (None: uniform at the first ambient).
+
+        ``keep_fields_every`` k > 0 also keeps the full plant-mesh field at samples 0, k, 2k, ...
+        (``PlantRun.fields_c``); the sensors are the same as without (the same steps, marched in pieces).
+        """
         steps = _check_profile(profile, dt_s)
+        if int(keep_fields_every) < 0:
+            raise PlantError(f"keep_fields_every: must be >= 0, got {keep_fields_every!r}")
         t0 = profile[0].ambient_c if t0_c is None else t0_c
         T = np.asarray(t0, dtype=float)
         T = np.full(self.fe.n_nodes, float(T)) if T.ndim == 0 else T.copy()
         if T.shape != (self.fe.n_nodes,):
             raise PlantError(f"t0_c: expected a scalar or shape ({self.fe.n_nodes},), got {T.shape}")
         truth = [self.fe.sensor_op @ T]
+        keep = _FieldKeeper(int(keep_fields_every), T) if keep_fields_every else None
         for seg, n in zip(profile, steps, strict=True):
-            sens, T = self._segment(seg, n, dt_s, T)
+            sens, T = self._segment(seg, n, dt_s, T, keep=keep)
             truth.append(sens)
         run = self._condition_arrays(profile, steps, dt_s)
         run.truth_c = np.vstack(truth)
         run.final_field_c = T
+        if keep is not None:
+            run.fields_c = np.array(keep.fields)
+            run.field_times_s = np.array(keep.samples, dtype=np.float64) * dt_s
         self._measure(run, rng if rng is not None else np.random.default_rng(self.seed))
         return run
 

@@ -222,6 +222,12 @@ class ServiceCore:
         stepper: Stepper = self._live.prepare(h)
         return stepper
 
+    def live_covariance(self, t: float) -> StateCovariance | None:
+        """The live state's error covariance at ``t`` (s) as an identification window would start from it
+        (None: none known), for benches that propagate it (``service.bench.growth``)."""
+        cov: StateCovariance | None = self._live.covariance_at(t)
+        return cov
+
     @property
     def live_h(self) -> np.ndarray:
         """The live model's current H (7,) W/(m²·K) (a copy)."""

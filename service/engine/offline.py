@@ -17,6 +17,7 @@ from typing import Protocol
 import numpy as np
 
 from drivers.ringbuffer import Sample
+from model.identify import IdentificationResult
 from service.acquire.calibration import Calibration
 from service.engine.config import CoreConfig, Restored
 from service.engine.core import ServiceCore
@@ -62,14 +63,18 @@ def run_offline(
     on_event: Callable[[str], None] | None = None,
     restored: Restored | None = None,
     sink: RecordSink | None = None,
+    on_sample: Callable[[ServiceCore, int, IdentificationResult | None], None] | None = None,
 ) -> OfflineResult:
     """Feed ``samples`` (time-ordered) through the core; identify inline.
 
     Event ids: ``sample-<n>`` (1-based sample number) and ``outcome-<job id>``. An identification finishes
-    at the sample that triggered it (no wall time passes offline).
+    at the sample that triggered it (no wall time passes offline). ``on_sample(core, k, last_ok)``, if given,
+    is called after sample k (0-based) and the identifications it started, with the newest successful
+    result so far (None: none yet), so that a bench can read the live state as the service would serve it.
     """
     core = ServiceCore(config, model=model, restored=restored, history_capacity=ring_capacity)
     res = OfflineResult(records=[])
+    last_ok: IdentificationResult | None = None
     for n, sample in enumerate(samples, start=1):
         res.samples = n
         res.first, res.last = res.first or sample.t, sample.t
@@ -84,7 +89,12 @@ def run_offline(
                 elif isinstance(ins, Log) and on_event is not None:
                     on_event(ins.message)
                 elif isinstance(ins, Launch):
-                    pending.append(_outcome(core, model, ins, sample.t))
+                    done = _outcome(core, model, ins, sample.t)
+                    if done.outcome.status is JobStatus.OK and done.outcome.result is not None:
+                        last_ok = done.outcome.result
+                    pending.append(done)
+        if on_sample is not None:
+            on_sample(core, n - 1, last_ok)
     view = core.view()
     res.records = list(reversed(view.records))
     res.conditions = list(reversed(view.conditions))
