@@ -18,17 +18,18 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from api.routers.field import grid_out, mesh_out
 from api.routers.field_render import FieldRenderer
+from service.engine.shell import SoftSensorService
 from service.estimate.locator import TriangleLocator, locator_for
 from service.serve.interface import FieldSnapshot
-from service.serve.interface_memory import InMemoryService
 from service.settings import Settings
+from service.sim.served import Served
 
 URL = "/api/v1/temperature-field"
 
 
-def test_locator_is_shared_by_every_snapshot_of_a_mesh(service: InMemoryService) -> None:
+def test_locator_is_shared_by_every_snapshot_of_a_mesh(ro_service: SoftSensorService) -> None:
     """The running service builds a new snapshot for every at=now request: its locator must not be rebuilt."""
-    f = service.field("now")
+    f = ro_service.field("now")
     again = FieldSnapshot(f.t, "now", f.nodes_rz, f.triangles, f.temps_c + 1.0, f.identification_id)
     assert again.locator is f.locator
     other_mesh = FieldSnapshot(f.t, "now", f.nodes_rz.copy(), f.triangles, f.temps_c)
@@ -36,8 +37,8 @@ def test_locator_is_shared_by_every_snapshot_of_a_mesh(service: InMemoryService)
     assert locator_for(f.nodes_rz, f.triangles) is f.locator
 
 
-def test_cached_grid_locations_equal_fresh_ones(service: InMemoryService) -> None:
-    f = service.field("now")
+def test_cached_grid_locations_equal_fresh_ones(ro_service: SoftSensorService) -> None:
+    f = ro_service.field("now")
     r, z, located = f.locator.grid(12, 30)
     rr, zz = np.meshgrid(r, z, indexing="ij")
     fresh = TriangleLocator(f.nodes_rz, f.triangles).locate(np.c_[rr.ravel(), zz.ravel()])
@@ -49,10 +50,10 @@ def test_cached_grid_locations_equal_fresh_ones(service: InMemoryService) -> Non
     ("fmt", "with_std"), [("mesh", False), ("grid", False), ("mesh", True), ("grid", True)]
 )
 def test_fast_bodies_equal_the_schema_serialisation(
-    service: InMemoryService, fmt: str, with_std: bool
+    ro_service: SoftSensorService, fmt: str, with_std: bool
 ) -> None:
     """Also with a 1σ per node (the filtered state's, at=now): ``std_c`` and ``std_max_c`` in both."""
-    f = service.field("steady")
+    f = ro_service.field("steady")
     if with_std:
         f = replace(f, std_c=0.05 + 0.01 * np.abs(f.temps_c - f.temps_c.mean()))
     renderer = FieldRenderer()
@@ -69,10 +70,10 @@ def test_fast_bodies_equal_the_schema_serialisation(
         np.testing.assert_allclose(body["std_c"], f.std_c, atol=1e-4)
 
 
-def test_points_carry_their_1_sigma_and_95_percent(service: InMemoryService) -> None:
+def test_points_carry_their_1_sigma_and_95_percent(ro_service: SoftSensorService) -> None:
     from api.routers.field import points_out
 
-    f = service.field("steady")
+    f = ro_service.field("steady")
     sd = np.full_like(f.temps_c, 0.1)
     inside = f.nodes_rz[:1] * 0.999 + f.nodes_rz[1:2] * 0.001
     p = points_out(replace(f, std_c=sd), inside).points[0]
@@ -81,8 +82,8 @@ def test_points_carry_their_1_sigma_and_95_percent(service: InMemoryService) -> 
     assert points_out(f, inside).points[0].std_c is None  # the steady state has no filtered uncertainty
 
 
-def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(service: InMemoryService) -> None:
-    f = service.field("now")
+def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(ro_service: SoftSensorService) -> None:
+    f = ro_service.field("now")
     renderer = FieldRenderer()
     a = renderer.mesh(f)
     assert renderer.mesh(replace(f)) is a  # same content: cached
@@ -93,7 +94,7 @@ def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(service: InMemoryS
     assert gzip.decompress(b.gzip()) == b.body  # the primed compressor, copied per field
 
 
-def test_mesh_etag_304_and_gzip(client: TestClient, service: InMemoryService) -> None:
+def test_mesh_etag_304_and_gzip(client: TestClient, served: Served) -> None:
     r = client.get(URL, headers={"Accept-Encoding": "gzip"})
     assert r.status_code == 200 and r.headers["content-encoding"] == "gzip"
     assert r.headers["vary"] == "Accept-Encoding"
@@ -102,7 +103,7 @@ def test_mesh_etag_304_and_gzip(client: TestClient, service: InMemoryService) ->
     assert client.get(URL, headers={"If-None-Match": etag}).status_code == 304
     plain = client.get(URL, headers={"Accept-Encoding": "identity"})
     assert "content-encoding" not in plain.headers and plain.json() == r.json()
-    service.add_identification([60.0, 40.0, 60.0, 40.0, 50.0, 65.0, 12.0], identified=[True] * 7)
+    served.feed_next(1)  # a new sample moves the live field
     changed = client.get(URL, headers={"If-None-Match": etag})
     assert changed.status_code == 200 and changed.headers["etag"] != etag
 
@@ -110,7 +111,7 @@ def test_mesh_etag_304_and_gzip(client: TestClient, service: InMemoryService) ->
 class BlockingField:
     """Wraps a service; ``field()`` waits until released (a slow field build)."""
 
-    def __init__(self, inner: InMemoryService) -> None:
+    def __init__(self, inner: SoftSensorService) -> None:
         self.inner = inner
         self.release = threading.Event()
 
@@ -122,8 +123,8 @@ class BlockingField:
         return getattr(self.inner, name)
 
 
-def test_excess_field_requests_are_shed_with_retry_after(service: InMemoryService) -> None:
-    slow = BlockingField(service)
+def test_excess_field_requests_are_shed_with_retry_after(ro_service: SoftSensorService) -> None:
+    slow = BlockingField(ro_service)
     app: FastAPI = create_app(Settings(), slow)  # type: ignore[arg-type]
     with TestClient(app) as client:
         statuses: list[int] = []
