@@ -65,7 +65,9 @@ class FilterSettings:
     ``prior`` the restart prior's shape: "heated" (the steady heated fields' second moment plus a small
     isotropic part, ``model.estimator.heated_prior``) or "wide" (isotropic, ``wide_prior``);
     ``prior_sigma_c`` [°C] 1σ of the prior's uniform offset (and of the "wide" shape part); ``nis_window``
-    samples of the NIS test; ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
+    samples of the NIS health test (verdict, ``inconsistent_after_s``); ``converge_nis_samples`` samples of
+    the NIS part of the convergence gate (shorter: a χ² test over 6 × 32 dof already rejects an
+    inconsistent start, and the gate delays every identification after a (re)start); ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
     ``max_gap_s`` [s] a longer gap between samples restarts from the wide prior; snapshots every
     ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``;
     ``inconsistent_after_s`` [s]: the NIS window above its band this long is reported (``FilterView``).
@@ -75,6 +77,9 @@ class FilterSettings:
     prior: str = "heated"  # "heated" (model.estimator.heated_prior) or "wide" (isotropic shape, wide_prior)
     prior_sigma_c: float = 5.0
     nis_window: int = 30
+    converge_nis_samples: int = (
+        6  # the convergence gate's NIS window (1 min at 10 s: 192 dof with 32 channels)
+    )
     sensor_std_bound_c: float = 0.1
     field_rms_bound_c: float = 1.0
     max_gap_s: float = 300.0
@@ -224,6 +229,7 @@ class FilteredState:
         self._recent: deque[StateSnapshot] = deque(maxlen=max(1, st.recent_steps))
         self._filter: StateEstimator | None = None
         self._window = NisWindow(st.nis_window)
+        self._gate = NisWindow(st.converge_nis_samples)
         self._t: float | None = None
         self._inputs: _Inputs | None = None
         self.converged_at: float | None = None  # [s] first converged sample since the (re)start
@@ -274,6 +280,7 @@ class FilteredState:
         self._t = float(t)
         self._inputs = _Inputs(*(float(x) for x in inputs))
         self._window = NisWindow(self.settings.nis_window)
+        self._gate = NisWindow(self.settings.converge_nis_samples)
         self.converged_at = None
         self.started_at = float(t)
         self.high_since = None
@@ -425,7 +432,7 @@ class FilteredState:
         return convergence(
             self.rom,
             self.estimator.estimate,
-            self._window,
+            self._gate,
             sensor_std_bound_c=st.sensor_std_bound_c,
             field_rms_bound_c=st.field_rms_bound_c,
         )
@@ -488,6 +495,7 @@ class FilteredState:
         assert self._t is not None
         nis, dof = (0.0, 0) if res is None else (res.nis, res.dof)
         self._window.push(nis, dof)
+        self._gate.push(nis, dof)
         if dof:
             self.nis_history.append((self._t, nis, dof))
         self._last = (nis, dof)
