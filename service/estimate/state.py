@@ -67,7 +67,8 @@ class FilterSettings:
     ``prior_sigma_c`` [°C] 1σ of the prior's uniform offset (and of the "wide" shape part); ``nis_window``
     samples of the NIS health test (verdict, ``inconsistent_after_s``); ``converge_nis_samples`` samples of
     the NIS part of the convergence gate (shorter: a χ² test over 6 × 32 dof already rejects an
-    inconsistent start, and the gate delays every identification after a (re)start); ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
+    inconsistent start, and the gate delays every identification after a (re)start);
+    ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
     ``max_gap_s`` [s] a longer gap between samples restarts from the wide prior; snapshots every
     ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``;
     ``inconsistent_after_s`` [s]: the NIS window above its band this long is reported (``FilterView``).

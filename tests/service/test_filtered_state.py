@@ -100,8 +100,9 @@ def test_warm_restart_converges_and_its_band_covers_the_truth(case: Case, start_
     """A restart on a warm spindle with H off by a 20 % log-normal draw: converged (covariance bounds and a
     full, consistent NIS window) within 6 min of the start, and from then on the 95 % band of the sensors
     covers the plant's noise-free temperatures at ≥ 90 % of the (sample, channel) pairs (measured 2026-11-24:
-    converged after 4.8 min with a 30-sample NIS gate, now 6 samples; coverage 0.98 / 0.97 / 0.99 for starts 30 / 60 / 90, max z 3.3; without the
-    0.02 °C model-error term in the band 0.91 / 0.87 / 0.95, the plant's mesh at channels 28–32)."""
+    converged after 4.8 min with a 30-sample NIS gate, now 6 samples; coverage 0.98 / 0.97 / 0.99 for
+    starts 30 / 60 / 90, max z 3.3; without the 0.02 °C model-error term in the band 0.91 / 0.87 / 0.95,
+    the plant's mesh at channels 28–32)."""
     start = start_min * SPM
     h_factor = np.exp(0.2 * np.random.default_rng(0).standard_normal(7))
     res = _run(case, start, h_factor)
