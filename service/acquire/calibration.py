@@ -27,7 +27,9 @@ baseline the carried 1σ is the baseline's own error: the channel's scatter / �
 (a spindle never sits exactly at the ambient).
 
 Status: ``NO_BASELINE`` → ``SETTLING`` (idle, collecting) → ``CALIBRATED``; a calibrated calibrator keeps
-its offsets while it settles for the next baseline.
+its offsets while it settles for the next baseline. ``OffsetCalibrator(current=...)`` starts calibrated
+with a stored baseline (the service restores the newest from the database, ``service.store.calibrations``).
+Only ``BaselineTaken`` baselines are stored; the silent refinements within one rest period live in memory.
 """
 
 from __future__ import annotations
@@ -200,6 +202,8 @@ class OffsetCalibrator:
     def __post_init__(self) -> None:
         self._rest = deque(maxlen=int(self.config.max_rest_s / self.sample_period_s) + 2)
         self._eq_start: datetime | None = None
+        if self.current is not None:  # a baseline restored from the database
+            self.status = CalibrationStatus.CALIBRATED
 
     def handle(self, event: Event) -> list[Instruction]:
         """One sample or one operator request -> what happened (nothing, a baseline, a rejection)."""

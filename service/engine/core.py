@@ -80,6 +80,7 @@ from service.serve.interface import (
     NotReadyError,
 )
 from service.serve.views import data_to_record
+from service.store.calibrations import calibration_record
 from service.store.records import (
     ConditionEnd,
     ConditionStart,
@@ -138,6 +139,7 @@ class Restored:
     conditions: tuple[ConditionSnapshot, ...] = ()  # newest first
     next_condition_id: int = 1
     next_identification_id: int = 1
+    calibration: Calibration | None = None  # the newest stored sensor offset baseline
 
 
 @dataclass(frozen=True, eq=False)
@@ -237,7 +239,11 @@ class ServiceCore:
         self.last_good_daq_t: datetime | None = None  # newest sample with enough usable temperatures
         self.last_good_can_t: datetime | None = None  # newest sample with speed and torque from CAN
         cal = config.calibration
-        self.calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
+        self.calibrator = (
+            None
+            if cal is None
+            else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
+        )
 
     # --- samples ------------------------------------------------------------------------------------------
     def ingest(self, sample: Any) -> list[Launch]:
@@ -322,6 +328,7 @@ class ServiceCore:
         for ins in instructions:
             if isinstance(ins, BaselineTaken):
                 c = ins.calibration
+                self.sink.submit(calibration_record(c))
                 self.on_event(
                     f"sensor offsets zeroed ({c.source} baseline, {c.samples} samples at rest until "
                     f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."

@@ -36,8 +36,14 @@ __all__ = ["GateSink", "Persistence", "open_persistence", "restore"]
 log = logging.getLogger(__name__)
 
 
-def restore(session_factory: Any, *, limit: int = 100) -> Restored:
-    """The state of the previous run from the database (raises ``service.store.errors.DatabaseError``)."""
+def restore(
+    session_factory: Any, *, limit: int = 100, on_problem: Callable[[str], None] | None = None
+) -> Restored:
+    """The state of the previous run from the database (raises ``service.store.errors.DatabaseError``).
+
+    A stored offset baseline that cannot be used is reported to ``on_problem`` (and logged) and left in the
+    table; the service then starts without a baseline and everything else is restored.
+    """
     from service.store.repository import (
         last_served_identification,
         latest_per_condition,
@@ -62,13 +68,28 @@ def restore(session_factory: Any, *, limit: int = 100) -> Restored:
         )
         rows = list_conditions(session, limit=50).items
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
+        calibration = _restore_calibration(session, on_problem)
     return Restored(
+        calibration=calibration,
         last=last,
         history=history,
         conditions=conditions,
         next_condition_id=cond_max + 1,
         next_identification_id=ident_max + 1,
     )
+
+
+def _restore_calibration(session: Any, on_problem: Callable[[str], None] | None) -> Any:
+    from service.store.calibrations import StoredCalibrationError, restore_calibration
+
+    try:
+        return restore_calibration(session)
+    except StoredCalibrationError as err:
+        text = f"stored sensor offset baseline not restored ({err}); starting without a baseline"
+        log.warning("%s", text)
+        if on_problem is not None:
+            on_problem(text)
+        return None
 
 
 def fallback_restored(now_s: float | None = None) -> Restored:
@@ -277,7 +298,7 @@ def open_persistence(
     try:
         with read_watchdog.guard("migrate and restore"):  # a hung database cannot hold the start-up
             _prepare_schema(engine, migrate)
-            restored = restore(factory)
+            restored = restore(factory, on_problem=say)
         from_db = True
         sink.open(_start_writer(w_factory, db, clock=clock, watchdog=w_watchdog))
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background
