@@ -26,6 +26,7 @@ import numpy as np
 from drivers.quality import Quality
 from model.carry import StateCovariance
 from service.acquire.calibration import (
+    BaselineRefined,
     BaselineRequest,
     BaselineTaken,
     Calibration,
@@ -326,6 +327,8 @@ class ServiceCore:
 
     def _calibrated(self, instructions: Sequence[Any]) -> Calibration | None:
         for ins in instructions:
+            if isinstance(ins, BaselineRefined):  # the same rest, a longer average: stored, no message
+                self.sink.submit(calibration_record(ins.calibration))
             if isinstance(ins, BaselineTaken):
                 c = ins.calibration
                 self.sink.submit(calibration_record(c))
