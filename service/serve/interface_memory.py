@@ -446,15 +446,30 @@ class InMemoryService:
             m = float(temps[i]) if quality[i] == "ok" and np.isfinite(temps[i]) else None
             p = float(pred[i]) if np.isfinite(pred[i]) else None
             res = None if m is None or p is None else m - p
-            out.append(SensorReading(ch, name, role, r, z, m, p, res, quality[i], t))
+            out.append(self._with_offset(SensorReading(ch, name, role, r, z, m, p, res, quality[i], t), i))
         return out
 
     baseline: OffsetBaseline | None = None  # what request_baseline answers (tests set it)
+    calibrated: OffsetBaseline | None = None  # the baseline in use (set by request_baseline, or by tests)
 
     def request_baseline(self) -> OffsetBaseline:
         if self.baseline is None:
             raise NotReadyError("no baseline: no samples at rest")
+        self.calibrated = self.baseline
         return self.baseline
+
+    def _with_offset(self, reading: SensorReading, i: int) -> SensorReading:
+        """``reading`` with channel ``i``'s offset of the baseline in use (unchanged without one)."""
+        b = self.calibrated
+        if b is None:
+            return reading
+        return replace(
+            reading,
+            offset_c=b.offsets_c[i] if i < len(b.offsets_c) else None,
+            offset_sd_c=b.sd_c[i] if i < len(b.sd_c) else None,
+            offset_calibrated_at=b.t_to,
+            offset_source=b.source,
+        )
 
     def condition(self) -> ConditionSnapshot:
         if self._condition is None:

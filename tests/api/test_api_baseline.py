@@ -27,8 +27,12 @@ def test_baseline_needs_the_token_and_names_why_it_cannot_be_taken(
     body = r.json()
     assert body["t_to"] == "2026-11-22T06:30:00Z" and body["source"] == "manual" and body["samples"] == 181
     assert body["offsets_c"][0] == 0.1235 and body["offsets_c"][1] is None and body["sd_c"][5] == 0.011
+    ch = client.get("/api/v1/sensors").json()["channels"]  # the baseline now in use, per channel
+    assert ch[0]["offset_c"] == 0.1235 and ch[0]["offset_source"] == "manual" and ch[1]["offset_c"] is None
+    assert ch[0]["offset_calibrated_at"] == "2026-11-22T06:30:00Z" and ch[5]["offset_sd_c"] == 0.011
 
 
 def test_sensors_show_offset_fields(client: TestClient) -> None:
     ch = client.get("/api/v1/sensors").json()["channels"][0]
-    assert {"offset_c", "offset_sd_c", "offset_calibrated_at"} <= set(ch)
+    assert {"offset_c", "offset_sd_c", "offset_calibrated_at", "offset_source"} <= set(ch)
+    assert ch["offset_source"] is None  # no baseline yet

@@ -409,3 +409,45 @@ def test_a_missing_read_token_is_named_and_the_token_in_the_url_fragment_is_used
         page.call("Page.navigate", url=server.url + "/#token=reader-token-for-tests")
         page.wait(f"!window.withoutToken && {RENDERED} && document.getElementById('banner')?.hidden")
         assert page.eval("sessionStorage.getItem('chtc-token')") == "reader-token-for-tests"
+
+
+BASELINE = "document.getElementById('baseline-meta').textContent"
+BASELINE_RESULT = "document.getElementById('baseline-result').textContent"
+
+
+@pytest.mark.browser
+def test_the_offset_baseline_is_shown_and_can_be_taken_with_the_write_token(page: _Page) -> None:
+    """No baseline: named as unknown offsets; a refused request names why (409); a taken one shows its
+    source, time and offset range in the card and each channel's offset in the legend table."""
+    from service.serve.interface import OffsetBaseline
+
+    svc = demo_service()
+    with LiveServer(create_app(Settings(api={"token": WRITE_TOKEN}), svc)) as server:
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(RENDERED)
+        assert page.wait(BASELINE).startswith("no offset baseline: sensor offsets unknown")
+        page.eval("document.getElementById('baseline-now').click()")
+        assert page.eval("document.getElementById('baseline-dialog').open") is True
+        page.eval(f"document.getElementById('baseline-token').value = '{WRITE_TOKEN}'")
+        page.eval("document.getElementById('baseline-submit').click()")
+        refused = page.wait(f"{BASELINE_RESULT}.startsWith('refused') && {BASELINE_RESULT}")
+        assert refused == "refused (409): no baseline taken: no baseline: no samples at rest"
+
+        offsets = tuple(round(-0.21 + 0.013 * i, 3) for i in range(32))
+        t_to = datetime(2026, 11, 22, 6, 30, tzinfo=UTC)
+        svc.baseline = OffsetBaseline(
+            t_to.replace(hour=6, minute=0), t_to, "manual", 181, offsets, (0.011,) * 32
+        )
+        page.eval("document.getElementById('baseline-now').click()")
+        page.eval("document.getElementById('baseline-submit').click()")  # the kept token
+        taken = page.wait(f"{BASELINE_RESULT}.startsWith('baseline taken') && {BASELINE_RESULT}")
+        assert taken == "baseline taken (181 samples until 2026-11-22 06:30:00 UTC)"
+        meta = page.wait(f"{BASELINE}.startsWith('offset baseline') && {BASELINE}")
+        cell = page.eval(
+            "document.querySelector('#sensor-legend tr[data-channel=\"7\"] td:nth-child(8)').textContent"
+        )
+    assert meta == (
+        f"offset baseline: manual, at rest until 2026-11-22 06:30:00 UTC · offsets {min(offsets):.2f}.."
+        f"{max(offsets):.2f} °C over 32 channels (subtracted before the fit)"
+    )
+    assert cell == f"{offsets[6]:.2f} °C"
