@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from service.acquire.calibration import CalibrationConfig
+from service.acquire.calibration import Calibration, CalibrationConfig
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
@@ -49,3 +49,4 @@ class Restored:
     conditions: tuple[ConditionSnapshot, ...] = ()  # newest first
     next_condition_id: int = 1
     next_identification_id: int = 1
+    calibration: Calibration | None = None  # the newest stored sensor offset baseline

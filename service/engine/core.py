@@ -35,6 +35,7 @@ import numpy as np
 from drivers.ringbuffer import RingBuffer, Sample
 from model.identify import IdentificationResult
 from service.acquire.calibration import (
+    BaselineRefined,
     BaselineRejected,
     BaselineRequest,
     BaselineTaken,
@@ -82,6 +83,7 @@ from service.serve.interface import (
     ConditionState,
     IdentificationRecord,
 )
+from service.store.calibrations import calibration_record
 from service.store.records import (
     ConditionEnd,
     ConditionStart,
@@ -171,8 +173,12 @@ class ServiceCore:
             store_period_s=config.sample_store_period_s,
         )
         cal = config.calibration
-        self._calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
-        if self._calibrator is not None:
+        self._calibrator = (
+            None
+            if cal is None
+            else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
+        )
+        if self._calibrator is not None:  # a restored baseline's offsets go to the filter at once
             self._live.set_offsets(self._calibrator.offsets(), self._calibrator.offset_sd())
 
     # --- the state machine ----------------------------------------------------------------------------------
@@ -272,11 +278,15 @@ class ServiceCore:
         self._calibrated(self._calibrator.handle(reading), out)
 
     def _calibrated(
-        self, instructions: Sequence[BaselineTaken | BaselineRejected], out: _Out
+        self, instructions: Sequence[BaselineTaken | BaselineRefined | BaselineRejected], out: _Out
     ) -> Calibration | None:
         for ins in instructions:
+            if isinstance(ins, BaselineRefined):  # the same rest, a longer average: stored, no message
+                out.store(calibration_record(ins.calibration))
+                self._live.set_offsets(ins.calibration.applied(), ins.calibration.sd_c)
             if isinstance(ins, BaselineTaken):
                 c = ins.calibration
+                out.store(calibration_record(c))
                 out.log(
                     f"sensor offsets zeroed ({c.source} baseline, {c.samples} samples at rest until "
                     f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."
