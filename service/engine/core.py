@@ -224,7 +224,6 @@ class ServiceCore:
             calibration=None if cal is None else cal.current,
             offset_sd_c=sd,
             live=self._live.view() if self._live.initialized else None,
-            converging=None if self._live.ready_at() is not None else converging_reason(self._live),
             stale_after_s=self.config.stale_after_s,
             min_good_channels=self.config.rules.min_good_channels,
         )

@@ -60,7 +60,6 @@ class CoreView:
     calibration: Calibration | None  # the current offset baseline (None: none, or calibration off)
     offset_sd_c: np.ndarray | None  # (n,) °C 1σ of the offsets still unknown (None: calibration off)
     live: FilterView | None  # the filtered live state (None before it started)
-    converging: str | None  # "state_converging: ..." while the live state has not converged (None: converged)
     stale_after_s: float
     min_good_channels: int
 
