@@ -33,6 +33,13 @@ def test_metrics_parse_and_carry_service_numbers(
     assert total["ok"] == 2.0 and total == {k: float(v) for k, v in m.identifications_total.items()}
     fit = fam["chtc_identification_fit"][0].value
     assert fit == m.last_fit
+    # the live state's Kalman filter: the last sample's NIS over its channels, converged and consistent
+    f = m.filter
+    assert f is not None and f.dof == fam["chtc_filter_nis_dof"][0].value > 0
+    assert fam["chtc_filter_nis"][0].value == f.nis > 0.0
+    assert fam["chtc_filter_converged"][0].value == 1.0 and fam["chtc_filter_consistent"][0].value == 1.0
+    verdicts = {s.labels["verdict"]: s.value for s in fam["chtc_filter_nis_verdict"]}
+    assert sum(verdicts.values()) == 1.0 and verdicts[f.verdict] == 1.0 and verdicts["high"] == 0.0
 
 
 def test_request_latency_histogram_counts_requests(ro_client: TestClient) -> None:

@@ -198,7 +198,7 @@ def test_identification_by_id(ro_client: TestClient, ro_service: SoftSensorServi
 def test_healthz_lists_devices_and_degrades(client: TestClient, served_db_down: Served) -> None:
     body = client.get("/api/v1/healthz").json()
     assert body["status"] == "ok" and body["model_loaded"] is True
-    assert {d["name"]: d["status"] for d in body["devices"]} == {"db": "ok", "worker": "ok"}
+    assert {d["name"]: d["status"] for d in body["devices"]} == {"db": "ok", "worker": "ok", "filter": "ok"}
     s = served_db_down
     with TestClient(create_app(Settings(), s.service, clock=s.clock)) as down:
         r = down.get("/api/v1/healthz")
