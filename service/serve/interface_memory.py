@@ -26,6 +26,7 @@ from service.serve.interface import (
     BusyError,
     ChtcSnapshot,
     ChtcStatus,
+    CompensationSnapshot,
     ConditionSnapshot,
     ConditionState,
     DeviceHealth,
@@ -186,6 +187,7 @@ class InMemoryService:
         history_capacity: int = 2160,
     ) -> None:
         self._lock = threading.Lock()
+        self._compensation: CompensationSnapshot | None = None
         self._section = section if section is not None else synthetic_section()
         self._history = SensorHistoryBuffer(history_capacity, [s[:3] for s in self._section.sensors])
         self._clock = clock
@@ -547,6 +549,15 @@ class InMemoryService:
     def layout(self) -> SpindleLayout:
         sec = self._section
         return SpindleLayout(sec.model_version, sec.parts, sec.zones)
+
+    def compensation(self) -> CompensationSnapshot | None:
+        """The snapshot given to ``set_compensation`` (None until then: this fake has no growth model)."""
+        with self._lock:
+            return self._compensation
+
+    def set_compensation(self, snapshot: CompensationSnapshot | None) -> None:
+        with self._lock:
+            self._compensation = snapshot
 
 
 PAPER_H_3000 = (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54)  # SPEC §2, Table 4
