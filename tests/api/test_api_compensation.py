@@ -158,3 +158,21 @@ def test_nothing_to_serve_is_503_and_the_schema_is_in_openapi() -> None:
     props = spec["components"]["schemas"][name]["properties"]
     for key in ("status", "usable_for_compensation", "axial", "radial", "forecast", "plc", "sensitivity"):
         assert key in props, key
+
+
+def test_metrics_carry_the_served_growth(served: Served) -> None:
+    body = served.client.get("/api/v1/compensation").json()
+    text = served.client.get("/api/v1/metrics").text
+    for direction in ("axial", "radial"):
+        line = next(
+            x for x in text.splitlines() if x.startswith(f'chtc_growth_um{{direction="{direction}"}}')
+        )
+        assert float(line.split()[-1]) == pytest.approx(body[direction]["um"], abs=1e-3)
+        lo, hi = body[direction]["ci95_um"]
+        half = next(
+            x
+            for x in text.splitlines()
+            if x.startswith(f'chtc_growth_ci95_half_width_um{{direction="{direction}"}}')
+        )
+        assert float(half.split()[-1]) == pytest.approx(0.5 * (hi - lo), abs=1e-3)
+    assert f'chtc_growth_status{{status="{body["status"]}"}} 1.0' in text
