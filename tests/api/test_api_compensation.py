@@ -4,9 +4,11 @@ the /chtc rules (stale when data stop), and the dashboard shows it."""
 
 from __future__ import annotations
 
+import re
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -27,7 +29,8 @@ from service.identify.worker import run_job
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
 from service.sim.logsamples import samples_from_plant
-from tests.api.conftest import ManualClock
+from tests.api.conftest import LiveServer, ManualClock
+from tests.api.test_api_dashboard import _chromium
 
 CFG = CoreConfig(
     detector=DetectorConfig(hold_s=60.0),
@@ -176,3 +179,19 @@ def test_metrics_carry_the_served_growth(served: Served) -> None:
         )
         assert float(half.split()[-1]) == pytest.approx(0.5 * (hi - lo), abs=1e-3)
     assert f'chtc_growth_status{{status="{body["status"]}"}} 1.0' in text
+
+
+@pytest.mark.browser
+def test_dashboard_growth_panel_shows_the_served_value(
+    chromium_path: str, tmp_path: Path, served: Served
+) -> None:
+    body = served.client.get("/api/v1/compensation").json()
+    with LiveServer(create_app(Settings(), served.svc, clock=served.clock)) as server:
+        dom = _chromium(chromium_path, tmp_path, server.url + "/", "--window-size=1400,1600", "--dump-dom")
+    shown = re.search(r'id="growth-axial">([^<]*)<', dom)
+    assert shown is not None, re.findall(r'id="growth-now"[^\n]{0,300}', dom)
+    assert shown.group(1) == f"{body['axial']['um']:.1f}"
+    assert re.search(r'id="growth-chart"[^>]*data-points="1"', dom), re.findall(
+        r'<canvas id="growth-chart"[^>]*>', dom
+    )
+    assert "axial growth, µm" in dom
