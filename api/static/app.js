@@ -649,7 +649,8 @@ function drawGrowth() {
   canvas.dataset.points = String(pts.length);
   if (!g || !pts.length) { ctx.fillStyle = MUTED; ctx.fillText("no growth yet", box.L + 10, H / 2); return; }
   const fc = g.forecast.horizons.map((h) => ({ t: Date.parse(h.at), v: h.axial }));
-  const t0 = Math.min(pts[0].t, Date.parse(g.at) - 600e3), t1 = Math.max(...fc.map((p) => p.t));
+  const t0 = Math.min(pts[0].t, Date.parse(g.at) - 600e3), tf = Math.max(...fc.map((p) => p.t));
+  const t1 = tf + 0.03 * (tf - t0); // room for the last forecast point
   const vals = [...pts.flatMap((p) => p.ci), ...fc.flatMap((p) => p.v.ci95_um), g.forecast.steady_axial.um];
   let lo = Math.min(...vals, 0), hi = Math.max(...vals, 1);
   const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
