@@ -41,7 +41,13 @@ from service.estimate.growth import (
     h_cov_from_ci,
     plc_compensation,
 )
-from service.serve.interface import ChtcSnapshot, CompensationSnapshot, IdentificationRecord
+from service.estimate.live import LiveView
+from service.serve.interface import (
+    ChtcSnapshot,
+    CompensationSnapshot,
+    ConditionSnapshot,
+    IdentificationRecord,
+)
 
 if TYPE_CHECKING:
     from model.carry import StateCovariance
@@ -167,20 +173,22 @@ class GrowthServer:
         with self._lock:
             if self._terms is not None and self._terms.key == key:
                 return self._terms.terms
-        ctx = self.prepare()
-        terms = self._compute_terms(ctx, view, view.current)
+        terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current)
         with self._lock:
             self._terms = _Terms(key, terms)
             if self._pending == key:
                 self._pending = None
         return terms
 
-    def _compute_terms(self, ctx: GrowthContext, view: CoreView, rec: IdentificationRecord) -> ConditionTerms:
+    def _compute_terms(
+        self,
+        ctx: GrowthContext,
+        live: LiveView,
+        cond: ConditionSnapshot | None,
+        rec: IdentificationRecord,
+    ) -> ConditionTerms:
         from model.inputs import inputs_from_operation
 
-        live = view.live
-        assert live is not None
-        cond = view.condition
         ambient, speed, torque = (
             (cond.ambient_c, cond.speed_rpm, cond.torque_nm) if cond is not None else live.inputs
         )
@@ -198,6 +206,12 @@ class GrowthServer:
             load_scale=(float(live.load_scale[0]), float(live.load_scale[1])),
         )
 
+    def ready_for(self, view: CoreView) -> bool:
+        """True when the condition terms for ``view`` are computed (a request then does dot products only)."""
+        key = self.terms_key(view)
+        with self._lock:
+            return key is not None and self._terms is not None and self._terms.key == key
+
     # --- stage 3
     def estimate(self, view: CoreView) -> GrowthEstimate | None:
         """The growth of ``view``'s live field (None: no identification or no live state yet)."""
@@ -206,8 +220,7 @@ class GrowthServer:
         if terms is None or live is None:
             return None
         self.observe(view)
-        t_ref = self._t_ref_c
-        assert t_ref is not None
+        t_ref = self._t_ref_c if self._t_ref_c is not None else float(np.mean(live.field_c))
         key = (live.t, id(terms), t_ref)
         cached = self._estimate
         if cached is not None and cached[0] == key:

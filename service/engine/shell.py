@@ -172,6 +172,11 @@ class SoftSensorService:
         self._growth = GrowthServer(core.model, core.live_covariance)  # /compensation
 
     @property
+    def growth(self) -> GrowthServer:
+        """The thermal growth's server (``compensation()``; docs/growth.md)."""
+        return self._growth
+
+    @property
     def view(self) -> CoreView:
         """The core's state after the last event (immutable; replaced, never changed)."""
         return self._view

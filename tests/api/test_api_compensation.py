@@ -4,7 +4,9 @@ the /chtc rules (stale when data stop), and the dashboard shows it."""
 
 from __future__ import annotations
 
+import asyncio
 import re
+import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -195,3 +197,36 @@ def test_dashboard_growth_panel_shows_the_served_value(
         r'<canvas id="growth-chart"[^>]*>', dom
     )
     assert "axial growth, µm" in dom
+
+
+def test_on_the_running_loop_the_terms_are_ready_before_the_first_request() -> None:
+    """With a loop (the running service), the growth model is built at start and a new identification's
+    terms are computed in a thread as soon as it is published, not by the request."""
+    model = load_model(ModelRef.from_settings(Settings().model))
+    run = VirtualPlant(load_spindle(), mesh_size_m=0.004, seed=6).run(
+        [Segment(300.0, 0.0, 0.0, 22.0), Segment(1200.0, 3000.0, 6.0, 22.0)]
+    )
+    samples = samples_from_plant(run, t0_s=T0)
+    clock = ManualClock(samples[0].t)
+    svc = SoftSensorService(
+        ServiceCore(CFG, model=model), worker=None, clock=clock, run_job=lambda r: run_job(model, r)
+    )
+
+    async def drive() -> bool:
+        await svc.start()
+        try:
+            for s in samples:
+                clock.now = s.t
+                svc.on_sample(s)
+                await asyncio.sleep(0)
+            deadline = time.monotonic() + 30.0
+            while not svc.growth.ready_for(svc.view) and time.monotonic() < deadline:
+                await asyncio.sleep(0.05)
+            return svc.growth.ready_for(svc.view)
+        finally:
+            await svc.close()
+
+    assert asyncio.run(drive()), "the terms were not computed off the request"
+    assert svc.view.current is not None
+    snap = svc.compensation()
+    assert snap is not None and snap.identification_id == svc.view.current.id
