@@ -53,10 +53,10 @@ if TYPE_CHECKING:
     from model.carry import StateCovariance
     from service.modelload import LoadedModel
 
-__all__ = ["GrowthServer", "field_belief"]
+__all__ = ["GrowthHistory", "GrowthServer", "field_belief", "h_covariance"]
 
 DT_S = 10.0  # the live state's step (model.carry.propagate's unit)
-UNKNOWN_CI_FACTOR = 100.0  # an H without a finite positive CI: served as H/100..H·100 (a huge σ)
+UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
 TermsKey = tuple[object, ...]
 
 
@@ -91,15 +91,17 @@ def field_belief(model: LoadedModel, view: CoreView, live_covariance: LiveCovari
 
 def h_covariance(rec: IdentificationRecord, h_live: np.ndarray) -> np.ndarray:
     """Σ_H (7, 7) from ``rec``'s 95 % CIs, relative to the H the live state uses (uncorrelated: the stored
-    record keeps no correlation). A bound that is missing or not positive (not identified) stands for a CI
-    of H/100..H·100."""
+    record keeps no correlation). Each bound is capped at H/100 and H·100 (a missing or non-positive one, or
+    one of a hopeless H, whose log-H CI can reach 1e-30..1e+60): then σ_H ≈ 2.3·H, linearised."""
     h = np.asarray(rec.h, dtype=float)
     good = np.isfinite(h) & (h > 0)
     h = np.where(good, h, h_live)
     lo, hi = np.asarray(rec.ci95_lo, dtype=float), np.asarray(rec.ci95_hi, dtype=float)
     bad = ~(good & np.isfinite(lo) & np.isfinite(hi) & (lo > 0) & (hi >= lo))
-    lo = np.where(bad, h / UNKNOWN_CI_FACTOR, lo)
-    hi = np.where(bad, h * UNKNOWN_CI_FACTOR, hi)
+    lo = np.where(bad, 0.0, lo)
+    hi = np.where(bad, np.inf, hi)
+    lo = np.maximum(lo, h / UNKNOWN_CI_FACTOR)  # a CI in log H can reach 1e-30..1e+60: capped
+    hi = np.minimum(hi, h * UNKNOWN_CI_FACTOR)
     cov = h_cov_from_ci(h, np.column_stack([lo, hi]))
     return np.asarray(cov * np.outer(h_live / h, h_live / h))
 
@@ -252,3 +254,35 @@ class GrowthServer:
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
         )
+
+
+class GrowthHistory:
+    """The growth at each identification's end, offline (``run_offline``'s ``on_sample`` hook): after the
+    sample whose identification succeeded, the live state is rebased on its fitted end field, and the growth
+    of that field is what ``/compensation`` would have served then (the same ``GrowthServer``, the same
+    reference: the live state's start temperature). ``by_id``: identification id -> ``GrowthEstimate``."""
+
+    def __init__(self, model: LoadedModel) -> None:
+        self.model = model
+        self.by_id: dict[int, GrowthEstimate] = {}
+        self._server: GrowthServer | None = None
+
+    def __call__(self, core: ServiceCoreLike, k: int, last_ok: object) -> None:
+        view = core.view()
+        if self._server is None:
+            self._server = GrowthServer(self.model, core.live_covariance)
+        self._server.observe(view)
+        rec = view.current
+        if rec is None or view.current_from_restore or rec.id in self.by_id:
+            return
+        est = self._server.estimate(view)
+        if est is not None:
+            self.by_id[rec.id] = est
+
+
+class ServiceCoreLike(Protocol):
+    """What ``GrowthHistory`` reads of ``service.engine.core.ServiceCore``."""
+
+    def view(self) -> CoreView: ...
+
+    def live_covariance(self, t: float) -> StateCovariance | None: ...

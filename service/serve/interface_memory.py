@@ -551,13 +551,72 @@ class InMemoryService:
         return SpindleLayout(sec.model_version, sec.parts, sec.zones)
 
     def compensation(self) -> CompensationSnapshot | None:
-        """The snapshot given to ``set_compensation`` (None until then: this fake has no growth model)."""
+        """The snapshot given to ``set_compensation``, else a stand-in (no growth model here): the growth
+        proportional to the newest sample's mean rise over the ambient (None before an identification)."""
         with self._lock:
-            return self._compensation
+            if self._compensation is not None:
+                return self._compensation
+            sample, cond = self._sample, self._condition
+        snap = self.chtc()
+        if snap is None or sample is None or cond is None:
+            return None
+        t, temps, _ = sample
+        rise = float(np.nanmean(temps)) - cond.ambient_c if np.any(np.isfinite(temps)) else 0.0
+        return stand_in_compensation(snap, at=t, rise_c=rise, ambient_c=cond.ambient_c, n=len(temps))
 
     def set_compensation(self, snapshot: CompensationSnapshot | None) -> None:
         with self._lock:
             self._compensation = snapshot
+
+
+def stand_in_compensation(
+    snap: ChtcSnapshot, *, at: datetime, rise_c: float, ambient_c: float, n: int
+) -> CompensationSnapshot:
+    """A plausible ``/compensation`` value for the fake: 1.2 µm/K axial and 0.7 µm/K radial of the mean rise,
+    heading to 1.5 times that with a 30-min time constant, 1σ 0.5 µm (the real one: service/engine)."""
+    from service.estimate.growth import (
+        GrowthEstimate,
+        GrowthForecastEstimate,
+        GrowthValue,
+        plc_compensation,
+    )
+
+    axial, radial, tau = 1.2 * rise_c, 0.7 * rise_c, 1800.0
+    horizons = (300.0, 900.0, 1800.0)
+
+    def ahead(now: float, h: float) -> GrowthValue:
+        return GrowthValue.of(1.5 * now - 0.5 * now * float(np.exp(-h / tau)), 0.5, 0.3)
+
+    growth = GrowthEstimate(
+        at=at,
+        t_ref_c=ambient_c,
+        axial=GrowthValue.of(axial, 0.4, 0.3),
+        radial=GrowthValue.of(radial, 0.3, 0.2),
+        forecast=GrowthForecastEstimate(
+            steady_axial=GrowthValue.of(1.5 * axial, 0.0, 0.6),
+            steady_radial=GrowthValue.of(1.5 * radial, 0.0, 0.4),
+            tau_s=tau,
+            slowest_tau_s=2.0 * tau,
+            horizons_s=horizons,
+            axial=tuple(ahead(axial, h) for h in horizons),
+            radial=tuple(ahead(radial, h) for h in horizons),
+        ),
+        sensitivity_axial_um_per_k=(0.05,) * n,
+        sensitivity_radial_um_per_k=(0.02,) * n,
+        h=tuple(float(x) for x in snap.h),
+        ambient_c=ambient_c,
+    )
+    return CompensationSnapshot(
+        growth=growth,
+        status=snap.status,
+        usable_for_compensation=snap.usable_for_compensation,
+        reason=snap.reason,
+        newest_sample_at=snap.newest_sample_at,
+        identification_id=snap.identification_id,
+        plc=plc_compensation(axial),
+        tool_dir=-1,
+        channels=tuple(range(1, n + 1)),
+    )
 
 
 PAPER_H_3000 = (88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54)  # SPEC §2, Table 4
