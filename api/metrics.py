@@ -22,7 +22,13 @@ from prometheus_client.core import (
 from prometheus_client.registry import Collector
 
 from service.serve.histogram import LATENCY_BUCKETS_S
-from service.serve.interface import ChtcService, ChtcSnapshot, CompensationSnapshot, HistogramData
+from service.serve.interface import (
+    ChtcService,
+    ChtcSnapshot,
+    CompensationSnapshot,
+    HistogramData,
+    ServiceError,
+)
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 
@@ -142,7 +148,11 @@ class ServiceCollector(Collector):
         )
         yield _counter("chtc_can_events", "CAN events: gaps, faults, silence", "event", m.can_events_total)
         yield from _chtc_gauges(m.chtc)
-        yield from _growth_gauges(self._service.compensation())
+        try:
+            growth = self._service.compensation()
+        except ServiceError:  # no growth model (its cause: /compensation, 503)
+            growth = None
+        yield from _growth_gauges(growth)
         yield from _readiness(self._service)
         yield InfoMetricFamily(
             "chtc_build",

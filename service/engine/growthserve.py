@@ -47,6 +47,7 @@ from service.serve.interface import (
     CompensationSnapshot,
     ConditionSnapshot,
     IdentificationRecord,
+    NotReadyError,
 )
 
 if TYPE_CHECKING:
@@ -129,17 +130,24 @@ class GrowthServer:
         self.tool_dir = tool_dir
         self._lock = threading.Lock()
         self._ctx: GrowthContext | None = None
+        self._error: str | None = None
         self._terms: _Terms | None = None
         self._pending: TermsKey | None = None
         self._estimate: tuple[tuple[object, ...], GrowthEstimate] | None = None
 
     # --- stage 1
     def prepare(self) -> GrowthContext:
-        """The growth context (built once, ~0.7 s; blocking: call it off the event loop)."""
+        """The growth context (built once, ~0.7 s; blocking: call it off the event loop). ``NotReadyError``
+        naming the cause when the spindle description has no usable mechanics (tried once)."""
         with self._lock:
-            if self._ctx is None:
+            if self._ctx is None and self._error is None:
                 m = self.model
-                self._ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
+                try:
+                    self._ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
+                except Exception as err:  # any failure of the optional growth model: served as 503
+                    self._error = f"growth model unavailable: {type(err).__name__}: {err}"
+            if self._ctx is None:
+                raise NotReadyError(self._error or "growth model unavailable")
             return self._ctx
 
     # --- stage 2

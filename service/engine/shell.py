@@ -188,7 +188,10 @@ class SoftSensorService:
         self._loop_thread = threading.get_ident()
         stepper = await asyncio.to_thread(self.core.prepare_stepper, self.core.live_h)
         self.handle(StepperPrepared(self._next_id("stepper"), stepper))
-        await asyncio.to_thread(self._growth.prepare)  # the growth model: once, off the loop
+        try:
+            await asyncio.to_thread(self._growth.prepare)  # the growth model: once, off the loop
+        except NotReadyError as err:  # /compensation answers 503 with the cause; H is served as before
+            self.record_event("growth", "unavailable", str(err))
         if self.worker is not None:
             version = await self.worker.start()
             self.model_loaded = True

@@ -5,6 +5,7 @@ the /chtc rules (stale when data stop), and the dashboard shows it."""
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import re
 import time
 from collections.abc import Iterator
@@ -21,7 +22,7 @@ from model.geometry import load_spindle
 from model.inputs import inputs_from_operation
 from model.plant import Segment, VirtualPlant
 from service.engine.core import CoreConfig, ServiceCore
-from service.engine.growthserve import field_belief, h_covariance
+from service.engine.growthserve import GrowthServer, field_belief, h_covariance
 from service.engine.shell import SoftSensorService
 from service.estimate.growth import build_context, condition_terms, estimate_growth
 from service.identify.detector import DetectorConfig
@@ -29,6 +30,7 @@ from service.identify.scheduler import SchedulerConfig
 from service.identify.window import WindowRules
 from service.identify.worker import run_job
 from service.modelload import LoadedModel, ModelRef, load_model
+from service.serve.interface import NotReadyError
 from service.settings import Settings
 from service.sim.logsamples import samples_from_plant
 from tests.api.conftest import LiveServer, ManualClock
@@ -230,3 +232,21 @@ def test_on_the_running_loop_the_terms_are_ready_before_the_first_request() -> N
     assert svc.view.current is not None
     snap = svc.compensation()
     assert snap is not None and snap.identification_id == svc.view.current.id
+
+
+def test_a_spindle_without_mechanics_serves_h_and_says_why_there_is_no_growth(served: Served) -> None:
+    """The growth model is optional: without ``[mechanics]`` the service starts, and the growth is
+    ``NotReadyError`` naming the cause (503 not_ready), not a crash."""
+    bare = dataclasses.replace(served.model, spec=dataclasses.replace(served.model.spec, mechanics=None))
+    server = GrowthServer(bare, served.svc.core.live_covariance)
+    with pytest.raises(NotReadyError, match="growth model unavailable"):
+        server.snapshot(served.svc.view, served.svc.chtc)
+    events: list[str] = []
+    svc = SoftSensorService(ServiceCore(CFG, model=bare), worker=None, on_event=events.append)
+
+    async def start_and_close() -> None:
+        await svc.start()
+        await svc.close()
+
+    asyncio.run(start_and_close())
+    assert any(e.startswith("growth: unavailable growth model unavailable") for e in events), events
