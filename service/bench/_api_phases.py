@@ -1,5 +1,6 @@
-"""Helpers of ``chtc bench api`` (see :mod:`service.bench.api`): the busy load (an identification loop in a
-separate process), the change-to-fresh measurement through ``chtc demo``, and process clean-up."""
+"""Helpers of ``chtc bench api`` (see :mod:`service.bench.api`): the served service, the busy load (an
+identification loop in a separate process), the change-to-fresh measurement through ``chtc demo``, and process
+clean-up."""
 
 from __future__ import annotations
 
@@ -12,8 +13,10 @@ import subprocess
 import sys
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -37,38 +40,22 @@ def stop_process(proc: subprocess.Popen[Any] | mp.process.BaseProcess) -> None:
             proc.join()
 
 
-# --- the server's service: the in-memory one on the real mesh, with a live-like field -------------------
-class LiveLikeField:
-    """Wraps ``demo_service(section=model_section())``: ``field("now")`` returns a new snapshot on every call
-    (as the running service does) whose temperatures change every ``period_s`` (as a new sample does)."""
+# --- the server's service: the real one, fed a virtual-plant run ---------------------------------------
+@contextmanager
+def bench_service(tmp: Path, *, field_period_s: float = 10.0) -> Iterator[tuple[Any, str]]:
+    """The served service the benchmark's API serves (``service.sim.served``: the real core and shell on
+    SQLite in ``tmp``, fed the demo plan's first 22 min: two identifications, fresh) and a line saying what
+    it is. The next samples follow every ``field_period_s`` wall seconds (5 min of them at 4000 rpm, before
+    the next scheduled identification), so the live field changes as with a running acquisition."""
+    from service.sim.served import DEMO_FED, served_service
 
-    def __init__(self, inner: Any, *, period_s: float = 10.0) -> None:
-        self.inner = inner
-        self.period_s = period_s
-
-    def field(self, at: Any) -> Any:
-        from dataclasses import replace
-
-        f = self.inner.field(at)
-        if at != "now":
-            return f
-        k = int(time.time() // self.period_s)
-        return replace(f, temps_c=f.temps_c + 0.01 * (k % 100))
-
-    def __getattr__(self, name: str) -> Any:
-        return getattr(self.inner, name)
-
-
-def bench_service(*, field_period_s: float = 10.0) -> tuple[Any, str]:
-    """The service the benchmark's API serves, and which mesh it uses."""
-    from service.serve.interface_memory import demo_service, model_section
-
-    try:
-        svc, mesh = demo_service(section=model_section()), "the service's FE mesh"
-    except Exception as err:  # the model package cannot build its mesh here: the synthetic section
-        svc, mesh = demo_service(), f"synthetic section ({type(err).__name__})"
-    f = svc.field("now")
-    return LiveLikeField(svc, period_s=field_period_s), f"{mesh}: {len(f.nodes_rz)} nodes"
+    with served_service(database_url=f"sqlite:///{tmp / 'chtc.db'}", feed_samples=DEMO_FED) as served:
+        stop = served.feed_every(field_period_s)
+        f = served.service.field("now")
+        try:
+            yield served, f"the real service (demo plan) on its FE mesh: {len(f.nodes_rz)} nodes"
+        finally:
+            stop.set()
 
 
 # --- busy: an identification loop in another process -----------------------------------------------------

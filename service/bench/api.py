@@ -2,9 +2,9 @@
 
 Set-up (all on loopback):
 
-- the API (``api.app.create_app``) runs under uvicorn in a **subprocess**, one worker, around the in-memory
-  service (``service.serve.interface_memory.demo_service``: prebuilt snapshots, as the running service serves
-  them);
+- the API (``api.app.create_app``) runs under uvicorn in a **subprocess**, one worker, around the real
+  service (``service.sim.served``: the core and the shell on SQLite, fed a virtual-plant run, a new sample
+  every ``--field-period`` s; no devices and no worker process run beside it);
 - the load is open-loop: ``--rate`` requests/s spread over ``--clients`` concurrent clients (one keep-alive
   connection each), each request sent at its scheduled instant; latency is measured at the client from send
   to full body; ``late_ms_p99`` says how far behind schedule sends were (client saturation). Two client kinds
@@ -82,16 +82,25 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 # --- server subprocess ----------------------------------------------------------------------------------
 def serve(port: int, field_period_s: float = 10.0) -> None:
-    """Entry point of the server subprocess (uvicorn, one worker, in-memory service on the real mesh)."""
+    """Entry point of the server subprocess (uvicorn, one worker, the served real service); SIGTERM stops
+    uvicorn gracefully, then the service and its temporary database."""
+    import tempfile
+    from pathlib import Path
+
     import uvicorn
 
     from api.app import create_app
     from service.settings import Settings
+    from service.sim.served import exit_on_sigterm
 
-    service, mesh = bench_service(field_period_s=field_period_s)
-    print(f"mesh: {mesh}", file=sys.stderr, flush=True)
-    app = create_app(Settings(), service)
-    uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
+    exit_on_sigterm()
+    with (
+        tempfile.TemporaryDirectory(prefix="chtc-bench-api-") as tmp,
+        bench_service(Path(tmp), field_period_s=field_period_s) as (served, what),
+    ):
+        print(f"service: {what}", file=sys.stderr, flush=True)
+        app = create_app(Settings(), served.service, clock=served.clock)
+        uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
 
 
 def _free_port() -> int:

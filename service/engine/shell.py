@@ -72,7 +72,7 @@ from service.engine.health import (
 )
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
-from service.identify.worker import IdentificationWorker, JobOutcome, JobRequest, JobStatus
+from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
     BusyError,
@@ -109,7 +109,7 @@ if TYPE_CHECKING:
 
     from service.store.reads import DbReads
 
-__all__ = ["RecordWriter", "SoftSensorService"]
+__all__ = ["RecordWriter", "SoftSensorService", "Worker"]
 
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
@@ -120,6 +120,28 @@ class RecordWriter(StatusSource, Protocol):
     """The buffered database writer (``service.store.writer.DbWriter`` or ``persistence.GateSink``)."""
 
     def submit(self, record: Record) -> bool: ...
+
+
+class Worker(Protocol):
+    """The identification worker as the shell drives it: ``service.identify.worker.IdentificationWorker`` (a
+    process) in the running service, ``service.sim.served.InlineWorker`` (a thread) in the API tests.
+
+    ``model_version`` is None until ``start()`` has loaded the model; ``run`` never raises for a failed job (a
+    failure is an outcome); ``running_job`` is the job id ``run`` is busy with, ``restarts`` counts processes
+    replaced after a crash or a hang.
+    """
+
+    model_version: str | None
+    restarts: int
+    running_job: int | None
+
+    async def start(self) -> str: ...
+
+    async def run(self, req: JobRequest) -> JobOutcome: ...
+
+    def cancel(self, job_id: int) -> None: ...
+
+    def close(self) -> None: ...
 
 
 def utc_now() -> datetime:
@@ -133,7 +155,7 @@ class SoftSensorService:
         self,
         core: ServiceCore,
         *,
-        worker: IdentificationWorker | None,
+        worker: Worker | None,
         writer: RecordWriter | None = None,
         session_factory: sessionmaker[Session] | None = None,  # for the history endpoints
         db_reads: DbReads | None = None,  # history reads bounded and with a deadline
@@ -481,6 +503,8 @@ class SoftSensorService:
 
     # --- ChtcService: requests --------------------------------------------------------------------------
     def request_identification(self, reason: str) -> IdentificationJob:
+        if not self.model_loaded:  # the core does not know the worker; no job can run before its model
+            raise NotReadyError("the model is still loading in the identification worker; retry when ready")
         for ins in self.handle(ManualRequested(self._next_id("manual"), reason)):
             if isinstance(ins, Rejected):
                 raise (BusyError if ins.kind is RejectKind.BUSY else NotReadyError)(ins.reason)

@@ -1,8 +1,7 @@
 """The narrow interface through which the API reads (and pokes) the running service.
 
 ``api/`` imports only this module from ``service/``. The running service (``service/engine/shell.py``)
-implements
-:class:`ChtcService`; the API tests use the in-memory implementation in ``service/serve/interface_memory.py``.
+implements :class:`ChtcService`; the API tests serve it too (``service/sim/served.py``).
 
 Contract for implementers:
 

@@ -10,14 +10,14 @@ import pytest
 
 from api.app import create_app
 from service.bench.api import RawClient, _load, histogram_quantile
-from service.serve.interface_memory import demo_service
 from service.settings import Settings
+from service.sim.served import Served
 from tests.api.conftest import LiveServer
 
 
 @pytest.fixture(scope="module")
-def server() -> Iterator[LiveServer]:
-    with LiveServer(create_app(Settings(), demo_service())) as s:
+def server(served_ro: Served) -> Iterator[LiveServer]:
+    with LiveServer(create_app(Settings(), served_ro.service, clock=served_ro.clock)) as s:
         yield s
 
 

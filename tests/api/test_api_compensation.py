@@ -1,13 +1,12 @@
-"""GET /compensation on the real service (SoftSensorService around a real ServiceCore, jobs inline) fed with
-virtual-plant samples: the served growth equals ``estimate_growth`` on the same inputs, its status follows
-the /chtc rules (stale when data stop), and the dashboard shows it."""
+"""GET /compensation on the real service (``service.sim.served``: the core and shell on their loop, a real
+database) fed with virtual-plant samples: the served growth equals ``estimate_growth`` on the same inputs,
+its status follows the /chtc rules (stale when data stop), and the dashboard shows it."""
 
 from __future__ import annotations
 
 import asyncio
 import dataclasses
 import re
-import time
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
@@ -18,31 +17,18 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from model.geometry import load_spindle
 from model.inputs import inputs_from_operation
-from model.plant import Segment, VirtualPlant
-from service.engine.core import CoreConfig, ServiceCore
+from service.engine.core import ServiceCore
 from service.engine.growthserve import GrowthServer, field_belief, h_covariance
+from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.estimate.growth import build_context, condition_terms, estimate_growth
-from service.identify.detector import DetectorConfig
-from service.identify.scheduler import SchedulerConfig
-from service.identify.window import WindowRules
-from service.identify.worker import run_job
-from service.modelload import LoadedModel, ModelRef, load_model
+from service.modelload import LoadedModel
 from service.serve.interface import NotReadyError
 from service.settings import Settings
-from service.sim.logsamples import samples_from_plant
-from tests.api.conftest import LiveServer, ManualClock
+from service.sim.served import ManualClock, served_service
+from tests.api.conftest import LiveServer, sqlite_url
 from tests.api.test_api_dashboard import _chromium
-
-CFG = CoreConfig(
-    detector=DetectorConfig(hold_s=60.0),
-    scheduler=SchedulerConfig(min_data_s=600.0, schedule_s=(600.0, 1200.0), max_window_s=3600.0),
-    rules=WindowRules(dt_s=10.0, min_window_s=600.0, min_good_channels=24),
-    calibration=None,
-)
-T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
 
 
 @dataclass
@@ -52,26 +38,22 @@ class Served:
     clock: ManualClock
     client: TestClient
     t_start_c: float  # the live state's start temperature (the reference)
+    ready_before_request: bool  # the growth's terms were computed before any request
 
 
 @pytest.fixture(scope="module")
-def served() -> Iterator[Served]:
-    model = load_model(ModelRef.from_settings(Settings().model))
-    plant = VirtualPlant(load_spindle(), mesh_size_m=0.004, seed=5)
-    run = plant.run([Segment(600.0, 0.0, 0.0, 22.0), Segment(1500.0, 4000.0, 8.0, 22.0)])
-    samples = samples_from_plant(run, t0_s=T0)
-    clock = ManualClock(samples[0].t)
-    core = ServiceCore(CFG, model=model)
-    svc = SoftSensorService(core, worker=None, clock=clock, run_job=lambda r: run_job(model, r))
-    t_start: float | None = None
-    for s in samples:
-        clock.now = s.t
-        svc.on_sample(s)
-        if t_start is None and svc.view.live is not None:
-            t_start = float(np.mean(svc.view.live.field_c))
-    assert t_start is not None and svc.view.current is not None, "no identification in the plant run"
-    with TestClient(create_app(Settings(), svc, clock=clock)) as client:
-        yield Served(model, svc, clock, client, t_start)
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm)."""
+    url = sqlite_url(tmp_path_factory.mktemp("served-compensation"))
+    with served_service(database_url=url, feed_samples=1) as s:
+        live = s.service.view.live
+        assert live is not None
+        t_start = float(np.mean(live.field_c))
+        s.feed_next()
+        assert s.service.view.current is not None, "no identification in the plant run"
+        ready = s.service.growth.ready_for(s.service.view)
+        with TestClient(create_app(Settings(), s.service, clock=s.clock)) as client:
+            yield Served(s.service.core.model, s.service, s.clock, client, t_start, ready)
 
 
 def test_served_growth_equals_estimate_growth_on_the_same_inputs(served: Served) -> None:
@@ -153,13 +135,12 @@ def test_status_and_usability_are_those_of_chtc_and_go_stale_when_data_stop(serv
         clock.now = last.t
 
 
-def test_nothing_to_serve_is_503_and_the_schema_is_in_openapi() -> None:
-    model = load_model(ModelRef.from_settings(Settings().model))
-    svc = SoftSensorService(ServiceCore(CFG, model=model), worker=None, run_job=lambda r: run_job(model, r))
-    client = TestClient(create_app(Settings(), svc))
-    r = client.get("/api/v1/compensation")
+def test_nothing_to_serve_is_503_and_the_schema_is_in_openapi(tmp_path: Path) -> None:
+    with served_service(database_url=sqlite_url(tmp_path), plan=None) as s:
+        client = TestClient(create_app(Settings(), s.service, clock=s.clock))
+        r = client.get("/api/v1/compensation")
+        spec = client.get("/api/v1/openapi.json").json()
     assert r.status_code == 503 and r.json()["error"]["code"] == "no_data", r.text
-    spec = client.get("/api/v1/openapi.json").json()
     ref = spec["paths"]["/api/v1/compensation"]["get"]["responses"]["200"]["content"]["application/json"]
     name = ref["schema"]["$ref"].rsplit("/", 1)[1]
     props = spec["components"]["schemas"][name]["properties"]
@@ -201,37 +182,10 @@ def test_dashboard_growth_panel_shows_the_served_value(
     assert "axial growth, µm" in dom
 
 
-def test_on_the_running_loop_the_terms_are_ready_before_the_first_request() -> None:
-    """With a loop (the running service), the growth model is built at start and a new identification's
-    terms are computed in a thread as soon as it is published, not by the request."""
-    model = load_model(ModelRef.from_settings(Settings().model))
-    run = VirtualPlant(load_spindle(), mesh_size_m=0.004, seed=6).run(
-        [Segment(300.0, 0.0, 0.0, 22.0), Segment(1200.0, 3000.0, 6.0, 22.0)]
-    )
-    samples = samples_from_plant(run, t0_s=T0)
-    clock = ManualClock(samples[0].t)
-    svc = SoftSensorService(
-        ServiceCore(CFG, model=model), worker=None, clock=clock, run_job=lambda r: run_job(model, r)
-    )
-
-    async def drive() -> bool:
-        await svc.start()
-        try:
-            for s in samples:
-                clock.now = s.t
-                svc.on_sample(s)
-                await asyncio.sleep(0)
-            deadline = time.monotonic() + 30.0
-            while not svc.growth.ready_for(svc.view) and time.monotonic() < deadline:
-                await asyncio.sleep(0.05)
-            return svc.growth.ready_for(svc.view)
-        finally:
-            await svc.close()
-
-    assert asyncio.run(drive()), "the terms were not computed off the request"
-    assert svc.view.current is not None
-    snap = svc.compensation()
-    assert snap is not None and snap.identification_id == svc.view.current.id
+def test_on_the_running_loop_the_terms_are_ready_before_the_first_request(served: Served) -> None:
+    """The growth model is built at start and a new identification's terms are computed in a thread as
+    soon as it is published (the fixture made no request before this was recorded)."""
+    assert served.ready_before_request
 
 
 def test_a_spindle_without_mechanics_serves_h_and_says_why_there_is_no_growth(served: Served) -> None:
@@ -242,7 +196,9 @@ def test_a_spindle_without_mechanics_serves_h_and_says_why_there_is_no_growth(se
     with pytest.raises(NotReadyError, match="growth model unavailable"):
         server.snapshot(served.svc.view, served.svc.chtc)
     events: list[str] = []
-    svc = SoftSensorService(ServiceCore(CFG, model=bare), worker=None, on_event=events.append)
+    svc = SoftSensorService(
+        ServiceCore(core_config(Settings()), model=bare), worker=None, on_event=events.append
+    )
 
     async def start_and_close() -> None:
         await svc.start()

@@ -1,39 +1,29 @@
 """Database failures reach the client as the error shape or a marked partial page, never a bare 500.
 
-The real ``SoftSensorService`` history paths run against a SQLite database that cannot be opened (a file in
-a directory that does not exist), so every read raises the persistence layer's ``DatabaseUnavailableError``.
+The real service (``service.sim.served``) on a SQLite database that cannot be opened (the file is a
+directory): it starts without restored state, buffers its records, and its history reads fail with the
+persistence layer's error.
 """
 
 from __future__ import annotations
 
-from pathlib import Path
-from types import SimpleNamespace
-from typing import Any, cast
+from collections.abc import Iterator
 
 import pytest
 from fastapi.testclient import TestClient
-from sqlalchemy import create_engine
-from sqlalchemy.orm import sessionmaker
 
 from api.app import create_app
-from model.geometry import load_spindle
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
-from tests.api.conftest import WRITE_TOKEN, ManualClock
-from tests.db.conftest import db_url, engine, factory, pg_schema  # noqa: F401 - real SQLite and PostgreSQL
-
-# the spindle description (the service's sensor-history buffer names its channels from it)
-_MODEL = SimpleNamespace(spec=load_spindle())
+from service.sim.served import Served, served_service
+from tests.api.conftest import WRITE_TOKEN
+from tests.db.conftest import db_url, pg_schema  # noqa: F401 - real SQLite and PostgreSQL
 
 
 @pytest.fixture
-def down_client(tmp_path: Path, service: Any, clock: ManualClock) -> TestClient:
-    dead = create_engine(f"sqlite:///{tmp_path / 'missing-dir' / 'chtc.db'}")
-    in_memory = list(service.list_identifications(since=None, until=None, limit=2, offset=0).items)
-    # only the parts the history paths use: the records this process remembers (in the core's view)
-    core = SimpleNamespace(view=lambda: SimpleNamespace(records=tuple(in_memory)), model=_MODEL)
-    svc = SoftSensorService(cast(Any, core), worker=None, session_factory=sessionmaker(dead), clock=clock)
-    return TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), cast(Any, svc), clock=clock))
+def down_client(served_db_down: Served) -> Iterator[TestClient]:
+    s = served_db_down
+    with TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)) as c:
+        yield c
 
 
 def test_list_during_an_outage_says_it_is_partial(down_client: TestClient) -> None:
@@ -42,7 +32,8 @@ def test_list_during_an_outage_says_it_is_partial(down_client: TestClient) -> No
     body = r.json()
     assert body["partial"] is True
     assert "database" in body["partial_reason"] and "unable to open" in body["partial_reason"]
-    assert len(body["items"]) == 2
+    assert len(body["items"]) == 2  # the two identifications this process made (held for the database)
+    assert [i["condition"]["speed_rpm"] for i in body["items"]] == [4000.0, 3000.0]
 
 
 def test_get_during_an_outage_is_503_naming_the_database(down_client: TestClient) -> None:
@@ -54,16 +45,26 @@ def test_get_during_an_outage_is_503_naming_the_database(down_client: TestClient
     assert r.headers["retry-after"]
 
 
+def test_a_remembered_identification_is_served_during_an_outage(down_client: TestClient) -> None:
+    newest = down_client.get("/api/v1/identifications").json()["items"][0]
+    r = down_client.get(f"/api/v1/identifications/{newest['id']}")
+    assert r.status_code == 200 and r.json()["id"] == newest["id"]
+
+
 def test_complete_page_is_not_partial(client: TestClient) -> None:
     body = client.get("/api/v1/identifications").json()
     assert body["partial"] is False and body["partial_reason"] is None
+    assert body["total"] == 2
 
 
 @pytest.fixture
-def db_client(factory: Any, clock: ManualClock) -> TestClient:  # noqa: F811
-    core = SimpleNamespace(view=lambda: SimpleNamespace(records=()), model=_MODEL)
-    svc = SoftSensorService(cast(Any, core), worker=None, session_factory=factory, clock=clock)
-    return TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), cast(Any, svc), clock=clock))
+def db_client(db_url: str) -> Iterator[TestClient]:  # noqa: F811
+    """The real service on an empty, migrated SQLite or PostgreSQL database (no samples)."""
+    with (
+        served_service(database_url=db_url, plan=None) as s,
+        TestClient(create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)) as c,
+    ):
+        yield c
 
 
 def test_ids_at_the_bigint_edge_on_a_real_database(db_client: TestClient) -> None:

@@ -49,8 +49,8 @@ def _error(r: object) -> dict:  # type: ignore[type-arg]
         ("/api/v1/identifications", {"since": "0001-01-01T00:00:00+01:00"}, "since"),
     ],
 )
-def test_422_names_the_field(client: TestClient, path: str, params: dict[str, object], field: str) -> None:
-    r = client.get(path, params=params)
+def test_422_names_the_field(ro_client: TestClient, path: str, params: dict[str, object], field: str) -> None:
+    r = ro_client.get(path, params=params)
     assert r.status_code == 422, r.text
     err = _error(r)
     assert err["code"] == "invalid"
@@ -58,25 +58,25 @@ def test_422_names_the_field(client: TestClient, path: str, params: dict[str, ob
     assert err["message"].startswith(field)
 
 
-def test_too_many_points_is_422(client: TestClient) -> None:
+def test_too_many_points_is_422(ro_client: TestClient) -> None:
     pts = ";".join(["0.02,0.1"] * (MAX_POINTS + 1))
-    r = client.get("/api/v1/temperature-field", params={"format": "points", "points": pts})
+    r = ro_client.get("/api/v1/temperature-field", params={"format": "points", "points": pts})
     assert r.status_code == 422 and _error(r)["field"] == "points"
     pts_ok = ";".join(["0.02,0.1"] * MAX_POINTS)
     assert (
-        client.get("/api/v1/temperature-field", params={"format": "points", "points": pts_ok}).status_code
+        ro_client.get("/api/v1/temperature-field", params={"format": "points", "points": pts_ok}).status_code
         == 200
     )
 
 
-def test_unknown_identification_is_404(client: TestClient) -> None:
-    r = client.get("/api/v1/identifications/999")
+def test_unknown_identification_is_404(ro_client: TestClient) -> None:
+    r = ro_client.get("/api/v1/identifications/999")
     assert r.status_code == 404
     assert _error(r)["code"] == "not_found"
     assert "999" in _error(r)["message"]
 
 
-def test_unknown_route_and_wrong_method_use_the_shape(client: TestClient) -> None:
-    assert _error(client.get("/api/v1/nothing-here"))["code"] == "not_found"
-    r = client.delete("/api/v1/chtc")
+def test_unknown_route_and_wrong_method_use_the_shape(ro_client: TestClient) -> None:
+    assert _error(ro_client.get("/api/v1/nothing-here"))["code"] == "not_found"
+    r = ro_client.delete("/api/v1/chtc")
     assert r.status_code == 405 and _error(r)["code"] == "method_not_allowed"

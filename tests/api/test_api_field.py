@@ -18,17 +18,18 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from api.routers.field import grid_out, mesh_out
 from api.routers.field_render import FieldRenderer
+from service.engine.shell import SoftSensorService
 from service.estimate.locator import TriangleLocator, locator_for
 from service.serve.interface import FieldSnapshot
-from service.serve.interface_memory import InMemoryService
 from service.settings import Settings
+from service.sim.served import Served
 
 URL = "/api/v1/temperature-field"
 
 
-def test_locator_is_shared_by_every_snapshot_of_a_mesh(service: InMemoryService) -> None:
+def test_locator_is_shared_by_every_snapshot_of_a_mesh(ro_service: SoftSensorService) -> None:
     """The running service builds a new snapshot for every at=now request: its locator must not be rebuilt."""
-    f = service.field("now")
+    f = ro_service.field("now")
     again = FieldSnapshot(f.t, "now", f.nodes_rz, f.triangles, f.temps_c + 1.0, f.identification_id)
     assert again.locator is f.locator
     other_mesh = FieldSnapshot(f.t, "now", f.nodes_rz.copy(), f.triangles, f.temps_c)
@@ -36,8 +37,8 @@ def test_locator_is_shared_by_every_snapshot_of_a_mesh(service: InMemoryService)
     assert locator_for(f.nodes_rz, f.triangles) is f.locator
 
 
-def test_cached_grid_locations_equal_fresh_ones(service: InMemoryService) -> None:
-    f = service.field("now")
+def test_cached_grid_locations_equal_fresh_ones(ro_service: SoftSensorService) -> None:
+    f = ro_service.field("now")
     r, z, located = f.locator.grid(12, 30)
     rr, zz = np.meshgrid(r, z, indexing="ij")
     fresh = TriangleLocator(f.nodes_rz, f.triangles).locate(np.c_[rr.ravel(), zz.ravel()])
@@ -46,8 +47,8 @@ def test_cached_grid_locations_equal_fresh_ones(service: InMemoryService) -> Non
 
 
 @pytest.mark.parametrize("fmt", ["mesh", "grid"])
-def test_fast_bodies_equal_the_schema_serialisation(service: InMemoryService, fmt: str) -> None:
-    f = service.field("steady")
+def test_fast_bodies_equal_the_schema_serialisation(ro_service: SoftSensorService, fmt: str) -> None:
+    f = ro_service.field("steady")
     renderer = FieldRenderer()
     if fmt == "mesh":
         fast, reference = renderer.mesh(f), mesh_out(f)
@@ -57,8 +58,8 @@ def test_fast_bodies_equal_the_schema_serialisation(service: InMemoryService, fm
     assert gzip.decompress(fast.gzip()) == fast.body
 
 
-def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(service: InMemoryService) -> None:
-    f = service.field("now")
+def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(ro_service: SoftSensorService) -> None:
+    f = ro_service.field("now")
     renderer = FieldRenderer()
     a = renderer.mesh(f)
     assert renderer.mesh(replace(f)) is a  # same content: cached
@@ -69,7 +70,7 @@ def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(service: InMemoryS
     assert gzip.decompress(b.gzip()) == b.body  # the primed compressor, copied per field
 
 
-def test_mesh_etag_304_and_gzip(client: TestClient, service: InMemoryService) -> None:
+def test_mesh_etag_304_and_gzip(client: TestClient, served: Served) -> None:
     r = client.get(URL, headers={"Accept-Encoding": "gzip"})
     assert r.status_code == 200 and r.headers["content-encoding"] == "gzip"
     assert r.headers["vary"] == "Accept-Encoding"
@@ -78,7 +79,7 @@ def test_mesh_etag_304_and_gzip(client: TestClient, service: InMemoryService) ->
     assert client.get(URL, headers={"If-None-Match": etag}).status_code == 304
     plain = client.get(URL, headers={"Accept-Encoding": "identity"})
     assert "content-encoding" not in plain.headers and plain.json() == r.json()
-    service.add_identification([60.0, 40.0, 60.0, 40.0, 50.0, 65.0, 12.0], identified=[True] * 7)
+    served.feed_next(1)  # a new sample moves the live field
     changed = client.get(URL, headers={"If-None-Match": etag})
     assert changed.status_code == 200 and changed.headers["etag"] != etag
 
@@ -86,7 +87,7 @@ def test_mesh_etag_304_and_gzip(client: TestClient, service: InMemoryService) ->
 class BlockingField:
     """Wraps a service; ``field()`` waits until released (a slow field build)."""
 
-    def __init__(self, inner: InMemoryService) -> None:
+    def __init__(self, inner: SoftSensorService) -> None:
         self.inner = inner
         self.release = threading.Event()
 
@@ -98,8 +99,8 @@ class BlockingField:
         return getattr(self.inner, name)
 
 
-def test_excess_field_requests_are_shed_with_retry_after(service: InMemoryService) -> None:
-    slow = BlockingField(service)
+def test_excess_field_requests_are_shed_with_retry_after(ro_service: SoftSensorService) -> None:
+    slow = BlockingField(ro_service)
     app: FastAPI = create_app(Settings(), slow)  # type: ignore[arg-type]
     with TestClient(app) as client:
         statuses: list[int] = []

@@ -1,30 +1,30 @@
-"""GET /api/v1/sensors/history and GET /api/v1/spindle against the in-memory service."""
+"""GET /api/v1/sensors/history and GET /api/v1/spindle against the real service."""
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import datetime
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from drivers.quality import Quality
+from model.geometry import load_spindle
 from service.serve.interface import SensorHistoryBuffer
-from service.serve.interface_memory import InMemoryService
+from service.sim.served import Served, feed
 from tests.api.conftest import ManualClock
 
 
-def _push(service: InMemoryService, clock: ManualClock, n: int, *, seed: int = 0) -> list[np.ndarray]:
-    """n samples 10 s apart (°C), channel 5 open-circuit in the last one."""
-    rng = np.random.default_rng(seed)
+def _push(served: Served, n: int) -> list[np.ndarray]:
+    """The plan's next n samples (10 s apart, °C), channel 5 open-circuit in the last one."""
     pushed = []
-    for k in range(n):
-        clock.advance(10.0)
-        temps = 25.0 + rng.normal(0.0, 1.0, 32)
-        quality = ["ok"] * 32
+    for k, s in enumerate(served.samples[served.fed : served.fed + n]):
+        quality = s.quality.copy()
         if k == n - 1:
-            quality[4] = "open_circuit"
-        service.add_sample(temps, quality=quality)
-        pushed.append(temps)
+            quality[4] = Quality.OPEN_CIRCUIT
+        feed(served, replace(s, quality=quality))
+        pushed.append(s.temps_c)
     return pushed
 
 
@@ -33,27 +33,30 @@ def _iso(t: datetime) -> str:
 
 
 def test_history_gives_every_sample_with_units_utc_times_and_the_prediction(
-    client: TestClient, service: InMemoryService, clock: ManualClock
+    client: TestClient, served: Served, clock: ManualClock
 ) -> None:
-    before = service.sensor_history(None).t  # the demo's own first sample
-    pushed = _push(service, clock, 6)
+    service = served.service
+    before = service.sensor_history(None).t  # the demo plan's samples so far
+    assert len(before) == served.fed
+    pushed = _push(served, 6)
     body = client.get("/api/v1/sensors/history", params={"channels": "1,5,32"}).json()
     assert body["unit"] == "°C" and body["since"] is None and body["truncated"] is False
     assert len(body["t"]) == len(before) + 6 and all(t.endswith("Z") for t in body["t"])
     assert body["t"][-1] == _iso(clock.now) and body["t"] == sorted(body["t"])
     assert [c["channel"] for c in body["channels"]] == [1, 5, 32]
     ch1, ch5, ch32 = body["channels"]
-    assert ch1["name"] == "B01" and ch1["role"] == "bearing" and ch32["name"] == "S20"
+    spec = load_spindle()
+    assert (ch1["name"], ch1["role"]) == (spec.sensors[0].name, "bearing")
+    assert ch32["name"] == spec.sensors[31].name
     np.testing.assert_allclose(ch32["measured_c"][-6:], [p[31] for p in pushed], atol=5e-4)
     assert ch5["measured_c"][-1] is None and ch5["measured_c"][-2] is not None  # masked, not dropped
-    want = service.predicted_at_sensors()
-    np.testing.assert_allclose(ch1["predicted_c"][-1], want[0], atol=5e-4)
+    want = service.sensors()[0].predicted_c  # the live state's prediction for the newest sample
+    assert want is not None and ch1["predicted_c"][-1] == pytest.approx(want, abs=5e-4)
+    assert all(p is not None for p in ch1["predicted_c"][-6:])
 
 
-def test_history_since_is_strict_and_limit_keeps_the_newest(
-    client: TestClient, service: InMemoryService, clock: ManualClock
-) -> None:
-    _push(service, clock, 5)
+def test_history_since_is_strict_and_limit_keeps_the_newest(client: TestClient, served: Served) -> None:
+    _push(served, 5)
     full = client.get("/api/v1/sensors/history").json()
     assert len(full["channels"]) == 32
     since = full["t"][-3]
@@ -76,20 +79,24 @@ def test_history_since_is_strict_and_limit_keeps_the_newest(
         ({"limit": "10001"}, "limit"),
     ],
 )
-def test_history_rejects_bad_parameters_naming_the_field(client: TestClient, query: dict, field: str) -> None:
-    r = client.get("/api/v1/sensors/history", params=query)
+def test_history_rejects_bad_parameters_naming_the_field(
+    ro_client: TestClient, query: dict, field: str
+) -> None:
+    r = ro_client.get("/api/v1/sensors/history", params=query)
     assert r.status_code == 422, r.text
     err = r.json()["error"]
     assert err["code"] == "invalid" and err["field"] == field and err["message"].startswith(field)
 
 
-def test_channels_outside_1_to_32_or_empty_are_refused_by_the_documented_pattern(client: TestClient) -> None:
+def test_channels_outside_1_to_32_or_empty_are_refused_by_the_documented_pattern(
+    ro_client: TestClient,
+) -> None:
     """The OpenAPI pattern is the contract (as for /sensors): an empty list was schema-valid but a 422."""
-    op = client.get("/api/v1/openapi.json").json()["paths"]["/api/v1/sensors/history"]["get"]
+    op = ro_client.get("/api/v1/openapi.json").json()["paths"]["/api/v1/sensors/history"]["get"]
     schema = next(p for p in op["parameters"] if p["name"] == "channels")["schema"]
     assert "pattern" in str(schema), schema
     for bad in ("2,40", "", "1,,2"):
-        err = client.get("/api/v1/sensors/history", params={"channels": bad}).json()["error"]
+        err = ro_client.get("/api/v1/sensors/history", params={"channels": bad}).json()["error"]
         assert err["field"] == "channels" and err["message"].startswith("channels"), (bad, err)
 
 
@@ -109,22 +116,14 @@ def test_history_buffer_keeps_the_last_capacity_samples_in_order() -> None:
         SensorHistoryBuffer(0, [])
 
 
-def test_spindle_lists_named_parts_and_zone_descriptions(client: TestClient) -> None:
-    body = client.get("/api/v1/spindle").json()
+def test_spindle_lists_the_named_parts_and_zones_of_the_spindle_description(ro_client: TestClient) -> None:
+    body = ro_client.get("/api/v1/spindle").json()
+    spec = load_spindle()
     names = [p["name"] for p in body["parts"]]
-    assert {"shaft", "housing", "pulley", "front_bearing", "rear_bearing"} <= set(names)
+    assert names == [r.name for r in spec.regions]
+    assert {"pulley", "housing", "front_end_cap", "rear_end_cap", "shaft_body"} <= set(names)
     housing = body["parts"][names.index("housing")]
     assert housing["r0_m"] < housing["r1_m"] and housing["z0_m"] < housing["z1_m"]
     assert [z["name"] for z in body["zones"]] == [f"H{i}" for i in range(1, 8)]
+    assert [z["description"] for z in body["zones"]] == [z.description for z in spec.zones]
     assert "pulley" in body["zones"][0]["description"]
-
-
-def test_model_section_names_the_parts_of_the_spindle_description() -> None:
-    from model.geometry import load_spindle
-    from service.serve.interface_memory import model_section
-
-    spec = load_spindle()
-    sec = model_section(mesh_size_m=0.01)
-    assert [p.name for p in sec.parts] == [r.name for r in spec.regions]
-    assert {"pulley", "housing", "front_end_cap", "rear_end_cap", "shaft_body"} <= {p.name for p in sec.parts}
-    assert [z.description for z in sec.zones] == [z.description for z in spec.zones]

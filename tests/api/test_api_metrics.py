@@ -5,7 +5,10 @@ from __future__ import annotations
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
-from service.serve.interface_memory import InMemoryService
+from api.app import create_app
+from service.engine.shell import SoftSensorService
+from service.settings import Settings
+from service.sim.served import Served
 from tests.api.conftest import ManualClock
 
 
@@ -17,26 +20,26 @@ def _families(client: TestClient) -> dict[str, list]:  # type: ignore[type-arg]
 
 
 def test_metrics_parse_and_carry_service_numbers(
-    client: TestClient, service: InMemoryService, clock: ManualClock
+    client: TestClient, service: SoftSensorService, clock: ManualClock
 ) -> None:
     clock.advance(7.0)
     fam = _families(client)
     ages = [s for s in fam["chtc_channel_age_seconds"]]
     assert len(ages) == 32 and all(abs(s.value - 7.0) < 1e-9 for s in ages)
     m = service.metrics()
-    polls = {s.labels["outcome"]: s.value for s in fam["chtc_modbus_polls"] if s.name.endswith("_total")}
-    assert polls == {k: float(v) for k, v in m.modbus_polls_total.items()}
     count = [s for s in fam["chtc_identification_duration_seconds"] if s.name.endswith("_count")]
-    assert count[0].value == m.identification_duration_s.count == 2
+    assert count[0].value == m.identification_duration_s.count == 2  # one per condition
+    total = {s.labels["outcome"]: s.value for s in fam["chtc_identifications"] if s.name.endswith("_total")}
+    assert total["ok"] == 2.0 and total == {k: float(v) for k, v in m.identifications_total.items()}
     fit = fam["chtc_identification_fit"][0].value
     assert fit == m.last_fit
 
 
-def test_request_latency_histogram_counts_requests(client: TestClient) -> None:
+def test_request_latency_histogram_counts_requests(ro_client: TestClient) -> None:
     for _ in range(3):
-        client.get("/api/v1/chtc")
-    client.get("/api/v1/identifications/999")
-    fam = _families(client)
+        ro_client.get("/api/v1/chtc")
+    ro_client.get("/api/v1/identifications/999")
+    fam = _families(ro_client)
     counts = {
         (s.labels["route"], s.labels["status"]): s.value
         for s in fam["chtc_http_request_duration_seconds"]
@@ -46,17 +49,17 @@ def test_request_latency_histogram_counts_requests(client: TestClient) -> None:
     assert counts[("/api/v1/identifications/{identification_id}", "404")] == 1
 
 
-def test_each_app_has_its_own_registry(service: InMemoryService, clock: ManualClock) -> None:
+def test_each_app_has_its_own_registry(ro_service: SoftSensorService, ro_clock: ManualClock) -> None:
     from api.app import create_app
     from service.settings import Settings
 
-    a = create_app(Settings(), service, clock=clock)
-    b = create_app(Settings(), service, clock=clock)
+    a = create_app(Settings(), ro_service, clock=ro_clock)
+    b = create_app(Settings(), ro_service, clock=ro_clock)
     assert a.state.metrics.registry is not b.state.metrics.registry
 
 
 def test_h_gauges_status_usable_and_build_info(
-    client: TestClient, service: InMemoryService, clock: ManualClock
+    client: TestClient, service: SoftSensorService, clock: ManualClock
 ) -> None:
     fam = _families(client)
     snap = service.chtc()
@@ -91,10 +94,21 @@ def test_h_gauges_status_usable_and_build_info(
     assert codes == {x.split(":")[0].strip() for x in ready.reasons} and (ready.ready or codes)
 
 
-def test_outcome_and_event_counters_are_separate(client: TestClient, service: InMemoryService) -> None:
-    fam = _families(client)
-    m = service.metrics()
-    events = {s.labels["event"]: s.value for s in fam["chtc_modbus_events"] if s.name.endswith("_total")}
-    assert events == {k: float(v) for k, v in m.modbus_events_total.items()}
-    outcomes = {s.labels["outcome"] for s in fam["chtc_modbus_polls"] if s.name.endswith("_total")}
-    assert outcomes.isdisjoint(events)
+def test_outcome_and_event_counters_are_separate(served_devices_down: Served) -> None:
+    """Real drivers: the DAQ's refused connects are poll outcomes, the CAN sensor's silence is an event."""
+    s = served_devices_down
+    with TestClient(create_app(Settings(), s.service, clock=s.clock)) as client:
+        fam = _families(client)
+    m = s.service.metrics()
+    for device, outcome_family in (("modbus", "chtc_modbus_polls"), ("can", "chtc_can_frames")):
+        events = {
+            x.labels["event"]: x.value for x in fam[f"chtc_{device}_events"] if x.name.endswith("_total")
+        }
+        want = m.modbus_events_total if device == "modbus" else m.can_events_total
+        assert events == {k: float(v) for k, v in want.items()}
+        outcomes = {x.labels["outcome"]: x.value for x in fam[outcome_family] if x.name.endswith("_total")}
+        assert outcomes.keys().isdisjoint(events)
+    polls = {x.labels["outcome"]: x.value for x in fam["chtc_modbus_polls"] if x.name.endswith("_total")}
+    assert polls == {"ok": 0.0, "link_down": 1.0, "device_unavailable": 1.0}
+    silence = {x.labels["event"]: x.value for x in fam["chtc_can_events"] if x.name.endswith("_total")}
+    assert silence == {"device_timeout": 2.0}

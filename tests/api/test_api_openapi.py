@@ -7,7 +7,7 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.serve.interface_memory import InMemoryService
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock
 
@@ -24,8 +24,8 @@ def _operations(doc: dict[str, Any]) -> list[tuple[str, str, dict[str, Any]]]:
     return [(p, m, op) for p, ops in doc["paths"].items() for m, op in ops.items()]
 
 
-def test_every_error_uses_the_error_shape(client: TestClient) -> None:
-    doc = _doc(client)
+def test_every_error_uses_the_error_shape(ro_client: TestClient) -> None:
+    doc = _doc(ro_client)
     assert "HTTPValidationError" not in doc["components"]["schemas"]
     error = doc["components"]["schemas"]["Error"]
     assert error["required"] == ["error"]
@@ -40,8 +40,8 @@ def test_every_error_uses_the_error_shape(client: TestClient) -> None:
         assert "414" in op["responses"]
 
 
-def test_statuses_where_they_occur(client: TestClient) -> None:
-    ops = {(p, m): op["responses"] for p, m, op in _operations(_doc(client))}
+def test_statuses_where_they_occur(ro_client: TestClient) -> None:
+    ops = {(p, m): op["responses"] for p, m, op in _operations(_doc(ro_client))}
     post = ops[("/api/v1/identifications", "post")]
     assert {"400", "401", "403", "408", "409", "413", "422", "503"} <= set(post)
     assert post["401"]["headers"]["WWW-Authenticate"]
@@ -59,14 +59,14 @@ def test_statuses_where_they_occur(client: TestClient) -> None:
 
 
 def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
-    client: TestClient, service: InMemoryService, clock: ManualClock
+    ro_client: TestClient, ro_service: SoftSensorService, ro_clock: ManualClock
 ) -> None:
-    doc = _doc(client)
+    doc = _doc(ro_client)
     assert doc["components"]["securitySchemes"]["bearerAuth"] == {"type": "http", "scheme": "bearer"}
     secured = {(p, m) for p, m, op in _operations(doc) if op.get("security")}
     assert secured == {("/api/v1/identifications", "post"), ("/api/v1/sensors/baseline", "post")}
     settings = Settings(api={"token": WRITE_TOKEN, "read_token": "read-token-for-openapi"})
-    with TestClient(create_app(settings, service, clock=clock)) as c:
+    with TestClient(create_app(settings, ro_service, clock=ro_clock)) as c:
         doc = _doc(c)
     for path, method, op in _operations(doc):
         if path in ("/api/v1/healthz", "/api/v1/readyz"):
@@ -76,15 +76,15 @@ def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
             assert {"401", "403"} <= set(op["responses"])
 
 
-def test_every_documented_operation_is_known_to_the_guard(app: Any, client: TestClient) -> None:
+def test_every_documented_operation_is_known_to_the_guard(ro_app: Any, ro_client: TestClient) -> None:
     """A router added to the app but not to create_app's ``modules`` would skip auth-before-body."""
-    doc = _doc(client)
-    guarded = {(r.path, m.lower()) for r in app.state.guard_rules for m in r.methods}
+    doc = _doc(ro_client)
+    guarded = {(r.path, m.lower()) for r in ro_app.state.guard_rules for m in r.methods}
     assert {(p, m) for p, m, _ in _operations(doc)} <= guarded
 
 
-def test_since_and_until_are_date_times_and_channels_a_pattern(client: TestClient) -> None:
-    ops = {(p, m): op for p, m, op in _operations(_doc(client))}
+def test_since_and_until_are_date_times_and_channels_a_pattern(ro_client: TestClient) -> None:
+    ops = {(p, m): op for p, m, op in _operations(_doc(ro_client))}
     params = {x["name"]: x["schema"] for x in ops[("/api/v1/identifications", "get")]["parameters"]}
     assert any(s.get("format") == "date-time" for s in params["until"]["anyOf"])
     channels = ops[("/api/v1/sensors", "get")]["parameters"][0]["schema"]["anyOf"][0]

@@ -21,7 +21,7 @@ import httpx
 import pytest
 
 from api.app import create_app
-from service.serve.interface_memory import InMemoryService
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, LiveServer, ManualClock, free_port
 
@@ -80,7 +80,7 @@ def _wait_port(port: int, proc: subprocess.Popen[bytes], timeout_s: float = 10.0
 
 
 @pytest.fixture
-def proxy(tmp_path: Path, service: InMemoryService, clock: ManualClock) -> Iterator[tuple[int, int, Path]]:
+def proxy(tmp_path: Path, service: SoftSensorService, clock: ManualClock) -> Iterator[tuple[int, int, Path]]:
     app = create_app(Settings(api={"token": WRITE_TOKEN}), service, clock=clock)
     with LiveServer(app) as api:
         tls, plain = free_port(), free_port()

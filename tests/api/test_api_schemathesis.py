@@ -7,7 +7,7 @@ valid on its own. The full ≥ 5-min CLI runs (docs/api.md, "Fuzzing") include t
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
+from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
@@ -17,20 +17,21 @@ from schemathesis.checks import positive_data_acceptance
 from schemathesis.config import SchemathesisConfig
 
 from api.app import create_app
-from service.serve.interface_memory import demo_service
 from service.settings import Settings
-from tests.api.conftest import WRITE_TOKEN
+from service.sim.served import DEMO_FED, served_service
+from tests.api.conftest import WRITE_TOKEN, sqlite_url
 
 
-@pytest.fixture
-def api_schema() -> schemathesis.BaseSchema:
-    start = datetime(2026, 11, 22, 8, 0, tzinfo=UTC)
-    app = create_app(
-        Settings(api={"token": WRITE_TOKEN}), demo_service(clock=lambda: start), clock=lambda: start
-    )
-    # the CLI runs' configuration: 413 and 414 (the API's body and URL caps) count as rejecting bad input
-    config = SchemathesisConfig.from_path(str(Path(__file__).with_name("schemathesis.toml")))
-    return schemathesis.openapi.from_asgi("/api/v1/openapi.json", app, config=config)
+@pytest.fixture(scope="module")
+def api_schema(tmp_path_factory: pytest.TempPathFactory) -> Iterator[schemathesis.BaseSchema]:
+    """The real service with the demo plan's first 22 min (its clock does not move: the data stay fresh);
+    the fuzzer's POSTs start real identifications on it."""
+    url = sqlite_url(tmp_path_factory.mktemp("schemathesis"))
+    with served_service(database_url=url, feed_samples=DEMO_FED) as s:
+        app = create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)
+        # the CLI runs' configuration: 413 and 414 (the API's body and URL caps) count as rejecting bad input
+        config = SchemathesisConfig.from_path(str(Path(__file__).with_name("schemathesis.toml")))
+        yield schemathesis.openapi.from_asgi("/api/v1/openapi.json", app, config=config)
 
 
 schema = schemathesis.pytest.from_fixture("api_schema")

@@ -13,7 +13,7 @@ import uvicorn
 
 from api.app import create_app
 from api.server import ServerLimits, server_config
-from service.serve.interface_memory import InMemoryService
+from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from tests.api.conftest import WRITE_TOKEN, ManualClock, free_port
 
@@ -21,7 +21,7 @@ HEADER_TIMEOUT_S = 0.5
 
 
 @pytest.fixture
-def server(service: InMemoryService, clock: ManualClock) -> Iterator[int]:
+def server(service: SoftSensorService, clock: ManualClock) -> Iterator[int]:
     app = create_app(Settings(api={"token": WRITE_TOKEN}), service, clock=clock)
     port = free_port()
     limits = ServerLimits(header_timeout_s=HEADER_TIMEOUT_S, timeout_keep_alive_s=1.0)

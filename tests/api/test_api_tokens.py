@@ -9,7 +9,7 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.serve.interface_memory import InMemoryService
+from service.engine.shell import SoftSensorService
 from service.settings import Settings, SettingsError, load_settings
 from tests.api.conftest import ManualClock
 
@@ -43,7 +43,7 @@ def test_the_env_example_placeholder_is_refused(monkeypatch: pytest.MonkeyPatch)
 
 
 def test_surrounding_whitespace_is_stripped_and_the_token_matches(
-    monkeypatch: pytest.MonkeyPatch, service: InMemoryService, clock: ManualClock
+    monkeypatch: pytest.MonkeyPatch, service: SoftSensorService, clock: ManualClock
 ) -> None:
     token = "0123456789abcdef0123"
     monkeypatch.setenv("CHTC_API__TOKEN", f"  {token}\n")

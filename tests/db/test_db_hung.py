@@ -1,8 +1,9 @@
 """Issue 13.2: a hung PostgreSQL (a frozen link: no RST, no FIN) is visible within 10 s and loses nothing.
 
 A real PostgreSQL behind ``tests.db.tcp_proxy.TcpProxy``, which ``freeze()``s: connections stay open, nothing
-is forwarded. The service is assembled as in production (``open_persistence`` + ``SoftSensorService`` + the
-API), only with short timeouts.
+is forwarded. The service is the real one (``service.sim.served``: ``open_persistence``, the core, the shell
+and the API, as in production, only with short database timeouts), fed virtual-plant samples; each sample it
+takes is stored (``database.sample_store_period_s`` = the 10-s sample period).
 """
 
 from __future__ import annotations
@@ -10,39 +11,25 @@ from __future__ import annotations
 import os
 import time
 from collections.abc import Iterator
-from datetime import UTC, datetime, timedelta
-from types import SimpleNamespace
 
 import pytest
 import sqlalchemy as sa
 from fastapi.testclient import TestClient
 
-from model.geometry import load_spindle
-from service.engine.shell import SoftSensorService
+from model.plant import Segment
 from service.settings import Settings
+from service.sim.served import Plan, Served, served_service
 from service.store import repository as repo
 from service.store.engine import create_db_engine, make_session_factory
 from service.store.models import SampleRow
-from service.store.persistence import Persistence, open_persistence
-from service.store.records import ConditionStart, SampleData
 from tests.db.conftest import pg_schema_url
 from tests.db.tcp_proxy import TcpProxy, free_port
 
 pytestmark = pytest.mark.postgres
 
-T0 = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
 FREEZE_S = float(os.environ.get("CHTC_TEST_FREEZE_S", "15"))  # the issue's outage was 60 s: set it to 60
-
-
-def sample(i: int) -> SampleData:
-    return SampleData(
-        t=T0 + timedelta(seconds=10 * i),
-        temps_c=[20.0 + 0.01 * i] * 32,
-        ambient_c=22.0,
-        speed_rpm=4000.0,
-        torque_nm=10.0,
-        quality=["ok"] * 32,
-    )
+# samples enough for 20 before the freeze and one per 50 ms through a 60-s freeze
+PLAN = Plan(profile=(Segment(12_600.0, 4000.0, 10.0, 22.0),))
 
 
 def db_health(client: TestClient) -> tuple[str, str, str]:
@@ -53,13 +40,12 @@ def db_health(client: TestClient) -> tuple[str, str, str]:
 
 
 @pytest.fixture
-def proxied(pg_url: str, pg_schema: str) -> Iterator[tuple[TcpProxy, Persistence, str]]:
+def proxied(pg_url: str, pg_schema: str) -> Iterator[tuple[TcpProxy, Served, str]]:
     target = sa.engine.make_url(pg_url)
     port = free_port()
     proxy = TcpProxy(port, (target.host or "127.0.0.1", target.port or 5432)).start()
     db = Settings().database.model_copy(
         update={
-            "url": pg_schema_url(pg_url, pg_schema, port=port),
             "connect_timeout_s": 2.0,
             "statement_timeout_s": 2.0,
             "heartbeat_s": 1.0,
@@ -70,42 +56,28 @@ def proxied(pg_url: str, pg_schema: str) -> Iterator[tuple[TcpProxy, Persistence
             "retry_max_s": 1.0,
         }
     )
-    p = open_persistence(db, migrate=True)
-    assert p.restored_from_db
+    url = pg_schema_url(pg_url, pg_schema, port=port)
+    served = served_service(database_url=url, plan=PLAN, settings=Settings(database=db), feed_samples=0)
+    assert served.persistence.restored_from_db
     try:
-        yield proxy, p, pg_schema_url(pg_url, pg_schema)
+        yield proxy, served, pg_schema_url(pg_url, pg_schema)
     finally:
         proxy.thaw()
-        p.close(timeout_s=5.0)
+        served.close()
         proxy.stop()
 
 
 @pytest.mark.parametrize("writing", [True, False], ids=["writing", "idle"])
 def test_frozen_database_is_degraded_within_10_s_and_nothing_is_lost(
-    proxied: tuple[TcpProxy, Persistence, str], writing: bool
+    proxied: tuple[TcpProxy, Served, str], writing: bool
 ) -> None:
-    """``writing``: rows keep coming during the freeze; idle: only the writer's heartbeat can notice it."""
+    """``writing``: samples keep coming during the freeze; idle: only the writer's heartbeat can notice it."""
     from api.app import create_app
 
-    proxy, p, direct = proxied
-    svc = SoftSensorService(
-        # the core as far as health and history need it: no model work, no records in memory
-        SimpleNamespace(
-            model=SimpleNamespace(version="test", spec=load_spindle()),
-            view=lambda: SimpleNamespace(records=()),
-        ),  # type: ignore[arg-type]
-        worker=None,
-        writer=p.sink,
-        session_factory=p.session_factory,
-        db_reads=p.reads,
-    )
-    client = TestClient(create_app(Settings(), svc))
-    sink = p.sink
-    sink.submit(ConditionStart(1, T0, 3000.0, 5.0, 22.0))
-    submitted = 0
-    for _ in range(20):
-        sink.submit(sample(submitted))
-        submitted += 1
+    proxy, served, direct = proxied
+    client = TestClient(create_app(Settings(), served.service, clock=served.clock))
+    sink = served.persistence.sink
+    served.feed_next(20)
     assert sink.writer.flush(15.0)
     assert db_health(client)[:2] == ("ok", "ok")
 
@@ -115,8 +87,7 @@ def test_frozen_database_is_degraded_within_10_s_and_nothing_is_lost(
     read_statuses: list[tuple[int, float]] = []
     while time.monotonic() - frozen_at < FREEZE_S:
         if writing:
-            sink.submit(sample(submitted))  # the service keeps producing rows (one per 50 ms here)
-            submitted += 1
+            served.feed_next(1)  # the service keeps taking samples and storing them (one per 50 ms here)
         overall, status, message = db_health(client)
         if not seen or seen[-1][2] != status:
             seen.append((time.monotonic() - frozen_at, overall, status, message))
@@ -127,7 +98,7 @@ def test_frozen_database_is_degraded_within_10_s_and_nothing_is_lost(
             assert r.json()["error"]["code"] == "not_ready" and "Retry-After" in r.headers
         time.sleep(0.05)
     proxy.thaw()
-    print(f"freeze {FREEZE_S:.0f} s: health transitions {seen}; reads {read_statuses}; {submitted} rows")
+    print(f"freeze {FREEZE_S:.0f} s: health transitions {seen}; reads {read_statuses}; {served.fed} samples")
 
     changed = [s for s in seen if s[2] != "ok"]
     assert changed, f"db health never left ok during a {FREEZE_S:.0f} s freeze: {seen}"
@@ -145,6 +116,6 @@ def test_frozen_database_is_degraded_within_10_s_and_nothing_is_lost(
     eng = create_db_engine(direct)
     with repo.session_scope(make_session_factory(eng)) as s:
         stored = [r.t for r in repo.list_samples(s, limit=10_000)]
-        assert repo.count_rows(s, SampleRow) == submitted  # every row once: none lost, none doubled
+        assert repo.count_rows(s, SampleRow) == served.fed  # every row once: none lost, none doubled
     eng.dispose()
-    assert stored == [sample(i).t for i in range(submitted)]
+    assert stored == [smp.t for smp in served.samples[: served.fed]]

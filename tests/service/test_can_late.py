@@ -5,50 +5,76 @@ temperature and took its NaN speed/torque; the next sample raised ``InputError: 
 non-finite values`` out of the core's sample handling. In ``chtc run`` that exception ended the acquisition's
 task group, so the DAQ and CAN loops stopped silently and `/healthz` then reported the (healthy) DAQ as
 `down`.
+
+The core is driven with events first (what its view holds), then the real service (``service.sim.served``:
+core, shell, SQLite) takes the samples as the acquisition hands them over, and what it serves is checked.
 """
 
 from __future__ import annotations
 
 import math
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
+from drivers.ringbuffer import Sample
 from model.plant import Segment
 from service.engine.core import ServiceCore
 from service.engine.events import SampleReceived
-from service.engine.offline import run_offline
 from service.engine.runtime import core_config
 from service.modelload import LoadedModel
 from service.settings import Settings
+from service.sim.served import Plan, feed, plant_samples, served_service
 
-from .conftest import plant_run, samples_of
+PLAN = Plan(profile=(Segment(780.0, 3000.0, 5.0, 22.0),))  # 13 min: one identification at 10 min of data
+N_SILENT = 6  # the first minute: the DAQ answers, CAN does not (yet)
+
+
+def _without_can(sample: Sample) -> Sample:
+    return replace(sample, speed_rpm=math.nan, torque_nm=math.nan, can_ok=False)
 
 
 def test_samples_without_speed_and_torque_do_not_break_the_core(loaded_model: LoadedModel) -> None:
-    run = plant_run([Segment(1200.0, 3000.0, 5.0, 22.0)])
-    samples = samples_of(run)
-    n_silent = 6  # the first minute: the DAQ answers, CAN does not (yet)
-    silent = [replace(s, speed_rpm=math.nan, torque_nm=math.nan, can_ok=False) for s in samples[:n_silent]]
+    samples = plant_samples(PLAN)
     core = ServiceCore(core_config(Settings()), model=loaded_model, history_capacity=1000)
 
-    for n, s in enumerate(silent, start=1):
-        core.handle(SampleReceived(f"sample-{n}", s))
+    for n, s in enumerate(samples[:N_SILENT], start=1):
+        core.handle(SampleReceived(f"sample-{n}", _without_can(s)))
         assert core.view().live is None  # no speed/torque yet: the heat input is unknown
-    for n, s in enumerate(samples[n_silent : n_silent + 3], start=n_silent + 1):
+    for n, s in enumerate(samples[N_SILENT : N_SILENT + 3], start=N_SILENT + 1):
         core.handle(SampleReceived(f"sample-{n}", s))
 
     # the live state started at the first sample with speed and torque, and advances from there
     live = core.view().live
     assert live is not None
-    assert live.t > samples[n_silent].t.timestamp()
+    assert live.t > samples[N_SILENT].t.timestamp()
     assert np.isfinite(loaded_model.fe.sensor_op @ live.field_c).all()
 
 
-def test_no_can_at_all_gives_no_identification_and_no_error(loaded_model: LoadedModel) -> None:
-    run = plant_run([Segment(1200.0, 3000.0, 5.0, 22.0)])
-    samples = [replace(s, speed_rpm=math.nan, torque_nm=math.nan, can_ok=False) for s in samples_of(run)]
+def test_samples_without_speed_and_torque_do_not_break_the_service(tmp_path: Path) -> None:
+    with served_service(database_url=f"sqlite:///{tmp_path / 'chtc.db'}", plan=PLAN, feed_samples=0) as s:
+        for smp in s.samples[:N_SILENT]:
+            feed(s, _without_can(smp))  # raised InputError out of the core before the fix
+        assert s.service.chtc() is None
+        assert any(r.startswith("can_no_good_data") for r in s.service.ready().reasons)
+        for smp in s.samples[N_SILENT:]:
+            feed(s, smp)
+        snap = s.service.chtc()
+        assert s.service.ready().ready
+        # identified once CAN came up: the live state runs from the first sample with speed and torque
+        assert snap is not None and snap.condition.speed_rpm == 3000.0
+        assert snap.condition.since == s.samples[N_SILENT].t
+        predicted = [r.predicted_c for r in s.service.sensors()]
+        assert all(p is not None and math.isfinite(p) for p in predicted)
+        assert np.isfinite(s.service.field("now").temps_c).all()
 
-    result = run_offline(samples, model=loaded_model, config=core_config(Settings()))
 
-    assert result.records == []
+def test_no_can_at_all_gives_no_identification_and_no_error(tmp_path: Path) -> None:
+    with served_service(database_url=f"sqlite:///{tmp_path / 'chtc.db'}", plan=PLAN, feed_samples=0) as s:
+        for smp in s.samples:
+            feed(s, _without_can(smp))
+        assert s.service.chtc() is None
+        assert s.service.list_identifications(since=None, until=None, limit=10, offset=0).total == 0
+        reasons = s.service.ready().reasons
+        assert [r.split(":")[0] for r in reasons] == ["can_no_good_data"], reasons
