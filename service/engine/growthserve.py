@@ -246,10 +246,11 @@ class GrowthServer:
         self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
     ) -> CompensationSnapshot | None:
         """What ``/compensation`` serves: the growth with the status and usability of ``/chtc`` (the same
-        rules, evaluated now: never a stale value as fresh)."""
+        rules, evaluated now, after the estimate: never a stale value as fresh). ``identification_id``: the
+        one whose H the growth used (``chtc()`` may already see a newer view)."""
         est = self.estimate(view)
         snap = chtc()
-        if est is None or snap is None:
+        if est is None or snap is None or view.current is None:
             return None
         return CompensationSnapshot(
             growth=est,
@@ -257,7 +258,7 @@ class GrowthServer:
             usable_for_compensation=snap.usable_for_compensation,
             reason=snap.reason,
             newest_sample_at=snap.newest_sample_at,
-            identification_id=snap.identification_id,
+            identification_id=view.current.id,
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
