@@ -198,6 +198,9 @@ class SensorOut(BaseModel):
     )
     offset_sd_c: float | None = Field(default=None, description="1σ of the offset still unknown, °C")
     offset_calibrated_at: datetime | None = Field(default=None, description="UTC end of the baseline")
+    offset_source: Literal["auto", "manual"] | None = Field(
+        default=None, description="how the baseline was taken (null: no baseline, offsets unknown)"
+    )
 
 
 class BaselineOut(BaseModel):
@@ -235,6 +238,7 @@ def sensor_out(s: SensorReading) -> SensorOut:
         offset_c=_num(s.offset_c, 4),
         offset_sd_c=_num(s.offset_sd_c, 4),
         offset_calibrated_at=s.offset_calibrated_at,
+        offset_source=s.offset_source,  # type: ignore[arg-type]
     )
 
 

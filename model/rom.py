@@ -31,9 +31,13 @@ from model.rom_train import AffineSystem
 
 Array = NDArray[np.float64]
 
-# 46: worst case 0.022-0.032 °C over 3 x 100 random H (target 0.05) at ~575x the full FE; 50 gives 0.021 °C at
-# ~505x, 44 0.040 °C, 40 0.092 °C, 30 ~0.08-0.09 °C (docs/rom.md, "Choices")
-DEFAULT_RANK = 46
+# 56 with TRAIN_SUBSTEPS 4: the served model (exact over each held step) within 0.012 °C of a full FE
+# converged in time over 8 x 6 random H x 2 histories, where rank 46 (10-s BE training) reached 0.040 °C and
+# 52 0.022 °C (target 0.02); ~1.2x the cost per candidate of 46 (docs/rom.md, "Choices")
+DEFAULT_RANK = 56
+# θ-steps per 10-s step of the training trajectories' fast part: the snapshots follow the exact time response
+# the served model reproduces (1, 10-s BE snapshots: rank 56 still 0.019 °C off a converged reference)
+DEFAULT_TRAIN_SUBSTEPS = 4
 DEFAULT_THETA = 1.0  # as model.fem.simulate (backward Euler); checked by the tests
 # 0: the reduced ODE is integrated exactly over each 10-s input step (zero-order hold), so the model has no
 # time-step error; backward Euler at 10 s was 0.07-0.14 °C off a converged reference at the sensors (issue 15)
@@ -259,6 +263,7 @@ class BuildOptions:
     check_steps: int = 360
     q_max_w: tuple[float, float] = DEFAULT_Q_MAX_W
     seed: int = 0
+    train_substeps: int = DEFAULT_TRAIN_SUBSTEPS  # θ-steps per 10-s snapshot step (training's fast part)
 
 
 def build_rom(
@@ -347,7 +352,9 @@ def _train_basis(
     )
     blocks = []
     for i, h in enumerate(hs):
-        snap = rom_train.sample_snapshots(fe, h, theta=opts.theta, amp=amp, starts=starts, rng=rng)
+        snap = rom_train.sample_snapshots(
+            fe, h, theta=opts.theta, amp=amp, starts=starts, rng=rng, substeps=opts.train_substeps
+        )
         blocks.append(rom_train.compress(snap, weighting, keep=opts.keep_per_sample))
         starts = (snap.steady, snap.transient)
         if progress is not None and (i + 1) % 5 == 0:

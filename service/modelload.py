@@ -27,7 +27,7 @@ class ModelRef:
 
     spindle: str | None = None
     mesh_size_m: float | None = None
-    rom_rank: int = 46
+    rom_rank: int = 56
     cache_dir: str = ""
     h_box: tuple[float, float] = (5.0, 200.0)
 

@@ -1,6 +1,7 @@
 // spindle-chtc operator dashboard: polls /api/v1 and draws on canvases. Vanilla JS, no build step, no CDN.
 // A read token (if the API needs one) can be given once as #token=... in the URL; it stays in sessionStorage.
-// The write token for "Identify now" is asked for in a dialog and kept in sessionStorage (this tab only).
+// The write token for "Identify now" and "Take baseline" is asked for in a dialog and kept in sessionStorage
+// (this tab only).
 "use strict";
 
 const API = "/api/v1";
@@ -578,7 +579,9 @@ function drawLegend(chans) {
     return `<tr data-channel="${c}"><td><span class="line" data-k="${k}"></span></td>` +
       `<td>${c}</td><td class="sensor-name">${esc(s.name)}</td><td>${esc(s.role)}</td>` +
       `<td class="num">${fmt(n.measured_c, 2)} °C</td><td class="num">${fmt(n.predicted_c, 2)} °C</td>` +
-      `<td class="num">${fmt(n.residual_c, 2)} °C</td><td class="${q === "ok" ? "" : "bad"}">${esc(q)}</td></tr>`;
+      `<td class="num">${fmt(n.residual_c, 2)} °C</td>` +
+      `<td class="num" title="${n.offset_c == null ? "no baseline: offset unknown" : "1σ " + fmt(n.offset_sd_c, 3) + " °C"}">${fmt(n.offset_c, 2)} °C</td>` +
+      `<td class="${q === "ok" ? "" : "bad"}">${esc(q)}</td></tr>`;
   }).join("");
   // the page's CSP forbids inline style attributes; CSSOM is allowed
   for (const el of $("sensor-legend").querySelectorAll(".line")) el.style.borderColor = COLORS[Number(el.dataset.k) % COLORS.length];
@@ -596,9 +599,62 @@ async function pollSensors() {
     $("sensor-meta").textContent = `newest sample ${utc(r.body.t)} (${ageText(r.body.sample_age_s)} old) · ` +
       `RMS residual ${fmt(rms, 2)} °C over ${res.length} channels · ${n} samples from the server's history` +
       (bad.length ? ` · masked: ${bad.join(", ")}` : "");
+    showBaseline(r.body.channels);
     drawSensors();
   } catch (e) { $("sensor-meta").textContent = "sensors unavailable"; }
   markRendered();
+}
+
+// ---------- sensor offset baseline ----------
+function showBaseline(channels) {
+  const cal = channels.find((s) => s.offset_source);
+  const el = $("baseline-meta");
+  if (!cal) {
+    const sd = channels.map((s) => s.offset_sd_c).find((v) => v !== null && v !== undefined);
+    el.textContent = "no offset baseline: sensor offsets unknown" +
+      (sd === undefined ? "" : ` (carried in the CIs as 1σ ${fmt(sd, 2)} °C)`) +
+      "; one is taken when the spindle rests at the ambient";
+    el.className = "no";
+    return;
+  }
+  const offs = channels.map((s) => s.offset_c).filter((v) => v !== null && v !== undefined);
+  const range = offs.length ? `${fmt(Math.min(...offs), 2)}..${fmt(Math.max(...offs), 2)} °C` : "–";
+  el.textContent = `offset baseline: ${cal.offset_source}, at rest until ${utc(cal.offset_calibrated_at)} · ` +
+    `offsets ${range} over ${offs.length} channels (subtracted before the fit)`;
+  el.className = "";
+}
+
+function openBaseline() {
+  $("baseline-token").value = sessionStorage.getItem("chtc-write-token") || "";
+  $("baseline-dialog").showModal();
+  ($("baseline-token").value ? $("baseline-submit") : $("baseline-token")).focus();
+}
+
+async function submitBaseline(ev) {
+  ev.preventDefault();
+  const tok = $("baseline-token").value.trim();
+  if (!tok) { $("baseline-token").focus(); return; }
+  sessionStorage.setItem("chtc-write-token", tok);
+  $("baseline-dialog").close();
+  const out = $("baseline-result");
+  $("baseline-now").disabled = true;
+  try {
+    const r = await api("/sensors/baseline", { method: "POST", bearer: tok });
+    if (r.status === 200) {
+      out.textContent = `baseline taken (${r.body.samples} samples until ${utc(r.body.t_to)})`;
+      out.className = "action-result ok";
+      pollSensors();
+    } else {
+      if (r.status === 401 || r.status === 403) sessionStorage.removeItem("chtc-write-token");
+      out.textContent = `refused (${r.status}): ${r.body?.error?.message || "HTTP " + r.status}`;
+      out.className = "action-result err";
+    }
+  } catch (e) {
+    out.textContent = "failed: the service did not answer";
+    out.className = "action-result err";
+  }
+  out.title = out.textContent;
+  $("baseline-now").disabled = false;
 }
 
 // ---------- condition timeline ----------
@@ -798,6 +854,9 @@ function start() {
   $("identify-now").addEventListener("click", openIdentify);
   $("identify-form").addEventListener("submit", submitIdentify);
   $("identify-cancel").addEventListener("click", () => $("identify-dialog").close());
+  $("baseline-now").addEventListener("click", openBaseline);
+  $("baseline-form").addEventListener("submit", submitBaseline);
+  $("baseline-cancel").addEventListener("click", () => $("baseline-dialog").close());
   let resizeTimer = null;
   window.addEventListener("resize", () => {
     clearTimeout(resizeTimer);

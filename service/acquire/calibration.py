@@ -16,7 +16,9 @@ window (``model.identify.baseline_offsets``).
   baseline is refined silently with every further sample (all samples since the equilibrium was first seen,
   up to ``max_rest_s``): per-channel constants of only 0.03 °C already move H2/H4 by tens of per cent, so a
   long rest is worth having. The spindle must run (speed ≥ ``idle_speed_rpm``) before the next
-  ``BaselineTaken``.
+  ``BaselineTaken``. A refinement is announced as ``BaselineRefined(calibration)`` (to be stored) each time
+  it has doubled the samples of the last one announced, and once more when the rest ends, so what is
+  stored is the in-memory baseline, with a few rows per rest period.
 - ``BaselineRequest`` (an operator, ``POST /api/v1/sensors/baseline`` or ``chtc``): the same checks on the
   newest ``rest_s`` of samples, now: ``BaselineTaken`` or ``BaselineRejected(reason)``.
 
@@ -27,7 +29,9 @@ baseline the carried 1σ is the baseline's own error: the channel's scatter / �
 (a spindle never sits exactly at the ambient).
 
 Status: ``NO_BASELINE`` → ``SETTLING`` (idle, collecting) → ``CALIBRATED``; a calibrated calibrator keeps
-its offsets while it settles for the next baseline.
+its offsets while it settles for the next baseline. ``OffsetCalibrator(current=...)`` starts calibrated
+with a stored baseline (the service restores the newest from the database, ``service.store.calibrations``).
+
 """
 
 from __future__ import annotations
@@ -43,6 +47,7 @@ from numpy.typing import NDArray
 Array = NDArray[np.float64]
 
 __all__ = [
+    "BaselineRefined",
     "BaselineRejected",
     "BaselineRequest",
     "BaselineTaken",
@@ -117,13 +122,20 @@ class BaselineTaken:
     calibration: Calibration
 
 
+@dataclass(frozen=True, eq=False)
+class BaselineRefined:
+    """The same rest period's baseline over more samples (store it; no operator message)."""
+
+    calibration: Calibration
+
+
 @dataclass(frozen=True)
 class BaselineRejected:
     reason: str
 
 
 Event = Reading | BaselineRequest
-Instruction = BaselineTaken | BaselineRejected
+Instruction = BaselineTaken | BaselineRefined | BaselineRejected
 
 
 def equilibrium(window: list[Reading], cfg: CalibrationConfig) -> str | None:
@@ -200,16 +212,16 @@ class OffsetCalibrator:
     def __post_init__(self) -> None:
         self._rest = deque(maxlen=int(self.config.max_rest_s / self.sample_period_s) + 2)
         self._eq_start: datetime | None = None
+        self._announced = 0  # samples of the last baseline announced (taken or refined)
+        if self.current is not None:  # a baseline restored from the database
+            self.status = CalibrationStatus.CALIBRATED
 
     def handle(self, event: Event) -> list[Instruction]:
         """One sample or one operator request -> what happened (nothing, a baseline, a rejection)."""
         if isinstance(event, BaselineRequest):
             return self._take("manual")
         if abs(event.speed_rpm) >= self.config.idle_speed_rpm or not np.isfinite(event.ambient_c):
-            self._rest.clear()
-            self._armed, self._eq_start = True, None
-            self.status = CalibrationStatus.CALIBRATED if self.current else CalibrationStatus.NO_BASELINE
-            return []
+            return self._rest_ended()
         self._rest.append(event)
         if self.current is None:
             self.status = CalibrationStatus.SETTLING
@@ -223,10 +235,25 @@ class OffsetCalibrator:
         refined = take_baseline(since, self.config, "auto")
         if not self._armed and self.current is not None and self.current.source == "auto":
             self.current = refined  # the same rest period: a longer average
-            return []
-        self._armed = False
+            return self._announce_refined(2 * self._announced)
+        self._armed, self._announced = False, refined.samples
         self.current, self.status = refined, CalibrationStatus.CALIBRATED
         return [BaselineTaken(refined)]
+
+    def _rest_ended(self) -> list[Instruction]:
+        out = [] if self._armed else self._announce_refined(self._announced + 1)
+        self._rest.clear()
+        self._armed, self._eq_start = True, None
+        self.status = CalibrationStatus.CALIBRATED if self.current else CalibrationStatus.NO_BASELINE
+        return out
+
+    def _announce_refined(self, min_samples: int) -> list[Instruction]:
+        """``BaselineRefined`` if the current automatic baseline has at least ``min_samples`` samples."""
+        c = self.current
+        if c is None or c.source != "auto" or c.samples < min_samples:
+            return []
+        self._announced = c.samples
+        return [BaselineRefined(c)]
 
     def offsets(self) -> Array:
         """The offsets to subtract (32,) °C: the current baseline's, zeros without one."""
@@ -253,5 +280,5 @@ class OffsetCalibrator:
         if why is not None:
             return [BaselineRejected(f"no baseline: {why}")]
         self.current = take_baseline(window, self.config, source)
-        self.status = CalibrationStatus.CALIBRATED
+        self.status, self._announced = CalibrationStatus.CALIBRATED, self.current.samples
         return [BaselineTaken(self.current)]

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from service.acquire.calibration import CalibrationConfig
+from service.acquire.calibration import Calibration, CalibrationConfig
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, ESTIMATE_T0_SHIFT
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import PastResult, SchedulerConfig
@@ -47,3 +47,4 @@ class Restored:
     conditions: tuple[ConditionSnapshot, ...] = ()  # newest first
     next_condition_id: int = 1
     next_identification_id: int = 1
+    calibration: Calibration | None = None  # the newest stored sensor offset baseline

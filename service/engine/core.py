@@ -33,6 +33,7 @@ from drivers.ringbuffer import RingBuffer, Sample
 from model.carry import StateCovariance
 from model.identify import IdentificationResult
 from service.acquire.calibration import (
+    BaselineRefined,
     BaselineRejected,
     BaselineRequest,
     BaselineTaken,
@@ -81,6 +82,7 @@ from service.serve.interface import (
     ConditionState,
     IdentificationRecord,
 )
+from service.store.calibrations import calibration_record
 from service.store.records import (
     ConditionEnd,
     ConditionStart,
@@ -165,7 +167,11 @@ class ServiceCore:
             store_period_s=config.sample_store_period_s,
         )
         cal = config.calibration
-        self._calibrator = None if cal is None else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s)
+        self._calibrator = (
+            None
+            if cal is None
+            else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
+        )
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -272,11 +278,14 @@ class ServiceCore:
         self._calibrated(self._calibrator.handle(reading), out)
 
     def _calibrated(
-        self, instructions: Sequence[BaselineTaken | BaselineRejected], out: _Out
+        self, instructions: Sequence[BaselineTaken | BaselineRefined | BaselineRejected], out: _Out
     ) -> Calibration | None:
         for ins in instructions:
+            if isinstance(ins, BaselineRefined):  # the same rest, a longer average: stored, no message
+                out.store(calibration_record(ins.calibration))
             if isinstance(ins, BaselineTaken):
                 c = ins.calibration
+                out.store(calibration_record(c))
                 out.log(
                     f"sensor offsets zeroed ({c.source} baseline, {c.samples} samples at rest until "
                     f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."

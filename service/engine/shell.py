@@ -453,6 +453,7 @@ class SoftSensorService:
                     offset_c=off,
                     offset_sd_c=None if sd is None else float(sd[i]),
                     offset_calibrated_at=None if cal is None else cal.t_to,
+                    offset_source=None if cal is None else cal.source,
                 )
             )
         return out

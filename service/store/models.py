@@ -1,6 +1,7 @@
-"""SQLAlchemy 2.0 typed declarative models (the schema of migration ``0001_initial``).
+"""SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` and ``0002``).
 
-Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``. Every timestamp is
+Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``, and (migration ``0002``)
+``offset_calibrations``. Every timestamp is
 :class:`~service.store.types.UtcDateTime` (aware UTC in and out, on SQLite too).
 Units: °C, rpm, N·m, W/(m²·K), s.
 
@@ -131,3 +132,17 @@ class SampleRow(Base):
     bad_channels: Mapped[dict[str, Any]] = mapped_column(JSON)  # {"7": "open_circuit", ...} (1-based)
     can_ok: Mapped[bool] = mapped_column(Boolean)
     daq_ok: Mapped[bool] = mapped_column(Boolean)
+
+
+class OffsetCalibrationRow(Base):
+    """A sensor offset baseline (``service.acquire.calibration.Calibration``); the newest is restored."""
+
+    __tablename__ = "offset_calibrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    t_from: Mapped[datetime]  # the rest window the offsets were averaged over
+    t_to: Mapped[datetime] = mapped_column(index=True)
+    source: Mapped[str] = mapped_column(String(16))  # "auto" | "manual"
+    samples: Mapped[int] = mapped_column(Integer)
+    offsets_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel, °C; null = not corrected
+    sd_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel 1σ of the offset, °C

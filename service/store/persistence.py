@@ -24,7 +24,7 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import TYPE_CHECKING
 
-from service.engine.core import Restored
+from service.engine.config import Restored
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from service.serve.interface import ConditionState
@@ -35,6 +35,7 @@ if TYPE_CHECKING:
     from sqlalchemy.engine import Engine
     from sqlalchemy.orm import Session, sessionmaker
 
+    from service.acquire.calibration import Calibration
     from service.settings import DatabaseSettings
     from service.store.reads import DbReads
     from service.store.watchdog import StatementWatchdog
@@ -45,8 +46,17 @@ __all__ = ["GateSink", "Persistence", "open_persistence", "restore"]
 log = logging.getLogger(__name__)
 
 
-def restore(session_factory: sessionmaker[Session], *, limit: int = 100) -> Restored:
-    """The state of the previous run from the database (raises ``service.store.errors.DatabaseError``)."""
+def restore(
+    session_factory: sessionmaker[Session],
+    *,
+    limit: int = 100,
+    on_problem: Callable[[str], None] | None = None,
+) -> Restored:
+    """The state of the previous run from the database (raises ``service.store.errors.DatabaseError``).
+
+    A stored offset baseline that cannot be used is reported to ``on_problem`` (and logged) and left in the
+    table; the service then starts without a baseline and everything else is restored.
+    """
     from service.store.repository import (
         last_served_identification,
         latest_per_condition,
@@ -71,13 +81,28 @@ def restore(session_factory: sessionmaker[Session], *, limit: int = 100) -> Rest
         )
         rows = list_conditions(session, limit=50).items
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
+        calibration = _restore_calibration(session, on_problem)
     return Restored(
+        calibration=calibration,
         last=last,
         history=history,
         conditions=conditions,
         next_condition_id=cond_max + 1,
         next_identification_id=ident_max + 1,
     )
+
+
+def _restore_calibration(session: Session, on_problem: Callable[[str], None] | None) -> Calibration | None:
+    from service.store.calibrations import StoredCalibrationError, restore_calibration
+
+    try:
+        return restore_calibration(session)
+    except StoredCalibrationError as err:
+        text = f"stored sensor offset baseline not restored ({err}); starting without a baseline"
+        log.warning("%s", text)
+        if on_problem is not None:
+            on_problem(text)
+        return None
 
 
 def fallback_restored(now_s: float | None = None) -> Restored:
@@ -290,7 +315,7 @@ def open_persistence(
     try:
         with read_watchdog.guard("migrate and restore"):  # a hung database cannot hold the start-up
             _prepare_schema(engine, migrate)
-            restored = restore(factory)
+            restored = restore(factory, on_problem=say)
         from_db = True
         sink.open(_start_writer(w_factory, db, clock=clock, watchdog=w_watchdog))
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background

@@ -359,8 +359,53 @@ class IdentificationData:
         return _plain_dict({**(self.diagnostics or {}), "events": events})
 
 
-Record = ConditionStart | ConditionEnd | IdentificationData | DeviceEventData | SampleData
-RECORD_TYPES = (ConditionStart, ConditionEnd, IdentificationData, DeviceEventData, SampleData)
+@dataclass(frozen=True)
+class OffsetCalibrationData:
+    """A sensor offset baseline (``service.acquire.calibration.Calibration``): offsets and their 1σ per
+    channel [°C] (None: the channel had no data at rest, not corrected), the rest window [t_from, t_to]
+    (UTC), the number of samples averaged and how it was taken ("auto" | "manual")."""
+
+    t_from: datetime
+    t_to: datetime
+    source: str
+    samples: int
+    offsets_c: tuple[float | None, ...]
+    sd_c: tuple[float | None, ...]
+
+    def __post_init__(self) -> None:
+        _check_times(self)
+        _check_len(self, "sd_c", self.sd_c, len(self.offsets_c))
+        if self.source not in CALIBRATION_SOURCES:
+            raise RecordError(f"OffsetCalibrationData.source: {self.source!r} not in {CALIBRATION_SOURCES}")
+        if self.samples < 1:
+            raise RecordError(f"OffsetCalibrationData.samples: need >= 1, got {self.samples}")
+        if self.t_to < self.t_from:
+            raise RecordError("OffsetCalibrationData.t_to: before t_from")
+
+    def values(self) -> dict[str, Column]:
+        return {
+            "t_from": self.t_from,
+            "t_to": self.t_to,
+            "source": self.source,
+            "samples": int(self.samples),
+            "offsets_c": finite_list(self.offsets_c),
+            "sd_c": finite_list(self.sd_c),
+        }
+
+
+CALIBRATION_SOURCES = ("auto", "manual")
+
+Record = (
+    ConditionStart | ConditionEnd | IdentificationData | DeviceEventData | SampleData | OffsetCalibrationData
+)
+RECORD_TYPES = (
+    ConditionStart,
+    ConditionEnd,
+    IdentificationData,
+    DeviceEventData,
+    SampleData,
+    OffsetCalibrationData,
+)
 
 
 def _plain(value: object) -> JsonValue:

@@ -20,12 +20,13 @@ from sqlalchemy.orm import Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
 from service.store.errors import RecordNotFoundError
-from service.store.models import Condition, DeviceEvent, Identification, SampleRow
+from service.store.models import Condition, DeviceEvent, Identification, OffsetCalibrationRow, SampleRow
 from service.store.records import (
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
     IdentificationData,
+    OffsetCalibrationData,
     Record,
     SampleData,
 )
@@ -62,6 +63,7 @@ _TABLE_OF: dict[type, type] = {
     IdentificationData: Identification,
     DeviceEventData: DeviceEvent,
     SampleData: SampleRow,
+    OffsetCalibrationData: OffsetCalibrationRow,
 }
 
 
@@ -111,6 +113,13 @@ def add_device_event(session: Session, record: DeviceEventData) -> DeviceEvent:
 def add_samples(session: Session, records: Sequence[SampleData]) -> None:
     if records:
         session.execute(insert(SampleRow), [r.values() for r in records])
+
+
+def add_offset_calibration(session: Session, record: OffsetCalibrationData) -> OffsetCalibrationRow:
+    row = OffsetCalibrationRow(**record.values())
+    session.add(row)
+    session.flush()
+    return row
 
 
 # --- reads ----------------------------------------------------------------------------------------
@@ -246,6 +255,22 @@ def list_samples(
     """Stored samples at t in [since, until), oldest first (for replay and plots)."""
     query = _time_filter(select(SampleRow), SampleRow.t, since, until)
     return list(session.scalars(query.order_by(SampleRow.t, SampleRow.id).limit(limit)))
+
+
+def last_offset_calibration(session: Session) -> OffsetCalibrationRow | None:
+    """The newest sensor offset baseline (latest ``t_to``, then highest id); None if none was ever taken."""
+    query = select(OffsetCalibrationRow).order_by(
+        OffsetCalibrationRow.t_to.desc(), OffsetCalibrationRow.id.desc()
+    )
+    return session.scalars(query.limit(1)).first()
+
+
+def list_offset_calibrations(
+    session: Session, *, limit: int = 50, offset: int = 0
+) -> Page[OffsetCalibrationRow]:
+    """Sensor offset baselines, newest first."""
+    order = (OffsetCalibrationRow.t_to.desc(), OffsetCalibrationRow.id.desc())
+    return _page(session, select(OffsetCalibrationRow).order_by(*order), limit, offset)
 
 
 def count_rows(session: Session, model: type[Any]) -> int:

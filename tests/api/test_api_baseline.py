@@ -38,8 +38,10 @@ def test_baseline_at_rest_is_taken_and_shown_by_sensors(tmp_path: Path) -> None:
     assert all(abs(x) < 0.3 and 0 < sd < 0.1 for x, sd in zip(body["offsets_c"], body["sd_c"], strict=True))
     assert [c["offset_c"] for c in ch] == pytest.approx(body["offsets_c"], abs=1e-4)
     assert {c["offset_calibrated_at"] for c in ch} == {"2026-11-22T07:07:00Z"}
+    assert {c["offset_source"] for c in ch} == {"manual"}
 
 
 def test_sensors_show_offset_fields(client: TestClient) -> None:
     ch = client.get("/api/v1/sensors").json()["channels"][0]
-    assert {"offset_c", "offset_sd_c", "offset_calibrated_at"} <= set(ch)
+    assert {"offset_c", "offset_sd_c", "offset_calibrated_at", "offset_source"} <= set(ch)
+    assert ch["offset_source"] is None  # no baseline yet

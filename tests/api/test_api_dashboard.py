@@ -20,8 +20,9 @@ from fastapi.testclient import TestClient
 
 from api.app import STATIC_DIR, create_app
 from model.geometry import SpindleSpec, load_spindle
+from model.plant import Segment
 from service.settings import Settings
-from service.sim.served import DEMO_FED, Served, feed, served_service
+from service.sim.served import DEMO_FED, Plan, Served, feed, served_service
 from tests.api.conftest import LENIENT_CI, WRITE_TOKEN, LiveServer, served_with_dead_devices, sqlite_url
 
 # the newest identification has all seven H identified: the banner then names only a case's own cause
@@ -395,3 +396,58 @@ def test_a_missing_read_token_is_named_and_the_token_in_the_url_fragment_is_used
         page.call("Page.navigate", url=server.url + "/#token=reader-token-for-tests")
         page.wait(f"!window.withoutToken && {RENDERED} && document.getElementById('banner')?.hidden")
         assert page.eval("sessionStorage.getItem('chtc-token')") == "reader-token-for-tests"
+
+
+BASELINE = "document.getElementById('baseline-meta').textContent"
+BASELINE_RESULT = "document.getElementById('baseline-result').textContent"
+
+
+@pytest.mark.browser
+def test_a_refused_baseline_names_why(page: _Page, tmp_path: Path) -> None:
+    """The real service with the spindle running: no baseline (offsets named unknown); a request through the
+    dialog with the write token is refused and the 409's reason is shown."""
+    with served_service(database_url=sqlite_url(tmp_path), feed_samples=DEMO_FED) as s:
+        app = create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)
+        with LiveServer(app) as server:
+            page.call("Page.navigate", url=server.url + "/")
+            page.wait(RENDERED)
+            assert page.wait(BASELINE).startswith("no offset baseline: sensor offsets unknown")
+            page.eval("document.getElementById('baseline-now').click()")
+            assert page.eval("document.getElementById('baseline-dialog').open") is True
+            page.eval(f"document.getElementById('baseline-token').value = '{WRITE_TOKEN}'")
+            page.eval("document.getElementById('baseline-submit').click()")
+            refused = page.wait(f"{BASELINE_RESULT}.startsWith('refused') && {BASELINE_RESULT}")
+    assert refused == "refused (409): no baseline taken: no baseline: no samples at rest"
+
+
+@pytest.mark.browser
+def test_a_baseline_taken_at_rest_is_shown_in_the_card_and_per_channel(page: _Page, tmp_path: Path) -> None:
+    """The real service after 7 min at rest: a baseline taken through the dialog shows its source, time and
+    offset range in the card, and each channel's offset (as ``/sensors`` serves it) in the legend table."""
+    at_rest = Plan(profile=(Segment(420.0, 0.0, 0.0, 22.0),))
+    with served_service(database_url=sqlite_url(tmp_path), plan=at_rest) as s:
+        app = create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)
+        with LiveServer(app) as server:
+            page.call("Page.navigate", url=server.url + "/")
+            # nothing identified at rest (no H, so not "rendered"): the sensors card is what this page shows;
+            # 5 min at rest at the ambient have already given the automatic baseline
+            meta0 = page.wait("document.getElementById('baseline-meta')?.textContent")
+            assert meta0.startswith("offset baseline: auto, at rest until 2026-11-22 07:07:00 UTC")
+            page.eval("document.getElementById('baseline-now').click()")
+            page.eval(f"document.getElementById('baseline-token').value = '{WRITE_TOKEN}'")
+            page.eval("document.getElementById('baseline-submit').click()")
+            taken = page.wait(f"{BASELINE_RESULT}.startsWith('baseline taken') && {BASELINE_RESULT}")
+            meta = page.wait(f"{BASELINE}.startsWith('offset baseline: manual') && {BASELINE}")
+            cell = page.wait(
+                "document.querySelector('#sensor-legend tr[data-channel=\"7\"] td:nth-child(8)')?.textContent"
+                " || ''"
+            )
+            with TestClient(app) as c:
+                ch = c.get("/api/v1/sensors").json()["channels"]
+    offsets = [c["offset_c"] for c in ch]
+    assert taken == "baseline taken (31 samples until 2026-11-22 07:07:00 UTC)"
+    assert meta == (
+        f"offset baseline: manual, at rest until 2026-11-22 07:07:00 UTC · offsets {min(offsets):.2f}.."
+        f"{max(offsets):.2f} °C over 32 channels (subtracted before the fit)"
+    )
+    assert cell == f"{ch[6]['offset_c']:.2f} °C"

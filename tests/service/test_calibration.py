@@ -9,6 +9,7 @@ import pytest
 
 from model.plant import Segment
 from service.acquire.calibration import (
+    BaselineRefined,
     BaselineRejected,
     BaselineRequest,
     BaselineTaken,
@@ -19,10 +20,11 @@ from service.acquire.calibration import (
     equilibrium,
 )
 from service.engine.core import CoreConfig, ServiceCore
-from service.engine.events import Launch, SampleReceived
+from service.engine.events import Launch, SampleReceived, Store
 from service.modelload import LoadedModel
 
 from .conftest import plant_run, samples_of
+from .drive import feed as feed_core
 
 T = datetime(2026, 3, 1, 6, 0, tzinfo=UTC)
 OFFSETS = np.random.default_rng(5).uniform(-0.2, 0.2, 32)
@@ -69,11 +71,17 @@ def test_a_rest_at_the_ambient_gives_a_baseline_with_the_offsets() -> None:
 
 
 def test_a_longer_rest_refines_the_same_baseline_silently() -> None:
+    """No new ``BaselineTaken`` (no operator message); a ``BaselineRefined`` to store each time the samples
+    doubled (30 -> 60 -> 120) and when the rest ends, carrying the in-memory baseline."""
     cal = OffsetCalibrator()
     first = feed(cal, readings(31))
     later = feed(cal, readings(150, start=31, seed=1))
-    assert len(first) == 1 and later == []
+    assert len(first) == 1 and isinstance(first[0], BaselineTaken) and first[0].calibration.samples == 30
+    assert [type(i) for i in later] == [BaselineRefined, BaselineRefined]
+    assert [i.calibration.samples for i in later] == [60, 120]
     assert cal.current is not None and cal.current.samples == 181
+    ended = feed(cal, readings(2, start=181, speed=3000.0))
+    assert len(ended) == 1 and ended[0].calibration is cal.current
     assert np.all(np.abs(cal.current.offsets_c - OFFSETS) < 4.5 * 0.15 / np.sqrt(181))
     assert cal.current.t_from == T
     assert np.median(cal.current.sd_c) < 0.5 * np.median(first[0].calibration.sd_c)
@@ -138,3 +146,34 @@ def test_the_core_zeroes_the_offsets_of_its_jobs(loaded_model: LoadedModel) -> N
     assert np.all(req.offset_sd_c < 0.03)
     _, plain = first_request(CoreConfig(calibration=None))
     assert plain.offsets_c is None and plain.offset_sd_c is None
+
+
+def test_a_baseline_taken_by_the_core_is_stored_and_a_restarted_core_starts_with_it(
+    tmp_path, loaded_model: LoadedModel
+) -> None:
+    """Real SQLite through the service's writer: the core's baseline becomes an ``offset_calibrations`` row;
+    after a restart the restored core is calibrated with the same offsets and 1σ before any rest."""
+    from service.settings import Settings
+    from service.store.persistence import open_persistence
+
+    db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
+    run = plant_run([Segment(600.0, 0.0, 0.0, 21.0), Segment(300.0, 3000.0, 5.0, 21.0)], offsets_c=OFFSETS)
+    first = open_persistence(db, migrate=True)
+    core = ServiceCore(CoreConfig(), model=loaded_model)
+    for ins in feed_core(core, samples_of(run)):
+        if isinstance(ins, Store):
+            first.sink.submit(ins.record)
+    taken = core.view().calibration
+    assert taken is not None and taken.source == "auto"
+    first.close()
+
+    second = open_persistence(db, migrate=False)
+    try:
+        restored = second.restored.calibration
+        assert restored is not None and restored.t_to == taken.t_to
+        fresh = ServiceCore(CoreConfig(), model=loaded_model, restored=second.restored).view()
+        assert fresh.calibration is not None and fresh.offset_sd_c is not None
+        np.testing.assert_allclose(fresh.calibration.applied(), taken.applied())
+        np.testing.assert_allclose(fresh.offset_sd_c, taken.sd_c)
+    finally:
+        second.close()

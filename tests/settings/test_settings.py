@@ -32,7 +32,7 @@ def test_defaults_work_without_a_file(tmp_path: Path) -> None:
     s = Settings()
     assert (s.modbus.host, s.modbus.port, s.modbus.unit) == ("127.0.0.1", 5020, None)
     assert s.can.interface == "virtual"
-    assert s.model.rom_rank == 46 and s.model.h_box == (5.0, 200.0)
+    assert s.model.rom_rank == 56 and s.model.h_box == (5.0, 200.0)
     assert s.model.rom_cache_dir == tmp_path / "cache"
     assert s.database.url == f"sqlite:///{tmp_path / 'data' / 'chtc.db'}"
     assert s.identification.schedule_min == (10.0, 20.0, 40.0, 60.0)
