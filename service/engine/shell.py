@@ -57,6 +57,7 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
+from service.engine.growthserve import GrowthServer
 from service.engine.health import (
     HealthSource,
     StatusSource,
@@ -76,6 +77,7 @@ from service.serve.interface import (
     BusyError,
     ChtcSnapshot,
     ChtcStatus,
+    CompensationSnapshot,
     ConditionSnapshot,
     DeviceHealth,
     DeviceStatus,
@@ -189,6 +191,12 @@ class SoftSensorService:
         self.closed = False
         sensors = [(sp.channel, sp.name, sp.role) for sp in core.model.spec.sensors]
         self._history = SensorHistoryBuffer(history_capacity, sensors)
+        self._growth = GrowthServer(core.model)  # /compensation
+
+    @property
+    def growth(self) -> GrowthServer:
+        """The thermal growth's server (``compensation()``; docs/growth.md)."""
+        return self._growth
 
     @property
     def view(self) -> CoreView:
@@ -200,6 +208,10 @@ class SoftSensorService:
         """Remember the loop, start the worker process (loads the model there) and the health watcher."""
         self._loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
+        try:
+            await asyncio.to_thread(self._growth.prepare)  # the growth model: once, off the loop
+        except NotReadyError as err:  # /compensation answers 503 with the cause; H is served as before
+            self.record_event("growth", "unavailable", str(err))
         if self.worker is not None:
             version = await self.worker.start()
             self.model_loaded = True
@@ -256,9 +268,24 @@ class SoftSensorService:
         self._view = self.core.view()
         if isinstance(event, SampleReceived):
             self._remember_history()
+        self._refresh_growth()
         for ins in instructions:
             self._execute(ins)
         return instructions
+
+    def _refresh_growth(self) -> None:
+        """New identification or condition: the growth's condition terms in a thread (with a loop; without,
+        the first ``compensation()`` computes them in its caller's thread)."""
+        self._growth.observe(self._view)
+        loop = self._loop
+        if loop is not None and loop.is_running() and self._growth.wants_refresh(self._view):
+            self._spawn(self._growth_terms(self._view))
+
+    async def _growth_terms(self, view: CoreView) -> None:
+        try:
+            await asyncio.to_thread(self._growth.refresh, view)
+        except Exception as err:  # a request retries it and raises to its caller; say it here too
+            log.warning("growth terms failed: %s: %s", type(err).__name__, err)
 
     def _execute(self, ins: Instruction) -> None:
         if isinstance(ins, Store):
@@ -399,6 +426,9 @@ class SoftSensorService:
         out = FieldSnapshot(self.clock(), "steady", fe.nodes_rz, fe.triangles, steady, rec.id)
         self._steady_cache = (key, out)
         return out
+
+    def compensation(self) -> CompensationSnapshot | None:
+        return self._growth.snapshot(self._view, self.chtc)
 
     def sensors(self) -> Sequence[SensorReading]:
         v = self._view
