@@ -52,7 +52,13 @@ class IdentificationArchive:
                 partial = f"database not readable, only the records in memory: {err}"
         rows = [r for r in records if _within(r, since, until)]
         rows.sort(key=lambda r: (r.finished_at, r.id), reverse=True)
-        return IdentificationPage(rows[offset : offset + limit], len(rows), limit, offset, partial)
+        return IdentificationPage(
+            items=rows[offset : offset + limit],
+            total=len(rows),
+            limit=limit,
+            offset=offset,
+            partial_reason=partial,
+        )
 
     def get(self, records: Sequence[IdentificationRecord], identification_id: int) -> IdentificationRecord:
         for r in records:
@@ -85,7 +91,9 @@ class IdentificationArchive:
 
         def read(session: Session) -> IdentificationPage:
             page = list_identifications(session, since=since, until=until, limit=limit, offset=offset)
-            return IdentificationPage([row_to_record(r) for r in page.items], page.total, limit, offset)
+            return IdentificationPage(
+                items=[row_to_record(r) for r in page.items], total=page.total, limit=limit, offset=offset
+            )
 
         return _merge_pending(self._db_read(read, "list identifications"), records, since, until)
 
@@ -115,7 +123,9 @@ def _merge_pending(
     if not extra:
         return page
     items = sorted([*extra, *page.items], key=lambda r: (r.finished_at, r.id), reverse=True)
-    return IdentificationPage(items[: page.limit], page.total + len(extra), page.limit, page.offset)
+    return IdentificationPage(
+        items=items[: page.limit], total=page.total + len(extra), limit=page.limit, offset=page.offset
+    )
 
 
 def _within(r: IdentificationRecord, since: datetime | None, until: datetime | None) -> bool:

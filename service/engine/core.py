@@ -139,7 +139,7 @@ class ServiceCore:
         last_point = None
         if restored.conditions:
             c = restored.conditions[0]
-            last_point = OperatingPoint(c.speed_rpm, c.torque_nm, c.ambient_c)
+            last_point = OperatingPoint(speed_rpm=c.speed_rpm, torque_nm=c.torque_nm, ambient_c=c.ambient_c)
         self._detector = ConditionDetector(config.detector, reference=last_point)
         self._scheduler = sched.IdentificationScheduler(config.scheduler, history=list(restored.history))
         h0 = restored.last.h if restored.last is not None else np.asarray(config.initial_h, dtype=float)
@@ -255,7 +255,12 @@ class ServiceCore:
         if self._resumed:
             todo += self._resume(ts, out)
         for change in self._detector.handle(
-            SampleEvent(ts, float(sample.speed_rpm), float(sample.torque_nm), float(sample.ambient_c))
+            SampleEvent(
+                t=ts,
+                speed_rpm=float(sample.speed_rpm),
+                torque_nm=float(sample.torque_nm),
+                ambient_c=float(sample.ambient_c),
+            )
         ):
             todo += self._on_change(change, out)
         todo += self._scheduler.handle(sched.Tick(ts))
@@ -274,7 +279,7 @@ class ServiceCore:
         if self._calibrator is None:
             return
         ok = np.array([q == "ok" for q in s.quality], dtype=bool) & np.isfinite(s.temps_c)
-        reading = Reading(s.t, s.temps_c, ok, s.ambient_c, s.speed_rpm)
+        reading = Reading(t=s.t, temps_c=s.temps_c, ok=ok, ambient_c=s.ambient_c, speed_rpm=s.speed_rpm)
         self._calibrated(self._calibrator.handle(reading), out)
 
     def _calibrated(
@@ -323,9 +328,11 @@ class ServiceCore:
         self._resumed = False
         cond = self._condition
         assert cond is not None
-        point = OperatingPoint(cond.speed_rpm, cond.torque_nm, cond.ambient_c)
+        point = OperatingPoint(speed_rpm=cond.speed_rpm, torque_nm=cond.torque_nm, ambient_c=cond.ambient_c)
         out.log(f"resumed condition {cond.id} ({cond.speed_rpm:.0f} rpm) from the database")
-        return self._scheduler.handle(sched.ConditionStarted(ts, cond.id, point, ts))
+        return self._scheduler.handle(
+            sched.ConditionStarted(t=ts, condition_id=cond.id, point=point, t_start=ts)
+        )
 
     def _on_change(self, change: ConditionChanged, out: _Out) -> list[sched.Instruction]:
         cid = next(self._cond_ids)
@@ -333,8 +340,23 @@ class ServiceCore:
         if self._condition is not None:
             out.store(ConditionEnd(id=self._condition.id, ended_at=started))
         p = change.point
-        out.store(ConditionStart(cid, started, p.speed_rpm, p.torque_nm, p.ambient_c))
-        snap = ConditionSnapshot(cid, p.speed_rpm, p.torque_nm, p.ambient_c, started, ConditionState.STABLE)
+        out.store(
+            ConditionStart(
+                id=cid,
+                started_at=started,
+                speed_rpm=p.speed_rpm,
+                torque_nm=p.torque_nm,
+                ambient_c=p.ambient_c,
+            )
+        )
+        snap = ConditionSnapshot(
+            id=cid,
+            speed_rpm=p.speed_rpm,
+            torque_nm=p.torque_nm,
+            ambient_c=p.ambient_c,
+            since=started,
+            state=ConditionState.STABLE,
+        )
         self._set_condition(snap, new=True)
         if self._live.initialized:
             self._live.mark(change.t_start)
@@ -342,7 +364,9 @@ class ServiceCore:
             f"condition {cid}: {p.speed_rpm:.0f} rpm, {p.torque_nm:.2f} N·m, {p.ambient_c:.2f} °C "
             f"since {started.isoformat(timespec='seconds')} ({change.reason})"
         )
-        return self._scheduler.handle(sched.ConditionStarted(change.t_confirmed, cid, p, change.t_start))
+        return self._scheduler.handle(
+            sched.ConditionStarted(t=change.t_confirmed, condition_id=cid, point=p, t_start=change.t_start)
+        )
 
     def _set_condition(self, snap: ConditionSnapshot, *, new: bool = False) -> None:
         self._condition = snap
@@ -379,13 +403,13 @@ class ServiceCore:
                 "no bearing heat, H1-H7 are not identifiable"
             )
             self._store_outcome(job, "skipped", msg, now, out)
-            return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, msg))
+            return self._scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=msg))
         try:
             window = job_window(start, self._live, self._history, self.config)
         except (InsufficientWindowError, LiveStateError) as err:
             msg = err.reason if isinstance(err, InsufficientWindowError) else str(err)
             self._store_outcome(job, "insufficient-data", msg, now, out)
-            return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, msg))
+            return self._scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=msg))
         cal = self._calibrator
         offsets = None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
         request = job_request(start, window, history=self._history, config=self.config, offsets=offsets)
@@ -421,16 +445,20 @@ class ServiceCore:
             return
         if outcome.status is JobStatus.INSUFFICIENT_DATA:
             self._store_outcome(job, "insufficient-data", outcome.message, ev.finished_at, out)
-            more = self._scheduler.handle(sched.JobSkipped(ts, outcome.job_id, outcome.message))
+            more = self._scheduler.handle(
+                sched.JobSkipped(t=ts, job_id=outcome.job_id, reason=outcome.message)
+            )
         elif outcome.status is JobStatus.FAILED or outcome.result is None:
             self._store_outcome(job, "failed", outcome.message, ev.finished_at, out)
-            more = self._scheduler.handle(sched.JobFailed(ts, outcome.job_id, outcome.message))
+            more = self._scheduler.handle(
+                sched.JobFailed(t=ts, job_id=outcome.job_id, reason=outcome.message)
+            )
         else:
             result: IdentificationResult = outcome.result
             rec = self._store_result(job, outcome, result, ev, out)
             self._rebase_live(outcome, result, job)
             h = tuple(float(x) for x in rec.h)
-            more = self._scheduler.handle(sched.JobFinished(ts, outcome.job_id, h))
+            more = self._scheduler.handle(sched.JobFinished(t=ts, job_id=outcome.job_id, h=h))
         self._execute(more, ts, out)
 
     def _store_result(

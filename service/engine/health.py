@@ -71,13 +71,27 @@ def source_health(name: str, src: HealthSource, now: datetime) -> DeviceHealth:
     }
     # a recovered device's error is history; a CAN warning/fault status is the reason while it lasts
     message = condition or (m.last_error if status is not DeviceStatus.OK else "")
-    return DeviceHealth(name, status, last_ok, age_s(last_ok, now), counters, message)
+    return DeviceHealth(
+        name=name,
+        status=status,
+        last_ok_at=last_ok,
+        age_s=age_s(last_ok, now),
+        counters=counters,
+        message=message,
+    )
 
 
 def db_health(writer: StatusSource | None, now: datetime) -> DeviceHealth:
     """The database writer's health (DISABLED without a database)."""
     if writer is None:
-        return DeviceHealth("db", DeviceStatus.DISABLED, None, None, {}, "no database configured")
+        return DeviceHealth(
+            name="db",
+            status=DeviceStatus.DISABLED,
+            last_ok_at=None,
+            age_s=None,
+            counters={},
+            message="no database configured",
+        )
     st = writer.status()
     status = DeviceStatus.OK if st.connected else DeviceStatus.DOWN
     busy_s = st.busy_s
@@ -94,7 +108,14 @@ def db_health(writer: StatusSource | None, now: datetime) -> DeviceHealth:
     msg = "" if st.connected else f"buffering {st.pending} records: {st.last_error or 'not connected yet'}"
     if hung:
         msg = f"database not answering for {busy_s:.0f} s; buffering {st.pending} records"
-    return DeviceHealth("db", status, st.last_ok_at, age_s(st.last_ok_at, now), counters, msg)
+    return DeviceHealth(
+        name="db",
+        status=status,
+        last_ok_at=st.last_ok_at,
+        age_s=age_s(st.last_ok_at, now),
+        counters=counters,
+        message=msg,
+    )
 
 
 def poll_outcomes(src: HealthSource | None) -> dict[str, int]:

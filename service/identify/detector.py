@@ -53,7 +53,7 @@ class DetectorStatus(enum.Enum):
     PENDING = "pending"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class OperatingPoint:
     """An operating point: spindle speed [rpm], torque [N·m], ambient temperature [°C]."""
 
@@ -65,7 +65,7 @@ class OperatingPoint:
         return (self.speed_rpm, self.torque_nm, self.ambient_c)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SampleEvent:
     """One acquisition instant; ``t`` in s on any monotonic axis (the service uses UTC epoch seconds)."""
 
@@ -125,8 +125,8 @@ class _Candidate:
     samples: list[tuple[float, float, float]] = field(default_factory=list)
 
     def mean(self) -> OperatingPoint:
-        cols = list(zip(*self.samples, strict=True))
-        return OperatingPoint(*(statistics.fmean(c) for c in cols))
+        speed, torque, ambient = (statistics.fmean(c) for c in zip(*self.samples, strict=True))
+        return OperatingPoint(speed_rpm=speed, torque_nm=torque, ambient_c=ambient)
 
 
 class ConditionDetector:

@@ -91,7 +91,7 @@ class SchedulerConfig:
 
 
 # --- events ---------------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConditionStarted:
     t: float
     condition_id: int
@@ -110,21 +110,21 @@ class ManualRequest:
     requested_by: str = "api"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JobFinished:
     t: float
     job_id: int
     h: tuple[float, ...]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JobFailed:
     t: float
     job_id: int
     reason: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JobSkipped:
     t: float
     job_id: int
@@ -166,7 +166,7 @@ class ManualRejected:
 Instruction = StartJob | CancelJob | ManualQueued | ManualRejected
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PastResult:
     """A stored identification result of a condition (restored from the database on restart)."""
 
@@ -262,7 +262,7 @@ class IdentificationScheduler:
         assert cur is not None and cur.condition_id == run.condition_id
         if isinstance(ev, JobFinished):
             cur.last_h = tuple(ev.h)
-            self.history.append(PastResult(cur.condition_id, cur.point, tuple(ev.h)))
+            self.history.append(PastResult(condition_id=cur.condition_id, point=cur.point, h=tuple(ev.h)))
         self.status = self._idle_status()
         due, cur.due = cur.due, None
         if due == "manual":

@@ -79,7 +79,7 @@ class ConditionState(enum.StrEnum):
     CHANGING = "changing"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConditionSnapshot:
     """One operating condition as seen by the change detector."""
 
@@ -143,7 +143,7 @@ class SensorReading:
     offset_source: str | None = None  # how the baseline was taken: "auto" | "manual"; None: no baseline
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class OffsetBaseline:
     """A sensor-offset baseline taken at thermal equilibrium (``service.acquire.calibration``): the window
     [t_from, t_to] (UTC), "auto" or "manual", and per channel the offset and its 1σ (°C; None: no data)."""
@@ -309,7 +309,7 @@ class ChtcSnapshot:
         return self.record.model_version
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class IdentificationPage:
     items: Sequence[IdentificationRecord]  # newest first
     total: int  # matching the filter, over all pages
@@ -325,7 +325,7 @@ class JobState(enum.StrEnum):
     FAILED = "failed"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class IdentificationJob:
     job_id: str
     reason: str
@@ -343,7 +343,7 @@ class DeviceStatus(enum.StrEnum):
     DISABLED = "disabled"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DeviceHealth:
     name: str  # "modbus" | "can" | "db" | "worker"
     status: DeviceStatus
@@ -353,7 +353,7 @@ class DeviceHealth:
     message: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class HealthSnapshot:
     t: datetime
     devices: Sequence[DeviceHealth]
@@ -531,7 +531,7 @@ def _after(t: datetime | None, since: datetime) -> bool:
     return t is not None and t > since
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SectionPart:
     """A solid part of the (r, z) section: a rectangle in m (``[[regions]]`` of the spindle TOML)."""
 
@@ -549,7 +549,7 @@ class ZoneInfo:
     description: str  # e.g. "rear shaft pulley <-> ambient"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SpindleLayout:
     name: str  # the spindle description's name
     parts: tuple[SectionPart, ...]

@@ -56,12 +56,12 @@ def calibration_from_row(row: Any, *, n_channels: int = 32) -> Calibration:
     if row.t_to < row.t_from:
         raise bad("t_to", f"{row.t_to.isoformat()} is before t_from {row.t_from.isoformat()}")
     return Calibration(
-        np.array([np.nan if x is None else x for x in offsets], dtype=float),
-        np.array(sd, dtype=float),
-        row.t_from,
-        row.t_to,
-        int(row.samples),
-        str(row.source),
+        offsets_c=np.array([np.nan if x is None else x for x in offsets], dtype=float),
+        sd_c=np.array(sd, dtype=float),
+        t_from=row.t_from,
+        t_to=row.t_to,
+        samples=int(row.samples),
+        source=str(row.source),
     )
 
 

@@ -24,9 +24,9 @@ from service.identify.scheduler import (
 )
 
 CFG = SchedulerConfig(min_data_s=600, schedule_s=(600, 1200, 2400, 3600), max_window_s=3600)
-P3000 = OperatingPoint(3000, 2.0, 23.2)
-P4000 = OperatingPoint(4000, 2.0, 21.8)
-P5000 = OperatingPoint(5000, 2.0, 22.0)
+P3000 = OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.2)
+P4000 = OperatingPoint(speed_rpm=4000, torque_nm=2.0, ambient_c=21.8)
+P5000 = OperatingPoint(speed_rpm=5000, torque_nm=2.0, ambient_c=22.0)
 H_A = (88.0, 46.0, 68.0, 47.0, 52.0, 70.0, 16.0)
 H_B = (80.0, 46.0, 62.0, 45.0, 46.0, 68.0, 11.0)
 
@@ -105,11 +105,18 @@ def test_new_condition_cancels_running_job_and_warm_starts_from_nearest():
 
 def test_nearest_earlier_condition_is_chosen_by_distance():
     history = [
-        PastResult(1, P3000, H_A),
-        PastResult(2, P5000, H_B),
+        PastResult(condition_id=1, point=P3000, h=H_A),
+        PastResult(condition_id=2, point=P5000, h=H_B),
     ]
     s = IdentificationScheduler(CFG, history=list(history))
-    s.handle(ConditionStarted(t=0, condition_id=3, point=OperatingPoint(4800, 2.0, 22.0), t_start=0))
+    s.handle(
+        ConditionStarted(
+            t=0,
+            condition_id=3,
+            point=OperatingPoint(speed_rpm=4800, torque_nm=2.0, ambient_c=22.0),
+            t_start=0,
+        )
+    )
     (job,) = ticks(s, 10, 600)
     assert job.warm_start == H_B and job.warm_source == "condition 2"
     # a restored condition warm-starts from its own stored result
