@@ -39,12 +39,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from model.fem import FEModel, steady_state
+from model.geometry import SpindleSpec
 from model.growth import (
     Z95,
     reconstruction_h_fit,
@@ -96,7 +96,7 @@ class GrowthContext:
 
 
 def build_context(
-    spec: Any, fe: FEModel, *, growth: GrowthModel | None = None, basis: ArrayLike | None = None
+    spec: SpindleSpec, fe: FEModel, *, growth: GrowthModel | None = None, basis: ArrayLike | None = None
 ) -> GrowthContext:
     """Build (or take) the growth model on ``fe``'s mesh; ``basis`` Φ (N, r): the reduced model's, if any."""
     gm = growth if growth is not None else build_growth_model(spec, fe)

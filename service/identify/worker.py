@@ -127,7 +127,7 @@ def _init_worker(ref: ModelRef, cancel: CancelFlag, parent_pid: int | None = Non
 
 
 def watch_parent(
-    parent_pid: int, *, poll_s: float = 0.5, exit: Callable[[int], Any] = os._exit
+    parent_pid: int, *, poll_s: float = 0.5, exit: Callable[[int], object] = os._exit
 ) -> threading.Thread:
     """Exit this process when ``parent_pid`` is gone (a daemon thread polls ``os.getppid()``).
 

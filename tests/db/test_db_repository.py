@@ -48,7 +48,10 @@ def add_condition(
     factory: sessionmaker[Session], cid: int, point: tuple[float, float, float], t: datetime
 ) -> None:
     with repo.session_scope(factory) as s:
-        repo.add_condition(s, ConditionStart(cid, t, *point))
+        speed, torque, ambient = point
+        repo.add_condition(
+            s, ConditionStart(id=cid, started_at=t, speed_rpm=speed, torque_nm=torque, ambient_c=ambient)
+        )
 
 
 def test_condition_round_trip_converts_offsets_to_utc(factory: sessionmaker[Session]) -> None:
