@@ -23,23 +23,21 @@ import asyncio
 import json
 import logging
 import re
-from collections.abc import Awaitable, Callable, Iterable, Iterator, MutableMapping, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
+from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException
-from starlette.routing import compile_path
+from starlette.routing import BaseRoute, compile_path
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from api.deps import AuthConfig, read_denial, require_read, require_write, write_denial
 from api.errors import ApiError, error_body
 
 log = logging.getLogger("api")
 
-Scope = MutableMapping[str, Any]
-Message = MutableMapping[str, Any]
-Receive = Callable[[], Awaitable[Message]]
-Send = Callable[[Message], Awaitable[None]]
 Access = Literal["open", "read", "write"]
 
 
@@ -50,7 +48,7 @@ class GuardLimits:
     body_timeout_s: float = 10.0  # per received chunk of a body
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RouteRule:
     path: str  # the template, e.g. /api/v1/identifications/{identification_id}
     pattern: re.Pattern[str]
@@ -58,8 +56,8 @@ class RouteRule:
     access: Access
 
 
-def _calls(dependant: Any) -> Iterator[Any]:
-    for dep in getattr(dependant, "dependencies", ()):
+def _calls(dependant: Dependant) -> Iterator[object]:
+    for dep in dependant.dependencies:
         yield dep.call
         yield from _calls(dep)
 
@@ -72,11 +70,14 @@ def route_access(route: APIRoute) -> Access:
     return "read" if require_read in calls else "open"
 
 
-def route_rules(routes: Iterable[Any], prefix: str) -> list[RouteRule]:
+def route_rules(routes: Iterable[BaseRoute], prefix: str) -> list[RouteRule]:
     """One rule per API route, in the order the app tries them."""
     return [
         RouteRule(
-            prefix + r.path, compile_path(prefix + r.path)[0], frozenset(r.methods or ()), route_access(r)
+            path=prefix + r.path,
+            pattern=compile_path(prefix + r.path)[0],
+            methods=frozenset(r.methods or ()),
+            access=route_access(r),
         )
         for r in routes
         if isinstance(r, APIRoute)
@@ -99,7 +100,7 @@ class _Rejected(Exception):
 class RequestGuard:
     def __init__(
         self,
-        app: Callable[..., Awaitable[None]],
+        app: ASGIApp,
         *,
         rules: Sequence[RouteRule],
         auth: AuthConfig,
