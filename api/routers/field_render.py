@@ -26,7 +26,6 @@ import zlib
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -107,7 +106,7 @@ class FieldRenderer:
     def __init__(self, *, entries: int = 8) -> None:
         self._entries = entries
         self._bodies: OrderedDict[str, Rendered] = OrderedDict()
-        self._geometry: tuple[Any, Any, _MeshGeometry] | None = None
+        self._geometry: tuple[object, object, _MeshGeometry] | None = None  # (nodes, triangles) by identity
         self._lock = threading.Lock()
         self._build_lock = threading.Lock()  # one build at a time: concurrent misses wait, then hit
         self.builds = 0
