@@ -33,7 +33,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -193,7 +193,7 @@ class CancellableModel:
             raise JobCancelled
         return self._rom.simulate_sensors(h, inputs, t0, load_scale=load_scale, t0_shift=t0_shift)
 
-    def __getattr__(self, name: str) -> Any:  # a proxy: everything else is the ReducedModel's
+    def __getattr__(self, name: str) -> object:  # a proxy: everything else is the ReducedModel's
         return getattr(self._rom, name)
 
 
