@@ -33,10 +33,10 @@ class ApiError(Exception):
 
     def __init__(
         self,
+        *,
         status: int,
         code: str,
         message: str,
-        *,
         field: str | None = None,
         detail: object = None,
         headers: dict[str, str] | None = None,
@@ -52,7 +52,7 @@ class ApiError(Exception):
 
 def invalid(field: str, message: str, *, detail: object = None) -> ApiError:
     """A 422 naming the bad query/body field."""
-    return ApiError(422, "invalid", f"{field}: {message}", field=field, detail=detail)
+    return ApiError(status=422, code="invalid", message=f"{field}: {message}", field=field, detail=detail)
 
 
 def error_body(

@@ -132,7 +132,9 @@ class RequestGuard:
             log.debug("traceback", exc_info=True)
             if not started[0]:
                 message = f"internal error ({type(err).__name__}); see the service log"
-                await _send_error(tracking_send, ApiError(500, "internal", message), close=True)
+                await _send_error(
+                    tracking_send, ApiError(status=500, code="internal", message=message), close=True
+                )
 
     def _admit(self, scope: Scope, send: Send) -> tuple[Scope, Send]:
         """Raise :class:`_Rejected` for the checks 1-4; return the scope and send to run the app with."""
@@ -140,9 +142,9 @@ class RequestGuard:
         if target > self.limits.max_url_bytes:
             raise _Rejected(
                 ApiError(
-                    414,
-                    "uri_too_long",
-                    f"request target is {target} bytes, at most {self.limits.max_url_bytes} allowed",
+                    status=414,
+                    code="uri_too_long",
+                    message=f"request target is {target} bytes, at most {self.limits.max_url_bytes} allowed",
                 )
             )
         candidates = [r for r in self.rules if r.pattern.match(scope["path"])]
@@ -156,9 +158,9 @@ class RequestGuard:
             allow = ", ".join(allowed_methods(candidates))
             raise _Rejected(
                 ApiError(
-                    405,
-                    "method_not_allowed",
-                    f"{method} is not allowed here; allowed: {allow}",
+                    status=405,
+                    code="method_not_allowed",
+                    message=f"{method} is not allowed here; allowed: {allow}",
                     headers={"Allow": allow},
                 )
             )
@@ -183,9 +185,9 @@ class RequestGuard:
 
     def _too_large(self, size: int) -> ApiError:
         return ApiError(
-            413,
-            "too_large",
-            f"request body is {size} bytes or more, at most {self.limits.max_body_bytes} allowed",
+            status=413,
+            code="too_large",
+            message=f"request body is {size} bytes or more, at most {self.limits.max_body_bytes} allowed",
         )
 
     def _counting(self, receive: Receive) -> Receive:

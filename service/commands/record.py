@@ -84,7 +84,7 @@ class _CanRecorder(can.Listener):
     """Writes every received frame to the log and counts frames that do not decode."""
 
     def __init__(
-        self, writer: CanLogWriter, stats: RecordStats, source_time: SourceTime | None = None
+        self, *, writer: CanLogWriter, stats: RecordStats, source_time: SourceTime | None = None
     ) -> None:
         self.writer, self.stats, self.source_time = writer, stats, source_time
         self.closed = False
@@ -135,7 +135,7 @@ async def record(
     can_writer = CanLogWriter(can_path) if bus is not None and can_path is not None else None
     notifier, recorder = None, None
     if bus is not None and can_writer is not None:
-        recorder = _CanRecorder(can_writer, stats, source_time)
+        recorder = _CanRecorder(writer=can_writer, stats=stats, source_time=source_time)
         notifier = can.Notifier(bus, [recorder], timeout=0.05, loop=asyncio.get_running_loop())
     start = clock()
     next_progress = progress_every_s

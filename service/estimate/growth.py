@@ -83,7 +83,7 @@ class GrowthEstimateError(ValueError):
 # ---------------------------------------------------------------- once per model
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class GrowthContext:
     """The served outputs' operators: ``g`` (2, N) [µm/K] (nose axial, nose radial), ``g_phi`` (2, r) for
     the reduced basis ``phi`` (N, r) (None without a basis), and the full ``growth`` model."""
@@ -109,7 +109,7 @@ def build_context(
     phi = None if basis is None else np.asarray(basis, dtype=float)
     if phi is not None and (phi.ndim != 2 or phi.shape[0] != fe.n_nodes):
         raise GrowthEstimateError(f"basis: expected shape ({fe.n_nodes}, r), got {phi.shape}")
-    return GrowthContext(fe, gm, g, phi, None if phi is None else g @ phi)
+    return GrowthContext(fe=fe, growth=gm, g=g, phi=phi, g_phi=None if phi is None else g @ phi)
 
 
 # ---------------------------------------------------------------- H covariance

@@ -185,7 +185,7 @@ class _Current:
     last_h: tuple[float, ...] | None = None
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Running:
     job_id: int
     condition_id: int
@@ -297,7 +297,7 @@ class IdentificationScheduler:
             trigger=trigger,
         )
         self._next_job_id += 1
-        self.running = _Running(job.job_id, cur.condition_id, trigger)
+        self.running = _Running(job_id=job.job_id, condition_id=cur.condition_id, trigger=trigger)
         self.status = SchedulerStatus.RUNNING
         return job
 
