@@ -60,7 +60,7 @@ def meta_json(f: FieldSnapshot) -> str:
     return meta.model_dump_json()[1:-1]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Rendered:
     """One response body, its ETag, and its gzip form (made on first demand, then kept)."""
 
@@ -153,7 +153,9 @@ class FieldRenderer:
         def build() -> Rendered:
             geom = self._geometry_of(f)
             dynamic = (f'"format":"mesh",{meta_json(f)},"temps_c":{_dumps(_clean(f.temps_c))}}}').encode()
-            return Rendered(geom.head + dynamic, key, _gzip_tail=(geom.compressor, geom.head_gz, dynamic))
+            return Rendered(
+                body=geom.head + dynamic, etag=key, _gzip_tail=(geom.compressor, geom.head_gz, dynamic)
+            )
 
         return self._cached(key, build)
 
@@ -168,7 +170,7 @@ class FieldRenderer:
                 f'"z_m":{_dumps(np.round(z, 7).tolist())},'
                 f'"temps_c":{_dumps([_clean(row) for row in temps])}}}'
             )
-            return Rendered(body.encode(), key)
+            return Rendered(body=body.encode(), etag=key)
 
         return self._cached(key, build)
 

@@ -66,7 +66,7 @@ class CalibrationStatus(enum.StrEnum):
     CALIBRATED = "calibrated"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CalibrationConfig:
     """Thresholds of the equilibrium detector; temperatures °C, times s, speed rpm."""
 
@@ -205,7 +205,7 @@ def take_baseline(window: list[Reading], cfg: CalibrationConfig, source: str) ->
     )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class OffsetCalibrator:
     """See the module docstring. ``sample_period_s`` sizes the rest window's buffer."""
 

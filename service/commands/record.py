@@ -40,7 +40,7 @@ CSV_NAME = "temperatures.csv"
 CAN_STEM = "can"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SourceTime:
     """Receive (wall) time -> the source's time: ``t0 + speedup·(t − t0)``, POSIX s; speedup 1: wall time."""
 
@@ -57,7 +57,7 @@ class SourceTime:
         return datetime.fromtimestamp(self.of(self.wall()), tz=UTC)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RecordStats:
     """What a recording has collected so far."""
 
@@ -228,7 +228,7 @@ async def _amain(args: argparse.Namespace) -> RecordStats:
     out.mkdir(parents=True, exist_ok=True)
     csv_path = None if args.no_modbus else out / CSV_NAME
     can_path = None if args.no_can else out / f"{CAN_STEM}.{args.can_format}"
-    source_time = SourceTime(time.time(), args.speedup)
+    source_time = SourceTime(t0=time.time(), speedup=args.speedup)
     daq = None
     if not args.no_modbus:
         daq = ModbusDaq(

@@ -141,7 +141,9 @@ class ServiceCore:
             c = restored.conditions[0]
             last_point = OperatingPoint(speed_rpm=c.speed_rpm, torque_nm=c.torque_nm, ambient_c=c.ambient_c)
         self._detector = ConditionDetector(config.detector, reference=last_point)
-        self._scheduler = sched.IdentificationScheduler(config.scheduler, history=list(restored.history))
+        self._scheduler = sched.IdentificationScheduler(
+            config=config.scheduler, history=list(restored.history)
+        )
         h0 = restored.last.h if restored.last is not None else np.asarray(config.initial_h, dtype=float)
         self._live = LiveModel(
             model.fe,
@@ -170,7 +172,7 @@ class ServiceCore:
         self._calibrator = (
             None
             if cal is None
-            else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
+            else OffsetCalibrator(config=cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
         )
 
     # --- the state machine ----------------------------------------------------------------------------------

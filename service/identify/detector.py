@@ -75,7 +75,7 @@ class SampleEvent:
     ambient_c: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConditionChanged:
     """Instruction: a new operating condition started at ``t_start`` and was confirmed at ``t_confirmed``."""
 
@@ -87,7 +87,7 @@ class ConditionChanged:
     reason: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DetectorConfig:
     """Thresholds (absolute, per quantity) and timing of the detector; times in s."""
 
@@ -117,7 +117,7 @@ class DetectorConfig:
         return (self.speed_threshold_rpm, self.torque_threshold_nm, self.ambient_threshold_c)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Candidate:
     anchor: tuple[float, float, float]
     t_start: float

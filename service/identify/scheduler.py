@@ -61,7 +61,7 @@ class SchedulerStatus(enum.Enum):
     DONE = "done"  # schedule of this condition exhausted (manual requests still served)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SchedulerConfig:
     """Timing in s after the condition change; ``distance_scales`` (rpm, N·m, °C) for the nearest one."""
 
@@ -135,7 +135,7 @@ Event = ConditionStarted | Tick | ManualRequest | JobFinished | JobFailed | JobS
 
 
 # --- instructions ---------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StartJob:
     job_id: int
     condition_id: int
@@ -175,7 +175,7 @@ class PastResult:
     h: tuple[float, ...]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Current:
     condition_id: int
     point: OperatingPoint
@@ -192,7 +192,7 @@ class _Running:
     trigger: str
 
 
-@dataclass
+@dataclass(kw_only=True)
 class IdentificationScheduler:
     """Pure scheduler: ``handle(event) -> list[instruction]``; ``history`` seeds the warm-start memory."""
 

@@ -156,7 +156,7 @@ class OffsetBaseline:
     sd_c: tuple[float, ...]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class IdentificationRecord:
     """One finished (or failed, skipped, cancelled) identification as served: the stored ``data``, the
     condition it was taken at, and its per-zone values as read-only (7,) arrays.
@@ -243,7 +243,7 @@ class IdentificationRecord:
         return self.data.n_sensors_used
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ChtcSnapshot:
     """The current H1-H7 (the identification ``record``) and whether a controller may use them now.
 
@@ -378,7 +378,7 @@ class HistogramData:
     sum: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class MetricsSnapshot:
     """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
 

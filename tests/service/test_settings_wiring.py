@@ -36,7 +36,7 @@ def _settings(**sections: dict[str, Any]) -> Settings:
 def _job_at(settings: Settings, t_s: float, history: list[PastResult] | None = None) -> StartJob:
     """The job the scheduler of ``core_config(settings)`` starts for a condition that began at 0."""
     cfg = core_config(settings)
-    sched = IdentificationScheduler(cfg.scheduler, history=history or [])
+    sched = IdentificationScheduler(config=cfg.scheduler, history=history or [])
     point = OperatingPoint(speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0)
     out = sched.handle(ConditionStarted(t=0.0, condition_id=7, point=point, t_start=0.0))
     t, jobs = 0.0, [i for i in out if isinstance(i, StartJob)]
