@@ -21,7 +21,17 @@ from api.errors import install_error_handlers
 from api.guard import GuardLimits, RequestGuard, RouteRule, route_rules
 from api.metrics import ApiMetrics, RequestTimer
 from api.openapi import build_openapi
-from api.routers import chtc, condition, field, health, history, identifications, sensors, spindle
+from api.routers import (
+    chtc,
+    compensation,
+    condition,
+    field,
+    health,
+    history,
+    identifications,
+    sensors,
+    spindle,
+)
 from service.serve.interface import ChtcService
 
 if TYPE_CHECKING:
@@ -65,7 +75,7 @@ def create_app(
     app.state.auth = AuthConfig.from_settings(settings.api)
     app.state.metrics = ApiMetrics(service)
     install_error_handlers(app)
-    modules = (chtc, field, sensors, history, spindle, condition, identifications, health)
+    modules = (chtc, compensation, field, sensors, history, spindle, condition, identifications, health)
     for module in modules:
         app.include_router(module.router, prefix=API_PREFIX)
     _mount_dashboard(app)

@@ -22,7 +22,13 @@ from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.serve.histogram import LATENCY_BUCKETS_S
-from service.serve.interface import ChtcService, ChtcSnapshot, HistogramData
+from service.serve.interface import (
+    ChtcService,
+    ChtcSnapshot,
+    CompensationSnapshot,
+    HistogramData,
+    ServiceError,
+)
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 
@@ -79,6 +85,35 @@ def _chtc_gauges(snap: ChtcSnapshot | None) -> Iterator[Metric]:
     yield why
 
 
+def _growth_gauges(snap: CompensationSnapshot | None) -> Iterator[Metric]:
+    """``/compensation`` as gauges: growth, 95 % CI half-width, status (none before the first estimate)."""
+    if snap is None:
+        return
+    g = snap.growth
+    for name, doc, key in (
+        ("chtc_growth_um", "thermal growth at the spindle nose now, µm (/compensation)", "um"),
+        ("chtc_growth_ci95_half_width_um", "half-width of the growth's 95 % CI, µm", "half"),
+    ):
+        fam = GaugeMetricFamily(name, doc, labels=["direction"])
+        for direction, v in (("axial", g.axial), ("radial", g.radial)):
+            value = v.um if key == "um" else 0.5 * (v.ci95_um[1] - v.ci95_um[0])
+            if math.isfinite(value):
+                fam.add_metric([direction], value)
+        yield fam
+    steady = GaugeMetricFamily(
+        "chtc_growth_steady_um", "steady-state growth if the condition holds, µm", labels=["direction"]
+    )
+    steady.add_metric(["axial"], g.forecast.steady_axial.um)
+    steady.add_metric(["radial"], g.forecast.steady_radial.um)
+    yield steady
+    status = GaugeMetricFamily(
+        "chtc_growth_status", "1 for the current /compensation status", labels=["status"]
+    )
+    for st in STATUSES:
+        status.add_metric([st], 1.0 if str(snap.status) == st else 0.0)
+    yield status
+
+
 def reason_code(reason: str) -> str:
     """``"stale: daq_no_good_data ..."`` -> ``"stale"``: the code before the first colon (bounded labels)."""
     return reason.split(":", 1)[0].strip() or "unknown"
@@ -113,6 +148,11 @@ class ServiceCollector(Collector):
         )
         yield _counter("chtc_can_events", "CAN events: gaps, faults, silence", "event", m.can_events_total)
         yield from _chtc_gauges(m.chtc)
+        try:
+            growth = self._service.compensation()
+        except ServiceError:  # no growth model (its cause: /compensation, 503)
+            growth = None
+        yield from _growth_gauges(growth)
         yield from _readiness(self._service)
         yield InfoMetricFamily(
             "chtc_build",

@@ -8,7 +8,7 @@ Naming: every number carries its unit in its name (``h_w_m2k``, ``ambient_c``, `
 from __future__ import annotations
 
 import math
-from datetime import datetime
+from datetime import datetime, timedelta
 from typing import Any, Literal
 
 import numpy as np
@@ -18,6 +18,7 @@ from service.serve.interface import (
     H_UNIT,
     ZONE_NAMES,
     ChtcSnapshot,
+    CompensationSnapshot,
     ConditionSnapshot,
     DeviceHealth,
     HealthSnapshot,
@@ -383,3 +384,139 @@ class ReadyOut(BaseModel):
     ready: bool
     reasons: list[str]
     t: datetime
+
+
+# --- /compensation (docs/growth.md, docs/api.md)
+
+
+class GrowthValueOut(BaseModel):
+    um: float = Field(description="growth, µm")
+    plc_0p1um: int = Field(description="the growth in 0.1 µm, rounded (an integer for a PLC)")
+    ci95_um: tuple[float, float] = Field(description="95 % CI, µm (field and H parts combined)")
+    std_um: float = Field(description="1σ, µm (root sum of squares of the two parts)")
+    std_field_um: float = Field(description="1σ from the live field's uncertainty, µm")
+    std_h_um: float = Field(description="1σ from H's uncertainty, µm")
+
+
+class GrowthHorizonOut(BaseModel):
+    horizon_s: float = Field(description="ahead of `at`, s")
+    at: datetime = Field(description="UTC instant the forecast is for")
+    axial: GrowthValueOut
+    radial: GrowthValueOut
+
+
+class GrowthForecastOut(BaseModel):
+    """If the condition and H hold."""
+
+    steady_axial: GrowthValueOut
+    steady_radial: GrowthValueOut
+    tau_s: float = Field(description="time constant of the axial growth's remaining change, s")
+    slowest_tau_s: float = Field(description="the thermal model's slowest time constant, s")
+    horizons: list[GrowthHorizonOut] = Field(description="5, 15 and 30 min ahead")
+
+
+class PlcOut(BaseModel):
+    """Controller values for the axial growth (docs/growth.md, 'Controller mapping'); check the sign once
+    at commissioning."""
+
+    tool_dir: int = Field(description="-1: the tool points to -Z of the machine axis (ISO 841)")
+    correction_um: float = Field(description="axis correction cancelling the growth, µm (-tool_dir·growth)")
+    sd43900_temp_comp_abs_value_mm: float = Field(description="SINUMERIK SD43900, mm")
+    sd43910_temp_comp_slope: float = Field(description="SINUMERIK SD43910 (0: position-independent)")
+    sd43920_temp_comp_ref_position_mm: float = Field(description="SINUMERIK SD43920, mm")
+    sd42960_tool_temp_comp_mm: float = Field(description="SINUMERIK SD42960 component along the spindle, mm")
+    isg_temp_comp_offset_0_0p1um: int = Field(description="Beckhoff/ISG P-AXIS-00273, 0.1 µm")
+    isg_temp_comp_coefficient_um_per_m: float = Field(description="Beckhoff/ISG P-AXIS-00274, µm/m")
+    isg_temp_comp_position_0_0p1um: int = Field(description="Beckhoff/ISG P-AXIS-00272, 0.1 µm")
+
+
+class SensitivityOut(BaseModel):
+    channel: int
+    axial_um_per_c: float = Field(description="axial growth per °C error of this channel, µm/°C")
+    radial_um_per_c: float = Field(description="radial growth per °C error of this channel, µm/°C")
+
+
+class CompensationOut(BaseModel):
+    status: Literal["fresh", "identifying", "stale", "no-data"] = Field(
+        description="the same rules as /chtc, evaluated at the same instant"
+    )
+    usable_for_compensation: bool = Field(description="the /chtc flag: data fresh, H identified and usable")
+    reason: str | None = Field(description="why not usable, 'code: detail' (the /chtc codes)")
+    unit: str = Field("µm", description="unit of every *_um value")
+    at: datetime = Field(description="UTC instant of the live field the growth is computed from")
+    t_ref_c: float = Field(description="reference temperature (uniform) at which the growth is 0, °C")
+    axial: GrowthValueOut = Field(description="spindle nose on the axis, + towards the tool")
+    radial: GrowthValueOut = Field(description="nose outer diameter, + outwards")
+    forecast: GrowthForecastOut
+    plc: PlcOut
+    sensitivity: list[SensitivityOut] = Field(description="growth per unit temperature error of each sensor")
+    identification_id: int = Field(description="the identification whose H the growth uses")
+    h_w_m2k: list[float] = Field(description="H1-H7 the growth uses (the live state's), W/(m²·K)")
+    ambient_c: float = Field(description="the held ambient of the forecast, °C")
+    newest_sample_at: datetime | None
+    sample_age_s: float | None = Field(description="age of the newest sample at served_at, s")
+    served_at: datetime
+
+
+def _growth_value(v: Any) -> GrowthValueOut:
+    return GrowthValueOut(
+        um=round(float(v.um), 4),
+        plc_0p1um=int(v.plc_0p1um),
+        ci95_um=(round(float(v.ci95_um[0]), 4), round(float(v.ci95_um[1]), 4)),
+        std_um=round(float(v.std_um), 4),
+        std_field_um=round(float(v.std_field_um), 4),
+        std_h_um=round(float(v.std_h_um), 4),
+    )
+
+
+def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
+    g, f, p = s.growth, s.growth.forecast, s.plc
+    age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
+    return CompensationOut(
+        status=_enum(s.status),
+        usable_for_compensation=bool(s.usable_for_compensation),
+        reason=s.reason,
+        unit="µm",
+        at=g.at,
+        t_ref_c=round(g.t_ref_c, 4),
+        axial=_growth_value(g.axial),
+        radial=_growth_value(g.radial),
+        forecast=GrowthForecastOut(
+            steady_axial=_growth_value(f.steady_axial),
+            steady_radial=_growth_value(f.steady_radial),
+            tau_s=round(f.tau_s, 1),
+            slowest_tau_s=round(f.slowest_tau_s, 1),
+            horizons=[
+                GrowthHorizonOut(
+                    horizon_s=hz,
+                    at=g.at + timedelta(seconds=hz),
+                    axial=_growth_value(a),
+                    radial=_growth_value(r),
+                )
+                for hz, a, r in zip(f.horizons_s, f.axial, f.radial, strict=True)
+            ],
+        ),
+        plc=PlcOut(
+            tool_dir=s.tool_dir,
+            correction_um=round(p.correction_um, 4),
+            sd43900_temp_comp_abs_value_mm=round(p.sd43900_mm, 7),
+            sd43910_temp_comp_slope=p.sd43910_slope,
+            sd43920_temp_comp_ref_position_mm=p.sd43920_ref_mm,
+            sd42960_tool_temp_comp_mm=round(p.sd42960_tool_axis_mm, 7),
+            isg_temp_comp_offset_0_0p1um=p.isg_offset_0p1um,
+            isg_temp_comp_coefficient_um_per_m=p.isg_coefficient_um_per_m,
+            isg_temp_comp_position_0_0p1um=p.isg_position_0p1um,
+        ),
+        sensitivity=[
+            SensitivityOut(channel=c, axial_um_per_c=round(a, 5), radial_um_per_c=round(r, 5))
+            for c, a, r in zip(
+                s.channels, g.sensitivity_axial_um_per_k, g.sensitivity_radial_um_per_k, strict=True
+            )
+        ],
+        identification_id=s.identification_id,
+        h_w_m2k=[round(float(x), 4) for x in g.h],
+        ambient_c=round(g.ambient_c, 3),
+        newest_sample_at=s.newest_sample_at,
+        sample_age_s=age,
+        served_at=now,
+    )

@@ -5,14 +5,14 @@
 "use strict";
 
 const API = "/api/v1";
-const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000 };
+const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000, growth: 5000 };
 const HISTORY_MAX = 2160; // samples asked for on a (re)load; the page keeps as many as the server does
 const COLORS = ["#4c9be8", "#f0883e", "#3fb950", "#c297ff", "#e3b341", "#39c5cf", "#ff7b72", "#a5d6ff"];
 const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
 
 const state = {
   etag: null, chtc: null, chtcAt: 0, field: null, fieldKey: null, layout: null, sensorsNow: null,
-  hist: null, health: null, ready: null, apiError: null, job: null,
+  hist: null, health: null, ready: null, apiError: null, job: null, growth: [], growthNow: null,
   rendered: { h: false, field: false, sensors: false },
 };
 
@@ -694,6 +694,65 @@ async function pollCondition() {
   } catch (e) { $("condition-now").textContent = "condition unavailable"; }
 }
 
+// ---------- thermal growth (/compensation): kept from the polls since the page was loaded ----------
+const GROWTH_KEEP = 2160;
+
+function drawGrowth() {
+  const canvas = $("growth-chart");
+  const { ctx, W, H } = setupCanvas(canvas);
+  const box = { L: 60, R: 14, T: 12, B: 40, W, H };
+  const pts = state.growth, g = state.growthNow;
+  canvas.dataset.points = String(pts.length);
+  if (!g || !pts.length) { ctx.fillStyle = MUTED; ctx.fillText("no growth yet", box.L + 10, H / 2); return; }
+  const fc = g.forecast.horizons.map((h) => ({ t: Date.parse(h.at), v: h.axial }));
+  const t0 = Math.min(pts[0].t, Date.parse(g.at) - 600e3), tf = Math.max(...fc.map((p) => p.t));
+  const t1 = tf + 0.03 * (tf - t0); // room for the last forecast point
+  const vals = [...pts.flatMap((p) => p.ci), ...fc.flatMap((p) => p.v.ci95_um), g.forecast.steady_axial.um];
+  let lo = Math.min(...vals, 0), hi = Math.max(...vals, 1);
+  const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
+  const y = yAxis(canvas, ctx, box, lo, hi, { title: "axial growth, µm" });
+  const x = xTimeAxis(canvas, ctx, box, t0, t1, "time, UTC");
+  ctx.save(); ctx.beginPath(); ctx.rect(box.L, box.T, W - box.L - box.R, H - box.T - box.B); ctx.clip();
+  ctx.fillStyle = "rgba(76,155,232,0.22)"; ctx.beginPath();
+  pts.forEach((p, i) => (i ? ctx.lineTo(x(p.t), y(p.ci[1])) : ctx.moveTo(x(p.t), y(p.ci[1]))));
+  [...pts].reverse().forEach((p) => ctx.lineTo(x(p.t), y(p.ci[0])));
+  ctx.closePath(); ctx.fill();
+  ctx.strokeStyle = "#4c9be8"; ctx.lineWidth = 2; ctx.beginPath();
+  pts.forEach((p, i) => (i ? ctx.lineTo(x(p.t), y(p.um)) : ctx.moveTo(x(p.t), y(p.um)))); ctx.stroke();
+  ctx.lineWidth = 1; ctx.strokeStyle = MUTED; ctx.setLineDash([6, 4]); ctx.beginPath();
+  ctx.moveTo(x(Date.parse(g.at)), y(g.forecast.steady_axial.um)); ctx.lineTo(W - box.R, y(g.forecast.steady_axial.um));
+  ctx.stroke(); ctx.setLineDash([]);
+  for (const p of fc) {
+    ctx.strokeStyle = "#f0883e"; ctx.beginPath(); ctx.moveTo(x(p.t), y(p.v.ci95_um[0])); ctx.lineTo(x(p.t), y(p.v.ci95_um[1])); ctx.stroke();
+    ctx.fillStyle = "#f0883e"; ctx.beginPath(); ctx.arc(x(p.t), y(p.v.um), 3.5, 0, 2 * Math.PI); ctx.fill();
+  }
+  ctx.restore();
+}
+
+async function pollGrowth() {
+  try {
+    const r = await api("/compensation");
+    if (r.status !== 200) { $("growth-now").textContent = r.body?.error?.message || "no growth yet"; return; }
+    const g = r.body, a = g.axial;
+    state.growthNow = g;
+    const t = Date.parse(g.at);
+    const last = state.growth[state.growth.length - 1];
+    if (!last || t > last.t) state.growth.push({ t, um: a.um, ci: a.ci95_um });
+    else if (t < last.t) state.growth = [{ t, um: a.um, ci: a.ci95_um }]; // the server restarted
+    if (state.growth.length > GROWTH_KEEP) state.growth.shift();
+    const f = g.forecast;
+    $("growth-now").innerHTML = `axial <b id="growth-axial">${fmt(a.um, 1)}</b> µm ` +
+      `[${fmt(a.ci95_um[0], 1)}, ${fmt(a.ci95_um[1], 1)}] · radial <b>${fmt(g.radial.um, 1)}</b> µm · ` +
+      `steady ${fmt(f.steady_axial.um, 1)} µm (τ ${fmt(f.tau_s / 60, 0)} min) · ` +
+      `<span class="${g.usable_for_compensation ? "" : "no"}">${esc(g.status)}</span>`;
+    $("growth-stale").hidden = g.status !== "stale";
+    $("growth-meta").textContent = `at ${utc(g.at)} over T_ref ${fmt(g.t_ref_c, 2)} °C · PLC: SD43900 ` +
+      `${g.plc.sd43900_temp_comp_abs_value_mm.toFixed(4)} mm, ISG offset ${g.plc.isg_temp_comp_offset_0_0p1um} × 0.1 µm` +
+      (g.usable_for_compensation ? "" : ` · not usable: ${g.reason || ""}`);
+    drawGrowth();
+  } catch (e) { $("growth-now").textContent = "growth unavailable"; }
+}
+
 // ---------- health and identifications ----------
 const DEVICE_LABEL = { modbus: "temperature DAQ (Modbus)", can: "speed/torque (CAN)", db: "database", worker: "identification worker" };
 
@@ -801,7 +860,7 @@ function start() {
   let resizeTimer = null;
   window.addEventListener("resize", () => {
     clearTimeout(resizeTimer);
-    resizeTimer = setTimeout(() => { if (state.chtc) drawH(state.chtc); if (state.field) drawField(state.field); drawSensors(); }, 150);
+    resizeTimer = setTimeout(() => { if (state.chtc) drawH(state.chtc); if (state.field) drawField(state.field); drawSensors(); drawGrowth(); }, 150);
   });
   loadLayout().then(() => {
     every(pollSensors, POLL_MS.sensors);
@@ -809,6 +868,7 @@ function start() {
     every(pollCondition, POLL_MS.condition);
     every(pollHealth, POLL_MS.health);
     every(pollIdents, POLL_MS.idents);
+    every(pollGrowth, POLL_MS.growth);
     setInterval(pollField, POLL_MS.field);
   });
 }

@@ -3,7 +3,10 @@
 The log's samples go through the service's own core (detector, scheduler, live state, windows) with every
 identification run inline with the configured seed (``identification.seed``, ``--seed``): the same files
 always give the same H. Prints one line per identification with H and its 95 % confidence intervals, and
-writes them as JSON with ``--json FILE`` (``-`` for stdout).
+writes them as JSON with ``--json FILE`` (``-`` for stdout), each with ``growth``: the thermal growth at the
+spindle nose at the identification's end as ``/compensation`` would have served it (axial, radial and the
+steady axial growth in µm, their 0.1-µm integers and 95 % CIs, over the live state's start temperature;
+``service.engine.growthserve.GrowthHistory``; null for an identification that did not succeed).
 
 The log is sampled as the live acquisition samples it in ``chtc replay`` (one sample per
 ``acquisition.sample_period_s``; ``service.sim.logsamples``), so both commands fit the same data. Without a
@@ -26,6 +29,7 @@ import numpy as np
 if TYPE_CHECKING:
     from service.acquire.calibration import Calibration
     from service.engine.offline import OfflineResult
+    from service.estimate.growth import GrowthEstimate, GrowthValue
     from service.serve.interface import IdentificationRecord
     from service.settings import IdentificationSettings, Settings
 
@@ -92,6 +96,27 @@ def record_dict(r: IdentificationRecord) -> dict[str, object]:
         "rmse_c": num(r.rmse_c),
         "method": r.method,
         "model_version": r.model_version,
+    }
+
+
+def _growth_value(v: GrowthValue) -> dict[str, object]:
+    return {
+        "um": num(v.um),
+        "plc_0p1um": v.plc_0p1um,
+        "ci95_um": [num(v.ci95_um[0]), num(v.ci95_um[1])],
+    }
+
+
+def growth_dict(g: GrowthEstimate | None) -> dict[str, object] | None:
+    """The growth at an identification's end as ``/compensation`` would have served it (None: none)."""
+    if g is None:
+        return None
+    return {
+        "at": g.at.isoformat(),
+        "t_ref_c": num(g.t_ref_c),
+        "axial": _growth_value(g.axial),
+        "radial": _growth_value(g.radial),
+        "steady_axial": _growth_value(g.forecast.steady_axial),
     }
 
 
@@ -211,7 +236,12 @@ def main(args: argparse.Namespace) -> int:
     )
     settings = settings.model_copy(update={"identification": ident})
     model = load_model(ModelRef.from_settings(settings.model))
-    result = run_offline(data.samples, model=model, config=core_config(settings))
+    growth = None
+    if args.json_out is not None:  # the growth history (docs/growth.md): only for the JSON
+        from service.engine.growthserve import GrowthHistory
+
+        growth = GrowthHistory(model)
+    result = run_offline(data.samples, model=model, config=core_config(settings), on_sample=growth)
     source = (
         f"{data.frames} CAN frames ({data.bad_frames} undecodable)"
         if args.can is not None
@@ -225,7 +255,9 @@ def main(args: argparse.Namespace) -> int:
     for r in result.records:
         print(format_record(r))
     if args.json_out is not None:
-        text = json.dumps([record_dict(r) for r in result.records], indent=2)
+        by_id = growth.by_id if growth is not None else {}
+        rows = [record_dict(r) | {"growth": growth_dict(by_id.get(r.id))} for r in result.records]
+        text = json.dumps(rows, indent=2)
         if args.json_out == "-":
             print(text)
         else:

@@ -59,6 +59,7 @@ from service.engine.events import (
     StepperPrepared,
     Store,
 )
+from service.engine.growthserve import GrowthServer
 from service.engine.health import (
     HealthSource,
     StatusSource,
@@ -77,6 +78,7 @@ from service.serve.interface import (
     BusyError,
     ChtcSnapshot,
     ChtcStatus,
+    CompensationSnapshot,
     ConditionSnapshot,
     DeviceHealth,
     DeviceStatus,
@@ -189,6 +191,12 @@ class SoftSensorService:
         self.closed = False
         sensors = [(sp.channel, sp.name, sp.role) for sp in core.model.spec.sensors]
         self._history = SensorHistoryBuffer(history_capacity, sensors)
+        self._growth = GrowthServer(core.model, core.live_covariance)  # /compensation
+
+    @property
+    def growth(self) -> GrowthServer:
+        """The thermal growth's server (``compensation()``; docs/growth.md)."""
+        return self._growth
 
     @property
     def view(self) -> CoreView:
@@ -202,6 +210,10 @@ class SoftSensorService:
         self._loop_thread = threading.get_ident()
         stepper = await asyncio.to_thread(self.core.prepare_stepper, self.core.live_h)
         self.handle(StepperPrepared(self._next_id("stepper"), stepper))
+        try:
+            await asyncio.to_thread(self._growth.prepare)  # the growth model: once, off the loop
+        except NotReadyError as err:  # /compensation answers 503 with the cause; H is served as before
+            self.record_event("growth", "unavailable", str(err))
         if self.worker is not None:
             version = await self.worker.start()
             self.model_loaded = True
@@ -258,9 +270,24 @@ class SoftSensorService:
         self._view = self.core.view()
         if isinstance(event, SampleReceived):
             self._remember_history()
+        self._refresh_growth()
         for ins in instructions:
             self._execute(ins)
         return instructions
+
+    def _refresh_growth(self) -> None:
+        """New identification or condition: the growth's condition terms in a thread (with a loop; without,
+        the first ``compensation()`` computes them in its caller's thread)."""
+        self._growth.observe(self._view)
+        loop = self._loop
+        if loop is not None and loop.is_running() and self._growth.wants_refresh(self._view):
+            self._spawn(self._growth_terms(self._view))
+
+    async def _growth_terms(self, view: CoreView) -> None:
+        try:
+            await asyncio.to_thread(self._growth.refresh, view)
+        except Exception as err:  # a request retries it and raises to its caller; say it here too
+            log.warning("growth terms failed: %s: %s", type(err).__name__, err)
 
     def _execute(self, ins: Instruction) -> None:
         if isinstance(ins, Store):
@@ -401,6 +428,9 @@ class SoftSensorService:
         out = FieldSnapshot(self.clock(), "steady", fe.nodes_rz, fe.triangles, steady, rec.id)
         self._steady_cache = (key, out)
         return out
+
+    def compensation(self) -> CompensationSnapshot | None:
+        return self._growth.snapshot(self._view, self.chtc)
 
     def sensors(self) -> Sequence[SensorReading]:
         v = self._view

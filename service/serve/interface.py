@@ -31,13 +31,16 @@ import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import Literal, Protocol, runtime_checkable
+from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
 
 from service.estimate.locator import TriangleLocator, locator_for
 from service.store.records import IdentificationData
+
+if TYPE_CHECKING:
+    from service.estimate.growth import GrowthEstimate, PlcCompensation
 
 H_UNIT = "W/(m²·K)"
 FloatArray = npt.NDArray[np.float64]
@@ -402,6 +405,24 @@ class MetricsSnapshot:
     model_version: str | None = None
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
+class CompensationSnapshot:
+    """What ``/compensation`` serves (docs/growth.md): the thermal growth at the spindle nose from the live
+    field (``growth``: µm, 0.1-µm integers, 95 % CIs, forecast, sensor sensitivity; frozen) with the status
+    and usability of ``/chtc`` at the same instant (the same rules), and the controller values of the axial
+    growth (``plc``, for a tool pointing along ``tool_dir`` of the machine axis)."""
+
+    growth: GrowthEstimate
+    status: ChtcStatus
+    usable_for_compensation: bool
+    reason: str | None  # why not usable, "code: detail" (the /chtc codes)
+    newest_sample_at: datetime | None
+    identification_id: int  # the identification whose H the growth uses
+    plc: PlcCompensation
+    tool_dir: int  # -1: the tool points to -Z
+    channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
+
+
 @runtime_checkable
 class ChtcService(Protocol):
     """What the API needs from the running service (see the module docstring for the contract)."""
@@ -464,6 +485,12 @@ class ChtcService(Protocol):
 
     def layout(self) -> SpindleLayout:
         """The spindle's solid parts and convective zones (static, for labelling the section)."""
+        ...
+
+    def compensation(self) -> CompensationSnapshot | None:
+        """The thermal growth at the tool now; None only if there is nothing yet (no identification or no
+        live field). May build the growth model (once) and its per-condition terms (per identification and
+        condition, ~0.3 s): the API calls it from a worker thread."""
         ...
 
 

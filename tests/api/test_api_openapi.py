@@ -52,6 +52,9 @@ def test_statuses_where_they_occur(ro_client: TestClient) -> None:
         and "Retry-After" in ops[("/api/v1/chtc", "get")]["503"]["headers"]
     )
     assert "401" not in ops[("/api/v1/chtc", "get")]  # reads are open without a read token
+    comp = ops[("/api/v1/compensation", "get")]
+    assert "Retry-After" in comp["503"]["headers"] and "401" not in comp
+    assert comp["200"]["content"]["application/json"]["schema"]["$ref"].endswith("/CompensationOut")
     assert "text/plain" in ops[("/api/v1/metrics", "get")]["200"]["content"]
 
 

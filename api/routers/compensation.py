@@ -1,0 +1,30 @@
+"""GET /compensation: the thermal growth at the tool for a compensation controller (docs/api.md,
+docs/growth.md): axial and radial growth in µm and 0.1-µm integers, 95 % CIs, the forecast, the controller
+values, the sensor sensitivity, with the status and usability of ``/chtc``.
+
+A plain (not async) endpoint: FastAPI runs it in a worker thread, because the service may build the growth
+model once and its per-condition terms (~0.3 s) on a new identification or condition; never on the loop.
+"""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.errors import ApiError
+from api.schemas import CompensationOut, compensation_out
+
+router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
+
+
+@router.get(
+    "/compensation",
+    response_model=CompensationOut,
+    responses={503: {"description": "no identification or no live field yet"}},
+    summary="thermal growth at the tool (µm, 0.1 µm), 95 % CI, forecast, controller values, status",
+)
+def get_compensation(service: ServiceDep, clock: ClockDep) -> CompensationOut:
+    snap = service.compensation()
+    if snap is None:
+        raise ApiError(503, "no_data", "no identification or no live field yet", headers={"Retry-After": "5"})
+    return compensation_out(snap, clock())

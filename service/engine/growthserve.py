@@ -1,0 +1,297 @@
+"""Serving the thermal growth at the tool (``GET /compensation``): the shell's side of
+``service.estimate.growth`` (docs/growth.md, "Serving").
+
+Three stages, by how often their inputs change:
+
+- the growth context (operators of nose axial and radial growth, g·Φ): once per model, ``prepare()``; the
+  shell calls it in a thread at ``start()``, otherwise the first request builds it (~0.7 s);
+- the condition terms (steady field, modes, horizon functionals, sensor sensitivity): per (identification,
+  condition, live H and load scales), ``refresh(view)``; the shell starts it in a thread when a published view
+  has a new key (``wants_refresh``), and a request whose key is not ready computes it in its own (API) thread
+  (~0.25 s), never on the event loop;
+- the estimate: per request, from the latest published ``CoreView`` (dot products).
+
+The live field's uncertainty comes through ONE function, :func:`field_belief` (the place to change when the
+live state becomes a Kalman filter with its own mean and reduced covariance).
+
+The reference temperature (growth 0: where the controller was zeroed) is ``t_ref_c`` if given, else the live
+state's start temperature (its uniform start from the first sample's good sensors: the spindle as it was when
+the service started).
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING, Protocol
+
+import numpy as np
+
+from service.engine.view import CoreView
+from service.estimate.growth import (
+    ConditionTerms,
+    FieldBelief,
+    GrowthContext,
+    GrowthEstimate,
+    build_context,
+    condition_terms,
+    estimate_growth,
+    h_cov_from_ci,
+    plc_compensation,
+)
+from service.estimate.live import LiveView
+from service.serve.interface import (
+    ChtcSnapshot,
+    CompensationSnapshot,
+    ConditionSnapshot,
+    IdentificationRecord,
+    NotReadyError,
+)
+
+if TYPE_CHECKING:
+    from model.carry import StateCovariance
+    from service.modelload import LoadedModel
+
+__all__ = ["GrowthHistory", "GrowthServer", "field_belief", "h_covariance"]
+
+DT_S = 10.0  # the live state's step (model.carry.propagate's unit)
+UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
+TermsKey = tuple[object, ...]
+
+
+class LiveCovariance(Protocol):
+    """What ``field_belief`` needs of the core (``ServiceCore.live_covariance``)."""
+
+    def __call__(self, t: float) -> StateCovariance | None: ...
+
+
+def field_belief(model: LoadedModel, view: CoreView, live_covariance: LiveCovariance) -> FieldBelief:
+    """The live field's mean and uncertainty as the growth estimate takes it (the ONE place to change when
+    the live state's estimator changes).
+
+    Now: the mean is the FE live state's field; the uncertainty is the last identification's carried end
+    ensemble (``model.carry``) decayed to the field's time under the live H (``model.carry.propagate``
+    without the inputs: the core keeps no input series for it), with H's own error added through the steady
+    Jacobian (``includes_h=False``; an over-estimate early in a warm-up, exact at steady state). None
+    before a carried rebase: the field part is then 0 and only H's part is counted.
+    """
+    from model.carry import propagate
+
+    live = view.live
+    if live is None:
+        raise ValueError("view.live: the live state has not started")
+    mean = np.asarray(live.field_c, dtype=float)
+    sc = live_covariance(live.t)
+    if sc is None:
+        return FieldBelief(mean_c=mean, includes_h=False)
+    cov = propagate(model.rom, sc, live.t, DT_S, None)
+    return FieldBelief(mean_c=mean, cov=cov, includes_h=False)
+
+
+def h_covariance(rec: IdentificationRecord, h_live: np.ndarray) -> np.ndarray:
+    """Σ_H (7, 7) from ``rec``'s 95 % CIs, relative to the H the live state uses (uncorrelated: the stored
+    record keeps no correlation). Each bound is capped at H/100 and H·100 (a missing or non-positive one, or
+    one of a hopeless H, whose log-H CI can reach 1e-30..1e+60): then σ_H ≈ 2.3·H, linearised."""
+    h = np.asarray(rec.h, dtype=float)
+    good = np.isfinite(h) & (h > 0)
+    h = np.where(good, h, h_live)
+    lo, hi = np.asarray(rec.ci95_lo, dtype=float), np.asarray(rec.ci95_hi, dtype=float)
+    bad = ~(good & np.isfinite(lo) & np.isfinite(hi) & (lo > 0) & (hi >= lo))
+    lo = np.where(bad, 0.0, lo)
+    hi = np.where(bad, np.inf, hi)
+    lo = np.maximum(lo, h / UNKNOWN_CI_FACTOR)  # a CI in log H can reach 1e-30..1e+60: capped
+    hi = np.minimum(hi, h * UNKNOWN_CI_FACTOR)
+    cov = h_cov_from_ci(h, np.column_stack([lo, hi]))
+    return np.asarray(cov * np.outer(h_live / h, h_live / h))
+
+
+@dataclass(frozen=True)
+class _Terms:
+    key: TermsKey
+    terms: ConditionTerms
+
+
+class GrowthServer:
+    """See the module docstring. Thread-safe: the API threads and the shell's worker threads call it."""
+
+    def __init__(
+        self,
+        model: LoadedModel,
+        live_covariance: LiveCovariance,
+        *,
+        t_ref_c: float | None = None,
+        tool_dir: int = -1,
+    ) -> None:
+        self.model = model
+        self._live_covariance = live_covariance
+        self._t_ref_c = t_ref_c
+        self.tool_dir = tool_dir
+        self._lock = threading.Lock()
+        self._ctx: GrowthContext | None = None
+        self._error: str | None = None
+        self._terms: _Terms | None = None
+        self._pending: TermsKey | None = None
+        self._estimate: tuple[tuple[object, ...], GrowthEstimate] | None = None
+
+    # --- stage 1
+    def prepare(self) -> GrowthContext:
+        """The growth context (built once, ~0.7 s; blocking: call it off the event loop). ``NotReadyError``
+        naming the cause when the spindle description has no usable mechanics (tried once)."""
+        with self._lock:
+            if self._ctx is None and self._error is None:
+                m = self.model
+                try:
+                    self._ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
+                except Exception as err:  # any failure of the optional growth model: served as 503
+                    self._error = f"growth model unavailable: {type(err).__name__}: {err}"
+            if self._ctx is None:
+                raise NotReadyError(self._error or "growth model unavailable")
+            return self._ctx
+
+    # --- stage 2
+    def observe(self, view: CoreView) -> None:
+        """Remember the reference temperature from the first live field (cheap: call after each event)."""
+        if self._t_ref_c is None and view.live is not None:
+            self._t_ref_c = float(np.mean(view.live.field_c))
+
+    @staticmethod
+    def terms_key(view: CoreView) -> TermsKey | None:
+        """What the condition terms depend on (None: nothing to serve yet)."""
+        rec, live, cond = view.current, view.live, view.condition
+        if rec is None or live is None:
+            return None
+        held = (cond.id, cond.speed_rpm, cond.torque_nm, cond.ambient_c) if cond is not None else live.inputs
+        return (rec.id, tuple(live.h), tuple(live.load_scale), held)
+
+    def wants_refresh(self, view: CoreView) -> bool:
+        """True once per new key (the caller then runs ``refresh`` off the event loop)."""
+        key = self.terms_key(view)
+        with self._lock:
+            current = self._terms.key if self._terms is not None else None
+            if key is None or key == current or key == self._pending:
+                return False
+            self._pending = key
+            return True
+
+    def refresh(self, view: CoreView) -> ConditionTerms | None:
+        """The condition terms for ``view`` (computed ~0.25 s unless current; blocking)."""
+        key = self.terms_key(view)
+        if key is None or view.current is None or view.live is None:
+            return None
+        with self._lock:
+            if self._terms is not None and self._terms.key == key:
+                return self._terms.terms
+        terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current)
+        with self._lock:
+            self._terms = _Terms(key, terms)
+            if self._pending == key:
+                self._pending = None
+        return terms
+
+    def _compute_terms(
+        self,
+        ctx: GrowthContext,
+        live: LiveView,
+        cond: ConditionSnapshot | None,
+        rec: IdentificationRecord,
+    ) -> ConditionTerms:
+        from model.inputs import inputs_from_operation
+
+        ambient, speed, torque = (
+            (cond.ambient_c, cond.speed_rpm, cond.torque_nm) if cond is not None else live.inputs
+        )
+        inp = inputs_from_operation(
+            self.model.spec, dt_s=DT_S, speed_rpm=speed, torque_nm=torque, ambient_c=ambient
+        )
+        h = np.asarray(live.h, dtype=float)
+        return condition_terms(
+            ctx,
+            h=h,
+            cov_h=h_covariance(rec, h),
+            ambient_c=float(inp.ambient_c[0]),
+            q_front_w=float(inp.q_front_w[0]),
+            q_rear_w=float(inp.q_rear_w[0]),
+            load_scale=(float(live.load_scale[0]), float(live.load_scale[1])),
+        )
+
+    def ready_for(self, view: CoreView) -> bool:
+        """True when the condition terms for ``view`` are computed (a request then does dot products only)."""
+        key = self.terms_key(view)
+        with self._lock:
+            return key is not None and self._terms is not None and self._terms.key == key
+
+    # --- stage 3
+    def estimate(self, view: CoreView) -> GrowthEstimate | None:
+        """The growth of ``view``'s live field (None: no identification or no live state yet)."""
+        live = view.live
+        terms = self.refresh(view)
+        if terms is None or live is None:
+            return None
+        self.observe(view)
+        t_ref = self._t_ref_c if self._t_ref_c is not None else float(np.mean(live.field_c))
+        key = (live.t, id(terms), t_ref)
+        cached = self._estimate
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        ctx = self.prepare()
+        belief = field_belief(self.model, view, self._live_covariance)
+        at = datetime.fromtimestamp(live.t, tz=UTC)
+        est = estimate_growth(ctx, terms, belief, t_ref_c=t_ref, at=at)
+        self._estimate = (key, est)
+        return est
+
+    def snapshot(
+        self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
+    ) -> CompensationSnapshot | None:
+        """What ``/compensation`` serves: the growth with the status and usability of ``/chtc`` (the same
+        rules, evaluated now, after the estimate: never a stale value as fresh). ``identification_id``: the
+        one whose H the growth used (``chtc()`` may already see a newer view)."""
+        est = self.estimate(view)
+        snap = chtc()
+        if est is None or snap is None or view.current is None:
+            return None
+        return CompensationSnapshot(
+            growth=est,
+            status=snap.status,
+            usable_for_compensation=snap.usable_for_compensation,
+            reason=snap.reason,
+            newest_sample_at=snap.newest_sample_at,
+            identification_id=view.current.id,
+            plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
+            tool_dir=self.tool_dir,
+            channels=tuple(s.channel for s in self.model.spec.sensors),
+        )
+
+
+class GrowthHistory:
+    """The growth at each identification's end, offline (``run_offline``'s ``on_sample`` hook): after the
+    sample whose identification succeeded, the live state is rebased on its fitted end field, and the growth
+    of that field is what ``/compensation`` would have served then (the same ``GrowthServer``, the same
+    reference: the live state's start temperature). ``by_id``: identification id -> ``GrowthEstimate``."""
+
+    def __init__(self, model: LoadedModel) -> None:
+        self.model = model
+        self.by_id: dict[int, GrowthEstimate] = {}
+        self._server: GrowthServer | None = None
+
+    def __call__(self, core: ServiceCoreLike, k: int, last_ok: object) -> None:
+        view = core.view()
+        if self._server is None:
+            self._server = GrowthServer(self.model, core.live_covariance)
+        self._server.observe(view)
+        rec = view.current
+        if rec is None or view.current_from_restore or rec.id in self.by_id:
+            return
+        est = self._server.estimate(view)
+        if est is not None:
+            self.by_id[rec.id] = est
+
+
+class ServiceCoreLike(Protocol):
+    """What ``GrowthHistory`` reads of ``service.engine.core.ServiceCore``."""
+
+    def view(self) -> CoreView: ...
+
+    def live_covariance(self, t: float) -> StateCovariance | None: ...

@@ -1,0 +1,208 @@
+"""GET /compensation on the real service (``service.sim.served``: the core and shell on their loop, a real
+database) fed with virtual-plant samples: the served growth equals ``estimate_growth`` on the same inputs,
+its status follows the /chtc rules (stale when data stop), and the dashboard shows it."""
+
+from __future__ import annotations
+
+import asyncio
+import dataclasses
+import re
+from collections.abc import Iterator
+from dataclasses import dataclass
+from datetime import UTC, datetime, timedelta
+from pathlib import Path
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from api.app import create_app
+from model.inputs import inputs_from_operation
+from service.engine.core import ServiceCore
+from service.engine.growthserve import GrowthServer, field_belief, h_covariance
+from service.engine.runtime import core_config
+from service.engine.shell import SoftSensorService
+from service.estimate.growth import build_context, condition_terms, estimate_growth
+from service.modelload import LoadedModel
+from service.serve.interface import NotReadyError
+from service.settings import Settings
+from service.sim.served import ManualClock, served_service
+from tests.api.conftest import LiveServer, sqlite_url
+from tests.api.test_api_dashboard import _chromium
+
+
+@dataclass
+class Served:
+    model: LoadedModel
+    svc: SoftSensorService
+    clock: ManualClock
+    client: TestClient
+    t_start_c: float  # the live state's start temperature (the reference)
+    ready_before_request: bool  # the growth's terms were computed before any request
+
+
+@pytest.fixture(scope="module")
+def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm)."""
+    url = sqlite_url(tmp_path_factory.mktemp("served-compensation"))
+    with served_service(database_url=url, feed_samples=1) as s:
+        live = s.service.view.live
+        assert live is not None
+        t_start = float(np.mean(live.field_c))
+        s.feed_next()
+        assert s.service.view.current is not None, "no identification in the plant run"
+        ready = s.service.growth.ready_for(s.service.view)
+        with TestClient(create_app(Settings(), s.service, clock=s.clock)) as client:
+            yield Served(s.service.core.model, s.service, s.clock, client, t_start, ready)
+
+
+def test_served_growth_equals_estimate_growth_on_the_same_inputs(served: Served) -> None:
+    body = served.client.get("/api/v1/compensation").json()
+    v, model = served.svc.view, served.model
+    assert v.live is not None and v.current is not None and v.condition is not None
+    ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
+    h = np.asarray(v.live.h, dtype=float)
+    inp = inputs_from_operation(
+        model.spec,
+        dt_s=10.0,
+        speed_rpm=v.condition.speed_rpm,
+        torque_nm=v.condition.torque_nm,
+        ambient_c=v.condition.ambient_c,
+    )
+    terms = condition_terms(
+        ctx,
+        h=h,
+        cov_h=h_covariance(v.current, h),
+        ambient_c=float(inp.ambient_c[0]),
+        q_front_w=float(inp.q_front_w[0]),
+        q_rear_w=float(inp.q_rear_w[0]),
+        load_scale=v.live.load_scale,
+    )
+    belief = field_belief(model, v, served.svc.core.live_covariance)
+    at = datetime.fromtimestamp(v.live.t, tz=UTC)
+    want = estimate_growth(ctx, terms, belief, t_ref_c=served.t_start_c, at=at)
+    assert datetime.fromisoformat(body["at"]) == at
+    assert body["t_ref_c"] == pytest.approx(served.t_start_c, abs=1e-4)
+    for name, w in (("axial", want.axial), ("radial", want.radial)):
+        got = body[name]
+        assert got["um"] == pytest.approx(w.um, abs=1e-4), name
+        assert got["ci95_um"] == pytest.approx(list(w.ci95_um), abs=1e-4), name
+        assert got["plc_0p1um"] == w.plc_0p1um == round(10 * w.um), name
+        assert abs(got["plc_0p1um"] / 10 - got["um"]) <= 0.05 + 1e-9, name
+        assert got["std_um"] > 0, name
+    # a warm spindle (4000 rpm for 25 min over a cold reference) has grown towards the tool
+    assert body["axial"]["um"] > 1.0
+    fc = body["forecast"]
+    assert [hz["horizon_s"] for hz in fc["horizons"]] == [300.0, 900.0, 1800.0]
+    for got, w in zip(fc["horizons"], want.forecast.axial, strict=True):
+        assert got["axial"]["um"] == pytest.approx(w.um, abs=1e-4)
+        assert datetime.fromisoformat(got["at"]) == at + timedelta(seconds=got["horizon_s"])
+    assert fc["steady_axial"]["um"] == pytest.approx(want.forecast.steady_axial.um, abs=1e-4)
+    assert fc["tau_s"] == pytest.approx(want.forecast.tau_s, abs=0.1)
+    plc = body["plc"]
+    assert plc["tool_dir"] == -1
+    # the tool points to -Z: a growth +δ towards the tool needs an axis correction of +δ
+    assert plc["correction_um"] == pytest.approx(want.axial.um, abs=1e-4)
+    assert plc["isg_temp_comp_offset_0_0p1um"] == round(10 * want.axial.um)
+    assert plc["sd43900_temp_comp_abs_value_mm"] == pytest.approx(want.axial.um * 1e-3, abs=1e-7)
+    assert plc["sd42960_tool_temp_comp_mm"] == pytest.approx(want.axial.um * 1e-3, abs=1e-7)
+    assert [s["channel"] for s in body["sensitivity"]] == [s.channel for s in model.spec.sensors]
+    np.testing.assert_allclose(
+        [s["axial_um_per_c"] for s in body["sensitivity"]], want.sensitivity_axial_um_per_k, atol=1e-5
+    )
+    assert body["identification_id"] == v.current.id
+
+
+def test_status_and_usability_are_those_of_chtc_and_go_stale_when_data_stop(served: Served) -> None:
+    client, clock = served.client, served.clock
+    last = served.svc.view.newest
+    assert last is not None
+    chtc = client.get("/api/v1/chtc").json()
+    comp = client.get("/api/v1/compensation").json()
+    assert comp["status"] == chtc["status"] and comp["status"] != "stale"
+    assert comp["usable_for_compensation"] == chtc["usable_for_compensation"]
+    assert comp["reason"] == chtc["reason"]
+    limit = served.svc.view.stale_after_s
+    try:
+        clock.now = last.t + timedelta(seconds=limit - 1)
+        assert client.get("/api/v1/compensation").json()["status"] != "stale"
+        clock.now = last.t + timedelta(seconds=limit + 1)
+        stale = client.get("/api/v1/compensation").json()
+        assert stale["status"] == client.get("/api/v1/chtc").json()["status"] == "stale"
+        assert stale["usable_for_compensation"] is False and stale["reason"].startswith("stale:")
+        assert stale["sample_age_s"] == pytest.approx(limit + 1, abs=1e-3)
+    finally:
+        clock.now = last.t
+
+
+def test_nothing_to_serve_is_503_and_the_schema_is_in_openapi(tmp_path: Path) -> None:
+    with served_service(database_url=sqlite_url(tmp_path), plan=None) as s:
+        client = TestClient(create_app(Settings(), s.service, clock=s.clock))
+        r = client.get("/api/v1/compensation")
+        spec = client.get("/api/v1/openapi.json").json()
+    assert r.status_code == 503 and r.json()["error"]["code"] == "no_data", r.text
+    ref = spec["paths"]["/api/v1/compensation"]["get"]["responses"]["200"]["content"]["application/json"]
+    name = ref["schema"]["$ref"].rsplit("/", 1)[1]
+    props = spec["components"]["schemas"][name]["properties"]
+    for key in ("status", "usable_for_compensation", "axial", "radial", "forecast", "plc", "sensitivity"):
+        assert key in props, key
+
+
+def test_metrics_carry_the_served_growth(served: Served) -> None:
+    body = served.client.get("/api/v1/compensation").json()
+    text = served.client.get("/api/v1/metrics").text
+    for direction in ("axial", "radial"):
+        line = next(
+            x for x in text.splitlines() if x.startswith(f'chtc_growth_um{{direction="{direction}"}}')
+        )
+        assert float(line.split()[-1]) == pytest.approx(body[direction]["um"], abs=1e-3)
+        lo, hi = body[direction]["ci95_um"]
+        half = next(
+            x
+            for x in text.splitlines()
+            if x.startswith(f'chtc_growth_ci95_half_width_um{{direction="{direction}"}}')
+        )
+        assert float(half.split()[-1]) == pytest.approx(0.5 * (hi - lo), abs=1e-3)
+    assert f'chtc_growth_status{{status="{body["status"]}"}} 1.0' in text
+
+
+@pytest.mark.browser
+def test_dashboard_growth_panel_shows_the_served_value(
+    chromium_path: str, tmp_path: Path, served: Served
+) -> None:
+    body = served.client.get("/api/v1/compensation").json()
+    with LiveServer(create_app(Settings(), served.svc, clock=served.clock)) as server:
+        dom = _chromium(chromium_path, tmp_path, server.url + "/", "--window-size=1400,1600", "--dump-dom")
+    shown = re.search(r'id="growth-axial">([^<]*)<', dom)
+    assert shown is not None, re.findall(r'id="growth-now"[^\n]{0,300}', dom)
+    assert shown.group(1) == f"{body['axial']['um']:.1f}"
+    assert re.search(r'id="growth-chart"[^>]*data-points="1"', dom), re.findall(
+        r'<canvas id="growth-chart"[^>]*>', dom
+    )
+    assert "axial growth, µm" in dom
+
+
+def test_on_the_running_loop_the_terms_are_ready_before_the_first_request(served: Served) -> None:
+    """The growth model is built at start and a new identification's terms are computed in a thread as
+    soon as it is published (the fixture made no request before this was recorded)."""
+    assert served.ready_before_request
+
+
+def test_a_spindle_without_mechanics_serves_h_and_says_why_there_is_no_growth(served: Served) -> None:
+    """The growth model is optional: without ``[mechanics]`` the service starts, and the growth is
+    ``NotReadyError`` naming the cause (503 not_ready), not a crash."""
+    bare = dataclasses.replace(served.model, spec=dataclasses.replace(served.model.spec, mechanics=None))
+    server = GrowthServer(bare, served.svc.core.live_covariance)
+    with pytest.raises(NotReadyError, match="growth model unavailable"):
+        server.snapshot(served.svc.view, served.svc.chtc)
+    events: list[str] = []
+    svc = SoftSensorService(
+        ServiceCore(core_config(Settings()), model=bare), worker=None, on_event=events.append
+    )
+
+    async def start_and_close() -> None:
+        await svc.start()
+        await svc.close()
+
+    asyncio.run(start_and_close())
+    assert any(e.startswith("growth: unavailable growth model unavailable") for e in events), events
