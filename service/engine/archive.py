@@ -44,7 +44,7 @@ class IdentificationArchive:
         partial = None
         if self.session_factory is not None:
             try:
-                return self._db_page(records, since, until, limit, offset)
+                return self._db_page(records, since=since, until=until, limit=limit, offset=offset)
             except NotReadyError:  # the database is hung (read timed out or every read slot taken): 503
                 raise
             except Exception as err:  # database down: serve what this process remembers, marked partial
@@ -82,6 +82,7 @@ class IdentificationArchive:
     def _db_page(
         self,
         records: Sequence[IdentificationRecord],
+        *,
         since: datetime | None,
         until: datetime | None,
         limit: int,

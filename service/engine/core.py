@@ -404,13 +404,13 @@ class ServiceCore:
                 f"spindle idle ({start.point.speed_rpm:.0f} rpm < {self.config.min_speed_rpm:.0f} rpm): "
                 "no bearing heat, H1-H7 are not identifiable"
             )
-            self._store_outcome(job, "skipped", msg, now, out)
+            self._store_outcome(job, outcome="skipped", message=msg, finished_at=now, out=out)
             return self._scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=msg))
         try:
             window = job_window(start, self._live, self._history, self.config)
         except (InsufficientWindowError, LiveStateError) as err:
             msg = err.reason if isinstance(err, InsufficientWindowError) else str(err)
-            self._store_outcome(job, "insufficient-data", msg, now, out)
+            self._store_outcome(job, outcome="insufficient-data", message=msg, finished_at=now, out=out)
             return self._scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=msg))
         cal = self._calibrator
         offsets = None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
@@ -443,21 +443,31 @@ class ServiceCore:
         ts = (newest.t if newest is not None else ev.finished_at).timestamp()
         running = self._scheduler.running
         if outcome.status is JobStatus.CANCELLED or running is None or running.job_id != outcome.job_id:
-            self._store_outcome(job, "cancelled", outcome.message or "cancelled", ev.finished_at, out)
+            self._store_outcome(
+                job,
+                outcome="cancelled",
+                message=outcome.message or "cancelled",
+                finished_at=ev.finished_at,
+                out=out,
+            )
             return
         if outcome.status is JobStatus.INSUFFICIENT_DATA:
-            self._store_outcome(job, "insufficient-data", outcome.message, ev.finished_at, out)
+            self._store_outcome(
+                job, outcome="insufficient-data", message=outcome.message, finished_at=ev.finished_at, out=out
+            )
             more = self._scheduler.handle(
                 sched.JobSkipped(t=ts, job_id=outcome.job_id, reason=outcome.message)
             )
         elif outcome.status is JobStatus.FAILED or outcome.result is None:
-            self._store_outcome(job, "failed", outcome.message, ev.finished_at, out)
+            self._store_outcome(
+                job, outcome="failed", message=outcome.message, finished_at=ev.finished_at, out=out
+            )
             more = self._scheduler.handle(
                 sched.JobFailed(t=ts, job_id=outcome.job_id, reason=outcome.message)
             )
         else:
             result: IdentificationResult = outcome.result
-            rec = self._store_result(job, outcome, result, ev, out)
+            rec = self._store_result(job, outcome=outcome, result=result, ev=ev, out=out)
             self._rebase_live(outcome, result, job)
             h = tuple(float(x) for x in rec.h)
             more = self._scheduler.handle(sched.JobFinished(t=ts, job_id=outcome.job_id, h=h))
@@ -466,6 +476,7 @@ class ServiceCore:
     def _store_result(
         self,
         job: Job,
+        *,
         outcome: JobOutcome,
         result: IdentificationResult,
         ev: JobOutcomeReceived,
@@ -487,7 +498,9 @@ class ServiceCore:
         )
         return rec
 
-    def _store_outcome(self, job: Job, outcome: str, message: str, finished_at: datetime, out: _Out) -> None:
+    def _store_outcome(
+        self, job: Job, *, outcome: str, message: str, finished_at: datetime, out: _Out
+    ) -> None:
         data, _ = self._jobs.ended(
             job,
             outcome=outcome,
