@@ -46,7 +46,11 @@ def _secret(value: SecretStr | None) -> str | None:
 
 def _unauthorized(message: str) -> ApiError:
     return ApiError(
-        401, "unauthorized", message, field="Authorization", headers={"WWW-Authenticate": "Bearer"}
+        status=401,
+        code="unauthorized",
+        message=message,
+        field="Authorization",
+        headers={"WWW-Authenticate": "Bearer"},
     )
 
 
@@ -74,13 +78,18 @@ def write_denial(auth: AuthConfig, header: str | None) -> ApiError | None:
         return _unauthorized("this endpoint needs 'Authorization: Bearer <token>'")
     if auth.write_token is None:
         return ApiError(
-            403,
-            "forbidden",
-            "writes are disabled: no API token is configured (api.token)",
+            status=403,
+            code="forbidden",
+            message="writes are disabled: no API token is configured (api.token)",
             field="Authorization",
         )
     if not _matches(token, auth.write_token):
-        return ApiError(403, "forbidden", "the bearer token is not valid for writes", field="Authorization")
+        return ApiError(
+            status=403,
+            code="forbidden",
+            message="the bearer token is not valid for writes",
+            field="Authorization",
+        )
     return None
 
 
@@ -95,7 +104,9 @@ def read_denial(auth: AuthConfig, header: str | None) -> ApiError | None:
     if token is None:
         return _unauthorized("reads need 'Authorization: Bearer <read token>'")
     if not _matches(token, auth.read_token, auth.write_token):
-        return ApiError(403, "forbidden", "the bearer token is not valid", field="Authorization")
+        return ApiError(
+            status=403, code="forbidden", message="the bearer token is not valid", field="Authorization"
+        )
     return None
 
 

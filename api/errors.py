@@ -16,11 +16,13 @@ too slow, see ``api/guard.py``) keeps its status with a code derived from it.
 
 from __future__ import annotations
 
-from typing import Any
+from collections.abc import Sequence
+from typing import NotRequired, TypedDict
 
 from fastapi import FastAPI, Request
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
+from pydantic_core import ErrorDetails
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
 from service.serve.interface import BusyError, NoDataYetError, NotFoundError, NotReadyError, ServiceError
@@ -36,7 +38,7 @@ class ApiError(Exception):
         message: str,
         *,
         field: str | None = None,
-        detail: Any = None,
+        detail: object = None,
         headers: dict[str, str] | None = None,
     ) -> None:
         super().__init__(message)
@@ -48,12 +50,14 @@ class ApiError(Exception):
         self.headers = headers
 
 
-def invalid(field: str, message: str, *, detail: Any = None) -> ApiError:
+def invalid(field: str, message: str, *, detail: object = None) -> ApiError:
     """A 422 naming the bad query/body field."""
-    return ApiError(422, "invalid", f"{field}: {message}", field=field, detail=detail)
+    return ApiError(status=422, code="invalid", message=f"{field}: {message}", field=field, detail=detail)
 
 
-def error_body(code: str, message: str, *, field: str | None = None, detail: Any = None) -> dict[str, Any]:
+def error_body(
+    code: str, message: str, *, field: str | None = None, detail: object = None
+) -> dict[str, dict[str, object]]:
     return {"error": {"code": code, "message": message, "field": field, "detail": detail}}
 
 
@@ -76,7 +80,7 @@ _HTTP_CODES = {
 }
 
 
-def _field_of(loc: tuple[Any, ...] | list[Any]) -> str | None:
+def _field_of(loc: Sequence[int | str]) -> str | None:
     parts = [str(p) for p in loc if p not in ("query", "body", "path", "header")]
     return ".".join(parts) if parts else None
 
@@ -95,7 +99,13 @@ async def _service_error(_: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(error_body("service_error", str(exc)), status_code=500)
 
 
-def _validation_item(e: dict[str, Any]) -> dict[str, Any]:
+class _Problem(TypedDict):
+    field: str | None
+    message: str
+    type: NotRequired[str]
+
+
+def _validation_item(e: ErrorDetails) -> _Problem:
     if e["type"] == "json_invalid":  # loc is ("body", <character position>): name the body and the place
         pos = e["loc"][-1] if len(e["loc"]) > 1 else None
         reason = (e.get("ctx") or {}).get("error", "not valid JSON")
@@ -106,7 +116,7 @@ def _validation_item(e: dict[str, Any]) -> dict[str, Any]:
 async def _validation_error(_: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     errors = [_validation_item(e) for e in exc.errors()]
-    first = errors[0] if errors else {"field": None, "message": "invalid request"}
+    first: _Problem = errors[0] if errors else {"field": None, "message": "invalid request"}
     message = f"{first['field']}: {first['message']}" if first["field"] else str(first["message"])
     return JSONResponse(error_body("invalid", message, field=first["field"], detail=errors), status_code=422)
 

@@ -23,23 +23,21 @@ import asyncio
 import json
 import logging
 import re
-from collections.abc import Awaitable, Callable, Iterable, Iterator, MutableMapping, Sequence
+from collections.abc import Iterable, Iterator, Sequence
 from dataclasses import dataclass
-from typing import Any, Literal
+from typing import Literal
 
+from fastapi.dependencies.models import Dependant
 from fastapi.routing import APIRoute
 from starlette.exceptions import HTTPException
-from starlette.routing import compile_path
+from starlette.routing import BaseRoute, compile_path
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from api.deps import AuthConfig, read_denial, require_read, require_write, write_denial
 from api.errors import ApiError, error_body
 
 log = logging.getLogger("api")
 
-Scope = MutableMapping[str, Any]
-Message = MutableMapping[str, Any]
-Receive = Callable[[], Awaitable[Message]]
-Send = Callable[[Message], Awaitable[None]]
 Access = Literal["open", "read", "write"]
 
 
@@ -50,7 +48,7 @@ class GuardLimits:
     body_timeout_s: float = 10.0  # per received chunk of a body
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class RouteRule:
     path: str  # the template, e.g. /api/v1/identifications/{identification_id}
     pattern: re.Pattern[str]
@@ -58,8 +56,8 @@ class RouteRule:
     access: Access
 
 
-def _calls(dependant: Any) -> Iterator[Any]:
-    for dep in getattr(dependant, "dependencies", ()):
+def _calls(dependant: Dependant) -> Iterator[object]:
+    for dep in dependant.dependencies:
         yield dep.call
         yield from _calls(dep)
 
@@ -72,11 +70,14 @@ def route_access(route: APIRoute) -> Access:
     return "read" if require_read in calls else "open"
 
 
-def route_rules(routes: Iterable[Any], prefix: str) -> list[RouteRule]:
+def route_rules(routes: Iterable[BaseRoute], prefix: str) -> list[RouteRule]:
     """One rule per API route, in the order the app tries them."""
     return [
         RouteRule(
-            prefix + r.path, compile_path(prefix + r.path)[0], frozenset(r.methods or ()), route_access(r)
+            path=prefix + r.path,
+            pattern=compile_path(prefix + r.path)[0],
+            methods=frozenset(r.methods or ()),
+            access=route_access(r),
         )
         for r in routes
         if isinstance(r, APIRoute)
@@ -99,7 +100,7 @@ class _Rejected(Exception):
 class RequestGuard:
     def __init__(
         self,
-        app: Callable[..., Awaitable[None]],
+        app: ASGIApp,
         *,
         rules: Sequence[RouteRule],
         auth: AuthConfig,
@@ -131,7 +132,9 @@ class RequestGuard:
             log.debug("traceback", exc_info=True)
             if not started[0]:
                 message = f"internal error ({type(err).__name__}); see the service log"
-                await _send_error(tracking_send, ApiError(500, "internal", message), close=True)
+                await _send_error(
+                    tracking_send, ApiError(status=500, code="internal", message=message), close=True
+                )
 
     def _admit(self, scope: Scope, send: Send) -> tuple[Scope, Send]:
         """Raise :class:`_Rejected` for the checks 1-4; return the scope and send to run the app with."""
@@ -139,9 +142,9 @@ class RequestGuard:
         if target > self.limits.max_url_bytes:
             raise _Rejected(
                 ApiError(
-                    414,
-                    "uri_too_long",
-                    f"request target is {target} bytes, at most {self.limits.max_url_bytes} allowed",
+                    status=414,
+                    code="uri_too_long",
+                    message=f"request target is {target} bytes, at most {self.limits.max_url_bytes} allowed",
                 )
             )
         candidates = [r for r in self.rules if r.pattern.match(scope["path"])]
@@ -155,9 +158,9 @@ class RequestGuard:
             allow = ", ".join(allowed_methods(candidates))
             raise _Rejected(
                 ApiError(
-                    405,
-                    "method_not_allowed",
-                    f"{method} is not allowed here; allowed: {allow}",
+                    status=405,
+                    code="method_not_allowed",
+                    message=f"{method} is not allowed here; allowed: {allow}",
                     headers={"Allow": allow},
                 )
             )
@@ -182,9 +185,9 @@ class RequestGuard:
 
     def _too_large(self, size: int) -> ApiError:
         return ApiError(
-            413,
-            "too_large",
-            f"request body is {size} bytes or more, at most {self.limits.max_body_bytes} allowed",
+            status=413,
+            code="too_large",
+            message=f"request body is {size} bytes or more, at most {self.limits.max_body_bytes} allowed",
         )
 
     def _counting(self, receive: Receive) -> Receive:

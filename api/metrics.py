@@ -8,8 +8,7 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable, Iterator, Mapping
-from typing import Any
+from collections.abc import Iterator, Mapping
 
 from prometheus_client import CollectorRegistry, Histogram
 from prometheus_client.core import (
@@ -20,6 +19,7 @@ from prometheus_client.core import (
     Metric,
 )
 from prometheus_client.registry import Collector
+from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from service.serve.histogram import LATENCY_BUCKETS_S
 from service.serve.interface import (
@@ -243,21 +243,19 @@ class ApiMetrics:
 class RequestTimer:
     """Pure ASGI middleware (cheaper than BaseHTTPMiddleware) observing each request's latency by route."""
 
-    def __init__(self, app: Callable[..., Any], metrics: ApiMetrics, prefix: str = "") -> None:
+    def __init__(self, app: ASGIApp, metrics: ApiMetrics, prefix: str = "") -> None:
         self.app = app
         self.metrics = metrics
         self.prefix = prefix
 
-    async def __call__(
-        self, scope: dict[str, Any], receive: Callable[..., Any], send: Callable[..., Any]
-    ) -> None:
+    async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
         start = time.perf_counter()
         status = [500]
 
-        async def send_wrapper(message: dict[str, Any]) -> None:
+        async def send_wrapper(message: Message) -> None:
             if message["type"] == "http.response.start":
                 status[0] = message["status"]
             await send(message)

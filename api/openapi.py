@@ -48,7 +48,7 @@ class ErrorBody(BaseModel):
     code: str = Field(description="machine-readable, e.g. invalid, unauthorized, not_found, busy, no_data")
     message: str = Field(description="human-readable; starts with the field when one is named")
     field: str | None = Field(description="the offending query/path/body field or header, if any")
-    detail: Any = Field(description="more about the error, e.g. every validation problem")
+    detail: object = Field(description="more about the error, e.g. every validation problem")
 
 
 class Error(BaseModel):
@@ -103,7 +103,7 @@ def _document(op: dict[str, Any], path: str, access: str, auth: AuthConfig) -> N
         responses["200"]["content"] = {"text/plain": {"schema": {"type": "string"}}}
 
 
-def _error_headers(code: str) -> dict[str, Any]:
+def _error_headers(code: str) -> dict[str, dict[str, object]]:
     if code == "401":
         return {"WWW-Authenticate": {"schema": {"type": "string"}, "description": "Bearer"}}
     if code == "503":

@@ -21,7 +21,7 @@ if TYPE_CHECKING:
 __all__ = ["LoadedModel", "ModelRef", "load_model"]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ModelRef:
     """What identifies the model: spindle TOML (None: packaged), mesh size m, ROM rank, cache dir, H box."""
 
@@ -43,7 +43,7 @@ class ModelRef:
         )
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class LoadedModel:
     spec: SpindleSpec
     fe: FEModel

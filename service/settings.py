@@ -117,7 +117,7 @@ class CanSettings(_Section):
     fd: bool = False  # open the bus in CAN FD mode (SpindleStatus frames must still be CAN 2.0A)
     data_bitrate: int | None = Field(default=None, gt=0)  # CAN FD data-phase bit rate, bit/s
     filters: list[CanFilter] | None = None  # python-can can_filters, applied by the interface
-    options: dict[str, Any] = Field(default_factory=dict)  # further keyword arguments for the interface
+    options: dict[str, object] = Field(default_factory=dict)  # further keyword arguments for the interface
 
     @field_validator("interface")
     @classmethod
@@ -131,7 +131,7 @@ class CanSettings(_Section):
 
     @field_validator("options")
     @classmethod
-    def _no_reserved_options(cls, value: dict[str, Any]) -> dict[str, Any]:
+    def _no_reserved_options(cls, value: dict[str, object]) -> dict[str, object]:
         reserved = sorted(set(value) & _CAN_RESERVED_OPTIONS)
         if reserved:
             raise ValueError(
@@ -264,7 +264,7 @@ class ApiSettings(_Section):
 
     @field_validator("token", "read_token", mode="before")
     @classmethod
-    def _empty_is_unset(cls, value: Any) -> Any:
+    def _empty_is_unset(cls, value: object) -> object:
         return None if isinstance(value, str) and not value.strip() else value
 
     @field_validator("token", "read_token")
@@ -309,7 +309,7 @@ class DatabaseSettings(_Section):
         return self
 
 
-_TOML_DATA: ContextVar[dict[str, Any] | None] = ContextVar("_chtc_toml_data", default=None)
+_TOML_DATA: ContextVar[dict[str, object] | None] = ContextVar("_chtc_toml_data", default=None)
 
 
 class Settings(BaseSettings):
@@ -345,7 +345,7 @@ class Settings(BaseSettings):
         return (init_settings, env_settings, toml)
 
     @classmethod
-    def from_toml(cls, path: str | Path | None, **overrides: Any) -> Settings:
+    def from_toml(cls, path: str | Path | None, **overrides: Any) -> Settings:  # raw input for pydantic
         """Settings from a TOML file (``None``: none) under the environment; raises ``SettingsError``."""
         data = _resolve_paths(read_toml(path), Path(path).parent) if path is not None else {}
         token = _TOML_DATA.set(data)
@@ -368,12 +368,12 @@ class Settings(BaseSettings):
         return data
 
 
-def load_settings(path: str | Path | None = None, **overrides: Any) -> Settings:
+def load_settings(path: str | Path | None = None, **overrides: Any) -> Settings:  # raw input
     """The edge entry point: ``Settings.from_toml(path)``; every failure is a ``SettingsError``."""
     return Settings.from_toml(path, **overrides)
 
 
-def read_toml(path: str | Path) -> dict[str, Any]:
+def read_toml(path: str | Path) -> dict[str, object]:
     """Parse a TOML config file; ``SettingsError`` names the file (and line for syntax errors)."""
     path = Path(path)
     try:
@@ -389,7 +389,7 @@ def read_toml(path: str | Path) -> dict[str, Any]:
 _PATH_KEYS = (("modbus", "register_map"), ("can", "dbc"), ("model", "spindle"), ("model", "rom_cache_dir"))
 
 
-def _resolve_paths(data: dict[str, Any], base: Path) -> dict[str, Any]:
+def _resolve_paths(data: dict[str, object], base: Path) -> dict[str, object]:
     """Relative file paths in a config file are relative to that file's directory (``~`` is expanded)."""
     for section, key in _PATH_KEYS:
         block = data.get(section)

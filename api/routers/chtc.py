@@ -46,7 +46,12 @@ def _matches(header: str | None, etag: str) -> bool:
 async def get_chtc(request: Request, service: ServiceDep, clock: ClockDep) -> Response:
     snap = service.chtc()
     if snap is None:
-        raise ApiError(503, "no_data", "no identification has finished yet", headers={"Retry-After": "5"})
+        raise ApiError(
+            status=503,
+            code="no_data",
+            message="no identification has finished yet",
+            headers={"Retry-After": "5"},
+        )
     etag = etag_of(snap)
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
     if _matches(request.headers.get("if-none-match"), etag):

@@ -199,9 +199,9 @@ async def get_field(
     renderer, gate = _renderer(request)
     if not gate.try_enter():
         raise ApiError(
-            503,
-            "overloaded",
-            f"{gate.limit} temperature-field requests are in progress; retry in a second",
+            status=503,
+            code="overloaded",
+            message=f"{gate.limit} temperature-field requests are in progress; retry in a second",
             headers={"Retry-After": "1"},
         )
     try:

@@ -26,7 +26,6 @@ import zlib
 from collections import OrderedDict
 from collections.abc import Callable
 from dataclasses import dataclass, field
-from typing import Any
 
 import numpy as np
 
@@ -63,7 +62,7 @@ def meta_json(f: FieldSnapshot) -> str:
     return meta.model_dump_json()[1:-1]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Rendered:
     """One response body, its ETag, and its gzip form (made on first demand, then kept)."""
 
@@ -109,7 +108,7 @@ class FieldRenderer:
     def __init__(self, *, entries: int = 8) -> None:
         self._entries = entries
         self._bodies: OrderedDict[str, Rendered] = OrderedDict()
-        self._geometry: tuple[Any, Any, _MeshGeometry] | None = None
+        self._geometry: tuple[object, object, _MeshGeometry] | None = None  # (nodes, triangles) by identity
         self._lock = threading.Lock()
         self._build_lock = threading.Lock()  # one build at a time: concurrent misses wait, then hit
         self.builds = 0
@@ -161,7 +160,9 @@ class FieldRenderer:
             dynamic = (
                 f'"format":"mesh",{meta_json(f)},"temps_c":{_dumps(_clean(f.temps_c))},"std_c":{std}}}'
             ).encode()
-            return Rendered(geom.head + dynamic, key, _gzip_tail=(geom.compressor, geom.head_gz, dynamic))
+            return Rendered(
+                body=geom.head + dynamic, etag=key, _gzip_tail=(geom.compressor, geom.head_gz, dynamic)
+            )
 
         return self._cached(key, build)
 
@@ -180,7 +181,7 @@ class FieldRenderer:
                 f'"z_m":{_dumps(np.round(z, 7).tolist())},'
                 f'"temps_c":{_dumps([_clean(row) for row in temps])},"std_c":{std}}}'
             )
-            return Rendered(body.encode(), key)
+            return Rendered(body=body.encode(), etag=key)
 
         return self._cached(key, build)
 

@@ -72,6 +72,6 @@ async def post_baseline(service: ServiceDep, _: WriteAccess) -> Response:
     try:
         taken = service.request_baseline()
     except NotReadyError as err:  # the spindle's state refuses it (running, not at rest): a conflict
-        raise ApiError(409, "conflict", f"no baseline taken: {err}") from err
+        raise ApiError(status=409, code="conflict", message=f"no baseline taken: {err}") from err
     out = baseline_out(taken)
     return Response(out.model_dump_json(), media_type="application/json")

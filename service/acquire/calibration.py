@@ -66,7 +66,7 @@ class CalibrationStatus(enum.StrEnum):
     CALIBRATED = "calibrated"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class CalibrationConfig:
     """Thresholds of the equilibrium detector; temperatures °C, times s, speed rpm."""
 
@@ -82,7 +82,7 @@ class CalibrationConfig:
     equilibrium_sd_c: float = 0.005  # what a spindle at rest still differs from the ambient
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Reading:
     """One sample: UTC time, temperatures (32,) °C, which are usable (32,), ambient °C, speed rpm."""
 
@@ -100,7 +100,7 @@ class BaselineRequest:
     t: datetime
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class Calibration:
     """A baseline: per-channel offsets (32,) °C (NaN: no usable data in the window, not corrected) and their
     1σ (32,) °C, the window [t_from, t_to] (UTC) and how it was taken ("auto" | "manual")."""
@@ -195,10 +195,17 @@ def take_baseline(window: list[Reading], cfg: CalibrationConfig, source: str) ->
     sd = np.sqrt(
         np.where(n > 0, scatter**2 / np.maximum(n, 1), cfg.no_baseline_sd_c**2) + cfg.equilibrium_sd_c**2
     )
-    return Calibration(np.asarray(offsets), np.asarray(sd), window[0].t, window[-1].t, len(window), source)
+    return Calibration(
+        offsets_c=np.asarray(offsets),
+        sd_c=np.asarray(sd),
+        t_from=window[0].t,
+        t_to=window[-1].t,
+        samples=len(window),
+        source=source,
+    )
 
 
-@dataclass
+@dataclass(kw_only=True)
 class OffsetCalibrator:
     """See the module docstring. ``sample_period_s`` sizes the rest window's buffer."""
 

@@ -22,7 +22,7 @@ __all__ = ["DeviceEvent", "DeviceWatch", "transition_detail"]
 _BAD = (DeviceStatus.DOWN, DeviceStatus.DEGRADED)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DeviceEvent:
     device: str
     kind: str  # "down->ok", or "down" for a device first seen not ok
@@ -60,7 +60,11 @@ class DeviceWatch:
             return None
         self.state[dev.name] = dev.status
         last = self._last_error.pop(dev.name, "") if dev.status is DeviceStatus.OK else dev.message
-        return DeviceEvent(dev.name, f"{prev.value}->{dev.status.value}", transition_detail(dev.status, last))
+        return DeviceEvent(
+            device=dev.name,
+            kind=f"{prev.value}->{dev.status.value}",
+            detail=transition_detail(dev.status, last),
+        )
 
     def _first(self, dev: DeviceHealth) -> DeviceEvent | None:
         if dev.status not in _BAD:
@@ -71,4 +75,4 @@ class DeviceWatch:
             return None  # not tried yet: judge it when it has a reason
         self.state[dev.name] = dev.status
         detail = f"at start-up: {dev.message}" if dev.message else "at start-up"
-        return DeviceEvent(dev.name, dev.status.value, detail)
+        return DeviceEvent(device=dev.name, kind=dev.status.value, detail=detail)

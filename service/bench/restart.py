@@ -71,7 +71,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Served:
     """One successful identification: the condition's speed [rpm], H and CI [W/(m²·K)], window end [s]."""
 
@@ -113,7 +113,7 @@ def run_core(model: Any, settings: Any, run: Any, start: int) -> list[Served]:
         speed = float(round(rec.condition.speed_rpm, -2))
         end = rec.window_to.timestamp() - T0
         h, lo, hi = (np.asarray(a, dtype=float) for a in (rec.h, rec.ci95_lo, rec.ci95_hi))
-        out.append(Served(speed, h, lo, hi, end))
+        out.append(Served(speed_rpm=speed, h=h, lo=lo, hi=hi, end_s=end))
     return out
 
 

@@ -78,7 +78,9 @@ class FilterRestart:
                     warm = result
                     lo, hi = result.h_ci95[:, 0], result.h_ci95[:, 1]
                     state.set_h(result.h, h_rel=np.log(np.maximum(hi / result.h, 1.0)) / 1.96)
-                    served.append(Served(speed, result.h, lo, hi, float(run.times_s[k])))
+                    served.append(
+                        Served(speed_rpm=speed, h=result.h, lo=lo, hi=hi, end_s=float(run.times_s[k]))
+                    )
             if run.speed_rpm[k] != speed:
                 cond_start, warm = k, None
                 state.mark(T0 + float(run.times_s[k]))

@@ -151,7 +151,7 @@ async def run_demo(args: argparse.Namespace, settings: Settings) -> int:
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)
     print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
-    runtime = Runtime(settings, clock=clock, on_event=lambda m: None)
+    runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: None)
     await asyncio.to_thread(runtime.load)
     print("running the virtual plant over the demo profile ...", flush=True)
     plant = VirtualPlant(load_spindle(settings.model.spindle), seed=args.seed)

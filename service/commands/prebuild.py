@@ -20,7 +20,7 @@ import sys
 import time
 from collections.abc import Callable, Mapping
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, TypedDict
 
 if TYPE_CHECKING:
     from service.settings import ModelSettings
@@ -75,13 +75,31 @@ def _progress(args: argparse.Namespace) -> Callable[[str], None] | None:
     return lambda text: print(f"  {text}", flush=True)
 
 
+class PrebuildReport(TypedDict):
+    """What :func:`build` did (printed as JSON with ``--json``)."""
+
+    spindle: str
+    fe_nodes: int
+    fe_triangles: int
+    fe_build_s: float
+    rom_rank: int
+    h_box_w_m2k: list[float]
+    cache_key: str
+    cache_file: str
+    cache_bytes: int | None
+    from_cache: bool
+    rom_build_s: float
+    total_s: float
+    error_report: dict[str, bool | int | str | float]
+
+
 def build(
     model_settings: ModelSettings,
     cache_dir: Path,
     *,
     rebuild: bool = False,
     progress: Callable[[str], None] | None = None,
-) -> dict[str, Any]:
+) -> PrebuildReport:
     """Build (or find) the FE model and reduced model for ``model_settings`` in ``cache_dir``; a report."""
     from model import rom_cache
     from model.fem import build_fe_model
@@ -126,7 +144,7 @@ def _scalars(report: Mapping[str, object]) -> dict[str, bool | int | str | float
     return out
 
 
-def format_report(report: Mapping[str, Any]) -> str:
+def format_report(report: PrebuildReport) -> str:
     """A readable summary of :func:`build`'s report."""
     how = "found in cache" if report["from_cache"] else f"built in {report['rom_build_s']:.1f} s"
     lines = [

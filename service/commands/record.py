@@ -40,7 +40,7 @@ CSV_NAME = "temperatures.csv"
 CAN_STEM = "can"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SourceTime:
     """Receive (wall) time -> the source's time: ``t0 + speedup·(t − t0)``, POSIX s; speedup 1: wall time."""
 
@@ -57,7 +57,7 @@ class SourceTime:
         return datetime.fromtimestamp(self.of(self.wall()), tz=UTC)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class RecordStats:
     """What a recording has collected so far."""
 
@@ -84,7 +84,7 @@ class _CanRecorder(can.Listener):
     """Writes every received frame to the log and counts frames that do not decode."""
 
     def __init__(
-        self, writer: CanLogWriter, stats: RecordStats, source_time: SourceTime | None = None
+        self, *, writer: CanLogWriter, stats: RecordStats, source_time: SourceTime | None = None
     ) -> None:
         self.writer, self.stats, self.source_time = writer, stats, source_time
         self.closed = False
@@ -135,7 +135,7 @@ async def record(
     can_writer = CanLogWriter(can_path) if bus is not None and can_path is not None else None
     notifier, recorder = None, None
     if bus is not None and can_writer is not None:
-        recorder = _CanRecorder(can_writer, stats, source_time)
+        recorder = _CanRecorder(writer=can_writer, stats=stats, source_time=source_time)
         notifier = can.Notifier(bus, [recorder], timeout=0.05, loop=asyncio.get_running_loop())
     start = clock()
     next_progress = progress_every_s
@@ -228,7 +228,7 @@ async def _amain(args: argparse.Namespace) -> RecordStats:
     out.mkdir(parents=True, exist_ok=True)
     csv_path = None if args.no_modbus else out / CSV_NAME
     can_path = None if args.no_can else out / f"{CAN_STEM}.{args.can_format}"
-    source_time = SourceTime(time.time(), args.speedup)
+    source_time = SourceTime(t0=time.time(), speedup=args.speedup)
     daq = None
     if not args.no_modbus:
         daq = ModbusDaq(

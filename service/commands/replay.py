@@ -99,7 +99,7 @@ async def _replay(
 
     clock = ScaledClock(args.speedup)
     period_s = settings.acquisition.sample_period_s
-    runtime = Runtime(settings, clock=clock, on_event=lambda m: print(m, flush=True))
+    runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: print(m, flush=True))
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)

@@ -83,7 +83,7 @@ async def serve(settings: Settings, *, migrate: bool) -> int:
     from service.engine.runtime import Runtime, ScaledClock
 
     clock = ScaledClock(1.0)
-    runtime = Runtime(settings, clock=clock, migrate=migrate, on_event=lambda m: log.info("%s", m))
+    runtime = Runtime(settings=settings, clock=clock, migrate=migrate, on_event=lambda m: log.info("%s", m))
     log.info("loading the model (cache %s)", settings.model.rom_cache_dir)
     await asyncio.to_thread(runtime.load, progress=lambda m: log.info("%s", m))
     daq, can_sensor = make_device_drivers(settings, clock=clock)

@@ -26,7 +26,7 @@ import tomllib
 from collections.abc import AsyncIterator, Sequence
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING
 
 import can
 
@@ -53,7 +53,7 @@ class ProfileError(ValueError):
     """A profile name or file is invalid; the message names the file, segment and key."""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ProfileSegment:
     """One operating segment: duration s, speed rpm, torque N·m, ambient °C (as ``model.plant.Segment``)."""
 
@@ -66,12 +66,12 @@ class ProfileSegment:
 def load_profile(text: str) -> list[ProfileSegment]:
     """A named profile (``steps``, ``short``) or a TOML/JSON file of segments."""
     if text in NAMED_PROFILES:
-        return [ProfileSegment(*seg) for seg in NAMED_PROFILES[text]]
+        return [_named(seg) for seg in NAMED_PROFILES[text]]
     path = Path(text)
     if not path.is_file():
         raise ProfileError(f"profile {text!r}: not a named profile ({', '.join(NAMED_PROFILES)}) nor a file")
     try:
-        raw: Any = (
+        raw: object = (
             json.loads(path.read_text())
             if path.suffix == ".json"
             else tomllib.loads(path.read_text())["segment"]
@@ -83,7 +83,12 @@ def load_profile(text: str) -> list[ProfileSegment]:
     return [_segment(path, i, item) for i, item in enumerate(raw)]
 
 
-def _segment(path: Path, i: int, item: Any) -> ProfileSegment:
+def _named(seg: Sequence[float]) -> ProfileSegment:
+    duration, speed, torque, ambient = seg
+    return ProfileSegment(duration_s=duration, speed_rpm=speed, torque_nm=torque, ambient_c=ambient)
+
+
+def _segment(path: Path, i: int, item: object) -> ProfileSegment:
     if not isinstance(item, dict):
         raise ProfileError(f"{path}: segment[{i}] is not a table/object")
     values = []
@@ -94,7 +99,7 @@ def _segment(path: Path, i: int, item: Any) -> ProfileSegment:
             raise ProfileError(f"{path}: segment[{i}].{key}: missing or not a number") from err
     if values[0] <= 0:
         raise ProfileError(f"{path}: segment[{i}].duration_s: must be > 0")
-    return ProfileSegment(*values)
+    return _named(values)
 
 
 def plant_timeline(profile: Sequence[ProfileSegment], *, seed: int, dt_s: float, noise_c: float) -> PlantRun:

@@ -44,7 +44,7 @@ class IdentificationArchive:
         partial = None
         if self.session_factory is not None:
             try:
-                return self._db_page(records, since, until, limit, offset)
+                return self._db_page(records, since=since, until=until, limit=limit, offset=offset)
             except NotReadyError:  # the database is hung (read timed out or every read slot taken): 503
                 raise
             except Exception as err:  # database down: serve what this process remembers, marked partial
@@ -52,7 +52,13 @@ class IdentificationArchive:
                 partial = f"database not readable, only the records in memory: {err}"
         rows = [r for r in records if _within(r, since, until)]
         rows.sort(key=lambda r: (r.finished_at, r.id), reverse=True)
-        return IdentificationPage(rows[offset : offset + limit], len(rows), limit, offset, partial)
+        return IdentificationPage(
+            items=rows[offset : offset + limit],
+            total=len(rows),
+            limit=limit,
+            offset=offset,
+            partial_reason=partial,
+        )
 
     def get(self, records: Sequence[IdentificationRecord], identification_id: int) -> IdentificationRecord:
         for r in records:
@@ -76,6 +82,7 @@ class IdentificationArchive:
     def _db_page(
         self,
         records: Sequence[IdentificationRecord],
+        *,
         since: datetime | None,
         until: datetime | None,
         limit: int,
@@ -85,7 +92,9 @@ class IdentificationArchive:
 
         def read(session: Session) -> IdentificationPage:
             page = list_identifications(session, since=since, until=until, limit=limit, offset=offset)
-            return IdentificationPage([row_to_record(r) for r in page.items], page.total, limit, offset)
+            return IdentificationPage(
+                items=[row_to_record(r) for r in page.items], total=page.total, limit=limit, offset=offset
+            )
 
         return _merge_pending(self._db_read(read, "list identifications"), records, since, until)
 
@@ -115,7 +124,9 @@ def _merge_pending(
     if not extra:
         return page
     items = sorted([*extra, *page.items], key=lambda r: (r.finished_at, r.id), reverse=True)
-    return IdentificationPage(items[: page.limit], page.total + len(extra), page.limit, page.offset)
+    return IdentificationPage(
+        items=items[: page.limit], total=page.total + len(extra), limit=page.limit, offset=page.offset
+    )
 
 
 def _within(r: IdentificationRecord, since: datetime | None, until: datetime | None) -> bool:

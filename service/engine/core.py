@@ -140,9 +140,11 @@ class ServiceCore:
         last_point = None
         if restored.conditions:
             c = restored.conditions[0]
-            last_point = OperatingPoint(c.speed_rpm, c.torque_nm, c.ambient_c)
+            last_point = OperatingPoint(speed_rpm=c.speed_rpm, torque_nm=c.torque_nm, ambient_c=c.ambient_c)
         self._detector = ConditionDetector(config.detector, reference=last_point)
-        self._scheduler = sched.IdentificationScheduler(config.scheduler, history=list(restored.history))
+        self._scheduler = sched.IdentificationScheduler(
+            config=config.scheduler, history=list(restored.history)
+        )
         last = restored.last
         h0 = np.asarray(last.h if last is not None else config.initial_h, dtype=float)
         self._live = FilteredState(
@@ -176,7 +178,7 @@ class ServiceCore:
         self._calibrator = (
             None
             if cal is None
-            else OffsetCalibrator(cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
+            else OffsetCalibrator(config=cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
         )
         if self._calibrator is not None:  # a restored baseline's offsets go to the filter at once
             self._live.set_offsets(self._calibrator.offsets(), self._calibrator.offset_sd())
@@ -254,7 +256,12 @@ class ServiceCore:
             out.log(f"live state converged: condition {held.condition_id}'s schedule counts from now")
             todo += self._scheduler.handle(replace(held, t=ts, t_start=max(held.t_start, ready)))
         for change in self._detector.handle(
-            SampleEvent(ts, float(sample.speed_rpm), float(sample.torque_nm), float(sample.ambient_c))
+            SampleEvent(
+                t=ts,
+                speed_rpm=float(sample.speed_rpm),
+                torque_nm=float(sample.torque_nm),
+                ambient_c=float(sample.ambient_c),
+            )
         ):
             todo += self._on_change(change, out)
         todo += self._scheduler.handle(sched.Tick(ts))
@@ -273,7 +280,7 @@ class ServiceCore:
         if self._calibrator is None:
             return
         ok = np.array([q == "ok" for q in s.quality], dtype=bool) & np.isfinite(s.temps_c)
-        reading = Reading(s.t, s.temps_c, ok, s.ambient_c, s.speed_rpm)
+        reading = Reading(t=s.t, temps_c=s.temps_c, ok=ok, ambient_c=s.ambient_c, speed_rpm=s.speed_rpm)
         self._calibrated(self._calibrator.handle(reading), out)
 
     def _calibrated(
@@ -333,9 +340,11 @@ class ServiceCore:
         self._resumed = False
         cond = self._condition
         assert cond is not None
-        point = OperatingPoint(cond.speed_rpm, cond.torque_nm, cond.ambient_c)
+        point = OperatingPoint(speed_rpm=cond.speed_rpm, torque_nm=cond.torque_nm, ambient_c=cond.ambient_c)
         out.log(f"resumed condition {cond.id} ({cond.speed_rpm:.0f} rpm) from the database")
-        return self._condition_started(sched.ConditionStarted(ts, cond.id, point, ts))
+        return self._condition_started(
+            sched.ConditionStarted(t=ts, condition_id=cond.id, point=point, t_start=ts)
+        )
 
     def _on_change(self, change: ConditionChanged, out: _Out) -> list[sched.Instruction]:
         cid = next(self._cond_ids)
@@ -343,8 +352,23 @@ class ServiceCore:
         if self._condition is not None:
             out.store(ConditionEnd(id=self._condition.id, ended_at=started))
         p = change.point
-        out.store(ConditionStart(cid, started, p.speed_rpm, p.torque_nm, p.ambient_c))
-        snap = ConditionSnapshot(cid, p.speed_rpm, p.torque_nm, p.ambient_c, started, ConditionState.STABLE)
+        out.store(
+            ConditionStart(
+                id=cid,
+                started_at=started,
+                speed_rpm=p.speed_rpm,
+                torque_nm=p.torque_nm,
+                ambient_c=p.ambient_c,
+            )
+        )
+        snap = ConditionSnapshot(
+            id=cid,
+            speed_rpm=p.speed_rpm,
+            torque_nm=p.torque_nm,
+            ambient_c=p.ambient_c,
+            since=started,
+            state=ConditionState.STABLE,
+        )
         self._set_condition(snap, new=True)
         if self._live.initialized:
             self._live.mark(change.t_start)
@@ -352,7 +376,9 @@ class ServiceCore:
             f"condition {cid}: {p.speed_rpm:.0f} rpm, {p.torque_nm:.2f} N·m, {p.ambient_c:.2f} °C "
             f"since {started.isoformat(timespec='seconds')} ({change.reason})"
         )
-        return self._condition_started(sched.ConditionStarted(change.t_confirmed, cid, p, change.t_start))
+        return self._condition_started(
+            sched.ConditionStarted(t=change.t_confirmed, condition_id=cid, point=p, t_start=change.t_start)
+        )
 
     def _condition_started(self, ev: sched.ConditionStarted) -> list[sched.Instruction]:
         """Tell the scheduler, counting the condition's schedule from max(its start, the live state's
@@ -391,7 +417,7 @@ class ServiceCore:
             # no job and no stored outcome: the scheduler retries at its next time (/chtc says why meanwhile)
             why = converging_reason(self._live)
             out.log(f"identification for condition {start.condition_id} deferred: {why}")
-            return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, why))
+            return self._scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=why))
         if start.trigger == "manual":
             reason = manual_reason or "manual"
         else:
@@ -402,14 +428,14 @@ class ServiceCore:
                 f"spindle idle ({start.point.speed_rpm:.0f} rpm < {self.config.min_speed_rpm:.0f} rpm): "
                 "no bearing heat, H1-H7 are not identifiable"
             )
-            self._store_outcome(job, "skipped", msg, now, out)
-            return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, msg))
+            self._store_outcome(job, outcome="skipped", message=msg, finished_at=now, out=out)
+            return self._scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=msg))
         try:
             window = job_window(start, self._live, self._history, self.config)
         except (InsufficientWindowError, LiveStateError) as err:
             msg = err.reason if isinstance(err, InsufficientWindowError) else str(err)
-            self._store_outcome(job, "insufficient-data", msg, now, out)
-            return self._scheduler.handle(sched.JobSkipped(ts, start.job_id, msg))
+            self._store_outcome(job, outcome="insufficient-data", message=msg, finished_at=now, out=out)
+            return self._scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=msg))
         cal = self._calibrator
         offsets = None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
         request = job_request(start, window, config=self.config, offsets=offsets)
@@ -441,24 +467,39 @@ class ServiceCore:
         ts = (newest.t if newest is not None else ev.finished_at).timestamp()
         running = self._scheduler.running
         if outcome.status is JobStatus.CANCELLED or running is None or running.job_id != outcome.job_id:
-            self._store_outcome(job, "cancelled", outcome.message or "cancelled", ev.finished_at, out)
+            self._store_outcome(
+                job,
+                outcome="cancelled",
+                message=outcome.message or "cancelled",
+                finished_at=ev.finished_at,
+                out=out,
+            )
             return
         if outcome.status is JobStatus.INSUFFICIENT_DATA:
-            self._store_outcome(job, "insufficient-data", outcome.message, ev.finished_at, out)
-            more = self._scheduler.handle(sched.JobSkipped(ts, outcome.job_id, outcome.message))
+            self._store_outcome(
+                job, outcome="insufficient-data", message=outcome.message, finished_at=ev.finished_at, out=out
+            )
+            more = self._scheduler.handle(
+                sched.JobSkipped(t=ts, job_id=outcome.job_id, reason=outcome.message)
+            )
         elif outcome.status is JobStatus.FAILED or outcome.result is None:
-            self._store_outcome(job, "failed", outcome.message, ev.finished_at, out)
-            more = self._scheduler.handle(sched.JobFailed(ts, outcome.job_id, outcome.message))
+            self._store_outcome(
+                job, outcome="failed", message=outcome.message, finished_at=ev.finished_at, out=out
+            )
+            more = self._scheduler.handle(
+                sched.JobFailed(t=ts, job_id=outcome.job_id, reason=outcome.message)
+            )
         else:
             result: IdentificationResult = outcome.result
-            rec = self._store_result(job, outcome, result, ev, out)
+            rec = self._store_result(job, outcome=outcome, result=result, ev=ev, out=out)
             h = tuple(float(x) for x in rec.h)
-            more = self._scheduler.handle(sched.JobFinished(ts, outcome.job_id, h))
+            more = self._scheduler.handle(sched.JobFinished(t=ts, job_id=outcome.job_id, h=h))
         self._execute(more, ts, out)
 
     def _store_result(
         self,
         job: Job,
+        *,
         outcome: JobOutcome,
         result: IdentificationResult,
         ev: JobOutcomeReceived,
@@ -480,7 +521,9 @@ class ServiceCore:
         )
         return rec
 
-    def _store_outcome(self, job: Job, outcome: str, message: str, finished_at: datetime, out: _Out) -> None:
+    def _store_outcome(
+        self, job: Job, *, outcome: str, message: str, finished_at: datetime, out: _Out
+    ) -> None:
         data, _ = self._jobs.ended(
             job,
             outcome=outcome,

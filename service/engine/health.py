@@ -73,13 +73,27 @@ def source_health(name: str, src: HealthSource, now: datetime) -> DeviceHealth:
     }
     # a recovered device's error is history; a CAN warning/fault status is the reason while it lasts
     message = condition or (m.last_error if status is not DeviceStatus.OK else "")
-    return DeviceHealth(name, status, last_ok, age_s(last_ok, now), counters, message)
+    return DeviceHealth(
+        name=name,
+        status=status,
+        last_ok_at=last_ok,
+        age_s=age_s(last_ok, now),
+        counters=counters,
+        message=message,
+    )
 
 
 def db_health(writer: StatusSource | None, now: datetime) -> DeviceHealth:
     """The database writer's health (DISABLED without a database)."""
     if writer is None:
-        return DeviceHealth("db", DeviceStatus.DISABLED, None, None, {}, "no database configured")
+        return DeviceHealth(
+            name="db",
+            status=DeviceStatus.DISABLED,
+            last_ok_at=None,
+            age_s=None,
+            counters={},
+            message="no database configured",
+        )
     st = writer.status()
     status = DeviceStatus.OK if st.connected else DeviceStatus.DOWN
     busy_s = st.busy_s
@@ -96,7 +110,14 @@ def db_health(writer: StatusSource | None, now: datetime) -> DeviceHealth:
     msg = "" if st.connected else f"buffering {st.pending} records: {st.last_error or 'not connected yet'}"
     if hung:
         msg = f"database not answering for {busy_s:.0f} s; buffering {st.pending} records"
-    return DeviceHealth("db", status, st.last_ok_at, age_s(st.last_ok_at, now), counters, msg)
+    return DeviceHealth(
+        name="db",
+        status=status,
+        last_ok_at=st.last_ok_at,
+        age_s=age_s(st.last_ok_at, now),
+        counters=counters,
+        message=msg,
+    )
 
 
 def poll_outcomes(src: HealthSource | None) -> dict[str, int]:
@@ -175,7 +196,13 @@ def filter_health(view: CoreView, now: datetime) -> DeviceHealth:
     gives the verdict, Σ NIS against its band and the last sample's NIS/dof."""
     live = view.live
     if live is None:
-        return DeviceHealth("filter", DeviceStatus.DOWN, None, None, {}, "not started: no sample with inputs")
+        return DeviceHealth(
+            name="filter",
+            status=DeviceStatus.DOWN,
+            last_ok_at=None,
+            age_s=None,
+            message="not started: no sample with inputs",
+        )
     t = datetime.fromtimestamp(live.t, tz=now.tzinfo)
     lo, hi = live.nis_band
     figures = (
@@ -184,11 +211,11 @@ def filter_health(view: CoreView, now: datetime) -> DeviceHealth:
     )
     counters = {"nis_window_dof": live.nis_sum_dof, "last_sample_dof": live.nis_dof}
     age = age_s(t, now)
+    status, msg = DeviceStatus.OK, figures
     if not live.converged:
-        msg = f"state_converging: {live.reason}; {figures}"
-        return DeviceHealth("filter", DeviceStatus.DEGRADED, t, age, counters, msg)
-    if live.inconsistent(live.t):
+        status, msg = DeviceStatus.DEGRADED, f"state_converging: {live.reason}; {figures}"
+    elif live.inconsistent(live.t):
         since = live.t - (live.high_since or live.t)
         msg = f"filter_inconsistent: NIS above its band for {since / 60:.0f} min; {figures}"
-        return DeviceHealth("filter", DeviceStatus.DEGRADED, t, age, counters, msg)
-    return DeviceHealth("filter", DeviceStatus.OK, t, age, counters, figures)
+        status = DeviceStatus.DEGRADED
+    return DeviceHealth(name="filter", status=status, last_ok_at=t, age_s=age, counters=counters, message=msg)

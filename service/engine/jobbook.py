@@ -96,7 +96,7 @@ class JobBook:
             window_to=_utc(start.t_to),
             started_by=event_id,
         )
-        self._set(IdentificationJob(job.key, reason, JobState.QUEUED, now))
+        self._set(IdentificationJob(job_id=job.key, reason=reason, state=JobState.QUEUED, requested_at=now))
         return job
 
     def launched(self, job: Job, *, window_from: datetime, window_to: datetime) -> Job:

@@ -123,7 +123,7 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
-@dataclass
+@dataclass(kw_only=True)
 class Runtime:
     """One running soft sensor. ``await start(daq=..., can=...)``, ``await stop()``."""
 

@@ -363,7 +363,7 @@ class SoftSensorService:
 
     def record_event(self, device: str, kind: str, detail: str = "") -> None:
         if self.writer is not None:
-            self.writer.submit(DeviceEventData(self.clock(), device, kind, detail))
+            self.writer.submit(DeviceEventData(t=self.clock(), device=device, kind=kind, detail=detail))
         self.on_event(f"{device}: {kind} {detail}".rstrip())
 
     # --- ChtcService: current values ------------------------------------------------------------------------
@@ -466,12 +466,12 @@ class SoftSensorService:
             if isinstance(ins, Calibrated):
                 c = ins.calibration
                 return OffsetBaseline(
-                    c.t_from,
-                    c.t_to,
-                    c.source,
-                    c.samples,
-                    tuple(float(x) if np.isfinite(x) else None for x in c.offsets_c),
-                    tuple(float(x) for x in c.sd_c),
+                    t_from=c.t_from,
+                    t_to=c.t_to,
+                    source=c.source,
+                    samples=c.samples,
+                    offsets_c=tuple(float(x) if np.isfinite(x) else None for x in c.offsets_c),
+                    sd_c=tuple(float(x) for x in c.sd_c),
                 )
         raise NotReadyError("no baseline")
 
@@ -489,9 +489,12 @@ class SoftSensorService:
 
     def layout(self) -> SpindleLayout:
         spec = self.core.model.spec
-        parts = tuple(SectionPart(r.name, r.material, r.r0_m, r.r1_m, r.z0_m, r.z1_m) for r in spec.regions)
+        parts = tuple(
+            SectionPart(name=r.name, material=r.material, r0_m=r.r0_m, r1_m=r.r1_m, z0_m=r.z0_m, z1_m=r.z1_m)
+            for r in spec.regions
+        )
         zones = tuple(ZoneInfo(z.name, z.description) for z in spec.zones)
-        return SpindleLayout(spec.name, parts, zones)
+        return SpindleLayout(name=spec.name, parts=parts, zones=zones)
 
     # --- ChtcService: history ---------------------------------------------------------------------------
     def list_identifications(
@@ -531,12 +534,21 @@ class SoftSensorService:
 
     def _worker_health(self) -> DeviceHealth:
         if self.worker is None:
-            return DeviceHealth("worker", DeviceStatus.DISABLED, None, None, {}, "no identification worker")
+            return DeviceHealth(
+                name="worker",
+                status=DeviceStatus.DISABLED,
+                last_ok_at=None,
+                age_s=None,
+                counters={},
+                message="no identification worker",
+            )
         status = DeviceStatus.OK if self.worker.model_version is not None else DeviceStatus.DOWN
         counters = {"restarts": self.worker.restarts, **self._view.counts}
         running = self.worker.running_job
         msg = f"running job-{running}" if running is not None else "idle"
-        return DeviceHealth("worker", status, None, None, counters, msg)
+        return DeviceHealth(
+            name="worker", status=status, last_ok_at=None, age_s=None, counters=counters, message=msg
+        )
 
     def health(self) -> HealthSnapshot:
         return HealthSnapshot(

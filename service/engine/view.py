@@ -78,9 +78,9 @@ class CoreView:
             out.append(f"no_sample: newest sample {age:.0f} s old (limit {limit:.0f} s)")
         n = self.min_good_channels
         what = f"sample with >= {n} usable temperature channels and the ambient"
-        out += _age_problem("daq_no_good_data", what, self.last_good_daq_t, now, limit)
+        out += _age_problem("daq_no_good_data", what=what, last=self.last_good_daq_t, now=now, limit_s=limit)
         can = "speed and torque from CAN"
-        out += _age_problem("can_no_good_data", can, self.last_good_can_t, now, limit)
+        out += _age_problem("can_no_good_data", what=can, last=self.last_good_can_t, now=now, limit_s=limit)
         return tuple(out)
 
     def channel_ages(self, now: datetime) -> list[float | None]:
@@ -89,7 +89,7 @@ class CoreView:
         return [None if not np.isfinite(t) else max(0.0, ts - float(t)) for t in self.last_ok_t]
 
 
-def _age_problem(code: str, what: str, last: datetime | None, now: datetime, limit_s: float) -> list[str]:
+def _age_problem(code: str, *, what: str, last: datetime | None, now: datetime, limit_s: float) -> list[str]:
     if last is None:
         return [f"{code}: no {what} yet"]
     age = (now - last).total_seconds()

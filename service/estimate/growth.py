@@ -39,12 +39,12 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from model.fem import FEModel, steady_state
+from model.geometry import SpindleSpec
 from model.growth import (
     Z95,
     reconstruction_h_fit,
@@ -83,7 +83,7 @@ class GrowthEstimateError(ValueError):
 # ---------------------------------------------------------------- once per model
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class GrowthContext:
     """The served outputs' operators: ``g`` (2, N) [µm/K] (nose axial, nose radial), ``g_phi`` (2, r) for
     the reduced basis ``phi`` (N, r) (None without a basis), and the full ``growth`` model."""
@@ -96,7 +96,7 @@ class GrowthContext:
 
 
 def build_context(
-    spec: Any, fe: FEModel, *, growth: GrowthModel | None = None, basis: ArrayLike | None = None
+    spec: SpindleSpec, fe: FEModel, *, growth: GrowthModel | None = None, basis: ArrayLike | None = None
 ) -> GrowthContext:
     """Build (or take) the growth model on ``fe``'s mesh; ``basis`` Φ (N, r): the reduced model's, if any."""
     gm = growth if growth is not None else build_growth_model(spec, fe)
@@ -109,7 +109,7 @@ def build_context(
     phi = None if basis is None else np.asarray(basis, dtype=float)
     if phi is not None and (phi.ndim != 2 or phi.shape[0] != fe.n_nodes):
         raise GrowthEstimateError(f"basis: expected shape ({fe.n_nodes}, r), got {phi.shape}")
-    return GrowthContext(fe, gm, g, phi, None if phi is None else g @ phi)
+    return GrowthContext(fe=fe, growth=gm, g=g, phi=phi, g_phi=None if phi is None else g @ phi)
 
 
 # ---------------------------------------------------------------- H covariance
@@ -142,7 +142,7 @@ def h_cov_from_ci(h: ArrayLike, ci95: ArrayLike, correlation: ArrayLike | None =
 # ---------------------------------------------------------------- once per condition
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ConditionTerms:
     """Everything that depends on H, Σ_H and the held condition (see the module docstring).
 
@@ -263,7 +263,7 @@ def condition_terms(
 # ---------------------------------------------------------------- the live state's belief
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class FieldBelief:
     """The live field [°C] and its uncertainty, as the live state can give them.
 
@@ -339,7 +339,7 @@ def _field_std(nodal: Array, reduced: Array | None, b: FieldBelief) -> Array:
 # ---------------------------------------------------------------- the served estimate
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class GrowthValue:
     """One growth [µm] with its 1σ parts (field, H), total 1σ, 95 % CIs (total and each part alone) and
     the value in 0.1 µm as an integer for a PLC."""
@@ -362,18 +362,18 @@ class GrowthValue:
             return (float(um - Z95 * s), float(um + Z95 * s))
 
         return cls(
-            float(um),
-            float(std_field_um),
-            float(std_h_um),
-            total,
-            ci(total),
-            ci(std_field_um),
-            ci(std_h_um),
-            int(np.rint(10.0 * um)),
+            um=float(um),
+            std_field_um=float(std_field_um),
+            std_h_um=float(std_h_um),
+            std_um=total,
+            ci95_um=ci(total),
+            ci95_field_um=ci(std_field_um),
+            ci95_h_um=ci(std_h_um),
+            plc_0p1um=int(np.rint(10.0 * um)),
         )
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class GrowthForecastEstimate:
     """If the condition and H hold: the steady growth, the dominant time constant of the axial growth's
     remaining change ``tau_s`` [s] (and the thermal model's slowest), and the growth at ``horizons_s``."""
@@ -387,7 +387,7 @@ class GrowthForecastEstimate:
     radial: tuple[GrowthValue, ...]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class GrowthEstimate:
     """The growth at the spindle nose [µm] relative to the mounting face at ``at`` (UTC), over the reference
     temperature ``t_ref_c`` (uniform; the state at which the controller was zeroed); axial + towards the
@@ -464,7 +464,7 @@ def estimate_growth(
 # ---------------------------------------------------------------- controller values
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PlcCompensation:
     """Values a PLC writes to a CNC for one growth [µm] (docs/growth.md, "Controller mapping").
 

@@ -53,7 +53,7 @@ class DetectorStatus(enum.Enum):
     PENDING = "pending"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class OperatingPoint:
     """An operating point: spindle speed [rpm], torque [N·m], ambient temperature [°C]."""
 
@@ -65,7 +65,7 @@ class OperatingPoint:
         return (self.speed_rpm, self.torque_nm, self.ambient_c)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SampleEvent:
     """One acquisition instant; ``t`` in s on any monotonic axis (the service uses UTC epoch seconds)."""
 
@@ -75,7 +75,7 @@ class SampleEvent:
     ambient_c: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConditionChanged:
     """Instruction: a new operating condition started at ``t_start`` and was confirmed at ``t_confirmed``."""
 
@@ -87,7 +87,7 @@ class ConditionChanged:
     reason: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DetectorConfig:
     """Thresholds (absolute, per quantity) and timing of the detector; times in s."""
 
@@ -117,7 +117,7 @@ class DetectorConfig:
         return (self.speed_threshold_rpm, self.torque_threshold_nm, self.ambient_threshold_c)
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Candidate:
     anchor: tuple[float, float, float]
     t_start: float
@@ -125,8 +125,8 @@ class _Candidate:
     samples: list[tuple[float, float, float]] = field(default_factory=list)
 
     def mean(self) -> OperatingPoint:
-        cols = list(zip(*self.samples, strict=True))
-        return OperatingPoint(*(statistics.fmean(c) for c in cols))
+        speed, torque, ambient = (statistics.fmean(c) for c in zip(*self.samples, strict=True))
+        return OperatingPoint(speed_rpm=speed, torque_nm=torque, ambient_c=ambient)
 
 
 class ConditionDetector:

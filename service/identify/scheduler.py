@@ -61,7 +61,7 @@ class SchedulerStatus(enum.Enum):
     DONE = "done"  # schedule of this condition exhausted (manual requests still served)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SchedulerConfig:
     """Timing in s after the condition change; ``distance_scales`` (rpm, N·m, °C) for the nearest one."""
 
@@ -91,7 +91,7 @@ class SchedulerConfig:
 
 
 # --- events ---------------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConditionStarted:
     t: float
     condition_id: int
@@ -110,21 +110,21 @@ class ManualRequest:
     requested_by: str = "api"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JobFinished:
     t: float
     job_id: int
     h: tuple[float, ...]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JobFailed:
     t: float
     job_id: int
     reason: str
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class JobSkipped:
     t: float
     job_id: int
@@ -135,7 +135,7 @@ Event = ConditionStarted | Tick | ManualRequest | JobFinished | JobFailed | JobS
 
 
 # --- instructions ---------------------------------------------------------------------------------
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StartJob:
     job_id: int
     condition_id: int
@@ -166,7 +166,7 @@ class ManualRejected:
 Instruction = StartJob | CancelJob | ManualQueued | ManualRejected
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PastResult:
     """A stored identification result of a condition (restored from the database on restart)."""
 
@@ -175,7 +175,7 @@ class PastResult:
     h: tuple[float, ...]
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Current:
     condition_id: int
     point: OperatingPoint
@@ -185,14 +185,14 @@ class _Current:
     last_h: tuple[float, ...] | None = None
 
 
-@dataclass
+@dataclass(kw_only=True)
 class _Running:
     job_id: int
     condition_id: int
     trigger: str
 
 
-@dataclass
+@dataclass(kw_only=True)
 class IdentificationScheduler:
     """Pure scheduler: ``handle(event) -> list[instruction]``; ``history`` seeds the warm-start memory."""
 
@@ -262,7 +262,7 @@ class IdentificationScheduler:
         assert cur is not None and cur.condition_id == run.condition_id
         if isinstance(ev, JobFinished):
             cur.last_h = tuple(ev.h)
-            self.history.append(PastResult(cur.condition_id, cur.point, tuple(ev.h)))
+            self.history.append(PastResult(condition_id=cur.condition_id, point=cur.point, h=tuple(ev.h)))
         self.status = self._idle_status()
         due, cur.due = cur.due, None
         if due == "manual":
@@ -297,7 +297,7 @@ class IdentificationScheduler:
             trigger=trigger,
         )
         self._next_job_id += 1
-        self.running = _Running(job.job_id, cur.condition_id, trigger)
+        self.running = _Running(job_id=job.job_id, condition_id=cur.condition_id, trigger=trigger)
         self.status = SchedulerStatus.RUNNING
         return job
 

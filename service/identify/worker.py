@@ -33,7 +33,7 @@ import threading
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
-from typing import TYPE_CHECKING, Any, Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 import numpy.typing as npt
@@ -128,7 +128,7 @@ def _init_worker(ref: ModelRef, cancel: CancelFlag, parent_pid: int | None = Non
 
 
 def watch_parent(
-    parent_pid: int, *, poll_s: float = 0.5, exit: Callable[[int], Any] = os._exit
+    parent_pid: int, *, poll_s: float = 0.5, exit: Callable[[int], object] = os._exit
 ) -> threading.Thread:
     """Exit this process when ``parent_pid`` is gone (a daemon thread polls ``os.getppid()``).
 
@@ -194,7 +194,7 @@ class CancellableModel:
             raise JobCancelled
         return self._rom.simulate_sensors(h, inputs, t0, load_scale=load_scale, t0_shift=t0_shift)
 
-    def __getattr__(self, name: str) -> Any:  # a proxy: everything else is the ReducedModel's
+    def __getattr__(self, name: str) -> object:  # a proxy: everything else is the ReducedModel's
         return getattr(self._rom, name)
 
 

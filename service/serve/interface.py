@@ -82,7 +82,7 @@ class ConditionState(enum.StrEnum):
     CHANGING = "changing"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConditionSnapshot:
     """One operating condition as seen by the change detector."""
 
@@ -159,7 +159,7 @@ class SensorReading:
     predicted_sd_c: float | None = None  # 1σ of predicted_c (the filtered state's and the model's error)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class OffsetBaseline:
     """A sensor-offset baseline taken at thermal equilibrium (``service.acquire.calibration``): the window
     [t_from, t_to] (UTC), "auto" or "manual", and per channel the offset and its 1σ (°C; None: no data)."""
@@ -172,7 +172,7 @@ class OffsetBaseline:
     sd_c: tuple[float, ...]
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class IdentificationRecord:
     """One finished (or failed, skipped, cancelled) identification as served: the stored ``data``, the
     condition it was taken at, and its per-zone values as read-only (7,) arrays.
@@ -259,7 +259,7 @@ class IdentificationRecord:
         return self.data.n_sensors_used
 
 
-@dataclass(frozen=True, eq=False)
+@dataclass(frozen=True, eq=False, kw_only=True)
 class ChtcSnapshot:
     """The current H1-H7 (the identification ``record``) and whether a controller may use them now.
 
@@ -325,7 +325,7 @@ class ChtcSnapshot:
         return self.record.model_version
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class IdentificationPage:
     items: Sequence[IdentificationRecord]  # newest first
     total: int  # matching the filter, over all pages
@@ -341,7 +341,7 @@ class JobState(enum.StrEnum):
     FAILED = "failed"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class IdentificationJob:
     job_id: str
     reason: str
@@ -359,7 +359,7 @@ class DeviceStatus(enum.StrEnum):
     DISABLED = "disabled"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DeviceHealth:
     name: str  # "modbus" | "can" | "db" | "worker" | "filter"
     status: DeviceStatus
@@ -369,7 +369,7 @@ class DeviceHealth:
     message: str = ""
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class HealthSnapshot:
     t: datetime
     devices: Sequence[DeviceHealth]
@@ -410,7 +410,7 @@ class FilterMetrics:
     inconsistent: bool
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class MetricsSnapshot:
     """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
 
@@ -588,7 +588,7 @@ def _after(t: datetime | None, since: datetime) -> bool:
     return t is not None and t > since
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SectionPart:
     """A solid part of the (r, z) section: a rectangle in m (``[[regions]]`` of the spindle TOML)."""
 
@@ -606,7 +606,7 @@ class ZoneInfo:
     description: str  # e.g. "rear shaft pulley <-> ambient"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SpindleLayout:
     name: str  # the spindle description's name
     parts: tuple[SectionPart, ...]

@@ -90,7 +90,7 @@ class ManualClock:
         self.now = max(self.now, t)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Plan:
     """A virtual-plant run: its operating profile, noise seed, mesh (m) and UTC start (the first sample)."""
 

@@ -37,7 +37,7 @@ def _channel() -> str:
     return f"chtc-sim-{os.getpid()}-{next(_channels)}"
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class SimAddress:
     """Where a rig will serve: DAQ ``host:port`` and the virtual CAN ``channel`` (chosen before it starts)."""
 
@@ -48,7 +48,7 @@ class SimAddress:
 
     @classmethod
     def free(cls, *, speedup: float, host: str = "127.0.0.1") -> SimAddress:
-        return cls(host, free_port(host), _channel(), float(speedup))
+        return cls(host=host, port=free_port(host), channel=_channel(), speedup=float(speedup))
 
 
 @dataclass(kw_only=True)

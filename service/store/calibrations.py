@@ -10,13 +10,19 @@ and the field; the row stays in the table.
 from __future__ import annotations
 
 import math
-from typing import Any
+from collections.abc import Callable
+from typing import TYPE_CHECKING
 
 import numpy as np
 
 from service.acquire.calibration import Calibration
 from service.store.errors import RecordError
 from service.store.records import CALIBRATION_SOURCES, OffsetCalibrationData, finite_list
+
+if TYPE_CHECKING:
+    from sqlalchemy.orm import Session
+
+    from service.store.models import OffsetCalibrationRow
 
 __all__ = ["StoredCalibrationError", "calibration_from_row", "calibration_record", "restore_calibration"]
 
@@ -37,7 +43,7 @@ def calibration_record(c: Calibration) -> OffsetCalibrationData:
     )
 
 
-def calibration_from_row(row: Any, *, n_channels: int = 32) -> Calibration:
+def calibration_from_row(row: OffsetCalibrationRow, *, n_channels: int = 32) -> Calibration:
     """The ``Calibration`` stored in ``row`` (``OffsetCalibrationRow``); ``StoredCalibrationError`` if bad."""
 
     def bad(field: str, why: str) -> StoredCalibrationError:
@@ -56,16 +62,18 @@ def calibration_from_row(row: Any, *, n_channels: int = 32) -> Calibration:
     if row.t_to < row.t_from:
         raise bad("t_to", f"{row.t_to.isoformat()} is before t_from {row.t_from.isoformat()}")
     return Calibration(
-        np.array([np.nan if x is None else x for x in offsets], dtype=float),
-        np.array(sd, dtype=float),
-        row.t_from,
-        row.t_to,
-        int(row.samples),
-        str(row.source),
+        offsets_c=np.array([np.nan if x is None else x for x in offsets], dtype=float),
+        sd_c=np.array(sd, dtype=float),
+        t_from=row.t_from,
+        t_to=row.t_to,
+        samples=int(row.samples),
+        source=str(row.source),
     )
 
 
-def _floats(values: Any, field: str, n: int, bad: Any) -> list[float | None]:
+def _floats(
+    values: object, field: str, n: int, bad: Callable[[str, str], StoredCalibrationError]
+) -> list[float | None]:
     if not isinstance(values, list) or len(values) != n:
         got = f"{len(values)} values" if isinstance(values, list) else type(values).__name__
         raise bad(field, f"expected a list of {n} values (one per channel), got {got}")
@@ -77,7 +85,7 @@ def _floats(values: Any, field: str, n: int, bad: Any) -> list[float | None]:
     return out
 
 
-def restore_calibration(session: Any, *, n_channels: int = 32) -> Calibration | None:
+def restore_calibration(session: Session, *, n_channels: int = 32) -> Calibration | None:
     """The newest stored baseline, None if there is none; ``StoredCalibrationError`` if it is unusable."""
     from service.store.repository import last_offset_calibration
 

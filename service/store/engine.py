@@ -11,11 +11,12 @@ None of these sees a link that freezes without a reset; ``service.store.watchdog
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 from sqlalchemy import Engine, create_engine, event
 from sqlalchemy.engine import make_url
+from sqlalchemy.engine.interfaces import DBAPIConnection
 from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.pool import ConnectionPoolEntry
 
 from service.store.errors import DatabaseUnavailableError
 
@@ -38,11 +39,11 @@ def create_db_engine(
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":
         return _sqlite_engine(url, echo=echo, busy_timeout_ms=sqlite_busy_timeout_ms, create_dirs=create_dirs)
-    kwargs: dict[str, Any] = {} if pool_size is None else {"pool_size": pool_size, "max_overflow": 0}
+    kwargs: dict[str, object] = {} if pool_size is None else {"pool_size": pool_size, "max_overflow": 0}
     if parsed.get_backend_name() != "postgresql":
         return create_engine(url, echo=echo, pool_pre_ping=True, **kwargs)
     timeout = max(1, round(connect_timeout_s))
-    connect_args: dict[str, Any] = {
+    connect_args: dict[str, object] = {
         "connect_timeout": timeout,
         "keepalives": 1,
         "keepalives_idle": 10,
@@ -55,9 +56,12 @@ def create_db_engine(
         ms = max(1, round(1000 * statement_timeout_s))
 
         @event.listens_for(engine, "connect")
-        def _on_connect(dbapi_conn: Any, _record: Any) -> None:
-            with dbapi_conn.cursor() as cursor:
+        def _on_connect(dbapi_conn: DBAPIConnection, _record: ConnectionPoolEntry) -> None:
+            cursor = dbapi_conn.cursor()
+            try:
                 cursor.execute(f"SET statement_timeout = {ms}")
+            finally:
+                cursor.close()
             dbapi_conn.commit()
 
     return engine
@@ -75,7 +79,7 @@ def _sqlite_engine(url: str, *, echo: bool, busy_timeout_ms: int, create_dirs: b
     engine = create_engine(url, echo=echo, connect_args={"timeout": busy_timeout_ms / 1000.0})
 
     @event.listens_for(engine, "connect")
-    def _on_connect(dbapi_conn: Any, _record: Any) -> None:
+    def _on_connect(dbapi_conn: DBAPIConnection, _record: ConnectionPoolEntry) -> None:
         cursor = dbapi_conn.cursor()
         try:
             if not in_memory:

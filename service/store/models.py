@@ -17,11 +17,11 @@ H1–H7 of an identification are seven columns because they are what trend queri
 from __future__ import annotations
 
 from datetime import datetime
-from typing import Any
 
 from sqlalchemy import JSON, BigInteger, Boolean, Double, ForeignKey, Integer, MetaData, String, Text
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
+from service.store.records import JsonValue
 from service.store.types import UtcDateTime
 
 NAMING = {
@@ -35,7 +35,7 @@ NAMING = {
 
 class Base(DeclarativeBase):
     metadata = MetaData(naming_convention=NAMING)
-    type_annotation_map = {datetime: UtcDateTime, float: Double, dict[str, Any]: JSON}  # noqa: RUF012
+    type_annotation_map = {datetime: UtcDateTime, float: Double}  # noqa: RUF012
 
 
 class Condition(Base):
@@ -95,7 +95,9 @@ class Identification(Base):
         String(64)
     )  # "this condition", "condition 7", "none"
     warm_start_id: Mapped[int | None] = mapped_column(BigInteger)  # soft reference: no FK, may be gone
-    diagnostics: Mapped[dict[str, Any] | None]  # free-form: test-point errors, per-sensor RMSE, ...
+    diagnostics: Mapped[dict[str, JsonValue] | None] = mapped_column(
+        JSON
+    )  # free-form: test-point errors, per-sensor RMSE, ...
 
     condition: Mapped[Condition] = relationship(back_populates="identifications", foreign_keys=[condition_id])
 
@@ -129,7 +131,7 @@ class SampleRow(Base):
     torque_nm: Mapped[float | None]
     temps_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel, °C; null = no usable value
     n_good: Mapped[int] = mapped_column(Integer)  # channels with quality "ok"
-    bad_channels: Mapped[dict[str, Any]] = mapped_column(JSON)  # {"7": "open_circuit", ...} (1-based)
+    bad_channels: Mapped[dict[str, str]] = mapped_column(JSON)  # {"7": "open_circuit", ...} (1-based)
     can_ok: Mapped[bool] = mapped_column(Boolean)
     daq_ok: Mapped[bool] = mapped_column(Boolean)
 

@@ -72,9 +72,13 @@ def restore(
         latest = latest_per_condition(session, limit=limit)
         history = tuple(
             PastResult(
-                int(r.condition_id),
-                OperatingPoint(r.condition.speed_rpm, r.condition.torque_nm, r.condition.ambient_c),
-                h,
+                condition_id=int(r.condition_id),
+                point=OperatingPoint(
+                    speed_rpm=r.condition.speed_rpm,
+                    torque_nm=r.condition.torque_nm,
+                    ambient_c=r.condition.ambient_c,
+                ),
+                h=h,
             )
             for r in reversed(latest)  # oldest first: the scheduler prefers the newest on ties
             if (h := _complete(r.h)) is not None

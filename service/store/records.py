@@ -60,7 +60,7 @@ def _check_len(record: object, name: str, value: Sequence[object] | None, n: int
         raise RecordError(f"{type(record).__name__}.{name}: expected {n} values, got {len(value)}")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class ConditionStart:
     """A new operating condition (id assigned by the service)."""
 
@@ -94,7 +94,7 @@ class ConditionEnd:
         _check_times(self)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class DeviceEventData:
     t: datetime
     device: str  # "modbus" | "can" | "db" | "worker" | ...
@@ -359,7 +359,7 @@ class IdentificationData:
         return _plain_dict({**(self.diagnostics or {}), "events": events})
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class OffsetCalibrationData:
     """A sensor offset baseline (``service.acquire.calibration.Calibration``): offsets and their 1σ per
     channel [°C] (None: the channel had no data at rest, not corrected), the rest window [t_from, t_to]

@@ -12,15 +12,15 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from datetime import datetime
 from itertools import groupby
-from typing import Any, Generic, TypeVar
+from typing import Generic, TypeVar
 
 from sqlalchemy import exc as sa_exc
 from sqlalchemy import func, insert, select, update
-from sqlalchemy.orm import Session, joinedload, sessionmaker
+from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
 from service.store.errors import RecordNotFoundError
-from service.store.models import Condition, DeviceEvent, Identification, OffsetCalibrationRow, SampleRow
+from service.store.models import Base, Condition, DeviceEvent, Identification, OffsetCalibrationRow, SampleRow
 from service.store.records import (
     ConditionEnd,
     ConditionStart,
@@ -35,7 +35,7 @@ from service.store.sqlerrors import translate
 T = TypeVar("T")
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class Page(Generic[T]):
     items: Sequence[T]  # newest first
     total: int  # rows matching the filter over all pages
@@ -273,13 +273,13 @@ def list_offset_calibrations(
     return _page(session, select(OffsetCalibrationRow).order_by(*order), limit, offset)
 
 
-def count_rows(session: Session, model: type[Any]) -> int:
+def count_rows(session: Session, model: type[Base]) -> int:
     return int(session.scalar(select(func.count()).select_from(model)) or 0)
 
 
 def _time_filter(
-    query: Select[Any], column: Any, since: datetime | None, until: datetime | None
-) -> Select[Any]:
+    query: Select[T], column: InstrumentedAttribute[datetime], since: datetime | None, until: datetime | None
+) -> Select[T]:
     if since is not None:
         query = query.where(column >= since)
     if until is not None:
@@ -287,7 +287,7 @@ def _time_filter(
     return query
 
 
-def _page(session: Session, query: Select[Any], limit: int, offset: int) -> Page[Any]:
+def _page(session: Session, query: Select[T], limit: int, offset: int) -> Page[T]:
     if limit < 1 or offset < 0:
         raise ValueError(f"need limit >= 1 and offset >= 0, got limit={limit}, offset={offset}")
     total = session.scalar(select(func.count()).select_from(query.order_by(None).subquery())) or 0

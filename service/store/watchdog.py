@@ -29,16 +29,17 @@ import socket
 import threading
 import time
 from collections.abc import Callable, Iterator
-from typing import Any
 
 from sqlalchemy import Engine, event
+from sqlalchemy.engine.interfaces import DBAPIConnection
+from sqlalchemy.pool import ConnectionPoolEntry
 
 log = logging.getLogger(__name__)
 
 __all__ = ["StatementWatchdog", "abort_connection"]
 
 
-def abort_connection(dbapi_conn: Any) -> bool:
+def abort_connection(dbapi_conn: DBAPIConnection) -> bool:
     """Make a blocked call on ``dbapi_conn`` (psycopg 3 or sqlite3) return with an error; True if done."""
     pgconn = getattr(dbapi_conn, "pgconn", None)
     if pgconn is not None:
@@ -78,7 +79,7 @@ class StatementWatchdog:
         self._running: dict[int, tuple[str, float]] = {}
         self._aborted: set[int] = set()  # operations whose connections were aborted already
         self._ids = itertools.count()
-        self._conns: dict[int, Any] = {}
+        self._conns: dict[int, DBAPIConnection] = {}
         self.aborts = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
@@ -87,11 +88,11 @@ class StatementWatchdog:
         event.listen(engine, "close_detached", self._on_close)
 
     # --- connections ------------------------------------------------------------------------------
-    def _on_connect(self, dbapi_conn: Any, _record: Any) -> None:
+    def _on_connect(self, dbapi_conn: DBAPIConnection, _record: ConnectionPoolEntry) -> None:
         with self._lock:
             self._conns[id(dbapi_conn)] = dbapi_conn
 
-    def _on_close(self, dbapi_conn: Any, *_: Any) -> None:
+    def _on_close(self, dbapi_conn: DBAPIConnection, *_: object) -> None:
         with self._lock:
             self._conns.pop(id(dbapi_conn), None)
 
@@ -139,7 +140,7 @@ class StatementWatchdog:
         log.warning("database: %s not answered for %.1f s: aborted %d connection(s)", what, age, n)
         return n
 
-    def _abort(self, conns: list[Any]) -> int:
+    def _abort(self, conns: list[DBAPIConnection]) -> int:
         self.aborts += 1
         return sum(abort_connection(c) for c in conns)
 

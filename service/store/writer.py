@@ -47,7 +47,7 @@ def utc_now() -> datetime:
     return datetime.now(UTC)
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class WriterStatus:
     connected: bool  # the last write or probe succeeded
     pending: int  # records buffered, not yet written

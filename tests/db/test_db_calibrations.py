@@ -27,7 +27,9 @@ def baseline(t_to: datetime, *, source: str = "auto", seed: int = 1) -> Calibrat
     offsets = rng.uniform(-0.3, 0.3, 32)
     offsets[6] = np.nan  # an open channel during the rest: no offset
     sd = rng.uniform(0.005, 0.03, 32)
-    return Calibration(offsets, sd, t_to - timedelta(minutes=20), t_to, 121, source)
+    return Calibration(
+        offsets_c=offsets, sd_c=sd, t_from=t_to - timedelta(minutes=20), t_to=t_to, samples=121, source=source
+    )
 
 
 def db_settings(url: str):  # type: ignore[no-untyped-def]
@@ -71,7 +73,7 @@ def test_the_newest_baseline_is_restored_after_a_restart(db_url: str) -> None:
 
 def test_a_bad_stored_baseline_is_named_kept_and_the_rest_restored(db_url: str) -> None:
     first = open_persistence(db_settings(db_url), migrate=True)
-    first.sink.submit(ConditionStart(7, T0, 3000.0, 5.0, 22.0))
+    first.sink.submit(ConditionStart(id=7, started_at=T0, speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0))
     first.sink.submit(calibration_record(baseline(T0)))
     first.close()
     with repo.session_scope(first.session_factory) as s:  # a later row, damaged: 31 channels
@@ -134,6 +136,8 @@ def test_each_bad_field_is_named(field: str, value: object, why: str) -> None:
 def test_a_record_refuses_a_naive_time_or_mismatched_lengths() -> None:
     naive = datetime(2026, 3, 1, 6, 0)
     with pytest.raises(RecordError, match="t_to: naive"):
-        OffsetCalibrationData(T0, naive, "auto", 3, (0.1,), (0.01,))
+        OffsetCalibrationData(t_from=T0, t_to=naive, source="auto", samples=3, offsets_c=(0.1,), sd_c=(0.01,))
     with pytest.raises(RecordError, match="sd_c: expected 2 values"):
-        OffsetCalibrationData(T0, T0, "auto", 3, (0.1, 0.2), (0.01,))
+        OffsetCalibrationData(
+            t_from=T0, t_to=T0, source="auto", samples=3, offsets_c=(0.1, 0.2), sd_c=(0.01,)
+        )

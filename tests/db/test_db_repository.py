@@ -48,13 +48,18 @@ def add_condition(
     factory: sessionmaker[Session], cid: int, point: tuple[float, float, float], t: datetime
 ) -> None:
     with repo.session_scope(factory) as s:
-        repo.add_condition(s, ConditionStart(cid, t, *point))
+        speed, torque, ambient = point
+        repo.add_condition(
+            s, ConditionStart(id=cid, started_at=t, speed_rpm=speed, torque_nm=torque, ambient_c=ambient)
+        )
 
 
 def test_condition_round_trip_converts_offsets_to_utc(factory: sessionmaker[Session]) -> None:
     started = datetime(2026, 3, 1, 10, 0, 0, 5, tzinfo=CEST)  # 08:00:00.000005 UTC
     with repo.session_scope(factory) as s:
-        repo.add_condition(s, ConditionStart(7, started, 4000.0, 10.5, 21.8))
+        repo.add_condition(
+            s, ConditionStart(id=7, started_at=started, speed_rpm=4000.0, torque_nm=10.5, ambient_c=21.8)
+        )
     with repo.session_scope(factory) as s:
         repo.end_condition(s, ConditionEnd(7, started + timedelta(minutes=90)))
     with repo.session_scope(factory) as s:
@@ -137,7 +142,10 @@ def test_device_event_and_sample_round_trip(factory: sessionmaker[Session]) -> N
     )
     with repo.session_scope(factory) as s:
         repo.add_device_event(
-            s, DeviceEventData(T0.astimezone(CEST), "modbus", "timeout", "unit 1 after 1.0 s")
+            s,
+            DeviceEventData(
+                t=T0.astimezone(CEST), device="modbus", kind="timeout", detail="unit 1 after 1.0 s"
+            ),
         )
         repo.add_samples(s, [sample])
     with repo.session_scope(factory) as s:
@@ -153,7 +161,7 @@ def test_device_event_and_sample_round_trip(factory: sessionmaker[Session]) -> N
 
 def test_naive_datetimes_are_refused(factory: sessionmaker[Session]) -> None:
     with pytest.raises(RecordError, match=r"ConditionStart\.started_at: naive"):
-        ConditionStart(1, datetime(2026, 1, 1), 1.0, 1.0, 1.0)
+        ConditionStart(id=1, started_at=datetime(2026, 1, 1), speed_rpm=1.0, torque_nm=1.0, ambient_c=1.0)
     with pytest.raises(RecordError, match="naive datetime"), repo.session_scope(factory) as s:
         s.add(DeviceEvent(t=datetime(2026, 1, 1), device="can", kind="x", detail=""))
         s.flush()
@@ -168,7 +176,9 @@ def test_bad_records_are_typed_errors(factory: sessionmaker[Session]) -> None:
         repo.add_identification(s, ident(1, 99, T0))  # no condition 99: the foreign key holds (SQLite too)
     add_condition(factory, 1, (1.0, 1.0, 1.0), T0)
     with pytest.raises(RecordError, match="rejected"), repo.session_scope(factory) as s:
-        repo.add_condition(s, ConditionStart(1, T0, 2.0, 2.0, 2.0))  # duplicate id
+        repo.add_condition(
+            s, ConditionStart(id=1, started_at=T0, speed_rpm=2.0, torque_nm=2.0, ambient_c=2.0)
+        )  # duplicate id
     with (
         pytest.raises(RecordNotFoundError, match="identifications: no id 42"),
         repo.session_scope(factory) as s,
@@ -224,7 +234,8 @@ def test_latest_per_condition_last_and_max_ids(factory: sessionmaker[Session]) -
 
 def test_device_event_filters_and_sample_window(factory: sessionmaker[Session]) -> None:
     events = [
-        DeviceEventData(T0 + timedelta(seconds=i), "modbus" if i % 2 else "can", f"k{i}") for i in range(10)
+        DeviceEventData(t=T0 + timedelta(seconds=i), device="modbus" if i % 2 else "can", kind=f"k{i}")
+        for i in range(10)
     ]
     samples = [
         SampleData(

@@ -42,12 +42,14 @@ def samples(n: int, start: int = 0) -> list[SampleData]:
 
 def workload(n_samples: int = 120) -> list[Record]:
     return [
-        ConditionStart(1, T0, 3000.0, 8.0, 23.2),
+        ConditionStart(id=1, started_at=T0, speed_rpm=3000.0, torque_nm=8.0, ambient_c=23.2),
         *samples(n_samples),
         ident(1, 1, T0 + timedelta(minutes=20)),
-        DeviceEventData(T0, "can", "counter-gap", "expected 3, got 5"),
+        DeviceEventData(t=T0, device="can", kind="counter-gap", detail="expected 3, got 5"),
         ConditionEnd(1, T0 + timedelta(hours=1)),
-        ConditionStart(2, T0 + timedelta(hours=1), 4000.0, 10.0, 22.0),
+        ConditionStart(
+            id=2, started_at=T0 + timedelta(hours=1), speed_rpm=4000.0, torque_nm=10.0, ambient_c=22.0
+        ),
         ident(2, 2, T0 + timedelta(hours=1, minutes=20)),
     ]
 
@@ -94,7 +96,10 @@ def test_refused_records_are_isolated_and_counted(
     w = DbWriter(factory, batch_size=100, **FAST)
     writer_for.append(w)
     records = workload(10)
-    bad = [ConditionStart(1, T0, 1.0, 1.0, 1.0), ident(9, 404, T0)]  # duplicate id; unknown condition
+    bad = [
+        ConditionStart(id=1, started_at=T0, speed_rpm=1.0, torque_nm=1.0, ambient_c=1.0),
+        ident(9, 404, T0),
+    ]  # duplicate id; unknown condition
     w.submit_many([*records[:5], bad[0], *records[5:], bad[1]])
     w.start()
     assert w.flush(timeout_s=15.0)
@@ -237,7 +242,7 @@ def test_concurrent_submitters_never_wait_for_a_locked_database(
         for i in range(50):
             t = T0 + timedelta(seconds=i)
             started = time.perf_counter()
-            w.submit(DeviceEventData(t, f"dev{k}", f"e{i}"))
+            w.submit(DeviceEventData(t=t, device=f"dev{k}", kind=f"e{i}"))
             worst = max(worst, time.perf_counter() - started)
         slowest.append(worst)
 

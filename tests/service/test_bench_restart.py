@@ -12,7 +12,7 @@ from service.bench.restart import Served
 
 def _served(speed: float, factor: np.ndarray, end_s: float, ci: float = 0.1) -> Served:
     h = restart.truth(speed) * factor
-    return Served(speed, h, h * (1 - ci), h * (1 + ci), end_s)
+    return Served(speed_rpm=speed, h=h, lo=h * (1 - ci), hi=h * (1 + ci), end_s=end_s)
 
 
 def test_summary_takes_each_conditions_last_result_per_seed() -> None:

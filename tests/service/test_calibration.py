@@ -40,7 +40,15 @@ def readings(
     for k in range(start, start + n):
         warm = excess * (np.exp(-10.0 * k / decay_s) if decay_s else 1.0)
         temps = 20.0 + warm + OFFSETS + 0.15 * rng.standard_normal(32)
-        out.append(Reading(T + timedelta(seconds=10 * k), temps, np.ones(32, bool), 20.0, speed))
+        out.append(
+            Reading(
+                t=T + timedelta(seconds=10 * k),
+                temps_c=temps,
+                ok=np.ones(32, bool),
+                ambient_c=20.0,
+                speed_rpm=speed,
+            )
+        )
     return out
 
 
@@ -120,7 +128,10 @@ def test_a_manual_request_takes_a_baseline_or_names_why_not() -> None:
 def test_an_open_channel_keeps_no_offset_and_the_prior_uncertainty() -> None:
     cal = OffsetCalibrator()
     items = readings(31)
-    items = [Reading(r.t, r.temps_c, np.arange(32) != 4, r.ambient_c, r.speed_rpm) for r in items]
+    items = [
+        Reading(t=r.t, temps_c=r.temps_c, ok=np.arange(32) != 4, ambient_c=r.ambient_c, speed_rpm=r.speed_rpm)
+        for r in items
+    ]
     c = feed(cal, items)[0].calibration
     assert np.isnan(c.offsets_c[4]) and cal.offsets()[4] == 0.0
     assert c.sd_c[4] == pytest.approx(np.hypot(0.3 / np.sqrt(3), 0.005))

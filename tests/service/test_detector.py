@@ -50,7 +50,7 @@ def test_first_condition_after_hold_with_means():
 
 
 def test_noise_never_triggers():
-    det = ConditionDetector(CFG, reference=OperatingPoint(3000, 2.0, 23.0))
+    det = ConditionDetector(CFG, reference=OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0))
     rng = np.random.default_rng(2)
     n = 2000
     changes = feed(det, 3000 + rng.normal(0, 30, n), 2 + rng.normal(0, 0.2, n), 23 + rng.normal(0, 0.2, n))
@@ -59,7 +59,7 @@ def test_noise_never_triggers():
 
 
 def test_short_spikes_do_not_trigger():
-    det = ConditionDetector(CFG, reference=OperatingPoint(3000, 2.0, 23.0))
+    det = ConditionDetector(CFG, reference=OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0))
     speed = const(200, 3000.0)
     speed[50] = 9000  # an isolated outlier (median-filtered away)
     speed[100:105] = 4500  # a 40 s excursion, shorter than the 60 s hold
@@ -70,7 +70,7 @@ def test_short_spikes_do_not_trigger():
 
 
 def test_step_reports_mean_and_change_instant():
-    det = ConditionDetector(CFG, reference=OperatingPoint(3000, 2.0, 23.0))
+    det = ConditionDetector(CFG, reference=OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0))
     speed = np.r_[const(30, 3000.0), const(30, 4000.0)]
     changes = feed(det, speed, const(60, 2.0), const(60, 23.0))
     assert len(changes) == 1
@@ -79,12 +79,12 @@ def test_step_reports_mean_and_change_instant():
     assert c.t_start == pytest.approx(310.0)
     assert c.t_confirmed == pytest.approx(310.0 + CFG.hold_s)
     assert c.point.speed_rpm == pytest.approx(4000.0)
-    assert c.previous == OperatingPoint(3000, 2.0, 23.0)
+    assert c.previous == OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0)
     assert "speed" in c.reason and "torque" not in c.reason
 
 
 def test_slow_drift_within_threshold_is_ignored_and_beyond_triggers_once():
-    det = ConditionDetector(CFG, reference=OperatingPoint(3000, 2.0, 23.0))
+    det = ConditionDetector(CFG, reference=OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0))
     n = 1000  # 10 000 s, ambient +3 °C: crosses the 1 °C threshold, then again from the new reference
     amb = np.linspace(23.0, 26.0, n)
     changes = feed(det, const(n, 3000.0), const(n, 2.0), amb)
@@ -96,7 +96,7 @@ def test_slow_drift_within_threshold_is_ignored_and_beyond_triggers_once():
     gaps = np.diff([c.t_start for c in changes])
     assert np.all(gaps > CFG.hold_s)
 
-    det2 = ConditionDetector(CFG, reference=OperatingPoint(3000, 2.0, 23.0))
+    det2 = ConditionDetector(CFG, reference=OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0))
     assert feed(det2, const(n, 3000.0), const(n, 2.0), np.linspace(23.0, 23.9, n)) == []
 
 
@@ -111,7 +111,7 @@ def test_multiple_changes_and_step_during_hold():
 
 
 def test_nan_samples_are_ignored_and_counted():
-    det = ConditionDetector(CFG, reference=OperatingPoint(3000, 2.0, 23.0))
+    det = ConditionDetector(CFG, reference=OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0))
     speed = const(20, 3000.0)
     speed[5:8] = np.nan
     assert feed(det, speed, const(20, 2.0), const(20, 23.0)) == []
@@ -119,13 +119,15 @@ def test_nan_samples_are_ignored_and_counted():
 
 
 def test_gap_restarts_hold():
-    det = ConditionDetector(CFG, reference=OperatingPoint(3000, 2.0, 23.0))
-    assert det.handle(SampleEvent(0.0, 4000, 2, 23)) == []
-    assert det.handle(SampleEvent(10.0, 4000, 2, 23)) == []
-    assert det.handle(SampleEvent(500.0, 4000, 2, 23)) == []  # gap > max_gap_s: hold restarts at 500 s
+    det = ConditionDetector(CFG, reference=OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.0))
+    assert det.handle(SampleEvent(t=0.0, speed_rpm=4000, torque_nm=2, ambient_c=23)) == []
+    assert det.handle(SampleEvent(t=10.0, speed_rpm=4000, torque_nm=2, ambient_c=23)) == []
+    assert (
+        det.handle(SampleEvent(t=500.0, speed_rpm=4000, torque_nm=2, ambient_c=23)) == []
+    )  # gap > max_gap_s: hold restarts at 500 s
     assert det.status is DetectorStatus.PENDING
-    assert det.handle(SampleEvent(550.0, 4000, 2, 23)) == []
-    out = det.handle(SampleEvent(560.0, 4000, 2, 23))
+    assert det.handle(SampleEvent(t=550.0, speed_rpm=4000, torque_nm=2, ambient_c=23)) == []
+    out = det.handle(SampleEvent(t=560.0, speed_rpm=4000, torque_nm=2, ambient_c=23))
     assert len(out) == 1 and out[0].t_start == 500.0
 
 
@@ -135,6 +137,6 @@ def test_bad_config_and_time_order():
     with pytest.raises(DetectorError, match="median_samples"):
         DetectorConfig(median_samples=0)
     det = ConditionDetector(CFG)
-    det.handle(SampleEvent(10.0, 3000, 2, 23))
+    det.handle(SampleEvent(t=10.0, speed_rpm=3000, torque_nm=2, ambient_c=23))
     with pytest.raises(DetectorError, match="older"):
-        det.handle(SampleEvent(5.0, 3000, 2, 23))
+        det.handle(SampleEvent(t=5.0, speed_rpm=3000, torque_nm=2, ambient_c=23))

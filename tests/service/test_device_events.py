@@ -25,7 +25,7 @@ def test_other_transitions_keep_the_current_message() -> None:
 
 
 def _dev(status: DeviceStatus, message: str = "", name: str = "modbus") -> DeviceHealth:
-    return DeviceHealth(name, status, None, None, {}, message)
+    return DeviceHealth(name=name, status=status, last_ok_at=None, age_s=None, counters={}, message=message)
 
 
 def test_a_device_down_from_the_start_is_reported_once_with_its_reason() -> None:

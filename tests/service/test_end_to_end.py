@@ -45,7 +45,7 @@ async def scenario(db_url: str, run) -> dict:
     settings = e2e_settings(db_url)
     clock = ScaledClock(SPEEDUP)
     events: list[str] = []
-    runtime = Runtime(settings, clock=clock, on_event=events.append)
+    runtime = Runtime(settings=settings, clock=clock, on_event=events.append)
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=SPEEDUP)
     daq, can_sensor = make_drivers(settings, address, clock=clock)

@@ -47,7 +47,9 @@ def _restored(core: ServiceCore) -> Restored:
     rec = v.current
     c = rec.condition
     past = PastResult(
-        c.id, OperatingPoint(c.speed_rpm, c.torque_nm, c.ambient_c), tuple(float(x) for x in rec.h)
+        condition_id=c.id,
+        point=OperatingPoint(speed_rpm=c.speed_rpm, torque_nm=c.torque_nm, ambient_c=c.ambient_c),
+        h=tuple(float(x) for x in rec.h),
     )
     return Restored(
         last=rec,

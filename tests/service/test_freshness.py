@@ -218,7 +218,9 @@ def test_a_stored_negative_lower_bound_is_not_served() -> None:
     from service.store.records import IdentificationData
 
     t = datetime(2026, 1, 1, tzinfo=UTC)
-    cond = ConditionSnapshot(1, 3000.0, 5.0, 22.0, t, ConditionState.STABLE)
+    cond = ConditionSnapshot(
+        id=1, speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0, since=t, state=ConditionState.STABLE
+    )
     data = IdentificationData(
         id=1, condition_id=1, started_at=t, finished_at=t, window_start=t, window_end=t, reason="r",
         outcome="ok", method="hybrid", model_version="m", h=[50.0] * 7,

@@ -40,7 +40,7 @@ async def scenario(db_url: str) -> list[tuple[str, float, float, tuple[str, ...]
         }
     )
     clock = ScaledClock(SPEEDUP)
-    runtime = Runtime(settings, clock=clock, on_event=lambda _m: None)
+    runtime = Runtime(settings=settings, clock=clock, on_event=lambda _m: None)
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=SPEEDUP)
     daq, can_sensor = make_drivers(settings, address, clock=clock)

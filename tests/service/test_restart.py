@@ -76,13 +76,21 @@ def test_restore_picks_the_last_served_not_the_latest_stamped(tmp_path):
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
     wall = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
     first = open_persistence(db, migrate=True)
-    first.sink.submit(ConditionStart(1, wall + timedelta(hours=2), 3000.0, 5.0, 22.0))
+    first.sink.submit(
+        ConditionStart(
+            id=1, started_at=wall + timedelta(hours=2), speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0
+        )
+    )
     first.sink.submit(ident(1, 1, wall + timedelta(hours=2.5)))
     first.sink.submit(ident(2, 1, wall + timedelta(hours=2.8)))  # the demo ran 2.8 h of plant time ahead
     first.close()
     second = open_persistence(db, migrate=True)
     assert second.restored.last is not None and second.restored.last.id == 2
-    second.sink.submit(ConditionStart(2, wall + timedelta(minutes=5), 4000.0, 5.0, 22.0))
+    second.sink.submit(
+        ConditionStart(
+            id=2, started_at=wall + timedelta(minutes=5), speed_rpm=4000.0, torque_nm=5.0, ambient_c=22.0
+        )
+    )
     second.sink.submit(ident(3, 2, wall + timedelta(minutes=15)))  # restarted: the clock is back at the wall
     second.close()
     third = open_persistence(db, migrate=True)
@@ -102,7 +110,9 @@ def test_writer_stamps_with_the_service_clock(tmp_path):
     simulated = datetime.now(UTC) + timedelta(hours=2.8)
     p = open_persistence(db, migrate=True, clock=lambda: simulated)
     try:
-        assert p.sink.submit(ConditionStart(1, simulated, 3000.0, 5.0, 22.0))
+        assert p.sink.submit(
+            ConditionStart(id=1, started_at=simulated, speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0)
+        )
         assert p.sink.writer.flush(15.0)
         assert p.sink.status().last_ok_at == simulated
     finally:

@@ -24,9 +24,9 @@ from service.identify.scheduler import (
 )
 
 CFG = SchedulerConfig(min_data_s=600, schedule_s=(600, 1200, 2400, 3600), max_window_s=3600)
-P3000 = OperatingPoint(3000, 2.0, 23.2)
-P4000 = OperatingPoint(4000, 2.0, 21.8)
-P5000 = OperatingPoint(5000, 2.0, 22.0)
+P3000 = OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.2)
+P4000 = OperatingPoint(speed_rpm=4000, torque_nm=2.0, ambient_c=21.8)
+P5000 = OperatingPoint(speed_rpm=5000, torque_nm=2.0, ambient_c=22.0)
 H_A = (88.0, 46.0, 68.0, 47.0, 52.0, 70.0, 16.0)
 H_B = (80.0, 46.0, 62.0, 45.0, 46.0, 68.0, 11.0)
 
@@ -41,7 +41,7 @@ def ticks(s: IdentificationScheduler, t_from: float, t_to: float, dt: float = 10
 
 
 def test_first_request_after_min_data_then_schedule():
-    s = IdentificationScheduler(CFG)
+    s = IdentificationScheduler(config=CFG)
     assert s.status is SchedulerStatus.IDLE
     assert s.handle(ConditionStarted(t=60, condition_id=1, point=P3000, t_start=0)) == []
     assert s.status is SchedulerStatus.COLLECTING
@@ -68,7 +68,7 @@ def test_first_request_after_min_data_then_schedule():
 
 def test_window_is_capped_at_max_window():
     cfg = SchedulerConfig(min_data_s=600, schedule_s=(600, 4000), max_window_s=1800)
-    s = IdentificationScheduler(cfg)
+    s = IdentificationScheduler(config=cfg)
     s.handle(ConditionStarted(t=60, condition_id=1, point=P3000, t_start=0))
     (j1,) = s.handle(Tick(600))
     s.handle(JobFinished(t=610, job_id=j1.job_id, h=H_A))
@@ -77,7 +77,7 @@ def test_window_is_capped_at_max_window():
 
 
 def test_due_entry_while_running_starts_on_finish_and_merges_missed():
-    s = IdentificationScheduler(CFG)
+    s = IdentificationScheduler(config=CFG)
     s.handle(ConditionStarted(t=60, condition_id=1, point=P3000, t_start=0))
     (j1,) = s.handle(Tick(600))
     assert ticks(s, 610, 2500) == []  # 1200 and 2400 fall due while j1 runs
@@ -89,7 +89,7 @@ def test_due_entry_while_running_starts_on_finish_and_merges_missed():
 
 
 def test_new_condition_cancels_running_job_and_warm_starts_from_nearest():
-    s = IdentificationScheduler(CFG)
+    s = IdentificationScheduler(config=CFG)
     s.handle(ConditionStarted(t=60, condition_id=1, point=P3000, t_start=0))
     (j1,) = s.handle(Tick(600))
     s.handle(JobFinished(t=650, job_id=j1.job_id, h=H_A))
@@ -105,22 +105,29 @@ def test_new_condition_cancels_running_job_and_warm_starts_from_nearest():
 
 def test_nearest_earlier_condition_is_chosen_by_distance():
     history = [
-        PastResult(1, P3000, H_A),
-        PastResult(2, P5000, H_B),
+        PastResult(condition_id=1, point=P3000, h=H_A),
+        PastResult(condition_id=2, point=P5000, h=H_B),
     ]
-    s = IdentificationScheduler(CFG, history=list(history))
-    s.handle(ConditionStarted(t=0, condition_id=3, point=OperatingPoint(4800, 2.0, 22.0), t_start=0))
+    s = IdentificationScheduler(config=CFG, history=list(history))
+    s.handle(
+        ConditionStarted(
+            t=0,
+            condition_id=3,
+            point=OperatingPoint(speed_rpm=4800, torque_nm=2.0, ambient_c=22.0),
+            t_start=0,
+        )
+    )
     (job,) = ticks(s, 10, 600)
     assert job.warm_start == H_B and job.warm_source == "condition 2"
     # a restored condition warm-starts from its own stored result
-    s2 = IdentificationScheduler(CFG, history=list(history))
+    s2 = IdentificationScheduler(config=CFG, history=list(history))
     s2.handle(ConditionStarted(t=0, condition_id=1, point=P3000, t_start=0))
     (job2,) = ticks(s2, 10, 600)
     assert job2.warm_start == H_A and job2.warm_source == "this condition"
 
 
 def test_skipped_and_failed_jobs_wait_for_next_entry():
-    s = IdentificationScheduler(CFG)
+    s = IdentificationScheduler(config=CFG)
     s.handle(ConditionStarted(t=0, condition_id=1, point=P3000, t_start=0))
     (j1,) = s.handle(Tick(600))
     assert s.handle(JobSkipped(t=610, job_id=j1.job_id, reason="too little good data")) == []
@@ -134,7 +141,7 @@ def test_skipped_and_failed_jobs_wait_for_next_entry():
 
 
 def test_manual_requests():
-    s = IdentificationScheduler(CFG)
+    s = IdentificationScheduler(config=CFG)
     (r,) = s.handle(ManualRequest(t=0))
     assert isinstance(r, ManualRejected) and "no operating condition" in r.reason
     s.handle(ConditionStarted(t=0, condition_id=1, point=P3000, t_start=0))
@@ -159,4 +166,4 @@ def test_bad_config_and_event():
     with pytest.raises(SchedulerError, match="max_window_s"):
         SchedulerConfig(min_data_s=600, max_window_s=100)
     with pytest.raises(SchedulerError, match="unknown"):
-        IdentificationScheduler(CFG).handle("tick")  # type: ignore[arg-type]
+        IdentificationScheduler(config=CFG).handle("tick")  # type: ignore[arg-type]

@@ -22,7 +22,14 @@ from .conftest import plant_run, samples_of
 
 def _last_identification(h: np.ndarray) -> IdentificationRecord:
     t = datetime(2026, 1, 5, 7, 0, tzinfo=UTC)
-    cond = ConditionSnapshot(1, 3000.0, 5.0, 22.0, t - timedelta(hours=1), ConditionState.STABLE)
+    cond = ConditionSnapshot(
+        id=1,
+        speed_rpm=3000.0,
+        torque_nm=5.0,
+        ambient_c=22.0,
+        since=t - timedelta(hours=1),
+        state=ConditionState.STABLE,
+    )
     data = IdentificationData(
         id=1,
         condition_id=cond.id,

@@ -36,9 +36,9 @@ def _settings(**sections: dict[str, Any]) -> Settings:
 def _job_at(settings: Settings, t_s: float, history: list[PastResult] | None = None) -> StartJob:
     """The job the scheduler of ``core_config(settings)`` starts for a condition that began at 0."""
     cfg = core_config(settings)
-    sched = IdentificationScheduler(cfg.scheduler, history=history or [])
-    point = OperatingPoint(3000.0, 5.0, 22.0)
-    out = sched.handle(ConditionStarted(0.0, 7, point, 0.0))
+    sched = IdentificationScheduler(config=cfg.scheduler, history=history or [])
+    point = OperatingPoint(speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0)
+    out = sched.handle(ConditionStarted(t=0.0, condition_id=7, point=point, t_start=0.0))
     t, jobs = 0.0, [i for i in out if isinstance(i, StartJob)]
     while not jobs:
         t += 10.0
@@ -58,8 +58,16 @@ def test_max_window_s_limits_the_window() -> None:
 def test_distance_scales_choose_the_warm_start() -> None:
     # a condition at 3000 rpm, 5 N·m, 22 °C; one stored result 500 rpm away, one 4 N·m away
     history = [
-        PastResult(1, OperatingPoint(3500.0, 5.0, 22.0), (10.0,) * 7),
-        PastResult(2, OperatingPoint(3000.0, 9.0, 22.0), (20.0,) * 7),
+        PastResult(
+            condition_id=1,
+            point=OperatingPoint(speed_rpm=3500.0, torque_nm=5.0, ambient_c=22.0),
+            h=(10.0,) * 7,
+        ),
+        PastResult(
+            condition_id=2,
+            point=OperatingPoint(speed_rpm=3000.0, torque_nm=9.0, ambient_c=22.0),
+            h=(20.0,) * 7,
+        ),
     ]
     ident = {"schedule_min": [10.0]}
     by_default = _job_at(_settings(identification=ident), 600.0, history)  # 0.5 vs 0.8: speed is nearer
@@ -74,7 +82,9 @@ def _confirmed_at(settings: Settings, samples: list[tuple[float, float]]) -> lis
     det = ConditionDetector(core_config(settings).detector)
     out = []
     for t, speed in samples:
-        out += [c.t_start for c in det.handle(SampleEvent(t, speed, 5.0, 22.0))]
+        out += [
+            c.t_start for c in det.handle(SampleEvent(t=t, speed_rpm=speed, torque_nm=5.0, ambient_c=22.0))
+        ]
     return out
 
 

@@ -14,7 +14,14 @@ from service.serve.views import chtc_snapshot, data_to_record
 from service.store.records import IdentificationData
 
 T = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
-COND = ConditionSnapshot(7, 3000.0, 5.0, 22.0, T - timedelta(hours=1), ConditionState.STABLE)
+COND = ConditionSnapshot(
+    id=7,
+    speed_rpm=3000.0,
+    torque_nm=5.0,
+    ambient_c=22.0,
+    since=T - timedelta(hours=1),
+    state=ConditionState.STABLE,
+)
 H = [88.2, 46.3, 68.5, 46.7, 52.1, 70.2, 16.5]
 
 
