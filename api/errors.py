@@ -33,10 +33,10 @@ class ApiError(Exception):
 
     def __init__(
         self,
+        *,
         status: int,
         code: str,
         message: str,
-        *,
         field: str | None = None,
         detail: object = None,
         headers: dict[str, str] | None = None,

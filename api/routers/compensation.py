@@ -26,5 +26,10 @@ router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 def get_compensation(service: ServiceDep, clock: ClockDep) -> CompensationOut:
     snap = service.compensation()
     if snap is None:
-        raise ApiError(503, "no_data", "no identification or no live field yet", headers={"Retry-After": "5"})
+        raise ApiError(
+            status=503,
+            code="no_data",
+            message="no identification or no live field yet",
+            headers={"Retry-After": "5"},
+        )
     return compensation_out(snap, clock())
