@@ -35,6 +35,11 @@ WRITE_TOKEN = "write-token-for-tests"
 # demo plan): the default threshold (0.5) calls no H identified. This one makes the real rule call the newest
 # identification's H all identified, for the tests of what follows from that (usable_for_compensation).
 LENIENT_CI = 25.0
+# With the filtered live state (issue 16), a cold start at 3000 rpm with no rest and no offset baseline
+# leaves H1/H4 degenerate whatever the threshold: the unknown offsets' 1σ (0.173 °C) widens the filter's
+# measurement noise and the fit's CIs (docs/estimator.md). Tests that need every H identified (the usable
+# flag, the dashboard's identified state) therefore run with known offsets: calibration off, no offset term.
+LENIENT_IDENTIFICATION = {"ci_rel_threshold": LENIENT_CI, "offset_calibration": False}
 
 
 def sqlite_url(tmp: Path, name: str = "chtc.db") -> str:

@@ -14,13 +14,13 @@ from api.app import create_app
 from drivers.quality import Quality
 from service.settings import Settings
 from service.sim.served import DEMO_FED, Served, feed, served_service
-from tests.api.conftest import LENIENT_CI, sqlite_url
+from tests.api.conftest import LENIENT_IDENTIFICATION, sqlite_url
 
 
 @pytest.fixture
 def lenient(tmp_path: Path) -> Iterator[tuple[Served, TestClient]]:
     """The demo plan with a CI threshold under which the newest identification has every H identified."""
-    settings = Settings(identification={"ci_rel_threshold": LENIENT_CI})
+    settings = Settings(identification=LENIENT_IDENTIFICATION)
     with (
         served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED) as s,
         TestClient(create_app(settings, s.service, clock=s.clock)) as c,

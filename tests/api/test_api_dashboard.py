@@ -23,10 +23,16 @@ from model.geometry import SpindleSpec, load_spindle
 from model.plant import Segment
 from service.settings import Settings
 from service.sim.served import DEMO_FED, Plan, Served, feed, served_service
-from tests.api.conftest import LENIENT_CI, WRITE_TOKEN, LiveServer, served_with_dead_devices, sqlite_url
+from tests.api.conftest import (
+    LENIENT_IDENTIFICATION,
+    WRITE_TOKEN,
+    LiveServer,
+    served_with_dead_devices,
+    sqlite_url,
+)
 
 # the newest identification has all seven H identified: the banner then names only a case's own cause
-LENIENT = Settings(identification={"ci_rel_threshold": LENIENT_CI})
+LENIENT = Settings(identification=LENIENT_IDENTIFICATION)
 
 CHROMIUM_FLAGS = [
     "--headless",
