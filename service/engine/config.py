@@ -10,6 +10,7 @@ from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import PastResult, SchedulerConfig
+from service.identify.speedmap import MapConfig, SpeedMap
 from service.identify.window import WindowRules
 from service.serve.interface import ConditionSnapshot, IdentificationRecord
 
@@ -38,6 +39,10 @@ class CoreConfig:
     # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the
     # measurements are taken as they come and no offset uncertainty is carried in the CIs
     calibration: CalibrationConfig | None = field(default_factory=CalibrationConfig)
+    # identification.mode: None = "per_condition" (the paper's protocol, one H per held condition); a
+    # MapConfig = "speed_map" (H = F(n, Ti) over a rolling window, re-fitted on condition changes;
+    # docs/hmap.md)
+    speed_map: MapConfig | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -50,3 +55,4 @@ class Restored:
     next_condition_id: int = 1
     next_identification_id: int = 1
     calibration: Calibration | None = None  # the newest stored sensor offset baseline
+    speed_map: SpeedMap | None = None  # the newest stored map fit (speed-map mode), restored as stale

@@ -75,6 +75,7 @@ from service.identify.detector import (
     OperatingPoint,
     SampleEvent,
 )
+from service.identify.speedmap import SpeedMap
 from service.identify.window import InsufficientWindowError
 from service.identify.worker import JobOutcome, JobStatus
 from service.modelload import LoadedModel
@@ -182,6 +183,8 @@ class ServiceCore:
         )
         if self._calibrator is not None:  # a restored baseline's offsets go to the filter at once
             self._live.set_offsets(self._calibrator.offsets(), self._calibrator.offset_sd())
+        # speed-map mode (docs/hmap.md): the latest map fit (a restored one is stale until re-fitted)
+        self._speed_map: SpeedMap | None = restored.speed_map if config.speed_map is not None else None
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -228,6 +231,9 @@ class ServiceCore:
             live=self._live.view() if self._live.initialized else None,
             stale_after_s=self.config.stale_after_s,
             min_good_channels=self.config.rules.min_good_channels,
+            map_config=self.config.speed_map,
+            speed_map=self._speed_map,
+            ci_threshold=self.config.ci_threshold,
         )
 
     @property

@@ -76,6 +76,7 @@ from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
     BusyError,
+    ChtcMapSnapshot,
     ChtcSnapshot,
     ChtcStatus,
     CompensationSnapshot,
@@ -102,7 +103,14 @@ from service.serve.interface import (
     SpindleLayout,
     ZoneInfo,
 )
-from service.serve.views import at_bound, chtc_snapshot
+from service.serve.views import (
+    MapFreshness,
+    at_bound,
+    chtc_map_snapshot,
+    chtc_snapshot,
+    map_freshness,
+    map_record,
+)
 from service.store.records import DeviceEventData, Record
 
 if TYPE_CHECKING:
@@ -183,6 +191,7 @@ class SoftSensorService:
         self._started_mono = time.monotonic()
         self._device_watch = DeviceWatch()
         self._snap_cache: tuple[tuple[object, ...], ChtcSnapshot] | None = None
+        self._map_cache: tuple[tuple[object, ...], ChtcMapSnapshot] | None = None
         self._steady_cache: tuple[tuple[object, ...], FieldSnapshot] | None = None
         self._poll_latency = Histogram(LATENCY_BUCKETS_S)
         modbus = self.sources.get("modbus")
@@ -377,10 +386,25 @@ class SoftSensorService:
         # codes only ("daq_no_good_data"): the snapshot and its ETag stay put while stale (ages: /readyz)
         problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
         box = self.core.model.ref.h_box
-        status = _status(v, rec, newest, problems, bounded=bool(np.any(at_bound(rec, box, BOUND_REL_TOL))))
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
+        fresh = self._map_freshness(v, problems, since)
+        if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
+            # speed-map mode: H from the map at the newest sample's speed and ambient, at once
+            s = v.newest
+            rec = map_record(
+                rec,
+                v.speed_map,
+                speed_rpm=_finite_or(s.speed_rpm, cond.speed_rpm),
+                ambient_c=_finite_or(s.ambient_c, cond.ambient_c),
+                condition=cond,
+                ci_threshold=v.ci_threshold,
+            )
+            status = fresh.status
+        else:
+            bounded = bool(np.any(at_bound(rec, box, BOUND_REL_TOL)))
+            status = _status(v, rec, newest, problems, bounded=bounded)
         key = (
             rec.id,
             status,
@@ -389,6 +413,7 @@ class SoftSensorService:
             cond.state if cond else None,
             problems,
             since,
+            None if fresh is None else (id(v.speed_map), fresh.reason),
         )
         cached = self._snap_cache
         if cached is not None and cached[0] == key:
@@ -402,8 +427,58 @@ class SoftSensorService:
             restored=v.current_from_restore,
             box=box,
             converging_since=since,
+            not_fresh=None if fresh is None else fresh.reason,
         )
         self._snap_cache = (key, snap)
+        return snap
+
+    def _map_freshness(
+        self, v: CoreView, problems: tuple[str, ...], since: datetime | None
+    ) -> MapFreshness | None:
+        """In speed-map mode with a map: how current it is at the newest sample's speed (else None)."""
+        cfg, m = v.map_config, v.speed_map
+        if cfg is None or m is None:
+            return None
+        s = v.newest
+        return map_freshness(
+            m,
+            newest_t=None if s is None else s.t,
+            speed_rpm=None if s is None or not np.isfinite(s.speed_rpm) else float(s.speed_rpm),
+            data_problems=problems,
+            converging_since=since,
+            fresh_s=cfg.fresh_s,
+            margin_rpm=cfg.margin_rpm,
+            min_visit_s=cfg.min_visit_s,
+        )
+
+    def chtc_map(self) -> ChtcMapSnapshot | None:
+        v = self._view
+        cfg, m = v.map_config, v.speed_map
+        if cfg is None or m is None:
+            return None
+        s = v.newest
+        newest = None if s is None else s.t
+        problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
+        live = v.live
+        since = None if live is None or live.converged else _utc(live.started_at)
+        fresh = self._map_freshness(v, problems, since)
+        assert fresh is not None
+        ambient = 20.0 if s is None or not np.isfinite(s.ambient_c) else round(float(s.ambient_c), 1)
+        speed = None if s is None or not np.isfinite(s.speed_rpm) else float(s.speed_rpm)
+        key = (id(m), ambient, newest, speed, fresh)
+        cached = self._map_cache
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        snap = chtc_map_snapshot(
+            m,
+            ambient_c=ambient,
+            freshness=fresh,
+            newest_sample_at=newest,
+            current_speed_rpm=speed,
+            ci_threshold=v.ci_threshold,
+            margin_rpm=cfg.margin_rpm,
+        )
+        self._map_cache = (key, snap)
         return snap
 
     def field(self, at: FieldAt) -> FieldSnapshot:
@@ -639,6 +714,10 @@ def _status(
     if bounded:
         return ChtcStatus.AT_BOUND
     return ChtcStatus.FRESH
+
+
+def _finite_or(x: float, fallback: float) -> float:
+    return float(x) if np.isfinite(x) else float(fallback)
 
 
 def _no_worker(launch: Launch) -> JobOutcome:

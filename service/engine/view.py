@@ -16,6 +16,7 @@ import numpy as np
 
 from service.acquire.calibration import Calibration
 from service.estimate.state import FilterView
+from service.identify.speedmap import MapConfig, SpeedMap
 from service.serve.interface import (
     ConditionSnapshot,
     HistogramData,
@@ -62,6 +63,10 @@ class CoreView:
     live: FilterView | None  # the filtered live state (None before it started)
     stale_after_s: float
     min_good_channels: int
+    # speed-map mode (docs/hmap.md): its configuration (None: per-condition mode) and the latest map fit
+    map_config: MapConfig | None = None
+    speed_map: SpeedMap | None = None
+    ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
 
     def data_problems(self, now: datetime) -> tuple[str, ...]:
         """Why the data are not fresh at ``now`` (empty: fresh), each "code: detail". Codes: ``no_sample``

@@ -5,11 +5,11 @@ implements :class:`ChtcService`; the API tests serve it too (``service/sim/serve
 
 Contract for implementers:
 
-- Every method is synchronous, thread-safe and cheap. ``chtc()``, ``condition()``, ``sensors()``,
-  ``health()``, ``ready()`` and ``metrics()`` are called on every poll (10 Hz per client is expected): return
-  prebuilt, immutable snapshots, never do I/O or numerical work in them. ``list_identifications()`` and
-  ``get_identification()`` may read the database (the API calls them from a worker thread). ``field()`` may
-  solve a steady state once per identification but should cache the result.
+- Every method is synchronous, thread-safe and cheap. ``chtc()``, ``chtc_map()``, ``condition()``,
+  ``sensors()``, ``health()``, ``ready()`` and ``metrics()`` are called on every poll (10 Hz per client is
+  expected): return prebuilt, immutable snapshots, never do I/O or numerical work in them.
+  ``list_identifications()`` and ``get_identification()`` may read the database (the API calls them from a
+  worker thread). ``field()`` may solve a steady state once per identification but should cache the result.
 - Units: temperatures °C, H in W/(m²·K), lengths m, speed rpm, torque N·m, durations s. Every ``datetime`` is
   timezone-aware UTC.
 - Snapshots are frozen; arrays inside them must not be mutated after construction (build new snapshots).
@@ -21,7 +21,8 @@ Contract for implementers:
       ├── BusyError(ServiceError)                         an identification is already running    -> 409
       └── NotReadyError(ServiceError)                     model not loaded / not enough good data -> 503
 
-  ``chtc()`` returns ``None`` only with its documented meaning: no identification has finished yet.
+  ``chtc()`` returns ``None`` only with its documented meaning: no identification has finished yet;
+  ``chtc_map()`` returns ``None`` in per-condition mode or before the first map fit.
 """
 
 from __future__ import annotations
@@ -326,6 +327,39 @@ class ChtcSnapshot:
         return self.record.model_version
 
 
+@dataclass(frozen=True, eq=False, kw_only=True)
+class ChtcMapSnapshot:
+    """The identified H map H = F(n, Ti) over the speed range (``identification.mode = "speed_map"``,
+    docs/hmap.md): H1-H7 and their 95 % bands on a speed grid at the current ambient, the speeds the data
+    have covered, and how current the map is.
+
+    Built by ``service.serve.views.chtc_map_snapshot`` only. Arrays are read-only; speeds in rpm, H in
+    W/(m²·K), durations in s, times UTC. Between and beyond the visited speeds the map is the prior's
+    interpolation (its band says so: wide there).
+    """
+
+    fitted_at: datetime  # UTC end of the window of the fit the map comes from
+    identification_id: int | None  # the stored identification of that fit (None: not stored)
+    family: str  # "nodes" (ln H at speed nodes, the default) | "physics" (model.hmap)
+    ambient_c: float  # the ambient the grid is evaluated at (the newest sample's; 20 °C before any)
+    speeds_rpm: FloatArray  # (k,) grid, 0..7000 rpm
+    h_w_m2k: FloatArray  # (k, 7)
+    ci95_lo_w_m2k: FloatArray  # (k, 7), > 0
+    ci95_hi_w_m2k: FloatArray  # (k, 7)
+    identified: BoolArray  # (k, 7) 95 % band narrower than identification.ci_rel_threshold
+    visited_rpm: FloatArray  # (m,) speeds the data covered (binned), ascending
+    visited_s: FloatArray  # (m,) seconds of data at each visited speed (decayed like the map's information)
+    status: ChtcStatus  # how current the map is at the current speed (the /chtc rules)
+    newest_sample_at: datetime | None  # UTC of the newest sample
+    current_speed_rpm: float | None = None  # the newest sample's speed (None before any)
+    visited_margin_rpm: float = 0.0  # a speed within this of a visited one counts as covered
+    rmse_c: float | None = None  # the fit's RMS residual, °C
+    restored: bool = False  # the stored map, not re-fitted since the restart
+    reason: str | None = None  # why not fresh, "code: detail" (the /chtc codes)
+    unit: str = H_UNIT
+    zones: tuple[str, ...] = ZONE_NAMES
+
+
 @dataclass(frozen=True, kw_only=True)
 class IdentificationPage:
     items: Sequence[IdentificationRecord]  # newest first
@@ -460,6 +494,12 @@ class ChtcService(Protocol):
 
     def chtc(self) -> ChtcSnapshot | None:
         """The current H1-H7; None only if no identification has finished yet."""
+        ...
+
+    def chtc_map(self) -> ChtcMapSnapshot | None:
+        """The H map over the speed range with its bands and the visited speeds; None when the service runs
+        per condition (``identification.mode = "per_condition"``) or no map has been fitted yet. Cheap (a
+        prebuilt snapshot per map fit and ambient)."""
         ...
 
     def field(self, at: FieldAt) -> FieldSnapshot:
