@@ -23,6 +23,7 @@ from api.metrics import ApiMetrics, RequestTimer
 from api.openapi import build_openapi
 from api.routers import (
     chtc,
+    chtc_map,
     compensation,
     condition,
     field,
@@ -75,7 +76,18 @@ def create_app(
     app.state.auth = AuthConfig.from_settings(settings.api)
     app.state.metrics = ApiMetrics(service)
     install_error_handlers(app)
-    modules = (chtc, compensation, field, sensors, history, spindle, condition, identifications, health)
+    modules = (
+        chtc,
+        chtc_map,
+        compensation,
+        field,
+        sensors,
+        history,
+        spindle,
+        condition,
+        identifications,
+        health,
+    )
     for module in modules:
         app.include_router(module.router, prefix=API_PREFIX)
     _mount_dashboard(app)

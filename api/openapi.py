@@ -41,7 +41,8 @@ _DESCRIPTIONS = {
 }
 # operations that answer no 503 (liveness and the scrape endpoint never call into a failing part)
 _NO_503 = {"/healthz", "/metrics"}
-_NOT_FOUND = {"/identifications/{identification_id}", "/identifications/jobs/{job_id}"}
+# 404 for an unknown id, and /chtc/map in per-condition mode (no map at all)
+_NOT_FOUND = {"/identifications/{identification_id}", "/identifications/jobs/{job_id}", "/chtc/map"}
 
 
 class ErrorBody(BaseModel):

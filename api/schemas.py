@@ -17,6 +17,7 @@ from pydantic import BaseModel, Field
 from service.serve.interface import (
     H_UNIT,
     ZONE_NAMES,
+    ChtcMapSnapshot,
     ChtcSnapshot,
     CompensationSnapshot,
     ConditionSnapshot,
@@ -139,6 +140,92 @@ def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
         rmse_c=_num(s.rmse_c),
         method=s.method,
         model_version=s.model_version,
+        newest_sample_at=s.newest_sample_at,
+        sample_age_s=age,
+        served_at=now,
+    )
+
+
+# --- /chtc/map (speed-map mode, docs/hmap.md, docs/api.md)
+
+
+class MapZoneOut(BaseModel):
+    name: str = Field(description="H1..H7")
+    h_w_m2k: list[float | None] = Field(description="H at each of speeds_rpm, W/(m²·K)")
+    ci95_lo_w_m2k: list[float | None] = Field(description="95 % band, lower edge at each speed, W/(m²·K)")
+    ci95_hi_w_m2k: list[float | None] = Field(description="95 % band, upper edge at each speed, W/(m²·K)")
+    identified: list[bool] = Field(
+        description="per speed: the band narrower than identification.ci_rel_threshold (in ln H)"
+    )
+
+
+class VisitedOut(BaseModel):
+    speed_rpm: float = Field(description="a speed bin the fitted data have covered, rpm")
+    duration_s: float = Field(
+        description="seconds of data at this speed bin, decayed like the map's information (forgetting), s"
+    )
+
+
+class ChtcMapOut(BaseModel):
+    status: Literal["fresh", "identifying", "stale", "at-bound", "no-data"] = Field(
+        description="how current the map is at the current speed (the /chtc rules in speed-map mode)"
+    )
+    reason: str | None = Field(
+        description="why not fresh, 'code: detail'; codes: no_data, stale, restored, state_converging, "
+        "map_old, speed_not_visited (null when fresh)"
+    )
+    unit: str = Field(H_UNIT, description="unit of every h_w_m2k / ci95_*_w_m2k")
+    family: str = Field(description="the map's model family: 'nodes' (ln H at speed nodes) or 'physics'")
+    fitted_at: datetime = Field(description="UTC end of the window of the fit the map comes from")
+    identification_id: int | None = Field(description="the stored identification of that fit")
+    rmse_c: float | None = Field(description="the fit's RMS residual, °C")
+    restored: bool = Field(description="the stored map, not re-fitted since the service restarted")
+    ambient_c: float = Field(description="the ambient the map is evaluated at (the newest sample's), °C")
+    speeds_rpm: list[float] = Field(description="the speed grid every zone's lists follow, rpm, ascending")
+    zones: list[MapZoneOut]
+    visited: list[VisitedOut] = Field(description="the speeds the fitted data have covered, ascending")
+    visited_margin_rpm: float = Field(
+        description="a speed within this of a visited one (with enough data) counts as covered, rpm"
+    )
+    current_speed_rpm: float | None = Field(description="the newest sample's speed, rpm (null before any)")
+    newest_sample_at: datetime | None
+    sample_age_s: float | None = Field(description="age of the newest sample at served_at, s")
+    served_at: datetime
+
+
+def _nums(a: np.ndarray, digits: int) -> list[float | None]:
+    return [_num(x, digits) for x in a]
+
+
+def chtc_map_out(s: ChtcMapSnapshot, now: datetime) -> ChtcMapOut:
+    age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
+    return ChtcMapOut(
+        status=_enum(s.status),
+        reason=s.reason,
+        unit=s.unit,
+        family=s.family,
+        fitted_at=s.fitted_at,
+        identification_id=s.identification_id,
+        rmse_c=_num(s.rmse_c),
+        restored=bool(s.restored),
+        ambient_c=round(float(s.ambient_c), 3),
+        speeds_rpm=[float(x) for x in s.speeds_rpm],
+        zones=[
+            MapZoneOut(
+                name=name,
+                h_w_m2k=_nums(s.h_w_m2k[:, i], 4),
+                ci95_lo_w_m2k=_nums(s.ci95_lo_w_m2k[:, i], 4),
+                ci95_hi_w_m2k=_nums(s.ci95_hi_w_m2k[:, i], 4),
+                identified=[bool(x) for x in s.identified[:, i]],
+            )
+            for i, name in enumerate(s.zones)
+        ],
+        visited=[
+            VisitedOut(speed_rpm=float(r), duration_s=round(float(d), 1))
+            for r, d in zip(s.visited_rpm, s.visited_s, strict=True)
+        ],
+        visited_margin_rpm=float(s.visited_margin_rpm),
+        current_speed_rpm=_num(s.current_speed_rpm, 1),
         newest_sample_at=s.newest_sample_at,
         sample_age_s=age,
         served_at=now,

@@ -5,7 +5,7 @@
 "use strict";
 
 const API = "/api/v1";
-const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000, growth: 5000 };
+const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000, growth: 5000, hmap: 5000 };
 const HISTORY_MAX = 2160; // samples asked for on a (re)load; the page keeps as many as the server does
 const COLORS = ["#4c9be8", "#f0883e", "#3fb950", "#c297ff", "#e3b341", "#39c5cf", "#ff7b72", "#a5d6ff"];
 const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
@@ -13,6 +13,7 @@ const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
 const state = {
   etag: null, chtc: null, chtcAt: 0, field: null, fieldKey: null, layout: null, sensorsNow: null,
   hist: null, health: null, ready: null, apiError: null, job: null, growth: [], growthNow: null,
+  hmap: null, hmapEtag: null, hmapAt: 0, hmapOff: false,
   rendered: { h: false, field: false, sensors: false },
 };
 
@@ -136,6 +137,60 @@ function xTimeAxis(canvas, ctx, box, t0, t1, title) {
   ctx.fillStyle = TEXT; ctx.fillText(title, (box.L + box.W - box.R) / 2, box.H - 5);
   canvas.dataset.xTitle = title;
   canvas.dataset.xTicks = labels.join(" ");
+  return x;
+}
+
+// A log10 y axis (v > 0): grid lines and labels at 1-2-5 steps per decade (fewer when the range is wide).
+function logTicks(lo, hi) {
+  const out = (mults) => {
+    const t = [];
+    for (let e = Math.floor(Math.log10(lo)); e <= Math.ceil(Math.log10(hi)); e++) {
+      for (const m of mults) { const v = m * 10 ** e; if (v >= lo * (1 - 1e-9) && v <= hi * (1 + 1e-9)) t.push(+v.toPrecision(6)); }
+    }
+    return t;
+  };
+  let t = out([1, 2, 5]);
+  if (t.length > 9) t = out([1]);
+  if (t.length < 3) t = out([1, 1.5, 2, 3, 5, 7]);
+  return t;
+}
+
+function yLogAxis(canvas, ctx, box, lo, hi, { title }) {
+  const a = Math.log10(lo), b = Math.log10(hi);
+  const y = (v) => box.T + (box.H - box.T - box.B) * (1 - (Math.log10(Math.max(v, lo * 1e-3)) - a) / ((b - a) || 1));
+  const tv = logTicks(lo, hi);
+  const label = (v) => (v >= 1 ? String(Math.round(v * 10) / 10) : v.toPrecision(2));
+  ctx.textAlign = "right"; ctx.textBaseline = "middle";
+  for (const v of tv) {
+    ctx.strokeStyle = GRID; ctx.beginPath(); ctx.moveTo(box.L, y(v)); ctx.lineTo(box.W - box.R, y(v)); ctx.stroke();
+    ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(box.L - 4, y(v)); ctx.lineTo(box.L, y(v)); ctx.stroke();
+    ctx.fillStyle = MUTED; ctx.fillText(label(v), box.L - 7, y(v));
+  }
+  ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(box.L, box.T); ctx.lineTo(box.L, box.H - box.B); ctx.stroke();
+  ctx.save(); ctx.translate(13, (box.T + box.H - box.B) / 2); ctx.rotate(-Math.PI / 2);
+  ctx.textAlign = "center"; ctx.fillStyle = TEXT; ctx.fillText(title, 0, 0); ctx.restore();
+  ctx.textBaseline = "alphabetic";
+  canvas.dataset.yTitle = title;
+  canvas.dataset.yTicks = tv.map(label).join(" ");
+  canvas.dataset.yScale = "log";
+  return y;
+}
+
+// A linear x axis (ticks, labels, faint vertical grid, title), mirrored in data-x-* like the time axis.
+function xAxis(canvas, ctx, box, lo, hi, title) {
+  const x = (v) => box.L + (box.W - box.L - box.R) * (v - lo) / ((hi - lo) || 1);
+  const ticks = niceTicks(lo, hi, Math.max(3, Math.min(8, Math.floor((box.W - box.L - box.R) / 80))));
+  const digits = stepDigits(ticks), yb = box.H - box.B;
+  ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(box.L, yb); ctx.lineTo(box.W - box.R, yb); ctx.stroke();
+  ctx.textAlign = "center"; ctx.fillStyle = MUTED;
+  for (const v of ticks) {
+    ctx.strokeStyle = GRID; ctx.beginPath(); ctx.moveTo(x(v), box.T); ctx.lineTo(x(v), yb); ctx.stroke();
+    ctx.strokeStyle = AXIS; ctx.beginPath(); ctx.moveTo(x(v), yb); ctx.lineTo(x(v), yb + 4); ctx.stroke();
+    ctx.fillStyle = MUTED; ctx.fillText(v.toFixed(digits), x(v), yb + 16);
+  }
+  ctx.fillStyle = TEXT; ctx.fillText(title, (box.L + box.W - box.R) / 2, box.H - 5);
+  canvas.dataset.xTitle = title;
+  canvas.dataset.xTicks = ticks.map((v) => v.toFixed(digits)).join(" ");
   return x;
 }
 
@@ -306,6 +361,118 @@ async function pollChtc() {
     if (key !== state.fieldKey) pollField();
   } catch (e) { state.apiError = UNREACHABLE; setStatus("error", "API unreachable"); }
   markRendered();
+}
+
+// ---------- H versus speed (/chtc/map, speed-map mode only) ----------
+function drawHmap(m) {
+  const canvas = $("hmap-chart");
+  const { ctx, W, H } = setupCanvas(canvas);
+  const box = { L: 60, R: 14, T: 18, B: 40, W, H };
+  const sp = m.speeds_rpm, log = $("hmap-scale").value === "log";
+  const hs = m.zones.flatMap((z) => z.h_w_m2k).filter((v) => v !== null && v > 0);
+  if (!sp.length || !hs.length) { placeholder(canvas, "the map has no values"); return; }
+  const hmin = Math.min(...hs), hmax = Math.max(...hs);
+  let y;
+  if (log) {
+    y = yLogAxis(canvas, ctx, box, hmin / 1.6, hmax * 1.6, { title: `H, ${m.unit} (log)` });
+  } else {
+    const ticks = niceTicks(0, hmax * 1.25, 5);
+    y = yAxis(canvas, ctx, box, 0, ticks[ticks.length - 1], { title: `H, ${m.unit}`, ticks });
+    canvas.dataset.yScale = "linear";
+  }
+  const x = xAxis(canvas, ctx, box, 0, Math.max(sp[sp.length - 1], 1), "speed, rpm");
+  ctx.save(); ctx.beginPath(); ctx.rect(box.L, box.T, W - box.L - box.R, H - box.T - box.B); ctx.clip();
+  let bands = 0, curves = 0;
+  m.zones.forEach((z, i) => { // bands first, under every curve
+    const col = COLORS[i % COLORS.length];
+    const ok = sp.map((_, k) => z.ci95_lo_w_m2k[k] !== null && z.ci95_hi_w_m2k[k] !== null);
+    if (!ok.every(Boolean)) return;
+    ctx.fillStyle = col + "22"; ctx.beginPath();
+    sp.forEach((v, k) => (k ? ctx.lineTo(x(v), y(z.ci95_hi_w_m2k[k])) : ctx.moveTo(x(v), y(z.ci95_hi_w_m2k[k]))));
+    for (let k = sp.length - 1; k >= 0; k--) ctx.lineTo(x(sp[k]), y(z.ci95_lo_w_m2k[k]));
+    ctx.closePath(); ctx.fill(); bands++;
+  });
+  m.zones.forEach((z, i) => { // solid where identified, dashed where the band is too wide
+    ctx.strokeStyle = COLORS[i % COLORS.length];
+    for (let k = 0; k + 1 < sp.length; k++) {
+      const a = z.h_w_m2k[k], b = z.h_w_m2k[k + 1];
+      if (a === null || b === null) continue;
+      const sure = z.identified[k] && z.identified[k + 1];
+      ctx.lineWidth = sure ? 2 : 1.3; ctx.setLineDash(sure ? [] : [5, 4]);
+      ctx.beginPath(); ctx.moveTo(x(sp[k]), y(a)); ctx.lineTo(x(sp[k + 1]), y(b)); ctx.stroke();
+    }
+    ctx.setLineDash([]); ctx.lineWidth = 1; curves++;
+    const last = z.h_w_m2k[sp.length - 1];
+    if (last !== null) { ctx.fillStyle = COLORS[i % COLORS.length]; ctx.textAlign = "right"; ctx.fillText(z.name, W - box.R - 3, y(last) - 4); }
+  });
+  // the visited speeds: a rug on the speed axis, tick height growing with the seconds of data there
+  const yb = H - box.B, dmax = Math.max(...m.visited.map((v) => v.duration_s), 1);
+  ctx.strokeStyle = "#e3e8ee"; ctx.lineWidth = 2;
+  for (const v of m.visited) {
+    const h = 5 + 25 * Math.sqrt(v.duration_s / dmax);
+    ctx.beginPath(); ctx.moveTo(x(v.speed_rpm), yb); ctx.lineTo(x(v.speed_rpm), yb - h); ctx.stroke();
+  }
+  ctx.lineWidth = 1;
+  if (m.current_speed_rpm !== null) { // the current speed
+    const xc = x(Math.abs(m.current_speed_rpm));
+    ctx.strokeStyle = "#ffffff"; ctx.setLineDash([3, 3]); ctx.beginPath(); ctx.moveTo(xc, box.T); ctx.lineTo(xc, yb); ctx.stroke();
+    ctx.setLineDash([]); ctx.fillStyle = "#ffffff"; ctx.textAlign = xc > W - 120 ? "right" : "left";
+    ctx.fillText(`now ${fmt(m.current_speed_rpm, 0)} rpm`, xc + (xc > W - 120 ? -4 : 4), box.T + 10);
+  }
+  ctx.restore();
+  canvas.dataset.curves = String(curves);
+  canvas.dataset.bands = String(bands);
+  canvas.dataset.visited = m.visited.map((v) => fmt(v.speed_rpm, 0)).join(" ");
+  canvas.dataset.current = m.current_speed_rpm === null ? "" : fmt(m.current_speed_rpm, 0);
+  $("hmap-legend").innerHTML = m.zones.map((z, i) =>
+    `<i class="sw" style="background:${COLORS[i % COLORS.length]}"></i>${esc(z.name)}`).join(" ") +
+    ` <i class="sw sw-rug"></i>data at the speed (tick height: seconds)`;
+}
+
+function showHmap(m) {
+  const pill = $("hmap-status");
+  const age = m.sample_age_s === null ? null : m.sample_age_s + (Date.now() - state.hmapAt) / 1000;
+  pill.className = "pill pill-" + m.status;
+  pill.textContent = m.status;
+  pill.title = m.reason || "the map is current at the current speed";
+  $("hmap-meta").textContent = `map fitted at ${utc(m.fitted_at)} (window end)` +
+    (m.identification_id === null ? "" : ` · identification #${m.identification_id}`) +
+    ` · family ${m.family} · RMSE ${fmt(m.rmse_c, 3)} °C · evaluated at Ti ${fmt(m.ambient_c, 1)} °C` +
+    ` · newest sample ${ageText(age)} old` + (m.restored ? " · restored, not re-fitted since the restart" : "") +
+    (m.reason ? ` · ${m.reason}` : "");
+  const total = m.visited.reduce((a, v) => a + v.duration_s, 0);
+  $("hmap-visited").textContent = m.visited.length
+    ? `speeds the data covered (± ${fmt(m.visited_margin_rpm, 0)} rpm counts as covered): ` +
+      m.visited.map((v) => `${fmt(v.speed_rpm, 0)} rpm ${ageText(v.duration_s)}`).join(" · ") +
+      ` · ${ageText(total)} in all (decayed with the map's forgetting)`
+    : "no speed covered by fitted data yet";
+}
+
+async function pollHmap() {
+  if (state.hmapOff) return;
+  try {
+    const r = await api("/chtc/map", { etag: state.hmapEtag });
+    const card = $("card-hmap");
+    if (r.status === 404) { // per-condition mode (fixed for the service's life): no map, no card
+      state.hmapOff = true; state.hmap = null; card.hidden = true; card.dataset.mode = "per_condition";
+      return;
+    }
+    card.dataset.mode = "speed_map";
+    card.hidden = false;
+    if (r.status === 304 && state.hmap) { showHmap(state.hmap); return; }
+    if (r.status === 503) {
+      state.hmap = null; state.hmapEtag = null;
+      $("hmap-status").className = "pill pill-waiting"; $("hmap-status").textContent = "no map yet";
+      placeholder($("hmap-chart"), "waiting for the first map fit");
+      $("hmap-meta").textContent = r.body?.error?.message || "no speed map fitted yet";
+      $("hmap-visited").textContent = "";
+      return;
+    }
+    if (r.status !== 200) { $("hmap-meta").textContent = r.body?.error?.message || "HTTP " + r.status; return; }
+    state.hmap = r.body; state.hmapEtag = r.headers.get("ETag"); state.hmapAt = Date.now();
+    drawHmap(r.body);
+    showHmap(r.body);
+  } catch (e) { $("hmap-meta").textContent = "map unavailable"; }
 }
 
 // ---------- temperature field ----------
@@ -860,6 +1027,7 @@ function start() {
   $("field").addEventListener("mousemove", hoverField);
   $("channels").addEventListener("change", () => { state.hist = null; pollSensors(); });
   $("window").addEventListener("change", drawSensors);
+  $("hmap-scale").addEventListener("change", () => { if (state.hmap) drawHmap(state.hmap); });
   $("identify-now").addEventListener("click", openIdentify);
   $("identify-form").addEventListener("submit", submitIdentify);
   $("identify-cancel").addEventListener("click", () => $("identify-dialog").close());
@@ -869,7 +1037,12 @@ function start() {
   let resizeTimer = null;
   window.addEventListener("resize", () => {
     clearTimeout(resizeTimer);
-    resizeTimer = setTimeout(() => { if (state.chtc) drawH(state.chtc); if (state.field) drawField(state.field); drawSensors(); drawGrowth(); }, 150);
+    resizeTimer = setTimeout(() => {
+      if (state.chtc) drawH(state.chtc);
+      if (state.field) drawField(state.field);
+      if (state.hmap && !$("card-hmap").hidden) drawHmap(state.hmap);
+      drawSensors(); drawGrowth();
+    }, 150);
   });
   loadLayout().then(() => {
     every(pollSensors, POLL_MS.sensors);
@@ -878,6 +1051,7 @@ function start() {
     every(pollHealth, POLL_MS.health);
     every(pollIdents, POLL_MS.idents);
     every(pollGrowth, POLL_MS.growth);
+    every(pollHmap, POLL_MS.hmap);
     setInterval(pollField, POLL_MS.field);
   });
 }

@@ -88,6 +88,7 @@ from service.serve.interface import (
     FilterMetrics,
     HealthSnapshot,
     IdentificationJob,
+    IdentificationMode,
     IdentificationPage,
     IdentificationRecord,
     MetricsSnapshot,
@@ -450,6 +451,9 @@ class SoftSensorService:
             margin_rpm=cfg.margin_rpm,
             min_visit_s=cfg.min_visit_s,
         )
+
+    def identification_mode(self) -> IdentificationMode:
+        return "per_condition" if self.core.config.speed_map is None else "speed_map"
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
         v = self._view

@@ -69,6 +69,9 @@ class NotReadyError(ServiceError):
     """The service cannot do what was asked yet (model not loaded, too little good data)."""
 
 
+IdentificationMode = Literal["per_condition", "speed_map"]
+
+
 class ChtcStatus(enum.StrEnum):
     """Freshness of the H values the API serves."""
 
@@ -500,6 +503,11 @@ class ChtcService(Protocol):
         """The H map over the speed range with its bands and the visited speeds; None when the service runs
         per condition (``identification.mode = "per_condition"``) or no map has been fitted yet. Cheap (a
         prebuilt snapshot per map fit and ambient)."""
+        ...
+
+    def identification_mode(self) -> IdentificationMode:
+        """``"per_condition"`` (the paper's protocol: one H per held condition) or ``"speed_map"`` (H = F(n,
+        Ti) over the speed range, ``chtc_map()``); fixed for the service's life (``identification.mode``)."""
         ...
 
     def field(self, at: FieldAt) -> FieldSnapshot:
