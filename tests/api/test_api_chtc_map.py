@@ -1,0 +1,160 @@
+"""GET /api/v1/chtc/map (issue 17): the H map over the speed range, its bands and the visited speeds.
+
+The body builder is checked on a real map fit (``model.hmap_identify.identify_map`` of 30 min of a seeded
+virtual-plant duty cycle: finer mesh, its own h_true); the endpoint on the real service, in per-condition
+mode (404 naming the setting).
+"""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+from typing import Any
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from api.schemas import chtc_map_out
+from model import hmap_identify as hi
+from model.hmap import NODES
+from model.plant import VirtualPlant
+from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
+from service.serve.interface import H_UNIT, ZONE_NAMES, ChtcMapSnapshot
+from service.serve.views import chtc_map_snapshot, map_freshness
+from tests.model_hmap.duty import DutyRun, load_service_model, run_duty, window
+
+T_END = datetime(2026, 11, 22, 8, 0, tzinfo=UTC)
+CI_THRESHOLD = 0.5  # identification.ci_rel_threshold's default
+
+
+@pytest.fixture(scope="module")
+def duty() -> DutyRun:
+    """30 min of a seeded duty cycle (speed changes every 1-6 min), sampled every 10 s."""
+    return run_duty(VirtualPlant(load_service_model().spec, seed=3), 3, duration_s=1800.0)
+
+
+@pytest.fixture(scope="module")
+def fitted(duty: DutyRun) -> SpeedMap:
+    """The map fitted to the whole 30 min from the cold prior, as the service keeps it."""
+    m = load_service_model()
+    w = window(m.spec, duty.run, 0, 180, float(duty.run.ambient_c[0]))
+    fit = hi.identify_map(m.rom, w, NODES.prior(m.spec))
+    return SpeedMap(
+        family="nodes",
+        mean=fit.posterior.mean,
+        cov=fit.posterior.cov,
+        visited_rpm=fit.visited_rpm,
+        visited_s=fit.visited_s,
+        fitted_at=T_END,
+        identification_id=4,
+        rmse_c=fit.rmse_c,
+    )
+
+
+def _snapshot(m: SpeedMap, speed_rpm: float, ambient_c: float = 22.3) -> ChtcMapSnapshot:
+    newest = T_END + timedelta(seconds=60)
+    fresh = map_freshness(
+        m,
+        newest_t=newest,
+        speed_rpm=speed_rpm,
+        data_problems=(),
+        converging_since=None,
+        fresh_s=900.0,
+        margin_rpm=300.0,
+        min_visit_s=60.0,
+    )
+    return chtc_map_snapshot(
+        m,
+        ambient_c=ambient_c,
+        freshness=fresh,
+        newest_sample_at=newest,
+        current_speed_rpm=speed_rpm,
+        ci_threshold=CI_THRESHOLD,
+        margin_rpm=300.0,
+    )
+
+
+def test_the_body_carries_the_fitted_map_with_units_bands_and_visited_speeds(
+    fitted: SpeedMap, duty: DutyRun
+) -> None:
+    speed = float(duty.run.speed_rpm[179])  # the window's last speed: visited
+    snap = _snapshot(fitted, speed)
+    now = T_END + timedelta(seconds=65)
+    body = chtc_map_out(snap, now).model_dump(mode="json")
+    assert body["status"] == "fresh" and body["reason"] is None
+    assert body["unit"] == H_UNIT == "W/(m²·K)"
+    assert body["family"] == "nodes" and body["identification_id"] == 4
+    assert body["fitted_at"] == "2026-11-22T08:00:00Z" and body["served_at"] == "2026-11-22T08:01:05Z"
+    assert body["sample_age_s"] == 5.0 and body["current_speed_rpm"] == speed
+    assert body["ambient_c"] == 22.3 and body["rmse_c"] == pytest.approx(fitted.rmse_c)
+    assert body["speeds_rpm"] == list(MAP_GRID_RPM) and body["speeds_rpm"][-1] == 7000.0
+    assert [z["name"] for z in body["zones"]] == list(ZONE_NAMES)
+    for i, z in enumerate(body["zones"]):
+        h, lo, hi_ = (np.array(z[k], dtype=float) for k in ("h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k"))
+        # the snapshot's numbers (0.1 mW/(m²·K) rounding), each band positive and around H
+        np.testing.assert_allclose(h, snap.h_w_m2k[:, i], atol=5e-5, rtol=0)
+        np.testing.assert_allclose(lo, snap.ci95_lo_w_m2k[:, i], atol=5e-5, rtol=0)
+        np.testing.assert_allclose(hi_, snap.ci95_hi_w_m2k[:, i], atol=5e-5, rtol=0)
+        assert np.all(lo > 0) and np.all(lo <= h) and np.all(h <= hi_), z["name"]
+        # identified: the band's half-width in ln H within the threshold, recomputed from the served numbers
+        half = 0.5 * np.log(hi_ / lo)
+        ok = np.abs(half - CI_THRESHOLD) > 1e-3  # off the threshold by more than the rounding
+        assert np.array_equal(np.array(z["identified"])[ok], (half <= CI_THRESHOLD)[ok]), z["name"]
+    # the map's H at a grid speed is the fit's own evaluation there
+    k = int(np.flatnonzero(MAP_GRID_RPM == 3500.0)[0])
+    h35, _, _ = fitted.h_at([3500.0], 22.3)
+    np.testing.assert_allclose([z["h_w_m2k"][k] for z in body["zones"]], h35[0], atol=5e-5, rtol=0)
+    # the visited speeds are the window's speeds, with 10 s per sample step
+    seen = np.unique(duty.run.speed_rpm[:180])
+    assert [v["speed_rpm"] for v in body["visited"]] == list(seen)
+    steps = [10.0 * np.count_nonzero(duty.run.speed_rpm[:180] == s) for s in seen]
+    assert [v["duration_s"] for v in body["visited"]] == steps
+    assert sum(steps) == 1800.0
+
+
+def test_the_bands_are_narrow_where_the_data_were_and_wide_where_they_were_not(fitted: SpeedMap) -> None:
+    """H7 (the housing, well determined) over the speeds the window visited vs. a speed it never reached:
+    the served band says where the map is the prior's interpolation."""
+    body = chtc_map_out(_snapshot(fitted, 0.0), T_END).model_dump(mode="json")
+    grid = np.array(body["speeds_rpm"])
+    h7 = body["zones"][6]
+    width = np.log(np.array(h7["ci95_hi_w_m2k"]) / np.array(h7["ci95_lo_w_m2k"]))
+    visited = [v["speed_rpm"] for v in body["visited"] if v["duration_s"] >= 120.0]
+    far = [s for s in grid if min(abs(s - v) for v in fitted.visited_rpm) >= 1000.0]
+    assert far, "the window visited every speed"
+    near_w = width[np.isin(grid, visited)]
+    far_w = width[np.isin(grid, far)]
+    assert near_w.max() < far_w.min(), (near_w, far_w)
+
+
+def test_an_unvisited_current_speed_is_identifying_with_the_reason(fitted: SpeedMap) -> None:
+    unvisited = next(s for s in MAP_GRID_RPM if min(abs(s - fitted.visited_rpm)) > 300.0)
+    body = chtc_map_out(_snapshot(fitted, float(unvisited)), T_END).model_dump(mode="json")
+    assert body["status"] == "identifying"
+    assert body["reason"].startswith(f"speed_not_visited: {unvisited:.0f} rpm is not within 300 rpm")
+
+
+def test_per_condition_mode_answers_404_naming_the_setting(ro_client: TestClient) -> None:
+    assert ro_client.app.state.service.identification_mode() == "per_condition"  # type: ignore[attr-defined]
+    r = ro_client.get("/api/v1/chtc/map")
+    assert r.status_code == 404
+    err = r.json()["error"]
+    assert err["code"] == "not_found"
+    assert "identification.mode is per_condition" in err["message"]
+    assert 'identification.mode = "speed_map"' in err["message"]
+    assert "etag" not in r.headers
+
+
+def test_the_openapi_document_describes_the_map(ro_client: TestClient) -> None:
+    doc: dict[str, Any] = ro_client.get("/api/v1/openapi.json").json()
+    op = doc["paths"]["/api/v1/chtc/map"]["get"]
+    assert op["responses"]["200"]["content"]["application/json"]["schema"]["$ref"].endswith("/ChtcMapOut")
+    assert {"304", "404", "414", "503"} <= set(op["responses"])
+    assert "per-condition" in op["responses"]["404"]["description"]
+    assert "Retry-After" in op["responses"]["503"]["headers"]
+    out = doc["components"]["schemas"]["ChtcMapOut"]["properties"]
+    for name in ("speeds_rpm", "zones", "visited", "fitted_at", "ambient_c", "unit", "status", "served_at"):
+        assert name in out, name
+    zone = doc["components"]["schemas"]["MapZoneOut"]["properties"]
+    assert {"h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k", "identified"} <= set(zone)
+    assert set(doc["components"]["schemas"]["VisitedOut"]["properties"]) == {"speed_rpm", "duration_s"}
