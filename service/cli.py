@@ -6,7 +6,7 @@ broken optional component cannot break the others:
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
   ``replay``, ``identify``, ``prebuild``);
 - ``service.bench.<name>`` for the benchmarks
-  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth``).
+  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -43,6 +43,7 @@ BENCHMARKS: dict[str, str] = {
     "truth": "hidden random truths (6000-7000 rpm, drift, torque steps, offsets): H error, CI coverage",
     "restart": "restart on a warm spindle (minute 0/30/60/90): H error, CI coverage, time to the first H",
     "growth": "served thermal growth at the nose vs the plant's own: error, CI coverage, forecast, cost",
+    "duty": "a machining duty cycle (speed changes every 1-6 min): fresh H, error and coverage vs the truth",
 }
 
 

@@ -189,6 +189,20 @@ class IdentificationSettings(_Section):
     offset_calibration: bool = True
     offset_rest_s: float = Field(default=300.0, gt=0)
     offset_sd_c: float = Field(default=0.173, ge=0)  # ±0.3 °C uniform, unknown until a baseline
+    # "per_condition": one H per held condition (the paper's protocol: schedule_min, min/max_window_s);
+    # "speed_map": H = F(n, Ti) fitted over a rolling window of map_window_min, re-fitted map_debounce_s
+    # after each condition change (and every map_refit_min), served at the current speed at once
+    # (docs/hmap.md)
+    mode: Literal["per_condition", "speed_map"] = "per_condition"
+    map_family: Literal["nodes", "physics"] = "nodes"  # model.hmap: tabulated over speed nodes, or physics
+    map_window_min: float = Field(default=60.0, gt=0)  # rolling window of each map fit
+    map_min_window_min: float = Field(default=10.0, gt=0)  # a cold start waits for this much data
+    map_debounce_s: float = Field(default=30.0, ge=0)  # after a confirmed change, wait this long
+    map_refit_min: float = Field(default=10.0, gt=0)  # fit again after this long without a change
+    map_fresh_min: float = Field(default=15.0, gt=0)  # a map whose data end longer ago is not fresh
+    map_margin_rpm: float = Field(default=300.0, ge=0)  # a speed this close to a visited one is covered
+    map_min_visit_s: float = Field(default=60.0, ge=0)  # seconds of data at a speed before it is visited
+    map_forget_tau_h: float = Field(default=4.0, gt=0)  # forgetting time of the map's information
 
     @field_validator("schedule_min")
     @classmethod
@@ -211,6 +225,16 @@ class IdentificationSettings(_Section):
         if self.max_window_s < self.min_window_s:
             raise ValueError(
                 f"max_window_s ({self.max_window_s}) must be >= min_window_s ({self.min_window_s})"
+            )
+        if self.map_min_window_min > self.map_window_min:
+            raise ValueError(
+                f"map_min_window_min ({self.map_min_window_min}) must be <= map_window_min "
+                f"({self.map_window_min})"
+            )
+        if self.map_fresh_min * 60.0 < self.map_debounce_s:
+            raise ValueError(
+                f"map_fresh_min ({self.map_fresh_min} min) must be >= map_debounce_s "
+                f"({self.map_debounce_s} s)"
             )
         if self.schedule_min[0] * 60.0 < self.min_window_s:
             raise ValueError(

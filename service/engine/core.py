@@ -33,6 +33,8 @@ from types import MappingProxyType
 import numpy as np
 
 from drivers.ringbuffer import RingBuffer, Sample
+from model.hmap import Family, Gaussian
+from model.hmap_identify import forget
 from model.identify import IdentificationResult
 from service.acquire.calibration import (
     BaselineRefined,
@@ -61,7 +63,7 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.engine.jobbook import Job, JobBook, job_key
+from service.engine.jobbook import Job, JobBook, MapValues, job_key
 from service.engine.jobs import Offsets, converging_reason, job_request, job_window
 from service.engine.samples import SampleBook
 from service.engine.view import CoreView, NewestSample
@@ -75,7 +77,8 @@ from service.identify.detector import (
     OperatingPoint,
     SampleEvent,
 )
-from service.identify.speedmap import SpeedMap
+from service.identify.mapjob import MapJob
+from service.identify.speedmap import SpeedMap, VisitTally
 from service.identify.window import InsufficientWindowError
 from service.identify.worker import JobOutcome, JobStatus
 from service.modelload import LoadedModel
@@ -185,6 +188,7 @@ class ServiceCore:
             self._live.set_offsets(self._calibrator.offsets(), self._calibrator.offset_sd())
         # speed-map mode (docs/hmap.md): the latest map fit (a restored one is stale until re-fitted)
         self._speed_map: SpeedMap | None = restored.speed_map if config.speed_map is not None else None
+        self._map = None if config.speed_map is None else _MapBook(config, model, self._speed_map)
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -270,6 +274,9 @@ class ServiceCore:
             )
         ):
             todo += self._on_change(change, out)
+        if self._map is not None:  # speed-map mode: the map's own trigger, no per-condition schedule
+            self._map_sample(newest, ts, out)
+            return
         todo += self._scheduler.handle(sched.Tick(ts))
         self._execute(todo, ts, out)
 
@@ -389,6 +396,9 @@ class ServiceCore:
     def _condition_started(self, ev: sched.ConditionStarted) -> list[sched.Instruction]:
         """Tell the scheduler, counting the condition's schedule from max(its start, the live state's
         convergence): while the state converges after a (re)start the start is held (the newest wins)."""
+        if self._map is not None:  # speed-map mode: a change triggers a map fit (debounced)
+            self._map.changed_at = ev.t
+            return []
         ready = self._live.ready_at()
         if ready is None:
             self._held = ev
@@ -471,6 +481,9 @@ class ServiceCore:
             return
         newest = self._samples.newest
         ts = (newest.t if newest is not None else ev.finished_at).timestamp()
+        if self._map is not None and self._map.running == outcome.job_id:
+            self._map_outcome(job, ev, ts, out)
+            return
         running = self._scheduler.running
         if outcome.status is JobStatus.CANCELLED or running is None or running.job_id != outcome.job_id:
             self._store_outcome(
@@ -554,6 +567,9 @@ class ServiceCore:
         if newest is None:
             out.reject(RejectKind.NOT_READY, "no samples yet: nothing to identify from")
             return
+        if self._map is not None:
+            self._map_manual(reason, newest, out)
+            return
         running = self._scheduler.running
         if running is not None:
             why = f"identification {job_key(running.job_id)} is already running"
@@ -570,6 +586,236 @@ class ServiceCore:
         start = next(i for i in todo if isinstance(i, sched.StartJob))
         job = self._jobs.jobs_view[job_key(start.job_id)]
         out.instructions.append(ManualAccepted(out.event_id, job))
+
+    # --- speed-map mode (docs/hmap.md) ------------------------------------------------------------------
+    def _map_sample(self, s: NewestSample, ts: float, out: _Out) -> None:
+        """Count the sample's speed, give the live state H from the map at its speed, fit when due."""
+        book = self._map
+        assert book is not None
+        book.tally.add(ts, s.speed_rpm, self.config.rules.dt_s)
+        self._map_live_h(s)
+        reason = book.due(ts)
+        if reason is not None:
+            self._map_launch(ts, reason, out)
+
+    def _map_live_h(self, s: NewestSample) -> None:
+        """The live state's H: the map's (the cold prior's before the first fit) at the sample's speed and
+        ambient, with the band as its considered error (recomputed when the speed bin or the map changes)."""
+        book = self._map
+        assert book is not None
+        if not (np.isfinite(s.speed_rpm) and np.isfinite(s.ambient_c)):
+            return
+        key = (round(abs(s.speed_rpm) / book.cfg.bin_rpm), round(s.ambient_c), id(self._speed_map))
+        if key == book.live_key:
+            return
+        book.live_key = key
+        mean, cov = book.current_theta(self._speed_map)
+        h, _, hi = book.family.h_ci95_at(mean, cov, [abs(s.speed_rpm)], s.ambient_c)
+        self._live.set_h(h[0], h_rel=_h_rel(h[0], hi[0]))
+
+    def _map_launch(self, ts: float, reason: str, out: _Out) -> str | None:
+        """Launch a map fit over the rolling window ending now; None, or why not (stored when it is a job
+        that could not run)."""
+        book = self._map
+        assert book is not None
+        cond = self._condition
+        ready = self._live.ready_at()
+        if ready is None:
+            return converging_reason(self._live)
+        if cond is None:
+            return "no operating condition yet"
+        cfg = book.cfg
+        t_from = max(ts - cfg.window_s, ready)
+        if ts - t_from < cfg.min_window_s - 0.5 * self.config.rules.dt_s:
+            return (
+                f"{ts - t_from:.0f} s of data since the live state converged (need {cfg.min_window_s:.0f} s)"
+            )
+        jid = book.next_id()
+        point = OperatingPoint(speed_rpm=cond.speed_rpm, torque_nm=cond.torque_nm, ambient_c=cond.ambient_c)
+        prior, source = book.prior_for(t_from, ts)
+        start = sched.StartJob(
+            job_id=jid,
+            condition_id=cond.id,
+            point=point,
+            t_from=t_from,
+            t_to=ts,
+            warm_start=None,
+            warm_source=source,
+            trigger="map",
+        )
+        now = utc(ts)
+        job = self._jobs.open(start, reason=reason, now=now, event_id=out.event_id)
+        rules = replace(self.config.rules, min_window_s=cfg.min_window_s)
+        book.changed_at = None
+        try:
+            window = job_window(start, self._live, self._history, replace(self.config, rules=rules))
+        except (InsufficientWindowError, LiveStateError) as err:
+            msg = err.reason if isinstance(err, InsufficientWindowError) else str(err)
+            self._store_outcome(job, outcome="insufficient-data", message=msg, finished_at=now, out=out)
+            book.retry_after = ts + cfg.debounce_s + self.config.rules.dt_s
+            return msg
+        cal = self._calibrator
+        offsets = None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
+        request = job_request(start, window, config=self.config, offsets=offsets)
+        request = replace(
+            request,
+            speed_map=MapJob(family=cfg.family, prior_mean=prior.mean, prior_cov=prior.cov),
+            start_cov=None,
+            carry_start_error=False,
+            start_modes=0,
+        )
+        snap, arrays = window.start, window.arrays
+        job = self._jobs.launched(job, window_from=utc(snap.t), window_to=utc(float(arrays.times_s[-1])))
+        book.launched(jid, t_end=float(arrays.times_s[-1]), mask_used=int(arrays.mask.sum()))
+        out.instructions.append(Launch(event_id=out.event_id, job_key=job.key, request=request))
+        out.log(
+            f"map identification {job.key} ({reason}): window {arrays.n_steps * arrays.dt_s / 60:.0f} min, "
+            f"{int(arrays.mask.sum())} sensors, prior from {source}"
+        )
+        return None
+
+    def _map_outcome(self, job: Job, ev: JobOutcomeReceived, ts: float, out: _Out) -> None:
+        """A map fit came back: keep its posterior (the map served from now on) and store it."""
+        book = self._map
+        assert book is not None
+        outcome = ev.outcome
+        t_end, used, visited = book.finished()
+        fit = outcome.map_fit
+        if outcome.status is not JobStatus.OK or fit is None:
+            kind = "insufficient-data" if outcome.status is JobStatus.INSUFFICIENT_DATA else "failed"
+            if outcome.status is JobStatus.CANCELLED:
+                kind = "cancelled"
+            self._store_outcome(
+                job, outcome=kind, message=outcome.message, finished_at=ev.finished_at, out=out
+            )
+            return
+        m = SpeedMap(
+            family=book.cfg.family,
+            mean=fit.posterior.mean,
+            cov=fit.posterior.cov,
+            visited_rpm=visited[0],
+            visited_s=visited[1],
+            fitted_at=utc(t_end),
+            rmse_c=float(fit.rmse_c),
+        )
+        cond = self._condition_of(job)
+        newest = self._samples.newest
+        amb = newest.ambient_c if newest is not None and np.isfinite(newest.ambient_c) else cond.ambient_c
+        h, lo, hi = m.h_at([job.start.point.speed_rpm], amb)
+        half = 0.5 * np.log(hi[0] / lo[0])
+        values = MapValues(
+            h=tuple(float(x) for x in h[0]),
+            ci95_lo=tuple(float(x) for x in lo[0]),
+            ci95_hi=tuple(float(x) for x in hi[0]),
+            identified=tuple(bool(x) for x in half <= self.config.ci_threshold),
+            rmse_c=float(fit.rmse_c),
+            nfev=int(fit.nfev),
+            wall_s=float(outcome.wall_s),
+            n_sensors_used=used,
+            message=outcome.message,
+            speed_map=m.to_json(),
+        )
+        data, rec = self._jobs.mapped(
+            job, values=values, finished_at=ev.finished_at, event_id=out.event_id, condition=cond
+        )
+        out.store(data)
+        self._speed_map = replace(m, identification_id=data.id)
+        book.keep(t_end, fit.posterior)
+        self._current = rec
+        self._current_from_restore = False
+        out.log(
+            f"map identification {job.key} ok: {fit.nfev} model runs, RMSE {fit.rmse_c:.3f} °C, "
+            f"{outcome.wall_s:.2f} s; visited {len(visited[0])} speed bins"
+        )
+
+    def _map_manual(self, reason: str, newest: NewestSample, out: _Out) -> None:
+        book = self._map
+        assert book is not None
+        if book.running is not None:
+            out.reject(RejectKind.BUSY, f"map identification {job_key(book.running)} is already running")
+            return
+        ts = newest.t.timestamp()
+        why = self._map_launch(ts, (reason or "manual")[:32], out)
+        launched = next((i for i in out.instructions if isinstance(i, Launch)), None)
+        if launched is None:
+            out.reject(RejectKind.NOT_READY, why or "no map identification possible now")
+            return
+        out.instructions.append(ManualAccepted(out.event_id, self._jobs.jobs_view[launched.job_key]))
+
+
+class _MapBook:
+    """The core's speed-map bookkeeping: trigger times, the running fit, the posteriors kept for the
+    next windows' priors, the visited-speed tally."""
+
+    KEPT = 64  # posteriors kept (a fit every few minutes: > 1 h of them)
+
+    def __init__(self, config: CoreConfig, model: LoadedModel, restored: SpeedMap | None) -> None:
+        cfg = config.speed_map
+        assert cfg is not None
+        self.cfg = cfg
+        self.family = Family(cfg.family)
+        self.cold = self.family.prior(model.spec)
+        self.tally = VisitTally(bin_rpm=cfg.bin_rpm, tau_h=cfg.tau_h)
+        self.changed_at: float | None = None  # last confirmed condition change not fitted since
+        self.retry_after: float | None = None
+        self.running: int | None = None
+        self.live_key: tuple[int, int, int] | None = None
+        self._launched: tuple[float, int, tuple[np.ndarray, np.ndarray]] | None = None
+        self._last_end: float | None = None
+        self._ids = itertools.count(1)
+        # (window end epoch s, posterior), oldest first
+        self._posteriors: list[tuple[float, Gaussian]] = []
+        if restored is not None:
+            t = restored.fitted_at.timestamp()
+            self._posteriors.append((t, Gaussian(np.array(restored.mean), np.array(restored.cov))))
+            self.tally.restore(restored.visited_rpm, restored.visited_s, t)
+
+    def next_id(self) -> int:
+        return next(self._ids)
+
+    def due(self, ts: float) -> str | None:
+        """Why a fit is due now (None: not due or one is running): a debounced condition change, the first
+        fit, or ``refit_s`` since the last window's end."""
+        if self.running is not None or (self.retry_after is not None and ts < self.retry_after):
+            return None
+        if self.changed_at is not None and ts - self.changed_at >= self.cfg.debounce_s:
+            return "condition-change"
+        if self._last_end is None:
+            return "first"
+        if ts - self._last_end >= self.cfg.refit_s:
+            return "scheduled"
+        return None
+
+    def prior_for(self, t_from: float, t_to: float) -> tuple[Gaussian, str]:
+        """The prior of a window [t_from, t_to]: the newest posterior whose window ended by ``t_from``
+        (no datum counted twice), its information decayed over the time to ``t_to`` (``forget``); the
+        family's cold-start prior when there is none."""
+        older = [(t, g) for t, g in self._posteriors if t <= t_from + 1e-6]
+        if not older:
+            return self.cold, "cold prior"
+        t, g = older[-1]
+        hours = max(0.0, t_to - t) / 3600.0
+        return forget(g, self.cold, elapsed_h=hours, tau_h=self.cfg.tau_h), f"fit to {utc(t):%H:%M:%S}"
+
+    def current_theta(self, m: SpeedMap | None) -> tuple[np.ndarray, np.ndarray]:
+        if m is None:
+            return self.cold.mean, self.cold.cov
+        return np.asarray(m.mean), np.asarray(m.cov)
+
+    def launched(self, job_id: int, *, t_end: float, mask_used: int) -> None:
+        self.running = job_id
+        self._launched = (t_end, mask_used, self.tally.visited())
+        self._last_end = t_end
+        self.retry_after = None
+
+    def finished(self) -> tuple[float, int, tuple[np.ndarray, np.ndarray]]:
+        """The running fit's window end, channels used and the tally at its window end."""
+        assert self._launched is not None
+        out, self._launched, self.running = self._launched, None, None
+        return out
+
+    def keep(self, t_end: float, posterior: Gaussian) -> None:
+        self._posteriors = [*self._posteriors, (t_end, posterior)][-self.KEPT :]
 
 
 def _h_rel(h: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -25,9 +25,9 @@ from service.serve.interface import (
     JobState,
 )
 from service.serve.views import data_to_record
-from service.store.records import IdentificationData
+from service.store.records import IdentificationData, JsonValue
 
-__all__ = ["Job", "JobBook", "job_key"]
+__all__ = ["MAP_METHOD", "Job", "JobBook", "MapValues", "job_key"]
 
 RECORDS_KEPT = 500  # identifications this process remembers for the API (the database has them all)
 
@@ -47,6 +47,27 @@ class Job:
     window_from: datetime
     window_to: datetime
     started_by: str  # id of the event that started it
+
+
+MAP_METHOD = "speed-map"  # the method stored with a speed-map fit (identification.mode = "speed_map")
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class MapValues:
+    """What a speed-map fit stores: H1-H7 and the 95 % band at the window's last condition (W/(m²·K)),
+    ``identified`` flags, the RMS residual (°C), model runs, worker wall time (s), channels used, the
+    fit's message and the map itself (``SpeedMap.to_json()``)."""
+
+    h: tuple[float, ...]
+    ci95_lo: tuple[float, ...]
+    ci95_hi: tuple[float, ...]
+    identified: tuple[bool, ...]
+    rmse_c: float
+    nfev: int
+    wall_s: float
+    n_sensors_used: int
+    message: str
+    speed_map: dict[str, JsonValue]
 
 
 class _Meta(TypedDict):
@@ -148,6 +169,37 @@ class JobBook:
     ) -> tuple[IdentificationData, IdentificationRecord]:
         """``job`` ended with ``result``: its record."""
         data = IdentificationData.from_result(result, **self._meta(job, finished_at, event_id))
+        return data, self._record(data, job, condition)
+
+    def mapped(
+        self,
+        job: Job,
+        *,
+        values: MapValues,
+        finished_at: datetime,
+        event_id: str,
+        condition: ConditionSnapshot,
+    ) -> tuple[IdentificationData, IdentificationRecord]:
+        """A speed-map ``job`` ended with a map fit: its record (H at the window's last speed, the map in
+        the diagnostics, method ``MAP_METHOD``)."""
+        f = values.rmse_c**2
+        data = IdentificationData(
+            outcome="ok",
+            method=MAP_METHOD,
+            h=[float(x) for x in values.h],
+            ci95_lo=[float(x) for x in values.ci95_lo],
+            ci95_hi=[float(x) for x in values.ci95_hi],
+            identified=[bool(x) for x in values.identified],
+            f=f,
+            fit=1.0 / (1.0 + f),
+            rmse_c=values.rmse_c,
+            nfev=values.nfev,
+            duration_s=values.wall_s,
+            n_sensors_used=values.n_sensors_used,
+            message=values.message,
+            diagnostics={"speed_map": values.speed_map, "at_bound": [False] * len(values.h)},
+            **self._meta(job, finished_at, event_id),
+        )
         return data, self._record(data, job, condition)
 
     def _meta(self, job: Job, finished_at: datetime, event_id: str) -> _Meta:

@@ -28,6 +28,7 @@ from service.engine.health import HealthSource
 from service.engine.shell import SoftSensorService
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
+from service.identify.speedmap import MapConfig
 from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.modelload import LoadedModel, ModelRef, load_model
@@ -73,6 +74,24 @@ class CanDevice(CanSource, HealthSource, Protocol):
     async def close(self) -> None: ...
 
 
+def map_config(settings: Settings) -> MapConfig | None:
+    """The speed map's configuration (None: ``identification.mode = "per_condition"``)."""
+    ident = settings.identification
+    if ident.mode != "speed_map":
+        return None
+    return MapConfig(
+        window_s=60.0 * ident.map_window_min,
+        min_window_s=60.0 * ident.map_min_window_min,
+        debounce_s=ident.map_debounce_s,
+        refit_s=60.0 * ident.map_refit_min,
+        fresh_s=60.0 * ident.map_fresh_min,
+        margin_rpm=ident.map_margin_rpm,
+        min_visit_s=ident.map_min_visit_s,
+        tau_h=ident.map_forget_tau_h,
+        family=ident.map_family,
+    )
+
+
 def core_config(settings: Settings) -> CoreConfig:
     """The core's configuration from ``Settings`` (minutes -> s; the window grid is the sample period)."""
     ident, det, acq = settings.identification, settings.detector, settings.acquisition
@@ -104,6 +123,7 @@ def core_config(settings: Settings) -> CoreConfig:
         carry_start_error=ident.carry_start_error,
         start_modes=ident.start_modes,
         ci_threshold=ident.ci_rel_threshold,
+        speed_map=map_config(settings),
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
         calibration=CalibrationConfig(

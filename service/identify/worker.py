@@ -45,8 +45,10 @@ from service.identify.window import InsufficientWindowError, WindowArrays
 from service.modelload import LoadedModel, ModelRef, load_model
 
 if TYPE_CHECKING:
+    from model.hmap_identify import MapFit
     from model.identify import IdentificationResult, Window
     from model.rom import InputLike, ReducedModel
+    from service.identify.mapjob import MapJob
 
 __all__ = [
     "IdentificationWorker",
@@ -87,6 +89,8 @@ class JobRequest:
     ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
     offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.acquire.calibration)
     offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
+    # speed-map mode (docs/hmap.md): fit H = F(n, Ti) with this prior instead of one H for the window
+    speed_map: MapJob | None = None
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -97,6 +101,7 @@ class JobOutcome:
     wall_s: float = 0.0
     result: IdentificationResult | None = None  # when OK
     final_field_c: np.ndarray | None = None  # (N,) fitted model's field at the window end, °C (when OK)
+    map_fit: MapFit | None = None  # speed-map jobs: the fit (posterior, visited speeds; when OK)
 
 
 # --- inside the worker process --------------------------------------------------------------------
@@ -272,6 +277,8 @@ def run_job(
 ) -> JobOutcome:
     """Run one job; never raises: every failure becomes an outcome (``job_outcome_of``). Wall time in s."""
     started = time.perf_counter()
+    if req.speed_map is not None:
+        return _run_map_job(model, req, started)
     try:
         if model is None:
             raise RuntimeError("worker process has no model (initializer failed)")
@@ -287,6 +294,29 @@ def run_job(
         wall_s=time.perf_counter() - started,
         result=result,
         final_field_c=field,
+    )
+
+
+def _run_map_job(model: LoadedModel | None, req: JobRequest, started: float) -> JobOutcome:
+    """A speed-map job (``service.identify.mapjob``); never raises. Not cancellable: it runs ~0.1-1 s and
+    the next window starts from its posterior (docs/hmap.md)."""
+    from service.identify.mapjob import run_map_identification
+
+    assert req.speed_map is not None
+    try:
+        if model is None:
+            raise RuntimeError("worker process has no model (initializer failed)")
+        fit = run_map_identification(model, req.window, req.t0_c, req.speed_map, req.offsets_c)
+    except Exception as err:  # the boundary of a job: report, never crash the pool or the offline run
+        status, msg = job_outcome_of(err)
+        return JobOutcome(job_id=req.job_id, status=status, message=msg, wall_s=time.perf_counter() - started)
+    return JobOutcome(
+        job_id=req.job_id,
+        status=Outcome.OK,
+        message=fit.message,
+        wall_s=time.perf_counter() - started,
+        final_field_c=fit.end_field_c,
+        map_fit=fit,
     )
 
 

@@ -18,7 +18,7 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import datetime
@@ -27,7 +27,7 @@ from typing import TYPE_CHECKING
 from service.engine.config import Restored
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
-from service.serve.interface import ConditionState
+from service.serve.interface import ConditionState, IdentificationRecord
 from service.serve.views import condition_from_row, row_to_record
 from service.store.records import Record
 
@@ -36,6 +36,7 @@ if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
 
     from service.acquire.calibration import Calibration
+    from service.identify.speedmap import SpeedMap
     from service.settings import DatabaseSettings
     from service.store.reads import DbReads
     from service.store.watchdog import StatementWatchdog
@@ -87,6 +88,7 @@ def restore(
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
         calibration = _restore_calibration(session, on_problem)
     return Restored(
+        speed_map=_restore_map(last, on_problem),
         calibration=calibration,
         last=last,
         history=history,
@@ -94,6 +96,28 @@ def restore(
         next_condition_id=cond_max + 1,
         next_identification_id=ident_max + 1,
     )
+
+
+def _restore_map(
+    last: IdentificationRecord | None, on_problem: Callable[[str], None] | None
+) -> SpeedMap | None:
+    """The speed map stored with the last served identification (a map fit's diagnostics), as restored:
+    stale until re-fitted (None: the last one is not a map fit)."""
+    from service.identify.speedmap import SpeedMap, SpeedMapError
+
+    if last is None or not isinstance(last.data.diagnostics, Mapping):
+        return None
+    stored = last.data.diagnostics.get("speed_map")
+    if stored is None:
+        return None
+    try:
+        return SpeedMap.from_json(stored, identification_id=last.id, restored=True)
+    except SpeedMapError as err:
+        text = f"stored speed map of identification {last.id} not restored ({err}); starting cold"
+        log.warning("%s", text)
+        if on_problem is not None:
+            on_problem(text)
+        return None
 
 
 def _restore_calibration(session: Session, on_problem: Callable[[str], None] | None) -> Calibration | None:
