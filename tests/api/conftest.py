@@ -26,9 +26,20 @@ from drivers.errors import DeviceError
 from drivers.modbus_daq import ModbusDaq
 from service.engine.shell import SoftSensorService
 from service.settings import Settings
-from service.sim.served import DEMO_FED, ManualClock, Served, served_service
+from service.sim.duty import duty_profile
+from service.sim.served import DEMO_FED, ManualClock, Plan, Served, served_service
 
-__all__ = ["WRITE_TOKEN", "LiveServer", "ManualClock", "free_port", "sqlite_url"]
+__all__ = [
+    "MAP_FED",
+    "MAP_MODE",
+    "MAP_PLAN",
+    "WRITE_TOKEN",
+    "LiveServer",
+    "ManualClock",
+    "free_port",
+    "served_map_mode",
+    "sqlite_url",
+]
 
 WRITE_TOKEN = "write-token-for-tests"
 # A 10-min window from a cold start leaves every 95 % CI wide (half-widths of log H up to about 19 on the
@@ -40,6 +51,21 @@ LENIENT_CI = 25.0
 # measurement noise and the fit's CIs (docs/estimator.md). Tests that need every H identified (the usable
 # flag, the dashboard's identified state) therefore run with known offsets: calibration off, no offset term.
 LENIENT_IDENTIFICATION = {"ci_rel_threshold": LENIENT_CI, "offset_calibration": False}
+
+
+# Speed-map mode (issue 17, docs/hmap.md) on a seeded duty cycle (service.sim.duty: 5 min at rest, then the
+# speed changes every 1-6 min): the first map fit comes after identification.map_min_window_min (10 min) of
+# data, re-fits follow the changes. The first MAP_FED samples (26.7 min) give several fits.
+MAP_MODE = Settings(identification={"mode": "speed_map"})
+MAP_PLAN = Plan(profile=tuple(duty_profile(7, duration_s=1800.0)))
+MAP_FED = 160
+
+
+def served_map_mode(tmp: Path, *, feed_samples: int = MAP_FED) -> Served:
+    """The real service in speed-map mode fed the first ``feed_samples`` samples of ``MAP_PLAN``."""
+    return served_service(
+        database_url=sqlite_url(tmp, "map.db"), plan=MAP_PLAN, settings=MAP_MODE, feed_samples=feed_samples
+    )
 
 
 def sqlite_url(tmp: Path, name: str = "chtc.db") -> str:

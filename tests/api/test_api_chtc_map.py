@@ -2,18 +2,22 @@
 
 The body builder is checked on a real map fit (``model.hmap_identify.identify_map`` of 30 min of a seeded
 virtual-plant duty cycle: finer mesh, its own h_true); the endpoint on the real service, in per-condition
-mode (404 naming the setting).
+mode (404 naming the setting) and in speed-map mode (the body is the service's snapshot, ETag/304, 503 before
+the first fit).
 """
 
 from __future__ import annotations
 
+from collections.abc import Iterator
 from datetime import UTC, datetime, timedelta
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from api.app import create_app
 from api.schemas import chtc_map_out
 from model import hmap_identify as hi
 from model.hmap import NODES
@@ -21,6 +25,9 @@ from model.plant import VirtualPlant
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
 from service.serve.interface import H_UNIT, ZONE_NAMES, ChtcMapSnapshot
 from service.serve.views import chtc_map_snapshot, map_freshness
+from service.settings import Settings
+from service.sim.served import Served
+from tests.api.conftest import served_map_mode
 from tests.model_hmap.duty import DutyRun, load_service_model, run_duty, window
 
 T_END = datetime(2026, 11, 22, 8, 0, tzinfo=UTC)
@@ -158,3 +165,79 @@ def test_the_openapi_document_describes_the_map(ro_client: TestClient) -> None:
     zone = doc["components"]["schemas"]["MapZoneOut"]["properties"]
     assert {"h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k", "identified"} <= set(zone)
     assert set(doc["components"]["schemas"]["VisitedOut"]["properties"]) == {"speed_rpm", "duration_s"}
+
+
+# --- the endpoint on the real service in speed-map mode (service.sim.served, MAP_PLAN)
+
+
+@pytest.fixture(scope="module")
+def map_served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
+    with served_map_mode(tmp_path_factory.mktemp("map-mode")) as s:
+        yield s
+
+
+@pytest.fixture
+def map_client(map_served: Served) -> Iterator[TestClient]:
+    with TestClient(create_app(Settings(), map_served.service, clock=map_served.clock)) as c:
+        yield c
+
+
+def test_the_endpoint_serves_the_service_map(map_client: TestClient, map_served: Served) -> None:
+    svc = map_served.service
+    assert svc.identification_mode() == "speed_map"
+    r = map_client.get("/api/v1/chtc/map")
+    snap = svc.chtc_map()
+    assert r.status_code == 200 and snap is not None, r.text
+    body = r.json()
+    assert body["status"] == snap.status.value and body["reason"] == snap.reason
+    assert body["identification_id"] == snap.identification_id is not None
+    assert datetime.fromisoformat(body["fitted_at"]) == snap.fitted_at
+    assert datetime.fromisoformat(body["newest_sample_at"]) == snap.newest_sample_at == map_served.clock.now
+    assert body["sample_age_s"] == 0.0 and body["unit"] == "W/(m²·K)"
+    assert body["speeds_rpm"] == [float(x) for x in snap.speeds_rpm]
+    for i, z in enumerate(body["zones"]):
+        for key, arr in (
+            ("h_w_m2k", snap.h_w_m2k),
+            ("ci95_lo_w_m2k", snap.ci95_lo_w_m2k),
+            ("ci95_hi_w_m2k", snap.ci95_hi_w_m2k),
+        ):
+            np.testing.assert_allclose(z[key], arr[:, i], atol=5e-5, rtol=0, err_msg=f"{z['name']} {key}")
+        assert z["identified"] == [bool(x) for x in snap.identified[:, i]]
+        assert min(z["ci95_lo_w_m2k"]) > 0
+    # the visited speeds: the duty cycle's speeds fed before the fit's window ended, in ascending order
+    rpm = [v["speed_rpm"] for v in body["visited"]]
+    assert rpm == sorted(rpm) == [float(x) for x in snap.visited_rpm]
+    fed = {float(x.speed_rpm) for x in map_served.samples[: map_served.fed] if x.t <= snap.fitted_at}
+    assert set(rpm) <= fed and len(rpm) >= 4
+    assert all(v["duration_s"] > 0 for v in body["visited"])
+    # /chtc in speed-map mode: H1-H7 from this map at the current speed (a grid speed of the duty cycle)
+    now = map_client.get("/api/v1/chtc").json()
+    k = body["speeds_rpm"].index(body["current_speed_rpm"])
+    np.testing.assert_allclose(
+        [z["h_w_m2k"] for z in now["zones"]], [z["h_w_m2k"][k] for z in body["zones"]], rtol=2e-3
+    )
+    assert now["status"] == body["status"]
+
+
+def test_etag_gives_304_until_the_next_sample(map_client: TestClient, map_served: Served) -> None:
+    first = map_client.get("/api/v1/chtc/map")
+    etag = first.headers["etag"]
+    assert etag.startswith('W/"') and first.headers["cache-control"] == "no-cache"
+    again = map_client.get("/api/v1/chtc/map", headers={"If-None-Match": etag})
+    assert again.status_code == 304 and again.headers["etag"] == etag and not again.content
+    map_served.clock.advance(3.0)  # served_at moves, the map does not: still 304
+    assert map_client.get("/api/v1/chtc/map", headers={"If-None-Match": etag}).status_code == 304
+    map_served.feed_next(1)
+    after = map_client.get("/api/v1/chtc/map", headers={"If-None-Match": etag})
+    assert after.status_code == 200 and after.headers["etag"] != etag
+    assert after.json()["newest_sample_at"] != first.json()["newest_sample_at"]
+
+
+def test_speed_map_mode_before_the_first_fit_answers_503(tmp_path: Path) -> None:
+    with served_map_mode(tmp_path, feed_samples=30) as s:  # 5 min at rest: no map fitted yet
+        assert s.service.chtc_map() is None
+        with TestClient(create_app(Settings(), s.service, clock=s.clock)) as c:
+            r = c.get("/api/v1/chtc/map")
+    assert r.status_code == 503 and r.headers["retry-after"] == "5"
+    assert r.json()["error"]["code"] == "no_data"
+    assert "no speed map fitted yet" in r.json()["error"]["message"]
