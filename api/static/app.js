@@ -13,7 +13,7 @@ const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
 const state = {
   etag: null, chtc: null, chtcAt: 0, field: null, fieldKey: null, layout: null, sensorsNow: null,
   hist: null, health: null, ready: null, apiError: null, job: null, growth: [], growthNow: null,
-  hmap: null, hmapEtag: null, hmapAt: 0, hmapOff: false,
+  hmap: null, hmapEtag: null, hmapAt: 0, hmapOff: false, hmapHidden: new Set(),
   rendered: { h: false, field: false, sensors: false },
 };
 
@@ -383,7 +383,9 @@ function drawHmap(m) {
   const x = xAxis(canvas, ctx, box, 0, Math.max(sp[sp.length - 1], 1), "speed, rpm");
   ctx.save(); ctx.beginPath(); ctx.rect(box.L, box.T, W - box.L - box.R, H - box.T - box.B); ctx.clip();
   let bands = 0, curves = 0;
+  const shown = (z) => !state.hmapHidden.has(z.name);
   m.zones.forEach((z, i) => { // bands first, under every curve
+    if (!shown(z)) return;
     const col = COLORS[i % COLORS.length];
     const ok = sp.map((_, k) => z.ci95_lo_w_m2k[k] !== null && z.ci95_hi_w_m2k[k] !== null);
     if (!ok.every(Boolean)) return;
@@ -393,6 +395,7 @@ function drawHmap(m) {
     ctx.closePath(); ctx.fill(); bands++;
   });
   m.zones.forEach((z, i) => { // solid where identified, dashed where the band is too wide
+    if (!shown(z)) return;
     ctx.strokeStyle = COLORS[i % COLORS.length];
     for (let k = 0; k + 1 < sp.length; k++) {
       const a = z.h_w_m2k[k], b = z.h_w_m2k[k + 1];
@@ -424,9 +427,26 @@ function drawHmap(m) {
   canvas.dataset.bands = String(bands);
   canvas.dataset.visited = m.visited.map((v) => fmt(v.speed_rpm, 0)).join(" ");
   canvas.dataset.current = m.current_speed_rpm === null ? "" : fmt(m.current_speed_rpm, 0);
-  $("hmap-legend").innerHTML = m.zones.map((z, i) =>
-    `<i class="sw" style="background:${COLORS[i % COLORS.length]}"></i>${esc(z.name)}`).join(" ") +
-    ` <i class="sw sw-rug"></i>data at the speed (tick height: seconds)`;
+  hmapLegend(m);
+}
+
+// The zone legend (click a zone to hide or show it); colours set through the CSSOM (the CSP forbids inline
+// style attributes).
+function hmapLegend(m) {
+  const el = $("hmap-legend");
+  el.innerHTML = m.zones.map((z) =>
+    `<span class="hz${state.hmapHidden.has(z.name) ? " off" : ""}" data-zone="${esc(z.name)}" title="click to hide or show">` +
+    `<i class="sw"></i>${esc(z.name)}</span>`).join(" ") +
+    ` <i class="sw sw-rug"></i>data at the speed (tick height: seconds) · click a zone to hide or show it`;
+  el.querySelectorAll(".hz .sw").forEach((sw, i) => { sw.style.backgroundColor = COLORS[i % COLORS.length]; });
+}
+
+function toggleHmapZone(ev) {
+  const item = ev.target.closest(".hz");
+  if (!item || !state.hmap) return;
+  const name = item.dataset.zone;
+  if (state.hmapHidden.has(name)) state.hmapHidden.delete(name); else state.hmapHidden.add(name);
+  drawHmap(state.hmap);
 }
 
 function showHmap(m) {
@@ -1028,6 +1048,7 @@ function start() {
   $("channels").addEventListener("change", () => { state.hist = null; pollSensors(); });
   $("window").addEventListener("change", drawSensors);
   $("hmap-scale").addEventListener("change", () => { if (state.hmap) drawHmap(state.hmap); });
+  $("hmap-legend").addEventListener("click", toggleHmapZone);
   $("identify-now").addEventListener("click", openIdentify);
   $("identify-form").addEventListener("submit", submitIdentify);
   $("identify-cancel").addEventListener("click", () => $("identify-dialog").close());

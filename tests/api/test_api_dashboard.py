@@ -27,6 +27,7 @@ from tests.api.conftest import (
     LENIENT_IDENTIFICATION,
     WRITE_TOKEN,
     LiveServer,
+    served_map_mode,
     served_with_dead_devices,
     sqlite_url,
 )
@@ -457,3 +458,70 @@ def test_a_baseline_taken_at_rest_is_shown_in_the_card_and_per_channel(page: _Pa
         f"{max(offsets):.2f} °C over 32 channels (subtracted before the fit)"
     )
     assert cell == f"{ch[6]['offset_c']:.2f} °C"
+
+
+HMAP = "document.getElementById('hmap-chart')"
+CARD_MODE = "document.getElementById('card-hmap')?.dataset.mode"
+
+
+@pytest.mark.browser
+def test_the_h_versus_speed_card_draws_the_map_in_speed_map_mode(
+    page: _Page, chromium_path: str, tmp_path: Path
+) -> None:
+    """The real service in speed-map mode (a duty cycle, several map fits): the card is shown with seven
+    curves and their bands over 0-7000 rpm, the visited speeds as a rug, the current speed, the map's status
+    and fit time (UTC)."""
+    with served_map_mode(tmp_path) as s, _server(s) as server:
+        snap = s.service.chtc_map()
+        assert snap is not None
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(f"{CARD_MODE} === 'speed_map' && {HMAP}.dataset.curves")
+        data = page.eval(f"Object.assign({{}}, {HMAP}.dataset)")
+        pill = page.eval("document.getElementById('hmap-status').className")
+        meta = page.eval("document.getElementById('hmap-meta').textContent")
+        visited = page.eval("document.getElementById('hmap-visited').textContent")
+        legend = page.eval("document.getElementById('hmap-legend').textContent")
+        swatch = page.eval("getComputedStyle(document.querySelector('#hmap-legend .hz .sw')).backgroundColor")
+        page.eval("document.querySelector('#hmap-legend .hz[data-zone=\"H1\"]').click()")
+        without_h1 = page.eval(f"{HMAP}.dataset.curves")
+        page.eval("document.querySelector('#hmap-legend .hz[data-zone=\"H1\"]').click()")
+        page.eval("document.getElementById('hmap-scale').value = 'linear'")
+        page.eval("document.getElementById('hmap-scale').dispatchEvent(new Event('change'))")
+        linear = page.eval(f"Object.assign({{}}, {HMAP}.dataset)")
+        # the whole page in one run: no JavaScript error, no CSP refusal (e.g. an inline style attribute)
+        dom = _chromium(chromium_path, tmp_path / "dump", server.url + "/", "--dump-dom")
+    assert re.search(r'<section [^>]*id="card-hmap"[^>]*data-mode="speed_map"', dom)
+    assert not re.search(r'<section [^>]*id="card-hmap"[^>]*hidden', dom)
+    assert data["curves"] == "7" and data["bands"] == "7"
+    assert swatch == "rgb(76, 155, 232)"  # H1's colour, set through the CSSOM
+    assert without_h1 == "6"  # a click on a zone in the legend hides its curve
+    assert data["visited"].split() == [f"{v:.0f}" for v in snap.visited_rpm]
+    assert data["current"] == f"{snap.current_speed_rpm:.0f}"
+    assert data["xTitle"] == "speed, rpm" and data["yScale"] == "log"
+    assert data["yTitle"] == "H, W/(m²·K) (log)"
+    x_ticks = [float(v) for v in data["xTicks"].split()]
+    assert x_ticks[0] == 0.0 and x_ticks[-1] == 7000.0 and len(x_ticks) >= 4
+    y_ticks = [float(v) for v in data["yTicks"].split()]
+    assert len(y_ticks) >= 3 and np.all(np.diff(np.log10(y_ticks)) > 0)
+    h = snap.h_w_m2k  # the log axis spans every served H
+    assert y_ticks[0] <= 2.0 * h.min() and y_ticks[-1] >= 0.5 * h.max()
+    assert pill == f"pill pill-{snap.status.value}"
+    assert meta.startswith(f"map fitted at {snap.fitted_at:%Y-%m-%d %H:%M:%S} UTC (window end)")
+    assert f"identification #{snap.identification_id}" in meta and "family nodes" in meta
+    for v in snap.visited_rpm:
+        assert f"{v:.0f} rpm " in visited
+    assert all(f"H{i}" in legend for i in range(1, 8))
+    assert linear["yScale"] == "linear" and linear["yTitle"] == "H, W/(m²·K)"
+    steps = np.diff([float(v) for v in linear["yTicks"].split()])
+    np.testing.assert_allclose(steps, steps[0], rtol=1e-9)
+
+
+@pytest.mark.browser
+def test_the_h_versus_speed_card_is_hidden_in_per_condition_mode(page: _Page, served: Served) -> None:
+    with _server(served) as server:
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(f"{RENDERED} && {CARD_MODE}")
+        mode = page.eval("document.getElementById('card-hmap').dataset.mode")
+        hidden = page.eval("document.getElementById('card-hmap').hidden")
+        shown = page.eval("document.getElementById('card-hmap').getBoundingClientRect().height")
+    assert mode == "per_condition" and hidden is True and shown == 0
