@@ -19,7 +19,7 @@ from schemathesis.config import SchemathesisConfig
 from api.app import create_app
 from service.settings import Settings
 from service.sim.served import DEMO_FED, served_service
-from tests.api.conftest import WRITE_TOKEN, sqlite_url
+from tests.api.conftest import WRITE_TOKEN, served_map_mode, sqlite_url
 
 
 @pytest.fixture(scope="module")
@@ -40,6 +40,28 @@ schema = schemathesis.pytest.from_fixture("api_schema")
 @schema.parametrize()
 @settings(max_examples=15, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
 def test_api_conforms_to_its_openapi(case: schemathesis.Case) -> None:
+    case.call_and_validate(
+        headers={"Authorization": f"Bearer {WRITE_TOKEN}"}, excluded_checks=[positive_data_acceptance]
+    )
+
+
+@pytest.fixture(scope="module")
+def map_schema(tmp_path_factory: pytest.TempPathFactory) -> Iterator[schemathesis.BaseSchema]:
+    """The real service in speed-map mode after several map fits (tests/api/conftest.py, MAP_PLAN): the reads
+    whose answers depend on the mode (/chtc from the map, /chtc/map's 200), against the same document."""
+    with served_map_mode(tmp_path_factory.mktemp("schemathesis-map")) as s:
+        app = create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)
+        config = SchemathesisConfig.from_path(str(Path(__file__).with_name("schemathesis.toml")))
+        full = schemathesis.openapi.from_asgi("/api/v1/openapi.json", app, config=config)
+        yield full.include(path_regex=r"^/api/v1/chtc")
+
+
+map_mode = schemathesis.pytest.from_fixture("map_schema")
+
+
+@map_mode.parametrize()
+@settings(max_examples=5, deadline=None, derandomize=True, suppress_health_check=list(HealthCheck))
+def test_speed_map_mode_conforms_to_the_openapi(case: schemathesis.Case) -> None:
     case.call_and_validate(
         headers={"Authorization": f"Bearer {WRITE_TOKEN}"}, excluded_checks=[positive_data_acceptance]
     )
