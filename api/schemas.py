@@ -206,7 +206,7 @@ def chtc_map_out(s: ChtcMapSnapshot, now: datetime) -> ChtcMapOut:
         family=s.family,
         fitted_at=s.fitted_at,
         identification_id=s.identification_id,
-        rmse_c=_num(s.rmse_c),
+        rmse_c=_num(s.rmse_c, 4),
         restored=bool(s.restored),
         ambient_c=round(float(s.ambient_c), 3),
         speeds_rpm=[float(x) for x in s.speeds_rpm],
