@@ -139,6 +139,7 @@ class _Objective:
         family: Family,
         data: tuple[Array, NDArray[np.bool_]],
         sigma: float,
+        bias_sd: Array | None = None,
     ) -> None:
         meas, usable = data
         self.rom, self.window, self.sigma, self.family = rom, window, sigma, family
@@ -150,30 +151,97 @@ class _Objective:
         chol = np.linalg.cholesky(prior.cov)
         self.whiten = np.linalg.solve(chol, np.eye(chol.shape[0]))  # C⁻¹ with Σ₀ = C·Cᵀ
         self.mu0 = prior.mean
+        self.p = prior.mean.size
+        # constant per-channel biases (nuisance, prior N(0, bias_sd²)) of the channels with data
+        channel = self.flat % N_CHANNELS
+        sd = np.zeros(N_CHANNELS) if bias_sd is None else bias_sd
+        self.bias_ch = np.flatnonzero((sd > 0) & np.isin(np.arange(N_CHANNELS), channel))
+        self.bias_sd = sd[self.bias_ch]
+        col = {c: i for i, c in enumerate(self.bias_ch)}
+        self.bias_jac = np.zeros((self.flat.size, self.bias_ch.size))
+        rows = np.flatnonzero(np.isin(channel, self.bias_ch))
+        self.bias_jac[rows, [col[c] for c in channel[rows]]] = 1.0
         self._key: bytes = b""
         self._val: tuple[Array, Array, rom_segments.Tangents] | None = None
         self.runs = 0
 
-    def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
-        if self._val is None or x.tobytes() != self._key:
-            h = self.family.h_at(x, self.speeds, self.ambients)  # (S, 7)
-            dh = self.family.h_jacobian(x, self.speeds, self.ambients)  # (S, 7, p)
+    @property
+    def n_x(self) -> int:
+        """θ and the fitted channel biases."""
+        return self.p + self.bias_ch.size
+
+    def normal(self, x: Array, sigma: float | None = None) -> tuple[Array, Array, float]:
+        """JᵀJ and Jᵀr (n_x, n_x), (n_x,) of the whitened residuals at ``x`` and their χ² (data weighted
+        by ``sigma``, default the objective's), using the biases' structure (each bias is a constant on
+        its channel's rows): the cost of JθᵀJθ alone."""
+        sig = self.sigma if sigma is None else sigma
+        th = x[: self.p]
+        r_base, j_t, _ = self._eval_base(th)
+        r = r_base + (self.bias_jac @ x[self.p :] if self.bias_ch.size else 0.0)
+        rs, js = r / sig, j_t / sig
+        pr = self.whiten @ (th - self.mu0)
+        a = np.zeros((self.n_x, self.n_x))
+        g = np.zeros(self.n_x)
+        p = self.p
+        a[:p, :p] = js.T @ js + self.whiten.T @ self.whiten
+        g[:p] = js.T @ rs + self.whiten.T @ pr
+        cost = float(rs @ rs + pr @ pr)
+        if self.bias_ch.size:
+            b = x[p:]
+            bt = self.bias_jac.T / sig  # (nb, m)
+            a[p:, :p] = bt @ js
+            a[:p, p:] = a[p:, :p].T
+            a[p:, p:] = np.diag(self.bias_jac.sum(axis=0) / sig**2 + 1.0 / self.bias_sd**2)
+            g[p:] = bt @ rs + b / self.bias_sd**2
+            cost += float(np.sum((b / self.bias_sd) ** 2))
+        return a, g, cost
+
+    def _eval_base(self, th: Array) -> tuple[Array, Array, rom_segments.Tangents]:
+        if self._val is None or th.tobytes() != self._key:
+            h = self.family.h_at(th, self.speeds, self.ambients)  # (S, 7)
+            dh = self.family.h_jacobian(th, self.speeds, self.ambients)  # (S, 7, p)
             tg = rom_segments.simulate_tangents(
                 self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
             )
             r = tg.sensors.ravel()[self.flat] - self.target
             j = tg.d_sensors.reshape(dh.shape[2], -1)[:, self.flat].T
-            self._key, self._val, self.runs = x.tobytes(), (r, j, tg), self.runs + 1
+            self._key, self._val, self.runs = th.tobytes(), (r, j, tg), self.runs + 1
         assert self._val is not None
         return self._val
 
+    def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
+        th = x[: self.p]
+        if self._val is None or th.tobytes() != self._key:
+            h = self.family.h_at(th, self.speeds, self.ambients)  # (S, 7)
+            dh = self.family.h_jacobian(th, self.speeds, self.ambients)  # (S, 7, p)
+            tg = rom_segments.simulate_tangents(
+                self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
+            )
+            r = tg.sensors.ravel()[self.flat] - self.target
+            j = tg.d_sensors.reshape(dh.shape[2], -1)[:, self.flat].T
+            self._key, self._val, self.runs = th.tobytes(), (r, j, tg), self.runs + 1
+        assert self._val is not None
+        r, j, tg = self._val
+        if self.bias_ch.size:
+            r = r + self.bias_jac @ x[self.p :]
+            j = np.hstack([j, self.bias_jac])
+        return r, j, tg
+
     def fun(self, x: Array) -> Array:
         r, _, _ = self._eval(x)
-        return np.concatenate([r / self.sigma, self.whiten @ (x - self.mu0)])
+        prior = self.whiten @ (x[: self.p] - self.mu0)
+        return np.concatenate([r / self.sigma, prior, x[self.p :] / self.bias_sd])
+
+    def prior_jac(self) -> Array:
+        """d(whitened prior residuals)/dx: block-diagonal (θ's prior, the biases' 1/σ)."""
+        out = np.zeros((self.n_x, self.n_x))
+        out[: self.p, : self.p] = self.whiten
+        out[self.p :, self.p :] = np.diag(1.0 / self.bias_sd)
+        return out
 
     def jac(self, x: Array) -> Array:
         _, j, _ = self._eval(x)
-        return np.vstack([j / self.sigma, self.whiten])
+        return np.vstack([j / self.sigma, self.prior_jac()])
 
 
 def identify_map(
@@ -183,9 +251,15 @@ def identify_map(
     *,
     family: Family = DEFAULT_FAMILY,
     options: MapOptions | None = None,
+    bias_sd_c: Any = None,
 ) -> MapFit:
     """MAP fit of θ (``family.n_theta``,) to ``window`` with the reduced model ``rom`` and prior ``prior``
     (a cold start: ``family.prior(spec)``; later: ``forget(previous.posterior, cold, ...)``).
+
+    ``bias_sd_c`` (scalar or (32,) °C, None: none): 1σ of a constant per-channel bias (the sensor offsets
+    still unknown after a baseline, the reduced model's error at the sensor); each used channel's bias is
+    fitted jointly with θ under that Gaussian prior and marginalised out of the posterior, so a bias is not
+    read as H (a 0.03 °C offset error, a 30-sample baseline's, moved H5 by 40 % without; docs/hmap.md).
 
     Raises HMapIdentifyError for a bad window (shapes, mask, too few usable entries), prior or option.
     """
@@ -200,9 +274,19 @@ def identify_map(
         raise HMapIdentifyError(
             f"prior.mean: expected {family.n_theta} values for {family.kind!r}, got {prior.mean.shape}"
         )
-    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c)
-    lo, hi = family.bounds()
-    x0 = np.clip(prior.mean, lo + 1e-9, hi - 1e-9)
+    bias = None
+    if bias_sd_c is not None:
+        bias = np.broadcast_to(np.asarray(bias_sd_c, dtype=np.float64), (N_CHANNELS,)).copy()
+        if not np.all(np.isfinite(bias)) or np.any(bias < 0):
+            raise HMapIdentifyError("bias_sd_c: expected finite values >= 0 °C (a scalar or 32)")
+    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c, bias)
+    lo_t, hi_t = family.bounds()
+    nb = obj.bias_ch.size
+    lo = np.concatenate([lo_t, -10.0 * obj.bias_sd])
+    hi = np.concatenate([hi_t, 10.0 * obj.bias_sd])
+    x0 = np.concatenate([np.clip(prior.mean, lo_t + 1e-9, hi_t - 1e-9), np.zeros(nb)])
+    if nb and (opts.method == "trf" or family.kind == "physics"):
+        raise HMapIdentifyError("bias_sd_c: only with method 'lm' and the 'nodes' family")
     if opts.level_first and family.kind == "physics":
         x0 = _levels_first(obj, x0, lo, hi, opts)
     if opts.method == "trf":
@@ -213,14 +297,15 @@ def identify_map(
         x, message = np.asarray(sol.x), f"TRF: {sol.message}"
     else:
         x, message = _levenberg_marquardt(obj, x0, lo, hi, opts)
-    r, j, tg = obj._eval(x)
+    r_base, _, tg = obj._eval_base(x[: obj.p])
+    r = r_base + (obj.bias_jac @ x[obj.p :] if nb else 0.0)
     rmse = float(np.sqrt(np.mean(r**2)))
     sigma = max(opts.sigma_c, rmse)
-    info = j.T @ j / sigma**2 + obj.whiten.T @ obj.whiten
-    cov = np.linalg.inv(info)
+    info, _, _ = obj.normal(x, sigma)
+    cov = np.linalg.inv(info)[: obj.p, : obj.p]  # θ's marginal: the biases integrated out
     visited, seconds = _visited(window)
     return MapFit(
-        posterior=Gaussian(x, 0.5 * (cov + cov.T)),
+        posterior=Gaussian(x[: obj.p], 0.5 * (cov + cov.T)),
         prior=prior,
         family=family,
         sigma_c=sigma,
@@ -252,23 +337,22 @@ def _levenberg_marquardt(
     (as costly as a model run here)."""
     idx = np.arange(x0.size) if free is None else free
     x = x0.copy()
-    r, j = obj.fun(x), obj.jac(x)[:, idx]
-    cost, damping = float(r @ r), opts.lm_damping
+    a_full, g_full, cost = obj.normal(x)
+    damping = opts.lm_damping
     n_iter = opts.max_nfev if max_iter is None else max_iter
     for it in range(n_iter):
-        a, g = j.T @ j, j.T @ r
+        a, g = a_full[np.ix_(idx, idx)], g_full[idx]
         step = np.linalg.solve(a + damping * np.diag(np.maximum(np.diag(a), 1e-12)), -g)
         trial = x.copy()
         trial[idx] = np.clip(x[idx] + step, lo[idx], hi[idx])
-        r_t = obj.fun(trial)
-        cost_t = float(r_t @ r_t)
+        a_t, g_t, cost_t = obj.normal(trial)
         if cost_t >= cost:
             damping *= 4.0
             if damping > 1e8:
                 return x, f"LM: no further decrease after {it + 1} iterations"
             continue
         gain = cost - cost_t  # decrease of χ²
-        x, r, j, cost = trial, r_t, obj.jac(trial)[:, idx], cost_t
+        x, a_full, g_full, cost = trial, a_t, g_t, cost_t
         damping = max(damping / 3.0, 1e-7)
         if gain < opts.chi2_tol or np.max(np.abs(step)) < opts.step_tol:
             return x, f"LM: converged in {it + 1} iterations"
