@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -140,6 +141,7 @@ class _Objective:
         data: tuple[Array, NDArray[np.bool_]],
         sigma: float,
         bias_sd: Array | None = None,
+        start_modes: Array | None = None,
     ) -> None:
         meas, usable = data
         self.rom, self.window, self.sigma, self.family = rom, window, sigma, family
@@ -152,49 +154,73 @@ class _Objective:
         self.whiten = np.linalg.solve(chol, np.eye(chol.shape[0]))  # C⁻¹ with Σ₀ = C·Cᵀ
         self.mu0 = prior.mean
         self.p = prior.mean.size
-        # constant per-channel biases (nuisance, prior N(0, bias_sd²)) of the channels with data
+        # nuisance parameters, linear with Gaussian priors N(0, sd²): constant per-channel biases of the
+        # channels with data, then the start state's coefficients along ``start_modes``
         channel = self.flat % N_CHANNELS
         sd = np.zeros(N_CHANNELS) if bias_sd is None else bias_sd
         self.bias_ch = np.flatnonzero((sd > 0) & np.isin(np.arange(N_CHANNELS), channel))
-        self.bias_sd = sd[self.bias_ch]
         col = {c: i for i, c in enumerate(self.bias_ch)}
-        self.bias_jac = np.zeros((self.flat.size, self.bias_ch.size))
+        bias_jac = np.zeros((self.flat.size, self.bias_ch.size))
         rows = np.flatnonzero(np.isin(channel, self.bias_ch))
-        self.bias_jac[rows, [col[c] for c in channel[rows]]] = 1.0
+        bias_jac[rows, [col[c] for c in channel[rows]]] = 1.0
+        self._bias_jac, self._bias_sd = bias_jac, sd[self.bias_ch]
+        self.modes = np.zeros((0, 0)) if start_modes is None else np.atleast_2d(start_modes)
+        self.mode_end = np.zeros((self.modes.shape[0], rom.k0.shape[0]))
+        self.bias_jac, self.bias_sd = bias_jac, self._bias_sd
         self._key: bytes = b""
         self._val: tuple[Array, Array, rom_segments.Tangents] | None = None
         self.runs = 0
+        if self.modes.shape[0]:
+            self.set_start_response(np.clip(prior.mean, *family.bounds()))
+
+    def set_start_response(self, theta: Array) -> None:
+        """The sensors' response to each start mode (linear, H held at ``theta``): one batched run with
+        zero loads and ambient; appended to the nuisance Jacobian (each coefficient's prior N(0, 1))."""
+        k = self.modes.shape[0]
+        h = self.family.h_at(theta, self.speeds, self.ambients)
+        n = self.plan.n_steps
+        zero = SimpleNamespace(
+            dt_s=self.window.inputs.dt_s, ambient_c=np.zeros(n), q_front_w=np.zeros(n), q_rear_w=np.zeros(n)
+        )
+        states = rom_segments.simulate_states(
+            self.rom, np.broadcast_to(h, (k, *h.shape)), self.plan, zero, self.modes
+        )
+        resp = (states @ self.rom.sensors.T).reshape(k, -1)[:, self.flat].T  # (m, K)
+        self.mode_end = states[:, -1, :]  # (K, r)
+        self.bias_jac = np.hstack([self._bias_jac, resp])
+        self.bias_sd = np.concatenate([self._bias_sd, np.ones(k)])
+        self.runs += 1
 
     @property
     def n_x(self) -> int:
         """θ and the fitted channel biases."""
-        return self.p + self.bias_ch.size
+        return self.p + self.bias_sd.size
 
-    def normal(self, x: Array, sigma: float | None = None) -> tuple[Array, Array, float]:
-        """JᵀJ and Jᵀr (n_x, n_x), (n_x,) of the whitened residuals at ``x`` and their χ² (data weighted
-        by ``sigma``, default the objective's), using the biases' structure (each bias is a constant on
-        its channel's rows): the cost of JθᵀJθ alone."""
-        sig = self.sigma if sigma is None else sigma
-        th = x[: self.p]
-        r_base, j_t, _ = self._eval_base(th)
-        r = r_base + (self.bias_jac @ x[self.p :] if self.bias_ch.size else 0.0)
-        rs, js = r / sig, j_t / sig
-        pr = self.whiten @ (th - self.mu0)
-        a = np.zeros((self.n_x, self.n_x))
-        g = np.zeros(self.n_x)
-        p = self.p
-        a[:p, :p] = js.T @ js + self.whiten.T @ self.whiten
-        g[:p] = js.T @ rs + self.whiten.T @ pr
-        cost = float(rs @ rs + pr @ pr)
-        if self.bias_ch.size:
-            b = x[p:]
-            bt = self.bias_jac.T / sig  # (nb, m)
-            a[p:, :p] = bt @ js
-            a[:p, p:] = a[p:, :p].T
-            a[p:, p:] = np.diag(self.bias_jac.sum(axis=0) / sig**2 + 1.0 / self.bias_sd**2)
-            g[p:] = bt @ rs + b / self.bias_sd**2
-            cost += float(np.sum((b / self.bias_sd) ** 2))
+    def normal(self, th: Array, sigma: float | None = None) -> tuple[Array, Array, float]:
+        """Gauss–Newton normal equations of θ (p, p), (p,) and the χ² at ``th`` (data weighted by
+        ``sigma``, default the objective's), with the linear nuisances (biases, start modes) profiled out:
+        the Schur complement, i.e. θ's marginal precision at the end."""
+        a, g, cost, _ = self.profiled(th, sigma)
         return a, g, cost
+
+    def profiled(self, th: Array, sigma: float | None = None) -> tuple[Array, Array, float, Array]:
+        """``normal``'s (A, g, χ²) and the nuisances' optimum c*(θ) (q,)."""
+        sig = self.sigma if sigma is None else sigma
+        r_base, j_t, _ = self._eval_base(th[: self.p])
+        rs, js = r_base / sig, j_t / sig
+        pr = self.whiten @ (th[: self.p] - self.mu0)
+        a = js.T @ js + self.whiten.T @ self.whiten
+        c = np.zeros(self.bias_sd.size)
+        if c.size:
+            ns = self.bias_jac / sig
+            ann = ns.T @ ns + np.diag(1.0 / self.bias_sd**2)
+            c = -np.linalg.solve(ann, ns.T @ rs)
+            rs = rs + ns @ c
+            a_tn = js.T @ ns
+            a = a - a_tn @ np.linalg.solve(ann, a_tn.T)
+        g = js.T @ rs + self.whiten.T @ pr
+        cost = float(rs @ rs + pr @ pr + np.sum((c / self.bias_sd) ** 2))
+        return a, g, cost, c
 
     def _eval_base(self, th: Array) -> tuple[Array, Array, rom_segments.Tangents]:
         if self._val is None or th.tobytes() != self._key:
@@ -222,7 +248,7 @@ class _Objective:
             self._key, self._val, self.runs = th.tobytes(), (r, j, tg), self.runs + 1
         assert self._val is not None
         r, j, tg = self._val
-        if self.bias_ch.size:
+        if self.bias_sd.size:
             r = r + self.bias_jac @ x[self.p :]
             j = np.hstack([j, self.bias_jac])
         return r, j, tg
@@ -252,6 +278,7 @@ def identify_map(
     family: Family = DEFAULT_FAMILY,
     options: MapOptions | None = None,
     bias_sd_c: Any = None,
+    start_modes: Any = None,
 ) -> MapFit:
     """MAP fit of θ (``family.n_theta``,) to ``window`` with the reduced model ``rom`` and prior ``prior``
     (a cold start: ``family.prior(spec)``; later: ``forget(previous.posterior, cold, ...)``).
@@ -260,6 +287,9 @@ def identify_map(
     still unknown after a baseline, the reduced model's error at the sensor); each used channel's bias is
     fitted jointly with θ under that Gaussian prior and marginalised out of the posterior, so a bias is not
     read as H (a 0.03 °C offset error, a 30-sample baseline's, moved H5 by 40 % without; docs/hmap.md).
+    ``start_modes`` (K, r) reduced directions of the start state's error (e.g. a filtered state's leading
+    eigenvectors scaled by √eigenvalue): their coefficients (prior N(0, 1)) are fitted too, the response
+    linearised at the prior mean and again at the optimum, then marginalised out of the posterior.
 
     Raises HMapIdentifyError for a bad window (shapes, mask, too few usable entries), prior or option.
     """
@@ -279,14 +309,17 @@ def identify_map(
         bias = np.broadcast_to(np.asarray(bias_sd_c, dtype=np.float64), (N_CHANNELS,)).copy()
         if not np.all(np.isfinite(bias)) or np.any(bias < 0):
             raise HMapIdentifyError("bias_sd_c: expected finite values >= 0 °C (a scalar or 32)")
-    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c, bias)
-    lo_t, hi_t = family.bounds()
-    nb = obj.bias_ch.size
-    lo = np.concatenate([lo_t, -10.0 * obj.bias_sd])
-    hi = np.concatenate([hi_t, 10.0 * obj.bias_sd])
-    x0 = np.concatenate([np.clip(prior.mean, lo_t + 1e-9, hi_t - 1e-9), np.zeros(nb)])
+    modes = None
+    if start_modes is not None:
+        modes = np.atleast_2d(np.asarray(start_modes, dtype=np.float64))
+        if modes.shape[1] != rom.k0.shape[0] or not np.all(np.isfinite(modes)):
+            raise HMapIdentifyError(f"start_modes: expected (K, {rom.k0.shape[0]}) finite, got {modes.shape}")
+    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c, bias, modes)
+    lo, hi = family.bounds()
+    nb = obj.bias_sd.size
+    x0 = np.clip(prior.mean, lo + 1e-9, hi - 1e-9)
     if nb and (opts.method == "trf" or family.kind == "physics"):
-        raise HMapIdentifyError("bias_sd_c: only with method 'lm' and the 'nodes' family")
+        raise HMapIdentifyError("bias_sd_c, start_modes: only with method 'lm' and the 'nodes' family")
     if opts.level_first and family.kind == "physics":
         x0 = _levels_first(obj, x0, lo, hi, opts)
     if opts.method == "trf":
@@ -297,22 +330,26 @@ def identify_map(
         x, message = np.asarray(sol.x), f"TRF: {sol.message}"
     else:
         x, message = _levenberg_marquardt(obj, x0, lo, hi, opts)
-    r_base, _, tg = obj._eval_base(x[: obj.p])
-    r = r_base + (obj.bias_jac @ x[obj.p :] if nb else 0.0)
+        if obj.modes.shape[0]:  # the start modes' response at the optimum's H, and polish
+            obj.set_start_response(x)
+            x, message = _levenberg_marquardt(obj, x, lo, hi, opts)
+    r_base, _, tg = obj._eval_base(x)
+    c = obj.profiled(x)[3]
+    r = r_base + (obj.bias_jac @ c if nb else 0.0)
     rmse = float(np.sqrt(np.mean(r**2)))
     sigma = max(opts.sigma_c, rmse)
     info, _, _ = obj.normal(x, sigma)
-    cov = np.linalg.inv(info)[: obj.p, : obj.p]  # θ's marginal: the biases integrated out
+    cov = np.linalg.inv(info)  # θ's marginal precision's inverse: the nuisances integrated out
     visited, seconds = _visited(window)
     return MapFit(
-        posterior=Gaussian(x[: obj.p], 0.5 * (cov + cov.T)),
+        posterior=Gaussian(x, 0.5 * (cov + cov.T)),
         prior=prior,
         family=family,
         sigma_c=sigma,
         rmse_c=rmse,
         visited_rpm=visited,
         visited_s=seconds,
-        end_field_c=np.asarray(rom.lift(tg.states[-1])),
+        end_field_c=np.asarray(rom.lift(tg.states[-1] + c[obj._bias_sd.size :] @ obj.mode_end)),
         nfev=obj.runs,
         wall_s=time.perf_counter() - started,
         message=f"{message} ({obj.runs} model runs)",

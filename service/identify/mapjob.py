@@ -62,10 +62,13 @@ def run_map_identification(
     job: MapJob,
     offsets_c: np.ndarray | None,
     offset_sd_c: np.ndarray | None = None,
+    start_cov: np.ndarray | None = None,
+    start_modes: int = 0,
 ) -> MapFit:
     """``identify_map`` on ``window`` from the start field ``t0_c`` with ``job``'s prior; each channel's
     constant bias (the offset still unknown, 1σ ``offset_sd_c``, and the reduced model's error at the
-    sensor, ``MODEL_ERROR_C``) is fitted as a nuisance and marginalised out."""
+    sensor, ``MODEL_ERROR_C``) is fitted as a nuisance and marginalised out, and so are the start state's
+    ``start_modes`` leading uncertain directions of ``start_cov`` (r, r) °C² (the filtered live state's)."""
     from model.hmap import Family, Gaussian
     from model.hmap_identify import SpeedWindow, identify_map
     from model.inputs import inputs_from_operation
@@ -87,4 +90,9 @@ def run_map_identification(
     prior = Gaussian(np.asarray(job.prior_mean, dtype=float), np.asarray(job.prior_cov, dtype=float))
     sd = np.zeros(32) if offset_sd_c is None else np.nan_to_num(np.asarray(offset_sd_c, dtype=float))
     bias = np.sqrt(sd**2 + MODEL_ERROR_C**2) if job.family == "nodes" else None
-    return identify_map(model.rom, sw, prior, family=Family(job.family), bias_sd_c=bias)
+    modes = None
+    if start_cov is not None and start_modes > 0 and job.family == "nodes":
+        lam, vec = np.linalg.eigh(0.5 * (start_cov + start_cov.T))
+        top = np.argsort(lam)[::-1][:start_modes]
+        modes = (vec[:, top] * np.sqrt(np.maximum(lam[top], 0.0))).T  # (K, r)
+    return identify_map(model.rom, sw, prior, family=Family(job.family), bias_sd_c=bias, start_modes=modes)
