@@ -210,11 +210,11 @@ class _Objective:
         rs, js = r_base / sig, j_t / sig
         pr = self.whiten @ (th[: self.p] - self.mu0)
         a = js.T @ js + self.whiten.T @ self.whiten
-        c = np.zeros(self.bias_sd.size)
+        c: Array = np.zeros(self.bias_sd.size)
         if c.size:
             ns = self.bias_jac / sig
             ann = ns.T @ ns + np.diag(1.0 / self.bias_sd**2)
-            c = -np.linalg.solve(ann, ns.T @ rs)
+            c = np.asarray(-np.linalg.solve(ann, ns.T @ rs), dtype=np.float64)
             rs = rs + ns @ c
             a_tn = js.T @ ns
             a = a - a_tn @ np.linalg.solve(ann, a_tn.T)

@@ -56,7 +56,7 @@ def _service(model, settings, samples, *, writer=None):
 @pytest.fixture(scope="module")
 def served(duty, loaded_model):
     """The duty cycle through the service in map mode; per sample: (speed, snapshot) after it."""
-    _, run, samples = duty
+    samples = duty[2]
     svc, clock = _service(loaded_model, map_settings(), samples)
     seen = []
     for s in samples:
@@ -72,7 +72,7 @@ def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
     assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")
-    with pytest.raises(SettingsError, match="identification.mode"):
+    with pytest.raises(SettingsError, match=r"identification\.mode"):
         Settings.from_toml(None, identification={"mode": "speedmap"})
     with pytest.raises(SettingsError, match="map_min_window_min"):
         Settings.from_toml(None, identification={"mode": "speed_map", "map_min_window_min": 90})
@@ -83,7 +83,7 @@ def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
 
 
 def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> None:
-    svc, seen = served
+    _, seen = served
     profile, run, _ = duty
     fitted = [k for k, (_, _, _, m) in enumerate(seen) if m is not None]
     assert fitted, "no map fit in 45 min"
