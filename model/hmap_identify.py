@@ -32,6 +32,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import dataclass, field, replace
+from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -139,6 +140,8 @@ class _Objective:
         family: Family,
         data: tuple[Array, NDArray[np.bool_]],
         sigma: float,
+        bias_sd: Array | None = None,
+        start_modes: Array | None = None,
     ) -> None:
         meas, usable = data
         self.rom, self.window, self.sigma, self.family = rom, window, sigma, family
@@ -150,30 +153,121 @@ class _Objective:
         chol = np.linalg.cholesky(prior.cov)
         self.whiten = np.linalg.solve(chol, np.eye(chol.shape[0]))  # C⁻¹ with Σ₀ = C·Cᵀ
         self.mu0 = prior.mean
+        self.p = prior.mean.size
+        # nuisance parameters, linear with Gaussian priors N(0, sd²): constant per-channel biases of the
+        # channels with data, then the start state's coefficients along ``start_modes``
+        channel = self.flat % N_CHANNELS
+        sd = np.zeros(N_CHANNELS) if bias_sd is None else bias_sd
+        self.bias_ch = np.flatnonzero((sd > 0) & np.isin(np.arange(N_CHANNELS), channel))
+        col = {c: i for i, c in enumerate(self.bias_ch)}
+        bias_jac = np.zeros((self.flat.size, self.bias_ch.size))
+        rows = np.flatnonzero(np.isin(channel, self.bias_ch))
+        bias_jac[rows, [col[c] for c in channel[rows]]] = 1.0
+        self._bias_jac, self._bias_sd = bias_jac, sd[self.bias_ch]
+        self.modes = np.zeros((0, 0)) if start_modes is None else np.atleast_2d(start_modes)
+        self.mode_end = np.zeros((self.modes.shape[0], rom.k0.shape[0]))
+        self.bias_jac, self.bias_sd = bias_jac, self._bias_sd
         self._key: bytes = b""
         self._val: tuple[Array, Array, rom_segments.Tangents] | None = None
         self.runs = 0
+        if self.modes.shape[0]:
+            self.set_start_response(np.clip(prior.mean, *family.bounds()))
 
-    def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
-        if self._val is None or x.tobytes() != self._key:
-            h = self.family.h_at(x, self.speeds, self.ambients)  # (S, 7)
-            dh = self.family.h_jacobian(x, self.speeds, self.ambients)  # (S, 7, p)
+    def set_start_response(self, theta: Array) -> None:
+        """The sensors' response to each start mode (linear, H held at ``theta``): one batched run with
+        zero loads and ambient; appended to the nuisance Jacobian (each coefficient's prior N(0, 1))."""
+        k = self.modes.shape[0]
+        h = self.family.h_at(theta, self.speeds, self.ambients)
+        n = self.plan.n_steps
+        zero = SimpleNamespace(
+            dt_s=self.window.inputs.dt_s, ambient_c=np.zeros(n), q_front_w=np.zeros(n), q_rear_w=np.zeros(n)
+        )
+        states = rom_segments.simulate_states(
+            self.rom, np.broadcast_to(h, (k, *h.shape)), self.plan, zero, self.modes
+        )
+        resp = (states @ self.rom.sensors.T).reshape(k, -1)[:, self.flat].T  # (m, K)
+        self.mode_end = states[:, -1, :]  # (K, r)
+        self.bias_jac = np.hstack([self._bias_jac, resp])
+        self.bias_sd = np.concatenate([self._bias_sd, np.ones(k)])
+        self.runs += 1
+
+    @property
+    def n_x(self) -> int:
+        """θ and the fitted channel biases."""
+        return self.p + self.bias_sd.size
+
+    def normal(self, th: Array, sigma: float | None = None) -> tuple[Array, Array, float]:
+        """Gauss–Newton normal equations of θ (p, p), (p,) and the χ² at ``th`` (data weighted by
+        ``sigma``, default the objective's), with the linear nuisances (biases, start modes) profiled out:
+        the Schur complement, i.e. θ's marginal precision at the end."""
+        a, g, cost, _ = self.profiled(th, sigma)
+        return a, g, cost
+
+    def profiled(self, th: Array, sigma: float | None = None) -> tuple[Array, Array, float, Array]:
+        """``normal``'s (A, g, χ²) and the nuisances' optimum c*(θ) (q,)."""
+        sig = self.sigma if sigma is None else sigma
+        r_base, j_t, _ = self._eval_base(th[: self.p])
+        rs, js = r_base / sig, j_t / sig
+        pr = self.whiten @ (th[: self.p] - self.mu0)
+        a = js.T @ js + self.whiten.T @ self.whiten
+        c: Array = np.zeros(self.bias_sd.size)
+        if c.size:
+            ns = self.bias_jac / sig
+            ann = ns.T @ ns + np.diag(1.0 / self.bias_sd**2)
+            c = np.asarray(-np.linalg.solve(ann, ns.T @ rs), dtype=np.float64)
+            rs = rs + ns @ c
+            a_tn = js.T @ ns
+            a = a - a_tn @ np.linalg.solve(ann, a_tn.T)
+        g = js.T @ rs + self.whiten.T @ pr
+        cost = float(rs @ rs + pr @ pr + np.sum((c / self.bias_sd) ** 2))
+        return a, g, cost, c
+
+    def _eval_base(self, th: Array) -> tuple[Array, Array, rom_segments.Tangents]:
+        if self._val is None or th.tobytes() != self._key:
+            h = self.family.h_at(th, self.speeds, self.ambients)  # (S, 7)
+            dh = self.family.h_jacobian(th, self.speeds, self.ambients)  # (S, 7, p)
             tg = rom_segments.simulate_tangents(
                 self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
             )
             r = tg.sensors.ravel()[self.flat] - self.target
             j = tg.d_sensors.reshape(dh.shape[2], -1)[:, self.flat].T
-            self._key, self._val, self.runs = x.tobytes(), (r, j, tg), self.runs + 1
+            self._key, self._val, self.runs = th.tobytes(), (r, j, tg), self.runs + 1
         assert self._val is not None
         return self._val
 
+    def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
+        th = x[: self.p]
+        if self._val is None or th.tobytes() != self._key:
+            h = self.family.h_at(th, self.speeds, self.ambients)  # (S, 7)
+            dh = self.family.h_jacobian(th, self.speeds, self.ambients)  # (S, 7, p)
+            tg = rom_segments.simulate_tangents(
+                self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
+            )
+            r = tg.sensors.ravel()[self.flat] - self.target
+            j = tg.d_sensors.reshape(dh.shape[2], -1)[:, self.flat].T
+            self._key, self._val, self.runs = th.tobytes(), (r, j, tg), self.runs + 1
+        assert self._val is not None
+        r, j, tg = self._val
+        if self.bias_sd.size:
+            r = r + self.bias_jac @ x[self.p :]
+            j = np.hstack([j, self.bias_jac])
+        return r, j, tg
+
     def fun(self, x: Array) -> Array:
         r, _, _ = self._eval(x)
-        return np.concatenate([r / self.sigma, self.whiten @ (x - self.mu0)])
+        prior = self.whiten @ (x[: self.p] - self.mu0)
+        return np.concatenate([r / self.sigma, prior, x[self.p :] / self.bias_sd])
+
+    def prior_jac(self) -> Array:
+        """d(whitened prior residuals)/dx: block-diagonal (θ's prior, the biases' 1/σ)."""
+        out = np.zeros((self.n_x, self.n_x))
+        out[: self.p, : self.p] = self.whiten
+        out[self.p :, self.p :] = np.diag(1.0 / self.bias_sd)
+        return out
 
     def jac(self, x: Array) -> Array:
         _, j, _ = self._eval(x)
-        return np.vstack([j / self.sigma, self.whiten])
+        return np.vstack([j / self.sigma, self.prior_jac()])
 
 
 def identify_map(
@@ -183,9 +277,19 @@ def identify_map(
     *,
     family: Family = DEFAULT_FAMILY,
     options: MapOptions | None = None,
+    bias_sd_c: Any = None,
+    start_modes: Any = None,
 ) -> MapFit:
     """MAP fit of θ (``family.n_theta``,) to ``window`` with the reduced model ``rom`` and prior ``prior``
     (a cold start: ``family.prior(spec)``; later: ``forget(previous.posterior, cold, ...)``).
+
+    ``bias_sd_c`` (scalar or (32,) °C, None: none): 1σ of a constant per-channel bias (the sensor offsets
+    still unknown after a baseline, the reduced model's error at the sensor); each used channel's bias is
+    fitted jointly with θ under that Gaussian prior and marginalised out of the posterior, so a bias is not
+    read as H (a 0.03 °C offset error, a 30-sample baseline's, moved H5 by 40 % without; docs/hmap.md).
+    ``start_modes`` (K, r) reduced directions of the start state's error (e.g. a filtered state's leading
+    eigenvectors scaled by √eigenvalue): their coefficients (prior N(0, 1)) are fitted too, the response
+    linearised at the prior mean and again at the optimum, then marginalised out of the posterior.
 
     Raises HMapIdentifyError for a bad window (shapes, mask, too few usable entries), prior or option.
     """
@@ -200,9 +304,22 @@ def identify_map(
         raise HMapIdentifyError(
             f"prior.mean: expected {family.n_theta} values for {family.kind!r}, got {prior.mean.shape}"
         )
-    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c)
+    bias = None
+    if bias_sd_c is not None:
+        bias = np.broadcast_to(np.asarray(bias_sd_c, dtype=np.float64), (N_CHANNELS,)).copy()
+        if not np.all(np.isfinite(bias)) or np.any(bias < 0):
+            raise HMapIdentifyError("bias_sd_c: expected finite values >= 0 °C (a scalar or 32)")
+    modes = None
+    if start_modes is not None:
+        modes = np.atleast_2d(np.asarray(start_modes, dtype=np.float64))
+        if modes.shape[1] != rom.k0.shape[0] or not np.all(np.isfinite(modes)):
+            raise HMapIdentifyError(f"start_modes: expected (K, {rom.k0.shape[0]}) finite, got {modes.shape}")
+    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c, bias, modes)
     lo, hi = family.bounds()
+    nb = obj.bias_sd.size
     x0 = np.clip(prior.mean, lo + 1e-9, hi - 1e-9)
+    if nb and (opts.method == "trf" or family.kind == "physics"):
+        raise HMapIdentifyError("bias_sd_c, start_modes: only with method 'lm' and the 'nodes' family")
     if opts.level_first and family.kind == "physics":
         x0 = _levels_first(obj, x0, lo, hi, opts)
     if opts.method == "trf":
@@ -213,11 +330,16 @@ def identify_map(
         x, message = np.asarray(sol.x), f"TRF: {sol.message}"
     else:
         x, message = _levenberg_marquardt(obj, x0, lo, hi, opts)
-    r, j, tg = obj._eval(x)
+        if obj.modes.shape[0]:  # the start modes' response at the optimum's H, and polish
+            obj.set_start_response(x)
+            x, message = _levenberg_marquardt(obj, x, lo, hi, opts)
+    r_base, _, tg = obj._eval_base(x)
+    c = obj.profiled(x)[3]
+    r = r_base + (obj.bias_jac @ c if nb else 0.0)
     rmse = float(np.sqrt(np.mean(r**2)))
     sigma = max(opts.sigma_c, rmse)
-    info = j.T @ j / sigma**2 + obj.whiten.T @ obj.whiten
-    cov = np.linalg.inv(info)
+    info, _, _ = obj.normal(x, sigma)
+    cov = np.linalg.inv(info)  # θ's marginal precision's inverse: the nuisances integrated out
     visited, seconds = _visited(window)
     return MapFit(
         posterior=Gaussian(x, 0.5 * (cov + cov.T)),
@@ -227,7 +349,7 @@ def identify_map(
         rmse_c=rmse,
         visited_rpm=visited,
         visited_s=seconds,
-        end_field_c=np.asarray(rom.lift(tg.states[-1])),
+        end_field_c=np.asarray(rom.lift(tg.states[-1] + c[obj._bias_sd.size :] @ obj.mode_end)),
         nfev=obj.runs,
         wall_s=time.perf_counter() - started,
         message=f"{message} ({obj.runs} model runs)",
@@ -252,23 +374,22 @@ def _levenberg_marquardt(
     (as costly as a model run here)."""
     idx = np.arange(x0.size) if free is None else free
     x = x0.copy()
-    r, j = obj.fun(x), obj.jac(x)[:, idx]
-    cost, damping = float(r @ r), opts.lm_damping
+    a_full, g_full, cost = obj.normal(x)
+    damping = opts.lm_damping
     n_iter = opts.max_nfev if max_iter is None else max_iter
     for it in range(n_iter):
-        a, g = j.T @ j, j.T @ r
+        a, g = a_full[np.ix_(idx, idx)], g_full[idx]
         step = np.linalg.solve(a + damping * np.diag(np.maximum(np.diag(a), 1e-12)), -g)
         trial = x.copy()
         trial[idx] = np.clip(x[idx] + step, lo[idx], hi[idx])
-        r_t = obj.fun(trial)
-        cost_t = float(r_t @ r_t)
+        a_t, g_t, cost_t = obj.normal(trial)
         if cost_t >= cost:
             damping *= 4.0
             if damping > 1e8:
                 return x, f"LM: no further decrease after {it + 1} iterations"
             continue
         gain = cost - cost_t  # decrease of χ²
-        x, r, j, cost = trial, r_t, obj.jac(trial)[:, idx], cost_t
+        x, a_full, g_full, cost = trial, a_t, g_t, cost_t
         damping = max(damping / 3.0, 1e-7)
         if gain < opts.chi2_tol or np.max(np.abs(step)) < opts.step_tol:
             return x, f"LM: converged in {it + 1} iterations"

@@ -200,7 +200,9 @@ class IdentificationSettings(_Section):
     map_debounce_s: float = Field(default=30.0, ge=0)  # after a confirmed change, wait this long
     map_refit_min: float = Field(default=10.0, gt=0)  # fit again after this long without a change
     map_fresh_min: float = Field(default=15.0, gt=0)  # a map whose data end longer ago is not fresh
-    map_margin_rpm: float = Field(default=300.0, ge=0)  # a speed this close to a visited one is covered
+    # a speed this close to a visited one is covered (500: half the node spacing of the "nodes" family, so
+    # it shares a node with the visited speed)
+    map_margin_rpm: float = Field(default=500.0, ge=0)
     map_min_visit_s: float = Field(default=60.0, ge=0)  # seconds of data at a speed before it is visited
     map_forget_tau_h: float = Field(default=4.0, gt=0)  # forgetting time of the map's information
 

@@ -39,8 +39,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--mode", choices=("speed_map", "per_condition"), default="speed_map", help="identification.mode"
     )
-    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
-                        help="an identification setting, e.g. --set map_debounce_s=0 (repeatable)")  # fmt: skip
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an identification setting, e.g. --set map_debounce_s=0 (repeatable)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -55,6 +60,7 @@ class SeedResult:
     wall_s: list[float] = field(default_factory=list)
     nfev: list[int] = field(default_factory=list)
     fits: int = 0
+    not_fresh: dict[str, int] = field(default_factory=dict)  # minutes by reason code
 
 
 def longest_gap(fresh: list[bool]) -> int:
@@ -100,6 +106,9 @@ def run_seed(model: Any, settings: Any, seed: int, *, hours: float, warmup_min: 
         snap = svc.chtc()
         fresh = snap is not None and snap.status is ChtcStatus.FRESH
         out.fresh.append(fresh)
+        if not fresh:
+            code = "none" if snap is None else (snap.reason or snap.status.value).split(":")[0]
+            out.not_fresh[code] = out.not_fresh.get(code, 0) + 1
         if snap is not None and fresh:
             h, lo, hi = (np.asarray(a, dtype=float) for a in (snap.h, snap.ci95_lo, snap.ci95_hi))
             out.err.append(h / truth - 1.0)
@@ -139,7 +148,16 @@ def summarise(results: list[SeedResult]) -> dict[str, Any]:
         "model_runs_median": float(np.median(nfev)) if nfev else None,
         "fits_per_seed": round(float(np.mean([r.fits for r in results])), 1),
         "fresh_minutes": int(err.shape[0]),
+        "not_fresh_minutes": _sum_counts([r.not_fresh for r in results]),
     }
+
+
+def _sum_counts(counts: list[dict[str, int]]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for c in counts:
+        for k, v in c.items():
+            out[k] = out.get(k, 0) + v
+    return dict(sorted(out.items()))
 
 
 def parse_sets(items: list[str]) -> dict[str, Any]:
@@ -177,7 +195,8 @@ def run_bench(
         if progress is not None:
             r = results[-1]
             progress(
-                f"seed {seed}: fresh {np.mean(r.fresh) if r.fresh else 0:.3f}, gap {longest_gap(r.fresh)} min, "
+                f"seed {seed}: fresh {np.mean(r.fresh) if r.fresh else 0:.3f}, "
+                f"gap {longest_gap(r.fresh)} min, "
                 f"{r.fits} fits ({time.perf_counter() - started:.0f} s)"
             )
     return {
@@ -203,9 +222,11 @@ def _print_table(out: dict[str, Any]) -> None:
         f"{out['rom_rank']}; synthetic data; wall {out['wall_s']} s"
     )
     print(
-        f"fresh H at {100 * out['fresh_fraction']:.1f} % of the minutes after the first {out['warmup_min']:.0f} "
+        f"fresh H at {100 * out['fresh_fraction']:.1f} % of the minutes after the first "
+        f"{out['warmup_min']:.0f} "
         f"(worst seed {100 * out['fresh_fraction_min_seed']:.1f} %); longest gap {out['longest_gap_min']} min"
     )
+    print(f"minutes not fresh, by reason: {out['not_fresh_minutes']}")
     print(f"{'':26}" + "".join(f"{'H' + str(i + 1):>7}" for i in range(7)))
     print(f"{'|error| % median (fresh)':26}{_fmt(out['h_err_pct_median'], '7.1f')}")
     print(f"{'|error| % p90':26}{_fmt(out['h_err_pct_p90'], '7.1f')}")

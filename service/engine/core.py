@@ -660,9 +660,9 @@ class ServiceCore:
         request = replace(
             request,
             speed_map=MapJob(family=cfg.family, prior_mean=prior.mean, prior_cov=prior.cov),
-            start_cov=None,
+            start_cov=np.array(window.start.cov),
             carry_start_error=False,
-            start_modes=0,
+            start_modes=self.config.start_modes,
         )
         snap, arrays = window.start, window.arrays
         job = self._jobs.launched(job, window_from=utc(snap.t), window_to=utc(float(arrays.times_s[-1])))

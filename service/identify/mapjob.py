@@ -23,9 +23,12 @@ if TYPE_CHECKING:
     from service.identify.window import WindowArrays
     from service.modelload import LoadedModel
 
-__all__ = ["SEGMENT_TOL_RPM", "MapJob", "run_map_identification", "segment_speed"]
+__all__ = ["MODEL_ERROR_C", "SEGMENT_TOL_RPM", "MapJob", "run_map_identification", "segment_speed"]
 
 SEGMENT_TOL_RPM = 75.0
+# °C, 1σ of a constant per-channel model error (model.identify.IdentifyOptions.model_error_c: the reduced
+# model's and the plant's differences at the sensors)
+MODEL_ERROR_C = 0.02
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -58,8 +61,14 @@ def run_map_identification(
     t0_c: float | np.ndarray,
     job: MapJob,
     offsets_c: np.ndarray | None,
+    offset_sd_c: np.ndarray | None = None,
+    start_cov: np.ndarray | None = None,
+    start_modes: int = 0,
 ) -> MapFit:
-    """``identify_map`` on ``window`` from the start field ``t0_c`` with ``job``'s prior."""
+    """``identify_map`` on ``window`` from the start field ``t0_c`` with ``job``'s prior; each channel's
+    constant bias (the offset still unknown, 1σ ``offset_sd_c``, and the reduced model's error at the
+    sensor, ``MODEL_ERROR_C``) is fitted as a nuisance and marginalised out, and so are the start state's
+    ``start_modes`` leading uncertain directions of ``start_cov`` (r, r) °C² (the filtered live state's)."""
     from model.hmap import Family, Gaussian
     from model.hmap_identify import SpeedWindow, identify_map
     from model.inputs import inputs_from_operation
@@ -79,4 +88,11 @@ def run_map_identification(
         t0=t0_c,
     )
     prior = Gaussian(np.asarray(job.prior_mean, dtype=float), np.asarray(job.prior_cov, dtype=float))
-    return identify_map(model.rom, sw, prior, family=Family(job.family))
+    sd = np.zeros(32) if offset_sd_c is None else np.nan_to_num(np.asarray(offset_sd_c, dtype=float))
+    bias = np.sqrt(sd**2 + MODEL_ERROR_C**2) if job.family == "nodes" else None
+    modes = None
+    if start_cov is not None and start_modes > 0 and job.family == "nodes":
+        lam, vec = np.linalg.eigh(0.5 * (start_cov + start_cov.T))
+        top = np.argsort(lam)[::-1][:start_modes]
+        modes = (vec[:, top] * np.sqrt(np.maximum(lam[top], 0.0))).T  # (K, r)
+    return identify_map(model.rom, sw, prior, family=Family(job.family), bias_sd_c=bias, start_modes=modes)

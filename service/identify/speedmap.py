@@ -65,7 +65,7 @@ class MapConfig:
     debounce_s: float = 60.0
     refit_s: float = 600.0
     fresh_s: float = 900.0
-    margin_rpm: float = 300.0
+    margin_rpm: float = 500.0
     min_visit_s: float = 60.0
     bin_rpm: float = 50.0
     tau_h: float = 4.0

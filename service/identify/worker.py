@@ -306,7 +306,16 @@ def _run_map_job(model: LoadedModel | None, req: JobRequest, started: float) -> 
     try:
         if model is None:
             raise RuntimeError("worker process has no model (initializer failed)")
-        fit = run_map_identification(model, req.window, req.t0_c, req.speed_map, req.offsets_c)
+        fit = run_map_identification(
+            model,
+            req.window,
+            req.t0_c,
+            req.speed_map,
+            req.offsets_c,
+            req.offset_sd_c,
+            start_cov=req.start_cov,
+            start_modes=req.start_modes,
+        )
     except Exception as err:  # the boundary of a job: report, never crash the pool or the offline run
         status, msg = job_outcome_of(err)
         return JobOutcome(job_id=req.job_id, status=status, message=msg, wall_s=time.perf_counter() - started)

@@ -1,7 +1,7 @@
 """Seeded machining duty cycles for the virtual plant (``chtc bench duty``, the map-mode tests).
 
-A duty cycle: ``idle_s`` at rest (the offset baseline's rest), then until ``duration_s`` the speed changes every
-1–6 min (whole minutes) among 0, 500, …, 7000 rpm (never the same twice in a row), torque 3–15 N·m (0 at
+A duty cycle: ``idle_s`` at rest (the offset baseline's rest), then until ``duration_s`` the speed changes
+every 1–6 min (whole minutes) among 0, 500, …, 7000 rpm (never the same twice in a row), torque 3–15 N·m (0 at
 rest), the ambient drifting within ±1 °C around ``ambient_c`` (a sinusoid of random phase and a 2–4 h
 period, held per segment, as the plant takes one ambient per segment). Issue 17's measured case.
 """

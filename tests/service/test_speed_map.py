@@ -1,0 +1,199 @@
+"""Speed-map mode (``identification.mode = "speed_map"``, issue 17) through the real core and shell: a short
+duty cycle from the virtual plant (its own mesh and truth), /chtc served from the map at the current speed
+right after a change, the status rules, the map persisted and restored as stale, the settings."""
+
+from __future__ import annotations
+
+from datetime import UTC, datetime, timedelta
+
+import numpy as np
+import pytest
+
+from model.geometry import load_spindle
+from model.plant import VirtualPlant, h_true
+from service.engine.core import ServiceCore
+from service.engine.runtime import core_config, map_config
+from service.engine.shell import SoftSensorService
+from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
+from service.identify.worker import run_job
+from service.serve.interface import ChtcStatus
+from service.serve.views import map_freshness
+from service.settings import IdentificationSettings, Settings, SettingsError
+from service.sim.duty import condition_at, duty_profile
+from service.sim.served import ManualClock
+from service.store.persistence import open_persistence
+
+from .conftest import samples_of
+
+DURATION_S = 2700.0  # 5 min idle + 40 min of speed changes
+
+
+def map_settings(**kw: object) -> Settings:
+    return Settings(identification=IdentificationSettings(mode="speed_map", **kw))  # type: ignore[arg-type]
+
+
+@pytest.fixture(scope="module")
+def duty():
+    profile = duty_profile(7, duration_s=DURATION_S)
+    run = VirtualPlant(load_spindle(), seed=7).run(profile, dt_s=10.0)  # the plant's own (finer) mesh
+    return profile, run, samples_of(run)
+
+
+def _service(model, settings, samples, *, writer=None):
+    core = ServiceCore(core_config(settings), model=model, history_capacity=10_000)
+    clock = ManualClock(samples[0].t)
+    svc = SoftSensorService(
+        core,
+        worker=None,
+        writer=writer,
+        clock=clock,
+        on_event=lambda _m: None,
+        run_job=lambda req: run_job(model, req),
+    )
+    return svc, clock
+
+
+@pytest.fixture(scope="module")
+def served(duty, loaded_model):
+    """The duty cycle through the service in map mode; per sample: (speed, snapshot) after it."""
+    samples = duty[2]
+    svc, clock = _service(loaded_model, map_settings(), samples)
+    seen = []
+    for s in samples:
+        clock.at_least(s.t)
+        svc.on_sample(s)
+        seen.append((s.speed_rpm, s.ambient_c, svc.chtc(), svc.view.speed_map))
+    return svc, seen
+
+
+def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
+    assert Settings().identification.mode == "per_condition"
+    assert map_config(Settings()) is None
+    cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
+    assert isinstance(cfg, MapConfig)
+    assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")
+    with pytest.raises(SettingsError, match=r"identification\.mode"):
+        Settings.from_toml(None, identification={"mode": "speedmap"})
+    with pytest.raises(SettingsError, match="map_min_window_min"):
+        Settings.from_toml(None, identification={"mode": "speed_map", "map_min_window_min": 90})
+    with pytest.raises(SettingsError, match="map_margin_rpm"):
+        Settings.from_toml(None, identification={"map_margin_rpm": -1})
+    with pytest.raises(SpeedMapError, match="window_s"):
+        MapConfig(window_s=0.0)
+
+
+def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> None:
+    _, seen = served
+    profile, run, _ = duty
+    fitted = [k for k, (_, _, _, m) in enumerate(seen) if m is not None]
+    assert fitted, "no map fit in 45 min"
+    assert fitted[0] * 10.0 <= 300.0 + 600.0 + 120.0  # the first fit after 10 min of data (plus a change)
+    changes = [
+        k
+        for k in range(fitted[0] + 1, len(seen))
+        if seen[k][0] != seen[k - 1][0] and seen[k][3] is not None and seen[k][3] is seen[k - 1][3]
+    ]
+    assert len(changes) >= 3
+    for k in changes:  # the first sample at the new speed: no fit since, H from the map at the new speed
+        speed, ambient, snap, m = seen[k]
+        assert snap is not None
+        h, lo, hi = m.h_at([speed], ambient)
+        np.testing.assert_allclose(snap.h, h[0])
+        np.testing.assert_allclose(snap.ci95_lo, lo[0])
+        np.testing.assert_allclose(snap.ci95_hi, hi[0])
+        assert not np.allclose(snap.h, m.h_at([seen[k - 1][0]], ambient)[0])
+        visited = m.covered(speed, margin_rpm=500.0, min_visit_s=60.0)
+        assert (snap.status is ChtcStatus.FRESH) == visited, (speed, snap.status, snap.reason)
+        if not visited:
+            assert snap.reason is not None and snap.reason.startswith("speed_not_visited")
+            assert not snap.usable_for_compensation
+    # the served H against the plant's truth where the map is fresh: H6 and H7 within 25 %
+    errs = []
+    for k, (_, _, snap, _) in enumerate(seen):
+        if snap is not None and snap.status is ChtcStatus.FRESH and k % 6 == 0:
+            seg = condition_at(profile, float(run.times_s[k]))
+            errs.append(np.asarray(snap.h) / h_true(seg.speed_rpm, seg.ambient_c) - 1.0)
+    assert len(errs) >= 10
+    med = np.median(np.abs(np.array(errs)), axis=0)
+    assert med[5] < 0.25 and med[6] < 0.25, med
+
+
+def test_chtc_map_snapshot_and_per_condition_mode(served, loaded_model, duty) -> None:
+    svc, _ = served
+    snap = svc.chtc_map()
+    assert snap is not None and snap.family == "nodes"
+    assert snap.speeds_rpm[0] == 0.0 and snap.speeds_rpm[-1] == 7000.0
+    k = snap.speeds_rpm.size
+    assert snap.h_w_m2k.shape == snap.ci95_lo_w_m2k.shape == snap.ci95_hi_w_m2k.shape == (k, 7)
+    assert np.all(snap.ci95_lo_w_m2k < snap.h_w_m2k) and np.all(snap.h_w_m2k < snap.ci95_hi_w_m2k)
+    assert snap.visited_rpm.size == snap.visited_s.size > 3 and np.all(np.diff(snap.visited_rpm) > 0)
+    assert snap.fitted_at.tzinfo is not None and snap.identification_id == svc.view.current.id
+    assert not snap.h_w_m2k.flags.writeable
+    _, _, samples = duty
+    per_cond, clock = _service(loaded_model, Settings(), samples[:40])
+    for s in samples[:40]:
+        clock.at_least(s.t)
+        per_cond.on_sample(s)
+    assert per_cond.chtc_map() is None
+
+
+def test_status_rules(served) -> None:
+    svc, _ = served
+    m = svc.view.speed_map
+    assert m is not None
+    vis = float(m.visited_rpm[np.argmax(m.visited_s)])
+    far = next(s for s in np.arange(0.0, 7001.0, 100.0) if not m.covered(s, margin_rpm=500, min_visit_s=60))
+    now = m.fitted_at + timedelta(minutes=1)
+
+    def status(**kw: object) -> str:
+        base: dict[str, object] = {
+            "newest_t": now,
+            "speed_rpm": vis,
+            "data_problems": (),
+            "converging_since": None,
+            "fresh_s": 900.0,
+            "margin_rpm": 500.0,
+            "min_visit_s": 60.0,
+        }
+        f = map_freshness(kw.pop("map", m), **(base | kw))  # type: ignore[arg-type]
+        return f"{f.status.value} {(f.reason or '').split(':')[0]}".strip()
+
+    assert status() == "fresh"
+    assert status(speed_rpm=far) == "identifying speed_not_visited"
+    assert status(newest_t=m.fitted_at + timedelta(minutes=16)) == "identifying map_old"
+    assert status(data_problems=("daq_no_good_data",)) == "stale stale"
+    assert status(converging_since=now) == "stale state_converging"
+    restored = SpeedMap.from_json(m.to_json(), identification_id=m.identification_id)
+    assert status(map=restored) == "stale restored"
+    assert status(newest_t=None, speed_rpm=None) == "no-data no_data"
+
+
+def test_restart_restores_the_map_as_stale(tmp_path, duty, loaded_model) -> None:
+    _, _, samples = duty
+    s = map_settings()
+    db = s.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
+    first = open_persistence(db, migrate=True)
+    svc, clock = _service(loaded_model, s, samples[:150], writer=first.sink)
+    for smp in samples[:150]:
+        clock.at_least(smp.t)
+        svc.on_sample(smp)
+    m = svc.view.speed_map
+    assert m is not None and not m.restored
+    first.close()
+
+    second = open_persistence(db, migrate=True)
+    r = second.restored.speed_map
+    assert r is not None and r.restored and r.identification_id == m.identification_id
+    np.testing.assert_allclose(r.mean, m.mean)
+    np.testing.assert_allclose(r.cov, m.cov)
+    np.testing.assert_allclose(r.visited_s, m.visited_s)
+    assert r.fitted_at == m.fitted_at
+    core = ServiceCore(core_config(s), model=loaded_model, restored=second.restored)
+    now = datetime.now(UTC)
+    svc2 = SoftSensorService(core, worker=None, clock=lambda: now)
+    snap = svc2.chtc()
+    assert snap is not None and snap.status is ChtcStatus.STALE
+    mp = svc2.chtc_map()
+    assert mp is not None and mp.restored and mp.status is ChtcStatus.STALE
+    np.testing.assert_allclose(mp.h_w_m2k, svc.chtc_map().h_w_m2k, rtol=0.05)  # ambient may differ
+    second.close()
