@@ -227,6 +227,11 @@ function chtcCauses(c) {
   } else if (c.status === "at-bound") {
     const names = (c.zones || []).filter((z) => z.at_bound).map((z) => z.name).join(", ") || "an H";
     out.push({ sev: "alarm", title: "H at a search bound", detail: `${names} on a bound of the search box: not identified, do not use for compensation` });
+  } else if (c.status === "identifying" && /^(speed_not_visited|map_old)\b/.test(c.reason || "")) {
+    // speed-map mode: H come from the map at once; it is not current here yet and a re-fit follows
+    const why = c.reason.startsWith("map_old") ? "the map's data are older than its freshness limit"
+      : "the fitted data have not covered the current speed yet (the band there is the prior's)";
+    out.push({ sev: "warn", title: "Identifying", detail: `H from the speed map at the current speed; ${why}, a re-fit follows` });
   } else if (c.status === "identifying") {
     const k = c.condition;
     out.push({ sev: "warn", title: "Identifying", detail: "the operating condition changed; H are still those of condition " + (k ? `#${k.id} (${fmt(k.speed_rpm, 0)} rpm)` : "before the change") + " until the new identification finishes" });
@@ -234,7 +239,8 @@ function chtcCauses(c) {
   if (c.usable_for_compensation === false) {
     const why = c.reason || "see /api/v1/chtc";
     // a condition change is transient (the new identification is on its way): amber, not red
-    const sev = why.startsWith("condition_changed") ? "warn" : "alarm";
+    // (in speed-map mode: a speed the map has not covered yet, or a map due for its re-fit)
+    const sev = /^(condition_changed|speed_not_visited|map_old)\b/.test(why) ? "warn" : "alarm";
     out.push({ sev, title: "Not usable for compensation", detail: why });
   }
   return out;

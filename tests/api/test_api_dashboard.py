@@ -191,6 +191,11 @@ def _case(tmp_path: Path, case: str) -> Served:
         )
     elif case == "model":  # still loading: the shell waits for the worker, no sample acquired yet
         s = served_service(database_url=url, settings=LENIENT, loading=True)
+    elif case == "map-unvisited":  # speed-map mode, the speed now at one no map fit has covered yet
+        s = served_map_mode(tmp_path, feed_samples=0)
+        while (snap := s.service.chtc()) is None or not (snap.reason or "").startswith("speed_not_visited"):
+            assert s.fed < len(s.samples), "the duty cycle never reached an unvisited speed"
+            s.feed_next(1)
     elif case == "first":  # 5 min of samples, half the first window
         s = served_service(database_url=url, settings=LENIENT, feed_samples=30)
     else:
@@ -217,6 +222,8 @@ def _case(tmp_path: Path, case: str) -> Served:
         ("identifying", "banner banner-warn", "Identifying", ["condition #2 (4000 rpm)"]),
         ("stale", "banner banner-alarm", "H stale", ["newest data 5.0 min old"]),
         ("first", "banner banner-warn", "No identification yet", ["waiting for the first identification"]),
+        ("map-unvisited", "banner banner-warn", "Identifying", ["H from the speed map at the current speed",
+                                                               "compensation speed_not_visited"]),
     ],
 )  # fmt: skip
 def test_dashboard_banner_names_the_cause(
