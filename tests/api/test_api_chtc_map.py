@@ -241,3 +241,26 @@ def test_speed_map_mode_before_the_first_fit_answers_503(tmp_path: Path) -> None
     assert r.status_code == 503 and r.headers["retry-after"] == "5"
     assert r.json()["error"]["code"] == "no_data"
     assert "no speed map fitted yet" in r.json()["error"]["message"]
+
+
+def test_after_a_restart_the_stored_map_is_served_as_restored_and_stale(tmp_path: Path) -> None:
+    with served_map_mode(tmp_path) as s:
+        before = s.service.chtc_map()
+        assert before is not None and not before.restored
+    # the same database, nothing fed yet since the restart
+    with served_map_mode(tmp_path, feed_samples=0) as s2:
+        with TestClient(create_app(Settings(), s2.service, clock=s2.clock)) as c:
+            body = c.get("/api/v1/chtc/map").json()
+        restored = s2.service.chtc_map()
+    assert restored is not None
+    assert body["restored"] is True and body["status"] == "stale"
+    assert body["reason"].startswith("restored:")
+    assert body["identification_id"] == before.identification_id
+    assert datetime.fromisoformat(body["fitted_at"]) == before.fitted_at
+    assert [v["speed_rpm"] for v in body["visited"]] == [float(x) for x in before.visited_rpm]
+    assert body["newest_sample_at"] is None and body["current_speed_rpm"] is None
+    np.testing.assert_allclose(
+        [z["h_w_m2k"] for z in body["zones"]],
+        restored.h_w_m2k.T,
+        atol=5e-5,
+    )
