@@ -223,6 +223,8 @@ def test_etag_gives_304_until_the_next_sample(map_client: TestClient, map_served
     first = map_client.get("/api/v1/chtc/map")
     etag = first.headers["etag"]
     assert etag.startswith('W/"') and first.headers["cache-control"] == "no-cache"
+    head = map_client.head("/api/v1/chtc/map")  # the GET's status and headers, no body
+    assert head.status_code == 200 and head.headers["etag"] == etag and not head.content
     again = map_client.get("/api/v1/chtc/map", headers={"If-None-Match": etag})
     assert again.status_code == 304 and again.headers["etag"] == etag and not again.content
     map_served.clock.advance(3.0)  # served_at moves, the map does not: still 304
