@@ -45,6 +45,7 @@ from model.hmap import DEFAULT_FAMILY, T_REF_C, Family, Gaussian
 Array = NDArray[np.float64]
 N_CHANNELS = 32
 DEFAULT_TAU_H = 4.0
+RELINEARISE = 0.05  # ln H: re-linearise the start modes' response when θ moved more than this
 
 
 class HMapIdentifyError(ValueError):
@@ -142,6 +143,7 @@ class _Objective:
         sigma: float,
         bias_sd: Array | None = None,
         start_modes: Array | None = None,
+        x0: Array | None = None,
     ) -> None:
         meas, usable = data
         self.rom, self.window, self.sigma, self.family = rom, window, sigma, family
@@ -171,7 +173,7 @@ class _Objective:
         self._val: tuple[Array, Array, rom_segments.Tangents] | None = None
         self.runs = 0
         if self.modes.shape[0]:
-            self.set_start_response(np.clip(prior.mean, *family.bounds()))
+            self.set_start_response(np.clip(prior.mean if x0 is None else x0, *family.bounds()))
 
     def set_start_response(self, theta: Array) -> None:
         """The sensors' response to each start mode (linear, H held at ``theta``): one batched run with
@@ -279,6 +281,7 @@ def identify_map(
     options: MapOptions | None = None,
     bias_sd_c: Any = None,
     start_modes: Any = None,
+    x0: Any = None,
 ) -> MapFit:
     """MAP fit of θ (``family.n_theta``,) to ``window`` with the reduced model ``rom`` and prior ``prior``
     (a cold start: ``family.prior(spec)``; later: ``forget(previous.posterior, cold, ...)``).
@@ -289,7 +292,10 @@ def identify_map(
     read as H (a 0.03 °C offset error, a 30-sample baseline's, moved H5 by 40 % without; docs/hmap.md).
     ``start_modes`` (K, r) reduced directions of the start state's error (e.g. a filtered state's leading
     eigenvectors scaled by √eigenvalue): their coefficients (prior N(0, 1)) are fitted too, the response
-    linearised at the prior mean and again at the optimum, then marginalised out of the posterior.
+    linearised at the start and again at the optimum if θ moved more than ``RELINEARISE``, then
+    marginalised out of the posterior. ``x0``: where the iteration starts (default the prior mean; a
+    chained service fit starts from the newest posterior's mean, minutes old, while its prior is an
+    older one: fewer model runs, the same optimum).
 
     Raises HMapIdentifyError for a bad window (shapes, mask, too few usable entries), prior or option.
     """
@@ -314,10 +320,13 @@ def identify_map(
         modes = np.atleast_2d(np.asarray(start_modes, dtype=np.float64))
         if modes.shape[1] != rom.k0.shape[0] or not np.all(np.isfinite(modes)):
             raise HMapIdentifyError(f"start_modes: expected (K, {rom.k0.shape[0]}) finite, got {modes.shape}")
-    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c, bias, modes)
     lo, hi = family.bounds()
+    start = prior.mean if x0 is None else family.check_theta(x0, "x0")
+    if start.shape != prior.mean.shape:
+        raise HMapIdentifyError(f"x0: expected shape {prior.mean.shape}, got {start.shape}")
+    x0 = np.clip(start, lo + 1e-9, hi - 1e-9)
+    obj = _Objective(rom, window, prior, family, (meas, usable), opts.sigma_c, bias, modes, x0)
     nb = obj.bias_sd.size
-    x0 = np.clip(prior.mean, lo + 1e-9, hi - 1e-9)
     if nb and (opts.method == "trf" or family.kind == "physics"):
         raise HMapIdentifyError("bias_sd_c, start_modes: only with method 'lm' and the 'nodes' family")
     if opts.level_first and family.kind == "physics":
@@ -330,8 +339,8 @@ def identify_map(
         x, message = np.asarray(sol.x), f"TRF: {sol.message}"
     else:
         x, message = _levenberg_marquardt(obj, x0, lo, hi, opts)
-        if obj.modes.shape[0]:  # the start modes' response at the optimum's H, and polish
-            obj.set_start_response(x)
+        if obj.modes.shape[0] and np.max(np.abs(x - x0)) > RELINEARISE:
+            obj.set_start_response(x)  # the start modes' response at the optimum's H, and polish
             x, message = _levenberg_marquardt(obj, x, lo, hi, opts)
     r_base, _, tg = obj._eval_base(x)
     c = obj.profiled(x)[3]

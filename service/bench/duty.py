@@ -145,7 +145,9 @@ def summarise(results: list[SeedResult]) -> dict[str, Any]:
         "identified_fraction": per_h(ident, np.mean, 3),
         "identify_wall_s_median": round(float(np.median(wall)), 3) if wall else None,
         "identify_wall_s_max": round(float(np.max(wall)), 3) if wall else None,
+        "identify_wall_s_p90": round(float(np.percentile(wall, 90)), 3) if wall else None,
         "model_runs_median": float(np.median(nfev)) if nfev else None,
+        "model_runs_max": int(np.max(nfev)) if nfev else None,
         "fits_per_seed": round(float(np.mean([r.fits for r in results])), 1),
         "fresh_minutes": int(err.shape[0]),
         "not_fresh_minutes": _sum_counts([r.not_fresh for r in results]),
@@ -234,7 +236,8 @@ def _print_table(out: dict[str, Any]) -> None:
     print(f"{'identified (CI narrow)':26}{_fmt(out['identified_fraction'], '7.2f')}")
     print(
         f"identification: {out['fits_per_seed']} per seed, wall median {out['identify_wall_s_median']} s, "
-        f"max {out['identify_wall_s_max']} s, model runs median {out['model_runs_median']}"
+        f"p90 {out['identify_wall_s_p90']} s, max {out['identify_wall_s_max']} s; model runs median "
+        f"{out['model_runs_median']}, max {out['model_runs_max']}"
     )
 
 

@@ -659,7 +659,12 @@ class ServiceCore:
         request = job_request(start, window, config=self.config, offsets=offsets)
         request = replace(
             request,
-            speed_map=MapJob(family=cfg.family, prior_mean=prior.mean, prior_cov=prior.cov),
+            speed_map=MapJob(
+                family=cfg.family,
+                prior_mean=prior.mean,
+                prior_cov=prior.cov,
+                start_mean=None if self._speed_map is None else np.array(self._speed_map.mean),
+            ),
             start_cov=np.array(window.start.cov),
             carry_start_error=False,
             start_modes=self.config.start_modes,

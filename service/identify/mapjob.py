@@ -38,6 +38,7 @@ class MapJob:
     family: Literal["nodes", "physics"]
     prior_mean: np.ndarray
     prior_cov: np.ndarray
+    start_mean: np.ndarray | None = None  # where the iteration starts (the newest map's θ; None: the prior's)
 
 
 def segment_speed(speed_rpm: np.ndarray, tol_rpm: float = SEGMENT_TOL_RPM) -> np.ndarray:
