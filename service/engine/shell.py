@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from drivers.ringbuffer import Sample
+from model.defaults import BOUND_REL_TOL
 from service.acquire.devicewatch import DeviceWatch
 from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
@@ -104,6 +105,7 @@ from service.serve.interface import (
 )
 from service.serve.views import (
     MapFreshness,
+    at_bound,
     chtc_map_snapshot,
     chtc_snapshot,
     map_freshness,
@@ -121,6 +123,7 @@ __all__ = ["RecordWriter", "SoftSensorService", "Worker"]
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
 HANDOVER_TIMEOUT_S = 30.0  # an API thread waits this long for the event loop to handle its request
+MAP_H_BOX = (0.5, 500.0)  # W/(m²·K): the speed map's bounds of H (model.hmap.LEVEL_BOUNDS, in ln H there)
 
 
 class RecordWriter(StatusSource, Protocol):
@@ -383,6 +386,7 @@ class SoftSensorService:
         newest = v.newest.t if v.newest is not None else None
         # codes only ("daq_no_good_data"): the snapshot and its ETag stay put while stale (ages: /readyz)
         problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
+        box: tuple[float, float] | None = self.core.model.ref.h_box
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
@@ -398,9 +402,14 @@ class SoftSensorService:
                 condition=cond,
                 ci_threshold=v.ci_threshold,
             )
-            status = fresh.status
+            # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
+            # one: an H there is never fresh (at-bound), as in per-condition mode
+            box = MAP_H_BOX
+            bounded = bool(np.any(at_bound(rec, box, BOUND_REL_TOL)))
+            status = ChtcStatus.AT_BOUND if bounded and fresh.status is ChtcStatus.FRESH else fresh.status
         else:
-            status = _status(v, rec, newest, problems)
+            bounded = bool(np.any(at_bound(rec, box, BOUND_REL_TOL)))
+            status = _status(v, rec, newest, problems, bounded=bounded)
         key = (
             rec.id,
             status,
@@ -421,7 +430,7 @@ class SoftSensorService:
             condition=cond,
             data_problems=problems,
             restored=v.current_from_restore,
-            box=self.core.model.ref.h_box,
+            box=box,
             converging_since=since,
             not_fresh=None if fresh is None else fresh.reason,
         )
@@ -688,8 +697,16 @@ def _filter_metrics(v: CoreView) -> FilterMetrics | None:
 
 
 def _status(
-    v: CoreView, rec: IdentificationRecord, newest: datetime | None, problems: tuple[str, ...]
+    v: CoreView,
+    rec: IdentificationRecord,
+    newest: datetime | None,
+    problems: tuple[str, ...],
+    *,
+    bounded: bool,
 ) -> ChtcStatus:
+    """The one freshness rule of /chtc (and /compensation): ``fresh`` only for H identified at the current,
+    stable condition from recent good data with a converged live state and no H on a bound of the search
+    box (``bounded``: such an H is not identified, so the record is ``at-bound``, never ``fresh``)."""
     if newest is None:
         return ChtcStatus.STALE if v.current_from_restore else ChtcStatus.NO_DATA
     if problems or v.current_from_restore or (v.live is not None and not v.live.converged):
@@ -699,6 +716,8 @@ def _status(
         return ChtcStatus.IDENTIFYING
     if cond.state.value != "stable":
         return ChtcStatus.IDENTIFYING
+    if bounded:
+        return ChtcStatus.AT_BOUND
     return ChtcStatus.FRESH
 
 
