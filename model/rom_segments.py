@@ -240,19 +240,24 @@ def simulate_tangents(
     w = np.empty((dh.shape[0], plan.n_steps, r))
     ends = np.append(plan.start[1:], plan.n_steps)
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
+        # only the directions that move this segment's H (a tabulated family: 2 nodes per zone of 8)
+        act = np.flatnonzero(np.any(dh[:, s] != 0.0, axis=1))
+        w[:, k0:k1] = 0.0
+        if act.size == 0:
+            continue
         phi = ops.phi[0, s]
         load = amb[k0:k1, None] * (h[0, s] @ rom.z_zone) + qf[k0:k1, None] * rom.q_front
         load += qr[k0:k1, None] * rom.q_rear  # (n_s, r): z_k
-        dk = (dh[:, s] @ rom.k_zone.reshape(7, r * r)).reshape(-1, r, r)  # (J, r, r): δK_s
+        dk = (dh[act, s] @ rom.k_zone.reshape(7, r * r)).reshape(-1, r, r)  # (J', r, r): δK_s
         d_modal = phi.T @ dk @ phi  # Φᵀ·δK·Φ
         b, c = states[k0:k1] @ phi, load @ phi  # (n_s, r) modal state and load
         src = b @ np.swapaxes(ops.l_mu[0, s] * d_modal, 1, 2) + c @ np.swapaxes(
             ops.l_gamma[0, s] * d_modal, 1, 2
         )
-        src = src @ phi.T  # (J, n_s, r): δA·a + δG·z
-        dz = dh[:, s] @ rom.z_zone  # (J, r) per °C ambient
+        src = src @ phi.T  # (J', n_s, r): δA·a + δG·z
+        dz = dh[act, s] @ rom.z_zone  # (J', r) per °C ambient
         src += amb[None, k0:k1, None] * (dz @ ops.g[0, s].T)[:, None, :]
-        w[:, k0:k1] = src
+        w[act, k0:k1] = src
     d_states = np.zeros((dh.shape[0], plan.n_steps + 1, r))
     _recur_shared(d_states, w, ops.a[0], plan)
     return Tangents(

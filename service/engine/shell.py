@@ -124,6 +124,7 @@ __all__ = ["RecordWriter", "SoftSensorService", "Worker"]
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
 HANDOVER_TIMEOUT_S = 30.0  # an API thread waits this long for the event loop to handle its request
+MAP_H_BOX = (0.5, 500.0)  # W/(m²·K): the speed map's bounds of H (model.hmap.LEVEL_BOUNDS, in ln H there)
 
 
 class RecordWriter(StatusSource, Protocol):
@@ -386,7 +387,7 @@ class SoftSensorService:
         newest = v.newest.t if v.newest is not None else None
         # codes only ("daq_no_good_data"): the snapshot and its ETag stay put while stale (ages: /readyz)
         problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
-        box = self.core.model.ref.h_box
+        box: tuple[float, float] | None = self.core.model.ref.h_box
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
@@ -402,7 +403,11 @@ class SoftSensorService:
                 condition=cond,
                 ci_threshold=v.ci_threshold,
             )
-            status = fresh.status
+            # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
+            # one: an H there is never fresh (at-bound), as in per-condition mode
+            box = MAP_H_BOX
+            bounded = bool(np.any(at_bound(rec, box, BOUND_REL_TOL)))
+            status = ChtcStatus.AT_BOUND if bounded and fresh.status is ChtcStatus.FRESH else fresh.status
         else:
             bounded = bool(np.any(at_bound(rec, box, BOUND_REL_TOL)))
             status = _status(v, rec, newest, problems, bounded=bounded)
