@@ -16,7 +16,8 @@ Figures (one 60-min window = 360 steps of 10 s, the service's default mesh unles
   ``--converged-check`` random H, 10-min windows (the model error budget of issue 15: target ≤ 0.02 °C);
 - ``rom_build_s`` (fresh build into a temporary cache), ``rom_load_s`` (loading that cache file);
 - ``speedup_rom_vs_full``: the median over the turns of full_forward_ms / rom_batched_ms_per_candidate (each
-  turn's own pair; ``speedup_rom_single_vs_full`` likewise for one candidate);
+  turn's own pair; ``speedup_rom_single_vs_full`` likewise for one candidate; ``timing_turns`` lists each
+  turn's times);
 - ``growth_build_s``, ``growth_eval_us``, ``growth_eval_reduced_us``: the thermal-growth operators
   (docs/growth.md): build time, and one evaluation of all outputs from a field / from a reduced state.
 
@@ -166,6 +167,7 @@ def _speed_figures(fe: FEModel, rom: ReducedModel, args: argparse.Namespace) -> 
         "rom_batched_ms_per_candidate": statistics.median(batch),
         "speedup_rom_vs_full": statistics.median(f / b for f, b in zip(full, batch, strict=True)),
         "speedup_rom_single_vs_full": statistics.median(f / o for f, o in zip(full, one, strict=True)),
+        "timing_turns": {"full_ms": full, "rom_ms_per_candidate": batch, "rom_single_ms": one},
     }
 
 
