@@ -99,7 +99,7 @@ def condition_out(c: ConditionSnapshot) -> ConditionOut:
 
 
 class ChtcOut(BaseModel):
-    status: Literal["fresh", "identifying", "stale", "no-data"]
+    status: Literal["fresh", "identifying", "stale", "at-bound", "no-data"]
     usable_for_compensation: bool = Field(
         description="the one flag a controller checks: data fresh, identified at the current stable "
         "condition, every H identified and inside the search box"
@@ -463,7 +463,7 @@ class SensitivityOut(BaseModel):
 
 
 class CompensationOut(BaseModel):
-    status: Literal["fresh", "identifying", "stale", "no-data"] = Field(
+    status: Literal["fresh", "identifying", "stale", "at-bound", "no-data"] = Field(
         description="the same rules as /chtc, evaluated at the same instant"
     )
     usable_for_compensation: bool = Field(description="the /chtc flag: data fresh, H identified and usable")
