@@ -104,13 +104,14 @@ class GrowthServer:
         *,
         t_ref_c: float | None = None,
         tool_dir: int = -1,
+        context: GrowthContext | None = None,  # built already (the bench shares one across runs)
     ) -> None:
         self.model = model
         self._t_ref_c = t_ref_c
         self.reference_at: datetime | None = None  # when the reference was taken (None: configured)
         self.tool_dir = tool_dir
         self._lock = threading.Lock()
-        self._ctx: GrowthContext | None = None
+        self._ctx: GrowthContext | None = context
         self._error: str | None = None
         self._terms: _Terms | None = None
         self._pending: TermsKey | None = None
