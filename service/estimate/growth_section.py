@@ -100,7 +100,7 @@ def section_displacement_um(op: SectionOperator, *, state: ArrayLike, t_ref_c: f
     """(u_r, u_z) (2, M) [µm] of the outline for the field Φ a over a uniform reference ``t_ref_c`` [°C]."""
     a = np.asarray(state, dtype=float)
     if a.shape != (op.rank,) or not np.all(np.isfinite(a)):
-        raise GrowthEstimateError(f"state: expected {op.rank} finite reduced coordinates, got shape {a.shape}")
+        raise GrowthEstimateError(f"state: expected {op.rank} finite reduced coordinates, got {a.shape}")
     if not np.isfinite(t_ref_c):
         raise GrowthEstimateError(f"t_ref_c: must be finite, got {t_ref_c}")
     return np.asarray(op.u_phi @ a - float(t_ref_c) * op.u_one)
