@@ -129,6 +129,7 @@ def test_status_and_usability_are_those_of_chtc_and_go_stale_when_data_stop(serv
         clock.now = last.t + timedelta(seconds=limit + 1)
         stale = client.get("/api/v1/compensation").json()
         assert stale["status"] == client.get("/api/v1/chtc").json()["status"] == "stale"
+        assert client.get("/api/v1/compensation/section").json()["status"] == "stale"
         assert stale["usable_for_compensation"] is False and stale["reason"].startswith("stale:")
         assert stale["sample_age_s"] == pytest.approx(limit + 1, abs=1e-3)
     finally:
