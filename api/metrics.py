@@ -48,7 +48,7 @@ def _counter(name: str, doc: str, label: str, values: Mapping[str, int]) -> Coun
     return fam
 
 
-STATUSES = tuple(s.value for s in ChtcStatus)  # every /chtc (and /compensation) status, in the enum's order
+STATUSES = tuple(s.value for s in ChtcStatus)
 
 
 def _chtc_gauges(snap: ChtcSnapshot | None) -> Iterator[Metric]:

@@ -101,7 +101,7 @@ def condition_out(c: ConditionSnapshot) -> ConditionOut:
 
 
 class ChtcOut(BaseModel):
-    status: Literal["fresh", "identifying", "stale", "no-data"]
+    status: Literal["fresh", "identifying", "stale", "at-bound", "no-data"]
     usable_for_compensation: bool = Field(
         description="the one flag a controller checks: data fresh, identified at the current stable "
         "condition, every H identified and inside the search box"

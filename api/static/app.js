@@ -169,6 +169,9 @@ function chtcCauses(c) {
     out.push({ sev: "alarm", title: "H stale", detail: `newest data ${ageText(c.sample_age_s)} old; the values shown are the last identified ones, do not use them for compensation` });
   } else if (c.status === "no-data") {
     out.push({ sev: "alarm", title: "No data", detail: "the service has no samples yet" });
+  } else if (c.status === "at-bound") {
+    const names = (c.zones || []).filter((z) => z.at_bound).map((z) => z.name).join(", ") || "an H";
+    out.push({ sev: "alarm", title: "H at a search bound", detail: `${names} on a bound of the search box: not identified, do not use for compensation` });
   } else if (c.status === "identifying") {
     const k = c.condition;
     out.push({ sev: "warn", title: "Identifying", detail: "the operating condition changed; H are still those of condition " + (k ? `#${k.id} (${fmt(k.speed_rpm, 0)} rpm)` : "before the change") + " until the new identification finishes" });

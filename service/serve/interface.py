@@ -74,6 +74,7 @@ class ChtcStatus(enum.StrEnum):
     FRESH = "fresh"  # identified at the current, stable condition from recent data
     IDENTIFYING = "identifying"  # condition changed; a new identification is queued or running
     STALE = "stale"  # no recent good data (DAQ/CAN down, hung, frozen) or restored, not re-identified
+    AT_BOUND = "at-bound"  # identified at the current condition, but an H sits on a bound of the search box
     NO_DATA = "no-data"  # no samples at all
 
 
