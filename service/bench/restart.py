@@ -161,9 +161,7 @@ def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
             last = [s for s in seed_served if s.speed_rpm == speed]
             if last:
                 s = last[-1]
-                rows.append(
-                    ((s.h - h_true) / h_true, (s.lo <= h_true) & (h_true <= s.hi), (s.hi - s.lo) / 2 / s.h)
-                )
+                rows.append(((s.h - h_true) / h_true, (s.lo <= h_true) & (h_true <= s.hi), _half_width(s)))
         if not rows:
             conditions.append({"speed_rpm": speed, "seeds_served": 0})
             continue
@@ -195,6 +193,13 @@ def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
     }
 
 
+def _half_width(s: Served) -> np.ndarray:
+    """The relative 95 % CI half-width (7,) of a result; an undefined one (a degenerate CI) is unbounded."""
+    with np.errstate(invalid="ignore", over="ignore"):
+        half = (s.hi - s.lo) / 2 / s.h
+    return np.where(np.isnan(half), np.inf, half)
+
+
 def _first_figures(firsts: list[Served]) -> dict[str, Any]:
     """What the first served H is worth, over the seeds: coverage, median CI half-width [%] and the fraction
     flagged identified, per H."""
@@ -202,7 +207,7 @@ def _first_figures(firsts: list[Served]) -> dict[str, Any]:
     for s in firsts:
         h_true = truth(s.speed_rpm)
         cov.append((s.lo <= h_true) & (h_true <= s.hi))
-        half.append((s.hi - s.lo) / 2 / s.h)
+        half.append(_half_width(s))
     out: dict[str, Any] = {
         "speeds_rpm": sorted({s.speed_rpm for s in firsts}),
         "coverage": np.round(np.mean(cov, axis=0), 2).tolist(),
