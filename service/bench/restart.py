@@ -13,7 +13,8 @@ it is narrow); for S > 0 also each H's median |error| as a multiple of the minut
 window end on the samples' clock; median and maximum over the seeds; offline the job takes no sample time, in
 the service add its wall time, ~0.2–1 s) and what that first H is worth (``first``: its coverage, median CI
 half-width and the fraction of seeds in which each H is flagged identified, CI within
-``identification.ci_rel_threshold`` and not at a bound; core mode).
+``identification.ci_rel_threshold`` and not at a bound; and the minutes to the first result with at least one
+H identified, with the fraction of seeds that had one; core mode).
 
 Modes (``--mode``):
 
@@ -188,8 +189,24 @@ def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
     return {
         "first_served_min": round(float(np.median(minutes)), 1),
         "first_served_min_max": round(float(np.max(minutes)), 1),
-        "first": _first_figures(firsts),
+        "first": _first_figures(firsts) | _first_identified(served, start_s),
         "conditions": conditions,
+    }
+
+
+def _first_identified(served: list[list[Served]], start_s: float) -> dict[str, Any]:
+    """Minutes from the start to the first served result with at least one H flagged identified (median over
+    the seeds that had one) and the fraction of seeds that had one (core mode; {} without flags)."""
+    if not any(s.identified is not None for seed_served in served for s in seed_served):
+        return {}
+    times = []
+    for seed_served in served:
+        hits = [s.end_s for s in seed_served if s.identified is not None and bool(s.identified.any())]
+        if hits:
+            times.append((min(hits) - start_s) / 60.0)
+    return {
+        "first_identified_min": round(float(np.median(times)), 1) if times else None,
+        "first_identified_seeds": round(len(times) / len(served), 2),
     }
 
 
@@ -308,6 +325,11 @@ def _print_table(out: dict[str, Any]) -> None:
             print(f"{'':20}{'CI half-width %':>14}{_fmt(first.get('ci_half_width_pct_median'), '7.0f')}")
             if "identified_frac" in first:
                 print(f"{'':20}{'identified':>14}{_fmt(first['identified_frac'], '7.2f')}")
+            if "first_identified_min" in first:
+                print(
+                    f"first result with an H identified after {first['first_identified_min']} min "
+                    f"({first['first_identified_seeds']:.0%} of the seeds)"
+                )
         print(f"{'':34}{head}")
         for c in s["conditions"]:
             tag = f"{c['speed_rpm']:.0f} rpm ({c['seeds_served']} seeds)"

@@ -57,6 +57,8 @@ def test_first_served_h_flags_are_counted() -> None:
     out = restart.summarise(seeds, start_s=900.0)
     assert out["first_served_min"] == out["first_served_min_max"] == pytest.approx(10.0)
     assert out["first"]["identified_frac"] == [1.0, 0.0] + [1.0] * 5
+    assert out["first"]["first_identified_min"] == pytest.approx(10.0)
+    assert out["first"]["first_identified_seeds"] == 0.5  # of the two seeds, one had an H identified
     assert out["first"]["ci_half_width_pct_median"] == [75.0] * 7
     assert restart.summarise([[], []], start_s=0.0)["first"] is None
 
