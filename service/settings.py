@@ -164,9 +164,9 @@ class ModelSettings(_Section):
 class IdentificationSettings(_Section):
     method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
     # re-identify this long after a condition change (or after the live state's convergence on a restart).
-    # The first entry is 7 min, not 10: the window starts from the converged filtered state with its covariance,
-    # so the first H is served within 13 min of a (re)start, also when the restart falls just before a change
-    # (docs/estimator.md, "First served H after a start"); the later windows, and so the settled H, are unchanged
+    # The first entry is 7 min, not 10: the window starts from the converged filtered state with its
+    # covariance, so the first H is served within 13 min of a (re)start, also when the restart falls just
+    # before a change (docs/estimator.md, "First served H after a start"); the later windows are unchanged
     schedule_min: tuple[float, ...] = (7.0, 20.0, 40.0, 60.0)
     min_window_s: float = Field(default=420.0, gt=0)  # shorter windows are skipped ("too little data")
     max_window_s: float = Field(default=3600.0, gt=0)  # fit at most this much recent data
