@@ -25,6 +25,7 @@ from service.serve.histogram import LATENCY_BUCKETS_S
 from service.serve.interface import (
     ChtcService,
     ChtcSnapshot,
+    ChtcStatus,
     CompensationSnapshot,
     FilterMetrics,
     HistogramData,
@@ -47,7 +48,7 @@ def _counter(name: str, doc: str, label: str, values: Mapping[str, int]) -> Coun
     return fam
 
 
-STATUSES = ("fresh", "identifying", "stale", "no-data")
+STATUSES = tuple(s.value for s in ChtcStatus)
 
 
 def _chtc_gauges(snap: ChtcSnapshot | None) -> Iterator[Metric]:

@@ -239,6 +239,14 @@ MIN_TOKEN_CHARS = 16
 PLACEHOLDER_TOKENS = ("change-me", "changeme", "replace-me", "your-token", "example")
 
 
+class GrowthSettings(_Section):
+    """The thermal growth at the tool (``/compensation``, docs/growth.md)."""
+
+    # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed);
+    # None: the live state's start temperature (the spindle as it was when the service started)
+    reference_c: float | None = Field(default=None, ge=-50.0, le=200.0, allow_inf_nan=False)
+
+
 def check_token(text: str) -> str:
     """A bearer token without surrounding whitespace (a secret file's trailing newline); refuses one that is
     short or a placeholder, naming why but never the token."""
@@ -330,6 +338,7 @@ class Settings(BaseSettings):
     detector: DetectorSettings = Field(default_factory=DetectorSettings)
     api: ApiSettings = Field(default_factory=ApiSettings)
     database: DatabaseSettings = Field(default_factory=DatabaseSettings)
+    growth: GrowthSettings = Field(default_factory=GrowthSettings)
 
     @classmethod
     def settings_customise_sources(

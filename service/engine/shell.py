@@ -38,6 +38,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from drivers.ringbuffer import Sample
+from model.defaults import BOUND_REL_TOL
 from service.acquire.devicewatch import DeviceWatch
 from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
@@ -95,13 +96,14 @@ from service.serve.interface import (
     OffsetBaseline,
     Readiness,
     SectionPart,
+    SectionSnapshot,
     SensorHistory,
     SensorHistoryBuffer,
     SensorReading,
     SpindleLayout,
     ZoneInfo,
 )
-from service.serve.views import chtc_snapshot
+from service.serve.views import at_bound, chtc_snapshot
 from service.store.records import DeviceEventData, Record
 
 if TYPE_CHECKING:
@@ -164,6 +166,7 @@ class SoftSensorService:
         on_event: Callable[[str], None] | None = None,
         history_capacity: int = 2160,  # samples of measured vs predicted kept for the API (6 h at 10 s)
         run_job: Callable[[JobRequest], JobOutcome] | None = None,
+        growth: GrowthServer | None = None,  # /compensation; default: referred to the live state's start
     ) -> None:
         self.core = core
         self.worker = worker
@@ -191,7 +194,7 @@ class SoftSensorService:
         self.closed = False
         sensors = [(sp.channel, sp.name, sp.role) for sp in core.model.spec.sensors]
         self._history = SensorHistoryBuffer(history_capacity, sensors)
-        self._growth = GrowthServer(core.model)  # /compensation
+        self._growth = growth if growth is not None else GrowthServer(core.model)  # /compensation
 
     @property
     def growth(self) -> GrowthServer:
@@ -375,7 +378,8 @@ class SoftSensorService:
         newest = v.newest.t if v.newest is not None else None
         # codes only ("daq_no_good_data"): the snapshot and its ETag stay put while stale (ages: /readyz)
         problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
-        status = _status(v, rec, newest, problems)
+        box = self.core.model.ref.h_box
+        status = _status(v, rec, newest, problems, bounded=bool(np.any(at_bound(rec, box, BOUND_REL_TOL))))
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
@@ -398,7 +402,7 @@ class SoftSensorService:
             condition=cond,
             data_problems=problems,
             restored=v.current_from_restore,
-            box=self.core.model.ref.h_box,
+            box=box,
             converging_since=since,
         )
         self._snap_cache = (key, snap)
@@ -429,6 +433,9 @@ class SoftSensorService:
 
     def compensation(self) -> CompensationSnapshot | None:
         return self._growth.snapshot(self._view, self.chtc)
+
+    def compensation_section(self) -> SectionSnapshot | None:
+        return self._growth.section_snapshot(self._view, self.chtc)
 
     def sensors(self) -> Sequence[SensorReading]:
         v = self._view
@@ -615,8 +622,16 @@ def _filter_metrics(v: CoreView) -> FilterMetrics | None:
 
 
 def _status(
-    v: CoreView, rec: IdentificationRecord, newest: datetime | None, problems: tuple[str, ...]
+    v: CoreView,
+    rec: IdentificationRecord,
+    newest: datetime | None,
+    problems: tuple[str, ...],
+    *,
+    bounded: bool,
 ) -> ChtcStatus:
+    """The one freshness rule of /chtc (and /compensation): ``fresh`` only for H identified at the current,
+    stable condition from recent good data with a converged live state and no H on a bound of the search
+    box (``bounded``: such an H is not identified, so the record is ``at-bound``, never ``fresh``)."""
     if newest is None:
         return ChtcStatus.STALE if v.current_from_restore else ChtcStatus.NO_DATA
     if problems or v.current_from_restore or (v.live is not None and not v.live.converged):
@@ -626,6 +641,8 @@ def _status(
         return ChtcStatus.IDENTIFYING
     if cond.state.value != "stable":
         return ChtcStatus.IDENTIFYING
+    if bounded:
+        return ChtcStatus.AT_BOUND
     return ChtcStatus.FRESH
 
 

@@ -38,6 +38,7 @@ from drivers.ringbuffer import Sample
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
 from service.engine.core import ServiceCore
+from service.engine.growthserve import GrowthServer
 from service.engine.runtime import CanDevice, DaqDevice, core_config
 from service.engine.shell import SoftSensorService
 from service.identify.worker import JobOutcome, JobRequest, run_job
@@ -353,6 +354,7 @@ def served_service(
         sources=sources,
         clock=clock,
         on_event=say,
+        growth=GrowthServer(model, t_ref_c=s.growth.reference_c),
     )
     served = Served(
         service=service,

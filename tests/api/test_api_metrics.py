@@ -80,7 +80,14 @@ def test_h_gauges_status_usable_and_build_info(
         got = {s.labels["zone"]: s.value for s in fam[name]}
         assert got == {z: float(v) for z, v in zip(snap.zones, values, strict=True)}, name
     status = {s.labels["status"]: s.value for s in fam["chtc_status"]}
-    assert status == {"fresh": 0.0, "identifying": 0.0, "stale": 0.0, "no-data": 0.0, str(snap.status): 1.0}
+    assert status == {
+        "fresh": 0.0,
+        "identifying": 0.0,
+        "stale": 0.0,
+        "at-bound": 0.0,
+        "no-data": 0.0,
+        str(snap.status): 1.0,
+    }
     assert fam["chtc_usable_for_compensation"][0].value == float(snap.usable_for_compensation)
     info = fam["chtc_build_info"][0]
     assert info.name == "chtc_build_info" and info.value == 1.0

@@ -185,7 +185,8 @@ def test_h_on_a_bound_is_not_identified_and_not_usable(loaded_model, identified)
 
     rig = _rig(loaded_model, identified, edit=on_bound)
     snap = rig.svc.chtc()
-    assert snap is not None and snap.status is ChtcStatus.FRESH
+    # never `fresh` with an H on a bound, though the data and the condition are current
+    assert snap is not None and snap.status is ChtcStatus.AT_BOUND
     assert snap.at_bound is not None and snap.at_bound.tolist() == [False, False, True] + [False] * 4
     assert not snap.identified[2] and snap.identified[[0, 1, 3, 4, 5, 6]].all()
     assert not snap.usable_for_compensation
