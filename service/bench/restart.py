@@ -23,7 +23,7 @@ Modes (``--mode``):
   service does today;
 - ``filter``: what wiring the filtered live state would give, without the core: the samples are pushed
   through ``service.estimate.state.FilteredState`` (Schmidt–Kalman filter, wide "heated" prior at the
-  start) and each identification window (the settings' schedule, 10, 20, 40, 60 min, counted from the
+  start) and each identification window (the settings' schedule, 7, 20, 40, 60 min, counted from the
   speed change or, after a restart, from the filter's convergence) starts from the filtered snapshot at
   max(condition start, convergence time) with its covariance as ``start_cov``
   (``model.identify``; ``--start-modes K`` also fits the start's K leading uncertain directions with their
