@@ -18,6 +18,7 @@ from service.serve.interface import (
     H_UNIT,
     ZONE_NAMES,
     ChtcSnapshot,
+    ChtcStatus,
     CompensationSnapshot,
     ConditionSnapshot,
     DeviceHealth,
@@ -25,6 +26,7 @@ from service.serve.interface import (
     IdentificationJob,
     IdentificationRecord,
     OffsetBaseline,
+    SectionSnapshot,
     SensorReading,
 )
 
@@ -463,14 +465,16 @@ class SensitivityOut(BaseModel):
 
 
 class CompensationOut(BaseModel):
-    status: Literal["fresh", "identifying", "stale", "at-bound", "no-data"] = Field(
-        description="the same rules as /chtc, evaluated at the same instant"
-    )
+    status: ChtcStatus = Field(description="the same rules as /chtc, evaluated at the same instant")
     usable_for_compensation: bool = Field(description="the /chtc flag: data fresh, H identified and usable")
     reason: str | None = Field(description="why not usable, 'code: detail' (the /chtc codes)")
     unit: str = Field("µm", description="unit of every *_um value")
     at: datetime = Field(description="UTC instant of the live field the growth is computed from")
     t_ref_c: float = Field(description="reference temperature (uniform) at which the growth is 0, °C")
+    t_ref_at: datetime | None = Field(
+        description="UTC instant the reference was taken (the live state's start); null: the configured "
+        "growth.reference_c"
+    )
     axial: GrowthValueOut = Field(description="spindle nose on the axis, + towards the tool")
     radial: GrowthValueOut = Field(description="nose outer diameter, + outwards")
     forecast: GrowthForecastOut
@@ -505,6 +509,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
         unit="µm",
         at=g.at,
         t_ref_c=round(g.t_ref_c, 4),
+        t_ref_at=s.reference_at,
         axial=_growth_value(g.axial),
         radial=_growth_value(g.radial),
         forecast=GrowthForecastOut(
@@ -542,6 +547,47 @@ def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
         identification_id=s.identification_id,
         h_w_m2k=[round(float(x), 4) for x in g.h],
         ambient_c=round(g.ambient_c, 3),
+        newest_sample_at=s.newest_sample_at,
+        sample_age_s=age,
+        served_at=now,
+    )
+
+
+class CompensationSectionOut(BaseModel):
+    """The spindle's section deformed by the live field (docs/growth.md, 'The deformed section'): draw
+    (r + k·u_r, z + k·u_z) for an exaggeration k of your choice next to the undeformed outline."""
+
+    status: ChtcStatus = Field(description="the status of /compensation (the /chtc rules)")
+    unit: str = Field("µm", description="unit of u_r_um and u_z_um")
+    at: datetime = Field(description="UTC instant of the live field the displacement is computed from")
+    t_ref_c: float = Field(description="reference temperature (uniform) at which the displacement is 0, °C")
+    identification_id: int = Field(description="the identification whose H the live state uses")
+    nodes_r_m: list[float] = Field(description="outline nodes: radius, m")
+    nodes_z_m: list[float] = Field(description="outline nodes: axial position, m")
+    edges: list[tuple[int, int]] = Field(description="outline edges (every part's boundary): node indices")
+    u_r_um: list[float] = Field(description="radial displacement of each outline node, µm")
+    u_z_um: list[float] = Field(description="axial displacement of each outline node, µm (0 at the mount)")
+    max_abs_um: float = Field(description="largest |u| over the outline, µm")
+    newest_sample_at: datetime | None
+    sample_age_s: float | None = Field(description="age of the newest sample at served_at, s")
+    served_at: datetime
+
+
+def compensation_section_out(s: SectionSnapshot, now: datetime) -> CompensationSectionOut:
+    age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
+    u = np.asarray(s.u_um, dtype=float)
+    return CompensationSectionOut(
+        status=s.status,
+        unit="µm",
+        at=s.at,
+        t_ref_c=round(s.t_ref_c, 4),
+        identification_id=s.identification_id,
+        nodes_r_m=np.round(s.nodes_rz[:, 0], 7).tolist(),
+        nodes_z_m=np.round(s.nodes_rz[:, 1], 7).tolist(),
+        edges=[(int(a), int(b)) for a, b in s.edges],
+        u_r_um=np.round(u[0], 4).tolist(),
+        u_z_um=np.round(u[1], 4).tolist(),
+        max_abs_um=round(float(np.hypot(u[0], u[1]).max()), 4) if u.size else 0.0,
         newest_sample_at=s.newest_sample_at,
         sample_age_s=age,
         served_at=now,

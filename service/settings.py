@@ -8,7 +8,7 @@
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
 the defaults below. Environment variables use the prefix ``CHTC_`` and ``__`` between section and key,
 e.g. ``CHTC_DATABASE__URL``, ``CHTC_API__TOKEN``, ``CHTC_MODBUS__PORT``. List and tuple values in the
-environment are JSON (``CHTC_IDENTIFICATION__SCHEDULE_MIN='[10, 20, 40, 60]'``). ``Settings()`` with no file
+environment are JSON (``CHTC_IDENTIFICATION__SCHEDULE_MIN='[7, 20, 40, 60]'``). ``Settings()`` with no file
 works for the demo. Relative paths in a TOML file are relative to that file's directory.
 
 Directories: ``CHTC_DATA_DIR`` (default ``$XDG_DATA_HOME/spindle-chtc`` or ``~/.local/share/spindle-chtc``)
@@ -163,13 +163,12 @@ class ModelSettings(_Section):
 
 class IdentificationSettings(_Section):
     method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
-    schedule_min: tuple[float, ...] = (
-        10.0,
-        20.0,
-        40.0,
-        60.0,
-    )  # re-identify this long after a condition change
-    min_window_s: float = Field(default=600.0, gt=0)  # shorter windows are skipped ("too little data")
+    # re-identify this long after a condition change (or after the live state's convergence on a restart).
+    # The first entry is 7 min, not 10: the window starts from the converged filtered state with its
+    # covariance, so the first H is served within 13 min of a (re)start, also when the restart falls just
+    # before a change (docs/estimator.md, "First served H after a start"); the later windows are unchanged
+    schedule_min: tuple[float, ...] = (7.0, 20.0, 40.0, 60.0)
+    min_window_s: float = Field(default=420.0, gt=0)  # shorter windows are skipped ("too little data")
     max_window_s: float = Field(default=3600.0, gt=0)  # fit at most this much recent data
     distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: warm-start "nearness"
     min_good_channels: int = Field(default=24, ge=1, le=32)
@@ -266,6 +265,14 @@ MIN_TOKEN_CHARS = 16
 PLACEHOLDER_TOKENS = ("change-me", "changeme", "replace-me", "your-token", "example")
 
 
+class GrowthSettings(_Section):
+    """The thermal growth at the tool (``/compensation``, docs/growth.md)."""
+
+    # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed);
+    # None: the live state's start temperature (the spindle as it was when the service started)
+    reference_c: float | None = Field(default=None, ge=-50.0, le=200.0, allow_inf_nan=False)
+
+
 def check_token(text: str) -> str:
     """A bearer token without surrounding whitespace (a secret file's trailing newline); refuses one that is
     short or a placeholder, naming why but never the token."""
@@ -357,6 +364,7 @@ class Settings(BaseSettings):
     detector: DetectorSettings = Field(default_factory=DetectorSettings)
     api: ApiSettings = Field(default_factory=ApiSettings)
     database: DatabaseSettings = Field(default_factory=DatabaseSettings)
+    growth: GrowthSettings = Field(default_factory=GrowthSettings)
 
     @classmethod
     def settings_customise_sources(

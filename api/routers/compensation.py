@@ -1,6 +1,7 @@
 """GET /compensation: the thermal growth at the tool for a compensation controller (docs/api.md,
 docs/growth.md): axial and radial growth in µm and 0.1-µm integers, 95 % CIs, the forecast, the controller
-values, the sensor sensitivity, with the status and usability of ``/chtc``.
+values, the sensor sensitivity, with the status and usability of ``/chtc``. GET /compensation/section: the
+section's outline and its displacement (µm) by the live field, for the dashboard's exaggerated drawing.
 
 A plain (not async) endpoint: FastAPI runs it in a worker thread, because the service may build the growth
 model once and its per-condition terms (~0.3 s) on a new identification or condition; never on the loop.
@@ -12,7 +13,12 @@ from fastapi import APIRouter
 
 from api.deps import ClockDep, ReadAccess, ServiceDep
 from api.errors import ApiError
-from api.schemas import CompensationOut, compensation_out
+from api.schemas import (
+    CompensationOut,
+    CompensationSectionOut,
+    compensation_out,
+    compensation_section_out,
+)
 
 router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 
@@ -33,3 +39,21 @@ def get_compensation(service: ServiceDep, clock: ClockDep) -> CompensationOut:
             headers={"Retry-After": "5"},
         )
     return compensation_out(snap, clock())
+
+
+@router.get(
+    "/compensation/section",
+    response_model=CompensationSectionOut,
+    responses={503: {"description": "no identification or no live field yet"}},
+    summary="the spindle's section outline and its displacement (u_r, u_z, µm) by the live field",
+)
+def get_compensation_section(service: ServiceDep, clock: ClockDep) -> CompensationSectionOut:
+    snap = service.compensation_section()
+    if snap is None:
+        raise ApiError(
+            status=503,
+            code="no_data",
+            message="no identification or no live field yet",
+            headers={"Retry-After": "5"},
+        )
+    return compensation_section_out(snap, clock())

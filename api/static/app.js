@@ -12,7 +12,7 @@ const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
 
 const state = {
   etag: null, chtc: null, chtcAt: 0, field: null, fieldKey: null, layout: null, sensorsNow: null,
-  hist: null, health: null, ready: null, apiError: null, job: null, growth: [], growthNow: null,
+  hist: null, health: null, ready: null, apiError: null, job: null, growth: [], growthNow: null, deformed: null,
   rendered: { h: false, field: false, sensors: false },
 };
 
@@ -758,7 +758,73 @@ async function pollGrowth() {
       `${g.plc.sd43900_temp_comp_abs_value_mm.toFixed(4)} mm, ISG offset ${g.plc.isg_temp_comp_offset_0_0p1um} × 0.1 µm` +
       (g.usable_for_compensation ? "" : ` · not usable: ${g.reason || ""}`);
     drawGrowth();
+    await pollDeformed();
   } catch (e) { $("growth-now").textContent = "growth unavailable"; }
+}
+
+// ---------- the deformed section (/compensation/section): outline + displacement × an exaggeration ----------
+function exaggeration(maxUm, rmaxM) { // the 1-2-5 step that draws the largest |u| at about 12 % of the radius
+  if (!(maxUm > 0)) return 1;
+  const want = 0.12 * rmaxM / (maxUm * 1e-6), p = 10 ** Math.floor(Math.log10(want));
+  return [5, 2, 1].map((f) => f * p).find((k) => k <= want) || p;
+}
+
+function drawDeformed(sec) {
+  const canvas = $("deformed");
+  if (!sec) return;
+  const r = sec.nodes_r_m, z = sec.nodes_z_m, ur = sec.u_r_um, uz = sec.u_z_um;
+  const zmin = Math.min(...z), zmax = Math.max(...z), rmax = Math.max(...r);
+  const k = exaggeration(sec.max_abs_um, rmax);
+  const L = 52, R = 20, top = 16, bottom = 42;
+  const sw = (Math.max(canvas.clientWidth, 200) - L - R) / (zmax - zmin);
+  canvas.dataset.h = String(Math.round(Math.min(Math.max(top + bottom + 1.25 * rmax * sw, 200), 420)));
+  const { ctx, W, H } = setupCanvas(canvas);
+  const s = Math.min((W - L - R) / (zmax - zmin) / 1.04, (H - top - bottom) / (rmax * 1.2));
+  const X = (zm) => L + (zm - zmin) * s, Y = (rm) => H - bottom - rm * s;
+  const dz = uz.map((v) => v * 1e-6 * k), dr = ur.map((v) => v * 1e-6 * k);
+  ctx.lineWidth = 1; ctx.strokeStyle = "rgba(143,155,168,0.55)"; ctx.beginPath();
+  for (const [a, b] of sec.edges) { ctx.moveTo(X(z[a]), Y(r[a])); ctx.lineTo(X(z[b]), Y(r[b])); }
+  ctx.stroke();
+  let digest = 0;
+  ctx.lineWidth = 1.5; ctx.strokeStyle = "#4c9be8"; ctx.beginPath();
+  for (const [a, b] of sec.edges) {
+    ctx.moveTo(X(z[a] + dz[a]), Y(r[a] + dr[a])); ctx.lineTo(X(z[b] + dz[b]), Y(r[b] + dr[b]));
+  }
+  ctx.stroke();
+  for (let i = 0; i < z.length; i++) digest += Math.abs(uz[i]) + Math.abs(ur[i]);
+  // axes: z below, r at the left (mm), the upper half of the section (r ≥ 0)
+  ctx.strokeStyle = AXIS; ctx.fillStyle = MUTED; ctx.textAlign = "center";
+  const yb = H - bottom + 4;
+  ctx.beginPath(); ctx.moveTo(X(zmin), yb); ctx.lineTo(X(zmax), yb); ctx.stroke();
+  for (const v of niceTicks(zmin * 1e3, zmax * 1e3, 8)) {
+    ctx.beginPath(); ctx.moveTo(X(v / 1e3), yb); ctx.lineTo(X(v / 1e3), yb + 4); ctx.stroke();
+    ctx.fillText(v.toFixed(0), X(v / 1e3), yb + 16);
+  }
+  ctx.fillStyle = TEXT;
+  ctx.fillText(`z, mm (undeformed); displacement drawn ×${k}`, L + (zmax - zmin) * s / 2, H - 5);
+  ctx.textAlign = "right"; ctx.textBaseline = "middle"; ctx.fillStyle = MUTED;
+  for (const v of niceTicks(0, rmax * 1e3, 3)) ctx.fillText(v.toFixed(0), L - 8, Y(v / 1e3));
+  ctx.textBaseline = "alphabetic";
+  ctx.save(); ctx.translate(12, Y(rmax / 2)); ctx.rotate(-Math.PI / 2); ctx.textAlign = "center"; ctx.fillStyle = TEXT;
+  ctx.fillText("r, mm", 0, 0); ctx.restore();
+  ctx.textAlign = "left"; ctx.fillStyle = TEXT;
+  ctx.fillText(`×${k}`, W - R - 60, top + 12);
+  Object.assign(canvas.dataset, { exaggeration: String(k), edges: String(sec.edges.length), at: sec.at,
+    maxUm: sec.max_abs_um.toFixed(3), digest: digest.toFixed(3) });
+  $("deformed-unit").textContent = `displacement in µm, drawn ×${k}; grey = undeformed outline, blue = deformed`;
+  $("deformed-stale").hidden = sec.status !== "stale";
+  $("deformed-meta").textContent = `at ${utc(sec.at)} over T_ref ${fmt(sec.t_ref_c, 2)} °C · largest |u| ` +
+    `${fmt(sec.max_abs_um, 1)} µm · exaggeration ×${k} · identification #${sec.identification_id} · ${sec.status}` +
+    ` · axial u_z relative to the mounting face`;
+}
+
+async function pollDeformed() {
+  try {
+    const r = await api("/compensation/section");
+    if (r.status !== 200) { $("deformed-meta").textContent = r.body?.error?.message || "no deformation yet"; return; }
+    state.deformed = r.body;
+    drawDeformed(r.body);
+  } catch (e) { $("deformed-meta").textContent = "deformation unavailable"; }
 }
 
 // ---------- health and identifications ----------
@@ -869,7 +935,7 @@ function start() {
   let resizeTimer = null;
   window.addEventListener("resize", () => {
     clearTimeout(resizeTimer);
-    resizeTimer = setTimeout(() => { if (state.chtc) drawH(state.chtc); if (state.field) drawField(state.field); drawSensors(); drawGrowth(); }, 150);
+    resizeTimer = setTimeout(() => { if (state.chtc) drawH(state.chtc); if (state.field) drawField(state.field); drawSensors(); drawGrowth(); drawDeformed(state.deformed); }, 150);
   });
   loadLayout().then(() => {
     every(pollSensors, POLL_MS.sensors);

@@ -6,15 +6,15 @@ model built on the *plant's* mesh (``model.thermoelastic``), so mesh and time di
 service's. The samples go through the service's own core, sample by sample, exactly as
 ``service.engine.offline.run_offline`` feeds them (``ServiceCore.ingest``, identifications inline with the
 same seeded worker function). At every ``--every-s`` after the first successful identification the bench
-takes what the service would serve from:
+asks the service's own ``service.engine.growthserve.GrowthServer`` (as ``/compensation`` does) for the growth
+of the core's view, so everything is the service's real path:
 
-- the field and its uncertainty: the filtered live state now (``ServiceCore.view().live``: the Kalman
-  filter's reduced mean and covariance, ``service.estimate.state``; the covariance holds the considered H
-  error): ``FieldBelief(state=..., cov=..., includes_h=True)``;
-- H: the live state's H, its covariance from the last identification's log-H CI and correlation
-  (``h_cov_from_ci``); the condition: the newest sample's ambient, speed and torque (held);
+- the field and its uncertainty: the filtered live state now (``field_belief``: the Kalman filter's reduced
+  mean and covariance, ``service.estimate.state``; the covariance holds the considered H error);
+- H: the live state's H; Σ_H from the current identification record's CIs (``h_covariance``: uncorrelated,
+  as stored); the condition: the detector's current condition (held).
 
-and evaluates ``service.estimate.growth.estimate_growth``. Profiles: ``chain`` (the chain bench's: idle,
+Profiles: ``chain`` (the chain bench's: idle,
 3000/4000/5000 rpm for 45 min each) and ``duty`` (5 min idle, 45 min at 4000 rpm so that an identification
 exists, then 90 min of speed changes every 1-6 min, 0-7000 rpm, torque 3-15 N·m, ambient drifting ±1 °C;
 seeded). The reference temperature is the plant's uniform start (the controller is zeroed cold).
@@ -41,6 +41,7 @@ import numpy as np
 from service.bench.chain import PROFILE as CHAIN
 from service.bench.chain import T0
 from service.bench.targets import Target, format_verdicts, verdicts
+from service.engine.growthserve import GrowthServer
 
 DT_S = 10.0
 HORIZON_STEPS = (30, 90, 180)  # 5, 15, 30 min of 10-s samples
@@ -158,8 +159,9 @@ class _Evaluator:
         self.samples = samples
         self.t_ref = float(run.truth_c[0].mean()) if run.fields_c.size == 0 else float(run.fields_c[0].mean())
         self.rows = _Rows()
-        self._terms_key: Any = None
         self.last_terms: Any = None
+        # the service's own server (service.engine.growthserve): its terms, field belief and Σ_H
+        self.server = GrowthServer(model, t_ref_c=self.t_ref, context=ctx)
         cond = np.column_stack([run.speed_rpm, run.torque_nm, run.ambient_c])
         self.cond = cond
         # last sample of each held condition >= 30 min: where the steady forecast is checked
@@ -169,57 +171,23 @@ class _Evaluator:
             int(e - (e % every)) for s, e in zip(starts, ends, strict=True) if e - s >= HORIZON_STEPS[-1]
         }
 
-    def terms(self, h: np.ndarray, cov_h: np.ndarray, sample: Any, load_scale: Any) -> Any:
-        from model.inputs import inputs_from_operation
-        from service.estimate.growth import condition_terms
-
-        inp = inputs_from_operation(
-            self.model.spec,
-            dt_s=DT_S,
-            speed_rpm=sample.speed_rpm,
-            torque_nm=sample.torque_nm,
-            ambient_c=sample.ambient_c,
-        )
-        ls = (1.0, 1.0) if load_scale is None else (float(load_scale[0]), float(load_scale[1]))
-        key = (h.tobytes(), cov_h.tobytes(), float(inp.ambient_c[0]), float(inp.q_front_w[0]), ls)
-        if key != self._terms_key:
-            self.last_terms = condition_terms(
-                self.ctx,
-                h=h,
-                cov_h=cov_h,
-                ambient_c=float(inp.ambient_c[0]),
-                q_front_w=float(inp.q_front_w[0]),
-                q_rear_w=float(inp.q_rear_w[0]),
-                load_scale=ls,
-            )
-            self._terms_key = key
-        return self.last_terms
-
-    def belief(self, live: Any) -> Any:
-        """The filtered live state's belief: its reduced mean and covariance (which holds the considered
-        H error: ``includes_h``)."""
-        from service.estimate.growth import FieldBelief
-
-        return FieldBelief(state=np.asarray(live.mean), cov=np.asarray(live.cov), includes_h=True)
-
     def __call__(self, core: Any, k: int, result: Any) -> None:
-        from service.estimate.growth import estimate_growth, h_cov_from_ci
+        from service.engine.growthserve import field_belief
 
-        live = core.view().live
-        if result is None or k % self.every or live is None:
+        view = core.view()
+        if result is None or k % self.every or view.live is None or view.current is None:
             return
-        snap = live
-        sample = self.samples[k]
-        h = np.asarray(live.h, dtype=float)
-        cov_h = h_cov_from_ci(result.h, result.h_ci95, result.correlation)
-        cov_h = cov_h * np.outer(h / result.h, h / result.h)  # the CI relative to the H the live state uses
-        terms = self.terms(h, cov_h, sample, getattr(result, "load_scale", None))
-        belief = self.belief(snap)
+        ready = self.server.ready_for(view)  # else this call computes the condition terms first
         started = time.perf_counter()
-        est = estimate_growth(self.ctx, terms, belief, t_ref_c=self.t_ref, at=sample.t)
-        self.rows.estimate_s.append(time.perf_counter() - started)
+        est = self.server.estimate(view)
+        if ready:
+            self.rows.estimate_s.append(time.perf_counter() - started)
+        if est is None:
+            return
+        self.last_terms = self.server.refresh(view)  # cached: the terms est used
+        belief = field_belief(view)
         started = time.perf_counter()
-        _ = self.ctx.g @ np.asarray(snap.field_c)
+        _ = self.ctx.g_phi @ belief.state if self.ctx.g_phi is not None else self.ctx.g @ view.live.field_c
         self.rows.eval_s.append(time.perf_counter() - started)
         self._compare(k, est)
 

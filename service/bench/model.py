@@ -3,6 +3,8 @@
 Figures (one 60-min window = 360 steps of 10 s, the service's default mesh unless told otherwise):
 
 - ``full_forward_ms``: one full-FE θ-method window (factorisation + 360 solves, sensors only), median of runs;
+  the full FE and the reduced model are timed in turns (one FE window, then the ROM calls, ``--runs`` times),
+  so that a change of the machine's load between the two moves both sides of each ratio;
 - ``full_vs_reference_max_err_c``: the default mesh against a much finer mesh at the 32 sensors, on the
   paper's two H sets and one random H, with a heat step and an ambient drift inside the window;
 - ``rom_forward_ms`` (one candidate) and ``rom_batched_ms_per_candidate`` (population of 28), medians;
@@ -13,7 +15,9 @@ Figures (one 60-min window = 360 steps of 10 s, the service's default mesh unles
   at Δt/20 and Δt/40; ``converged_reference_time_err_c`` bounds the reference's own error) over
   ``--converged-check`` random H, 10-min windows (the model error budget of issue 15: target ≤ 0.02 °C);
 - ``rom_build_s`` (fresh build into a temporary cache), ``rom_load_s`` (loading that cache file);
-- ``speedup_rom_vs_full`` = full_forward_ms / rom_batched_ms_per_candidate, measured in the same run;
+- ``speedup_rom_vs_full``: the median over the turns of full_forward_ms / rom_batched_ms_per_candidate (each
+  turn's own pair; ``speedup_rom_single_vs_full`` likewise for one candidate; ``timing_turns`` lists each
+  turn's times);
 - ``growth_build_s``, ``growth_eval_us``, ``growth_eval_reduced_us``: the thermal-growth operators
   (docs/growth.md): build time, and one evaluation of all outputs from a field / from a reduced state.
 
@@ -42,6 +46,7 @@ if TYPE_CHECKING:
     from model.fem import FEModel
     from model.geometry import SpindleSpec
     from model.inputs import InputSeries
+    from model.rom import ReducedModel
 
 TARGETS = (  # docs/rom.md, "Target check"
     Target("full_vs_reference_max_err_c", "<=", 0.02, unit="°C"),
@@ -64,7 +69,12 @@ PAPER_H = (
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``chtc bench model``."""
     parser.add_argument("--json", action="store_true", help="print one JSON object")
-    parser.add_argument("--runs", type=int, default=5, help="timing repetitions (median), default 5")
+    parser.add_argument(
+        "--runs",
+        type=int,
+        default=5,
+        help="timing turns (full FE, then the reduced model; medians), default 5",
+    )
     parser.add_argument("--check", type=int, default=100, help="random H for rom_max_err_c (>= 100 advised)")
     parser.add_argument(
         "--rank", type=int, default=None, help="reduced-model rank (default: model.rom default)"
@@ -115,8 +125,6 @@ def _full_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> d
     from model.fem import build_fe_model, simulate_sensors
 
     inputs = _window()
-    h = np.asarray(PAPER_H[0])
-    full_ms = _median_ms(lambda: simulate_sensors(fe, h, inputs, 21.8), args.runs)
     ref_size = args.reference_mesh_size_m or 0.4 * fe.mesh_size_m
     _progress(f"reference mesh {ref_size:.5f} m")
     ref = build_fe_model(spec, mesh_size_m=ref_size)
@@ -130,14 +138,42 @@ def _full_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> d
         errs.append(float(np.max(np.abs(coarse - fine))))
         _progress(f"reference case {i + 1}/{len(hs)}: {errs[-1]:.4f} °C")
     return {
-        "full_forward_ms": full_ms,
         "reference_nodes": int(ref.n_nodes),
         "reference_mesh_size_m": ref_size,
         "full_vs_reference_max_err_c": max(errs),
     }
 
 
-def _rom_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> dict[str, Any]:
+def _speed_figures(fe: FEModel, rom: ReducedModel, args: argparse.Namespace) -> dict[str, Any]:
+    """Full FE (one window) and reduced model (one candidate; a population of 28) timed in turns, ``--runs``
+    turns: medians of the times [ms] and of the per-turn ratios (the speed-ups)."""
+    from model.fem import simulate_sensors
+
+    inputs = _window()
+    h = np.asarray(PAPER_H[0])
+    rng = np.random.default_rng(args.seed)
+    lo, hi = rom.h_box
+    pop = lo * (hi / lo) ** rng.random((28, 7))
+    simulate_sensors(fe, h, inputs, 21.8)  # warm-up, untimed: first-call costs on both sides
+    rom.simulate_sensors(pop, inputs, 21.8)
+    full, one, batch = [], [], []
+    for _ in range(max(1, args.runs)):
+        full.append(_median_ms(lambda: simulate_sensors(fe, h, inputs, 21.8), 1))
+        one.append(_median_ms(lambda: rom.simulate_sensors(pop[:1], inputs, 21.8), 10))
+        batch.append(_median_ms(lambda: rom.simulate_sensors(pop, inputs, 21.8), 4) / 28)
+    return {
+        "full_forward_ms": statistics.median(full),
+        "rom_forward_ms": statistics.median(one),
+        "rom_batched_ms_per_candidate": statistics.median(batch),
+        "speedup_rom_vs_full": statistics.median(f / b for f, b in zip(full, batch, strict=True)),
+        "speedup_rom_single_vs_full": statistics.median(f / o for f, o in zip(full, one, strict=True)),
+        "timing_turns": {"full_ms": full, "rom_ms_per_candidate": batch, "rom_single_ms": one},
+    }
+
+
+def _rom_figures(
+    fe: FEModel, spec: SpindleSpec, args: argparse.Namespace
+) -> tuple[dict[str, Any], ReducedModel]:
     from model import rom_check
     from model.rom import load_or_build_rom
 
@@ -152,12 +188,6 @@ def _rom_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> di
         load_s = time.perf_counter() - started
     if not rom.from_cache:
         raise RuntimeError("reduced model was not reloaded from its cache file")
-    inputs = _window()
-    rng = np.random.default_rng(args.seed)
-    lo, hi = rom.h_box
-    pop = lo * (hi / lo) ** rng.random((28, 7))
-    one_ms = _median_ms(lambda: rom.simulate_sensors(pop[:1], inputs, 21.8), 10 * args.runs)
-    batch_ms = _median_ms(lambda: rom.simulate_sensors(pop, inputs, 21.8), 4 * args.runs) / 28
     _progress(f"checking the reduced model on {args.check} random H (2 histories each)")
     report = rom_check.error_report(
         replace(rom, substeps=1),  # projection error: the ROM and the full FE take the same θ-steps
@@ -182,15 +212,13 @@ def _rom_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> di
         ref_substeps=CONVERGED_SUBSTEPS,
         progress=_progress,
     )
-    return {
+    figures = {
         "rom_size": rom.rank,
         "rom_substeps": rom.substeps,
         "rom_vs_converged_max_err_c": conv["max_err_c"],
         "rom_vs_converged_p95_err_c": conv["p95_err_c"],
         "converged_reference_time_err_c": conv["ref_time_err_c"],
         "converged_check_h": conv["n_cases"],
-        "rom_forward_ms": one_ms,
-        "rom_batched_ms_per_candidate": batch_ms,
         "rom_max_err_c": report["max_err_c"],
         "rom_mean_err_c": report["mean_err_c"],
         "rom_p95_err_c": report["p95_err_c"],
@@ -202,6 +230,7 @@ def _rom_figures(fe: FEModel, spec: SpindleSpec, args: argparse.Namespace) -> di
         "rom_build_s": build_s,
         "rom_load_s": load_s,
     }
+    return figures, rom
 
 
 def _growth_figures(fe: FEModel, spec: SpindleSpec) -> dict[str, Any]:
@@ -228,14 +257,16 @@ def run(args: argparse.Namespace) -> dict[str, Any]:
 
     spec = load_spindle()
     fe = build_fe_model(spec, mesh_size_m=args.mesh_size_m)
-    _progress(f"FE model: {fe.n_nodes} nodes; timing the full forward model")
+    _progress(f"FE model: {fe.n_nodes} nodes")
     out: dict[str, Any] = {"mesh_nodes": int(fe.n_nodes), "mesh_size_m": fe.mesh_size_m, "window_steps": 360}
     out["window_dt_s"] = 10.0
     out.update(_full_figures(fe, spec, args))
-    out.update(_rom_figures(fe, spec, args))
+    rom_figures, rom = _rom_figures(fe, spec, args)
+    out.update(rom_figures)
+    _progress(f"timing the full FE and the reduced model in turns ({args.runs} turns)")
+    out["load_avg_1m_start"] = os.getloadavg()[0]
+    out.update(_speed_figures(fe, rom, args))
     out.update(_growth_figures(fe, spec))
-    out["speedup_rom_vs_full"] = out["full_forward_ms"] / out["rom_batched_ms_per_candidate"]
-    out["speedup_rom_single_vs_full"] = out["full_forward_ms"] / out["rom_forward_ms"]
     out["runs"] = args.runs
     out["load_avg_1m"] = os.getloadavg()[0]  # other work on the machine inflates every timing
     out["timestamp_utc"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
@@ -274,8 +305,8 @@ def format_table(res: dict[str, Any]) -> str:
     ]
     width = max(len(k) for k, _ in rows)
     lines = [
-        f"chtc bench model ({res['timestamp_utc']}, medians of {res['runs']} runs, "
-        f"load average {res['load_avg_1m']:.1f})"
+        f"chtc bench model ({res['timestamp_utc']}, medians of {res['runs']} timing turns, "
+        f"load average {res['load_avg_1m_start']:.1f} at the timing, {res['load_avg_1m']:.1f} at the end)"
     ]
     lines += [f"  {k.ljust(width)}  {v}" for k, v in rows]
     lines.append(format_verdicts(res["targets"]))

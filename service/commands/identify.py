@@ -240,7 +240,7 @@ def main(args: argparse.Namespace) -> int:
     if args.json_out is not None:  # the growth history (docs/growth.md): only for the JSON
         from service.engine.growthserve import GrowthHistory
 
-        growth = GrowthHistory(model)
+        growth = GrowthHistory(model, t_ref_c=settings.growth.reference_c)
     result = run_offline(data.samples, model=model, config=core_config(settings), on_sample=growth)
     source = (
         f"{data.frames} CAN frames ({data.bad_frames} undecodable)"

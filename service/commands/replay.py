@@ -10,12 +10,20 @@ The DAQ serves the recording reduced to the rows the acquisition samples (``writ
 per ``acquisition.sample_period_s``, the newest recorded row at each sample instant), and the acquisition is
 started in phase with them, so a replay sees the same samples as ``chtc identify`` on the same files, also for
 real-time recordings with one jittered row per second; see docs/service.md for what can still differ.
+
+The growth history (docs/growth.md): while the log plays, what ``/compensation`` serves is read every
+``--growth-every-s`` recorded seconds and at each new identification (``GrowthLog``), and written to
+``--growth-out`` (JSON, or CSV by suffix; default next to ``--out``): the time (UTC), the status and
+usability of ``/chtc``, the identification, the axial and radial growth in µm with their 95 % CIs and
+0.1-µm integers, and the steady axial growth. Each identification in ``--out`` (JSON) carries ``growth``:
+the first served after it became current (null if it did not succeed), as ``chtc identify --json`` does.
 """
 
 from __future__ import annotations
 
 import argparse
 import asyncio
+import contextlib
 import csv
 import json
 import sys
@@ -29,11 +37,12 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from drivers.sim.replay import Replay
     from service.engine.runtime import ScaledClock
-    from service.serve.interface import IdentificationRecord
+    from service.engine.shell import SoftSensorService
+    from service.serve.interface import CompensationSnapshot, IdentificationRecord
     from service.settings import Settings
 
 from service.commands._common import CommandError, check_listen, override, port_number, positive_float
-from service.commands.identify import num, record_dict
+from service.commands.identify import growth_dict, num, record_dict
 from service.sim.logsamples import REPLAY_PHASE, write_acquisition_csv
 
 
@@ -60,9 +69,90 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--grace", type=float, default=30.0, help="wall s to wait for running identifications"
     )
+    parser.add_argument(
+        "--growth-out",
+        type=Path,
+        default=None,
+        help="growth history, .json or .csv (default: --out's name with _growth)",
+    )
+    parser.add_argument(
+        "--growth-every-s",
+        type=positive_float,
+        default=60.0,
+        help="recorded seconds between growth history rows (default 60; and at each identification)",
+    )
 
 
-def write_out(path: Path, records: list[IdentificationRecord]) -> None:
+class GrowthLog:
+    """The growth as ``/compensation`` served it during a replay: ``rows`` (time order) and, per
+    identification id, the first row served after it became current (``by_id``)."""
+
+    def __init__(self) -> None:
+        self.rows: list[dict[str, object]] = []
+        self.by_id: dict[int, dict[str, object]] = {}
+
+    def add(self, snap: CompensationSnapshot) -> None:
+        g = growth_dict(snap.growth)
+        assert g is not None
+        row: dict[str, object] = {
+            "at": g.pop("at"),
+            "status": str(snap.status),
+            "usable_for_compensation": bool(snap.usable_for_compensation),
+            "reason": snap.reason,
+            "identification_id": snap.identification_id,
+            "unit": "µm",
+        } | g
+        if self.rows and self.rows[-1]["at"] == row["at"]:
+            return
+        self.rows.append(row)
+        self.by_id.setdefault(snap.identification_id, row)
+
+    def write(self, path: Path) -> None:
+        if path.suffix.lower() == ".csv":
+            with path.open("w", newline="", encoding="utf-8") as f:
+                w = csv.writer(f)
+                parts = ("axial", "radial", "steady_axial")
+                w.writerow(
+                    ["at", "status", "usable_for_compensation", "identification_id", "t_ref_c"]
+                    + [f"{p}_{k}" for p in parts for k in ("um", "ci95_lo_um", "ci95_hi_um", "0p1um")]
+                )
+                for r in self.rows:
+                    vals: list[object] = []
+                    for p in parts:
+                        v = r[p]
+                        assert isinstance(v, dict)
+                        vals += [v["um"], v["ci95_um"][0], v["ci95_um"][1], v["plc_0p1um"]]
+                    head = [r[k] for k in ("at", "status", "usable_for_compensation", "identification_id")]
+                    w.writerow([*head, r["t_ref_c"], *vals])
+        else:
+            path.write_text(json.dumps(self.rows, indent=2) + "\n", encoding="utf-8")
+
+
+async def watch_growth(
+    service: SoftSensorService, log: GrowthLog, *, every_s: float, poll_wall_s: float
+) -> None:
+    """Read ``/compensation`` (off the loop) every ``every_s`` of the live state's time and at each new
+    identification, until cancelled; stops if the service has no growth model."""
+    from service.serve.interface import NotReadyError
+
+    last_t: float | None = None
+    while True:
+        v = service.view
+        live, rec = v.live, v.current
+        if live is not None and rec is not None and not v.current_from_restore:
+            due = last_t is None or live.t - last_t >= every_s - 1e-6 or rec.id not in log.by_id
+            if due:
+                try:
+                    snap = await asyncio.to_thread(service.compensation)
+                except NotReadyError:
+                    return
+                if snap is not None:
+                    log.add(snap)
+                    last_t = snap.growth.at.timestamp()
+        await asyncio.sleep(poll_wall_s)
+
+
+def write_out(path: Path, records: list[IdentificationRecord], growth: GrowthLog | None = None) -> None:
     if path.suffix.lower() == ".csv":
         with path.open("w", newline="", encoding="utf-8") as f:
             w = csv.writer(f)
@@ -79,20 +169,25 @@ def write_out(path: Path, records: list[IdentificationRecord]) -> None:
                 zones = [num(x) for x in (*r.h, *r.ci95_lo, *r.ci95_hi)]
                 w.writerow([*head, r.window_to.isoformat(), *zones, num(r.fit), num(r.rmse_c), r.message])
     else:
-        rows = [record_dict(r) for r in records]
+        by_id = growth.by_id if growth is not None else {}
+        rows = [record_dict(r) | {"growth": by_id.get(r.id) if r.outcome == "ok" else None} for r in records]
         path.write_text(json.dumps(rows, indent=2) + "\n", encoding="utf-8")
 
 
-async def run_replay(args: argparse.Namespace, settings: Settings) -> list[IdentificationRecord]:
+async def run_replay(
+    args: argparse.Namespace, settings: Settings, *, growth: GrowthLog | None = None
+) -> list[IdentificationRecord]:
+    """Replay the logs; every identification, oldest first. ``growth``: filled with the growth history
+    (``args.growth_every_s``, default 60 s)."""
     with tempfile.TemporaryDirectory(prefix="chtc-replay-") as tmp:
         served = Path(tmp) / "acquired.csv"
         period_s = settings.acquisition.sample_period_s
         await asyncio.to_thread(write_acquisition_csv, args.csv, args.can, served, period_s=period_s)
-        return await _replay(args, settings, served)
+        return await _replay(args, settings, served, growth)
 
 
 async def _replay(
-    args: argparse.Namespace, settings: Settings, served_csv: Path
+    args: argparse.Namespace, settings: Settings, served_csv: Path, growth: GrowthLog | None
 ) -> list[IdentificationRecord]:
     from service.engine.runtime import Runtime, ScaledClock
     from service.sim.simrig import SimAddress, make_drivers, replay_rig
@@ -108,8 +203,14 @@ async def _replay(
     origin = datetime.fromtimestamp(replay.t_ref + REPLAY_PHASE * period_s, tz=UTC)
     runtime.sample_clock = GridClock(clock, origin=origin, period_s=period_s)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
+    watcher: asyncio.Task[None] | None = None
     try:
         await runtime.start(daq=daq, can=can_sensor, api=args.api)
+        if growth is not None and runtime.service is not None:
+            every_s = float(getattr(args, "growth_every_s", 60.0))
+            poll = 0.25 * period_s / args.speedup
+            watch = watch_growth(runtime.service, growth, every_s=every_s, poll_wall_s=poll)
+            watcher = asyncio.create_task(watch)
         if args.api:
             await runtime.wait_api()
             print(f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc)", flush=True)
@@ -120,8 +221,15 @@ async def _replay(
         assert service is not None
         while service.view.running_job is not None and time.monotonic() < deadline:
             await asyncio.sleep(0.1)
-        return list(reversed(service.view.records))
+        records = list(reversed(service.view.records))
+        if watcher is not None:  # the growth served after the last identification
+            await asyncio.sleep(2.0 * period_s / args.speedup)
+        return records
     finally:
+        if watcher is not None:
+            watcher.cancel()
+            with contextlib.suppress(asyncio.CancelledError):
+                await watcher
         await runtime.stop()
         await rig.stop()
 
@@ -178,12 +286,16 @@ def main(args: argparse.Namespace) -> int:
     except (SettingsError, CommandError) as err:
         print(f"chtc replay: {err}", file=sys.stderr)
         return 2
+    growth = GrowthLog()
     try:
-        records = asyncio.run(run_replay(args, settings))
+        records = asyncio.run(run_replay(args, settings, growth=growth))
     except (LogFormatError, OSError) as err:
         print(f"chtc replay: {err}", file=sys.stderr)
         return 2
-    write_out(args.out, records)
+    write_out(args.out, records, growth)
+    growth_out = args.growth_out or args.out.with_name(f"{args.out.stem}_growth{args.out.suffix or '.json'}")
+    growth.write(growth_out)
     ok = sum(r.outcome == "ok" for r in records)
     print(f"replay done: {len(records)} identifications ({ok} ok) -> {args.out} and the database")
+    print(f"growth history: {len(growth.rows)} rows -> {growth_out}")
     return 0

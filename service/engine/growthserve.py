@@ -14,9 +14,9 @@ Three stages, by how often their inputs change:
 The live field's uncertainty comes through ONE function, :func:`field_belief`: the filtered live state's
 reduced mean and covariance (issue 16), which already hold the considered H error.
 
-The reference temperature (growth 0: where the controller was zeroed) is ``t_ref_c`` if given, else the live
-state's start temperature (its uniform start from the first sample's good sensors: the spindle as it was when
-the service started).
+The reference temperature (growth 0: where the controller was zeroed) is ``t_ref_c`` if given (the setting
+``growth.reference_c``), else the live state's start temperature (its uniform start from the first sample's
+good sensors: the spindle as it was when the service started).
 """
 
 from __future__ import annotations
@@ -41,6 +41,7 @@ from service.estimate.growth import (
     h_cov_from_ci,
     plc_compensation,
 )
+from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
 from service.estimate.state import FilterView
 from service.serve.interface import (
     ChtcSnapshot,
@@ -48,6 +49,7 @@ from service.serve.interface import (
     ConditionSnapshot,
     IdentificationRecord,
     NotReadyError,
+    SectionSnapshot,
 )
 
 if TYPE_CHECKING:
@@ -102,16 +104,20 @@ class GrowthServer:
         *,
         t_ref_c: float | None = None,
         tool_dir: int = -1,
+        context: GrowthContext | None = None,  # built already (the bench shares one across runs)
     ) -> None:
         self.model = model
         self._t_ref_c = t_ref_c
+        self.reference_at: datetime | None = None  # when the reference was taken (None: configured)
         self.tool_dir = tool_dir
         self._lock = threading.Lock()
-        self._ctx: GrowthContext | None = None
+        self._ctx: GrowthContext | None = context
         self._error: str | None = None
         self._terms: _Terms | None = None
         self._pending: TermsKey | None = None
         self._estimate: tuple[tuple[object, ...], GrowthEstimate] | None = None
+        self._section_op: SectionOperator | None = None
+        self._section: tuple[tuple[object, ...], np.ndarray] | None = None
 
     # --- stage 1
     def prepare(self) -> GrowthContext:
@@ -128,11 +134,23 @@ class GrowthServer:
                 raise NotReadyError(self._error or "growth model unavailable")
             return self._ctx
 
+    def section_operator(self) -> SectionOperator:
+        """The section's outline and its displacement operators (once, ~0.2 s; blocking)."""
+        ctx = self.prepare()
+        with self._lock:
+            if self._section_op is None:
+                if ctx.phi is None:
+                    raise NotReadyError("growth section unavailable: the model has no reduced basis")
+                region = self.model.fe.element_region
+                self._section_op = build_section(ctx.growth, region, ctx.phi)
+            return self._section_op
+
     # --- stage 2
     def observe(self, view: CoreView) -> None:
         """Remember the reference temperature from the first live field (cheap: call after each event)."""
         if self._t_ref_c is None and view.live is not None:
             self._t_ref_c = float(np.mean(view.live.field_c))
+            self.reference_at = datetime.fromtimestamp(view.live.t, tz=UTC)
 
     @staticmethod
     def terms_key(view: CoreView) -> TermsKey | None:
@@ -220,6 +238,50 @@ class GrowthServer:
         self._estimate = (key, est)
         return est
 
+    def t_ref_c(self, view: CoreView) -> float | None:
+        """The reference temperature of ``view``'s growth (None: no live field yet)."""
+        self.observe(view)
+        if self._t_ref_c is not None:
+            return self._t_ref_c
+        return None if view.live is None else float(np.mean(view.live.field_c))
+
+    def section(self, view: CoreView) -> np.ndarray | None:
+        """(u_r, u_z) (2, M) [µm] of the section's outline for ``view``'s live field (cached per live state
+        and reference; None: no live field yet)."""
+        live = view.live
+        t_ref = self.t_ref_c(view)
+        if live is None or t_ref is None:
+            return None
+        op = self.section_operator()
+        key = (live.t, live.started_at, t_ref)
+        cached = self._section
+        if cached is not None and cached[0] == key:
+            return cached[1]
+        u = section_displacement_um(op, state=live.mean, t_ref_c=t_ref)
+        self._section = (key, u)
+        return u
+
+    def section_snapshot(
+        self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
+    ) -> SectionSnapshot | None:
+        """What ``/compensation/section`` serves: the deformed outline of ``view``'s live field, with the
+        status of ``/compensation`` (``snapshot``: None when it has nothing to serve)."""
+        comp = self.snapshot(view, chtc)
+        u = self.section(view)
+        if comp is None or u is None:
+            return None
+        op = self.section_operator()
+        return SectionSnapshot(
+            at=comp.growth.at,
+            t_ref_c=comp.growth.t_ref_c,
+            nodes_rz=op.nodes_rz,
+            edges=op.edges,
+            u_um=u,
+            status=comp.status,
+            identification_id=comp.identification_id,
+            newest_sample_at=comp.newest_sample_at,
+        )
+
     def snapshot(
         self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
     ) -> CompensationSnapshot | None:
@@ -240,6 +302,7 @@ class GrowthServer:
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
+            reference_at=self.reference_at,
         )
 
 
@@ -247,17 +310,19 @@ class GrowthHistory:
     """The growth at each identification's end, offline (``run_offline``'s ``on_sample`` hook): after the
     sample whose identification succeeded (the live state then holds the filtered field), and the growth
     of that field is what ``/compensation`` would have served then (the same ``GrowthServer``, the same
-    reference: the live state's start temperature). ``by_id``: identification id -> ``GrowthEstimate``."""
+    reference: ``t_ref_c``, by default the live state's start temperature). ``by_id``: identification id ->
+    ``GrowthEstimate``."""
 
-    def __init__(self, model: LoadedModel) -> None:
+    def __init__(self, model: LoadedModel, *, t_ref_c: float | None = None) -> None:
         self.model = model
+        self.t_ref_c = t_ref_c
         self.by_id: dict[int, GrowthEstimate] = {}
         self._server: GrowthServer | None = None
 
     def __call__(self, core: ServiceCoreLike, k: int, last_ok: object) -> None:
         view = core.view()
         if self._server is None:
-            self._server = GrowthServer(self.model)
+            self._server = GrowthServer(self.model, t_ref_c=self.t_ref_c)
         self._server.observe(view)
         rec = view.current
         if rec is None or view.current_from_restore or rec.id in self.by_id:

@@ -24,6 +24,7 @@ from drivers.ringbuffer import RingBuffer
 from service.acquire.calibration import CalibrationConfig
 from service.engine.config import CoreConfig
 from service.engine.core import ServiceCore
+from service.engine.growthserve import GrowthServer
 from service.engine.health import HealthSource
 from service.engine.shell import SoftSensorService
 from service.identify.detector import DetectorConfig
@@ -198,6 +199,7 @@ class Runtime:
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             on_event=self.on_event,
+            growth=GrowthServer(model, t_ref_c=s.growth.reference_c),
         )
         await self.service.start()
         self.devices = (daq, can)

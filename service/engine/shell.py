@@ -97,6 +97,7 @@ from service.serve.interface import (
     OffsetBaseline,
     Readiness,
     SectionPart,
+    SectionSnapshot,
     SensorHistory,
     SensorHistoryBuffer,
     SensorReading,
@@ -174,6 +175,7 @@ class SoftSensorService:
         on_event: Callable[[str], None] | None = None,
         history_capacity: int = 2160,  # samples of measured vs predicted kept for the API (6 h at 10 s)
         run_job: Callable[[JobRequest], JobOutcome] | None = None,
+        growth: GrowthServer | None = None,  # /compensation; default: referred to the live state's start
     ) -> None:
         self.core = core
         self.worker = worker
@@ -202,7 +204,7 @@ class SoftSensorService:
         self.closed = False
         sensors = [(sp.channel, sp.name, sp.role) for sp in core.model.spec.sensors]
         self._history = SensorHistoryBuffer(history_capacity, sensors)
-        self._growth = GrowthServer(core.model)  # /compensation
+        self._growth = growth if growth is not None else GrowthServer(core.model)  # /compensation
 
     @property
     def growth(self) -> GrowthServer:
@@ -511,6 +513,9 @@ class SoftSensorService:
 
     def compensation(self) -> CompensationSnapshot | None:
         return self._growth.snapshot(self._view, self.chtc)
+
+    def compensation_section(self) -> SectionSnapshot | None:
+        return self._growth.section_snapshot(self._view, self.chtc)
 
     def sensors(self) -> Sequence[SensorReading]:
         v = self._view

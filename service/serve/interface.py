@@ -486,6 +486,25 @@ class CompensationSnapshot:
     plc: PlcCompensation
     tool_dir: int  # -1: the tool points to -Z
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
+    # when the reference temperature was taken (the live state's start); None: configured (growth.reference_c)
+    reference_at: datetime | None = None
+
+
+@dataclass(frozen=True, eq=False, kw_only=True)
+class SectionSnapshot:
+    """What ``/compensation/section`` serves (docs/growth.md, "The deformed section"): the outline of the
+    spindle's axisymmetric section (``nodes_rz`` (M, 2) [m], ``edges`` (E, 2) node indices: every region's
+    boundary) and its displacement ``u_um`` (2, M) [µm] (u_r, u_z) by the live field over the reference
+    ``t_ref_c``, at ``at`` (UTC, the live field's instant), with the status of ``/compensation``."""
+
+    at: datetime
+    t_ref_c: float
+    nodes_rz: FloatArray
+    edges: npt.NDArray[np.int64]
+    u_um: FloatArray
+    status: ChtcStatus
+    identification_id: int
+    newest_sample_at: datetime | None
 
 
 @runtime_checkable
@@ -562,6 +581,11 @@ class ChtcService(Protocol):
         """The thermal growth at the tool now; None only if there is nothing yet (no identification or no
         live field). May build the growth model (once) and its per-condition terms (per identification and
         condition, ~0.3 s): the API calls it from a worker thread."""
+        ...
+
+    def compensation_section(self) -> SectionSnapshot | None:
+        """The section deformed by the live field (displacement in µm on the outline's nodes); None as for
+        ``compensation()``, which it calls for the status (from a worker thread)."""
         ...
 
 

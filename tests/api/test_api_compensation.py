@@ -129,6 +129,7 @@ def test_status_and_usability_are_those_of_chtc_and_go_stale_when_data_stop(serv
         clock.now = last.t + timedelta(seconds=limit + 1)
         stale = client.get("/api/v1/compensation").json()
         assert stale["status"] == client.get("/api/v1/chtc").json()["status"] == "stale"
+        assert client.get("/api/v1/compensation/section").json()["status"] == "stale"
         assert stale["usable_for_compensation"] is False and stale["reason"].startswith("stale:")
         assert stale["sample_age_s"] == pytest.approx(limit + 1, abs=1e-3)
     finally:
@@ -206,3 +207,54 @@ def test_a_spindle_without_mechanics_serves_h_and_says_why_there_is_no_growth(se
 
     asyncio.run(start_and_close())
     assert any(e.startswith("growth: unavailable growth model unavailable") for e in events), events
+
+
+def test_section_is_the_live_fields_displacement_of_every_parts_outline(served: Served) -> None:
+    """The served outline's displacement (the precomputed reduced operator) equals a full forward solve of
+    the live field, and at the nose it is the served axial growth (the adjoint operator): two independent
+    computations through the same K and B."""
+    body = served.client.get("/api/v1/compensation/section").json()
+    comp = served.client.get("/api/v1/compensation").json()
+    v, model = served.svc.view, served.model
+    assert v.live is not None
+    assert body["unit"] == "µm" and body["at"] == comp["at"] and body["status"] == comp["status"]
+    assert body["t_ref_c"] == comp["t_ref_c"] and body["identification_id"] == comp["identification_id"]
+    assert body["at"].endswith("Z") or body["at"].endswith("+00:00")
+    r, z = np.asarray(body["nodes_r_m"]), np.asarray(body["nodes_z_m"])
+    u = np.array([body["u_r_um"], body["u_z_um"]])
+    edges = np.asarray(body["edges"])
+    assert edges.shape[1] == 2 and edges.min() == 0 and edges.max() == r.size - 1
+    # every part is outlined: the shaft's axis (r = 0) from end to end, and the housing's outside (r = 100 mm)
+    assert np.isclose(r, 0.0).sum() > 10 and np.isclose(r, 0.1).sum() > 10
+    gm = build_context(model.spec, model.fe).growth
+    full = gm.displacement_m(np.asarray(v.live.field_c), body["t_ref_c"]) * 1e6  # (Nm, 2)
+    p = np.asarray(gm.solver.system.mesh.p).T
+    for i in range(0, r.size, 7):  # nodes at one position: a floating surface's two sides; either matches
+        at = np.flatnonzero(np.hypot(p[:, 0] - r[i], p[:, 1] - z[i]) < 1e-6)  # served to 0.1 µm
+        assert at.size >= 1
+        assert np.min(np.abs(full[at] - u[:, i]).max(axis=1)) < 2e-4, (r[i], z[i])
+    nose = np.flatnonzero(np.isclose(r, 0.0) & np.isclose(z, z.max()))
+    assert nose.size == 1
+    assert u[1, nose[0]] == pytest.approx(comp["axial"]["um"], abs=2e-4)
+    assert body["max_abs_um"] == pytest.approx(float(np.hypot(*u).max()), abs=1e-3)
+    assert body["max_abs_um"] > comp["axial"]["um"] > 1.0  # the housing's rear end moves more than the nose
+
+
+def test_the_reference_temperature_is_a_setting(tmp_path: Path, served: Served) -> None:
+    """``growth.reference_c``: the growth over a uniform 20 °C instead of the live state's start. Linear: it
+    differs from the default by Σg·(T_start − 20) at the nose, and the served reference time is null."""
+    default = served.client.get("/api/v1/compensation").json()
+    assert datetime.fromisoformat(default["t_ref_at"]) <= datetime.fromisoformat(default["at"])
+    settings = Settings(growth={"reference_c": 20.0})  # type: ignore[arg-type]
+    with served_service(database_url=sqlite_url(tmp_path), settings=settings) as s:
+        client = TestClient(create_app(settings, s.service, clock=s.clock))
+        body = client.get("/api/v1/compensation").json()
+        section = client.get("/api/v1/compensation/section").json()
+    assert body["at"] == default["at"], "the same plan, the same live field"
+    assert body["t_ref_c"] == section["t_ref_c"] == 20.0 and body["t_ref_at"] is None
+    ctx = build_context(served.model.spec, served.model.fe)
+    for row, name in enumerate(("axial", "radial")):
+        shift = float(ctx.g[row].sum()) * (served.t_start_c - 20.0)
+        assert body[name]["um"] == pytest.approx(default[name]["um"] + shift, abs=2e-3), name
+        assert body[name]["std_um"] == pytest.approx(default[name]["std_um"], abs=1e-4), name
+    assert body["axial"]["um"] > default["axial"]["um"]  # a 22 °C start is warmer than 20 °C

@@ -457,3 +457,31 @@ def test_a_baseline_taken_at_rest_is_shown_in_the_card_and_per_channel(page: _Pa
         f"{max(offsets):.2f} °C over 32 channels (subtracted before the fit)"
     )
     assert cell == f"{ch[6]['offset_c']:.2f} °C"
+
+
+DEFORMED = "document.getElementById('deformed')?.dataset"
+
+
+@pytest.mark.browser
+def test_deformed_section_is_drawn_and_follows_the_field(page: _Page, served: Served) -> None:
+    """The section deformed by the live field (×k, k shown), next to its undeformed outline; feeding samples
+    changes the field, and the drawing follows (the page polls, no reload)."""
+    with _server(served) as server:
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(f"{DEFORMED}.digest")
+        first = page.eval(f"JSON.stringify({DEFORMED})")
+        meta = page.eval("document.getElementById('deformed-meta').textContent")
+        unit = page.eval("document.getElementById('deformed-unit').textContent")
+        body = served.service.compensation_section()
+        assert body is not None
+        served.feed_next(12)  # 2 min more at 4000 rpm: the spindle keeps warming
+        page.wait(f"{DEFORMED}.at !== {json.loads(first)['at']!r}", timeout_s=30.0)
+        second = json.loads(page.eval(f"JSON.stringify({DEFORMED})"))
+    first = json.loads(first)
+    assert int(first["edges"]) == len(body.edges) > 100
+    k = int(first["exaggeration"])
+    assert k >= 100 and f"×{k}" in unit and f"×{k}" in meta and "µm" in unit
+    assert float(first["maxUm"]) == pytest.approx(float(np.hypot(*body.u_um).max()), abs=2e-3)
+    assert " UTC" in meta and "T_ref" in meta and "°C" in meta
+    assert second["at"] > first["at"] and second["digest"] != first["digest"]
+    assert float(second["maxUm"]) > float(first["maxUm"])  # warmer: larger displacement
