@@ -8,7 +8,7 @@
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
 the defaults below. Environment variables use the prefix ``CHTC_`` and ``__`` between section and key,
 e.g. ``CHTC_DATABASE__URL``, ``CHTC_API__TOKEN``, ``CHTC_MODBUS__PORT``. List and tuple values in the
-environment are JSON (``CHTC_IDENTIFICATION__SCHEDULE_MIN='[10, 20, 40, 60]'``). ``Settings()`` with no file
+environment are JSON (``CHTC_IDENTIFICATION__SCHEDULE_MIN='[7, 20, 40, 60]'``). ``Settings()`` with no file
 works for the demo. Relative paths in a TOML file are relative to that file's directory.
 
 Directories: ``CHTC_DATA_DIR`` (default ``$XDG_DATA_HOME/spindle-chtc`` or ``~/.local/share/spindle-chtc``)
@@ -163,13 +163,12 @@ class ModelSettings(_Section):
 
 class IdentificationSettings(_Section):
     method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
-    schedule_min: tuple[float, ...] = (
-        10.0,
-        20.0,
-        40.0,
-        60.0,
-    )  # re-identify this long after a condition change
-    min_window_s: float = Field(default=600.0, gt=0)  # shorter windows are skipped ("too little data")
+    # re-identify this long after a condition change (or after the live state's convergence on a restart).
+    # The first entry is 7 min, not 10: the window starts from the converged filtered state with its
+    # covariance, so the first H is served within 13 min of a (re)start, also when the restart falls just
+    # before a change (docs/estimator.md, "First served H after a start"); the later windows are unchanged
+    schedule_min: tuple[float, ...] = (7.0, 20.0, 40.0, 60.0)
+    min_window_s: float = Field(default=420.0, gt=0)  # shorter windows are skipped ("too little data")
     max_window_s: float = Field(default=3600.0, gt=0)  # fit at most this much recent data
     distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: warm-start "nearness"
     min_good_channels: int = Field(default=24, ge=1, le=32)

@@ -63,9 +63,9 @@ __all__ = [
 T = TypeVar("T")
 
 # The paper's two conditions (SPEC §2, Tables 4 and 10) from a cold start. The first DEMO_FED samples (22 min)
-# give one identification at each (the first window is identification.min_window_s = 10 min of the
-# condition's data); the 30 after them (5 min more at 4000 rpm, before the next scheduled identification) are
-# there for a test to feed.
+# give one identification at each (the first window is identification.schedule_min[0] of the condition's data:
+# 7 min by default, 10 min in the API tests); the 30 after them (5 min more at 4000 rpm, before the next
+# scheduled identification) are there for a test to feed.
 DEMO_PROFILE = (Segment(660.0, 3000.0, 12.0, 23.2), Segment(960.0, 4000.0, 14.0, 21.8))
 DEMO_FED = 133
 PLAN_T0 = datetime(2026, 11, 22, 7, 0, tzinfo=UTC)

@@ -31,6 +31,36 @@ def test_summary_takes_each_conditions_last_result_per_seed() -> None:
     assert c4["h_err_pct_median"][0] == pytest.approx(25.0)
     assert c4["ci_half_width_pct_median"] == [10.0] * 7
     assert c5 == {"speed_rpm": 5000.0, "seeds_served": 0}
+    # the first served H: seed 1's after 10 min (H1 50 % high, missed), seed 2's after 30 min (all covered)
+    assert out["first_served_min_max"] == pytest.approx(30.0)
+    first = out["first"]
+    assert first["speeds_rpm"] == [3000.0]
+    assert first["coverage"] == [0.5] + [1.0] * 6 and first["ci_half_width_pct_median"] == [10.0] * 7
+    assert "identified_frac" not in first  # no flags given (filter mode)
+
+
+def test_first_served_h_flags_are_counted() -> None:
+    flags = np.r_[True, False, True, True, True, True, True]
+    seeds = [
+        [
+            Served(
+                speed_rpm=4000.0,
+                h=restart.truth(4000.0),
+                lo=restart.truth(4000.0) * 0.5,
+                hi=restart.truth(4000.0) * 2.0,
+                end_s=1500.0,
+                identified=flags,
+            )
+        ],
+        [],  # a seed that served nothing is left out
+    ]
+    out = restart.summarise(seeds, start_s=900.0)
+    assert out["first_served_min"] == out["first_served_min_max"] == pytest.approx(10.0)
+    assert out["first"]["identified_frac"] == [1.0, 0.0] + [1.0] * 5
+    assert out["first"]["first_identified_min"] == pytest.approx(10.0)
+    assert out["first"]["first_identified_seeds"] == 0.5  # of the two seeds, one had an H identified
+    assert out["first"]["ci_half_width_pct_median"] == [75.0] * 7
+    assert restart.summarise([[], []], start_s=0.0)["first"] is None
 
 
 def test_ratios_against_the_start_at_minute_zero() -> None:

@@ -27,7 +27,7 @@ from service.modelload import LoadedModel
 from service.settings import Settings
 from service.sim.served import Plan, feed, plant_samples, served_service
 
-PLAN = Plan(profile=(Segment(780.0, 3000.0, 5.0, 22.0),))  # 13 min: one identification at 10 min of data
+PLAN = Plan(profile=(Segment(780.0, 3000.0, 5.0, 22.0),))  # 13 min: one identification (first window 7 min)
 N_SILENT = 6  # the first minute: the DAQ answers, CAN does not (yet)
 
 

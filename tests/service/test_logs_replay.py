@@ -142,7 +142,7 @@ def test_identify_says_why_nothing_was_identified(logs, tmp_path, capsys):
     assert cli_main(["identify", str(squeezed), "--speed-rpm", "3000", "--torque-nm", "5"]) == 1
     err = capsys.readouterr().err
     assert "nothing identified" in err
-    assert "the log covers 0.8 min" in err and "needs 10.0 min of data at one condition" in err
+    assert "the log covers 0.8 min" in err and "needs 7.0 min of data at one condition" in err
     assert "chtc record --speedup" in err
 
 

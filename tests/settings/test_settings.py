@@ -35,7 +35,7 @@ def test_defaults_work_without_a_file(tmp_path: Path) -> None:
     assert s.model.rom_rank == 56 and s.model.h_box == (5.0, 200.0)
     assert s.model.rom_cache_dir == tmp_path / "cache"
     assert s.database.url == f"sqlite:///{tmp_path / 'data' / 'chtc.db'}"
-    assert s.identification.schedule_min == (10.0, 20.0, 40.0, 60.0)
+    assert s.identification.schedule_min == (7.0, 20.0, 40.0, 60.0)
     assert s.identification.start_modes == 6 and s.identification.estimate_loads is False
     assert s.api.token is None
 
@@ -189,7 +189,7 @@ def test_sections_build_the_pure_cores_configs() -> None:
         max_window_s=ident.max_window_s,
         distance_scales=ident.distance_scales,
     )
-    assert sched.schedule_s == (600.0, 1200.0, 2400.0, 3600.0)
+    assert sched.schedule_s == (420.0, 1200.0, 2400.0, 3600.0)
 
 
 @pytest.mark.parametrize("path", sorted(EXAMPLE.parent.glob("*.toml")), ids=lambda p: p.name)
