@@ -5,11 +5,13 @@ image's ENTRYPOINT and ENV from ``deploy/Dockerfile``; see ``tests/deploy/locals
 and paths are mapped to loopback). PostgreSQL is the local cluster (``pg_url``) with a fresh database. The
 image build step ``chtc prebuild`` runs first, as ``docker build`` would. Then: the service migrates the empty
 database, reaches the simulator over Modbus TCP and the python-can-remote hub, identifies H1-H7 and serves
-``status: fresh`` on ``/api/v1/chtc``; the image's HEALTHCHECK command and the postgres healthcheck pass; the
-API token from the ``.env`` is the one the service accepts. Every process is killed at the end.
+them for the current condition on ``/api/v1/chtc`` (``fresh``, or ``at-bound`` naming the zones when the short
+trial window leaves an H on a bound of the search box); the image's HEALTHCHECK command and the postgres
+healthcheck pass; the API token from the ``.env`` is the one the service accepts. Every process is killed at
+the end.
 
 The only deviation from the compose file is the identification timing (``TRIAL_TIMING``): the shipped
-schedule identifies 10 min after a condition change on 10 min of data; the test asks for 90 s (2-s samples) so
+schedule identifies 7 min after a condition change on 7 min of data; the test asks for 90 s (2-s samples) so
 that it ends in a few minutes. The plant still runs in real time, as in the compose file.
 """
 
@@ -145,13 +147,21 @@ def test_compose_stack_serves_fresh_h_from_the_simulator(stack: dict[str, Any], 
     assert_simulator_healthcheck_passes(stack["compose"], stack["localize"])
     assert_postgres_healthcheck_passes(stack["compose"], stack["localize"])
 
-    def fresh() -> tuple[bool, Any]:
+    def current() -> tuple[bool, Any]:
+        # identified at the current condition from fresh data: `fresh`, or `at-bound` when the 90-s trial
+        # window leaves an H on a bound of the search box (never `fresh` then, and not usable)
         code, body = get_json(f"{api}/api/v1/chtc")
-        return code == 200 and body["status"] == "fresh", body
+        return code == 200 and body["status"] in ("fresh", "at-bound"), body
 
-    chtc = wait_for("status fresh on /api/v1/chtc", fresh, deadline_s=600, procs=procs, period_s=2.0)
+    chtc = wait_for(
+        "H of the current condition on /api/v1/chtc", current, deadline_s=600, procs=procs, period_s=2.0
+    )
     service_pid = next(p for p in procs if p.name == "chtc").popen.pid
-    print(f"resident memory at fresh H: chtc + worker {tree_rss_mib(service_pid):.0f} MiB")
+    print(f"resident memory at the first current H: chtc + worker {tree_rss_mib(service_pid):.0f} MiB")
+    assert chtc["sample_age_s"] < 60 and chtc["condition"]["state"] == "stable"
+    bound = [z["name"] for z in chtc["zones"] if z["at_bound"]]
+    assert (chtc["status"] == "at-bound") == bool(bound), chtc
+    assert not (bound and chtc["usable_for_compensation"]), chtc
     assert chtc["unit"] == "W/(m²·K)"
     assert [z["name"] for z in chtc["zones"]] == [f"H{i}" for i in range(1, 8)]
     assert all(5.0 <= z["h_w_m2k"] <= 200.0 for z in chtc["zones"])
