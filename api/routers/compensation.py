@@ -23,6 +23,15 @@ from api.schemas import (
 router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 
 
+def _no_growth() -> ApiError:
+    return ApiError(
+        status=503,
+        code="no_data",
+        message="no identification or no live field yet",
+        headers={"Retry-After": "5"},
+    )
+
+
 @router.get(
     "/compensation",
     response_model=CompensationOut,
@@ -32,12 +41,7 @@ router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 def get_compensation(service: ServiceDep, clock: ClockDep) -> CompensationOut:
     snap = service.compensation()
     if snap is None:
-        raise ApiError(
-            status=503,
-            code="no_data",
-            message="no identification or no live field yet",
-            headers={"Retry-After": "5"},
-        )
+        raise _no_growth()
     return compensation_out(snap, clock())
 
 
@@ -50,10 +54,5 @@ def get_compensation(service: ServiceDep, clock: ClockDep) -> CompensationOut:
 def get_compensation_section(service: ServiceDep, clock: ClockDep) -> CompensationSectionOut:
     snap = service.compensation_section()
     if snap is None:
-        raise ApiError(
-            status=503,
-            code="no_data",
-            message="no identification or no live field yet",
-            headers={"Retry-After": "5"},
-        )
+        raise _no_growth()
     return compensation_section_out(snap, clock())

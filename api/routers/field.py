@@ -22,7 +22,7 @@ from starlette.concurrency import run_in_threadpool
 
 from api.deps import ReadAccess, ServiceDep
 from api.errors import ApiError, invalid
-from api.routers.chtc import _matches
+from api.routers.conditional import if_none_match
 from api.routers.field_render import GZIP_MIN_BYTES, FieldGate, FieldRenderer, Rendered, _clean
 from api.schemas import FieldGridOut, FieldMeshOut, FieldPointsOut, PointOut
 from api.stdmax import std_max
@@ -209,7 +209,7 @@ async def get_field(
         if isinstance(out, bytes):
             return Response(out, media_type="application/json")
         headers = {"ETag": out.etag, "Cache-Control": "no-cache", "Vary": "Accept-Encoding"}
-        if _matches(request.headers.get("if-none-match"), out.etag):
+        if if_none_match(request.headers.get("if-none-match"), out.etag):
             return Response(status_code=304, headers=headers)
         body = out.body
         if len(body) >= GZIP_MIN_BYTES and _accepts_gzip(request):
