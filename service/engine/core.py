@@ -33,8 +33,6 @@ from types import MappingProxyType
 import numpy as np
 
 from drivers.ringbuffer import RingBuffer, Sample
-from model.hmap import Family, Gaussian
-from model.hmap_identify import forget
 from model.identify import IdentificationResult
 from service.acquire.calibration import (
     BaselineRefined,
@@ -65,6 +63,7 @@ from service.engine.events import (
 )
 from service.engine.jobbook import Job, JobBook, MapValues, job_key
 from service.engine.jobs import Offsets, converging_reason, job_request, job_window
+from service.engine.mapbook import MapBook
 from service.engine.samples import SampleBook
 from service.engine.view import CoreView, NewestSample
 from service.estimate.live import LiveStateError
@@ -78,7 +77,7 @@ from service.identify.detector import (
     SampleEvent,
 )
 from service.identify.mapjob import MapJob
-from service.identify.speedmap import SpeedMap, VisitTally
+from service.identify.speedmap import SpeedMap
 from service.identify.window import InsufficientWindowError
 from service.identify.worker import JobOutcome, JobStatus
 from service.modelload import LoadedModel
@@ -188,7 +187,7 @@ class ServiceCore:
             self._live.set_offsets(self._calibrator.offsets(), self._calibrator.offset_sd())
         # speed-map mode (docs/hmap.md): the latest map fit (a restored one is stale until re-fitted)
         self._speed_map: SpeedMap | None = restored.speed_map if config.speed_map is not None else None
-        self._map = None if config.speed_map is None else _MapBook(config, model, self._speed_map)
+        self._map = None if config.speed_map is None else MapBook(config, model, self._speed_map)
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -746,81 +745,6 @@ class ServiceCore:
             out.reject(RejectKind.NOT_READY, why or "no map identification possible now")
             return
         out.instructions.append(ManualAccepted(out.event_id, self._jobs.jobs_view[launched.job_key]))
-
-
-class _MapBook:
-    """The core's speed-map bookkeeping: trigger times, the running fit, the posteriors kept for the
-    next windows' priors, the visited-speed tally."""
-
-    KEPT = 64  # posteriors kept (a fit every few minutes: > 1 h of them)
-
-    def __init__(self, config: CoreConfig, model: LoadedModel, restored: SpeedMap | None) -> None:
-        cfg = config.speed_map
-        assert cfg is not None
-        self.cfg = cfg
-        self.family = Family(cfg.family)
-        self.cold = self.family.prior(model.spec)
-        self.tally = VisitTally(bin_rpm=cfg.bin_rpm, tau_h=cfg.tau_h)
-        self.changed_at: float | None = None  # last confirmed condition change not fitted since
-        self.retry_after: float | None = None
-        self.running: int | None = None
-        self.live_key: tuple[int, int, int] | None = None
-        self._launched: tuple[float, int, tuple[np.ndarray, np.ndarray]] | None = None
-        self._last_end: float | None = None
-        self._ids = itertools.count(1)
-        # (window end epoch s, posterior), oldest first
-        self._posteriors: list[tuple[float, Gaussian]] = []
-        if restored is not None:
-            t = restored.fitted_at.timestamp()
-            self._posteriors.append((t, Gaussian(np.array(restored.mean), np.array(restored.cov))))
-            self.tally.restore(restored.visited_rpm, restored.visited_s, t)
-
-    def next_id(self) -> int:
-        return next(self._ids)
-
-    def due(self, ts: float) -> str | None:
-        """Why a fit is due now (None: not due or one is running): a debounced condition change, the first
-        fit, or ``refit_s`` since the last window's end."""
-        if self.running is not None or (self.retry_after is not None and ts < self.retry_after):
-            return None
-        if self.changed_at is not None and ts - self.changed_at >= self.cfg.debounce_s:
-            return "condition-change"
-        if self._last_end is None:
-            return "first"
-        if ts - self._last_end >= self.cfg.refit_s:
-            return "scheduled"
-        return None
-
-    def prior_for(self, t_from: float, t_to: float) -> tuple[Gaussian, str]:
-        """The prior of a window [t_from, t_to]: the newest posterior whose window ended by ``t_from``
-        (no datum counted twice), its information decayed over the time to ``t_to`` (``forget``); the
-        family's cold-start prior when there is none."""
-        older = [(t, g) for t, g in self._posteriors if t <= t_from + 1e-6]
-        if not older:
-            return self.cold, "cold prior"
-        t, g = older[-1]
-        hours = max(0.0, t_to - t) / 3600.0
-        return forget(g, self.cold, elapsed_h=hours, tau_h=self.cfg.tau_h), f"fit to {utc(t):%H:%M:%S}"
-
-    def current_theta(self, m: SpeedMap | None) -> tuple[np.ndarray, np.ndarray]:
-        if m is None:
-            return self.cold.mean, self.cold.cov
-        return np.asarray(m.mean), np.asarray(m.cov)
-
-    def launched(self, job_id: int, *, t_end: float, mask_used: int) -> None:
-        self.running = job_id
-        self._launched = (t_end, mask_used, self.tally.visited())
-        self._last_end = t_end
-        self.retry_after = None
-
-    def finished(self) -> tuple[float, int, tuple[np.ndarray, np.ndarray]]:
-        """The running fit's window end, channels used and the tally at its window end."""
-        assert self._launched is not None
-        out, self._launched, self.running = self._launched, None, None
-        return out
-
-    def keep(self, t_end: float, posterior: Gaussian) -> None:
-        self._posteriors = [*self._posteriors, (t_end, posterior)][-self.KEPT :]
 
 
 def _h_rel(h: np.ndarray, hi: np.ndarray) -> np.ndarray:
