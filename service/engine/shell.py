@@ -39,6 +39,7 @@ import numpy as np
 
 from drivers.ringbuffer import Sample
 from model.defaults import BOUND_REL_TOL
+from model.hmap import LEVEL_BOUNDS
 from service.acquire.devicewatch import DeviceWatch
 from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
@@ -125,7 +126,8 @@ __all__ = ["RecordWriter", "SoftSensorService", "Worker"]
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
 HANDOVER_TIMEOUT_S = 30.0  # an API thread waits this long for the event loop to handle its request
-MAP_H_BOX = (0.5, 500.0)  # W/(m²·K): the speed map's bounds of H (model.hmap.LEVEL_BOUNDS, in ln H there)
+# the speed map's bounds of H, W/(m²·K) (its family's ln-H bounds)
+MAP_H_BOX = (float(np.exp(LEVEL_BOUNDS[0])), float(np.exp(LEVEL_BOUNDS[1])))
 
 
 class RecordWriter(StatusSource, Protocol):
