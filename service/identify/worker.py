@@ -32,7 +32,7 @@ import os
 import threading
 import time
 from collections.abc import Callable, Iterator
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -277,53 +277,46 @@ def run_job(
 ) -> JobOutcome:
     """Run one job; never raises: every failure becomes an outcome (``job_outcome_of``). Wall time in s."""
     started = time.perf_counter()
-    if req.speed_map is not None:
-        return _run_map_job(model, req, started)
     try:
         if model is None:
             raise RuntimeError("worker process has no model (initializer failed)")
-        result, window = run_identification(model, req, should_stop=should_stop)
-        field = final_field(model, window, result)
+        if req.speed_map is not None:
+            done = _run_map_job(model, req)
+        else:
+            result, window = run_identification(model, req, should_stop=should_stop)
+            done = JobOutcome(
+                job_id=req.job_id,
+                status=Outcome.OK,
+                message=result.message,
+                result=result,
+                final_field_c=final_field(model, window, result),
+            )
     except Exception as err:  # the boundary of a job: report, never crash the pool or the offline run
         status, msg = job_outcome_of(err)
-        return JobOutcome(job_id=req.job_id, status=status, message=msg, wall_s=time.perf_counter() - started)
-    return JobOutcome(
-        job_id=req.job_id,
-        status=Outcome.OK,
-        message=result.message,
-        wall_s=time.perf_counter() - started,
-        result=result,
-        final_field_c=field,
-    )
+        done = JobOutcome(job_id=req.job_id, status=status, message=msg)
+    return replace(done, wall_s=time.perf_counter() - started)
 
 
-def _run_map_job(model: LoadedModel | None, req: JobRequest, started: float) -> JobOutcome:
-    """A speed-map job (``service.identify.mapjob``); never raises. Not cancellable: it runs ~0.1-1 s and
-    the next window starts from its posterior (docs/hmap.md)."""
+def _run_map_job(model: LoadedModel, req: JobRequest) -> JobOutcome:
+    """A speed-map job (``service.identify.mapjob``). Not cancellable: it runs ~0.1-1 s and the next window
+    starts from its posterior (docs/hmap.md)."""
     from service.identify.mapjob import run_map_identification
 
     assert req.speed_map is not None
-    try:
-        if model is None:
-            raise RuntimeError("worker process has no model (initializer failed)")
-        fit = run_map_identification(
-            model,
-            req.window,
-            req.t0_c,
-            req.speed_map,
-            req.offsets_c,
-            req.offset_sd_c,
-            start_cov=req.start_cov,
-            start_modes=req.start_modes,
-        )
-    except Exception as err:  # the boundary of a job: report, never crash the pool or the offline run
-        status, msg = job_outcome_of(err)
-        return JobOutcome(job_id=req.job_id, status=status, message=msg, wall_s=time.perf_counter() - started)
+    fit = run_map_identification(
+        model,
+        req.window,
+        req.t0_c,
+        req.speed_map,
+        req.offsets_c,
+        req.offset_sd_c,
+        start_cov=req.start_cov,
+        start_modes=req.start_modes,
+    )
     return JobOutcome(
         job_id=req.job_id,
         status=Outcome.OK,
         message=fit.message,
-        wall_s=time.perf_counter() - started,
         final_field_c=fit.end_field_c,
         map_fit=fit,
     )
