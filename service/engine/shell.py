@@ -410,11 +410,11 @@ class SoftSensorService:
             # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
             # one: an H there is never fresh (at-bound), as in per-condition mode
             box = MAP_H_BOX
-            bounded = bool(np.any(at_bound(rec, box, BOUND_REL_TOL)))
-            status = ChtcStatus.AT_BOUND if bounded and fresh.status is ChtcStatus.FRESH else fresh.status
+            status = fresh.status
         else:
-            bounded = bool(np.any(at_bound(rec, box, BOUND_REL_TOL)))
-            status = _status(v, rec, newest, problems, bounded=bounded)
+            status = _status(v, rec, newest, problems)
+        if status is ChtcStatus.FRESH and bool(np.any(at_bound(rec, box, BOUND_REL_TOL))):
+            status = ChtcStatus.AT_BOUND  # an H on a bound is not identified: never fresh, in either mode
         key = (
             rec.id,
             status,
@@ -708,16 +708,11 @@ def _filter_metrics(v: CoreView) -> FilterMetrics | None:
 
 
 def _status(
-    v: CoreView,
-    rec: IdentificationRecord,
-    newest: datetime | None,
-    problems: tuple[str, ...],
-    *,
-    bounded: bool,
+    v: CoreView, rec: IdentificationRecord, newest: datetime | None, problems: tuple[str, ...]
 ) -> ChtcStatus:
-    """The one freshness rule of /chtc (and /compensation): ``fresh`` only for H identified at the current,
-    stable condition from recent good data with a converged live state and no H on a bound of the search
-    box (``bounded``: such an H is not identified, so the record is ``at-bound``, never ``fresh``)."""
+    """Per-condition mode's freshness of /chtc (and /compensation): ``fresh`` only for H identified at the
+    current, stable condition from recent good data with a converged live state; ``SoftSensorService.chtc``
+    then makes a record with an H on a bound of the search box ``at-bound`` (both modes)."""
     if newest is None:
         return ChtcStatus.STALE if v.current_from_restore else ChtcStatus.NO_DATA
     if problems or v.current_from_restore or (v.live is not None and not v.live.converged):
@@ -727,8 +722,6 @@ def _status(
         return ChtcStatus.IDENTIFYING
     if cond.state.value != "stable":
         return ChtcStatus.IDENTIFYING
-    if bounded:
-        return ChtcStatus.AT_BOUND
     return ChtcStatus.FRESH
 
 
