@@ -17,7 +17,6 @@ the fraction whose CIs cover all seven H at once.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -26,7 +25,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from service.bench.targets import Target, format_verdicts, verdicts
+from service.bench.targets import Target, format_verdicts, progress_to_stderr, report, verdicts
 
 if TYPE_CHECKING:
     from drivers.ringbuffer import Sample
@@ -157,9 +156,5 @@ def main(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         print("error: --seeds must be >= 1", file=sys.stderr)
         return 2
-    out = run(args.seeds, progress=lambda msg: print(msg, file=sys.stderr, flush=True))
-    if args.json:
-        print(json.dumps(out, indent=2))
-    else:
-        _print_table(out)
-    return 0
+    out = run(args.seeds, progress=progress_to_stderr)
+    return report(out, as_json=args.json, table=_print_table)

@@ -26,6 +26,8 @@ from typing import Any
 
 import numpy as np
 
+from service.bench.targets import progress_to_stderr, report
+
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 DT_S = 10.0
 
@@ -257,10 +259,6 @@ def main(args: argparse.Namespace) -> int:
         hours=args.hours,
         warmup_min=args.warmup_min,
         overrides=overrides,
-        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+        progress=progress_to_stderr,
     )
-    if args.json:
-        print(json.dumps(out, indent=2))
-    else:
-        _print_table(out)
-    return 0
+    return report(out, as_json=args.json, table=_print_table)

@@ -28,7 +28,6 @@ condition holds over the horizon, and the cost of one evaluation (the served dot
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -40,7 +39,7 @@ import numpy as np
 
 from service.bench.chain import PROFILE as CHAIN
 from service.bench.chain import T0
-from service.bench.targets import Target, format_verdicts, verdicts
+from service.bench.targets import Target, format_verdicts, report, verdicts
 from service.engine.growthserve import GrowthServer
 
 DT_S = 10.0
@@ -385,8 +384,4 @@ def main(args: argparse.Namespace) -> int:
     out = run(
         args.seeds, profiles, float(args.every_s), progress=lambda m: print(m, file=sys.stderr, flush=True)
     )
-    if args.json:
-        print(json.dumps(out, indent=2))
-    else:
-        _print(out)
-    return 0
+    return report(out, as_json=args.json, table=_print)

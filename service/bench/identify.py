@@ -16,7 +16,6 @@ errors (max, mean absolute, RMSE) of the identified model against the noise-free
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import time
 from collections.abc import Callable
@@ -28,7 +27,7 @@ import numpy as np
 
 from model.identify import METHODS, IdentificationResult, IdentifyOptions, Window, identify
 from model.optim import OptimizeResult, grey_wolf
-from service.bench.targets import Target, format_verdicts, verdicts
+from service.bench.targets import Target, format_verdicts, report, verdicts
 
 if TYPE_CHECKING:
     from service.modelload import LoadedModel
@@ -383,8 +382,4 @@ def main(args: argparse.Namespace) -> int:
         print("error: --seeds, --ci-seeds and --warm-seeds must be >= 1")
         return 2
     out = run(args)
-    if args.json:
-        print(json.dumps(out, indent=2))
-    else:
-        _print_tables(out)
-    return 0
+    return report(out, as_json=args.json, table=_print_tables)

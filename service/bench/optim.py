@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import itertools
-import json
 import time
 from collections.abc import Callable
 from datetime import UTC, datetime
@@ -22,7 +21,7 @@ import numpy as np
 from model.optim import OptimizeResult, genetic, grey_wolf, whale
 from model.optim import benchfuncs as bf
 from model.optim.grey_wolf import Variant, Weights, expected_evals_per_iteration
-from service.bench.targets import format_verdicts
+from service.bench.targets import format_verdicts, report
 
 Runner = Callable[[bf.BenchmarkFunction, int, int, int], OptimizeResult]
 METHODS = ("igwo-paper", "igwo-normalized", "gwo", "woa", "ga")
@@ -240,8 +239,4 @@ def main(args: argparse.Namespace) -> int:
         print("error: --seeds must be >= 1 and --budget >= 2 x --popsize")
         return 2
     out = run(args)
-    if args.json:
-        print(json.dumps(out, indent=2))
-    else:
-        _print_tables(out)
-    return 0
+    return report(out, as_json=args.json, table=_print_tables)

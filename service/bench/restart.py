@@ -37,7 +37,6 @@ Modes (``--mode``):
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import dataclass
@@ -45,6 +44,8 @@ from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
+
+from service.bench.targets import progress_to_stderr, report
 
 PROFILE = (
     (300.0, 0.0, 0.0, 22.0),  # idle and cold
@@ -355,10 +356,6 @@ def main(args: argparse.Namespace) -> int:
         mode=args.mode,
         start_modes=args.start_modes,
         stored_offsets=args.stored_offsets,
-        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+        progress=progress_to_stderr,
     )
-    if args.json:
-        print(json.dumps(out, indent=2))
-    else:
-        _print_table(out)
-    return 0
+    return report(out, as_json=args.json, table=_print_table)

@@ -6,7 +6,9 @@ the exit status stays 0. A figure that was not measured (e.g. ``--skip-28x150``)
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping
+import json
+import sys
+from collections.abc import Callable, Iterable, Mapping
 from dataclasses import KW_ONLY, dataclass
 from typing import Any
 
@@ -79,3 +81,17 @@ def format_verdicts(items: list[dict[str, Any]]) -> str:
         + (f", {len(items) - met - missed} not measured" if len(items) - met - missed else "")
     )
     return "\n".join(lines)
+
+
+def report(out: dict[str, Any], *, as_json: bool, table: Callable[[dict[str, Any]], None]) -> int:
+    """A bench command's output: ``out`` as indented JSON, or its ``table``; the exit code (0)."""
+    if as_json:
+        print(json.dumps(out, indent=2))
+    else:
+        table(out)
+    return 0
+
+
+def progress_to_stderr(msg: str) -> None:
+    """A bench's progress line, on stderr so that ``--json`` stdout stays one object."""
+    print(msg, file=sys.stderr, flush=True)

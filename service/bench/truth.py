@@ -24,7 +24,6 @@ whose CIs cover all seven H, and the identification wall times, with the targets
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from collections.abc import Callable
@@ -33,6 +32,8 @@ from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+from service.bench.targets import progress_to_stderr, report
 
 if TYPE_CHECKING:
     from model.fem import FEModel
@@ -317,10 +318,6 @@ def main(args: argparse.Namespace) -> int:
         scenarios,
         first_seed=args.first_seed,
         raw=args.raw,
-        progress=lambda msg: print(msg, file=sys.stderr, flush=True),
+        progress=progress_to_stderr,
     )
-    if args.json:
-        print(json.dumps(out, indent=2))
-    else:
-        _print(out)
-    return 0
+    return report(out, as_json=args.json, table=_print)
