@@ -204,6 +204,15 @@ class IdentificationSettings(_Section):
     map_margin_rpm: float = Field(default=500.0, ge=0)
     map_min_visit_s: float = Field(default=60.0, ge=0)  # seconds of data at a speed before it is visited
     map_forget_tau_h: float = Field(default=4.0, gt=0)  # forgetting time of the map's information
+    # the live filter's considered H error: "map" (the newest map's band) or "prior" (the band of the prior
+    # a window starting now would get: no feedback of the fits being refined; docs/hmap.md)
+    map_live_h_error: Literal["map", "prior"] = "map"
+    # covariance intersection of a fit's prior and start field, which share earlier data (1: independent)
+    map_prior_weight: float = Field(default=1.0, gt=0, le=1)
+    # the start covariance's H part: θ draws from the prior run through the map_start_lead_min before the
+    # window (0: the live state's covariance only; docs/hmap.md)
+    map_start_draws: int = Field(default=0, ge=0)
+    map_start_lead_min: float = Field(default=10.0, gt=0)
 
     @field_validator("schedule_min")
     @classmethod

@@ -33,7 +33,7 @@ class MapBook:
         self.changed_at: float | None = None  # last confirmed condition change not fitted since
         self.retry_after: float | None = None
         self.running: int | None = None
-        self.live_key: tuple[int, int, int] | None = None
+        self.live_key: tuple[object, ...] | None = None
         self._launched: tuple[float, int, tuple[np.ndarray, np.ndarray]] | None = None
         self._last_end: float | None = None
         self._ids = itertools.count(1)
@@ -77,6 +77,18 @@ class MapBook:
             return self.cold.mean, self.cold.cov
         return np.asarray(m.mean), np.asarray(m.cov)
 
+    def live_theta(self, ts: float, m: SpeedMap | None) -> tuple[np.ndarray, np.ndarray, object]:
+        """θ's mean and covariance whose H and band the live filter uses at ``ts`` (its H and considered H
+        error), and a key that changes when they do. The mean is the newest map's; the covariance the
+        newest map's (``live_h_error = "map"``) or the prior a window starting at ``ts`` would get
+        (``"prior"``: a posterior whose window ended at least ``window_s`` earlier, decayed to ``ts``; its
+        band does not depend on the fits that start from this live state: no feedback loop)."""
+        mean, cov = self.current_theta(m)
+        if self.cfg.live_h_error == "map":
+            return mean, cov, id(m)
+        prior, source = self.prior_for(ts - self.cfg.window_s, ts)
+        return mean, prior.cov, (id(m), source, round(ts / self.cfg.refit_s))
+
     def launched(self, job_id: int, *, t_end: float, mask_used: int) -> None:
         self.running = job_id
         self._launched = (t_end, mask_used, self.tally.visited())
@@ -88,6 +100,18 @@ class MapBook:
         assert self._launched is not None
         out, self._launched, self.running = self._launched, None, None
         return out
+
+    def intersect(self, prior: Gaussian, start_cov: np.ndarray) -> tuple[Gaussian, np.ndarray]:
+        """Covariance intersection of the fit's prior and its start field (``prior_weight`` ω): a chained
+        prior (an earlier window's posterior) and the live state at the window start were both made from
+        earlier data, so their errors are correlated by an unknown amount; dividing the prior's covariance
+        by ω and the start covariance by 1 − ω keeps the fused estimate consistent for any correlation
+        (Julier & Uhlmann 1997). Unchanged for ω = 1 (treated as independent) and for the cold-start prior
+        (the spindle file's: it shares no data with the start field)."""
+        w = float(self.cfg.prior_weight)
+        if w >= 1.0 or prior is self.cold:
+            return prior, start_cov
+        return Gaussian(prior.mean, prior.cov / w), np.asarray(start_cov) / (1.0 - w)
 
     def keep(self, t_end: float, posterior: Gaussian) -> None:
         self._posteriors = [*self._posteriors, (t_end, posterior)][-self.KEPT :]

@@ -90,6 +90,10 @@ def map_config(settings: Settings) -> MapConfig | None:
         min_visit_s=ident.map_min_visit_s,
         tau_h=ident.map_forget_tau_h,
         family=ident.map_family,
+        live_h_error=ident.map_live_h_error,
+        prior_weight=ident.map_prior_weight,
+        start_draws=ident.map_start_draws,
+        start_lead_s=60.0 * ident.map_start_lead_min,
     )
 
 

@@ -57,7 +57,14 @@ class MapConfig:
     min_visit_s: seconds of (decayed) data at a speed bin before it counts as visited;
     bin_rpm: visited speeds are binned to this;
     tau_h: forgetting time of ``model.hmap_identify.forget`` (h);
-    family: "nodes" | "physics" (``model.hmap``).
+    family: "nodes" | "physics" (``model.hmap``);
+    live_h_error: the live filter's considered H error: "map" the newest map's band at the current speed,
+    "prior" the band of the prior a window starting now would get (the decayed posterior of a fit whose
+    window ended at least ``window_s`` ago: independent of the fits being refined; docs/hmap.md);
+    prior_weight: covariance intersection of the fit's prior and start field (ω in (0, 1]; 1: independent):
+    the prior's covariance is divided by ω and the start covariance by 1 − ω (docs/hmap.md);
+    start_draws: θ draws from the prior run through the ``start_lead_s`` before the window to add the
+    map's H error to the start covariance (``mapjob.theta_start_cov``; 0: the live state's covariance only).
     """
 
     window_s: float = 3600.0
@@ -70,9 +77,13 @@ class MapConfig:
     bin_rpm: float = 50.0
     tau_h: float = 4.0
     family: Literal["nodes", "physics"] = "nodes"
+    live_h_error: Literal["map", "prior"] = "map"
+    prior_weight: float = 1.0
+    start_draws: int = 0
+    start_lead_s: float = 600.0
 
     def __post_init__(self) -> None:
-        for name in ("window_s", "min_window_s", "refit_s", "fresh_s", "bin_rpm", "tau_h"):
+        for name in ("window_s", "min_window_s", "refit_s", "fresh_s", "bin_rpm", "tau_h", "start_lead_s"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise SpeedMapError(f"MapConfig.{name}: must be > 0, got {v}")
@@ -83,6 +94,14 @@ class MapConfig:
         if self.min_window_s > self.window_s:
             raise SpeedMapError(
                 f"MapConfig.min_window_s ({self.min_window_s}) must be <= window_s ({self.window_s})"
+            )
+        if not (0.0 < float(self.prior_weight) <= 1.0):
+            raise SpeedMapError(f"MapConfig.prior_weight: must be in (0, 1], got {self.prior_weight}")
+        if int(self.start_draws) < 0:
+            raise SpeedMapError(f"MapConfig.start_draws: must be >= 0, got {self.start_draws}")
+        if self.live_h_error not in ("map", "prior"):
+            raise SpeedMapError(
+                f"MapConfig.live_h_error: expected 'map' or 'prior', got {self.live_h_error!r}"
             )
         if self.family not in ("nodes", "physics"):
             raise SpeedMapError(f"MapConfig.family: expected 'nodes' or 'physics', got {self.family!r}")

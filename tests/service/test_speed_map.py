@@ -197,3 +197,105 @@ def test_restart_restores_the_map_as_stale(tmp_path, duty, loaded_model) -> None
     assert mp is not None and mp.restored and mp.status is ChtcStatus.STALE
     np.testing.assert_allclose(mp.h_w_m2k, svc.chtc_map().h_w_m2k, rtol=0.05)  # ambient may differ
     second.close()
+
+
+# --- the fit's start covariance and prior (issue 17: honest bands on the steady chain) --------------------
+def _book(loaded_model, **kw: object):
+    from service.engine.mapbook import MapBook
+
+    return MapBook(core_config(map_settings(**kw)), loaded_model, None)
+
+
+def test_covariance_intersection_is_consistent_for_any_correlation(loaded_model) -> None:
+    """Fusing the prior and the start field with ``MapBook.intersect``'s covariances never claims less than
+    the fused estimate's actual error, whatever the correlation of their errors (Julier & Uhlmann 1997);
+    treating them as independent (ω = 1) does when the errors are shared."""
+    from model.hmap import Gaussian
+
+    book = _book(loaded_model, map_prior_weight=0.3)
+    a, b = np.diag([4.0, 1.0]), np.diag([1.0, 9.0])
+    prior, start = book.intersect(Gaussian(np.zeros(2), a), b)
+    np.testing.assert_allclose(prior.cov, a / 0.3)
+    np.testing.assert_allclose(start, b / 0.7)
+    same, unchanged = _book(loaded_model).intersect(Gaussian(np.zeros(2), a), b)
+    assert same.cov is a and unchanged is b
+    cold, start_cov = book.intersect(book.cold, np.eye(3))  # the spindle file's prior shares no data
+    assert cold is book.cold and np.array_equal(start_cov, np.eye(3))
+    for rho in (0.0, 0.5, 0.99):  # e_a, e_b with correlation rho per component
+        cross = rho * np.sqrt(np.diag(a) * np.diag(b))
+        for pa, pb, ok in ((prior.cov, start, True), (a, b, rho == 0.0)):
+            ia, ib = np.linalg.inv(pa), np.linalg.inv(pb)
+            fused = np.linalg.inv(ia + ib)
+            ka, kb = fused @ ia, fused @ ib
+            actual = ka @ a @ ka.T + kb @ b @ kb.T + ka @ np.diag(cross) @ kb.T + kb @ np.diag(cross) @ ka.T
+            claims_enough = bool(np.all(np.linalg.eigvalsh(fused - actual) >= -1e-12))
+            assert claims_enough or not ok, (rho, pa)
+            if rho > 0.9 and pa is a:
+                assert not claims_enough  # the naive fusion is overconfident with shared errors
+
+
+def test_live_h_error_from_the_prior_is_wider_than_the_map(loaded_model) -> None:
+    """``live_h_error = "prior"``: the filter's considered H error is the band of the prior a window
+    starting now would get (the cold prior before a posterior is an hour old), not the newest map's."""
+    from model.hmap import Gaussian
+
+    book = _book(loaded_model, map_live_h_error="prior")
+    narrow = Gaussian(book.cold.mean + 0.1, book.cold.cov * 1e-3)
+    book.keep(1000.0, narrow)
+    m = SpeedMap(
+        family="nodes", mean=narrow.mean, cov=narrow.cov, visited_rpm=np.array([3000.0]),
+        visited_s=np.array([600.0]), fitted_at=datetime.fromtimestamp(1000.0, tz=UTC), rmse_c=0.1,
+    )  # fmt: skip
+    mean, cov, _ = book.live_theta(2000.0, m)
+    np.testing.assert_allclose(mean, narrow.mean)
+    np.testing.assert_allclose(cov, book.cold.cov)  # the posterior is not an hour old yet
+    mean, cov, _ = book.live_theta(1000.0 + 3600.0, m)  # the posterior decayed over the hour since
+    assert np.all(np.linalg.eigvalsh(cov - 1.2 * narrow.cov) > 0)  # e^(1 h / 4 h) = 1.28
+    assert np.all(np.linalg.eigvalsh(book.cold.cov - cov) > 0)
+    assert np.array_equal(_book(loaded_model).live_theta(2000.0, m)[1], narrow.cov)
+
+
+def test_theta_start_cov_is_the_draws_spread_of_the_lead(loaded_model) -> None:
+    """The H part of the start covariance: zero for a certain θ, ≈ s·sᵀ·ε² for θ uncertain by ε along one
+    direction v (s the end state's finite-difference derivative along v), and larger over a longer lead."""
+    from model import rom_segments
+    from model.hmap import Family
+    from service.identify.mapjob import segment_speed, theta_start_cov
+    from service.identify.window import WindowArrays
+
+    fam = Family("nodes")
+    cold = fam.prior(loaded_model.spec)
+    k = 60  # 10 min at 10 s
+    times = np.arange(k + 1) * 10.0
+    speed = np.where(times < 300.0, 3000.0, 4000.0)
+    lead = WindowArrays(
+        times_s=times, measured_c=np.zeros((k + 1, 32)), mask=np.ones(32, bool),
+        ambient_c=np.full(k + 1, 22.0), speed_rpm=speed, torque_nm=np.full(k + 1, 5.0),
+        good_fraction=np.ones(32),
+    )  # fmt: skip
+    t0 = 30.0
+    zero = theta_start_cov(loaded_model, lead, t0, "nodes", cold.mean, 0.0 * cold.cov + 1e-30, draws=8)
+    assert np.max(np.abs(zero)) < 1e-12
+    v = np.zeros(cold.mean.size)
+    used = np.abs(segment_speed(speed[:-1]))
+    v[np.argmax(np.abs(fam.h_jacobian(cold.mean, used[:1], np.array([22.0]))[0, 1]))] = 1.0  # an H2 node
+    eps = 0.05
+    cov = theta_start_cov(
+        loaded_model, lead, t0, "nodes", cold.mean, eps**2 * np.outer(v, v) + 1e-14 * np.eye(v.size),
+        draws=400, seed=1,
+    )  # fmt: skip
+    from model.inputs import inputs_from_operation
+
+    ambient, spd, torque = lead.step_inputs()
+    inputs = inputs_from_operation(
+        loaded_model.spec, dt_s=10.0, speed_rpm=spd, torque_nm=torque, ambient_c=ambient
+    )
+    plan = rom_segments.plan_from_speed(segment_speed(spd))
+    sp, amb = np.abs(segment_speed(spd)[plan.start]), rom_segments.segment_means(plan, inputs.ambient_c)
+    h = np.stack([fam.h_at(th, sp, amb) for th in (cold.mean, cold.mean + 1e-4 * v)])
+    end = rom_segments.simulate_states(loaded_model.rom, h, plan, inputs, t0)[:, -1]
+    s = (end[1] - end[0]) / 1e-4
+    expect = eps**2 * np.outer(s, s)
+    assert np.trace(expect) > 1e-6
+    assert abs(np.trace(cov) / np.trace(expect) - 1.0) < 0.25  # 400 draws: ±10 % sampling error (2σ ~ 14 %)
+    assert abs(s @ cov @ s / (s @ expect @ s) - 1.0) < 0.25
