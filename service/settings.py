@@ -207,8 +207,9 @@ class IdentificationSettings(_Section):
     # the live filter's considered H error: "map" (the newest map's band) or "prior" (the band of the prior
     # a window starting now would get: no feedback of the fits being refined; docs/hmap.md)
     map_live_h_error: Literal["map", "prior"] = "map"
-    # covariance intersection of a fit's prior and start field, which share earlier data (1: independent)
-    map_prior_weight: float = Field(default=1.0, gt=0, le=1)
+    # covariance intersection ω of a fit's chained prior and its start field, which share earlier data:
+    # prior covariance / ω, start covariance / (1 − ω); 1: treated as independent (docs/hmap.md)
+    map_prior_weight: float = Field(default=0.25, gt=0, le=1)
     # the start covariance's H part: θ draws from the prior run through the map_start_lead_min before the
     # window (0: the live state's covariance only; docs/hmap.md)
     map_start_draws: int = Field(default=0, ge=0)

@@ -78,7 +78,7 @@ class MapConfig:
     tau_h: float = 4.0
     family: Literal["nodes", "physics"] = "nodes"
     live_h_error: Literal["map", "prior"] = "map"
-    prior_weight: float = 1.0
+    prior_weight: float = 0.25
     start_draws: int = 0
     start_lead_s: float = 600.0
 
