@@ -3,7 +3,6 @@
 from __future__ import annotations
 
 from dataclasses import replace
-from pathlib import Path
 
 import numpy as np
 import pytest
@@ -84,9 +83,8 @@ def test_short_windows_and_bad_split_are_handled(rom: ReducedModel) -> None:
         assert got.shape == exact.shape == (3, n + 1, 32)
         assert np.abs(got - exact).max() <= 0.005
     with pytest.raises(ValueError, match="n_slow"):
-        rom_split.split_operators(
-            rom.k0, rom.k_zone, rom.z_zone, rom.q_front, rom.q_rear, rom.sensors, h_centre=h[0], n_slow=rom.rank
-        )
+        ops = (rom.k0, rom.k_zone, rom.z_zone, rom.q_front, rom.q_rear, rom.sensors)
+        rom_split.split_operators(*ops, h_centre=h[0], n_slow=rom.rank)
 
 
 def test_lagged_inputs_rows() -> None:
@@ -98,7 +96,7 @@ def test_lagged_inputs_rows() -> None:
     np.testing.assert_array_equal(rows[:, 6:9], np.vstack([np.zeros((2, 3)), du[1:4]]))  # Δu(n−1), n−1 ≥ 1
 
 
-def test_streamed_direct_term_is_rows_times_weights(tmp_path: Path) -> None:
+def test_streamed_direct_term_is_rows_times_weights() -> None:
     rng = np.random.default_rng(2)
     p, r, m, n = 5, 30, 4, 70
     lam = rng.uniform(0.001, 0.3, (p, r))
