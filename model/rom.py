@@ -42,7 +42,9 @@ DEFAULT_THETA = 1.0  # as model.fem.simulate (backward Euler); checked by the te
 # 0: the reduced ODE is integrated exactly over each 10-s input step (zero-order hold), so the model has no
 # time-step error; backward Euler at 10 s was 0.07-0.14 °C off a converged reference at the sensors (issue 15)
 DEFAULT_SUBSTEPS = 0
-DEFAULT_N_SLOW = 33  # spectral split (model.rom_split; docs/rom.md, "Spectral split"); 0: all modes exact
+# spectral split (model.rom_split; docs/rom.md, "Spectral split"): -1 at the first gap of the spectrum
+# (33 slow modes for the default model), k > 0: k slow modes, 0: all modes exact
+DEFAULT_N_SLOW = rom_split.AUTO
 DEFAULT_BOX = (5.0, 200.0)
 DEFAULT_Q_MAX_W = (300.0, 150.0)  # W: above the packaged spindle's bearing heats at 7000 rpm, 20 N·m
 
@@ -133,12 +135,15 @@ class ReducedModel:
 
     @property
     def split_active(self) -> bool:
-        """Whether ``simulate_sensors`` uses the spectral split (``model.rom_split``): exact per-step solution
-        (substeps 0) and 0 < n_slow < rank."""
-        return self.substeps == 0 and 0 < self.n_slow < self.rank
+        """Whether ``simulate_sensors`` uses the spectral split (``model.rom_split``) for 10-s steps: exact
+        per-step solution (substeps 0), n_slow auto (a gap found) or 0 < n_slow < rank, and its guards."""
+        ops = self._split_operators
+        return ops is not None and ops.usable(10.0)
 
     @cached_property
-    def _split_operators(self) -> rom_split.SplitOperators:
+    def _split_operators(self) -> rom_split.SplitOperators | None:
+        if self.substeps != 0 or self.n_slow == 0 or self.n_slow >= self.rank:
+            return None
         lo, hi = self.h_box
         return rom_split.split_operators(
             self.k0,
@@ -168,9 +173,10 @@ class ReducedModel:
         """
         h2, scale = self._check_population(h, load_scale)
         a0 = self._start_states(t0, t0_shift, h2.shape[0])
-        if self.split_active:
+        ops = self._split_operators
+        if ops is not None and ops.usable(float(inputs.dt_s)):
             seg = _segments(inputs)
-            sr = rom_split.split_run(self._split_operators, h2, seg, a0, scale, float(inputs.dt_s))
+            sr = rom_split.split_run(ops, h2, seg, a0, scale, float(inputs.dt_s))
             return rom_split.window_outputs(sr, seg)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
         gain = np.matmul(self.sensors[None, :, :], md.phi)  # (P, 32, r)

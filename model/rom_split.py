@@ -36,6 +36,13 @@ from model import rom_modal, rom_stream
 
 Array = NDArray[np.float64]
 
+# guards of the split (SplitOperators.usable): the served model has λΔt 1.22 / 1.52 at the centre across
+# its split (ratio 1.25) and the 8 transient steps leave exp(−1.5·8) < 1e-5 of a fast transient
+MIN_GAP_RATIO = 1.1
+MIN_FAST_DECAY = 1.0
+AUTO = -1  # n_slow: the first gap of the centre spectrum (choose_split)
+AUTO_GAP_RATIO = 1.15  # λ_k / λ_k−1 at the chosen split
+AUTO_MIN_RATE = 0.12  # 1/s: the fast modes' floor (λΔt ≥ 1.2 at the service's 10-s step)
 DEFAULT_N_TRANSIENT = 8  # steps a fast transient is kept: exp(−1.5·8) < 1e-5 at the default split
 
 
@@ -53,6 +60,16 @@ class SplitOperators:
     sensors: Array
     n_slow: int
     n_transient: int = DEFAULT_N_TRANSIENT
+    centre_lam: Array | None = None  # eigenvalues of K_r at the box centre [1/s], ascending
+
+    def usable(self, dt_s: float) -> bool:
+        """Whether the split is safe for steps of ``dt_s`` [s]: a gap in the centre spectrum at the split
+        (λ_s+1 ≥ ``MIN_GAP_RATIO``·λ_s) and fast modes that die out within the kept transient steps
+        (λ_s+1·Δt ≥ ``MIN_FAST_DECAY``). Otherwise the model falls back to the all-exact evaluation."""
+        if self.centre_lam is None:
+            return True
+        slow, fast = float(self.centre_lam[self.n_slow - 1]), float(self.centre_lam[self.n_slow])
+        return fast >= MIN_GAP_RATIO * slow and fast * dt_s >= MIN_FAST_DECAY
 
 
 def split_operators(
@@ -66,17 +83,21 @@ def split_operators(
     h_centre: Array,
     n_slow: int,
     n_transient: int = DEFAULT_N_TRANSIENT,
-) -> SplitOperators:
-    """Rotate the reduced operators into the eigenbasis of K_r(``h_centre``) (7,), eigenvalues ascending."""
+) -> SplitOperators | None:
+    """Rotate the reduced operators into the eigenbasis of K_r(``h_centre``) (7,), eigenvalues ascending.
+    ``n_slow`` ``AUTO``: the split ``choose_split`` finds in that spectrum (None if it finds none)."""
     r = k0.shape[0]
-    if not 0 < n_slow < r:
-        raise ValueError(f"n_slow: expected 0 < n_slow < rank {r}, got {n_slow}")
+    if not (0 < n_slow < r or n_slow == AUTO):
+        raise ValueError(f"n_slow: expected 0 < n_slow < rank {r} or {AUTO} (auto), got {n_slow}")
     if n_transient < 0:
         raise ValueError(f"n_transient: expected >= 0, got {n_transient}")
-    _, psi = np.linalg.eigh(
-        rom_modal.conductance(k0, k_zone, np.asarray(h_centre, dtype=np.float64)[None, :])
-    )
+    centre = np.asarray(h_centre, dtype=np.float64)[None, :]
+    lam, psi = np.linalg.eigh(rom_modal.conductance(k0, k_zone, centre))
     psi = psi[0]
+    if n_slow == AUTO:
+        n_slow = choose_split(lam[0])
+        if n_slow == 0:
+            return None
     return SplitOperators(
         psi=psi,
         k0=psi.T @ k0 @ psi,
@@ -87,7 +108,19 @@ def split_operators(
         sensors=sensors @ psi,
         n_slow=n_slow,
         n_transient=n_transient,
+        centre_lam=lam[0],
     )
+
+
+def choose_split(centre_lam: Array) -> int:
+    """The number of slow modes: the first k ≥ r/2 with λ_k ≥ ``AUTO_GAP_RATIO``·λ_k−1 and λ_k ≥
+    ``AUTO_MIN_RATE`` in the ascending centre spectrum [1/s] (33 for the service's default model, whose gap
+    holds over the whole box: docs/rom.md, "Spectral split"); 0 if there is none."""
+    lam = np.asarray(centre_lam, dtype=np.float64)
+    for k in range(max(1, lam.size // 2), lam.size):
+        if lam[k] >= AUTO_GAP_RATIO * lam[k - 1] and lam[k] >= AUTO_MIN_RATE:
+            return k
+    return 0
 
 
 @dataclass(frozen=True)

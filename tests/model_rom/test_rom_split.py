@@ -87,6 +87,12 @@ def test_short_windows_and_bad_split_are_handled(rom: ReducedModel) -> None:
         rom_split.split_operators(*ops, h_centre=h[0], n_slow=rom.rank)
 
 
+def test_auto_split_is_the_first_gap() -> None:
+    lam = np.array([0.001, 0.002, 0.05, 0.08, 0.10, 0.11, 0.16, 0.30, 0.33, 0.5])
+    assert rom_split.choose_split(lam) == 6  # 0.16 ≥ 1.15·0.11 and ≥ 0.12 /s; 0.10 / 0.08 is below the floor
+    assert rom_split.choose_split(np.linspace(0.1, 0.2, 10)) == 0  # no gap: all-exact
+
+
 def test_lagged_inputs_rows() -> None:
     u = np.arange(15.0).reshape(5, 3) ** 2
     rows = rom_split.lagged_inputs(u, 2)
@@ -110,3 +116,19 @@ def test_streamed_direct_term_is_rows_times_weights() -> None:
     got = rom_stream.modal_outputs(run, gain, chunk=16, direct=(rows, weights))
     np.testing.assert_allclose(got[:, 0], plain[:, 0], atol=1e-12)
     np.testing.assert_allclose(got[:, 1:], plain[:, 1:] + rows[None] @ weights, atol=1e-10)
+
+
+def test_split_falls_back_to_exact_where_its_guards_fail(rom: ReducedModel) -> None:
+    """Short steps (the fast modes would outlive the kept transient steps) use the all-exact evaluation."""
+    ops = rom._split_operators
+    assert ops is not None and ops.usable(10.0)
+    assert ops.centre_lam is not None
+    fast = float(ops.centre_lam[ops.n_slow])
+    dt = 0.5 * rom_split.MIN_FAST_DECAY / fast
+    assert not ops.usable(dt)
+    k = np.arange(20)
+    inputs = InputSeries(dt, 21.0 + 0.1 * k, np.where(k < 8, 50.0, 150.0), np.full(20, 30.0))
+    h = np.full((2, 7), 60.0)
+    np.testing.assert_array_equal(
+        rom.simulate_sensors(h, inputs, 21.0), replace(rom, n_slow=0).simulate_sensors(h, inputs, 21.0)
+    )
