@@ -3,7 +3,8 @@
 The reduced conductance K_r(H) has eigenvalues λ spanning λΔt ≈ 0–14 at Δt = 10 s, and one batched 56 × 56
 ``eigh`` per candidate was two thirds of an evaluation (docs/rom.md, "Evaluation cost"). The top of the
 spectrum hardly moves with H over the box, so the split is fixed, independent of H: the eigenbasis Ψ of K_r
-at the box centre, its first ``n_slow`` vectors slow (s), the rest fast (f). Per candidate, in Ψ:
+at the box centre, its first ``n_slow`` vectors slow (s; by default at the first gap of that spectrum,
+``choose_split``: 33 of 56 for the service's model), the rest fast (f). Per candidate, in Ψ:
 
 - slow part: the fast coordinates condensed statically (Schur complement K_red = K_ss − K_sf·K_ff⁻¹·K_fs, load
   z_red = z_s − K_sf·K_ff⁻¹·z_f); its eigenpairs (λ_s, φ) exact (an n_slow × n_slow ``eigh``) and the exact
