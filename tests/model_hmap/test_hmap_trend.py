@@ -76,13 +76,14 @@ def z_with(model: Any) -> np.ndarray:
 
 
 def test_prior_trend_is_wide_and_only_the_trend(model: Any) -> None:
-    """The trend term widens the prior along (n − 3500)/3500 per zone and nowhere else: zero at the middle."""
+    """The trend term widens a rotating zone's prior along (n − 3500)/3500 and nowhere else."""
     base, wide = NODES.prior(model.spec, trend_sd=0.0), NODES.prior(model.spec)
     np.testing.assert_allclose(wide.mean, base.mean)
     t = (np.asarray(NODES.nodes_rpm) - 3500.0) / 3500.0
     extra = wide.cov[:8, :8] - base.cov[:8, :8]
     np.testing.assert_allclose(extra, hmap.TREND_SD**2 * np.outer(t, t), atol=1e-12)
     np.testing.assert_allclose(wide.cov[:8, 8:], 0.0, atol=1e-12)  # zones stay independent
+    np.testing.assert_allclose(wide.cov[40:, 40:], base.cov[40:, 40:])  # stationary H6, H7: no trend term
     # the end-to-end rise of ln H: ±0.8 before, ≥ ±2 now (the physics family's prior allows ±2.1)
     contrast = np.zeros(56)
     contrast[[0, 7]] = [-0.5, 0.5]
