@@ -93,7 +93,7 @@ def test_prior_trend_is_wide_and_only_the_trend(model: Any) -> None:
 def test_h1_at_4000_rpm_covered_with_the_trend_and_not_without(model: Any, z_with: np.ndarray) -> None:
     """With the trend term H1's band covers the truth at 4000 rpm in every seed; the old prior (trend_sd 0)
     misses on the same data, and every seed's z moves up (measured on seeds 101-108: mean z −1.24 and 3 of
-    8 outside the band without the trend, −0.83 and none outside with it; docs/hmap.md)."""
+    8 outside the band without the trend, −0.82 and none outside with it; docs/hmap.md)."""
     z_without = _h1_z(model, trend_sd=0.0)
     assert np.all(np.abs(z_with) < 1.96), z_with
     assert np.any(np.abs(z_without) >= 1.96), z_without
