@@ -25,7 +25,7 @@ from typing import Any, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
-from model import rom_cache, rom_modal, rom_stream, rom_train
+from model import rom_cache, rom_modal, rom_split, rom_stream, rom_train
 from model.rom_check import error_report as _error_report
 from model.rom_train import AffineSystem
 
@@ -42,6 +42,9 @@ DEFAULT_THETA = 1.0  # as model.fem.simulate (backward Euler); checked by the te
 # 0: the reduced ODE is integrated exactly over each 10-s input step (zero-order hold), so the model has no
 # time-step error; backward Euler at 10 s was 0.07-0.14 °C off a converged reference at the sensors (issue 15)
 DEFAULT_SUBSTEPS = 0
+# spectral split (model.rom_split; docs/rom.md, "Spectral split"): -1 at the first gap of the spectrum
+# (33 slow modes for the default model), k > 0: k slow modes, 0: all modes exact
+DEFAULT_N_SLOW = rom_split.AUTO
 DEFAULT_BOX = (5.0, 200.0)
 DEFAULT_Q_MAX_W = (300.0, 150.0)  # W: above the packaged spindle's bearing heats at 7000 rpm, 20 N·m
 
@@ -93,6 +96,8 @@ class ReducedModel:
     error_report: dict[str, Any] = field(default_factory=dict)
     build_s: float = 0.0
     from_cache: bool = False
+    # slow modes of the spectral split (model.rom_split) in the served evaluation (substeps 0); 0: all exact
+    n_slow: int = DEFAULT_N_SLOW
 
     @property
     def rank(self) -> int:
@@ -128,6 +133,29 @@ class ReducedModel:
     def _uniform_state(self) -> Array:
         return self.project(np.ones(self.n_nodes))
 
+    @property
+    def split_active(self) -> bool:
+        """Whether ``simulate_sensors`` uses the spectral split (``model.rom_split``) for 10-s steps: exact
+        per-step solution (substeps 0), n_slow auto (a gap found) or 0 < n_slow < rank, and its guards."""
+        ops = self._split_operators
+        return ops is not None and ops.usable(10.0)
+
+    @cached_property
+    def _split_operators(self) -> rom_split.SplitOperators | None:
+        if self.substeps != 0 or self.n_slow == 0 or self.n_slow >= self.rank:
+            return None
+        lo, hi = self.h_box
+        return rom_split.split_operators(
+            self.k0,
+            self.k_zone,
+            self.z_zone,
+            self.q_front,
+            self.q_rear,
+            self.sensors,
+            h_centre=np.full(7, np.sqrt(lo * hi)),
+            n_slow=self.n_slow,
+        )
+
     def simulate_sensors(
         self,
         h: Array,
@@ -144,16 +172,15 @@ class ReducedModel:
         start field per candidate (exact: the uniform field is in the basis).
         """
         h2, scale = self._check_population(h, load_scale)
+        a0 = self._start_states(t0, t0_shift, h2.shape[0])
+        ops = self._split_operators
+        if ops is not None and ops.usable(float(inputs.dt_s)):
+            seg = _segments(inputs)
+            sr = rom_split.split_run(ops, h2, seg, a0, scale, float(inputs.dt_s))
+            return rom_split.window_outputs(sr, seg)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
         gain = np.matmul(self.sensors[None, :, :], md.phi)  # (P, 32, r)
-        run = self._modal_run(md, h2, inputs, self._start_states(t0, t0_shift, h2.shape[0]), scale)
-        seg = run.segments
-        if rom_modal.choose_method(seg.start.size, int(seg.length.sum()), run.b0.size) == "loop":
-            return rom_stream.modal_outputs(run, gain)  # a wide population: stream the window
-        b = rom_modal.modal_trajectory(run)  # (n+1, P, r)
-        # contiguous operands: BLAS is ~40 % slower on the transposed views
-        b_pnr = np.ascontiguousarray(np.swapaxes(b, 0, 1))
-        return np.asarray(np.matmul(b_pnr, np.ascontiguousarray(np.swapaxes(gain, 1, 2))))
+        return _modal_outputs(self._modal_run(md, h2, inputs, a0, scale), gain)
 
     def simulate_state(
         self, h: Array, inputs: InputLike, t0: float | Array, *, load_scale: Array | None = None
@@ -226,6 +253,17 @@ class ReducedModel:
         )
         b0 = phi_t @ a0 if a0.ndim == 1 else np.einsum("prs,ps->pr", phi_t, a0)  # shared or per candidate
         return rom_modal.ModalRun(b0, md.lam, mu, forcing, seg, scale)
+
+
+def _modal_outputs(run: rom_modal.ModalRun, gain: Array) -> Array:
+    """Outputs (P, n_steps+1, m) of a modal run through ``gain`` (P, m, r)."""
+    seg = run.segments
+    if rom_modal.choose_method(seg.start.size, int(seg.length.sum()), run.b0.size) == "loop":
+        return rom_stream.modal_outputs(run, gain)  # a wide population: stream the window
+    b = rom_modal.modal_trajectory(run)  # (n+1, P, r)
+    # contiguous operands: BLAS is ~40 % slower on the transposed views
+    b_pnr = np.ascontiguousarray(np.swapaxes(b, 0, 1))
+    return np.asarray(np.matmul(b_pnr, np.ascontiguousarray(np.swapaxes(gain, 1, 2))))
 
 
 def _segments(inputs: InputLike) -> rom_modal.Segments:
@@ -386,9 +424,10 @@ def load_rom(path: Path, *, key: str | None = None) -> ReducedModel:
         raise RomCacheError(str(err)) from err
     if key is not None and meta.get("key") != key:
         raise RomCacheError(f"{path}: field key does not match the requested model")
+    fields: dict[str, Any] = {n: np.asarray(arrays[n], dtype=np.float64) for n in _ARRAYS}
     try:
         return ReducedModel(
-            **{n: np.asarray(arrays[n], dtype=np.float64) for n in _ARRAYS},
+            **fields,
             theta=float(meta["theta"]),
             substeps=int(meta.get("substeps", 1)),
             h_box=(float(meta["h_box"][0]), float(meta["h_box"][1])),

@@ -51,11 +51,14 @@ def chunk_pieces(segments: Segments, chunk: int) -> Pieces:
     return Pieces(segment, start, length, bounds.astype(np.int64))
 
 
-def modal_outputs(run: ModalRun, gain: Array, *, chunk: int = DEFAULT_CHUNK) -> Array:
+def modal_outputs(
+    run: ModalRun, gain: Array, *, chunk: int = DEFAULT_CHUNK, direct: tuple[Array, Array] | None = None
+) -> Array:
     """Outputs y_p(n) = G_p·b_p(n), (P, n_steps+1, m), of the trajectory that ``modal_trajectory(run)`` gives.
 
     ``gain`` (P, m, r) maps modal coordinates to outputs (sensor rows times the candidate's eigenvectors,
-    in °C per unit modal coordinate).
+    in °C per unit modal coordinate). ``direct`` (rows (n_steps, q), weights (P, q, m)) adds
+    rows[n−1]·weights_p to y_p(n) for n ≥ 1, chunk by chunk (no window-sized temporary).
     """
     segments = run.segments
     n_steps = int(segments.length.sum())
@@ -76,6 +79,7 @@ def modal_outputs(run: ModalRun, gain: Array, *, chunk: int = DEFAULT_CHUNK) -> 
         pw=power_table(run.mu, longest).reshape(longest + 1, p * r) if longest > 1 else None,
     )
     state = run.b0.reshape(p * r)
+    extra = None if direct is None else np.empty((p, min(chunk, n_steps), gain.shape[1]))
     for c in range(pieces.bounds.size - 1):
         k0, k1 = int(pieces.bounds[c]), int(pieces.bounds[c + 1])
         first = int(pieces.start[k0])
@@ -83,6 +87,9 @@ def modal_outputs(run: ModalRun, gain: Array, *, chunk: int = DEFAULT_CHUNK) -> 
         _advance(work, state, pieces, k0, k1, x, ops)
         block = work.traj[:used].reshape(used, p, r)
         np.matmul(np.swapaxes(block, 0, 1), gain_t, out=out[:, first + 1 : first + used + 1, :])
+        if direct is not None and extra is not None:
+            np.matmul(direct[0][None, first : first + used, :], direct[1], out=extra[:, :used, :])
+            out[:, first + 1 : first + used + 1, :] += extra[:, :used, :]
         state = work.traj[used - 1].copy()
     return out
 

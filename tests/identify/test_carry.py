@@ -70,9 +70,11 @@ def test_the_end_covariance_follows_the_trajectories(model: Any, cond3000: Condi
     b = model.rom.simulate_state(res.h, w.inputs, start)[-1]
     e = carry.propagator(model.rom, res.h, w.inputs.dt_s, n)
     np.testing.assert_allclose(e @ u, b - a, atol=1e-9)
-    # the sensor responses are the same difference seen at the sensors
-    ya = model.rom.simulate_sensors(res.h[None, :], w.inputs, w.t0)[0]
-    yb = model.rom.simulate_sensors(res.h[None, :], w.inputs, start)[0]
+    # the sensor responses are the same difference seen at the sensors (of the all-exact evaluation; the
+    # served spectral split, model.rom_split, is within a few mK of it)
+    exact = replace(model.rom, n_slow=0)
+    ya = exact.simulate_sensors(res.h[None, :], w.inputs, w.t0)[0]
+    yb = exact.simulate_sensors(res.h[None, :], w.inputs, start)[0]
     resp = carry.start_responses(model.rom, res.h, w.inputs.dt_s, n, u[:, None])[0]
     np.testing.assert_allclose(resp, yb - ya, atol=1e-9)
     # with no noise the ensemble is the start error carried exactly: members z·(E·u + S·g) to first order
