@@ -125,7 +125,11 @@ class Printer:
         elapsed = self.rig.plant_time_s() if self.rig is not None else 0.0
         h, rem = divmod(int(elapsed), 3600)
         line = f"[plant +{h:02d}:{rem // 60:02d}:{rem % 60:02d}] {msg}"
-        if msg.startswith("identification") and " ok:" in msg:
+        if msg.startswith(("identification", "map identification")) and " ok:" in msg:
+            rec = self.current() if self.current is not None else None
+            if msg.startswith("map") and rec is not None:  # its line has no H: the map's at the launch
+                served = ", ".join(f"{x:.1f}" for x in rec.h)
+                line += f"\n{' ' * 17}map H = [{served}] at {rec.condition.speed_rpm:.0f} rpm"
             k, where = self._truth_row(elapsed)
             truth = ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
             line += f"\n{' ' * 17}plant truth H = [{truth}] ({where})"
