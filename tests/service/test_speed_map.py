@@ -68,7 +68,7 @@ def served(duty, loaded_model):
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
     assert Settings().identification.mode == "per_condition"
-    assert map_config(Settings()) is None
+    assert map_config(Settings(identification={"mode": "per_condition"})) is None
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
     assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")
