@@ -1,4 +1,4 @@
-"""``service.bench.identmode``: the identification mode and settings a bench runs with (``--mode``, ``--set``)."""
+"""``service.bench.identmode``: the identification mode and settings a bench runs with (--mode, --set)."""
 
 from __future__ import annotations
 
@@ -27,7 +27,7 @@ def test_the_mode_defaults_to_the_settings_and_can_be_chosen(monkeypatch: pytest
 
 
 def test_bad_settings_are_named() -> None:
-    with pytest.raises(ValueError, match="unknown identification setting.*nope"):
+    with pytest.raises(ValueError, match=r"unknown identification setting.*nope"):
         identmode.bench_settings(None, {"nope": 1})
     with pytest.raises(ValueError, match="map_min_window_min"):
         identmode.bench_settings("speed_map", {"map_min_window_min": 90})  # > map_window_min
