@@ -30,6 +30,7 @@ from service.settings import Settings
 from service.sim.served import ManualClock, served_service
 from tests.api.conftest import MAP_MODE, LiveServer, served_map_mode, sqlite_url
 from tests.api.test_api_dashboard import _chromium
+from tests.modes import per_condition
 
 
 @dataclass
@@ -44,9 +45,10 @@ class Served:
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
-    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm)."""
+    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm), in
+    per-condition mode (Σ_H from the record's CIs, ``h_covariance``; the map's: ``served_map`` below)."""
     url = sqlite_url(tmp_path_factory.mktemp("served-compensation"))
-    with served_service(database_url=url, feed_samples=1) as s:
+    with served_service(database_url=url, settings=per_condition(), feed_samples=1) as s:
         live = s.service.view.live
         assert live is not None
         t_start = float(np.mean(live.field_c))
