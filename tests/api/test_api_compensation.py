@@ -248,7 +248,7 @@ def test_the_reference_temperature_is_a_setting(tmp_path: Path, served: Served) 
     differs from the default by Σg·(T_start − 20) at the nose, and the served reference time is null."""
     default = served.client.get("/api/v1/compensation").json()
     assert datetime.fromisoformat(default["t_ref_at"]) <= datetime.fromisoformat(default["at"])
-    settings = Settings(growth={"reference_c": 20.0})  # type: ignore[arg-type]
+    settings = per_condition(Settings(growth={"reference_c": 20.0}))  # type: ignore[arg-type]  # as ``served``
     with served_service(database_url=sqlite_url(tmp_path), settings=settings) as s:
         client = TestClient(create_app(settings, s.service, clock=s.clock))
         body = client.get("/api/v1/compensation").json()
