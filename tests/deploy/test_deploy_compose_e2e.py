@@ -35,6 +35,7 @@ import pytest
 import sqlalchemy as sa
 from sqlalchemy.engine import make_url
 
+from service.engine.shell import MAP_H_BOX
 from service.settings import default_cache_dir
 from tests.deploy.deployhelpers import ROOT, load_compose, runtime_stage
 from tests.deploy.localstack import (
@@ -169,7 +170,11 @@ def test_compose_stack_serves_fresh_h_from_the_simulator(stack: dict[str, Any], 
     assert not (bound and chtc["usable_for_compensation"]), chtc
     assert chtc["unit"] == "W/(m²·K)"
     assert [z["name"] for z in chtc["zones"]] == [f"H{i}" for i in range(1, 8)]
-    assert all(5.0 <= z["h_w_m2k"] <= 200.0 for z in chtc["zones"])
+    # inside the search box of the mode that ran: model.h_box per condition, the speed map's own box
+    # (service.engine.shell.MAP_H_BOX; /chtc/map answers 404 in per-condition mode)
+    map_mode = get_json(f"{api}/api/v1/chtc/map")[0] != 404
+    lo, hi = MAP_H_BOX if map_mode else (5.0, 200.0)
+    assert all(lo <= z["h_w_m2k"] <= hi for z in chtc["zones"]), chtc
     assert 2900 <= chtc["condition"]["speed_rpm"] <= 3100  # the simulator's first segment: 3000 rpm
     assert chtc["identification_id"] in stored_identification_ids(pg_url)
     assert_metrics_named_in_the_operations_guide_exist(api)
