@@ -60,6 +60,13 @@ PHYSICS_SD = (1.5, 1.5, 2.0)  # physics family prior σ: l0, l1 [ln W/(m²K)], c
 PHYSICS_BOUNDS = ((np.log(0.5), np.log(500.0)), (np.log(0.5), np.log(500.0)), (np.log(30.0), np.log(1e5)))
 LEVEL_SD = 1.5  # tabulated family prior σ of ln H at a node (around the smoothed physics curve)
 CURVATURE_SD = 0.3  # tabulated family prior σ of the second difference of ln H between nodes
+# tabulated family: σ of a rotating zone's linear trend of ln H over speed (± TREND_SD at 0 and 7000 rpm, 0 at
+# the middle node), added to the smoothed node prior. Without it the physics curve's trend was known to ±0.8
+# (the per-node σ averaged over 8 nodes) and H1, which the data barely determine, kept the physics curve's
+# rising trend where the plant's falls (docs/hmap.md, "H1 at 4000 rpm on the chain"). 2.0 ≈ the physics
+# family's own prior on the rise from 0 to 3500 rpm (two independent levels of σ 1.5: σ 2.1): the sign of a
+# rotating surface's effective exponent is free. Stationary zones (H6, H7) keep the node prior alone.
+TREND_SD = 2.0
 LEVEL_BOUNDS = (np.log(0.5), np.log(500.0))  # ln H [ln W/(m²K)]
 AMBIENT_EXPONENT = (0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.0)  # m in the air-property factor ν^(-m)
 DEFAULT_NODES_RPM = tuple(float(n) for n in range(0, 7001, 1000))
@@ -290,12 +297,16 @@ class Family:
         h = self.h_at(theta, speed_rpm, ambient_c)
         return h, h * np.exp(-Z95 * sd), h * np.exp(Z95 * sd)
 
-    def prior(self, spec: Any) -> Gaussian:
+    def prior(self, spec: Any, *, trend_sd: float = TREND_SD) -> Gaussian:
         """Cold-start prior from the physics curves (``physics_curves``) of ``spec``'s zones.
 
         physics: mean = the family fitted to the curves over 0..7000 rpm, σ ``PHYSICS_SD`` per parameter;
-        nodes: precision Λ = I/σ_l² + DᵀD/σ_c² per zone (σ_l = LEVEL_SD around the curve's ln H at the
-        nodes, σ_c = CURVATURE_SD on its second differences D), mean Λ⁻¹·μ/σ_l²: the smoothed curve.
+        nodes: mean Λ⁻¹·μ/σ_l², the smoothed curve, with Λ = I/σ_l² + DᵀD/σ_c² per zone (σ_l = LEVEL_SD
+        around the curve's ln H at the nodes, σ_c = CURVATURE_SD on its second differences D); covariance
+        Λ⁻¹ + σ_t²·ttᵀ per rotating zone (``spec.zones[i].rotating``; Λ⁻¹ alone for the stationary ones):
+        a linear trend over speed of unknown size (t from −1 at the first node to +1 at the last, σ_t =
+        ``trend_sd``), so that the physics curve's speed dependence is uncertain as a whole, not only node
+        by node (0: the smoothed-node prior alone).
         """
         if self.kind == "physics":
             speeds = np.linspace(0.0, SPEED_MAX_RPM, 71)
@@ -307,9 +318,12 @@ class Family:
         mu = np.log(physics_curves(spec, self._nodes)).T.ravel()  # zone-major
         d = second_differences(self.per_zone)
         block = np.eye(self.per_zone) / LEVEL_SD**2 + d.T @ d / CURVATURE_SD**2
-        cov = np.linalg.inv(np.kron(np.eye(N_ZONES), block))
-        cov = 0.5 * (cov + cov.T)
-        return Gaussian(cov @ mu / LEVEL_SD**2, cov)
+        smooth = np.linalg.inv(np.kron(np.eye(N_ZONES), block))
+        mid = 0.5 * (self._nodes[0] + self._nodes[-1])
+        trend = (self._nodes - mid) / (self._nodes[-1] - mid)  # -1 at the first node, +1 at the last
+        rotating = np.array([bool(z.rotating) for z in spec.zones], dtype=float)
+        cov = smooth + np.kron(np.diag(rotating), trend_sd**2 * np.outer(trend, trend))
+        return Gaussian(smooth @ mu / LEVEL_SD**2, 0.5 * (cov + cov.T))
 
     def form_error(
         self,

@@ -195,7 +195,9 @@ class IdentificationSettings(_Section):
     mode: Literal["per_condition", "speed_map"] = "per_condition"
     map_family: Literal["nodes", "physics"] = "nodes"  # model.hmap: tabulated over speed nodes, or physics
     map_window_min: float = Field(default=60.0, gt=0)  # rolling window of each map fit
-    map_min_window_min: float = Field(default=10.0, gt=0)  # a cold start waits for this much data
+    # a cold start waits for this much data (7 served 3 min sooner a first map whose bands missed H6/H7 from a
+    # cold start: docs/hmap.md "Measured: restart")
+    map_min_window_min: float = Field(default=10.0, gt=0)
     map_debounce_s: float = Field(default=30.0, ge=0)  # after a confirmed change, wait this long
     map_refit_min: float = Field(default=10.0, gt=0)  # fit again after this long without a change
     map_fresh_min: float = Field(default=15.0, gt=0)  # a map whose data end longer ago is not fresh

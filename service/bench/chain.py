@@ -12,6 +12,11 @@ each condition (the 40-min window) it reports, per H, the median and maximum rel
 over the seeds, the median relative 95 % half-width of the CI as served (with the carried start-field error
 unless ``identification.carry_start_error`` is false), the fraction of seeds whose CI covers the truth, and
 the fraction whose CIs cover all seven H at once.
+
+``--mode per_condition|speed_map`` and ``--set KEY=VALUE`` choose the identification mode and settings
+(``service.bench.identmode``; default: the settings' ``identification.mode``), reported as ``mode``. In
+speed-map mode the last identification of a condition is the last map fit launched at it (its window: the
+rolling ``map_window_min``, up to 60 min, across the earlier conditions), served at the condition.
 """
 
 from __future__ import annotations
@@ -25,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from service.bench import identmode
 from service.bench.targets import Target, format_verdicts, progress_to_stderr, report, verdicts
 
 if TYPE_CHECKING:
@@ -45,6 +51,7 @@ T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``chtc bench chain``."""
     parser.add_argument("--seeds", type=int, default=8, help="virtual-plant noise seeds (default 8)")
+    identmode.add_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -85,14 +92,21 @@ def summarise(errors: np.ndarray, half_widths: np.ndarray, covered: np.ndarray) 
     }
 
 
-def run(seeds: int, *, progress: Callable[[str], None] | None = None) -> dict[str, Any]:
+def run(
+    seeds: int,
+    *,
+    ident_mode: str | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: Callable[[str], None] | None = None,
+) -> dict[str, Any]:
+    """``ident_mode`` None: the settings' ``identification.mode``; ``overrides``: identification settings."""
     from model.plant import h_true
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.settings import Settings
 
-    settings = Settings()
+    settings = identmode.bench_settings(ident_mode, overrides)
+    ident = settings.identification
     model = load_model(ModelRef.from_settings(settings.model))
     rows: dict[float, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     started = time.perf_counter()
@@ -119,7 +133,9 @@ def run(seeds: int, *, progress: Callable[[str], None] | None = None) -> dict[st
     worst = min((float(np.mean(c["ci_coverage"])) for c in conditions), default=None)
     return {
         "synthetic": True,
-        "window_min": 40,
+        "mode": ident.mode,
+        "settings": overrides or {},
+        "window_min": 40 if ident.mode == "per_condition" else ident.map_window_min,
         "conditions": conditions,
         "targets": verdicts(TARGETS, {"ci_coverage_mean_worst": worst}),
         "wall_s": round(time.perf_counter() - started, 1),
@@ -128,8 +144,8 @@ def run(seeds: int, *, progress: Callable[[str], None] | None = None) -> dict[st
 
 def _print_table(out: dict[str, Any]) -> None:
     print(
-        "last (40-min) identification per condition, chained through the service core; "
-        f"synthetic data; wall {out['wall_s']} s"
+        f"last identification per condition (window up to {out['window_min']:g} min), mode {out['mode']}, "
+        f"chained through the service core; synthetic data; wall {out['wall_s']} s"
     )
     head = "".join(f"{'H' + str(i + 1):>8}" for i in range(7))
     for c in out["conditions"]:
@@ -156,5 +172,10 @@ def main(args: argparse.Namespace) -> int:
     if args.seeds < 1:
         print("error: --seeds must be >= 1", file=sys.stderr)
         return 2
-    out = run(args.seeds, progress=progress_to_stderr)
+    try:
+        overrides = identmode.parse_sets(args.set)
+        out = run(args.seeds, ident_mode=args.ident_mode, overrides=overrides, progress=progress_to_stderr)
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     return report(out, as_json=args.json, table=_print_table)

@@ -17,7 +17,6 @@ identification wall time (median, max) with the model runs.
 from __future__ import annotations
 
 import argparse
-import json
 import sys
 import time
 from dataclasses import dataclass, field
@@ -26,6 +25,7 @@ from typing import Any
 
 import numpy as np
 
+from service.bench import identmode
 from service.bench.targets import progress_to_stderr, report
 
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
@@ -38,16 +38,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--first-seed", type=int, default=0, help="first seed (split a long run), default 0")
     parser.add_argument("--hours", type=float, default=4.0, help="duty cycle length incl. 5 min idle (4 h)")
     parser.add_argument("--warmup-min", type=float, default=30.0, help="minutes not counted (30)")
-    parser.add_argument(
-        "--mode", choices=("speed_map", "per_condition"), default="speed_map", help="identification.mode"
-    )
-    parser.add_argument(
-        "--set",
-        action="append",
-        default=[],
-        metavar="KEY=VALUE",
-        help="an identification setting, e.g. --set map_debounce_s=0 (repeatable)",
-    )
+    identmode.add_arguments(parser, default="speed_map")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -164,19 +155,6 @@ def _sum_counts(counts: list[dict[str, int]]) -> dict[str, int]:
     return dict(sorted(out.items()))
 
 
-def parse_sets(items: list[str]) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    for item in items:
-        key, sep, value = item.partition("=")
-        if not sep:
-            raise ValueError(f"--set {item!r}: expected KEY=VALUE")
-        try:
-            out[key] = json.loads(value)
-        except json.JSONDecodeError:
-            out[key] = value
-    return out
-
-
 def run_bench(
     seeds: list[int],
     *,
@@ -187,10 +165,8 @@ def run_bench(
     progress: Any = None,
 ) -> dict[str, Any]:
     from service.modelload import ModelRef, load_model
-    from service.settings import IdentificationSettings, Settings
 
-    ident = IdentificationSettings(**{"mode": mode, **(overrides or {})})
-    settings = Settings(identification=ident)
+    settings = identmode.bench_settings(mode, overrides)
     model = load_model(ModelRef.from_settings(settings.model))
     started = time.perf_counter()
     results = []
@@ -248,17 +224,21 @@ def main(args: argparse.Namespace) -> int:
         print("error: --seeds must be >= 1 and --hours > 0.25", file=sys.stderr)
         return 2
     try:
-        overrides = parse_sets(args.set)
+        overrides = identmode.parse_sets(args.set)
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)
         return 2
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    out = run_bench(
-        seeds,
-        mode=args.mode,
-        hours=args.hours,
-        warmup_min=args.warmup_min,
-        overrides=overrides,
-        progress=progress_to_stderr,
-    )
+    try:
+        out = run_bench(
+            seeds,
+            mode=args.ident_mode,
+            hours=args.hours,
+            warmup_min=args.warmup_min,
+            overrides=overrides,
+            progress=progress_to_stderr,
+        )
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     return report(out, as_json=args.json, table=_print_table)

@@ -12,7 +12,11 @@ of the core's view, so everything is the service's real path:
 - the field and its uncertainty: the filtered live state now (``field_belief``: the Kalman filter's reduced
   mean and covariance, ``service.estimate.state``; the covariance holds the considered H error);
 - H: the live state's H; Σ_H from the current identification record's CIs (``h_covariance``: uncorrelated,
-  as stored); the condition: the detector's current condition (held).
+  as stored; in speed-map mode the map's posterior at the live speed, ``map_h_covariance``); the condition:
+  the detector's current condition (held).
+
+``--mode per_condition|speed_map`` and ``--set KEY=VALUE`` choose the identification mode and settings
+(``service.bench.identmode``; default: the settings'), reported as ``mode``.
 
 Profiles: ``chain`` (the chain bench's: idle,
 3000/4000/5000 rpm for 45 min each) and ``duty`` (5 min idle, 45 min at 4000 rpm so that an identification
@@ -37,6 +41,7 @@ from typing import Any
 
 import numpy as np
 
+from service.bench import identmode
 from service.bench.chain import PROFILE as CHAIN
 from service.bench.chain import T0
 from service.bench.targets import Target, format_verdicts, report, verdicts
@@ -60,6 +65,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--every-s", type=float, default=60.0, help="evaluation period [s] (default 60)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    identmode.add_arguments(parser)
 
 
 def duty_profile(seed: int) -> tuple[tuple[float, float, float, float], ...]:
@@ -296,17 +302,24 @@ def _eval_cost(ctx: Any, terms: Any, belief: Any, t_ref: float, repeats: int = 3
     return 1e3 * float(np.median(dots)), 1e3 * float(np.median(whole))
 
 
-def run(seeds: int, profiles: list[str], every_s: float, *, progress: Any = None) -> dict[str, Any]:
+def run(
+    seeds: int,
+    profiles: list[str],
+    every_s: float,
+    *,
+    ident_mode: str | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: Any = None,
+) -> dict[str, Any]:
     from service.engine.runtime import core_config
     from service.estimate.growth import build_context
     from service.modelload import ModelRef, load_model
-    from service.settings import Settings
     from service.sim.logsamples import samples_from_plant
 
     every = round(every_s / DT_S)
     if every < 1 or any(n % every for n in HORIZON_STEPS):
         raise ValueError(f"--every-s: must be a multiple of {DT_S:g} s dividing 5 min, got {every_s}")
-    settings = Settings()
+    settings = identmode.bench_settings(ident_mode, overrides)
     model = load_model(ModelRef.from_settings(settings.model))
     config = core_config(settings)
     started = time.perf_counter()
@@ -324,7 +337,13 @@ def run(seeds: int, profiles: list[str], every_s: float, *, progress: Any = None
             last = ev if ev.last_terms is not None else last
             if progress is not None:
                 progress(f"{name} seed {seed + 1}/{seeds} done ({time.perf_counter() - started:.0f} s)")
-    out: dict[str, Any] = {"synthetic": True, "seeds": seeds, "every_s": every * DT_S}
+    out: dict[str, Any] = {
+        "synthetic": True,
+        "mode": settings.identification.mode,
+        "settings": overrides or {},
+        "seeds": seeds,
+        "every_s": every * DT_S,
+    }
     out |= summarise(_merge([r for rows in per.values() for r in rows]))
     out["profiles"] = {name: summarise(_merge(rows)) for name, rows in per.items()}
     eval_ms = estimate_ms = None
@@ -381,7 +400,16 @@ def main(args: argparse.Namespace) -> int:
         print("error: --seeds must be >= 1", file=sys.stderr)
         return 2
     profiles = [p.strip() for p in str(args.profiles).split(",") if p.strip()]
-    out = run(
-        args.seeds, profiles, float(args.every_s), progress=lambda m: print(m, file=sys.stderr, flush=True)
-    )
+    try:
+        out = run(
+            args.seeds,
+            profiles,
+            float(args.every_s),
+            ident_mode=args.ident_mode,
+            overrides=identmode.parse_sets(args.set),
+            progress=lambda m: print(m, file=sys.stderr, flush=True),
+        )
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     return report(out, as_json=args.json, table=_print)

@@ -14,9 +14,13 @@ window end on the samples' clock; median and maximum over the seeds; offline the
 the service add its wall time, ~0.2–1 s) and what that first H is worth (``first``: its coverage, median CI
 half-width and the fraction of seeds in which each H is flagged identified, CI within
 ``identification.ci_rel_threshold`` and not at a bound; and the minutes to the first result with at least one
-H identified, with the fraction of seeds that had one; core mode).
+H identified, with the fraction of seeds that had one; core path).
 
-Modes (``--mode``):
+Identification mode (``--mode per_condition|speed_map``, ``--set KEY=VALUE``: ``service.bench.identmode``;
+default the settings' ``identification.mode``), reported as ``mode``; core path only (``--path filter`` is the
+per-condition protocol by construction).
+
+Paths (``--path``; ``--mode core|filter`` is accepted as its old spelling):
 
 - ``core`` (default): the samples go through the service's own core offline
   (``service.engine.offline.run_offline``, as ``chtc identify`` and ``chtc bench chain``): whatever the
@@ -45,6 +49,7 @@ from typing import Any
 
 import numpy as np
 
+from service.bench import identmode
 from service.bench.targets import progress_to_stderr, report
 
 PROFILE = (
@@ -54,9 +59,10 @@ PROFILE = (
     (2700.0, 5000.0, 8.0, 22.0),
 )
 STARTS_MIN = (0, 30, 60, 90)
+PATHS = ("core", "filter")
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 DT_S = 10.0
-BASELINE_SAMPLES = 30  # the idle 5 min at minute 0: the offset baseline of the filter mode
+BASELINE_SAMPLES = 30  # the idle 5 min at minute 0: the offset baseline of the filter path
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -66,9 +72,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--starts", type=int, nargs="+", default=list(STARTS_MIN), help="start minutes (default 0 30 60 90)"
     )
-    parser.add_argument("--mode", choices=("core", "filter"), default="core", help="see the description")
+    parser.add_argument("--path", choices=PATHS, default=None, help="core (default) or filter: see above")
+    identmode.add_arguments(parser, extra=PATHS, note="; core/filter: the old spelling of --path")
     parser.add_argument(
-        "--start-modes", type=int, default=0, help="filter mode: start directions fitted in identify (0)"
+        "--start-modes", type=int, default=0, help="--path filter: start directions fitted in identify (0)"
     )
     parser.add_argument(
         "--stored-offsets",
@@ -87,7 +94,7 @@ class Served:
     lo: np.ndarray
     hi: np.ndarray
     end_s: float
-    identified: np.ndarray | None = None  # (7,) bool: flagged identified (core mode)
+    identified: np.ndarray | None = None  # (7,) bool: flagged identified (core path)
 
 
 def plant_run(seed: int) -> Any:
@@ -197,7 +204,7 @@ def summarise(served: list[list[Served]], start_s: float) -> dict[str, Any]:
 
 def _first_identified(served: list[list[Served]], start_s: float) -> dict[str, Any]:
     """Minutes from the start to the first served result with at least one H flagged identified (median over
-    the seeds that had one) and the fraction of seeds that had one (core mode; {} without flags)."""
+    the seeds that had one) and the fraction of seeds that had one (core path; {} without flags)."""
     if not any(s.identified is not None for seed_served in served for s in seed_served):
         return {}
     times = []
@@ -258,24 +265,29 @@ def run_bench(
     seeds: list[int],
     starts_min: list[int],
     *,
-    mode: str,
+    path: str = "core",
+    ident_mode: str | None = None,
+    overrides: dict[str, Any] | None = None,
     start_modes: int = 0,
     stored_offsets: bool = False,
     progress: Any = None,
 ) -> dict[str, Any]:
+    """``ident_mode`` None: the settings' ``identification.mode``; ``overrides``: identification settings."""
     from service.modelload import ModelRef, load_model
-    from service.settings import Settings
 
-    settings = Settings()
+    settings = identmode.bench_settings(ident_mode, overrides)
+    mode = "per_condition" if path == "filter" else settings.identification.mode
+    if path == "filter" and settings.identification.mode != "per_condition" and ident_mode is not None:
+        raise ValueError("--path filter runs the per-condition protocol only (no --mode speed_map)")
     model = load_model(ModelRef.from_settings(settings.model))
     started = time.perf_counter()
     served: dict[int, list[list[Served]]] = {s: [] for s in starts_min}
     for seed in seeds:
         run = plant_run(seed)
-        cal = stored_calibration(model, settings, run) if mode == "core" and stored_offsets else None
+        cal = stored_calibration(model, settings, run) if path == "core" and stored_offsets else None
         for s_min in starts_min:
             idx = round(s_min * 60.0 / DT_S)
-            if mode == "core":  # the minute-0 run takes its own baseline; a restart restores it
+            if path == "core":  # the minute-0 run takes its own baseline; a restart restores it
                 served[s_min].append(run_core(model, settings, run, idx, calibration=cal if idx else None))
             else:
                 served[s_min].append(
@@ -296,7 +308,9 @@ def run_bench(
     return {
         "synthetic": True,
         "mode": mode,
-        "start_modes": start_modes if mode == "filter" else None,
+        "path": path,
+        "settings": overrides or {},
+        "start_modes": start_modes if path == "filter" else None,
         "stored_offsets": stored_offsets,
         "rom_rank": int(model.rom.rank),
         "seeds": len(seeds),
@@ -311,7 +325,7 @@ def _fmt(values: list[float] | None, spec: str) -> str:
 
 def _print_table(out: dict[str, Any]) -> None:
     print(
-        f"restart on a warm spindle, mode {out['mode']}, {out['seeds']} seeds, reduced model rank "
+        f"restart on a warm spindle, {out['mode']} ({out['path']}), {out['seeds']} seeds, reduced model rank "
         f"{out['rom_rank']}; last served H per condition; synthetic data; wall {out['wall_s']} s"
     )
     head = "".join(f"{'H' + str(i + 1):>7}" for i in range(7))
@@ -349,13 +363,25 @@ def main(args: argparse.Namespace) -> int:
     if bad:
         print(f"error: --starts: {bad} outside the profile (0 to its end minus 10 min)", file=sys.stderr)
         return 2
+    path, ident_mode = args.path, args.ident_mode
+    if ident_mode in PATHS:  # the old spelling of --path
+        if path is not None and path != ident_mode:
+            print(f"error: --mode {ident_mode} contradicts --path {path}", file=sys.stderr)
+            return 2
+        path, ident_mode = ident_mode, None
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
-    out = run_bench(
-        seeds,
-        list(args.starts),
-        mode=args.mode,
-        start_modes=args.start_modes,
-        stored_offsets=args.stored_offsets,
-        progress=progress_to_stderr,
-    )
+    try:
+        out = run_bench(
+            seeds,
+            list(args.starts),
+            path=path or "core",
+            ident_mode=ident_mode,
+            overrides=identmode.parse_sets(args.set),
+            start_modes=args.start_modes,
+            stored_offsets=args.stored_offsets,
+            progress=progress_to_stderr,
+        )
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     return report(out, as_json=args.json, table=_print_table)

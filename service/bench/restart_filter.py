@@ -1,4 +1,4 @@
-"""``chtc bench restart --mode filter``: the filtered live state and the identification without the core.
+"""``chtc bench restart --path filter``: the filtered live state and the identification without the core.
 
 What wiring ``service.estimate.state.FilteredState`` into the service would give (``service.bench.restart``):
 samples pushed through the filter from the start index on; the condition's schedule

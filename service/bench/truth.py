@@ -19,6 +19,8 @@ defaults: detector, scheduler, live state, offset calibration, windows, identifi
 successful identification of every condition (its longest window) it reports, per H, the median |error|
 and the CI coverage, the fraction of ``identified`` flags whose CI misses the truth, the fraction of cases
 whose CIs cover all seven H, and the identification wall times, with the targets of issue 15.
+``--mode per_condition|speed_map`` and ``--set KEY=VALUE`` choose the identification mode and settings
+(``service.bench.identmode``; default: the settings'), reported as ``mode``.
 """
 
 from __future__ import annotations
@@ -33,6 +35,7 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
+from service.bench import identmode
 from service.bench.targets import progress_to_stderr, report
 
 if TYPE_CHECKING:
@@ -58,6 +61,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Options of ``chtc bench truth``."""
     parser.add_argument("--seeds", type=int, default=20, help="random truths and profiles (default 20)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    identmode.add_arguments(parser)
     parser.add_argument(
         "--scenario", choices=(*SCENARIOS, "both"), default="both", help="which cases to run (default both)"
     )
@@ -223,21 +227,29 @@ def verdict(name: str, res: dict[str, Any]) -> dict[str, bool]:
 
 
 def run(
-    seeds: int, scenarios: tuple[str, ...], *, first_seed: int = 0, raw: bool = False, progress: Any = None
+    seeds: int,
+    scenarios: tuple[str, ...],
+    *,
+    first_seed: int = 0,
+    raw: bool = False,
+    ident_mode: str | None = None,
+    overrides: dict[str, Any] | None = None,
+    progress: Any = None,
 ) -> dict[str, Any]:
     from model.fem import build_fe_model
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.settings import Settings
     from service.sim.logsamples import samples_from_plant
 
-    settings = Settings()
+    settings = identmode.bench_settings(ident_mode, overrides)
     model = load_model(ModelRef.from_settings(settings.model))
     plant_fe = build_fe_model(model.spec, mesh_size_m=model.spec.plant_mesh_size_m)
     started = time.perf_counter()
     out: dict[str, Any] = {
         "synthetic": True,
+        "mode": settings.identification.mode,
+        "settings": overrides or {},
         "rom_rank": int(model.rom.rank),
         "rom_substeps": model.rom.substeps,
     }
@@ -313,11 +325,17 @@ def main(args: argparse.Namespace) -> int:
         print("error: --seeds must be >= 1", file=sys.stderr)
         return 2
     scenarios = SCENARIOS if args.scenario == "both" else (args.scenario,)
-    out = run(
-        args.seeds,
-        scenarios,
-        first_seed=args.first_seed,
-        raw=args.raw,
-        progress=progress_to_stderr,
-    )
+    try:
+        out = run(
+            args.seeds,
+            scenarios,
+            first_seed=args.first_seed,
+            raw=args.raw,
+            ident_mode=args.ident_mode,
+            overrides=identmode.parse_sets(args.set),
+            progress=progress_to_stderr,
+        )
+    except ValueError as err:
+        print(f"error: {err}", file=sys.stderr)
+        return 2
     return report(out, as_json=args.json, table=_print)

@@ -28,6 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from service.commands._common import check_listen, override, port_number, positive_float
+from service.engine.jobbook import MAP_METHOD
 
 if TYPE_CHECKING:
     from model.plant import PlantRun, Segment
@@ -100,7 +101,9 @@ class Printer:
     """Progress lines stamped with the plant time and, for identifications, the plant's true H.
 
     The truth is the plant's H at the middle of the identified window (``current()``, the record just
-    stored), not at the moment the line is printed: by then the plant may run at the next speed.
+    stored), not at the moment the line is printed: by then the plant may run at the next speed. A speed-map
+    fit's record (method ``speed-map``) holds the map's H at its launch condition, the window's end (its
+    window spans several speeds): its truth is the plant's there.
     ``clock`` is the service's (simulated UTC) clock; ``rig.plant_time_s()`` the plant time now.
     """
 
@@ -122,7 +125,11 @@ class Printer:
         elapsed = self.rig.plant_time_s() if self.rig is not None else 0.0
         h, rem = divmod(int(elapsed), 3600)
         line = f"[plant +{h:02d}:{rem // 60:02d}:{rem % 60:02d}] {msg}"
-        if msg.startswith("identification") and " ok:" in msg:
+        if msg.startswith(("identification", "map identification")) and " ok:" in msg:
+            rec = self.current() if self.current is not None else None
+            if msg.startswith("map") and rec is not None:  # its line has no H: the map's at the launch
+                served = ", ".join(f"{x:.1f}" for x in rec.h)
+                line += f"\n{' ' * 17}map H = [{served}] at {rec.condition.speed_rpm:.0f} rpm"
             k, where = self._truth_row(elapsed)
             truth = ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
             line += f"\n{' ' * 17}plant truth H = [{truth}] ({where})"
@@ -133,9 +140,11 @@ class Printer:
         t_plant, where = elapsed, "now"
         rec = self.current() if self.current is not None else None
         if rec is not None and self.clock is not None:
-            mid = rec.window_from + (rec.window_to - rec.window_from) / 2
-            t_plant = elapsed - (self.clock() - mid).total_seconds()
-            where = f"mid-window, {float(self.run.speed_rpm[self._row(t_plant)]):.0f} rpm"
+            at_end = getattr(rec, "method", None) == MAP_METHOD
+            at = rec.window_to if at_end else rec.window_from + (rec.window_to - rec.window_from) / 2
+            t_plant = elapsed - (self.clock() - at).total_seconds()
+            label = "the map at the window's end" if at_end else "mid-window"
+            where = f"{label}, {float(self.run.speed_rpm[self._row(t_plant)]):.0f} rpm"
         return self._row(t_plant), where
 
     def _row(self, t_plant: float) -> int:

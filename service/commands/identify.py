@@ -146,12 +146,21 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     """Why a log gave no successful identification: per detected condition, how long it lasted against what an
     identification needs; or why no condition was detected (``can_ok``: samples with a fresh speed/torque)."""
     ident = settings.identification
-    need_s = max(ident.min_window_s, 60.0 * ident.schedule_min[0])
-    need = (
-        f"an identification needs {need_s / 60:.1f} min of data at one condition "
-        f"(identification.min_window_s = {ident.min_window_s:g} s, first run {ident.schedule_min[0]:g} min "
-        "after the condition starts)"
-    )
+    per_condition = ident.mode == "per_condition"
+    if per_condition:
+        need_s = max(ident.min_window_s, 60.0 * ident.schedule_min[0])
+        need = (
+            f"an identification needs {need_s / 60:.1f} min of data at one condition "
+            f"(identification.min_window_s = {ident.min_window_s:g} s, first run "
+            f"{ident.schedule_min[0]:g} min after the condition starts)"
+        )
+    else:
+        need_s = 60.0 * ident.map_min_window_min
+        need = (
+            f"identification.mode = speed_map: the first map fit needs {need_s / 60:.1f} min of data "
+            "after the live state converged, at any speeds (identification.map_min_window_min = "
+            f"{ident.map_min_window_min:g})"
+        )
     if result.samples == 0 or result.first is None or result.last is None:
         return ["the temperature log has no rows"]
     span_s = (result.last - result.first).total_seconds()
@@ -174,7 +183,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
             lines.append(
                 f"{head}: spindle idle for {lasted_s / 60:.1f} min (no bearing heat: not identifiable)"
             )
-        elif lasted_s < need_s:
+        elif per_condition and lasted_s < need_s:
             lines.append(f"{head} lasted {lasted_s / 60:.1f} min: too short, {need_s / 60:.1f} min needed")
     if result.records:
         lines.append(
@@ -249,7 +258,8 @@ def main(args: argparse.Namespace) -> int:
     )
     print(
         f"{data.rows} rows -> {len(data.samples)} samples every {settings.acquisition.sample_period_s:g} s, "
-        f"{source}; {len(result.records)} identifications (seed {settings.identification.seed})"
+        f"{source}; {len(result.records)} identifications "
+        f"({settings.identification.mode}, seed {settings.identification.seed})"
     )
     print(offsets_line(result.calibration, settings.identification))
     for r in result.records:

@@ -155,7 +155,7 @@ class ServiceCore:
             model.spec,
             h=h0,
             dt_s=config.rules.dt_s,
-            settings=replace(config.filter, keep_s=3 * config.scheduler.max_window_s),
+            settings=replace(config.filter, keep_s=3 * _longest_window_s(config)),
         )
         # the considered H error: the stored result's CI, 100 % for the guessed initial H
         self._live.set_h(h0, h_rel=1.0 if last is None else _h_rel(last.h, last.ci95_hi))
@@ -770,6 +770,15 @@ class ServiceCore:
             out.reject(RejectKind.NOT_READY, why or "no map identification possible now")
             return
         out.instructions.append(ManualAccepted(out.event_id, self._jobs.jobs_view[launched.job_key]))
+
+
+def _longest_window_s(config: CoreConfig) -> float:
+    """The longest window a job may start back in time [s]: the per-condition ``max_window_s`` or, in
+    speed-map mode, the map's rolling window if longer (the live state keeps its snapshots 3× this long; a
+    map window starting before the oldest kept snapshot could not start: found with a 90-s
+    ``max_window_s`` and the map's 10-min first window, tests/service/test_speed_map.py)."""
+    longest = config.scheduler.max_window_s
+    return longest if config.speed_map is None else max(longest, config.speed_map.window_s)
 
 
 def _h_rel(h: np.ndarray, hi: np.ndarray) -> np.ndarray:

@@ -29,6 +29,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from model.growth import Z95
 from service.engine.view import CoreView
 from service.estimate.growth import (
     ConditionTerms,
@@ -53,9 +54,10 @@ from service.serve.interface import (
 )
 
 if TYPE_CHECKING:
+    from service.identify.speedmap import SpeedMap
     from service.modelload import LoadedModel
 
-__all__ = ["GrowthHistory", "GrowthServer", "field_belief", "h_covariance"]
+__all__ = ["GrowthHistory", "GrowthServer", "field_belief", "h_covariance", "map_h_covariance"]
 
 DT_S = 10.0  # the live state's step [s]
 UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
@@ -87,6 +89,25 @@ def h_covariance(rec: IdentificationRecord, h_live: np.ndarray) -> np.ndarray:
     hi = np.minimum(hi, h * UNKNOWN_CI_FACTOR)
     cov = h_cov_from_ci(h, np.column_stack([lo, hi]))
     return np.asarray(cov * np.outer(h_live / h, h_live / h))
+
+
+def map_h_covariance(m: SpeedMap, speed_rpm: float, ambient_c: float, h_live: np.ndarray) -> np.ndarray:
+    """Σ_H (7, 7) in speed-map mode: the map's posterior at ``speed_rpm`` and ``ambient_c`` (the live state's
+    held condition, where its H comes from), Σ_lnH = J Σ_θ Jᵀ with J = d ln H/dθ there, so with the
+    correlations between the zones that the map fit determined; relative to ``h_live`` and with each σ
+    capped as ``h_covariance`` (at ln 100 / 1.96)."""
+    fam, theta, cov_theta = m.model_family, np.asarray(m.mean), np.asarray(m.cov)
+    speed = [abs(float(speed_rpm))]
+    jac = fam.log_h_jacobian(theta, speed, ambient_c)[0]  # (7, p)
+    cov_log = jac @ cov_theta @ jac.T
+    sd = np.sqrt(np.maximum(np.diag(cov_log), 0.0))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        corr = cov_log / np.outer(sd, sd)
+    h = fam.h_at(theta, speed, ambient_c)[0]
+    half = np.minimum(Z95 * sd, np.log(UNKNOWN_CI_FACTOR))  # the cap of h_covariance
+    ci = np.column_stack([h * np.exp(-half), h * np.exp(half)])
+    out = h_cov_from_ci(h, ci, correlation=corr) * np.outer(h_live / h, h_live / h)
+    return np.asarray(out)
 
 
 @dataclass(frozen=True)
@@ -179,7 +200,7 @@ class GrowthServer:
         with self._lock:
             if self._terms is not None and self._terms.key == key:
                 return self._terms.terms
-        terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current)
+        terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current, view.speed_map)
         with self._lock:
             self._terms = _Terms(key, terms)
             if self._pending == key:
@@ -192,7 +213,10 @@ class GrowthServer:
         live: FilterView,
         cond: ConditionSnapshot | None,
         rec: IdentificationRecord,
+        speed_map: SpeedMap | None = None,
     ) -> ConditionTerms:
+        """The terms at the held condition; Σ_H from ``rec``'s CIs (per-condition mode) or, in speed-map mode,
+        from ``speed_map``'s band at the live state's speed and ambient (the H the live state uses)."""
         from model.inputs import inputs_from_operation
 
         ambient, speed, torque = (
@@ -202,10 +226,15 @@ class GrowthServer:
             self.model.spec, dt_s=DT_S, speed_rpm=speed, torque_nm=torque, ambient_c=ambient
         )
         h = np.asarray(live.h, dtype=float)
+        if speed_map is None:
+            cov_h = h_covariance(rec, h)
+        else:
+            live_ambient, live_speed, _ = live.inputs
+            cov_h = map_h_covariance(speed_map, live_speed, live_ambient, h)
         return condition_terms(
             ctx,
             h=h,
-            cov_h=h_covariance(rec, h),
+            cov_h=cov_h,
             ambient_c=float(inp.ambient_c[0]),
             q_front_w=float(inp.q_front_w[0]),
             q_rear_w=float(inp.q_rear_w[0]),

@@ -17,9 +17,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import create_app
+from model.growth import Z95
 from model.inputs import inputs_from_operation
 from service.engine.core import ServiceCore
-from service.engine.growthserve import GrowthServer, field_belief, h_covariance
+from service.engine.growthserve import GrowthServer, field_belief, h_covariance, map_h_covariance
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.estimate.growth import build_context, condition_terms, estimate_growth
@@ -27,8 +28,9 @@ from service.modelload import LoadedModel
 from service.serve.interface import NotReadyError
 from service.settings import Settings
 from service.sim.served import ManualClock, served_service
-from tests.api.conftest import LiveServer, sqlite_url
+from tests.api.conftest import MAP_MODE, LiveServer, served_map_mode, sqlite_url
 from tests.api.test_api_dashboard import _chromium
+from tests.modes import per_condition
 
 
 @dataclass
@@ -43,9 +45,10 @@ class Served:
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
-    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm)."""
+    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm), in
+    per-condition mode (Σ_H from the record's CIs, ``h_covariance``; the map's: ``served_map`` below)."""
     url = sqlite_url(tmp_path_factory.mktemp("served-compensation"))
-    with served_service(database_url=url, feed_samples=1) as s:
+    with served_service(database_url=url, settings=per_condition(), feed_samples=1) as s:
         live = s.service.view.live
         assert live is not None
         t_start = float(np.mean(live.field_c))
@@ -245,7 +248,7 @@ def test_the_reference_temperature_is_a_setting(tmp_path: Path, served: Served) 
     differs from the default by Σg·(T_start − 20) at the nose, and the served reference time is null."""
     default = served.client.get("/api/v1/compensation").json()
     assert datetime.fromisoformat(default["t_ref_at"]) <= datetime.fromisoformat(default["at"])
-    settings = Settings(growth={"reference_c": 20.0})  # type: ignore[arg-type]
+    settings = per_condition(Settings(growth={"reference_c": 20.0}))  # type: ignore[arg-type]  # as ``served``
     with served_service(database_url=sqlite_url(tmp_path), settings=settings) as s:
         client = TestClient(create_app(settings, s.service, clock=s.clock))
         body = client.get("/api/v1/compensation").json()
@@ -258,3 +261,60 @@ def test_the_reference_temperature_is_a_setting(tmp_path: Path, served: Served) 
         assert body[name]["um"] == pytest.approx(default[name]["um"] + shift, abs=2e-3), name
         assert body[name]["std_um"] == pytest.approx(default[name]["std_um"], abs=1e-4), name
     assert body["axial"]["um"] > default["axial"]["um"]  # a 22 °C start is warmer than 20 °C
+
+
+@pytest.fixture(scope="module")
+def served_map(tmp_path_factory: pytest.TempPathFactory) -> Iterator[tuple[SoftSensorService, TestClient]]:
+    """The real service in speed-map mode (``tests.api.conftest.served_map_mode``, a duty cycle), fed its
+    whole plan: the newest map fit was launched at 3500 rpm, the spindle has since moved to 4000 rpm."""
+    with served_map_mode(tmp_path_factory.mktemp("served-compensation-map")) as s:
+        s.feed_next()
+        with TestClient(create_app(MAP_MODE, s.service, clock=s.clock)) as client:
+            yield s.service, client
+
+
+def test_in_map_mode_the_h_covariance_is_the_maps_at_the_current_speed(
+    served_map: tuple[SoftSensorService, TestClient],
+) -> None:
+    svc, client = served_map
+    body = client.get("/api/v1/compensation").json()
+    v, model = svc.view, svc.core.model
+    assert v.speed_map is not None and v.live is not None
+    assert v.current is not None and v.condition is not None
+    ambient, speed, _ = v.live.inputs
+    assert abs(speed - v.current.condition.speed_rpm) >= 400.0, "the test needs a speed change since the fit"
+    h = np.asarray(v.live.h, dtype=float)
+    cov = map_h_covariance(v.speed_map, speed, ambient, h)
+    # the same H as the live state's (the map at the current speed) and its band there, with the correlations
+    h_map, _, hi = v.speed_map.h_at([speed], ambient)
+    np.testing.assert_allclose(h, h_map[0], rtol=1e-9)
+    np.testing.assert_allclose(np.sqrt(np.diag(cov)) / h, np.log(hi[0] / h) / Z95, rtol=1e-6)
+    assert np.count_nonzero(np.abs(cov - np.diag(np.diag(cov))) > 1e-9 * np.max(cov)) > 0
+    # ... not the stored fit's band at its launch speed (what /compensation used before)
+    old = h_covariance(v.current, h)
+    assert np.max(np.abs(np.sqrt(np.diag(cov)) / np.sqrt(np.diag(old)) - 1.0)) > 0.05
+    ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
+    inp = inputs_from_operation(
+        model.spec,
+        dt_s=10.0,
+        speed_rpm=v.condition.speed_rpm,
+        torque_nm=v.condition.torque_nm,
+        ambient_c=v.condition.ambient_c,
+    )
+    terms = condition_terms(
+        ctx,
+        h=h,
+        cov_h=cov,
+        ambient_c=float(inp.ambient_c[0]),
+        q_front_w=float(inp.q_front_w[0]),
+        q_rear_w=float(inp.q_rear_w[0]),
+        load_scale=v.live.load_scale,
+    )
+    want = estimate_growth(
+        ctx, terms, field_belief(v), t_ref_c=body["t_ref_c"], at=datetime.fromtimestamp(v.live.t, tz=UTC)
+    )
+    for name, w in (("axial", want.axial), ("radial", want.radial)):
+        assert body[name]["um"] == pytest.approx(w.um, abs=1e-4), name
+        assert body[name]["ci95_um"] == pytest.approx(list(w.ci95_um), abs=1e-4), name
+    steady = body["forecast"]["steady_axial"]
+    assert steady["ci95_um"] == pytest.approx(list(want.forecast.steady_axial.ci95_um), abs=1e-4)

@@ -26,13 +26,17 @@ def test_summarise_per_h_over_seeds() -> None:
 
 
 @pytest.mark.slow
-def test_bench_chain_one_seed(capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["bench", "chain", "--seeds", "1", "--json"]) == 0
+@pytest.mark.parametrize("mode", ["per_condition", "speed_map"])
+def test_bench_chain_one_seed(mode: str, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["bench", "chain", "--seeds", "1", "--mode", mode, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
-    assert out["synthetic"] is True
+    assert out["synthetic"] is True and out["mode"] == mode
+    assert out["window_min"] == (40 if mode == "per_condition" else 60)
     assert [c["speed_rpm"] for c in out["conditions"]] == [3000.0, 4000.0, 5000.0]
     for c in out["conditions"]:
         assert c["seeds"] == 1 and len(c["h_err_pct_median"]) == 7
         assert all(0.0 <= x <= 1.0 for x in c["ci_coverage"])
         assert min(c["h_err_pct_median"]) < 15.0  # the best-determined H (H6) is close to the truth
     assert main(["bench", "chain", "--seeds", "0"]) == 2
+    assert main(["bench", "chain", "--set", "map_window_min=5"]) == 2  # < map_min_window_min
+    assert "map_min_window_min" in capsys.readouterr().err

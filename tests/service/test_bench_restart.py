@@ -81,3 +81,10 @@ def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFi
     assert "--start-modes" in capsys.readouterr().out
     assert cli.main(["bench", "restart", "--starts", "200"]) == 2
     assert "outside the profile" in capsys.readouterr().err
+    # the identification mode (--mode per_condition|speed_map) and the path (--path core|filter)
+    assert cli.main(["bench", "restart", "--path", "filter", "--mode", "speed_map"]) == 2
+    assert "per-condition protocol only" in capsys.readouterr().err
+    assert cli.main(["bench", "restart", "--path", "core", "--mode", "filter"]) == 2  # the old spelling
+    assert "contradicts" in capsys.readouterr().err
+    assert cli.main(["bench", "restart", "--set", "nope=1"]) == 2
+    assert "unknown identification setting" in capsys.readouterr().err

@@ -30,3 +30,26 @@ def test_truth_is_the_identified_windows(capsys) -> None:
     printer("identification job-3 ok: H = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] W/(m²·K), fit 0.97")
     out = capsys.readouterr().out
     assert "plant truth H = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] (mid-window, 3000 rpm)" in out
+
+
+def test_a_map_fits_truth_is_at_its_window_end(capsys) -> None:
+    """A speed-map fit's window spans both speeds; its record holds the map at the launch condition (the
+    window's end, 4000 rpm here), so that is where its truth is taken; its line carries no H, so the
+    record's is printed."""
+    plant_now = 3930.0
+    record = SimpleNamespace(
+        window_from=T0,
+        window_to=T0 + timedelta(seconds=3900),
+        method="speed-map",
+        h=[2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5],
+        condition=SimpleNamespace(speed_rpm=4000.0),
+    )
+    printer = Printer(
+        _run(), quiet=False, clock=lambda: T0 + timedelta(seconds=plant_now), current=lambda: record
+    )
+    printer.rig = SimpleNamespace(plant_time_s=lambda: plant_now)
+    printer("map identification job-5 ok: 7 model runs, RMSE 0.107 °C, 0.18 s; visited 3 speed bins")
+    out = capsys.readouterr().out
+    assert "map H = [2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5] at 4000 rpm" in out
+    want = "plant truth H = [2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0] (the map at the window's end, 4000 rpm)"
+    assert want in out

@@ -26,6 +26,7 @@ from service.identify.scheduler import PastResult
 from service.identify.worker import run_job
 from service.serve.interface import ChtcStatus, DeviceStatus
 from service.settings import Settings
+from tests.modes import per_condition
 
 from .conftest import plant_run, samples_of
 from .drive import feed_and_run, launches
@@ -66,7 +67,7 @@ def test_a_restart_mid_run_waits_for_convergence_then_serves_fresh_h(loaded_mode
     launched before the state has converged, none starts before the convergence time, and fresh H come
     within 15 min of the restart."""
     run, samples = run_samples
-    cfg = core_config(Settings())
+    cfg = core_config(per_condition())  # the per-condition schedule after convergence (restart bench figures)
     first = ServiceCore(cfg, model=loaded_model)
     feed_and_run(first, loaded_model, samples[:RESTART_K])
     assert first.view().current is not None  # identified before the restart

@@ -29,7 +29,7 @@ from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.serve.interface import ChtcStatus
-from service.settings import Settings
+from tests.modes import per_condition
 
 from .conftest import plant_run, samples_of
 
@@ -51,8 +51,9 @@ class Rig:
 @pytest.fixture(scope="module")
 def identified(loaded_model):  # type: ignore[no-untyped-def]
     """Good samples of a 3000 rpm condition after 5 min idle, identified at 10 and 20 min: the config and
-    the samples."""
-    cfg = core_config(Settings())
+    the samples. Per-condition mode: these tests edit that protocol's identification (an H on a bound, CIs too
+    wide) and its condition-change rule; the speed map's status rules: tests/service/test_speed_map.py."""
+    cfg = core_config(per_condition())
     # 5 min idle (the filtered state converges at rest), then 3000 rpm
     run = plant_run([Segment(300.0, 0.0, 0.0, 22.0), Segment(1300.0, 3000.0, 5.0, 22.0)], seed=4)
     return cfg, samples_of(run)

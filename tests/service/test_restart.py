@@ -15,12 +15,14 @@ from service.engine.shell import SoftSensorService
 from service.serve.interface import ChtcStatus
 from service.settings import Settings
 from service.store.persistence import open_persistence
+from tests.modes import per_condition
 
 from .conftest import plant_run, samples_of
 
 
 def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_model):
-    s = Settings()
+    # the per-condition schedule's identifications (the speed map's restart: tests/service/test_speed_map.py)
+    s = per_condition()
     db = s.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
     cfg = core_config(s)
     # 5 min idle (the filtered state converges at rest), then 3000 rpm
@@ -142,7 +144,10 @@ def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(
 
     plan = Plan(profile=RESTART_PLAN_PROFILE, seed=4)
     url = f"sqlite:///{tmp_path / 'chtc.db'}"
-    with served_service(database_url=url, plan=plan, feed_samples=STOP_AT) as first:
+    # per-condition mode: the 7-min first window after convergence is what this test times (the speed map's
+    # restart: tests/api/test_api_chtc_map.py, tests/service/test_speed_map.py)
+    settings = per_condition()
+    with served_service(database_url=url, plan=plan, settings=settings, feed_samples=STOP_AT) as first:
         before = first.service.chtc()
         # served at its condition (``at-bound`` when an H of this 7-min window sits on a bound)
         assert before is not None and before.status in CURRENT, before
@@ -150,8 +155,7 @@ def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(
         assert before.record.outcome == "ok"
         ids_before = {r.id for r in first.service.core.view().records}
 
-    settings = Settings()
-    with served_service(database_url=url, plan=plan, feed_samples=0) as second:
+    with served_service(database_url=url, plan=plan, settings=settings, feed_samples=0) as second:
         svc = second.service
         restart_t = second.samples[RESTART_AT].t
         second.fed = RESTART_AT  # the spindle ran on while the service was down

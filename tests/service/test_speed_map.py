@@ -68,7 +68,7 @@ def served(duty, loaded_model):
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
     assert Settings().identification.mode == "per_condition"
-    assert map_config(Settings()) is None
+    assert map_config(Settings(identification={"mode": "per_condition"})) is None
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
     assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")
@@ -299,3 +299,15 @@ def test_theta_start_cov_is_the_draws_spread_of_the_lead(loaded_model) -> None:
     assert np.trace(expect) > 1e-6
     assert abs(np.trace(cov) / np.trace(expect) - 1.0) < 0.25  # 400 draws: ±10 % sampling error (2σ ~ 14 %)
     assert abs(s @ cov @ s / (s @ expect @ s) - 1.0) < 0.25
+
+
+def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) -> None:
+    """The live state keeps its snapshots 3× the longest window a job may use: the per-condition
+    ``max_window_s`` alone (90 s here, as the compose test's trial timing) dropped the snapshot at the
+    convergence time before the map's first 10-min window needed it (every fit: insufficient data)."""
+    from service.engine.offline import run_offline
+
+    settings = map_settings(min_window_s=90.0, max_window_s=90.0, schedule_min=[1.5])
+    result = run_offline(duty[2][:90], model=loaded_model, config=core_config(settings))  # 15 min
+    assert result.records, "no map fit launched"
+    assert all(r.outcome == "ok" for r in result.records), [r.message for r in result.records]

@@ -1,0 +1,76 @@
+"""The identification mode a bench runs in, the same for ``chtc bench chain``, ``restart`` and ``duty``:
+``--mode per_condition|speed_map`` (``identification.mode``; default: the settings' own, i.e. the built-in
+default or ``CHTC_IDENTIFICATION__MODE``) and ``--set KEY=VALUE`` (any ``identification`` setting, e.g.
+``--set map_min_window_min=7``), so both modes can be compared in one command line. Each bench reports the
+mode it ran as ``mode`` in its JSON.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from service.settings import Settings
+
+MODES = ("per_condition", "speed_map")
+
+
+def add_arguments(
+    parser: argparse.ArgumentParser,
+    *,
+    default: str | None = None,
+    extra: tuple[str, ...] = (),
+    note: str = "",
+) -> None:
+    """``--mode`` (into ``ident_mode``) and the repeatable ``--set``; ``default`` None: the settings' mode;
+    ``extra`` more choices of ``--mode`` that the bench maps itself (``note`` says how)."""
+    parser.add_argument(
+        "--mode",
+        dest="ident_mode",
+        choices=MODES + extra,
+        default=default,
+        help="identification.mode"
+        + ("" if default is not None else " (default: the settings', CHTC_IDENTIFICATION__MODE or built-in)")
+        + note,
+    )
+    parser.add_argument(
+        "--set",
+        action="append",
+        default=[],
+        metavar="KEY=VALUE",
+        help="an identification setting, e.g. --set map_min_window_min=7 (repeatable; JSON values)",
+    )
+
+
+def parse_sets(items: list[str]) -> dict[str, Any]:
+    """``KEY=VALUE`` pairs; a value is JSON where it parses (numbers, lists, true), else a string."""
+    out: dict[str, Any] = {}
+    for item in items:
+        key, sep, value = item.partition("=")
+        if not sep or not key:
+            raise ValueError(f"--set {item!r}: expected KEY=VALUE")
+        try:
+            out[key] = json.loads(value)
+        except json.JSONDecodeError:
+            out[key] = value
+    return out
+
+
+def bench_settings(mode: str | None, overrides: dict[str, Any] | None = None) -> Settings:
+    """``Settings()`` (defaults and ``CHTC_*`` environment) with ``identification.mode`` (None: kept) and the
+    overrides applied and validated; ``ValueError`` naming the key when one is invalid or unknown."""
+    from service.commands._common import CommandError, override
+    from service.settings import IdentificationSettings, Settings
+
+    values = dict(overrides or {})
+    unknown = sorted(set(values) - set(IdentificationSettings.model_fields))
+    if unknown:
+        raise ValueError(f"--set: unknown identification setting(s) {', '.join(unknown)}")
+    if mode is not None:
+        values["mode"] = mode
+    try:
+        return override(Settings(), "identification", **values)
+    except CommandError as err:
+        raise ValueError(str(err)) from err
