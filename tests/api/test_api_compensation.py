@@ -11,6 +11,7 @@ from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pytest
@@ -59,12 +60,10 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
             yield Served(s.service.core.model, s.service, s.clock, client, t_start, ready)
 
 
-def test_served_growth_equals_estimate_growth_on_the_same_inputs(served: Served) -> None:
-    body = served.client.get("/api/v1/compensation").json()
-    v, model = served.svc.view, served.model
-    assert v.live is not None and v.current is not None and v.condition is not None
+def _served_terms(model: Any, v: Any, h: np.ndarray, cov_h: np.ndarray) -> tuple[Any, Any]:
+    """The growth context and the condition terms /compensation computes for the view's condition and H."""
+    assert v.live is not None and v.condition is not None
     ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
-    h = np.asarray(v.live.h, dtype=float)
     inp = inputs_from_operation(
         model.spec,
         dt_s=10.0,
@@ -75,12 +74,21 @@ def test_served_growth_equals_estimate_growth_on_the_same_inputs(served: Served)
     terms = condition_terms(
         ctx,
         h=h,
-        cov_h=h_covariance(v.current, h),
+        cov_h=cov_h,
         ambient_c=float(inp.ambient_c[0]),
         q_front_w=float(inp.q_front_w[0]),
         q_rear_w=float(inp.q_rear_w[0]),
         load_scale=v.live.load_scale,
     )
+    return ctx, terms
+
+
+def test_served_growth_equals_estimate_growth_on_the_same_inputs(served: Served) -> None:
+    body = served.client.get("/api/v1/compensation").json()
+    v, model = served.svc.view, served.model
+    assert v.live is not None and v.current is not None and v.condition is not None
+    h = np.asarray(v.live.h, dtype=float)
+    ctx, terms = _served_terms(model, v, h, h_covariance(v.current, h))
     belief = field_belief(v)
     at = datetime.fromtimestamp(v.live.t, tz=UTC)
     want = estimate_growth(ctx, terms, belief, t_ref_c=served.t_start_c, at=at)
@@ -293,23 +301,7 @@ def test_in_map_mode_the_h_covariance_is_the_maps_at_the_current_speed(
     # ... not the stored fit's band at its launch speed (what /compensation used before)
     old = h_covariance(v.current, h)
     assert np.max(np.abs(np.sqrt(np.diag(cov)) / np.sqrt(np.diag(old)) - 1.0)) > 0.05
-    ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
-    inp = inputs_from_operation(
-        model.spec,
-        dt_s=10.0,
-        speed_rpm=v.condition.speed_rpm,
-        torque_nm=v.condition.torque_nm,
-        ambient_c=v.condition.ambient_c,
-    )
-    terms = condition_terms(
-        ctx,
-        h=h,
-        cov_h=cov,
-        ambient_c=float(inp.ambient_c[0]),
-        q_front_w=float(inp.q_front_w[0]),
-        q_rear_w=float(inp.q_rear_w[0]),
-        load_scale=v.live.load_scale,
-    )
+    ctx, terms = _served_terms(model, v, h, cov)
     want = estimate_growth(
         ctx, terms, field_belief(v), t_ref_c=body["t_ref_c"], at=datetime.fromtimestamp(v.live.t, tz=UTC)
     )
