@@ -20,13 +20,19 @@ def _run() -> SimpleNamespace:
     return SimpleNamespace(times_s=times, speed_rpm=speed, h_true=truth)
 
 
-def test_truth_is_the_identified_windows(capsys) -> None:
-    plant_now = 3630.0  # 30 s into the 4000 rpm segment
-    record = SimpleNamespace(window_from=T0 + timedelta(seconds=1200), window_to=T0 + timedelta(seconds=3600))
+def _printer(plant_now: float, record: SimpleNamespace) -> Printer:
+    """The demo's printer at plant time ``plant_now`` [s], with ``record`` as the served identification."""
     printer = Printer(
         _run(), quiet=False, clock=lambda: T0 + timedelta(seconds=plant_now), current=lambda: record
     )
     printer.rig = SimpleNamespace(plant_time_s=lambda: plant_now)
+    return printer
+
+
+def test_truth_is_the_identified_windows(capsys) -> None:
+    plant_now = 3630.0  # 30 s into the 4000 rpm segment
+    record = SimpleNamespace(window_from=T0 + timedelta(seconds=1200), window_to=T0 + timedelta(seconds=3600))
+    printer = _printer(plant_now, record)
     printer("identification job-3 ok: H = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] W/(m²·K), fit 0.97")
     out = capsys.readouterr().out
     assert "plant truth H = [1.0, 2.0, 3.0, 4.0, 5.0, 6.0, 7.0] (mid-window, 3000 rpm)" in out
@@ -44,10 +50,7 @@ def test_a_map_fits_truth_is_at_its_window_end(capsys) -> None:
         h=[2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5],
         condition=SimpleNamespace(speed_rpm=4000.0),
     )
-    printer = Printer(
-        _run(), quiet=False, clock=lambda: T0 + timedelta(seconds=plant_now), current=lambda: record
-    )
-    printer.rig = SimpleNamespace(plant_time_s=lambda: plant_now)
+    printer = _printer(plant_now, record)
     printer("map identification job-5 ok: 7 model runs, RMSE 0.107 °C, 0.18 s; visited 3 speed bins")
     out = capsys.readouterr().out
     assert "map H = [2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5] at 4000 rpm" in out
