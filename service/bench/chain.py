@@ -66,11 +66,11 @@ def plant_samples(seed: int) -> list[Sample]:
 
 
 def last_per_condition(records: list[IdentificationRecord]) -> dict[float, IdentificationRecord]:
-    """The last successful identification of each condition, keyed by its speed (rounded to 100 rpm)."""
+    """The last successful identification served at each condition (``identmode.served_in_order``: in hybrid
+    mode the per-condition one), keyed by its speed (rounded to 100 rpm)."""
     out: dict[float, IdentificationRecord] = {}
-    for rec in records:  # oldest first
-        if rec.outcome == "ok":
-            out[round(rec.condition.speed_rpm, -2)] = rec
+    for rec in identmode.served_in_order(records):  # oldest first
+        out[round(rec.condition.speed_rpm, -2)] = rec
     return out
 
 
@@ -135,7 +135,7 @@ def run(
         "synthetic": True,
         "mode": ident.mode,
         "settings": overrides or {},
-        "window_min": 40 if ident.mode == "per_condition" else ident.map_window_min,
+        "window_min": ident.map_window_min if ident.mode == "speed_map" else 40,
         "conditions": conditions,
         "targets": verdicts(TARGETS, {"ci_coverage_mean_worst": worst}),
         "wall_s": round(time.perf_counter() - started, 1),

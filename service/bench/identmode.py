@@ -1,20 +1,22 @@
 """The identification mode a bench runs in, the same for ``chtc bench chain``, ``restart`` and ``duty``:
-``--mode per_condition|speed_map`` (``identification.mode``; default: the settings' own, i.e. the built-in
-default or ``CHTC_IDENTIFICATION__MODE``) and ``--set KEY=VALUE`` (any ``identification`` setting, e.g.
-``--set map_min_window_min=7``), so both modes can be compared in one command line. Each bench reports the
-mode it ran as ``mode`` in its JSON.
+``--mode per_condition|speed_map|hybrid`` (``identification.mode``; default: the settings' own, i.e. the
+built-in default or ``CHTC_IDENTIFICATION__MODE``) and ``--set KEY=VALUE`` (any ``identification`` setting,
+e.g. ``--set map_min_window_min=7``), so the modes can be compared in one command line. Each bench reports
+the mode it ran as ``mode`` in its JSON.
 """
 
 from __future__ import annotations
 
 import argparse
 import json
+from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
 if TYPE_CHECKING:
+    from service.serve.interface import IdentificationRecord
     from service.settings import Settings
 
-MODES = ("per_condition", "speed_map")
+MODES = ("per_condition", "speed_map", "hybrid")
 
 
 def add_arguments(
@@ -74,3 +76,22 @@ def bench_settings(mode: str | None, overrides: dict[str, Any] | None = None) ->
         return override(Settings(), "identification", **values)
     except CommandError as err:
         raise ValueError(str(err)) from err
+
+
+def served_in_order(records: Iterable[IdentificationRecord]) -> list[IdentificationRecord]:
+    """The ok identifications in the order ``/chtc`` serves them (oldest first): every per-condition one, and
+    each map fit except those at a condition that already has a per-condition one (hybrid mode serves that
+    one while the condition holds). In the per-condition and speed-map modes: every ok one."""
+    from service.engine.jobbook import MAP_METHOD
+
+    held: set[int] = set()
+    out = []
+    for rec in records:
+        if rec.outcome != "ok":
+            continue
+        if rec.method != MAP_METHOD:
+            held.add(rec.condition.id)
+        elif rec.condition.id in held:
+            continue
+        out.append(rec)
+    return out

@@ -137,9 +137,7 @@ def run_core(model: Any, settings: Any, run: Any, start: int, *, calibration: An
     restored = None if calibration is None else Restored(calibration=calibration)
     result = run_offline(samples, model=model, config=core_config(settings), restored=restored)
     out = []
-    for rec in result.records:  # oldest first
-        if rec.outcome != "ok":
-            continue
+    for rec in identmode.served_in_order(result.records):  # oldest first; hybrid: the held one
         speed = float(round(rec.condition.speed_rpm, -2))
         end = rec.window_to.timestamp() - T0
         h, lo, hi = (np.asarray(a, dtype=float) for a in (rec.h, rec.ci95_lo, rec.ci95_hi))

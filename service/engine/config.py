@@ -43,6 +43,9 @@ class CoreConfig:
     # MapConfig = "speed_map" (H = F(n, Ti) over a rolling window, re-fitted on condition changes;
     # docs/hmap.md)
     speed_map: MapConfig | None = None
+    # identification.mode = "hybrid" (with a speed_map): the per-condition schedule runs as well, and its
+    # identification of the current, held condition is served instead of the map's H (docs/hmap.md "Hybrid")
+    hybrid: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)

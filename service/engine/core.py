@@ -188,6 +188,14 @@ class ServiceCore:
         # speed-map mode (docs/hmap.md): the latest map fit (a restored one is stale until re-fitted)
         self._speed_map: SpeedMap | None = restored.speed_map if config.speed_map is not None else None
         self._map = None if config.speed_map is None else MapBook(config, model, self._speed_map)
+        # hybrid mode: the newest map fit and per-condition identification; the held condition's
+        # per-condition one serves (``current``) while the condition holds, the map's elsewhere (map_serves)
+        self._hybrid = self._map is not None and config.hybrid
+        self._restored_last = restored.last
+        self._map_rec: IdentificationRecord | None = restored.last if self._speed_map is not None else None
+        self._cond_rec: IdentificationRecord | None = restored.last if self._speed_map is None else None
+        self._cond_load: tuple[float, float] | None = None  # the per-condition fit's bearing-heat scales
+        self._map_serves = True
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -236,6 +244,7 @@ class ServiceCore:
             min_good_channels=self.config.rules.min_good_channels,
             map_config=self.config.speed_map,
             speed_map=self._speed_map,
+            map_serves=self._map_serves,
             ci_threshold=self.config.ci_threshold,
         )
 
@@ -273,9 +282,12 @@ class ServiceCore:
             )
         ):
             todo += self._on_change(change, out)
-        if self._map is not None:  # speed-map mode: the map's own trigger, no per-condition schedule
+        if self._map is not None:  # speed-map and hybrid mode: the map's own trigger
+            self._follow_condition()  # a change pending since this sample serves the map at once (hybrid)
+            self._serve_held()
             self._map_sample(newest, ts, out)
-            return
+            if not self._hybrid:  # speed-map mode: no per-condition schedule
+                return
         todo += self._scheduler.handle(sched.Tick(ts))
         self._execute(todo, ts, out)
 
@@ -395,9 +407,10 @@ class ServiceCore:
     def _condition_started(self, ev: sched.ConditionStarted) -> list[sched.Instruction]:
         """Tell the scheduler, counting the condition's schedule from max(its start, the live state's
         convergence): while the state converges after a (re)start the start is held (the newest wins)."""
-        if self._map is not None:  # speed-map mode: a change triggers a map fit (debounced)
+        if self._map is not None:  # speed-map and hybrid mode: a change triggers a map fit (debounced)
             self._map.changed_at = ev.t
-            return []
+            if not self._hybrid:
+                return []
         ready = self._live.ready_at()
         if ready is None:
             self._held = ev
@@ -527,11 +540,15 @@ class ServiceCore:
             job, result, finished_at=ev.finished_at, event_id=out.event_id, condition=self._condition_of(job)
         )
         out.store(data)
-        self._current = rec
-        self._current_from_restore = False
         ls = result.load_scale
         load = None if ls is None else (float(ls[0]), float(ls[1]))
-        self._live.set_h(rec.h, load, h_rel=_h_rel(rec.h, rec.ci95_hi))
+        if self._hybrid:
+            self._cond_rec, self._cond_load = rec, load
+            self._serve_held()
+        else:
+            self._current = rec
+            self._current_from_restore = False
+            self._live.set_h(rec.h, load, h_rel=_h_rel(rec.h, rec.ci95_hi))
         h_txt = ", ".join(f"{x:.1f}" for x in rec.h)
         out.log(
             f"identification {job.key} ok: H = [{h_txt}] W/(m²·K), fit {rec.fit:.4f}, "
@@ -597,11 +614,43 @@ class ServiceCore:
         if reason is not None:
             self._map_launch(ts, reason, out)
 
-    def _map_live_h(self, s: NewestSample) -> None:
-        """The live state's H: the map's (the cold prior's before the first fit) at the sample's speed and
-        ambient, with the band as its considered error (recomputed when the speed bin or the map changes)."""
+    def _serve_held(self) -> None:
+        """Hybrid mode: which identification serves (``current``, the live state's H). The per-condition one
+        of the current condition while that condition is stable (not restored: a stored one waits for
+        its re-identification, as in per-condition mode); else the newest map fit (the per-condition one
+        when there is no map yet). Measured better at a held condition on the chain and after restarts,
+        the map on a duty cycle (docs/hmap.md "Hybrid")."""
+        if not self._hybrid:
+            return
+        pc, cond = self._cond_rec, self._condition
+        held = (
+            pc is not None
+            and pc is not self._restored_last
+            and cond is not None
+            and pc.condition.id == cond.id
+            and cond.state is ConditionState.STABLE
+        )
+        target = pc if held else (self._map_rec if self._map_rec is not None else pc)
+        serves = not held and self._map_rec is not None
+        if target is None or (target is self._current and serves == self._map_serves):
+            return
+        self._current = target
+        self._current_from_restore = target is self._restored_last
+        self._map_serves = serves
         book = self._map
         assert book is not None
+        book.live_key = None  # the map's H is set again at the next sample when it serves
+        if held and pc is not None:
+            self._live.set_h(pc.h, self._cond_load, h_rel=_h_rel(pc.h, pc.ci95_hi))
+
+    def _map_live_h(self, s: NewestSample) -> None:
+        """The live state's H: the map's (the cold prior's before the first fit) at the sample's speed and
+        ambient, with the band as its considered error (recomputed when the speed bin or the map changes);
+        in hybrid mode not while the held condition's per-condition H serves."""
+        book = self._map
+        assert book is not None
+        if not self._map_serves:
+            return
         if not (np.isfinite(s.speed_rpm) and np.isfinite(s.ambient_c)):
             return
         mean, cov, which = book.live_theta(s.t.timestamp(), self._speed_map)
@@ -629,7 +678,7 @@ class ServiceCore:
             return (
                 f"{ts - t_from:.0f} s of data since the live state converged (need {cfg.min_window_s:.0f} s)"
             )
-        jid = book.next_id()
+        jid = self._scheduler.reserve_job_id()
         point = OperatingPoint(speed_rpm=cond.speed_rpm, torque_nm=cond.torque_nm, ambient_c=cond.ambient_c)
         prior, source = book.prior_for(t_from, ts)
         start = sched.StartJob(
@@ -750,8 +799,12 @@ class ServiceCore:
         out.store(data)
         self._speed_map = replace(m, identification_id=data.id)
         book.keep(t_end, fit.posterior)
-        self._current = rec
-        self._current_from_restore = False
+        if self._hybrid:
+            self._map_rec = rec
+            self._serve_held()
+        else:
+            self._current = rec
+            self._current_from_restore = False
         out.log(
             f"map identification {job.key} ok: {fit.nfev} model runs, RMSE {fit.rmse_c:.3f} °C, "
             f"{outcome.wall_s:.2f} s; visited {len(visited[0])} speed bins"

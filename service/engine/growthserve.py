@@ -200,7 +200,8 @@ class GrowthServer:
         with self._lock:
             if self._terms is not None and self._terms.key == key:
                 return self._terms.terms
-        terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current, view.speed_map)
+        speed_map = view.speed_map if view.map_serves else None
+        terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current, speed_map)
         with self._lock:
             self._terms = _Terms(key, terms)
             if self._pending == key:

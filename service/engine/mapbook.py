@@ -5,7 +5,6 @@ I/O, no clock; ``service.engine.core`` owns one.
 
 from __future__ import annotations
 
-import itertools
 from datetime import UTC, datetime
 
 import numpy as np
@@ -36,16 +35,12 @@ class MapBook:
         self.live_key: tuple[object, ...] | None = None
         self._launched: tuple[float, int, tuple[np.ndarray, np.ndarray]] | None = None
         self._last_end: float | None = None
-        self._ids = itertools.count(1)
         # (window end epoch s, posterior), oldest first
         self._posteriors: list[tuple[float, Gaussian]] = []
         if restored is not None:
             t = restored.fitted_at.timestamp()
             self._posteriors.append((t, Gaussian(np.array(restored.mean), np.array(restored.cov))))
             self.tally.restore(restored.visited_rpm, restored.visited_s, t)
-
-    def next_id(self) -> int:
-        return next(self._ids)
 
     def due(self, ts: float) -> str | None:
         """Why a fit is due now (None: not due or one is running): a debounced condition change, the first

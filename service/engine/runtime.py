@@ -76,9 +76,10 @@ class CanDevice(CanSource, HealthSource, Protocol):
 
 
 def map_config(settings: Settings) -> MapConfig | None:
-    """The speed map's configuration (None: ``identification.mode = "per_condition"``)."""
+    """The speed map's configuration (None: ``identification.mode = "per_condition"``; the same for
+    ``"speed_map"`` and ``"hybrid"``)."""
     ident = settings.identification
-    if ident.mode != "speed_map":
+    if ident.mode == "per_condition":
         return None
     return MapConfig(
         window_s=60.0 * ident.map_window_min,
@@ -129,6 +130,7 @@ def core_config(settings: Settings) -> CoreConfig:
         start_modes=ident.start_modes,
         ci_threshold=ident.ci_rel_threshold,
         speed_map=map_config(settings),
+        hybrid=ident.mode == "hybrid",
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
         calibration=CalibrationConfig(

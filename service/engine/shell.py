@@ -395,7 +395,8 @@ class SoftSensorService:
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
-        fresh = self._map_freshness(v, problems, since)
+        # hybrid mode: the per-condition H of the held condition serves instead of the map (map_serves)
+        fresh = self._map_freshness(v, problems, since) if v.map_serves else None
         if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
             # speed-map mode: H from the map at the newest sample's speed and ambient, at once
             s = v.newest
@@ -445,7 +446,8 @@ class SoftSensorService:
     def _map_freshness(
         self, v: CoreView, problems: tuple[str, ...], since: datetime | None
     ) -> MapFreshness | None:
-        """In speed-map mode with a map: how current it is at the newest sample's speed (else None)."""
+        """With a map (speed-map or hybrid mode): how current it is at the newest sample's speed (else
+        None)."""
         cfg, m = v.map_config, v.speed_map
         if cfg is None or m is None:
             return None
@@ -462,7 +464,10 @@ class SoftSensorService:
         )
 
     def identification_mode(self) -> IdentificationMode:
-        return "per_condition" if self.core.config.speed_map is None else "speed_map"
+        config = self.core.config
+        if config.speed_map is None:
+            return "per_condition"
+        return "hybrid" if config.hybrid else "speed_map"
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
         v = self._view

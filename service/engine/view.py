@@ -66,6 +66,9 @@ class CoreView:
     # speed-map mode (docs/hmap.md): its configuration (None: per-condition mode) and the latest map fit
     map_config: MapConfig | None = None
     speed_map: SpeedMap | None = None
+    # with a map: ``current`` is the map's fit and /chtc serves H from the map at the current speed; false in
+    # hybrid mode while the held condition's per-condition identification serves (docs/hmap.md "Hybrid")
+    map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
 
     def data_problems(self, now: datetime) -> tuple[str, ...]:

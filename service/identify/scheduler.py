@@ -203,6 +203,13 @@ class IdentificationScheduler:
     running: _Running | None = None
     _next_job_id: int = 1
 
+    def reserve_job_id(self) -> int:
+        """A job id that no scheduled job will take, for a job launched outside the schedule (a speed-map
+        fit): both kinds share the worker and the job book, keyed by id."""
+        job_id = self._next_job_id
+        self._next_job_id += 1
+        return job_id
+
     def handle(self, event: Event) -> list[Instruction]:
         match event:
             case ConditionStarted():
