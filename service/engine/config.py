@@ -59,3 +59,4 @@ class Restored:
     next_identification_id: int = 1
     calibration: Calibration | None = None  # the newest stored sensor offset baseline
     speed_map: SpeedMap | None = None  # the newest stored map fit (speed-map mode), restored as stale
+    map_last: IdentificationRecord | None = None  # its identification (``last`` unless hybrid mode)

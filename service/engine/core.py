@@ -191,11 +191,15 @@ class ServiceCore:
         # hybrid mode: the newest map fit and per-condition identification; the held condition's
         # per-condition one serves (``current``) while the condition holds, the map's elsewhere (map_serves)
         self._hybrid = self._map is not None and config.hybrid
-        self._restored_last = restored.last
-        self._map_rec: IdentificationRecord | None = restored.last if self._speed_map is not None else None
-        self._cond_rec: IdentificationRecord | None = restored.last if self._speed_map is None else None
+        map_last = None if self._speed_map is None else (restored.map_last or restored.last)
+        self._restored_recs = tuple(r for r in (restored.last, map_last) if r is not None)
+        self._map_rec: IdentificationRecord | None = map_last
+        self._cond_rec: IdentificationRecord | None = None if restored.last is map_last else restored.last
         self._cond_load: tuple[float, float] | None = None  # the per-condition fit's bearing-heat scales
         self._map_serves = True
+        if map_last is not None:  # the restored map serves (stale until re-fitted), whatever was last
+            self._current = map_last
+        self._serve_held()
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
@@ -625,7 +629,7 @@ class ServiceCore:
         pc, cond = self._cond_rec, self._condition
         held = (
             pc is not None
-            and pc is not self._restored_last
+            and all(pc is not r for r in self._restored_recs)
             and cond is not None
             and pc.condition.id == cond.id
             and cond.state is ConditionState.STABLE
@@ -635,7 +639,7 @@ class ServiceCore:
         if target is None or (target is self._current and serves == self._map_serves):
             return
         self._current = target
-        self._current_from_restore = target is self._restored_last
+        self._current_from_restore = any(target is r for r in self._restored_recs)
         self._map_serves = serves
         book = self._map
         assert book is not None

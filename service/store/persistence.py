@@ -25,6 +25,7 @@ from datetime import datetime
 from typing import TYPE_CHECKING
 
 from service.engine.config import Restored
+from service.engine.jobbook import MAP_METHOD
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from service.serve.interface import ConditionState, IdentificationRecord
@@ -70,6 +71,11 @@ def restore(
         cond_max, ident_max = max_ids(session)
         last_row = last_served_identification(session)
         last = row_to_record(last_row) if last_row is not None else None
+        # the newest map fit (hybrid mode: the last served one may be a per-condition identification)
+        map_row = last_row
+        if last_row is not None and last_row.method != MAP_METHOD:
+            map_row = last_served_identification(session, method=MAP_METHOD)
+        map_last = last if map_row is last_row else row_to_record(map_row) if map_row is not None else None
         latest = latest_per_condition(session, limit=limit)
         history = tuple(
             PastResult(
@@ -88,7 +94,8 @@ def restore(
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
         calibration = _restore_calibration(session, on_problem)
     return Restored(
-        speed_map=_restore_map(last, on_problem),
+        speed_map=_restore_map(map_last, on_problem),
+        map_last=map_last,
         calibration=calibration,
         last=last,
         history=history,

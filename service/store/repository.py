@@ -179,19 +179,16 @@ def last_identification(
     return page.items[0] if page.items else None
 
 
-def last_served_identification(session: Session) -> Identification | None:
+def last_served_identification(session: Session, *, method: str | None = None) -> Identification | None:
     """The successful identification served last: the highest id (ids grow in launch order across restarts,
     ``service.store.persistence.restore``), not the newest ``finished_at``: in the demo each run's simulated
-    clock
-    starts again at the wall clock, so a later run's results can carry earlier times. None if there is none.
+    clock starts again at the wall clock, so a later run's results can carry earlier times. ``method``: only
+    those of this method (e.g. the newest speed-map fit). None if there is none.
     """
-    query = (
-        select(Identification)
-        .where(Identification.outcome == "ok")
-        .options(joinedload(Identification.condition))
-        .order_by(Identification.id.desc())
-        .limit(1)
-    )
+    query = select(Identification).where(Identification.outcome == "ok")
+    if method is not None:
+        query = query.where(Identification.method == method)
+    query = query.options(joinedload(Identification.condition)).order_by(Identification.id.desc()).limit(1)
     return session.scalars(query).first()
 
 

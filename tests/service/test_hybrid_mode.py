@@ -17,13 +17,16 @@ from service.engine.jobbook import MAP_METHOD
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.identify.worker import run_job
+from service.serve.interface import ChtcStatus
 from service.settings import IdentificationSettings, Settings
 from service.sim.served import ManualClock
+from service.store.persistence import open_persistence
 
 from .conftest import samples_of
 
 # 5 min idle; 3000 rpm held 20 min (per-condition at 7 and 20 min; the map's first fit after 10 min of
 # data); 4500 rpm for 4 min (shorter than the first schedule entry: the map's only); 2000 rpm held 12 min
+SETTINGS = Settings(identification=IdentificationSettings(mode="hybrid"))
 PROFILE = (
     Segment(300.0, 0.0, 0.0, 20.0),
     Segment(1200.0, 3000.0, 6.0, 20.0),
@@ -37,22 +40,27 @@ def hybrid(loaded_model):
     """The profile through the service in hybrid mode; per sample: (speed, ambient, /chtc, view)."""
     run = VirtualPlant(load_spindle(), seed=11).run(list(PROFILE), dt_s=10.0)
     samples = samples_of(run)
-    settings = Settings(identification=IdentificationSettings(mode="hybrid"))
-    core = ServiceCore(core_config(settings), model=loaded_model, history_capacity=10_000)
-    clock = ManualClock(samples[0].t)
-    svc = SoftSensorService(
-        core,
-        worker=None,
-        clock=clock,
-        on_event=lambda _m: None,
-        run_job=lambda req: run_job(loaded_model, req),
-    )
+    svc, clock = _service(loaded_model, samples)
     seen = []
     for s in samples:
         clock.at_least(s.t)
         svc.on_sample(s)
-        seen.append((s.speed_rpm, s.ambient_c, svc.chtc(), svc.view, np.array(core.live_h)))
-    return svc, seen
+        seen.append((s.speed_rpm, s.ambient_c, svc.chtc(), svc.view, np.array(svc.core.live_h)))
+    return svc, seen, samples
+
+
+def _service(model, samples, *, writer=None, restored=None):
+    core = ServiceCore(core_config(SETTINGS), model=model, history_capacity=10_000, restored=restored)
+    clock = ManualClock(samples[0].t)
+    svc = SoftSensorService(
+        core,
+        worker=None,
+        writer=writer,
+        clock=clock,
+        on_event=lambda _m: None,
+        run_job=lambda req: run_job(model, req),
+    )
+    return svc, clock
 
 
 def _segment_of(k: int) -> int:
@@ -62,7 +70,7 @@ def _segment_of(k: int) -> int:
 
 
 def test_both_kinds_run_and_share_the_job_book(hybrid) -> None:
-    svc, _ = hybrid
+    svc, _, _ = hybrid
     assert svc.identification_mode() == "hybrid"
     records = svc.view.records
     methods = {r.method for r in records if r.outcome == "ok"}
@@ -73,7 +81,7 @@ def test_both_kinds_run_and_share_the_job_book(hybrid) -> None:
 
 
 def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(hybrid) -> None:
-    _, seen = hybrid
+    _, seen, _ = hybrid
     kinds: dict[int, set[str]] = {0: set(), 1: set(), 2: set(), 3: set()}
     for k, (speed, ambient, snap, view, live_h) in enumerate(seen):
         if snap is None:
@@ -100,7 +108,7 @@ def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(hybrid)
 
 
 def test_benches_take_the_served_identification(hybrid) -> None:
-    svc, _ = hybrid
+    svc, _, _ = hybrid
     records = list(reversed(svc.view.records))  # oldest first
     served = served_in_order(records)
     held: set[int] = set()
@@ -113,3 +121,39 @@ def test_benches_take_the_served_identification(hybrid) -> None:
     assert dropped and all(r.method == MAP_METHOD for r in dropped)
     last = last_per_condition(records)
     assert last[3000.0].method != MAP_METHOD and last[4500.0].method == MAP_METHOD
+
+
+def test_restart_restores_the_map_when_a_per_condition_identification_was_last(
+    hybrid, tmp_path, loaded_model
+) -> None:
+    _, seen, samples = hybrid
+    # up to the sample after which the 2000-rpm condition's own per-condition identification came back
+    n = next(
+        k + 1
+        for k, (_, _, snap, _, _) in enumerate(seen)
+        if _segment_of(k) == 3 and snap is not None and snap.record.method != MAP_METHOD
+    )
+    db = SETTINGS.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
+    first = open_persistence(db, migrate=True)
+    svc, clock = _service(loaded_model, samples[:n], writer=first.sink)
+    for s in samples[:n]:
+        clock.at_least(s.t)
+        svc.on_sample(s)
+    newest = svc.view.records[0]
+    newest_map = next(r for r in svc.view.records if r.method == MAP_METHOD and r.outcome == "ok")
+    assert newest.method != MAP_METHOD
+    first.close()
+
+    second = open_persistence(db, migrate=True)
+    restored = second.restored
+    assert restored.last is not None and restored.last.id == newest.id
+    assert restored.map_last is not None and restored.map_last.id == newest_map.id
+    assert restored.speed_map is not None and restored.speed_map.restored
+    assert restored.speed_map.identification_id == newest_map.id
+    svc2, _ = _service(loaded_model, samples[n:], restored=restored)
+    view = svc2.view
+    assert view.map_serves and view.current is not None and view.current.id == newest_map.id
+    assert view.current_from_restore
+    snap = svc2.chtc()
+    assert snap is not None and snap.status is ChtcStatus.STALE and snap.record.id == newest_map.id
+    second.close()
