@@ -13,7 +13,7 @@ over the seeds, the median relative 95 % half-width of the CI as served (with th
 unless ``identification.carry_start_error`` is false), the fraction of seeds whose CI covers the truth, and
 the fraction whose CIs cover all seven H at once.
 
-``--mode per_condition|speed_map`` and ``--set KEY=VALUE`` choose the identification mode and settings
+``--mode per_condition|speed_map|hybrid`` and ``--set KEY=VALUE`` choose the identification mode and settings
 (``service.bench.identmode``; default: the settings' ``identification.mode``), reported as ``mode``. In
 speed-map mode the last identification of a condition is the last map fit launched at it (its window: the
 rolling ``map_window_min``, up to 60 min, across the earlier conditions), served at the condition.

@@ -16,9 +16,10 @@ half-width and the fraction of seeds in which each H is flagged identified, CI w
 ``identification.ci_rel_threshold`` and not at a bound; and the minutes to the first result with at least one
 H identified, with the fraction of seeds that had one; core path).
 
-Identification mode (``--mode per_condition|speed_map``, ``--set KEY=VALUE``: ``service.bench.identmode``;
-default the settings' ``identification.mode``), reported as ``mode``; core path only (``--path filter`` is the
-per-condition protocol by construction).
+Identification mode (``--mode per_condition|speed_map|hybrid``, ``--set KEY=VALUE``:
+``service.bench.identmode``; default the settings' ``identification.mode``), reported as ``mode``; core path
+only (``--path filter`` is the per-condition protocol by construction). In hybrid mode each condition's
+served H is its per-condition identification once there is one (``identmode.served_in_order``).
 
 Paths (``--path``; ``--mode core|filter`` is accepted as its old spelling):
 

@@ -157,7 +157,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     else:
         need_s = 60.0 * ident.map_min_window_min
         need = (
-            f"identification.mode = speed_map: the first map fit needs {need_s / 60:.1f} min of data "
+            f"identification.mode = {ident.mode}: the first map fit needs {need_s / 60:.1f} min of data "
             "after the live state converged, at any speeds (identification.map_min_window_min = "
             f"{ident.map_min_window_min:g})"
         )
