@@ -13,10 +13,11 @@ over the seeds, the median relative 95 % half-width of the CI as served (with th
 unless ``identification.carry_start_error`` is false), the fraction of seeds whose CI covers the truth, and
 the fraction whose CIs cover all seven H at once.
 
-``--mode per_condition|speed_map|hybrid`` and ``--set KEY=VALUE`` choose the identification mode and settings
-(``service.bench.identmode``; default: the settings' ``identification.mode``), reported as ``mode``. In
-speed-map mode the last identification of a condition is the last map fit launched at it (its window: the
-rolling ``map_window_min``, up to 60 min, across the earlier conditions), served at the condition.
+``--mode per_condition|speed_map|combined`` and ``--set KEY=VALUE`` choose the identification mode and
+settings (``service.bench.identmode``; default: the settings' ``identification.mode``), reported as
+``mode``. In speed-map mode the last identification of a condition is the last map fit launched at it (its
+window: the rolling ``map_window_min``, up to 60 min, across the earlier conditions), served at the
+condition; in combined mode the condition's own per-condition one (``identmode.served_in_order``).
 """
 
 from __future__ import annotations
@@ -66,7 +67,7 @@ def plant_samples(seed: int) -> list[Sample]:
 
 
 def last_per_condition(records: list[IdentificationRecord]) -> dict[float, IdentificationRecord]:
-    """The last successful identification served at each condition (``identmode.served_in_order``: in hybrid
+    """The last successful identification served at each condition (``identmode.served_in_order``: in combined
     mode the per-condition one), keyed by its speed (rounded to 100 rpm)."""
     out: dict[float, IdentificationRecord] = {}
     for rec in identmode.served_in_order(records):  # oldest first

@@ -15,8 +15,8 @@ of the core's view, so everything is the service's real path:
   as stored; in speed-map mode the map's posterior at the live speed, ``map_h_covariance``); the condition:
   the detector's current condition (held).
 
-``--mode per_condition|speed_map|hybrid`` and ``--set KEY=VALUE`` choose the identification mode and settings
-(``service.bench.identmode``; default: the settings'), reported as ``mode``.
+``--mode per_condition|speed_map|combined`` and ``--set KEY=VALUE`` choose the identification mode and
+settings (``service.bench.identmode``; default: the settings'), reported as ``mode``.
 
 Profiles: ``chain`` (the chain bench's: idle,
 3000/4000/5000 rpm for 45 min each) and ``duty`` (5 min idle, 45 min at 4000 rpm so that an identification

@@ -1,5 +1,5 @@
 """The identification mode a bench runs in, the same for ``chtc bench chain``, ``restart`` and ``duty``:
-``--mode per_condition|speed_map|hybrid`` (``identification.mode``; default: the settings' own, i.e. the
+``--mode per_condition|speed_map|combined`` (``identification.mode``; default: the settings' own, i.e. the
 built-in default or ``CHTC_IDENTIFICATION__MODE``) and ``--set KEY=VALUE`` (any ``identification`` setting,
 e.g. ``--set map_min_window_min=7``), so the modes can be compared in one command line. Each bench reports
 the mode it ran as ``mode`` in its JSON.
@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from service.serve.interface import IdentificationRecord
     from service.settings import Settings
 
-MODES = ("per_condition", "speed_map", "hybrid")
+MODES = ("per_condition", "speed_map", "combined")
 
 
 def add_arguments(
@@ -80,7 +80,7 @@ def bench_settings(mode: str | None, overrides: dict[str, Any] | None = None) ->
 
 def served_in_order(records: Iterable[IdentificationRecord]) -> list[IdentificationRecord]:
     """The ok identifications in the order ``/chtc`` serves them (oldest first): every per-condition one, and
-    each map fit except those at a condition that already has a per-condition one (hybrid mode serves that
+    each map fit except those at a condition that already has a per-condition one (combined mode serves that
     one while the condition holds). In the per-condition and speed-map modes: every ok one."""
     from service.engine.jobbook import MAP_METHOD
 

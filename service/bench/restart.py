@@ -16,9 +16,9 @@ half-width and the fraction of seeds in which each H is flagged identified, CI w
 ``identification.ci_rel_threshold`` and not at a bound; and the minutes to the first result with at least one
 H identified, with the fraction of seeds that had one; core path).
 
-Identification mode (``--mode per_condition|speed_map|hybrid``, ``--set KEY=VALUE``:
+Identification mode (``--mode per_condition|speed_map|combined``, ``--set KEY=VALUE``:
 ``service.bench.identmode``; default the settings' ``identification.mode``), reported as ``mode``; core path
-only (``--path filter`` is the per-condition protocol by construction). In hybrid mode each condition's
+only (``--path filter`` is the per-condition protocol by construction). In combined mode each condition's
 served H is its per-condition identification once there is one (``identmode.served_in_order``).
 
 Paths (``--path``; ``--mode core|filter`` is accepted as its old spelling):
@@ -138,7 +138,7 @@ def run_core(model: Any, settings: Any, run: Any, start: int, *, calibration: An
     restored = None if calibration is None else Restored(calibration=calibration)
     result = run_offline(samples, model=model, config=core_config(settings), restored=restored)
     out = []
-    for rec in identmode.served_in_order(result.records):  # oldest first; hybrid: the held one
+    for rec in identmode.served_in_order(result.records):  # oldest first; combined mode: the held one
         speed = float(round(rec.condition.speed_rpm, -2))
         end = rec.window_to.timestamp() - T0
         h, lo, hi = (np.asarray(a, dtype=float) for a in (rec.h, rec.ci95_lo, rec.ci95_hi))

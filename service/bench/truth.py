@@ -19,8 +19,8 @@ defaults: detector, scheduler, live state, offset calibration, windows, identifi
 successful identification of every condition (its longest window) it reports, per H, the median |error|
 and the CI coverage, the fraction of ``identified`` flags whose CI misses the truth, the fraction of cases
 whose CIs cover all seven H, and the identification wall times, with the targets of issue 15.
-``--mode per_condition|speed_map|hybrid`` and ``--set KEY=VALUE`` choose the identification mode and settings
-(``service.bench.identmode``; default: the settings'), reported as ``mode``.
+``--mode per_condition|speed_map|combined`` and ``--set KEY=VALUE`` choose the identification mode and
+settings (``service.bench.identmode``; default: the settings'), reported as ``mode``.
 """
 
 from __future__ import annotations
@@ -157,7 +157,7 @@ def cases(
     records: list[IdentificationRecord], levels: list[Level]
 ) -> list[tuple[np.ndarray, IdentificationRecord]]:
     """(truth H, record) of the last successful identification served at each condition
-    (``identmode.served_in_order``: in hybrid mode its per-condition one)."""
+    (``identmode.served_in_order``: in combined mode its per-condition one)."""
     last: dict[int, IdentificationRecord] = {}
     for rec in identmode.served_in_order(records):  # oldest first
         last[rec.condition.id] = rec

@@ -43,9 +43,10 @@ class CoreConfig:
     # MapConfig = "speed_map" (H = F(n, Ti) over a rolling window, re-fitted on condition changes;
     # docs/hmap.md)
     speed_map: MapConfig | None = None
-    # identification.mode = "hybrid" (with a speed_map): the per-condition schedule runs as well, and its
-    # identification of the current, held condition is served instead of the map's H (docs/hmap.md "Hybrid")
-    hybrid: bool = False
+    # identification.mode = "combined" (with a speed_map): the per-condition schedule runs as well, and its
+    # identification of the current, held condition is served instead of the map's H (docs/hmap.md
+    # "Combined mode")
+    combined: bool = False
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -59,4 +60,4 @@ class Restored:
     next_identification_id: int = 1
     calibration: Calibration | None = None  # the newest stored sensor offset baseline
     speed_map: SpeedMap | None = None  # the newest stored map fit (speed-map mode), restored as stale
-    map_last: IdentificationRecord | None = None  # its identification (``last`` unless hybrid mode)
+    map_last: IdentificationRecord | None = None  # its identification (``last`` unless combined mode)

@@ -188,9 +188,9 @@ class ServiceCore:
         # speed-map mode (docs/hmap.md): the latest map fit (a restored one is stale until re-fitted)
         self._speed_map: SpeedMap | None = restored.speed_map if config.speed_map is not None else None
         self._map = None if config.speed_map is None else MapBook(config, model, self._speed_map)
-        # hybrid mode: the newest map fit and per-condition identification; the held condition's
+        # combined mode: the newest map fit and per-condition identification; the held condition's
         # per-condition one serves (``current``) while the condition holds, the map's elsewhere (map_serves)
-        self._hybrid = self._map is not None and config.hybrid
+        self._combined = self._map is not None and config.combined
         map_last = None if self._speed_map is None else (restored.map_last or restored.last)
         self._restored_recs = tuple(r for r in (restored.last, map_last) if r is not None)
         self._map_rec: IdentificationRecord | None = map_last
@@ -286,11 +286,11 @@ class ServiceCore:
             )
         ):
             todo += self._on_change(change, out)
-        if self._map is not None:  # speed-map and hybrid mode: the map's own trigger
-            self._follow_condition()  # a change pending since this sample serves the map at once (hybrid)
+        if self._map is not None:  # speed-map and combined mode: the map's own trigger
+            self._follow_condition()  # combined mode: a change pending since this sample serves the map
             self._serve_held()
             self._map_sample(newest, ts, out)
-            if not self._hybrid:  # speed-map mode: no per-condition schedule
+            if not self._combined:  # speed-map mode: no per-condition schedule
                 return
         todo += self._scheduler.handle(sched.Tick(ts))
         self._execute(todo, ts, out)
@@ -411,9 +411,9 @@ class ServiceCore:
     def _condition_started(self, ev: sched.ConditionStarted) -> list[sched.Instruction]:
         """Tell the scheduler, counting the condition's schedule from max(its start, the live state's
         convergence): while the state converges after a (re)start the start is held (the newest wins)."""
-        if self._map is not None:  # speed-map and hybrid mode: a change triggers a map fit (debounced)
+        if self._map is not None:  # speed-map and combined mode: a change triggers a map fit (debounced)
             self._map.changed_at = ev.t
-            if not self._hybrid:
+            if not self._combined:
                 return []
         ready = self._live.ready_at()
         if ready is None:
@@ -546,7 +546,7 @@ class ServiceCore:
         out.store(data)
         ls = result.load_scale
         load = None if ls is None else (float(ls[0]), float(ls[1]))
-        if self._hybrid:
+        if self._combined:
             self._cond_rec, self._cond_load = rec, load
             self._serve_held()
         else:
@@ -619,12 +619,12 @@ class ServiceCore:
             self._map_launch(ts, reason, out)
 
     def _serve_held(self) -> None:
-        """Hybrid mode: which identification serves (``current``, the live state's H). The per-condition one
+        """Combined mode: which identification serves (``current``, the live state's H). The per-condition one
         of the current condition while that condition is stable (not restored: a stored one waits for
         its re-identification, as in per-condition mode); else the newest map fit (the per-condition one
         when there is no map yet). Measured better at a held condition on the chain and after restarts,
-        the map on a duty cycle (docs/hmap.md "Hybrid")."""
-        if not self._hybrid:
+        the map on a duty cycle (docs/hmap.md "Combined mode")."""
+        if not self._combined:
             return
         pc, cond = self._cond_rec, self._condition
         held = (
@@ -650,7 +650,7 @@ class ServiceCore:
     def _map_live_h(self, s: NewestSample) -> None:
         """The live state's H: the map's (the cold prior's before the first fit) at the sample's speed and
         ambient, with the band as its considered error (recomputed when the speed bin or the map changes);
-        in hybrid mode not while the held condition's per-condition H serves."""
+        in combined mode not while the held condition's per-condition H serves."""
         book = self._map
         assert book is not None
         if not self._map_serves:
@@ -803,7 +803,7 @@ class ServiceCore:
         out.store(data)
         self._speed_map = replace(m, identification_id=data.id)
         book.keep(t_end, fit.posterior)
-        if self._hybrid:
+        if self._combined:
             self._map_rec = rec
             self._serve_held()
         else:

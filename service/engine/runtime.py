@@ -77,7 +77,7 @@ class CanDevice(CanSource, HealthSource, Protocol):
 
 def map_config(settings: Settings) -> MapConfig | None:
     """The speed map's configuration (None: ``identification.mode = "per_condition"``; the same for
-    ``"speed_map"`` and ``"hybrid"``)."""
+    ``"speed_map"`` and ``"combined"``)."""
     ident = settings.identification
     if ident.mode == "per_condition":
         return None
@@ -130,7 +130,7 @@ def core_config(settings: Settings) -> CoreConfig:
         start_modes=ident.start_modes,
         ci_threshold=ident.ci_rel_threshold,
         speed_map=map_config(settings),
-        hybrid=ident.mode == "hybrid",
+        combined=ident.mode == "combined",
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
         calibration=CalibrationConfig(

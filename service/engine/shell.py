@@ -395,7 +395,7 @@ class SoftSensorService:
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
-        # hybrid mode: the per-condition H of the held condition serves instead of the map (map_serves)
+        # combined mode: the per-condition H of the held condition serves instead of the map (map_serves)
         fresh = self._map_freshness(v, problems, since) if v.map_serves else None
         if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
             # speed-map mode: H from the map at the newest sample's speed and ambient, at once
@@ -446,7 +446,7 @@ class SoftSensorService:
     def _map_freshness(
         self, v: CoreView, problems: tuple[str, ...], since: datetime | None
     ) -> MapFreshness | None:
-        """With a map (speed-map or hybrid mode): how current it is at the newest sample's speed (else
+        """With a map (speed-map or combined mode): how current it is at the newest sample's speed (else
         None)."""
         cfg, m = v.map_config, v.speed_map
         if cfg is None or m is None:
@@ -467,7 +467,7 @@ class SoftSensorService:
         config = self.core.config
         if config.speed_map is None:
             return "per_condition"
-        return "hybrid" if config.hybrid else "speed_map"
+        return "combined" if config.combined else "speed_map"
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
         v = self._view

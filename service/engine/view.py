@@ -67,7 +67,8 @@ class CoreView:
     map_config: MapConfig | None = None
     speed_map: SpeedMap | None = None
     # with a map: ``current`` is the map's fit and /chtc serves H from the map at the current speed; false in
-    # hybrid mode while the held condition's per-condition identification serves (docs/hmap.md "Hybrid")
+    # combined mode while the held condition's per-condition identification serves (docs/hmap.md, "Combined
+    # mode")
     map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
 

@@ -69,7 +69,7 @@ class NotReadyError(ServiceError):
     """The service cannot do what was asked yet (model not loaded, too little good data)."""
 
 
-IdentificationMode = Literal["per_condition", "speed_map", "hybrid"]
+IdentificationMode = Literal["per_condition", "speed_map", "combined"]
 
 
 class ChtcStatus(enum.StrEnum):
@@ -526,7 +526,7 @@ class ChtcService(Protocol):
 
     def identification_mode(self) -> IdentificationMode:
         """``"per_condition"`` (the paper's protocol: one H per held condition), ``"speed_map"`` (H = F(n,
-        Ti) over the speed range, ``chtc_map()``) or ``"hybrid"`` (both: the per-condition H at a held
+        Ti) over the speed range, ``chtc_map()``) or ``"combined"`` (both: the per-condition H at a held
         condition, the map's elsewhere); fixed for the service's life (``identification.mode``)."""
         ...
 

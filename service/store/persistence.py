@@ -71,7 +71,7 @@ def restore(
         cond_max, ident_max = max_ids(session)
         last_row = last_served_identification(session)
         last = row_to_record(last_row) if last_row is not None else None
-        # the newest map fit (hybrid mode: the last served one may be a per-condition identification)
+        # the newest map fit (combined mode: the last served one may be a per-condition identification)
         map_row = last_row
         if last_row is not None and last_row.method != MAP_METHOD:
             map_row = last_served_identification(session, method=MAP_METHOD)

@@ -1,4 +1,4 @@
-"""Hybrid mode (``identification.mode = "hybrid"``, issue 17) through the real core and shell over the
+"""Combined mode (``identification.mode = "combined"``, issue 17) through the real core and shell over the
 virtual plant (its own mesh and truth): the per-condition identification of a held condition serves while
 the condition holds, the map's H at the current speed elsewhere (right after a change, at short
 conditions); the live state follows the served H; both job kinds share the worker and the job book."""
@@ -26,7 +26,7 @@ from .conftest import samples_of
 
 # 5 min idle; 3000 rpm held 20 min (per-condition at 7 and 20 min; the map's first fit after 10 min of
 # data); 4500 rpm for 4 min (shorter than the first schedule entry: the map's only); 2000 rpm held 12 min
-SETTINGS = Settings(identification=IdentificationSettings(mode="hybrid"))
+SETTINGS = Settings(identification=IdentificationSettings(mode="combined"))
 PROFILE = (
     Segment(300.0, 0.0, 0.0, 20.0),
     Segment(1200.0, 3000.0, 6.0, 20.0),
@@ -36,8 +36,8 @@ PROFILE = (
 
 
 @pytest.fixture(scope="module")
-def hybrid(loaded_model):
-    """The profile through the service in hybrid mode; per sample: (speed, ambient, /chtc, view)."""
+def combined(loaded_model):
+    """The profile through the service in combined mode; per sample: (speed, ambient, /chtc, view)."""
     run = VirtualPlant(load_spindle(), seed=11).run(list(PROFILE), dt_s=10.0)
     samples = samples_of(run)
     svc, clock = _service(loaded_model, samples)
@@ -69,9 +69,9 @@ def _segment_of(k: int) -> int:
     return min(int(np.searchsorted(ends, t, side="right")), len(PROFILE) - 1)
 
 
-def test_both_kinds_run_and_share_the_job_book(hybrid) -> None:
-    svc, _, _ = hybrid
-    assert svc.identification_mode() == "hybrid"
+def test_both_kinds_run_and_share_the_job_book(combined) -> None:
+    svc, _, _ = combined
+    assert svc.identification_mode() == "combined"
     records = svc.view.records
     methods = {r.method for r in records if r.outcome == "ok"}
     assert MAP_METHOD in methods and len(methods) == 2, methods
@@ -80,8 +80,8 @@ def test_both_kinds_run_and_share_the_job_book(hybrid) -> None:
     assert svc.chtc_map() is not None
 
 
-def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(hybrid) -> None:
-    _, seen, _ = hybrid
+def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(combined) -> None:
+    _, seen, _ = combined
     kinds: dict[int, set[str]] = {0: set(), 1: set(), 2: set(), 3: set()}
     for k, (speed, ambient, snap, view, live_h) in enumerate(seen):
         if snap is None:
@@ -104,11 +104,11 @@ def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(hybrid)
                 np.testing.assert_allclose(live_h, h[0], rtol=0.02)  # within the map's 50-rpm live bin
     assert kinds[2] == {MAP_METHOD}, kinds  # 4 min at 4500 rpm: the map's only
     for seg in (1, 3):  # held conditions: the map first, then their own per-condition identification
-        assert kinds[seg] == {MAP_METHOD, "hybrid"}, (seg, kinds)
+        assert kinds[seg] == {MAP_METHOD, SETTINGS.identification.method}, (seg, kinds)
 
 
-def test_benches_take_the_served_identification(hybrid) -> None:
-    svc, _, _ = hybrid
+def test_benches_take_the_served_identification(combined) -> None:
+    svc, _, _ = combined
     records = list(reversed(svc.view.records))  # oldest first
     served = served_in_order(records)
     held: set[int] = set()
@@ -124,9 +124,9 @@ def test_benches_take_the_served_identification(hybrid) -> None:
 
 
 def test_restart_restores_the_map_when_a_per_condition_identification_was_last(
-    hybrid, tmp_path, loaded_model
+    combined, tmp_path, loaded_model
 ) -> None:
-    _, seen, samples = hybrid
+    _, seen, samples = combined
     # up to the sample after which the 2000-rpm condition's own per-condition identification came back
     n = next(
         k + 1
