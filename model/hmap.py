@@ -297,7 +297,7 @@ class Family:
         h = self.h_at(theta, speed_rpm, ambient_c)
         return h, h * np.exp(-Z95 * sd), h * np.exp(Z95 * sd)
 
-    def prior(self, spec: Any, *, trend_sd: float = TREND_SD) -> Gaussian:
+    def prior(self, spec: Any, *, trend_sd: float = TREND_SD, level_sd: float = 0.0) -> Gaussian:
         """Cold-start prior from the physics curves (``physics_curves``) of ``spec``'s zones.
 
         physics: mean = the family fitted to the curves over 0..7000 rpm, σ ``PHYSICS_SD`` per parameter;
@@ -306,7 +306,8 @@ class Family:
         Λ⁻¹ + σ_t²·ttᵀ per rotating zone (``spec.zones[i].rotating``; Λ⁻¹ alone for the stationary ones):
         a linear trend over speed of unknown size (t from −1 at the first node to +1 at the last, σ_t =
         ``trend_sd``), so that the physics curve's speed dependence is uncertain as a whole, not only node
-        by node (0: the smoothed-node prior alone).
+        by node (0: the smoothed-node prior alone); plus σ_0²·11ᵀ per zone (σ_0 = ``level_sd``): an overall
+        factor of the physics curve of unknown size, every zone (0: none).
         """
         if self.kind == "physics":
             speeds = np.linspace(0.0, SPEED_MAX_RPM, 71)
@@ -323,6 +324,7 @@ class Family:
         trend = (self._nodes - mid) / (self._nodes[-1] - mid)  # -1 at the first node, +1 at the last
         rotating = np.array([bool(z.rotating) for z in spec.zones], dtype=float)
         cov = smooth + np.kron(np.diag(rotating), trend_sd**2 * np.outer(trend, trend))
+        cov += np.kron(np.eye(N_ZONES), level_sd**2 * np.ones((self.per_zone, self.per_zone)))
         return Gaussian(smooth @ mu / LEVEL_SD**2, 0.5 * (cov + cov.T))
 
     def form_error(

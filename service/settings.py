@@ -217,6 +217,8 @@ class IdentificationSettings(_Section):
     # window (0: the live state's covariance only; docs/hmap.md)
     map_start_draws: int = Field(default=0, ge=0)
     map_start_lead_min: float = Field(default=10.0, gt=0)
+    # σ of the cold prior's overall ln H level per zone, around the physics curves (docs/hmap.md)
+    map_prior_level_sd: float = Field(default=0.0, ge=0)
 
     @field_validator("schedule_min")
     @classmethod

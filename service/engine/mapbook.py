@@ -27,7 +27,7 @@ class MapBook:
         assert cfg is not None
         self.cfg = cfg
         self.family = Family(cfg.family)
-        self.cold = self.family.prior(model.spec)
+        self.cold = self.family.prior(model.spec, level_sd=cfg.prior_level_sd)
         self.tally = VisitTally(bin_rpm=cfg.bin_rpm, tau_h=cfg.tau_h)
         self.changed_at: float | None = None  # last confirmed condition change not fitted since
         self.retry_after: float | None = None

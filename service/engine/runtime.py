@@ -95,6 +95,7 @@ def map_config(settings: Settings) -> MapConfig | None:
         prior_weight=ident.map_prior_weight,
         start_draws=ident.map_start_draws,
         start_lead_s=60.0 * ident.map_start_lead_min,
+        prior_level_sd=ident.map_prior_level_sd,
     )
 
 

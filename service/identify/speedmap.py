@@ -64,7 +64,8 @@ class MapConfig:
     prior_weight: covariance intersection of the fit's prior and start field (ω in (0, 1]; 1: independent):
     the prior's covariance is divided by ω and the start covariance by 1 − ω (docs/hmap.md);
     start_draws: θ draws from the prior run through the ``start_lead_s`` before the window to add the
-    map's H error to the start covariance (``mapjob.theta_start_cov``; 0: the live state's covariance only).
+    map's H error to the start covariance (``mapjob.theta_start_cov``; 0: the live state's covariance only);
+    prior_level_sd: σ of the cold prior's overall ln H level per zone (``model.hmap.Family.prior``).
     """
 
     window_s: float = 3600.0
@@ -81,13 +82,14 @@ class MapConfig:
     prior_weight: float = 0.25
     start_draws: int = 0
     start_lead_s: float = 600.0
+    prior_level_sd: float = 0.0
 
     def __post_init__(self) -> None:
         for name in ("window_s", "min_window_s", "refit_s", "fresh_s", "bin_rpm", "tau_h", "start_lead_s"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise SpeedMapError(f"MapConfig.{name}: must be > 0, got {v}")
-        for name in ("debounce_s", "margin_rpm", "min_visit_s"):
+        for name in ("debounce_s", "margin_rpm", "min_visit_s", "prior_level_sd"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v >= 0):
                 raise SpeedMapError(f"MapConfig.{name}: must be >= 0, got {v}")

@@ -39,6 +39,12 @@ def test_longest_gap_and_summary() -> None:
     assert out["h_err_pct_median"] == [20.0] * 7
     assert out["coverage"] == [0.5] + [1.0] * 6
     assert out["identify_wall_s_median"] == 1.0 and out["identify_wall_s_max"] == 1.5
+    assert out["per_condition_fits_per_seed"] == 0.0 and out["per_condition_wall_s_median"] is None
+    r.held_wall_s, r.held_served = [0.2, 0.4, 0.9], [True, False]
+    out = duty.summarise([r])
+    assert out["per_condition_fits_per_seed"] == 3.0 and out["per_condition_wall_s_max"] == 0.9
+    assert out["per_condition_served_fraction"] == 0.5
+    assert out["identify_wall_s_max"] == 1.5  # the map fits' own figures are not mixed with them
 
 
 def test_one_short_seed_through_the_service_in_map_mode() -> None:
