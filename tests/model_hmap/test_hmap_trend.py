@@ -90,6 +90,17 @@ def test_prior_trend_is_wide_and_only_the_trend(model: Any) -> None:
     assert np.sqrt(contrast @ base.cov @ contrast) < 1.0 < 2.0 <= np.sqrt(contrast @ wide.cov @ contrast)
 
 
+def test_prior_level_term_is_an_overall_factor_per_zone(model: Any) -> None:
+    """``level_sd`` adds σ_0² to every node pair of a zone (an overall factor of its physics curve) and
+    nothing across zones; the marginal at a speed widens accordingly."""
+    base, wide = NODES.prior(model.spec), NODES.prior(model.spec, level_sd=1.0)
+    np.testing.assert_allclose(wide.mean, base.mean)
+    np.testing.assert_allclose(wide.cov - base.cov, np.kron(np.eye(7), np.ones((8, 8))), atol=1e-12)
+    _, lo0, hi0 = NODES.h_ci95_at(base.mean, base.cov, [3000.0], 20.0)
+    _, lo1, hi1 = NODES.h_ci95_at(wide.mean, wide.cov, [3000.0], 20.0)
+    assert np.all(np.log(hi1 / lo1) > np.log(hi0 / lo0) + 1.0)
+
+
 def test_h1_at_4000_rpm_covered_with_the_trend_and_not_without(model: Any, z_with: np.ndarray) -> None:
     """With the trend term H1's band covers the truth at 4000 rpm in every seed; the old prior (trend_sd 0)
     misses on the same data, and every seed's z moves up (measured on seeds 101-108: mean z −1.24 and 3 of
