@@ -4,8 +4,9 @@ Data are SYNTHETIC: per seed a duty cycle (``service.sim.duty``: 5 min idle, the
 1–6 min among 0, 500, …, 7000 rpm, torque 3–15 N·m, ambient drifting ±1 °C; 4 h by default) runs on the
 virtual plant (finer mesh, its own truth ``model.plant.h_true``, σ = 0.15 °C, default settings). The samples
 go through the running service's own shell and core (``SoftSensorService`` with the identification run inline,
-as offline), in ``--mode speed_map`` (default), ``per_condition`` (today's behaviour, the paper's protocol)
-or ``combined`` (both; a held condition's own per-condition H served once it has one).
+as offline), in the settings' ``identification.mode`` (``combined`` by default: a held condition's own
+per-condition H once it has one, the speed map's elsewhere), or ``--mode speed_map`` or ``per_condition``
+(the paper's protocol).
 Every minute the bench reads ``/chtc`` (``SoftSensorService.chtc()``) and compares each served H with the
 plant's ``h_true`` at the plant's condition at that minute (speed and ambient).
 
@@ -41,7 +42,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--first-seed", type=int, default=0, help="first seed (split a long run), default 0")
     parser.add_argument("--hours", type=float, default=4.0, help="duty cycle length incl. 5 min idle (4 h)")
     parser.add_argument("--warmup-min", type=float, default=30.0, help="minutes not counted (30)")
-    identmode.add_arguments(parser, default="speed_map")
+    identmode.add_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -176,7 +177,7 @@ def _sum_counts(counts: list[dict[str, int]]) -> dict[str, int]:
 def run_bench(
     seeds: list[int],
     *,
-    mode: str,
+    mode: str | None,
     hours: float,
     warmup_min: float,
     overrides: dict[str, Any] | None = None,
@@ -199,7 +200,7 @@ def run_bench(
             )
     return {
         "synthetic": True,
-        "mode": mode,
+        "mode": settings.identification.mode,
         "settings": overrides or {},
         "hours": hours,
         "warmup_min": warmup_min,

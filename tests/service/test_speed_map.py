@@ -22,6 +22,7 @@ from service.settings import IdentificationSettings, Settings, SettingsError
 from service.sim.duty import condition_at, duty_profile
 from service.sim.served import ManualClock
 from service.store.persistence import open_persistence
+from tests.modes import per_condition
 
 from .conftest import samples_of
 
@@ -67,7 +68,7 @@ def served(duty, loaded_model):
 
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
-    assert Settings().identification.mode == "per_condition"
+    assert Settings().identification.mode == "combined"  # docs/hmap.md "Default"
     assert map_config(Settings(identification={"mode": "per_condition"})) is None
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
@@ -130,7 +131,7 @@ def test_chtc_map_snapshot_and_per_condition_mode(served, loaded_model, duty) ->
     assert snap.fitted_at.tzinfo is not None and snap.identification_id == svc.view.current.id
     assert not snap.h_w_m2k.flags.writeable
     _, _, samples = duty
-    per_cond, clock = _service(loaded_model, Settings(), samples[:40])
+    per_cond, clock = _service(loaded_model, per_condition(), samples[:40])
     for s in samples[:40]:
         clock.at_least(s.t)
         per_cond.on_sample(s)
