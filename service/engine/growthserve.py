@@ -21,6 +21,7 @@ good sensors: the spindle as it was when the service started).
 
 from __future__ import annotations
 
+import itertools
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -341,13 +342,15 @@ class GrowthHistory:
     sample whose identification succeeded (the live state then holds the filtered field), and the growth
     of that field is what ``/compensation`` would have served then (the same ``GrowthServer``, the same
     reference: ``t_ref_c``, by default the live state's start temperature). ``by_id``: identification id ->
-    ``GrowthEstimate``."""
+    ``GrowthEstimate``; in combined mode an identification that does not serve (a map fit while the held
+    condition's per-condition one does) gets the growth served then, the serving one's."""
 
     def __init__(self, model: LoadedModel, *, t_ref_c: float | None = None) -> None:
         self.model = model
         self.t_ref_c = t_ref_c
         self.by_id: dict[int, GrowthEstimate] = {}
         self._server: GrowthServer | None = None
+        self._last_id = 0  # the newest identification id handled
 
     def __call__(self, core: ServiceCoreLike, k: int, last_ok: object) -> None:
         view = core.view()
@@ -355,11 +358,18 @@ class GrowthHistory:
             self._server = GrowthServer(self.model, t_ref_c=self.t_ref_c)
         self._server.observe(view)
         rec = view.current
-        if rec is None or view.current_from_restore or rec.id in self.by_id:
+        if rec is None or view.current_from_restore:
+            return
+        # the identifications that succeeded since the last call (ids grow; newest first): each gets the
+        # growth served now, the current one's (combined mode: a map fit at a held condition is not current)
+        new = list(itertools.takewhile(lambda r: r.id > self._last_id, view.records))
+        ok = [r.id for r in new if r.outcome == "ok" and r.id not in self.by_id]
+        if not ok:
             return
         est = self._server.estimate(view)
         if est is not None:
-            self.by_id[rec.id] = est
+            self._last_id = max(self._last_id, new[0].id)
+            self.by_id.update(dict.fromkeys(ok, est))
 
 
 class ServiceCoreLike(Protocol):

@@ -186,7 +186,8 @@ def served_db_down(tmp_path: Path) -> Iterator[Served]:
     without restored state, holds its records and serves what it remembers."""
     (tmp_path / "a-directory").mkdir()
     url = sqlite_url(tmp_path, "a-directory")
-    with served_service(database_url=url, feed_samples=DEMO_FED) as s:
+    demo = Settings(identification=DEMO_WINDOWS)  # per condition: the two identifications it holds
+    with served_service(database_url=url, settings=demo, feed_samples=DEMO_FED) as s:
         yield s
 
 

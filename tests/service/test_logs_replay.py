@@ -207,8 +207,14 @@ def _check_growth_history(growth, replayed, offline, tmp_path):
     assert len(lines) == len(rows) + 1 and lines[0].startswith("at,status,usable_for_compensation")
 
 
-def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path):
+def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path, monkeypatch):
     from service.commands.replay import run_replay
+
+    # per condition: every job's result is rebased at its window end, so the replay (results from the worker,
+    # samples later) and identify (inline) agree exactly; a map fit's H reaches the live state at the next
+    # sample after its result, which in the replay depends on the worker's timing (combined and speed-map
+    # mode: the full suite under load once saw one fit fewer in the replay than offline)
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
 
     offline = [r for r in _identify(logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
     settings = Settings()
