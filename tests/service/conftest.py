@@ -42,3 +42,27 @@ def samples_of(run: PlantRun, *, t0: float = T0) -> list[Sample]:
 
 def ring_of(capacity: int = 4000) -> RingBuffer:
     return RingBuffer(capacity, 32)
+
+
+def inline_service(
+    model: LoadedModel, settings: Settings, samples: list[Sample], *, writer=None, restored=None
+):
+    """The real shell and core with ``settings``, the identification run inline (``run_job``, no worker
+    process) and a manual clock at the first sample: ``(service, clock)``."""
+    from service.engine.core import ServiceCore
+    from service.engine.runtime import core_config
+    from service.engine.shell import SoftSensorService
+    from service.identify.worker import run_job
+    from service.sim.served import ManualClock
+
+    core = ServiceCore(core_config(settings), model=model, history_capacity=10_000, restored=restored)
+    clock = ManualClock(samples[0].t)
+    svc = SoftSensorService(
+        core,
+        worker=None,
+        writer=writer,
+        clock=clock,
+        on_event=lambda _m: None,
+        run_job=lambda req: run_job(model, req),
+    )
+    return svc, clock

@@ -12,17 +12,12 @@ from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
 from service.bench.chain import last_per_condition
 from service.bench.identmode import served_in_order
-from service.engine.core import ServiceCore
 from service.engine.jobbook import MAP_METHOD
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
-from service.identify.worker import run_job
 from service.serve.interface import ChtcStatus
 from service.settings import IdentificationSettings, Settings
-from service.sim.served import ManualClock
 from service.store.persistence import open_persistence
 
-from .conftest import samples_of
+from .conftest import inline_service, samples_of
 
 # 5 min idle; 3000 rpm held 20 min (per-condition at 7 and 20 min; the map's first fit after 10 min of
 # data); 4500 rpm for 4 min (shorter than the first schedule entry: the map's only); 2000 rpm held 12 min
@@ -50,17 +45,7 @@ def combined(loaded_model):
 
 
 def _service(model, samples, *, writer=None, restored=None):
-    core = ServiceCore(core_config(SETTINGS), model=model, history_capacity=10_000, restored=restored)
-    clock = ManualClock(samples[0].t)
-    svc = SoftSensorService(
-        core,
-        worker=None,
-        writer=writer,
-        clock=clock,
-        on_event=lambda _m: None,
-        run_job=lambda req: run_job(model, req),
-    )
-    return svc, clock
+    return inline_service(model, SETTINGS, samples, writer=writer, restored=restored)
 
 
 def _segment_of(k: int) -> int:

@@ -15,16 +15,14 @@ from service.engine.core import ServiceCore
 from service.engine.runtime import core_config, map_config
 from service.engine.shell import SoftSensorService
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
-from service.identify.worker import run_job
 from service.serve.interface import ChtcStatus
 from service.serve.views import map_freshness
 from service.settings import IdentificationSettings, Settings, SettingsError
 from service.sim.duty import condition_at, duty_profile
-from service.sim.served import ManualClock
 from service.store.persistence import open_persistence
 from tests.modes import per_condition
 
-from .conftest import samples_of
+from .conftest import inline_service, samples_of
 
 DURATION_S = 2700.0  # 5 min idle + 40 min of speed changes
 
@@ -40,18 +38,7 @@ def duty():
     return profile, run, samples_of(run)
 
 
-def _service(model, settings, samples, *, writer=None):
-    core = ServiceCore(core_config(settings), model=model, history_capacity=10_000)
-    clock = ManualClock(samples[0].t)
-    svc = SoftSensorService(
-        core,
-        worker=None,
-        writer=writer,
-        clock=clock,
-        on_event=lambda _m: None,
-        run_job=lambda req: run_job(model, req),
-    )
-    return svc, clock
+_service = inline_service
 
 
 @pytest.fixture(scope="module")
