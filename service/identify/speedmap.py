@@ -17,6 +17,8 @@ Errors::
 
 from __future__ import annotations
 
+import base64
+import binascii
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Any, Literal
@@ -166,11 +168,14 @@ class SpeedMap:
         return bool(np.min(np.abs(self.visited_rpm[ok] - abs(float(speed_rpm)))) <= margin_rpm + 1e-9)
 
     def to_json(self) -> dict[str, Any]:
-        """What the identification row's diagnostics carry (``"speed_map"``): plain lists."""
+        """What the identification row's diagnostics carry (``"speed_map"``): plain lists, and the covariance
+        as its upper triangle, row by row, little-endian float64 in base64 (``cov_upper_b64``: exact; the
+        tabulated family's map is 18 kB of JSON, ~74 kB with the covariance as a list of lists)."""
+        upper = self.cov[np.triu_indices(self.mean.size)].astype("<f8")
         return {
             "family": self.family,
             "mean": [float(x) for x in self.mean],
-            "cov": [[float(x) for x in row] for row in self.cov],
+            "cov_upper_b64": base64.b64encode(upper.tobytes()).decode("ascii"),
             "visited_rpm": [float(x) for x in self.visited_rpm],
             "visited_s": [float(x) for x in self.visited_s],
             "fitted_at": self.fitted_at.astimezone(UTC).isoformat(),
@@ -179,16 +184,18 @@ class SpeedMap:
 
     @classmethod
     def from_json(cls, data: Any, *, identification_id: int | None, restored: bool = True) -> SpeedMap:
-        """The map stored by ``to_json``; raises SpeedMapError naming a missing or bad field."""
+        """The map stored by ``to_json`` (also the earlier form with ``cov`` as a list of lists); raises
+        SpeedMapError naming a missing or bad field."""
         if not isinstance(data, dict):
             raise SpeedMapError(f"speed_map: expected an object, got {type(data).__name__}")
         try:
             fitted = datetime.fromisoformat(str(data["fitted_at"]))
             rmse = data.get("rmse_c")
+            mean = np.asarray(data["mean"], dtype=float)
             return cls(
                 family=data["family"],
-                mean=np.asarray(data["mean"], dtype=float),
-                cov=np.asarray(data["cov"], dtype=float),
+                mean=mean,
+                cov=_cov_of(data, mean.size),
                 visited_rpm=np.asarray(data["visited_rpm"], dtype=float),
                 visited_s=np.asarray(data["visited_s"], dtype=float),
                 fitted_at=fitted,
@@ -202,6 +209,24 @@ class SpeedMap:
             if isinstance(err, SpeedMapError):
                 raise
             raise SpeedMapError(f"speed_map: {err}") from err
+
+
+def _cov_of(data: dict[str, Any], p: int) -> FloatArray:
+    """The symmetric (p, p) covariance from ``to_json``'s ``cov_upper_b64`` (or the earlier ``cov`` lists)."""
+    if "cov" in data:
+        return np.asarray(data["cov"], dtype=float)
+    try:
+        raw = base64.b64decode(str(data["cov_upper_b64"]), validate=True)
+    except binascii.Error as err:
+        raise SpeedMapError(f"speed_map.cov_upper_b64: not base64 ({err})") from err
+    n = p * (p + 1) // 2
+    if len(raw) != 8 * n:
+        raise SpeedMapError(
+            f"speed_map.cov_upper_b64: {len(raw)} bytes, expected {8 * n} (the upper triangle of {p}x{p})"
+        )
+    cov = np.zeros((p, p))
+    cov[np.triu_indices(p)] = np.frombuffer(raw, dtype="<f8")
+    return cov + np.triu(cov, 1).T
 
 
 class VisitTally:

@@ -299,3 +299,26 @@ def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) 
     result = run_offline(duty[2][:90], model=loaded_model, config=core_config(settings))  # 15 min
     assert result.records, "no map fit launched"
     assert all(r.outcome == "ok" for r in result.records), [r.message for r in result.records]
+
+
+def test_stored_map_json_is_exact_compact_and_reads_the_earlier_form(served) -> None:
+    """The covariance is stored as its packed upper triangle (float64, base64): exact, a quarter of the
+    list-of-lists form, which is still read; a bad or short field is named."""
+    import json
+
+    svc, _ = served
+    m = svc.view.speed_map
+    assert m is not None
+    stored = json.loads(json.dumps(m.to_json()))
+    back = SpeedMap.from_json(stored, identification_id=m.identification_id)
+    np.testing.assert_array_equal(back.cov, m.cov)
+    np.testing.assert_array_equal(back.mean, m.mean)
+    earlier = {k: v for k, v in stored.items() if k != "cov_upper_b64"} | {"cov": m.cov.tolist()}
+    np.testing.assert_array_equal(SpeedMap.from_json(earlier, identification_id=None).cov, m.cov)
+    assert len(json.dumps(stored)) < 0.4 * len(json.dumps(earlier))
+    with pytest.raises(SpeedMapError, match=r"cov_upper_b64: not base64"):
+        SpeedMap.from_json(stored | {"cov_upper_b64": "#"}, identification_id=None)
+    with pytest.raises(SpeedMapError, match=r"cov_upper_b64: 8 bytes, expected"):
+        SpeedMap.from_json(stored | {"cov_upper_b64": "AAAAAAAAAAA="}, identification_id=None)
+    with pytest.raises(SpeedMapError, match=r"speed_map\.cov_upper_b64: missing"):
+        SpeedMap.from_json({k: v for k, v in stored.items() if k != "cov_upper_b64"}, identification_id=None)
