@@ -180,7 +180,7 @@ class ReducedModel:
             return rom_split.window_outputs(sr, seg)
         md = rom_modal.modes(self.k0, self.k_zone, h2)
         gain = np.matmul(self.sensors[None, :, :], md.phi)  # (P, 32, r)
-        return _modal_outputs(self._modal_run(md, h2, inputs, a0, scale), gain)
+        return rom_stream.window_outputs(self._modal_run(md, h2, inputs, a0, scale), gain)
 
     def simulate_state(
         self, h: Array, inputs: InputLike, t0: float | Array, *, load_scale: Array | None = None
@@ -253,17 +253,6 @@ class ReducedModel:
         )
         b0 = phi_t @ a0 if a0.ndim == 1 else np.einsum("prs,ps->pr", phi_t, a0)  # shared or per candidate
         return rom_modal.ModalRun(b0, md.lam, mu, forcing, seg, scale)
-
-
-def _modal_outputs(run: rom_modal.ModalRun, gain: Array) -> Array:
-    """Outputs (P, n_steps+1, m) of a modal run through ``gain`` (P, m, r)."""
-    seg = run.segments
-    if rom_modal.choose_method(seg.start.size, int(seg.length.sum()), run.b0.size) == "loop":
-        return rom_stream.modal_outputs(run, gain)  # a wide population: stream the window
-    b = rom_modal.modal_trajectory(run)  # (n+1, P, r)
-    # contiguous operands: BLAS is ~40 % slower on the transposed views
-    b_pnr = np.ascontiguousarray(np.swapaxes(b, 0, 1))
-    return np.asarray(np.matmul(b_pnr, np.ascontiguousarray(np.swapaxes(gain, 1, 2))))
 
 
 def _segments(inputs: InputLike) -> rom_modal.Segments:
@@ -424,6 +413,7 @@ def load_rom(path: Path, *, key: str | None = None) -> ReducedModel:
         raise RomCacheError(str(err)) from err
     if key is not None and meta.get("key") != key:
         raise RomCacheError(f"{path}: field key does not match the requested model")
+    # typed Any: ReducedModel also has non-array fields (n_slow), which the arrays must not be checked against
     fields: dict[str, Any] = {n: np.asarray(arrays[n], dtype=np.float64) for n in _ARRAYS}
     try:
         return ReducedModel(

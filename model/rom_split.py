@@ -217,17 +217,9 @@ def split_run(
 def window_outputs(sr: SplitRun, segments: rom_modal.Segments) -> Array:
     """Outputs (P, n_steps+1, m): the slow modes (``model.rom_stream`` for a wide population, else the
     trajectory), the fast part's direct term, the start transient and the exact step 0."""
-    run = sr.run
     n = int(segments.length.sum())
     lagged = lagged_inputs(step_inputs(segments), sr.start.shape[1])
-    seg_count, width = segments.start.size, run.b0.size
-    if n > 0 and rom_modal.choose_method(seg_count, n, width) == "loop":
-        y = rom_stream.modal_outputs(run, sr.gain, direct=(lagged, sr.direct))
-    else:
-        b = np.ascontiguousarray(np.swapaxes(rom_modal.modal_trajectory(run), 0, 1))  # (P, n+1, s)
-        y = np.matmul(b, np.ascontiguousarray(np.swapaxes(sr.gain, 1, 2)))
-        if n > 0:
-            y[:, 1:, :] += np.matmul(lagged[None, :, :], sr.direct)
+    y = rom_stream.window_outputs(sr.run, sr.gain, direct=(lagged, sr.direct))
     k = min(sr.start.shape[1], n)
     y[:, 1 : k + 1, :] += sr.start[:, :k, :]
     y[:, 0, :] = sr.y0

@@ -21,7 +21,15 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
-from model.rom_modal import ModalRun, Segments, power_table, segment_inputs, unit_responses
+from model.rom_modal import (
+    ModalRun,
+    Segments,
+    choose_method,
+    modal_trajectory,
+    power_table,
+    segment_inputs,
+    unit_responses,
+)
 
 Array = NDArray[np.float64]
 
@@ -49,6 +57,23 @@ def chunk_pieces(segments: Segments, chunk: int) -> Pieces:
     segment = (np.searchsorted(segments.start, start, side="right") - 1).astype(np.int64)
     bounds = np.searchsorted(start, np.arange(0, n_steps + chunk, chunk)[: -(-n_steps // chunk) + 1])
     return Pieces(segment, start, length, bounds.astype(np.int64))
+
+
+def window_outputs(run: ModalRun, gain: Array, *, direct: tuple[Array, Array] | None = None) -> Array:
+    """Outputs (P, n_steps+1, m) of a modal run through ``gain`` (P, m, r): streamed (``modal_outputs``) for
+    few segments or a wide population (``model.rom_modal.choose_method``), else from the whole trajectory;
+    ``direct`` as in ``modal_outputs``."""
+    seg = run.segments
+    n = int(seg.length.sum())
+    if n > 0 and choose_method(seg.start.size, n, run.b0.size) == "loop":
+        return modal_outputs(run, gain, direct=direct)
+    b = modal_trajectory(run)  # (n+1, P, r)
+    # contiguous operands: BLAS is ~40 % slower on the transposed views
+    b_pnr = np.ascontiguousarray(np.swapaxes(b, 0, 1))
+    y = np.matmul(b_pnr, np.ascontiguousarray(np.swapaxes(gain, 1, 2)))
+    if direct is not None and n > 0:
+        y[:, 1:, :] += np.matmul(direct[0][None, :, :], direct[1])
+    return np.asarray(y)
 
 
 def modal_outputs(
