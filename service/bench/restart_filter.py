@@ -8,6 +8,11 @@ filtered snapshot at or before max(condition start, convergence time), at most `
 at least ``min_window_s``; ``model.identify`` fits it from the snapshot's mean with its covariance as
 ``start_cov`` (and ``start_modes`` fitted directions), warm-started from the condition's previous result.
 The filter then uses the new H with its CI's σ(log H) as the considered H error (``set_h(h_rel=...)``).
+
+What the core decides is taken from the core itself, never copied: its configuration
+(``service.engine.runtime.core_config``: the initial H, the idle speed below which it skips a window, the
+schedule, the window lengths, the CI threshold) and the considered H error
+(``service.estimate.state.h_rel_from_ci``, ``GUESSED_H_REL`` before the first identification).
 """
 
 from __future__ import annotations
@@ -16,11 +21,9 @@ from typing import Any
 
 import numpy as np
 
-from service.bench.restart import BASELINE_SAMPLES, DT_S, T0, Served
-
-INITIAL_H = 50.0  # W/(m²·K): the core's live-state H before the first identification (CoreConfig.initial_h)
-INITIAL_H_REL = 1.0  # its relative 1σ in the filter: a guess, not an identification
-MIN_SPEED_RPM = 500.0  # below: no bearing heat, the core skips the window
+from service.bench.restart_profile import BASELINE_SAMPLES, DT_S, T0, Served
+from service.engine.runtime import core_config
+from service.estimate.state import GUESSED_H_REL, h_rel_from_ci
 
 
 class FilterRestart:
@@ -42,20 +45,20 @@ class FilterRestart:
         self.seed = seed
         self.start_modes = start_modes
         self.stored_offsets = stored_offsets
+        self.core = core_config(settings)  # the core's own rules (CoreConfig)
         ok = (np.asarray(run.status) == 0) & np.isfinite(run.temps_c)
         self.usable = ok
 
     def run(self, start: int) -> list[Served]:
         from service.estimate.state import FilteredState
 
-        run, ident = self.run_data, self.settings.identification
+        run, core = self.run_data, self.core
         offsets, offset_sd = self._offsets(start)
-        state = FilteredState(
-            self.model.rom, self.model.spec, h=np.full(7, INITIAL_H), dt_s=DT_S, offsets_c=offsets
-        )
-        state.set_h(np.full(7, INITIAL_H), h_rel=INITIAL_H_REL)
+        h0 = np.asarray(core.initial_h, dtype=float)
+        state = FilteredState(self.model.rom, self.model.spec, h=h0, dt_s=DT_S, offsets_c=offsets)
+        state.set_h(h0, h_rel=GUESSED_H_REL)
         state.initialize(T0 + run.times_s[start], self._inputs(start), run.temps_c[start], self.usable[start])
-        schedule = [round(60.0 * m / DT_S) for m in ident.schedule_min]
+        schedule = [round(s / DT_S) for s in core.scheduler.schedule_s]
         served: list[Served] = []
         cond_start = start  # after a restart the service's condition starts now (no stored state)
         warm: Any = None
@@ -72,12 +75,12 @@ class FilterRestart:
             ready = state.ready_at()
             # the schedule counts from the condition's start, or from the convergence after a (re)start
             origin = None if ready is None else max(cond_start, round((ready - T0) / DT_S))
-            if origin is not None and k - origin in schedule and abs(speed) >= MIN_SPEED_RPM:
+            if origin is not None and k - origin in schedule and abs(speed) >= core.min_speed_rpm:
                 result = self._identify(state, cond_start, k, offsets, offset_sd, warm)
                 if result is not None:
                     warm = result
                     lo, hi = result.h_ci95[:, 0], result.h_ci95[:, 1]
-                    state.set_h(result.h, h_rel=np.log(np.maximum(hi / result.h, 1.0)) / 1.96)
+                    state.set_h(result.h, h_rel=h_rel_from_ci(result.h, hi))
                     served.append(
                         Served(speed_rpm=speed, h=result.h, lo=lo, hi=hi, end_s=float(run.times_s[k]))
                     )
@@ -92,16 +95,18 @@ class FilterRestart:
         from model.identify import IdentificationError, IdentifyOptions, Window, identify
         from model.inputs import inputs_from_operation
 
-        run, ident = self.run_data, self.settings.identification
+        run, core = self.run_data, self.core
         ready = state.ready_at()
         if ready is None:
             return None
         t_from = max(
-            T0 + float(run.times_s[cond_start]), ready, T0 + float(run.times_s[end]) - ident.max_window_s
+            T0 + float(run.times_s[cond_start]),
+            ready,
+            T0 + float(run.times_s[end]) - core.scheduler.max_window_s,
         )
         snap = state.field_at(t_from)
         a = round((snap.t - T0) / DT_S)
-        if (end - a) * DT_S < ident.min_window_s:
+        if (end - a) * DT_S < core.rules.min_window_s:
             return None
         inputs = inputs_from_operation(
             self.model.spec,
@@ -111,7 +116,7 @@ class FilterRestart:
             ambient_c=run.ambient_c[a:end],
         )
         mask = self.usable[a : end + 1].all(axis=0)
-        opts = IdentifyOptions(ci_threshold=ident.ci_rel_threshold, start_modes=self.start_modes)
+        opts = IdentifyOptions(ci_threshold=core.ci_threshold, start_modes=self.start_modes)
         try:
             return identify(
                 self.model.rom,

@@ -68,6 +68,7 @@ from service.engine.samples import SampleBook
 from service.engine.view import CoreView, NewestSample
 from service.estimate.live import LiveStateError
 from service.estimate.state import FilteredState
+from service.estimate.state import h_rel_from_ci as _h_rel
 from service.identify import scheduler as sched
 from service.identify.detector import (
     ConditionChanged,
@@ -836,12 +837,3 @@ def _longest_window_s(config: CoreConfig) -> float:
     ``max_window_s`` and the map's 10-min first window, tests/service/test_speed_map.py)."""
     longest = config.scheduler.max_window_s
     return longest if config.speed_map is None else max(longest, config.speed_map.window_s)
-
-
-def _h_rel(h: np.ndarray, hi: np.ndarray) -> np.ndarray:
-    """The relative 1σ of H (7,) from its 95 % CI's upper end (7,): σ(log H) = log(hi/h)/1.96 (the
-    filter's considered H error; ``FilteredState.set_h`` clips it to 0.05–1)."""
-    h = np.asarray(h, dtype=float)
-    hi = np.asarray(hi, dtype=float)
-    rel = np.log(np.maximum(hi / h, 1.0)) / 1.96
-    return np.where(np.isfinite(rel), rel, 1.0)

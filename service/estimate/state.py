@@ -53,7 +53,16 @@ from model.estimator import (
 )
 from service.estimate.live import LiveStateError
 
-__all__ = ["FilterSettings", "FilterView", "FilteredState", "LiveStateError", "SampleUpdate", "StateSnapshot"]
+__all__ = [
+    "GUESSED_H_REL",
+    "FilterSettings",
+    "FilterView",
+    "FilteredState",
+    "LiveStateError",
+    "SampleUpdate",
+    "StateSnapshot",
+    "h_rel_from_ci",
+]
 
 Array = NDArray[np.float64]
 
@@ -188,6 +197,20 @@ class FilterView:
     def inconsistent(self, t: float) -> bool:
         """Whether the NIS has been above its band for at least ``inconsistent_after_s`` at ``t`` [s]."""
         return self.high_since is not None and t - self.high_since >= self.inconsistent_after_s
+
+
+GUESSED_H_REL = 1.0  # the considered H error (relative 1σ) of an H that no identification gave: 100 %
+
+
+def h_rel_from_ci(h: ArrayLike, hi: ArrayLike) -> NDArray[np.float64]:
+    """The relative 1σ of H (7,) from its 95 % CI's upper end (7,): σ(log H) = log(hi/h)/1.96 (the
+    filter's considered H error for ``FilteredState.set_h(h_rel=...)``, which clips it to 0.05–1); a
+    non-finite one (no CI) is ``GUESSED_H_REL``."""
+    h_arr = np.asarray(h, dtype=np.float64)
+    hi_arr = np.asarray(hi, dtype=np.float64)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        rel = np.log(np.maximum(hi_arr / h_arr, 1.0)) / 1.96
+    return np.where(np.isfinite(rel), rel, GUESSED_H_REL)
 
 
 def _frozen(a: Array) -> Array:

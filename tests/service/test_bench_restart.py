@@ -3,11 +3,20 @@ measurement; docs/estimator.md has its figures)."""
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
+from model.plant import Segment
 from service.bench import restart
 from service.bench.restart import Served
+from service.bench.restart_filter import FilterRestart
+from service.bench.restart_profile import DT_S
+from service.engine.runtime import core_config
+from service.modelload import LoadedModel
+from service.settings import Settings
+from tests.service.conftest import plant_run
 
 
 def _served(speed: float, factor: np.ndarray, end_s: float, ci: float = 0.1) -> Served:
@@ -88,3 +97,31 @@ def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFi
     assert "contradicts" in capsys.readouterr().err
     assert cli.main(["bench", "restart", "--set", "nope=1"]) == 2
     assert "unknown identification setting" in capsys.readouterr().err
+
+
+class _Gate(FilterRestart):
+    """The filter path with its identification recorded instead of run (the gate before it is what counts)."""
+
+    def __init__(self, *args: Any, **kwargs: Any) -> None:
+        super().__init__(*args, **kwargs)
+        self.asked: list[float] = []
+
+    def _identify(self, state: Any, cond_start: int, end: int, *_: Any) -> Any:
+        self.asked.append(float(self.run_data.speed_rpm[end - 1]))
+        return None
+
+
+def test_filter_path_skips_the_windows_the_core_skips_and_no_others(loaded_model: LoadedModel) -> None:
+    """The filter path takes the core's rules (``core_config``), not a copy: a slow condition the core
+    identifies (above ``CoreConfig.min_speed_rpm``, 100 rpm) is identified here too, an idle one is not (the
+    copy skipped everything below 500 rpm)."""
+    settings = Settings()
+    core = core_config(settings)
+    slow = 3.0 * core.min_speed_rpm  # 300 rpm: identified by the core, skipped by the old copy's 500 rpm
+    assert slow < 500.0
+    run = plant_run([Segment(300.0, 0.0, 0.0, 22.0), Segment(1800.0, slow, 1.0, 22.0)])
+    assert np.allclose(np.diff(run.times_s), DT_S)
+    gate = _Gate(loaded_model, settings, run, seed=0)
+    assert gate.core.min_speed_rpm == core.min_speed_rpm
+    gate.run(0)
+    assert gate.asked and set(gate.asked) == {slow}
