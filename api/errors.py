@@ -5,9 +5,14 @@ Shape: ``{"error": {"code": str, "message": str, "field": str | None, "detail": 
 Error tree (API layer)::
 
     ApiError(Exception)              status, code, message, field, detail; raised by routers and deps
-    service.serve.interface.ServiceError   translated once, here:
-        NotFoundError  -> 404 not_found       BusyError     -> 409 busy
-        NoDataYetError -> 503 no_data       NotReadyError -> 503 not_ready
+    └── _Rejected(ApiError)          api/guard.py: refused before the app (auth, size and URL caps)
+
+The service's errors (``service.errors.ServiceError``, the root of every error of ``service/``; the API
+imports it through ``service.serve.interface``) are translated once, here:
+
+    NotFoundError  -> 404 not_found       BusyError     -> 409 busy
+    NoDataYetError -> 503 no_data         NotReadyError -> 503 not_ready (both with Retry-After)
+    any other ServiceError -> 500 service_error
 
 FastAPI's ``RequestValidationError`` becomes 422 ``invalid`` naming the first bad field (``body`` and the
 character position for malformed JSON); Starlette's ``HTTPException`` (unknown route, a body over the cap or

@@ -91,9 +91,18 @@ def allowed_methods(rules: Sequence[RouteRule]) -> list[str]:
     return sorted(methods)
 
 
-class _Rejected(Exception):
+class _Rejected(ApiError):
+    """A request the guard refuses before the app sees it; ``error`` is the answer it gets."""
+
     def __init__(self, error: ApiError) -> None:
-        super().__init__(error.message)
+        super().__init__(
+            status=error.status,
+            code=error.code,
+            message=error.message,
+            field=error.field,
+            detail=error.detail,
+            headers=error.headers,
+        )
         self.error = error
 
 

@@ -11,6 +11,9 @@ register range, frame or configuration entry at fault.
     ├── EncodeError(DriverError, ValueError)            a value that does not fit its register or signal
     ├── NoDataError(DriverError, LookupError)           nothing acquired yet / empty window
     ├── SampleOrderError(DriverError, ValueError)       sample older than the newest one in a ring buffer
+    ├── LogFormatError(DriverError, ValueError)         (drivers.logs) a recorded log that cannot be read
+    ├── FaultSpecError(DriverError, ValueError)         (drivers.sim.faults) a bad simulated-fault spec
+    ├── TimelineError(DriverError, ValueError)          (drivers.sim.source) a bad simulator timeline
     └── DeviceError(DriverError)                        anything the device (or the link to it) did
         ├── DeviceTimeoutError(DeviceError, TimeoutError)       no answer within the timeout
         ├── DeviceUnavailableError(DeviceError, ConnectionError) cannot connect / connection lost

@@ -16,8 +16,10 @@ import scipy.sparse as sp
 from numpy.typing import NDArray
 from scipy.linalg.lapack import dpbtrf, dpbtrs
 
+from model.errors import ModelError
 
-class SolverError(ValueError):
+
+class SolverError(ModelError, ValueError):
     """The system cannot be factorised."""
 
 

@@ -31,13 +31,14 @@ import numpy as np
 from numpy.typing import NDArray
 
 from model import rom_modal
+from model.errors import ModelError
 
 Array = NDArray[np.float64]
 N_H = 7
 ENSEMBLE = 128  # members of the end-state ensemble (``end_ensemble``)
 
 
-class CarryError(ValueError):
+class CarryError(ModelError, ValueError):
     """A start covariance of the wrong shape or with non-finite entries."""
 
 

@@ -53,6 +53,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 from scipy.stats import chi2
 
+from model.errors import ModelError
 from model.rom_modal import step_factors
 from model.rom_segments import loewner, step_derivatives
 
@@ -62,7 +63,7 @@ N_CHANNELS = 32
 N_PARAMS = N_H + 2  # considered parameter errors: H1..H7, front and rear bearing heat
 
 
-class EstimatorError(ValueError):
+class EstimatorError(ModelError, ValueError):
     """A bad argument to the state estimator; the message names the field."""
 
 

@@ -34,6 +34,7 @@ from skfem import Basis, BilinearForm, ElementTriP1, FacetBasis, Functional, Lin
 from skfem.helpers import dot, grad
 
 from model.banded import BandedCholesky, SolverError, band_order
+from model.errors import ModelError
 from model.geometry import N_CHANNELS, SpindleSpec, ZoneSpec
 from model.inputs import InputSeries
 from model.mesh import rect_mesh
@@ -42,7 +43,7 @@ TWO_PI = 2.0 * np.pi
 _TOL = 1e-9
 
 
-class FEError(ValueError):
+class FEError(ModelError, ValueError):
     """The FE model cannot be built or evaluated; the message names the field."""
 
 

@@ -19,13 +19,15 @@ from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Literal
 
+from model.errors import ModelError
+
 ZONE_NAMES = ("H1", "H2", "H3", "H4", "H5", "H6", "H7")
 N_CHANNELS = 32
 TEST_POINTS = (1, 3, 5, 7)
 PACKAGED_SPEC = Path(__file__).parent / "data" / "spindle.toml"
 
 
-class SpindleError(ValueError):
+class SpindleError(ModelError, ValueError):
     """A spindle description is invalid; the message names the offending field."""
 
 

@@ -27,6 +27,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
+from model.errors import ModelError
 from model.fem import FEModel, make_stepper, steady_state, stiffness
 from model.inputs import InputSeries
 from model.thermoelastic import GrowthModel
@@ -35,7 +36,7 @@ Array = NDArray[np.float64]
 Z95 = 1.959963984540054  # two-sided 95 % normal quantile
 
 
-class GrowthError(ValueError):
+class GrowthError(ModelError, ValueError):
     """Bad input to a growth function; the message names the argument."""
 
 

@@ -47,6 +47,7 @@ from numpy.typing import ArrayLike, NDArray
 from scipy.optimize import least_squares
 
 from model.empirical import air_properties, empirical_h
+from model.errors import ModelError
 
 Array = NDArray[np.float64]
 
@@ -72,7 +73,7 @@ AMBIENT_EXPONENT = (0.5, 0.5, 0.5, 0.5, 0.5, 0.5, 0.0)  # m in the air-property 
 DEFAULT_NODES_RPM = tuple(float(n) for n in range(0, 7001, 1000))
 
 
-class HMapError(ValueError):
+class HMapError(ModelError, ValueError):
     """A bad argument to the H map; the message names it."""
 
 

@@ -40,6 +40,7 @@ from numpy.typing import NDArray
 from scipy.optimize import least_squares
 
 from model import rom_segments
+from model.errors import ModelError
 from model.hmap import DEFAULT_FAMILY, T_REF_C, Family, Gaussian
 
 Array = NDArray[np.float64]
@@ -48,7 +49,7 @@ DEFAULT_TAU_H = 4.0
 RELINEARISE = 0.05  # ln H: re-linearise the start modes' response when θ moved more than this
 
 
-class HMapIdentifyError(ValueError):
+class HMapIdentifyError(ModelError, ValueError):
     """The map identification cannot run as asked; the message names the field."""
 
 

@@ -38,6 +38,7 @@ from scipy.optimize import least_squares
 from model import optim, rom_modal
 from model.carry import CarryError, carry, check_cov
 from model.defaults import BOUND_REL_TOL, CI_REL_THRESHOLD
+from model.errors import ModelError
 from model.identify_problem import (
     N_H,
     Array,
@@ -69,7 +70,7 @@ METHODS = ("empirical", "ga", "woa", "gwo", "igwo", "hybrid")
 N_CHANNELS = 32
 
 
-class IdentificationError(ValueError):
+class IdentificationError(ModelError, ValueError):
     """The identification cannot run as asked; the message names the field."""
 
 

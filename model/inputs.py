@@ -12,11 +12,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from model.errors import ModelError
 from model.geometry import SpindleSpec
 from model.heat import bearing_heat_w
 
 
-class InputError(ValueError):
+class InputError(ModelError, ValueError):
     """Inconsistent model inputs; the message names the field."""
 
 

@@ -18,10 +18,11 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import NDArray
 
+from model.errors import ModelError
 from model.geometry import Region
 
 
-class MeshError(ValueError):
+class MeshError(ModelError, ValueError):
     """The mesh cannot be built."""
 
 

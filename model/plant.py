@@ -25,6 +25,7 @@ from typing import Literal
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from model.errors import ModelError
 from model.fem import FEModel, Stepper, build_fe_model, make_stepper
 from model.geometry import N_CHANNELS, SpindleSpec
 from model.inputs import InputSeries, inputs_from_operation
@@ -46,7 +47,7 @@ STATUS_OK, STATUS_OPEN, STATUS_RANGE = 0, 1, 2
 DEFAULT_SUBSTEPS = 4  # backward Euler at 2.5 s for 10-s samples: not the service's time integration
 
 
-class PlantError(ValueError):
+class PlantError(ModelError, ValueError):
     """Bad plant configuration or profile; the message names the field."""
 
 

@@ -26,6 +26,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from model import rom_cache, rom_modal, rom_split, rom_stream, rom_train
+from model.errors import ModelError
 from model.rom_check import error_report as _error_report
 from model.rom_train import AffineSystem
 
@@ -49,7 +50,7 @@ DEFAULT_BOX = (5.0, 200.0)
 DEFAULT_Q_MAX_W = (300.0, 150.0)  # W: above the packaged spindle's bearing heats at 7000 rpm, 20 N·m
 
 
-class RomError(ValueError):
+class RomError(ModelError, ValueError):
     """A bad argument to the reduced model; the message names the field."""
 
 

@@ -21,10 +21,12 @@ import numpy as np
 import scipy.sparse as sp
 from numpy.typing import NDArray
 
+from model.errors import ModelError
+
 FORMAT_VERSION = 2  # bump when the training changes: old cache files are then ignored
 
 
-class CacheReadError(OSError):
+class CacheReadError(ModelError, OSError):
     """The file is missing, truncated, not an npz, or lacks a field (named in the message)."""
 
 

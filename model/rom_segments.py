@@ -32,11 +32,12 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from model import rom_modal
+from model.errors import ModelError
 
 Array = NDArray[np.float64]
 
 
-class SegmentError(ValueError):
+class SegmentError(ModelError, ValueError):
     """A bad argument to the segmented evaluation; the message names it."""
 
 

@@ -33,6 +33,7 @@ from numpy.typing import ArrayLike, NDArray
 from skfem import Basis, BilinearForm, ElementTriP1, ElementVector, MeshTri
 from skfem.helpers import grad
 
+from model.errors import ModelError
 from model.fem import FEModel
 from model.geometry import MechanicsSpec, Segment2D, SpindleSpec
 
@@ -42,7 +43,7 @@ _TOL = 1e-9
 Array = NDArray[np.float64]
 
 
-class ThermoelasticError(ValueError):
+class ThermoelasticError(ModelError, ValueError):
     """The thermoelastic model cannot be built or evaluated; the message names the field."""
 
 

@@ -46,12 +46,13 @@ from pydantic_settings import (
 )
 
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
+from service.errors import ServiceError
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
 
 
-class SettingsError(ValueError):
+class SettingsError(ServiceError, ValueError):
     """A configuration value is invalid; the message names the key (``section.key``) and the source."""
 
 

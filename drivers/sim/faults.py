@@ -29,6 +29,8 @@ from enum import StrEnum
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.errors import DriverError
+
 __all__ = [
     "CHANNEL_FAULTS",
     "Fault",
@@ -85,7 +87,7 @@ DEFAULT_VALUES: dict[FaultKind, float] = {
 }
 
 
-class FaultSpecError(ValueError):
+class FaultSpecError(DriverError, ValueError):
     """A fault description is invalid; the message names the field."""
 
 

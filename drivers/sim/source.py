@@ -24,13 +24,15 @@ from typing import Literal, Protocol
 import numpy as np
 from numpy.typing import NDArray
 
+from drivers.errors import DriverError
+
 __all__ = ["ArrayTimeline", "Snapshot", "Timeline", "TimelineError", "TimelineSource", "validate_timeline"]
 
 Clock = Callable[[], float]
 Mode = Literal["interpolate", "hold"]
 
 
-class TimelineError(ValueError):
+class TimelineError(DriverError, ValueError):
     """A timeline has inconsistent or invalid arrays (the message names the array)."""
 
 

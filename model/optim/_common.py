@@ -3,7 +3,7 @@ and termination.
 
 Error tree::
 
-    OptimizerError(Exception)
+    OptimizerError(ModelError)                       (model.errors: the model layer's root)
     ├── BoundsError(OptimizerError, ValueError)      bad bounds, x0 or init (the argument is named)
     └── ObjectiveError(OptimizerError, ValueError)   the objective returned the wrong shape
 """
@@ -18,13 +18,15 @@ from typing import Any
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from model.errors import ModelError
+
 FloatArray = NDArray[np.float64]
 Objective = Callable[[FloatArray], Any]
 Callback = Callable[["OptimizeResult"], object]
 Clock = Callable[[], float]
 
 
-class OptimizerError(Exception):
+class OptimizerError(ModelError):
     """Base of the optimizer errors."""
 
 

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
     from sqlalchemy.engine import Engine
     from sqlalchemy.orm import Session, sessionmaker
 
-    from service.store.records import SampleData
+    from service.contracts.records import SampleData
 
 DEFAULT_PG = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 SAMPLE_PERIOD_S = 10.0
@@ -47,7 +47,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 
 def _sample(i: int) -> SampleData:
-    from service.store.records import SampleData
+    from service.contracts.records import SampleData
 
     return SampleData(
         t=datetime.now(UTC),

@@ -15,6 +15,8 @@ import argparse
 import socket
 from typing import TYPE_CHECKING
 
+from service.errors import ServiceError
+
 if TYPE_CHECKING:
     from service.settings import Settings
 
@@ -28,7 +30,7 @@ __all__ = [
 ]
 
 
-class CommandError(ValueError):
+class CommandError(ServiceError, ValueError):
     """A user error in a command's options or inputs; the message names the option or file."""
 
 

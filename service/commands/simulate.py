@@ -38,6 +38,7 @@ from drivers.sim.faults import FaultController, FaultSpecError, parse_fault
 from drivers.sim.modbus_server import SimulatedDaq
 from drivers.sim.replay import Replay
 from drivers.sim.source import TimelineSource
+from service.errors import ServiceError
 
 if TYPE_CHECKING:
     from model.plant import PlantRun
@@ -49,7 +50,7 @@ NAMED_PROFILES: dict[str, list[tuple[float, float, float, float]]] = {
 }
 
 
-class ProfileError(ValueError):
+class ProfileError(ServiceError, ValueError):
     """A profile name or file is invalid; the message names the file, segment and key."""
 
 

@@ -99,9 +99,16 @@ class IdentificationArchive:
         return _merge_pending(self._db_read(read, "list identifications"), records, since, until)
 
     def _db_read(self, fn: Callable[[Session], T], what: str) -> T:
-        """``fn(session)`` through the bounded read pool (503 when the database hangs), else inline."""
+        """``fn(session)`` through the bounded read pool, else inline. A hung database (every read slot taken,
+        or no answer in time: the store's ``DatabaseBusyError`` / ``DatabaseTimeoutError``) is the API's
+        ``NotReadyError`` (503): translated here, once; the store raises no API error."""
         if self.db_reads is not None:
-            return self.db_reads.run(fn, what)
+            from service.store.errors import DatabaseBusyError, DatabaseTimeoutError
+
+            try:
+                return self.db_reads.run(fn, what)
+            except (DatabaseBusyError, DatabaseTimeoutError) as err:
+                raise NotReadyError(str(err)) from err
         from service.store.repository import session_scope
 
         assert self.session_factory is not None

@@ -1,5 +1,5 @@
 """The service core's configuration (``CoreConfig``, built from ``Settings`` by ``runtime.core_config``) and
-what the database knew at start-up (``Restored``, read by ``service.store.persistence.restore``)."""
+what the database knew at start-up (``Restored``, read by ``service.engine.persistence.restore``)."""
 
 from __future__ import annotations
 
@@ -51,7 +51,7 @@ class CoreConfig:
 
 @dataclass(frozen=True, kw_only=True)
 class Restored:
-    """What the database knew at start-up (``service.store.persistence.restore``)."""
+    """What the database knew at start-up (``service.engine.persistence.restore``)."""
 
     last: IdentificationRecord | None = None
     history: tuple[PastResult, ...] = ()

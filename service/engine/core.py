@@ -44,6 +44,11 @@ from service.acquire.calibration import (
     Reading,
 )
 from service.acquire.history import RingHistory
+from service.contracts.records import (
+    ConditionEnd,
+    ConditionStart,
+    Record,
+)
 from service.engine.config import CoreConfig, Restored
 from service.engine.events import (
     BaselineRequested,
@@ -66,6 +71,7 @@ from service.engine.jobs import JobWindow, Offsets, converging_reason, job_reque
 from service.engine.mapbook import MapBook
 from service.engine.samples import SampleBook
 from service.engine.view import CoreView, NewestSample
+from service.errors import ServiceError
 from service.estimate.live import LiveStateError
 from service.estimate.state import FilteredState
 from service.estimate.state import h_rel_from_ci as _h_rel
@@ -88,18 +94,13 @@ from service.serve.interface import (
     IdentificationRecord,
 )
 from service.store.calibrations import calibration_record
-from service.store.records import (
-    ConditionEnd,
-    ConditionStart,
-    Record,
-)
 
 __all__ = ["CoreConfig", "CoreError", "Restored", "ServiceCore"]
 
 CONDITIONS_KEPT = 200
 
 
-class CoreError(ValueError):
+class CoreError(ServiceError, ValueError):
     """An event the core does not know."""
 
 

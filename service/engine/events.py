@@ -23,9 +23,9 @@ from datetime import datetime
 
 from drivers.ringbuffer import Sample
 from service.acquire.calibration import Calibration
+from service.contracts.records import Record
 from service.identify.worker import JobOutcome, JobRequest
 from service.serve.interface import IdentificationJob
-from service.store.records import Record
 
 __all__ = [
     "BaselineRequested",

@@ -15,6 +15,7 @@ from types import MappingProxyType
 from typing import TypedDict
 
 from model.identify import IdentificationResult
+from service.contracts.records import IdentificationData, JsonValue
 from service.identify.scheduler import StartJob
 from service.serve.histogram import DURATION_BUCKETS_S
 from service.serve.interface import (
@@ -25,7 +26,6 @@ from service.serve.interface import (
     JobState,
 )
 from service.serve.views import data_to_record
-from service.store.records import IdentificationData, JsonValue
 
 __all__ = ["MAP_METHOD", "Job", "JobBook", "MapValues", "job_key"]
 

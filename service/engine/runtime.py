@@ -26,6 +26,7 @@ from service.engine.config import CoreConfig
 from service.engine.core import ServiceCore
 from service.engine.growthserve import GrowthServer
 from service.engine.health import HealthSource
+from service.engine.persistence import Persistence, open_persistence
 from service.engine.shell import SoftSensorService
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
@@ -34,7 +35,6 @@ from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
-from service.store.persistence import Persistence, open_persistence
 
 if TYPE_CHECKING:
     import uvicorn

@@ -14,8 +14,8 @@ import numpy as np
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from service.acquire.decimate import SampleDecimator
+from service.contracts.records import SampleData, finite, finite_list
 from service.engine.view import NewestSample
-from service.store.records import SampleData, finite, finite_list
 
 __all__ = ["SampleBook", "quality_names"]
 

@@ -41,6 +41,7 @@ from drivers.ringbuffer import Sample
 from model.defaults import BOUND_REL_TOL
 from model.hmap import LEVEL_BOUNDS
 from service.acquire.devicewatch import DeviceWatch
+from service.contracts.records import DeviceEventData, Record
 from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
 from service.engine.events import (
@@ -114,7 +115,6 @@ from service.serve.views import (
     map_freshness,
     map_record,
 )
-from service.store.records import DeviceEventData, Record
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker

@@ -53,6 +53,7 @@ from model.growth import (
     thermal_modes,
 )
 from model.thermoelastic import GrowthModel, build_growth_model
+from service.errors import ServiceError
 
 __all__ = [
     "ConditionTerms",
@@ -76,7 +77,7 @@ HORIZONS_S = (300.0, 900.0, 1800.0)
 N_H = 7
 
 
-class GrowthEstimateError(ValueError):
+class GrowthEstimateError(ServiceError, ValueError):
     """Bad input to the growth estimate; the message names the field."""
 
 

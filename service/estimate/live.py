@@ -15,10 +15,12 @@ from typing import Any, Protocol
 
 import numpy as np
 
+from service.errors import ServiceError
+
 __all__ = ["HeldInputs", "LiveStateError", "steady_field"]
 
 
-class LiveStateError(RuntimeError):
+class LiveStateError(ServiceError, RuntimeError):
     """The live state cannot answer yet (not initialised, or no snapshot that old)."""
 
 

@@ -30,6 +30,8 @@ import statistics
 from collections import deque
 from dataclasses import dataclass, field
 
+from service.errors import ServiceError
+
 __all__ = [
     "ConditionChanged",
     "ConditionDetector",
@@ -41,7 +43,7 @@ __all__ = [
 ]
 
 
-class DetectorError(ValueError):
+class DetectorError(ServiceError, ValueError):
     """A bad detector configuration field or an event the detector cannot accept."""
 
 

@@ -28,6 +28,7 @@ import itertools
 import math
 from dataclasses import dataclass, field
 
+from service.errors import ServiceError
 from service.identify.detector import OperatingPoint
 
 __all__ = [
@@ -49,7 +50,7 @@ __all__ = [
 ]
 
 
-class SchedulerError(ValueError):
+class SchedulerError(ServiceError, ValueError):
     """A bad scheduler configuration field or an event the scheduler does not know."""
 
 

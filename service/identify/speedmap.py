@@ -27,6 +27,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.hmap import Family
+from service.errors import ServiceError
 
 __all__ = [
     "MAP_GRID_RPM",
@@ -42,7 +43,7 @@ MAP_GRID_RPM.setflags(write=False)
 MIN_VISITED_S = 1.0  # accumulated seconds below this: forgotten
 
 
-class SpeedMapError(ValueError):
+class SpeedMapError(ServiceError, ValueError):
     """A bad stored speed map or map configuration; the message names the field."""
 
 

@@ -20,11 +20,12 @@ from dataclasses import dataclass
 import numpy as np
 
 from drivers.quality import usable
+from service.errors import ServiceError
 
 __all__ = ["InsufficientWindowError", "RawWindow", "WindowArrays", "WindowRules", "resample_window"]
 
 
-class InsufficientWindowError(ValueError):
+class InsufficientWindowError(ServiceError, ValueError):
     """Too little good data for an identification (the message is the user-facing reason)."""
 
     def __init__(self, reason: str) -> None:

@@ -18,7 +18,7 @@ worker nor multiprocessing's resource tracker behind.
 Errors::
 
     WorkerError(RuntimeError)           the pool is closed
-    (a failed job is not an exception: it is a JobOutcome whose status is a service.identify.outcome.Outcome,
+    (a failed job is not an exception: it is a JobOutcome whose status is a service.contracts.outcome.Outcome,
     mapped from the job's exception in one place, ``job_outcome_of``)
 """
 
@@ -38,9 +38,10 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 import numpy.typing as npt
 
+from service.contracts.outcome import Outcome
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD
+from service.errors import ServiceError
 from service.estimate.live import LiveStateError
-from service.identify.outcome import Outcome
 from service.identify.window import InsufficientWindowError, WindowArrays
 from service.modelload import LoadedModel, ModelRef, load_model
 
@@ -62,7 +63,7 @@ __all__ = [
 ]
 
 
-class WorkerError(RuntimeError):
+class WorkerError(ServiceError, RuntimeError):
     """The worker cannot take jobs (closed)."""
 
 
@@ -117,7 +118,7 @@ class CancelFlag(Protocol):
 _CANCEL: CancelFlag | None = None
 
 
-class JobCancelled(Exception):
+class JobCancelled(ServiceError):
     """Raised inside the worker process when the running job was cancelled."""
 
 

@@ -13,9 +13,11 @@ Contract for implementers:
 - Units: temperatures °C, H in W/(m²·K), lengths m, speed rpm, torque N·m, durations s. Every ``datetime`` is
   timezone-aware UTC.
 - Snapshots are frozen; arrays inside them must not be mutated after construction (build new snapshots).
-- Failures are typed (never ``None`` for "failed")::
+- Failures are typed (never ``None`` for "failed"); ``ServiceError`` is the root of the service's whole tree
+  (``service.errors``), these are the ones the API maps to HTTP codes (``api/errors.py``; any other
+  ``ServiceError`` is a 500)::
 
-      ServiceError
+      ServiceError (service.errors)
       ├── NotFoundError(ServiceError, LookupError)        unknown identification id / job id      -> 404
       ├── NoDataYetError(ServiceError)                    nothing to show yet (no field, no data)  -> 503
       ├── BusyError(ServiceError)                         an identification is already running    -> 409
@@ -37,8 +39,9 @@ from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
 import numpy as np
 import numpy.typing as npt
 
+from service.contracts.records import IdentificationData
+from service.errors import ServiceError
 from service.estimate.locator import TriangleLocator, locator_for
-from service.store.records import IdentificationData
 
 if TYPE_CHECKING:
     from service.estimate.growth import GrowthEstimate, PlcCompensation
@@ -47,10 +50,6 @@ H_UNIT = "W/(m²·K)"
 FloatArray = npt.NDArray[np.float64]
 BoolArray = npt.NDArray[np.bool_]
 ZONE_NAMES: tuple[str, ...] = ("H1", "H2", "H3", "H4", "H5", "H6", "H7")
-
-
-class ServiceError(Exception):
-    """Base of the errors the service raises towards the API."""
 
 
 class NotFoundError(ServiceError, LookupError):
@@ -213,7 +212,7 @@ class IdentificationRecord:
 
     @property
     def outcome(self) -> str:
-        """A ``service.identify.outcome.Outcome`` value: "ok", "failed", "insufficient-data", ..."""
+        """A ``service.contracts.outcome.Outcome`` value: "ok", "failed", "insufficient-data", ..."""
         return self.data.outcome
 
     @property

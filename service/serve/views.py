@@ -1,6 +1,6 @@
 """The one mapping from an identification to what the API serves (pure functions).
 
-An identification exists as ``service.store.records.IdentificationData``: built from the
+An identification exists as ``service.contracts.records.IdentificationData``: built from the
 ``model.identify.IdentificationResult`` by ``IdentificationData.from_result``, stored as is (``values()``) and
 read back after a restart or by the history endpoints (``IdentificationData.from_row``). ``data_to_record``
 turns it, with the condition it was taken at, into the ``IdentificationRecord`` the API serves, and
@@ -30,6 +30,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.defaults import BOUND_REL_TOL
+from service.contracts.records import IdentificationData, IdentificationRow, JsonValue
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
 from service.serve.interface import (
     ZONE_NAMES,
@@ -40,7 +41,6 @@ from service.serve.interface import (
     ConditionState,
     IdentificationRecord,
 )
-from service.store.records import IdentificationData, IdentificationRow, JsonValue
 
 __all__ = [
     "ConditionRow",

@@ -39,13 +39,14 @@ from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
 from service.engine.core import ServiceCore
 from service.engine.growthserve import GrowthServer
+from service.engine.persistence import Persistence, open_persistence
 from service.engine.runtime import CanDevice, DaqDevice, core_config
 from service.engine.shell import SoftSensorService
+from service.errors import ServiceError
 from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
 from service.sim.logsamples import samples_from_plant
-from service.store.persistence import Persistence, open_persistence
 
 __all__ = [
     "DEMO_FED",
@@ -71,7 +72,7 @@ DEMO_FED = 133
 PLAN_T0 = datetime(2026, 11, 22, 7, 0, tzinfo=UTC)
 
 
-class ServedError(RuntimeError):
+class ServedError(ServiceError, RuntimeError):
     """The served service did not settle in time, or its loop has stopped."""
 
 

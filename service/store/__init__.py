@@ -2,8 +2,9 @@
 
 Everything is built at the edge from ``settings.database``; nothing connects at import. API::
 
-    from service.store import engine, migrate, repository as repo, writer, records
-    from service.serve.views import row_to_record
+    from service.contracts import records         # the plain records (below the store, shared)
+    from service.store import engine, migrate, repository as repo, writer
+    from service.serve.views import row_to_record  # the serving side (the store imports no serve/engine)
 
     eng = engine.create_db_engine(settings.database.url, echo=settings.database.echo)  # SQLite: WAL, FKs on
     migrate.upgrade(eng)                       # or URL; to "head"; current_revision(eng), head_revision()

@@ -16,8 +16,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from service.acquire.calibration import Calibration
-from service.store.errors import RecordError
-from service.store.records import CALIBRATION_SOURCES, OffsetCalibrationData, finite_list
+from service.contracts.records import CALIBRATION_SOURCES, OffsetCalibrationData, finite_list
+from service.store.errors import RecordRejectedError
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
@@ -27,7 +27,7 @@ if TYPE_CHECKING:
 __all__ = ["StoredCalibrationError", "calibration_from_row", "calibration_record", "restore_calibration"]
 
 
-class StoredCalibrationError(RecordError):
+class StoredCalibrationError(RecordRejectedError):
     """A stored offset baseline that cannot be used; the message names the row and the field."""
 
 

@@ -21,7 +21,7 @@ from datetime import datetime
 from sqlalchemy import JSON, BigInteger, Boolean, Double, ForeignKey, Integer, MetaData, String, Text
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
-from service.store.records import JsonValue
+from service.contracts.records import JsonValue
 from service.store.types import UtcDateTime
 
 NAMING = {
@@ -69,7 +69,7 @@ class Identification(Base):
     window_start: Mapped[datetime]
     window_end: Mapped[datetime]
     reason: Mapped[str] = mapped_column(String(32))  # trigger: "schedule", "manual", ...
-    outcome: Mapped[str] = mapped_column(String(32))  # a service.identify.outcome.Outcome value
+    outcome: Mapped[str] = mapped_column(String(32))  # a service.contracts.outcome.Outcome value
     message: Mapped[str] = mapped_column(Text, default="")
     method: Mapped[str] = mapped_column(String(32))
     model_version: Mapped[str] = mapped_column(String(128))

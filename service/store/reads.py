@@ -9,14 +9,9 @@ the server's worker threads for as long as a hung database wants. ``DbReads.run(
   or the engine's ``StatementWatchdog`` aborts it, and holds its slot until then (so a hung database costs at
   most ``threads`` threads, never the API's pool).
 
-Both are ``service.serve.interface.NotReadyError``: the API answers 503 in its error shape, with
-``Retry-After``.
-
-::
-
-    NotReadyError (service.serve.interface)
-    ├── DatabaseBusyError      every read slot is taken
-    └── DatabaseTimeoutError   no answer within timeout_s
+Both are ``service.store.errors.DatabaseUnavailableError`` (the store's tree, drawn there); the service
+turns them into ``service.serve.interface.NotReadyError`` for the API (``service.engine.archive``), which
+answers 503 in its error shape, with ``Retry-After``.
 """
 
 from __future__ import annotations
@@ -29,21 +24,13 @@ from typing import TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.serve.interface import NotReadyError
+from service.store.errors import DatabaseBusyError, DatabaseTimeoutError
 from service.store.repository import session_scope
 from service.store.watchdog import StatementWatchdog
 
 __all__ = ["DatabaseBusyError", "DatabaseTimeoutError", "DbReads"]
 
 T = TypeVar("T")
-
-
-class DatabaseBusyError(NotReadyError):
-    """Every database read slot is taken (the database is slow or hung): try again later."""
-
-
-class DatabaseTimeoutError(NotReadyError, TimeoutError):
-    """The database did not answer a read in time."""
 
 
 class DbReads:

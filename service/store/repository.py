@@ -19,9 +19,7 @@ from sqlalchemy import func, insert, select, update
 from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
-from service.store.errors import RecordNotFoundError
-from service.store.models import Base, Condition, DeviceEvent, Identification, OffsetCalibrationRow, SampleRow
-from service.store.records import (
+from service.contracts.records import (
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
@@ -30,6 +28,8 @@ from service.store.records import (
     Record,
     SampleData,
 )
+from service.store.errors import RecordNotFoundError
+from service.store.models import Base, Condition, DeviceEvent, Identification, OffsetCalibrationRow, SampleRow
 from service.store.sqlerrors import translate
 
 T = TypeVar("T")
@@ -181,7 +181,7 @@ def last_identification(
 
 def last_served_identification(session: Session, *, method: str | None = None) -> Identification | None:
     """The successful identification served last: the highest id (ids grow in launch order across restarts,
-    ``service.store.persistence.restore``), not the newest ``finished_at``: in the demo each run's simulated
+    ``service.engine.persistence.restore``), not the newest ``finished_at``: in the demo each run's simulated
     clock starts again at the wall clock, so a later run's results can carry earlier times. ``method``: only
     those of this method (e.g. the newest speed-map fit). None if there is none.
     """

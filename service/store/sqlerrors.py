@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from sqlalchemy import exc as sa_exc
 
-from service.store.errors import DatabaseError, DatabaseUnavailableError, RecordError
+from service.store.errors import DatabaseError, DatabaseUnavailableError, RecordRejectedError
 
 __all__ = ["is_transient", "translate"]
 
@@ -23,4 +23,4 @@ def translate(err: Exception, what: str) -> DatabaseError:
     detail = str(getattr(err, "orig", None) or err).strip().splitlines()[0]
     if is_transient(err):
         return DatabaseUnavailableError(f"{what}: database unavailable: {detail}")
-    return RecordError(f"{what}: rejected: {detail}")
+    return RecordRejectedError(f"{what}: rejected: {detail}")

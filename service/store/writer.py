@@ -35,8 +35,8 @@ from types import TracebackType
 from sqlalchemy import text
 from sqlalchemy.orm import Session, sessionmaker
 
+from service.contracts.records import RECORD_TYPES, DeviceEventData, Record
 from service.store.errors import DatabaseUnavailableError
-from service.store.records import RECORD_TYPES, DeviceEventData, Record
 from service.store.repository import session_scope, write_records
 from service.store.watchdog import StatementWatchdog
 

@@ -11,13 +11,13 @@ import pytest
 from sqlalchemy import select
 
 from service.acquire.calibration import Calibration
+from service.contracts.records import ConditionStart, OffsetCalibrationData
+from service.engine.persistence import open_persistence
 from service.settings import Settings
 from service.store import repository as repo
 from service.store.calibrations import StoredCalibrationError, calibration_from_row, calibration_record
 from service.store.errors import RecordError
 from service.store.models import OffsetCalibrationRow
-from service.store.persistence import open_persistence
-from service.store.records import ConditionStart, OffsetCalibrationData
 
 T0 = datetime(2026, 3, 1, 6, 0, 0, 250000, tzinfo=UTC)
 

@@ -9,17 +9,17 @@ import numpy as np
 import pytest
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.serve.views import row_to_record
-from service.store import repository as repo
-from service.store.errors import RecordError, RecordNotFoundError
-from service.store.models import Condition, DeviceEvent, Identification, SampleRow
-from service.store.records import (
+from service.contracts.records import (
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
     IdentificationData,
     SampleData,
 )
+from service.serve.views import row_to_record
+from service.store import repository as repo
+from service.store.errors import RecordError, RecordNotFoundError
+from service.store.models import Condition, DeviceEvent, Identification, SampleRow
 
 T0 = datetime(2026, 3, 1, 8, 0, 0, 123456, tzinfo=UTC)
 CEST = timezone(timedelta(hours=2))

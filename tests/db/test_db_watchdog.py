@@ -9,8 +9,10 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
+from service.engine.archive import IdentificationArchive
 from service.serve.interface import NotReadyError
 from service.store.engine import create_db_engine, make_session_factory
+from service.store.errors import DatabaseUnavailableError
 from service.store.reads import DatabaseBusyError, DatabaseTimeoutError, DbReads
 from service.store.watchdog import StatementWatchdog
 
@@ -66,7 +68,8 @@ def test_reads_time_out_and_are_bounded(tmp_path: Path) -> None:
         t = time.monotonic()
         with pytest.raises(DatabaseBusyError) as err:  # both slots taken: refused at once, nothing queued
             reads.run(hung, "get identification")
-        assert time.monotonic() - t < 0.1 and isinstance(err.value, NotReadyError)
+        assert time.monotonic() - t < 0.1 and isinstance(err.value, DatabaseUnavailableError)
+        assert not isinstance(err.value, NotReadyError)  # the store raises no API error (service.errors)
         release.set()
         deadline = time.monotonic() + 10.0
         while time.monotonic() < deadline:
@@ -77,6 +80,28 @@ def test_reads_time_out_and_are_bounded(tmp_path: Path) -> None:
                 time.sleep(0.02)
         else:
             pytest.fail("read slots not released after the hung reads finished")
+    finally:
+        release.set()
+        reads.close()
+        eng.dispose()
+
+
+def test_the_archive_answers_a_hung_database_with_not_ready(tmp_path: Path) -> None:
+    """The store's busy/timeout errors become the API's NotReadyError (503) in one place, the archive."""
+    eng = create_db_engine(f"sqlite:///{tmp_path / 'a.db'}")
+    factory = make_session_factory(eng)
+    reads = DbReads(factory, threads=1, timeout_s=0.2)
+    archive = IdentificationArchive(factory, reads)
+    release = threading.Event()
+    try:
+        with pytest.raises(DatabaseTimeoutError):  # the only slot stays taken by a hung read
+            reads.run(lambda s: release.wait(10.0), "hung")
+        page = {"since": None, "until": None, "limit": 10, "offset": 0}
+        with pytest.raises(NotReadyError, match="list identifications") as err:
+            archive.page([], **page)
+        assert isinstance(err.value.__cause__, DatabaseBusyError)
+        with pytest.raises(NotReadyError, match="get identification"):
+            archive.get([], 7)
     finally:
         release.set()
         reads.close()

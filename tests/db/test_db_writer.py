@@ -12,11 +12,11 @@ import pytest
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
+from service.contracts.records import ConditionEnd, ConditionStart, DeviceEventData, Record, SampleData
 from service.store import migrate
 from service.store import repository as repo
 from service.store.engine import create_db_engine, make_session_factory
 from service.store.models import Condition, DeviceEvent, Identification, SampleRow
-from service.store.records import ConditionEnd, ConditionStart, DeviceEventData, Record, SampleData
 from service.store.writer import DbWriter
 from tests.db.conftest import pg_schema_url, wait_until
 from tests.db.tcp_proxy import TcpProxy, free_port

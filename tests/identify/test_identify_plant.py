@@ -95,7 +95,7 @@ def test_open_circuit_channel_is_not_counted_in_rmse_or_sensors_used(
 ) -> None:
     """An open channel reads -327.68 °C (int16 0x8000 × 0.01) and is masked: the stored RMSE and sensor
     count are those of the 31 channels the fit used (they were 32 sensors and tens of °C)."""
-    from service.store.records import IdentificationData
+    from service.contracts.records import IdentificationData
 
     window = cond3000.window
     meas = window.measured_c.copy()

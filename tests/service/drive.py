@@ -6,11 +6,11 @@ from collections.abc import Iterable
 from datetime import datetime
 
 from drivers.ringbuffer import Sample
+from service.contracts.records import Record
 from service.engine.core import ServiceCore
 from service.engine.events import Event, Instruction, JobOutcomeReceived, Launch, SampleReceived, Store
 from service.identify.worker import JobOutcome, run_job
 from service.modelload import LoadedModel
-from service.store.records import Record
 
 
 def feed(core: ServiceCore, samples: Iterable[Sample], *, first: int = 1) -> list[Instruction]:

@@ -165,8 +165,8 @@ def test_a_baseline_taken_by_the_core_is_stored_and_a_restarted_core_starts_with
 ) -> None:
     """Real SQLite through the service's writer: the core's baseline becomes an ``offset_calibrations`` row;
     after a restart the restored core is calibrated with the same offsets and 1σ before any rest."""
+    from service.engine.persistence import open_persistence
     from service.settings import Settings
-    from service.store.persistence import open_persistence
 
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
     run = plant_run([Segment(600.0, 0.0, 0.0, 21.0), Segment(300.0, 3000.0, 5.0, 21.0)], offsets_c=OFFSETS)

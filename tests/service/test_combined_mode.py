@@ -13,9 +13,9 @@ from model.plant import Segment, VirtualPlant
 from service.bench.chain import last_per_condition
 from service.bench.identmode import served_in_order
 from service.engine.jobbook import MAP_METHOD
+from service.engine.persistence import open_persistence
 from service.serve.interface import ChtcStatus
 from service.settings import IdentificationSettings, Settings
-from service.store.persistence import open_persistence
 
 from .conftest import inline_service, samples_of
 

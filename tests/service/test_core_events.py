@@ -15,6 +15,7 @@ import numpy as np
 import pytest
 
 from model.plant import Segment
+from service.contracts.records import IdentificationData
 from service.engine.core import CoreConfig, ServiceCore
 from service.engine.events import (
     Event,
@@ -36,7 +37,6 @@ from service.identify.window import WindowRules
 from service.identify.worker import run_job
 from service.modelload import LoadedModel
 from service.serve.interface import JobState, NotReadyError
-from service.store.records import IdentificationData
 
 from .conftest import plant_run, samples_of
 from .drive import outcome_event

@@ -3,8 +3,8 @@ database is unreachable (it is reachable)."""
 
 from __future__ import annotations
 
+from service.engine.persistence import open_persistence
 from service.settings import Settings
-from service.store.persistence import open_persistence
 
 
 def test_new_database_without_migrate_names_the_missing_schema(tmp_path) -> None:
@@ -47,7 +47,7 @@ def test_retries_log_a_problem_once(tmp_path, caplog) -> None:
         task.cancel()
 
     try:
-        with caplog.at_level(logging.INFO, logger="service.store.persistence"):
+        with caplog.at_level(logging.INFO, logger="service.engine.persistence"):
             asyncio.run(retry_a_few_times())
         assert [r for r in caplog.records if "not ready" in r.getMessage()] == []
     finally:

@@ -42,7 +42,7 @@ def run_samples():  # type: ignore[no-untyped-def]
 
 
 def _restored(core: ServiceCore) -> Restored:
-    """What the database would give the next process (service.store.persistence.restore)."""
+    """What the database would give the next process (service.engine.persistence.restore)."""
     v = core.view()
     assert v.current is not None
     rec = v.current

@@ -215,9 +215,9 @@ def test_not_identified_and_condition_change_are_not_usable(loaded_model, identi
 def test_a_stored_negative_lower_bound_is_not_served() -> None:
     """Rows stored with the former linear CI may hold a negative lower bound; H > 0, so 0 is served (the
     same mapping serves a row read back and a record just finished)."""
+    from service.contracts.records import IdentificationData
     from service.serve.interface import ConditionSnapshot, ConditionState
     from service.serve.views import data_to_record
-    from service.store.records import IdentificationData
 
     t = datetime(2026, 1, 1, tzinfo=UTC)
     cond = ConditionSnapshot(

@@ -12,6 +12,7 @@ import pytest
 from model.geometry import load_spindle
 from model.plant import VirtualPlant, h_true
 from service.engine.core import ServiceCore
+from service.engine.persistence import open_persistence
 from service.engine.runtime import core_config, map_config
 from service.engine.shell import SoftSensorService
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
@@ -19,7 +20,6 @@ from service.serve.interface import ChtcStatus
 from service.serve.views import map_freshness
 from service.settings import IdentificationSettings, Settings, SettingsError
 from service.sim.duty import condition_at, duty_profile
-from service.store.persistence import open_persistence
 from tests.modes import per_condition
 
 from .conftest import inline_service, samples_of

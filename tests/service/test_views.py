@@ -9,9 +9,9 @@ from typing import Any
 import numpy as np
 
 from api.schemas import chtc_out
+from service.contracts.records import IdentificationData
 from service.serve.interface import ChtcSnapshot, ChtcStatus, ConditionSnapshot, ConditionState
 from service.serve.views import chtc_snapshot, data_to_record
-from service.store.records import IdentificationData
 
 T = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
 COND = ConditionSnapshot(

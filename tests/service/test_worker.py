@@ -204,8 +204,8 @@ def test_one_mapping_from_a_job_failure_to_its_stored_outcome(loaded_model, wind
     """``run_job`` (the worker process's function, also run offline) never raises: too few usable data,
     whether the window rules or the identification itself find it, is "insufficient-data" with the reason;
     a cancelled job "cancelled"; anything else "failed", naming the error."""
+    from service.contracts.outcome import Outcome
     from service.estimate.live import LiveStateError
-    from service.identify.outcome import Outcome
     from service.identify.window import InsufficientWindowError
     from service.identify.worker import JobCancelled, job_outcome_of, run_job
 

@@ -18,8 +18,8 @@ from typing import TYPE_CHECKING, Protocol, SupportsFloat, TypeVar
 
 import numpy as np
 
-from service.identify.outcome import OUTCOMES
-from service.store.errors import RecordError
+from service.contracts.errors import RecordError
+from service.contracts.outcome import OUTCOMES
 
 if TYPE_CHECKING:
     from _typeshed import DataclassInstance
@@ -188,7 +188,7 @@ class IdentificationData:
     window_start: datetime
     window_end: datetime
     reason: str  # trigger: "condition-change" | "scheduled" | "manual" | ...
-    outcome: str  # a service.identify.outcome.Outcome value
+    outcome: str  # a service.contracts.outcome.Outcome value
     method: str
     model_version: str
     h: Sequence[float | None] | None = None  # 7; None when nothing was identified

@@ -24,13 +24,14 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import TYPE_CHECKING
 
+from service.contracts.records import Record
 from service.engine.config import Restored
 from service.engine.jobbook import MAP_METHOD
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from service.serve.interface import ConditionState, IdentificationRecord
 from service.serve.views import condition_from_row, row_to_record
-from service.store.records import Record
+from service.store.errors import SchemaError
 
 if TYPE_CHECKING:
     from sqlalchemy.engine import Engine
@@ -256,10 +257,6 @@ class Persistence:
         if self.writer_engine is not None:
             self.writer_engine.dispose()
         return status
-
-
-class SchemaError(RuntimeError):
-    """The database answers, but its schema is missing or older than this version (``--migrate``)."""
 
 
 def _describe(err: BaseException) -> str:

@@ -1,0 +1,221 @@
+"""The layering rules of the house (docs/ARCHITECTURE.md, "Dependency direction") and one typed error tree
+per layer, read from the source (ast: the rules import no module; the last test checks the reading against
+Python).
+
+- Imports point inward: ``model/`` imports none of ``drivers``, ``service``, ``api``; ``drivers/`` none of
+  ``service``, ``api``. Inside the service the contracts sit below everything (``service.contracts``
+  imports only itself and ``service.errors``); the store imports no ``engine``/``serve``; ``serve`` (and the
+  interface the API reads, ``service.serve.interface``) no ``store``/``engine``; ``acquire``, ``estimate``,
+  ``identify`` none of the shell (``engine``, the tools, ``api``). Only ``engine`` and the tools wire the
+  packages (and the API) together. Every import counts, also one inside a function or under
+  ``TYPE_CHECKING``.
+- Every exception class defined in a layer derives from that layer's root: ``model.errors.ModelError``,
+  ``drivers.errors.DriverError``, ``service.errors.ServiceError``, ``api.errors.ApiError``.
+"""
+
+from __future__ import annotations
+
+import ast
+import builtins
+from dataclasses import dataclass, field
+from functools import cache
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(__file__).resolve().parents[1]
+LAYERS = ("model", "drivers", "service", "api")
+
+
+@dataclass
+class Module:
+    name: str
+    path: Path
+    imports: set[str] = field(default_factory=set)  # every imported module (a from-import's names included)
+    names: dict[str, tuple[str, str]] = field(default_factory=dict)  # local name -> (module, name) imported
+    classes: dict[str, list[ast.expr]] = field(default_factory=dict)  # class name -> its bases
+
+
+def _module_name(path: Path) -> str:
+    parts = list(path.relative_to(ROOT).with_suffix("").parts)
+    return ".".join(parts[:-1] if parts[-1] == "__init__" else parts)
+
+
+def _absolute(mod: Module, node: ast.ImportFrom) -> str:
+    if not node.level:
+        return node.module or ""
+    base = mod.name.split(".")
+    is_pkg = mod.path.name == "__init__.py"
+    base = base[: len(base) - node.level + (1 if is_pkg else 0)]
+    return ".".join([*base, node.module] if node.module else base)
+
+
+def _parse(path: Path) -> Module:
+    mod = Module(_module_name(path), path)
+    tree = ast.parse(path.read_text(encoding="utf-8"), str(path))
+    for node in ast.walk(tree):
+        if isinstance(node, ast.Import):
+            mod.imports.update(a.name for a in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            source = _absolute(mod, node)
+            mod.imports.add(source)
+            for a in node.names:
+                mod.imports.add(f"{source}.{a.name}")
+                mod.names[a.asname or a.name] = (source, a.name)
+        elif isinstance(node, ast.ClassDef):
+            mod.classes[node.name] = node.bases
+    return mod
+
+
+@cache
+def modules() -> dict[str, Module]:
+    found = {}
+    for layer in LAYERS:
+        for path in sorted((ROOT / layer).rglob("*.py")):
+            if "migrations" not in path.parts:
+                mod = _parse(path)
+                found[mod.name] = mod
+    return found
+
+
+def _under(name: str, prefix: str) -> bool:
+    return name == prefix or name.startswith(prefix + ".")
+
+
+def _offending(importer: str, forbidden: tuple[str, ...]) -> list[str]:
+    return sorted(
+        f"{m.name} imports {i}"
+        for m in modules().values()
+        if _under(m.name, importer)
+        for i in m.imports
+        if any(_under(i, f) for f in forbidden)
+    )
+
+
+_SERVICE_PACKAGES = tuple(
+    f"service.{p.stem}"
+    for p in sorted((ROOT / "service").iterdir())
+    if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"
+    if p.stem not in ("__init__", "contracts", "errors")
+)
+_SHELL = ("service.engine", "service.commands", "service.bench", "service.sim", "service.cli", "api")
+
+RULES = [
+    ("model", ("drivers", "service", "api")),
+    ("drivers", ("service", "api")),
+    ("service.errors", ("service.", "model", "drivers", "api")),
+    ("service.contracts", (*_SERVICE_PACKAGES, "drivers", "api")),  # below every other service package
+    ("service.store", (*_SHELL, "service.serve")),
+    ("service.serve", (*_SHELL, "service.store")),
+    ("service.serve.interface", (*_SHELL, "service.store")),
+    ("service.identify", (*_SHELL, "service.store", "service.serve")),
+    ("service.estimate", (*_SHELL, "service.store", "service.serve")),
+    ("service.acquire", (*_SHELL, "service.store")),
+]
+
+
+@pytest.mark.parametrize(("importer", "forbidden"), RULES, ids=[r[0] for r in RULES])
+def test_imports_point_inward(importer: str, forbidden: tuple[str, ...]) -> None:
+    assert any(_under(m, importer) for m in modules()), f"no module {importer}"
+    assert _offending(importer, forbidden) == []
+
+
+def test_the_rules_see_a_violation() -> None:
+    """The checker itself: a known import is found (so an empty list above means something)."""
+    assert "service.store.reads imports service.store.errors.DatabaseBusyError" in _offending(
+        "service.store", ("service.store.errors",)
+    )
+
+
+def _resolve(module: str, name: str) -> tuple[str, str]:
+    """(defining module, class name) of ``name`` as seen in ``module``; ("builtins", name) for a builtin."""
+    mod = modules().get(module)
+    if mod is None:
+        return (module, name)
+    if name in mod.classes:
+        return (module, name)
+    if name in mod.names:
+        source, original = mod.names[name]
+        if source in modules():
+            return _resolve(source, original)
+        return (source, original)
+    return ("builtins", name)
+
+
+def _bases(module: str, name: str) -> list[tuple[str, str]]:
+    out = []
+    for b in modules()[module].classes[name]:
+        if isinstance(b, ast.Name):
+            out.append(_resolve(module, b.id))
+        elif isinstance(b, ast.Attribute):
+            out.append((ast.unparse(b.value), b.attr))
+    return out
+
+
+@cache
+def _ancestors(cls: tuple[str, str]) -> frozenset[tuple[str, str]]:
+    module, name = cls
+    if module not in modules() or name not in modules()[module].classes:
+        return frozenset()
+    found: set[tuple[str, str]] = set()
+    for base in _bases(module, name):
+        found |= {base, *_ancestors(base)}
+    return frozenset(found)
+
+
+def _is_exception(cls: tuple[str, str]) -> bool:
+    for module, name in {cls, *_ancestors(cls)}:
+        builtin = getattr(builtins, name, None) if module == "builtins" else None
+        if isinstance(builtin, type) and issubclass(builtin, BaseException):
+            return True
+    return False
+
+
+ROOTS = {
+    "model": ("model.errors", "ModelError"),
+    "drivers": ("drivers.errors", "DriverError"),
+    "service": ("service.errors", "ServiceError"),
+    "api": ("api.errors", "ApiError"),
+}
+
+
+def _exceptions(layer: str) -> list[tuple[str, str]]:
+    return [
+        (m.name, c)
+        for m in modules().values()
+        if _under(m.name, layer)
+        for c in m.classes
+        if _is_exception((m.name, c))
+    ]
+
+
+@pytest.mark.parametrize("layer", LAYERS)
+def test_every_exception_of_a_layer_derives_from_its_root(layer: str) -> None:
+    root = ROOTS[layer]
+    found = _exceptions(layer)
+    assert root in found and len(found) > 1
+    strays = [f"{m}.{c}" for m, c in found if (m, c) != root and root not in _ancestors((m, c))]
+    assert strays == [], f"not derived from {'.'.join(root)}"
+
+
+def test_the_roots_are_what_the_code_raises() -> None:
+    """The static reading agrees with Python's own for a few classes across the trees."""
+    from api.errors import ApiError
+    from drivers.errors import DriverError
+    from drivers.sim.faults import FaultSpecError
+    from model.errors import ModelError
+    from model.identify import InsufficientDataError
+    from model.rom_cache import CacheReadError
+    from service.errors import ServiceError
+    from service.serve.interface import NotReadyError
+    from service.store.errors import DatabaseBusyError, RecordError, RecordRejectedError
+
+    assert issubclass(InsufficientDataError, ModelError) and issubclass(InsufficientDataError, ValueError)
+    assert issubclass(CacheReadError, ModelError) and issubclass(CacheReadError, OSError)
+    assert issubclass(FaultSpecError, DriverError)
+    assert issubclass(DatabaseBusyError, ServiceError) and not issubclass(DatabaseBusyError, NotReadyError)
+    assert issubclass(RecordRejectedError, RecordError)
+    assert not issubclass(ServiceError, ApiError)
+    for cls in (InsufficientDataError, CacheReadError, FaultSpecError, DatabaseBusyError):
+        layer = cls.__module__.split(".")[0]
+        assert (ROOTS[layer][0], ROOTS[layer][1]) in _ancestors((cls.__module__, cls.__name__))
