@@ -187,3 +187,16 @@ def test_considered_h_error_follows_set_h(case: Case) -> None:
     assert stds[1] > 1.2 * stds[0], stds  # measured 0.37 vs 0.28 °C RMS (the prior not yet forgotten)
     with pytest.raises(LiveStateError, match="finite"):
         FilteredState(case.model.rom, case.model.spec, h=run.h_true[0]).initialize(0.0, (22.0, np.nan, 0.0))
+
+
+def test_considered_h_error_from_a_ci_is_the_log_normal_sigma() -> None:
+    """``h_rel_from_ci``: σ(log H) from the 95 % CI's upper end, the guess's 100 % without a CI (the core and
+    the restart bench's filter path both use it)."""
+    from service.estimate.state import GUESSED_H_REL, h_rel_from_ci
+
+    h = np.full(7, 50.0)
+    sigma = np.array([0.05, 0.1, 0.2, 0.4, 0.8, 1.0, 2.0])
+    np.testing.assert_allclose(h_rel_from_ci(h, h * np.exp(1.96 * sigma)), sigma)
+    hi = h.copy()
+    hi[0], hi[1] = np.nan, 40.0  # no CI; an upper end below H (counts as no spread)
+    assert h_rel_from_ci(h, hi)[0] == GUESSED_H_REL and h_rel_from_ci(h, hi)[1] == 0.0
