@@ -246,7 +246,7 @@ def main(args: argparse.Namespace) -> int:
     settings = settings.model_copy(update={"identification": ident})
     model = load_model(ModelRef.from_settings(settings.model))
     growth = None
-    if args.json_out is not None:  # the growth history (docs/growth.md): only for the JSON
+    if args.json_out is not None:  # the growth history (docs/design/growth.md): only for the JSON
         from service.engine.growthserve import GrowthHistory
 
         growth = GrowthHistory(model, t_ref_c=settings.growth.reference_c)
