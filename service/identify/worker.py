@@ -333,7 +333,7 @@ def run_job_in_process(req: JobRequest) -> JobOutcome:
 
 # --- in the service process -----------------------------------------------------------------------
 # The worker runs at a lower priority so that an identification (a whole core for up to a second) does not
-# push the API's /chtc p99 above twice its idle value on a 2-core machine (docs/api.md, chtc bench api).
+# push the API's /chtc p99 above twice its idle value on a 2-core machine (docs/design/api.md).
 WORKER_NICE = 10
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
