@@ -192,7 +192,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     if span_s < need_s:
         lines.append(
             "a recording of a sped-up simulation stamped with wall time looks this short: record it with "
-            "`chtc record --speedup` equal to the simulator's (docs/simulation.md)"
+            "`chtc record --speedup` equal to the simulator's (docs/design/simulation.md)"
         )
     return lines
 

@@ -311,7 +311,8 @@ def test_identify_on_the_shipped_example_recording(tmp_path, capsys, monkeypatch
     assert f"({mode}, seed 0)" in capsys.readouterr().out
     ok = [r for r in json.loads(out.read_text()) if r["outcome"] == "ok"]
     assert {r["condition"]["speed_rpm"] for r in ok} == {3000.0, 4000.0}
-    # made by chtc simulate --profile service/data/example_profile.toml (docs/simulation.md): plant truth
+    # made by chtc simulate --profile service/data/example_profile.toml (docs/design/simulation.md):
+    # plant truth
     _assert_well_determined_h_covered(ok if mode == "per_condition" else ok[1:])
 
 
