@@ -148,7 +148,7 @@ def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
     )
 
 
-# --- /chtc/map (speed-map mode, docs/hmap.md, docs/api.md)
+# --- /chtc/map (speed-map mode, docs/design/hmap.md, docs/api.md)
 
 
 class MapZoneOut(BaseModel):
@@ -501,7 +501,7 @@ def _ci95(mean: float | None, sd: float | None) -> tuple[float, float] | None:
     return (round(mean - 1.96 * sd, 4), round(mean + 1.96 * sd, 4))
 
 
-# --- /compensation (docs/growth.md, docs/api.md)
+# --- /compensation (docs/design/growth.md, docs/api.md)
 
 
 class GrowthValueOut(BaseModel):
@@ -531,8 +531,8 @@ class GrowthForecastOut(BaseModel):
 
 
 class PlcOut(BaseModel):
-    """Controller values for the axial growth (docs/growth.md, 'Controller mapping'); check the sign once
-    at commissioning."""
+    """Controller values for the axial growth (docs/design/growth.md, 'Controller mapping'); check the sign
+    once at commissioning."""
 
     tool_dir: int = Field(description="-1: the tool points to -Z of the machine axis (ISO 841)")
     correction_um: float = Field(description="axis correction cancelling the growth, µm (-tool_dir·growth)")
@@ -641,7 +641,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
 
 
 class CompensationSectionOut(BaseModel):
-    """The spindle's section deformed by the live field (docs/growth.md, 'The deformed section'): draw
+    """The spindle's section deformed by the live field (docs/design/growth.md, 'The deformed section'): draw
     (r + k·u_r, z + k·u_z) for an exaggeration k of your choice next to the undeformed outline."""
 
     status: ChtcStatus = Field(description="the status of /compensation (the /chtc rules)")

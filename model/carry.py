@@ -14,8 +14,9 @@ P₀ = U·Uᵀ (``factor``), and around the fitted θ̂:
 - the next window's P₀ comes from running the members through the gap's inputs, each with its own H
   (``propagate``).
 
-Simplifications (docs/identification.md, "Start-field uncertainty"): Gaussian in the reduced coordinates;
-the field's error outside the reduced basis and the live state's FE-vs-reduced difference are ignored.
+Simplifications (docs/design/identification.md, "Start-field uncertainty"): Gaussian in the reduced
+coordinates; the field's error outside the reduced basis and the live state's FE-vs-reduced difference are
+ignored.
 
 Errors::
 

@@ -1,7 +1,7 @@
 """Closed-loop live state: a Kalman filter on the reduced model's coordinates (pure numpy/scipy).
 
 The reduced model (``model.rom``) has an E-orthonormal basis V (N, r), so T ≈ V·a, E_r = I, and its step over
-one sample with the inputs held (docs/rom.md) is, with K_r(H) = Φ·diag(λ)·Φᵀ,
+one sample with the inputs held (docs/design/rom.md) is, with K_r(H) = Φ·diag(λ)·Φᵀ,
 
     a⁺ = A·a + G·z_r,   A = Φ·diag(μ)·Φᵀ,  G = Φ·diag(γ)·Φᵀ,  z_r = T_amb·Σ H_i·z_i,r + Q_f·q_f,r + Q_r·q_r,r
 
@@ -14,9 +14,9 @@ and the process noise Q, then update with the sample's usable channels only (mas
 subtracting the per-channel offsets. The covariance update is Joseph's form (stays symmetric positive
 semi-definite).
 
-Process noise (``NoiseModel``; docs/estimator.md for the figures). The errors of H and of the bearing heats
-are persistent, not white: treated as white noise per step they left the filter 3–4× overconfident (sensor
-error 0.05–0.07 °C against a claimed 1σ of 0.016 °C with H 30 % off). They are therefore *considered*
+Process noise (``NoiseModel``; docs/design/estimator.md for the figures). The errors of H and of the bearing
+heats are persistent, not white: treated as white noise per step they left the filter 3–4× overconfident
+(sensor error 0.05–0.07 °C against a claimed 1σ of 0.016 °C with H 30 % off). They are therefore *considered*
 parameters (Schmidt–Kalman or "consider" filter, Schmidt 1966; Simon 2006): relative errors p (9,) of
 H1..H7, Q_f, Q_r with zero mean and 1σ ``h_rel``, ``load_rel``, first-order Gauss–Markov in time (correlation
 time ``param_tau_s``), whose effect on the step a⁺ = A·a + G·z_r + J·p is linearised about the mean

@@ -1,5 +1,5 @@
-"""Studies of the thermoelastic growth model for docs/growth.md: mesh convergence, the 1-D rule beside the
-2-D result, the cost of the modelling choices, sensor sensitivity and the cost of one evaluation.
+"""Studies of the thermoelastic growth model for docs/design/growth.md: mesh convergence, the 1-D rule beside
+the 2-D result, the cost of the modelling choices, sensor sensitivity and the cost of one evaluation.
 
 The functions are pure (they return rows); ``python -m model.growth_check`` prints them (``--json``).
 Realistic fields are steady states of ``model.fem`` at the paper's Table 4 H, ambient 20 °C, T_ref 20 °C.

@@ -12,14 +12,14 @@ Becker & Kaye 1962: Nu = 0.409·Ta^0.241, m ≈ 0.48), joined by a Churchill–U
 with crossover speed n_c. Parametrised by the levels at 0 and N_REF (ln H) and ln n_c: the levels are what a
 window determines, which made the fit converge in ~40 instead of ~120 model runs with (ln H0, m, ln n_c).
 The sign of the exponent is free: the identified H are *effective* coefficients referred to the single
-ambient Ti (docs/model.md), and an air gap that warms with speed makes the effective H fall with speed.
+ambient Ti (docs/design/model.md), and an air gap that warms with speed makes the effective H fall with speed.
 
 **Tabulated family** (``NODES``, the default): ln H_i at the speed nodes 0, 1000, ..., 7000 rpm (8 per zone,
 56 in all), linear in between (constant outside), plus the same ln A_i(Ti). Its prior carries the physics:
 mean from the physics curves, smoothness from a second-difference penalty. Linear in θ, so the fit converges
-in ~15 model runs; its interpolation error is ~1 %. Measured on the virtual plant (docs/hmap.md), it gives
-smaller H errors and honest bands, where the 3-parameter family's model-form error (up to 16 % for H7) is
-compensated by the other zones in the sensor fit (errors 10-20 % at visited speeds with bands of 5-10 %).
+in ~15 model runs; its interpolation error is ~1 %. Measured on the virtual plant (docs/design/hmap.md), it
+gives smaller H errors and honest bands, where the 3-parameter family's model-form error (up to 16 % for H7)
+is compensated by the other zones in the sensor fit (errors 10-20 % at visited speeds with bands of 5-10 %).
 
 Ambient (both families, no parameter): H ∝ λ·ν^(−m) through the air properties at the film temperature
 (``model.empirical.air_properties``): A = (λ(Ti)/λ(T_ref))·(ν(T_ref)/ν(Ti))^m_i with the physics m_i
@@ -30,7 +30,7 @@ for H1–H5 and H7 and, for H6 (which ``model.empirical`` treats as still air), 
 annulus with the natural-convection floor; wide (σ 1.5 in ln H: a factor 4.5 at 1σ).
 
 Neither family contains the virtual plant's ``h_true`` (a tanh in n): ``Family.form_error`` measures the
-best fit over 0..7000 rpm (docs/hmap.md).
+best fit over 0..7000 rpm (docs/design/hmap.md).
 
 Errors::
 
@@ -64,7 +64,7 @@ CURVATURE_SD = 0.3  # tabulated family prior σ of the second difference of ln H
 # tabulated family: σ of a rotating zone's linear trend of ln H over speed (± TREND_SD at 0 and 7000 rpm, 0 at
 # the middle node), added to the smoothed node prior. Without it the physics curve's trend was known to ±0.8
 # (the per-node σ averaged over 8 nodes) and H1, which the data barely determine, kept the physics curve's
-# rising trend where the plant's falls (docs/hmap.md, "H1 at 4000 rpm on the chain"). 2.0 ≈ the physics
+# rising trend where the plant's falls (docs/design/hmap.md, "H1 at 4000 rpm on the chain"). 2.0 ≈ the physics
 # family's own prior on the rise from 0 to 3500 rpm (two independent levels of σ 1.5: σ 2.1): the sign of a
 # rotating surface's effective exponent is free. Stationary zones (H6, H7) keep the node prior alone.
 TREND_SD = 2.0

@@ -279,7 +279,7 @@ def identify_map(
     ``bias_sd_c`` (scalar or (32,) °C, None: none): 1σ of a constant per-channel bias (the sensor offsets
     still unknown after a baseline, the reduced model's error at the sensor); each used channel's bias is
     fitted jointly with θ under that Gaussian prior and marginalised out of the posterior, so a bias is not
-    read as H (a 0.03 °C offset error, a 30-sample baseline's, moved H5 by 40 % without; docs/hmap.md).
+    read as H (a 0.03 °C offset error, a 30-sample baseline's, moved H5 by 40 % without; docs/design/hmap.md).
     ``start_modes`` (K, r) reduced directions of the start state's error (e.g. a filtered state's leading
     eigenvectors scaled by √eigenvalue): their coefficients (prior N(0, 1)) are fitted too, the response
     linearised at the start and again at the optimum if θ moved more than ``RELINEARISE``, then

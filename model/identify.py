@@ -119,7 +119,7 @@ class IdentifyOptions:
     # °C, 1σ of a constant per-channel model error carried in the CIs (``channel_bias_cov``): what is left of
     # the reduced model's and the plant's differences at the sensors, at its measured peak (projection
     # ≤ 0.011 °C, mesh ≤ 0.02 °C at 7000 rpm); 0.01 (the mesh's RMS) left H6/H7 at 0.86-0.89 coverage
-    # (docs/identification.md, "Model error and sensor offsets", "Hidden-truth bench")
+    # (docs/design/identification.md, "Model error and sensor offsets", "Hidden-truth bench")
     model_error_c: float = 0.02
     # with ``start_cov``: also fit the start state along its k leading uncertain directions (eigenvectors of
     # start_cov scaled by √eigenvalue, each with a N(0, 1) prior), profiled out per candidate H by a ridge

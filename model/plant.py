@@ -4,7 +4,7 @@ It runs the FE model on a finer mesh than the service (no inverse crime) with it
 ``h_true(speed, ambient, torque)``, follows an operating profile and produces the 32 sensor time series as a
 DAQ would report them: Gaussian noise, quantisation, constant per-channel offsets and channel faults.
 
-Ground truth H (documented in docs/model.md)::
+Ground truth H (documented in docs/design/model.md)::
 
     H_i(n, Ti) = clip(HA_i * (1 + d_i * tanh((n - 3000) / 1500)) * exp(-0.01 * (Ti - 23.2)), 5, 200)
 

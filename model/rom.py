@@ -34,7 +34,7 @@ Array = NDArray[np.float64]
 
 # 56 with TRAIN_SUBSTEPS 4: the served model (exact over each held step) within 0.012 °C of a full FE
 # converged in time over 8 x 6 random H x 2 histories, where rank 46 (10-s BE training) reached 0.040 °C and
-# 52 0.022 °C (target 0.02); ~1.2x the cost per candidate of 46 (docs/rom.md, "Choices")
+# 52 0.022 °C (target 0.02); ~1.2x the cost per candidate of 46 (docs/design/rom.md, "Choices")
 DEFAULT_RANK = 56
 # θ-steps per 10-s step of the training trajectories' fast part: the snapshots follow the exact time response
 # the served model reproduces (1, 10-s BE snapshots: rank 56 still 0.019 °C off a converged reference)
@@ -43,7 +43,7 @@ DEFAULT_THETA = 1.0  # as model.fem.simulate (backward Euler); checked by the te
 # 0: the reduced ODE is integrated exactly over each 10-s input step (zero-order hold), so the model has no
 # time-step error; backward Euler at 10 s was 0.07-0.14 °C off a converged reference at the sensors (issue 15)
 DEFAULT_SUBSTEPS = 0
-# spectral split (model.rom_split; docs/rom.md, "Spectral split"): -1 at the first gap of the spectrum
+# spectral split (model.rom_split; docs/design/rom.md, "Spectral split"): -1 at the first gap of the spectrum
 # (33 slow modes for the default model), k > 0: k slow modes, 0: all modes exact
 DEFAULT_N_SLOW = rom_split.AUTO
 DEFAULT_BOX = (5.0, 200.0)
@@ -331,7 +331,8 @@ def build_rom(
         substeps=opts.substeps,
     )
     report = _error_report(
-        replace(rom, substeps=1),  # the projection error: both sides take the same θ-steps (docs/rom.md)
+        # the projection error: both sides take the same θ-steps (docs/design/rom.md)
+        replace(rom, substeps=1),
         fe,
         theta=opts.theta,
         box=opts.box,

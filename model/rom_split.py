@@ -1,7 +1,7 @@
 """Spectral split of the reduced model: slow modes exact, the fast ones quasi-static plus their transients.
 
 The reduced conductance K_r(H) has eigenvalues λ spanning λΔt ≈ 0–14 at Δt = 10 s, and one batched 56 × 56
-``eigh`` per candidate was two thirds of an evaluation (docs/rom.md, "Evaluation cost"). The top of the
+``eigh`` per candidate was two thirds of an evaluation (docs/design/rom.md, "Evaluation cost"). The top of the
 spectrum hardly moves with H over the box, so the split is fixed, independent of H: the eigenbasis Ψ of K_r
 at the box centre, its first ``n_slow`` vectors slow (s; by default at the first gap of that spectrum,
 ``choose_split``: 33 of 56 for the service's model), the rest fast (f). Per candidate, in Ψ:
@@ -23,7 +23,7 @@ per-candidate weights. y(0) is the exact projection of the start. Only for the e
 (``substeps`` 0): with backward Euler at 10 s the fast modes do not die out within a step.
 
 What it costs in accuracy (≤ 0.003 °C off the exact modal evaluation, no change of the error against a
-converged full FE) and what it saves: docs/rom.md, "Spectral split". Pure numpy; no I/O.
+converged full FE) and what it saves: docs/design/rom.md, "Spectral split". Pure numpy; no I/O.
 """
 
 from __future__ import annotations
@@ -116,7 +116,7 @@ def split_operators(
 def choose_split(centre_lam: Array) -> int:
     """The number of slow modes: the first k ≥ r/2 with λ_k ≥ ``AUTO_GAP_RATIO``·λ_k−1 and λ_k ≥
     ``AUTO_MIN_RATE`` in the ascending centre spectrum [1/s] (33 for the service's default model, whose gap
-    holds over the whole box: docs/rom.md, "Spectral split"); 0 if there is none."""
+    holds over the whole box: docs/design/rom.md, "Spectral split"); 0 if there is none."""
     lam = np.asarray(centre_lam, dtype=np.float64)
     for k in range(max(1, lam.size // 2), lam.size):
         if lam[k] >= AUTO_GAP_RATIO * lam[k - 1] and lam[k] >= AUTO_MIN_RATE:

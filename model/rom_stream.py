@@ -33,7 +33,7 @@ from model.rom_modal import (
 
 Array = NDArray[np.float64]
 
-DEFAULT_CHUNK = 32  # steps per chunk; measured in docs/rom.md ("Streaming the window")
+DEFAULT_CHUNK = 32  # steps per chunk; measured in docs/design/rom.md ("Streaming the window")
 
 
 @dataclass(frozen=True)

@@ -7,7 +7,7 @@ elements; strains ε_rr = ∂u_r/∂r, ε_zz = ∂u_z/∂z, ε_θθ = u_r/r, γ_
     K u = B ΔT        K = ∫ [λ tr ε(u) tr ε(v) + 2μ (ε(u):ε(v))] 2πr,   B = ∫ β φ tr ε(v) 2πr,
                       β = E α / (1 − 2ν),   ΔT = T − T_ref (P1 nodal, the thermal model's field)
 
-Boundary conditions (``[mechanics]`` in the spindle TOML, docs/growth.md): u_r = 0 on the axis; u_z = 0
+Boundary conditions (``[mechanics]`` in the spindle TOML, docs/design/growth.md): u_r = 0 on the axis; u_z = 0
 (and u_r = 0 with ``fix = "axial_radial"``) on the housing's mounting face; the shaft is held axially only
 through the bearings that are fused into the mesh (the locating front pair); a *floating* bearing gets its own
 copy of the nodes on the sliding surface, tied to the other side in u_r only (frictionless axial slide).

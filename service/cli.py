@@ -78,7 +78,8 @@ def build_parser(argv: Sequence[str]) -> argparse.ArgumentParser:
 
 def _limit_blas_threads() -> None:
     """One BLAS thread per process: the FE/ROM solves are small, and OpenBLAS' thread pool made them 2-50x
-    slower on a loaded 2-core machine (measured; docs/model.md). Must happen before numpy is imported."""
+    slower on a loaded 2-core machine (measured; docs/design/model.md). Must happen before numpy is
+    imported."""
     for var in ("OPENBLAS_NUM_THREADS", "OMP_NUM_THREADS", "MKL_NUM_THREADS"):
         os.environ.setdefault(var, "1")
 

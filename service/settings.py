@@ -149,7 +149,8 @@ class AcquisitionSettings(_Section):
 class ModelSettings(_Section):
     spindle: Path | None = None  # None → packaged model/data/spindle.toml
     mesh_size_m: float | None = Field(default=None, gt=0)  # None → model.fem default service mesh
-    rom_rank: int = Field(default=56, ge=1)  # 30 biased H by 10-26 %, 46 0.04 °C off (issue 15, docs/rom.md)
+    # 30 biased H by 10-26 %, 46 0.04 °C off (issue 15, docs/design/rom.md)
+    rom_rank: int = Field(default=56, ge=1)
     rom_cache_dir: Path = Field(default_factory=default_cache_dir)
     h_box: tuple[float, float] = (5.0, 200.0)  # search box for H1..H7, W/(m²·K)
 
@@ -167,7 +168,8 @@ class IdentificationSettings(_Section):
     # re-identify this long after a condition change (or after the live state's convergence on a restart).
     # The first entry is 7 min, not 10: the window starts from the converged filtered state with its
     # covariance, so the first H is served within 13 min of a (re)start, also when the restart falls just
-    # before a change (docs/estimator.md, "First served H after a start"); the later windows are unchanged
+    # before a change (docs/design/estimator.md, "First served H after a start"); the later windows are
+    # unchanged
     schedule_min: tuple[float, ...] = (7.0, 20.0, 40.0, 60.0)
     min_window_s: float = Field(default=420.0, gt=0)  # shorter windows are skipped ("too little data")
     max_window_s: float = Field(default=3600.0, gt=0)  # fit at most this much recent data
@@ -177,9 +179,10 @@ class IdentificationSettings(_Section):
     # the filtered start state's leading uncertain directions fitted in each window (0: only carried)
     start_modes: int = Field(default=START_MODES, ge=0)
     # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);
-    # false: noise-only CIs, which undercover at chained conditions (docs/service.md)
+    # false: noise-only CIs, which undercover at chained conditions (docs/design/service.md)
     carry_start_error: bool = CARRY_START_ERROR
-    # 95 % half-width of log H (≈ relative half-width) above this → "not identified" (docs/identification.md)
+    # 95 % half-width of log H (≈ relative half-width) above this → "not identified"
+    # (docs/design/identification.md)
     ci_rel_threshold: float = Field(default=CI_REL_THRESHOLD, gt=0)
     timeout_s: float = Field(default=120.0, gt=0)
     seed: int = 0
@@ -192,13 +195,13 @@ class IdentificationSettings(_Section):
     # "per_condition": one H per held condition (the paper's protocol: schedule_min, min/max_window_s);
     # "speed_map": H = F(n, Ti) fitted over a rolling window of map_window_min, re-fitted map_debounce_s
     # after each condition change (and every map_refit_min), served at the current speed at once
-    # (docs/hmap.md); "combined": both, the per-condition H served at a condition held longer than the first
-    # schedule entry, the map's elsewhere (docs/hmap.md "Combined mode")
+    # (docs/design/hmap.md); "combined": both, the per-condition H served at a condition held longer than the
+    # first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode")
     mode: Literal["per_condition", "speed_map", "combined"] = "combined"
     map_family: Literal["nodes", "physics"] = "nodes"  # model.hmap: tabulated over speed nodes, or physics
     map_window_min: float = Field(default=60.0, gt=0)  # rolling window of each map fit
     # a cold start waits for this much data (7 served 3 min sooner a first map whose bands missed H6/H7 from a
-    # cold start: docs/hmap.md "Measured: restart")
+    # cold start: docs/design/hmap.md "Measured: restart")
     map_min_window_min: float = Field(default=10.0, gt=0)
     map_debounce_s: float = Field(default=30.0, ge=0)  # after a confirmed change, wait this long
     map_refit_min: float = Field(default=10.0, gt=0)  # fit again after this long without a change
@@ -209,16 +212,16 @@ class IdentificationSettings(_Section):
     map_min_visit_s: float = Field(default=60.0, ge=0)  # seconds of data at a speed before it is visited
     map_forget_tau_h: float = Field(default=4.0, gt=0)  # forgetting time of the map's information
     # the live filter's considered H error: "map" (the newest map's band) or "prior" (the band of the prior
-    # a window starting now would get: no feedback of the fits being refined; docs/hmap.md)
+    # a window starting now would get: no feedback of the fits being refined; docs/design/hmap.md)
     map_live_h_error: Literal["map", "prior"] = "map"
     # covariance intersection ω of a fit's chained prior and its start field, which share earlier data:
-    # prior covariance / ω, start covariance / (1 − ω); 1: treated as independent (docs/hmap.md)
+    # prior covariance / ω, start covariance / (1 − ω); 1: treated as independent (docs/design/hmap.md)
     map_prior_weight: float = Field(default=0.25, gt=0, le=1)
     # the start covariance's H part: θ draws from the prior run through the map_start_lead_min before the
-    # window (0: the live state's covariance only; docs/hmap.md)
+    # window (0: the live state's covariance only; docs/design/hmap.md)
     map_start_draws: int = Field(default=0, ge=0)
     map_start_lead_min: float = Field(default=10.0, gt=0)
-    # σ of the cold prior's overall ln H level per zone, around the physics curves (docs/hmap.md)
+    # σ of the cold prior's overall ln H level per zone, around the physics curves (docs/design/hmap.md)
     map_prior_level_sd: float = Field(default=0.0, ge=0)
 
     @field_validator("schedule_min")
@@ -282,7 +285,7 @@ PLACEHOLDER_TOKENS = ("change-me", "changeme", "replace-me", "your-token", "exam
 
 
 class GrowthSettings(_Section):
-    """The thermal growth at the tool (``/compensation``, docs/growth.md)."""
+    """The thermal growth at the tool (``/compensation``, docs/design/growth.md)."""
 
     # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed);
     # None: the live state's start temperature (the spindle as it was when the service started)

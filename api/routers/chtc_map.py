@@ -1,5 +1,5 @@
-"""GET /chtc/map: the H map H = F(n, Ti) over the speed range (speed-map mode, docs/hmap.md), with its 95 %
-bands, the speeds the fitted data have covered and how current the map is (cheap, with a weak ETag).
+"""GET /chtc/map: the H map H = F(n, Ti) over the speed range (speed-map mode, docs/design/hmap.md), with its
+95 % bands, the speeds the fitted data have covered and how current the map is (cheap, with a weak ETag).
 
 Per-condition mode (``identification.mode = "per_condition"``, the paper's protocol) has no map: 404
 ``not_found`` saying so. In speed-map mode before the first map fit: 503 ``no_data`` with ``Retry-After``.

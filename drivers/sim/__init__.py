@@ -1,4 +1,4 @@
-"""Simulated devices for tests, ``chtc demo``, ``chtc simulate`` and replays (see docs/simulation.md).
+"""Simulated devices for tests, ``chtc demo``, ``chtc simulate`` and replays (see docs/design/simulation.md).
 
 - ``source``: ``Timeline`` (what a ``model.plant.PlantRun`` offers), ``ArrayTimeline``, ``TimelineSource``
   (simulated time = speed-up × injected wall clock);

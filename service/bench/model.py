@@ -19,7 +19,7 @@ Figures (one 60-min window = 360 steps of 10 s, the service's default mesh unles
   turn's own pair; ``speedup_rom_single_vs_full`` likewise for one candidate; ``timing_turns`` lists each
   turn's times);
 - ``growth_build_s``, ``growth_eval_us``, ``growth_eval_reduced_us``: the thermal-growth operators
-  (docs/growth.md): build time, and one evaluation of all outputs from a field / from a reduced state.
+  (docs/design/growth.md): build time, and one evaluation of all outputs from a field / from a reduced state.
 
 Progress goes to stderr; ``--json`` prints one JSON object, otherwise a table.
 """
@@ -48,10 +48,10 @@ if TYPE_CHECKING:
     from model.inputs import InputSeries
     from model.rom import ReducedModel
 
-TARGETS = (  # docs/rom.md, "Target check"
+TARGETS = (  # docs/design/rom.md, "Target check"
     Target("full_vs_reference_max_err_c", "<=", 0.02, unit="°C"),
     Target("rom_max_err_c", "<=", 0.05, unit="°C"),
-    # issue 15's model error budget (docs/rom.md)
+    # issue 15's model error budget (docs/design/rom.md)
     Target("rom_vs_converged_max_err_c", "<=", 0.02, unit="°C"),
     Target("speedup_rom_vs_full", ">=", 500.0, unit="x"),
     Target("rom_build_s", "<=", 60.0, unit="s"),
@@ -234,7 +234,8 @@ def _rom_figures(
 
 
 def _growth_figures(fe: FEModel, spec: SpindleSpec) -> dict[str, Any]:
-    """Thermal growth (docs/growth.md): operator build time [s] and one evaluation [µs], nodal and reduced."""
+    """Thermal growth (docs/design/growth.md): operator build time [s] and one evaluation [µs], nodal and
+    reduced."""
     from model.growth_check import eval_cost_us
     from model.thermoelastic import build_growth_model
 

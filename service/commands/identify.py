@@ -192,7 +192,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     if span_s < need_s:
         lines.append(
             "a recording of a sped-up simulation stamped with wall time looks this short: record it with "
-            "`chtc record --speedup` equal to the simulator's (docs/simulation.md)"
+            "`chtc record --speedup` equal to the simulator's (docs/design/simulation.md)"
         )
     return lines
 
@@ -246,7 +246,7 @@ def main(args: argparse.Namespace) -> int:
     settings = settings.model_copy(update={"identification": ident})
     model = load_model(ModelRef.from_settings(settings.model))
     growth = None
-    if args.json_out is not None:  # the growth history (docs/growth.md): only for the JSON
+    if args.json_out is not None:  # the growth history (docs/design/growth.md): only for the JSON
         from service.engine.growthserve import GrowthHistory
 
         growth = GrowthHistory(model, t_ref_c=settings.growth.reference_c)

@@ -9,9 +9,9 @@ identifications) every identification is in the database and in ``--out`` (JSON,
 The DAQ serves the recording reduced to the rows the acquisition samples (``write_acquisition_csv``: one row
 per ``acquisition.sample_period_s``, the newest recorded row at each sample instant), and the acquisition is
 started in phase with them, so a replay sees the same samples as ``chtc identify`` on the same files, also for
-real-time recordings with one jittered row per second; see docs/service.md for what can still differ.
+real-time recordings with one jittered row per second; see docs/design/service.md for what can still differ.
 
-The growth history (docs/growth.md): while the log plays, what ``/compensation`` serves is read every
+The growth history (docs/design/growth.md): while the log plays, what ``/compensation`` serves is read every
 ``--growth-every-s`` recorded seconds and at each new identification (``GrowthLog``), and written to
 ``--growth-out`` (JSON, or CSV by suffix; default next to ``--out``): the time (UTC), the status and
 usability of ``/chtc``, the identification, the axial and radial growth in µm with their 95 % CIs and

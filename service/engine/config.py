@@ -41,10 +41,10 @@ class CoreConfig:
     calibration: CalibrationConfig | None = field(default_factory=CalibrationConfig)
     # identification.mode: None = "per_condition" (the paper's protocol, one H per held condition); a
     # MapConfig = "speed_map" (H = F(n, Ti) over a rolling window, re-fitted on condition changes;
-    # docs/hmap.md)
+    # docs/design/hmap.md)
     speed_map: MapConfig | None = None
     # identification.mode = "combined" (with a speed_map): the per-condition schedule runs as well, and its
-    # identification of the current, held condition is served instead of the map's H (docs/hmap.md
+    # identification of the current, held condition is served instead of the map's H (docs/design/hmap.md
     # "Combined mode")
     combined: bool = False
 

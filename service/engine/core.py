@@ -187,7 +187,7 @@ class ServiceCore:
         )
         if self._calibrator is not None:  # a restored baseline's offsets go to the filter at once
             self._live.set_offsets(self._calibrator.offsets(), self._calibrator.offset_sd())
-        # speed-map mode (docs/hmap.md): the latest map fit (a restored one is stale until re-fitted)
+        # speed-map mode (docs/design/hmap.md): the latest map fit (a restored one is stale until re-fitted)
         self._speed_map: SpeedMap | None = restored.speed_map if config.speed_map is not None else None
         self._map = None if config.speed_map is None else MapBook(config, model, self._speed_map)
         # combined mode: the newest map fit and per-condition identification; the held condition's
@@ -609,7 +609,7 @@ class ServiceCore:
         job = self._jobs.jobs_view[job_key(start.job_id)]
         out.instructions.append(ManualAccepted(out.event_id, job))
 
-    # --- speed-map mode (docs/hmap.md) ------------------------------------------------------------------
+    # --- speed-map mode (docs/design/hmap.md) ---------------------------------------------------------------
     def _map_sample(self, s: NewestSample, ts: float, out: _Out) -> None:
         """Count the sample's speed, give the live state H from the map at its speed, fit when due."""
         book = self._map
@@ -625,7 +625,7 @@ class ServiceCore:
         of the current condition while that condition is stable (not restored: a stored one waits for
         its re-identification, as in per-condition mode); else the newest map fit (the per-condition one
         when there is no map yet). Measured better at a held condition on the chain and after restarts,
-        the map on a duty cycle (docs/hmap.md "Combined mode")."""
+        the map on a duty cycle (docs/design/hmap.md "Combined mode")."""
         if not self._combined:
             return
         pc, cond = self._cond_rec, self._condition

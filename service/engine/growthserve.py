@@ -1,5 +1,5 @@
 """Serving the thermal growth at the tool (``GET /compensation``): the shell's side of
-``service.estimate.growth`` (docs/growth.md, "Serving").
+``service.estimate.growth`` (docs/design/growth.md, "Serving").
 
 Three stages, by how often their inputs change:
 

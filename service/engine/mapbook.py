@@ -1,6 +1,6 @@
-"""The core's speed-map bookkeeping (``identification.mode = "speed_map"``, docs/hmap.md): when a map fit is
-due, the running fit, the posteriors kept for the next windows' priors and the visited-speed tally. Pure: no
-I/O, no clock; ``service.engine.core`` owns one.
+"""The core's speed-map bookkeeping (``identification.mode = "speed_map"``, docs/design/hmap.md): when a map
+fit is due, the running fit, the posteriors kept for the next windows' priors and the visited-speed tally.
+Pure: no I/O, no clock; ``service.engine.core`` owns one.
 """
 
 from __future__ import annotations

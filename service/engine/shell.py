@@ -211,7 +211,7 @@ class SoftSensorService:
 
     @property
     def growth(self) -> GrowthServer:
-        """The thermal growth's server (``compensation()``; docs/growth.md)."""
+        """The thermal growth's server (``compensation()``; docs/design/growth.md)."""
         return self._growth
 
     @property

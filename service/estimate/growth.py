@@ -1,6 +1,6 @@
 """The thermal growth a compensation controller acts on, with its 95 % CI and forecast (pure, no I/O).
 
-Three stages, by how often their inputs change (docs/growth.md, "Serving"):
+Three stages, by how often their inputs change (docs/design/growth.md, "Serving"):
 
 1. ``build_context(spec, fe, basis=...)`` once per model: the growth operators g (``model.thermoelastic``)
    of the two served outputs, nose axial and nose radial growth [µm/K], and g·Φ for a reduced basis Φ.
@@ -467,7 +467,7 @@ def estimate_growth(
 
 @dataclass(frozen=True, kw_only=True)
 class PlcCompensation:
-    """Values a PLC writes to a CNC for one growth [µm] (docs/growth.md, "Controller mapping").
+    """Values a PLC writes to a CNC for one growth [µm] (docs/design/growth.md, "Controller mapping").
 
     ``correction_um``: the axis correction that cancels the nose's axial growth, −tool_dir·growth: the tool
     tip moved by tool_dir·growth along the machine axis, so the axis must move the other way.

@@ -1,8 +1,8 @@
 """What the live state's readers share: ``LiveStateError`` and the steady field of a live view.
 
 The live state itself is the filtered one (``service.estimate.state.FilteredState``, a Kalman filter on the
-reduced model, docs/estimator.md); the open-loop ``LiveModel`` it replaced (an FE march of a uniform first
-guess with the current H, rebased after each identification) is gone.
+reduced model, docs/design/estimator.md); the open-loop ``LiveModel`` it replaced (an FE march of a uniform
+first guess with the current H, rebased after each identification) is gone.
 
 Errors::
 

@@ -1,7 +1,7 @@
 """The filtered live state: ``model.estimator`` behind the interface the service's core uses (pure, no I/O).
 
-Replaces the open-loop ``service.estimate.live.LiveModel`` (docs/estimator.md, "Service adapter"). Each sample
-is ``push``-ed with its inputs (ambient, speed, torque: the bearing heats from
+Replaces the open-loop ``service.estimate.live.LiveModel`` (docs/design/estimator.md, "Service adapter"). Each
+sample is ``push``-ed with its inputs (ambient, speed, torque: the bearing heats from
 ``model.inputs.inputs_from_operation``), its 32 temperatures, the usable mask (quality OK) and the
 calibration's offsets: the reduced state advances on a fixed grid of ``dt_s`` with the previous sample's
 inputs held (the ``LiveModel.push`` convention) and is corrected by the usable channels (Schmidt–Kalman
@@ -69,7 +69,7 @@ Array = NDArray[np.float64]
 
 @dataclass(frozen=True)
 class FilterSettings:
-    """Tuning of the filtered state (docs/estimator.md): noise, prior, convergence test and memory.
+    """Tuning of the filtered state (docs/design/estimator.md): noise, prior, convergence test and memory.
 
     ``prior`` the restart prior's shape: "heated" (the steady heated fields' second moment plus a small
     isotropic part, ``model.estimator.heated_prior``) or "wide" (isotropic, ``wide_prior``);

@@ -51,7 +51,7 @@ class SpeedMapError(ServiceError, ValueError):
 class MapConfig:
     """The speed map mode's knobs (``identification.map_*`` settings; times in s, speeds in rpm).
 
-    window_s: the rolling window of recent data each fit uses (60 min measured, docs/hmap.md);
+    window_s: the rolling window of recent data each fit uses (60 min measured, docs/design/hmap.md);
     min_window_s: the shortest window fitted (a cold start waits this long);
     debounce_s: after a confirmed condition change, wait this long without another change before fitting;
     refit_s: fit again after this long without a change (a long hold keeps the map current);
@@ -63,9 +63,9 @@ class MapConfig:
     family: "nodes" | "physics" (``model.hmap``);
     live_h_error: the live filter's considered H error: "map" the newest map's band at the current speed,
     "prior" the band of the prior a window starting now would get (the decayed posterior of a fit whose
-    window ended at least ``window_s`` ago: independent of the fits being refined; docs/hmap.md);
+    window ended at least ``window_s`` ago: independent of the fits being refined; docs/design/hmap.md);
     prior_weight: covariance intersection of the fit's prior and start field (ω in (0, 1]; 1: independent):
-    the prior's covariance is divided by ω and the start covariance by 1 − ω (docs/hmap.md);
+    the prior's covariance is divided by ω and the start covariance by 1 − ω (docs/design/hmap.md);
     start_draws: θ draws from the prior run through the ``start_lead_s`` before the window to add the
     map's H error to the start covariance (``mapjob.theta_start_cov``; 0: the live state's covariance only);
     prior_level_sd: σ of the cold prior's overall ln H level per zone (``model.hmap.Family.prior``).

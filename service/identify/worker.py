@@ -90,7 +90,7 @@ class JobRequest:
     ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
     offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.acquire.calibration)
     offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
-    # speed-map mode (docs/hmap.md): fit H = F(n, Ti) with this prior instead of one H for the window
+    # speed-map mode (docs/design/hmap.md): fit H = F(n, Ti) with this prior instead of one H for the window
     speed_map: MapJob | None = None
 
 
@@ -300,7 +300,7 @@ def run_job(
 
 def _run_map_job(model: LoadedModel, req: JobRequest) -> JobOutcome:
     """A speed-map job (``service.identify.mapjob``). Not cancellable: it runs ~0.1-1 s and the next window
-    starts from its posterior (docs/hmap.md)."""
+    starts from its posterior (docs/design/hmap.md)."""
     from service.identify.mapjob import run_map_identification
 
     assert req.speed_map is not None
@@ -334,7 +334,7 @@ def run_job_in_process(req: JobRequest) -> JobOutcome:
 
 # --- in the service process -----------------------------------------------------------------------
 # The worker runs at a lower priority so that an identification (a whole core for up to a second) does not
-# push the API's /chtc p99 above twice its idle value on a 2-core machine (docs/api.md, chtc bench api).
+# push the API's /chtc p99 above twice its idle value on a 2-core machine (docs/design/api.md).
 WORKER_NICE = 10
 _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 

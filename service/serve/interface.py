@@ -332,8 +332,8 @@ class ChtcSnapshot:
 @dataclass(frozen=True, eq=False, kw_only=True)
 class ChtcMapSnapshot:
     """The identified H map H = F(n, Ti) over the speed range (``identification.mode = "speed_map"``,
-    docs/hmap.md): H1-H7 and their 95 % bands on a speed grid at the current ambient, the speeds the data
-    have covered, and how current the map is.
+    docs/design/hmap.md): H1-H7 and their 95 % bands on a speed grid at the current ambient, the speeds the
+    data have covered, and how current the map is.
 
     Built by ``service.serve.views.chtc_map_snapshot`` only. Arrays are read-only; speeds in rpm, H in
     W/(m²·K), durations in s, times UTC. Between and beyond the visited speeds the map is the prior's
@@ -433,10 +433,10 @@ class HistogramData:
 
 @dataclass(frozen=True, kw_only=True)
 class FilterMetrics:
-    """The live state's Kalman filter (docs/estimator.md): the last sample's normalised innovation squared
-    ``nis`` over ``dof`` used channels (E[nis] = dof under a consistent filter), the NIS window's Σ NIS / Σ
-    dof (``window_ratio``, ≈ 1 when consistent), its verdict ("filling", "ok", "high", "low"), whether the
-    state has ``converged`` since the (re)start and whether the NIS has been above its band long enough to
+    """The live state's Kalman filter (docs/design/estimator.md): the last sample's normalised innovation
+    squared ``nis`` over ``dof`` used channels (E[nis] = dof under a consistent filter), the NIS window's Σ
+    NIS / Σ dof (``window_ratio``, ≈ 1 when consistent), its verdict ("filling", "ok", "high", "low"), whether
+    the state has ``converged`` since the (re)start and whether the NIS has been above its band long enough to
     be reported (``inconsistent``)."""
 
     nis: float
@@ -474,10 +474,10 @@ class MetricsSnapshot:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class CompensationSnapshot:
-    """What ``/compensation`` serves (docs/growth.md): the thermal growth at the spindle nose from the live
-    field (``growth``: µm, 0.1-µm integers, 95 % CIs, forecast, sensor sensitivity; frozen) with the status
-    and usability of ``/chtc`` at the same instant (the same rules), and the controller values of the axial
-    growth (``plc``, for a tool pointing along ``tool_dir`` of the machine axis)."""
+    """What ``/compensation`` serves (docs/design/growth.md): the thermal growth at the spindle nose from the
+    live field (``growth``: µm, 0.1-µm integers, 95 % CIs, forecast, sensor sensitivity; frozen) with the
+    status and usability of ``/chtc`` at the same instant (the same rules), and the controller values of the
+    axial growth (``plc``, for a tool pointing along ``tool_dir`` of the machine axis)."""
 
     growth: GrowthEstimate
     status: ChtcStatus
@@ -494,8 +494,8 @@ class CompensationSnapshot:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class SectionSnapshot:
-    """What ``/compensation/section`` serves (docs/growth.md, "The deformed section"): the outline of the
-    spindle's axisymmetric section (``nodes_rz`` (M, 2) [m], ``edges`` (E, 2) node indices: every region's
+    """What ``/compensation/section`` serves (docs/design/growth.md, "The deformed section"): the outline of
+    the spindle's axisymmetric section (``nodes_rz`` (M, 2) [m], ``edges`` (E, 2) node indices: every region's
     boundary) and its displacement ``u_um`` (2, M) [µm] (u_r, u_z) by the live field over the reference
     ``t_ref_c``, at ``at`` (UTC, the live field's instant), with the status of ``/compensation``."""
 

@@ -100,8 +100,8 @@ def _bools(values: Sequence[bool] | Sequence[JsonValue] | None) -> BoolArray:
 
 
 def _ci_lo(values: Sequence[float | None] | None) -> FloatArray:
-    """Lower CI bounds; a record stored before the CIs were computed in log H (docs/identification.md) may
-    hold a negative one: H is positive, so it is served as 0."""
+    """Lower CI bounds; a record stored before the CIs were computed in log H (docs/design/identification.md)
+    may hold a negative one: H is positive, so it is served as 0."""
     with np.errstate(invalid="ignore"):
         out = np.where(_floats(values) < 0.0, 0.0, _floats(values))
     out.setflags(write=False)
@@ -263,7 +263,7 @@ def chtc_snapshot(
     )
 
 
-# --- speed-map mode (docs/hmap.md) ----------------------------------------------------------------------
+# --- speed-map mode (docs/design/hmap.md) -------------------------------------------------------------------
 
 
 def _ro(a: FloatArray) -> FloatArray:

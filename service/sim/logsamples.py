@@ -10,7 +10,7 @@ most ``can_stale_s`` old and its status byte is not FAULT (else NaN with ``can_o
 acquisition does), or a stated constant. DAQ status codes map to qualities (0 OK, 1 open circuit, 2 out of
 range); a non-finite temperature is NAN. Unknown-ID, wrong-DLC or garbled frames are counted and skipped,
 like the live CAN driver does. ``write_acquisition_csv`` writes the rows those samples show, one per period,
-for ``chtc replay`` to serve (so both commands see the same data; docs/service.md).
+for ``chtc replay`` to serve (so both commands see the same data; docs/design/service.md).
 
 ``samples_from_plant`` turns a ``model.plant.PlantRun`` into one sample per plant row (offline runs of the
 service core: benchmarks, tests), with the same status-to-quality mapping.

@@ -1,4 +1,4 @@
-"""Cost of GET /api/v1/chtc/map on the real service in speed-map mode (docs/api.md, "H map").
+"""Cost of GET /api/v1/chtc/map on the real service in speed-map mode (docs/design/api.md, "H map").
 
 ``python3 -m tests.api.bench_chtc_map``: the service of the API tests (``served_map_mode``: 26.7 min of a
 seeded duty cycle, several map fits), then medians and 99th percentiles of ``chtc_map()``, of building

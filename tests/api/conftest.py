@@ -49,11 +49,11 @@ WRITE_TOKEN = "write-token-for-tests"
 LENIENT_CI = 25.0
 # With the filtered live state (issue 16), a cold start at 3000 rpm with no rest and no offset baseline
 # leaves H1/H4 degenerate whatever the threshold: the unknown offsets' 1σ (0.173 °C) widens the filter's
-# measurement noise and the fit's CIs (docs/estimator.md). Tests that need every H identified (the usable
-# flag, the dashboard's identified state) therefore run with known offsets: calibration off, no offset term.
-# The demo plan (11 min per condition) and what these tests expect of it were built on 10-min first windows;
-# since issue 16 the service's first window is 7 min (the first H within 13 min of a restart), which on this
-# cold start without rest leaves H1/H5 on a bound. The API tests run the demo with its 10-min windows.
+# measurement noise and the fit's CIs (docs/design/estimator.md). Tests that need every H identified (the
+# usable flag, the dashboard's identified state) therefore run with known offsets: calibration off, no offset
+# term. The demo plan (11 min per condition) and what these tests expect of it were built on 10-min first
+# windows; since issue 16 the service's first window is 7 min (the first H within 13 min of a restart), which
+# on this cold start without rest leaves H1/H5 on a bound. The API tests run the demo with its 10-min windows.
 # They run it in per-condition mode (the paper's protocol), whatever the default: their expectations (ids 1
 # and 2, one identification per condition, the `identifying` status while a job runs or after a condition
 # change, the counts) are that protocol's; the speed map's API is tested on MAP_MODE below
@@ -62,9 +62,9 @@ DEMO_WINDOWS = {"mode": "per_condition", "schedule_min": (10.0, 20.0, 40.0, 60.0
 LENIENT_IDENTIFICATION = {"ci_rel_threshold": LENIENT_CI, "offset_calibration": False, **DEMO_WINDOWS}
 
 
-# Speed-map mode (issue 17, docs/hmap.md) on a seeded duty cycle (service.sim.duty: 5 min at rest, then the
-# speed changes every 1-6 min): the first map fit comes after identification.map_min_window_min (10 min) of
-# data, re-fits follow the changes. The first MAP_FED samples (26.7 min) give several fits.
+# Speed-map mode (issue 17, docs/design/hmap.md) on a seeded duty cycle (service.sim.duty: 5 min at rest, then
+# the speed changes every 1-6 min): the first map fit comes after identification.map_min_window_min (10 min)
+# of data, re-fits follow the changes. The first MAP_FED samples (26.7 min) give several fits.
 MAP_MODE = Settings(identification={"mode": "speed_map"})
 MAP_PLAN = Plan(profile=tuple(duty_profile(7, duration_s=1800.0)))
 MAP_FED = 160

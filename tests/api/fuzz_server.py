@@ -1,4 +1,4 @@
-"""The API over the real service for the schemathesis acceptance runs (docs/api.md, "Fuzzing").
+"""The API over the real service for the schemathesis acceptance runs (docs/design/api.md, "Fuzzing").
 
 ``python -m tests.api.fuzz_server PORT [--read-token]`` serves on 127.0.0.1:PORT with the production uvicorn
 limits (``api.server.server_config``) the real service (``service.sim.served``: the core and the shell on

@@ -2,7 +2,7 @@
 
 Every check runs except ``positive_data_acceptance``: two inter-parameter rules OpenAPI cannot state
 (``points`` only with ``format=points``; ``until`` after ``since``) answer a documented 422 for inputs each
-valid on its own. The full ≥ 5-min CLI runs (docs/api.md, "Fuzzing") include that check too.
+valid on its own. The full ≥ 5-min CLI runs (docs/design/api.md, "Fuzzing") include that check too.
 """
 
 from __future__ import annotations

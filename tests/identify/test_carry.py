@@ -47,7 +47,7 @@ def test_the_gain_predicts_a_refit_from_a_perturbed_start(model: Any, cond3000: 
         start = np.full(model.rom.n_nodes, float(w.t0)) + model.rom.lift(u)
         refit = identify(model.rom, replace(w, t0=start), rng=0, spec=model.spec, warm_start=base.h)
         moved = np.abs(refit.h - base.h)
-        # the 95 % CI is computed in log H (asymmetric, docs/identification.md): σ(H) = H·σ(log H)
+        # the 95 % CI is computed in log H (asymmetric, docs/design/identification.md): σ(H) = H·σ(log H)
         sd = lambda res: res.h * np.log(res.h_ci95[:, 1] / res.h_ci95[:, 0]) / (2 * 1.959964)  # noqa: E731
         predicted = np.sqrt(np.maximum(sd(widened) ** 2 - sd(base) ** 2, 0.0))
         # compared as a vector (relative 2-norm): a component ten times smaller than the largest moves by

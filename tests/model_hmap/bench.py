@@ -8,10 +8,10 @@ The window comes from the virtual plant (1.5 mm mesh, h_true): 40 segments of 60
 4000 rpm, 10 N·m. Prints medians of ``--repeat`` runs of each (cold start: the empirical prior; chained:
 the same window again with the first fit's posterior after 1 h of forgetting as the prior).
 
-``--service``: the service's fit instead (docs/hmap.md "In the service"): the served reduced model (rank 56,
-exact step; ``service.modelload``), per-channel biases (1σ 0.034 °C: a baseline's offset error and the model
-error) and 6 start modes (0.1 °C along the model's first basis vectors) as nuisances, and the chained fit
-starting from the first fit's θ.
+``--service``: the service's fit instead (docs/design/hmap.md "In the service"): the served reduced model
+(rank 56, exact step; ``service.modelload``), per-channel biases (1σ 0.034 °C: a baseline's offset error and
+the model error) and 6 start modes (0.1 °C along the model's first basis vectors) as nuisances, and the
+chained fit starting from the first fit's θ.
 """
 
 from __future__ import annotations

@@ -33,7 +33,7 @@ def load_service_model() -> Any:
     fe = build_fe_model(spec)
     rom = load_or_build_rom(fe, spec, Path(cache), rank=SERVICE_ROM_RANK, box=(5.0, 200.0))
     # model.rom_segments implements the plain θ-step (substeps=1); the served model integrates each held step
-    # exactly since issue 15 (docs/hmap.md, "Hand-off"): compare like with like
+    # exactly since issue 15 (docs/design/hmap.md, "Hand-off"): compare like with like
     return SimpleNamespace(spec=spec, fe=fe, rom=replace(rom, substeps=1))
 
 

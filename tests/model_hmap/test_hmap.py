@@ -64,7 +64,7 @@ def test_nodes_interpolate_linearly_in_log_h_and_hold_outside() -> None:
 
 @pytest.mark.parametrize("family", FAMILIES, ids=lambda f: f.kind)
 def test_family_does_not_contain_the_plant_truth(family: Family) -> None:
-    """The best fit over 0..7000 rpm leaves an error (measured values in docs/hmap.md)."""
+    """The best fit over 0..7000 rpm leaves an error (measured values in docs/design/hmap.md)."""
     _, worst, rms = family.form_error(h_true)
     assert np.all(worst > 5e-4)
     assert worst.max() < (0.2 if family.kind == "physics" else 0.03)

@@ -52,8 +52,8 @@ def test_h_at_visited_speeds_within_the_bands(
     inside, err = _check_visited(fit, duty, k0, k1)
     assert inside.shape[0] >= 6  # speeds visited in the hour
     for zone in WELL_DETERMINED:
-        # the 95 % bands cover ~0.9 of the visited speeds over seeds (docs/hmap.md); with ~12 speeds per
-        # hour one seed can show 2/3
+        # the 95 % bands cover ~0.9 of the visited speeds over seeds (docs/design/hmap.md); with ~12 speeds
+        # per hour one seed can show 2/3
         assert inside[:, zone].mean() >= 0.6, (zone + 1, inside[:, zone], err[:, zone])
         assert np.median(err[:, zone]) <= 0.15, (zone + 1, err[:, zone])
 
@@ -149,7 +149,8 @@ def test_window_errors_name_the_field(model: Any, duty: DutyRun, cold: Gaussian)
 def test_channel_biases_and_start_modes_are_not_read_as_h(model: Any, duty: DutyRun, cold: Gaussian) -> None:
     """Constant per-channel offsets (0.05 °C 1σ, what a short baseline leaves) and a start field off along a
     known direction: fitted as nuisances (``bias_sd_c``, ``start_modes``) they leave H3, H5-H7 as accurate as
-    the clean window's fit; ignored, they move them (the measured reason for the nuisances, docs/hmap.md)."""
+    the clean window's fit; ignored, they move them (the measured reason for the nuisances,
+    docs/design/hmap.md)."""
     rng = np.random.default_rng(11)
     offsets = 0.05 * rng.standard_normal(32)
     t0 = float(duty.run.ambient_c[0])

@@ -1,4 +1,5 @@
-"""The tabulated family's prior trend (``model.hmap.TREND_SD``, docs/hmap.md "H1 at 4000 rpm on the chain").
+"""The tabulated family's prior trend (``model.hmap.TREND_SD``, docs/design/hmap.md "H1 at 4000 rpm on the
+chain").
 
 A steady 3000 → 4000 rpm window (the steady chain's) barely determines H1: its value at 4000 rpm comes from
 the data at both speeds joined by the prior's speed dependence. The physics curves rise with speed, the
@@ -104,7 +105,7 @@ def test_prior_level_term_is_an_overall_factor_per_zone(model: Any) -> None:
 def test_h1_at_4000_rpm_covered_with_the_trend_and_not_without(model: Any, z_with: np.ndarray) -> None:
     """With the trend term H1's band covers the truth at 4000 rpm in every seed; the old prior (trend_sd 0)
     misses on the same data, and every seed's z moves up (measured on seeds 101-108: mean z −1.24 and 3 of
-    8 outside the band without the trend, −0.82 and none outside with it; docs/hmap.md)."""
+    8 outside the band without the trend, −0.82 and none outside with it; docs/design/hmap.md)."""
     z_without = _h1_z(model, trend_sd=0.0)
     assert np.all(np.abs(z_with) < 1.96), z_with
     assert np.any(np.abs(z_without) >= 1.96), z_without

@@ -44,7 +44,7 @@ def test_split_is_the_served_evaluation_and_close_to_the_exact_one(rom: ReducedM
     got = rom.simulate_sensors(hs, inputs, t0, load_scale=scale, t0_shift=shift)
     exact = replace(rom, n_slow=0).simulate_sensors(hs, inputs, t0, load_scale=scale, t0_shift=shift)
     err = np.abs(got - exact)
-    assert err.max() <= 0.005, err.max()  # measured 0.002-0.003 °C on the service's mesh (docs/rom.md)
+    assert err.max() <= 0.005, err.max()  # measured 0.002-0.003 °C on the service's mesh (docs/design/rom.md)
     assert err.max() > 1e-9  # the split is an approximation: this is not the exact path
     np.testing.assert_allclose(got[:, 0], exact[:, 0], atol=1e-9)  # the start is the exact projection
     # one candidate at a time takes the trajectory path, the population the streamed one: same numbers

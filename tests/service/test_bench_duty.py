@@ -1,5 +1,6 @@
 """``chtc bench duty``: one short seed through the real service (shell, core, inline identification), the
-aggregation and the command's registration (the full bench is a measurement; docs/hmap.md has its figures)."""
+aggregation and the command's registration (the full bench is a measurement; docs/design/hmap.md has its
+figures)."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``chtc bench restart``: the aggregation over seeds and the command's registration (the full bench is a
-measurement; docs/estimator.md has its figures)."""
+measurement; docs/design/estimator.md has its figures)."""
 
 from __future__ import annotations
 

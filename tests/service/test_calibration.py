@@ -155,7 +155,7 @@ def test_the_core_zeroes_the_offsets_of_its_jobs(loaded_model: LoadedModel) -> N
     assert core.view().calibration is not None
     assert np.all(np.abs(req.offsets_c - OFFSETS) < 4.5 * 0.15 / np.sqrt(85))
     assert np.all(req.offset_sd_c < 0.03)
-    # without calibration the filtered state needs offset-free sensors to converge (docs/estimator.md)
+    # without calibration the filtered state needs offset-free sensors to converge (docs/design/estimator.md)
     _, plain = first_request(CoreConfig(calibration=None), plant_run(profile))
     assert plain.offsets_c is None and plain.offset_sd_c is None
 

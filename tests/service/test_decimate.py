@@ -1,6 +1,6 @@
 """The sample decimator keeps one sample per grid slot of ``sample_store_period_s``, whatever the jitter.
 
-docs/persistence.md: "samples grow by about 8640 rows per day at the default period" (10 s).
+docs/design/persistence.md: "samples grow by about 8640 rows per day at the default period" (10 s).
 """
 
 from __future__ import annotations

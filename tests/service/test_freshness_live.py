@@ -1,7 +1,7 @@
 """The real service over the simulated devices (real drivers, acquisition, core, worker process) at a
 speed-up: with the DAQ hung, frozen or dropping connections, or the CAN node silent, `/readyz` turns not
 ready within the documented limit naming the reason, and ready again when the device recovers (issue 12,
-item 1; docs/service.md "Freshness"). Slow: about 40 s."""
+item 1; docs/design/service.md "Freshness"). Slow: about 40 s."""
 
 from __future__ import annotations
 

@@ -1,5 +1,5 @@
 """``chtc identify --json``: the growth history (per identification, the growth at its window end as
-``/compensation`` would have served it), on the shipped example recording (docs/growth.md)."""
+``/compensation`` would have served it), on the shipped example recording (docs/design/growth.md)."""
 
 from __future__ import annotations
 

@@ -167,7 +167,7 @@ def test_identify_is_deterministic_and_finds_both_conditions(logs, tmp_path, cap
     printed = capsys.readouterr().out
     assert "H1=" in printed and "95 % CI" in printed
     # the log starts with 5 min at rest at the ambient: the offsets are zeroed against that baseline
-    # (samples are taken half a period after each 10-s grid point, docs/service.md)
+    # (samples are taken half a period after each 10-s grid point, docs/design/service.md)
     assert "sensor offsets: zeroed against a baseline at rest, 2026-03-02T06:00:05+00:00" in printed
 
 
@@ -299,7 +299,7 @@ def test_identify_on_the_shipped_example_recording(tmp_path, capsys, monkeypatch
     """README's first step: the recording under service/data (made with chtc simulate + chtc record
     --speedup 10) identifies both conditions, in either mode. In per-condition mode the CIs of H6 and H7
     cover the plant's truth; in speed-map mode the first map (10 min from a cold start) has an H7 band that
-    misses it (H7 4.3 [1.3, 14.4] against 16.7, docs/hmap.md "Measured: restart": the first map's H6/H7
+    misses it (H7 4.3 [1.3, 14.4] against 16.7, docs/design/hmap.md "Measured: restart": the first map's H6/H7
     bands from a cold start), so only the later maps are held to it."""
     from pathlib import Path
 
@@ -311,7 +311,8 @@ def test_identify_on_the_shipped_example_recording(tmp_path, capsys, monkeypatch
     assert f"({mode}, seed 0)" in capsys.readouterr().out
     ok = [r for r in json.loads(out.read_text()) if r["outcome"] == "ok"]
     assert {r["condition"]["speed_rpm"] for r in ok} == {3000.0, 4000.0}
-    # made by chtc simulate --profile service/data/example_profile.toml (docs/simulation.md): plant truth
+    # made by chtc simulate --profile service/data/example_profile.toml (docs/design/simulation.md):
+    # plant truth
     _assert_well_determined_h_covered(ok if mode == "per_condition" else ok[1:])
 
 

@@ -126,7 +126,7 @@ def test_writer_stamps_with_the_service_clock(tmp_path):
 # on the same database at minute 17 with the spindle still running (the 2 min in between are lost).
 RESTART_PLAN_PROFILE = (Segment(300.0, 0.0, 0.0, 22.0), Segment(1500.0, 3000.0, 5.0, 22.0))
 STOP_AT, RESTART_AT = 90, 102  # sample indices (10 s each): minute 15 and 17
-FIRST_H_BOUND_S = 13 * 60.0  # the restart bench's bound: the first H within 13 min (docs/estimator.md)
+FIRST_H_BOUND_S = 13 * 60.0  # the restart bench's bound: the first H within 13 min (docs/design/estimator.md)
 CURRENT = (ChtcStatus.FRESH, ChtcStatus.AT_BOUND)  # identified at the current condition, not stale
 
 
@@ -187,7 +187,7 @@ def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(
                     converged_at = datetime.fromtimestamp(live.converged_at, tz=UTC)
                     assert not snap.reason.startswith("state_converging"), snap.reason
             assert converged_at is not None and fresh is not None, "no convergence or no fresh H after it"
-            # converged within a few minutes (about 1 min measured: docs/estimator.md)
+            # converged within a few minutes (about 1 min measured: docs/design/estimator.md)
             assert converged_at - restart_t < timedelta(minutes=3)
             # no identification window started before the convergence (none launched, none stored)
             after = [r for r in svc.core.view().records if r.id not in ids_before]

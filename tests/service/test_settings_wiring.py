@@ -115,7 +115,7 @@ def test_defaults_are_one_value_in_every_layer() -> None:
     cfg, default_core = core_config(Settings()), CoreConfig()
     assert (
         ident.ci_rel_threshold == 0.5
-    )  # docs/identification.md "Identified" (measured: 30 % never passes H1)
+    )  # docs/design/identification.md "Identified" (measured: 30 % never passes H1)
     for value in (cfg.ci_threshold, default_core.ci_threshold, IdentifyOptions().ci_threshold):
         assert value == ident.ci_rel_threshold
     assert cfg.start_modes == default_core.start_modes == ident.start_modes

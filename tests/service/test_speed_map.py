@@ -55,7 +55,7 @@ def served(duty, loaded_model):
 
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
-    assert Settings().identification.mode == "combined"  # docs/hmap.md "Default"
+    assert Settings().identification.mode == "combined"  # docs/design/hmap.md "Default"
     assert map_config(Settings(identification={"mode": "per_condition"})) is None
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)

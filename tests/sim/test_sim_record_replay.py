@@ -1,5 +1,5 @@
 """Record live (simulated) devices with the real drivers, replay the logs, record again: same values, same
-timing within the documented tolerance (docs/simulation.md)."""
+timing within the documented tolerance (docs/design/simulation.md)."""
 
 from __future__ import annotations
 
@@ -20,7 +20,8 @@ from drivers.sim.source import TimelineSource
 from service.commands.record import record
 from tests.sim.simhelpers import ramp_timeline
 
-# Tolerances of docs/simulation.md ("Replay timing"), relative to the first row/frame, on a loaded 2-core box.
+# Tolerances of docs/design/simulation.md ("Replay timing"), relative to the first row/frame, on a loaded
+# 2-core box.
 INTERVAL_S = 0.1
 CSV_MAX_S = INTERVAL_S + 0.15  # a replayed row is seen at the next poll, plus scheduling jitter
 CSV_MEDIAN_S = INTERVAL_S + 0.03

@@ -1,5 +1,5 @@
 """The project's own drivers against the simulators: values round-trip and every fault arrives as the
-documented error or quality flag (docs/simulation.md, SPEC §5)."""
+documented error or quality flag (docs/design/simulation.md, SPEC §5)."""
 
 from __future__ import annotations
 
