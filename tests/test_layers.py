@@ -1,4 +1,4 @@
-"""The layering rules of the house (docs/ARCHITECTURE.md, "Dependency direction") and one typed error tree
+"""The layering rules of the house (docs/design/ARCHITECTURE.md, "Dependency direction") and one typed error tree
 per layer, read from the source (ast: the rules import no module; the last test checks the reading against
 Python).
 
