@@ -36,7 +36,7 @@ def test_prebuild_fills_the_cache_the_service_loads(
     assert [p.name for p in cache.iterdir()] == [Path(report["cache_file"]).name]
 
     settings = load_settings(small_config)
-    loaded = load_model(ModelRef.from_settings(settings.model))
+    loaded = load_model(ModelRef.from_settings(settings))
     assert loaded.rom.from_cache and loaded.rom.key == report["cache_key"]
 
     assert chtc(["prebuild", "--config", str(small_config), "--json"]) == 0
@@ -58,7 +58,7 @@ def test_bad_settings_exit_1_naming_the_key(tmp_path: Path, capsys: pytest.Captu
     path = tmp_path / "bad.toml"
     path.write_text("[model]\nrom_rank = 0\n")
     assert chtc(["prebuild", "--config", str(path)]) == 1
-    assert "model.rom_rank" in capsys.readouterr().err
+    assert "experimental.rom_rank" in capsys.readouterr().err
 
 
 def test_cache_dir_that_is_a_file_exits_2(
