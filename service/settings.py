@@ -272,7 +272,7 @@ MOVED_KEYS: dict[tuple[str, str], str] = {
 }
 REMOVED_KEYS: dict[tuple[str, str], str] = {
     ("identification", k): 'removed in issue 25: measured without effect (docs/hmap.md "Making the bands '
-    'honest"); delete the line'
+    'honest")'
     for k in ("map_start_draws", "map_start_lead_min", "map_live_h_error")
 }
 
@@ -511,5 +511,5 @@ def _gone(loc: tuple[int | str, ...]) -> str:
             "default"
         )
     if where in REMOVED_KEYS:
-        return REMOVED_KEYS[where]
+        return f"{REMOVED_KEYS[where]}; delete the line"
     return "unknown key"
