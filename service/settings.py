@@ -3,7 +3,10 @@
 ``Settings`` is built once at the edge (``chtc run --config FILE`` → ``load_settings(path)``, or
 ``create_app(settings)``) and handed down as typed sections: ``settings.modbus``, ``settings.can``,
 ``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
-``settings.api``, ``settings.database``. Nothing here opens a file, a socket or a database at import time.
+``settings.api``, ``settings.database``, ``settings.growth``, and ``settings.experimental``: the research
+switches (identification mode, optimizer, the speed map's inner workings, mesh and rank) an operator leaves at
+their measured defaults (issue 25; docs/configuration.md). Nothing here opens a file, a socket or a database
+at import time.
 
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
 the defaults below. Environment variables use the prefix ``CHTC_`` and ``__`` between section and key,
@@ -18,7 +21,8 @@ holds the default SQLite database; ``CHTC_CACHE_DIR`` (default ``$XDG_CACHE_HOME
 Errors::
 
     SettingsError(ValueError)   # bad value, unknown key, unreadable or malformed TOML; the message names
-                                # the key ("modbus.port: ...") and the file (and line for TOML syntax errors)
+                                # the key ("modbus.port: ...") and the file (and line for TOML syntax errors);
+                                # a key moved to [experimental] or removed says so (MOVED_KEYS, REMOVED_KEYS)
 """
 
 from __future__ import annotations
