@@ -298,3 +298,12 @@ def test_rules_across_sections_name_both_keys(tmp_path: Path) -> None:
     text = "[identification]\nmap_fresh_min = 0.25\n[experimental]\nmap_debounce_s = 30\n"
     with pytest.raises(SettingsError, match=r"identification\.map_fresh_min .* experimental\.map_debounce_s"):
         load_settings(write(tmp_path, text))
+
+
+def test_the_configuration_docs_minimal_machine_file_is_valid(tmp_path: Path) -> None:
+    """docs/configuration.md "What to set for a real machine" shows a minimal file: it must load."""
+    text = (EXAMPLE.parents[1] / "docs" / "configuration.md").read_text(encoding="utf-8")
+    block = text.split("A minimal file for one spindle:", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
+    s = load_settings(write(tmp_path, block))
+    assert (s.modbus.port, s.can.interface, s.growth.reference_c) == (502, "socketcan", 20.0)
+    assert s.experimental == Settings().experimental
