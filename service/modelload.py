@@ -16,7 +16,7 @@ if TYPE_CHECKING:
     from model.fem import FEModel
     from model.geometry import SpindleSpec
     from model.rom import ReducedModel
-    from service.settings import ModelSettings
+    from service.settings import Settings
 
 __all__ = ["LoadedModel", "ModelRef", "load_model"]
 
@@ -32,14 +32,16 @@ class ModelRef:
     h_box: tuple[float, float] = (5.0, 200.0)
 
     @classmethod
-    def from_settings(cls, model_settings: ModelSettings) -> ModelRef:
-        """From ``service.settings.ModelSettings``."""
+    def from_settings(cls, settings: Settings) -> ModelRef:
+        """From ``service.settings.Settings``: its ``model`` section, and the mesh and rank from
+        ``experimental`` (research switches, issue 25)."""
+        model, exp = settings.model, settings.experimental
         return cls(
-            spindle=str(model_settings.spindle) if model_settings.spindle is not None else None,
-            mesh_size_m=model_settings.mesh_size_m,
-            rom_rank=int(model_settings.rom_rank),
-            cache_dir=str(model_settings.rom_cache_dir),
-            h_box=(float(model_settings.h_box[0]), float(model_settings.h_box[1])),
+            spindle=str(model.spindle) if model.spindle is not None else None,
+            mesh_size_m=exp.mesh_size_m,
+            rom_rank=int(exp.rom_rank),
+            cache_dir=str(model.rom_cache_dir),
+            h_box=(float(model.h_box[0]), float(model.h_box[1])),
         )
 
 

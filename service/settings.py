@@ -3,7 +3,10 @@
 ``Settings`` is built once at the edge (``chtc run --config FILE`` → ``load_settings(path)``, or
 ``create_app(settings)``) and handed down as typed sections: ``settings.modbus``, ``settings.can``,
 ``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
-``settings.api``, ``settings.database``. Nothing here opens a file, a socket or a database at import time.
+``settings.api``, ``settings.database``, ``settings.growth``, and ``settings.experimental``: the research
+switches (identification mode, optimizer, the speed map's inner workings, mesh and rank) an operator leaves at
+their measured defaults (issue 25; docs/configuration.md). Nothing here opens a file, a socket or a database
+at import time.
 
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
 the defaults below. Environment variables use the prefix ``CHTC_`` and ``__`` between section and key,
@@ -18,7 +21,8 @@ holds the default SQLite database; ``CHTC_CACHE_DIR`` (default ``$XDG_CACHE_HOME
 Errors::
 
     SettingsError(ValueError)   # bad value, unknown key, unreadable or malformed TOML; the message names
-                                # the key ("modbus.port: ...") and the file (and line for TOML syntax errors)
+                                # the key ("modbus.port: ...") and the file (and line for TOML syntax errors);
+                                # a key moved to [experimental] or removed says so (MOVED_KEYS, REMOVED_KEYS)
 """
 
 from __future__ import annotations
@@ -148,9 +152,6 @@ class AcquisitionSettings(_Section):
 
 class ModelSettings(_Section):
     spindle: Path | None = None  # None → packaged model/data/spindle.toml
-    mesh_size_m: float | None = Field(default=None, gt=0)  # None → model.fem default service mesh
-    # 30 biased H by 10-26 %, 46 0.04 °C off (issue 15, docs/design/rom.md)
-    rom_rank: int = Field(default=56, ge=1)
     rom_cache_dir: Path = Field(default_factory=default_cache_dir)
     h_box: tuple[float, float] = (5.0, 200.0)  # search box for H1..H7, W/(m²·K)
 
@@ -164,7 +165,10 @@ class ModelSettings(_Section):
 
 
 class IdentificationSettings(_Section):
-    method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
+    """What an operator tunes for a machine: when H is identified, on how much data, how sure it must be,
+    the sensor offsets, and how long the speed map stays fresh. The research switches are in
+    ``ExperimentalSettings`` (``[experimental]``)."""
+
     # re-identify this long after a condition change (or after the live state's convergence on a restart).
     # The first entry is 7 min, not 10: the window starts from the converged filtered state with its
     # covariance, so the first H is served within 13 min of a (re)start, also when the restart falls just
@@ -173,56 +177,22 @@ class IdentificationSettings(_Section):
     schedule_min: tuple[float, ...] = (7.0, 20.0, 40.0, 60.0)
     min_window_s: float = Field(default=420.0, gt=0)  # shorter windows are skipped ("too little data")
     max_window_s: float = Field(default=3600.0, gt=0)  # fit at most this much recent data
-    distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: warm-start "nearness"
     min_good_channels: int = Field(default=24, ge=1, le=32)
-    estimate_loads: bool = False  # also fit front/rear bearing heat scales
-    # the filtered start state's leading uncertain directions fitted in each window (0: only carried)
-    start_modes: int = Field(default=START_MODES, ge=0)
-    # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);
-    # false: noise-only CIs, which undercover at chained conditions (docs/design/service.md)
-    carry_start_error: bool = CARRY_START_ERROR
     # 95 % half-width of log H (≈ relative half-width) above this → "not identified"
     # (docs/design/identification.md)
     ci_rel_threshold: float = Field(default=CI_REL_THRESHOLD, gt=0)
     timeout_s: float = Field(default=120.0, gt=0)
-    seed: int = 0
-    # zero the sensor offsets against a baseline at thermal equilibrium (spindle idle offset_rest_s, sensors
+    # zero the sensor offsets against a baseline at thermal equilibrium (spindle idle, offset_rest_s, sensors
     # flat, at the ambient: service.acquire.calibration); without a baseline their 1σ offset_sd_c widens the
     # CIs
     offset_calibration: bool = True
     offset_rest_s: float = Field(default=300.0, gt=0)
     offset_sd_c: float = Field(default=0.173, ge=0)  # ±0.3 °C uniform, unknown until a baseline
-    # "per_condition": one H per held condition (the paper's protocol: schedule_min, min/max_window_s);
-    # "speed_map": H = F(n, Ti) fitted over a rolling window of map_window_min, re-fitted map_debounce_s
-    # after each condition change (and every map_refit_min), served at the current speed at once
-    # (docs/design/hmap.md); "combined": both, the per-condition H served at a condition held longer than the
-    # first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode")
-    mode: Literal["per_condition", "speed_map", "combined"] = "combined"
-    map_family: Literal["nodes", "physics"] = "nodes"  # model.hmap: tabulated over speed nodes, or physics
-    map_window_min: float = Field(default=60.0, gt=0)  # rolling window of each map fit
-    # a cold start waits for this much data (7 served 3 min sooner a first map whose bands missed H6/H7 from a
-    # cold start: docs/design/hmap.md "Measured: restart")
-    map_min_window_min: float = Field(default=10.0, gt=0)
-    map_debounce_s: float = Field(default=30.0, ge=0)  # after a confirmed change, wait this long
-    map_refit_min: float = Field(default=10.0, gt=0)  # fit again after this long without a change
-    map_fresh_min: float = Field(default=15.0, gt=0)  # a map whose data end longer ago is not fresh
-    # a speed this close to a visited one is covered (500: half the node spacing of the "nodes" family, so
-    # it shares a node with the visited speed)
-    map_margin_rpm: float = Field(default=500.0, ge=0)
-    map_min_visit_s: float = Field(default=60.0, ge=0)  # seconds of data at a speed before it is visited
-    map_forget_tau_h: float = Field(default=4.0, gt=0)  # forgetting time of the map's information
-    # the live filter's considered H error: "map" (the newest map's band) or "prior" (the band of the prior
-    # a window starting now would get: no feedback of the fits being refined; docs/design/hmap.md)
-    map_live_h_error: Literal["map", "prior"] = "map"
-    # covariance intersection ω of a fit's chained prior and its start field, which share earlier data:
-    # prior covariance / ω, start covariance / (1 − ω); 1: treated as independent (docs/design/hmap.md)
-    map_prior_weight: float = Field(default=0.25, gt=0, le=1)
-    # the start covariance's H part: θ draws from the prior run through the map_start_lead_min before the
-    # window (0: the live state's covariance only; docs/design/hmap.md)
-    map_start_draws: int = Field(default=0, ge=0)
-    map_start_lead_min: float = Field(default=10.0, gt=0)
-    # σ of the cold prior's overall ln H level per zone, around the physics curves (docs/design/hmap.md)
-    map_prior_level_sd: float = Field(default=0.0, ge=0)
+    # the speed map (experimental.mode "speed_map" or "combined", docs/design/hmap.md): fitted over a rolling
+    # window of map_window_min, again every map_refit_min without a change, not fresh after map_fresh_min
+    map_window_min: float = Field(default=60.0, gt=0)
+    map_refit_min: float = Field(default=10.0, gt=0)
+    map_fresh_min: float = Field(default=15.0, gt=0)
 
     @field_validator("schedule_min")
     @classmethod
@@ -233,28 +203,11 @@ class IdentificationSettings(_Section):
             )
         return value
 
-    @field_validator("distance_scales")
-    @classmethod
-    def _scales_positive(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
-        if any(v <= 0 for v in value):
-            raise ValueError(f"need 3 positive scales (rpm, N·m, °C), got {list(value)}")
-        return value
-
     @model_validator(mode="after")
     def _windows_consistent(self) -> IdentificationSettings:
         if self.max_window_s < self.min_window_s:
             raise ValueError(
                 f"max_window_s ({self.max_window_s}) must be >= min_window_s ({self.min_window_s})"
-            )
-        if self.map_min_window_min > self.map_window_min:
-            raise ValueError(
-                f"map_min_window_min ({self.map_min_window_min}) must be <= map_window_min "
-                f"({self.map_window_min})"
-            )
-        if self.map_fresh_min * 60.0 < self.map_debounce_s:
-            raise ValueError(
-                f"map_fresh_min ({self.map_fresh_min} min) must be >= map_debounce_s "
-                f"({self.map_debounce_s} s)"
             )
         if self.schedule_min[0] * 60.0 < self.min_window_s:
             raise ValueError(
@@ -267,6 +220,85 @@ class IdentificationSettings(_Section):
     def schedule_s(self) -> tuple[float, ...]:
         """``schedule_min`` in s."""
         return tuple(60.0 * m for m in self.schedule_min)
+
+
+class ExperimentalSettings(_Section):
+    """Research switches (issue 25): their defaults are the measured choices (docs/design/hmap.md,
+    docs/design/rom.md, docs/design/estimator.md); they are here to reproduce or extend a measurement (the
+    benches' ``--set KEY=VALUE``, ``CHTC_EXPERIMENTAL__KEY``), not to tune a machine. One section for the
+    identification's and the model's switches, so an operator's file needs none of them."""
+
+    # "per_condition": one H per held condition (the paper's protocol: identification.schedule_min,
+    # min/max_window_s); "speed_map": H = F(n, Ti) fitted over a rolling window of map_window_min, re-fitted
+    # map_debounce_s after each condition change (and every map_refit_min), served at the current speed at
+    # once (docs/design/hmap.md); "combined": both, the per-condition H served at a condition held longer
+    # than the first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode")
+    mode: Literal["per_condition", "speed_map", "combined"] = "combined"
+    method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
+    seed: int = 0
+    estimate_loads: bool = False  # also fit front/rear bearing heat scales
+    # the filtered start state's leading uncertain directions fitted in each window (0: only carried)
+    start_modes: int = Field(default=START_MODES, ge=0)
+    # widen the CIs by the start field's error that earlier windows' H left in the live state (model.carry);
+    # false: noise-only CIs, which undercover at chained conditions (docs/design/service.md)
+    carry_start_error: bool = CARRY_START_ERROR
+    distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)  # rpm, N·m, °C: warm-start "nearness"
+    map_family: Literal["nodes", "physics"] = "nodes"  # model.hmap: tabulated over speed nodes, or physics
+    # a cold start waits for this much data (7 served 3 min sooner a first map whose bands missed H6/H7 from a
+    # cold start: docs/design/hmap.md "Measured: restart"); <= identification.map_window_min
+    map_min_window_min: float = Field(default=10.0, gt=0)
+    # after a confirmed change, wait this long (<= identification.map_fresh_min)
+    map_debounce_s: float = Field(default=30.0, ge=0)
+    # a speed this close to a visited one is covered (500: half the node spacing of the "nodes" family, so
+    # it shares a node with the visited speed)
+    map_margin_rpm: float = Field(default=500.0, ge=0)
+    map_min_visit_s: float = Field(default=60.0, ge=0)  # seconds of data at a speed before it is visited
+    map_forget_tau_h: float = Field(default=4.0, gt=0)  # forgetting time of the map's information
+    # covariance intersection ω of a fit's chained prior and its start field, which share earlier data:
+    # prior covariance / ω, start covariance / (1 − ω); 1: treated as independent (docs/design/hmap.md)
+    map_prior_weight: float = Field(default=0.25, gt=0, le=1)
+    # σ of the cold prior's overall ln H level per zone, around the physics curves (docs/design/hmap.md)
+    map_prior_level_sd: float = Field(default=0.0, ge=0)
+    # 30 biased H by 10-26 %, 46 0.04 °C off (issue 15, docs/design/rom.md)
+    rom_rank: int = Field(default=56, ge=1)
+    mesh_size_m: float | None = Field(default=None, gt=0)  # None → model.fem default service mesh
+
+    @field_validator("distance_scales")
+    @classmethod
+    def _scales_positive(cls, value: tuple[float, float, float]) -> tuple[float, float, float]:
+        if any(v <= 0 for v in value):
+            raise ValueError(f"need 3 positive scales (rpm, N·m, °C), got {list(value)}")
+        return value
+
+
+# keys that left a section (issue 25): an old file or CHTC_* variable setting one gets an error saying where
+# the key went, or why it is gone, instead of a bare "unknown key"
+_FROM_MODEL = ("rom_rank", "mesh_size_m")
+MOVED_KEYS: dict[tuple[str, str], str] = {
+    ("model" if k in _FROM_MODEL else "identification", k): "experimental"
+    for k in ExperimentalSettings.model_fields
+}
+REMOVED_KEYS: dict[tuple[str, str], str] = {
+    ("identification", k): "removed in issue 25: measured without effect "
+    '(docs/design/hmap.md "Making the bands honest")'
+    for k in ("map_start_draws", "map_start_lead_min", "map_live_h_error")
+}
+
+
+def check_across_sections(settings: Settings) -> None:
+    """The rules that tie an ``[experimental]`` key to an ``[identification]`` one; ``ValueError`` naming
+    both keys (``Settings`` runs it when validated, ``service.commands._common.override`` after a change)."""
+    ident, exp = settings.identification, settings.experimental
+    if exp.map_min_window_min > ident.map_window_min:
+        raise ValueError(
+            f"experimental.map_min_window_min ({exp.map_min_window_min}) must be <= "
+            f"identification.map_window_min ({ident.map_window_min})"
+        )
+    if ident.map_fresh_min * 60.0 < exp.map_debounce_s:
+        raise ValueError(
+            f"identification.map_fresh_min ({ident.map_fresh_min} min) must be >= "
+            f"experimental.map_debounce_s ({exp.map_debounce_s} s)"
+        )
 
 
 class DetectorSettings(_Section):
@@ -384,6 +416,12 @@ class Settings(BaseSettings):
     api: ApiSettings = Field(default_factory=ApiSettings)
     database: DatabaseSettings = Field(default_factory=DatabaseSettings)
     growth: GrowthSettings = Field(default_factory=GrowthSettings)
+    experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
+
+    @model_validator(mode="after")
+    def _across_sections(self) -> Settings:
+        check_across_sections(self)
+        return self
 
     @classmethod
     def settings_customise_sources(
@@ -459,10 +497,27 @@ def format_validation_error(err: ValidationError, *, source: str | Path | None =
         key = ".".join(str(p) for p in item["loc"]) or "<root>"
         msg = item["msg"]
         if item["type"] == "extra_forbidden":
-            msg = "unknown key"
+            msg = _gone(item["loc"])
+        if not item["loc"] and item["type"] == "value_error":
+            msg = msg.removeprefix("Value error, ")  # a rule across sections: its message names the keys
         given = item.get("input")
         secret = any("token" in str(p) for p in item["loc"]) or item["type"] == "value_error"
         shown = "" if secret or isinstance(given, dict | SecretStr) or given is None else f" (got {given!r})"
-        lines.append(f"{key}: {msg}{shown}")
+        lines.append(msg if not item["loc"] else f"{key}: {msg}{shown}")
     where = f" in {source}" if source is not None else ""
     return f"invalid settings{where} (env CHTC_<SECTION>__<KEY> overrides the file):\n  " + "\n  ".join(lines)
+
+
+def _gone(loc: tuple[int | str, ...]) -> str:
+    """Why ``loc`` is not a key: moved to another section, removed, or unknown."""
+    where = (str(loc[0]), str(loc[-1])) if len(loc) == 2 else None
+    if where in MOVED_KEYS:
+        section, key = MOVED_KEYS[where], where[1]
+        return (
+            f"moved to [{section}] in issue 25 (a research switch; docs/configuration.md): write it as "
+            f"{section}.{key} (env CHTC_{section.upper()}__{key.upper()}), or delete the line to keep the "
+            "default"
+        )
+    if where in REMOVED_KEYS:
+        return f"{REMOVED_KEYS[where]}; delete the line"
+    return "unknown key"

@@ -1,6 +1,6 @@
-"""The layering rules of the house (docs/design/ARCHITECTURE.md, "Dependency direction") and one typed error tree
-per layer, read from the source (ast: the rules import no module; the last test checks the reading against
-Python).
+"""The layering rules of the house (docs/design/ARCHITECTURE.md, "Dependency direction") and one typed error
+tree per layer, read from the source (ast: the rules import no module; the last test checks the reading
+against Python).
 
 - Imports point inward: ``model/`` imports none of ``drivers``, ``service``, ``api``; ``drivers/`` none of
   ``service``, ``api``. Inside the service the contracts sit below everything (``service.contracts``

@@ -10,11 +10,11 @@ spindle), and the samples go through the service's own core offline (``service.e
 detector, scheduler, live state, windows, identification; deterministic). For the last identification of
 each condition (the 40-min window) it reports, per H, the median and maximum relative error against the truth
 over the seeds, the median relative 95 % half-width of the CI as served (with the carried start-field error
-unless ``identification.carry_start_error`` is false), the fraction of seeds whose CI covers the truth, and
+unless ``experimental.carry_start_error`` is false), the fraction of seeds whose CI covers the truth, and
 the fraction whose CIs cover all seven H at once.
 
 ``--mode per_condition|speed_map|combined`` and ``--set KEY=VALUE`` choose the identification mode and
-settings (``service.bench.identmode``; default: the settings' ``identification.mode``), reported as
+settings (``service.bench.identmode``; default: the settings' ``experimental.mode``), reported as
 ``mode``. In speed-map mode the last identification of a condition is the last map fit launched at it (its
 window: the rolling ``map_window_min``, up to 60 min, across the earlier conditions), served at the
 condition; in combined mode the condition's own per-condition one (``identmode.served_in_order``).
@@ -100,7 +100,7 @@ def run(
     overrides: dict[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """``ident_mode`` None: the settings' ``identification.mode``; ``overrides``: identification settings."""
+    """``ident_mode`` None: the settings' ``experimental.mode``; ``overrides``: ``--set`` settings."""
     from model.plant import h_true
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
@@ -108,7 +108,7 @@ def run(
 
     settings = identmode.bench_settings(ident_mode, overrides)
     ident = settings.identification
-    model = load_model(ModelRef.from_settings(settings.model))
+    model = load_model(ModelRef.from_settings(settings))
     rows: dict[float, list[tuple[np.ndarray, np.ndarray, np.ndarray]]] = {}
     started = time.perf_counter()
     for seed in range(seeds):
@@ -134,9 +134,9 @@ def run(
     worst = min((float(np.mean(c["ci_coverage"])) for c in conditions), default=None)
     return {
         "synthetic": True,
-        "mode": ident.mode,
+        "mode": settings.experimental.mode,
         "settings": overrides or {},
-        "window_min": ident.map_window_min if ident.mode == "speed_map" else 40,
+        "window_min": ident.map_window_min if settings.experimental.mode == "speed_map" else 40,
         "conditions": conditions,
         "targets": verdicts(TARGETS, {"ci_coverage_mean_worst": worst}),
         "wall_s": round(time.perf_counter() - started, 1),

@@ -320,7 +320,7 @@ def run(
     if every < 1 or any(n % every for n in HORIZON_STEPS):
         raise ValueError(f"--every-s: must be a multiple of {DT_S:g} s dividing 5 min, got {every_s}")
     settings = identmode.bench_settings(ident_mode, overrides)
-    model = load_model(ModelRef.from_settings(settings.model))
+    model = load_model(ModelRef.from_settings(settings))
     config = core_config(settings)
     started = time.perf_counter()
     ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
@@ -339,7 +339,7 @@ def run(
                 progress(f"{name} seed {seed + 1}/{seeds} done ({time.perf_counter() - started:.0f} s)")
     out: dict[str, Any] = {
         "synthetic": True,
-        "mode": settings.identification.mode,
+        "mode": settings.experimental.mode,
         "settings": overrides or {},
         "seeds": seeds,
         "every_s": every * DT_S,

@@ -1,8 +1,9 @@
 """The identification mode a bench runs in, the same for ``chtc bench chain``, ``restart`` and ``duty``:
-``--mode per_condition|speed_map|combined`` (``identification.mode``; default: the settings' own, i.e. the
-built-in default or ``CHTC_IDENTIFICATION__MODE``) and ``--set KEY=VALUE`` (any ``identification`` setting,
-e.g. ``--set map_min_window_min=7``), so the modes can be compared in one command line. Each bench reports
-the mode it ran as ``mode`` in its JSON.
+``--mode per_condition|speed_map|combined`` (``experimental.mode``; default: the settings' own, i.e. the
+built-in default or ``CHTC_EXPERIMENTAL__MODE``) and ``--set KEY=VALUE`` (any ``identification`` or
+``experimental`` setting by its key, e.g. ``--set map_min_window_min=7``, ``--set rom_rank=46``; the two
+sections share no key name, ``section.key`` works too), so the modes can be compared in one command line.
+Each bench reports the mode it ran as ``mode`` in its JSON.
 """
 
 from __future__ import annotations
@@ -33,8 +34,8 @@ def add_arguments(
         dest="ident_mode",
         choices=MODES + extra,
         default=default,
-        help="identification.mode"
-        + ("" if default is not None else " (default: the settings', CHTC_IDENTIFICATION__MODE or built-in)")
+        help="experimental.mode"
+        + ("" if default is not None else " (default: the settings', CHTC_EXPERIMENTAL__MODE or built-in)")
         + note,
     )
     parser.add_argument(
@@ -42,7 +43,8 @@ def add_arguments(
         action="append",
         default=[],
         metavar="KEY=VALUE",
-        help="an identification setting, e.g. --set map_min_window_min=7 (repeatable; JSON values)",
+        help="an identification or experimental setting, e.g. --set map_min_window_min=7 (repeatable; "
+        "JSON values)",
     )
 
 
@@ -60,22 +62,41 @@ def parse_sets(items: list[str]) -> dict[str, Any]:
     return out
 
 
-def bench_settings(mode: str | None, overrides: dict[str, Any] | None = None) -> Settings:
-    """``Settings()`` (defaults and ``CHTC_*`` environment) with ``identification.mode`` (None: kept) and the
-    overrides applied and validated; ``ValueError`` naming the key when one is invalid or unknown."""
-    from service.commands._common import CommandError, override
-    from service.settings import IdentificationSettings, Settings
+SET_SECTIONS = ("identification", "experimental")  # the sections ``--set`` reaches
 
-    values = dict(overrides or {})
-    unknown = sorted(set(values) - set(IdentificationSettings.model_fields))
-    if unknown:
-        raise ValueError(f"--set: unknown identification setting(s) {', '.join(unknown)}")
+
+def bench_settings(mode: str | None, overrides: dict[str, Any] | None = None) -> Settings:
+    """``Settings()`` (defaults and ``CHTC_*`` environment) with ``experimental.mode`` (None: kept) and the
+    overrides (``key`` or ``section.key`` of ``SET_SECTIONS``) applied and validated; ``ValueError`` naming
+    the key when one is invalid or unknown."""
+    from service.commands._common import CommandError, override
+    from service.settings import Settings
+
+    settings = Settings()
+    by_section: dict[str, dict[str, Any]] = {name: {} for name in SET_SECTIONS}
+    for key, value in (overrides or {}).items():
+        by_section[_section_of(settings, key)][key.rpartition(".")[2]] = value
     if mode is not None:
-        values["mode"] = mode
+        by_section["experimental"]["mode"] = mode
     try:
-        return override(Settings(), "identification", **values)
+        for name, values in by_section.items():
+            settings = override(settings, name, **values) if values else settings
     except CommandError as err:
         raise ValueError(str(err)) from err
+    return settings
+
+
+def _section_of(settings: Settings, key: str) -> str:
+    """The section of ``SET_SECTIONS`` holding ``key`` (``section.key`` names it); ``ValueError`` if none."""
+    from service.settings import REMOVED_KEYS
+
+    section, _, name = key.rpartition(".")
+    for candidate in (section,) if section else SET_SECTIONS:
+        if candidate in SET_SECTIONS and name in type(getattr(settings, candidate)).model_fields:
+            return candidate
+    gone = REMOVED_KEYS.get(("identification", name))
+    why = f": {gone}" if gone else f" (keys of [{'], ['.join(SET_SECTIONS)}])"
+    raise ValueError(f"--set: unknown setting {key}{why}")
 
 
 def served_in_order(records: Iterable[IdentificationRecord]) -> list[IdentificationRecord]:

@@ -243,12 +243,12 @@ def run(
     from service.sim.logsamples import samples_from_plant
 
     settings = identmode.bench_settings(ident_mode, overrides)
-    model = load_model(ModelRef.from_settings(settings.model))
+    model = load_model(ModelRef.from_settings(settings))
     plant_fe = build_fe_model(model.spec, mesh_size_m=model.spec.plant_mesh_size_m)
     started = time.perf_counter()
     out: dict[str, Any] = {
         "synthetic": True,
-        "mode": settings.identification.mode,
+        "mode": settings.experimental.mode,
         "settings": overrides or {},
         "rom_rank": int(model.rom.rank),
         "rom_substeps": model.rom.substeps,

@@ -94,7 +94,14 @@ def override(settings: Settings, section: str, **values: object) -> Settings:
             for e in err.errors(include_url=False)
         )
         raise CommandError(problems) from err
-    return settings.model_copy(update={section: checked})
+    from service.settings import check_across_sections
+
+    out = settings.model_copy(update={section: checked})
+    try:
+        check_across_sections(out)
+    except ValueError as err:
+        raise CommandError(str(err)) from err
+    return out
 
 
 def check_listen(host: str, port: int) -> None:

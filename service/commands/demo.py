@@ -94,7 +94,7 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> Settings:
         port = free_port(args.host)
     s = override(s, "api", host=args.host, port=port)
     s = override(s, "database", url=db_url)
-    return override(s, "identification", seed=args.seed)
+    return override(s, "experimental", seed=args.seed)
 
 
 class Printer:

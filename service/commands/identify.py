@@ -1,7 +1,7 @@
 """``chtc identify``: offline, deterministic identification of H1-H7 from recorded log files.
 
 The log's samples go through the service's own core (detector, scheduler, live state, windows) with every
-identification run inline with the configured seed (``identification.seed``, ``--seed``): the same files
+identification run inline with the configured seed (``experimental.seed``, ``--seed``): the same files
 always give the same H. Prints one line per identification with H and its 95 % confidence intervals, and
 writes them as JSON with ``--json FILE`` (``-`` for stdout), each with ``growth``: the thermal growth at the
 spindle nose at the identification's end as ``/compensation`` would have served it (axial, radial and the
@@ -54,10 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="without a CAN log: the spindle torque, constant (default: from the CAN log)",
     )
-    parser.add_argument("--seed", type=int, default=None, help="rng seed (default identification.seed)")
-    parser.add_argument(
-        "--method", default=None, help="identification method (default identification.method)"
-    )
+    parser.add_argument("--seed", type=int, default=None, help="rng seed (default experimental.seed)")
+    parser.add_argument("--method", default=None, help="identification method (default experimental.method)")
     parser.add_argument(
         "--json",
         dest="json_out",
@@ -145,8 +143,8 @@ def format_record(r: IdentificationRecord) -> str:
 def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -> list[str]:
     """Why a log gave no successful identification: per detected condition, how long it lasted against what an
     identification needs; or why no condition was detected (``can_ok``: samples with a fresh speed/torque)."""
-    ident = settings.identification
-    per_condition = ident.mode == "per_condition"
+    ident, exp = settings.identification, settings.experimental
+    per_condition = exp.mode == "per_condition"
     if per_condition:
         need_s = max(ident.min_window_s, 60.0 * ident.schedule_min[0])
         need = (
@@ -155,11 +153,11 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
             f"{ident.schedule_min[0]:g} min after the condition starts)"
         )
     else:
-        need_s = 60.0 * ident.map_min_window_min
+        need_s = 60.0 * exp.map_min_window_min
         need = (
-            f"identification.mode = {ident.mode}: the first map fit needs {need_s / 60:.1f} min of data "
-            "after the live state converged, at any speeds (identification.map_min_window_min = "
-            f"{ident.map_min_window_min:g})"
+            f"experimental.mode = {exp.mode}: the first map fit needs {need_s / 60:.1f} min of data "
+            "after the live state converged, at any speeds (experimental.map_min_window_min = "
+            f"{exp.map_min_window_min:g})"
         )
     if result.samples == 0 or result.first is None or result.last is None:
         return ["the temperature log has no rows"]
@@ -240,11 +238,11 @@ def main(args: argparse.Namespace) -> int:
     except (SettingsError, LogFormatError, OSError, ValueError) as err:
         print(f"chtc identify: {err}", file=sys.stderr)
         return 2
-    ident = settings.identification.model_copy(
+    exp = settings.experimental.model_copy(
         update={k: v for k, v in (("seed", args.seed), ("method", args.method)) if v is not None}
     )
-    settings = settings.model_copy(update={"identification": ident})
-    model = load_model(ModelRef.from_settings(settings.model))
+    settings = settings.model_copy(update={"experimental": exp})
+    model = load_model(ModelRef.from_settings(settings))
     growth = None
     if args.json_out is not None:  # the growth history (docs/design/growth.md): only for the JSON
         from service.engine.growthserve import GrowthHistory
@@ -259,7 +257,7 @@ def main(args: argparse.Namespace) -> int:
     print(
         f"{data.rows} rows -> {len(data.samples)} samples every {settings.acquisition.sample_period_s:g} s, "
         f"{source}; {len(result.records)} identifications "
-        f"({settings.identification.mode}, seed {settings.identification.seed})"
+        f"({settings.experimental.mode}, seed {settings.experimental.seed})"
     )
     print(offsets_line(result.calibration, settings.identification))
     for r in result.records:

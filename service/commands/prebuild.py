@@ -23,7 +23,7 @@ from pathlib import Path
 from typing import TYPE_CHECKING, TypedDict
 
 if TYPE_CHECKING:
-    from service.settings import ModelSettings
+    from service.settings import Settings
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -61,7 +61,7 @@ def main(args: argparse.Namespace) -> int:
         print(f"chtc prebuild: cache directory {cache_dir}: not writable", file=sys.stderr)
         return 2
     try:
-        report = build(settings.model, cache_dir, rebuild=args.rebuild, progress=_progress(args))
+        report = build(settings, cache_dir, rebuild=args.rebuild, progress=_progress(args))
     except (ValueError, OSError) as err:  # model errors (SpindleError, RomError...) are ValueErrors
         print(f"chtc prebuild: {type(err).__name__}: {err}", file=sys.stderr)
         return 1
@@ -94,20 +94,20 @@ class PrebuildReport(TypedDict):
 
 
 def build(
-    model_settings: ModelSettings,
+    settings: Settings,
     cache_dir: Path,
     *,
     rebuild: bool = False,
     progress: Callable[[str], None] | None = None,
 ) -> PrebuildReport:
-    """Build (or find) the FE model and reduced model for ``model_settings`` in ``cache_dir``; a report."""
+    """Build (or find) the FE model and reduced model for ``settings`` in ``cache_dir``; a report."""
     from model import rom_cache
     from model.fem import build_fe_model
     from model.geometry import load_spindle
     from model.rom import load_or_build_rom
     from service.modelload import ModelRef
 
-    ref = ModelRef.from_settings(model_settings)
+    ref = ModelRef.from_settings(settings)
     started = time.perf_counter()
     spec = load_spindle(ref.spindle)
     fe = build_fe_model(spec, mesh_size_m=ref.mesh_size_m)

@@ -67,7 +67,7 @@ from service.engine.events import (
     Store,
 )
 from service.engine.jobbook import Job, JobBook, MapValues, job_key
-from service.engine.jobs import JobWindow, Offsets, converging_reason, job_request, job_window
+from service.engine.jobs import Offsets, converging_reason, job_request, job_window
 from service.engine.mapbook import MapBook
 from service.engine.samples import SampleBook
 from service.engine.view import CoreView, NewestSample
@@ -711,8 +711,6 @@ class ServiceCore:
         cal = self._calibrator
         offsets = None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
         request = job_request(start, window, config=self.config, offsets=offsets)
-        lead = self._map_lead(start, window.start.t) if cfg.start_draws > 0 else None
-        draws_from = prior
         prior, start_cov = book.intersect(prior, np.array(window.start.cov))
         request = replace(
             request,
@@ -721,12 +719,6 @@ class ServiceCore:
                 prior_mean=prior.mean,
                 prior_cov=prior.cov,
                 start_mean=None if self._speed_map is None else np.array(self._speed_map.mean),
-                lead=None if lead is None else lead.arrays,
-                lead_t0_c=None if lead is None else lead.start.field_c,
-                start_draws=cfg.start_draws,
-                draws_mean=draws_from.mean,
-                draws_cov=draws_from.cov,
-                seed=jid,
             ),
             start_cov=start_cov,
             carry_start_error=False,
@@ -741,22 +733,6 @@ class ServiceCore:
             f"{int(arrays.mask.sum())} sensors, prior from {source}"
         )
         return None
-
-    def _map_lead(self, start: sched.StartJob, t_start: float) -> JobWindow | None:
-        """The data over ``start_lead_s`` before a map window starting at ``t_start`` (from the live state's
-        convergence at the earliest), None when there are fewer than two steps."""
-        book = self._map
-        assert book is not None
-        ready = self._live.ready_at()
-        t_from = max(t_start - book.cfg.start_lead_s, ready if ready is not None else t_start)
-        if t_start - t_from < 2 * self.config.rules.dt_s:
-            return None
-        lead = replace(start, t_from=t_from, t_to=t_start)
-        rules = replace(self.config.rules, min_window_s=2 * self.config.rules.dt_s)
-        try:
-            return job_window(lead, self._live, self._history, replace(self.config, rules=rules))
-        except (InsufficientWindowError, LiveStateError):
-            return None
 
     def _map_outcome(self, job: Job, ev: JobOutcomeReceived, ts: float, out: _Out) -> None:
         """A map fit came back: keep its posterior (the map served from now on) and store it."""

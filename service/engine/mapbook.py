@@ -74,15 +74,11 @@ class MapBook:
 
     def live_theta(self, ts: float, m: SpeedMap | None) -> tuple[np.ndarray, np.ndarray, object]:
         """θ's mean and covariance whose H and band the live filter uses at ``ts`` (its H and considered H
-        error), and a key that changes when they do. The mean is the newest map's; the covariance the
-        newest map's (``live_h_error = "map"``) or the prior a window starting at ``ts`` would get
-        (``"prior"``: a posterior whose window ended at least ``window_s`` earlier, decayed to ``ts``; its
-        band does not depend on the fits that start from this live state: no feedback loop)."""
+        error: the newest map's), and a key that changes when they do. (Taking the covariance from the prior
+        a window starting at ``ts`` would get instead was measured without effect and removed, issue 25;
+        docs/design/hmap.md.)"""
         mean, cov = self.current_theta(m)
-        if self.cfg.live_h_error == "map":
-            return mean, cov, id(m)
-        prior, source = self.prior_for(ts - self.cfg.window_s, ts)
-        return mean, prior.cov, (id(m), source, round(ts / self.cfg.refit_s))
+        return mean, cov, id(m)
 
     def launched(self, job_id: int, *, t_end: float, mask_used: int) -> None:
         self.running = job_id

@@ -76,32 +76,30 @@ class CanDevice(CanSource, HealthSource, Protocol):
 
 
 def map_config(settings: Settings) -> MapConfig | None:
-    """The speed map's configuration (None: ``identification.mode = "per_condition"``; the same for
+    """The speed map's configuration (None: ``experimental.mode = "per_condition"``; the same for
     ``"speed_map"`` and ``"combined"``)."""
-    ident = settings.identification
-    if ident.mode == "per_condition":
+    ident, exp = settings.identification, settings.experimental
+    if exp.mode == "per_condition":
         return None
     return MapConfig(
         window_s=60.0 * ident.map_window_min,
-        min_window_s=60.0 * ident.map_min_window_min,
-        debounce_s=ident.map_debounce_s,
+        min_window_s=60.0 * exp.map_min_window_min,
+        debounce_s=exp.map_debounce_s,
         refit_s=60.0 * ident.map_refit_min,
         fresh_s=60.0 * ident.map_fresh_min,
-        margin_rpm=ident.map_margin_rpm,
-        min_visit_s=ident.map_min_visit_s,
-        tau_h=ident.map_forget_tau_h,
-        family=ident.map_family,
-        live_h_error=ident.map_live_h_error,
-        prior_weight=ident.map_prior_weight,
-        start_draws=ident.map_start_draws,
-        start_lead_s=60.0 * ident.map_start_lead_min,
-        prior_level_sd=ident.map_prior_level_sd,
+        margin_rpm=exp.map_margin_rpm,
+        min_visit_s=exp.map_min_visit_s,
+        tau_h=exp.map_forget_tau_h,
+        family=exp.map_family,
+        prior_weight=exp.map_prior_weight,
+        prior_level_sd=exp.map_prior_level_sd,
     )
 
 
 def core_config(settings: Settings) -> CoreConfig:
     """The core's configuration from ``Settings`` (minutes -> s; the window grid is the sample period)."""
     ident, det, acq = settings.identification, settings.detector, settings.acquisition
+    exp = settings.experimental
     schedule = tuple(60.0 * m for m in ident.schedule_min)
     return CoreConfig(
         detector=DetectorConfig(
@@ -116,7 +114,7 @@ def core_config(settings: Settings) -> CoreConfig:
             min_data_s=ident.min_window_s,
             schedule_s=schedule,
             max_window_s=ident.max_window_s,
-            distance_scales=ident.distance_scales,
+            distance_scales=exp.distance_scales,
             tolerance_s=0.5 * acq.sample_period_s,
         ),
         rules=WindowRules(
@@ -124,14 +122,14 @@ def core_config(settings: Settings) -> CoreConfig:
             min_window_s=ident.min_window_s,
             min_good_channels=ident.min_good_channels,
         ),
-        method=ident.method,
-        seed=ident.seed,
-        estimate_loads=ident.estimate_loads,
-        carry_start_error=ident.carry_start_error,
-        start_modes=ident.start_modes,
+        method=exp.method,
+        seed=exp.seed,
+        estimate_loads=exp.estimate_loads,
+        carry_start_error=exp.carry_start_error,
+        start_modes=exp.start_modes,
         ci_threshold=ident.ci_rel_threshold,
         speed_map=map_config(settings),
-        combined=ident.mode == "combined",
+        combined=exp.mode == "combined",
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
         calibration=CalibrationConfig(
@@ -178,7 +176,7 @@ class Runtime:
     def load(self, *, progress: Callable[[str], None] | None = None) -> LoadedModel:
         """Load the model (builds and caches the reduced model on the first run)."""
         if self.model is None:
-            self.model = load_model(ModelRef.from_settings(self.settings.model), progress=progress)
+            self.model = load_model(ModelRef.from_settings(self.settings), progress=progress)
         return self.model
 
     async def start(self, *, daq: DaqDevice, can: CanDevice, api: bool = True) -> None:
@@ -196,7 +194,7 @@ class Runtime:
             restored=self.persistence.restored,
             history_capacity=s.acquisition.ring_capacity,
         )
-        worker = IdentificationWorker(ModelRef.from_settings(s.model), timeout_s=s.identification.timeout_s)
+        worker = IdentificationWorker(ModelRef.from_settings(s), timeout_s=s.identification.timeout_s)
         self.service = SoftSensorService(
             core,
             worker=worker,

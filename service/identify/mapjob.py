@@ -1,4 +1,4 @@
-"""A speed-map identification job (``identification.mode = "speed_map"``): the worker side.
+"""A speed-map identification job (``experimental.mode = "speed_map"``): the worker side.
 
 The core sends a ``JobRequest`` whose ``speed_map`` is a :class:`MapJob` (the prior: the last posterior
 after ``forget``, or the family's cold-start prior); the worker (``service.identify.worker.run_job``) fits
@@ -29,7 +29,6 @@ __all__ = [
     "MapJob",
     "run_map_identification",
     "segment_speed",
-    "theta_start_cov",
 ]
 
 SEGMENT_TOL_RPM = 75.0
@@ -46,14 +45,6 @@ class MapJob:
     prior_mean: np.ndarray
     prior_cov: np.ndarray
     start_mean: np.ndarray | None = None  # where the iteration starts (the newest map's θ; None: the prior's)
-    # the start covariance's H part (``theta_start_cov``): the lead window before the fit's window, the
-    # live state's field at its start (°C, (N,)), and how many θ draws (0: none)
-    lead: WindowArrays | None = None
-    lead_t0_c: np.ndarray | None = None
-    start_draws: int = 0
-    draws_mean: np.ndarray | None = None  # θ's distribution the draws come from (None: the prior)
-    draws_cov: np.ndarray | None = None
-    seed: int = 0
 
 
 def segment_speed(speed_rpm: np.ndarray, tol_rpm: float = SEGMENT_TOL_RPM) -> np.ndarray:
@@ -69,48 +60,6 @@ def segment_speed(speed_rpm: np.ndarray, tol_rpm: float = SEGMENT_TOL_RPM) -> np
         total += v
     out[start:] = total / (len(n) - start)
     return out
-
-
-def theta_start_cov(
-    model: LoadedModel,
-    lead: WindowArrays,
-    t0_c: float | np.ndarray,
-    family: str,
-    mean: np.ndarray,
-    cov: np.ndarray,
-    *,
-    draws: int,
-    seed: int = 0,
-) -> np.ndarray:
-    """The start field's error (r, r) [°C², reduced] that the map's own uncertainty leaves in it: ``draws``
-    θ ~ N(``mean``, ``cov``) (the fit's prior, clipped to the family's box) each run through the ``lead``
-    window (the data before the fit's window; segmented reduced model, ``model.rom_segments``) from the
-    live state's field ``t0_c`` at its start, the second moment of their end states about the run with
-    the mean (the map analogue of ``model.carry.propagate``: the live state was advanced with H from maps
-    whose error the prior describes, and its considered H error does not know how wrong they were)."""
-    from model import rom_segments
-    from model.hmap import Family
-    from model.inputs import inputs_from_operation
-
-    fam = Family(family)  # type: ignore[arg-type]
-    ambient, speed, torque = lead.step_inputs()
-    inputs = inputs_from_operation(
-        model.spec, dt_s=lead.dt_s, speed_rpm=speed, torque_nm=torque, ambient_c=ambient
-    )
-    plan = rom_segments.plan_from_speed(segment_speed(speed))
-    speeds = np.abs(segment_speed(speed)[plan.start])
-    ambients = rom_segments.segment_means(plan, inputs.ambient_c)
-    lo, hi = fam.bounds()
-    rng = np.random.default_rng(seed)
-    lam, vec = np.linalg.eigh(0.5 * (cov + cov.T))
-    root = vec * np.sqrt(np.maximum(lam, 0.0))  # root·rootᵀ = cov (positive semi-definite is enough)
-    thetas = np.vstack([mean, mean + rng.standard_normal((draws, mean.size)) @ root.T])
-    thetas = np.clip(thetas, lo, hi)
-    h = np.stack([fam.h_at(th, speeds, ambients) for th in thetas])  # (1 + draws, S, 7)
-    ends = rom_segments.simulate_states(model.rom, h, plan, inputs, t0_c)[:, -1, :]
-    dev = ends[1:] - ends[0]
-    out = dev.T @ dev / max(draws, 1)
-    return np.asarray(0.5 * (out + out.T))
 
 
 def run_map_identification(
@@ -149,17 +98,6 @@ def run_map_identification(
     sd = np.zeros(32) if offset_sd_c is None else np.nan_to_num(np.asarray(offset_sd_c, dtype=float))
     bias = np.sqrt(sd**2 + MODEL_ERROR_C**2) if job.family == "nodes" else None
     modes = None
-    if start_cov is not None and job.lead is not None and job.lead_t0_c is not None and job.start_draws > 0:
-        start_cov = start_cov + theta_start_cov(
-            model,
-            job.lead,
-            job.lead_t0_c,
-            job.family,
-            np.asarray(job.prior_mean if job.draws_mean is None else job.draws_mean, dtype=float),
-            np.asarray(job.prior_cov if job.draws_cov is None else job.draws_cov, dtype=float),
-            draws=job.start_draws,
-            seed=job.seed,
-        )
     if start_cov is not None and start_modes > 0 and job.family == "nodes":
         lam, vec = np.linalg.eigh(0.5 * (start_cov + start_cov.T))
         top = np.argsort(lam)[::-1][:start_modes]

@@ -87,7 +87,7 @@ class SchedulerConfig:
             )
         if len(self.distance_scales) != 3 or any(s <= 0 for s in self.distance_scales):
             raise SchedulerError(
-                f"identification.distance_scales must be 3 positive numbers, got {self.distance_scales!r}"
+                f"experimental.distance_scales must be 3 positive numbers, got {self.distance_scales!r}"
             )
 
 

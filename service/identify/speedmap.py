@@ -1,5 +1,5 @@
 """The speed map's state in the service: the latest H map fit (``model.hmap_identify.MapFit``'s posterior),
-the speeds the data have covered, and its configuration (``identification.mode = "speed_map"``).
+the speeds the data have covered, and its configuration (``experimental.mode = "speed_map"``).
 
 Pure numpy (``model.hmap`` only): the core keeps a :class:`SpeedMap` (frozen, published in its view), the
 API threads evaluate it (``h_at``: microseconds), the database stores it as JSON in the identification's
@@ -61,13 +61,8 @@ class MapConfig:
     bin_rpm: visited speeds are binned to this;
     tau_h: forgetting time of ``model.hmap_identify.forget`` (h);
     family: "nodes" | "physics" (``model.hmap``);
-    live_h_error: the live filter's considered H error: "map" the newest map's band at the current speed,
-    "prior" the band of the prior a window starting now would get (the decayed posterior of a fit whose
-    window ended at least ``window_s`` ago: independent of the fits being refined; docs/design/hmap.md);
     prior_weight: covariance intersection of the fit's prior and start field (ω in (0, 1]; 1: independent):
     the prior's covariance is divided by ω and the start covariance by 1 − ω (docs/design/hmap.md);
-    start_draws: θ draws from the prior run through the ``start_lead_s`` before the window to add the
-    map's H error to the start covariance (``mapjob.theta_start_cov``; 0: the live state's covariance only);
     prior_level_sd: σ of the cold prior's overall ln H level per zone (``model.hmap.Family.prior``).
     """
 
@@ -81,14 +76,11 @@ class MapConfig:
     bin_rpm: float = 50.0
     tau_h: float = 4.0
     family: Literal["nodes", "physics"] = "nodes"
-    live_h_error: Literal["map", "prior"] = "map"
     prior_weight: float = 0.25
-    start_draws: int = 0
-    start_lead_s: float = 600.0
     prior_level_sd: float = 0.0
 
     def __post_init__(self) -> None:
-        for name in ("window_s", "min_window_s", "refit_s", "fresh_s", "bin_rpm", "tau_h", "start_lead_s"):
+        for name in ("window_s", "min_window_s", "refit_s", "fresh_s", "bin_rpm", "tau_h"):
             v = float(getattr(self, name))
             if not (np.isfinite(v) and v > 0):
                 raise SpeedMapError(f"MapConfig.{name}: must be > 0, got {v}")
@@ -102,12 +94,6 @@ class MapConfig:
             )
         if not (0.0 < float(self.prior_weight) <= 1.0):
             raise SpeedMapError(f"MapConfig.prior_weight: must be in (0, 1], got {self.prior_weight}")
-        if int(self.start_draws) < 0:
-            raise SpeedMapError(f"MapConfig.start_draws: must be >= 0, got {self.start_draws}")
-        if self.live_h_error not in ("map", "prior"):
-            raise SpeedMapError(
-                f"MapConfig.live_h_error: expected 'map' or 'prior', got {self.live_h_error!r}"
-            )
         if self.family not in ("nodes", "physics"):
             raise SpeedMapError(f"MapConfig.family: expected 'nodes' or 'physics', got {self.family!r}")
 

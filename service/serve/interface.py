@@ -331,7 +331,7 @@ class ChtcSnapshot:
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class ChtcMapSnapshot:
-    """The identified H map H = F(n, Ti) over the speed range (``identification.mode = "speed_map"``,
+    """The identified H map H = F(n, Ti) over the speed range (``experimental.mode = "speed_map"``,
     docs/design/hmap.md): H1-H7 and their 95 % bands on a speed grid at the current ambient, the speeds the
     data have covered, and how current the map is.
 
@@ -519,14 +519,14 @@ class ChtcService(Protocol):
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
         """The H map over the speed range with its bands and the visited speeds; None when the service runs
-        per condition (``identification.mode = "per_condition"``) or no map has been fitted yet. Cheap (a
+        per condition (``experimental.mode = "per_condition"``) or no map has been fitted yet. Cheap (a
         prebuilt snapshot per map fit and ambient)."""
         ...
 
     def identification_mode(self) -> IdentificationMode:
         """``"per_condition"`` (the paper's protocol: one H per held condition), ``"speed_map"`` (H = F(n,
         Ti) over the speed range, ``chtc_map()``) or ``"combined"`` (both: the per-condition H at a held
-        condition, the map's elsewhere); fixed for the service's life (``identification.mode``)."""
+        condition, the map's elsewhere); fixed for the service's life (``experimental.mode``)."""
         ...
 
     def field(self, at: FieldAt) -> FieldSnapshot:

@@ -337,7 +337,7 @@ def served_service(
     samples = plant_samples(plan) if plan is not None else ()
     clock = clock if clock is not None else ManualClock(samples[0].t if samples else PLAN_T0)
     say = on_event or (lambda _msg: None)
-    model = _model(ModelRef.from_settings(s.model))
+    model = _model(ModelRef.from_settings(s))
     persistence = open_persistence(s.database, migrate=True, on_event=say, clock=clock)
     core = ServiceCore(
         core_config(s),

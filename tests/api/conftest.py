@@ -28,6 +28,7 @@ from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from service.sim.duty import duty_profile
 from service.sim.served import DEMO_FED, ManualClock, Plan, Served, served_service
+from tests.modes import PER_CONDITION
 
 __all__ = [
     "DEMO_WINDOWS",
@@ -58,14 +59,14 @@ LENIENT_CI = 25.0
 # and 2, one identification per condition, the `identifying` status while a job runs or after a condition
 # change, the counts) are that protocol's; the speed map's API is tested on MAP_MODE below
 # (test_api_chtc_map.py, test_api_dashboard.py's map cases, test_api_compensation.py's map case).
-DEMO_WINDOWS = {"mode": "per_condition", "schedule_min": (10.0, 20.0, 40.0, 60.0), "min_window_s": 600.0}
+DEMO_WINDOWS = {"schedule_min": (10.0, 20.0, 40.0, 60.0), "min_window_s": 600.0}  # with PER_CONDITION
 LENIENT_IDENTIFICATION = {"ci_rel_threshold": LENIENT_CI, "offset_calibration": False, **DEMO_WINDOWS}
 
 
 # Speed-map mode (issue 17, docs/design/hmap.md) on a seeded duty cycle (service.sim.duty: 5 min at rest, then
-# the speed changes every 1-6 min): the first map fit comes after identification.map_min_window_min (10 min)
-# of data, re-fits follow the changes. The first MAP_FED samples (26.7 min) give several fits.
-MAP_MODE = Settings(identification={"mode": "speed_map"})
+# the speed changes every 1-6 min): the first map fit comes after experimental.map_min_window_min (10 min) of
+# data, re-fits follow the changes. The first MAP_FED samples (26.7 min) give several fits.
+MAP_MODE = Settings(experimental={"mode": "speed_map"})
 MAP_PLAN = Plan(profile=tuple(duty_profile(7, duration_s=1800.0)))
 MAP_FED = 160
 
@@ -86,7 +87,7 @@ def served(tmp_path: Path) -> Iterator[Served]:
     """The demo plan's first 22 min (3000 rpm, then 4000 rpm, 11 min each) fed through the real service: two
     identifications (ids 1 and 2, one per condition), condition 2 current, fresh, no H identified (default CI
     threshold); ``served.feed_next()`` feeds up to 30 more samples at 4000 rpm."""
-    demo = Settings(identification=DEMO_WINDOWS)
+    demo = Settings(identification=DEMO_WINDOWS, experimental=PER_CONDITION)
     with served_service(database_url=sqlite_url(tmp_path), settings=demo, feed_samples=DEMO_FED) as s:
         yield s
 
@@ -96,7 +97,7 @@ def served_ro(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     """The same service, shared by the tests that only read it and never move its clock (request
     validation, the OpenAPI document): built once per session."""
     url = sqlite_url(tmp_path_factory.mktemp("served-ro"))
-    demo = Settings(identification=DEMO_WINDOWS)
+    demo = Settings(identification=DEMO_WINDOWS, experimental=PER_CONDITION)
     with served_service(database_url=url, settings=demo, feed_samples=DEMO_FED) as s:
         yield s
 
@@ -186,7 +187,9 @@ def served_db_down(tmp_path: Path) -> Iterator[Served]:
     without restored state, holds its records and serves what it remembers."""
     (tmp_path / "a-directory").mkdir()
     url = sqlite_url(tmp_path, "a-directory")
-    demo = Settings(identification=DEMO_WINDOWS)  # per condition: the two identifications it holds
+    demo = Settings(
+        identification=DEMO_WINDOWS, experimental=PER_CONDITION
+    )  # per condition: the two identifications it holds
     with served_service(database_url=url, settings=demo, feed_samples=DEMO_FED) as s:
         yield s
 

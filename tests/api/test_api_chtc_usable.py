@@ -15,12 +15,13 @@ from drivers.quality import Quality
 from service.settings import Settings
 from service.sim.served import DEMO_FED, Served, feed, served_service
 from tests.api.conftest import LENIENT_IDENTIFICATION, sqlite_url
+from tests.modes import PER_CONDITION
 
 
 @pytest.fixture
 def lenient(tmp_path: Path) -> Iterator[tuple[Served, TestClient]]:
     """The demo plan with a CI threshold under which the newest identification has every H identified."""
-    settings = Settings(identification=LENIENT_IDENTIFICATION)
+    settings = Settings(identification=LENIENT_IDENTIFICATION, experimental=PER_CONDITION)
     with (
         served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED) as s,
         TestClient(create_app(settings, s.service, clock=s.clock)) as c,

@@ -31,9 +31,10 @@ from tests.api.conftest import (
     served_with_dead_devices,
     sqlite_url,
 )
+from tests.modes import PER_CONDITION
 
 # the newest identification has all seven H identified: the banner then names only a case's own cause
-LENIENT = Settings(identification=LENIENT_IDENTIFICATION)
+LENIENT = Settings(identification=LENIENT_IDENTIFICATION, experimental=PER_CONDITION)
 
 CHROMIUM_FLAGS = [
     "--headless",

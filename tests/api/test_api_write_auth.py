@@ -11,6 +11,7 @@ from service.engine.shell import SoftSensorService
 from service.settings import Settings
 from service.sim.served import Served, served_service
 from tests.api.conftest import WRITE_TOKEN, ManualClock, sqlite_url
+from tests.modes import PER_CONDITION
 
 AUTH = {"Authorization": f"Bearer {WRITE_TOKEN}"}
 READ_TOKEN = "read-token-for-tests"
@@ -90,8 +91,8 @@ def test_post_while_the_model_loads_is_503_then_accepted(tmp_path: Path) -> None
     """Samples are there, but the worker is still loading the model: a manual job could not run yet."""
     # a manual job needs min_window_s of the condition's data; no scheduled job (it would wait for the model);
     # per-condition mode: a manual map fit would need map_min_window_min (10 min) of data instead
-    ident = {"mode": "per_condition", "min_window_s": 120.0, "schedule_min": (30.0,)}
-    settings = Settings(identification=ident)
+    ident = {"min_window_s": 120.0, "schedule_min": (30.0,)}
+    settings = Settings(identification=ident, experimental=PER_CONDITION)
     with served_service(database_url=sqlite_url(tmp_path), settings=settings, loading=True) as s:
         s.feed_next(20)  # 200 s of the first condition: only the loading model stands in the way
         app = create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)

@@ -11,7 +11,7 @@ healthcheck pass; the API token from the ``.env`` is the one the service accepts
 the end.
 
 The only deviation from the compose file is the identification timing (``TRIAL_TIMING``), for either
-``identification.mode``: the shipped per-condition schedule identifies 7 min after a condition change on 7 min
+``experimental.mode``: the shipped per-condition schedule identifies 7 min after a condition change on 7 min
 of data, the speed map fits first after 10 min of data; the test asks for 90 s (2-s samples) so that it ends
 in a few minutes. The plant still runs in real time, as in the compose file. The mode is the settings'
 default (the compose file does not set it): the test is about the deployment, not the identification.
@@ -62,7 +62,7 @@ TRIAL_TIMING = {  # identify 90 s after the condition starts on 45 samples (mode
     "CHTC_IDENTIFICATION__MAX_WINDOW_S": "90",
     "CHTC_DETECTOR__HOLD_S": "10",
     # speed-map mode: the first map fit after 90 s of data, refits every 1.5 min
-    "CHTC_IDENTIFICATION__MAP_MIN_WINDOW_MIN": "1.5",
+    "CHTC_EXPERIMENTAL__MAP_MIN_WINDOW_MIN": "1.5",
     "CHTC_IDENTIFICATION__MAP_REFIT_MIN": "1.5",
 }
 CONTAINER_DIRS = ("/etc/chtc", "/var/lib/chtc")  # mapped under the test's work directory

@@ -15,7 +15,7 @@ from service.cli import main as chtc
 from service.modelload import ModelRef, load_model
 from service.settings import load_settings
 
-SMALL = '[model]\nmesh_size_m = 0.015\nrom_rank = 4\nrom_cache_dir = "cache"\n'
+SMALL = '[model]\nrom_cache_dir = "cache"\n[experimental]\nmesh_size_m = 0.015\nrom_rank = 4\n'
 
 
 @pytest.fixture
@@ -36,7 +36,7 @@ def test_prebuild_fills_the_cache_the_service_loads(
     assert [p.name for p in cache.iterdir()] == [Path(report["cache_file"]).name]
 
     settings = load_settings(small_config)
-    loaded = load_model(ModelRef.from_settings(settings.model))
+    loaded = load_model(ModelRef.from_settings(settings))
     assert loaded.rom.from_cache and loaded.rom.key == report["cache_key"]
 
     assert chtc(["prebuild", "--config", str(small_config), "--json"]) == 0
@@ -56,9 +56,9 @@ def test_cache_dir_option_overrides_the_settings(
 
 def test_bad_settings_exit_1_naming_the_key(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     path = tmp_path / "bad.toml"
-    path.write_text("[model]\nrom_rank = 0\n")
+    path.write_text("[experimental]\nrom_rank = 0\n")
     assert chtc(["prebuild", "--config", str(path)]) == 1
-    assert "model.rom_rank" in capsys.readouterr().err
+    assert "experimental.rom_rank: Input should be greater than or equal to 1" in capsys.readouterr().err
 
 
 def test_cache_dir_that_is_a_file_exits_2(

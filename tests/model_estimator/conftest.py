@@ -18,7 +18,7 @@ from model.inputs import InputSeries, inputs_from_operation
 from model.plant import PlantRun, Segment, VirtualPlant
 from model.rom import DEFAULT_RANK, load_or_build_rom
 
-SERVICE_RANK = DEFAULT_RANK  # the service settings' model.rom_rank default follows it (46 today)
+SERVICE_RANK = DEFAULT_RANK  # the service settings' experimental.rom_rank default follows it (46 today)
 
 # the issue's restart profile, shortened: 5 min idle, 3000 rpm 60 min, 4000 rpm 45 min (10 N·m, 22 °C)
 PROFILE = (

@@ -54,7 +54,7 @@ def main() -> None:
         from service.modelload import ModelRef, load_model
         from service.settings import Settings
 
-        model = load_model(ModelRef.from_settings(Settings().model))
+        model = load_model(ModelRef.from_settings(Settings()))
         r = model.rom.rank
         extra = {"bias_sd_c": 0.034, "start_modes": 0.1 * np.eye(r)[:6]}
     else:

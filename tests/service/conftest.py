@@ -22,7 +22,7 @@ T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
 
 @pytest.fixture(scope="session")
 def model_ref() -> ModelRef:
-    return ModelRef.from_settings(Settings().model)
+    return ModelRef.from_settings(Settings())
 
 
 @pytest.fixture(scope="session")

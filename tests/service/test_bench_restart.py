@@ -96,7 +96,7 @@ def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFi
     assert cli.main(["bench", "restart", "--path", "core", "--mode", "filter"]) == 2  # the old spelling
     assert "contradicts" in capsys.readouterr().err
     assert cli.main(["bench", "restart", "--set", "nope=1"]) == 2
-    assert "unknown identification setting" in capsys.readouterr().err
+    assert "unknown setting nope" in capsys.readouterr().err
 
 
 class _Gate(FilterRestart):

@@ -1,4 +1,4 @@
-"""Combined mode (``identification.mode = "combined"``, issue 17) through the real core and shell over the
+"""Combined mode (``experimental.mode = "combined"``, issue 17) through the real core and shell over the
 virtual plant (its own mesh and truth): the per-condition identification of a held condition serves while
 the condition holds, the map's H at the current speed elsewhere (right after a change, at short
 conditions); the live state follows the served H; both job kinds share the worker and the job book."""
@@ -15,13 +15,13 @@ from service.bench.identmode import served_in_order
 from service.engine.jobbook import MAP_METHOD
 from service.engine.persistence import open_persistence
 from service.serve.interface import ChtcStatus
-from service.settings import IdentificationSettings, Settings
+from service.settings import ExperimentalSettings, Settings
 
 from .conftest import inline_service, samples_of
 
 # 5 min idle; 3000 rpm held 20 min (per-condition at 7 and 20 min; the map's first fit after 10 min of
 # data); 4500 rpm for 4 min (shorter than the first schedule entry: the map's only); 2000 rpm held 12 min
-SETTINGS = Settings(identification=IdentificationSettings(mode="combined"))
+SETTINGS = Settings(experimental=ExperimentalSettings(mode="combined"))
 PROFILE = (
     Segment(300.0, 0.0, 0.0, 20.0),
     Segment(1200.0, 3000.0, 6.0, 20.0),
@@ -89,7 +89,7 @@ def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(combine
                 np.testing.assert_allclose(live_h, h[0], rtol=0.02)  # within the map's 50-rpm live bin
     assert kinds[2] == {MAP_METHOD}, kinds  # 4 min at 4500 rpm: the map's only
     for seg in (1, 3):  # held conditions: the map first, then their own per-condition identification
-        assert kinds[seg] == {MAP_METHOD, SETTINGS.identification.method}, (seg, kinds)
+        assert kinds[seg] == {MAP_METHOD, SETTINGS.experimental.method}, (seg, kinds)
 
 
 def test_benches_take_the_served_identification(combined) -> None:

@@ -1,6 +1,6 @@
 """Every documented identification/detector setting reaches the core (issue 12, item 12).
 
-``identification.max_window_s``, ``identification.distance_scales``, ``detector.median_samples`` and
+``identification.max_window_s``, ``experimental.distance_scales``, ``detector.median_samples`` and
 ``detector.max_gap_s`` were accepted and documented but ``runtime.core_config`` dropped them. Each test
 changes one setting and sees the effect in the state machines built from ``core_config(settings)`` (the
 configuration the running service's core gets), not in a copy of the setting. The defaults of the CI
@@ -72,7 +72,7 @@ def test_distance_scales_choose_the_warm_start() -> None:
     ident = {"schedule_min": [10.0]}
     by_default = _job_at(_settings(identification=ident), 600.0, history)  # 0.5 vs 0.8: speed is nearer
     torque_cheap = _job_at(
-        _settings(identification={**ident, "distance_scales": [1000.0, 50.0, 5.0]}), 600.0, history
+        _settings(identification=ident, experimental={"distance_scales": [1000.0, 50.0, 5.0]}), 600.0, history
     )  # 0.5 vs 0.08: torque is nearer
     assert by_default.warm_source == "condition 1"
     assert torque_cheap.warm_source == "condition 2"
@@ -111,14 +111,14 @@ def test_max_gap_s_restarts_the_hold() -> None:
 
 
 def test_defaults_are_one_value_in_every_layer() -> None:
-    ident = Settings().identification
+    ident, exp = Settings().identification, Settings().experimental
     cfg, default_core = core_config(Settings()), CoreConfig()
     assert (
         ident.ci_rel_threshold == 0.5
     )  # docs/design/identification.md "Identified" (measured: 30 % never passes H1)
     for value in (cfg.ci_threshold, default_core.ci_threshold, IdentifyOptions().ci_threshold):
         assert value == ident.ci_rel_threshold
-    assert cfg.start_modes == default_core.start_modes == ident.start_modes
-    assert cfg.carry_start_error == default_core.carry_start_error == ident.carry_start_error
-    assert JobRequest.__dataclass_fields__["carry_start_error"].default == ident.carry_start_error
+    assert cfg.start_modes == default_core.start_modes == exp.start_modes
+    assert cfg.carry_start_error == default_core.carry_start_error == exp.carry_start_error
+    assert JobRequest.__dataclass_fields__["carry_start_error"].default == exp.carry_start_error
     assert JobRequest.__dataclass_fields__["ci_threshold"].default == ident.ci_rel_threshold

@@ -1,4 +1,4 @@
-"""Speed-map mode (``identification.mode = "speed_map"``, issue 17) through the real core and shell: a short
+"""Speed-map mode (``experimental.mode = "speed_map"``, issue 17) through the real core and shell: a short
 duty cycle from the virtual plant (its own mesh and truth), /chtc served from the map at the current speed
 right after a change, the status rules, the map persisted and restored as stale, the settings."""
 
@@ -18,7 +18,7 @@ from service.engine.shell import SoftSensorService
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
 from service.serve.interface import ChtcStatus
 from service.serve.views import map_freshness
-from service.settings import IdentificationSettings, Settings, SettingsError
+from service.settings import ExperimentalSettings, Settings, SettingsError
 from service.sim.duty import condition_at, duty_profile
 from tests.modes import per_condition
 
@@ -28,7 +28,10 @@ DURATION_S = 2700.0  # 5 min idle + 40 min of speed changes
 
 
 def map_settings(**kw: object) -> Settings:
-    return Settings(identification=IdentificationSettings(mode="speed_map", **kw))  # type: ignore[arg-type]
+    """Speed-map mode with ``kw`` in whichever section holds each key."""
+    exp = {k: v for k, v in kw.items() if k in ExperimentalSettings.model_fields}
+    ident = {k: v for k, v in kw.items() if k not in exp}
+    return Settings(identification=ident, experimental={"mode": "speed_map", **exp})  # type: ignore[arg-type]
 
 
 @pytest.fixture(scope="module")
@@ -55,17 +58,17 @@ def served(duty, loaded_model):
 
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
-    assert Settings().identification.mode == "combined"  # docs/design/hmap.md "Default"
-    assert map_config(Settings(identification={"mode": "per_condition"})) is None
+    assert Settings().experimental.mode == "combined"  # docs/design/hmap.md "Default"
+    assert map_config(Settings(experimental={"mode": "per_condition"})) is None
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
     assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")
-    with pytest.raises(SettingsError, match=r"identification\.mode"):
-        Settings.from_toml(None, identification={"mode": "speedmap"})
+    with pytest.raises(SettingsError, match=r"experimental\.mode"):
+        Settings.from_toml(None, experimental={"mode": "speedmap"})
     with pytest.raises(SettingsError, match="map_min_window_min"):
-        Settings.from_toml(None, identification={"mode": "speed_map", "map_min_window_min": 90})
+        Settings.from_toml(None, experimental={"mode": "speed_map", "map_min_window_min": 90})
     with pytest.raises(SettingsError, match="map_margin_rpm"):
-        Settings.from_toml(None, identification={"map_margin_rpm": -1})
+        Settings.from_toml(None, experimental={"map_margin_rpm": -1})
     with pytest.raises(SpeedMapError, match="window_s"):
         MapConfig(window_s=0.0)
 
@@ -220,73 +223,6 @@ def test_covariance_intersection_is_consistent_for_any_correlation(loaded_model)
             assert claims_enough or not ok, (rho, pa)
             if rho > 0.9 and pa is a:
                 assert not claims_enough  # the naive fusion is overconfident with shared errors
-
-
-def test_live_h_error_from_the_prior_is_wider_than_the_map(loaded_model) -> None:
-    """``live_h_error = "prior"``: the filter's considered H error is the band of the prior a window
-    starting now would get (the cold prior before a posterior is an hour old), not the newest map's."""
-    from model.hmap import Gaussian
-
-    book = _book(loaded_model, map_live_h_error="prior")
-    narrow = Gaussian(book.cold.mean + 0.1, book.cold.cov * 1e-3)
-    book.keep(1000.0, narrow)
-    m = SpeedMap(
-        family="nodes", mean=narrow.mean, cov=narrow.cov, visited_rpm=np.array([3000.0]),
-        visited_s=np.array([600.0]), fitted_at=datetime.fromtimestamp(1000.0, tz=UTC), rmse_c=0.1,
-    )  # fmt: skip
-    mean, cov, _ = book.live_theta(2000.0, m)
-    np.testing.assert_allclose(mean, narrow.mean)
-    np.testing.assert_allclose(cov, book.cold.cov)  # the posterior is not an hour old yet
-    mean, cov, _ = book.live_theta(1000.0 + 3600.0, m)  # the posterior decayed over the hour since
-    assert np.all(np.linalg.eigvalsh(cov - 1.2 * narrow.cov) > 0)  # e^(1 h / 4 h) = 1.28
-    assert np.all(np.linalg.eigvalsh(book.cold.cov - cov) > 0)
-    assert np.array_equal(_book(loaded_model).live_theta(2000.0, m)[1], narrow.cov)
-
-
-def test_theta_start_cov_is_the_draws_spread_of_the_lead(loaded_model) -> None:
-    """The H part of the start covariance: zero for a certain θ, ≈ s·sᵀ·ε² for θ uncertain by ε along one
-    direction v (s the end state's finite-difference derivative along v), and larger over a longer lead."""
-    from model import rom_segments
-    from model.hmap import Family
-    from service.identify.mapjob import segment_speed, theta_start_cov
-    from service.identify.window import WindowArrays
-
-    fam = Family("nodes")
-    cold = fam.prior(loaded_model.spec)
-    k = 60  # 10 min at 10 s
-    times = np.arange(k + 1) * 10.0
-    speed = np.where(times < 300.0, 3000.0, 4000.0)
-    lead = WindowArrays(
-        times_s=times, measured_c=np.zeros((k + 1, 32)), mask=np.ones(32, bool),
-        ambient_c=np.full(k + 1, 22.0), speed_rpm=speed, torque_nm=np.full(k + 1, 5.0),
-        good_fraction=np.ones(32),
-    )  # fmt: skip
-    t0 = 30.0
-    zero = theta_start_cov(loaded_model, lead, t0, "nodes", cold.mean, 0.0 * cold.cov + 1e-30, draws=8)
-    assert np.max(np.abs(zero)) < 1e-12
-    v = np.zeros(cold.mean.size)
-    used = np.abs(segment_speed(speed[:-1]))
-    v[np.argmax(np.abs(fam.h_jacobian(cold.mean, used[:1], np.array([22.0]))[0, 1]))] = 1.0  # an H2 node
-    eps = 0.05
-    cov = theta_start_cov(
-        loaded_model, lead, t0, "nodes", cold.mean, eps**2 * np.outer(v, v) + 1e-14 * np.eye(v.size),
-        draws=400, seed=1,
-    )  # fmt: skip
-    from model.inputs import inputs_from_operation
-
-    ambient, spd, torque = lead.step_inputs()
-    inputs = inputs_from_operation(
-        loaded_model.spec, dt_s=10.0, speed_rpm=spd, torque_nm=torque, ambient_c=ambient
-    )
-    plan = rom_segments.plan_from_speed(segment_speed(spd))
-    sp, amb = np.abs(segment_speed(spd)[plan.start]), rom_segments.segment_means(plan, inputs.ambient_c)
-    h = np.stack([fam.h_at(th, sp, amb) for th in (cold.mean, cold.mean + 1e-4 * v)])
-    end = rom_segments.simulate_states(loaded_model.rom, h, plan, inputs, t0)[:, -1]
-    s = (end[1] - end[0]) / 1e-4
-    expect = eps**2 * np.outer(s, s)
-    assert np.trace(expect) > 1e-6
-    assert abs(np.trace(cov) / np.trace(expect) - 1.0) < 0.25  # 400 draws: ±10 % sampling error (2σ ~ 14 %)
-    assert abs(s @ cov @ s / (s @ expect @ s) - 1.0) < 0.25
 
 
 def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) -> None:

@@ -23,7 +23,7 @@ SERVICE = textwrap.dedent(
     from service.identify.worker import IdentificationWorker
 
     async def main():
-        worker = IdentificationWorker(ModelRef.from_settings(Settings().model))
+        worker = IdentificationWorker(ModelRef.from_settings(Settings()))
         await worker.start()
         print("ready", flush=True)
         await asyncio.sleep(3600)

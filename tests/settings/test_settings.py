@@ -32,18 +32,28 @@ def test_defaults_work_without_a_file(tmp_path: Path) -> None:
     s = Settings()
     assert (s.modbus.host, s.modbus.port, s.modbus.unit) == ("127.0.0.1", 5020, None)
     assert s.can.interface == "virtual"
-    assert s.model.rom_rank == 56 and s.model.h_box == (5.0, 200.0)
+    assert s.experimental.rom_rank == 56 and s.model.h_box == (5.0, 200.0)
     assert s.model.rom_cache_dir == tmp_path / "cache"
     assert s.database.url == f"sqlite:///{tmp_path / 'data' / 'chtc.db'}"
     assert s.identification.schedule_min == (7.0, 20.0, 40.0, 60.0)
-    assert s.identification.start_modes == 6 and s.identification.estimate_loads is False
+    assert s.experimental.start_modes == 6 and s.experimental.estimate_loads is False
     assert s.api.token is None
 
 
 def test_example_file_parses_and_matches_defaults() -> None:
     from_file = load_settings(EXAMPLE)
     defaults = Settings()
-    for section in ("modbus", "can", "acquisition", "identification", "detector", "api", "database"):
+    sections = (
+        "modbus",
+        "can",
+        "acquisition",
+        "identification",
+        "detector",
+        "api",
+        "database",
+        "experimental",
+    )
+    for section in sections:
         assert getattr(from_file, section) == getattr(defaults, section), section
     assert from_file.model.h_box == defaults.model.h_box
 
@@ -126,7 +136,9 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
         ("[database]\nretry_initial_s = 10\nretry_max_s = 1\n", "database"),
         ("[identification]\nschedule_min = [5, 60]\n", "identification"),
         ("[identification]\nmax_window_s = 300\n", "identification"),
-        ("[identification]\ndistance_scales = [1000, 0, 5]\n", "identification.distance_scales"),
+        ("[experimental]\ndistance_scales = [1000, 0, 5]\n", "experimental.distance_scales"),
+        ('[experimental]\nmode = "speedmap"\n', "experimental.mode"),
+        ("[identification]\nmode = 1\n", "identification.mode"),
     ],
 )
 def test_errors_name_the_key(tmp_path: Path, text: str, key: str) -> None:
@@ -169,9 +181,9 @@ def test_methods_match_the_model() -> None:
     from typing import get_args
 
     from model.identify import METHODS
-    from service.settings import IDENTIFICATION_METHODS, IdentificationSettings
+    from service.settings import IDENTIFICATION_METHODS, ExperimentalSettings
 
-    method_type = IdentificationSettings.model_fields["method"].annotation
+    method_type = ExperimentalSettings.model_fields["method"].annotation
     assert set(get_args(method_type)) == set(IDENTIFICATION_METHODS) == set(METHODS)
 
 
@@ -187,7 +199,7 @@ def test_sections_build_the_pure_cores_configs() -> None:
         min_data_s=ident.min_window_s,
         schedule_s=ident.schedule_s,
         max_window_s=ident.max_window_s,
-        distance_scales=ident.distance_scales,
+        distance_scales=s.experimental.distance_scales,
     )
     assert sched.schedule_s == (420.0, 1200.0, 2400.0, 3600.0)
 
@@ -196,3 +208,103 @@ def test_sections_build_the_pure_cores_configs() -> None:
 def test_every_shipped_config_file_is_valid(path: Path) -> None:
     settings = load_settings(path)
     assert settings.modbus.port > 0
+
+
+# --- issue 25: an operator's [identification] is short; the research switches are in [experimental] -------
+OPERATOR_KEYS = {
+    "schedule_min",
+    "min_window_s",
+    "max_window_s",
+    "min_good_channels",
+    "ci_rel_threshold",
+    "timeout_s",
+    "offset_calibration",
+    "offset_rest_s",
+    "offset_sd_c",
+    "map_window_min",
+    "map_refit_min",
+    "map_fresh_min",
+}
+
+
+def test_identification_has_at_most_12_operator_keys() -> None:
+    from service.settings import ExperimentalSettings, IdentificationSettings
+
+    keys = set(IdentificationSettings.model_fields)
+    assert len(keys) <= 12, sorted(keys)
+    assert keys == OPERATOR_KEYS  # a new key is a decision: operator's, or experimental
+    assert not keys & set(ExperimentalSettings.model_fields)  # ``--set KEY`` finds one section
+
+
+def test_an_old_file_setting_a_moved_key_says_where_it_went(tmp_path: Path) -> None:
+    """A file written for the 30-key ``[identification]`` (and ``[model] rom_rank``) stops with one line per
+    moved key naming its new place, file and environment, not a bare "unknown key"."""
+    path = write(
+        tmp_path,
+        '[identification]\nschedule_min = [7, 20]\nmode = "combined"\nseed = 3\nmap_family = "nodes"\n'
+        "[model]\nrom_rank = 56\nh_box = [5.0, 200.0]\n",
+    )
+    with pytest.raises(SettingsError) as info:
+        load_settings(path)
+    message = str(info.value)
+    for section, key in (("identification", "mode"), ("identification", "seed"), ("model", "rom_rank")):
+        assert f"\n  {section}.{key}: moved to [experimental]" in message, key
+        assert f"experimental.{key} (env CHTC_EXPERIMENTAL__{key.upper()})" in message, key
+    assert "schedule_min" not in message and "h_box" not in message  # the keys that stayed are fine
+    moved = write(
+        tmp_path,
+        '[identification]\nschedule_min = [7, 20]\n[experimental]\nmode = "combined"\nseed = 3\n'
+        'map_family = "nodes"\nrom_rank = 56\n[model]\nh_box = [5.0, 200.0]\n',
+    )
+    s = load_settings(moved)  # the same values, written where they now live
+    assert (s.experimental.seed, s.experimental.rom_rank, s.identification.schedule_min) == (
+        3,
+        56,
+        (7.0, 20.0),
+    )
+
+
+def test_a_moved_key_in_the_environment_says_where_it_went(monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
+    with pytest.raises(
+        SettingsError, match=r"identification\.mode: moved to \[experimental\].*CHTC_EXPERIMENTAL__MODE"
+    ):
+        load_settings(None)
+    monkeypatch.delenv("CHTC_IDENTIFICATION__MODE")
+    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")
+    monkeypatch.setenv("CHTC_EXPERIMENTAL__ROM_RANK", "46")
+    s = load_settings(None)
+    assert (s.experimental.mode, s.experimental.rom_rank) == ("per_condition", 46)
+
+
+@pytest.mark.parametrize("key", ["map_start_draws", "map_start_lead_min", "map_live_h_error"])
+def test_a_removed_key_says_it_was_removed(tmp_path: Path, key: str) -> None:
+    """Measured without effect (docs/design/hmap.md), deleted in issue 25: the error says so, in either
+    section."""
+    value = '"map"' if key == "map_live_h_error" else "0"
+    with pytest.raises(SettingsError, match=rf"identification\.{key}: removed in issue 25: measured without"):
+        load_settings(write(tmp_path, f"[identification]\n{key} = {value}\n"))
+    with pytest.raises(SettingsError, match=rf"experimental\.{key}: unknown key"):
+        load_settings(write(tmp_path, f"[experimental]\n{key} = {value}\n"))
+
+
+def test_rules_across_sections_name_both_keys(tmp_path: Path) -> None:
+    text = "[identification]\nmap_window_min = 5\n[experimental]\nmap_min_window_min = 10\n"
+    with pytest.raises(
+        SettingsError,
+        match=r"\n  experimental\.map_min_window_min \(10\.0\) must be <= "
+        r"identification\.map_window_min \(5\.0\)",
+    ):
+        load_settings(write(tmp_path, text))
+    text = "[identification]\nmap_fresh_min = 0.25\n[experimental]\nmap_debounce_s = 30\n"
+    with pytest.raises(SettingsError, match=r"identification\.map_fresh_min .* experimental\.map_debounce_s"):
+        load_settings(write(tmp_path, text))
+
+
+def test_the_configuration_docs_minimal_machine_file_is_valid(tmp_path: Path) -> None:
+    """docs/configuration.md "What to set for a real machine" shows a minimal file: it must load."""
+    text = (EXAMPLE.parents[1] / "docs" / "configuration.md").read_text(encoding="utf-8")
+    block = text.split("A minimal file for one spindle:", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
+    s = load_settings(write(tmp_path, block))
+    assert (s.modbus.port, s.can.interface, s.growth.reference_c) == (502, "socketcan", 20.0)
+    assert s.experimental == Settings().experimental
