@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import socket
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
@@ -21,6 +22,7 @@ if TYPE_CHECKING:
 __all__ = [
     "CommandError",
     "DefaultsHelpFormatter",
+    "check_database_url",
     "check_listen",
     "override",
     "port_number",
@@ -115,6 +117,45 @@ def check_listen(host: str, port: int) -> None:
             s.listen(1)
         except OSError as err:
             raise CommandError(f"cannot listen on {host}:{port}: {err.strerror or err}") from err
+
+
+def check_database_url(url: str, option: str) -> None:
+    """Raise ``CommandError`` naming ``option`` unless the store can use ``url``: a supported backend and
+    driver (``service.store.engine.SUPPORTED_DATABASES``) that is installed, and for SQLite a directory that
+    exists or can be created.
+
+    Checked before the model loads: ``mysql://…`` used to load the model for 46 s and then end in a
+    traceback (``No module named 'MySQLdb'``).
+    """
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    from service.store.engine import SUPPORTED_DATABASES
+
+    examples = "sqlite:///PATH or postgresql+psycopg://USER:PASSWORD@HOST:PORT/DB"
+    try:
+        parsed = make_url(url)
+    except ArgumentError as err:
+        raise CommandError(f"{option}: not a database URL: {url!r} (use {examples})") from err
+    backend, driver = parsed.get_backend_name(), parsed.get_driver_name()
+    if backend not in SUPPORTED_DATABASES:
+        raise CommandError(f"{option}: database {backend!r} is not supported (use {examples})")
+    if driver not in SUPPORTED_DATABASES[backend]:
+        wanted = " or ".join(f"{backend}+{d}://" for d in SUPPORTED_DATABASES[backend])
+        raise CommandError(f"{option}: driver {driver!r} is not supported for {backend} (use {wanted})")
+    try:
+        parsed.get_dialect().import_dbapi()
+    except ImportError as err:
+        raise CommandError(f"{option}: the {backend} driver {driver!r} is not installed ({err})") from err
+    database = parsed.database or ""
+    if backend == "sqlite" and database not in ("", ":memory:") and not database.startswith("file:"):
+        parent = Path(database).expanduser().parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise CommandError(
+                f"{option}: cannot create the SQLite directory {parent}: {err.strerror or err}"
+            ) from err
 
 
 def user_errors() -> tuple[type[Exception], ...]:

@@ -27,7 +27,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from service.commands._common import check_listen, override, port_number, positive_float
+from service.commands._common import (
+    check_database_url,
+    check_listen,
+    override,
+    port_number,
+    positive_float,
+)
 from service.engine.jobbook import MAP_METHOD
 
 if TYPE_CHECKING:
@@ -231,5 +237,7 @@ def main(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="chtc-demo-") as tmp:
         db_url = args.database_url or f"sqlite:///{Path(tmp) / 'demo.db'}"
         settings = demo_settings(args, db_url)
+        if args.database_url is not None:
+            check_database_url(settings.database.url, "--database-url")
         check_listen(settings.api.host, settings.api.port)
         return asyncio.run(run_demo(args, settings))

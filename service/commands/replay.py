@@ -41,7 +41,14 @@ if TYPE_CHECKING:
     from service.serve.interface import CompensationSnapshot, IdentificationRecord
     from service.settings import Settings
 
-from service.commands._common import CommandError, check_listen, override, port_number, positive_float
+from service.commands._common import (
+    CommandError,
+    check_database_url,
+    check_listen,
+    override,
+    port_number,
+    positive_float,
+)
 from service.commands.identify import growth_dict, num, record_dict
 from service.sim.logsamples import REPLAY_PHASE, write_acquisition_csv
 
@@ -281,6 +288,8 @@ def main(args: argparse.Namespace) -> int:
             settings = override(settings, "database", url=args.database_url)
         api = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
         settings = override(settings, "api", **api) if api else settings
+        url_option = "--database-url" if args.database_url is not None else "database.url"
+        check_database_url(settings.database.url, url_option)
         if args.api:
             check_listen(settings.api.host, settings.api.port)
     except (SettingsError, CommandError) as err:

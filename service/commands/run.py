@@ -26,7 +26,13 @@ if TYPE_CHECKING:
     from service.engine.runtime import ScaledClock
     from service.settings import Settings
 
-from service.commands._common import CommandError, check_listen, override, port_number
+from service.commands._common import (
+    CommandError,
+    check_database_url,
+    check_listen,
+    override,
+    port_number,
+)
 
 log = logging.getLogger("chtc")
 
@@ -124,6 +130,7 @@ def main(args: argparse.Namespace) -> int:
         print(json.dumps(settings.redacted(), indent=2))
         return 0
     try:
+        check_database_url(settings.database.url, "database.url")
         check_listen(settings.api.host, settings.api.port)
         return asyncio.run(serve(settings, migrate=args.migrate))
     except (ConfigError, CommandError) as err:

@@ -1,0 +1,44 @@
+"""What a newcomer met on the command line (issue 25, section 2): each test failed before its fix."""
+
+from __future__ import annotations
+
+import pytest
+
+from service.cli import main
+
+
+@pytest.fixture
+def no_model_load(monkeypatch: pytest.MonkeyPatch) -> None:
+    """A model load fails the test: the check under test must come before it (about 10-46 s)."""
+    import service.modelload as modelload
+
+    def no_load(*a: object, **k: object) -> None:
+        raise AssertionError("the model was loaded before the database URL was checked")
+
+    monkeypatch.setattr(modelload, "load_model", no_load)
+
+
+@pytest.mark.parametrize(
+    ("url", "expected"),
+    [
+        ("mysql://a@b/c", "database 'mysql' is not supported"),
+        ("postgresql+asyncpg://u@127.0.0.1/x", "driver 'asyncpg' is not supported for postgresql"),
+        ("sqlite:////proc/no/such/dir/x.db", "cannot create the SQLite directory /proc/no/such/dir"),
+    ],
+)
+def test_demo_unusable_database_url_is_one_line_before_the_model_loads(
+    url: str, expected: str, no_model_load: None, capsys: pytest.CaptureFixture[str]
+) -> None:
+    assert main(["demo", "--database-url", url, "--port", "0", "--duration", "0"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("chtc demo: --database-url: ") and expected in err, err
+    assert "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+def test_run_names_the_settings_key_of_an_unusable_url(
+    no_model_load: None, capsys: pytest.CaptureFixture[str], monkeypatch: pytest.MonkeyPatch
+) -> None:
+    monkeypatch.setenv("CHTC_DATABASE__URL", "mysql://a@b/c")
+    assert main(["run"]) == 2
+    err = capsys.readouterr().err
+    assert err.startswith("chtc run: database.url: database 'mysql' is not supported"), err
