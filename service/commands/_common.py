@@ -24,6 +24,7 @@ __all__ = [
     "DefaultsHelpFormatter",
     "check_database_url",
     "check_listen",
+    "check_log_arguments",
     "override",
     "port_number",
     "user_errors",
@@ -156,6 +157,43 @@ def check_database_url(url: str, option: str) -> None:
             raise CommandError(
                 f"{option}: cannot create the SQLite directory {parent}: {err.strerror or err}"
             ) from err
+
+
+def check_log_arguments(csv: Path, can: Path | None) -> None:
+    """Raise ``CommandError`` naming the argument when the logs are given in the wrong order or role.
+
+    ``chtc identify can.blf temps.csv`` used to end in ``'utf-8' codec can't decode byte 0x90``: the
+    temperature CSV comes first, the CAN log second. A missing file is left to the readers (they name it).
+    """
+    from drivers.logs import CAN_LOG_SUFFIXES, csv_header
+
+    order = "give the temperature CSV first, then the CAN log"
+    suffix = csv.suffix.lower()
+    if suffix in CAN_LOG_SUFFIXES and suffix != ".csv":
+        raise CommandError(f"argument CSV: {csv} is not a temperature CSV but a CAN log ({suffix}); {order}")
+    head = _first_bytes(csv)
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        if err.start < len(head) - 4:  # not a multi-byte character cut at the end of the sample
+            raise CommandError(
+                f"argument CSV: {csv} is not a temperature CSV (binary content, not UTF-8 text); {order}"
+            ) from err
+    if can is not None and can.suffix.lower() == ".csv":
+        first = _first_bytes(can).split(b"\n", 1)[0].decode("utf-8", "replace").strip()
+        if first.split(",")[:2] == csv_header()[:2]:
+            raise CommandError(
+                f"argument CAN: {can} is not a CAN log but a temperature CSV (its header starts "
+                f"{','.join(csv_header()[:2])}); {order}"
+            )
+
+
+def _first_bytes(path: Path, n: int = 4096) -> bytes:
+    try:
+        with path.open("rb") as f:
+            return f.read(n)
+    except OSError:
+        return b""
 
 
 def user_errors() -> tuple[type[Exception], ...]:

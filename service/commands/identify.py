@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.commands._common import check_log_arguments
+
 if TYPE_CHECKING:
     from service.acquire.calibration import Calibration
     from service.engine.offline import OfflineResult
@@ -224,6 +226,7 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         settings = load_settings(args.config)
+        check_log_arguments(args.csv, args.can)
         if args.can is None and args.speed_rpm is None:
             read_temperature_csv(args.csv)  # a broken file is reported first, with its line
             raise ValueError(

@@ -45,6 +45,7 @@ from service.commands._common import (
     CommandError,
     check_database_url,
     check_listen,
+    check_log_arguments,
     override,
     port_number,
     positive_float,
@@ -284,6 +285,7 @@ def main(args: argparse.Namespace) -> int:
     quiet_third_party_logs()
     try:
         settings = load_settings(args.config)
+        check_log_arguments(args.csv, args.can)
         if args.database_url is not None:
             settings = override(settings, "database", url=args.database_url)
         api = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}

@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 
 from service.cli import main
@@ -42,3 +44,26 @@ def test_run_names_the_settings_key_of_an_unusable_url(
     assert main(["run"]) == 2
     err = capsys.readouterr().err
     assert err.startswith("chtc run: database.url: database 'mysql' is not supported"), err
+
+
+DATA = Path(__file__).resolve().parents[2] / "service" / "data"
+TEMPS, CAN = DATA / "example_temperatures.csv", DATA / "example_can.blf"
+
+
+@pytest.mark.parametrize("command", ["identify", "replay"])
+def test_swapped_logs_name_the_argument(
+    command: str, tmp_path: Path, no_model_load: None, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``chtc identify can.blf temps.csv`` said ``'utf-8' codec can't decode byte 0x90``."""
+    binary_csv = tmp_path / "can.csv"  # a CAN log under a CSV name: caught by its content
+    binary_csv.write_bytes(CAN.read_bytes())
+    cases = [
+        ([str(CAN), str(TEMPS)], "argument CSV: ", "is not a temperature CSV but a CAN log (.blf)"),
+        ([str(binary_csv), str(TEMPS)], "argument CSV: ", "is not a temperature CSV (binary content"),
+        ([str(TEMPS), str(TEMPS)], "argument CAN: ", "is not a CAN log but a temperature CSV"),
+    ]
+    for argv, where, what in cases:
+        assert main([command, *argv]) == 2
+        err = capsys.readouterr().err
+        assert err.startswith(f"chtc {command}: {where}") and what in err, err
+        assert "codec" not in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
