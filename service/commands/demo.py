@@ -179,9 +179,11 @@ async def run_demo(args: argparse.Namespace, settings: Settings) -> int:
     _install_signals(stop)
     rig = None
     try:
-        await runtime.start(daq=daq, can=can_sensor, api=True)
+        # the simulated devices listen before the drivers first poll them (no "cannot connect" warning)
+        await runtime.start(daq=daq, can=can_sensor, api=True, acquire=False)
         await runtime.wait_api()
         rig = printer.rig = await plant_rig(run, address=address)
+        runtime.start_acquisition()
         print(
             f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc; database: {_safe(db_url)})",
             flush=True,

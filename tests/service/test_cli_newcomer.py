@@ -67,3 +67,38 @@ def test_swapped_logs_name_the_argument(
         err = capsys.readouterr().err
         assert err.startswith(f"chtc {command}: {where}") and what in err, err
         assert "codec" not in err and "Traceback" not in err and len(err.strip().splitlines()) == 1
+
+
+@pytest.mark.slow
+def test_demo_starts_without_a_connect_warning_and_stops_quietly_on_ctrl_c(tmp_path: Path) -> None:
+    """``chtc demo`` logged ``DeviceUnavailableError ... cannot connect`` at every start (the drivers polled
+    before the simulated DAQ listened), and Ctrl-C printed the worker process' ``KeyboardInterrupt``
+    traceback. A terminal's Ctrl-C reaches the whole process group: so does the SIGINT here (about 60 s)."""
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    argv = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", "--segment-min", "5"]
+    argv += ["--database-url", f"sqlite:///{tmp_path / 'demo.db'}"]
+    out, err = tmp_path / "out.txt", tmp_path / "err.txt"
+    with out.open("w") as fo, err.open("w") as fe:
+        proc = subprocess.Popen(argv, stdout=fo, stderr=fe, start_new_session=True)
+        try:
+            deadline = time.monotonic() + 240.0
+            while "plant profile" not in out.read_text() and time.monotonic() < deadline:
+                assert proc.poll() is None, err.read_text()
+                time.sleep(0.5)
+            assert "plant profile" in out.read_text(), "the demo did not start within 240 s"
+            time.sleep(5.0)  # the acquisition polls the devices; the worker process waits for jobs
+            os.killpg(proc.pid, signal.SIGINT)
+            code = proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    stderr = err.read_text()
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert "cannot connect" not in stderr and "DeviceUnavailableError" not in stderr, stderr
+    assert code == 0 and "demo stopped" in out.read_text()
