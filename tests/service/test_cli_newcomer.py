@@ -102,3 +102,66 @@ def test_demo_starts_without_a_connect_warning_and_stops_quietly_on_ctrl_c(tmp_p
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     assert "cannot connect" not in stderr and "DeviceUnavailableError" not in stderr, stderr
     assert code == 0 and "demo stopped" in out.read_text()
+
+
+def _free_port() -> int:
+    import socket
+
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        return int(s.getsockname()[1])
+
+
+@pytest.mark.slow
+def test_run_creates_a_fresh_sqlite_schema_and_stops_quietly_on_ctrl_c(tmp_path: Path) -> None:
+    """``chtc run`` on a new SQLite file used to need ``--migrate`` first (db ``down``: no chtc schema);
+    Ctrl-C printed the worker process' traceback (about 30 s: the model comes from the ROM cache)."""
+    import json
+    import os
+    import signal
+    import subprocess
+    import sys
+    import time
+    import urllib.request
+
+    api_port = _free_port()
+    env = os.environ | {
+        "CHTC_DATABASE__URL": f"sqlite:///{tmp_path / 'new' / 'chtc.db'}",
+        "CHTC_API__PORT": str(api_port),
+        "CHTC_MODBUS__PORT": str(_free_port()),  # no DAQ: reported, not fatal
+        "CHTC_CAN__CHANNEL": f"chtc-test-{os.getpid()}",
+    }
+    err = tmp_path / "err.txt"
+    db: dict[str, object] = {}
+    with err.open("w") as fe:
+        proc = subprocess.Popen(
+            [sys.executable, "-m", "service.cli", "run"],
+            env=env,
+            stdout=subprocess.DEVNULL,
+            stderr=fe,
+            start_new_session=True,
+        )
+        try:
+            deadline = time.monotonic() + 180.0
+            while db.get("status") != "ok" and time.monotonic() < deadline:
+                assert proc.poll() is None, err.read_text()
+                time.sleep(0.5)
+                try:
+                    url = f"http://127.0.0.1:{api_port}/api/v1/healthz"
+                    with urllib.request.urlopen(url, timeout=2) as r:
+                        devices = json.load(r)["devices"]
+                except OSError:
+                    continue
+                db = next(d for d in devices if d["name"] == "db")
+            time.sleep(2.0)  # the worker process waits for jobs
+            os.killpg(proc.pid, signal.SIGINT)
+            code = proc.wait(timeout=60)
+        finally:
+            if proc.poll() is None:
+                os.killpg(proc.pid, signal.SIGKILL)
+                proc.wait()
+    stderr = err.read_text()
+    assert db.get("status") == "ok", (db, stderr)
+    assert "no chtc schema" not in stderr
+    assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
+    assert code == 0
