@@ -165,3 +165,71 @@ def test_run_creates_a_fresh_sqlite_schema_and_stops_quietly_on_ctrl_c(tmp_path:
     assert "no chtc schema" not in stderr
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     assert code == 0
+
+
+def _record(rid: int, identified: list[bool], method: str, outcome: str = "ok") -> object:
+    from datetime import UTC, datetime
+    from types import SimpleNamespace
+
+    t = datetime(2026, 3, 2, 6, 0, tzinfo=UTC)
+    return SimpleNamespace(
+        id=rid,
+        outcome=outcome,
+        message="",
+        method=method,
+        condition=SimpleNamespace(id=2, speed_rpm=3000.0, ambient_c=22.0),
+        window_from=t,
+        window_to=t,
+        h=[50.0] * 7,
+        ci95_lo=[1.0] * 7,
+        ci95_hi=[2500.0] * 7,
+        identified=identified,
+        fit=0.98,
+        rmse_c=0.15,
+    )
+
+
+def test_identify_lines_say_how_many_h_are_identified_and_which_fit_it_is() -> None:
+    """Every line said ``ok``, also when all seven H were poorly identified, and did not tell a speed-map fit
+    from a per-condition fit."""
+    from service.commands.identify import format_record, summary_line
+
+    weak = _record(1, [False] * 7, "speed-map")
+    partial = _record(2, [True, True, True] + [False] * 4, "hybrid")
+    full = _record(3, [True] * 7, "hybrid")
+    heads = [format_record(r).splitlines()[0] for r in (weak, partial, full)]  # type: ignore[arg-type]
+    assert heads[0].startswith("#1 weak 0/7 H") and "speed-map fit" in heads[0]
+    assert heads[1].startswith("#2 partial 3/7 H") and "per-condition fit" in heads[1]
+    assert heads[2].startswith("#3 ok 7/7 H") and "per-condition fit" in heads[2]
+    summary = summary_line([weak, partial, full])  # type: ignore[list-item]
+    assert summary == (
+        "3 identifications: 1 ok (7/7 H), 1 partial, 1 weak; 1 speed-map fits, 2 per-condition fits"
+    )
+
+
+@pytest.mark.slow
+def test_replay_prints_h_with_cis_and_writes_no_undocumented_file(
+    tmp_path: Path, monkeypatch: pytest.MonkeyPatch, capsys: pytest.CaptureFixture[str]
+) -> None:
+    """``chtc replay`` printed no CIs and no ``?``, its speed-map lines no H at all, and wrote
+    ``identifications_growth.json`` into the working directory (about 40 s: the example at 120x)."""
+    import json
+
+    work = tmp_path / "cwd"
+    work.mkdir()
+    monkeypatch.chdir(work)
+    out = tmp_path / "out" / "ids.json"
+    out.parent.mkdir()
+    argv = ["replay", str(TEMPS), str(CAN), "--speedup", "120", "--out", str(out)]
+    assert main([*argv, "--database-url", f"sqlite:///{tmp_path / 'replay.db'}"]) == 0
+    printed = capsys.readouterr().out
+    rows = json.loads(out.read_text())
+    ok = [r for r in rows if r["outcome"] == "ok"]
+    maps = [r for r in ok if r["method"] == "speed-map"]
+    assert ok and maps  # the default (combined) mode fits the speed map too
+    blocks = [b for b in printed.split("\n#")[1:] if "W/(m²·K), 95 % CI ('?' = poorly identified)" in b]
+    assert len(blocks) == len(ok)
+    assert sum("speed-map fit" in b for b in blocks) == len(maps)
+    assert all(f"H{i}=" in b for b in blocks for i in range(1, 8))
+    assert f"{len(rows)} identifications: " in printed
+    assert list(work.iterdir()) == [] and sorted(p.name for p in out.parent.iterdir()) == ["ids.json"]
