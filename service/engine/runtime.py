@@ -212,6 +212,7 @@ class Runtime:
             on_event=self.on_event,
             growth=GrowthServer(model, t_ref_c=s.growth.reference_c),
         )
+        self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()
         self.devices = (daq, can)
         if acquire:
