@@ -1,5 +1,7 @@
 """``create_app(settings, service) -> FastAPI``: the REST API under ``/api/v1`` and the dashboard at ``/``.
 
+``/healthz`` and ``/readyz`` answer at the root too (the same as ``/api/v1/healthz`` and ``/api/v1/readyz``).
+
 The app reads the service only through :class:`service.serve.interface.ChtcService`. ``settings`` is the
 service's
 ``Settings`` (only ``settings.api`` is read: ``token``, ``read_token``); binding (``api.host``/``api.port``,
@@ -90,10 +92,12 @@ def create_app(
     )
     for module in modules:
         app.include_router(module.router, prefix=API_PREFIX)
+    app.include_router(health.probes)  # /healthz and /readyz at the root too, for probes
     _mount_dashboard(app)
     rules = route_rules((r for m in modules for r in m.router.routes), API_PREFIX)
     app.state.guard_rules = rules
-    app.add_middleware(RequestGuard, rules=rules, auth=app.state.auth, limits=limits)
+    probe_rules = route_rules(health.probes.routes, "")
+    app.add_middleware(RequestGuard, rules=[*rules, *probe_rules], auth=app.state.auth, limits=limits)
     _install_openapi(app, rules)
     app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)
     return app

@@ -1,6 +1,8 @@
 """Liveness, readiness and Prometheus metrics.
 
-healthz/readyz are open to probes; metrics honour the read token.
+healthz/readyz are open to probes; metrics honour the read token. ``probes`` serves the same two answers
+at the root (``/healthz``, ``/readyz``), where many deployments' probes look; they are not in the OpenAPI
+document (the ``/api/v1`` ones are).
 """
 
 from __future__ import annotations
@@ -46,3 +48,8 @@ async def readyz(service: ServiceDep, clock: ClockDep) -> JSONResponse:
 def metrics(request: Request) -> Response:
     data = generate_latest(request.app.state.metrics.registry)
     return Response(data, media_type=CONTENT_TYPE_LATEST)
+
+
+probes = APIRouter(include_in_schema=False)
+probes.add_api_route("/healthz", healthz, methods=["GET"], response_model=HealthOut)
+probes.add_api_route("/readyz", readyz, methods=["GET"], response_model=ReadyOut)

@@ -13,6 +13,7 @@ from __future__ import annotations
 
 import argparse
 import socket
+from pathlib import Path
 from typing import TYPE_CHECKING
 
 from service.errors import ServiceError
@@ -23,7 +24,9 @@ if TYPE_CHECKING:
 __all__ = [
     "CommandError",
     "DefaultsHelpFormatter",
+    "check_database_url",
     "check_listen",
+    "check_log_arguments",
     "override",
     "port_number",
     "user_errors",
@@ -124,6 +127,82 @@ def check_listen(host: str, port: int) -> None:
             s.listen(1)
         except OSError as err:
             raise CommandError(f"cannot listen on {host}:{port}: {err.strerror or err}") from err
+
+
+def check_database_url(url: str, option: str) -> None:
+    """Raise ``CommandError`` naming ``option`` unless the store can use ``url``: a supported backend and
+    driver (``service.store.engine.SUPPORTED_DATABASES``) that is installed, and for SQLite a directory that
+    exists or can be created.
+
+    Checked before the model loads: ``mysql://…`` used to load the model for 46 s and then end in a
+    traceback (``No module named 'MySQLdb'``).
+    """
+    from sqlalchemy.engine import make_url
+    from sqlalchemy.exc import ArgumentError
+
+    from service.store.engine import SUPPORTED_DATABASES
+
+    examples = "sqlite:///PATH or postgresql+psycopg://USER:PASSWORD@HOST:PORT/DB"
+    try:
+        parsed = make_url(url)
+    except ArgumentError as err:
+        raise CommandError(f"{option}: not a database URL: {url!r} (use {examples})") from err
+    backend, driver = parsed.get_backend_name(), parsed.get_driver_name()
+    if backend not in SUPPORTED_DATABASES:
+        raise CommandError(f"{option}: database {backend!r} is not supported (use {examples})")
+    if driver not in SUPPORTED_DATABASES[backend]:
+        wanted = " or ".join(f"{backend}+{d}://" for d in SUPPORTED_DATABASES[backend])
+        raise CommandError(f"{option}: driver {driver!r} is not supported for {backend} (use {wanted})")
+    try:
+        parsed.get_dialect().import_dbapi()
+    except ImportError as err:
+        raise CommandError(f"{option}: the {backend} driver {driver!r} is not installed ({err})") from err
+    database = parsed.database or ""
+    if backend == "sqlite" and database not in ("", ":memory:") and not database.startswith("file:"):
+        parent = Path(database).expanduser().parent
+        try:
+            parent.mkdir(parents=True, exist_ok=True)
+        except OSError as err:
+            raise CommandError(
+                f"{option}: cannot create the SQLite directory {parent}: {err.strerror or err}"
+            ) from err
+
+
+def check_log_arguments(csv: Path, can: Path | None) -> None:
+    """Raise ``CommandError`` naming the argument when the logs are given in the wrong order or role.
+
+    ``chtc identify can.blf temps.csv`` used to end in ``'utf-8' codec can't decode byte 0x90``: the
+    temperature CSV comes first, the CAN log second. A missing file is left to the readers (they name it).
+    """
+    from drivers.logs import CAN_LOG_SUFFIXES, csv_header
+
+    order = "give the temperature CSV first, then the CAN log"
+    suffix = csv.suffix.lower()
+    if suffix in CAN_LOG_SUFFIXES and suffix != ".csv":
+        raise CommandError(f"argument CSV: {csv} is not a temperature CSV but a CAN log ({suffix}); {order}")
+    head = _first_bytes(csv)
+    try:
+        head.decode("utf-8")
+    except UnicodeDecodeError as err:
+        if err.start < len(head) - 4:  # not a multi-byte character cut at the end of the sample
+            raise CommandError(
+                f"argument CSV: {csv} is not a temperature CSV (binary content, not UTF-8 text); {order}"
+            ) from err
+    if can is not None and can.suffix.lower() == ".csv":
+        first = _first_bytes(can).split(b"\n", 1)[0].decode("utf-8", "replace").strip()
+        if first.split(",")[:2] == csv_header()[:2]:
+            raise CommandError(
+                f"argument CAN: {can} is not a CAN log but a temperature CSV (its header starts "
+                f"{','.join(csv_header()[:2])}); {order}"
+            )
+
+
+def _first_bytes(path: Path, n: int = 4096) -> bytes:
+    try:
+        with path.open("rb") as f:
+            return f.read(n)
+    except OSError:
+        return b""
 
 
 def user_errors() -> tuple[type[Exception], ...]:

@@ -27,7 +27,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from service.commands._common import check_listen, override, port_number, positive_float
+from service.commands._common import (
+    check_database_url,
+    check_listen,
+    override,
+    port_number,
+    positive_float,
+)
 from service.engine.jobbook import MAP_METHOD
 
 if TYPE_CHECKING:
@@ -173,9 +179,11 @@ async def run_demo(args: argparse.Namespace, settings: Settings) -> int:
     _install_signals(stop)
     rig = None
     try:
-        await runtime.start(daq=daq, can=can_sensor, api=True)
+        # the simulated devices listen before the drivers first poll them (no "cannot connect" warning)
+        await runtime.start(daq=daq, can=can_sensor, api=True, acquire=False)
         await runtime.wait_api()
         rig = printer.rig = await plant_rig(run, address=address)
+        runtime.start_acquisition()
         print(
             f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc; database: {_safe(db_url)})",
             flush=True,
@@ -231,5 +239,7 @@ def main(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="chtc-demo-") as tmp:
         db_url = args.database_url or f"sqlite:///{Path(tmp) / 'demo.db'}"
         settings = demo_settings(args, db_url)
+        if args.database_url is not None:
+            check_database_url(settings.database.url, "--database-url")
         check_listen(settings.api.host, settings.api.port)
         return asyncio.run(run_demo(args, settings))

@@ -21,10 +21,14 @@ from __future__ import annotations
 import argparse
 import json
 import sys
+from collections.abc import Sequence
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from service.commands._common import check_log_arguments
+from service.engine.jobbook import MAP_METHOD
 
 if TYPE_CHECKING:
     from service.acquire.calibration import Calibration
@@ -124,10 +128,27 @@ def _bound(x: float) -> str:
     return f"{x:.1f}" if 0.1 <= x < 1e5 else f"{x:.3g}"
 
 
+def fit_status(r: IdentificationRecord) -> str:
+    """What a line's status says: the outcome unless it is ``ok``; then how many H are identified (a CI
+    narrow enough): ``ok 7/7 H``, ``partial 3/7 H`` or ``weak 0/7 H`` (a fit that ran but pins no H)."""
+    if r.outcome != "ok":
+        return str(r.outcome)
+    n, total = sum(bool(x) for x in r.identified), len(r.identified)
+    word = "ok" if n == total else "weak" if n == 0 else "partial"
+    return f"{word} {n}/{total} H"
+
+
+def fit_kind(r: IdentificationRecord) -> str:
+    """``speed-map fit`` (one fit of H over every speed of its window; the line shows the map's H at the
+    window's end) or ``per-condition fit`` (one H for the window at one condition)."""
+    return "speed-map fit" if getattr(r, "method", None) == MAP_METHOD else "per-condition fit"
+
+
 def format_record(r: IdentificationRecord) -> str:
+    at = "H at the window's end, " if fit_kind(r) == "speed-map fit" else ""
     head = (
-        f"#{r.id} {r.outcome:<17} condition {r.condition.id} ({r.condition.speed_rpm:.0f} rpm, "
-        f"{r.condition.ambient_c:.1f} °C) "
+        f"#{r.id} {fit_status(r):<13} {fit_kind(r):<17}  {at}condition {r.condition.id} "
+        f"({r.condition.speed_rpm:.0f} rpm, {r.condition.ambient_c:.1f} °C) "
         f"window {r.window_from:%Y-%m-%dT%H:%M:%SZ} .. {r.window_to:%H:%M:%SZ}"
     )
     if r.outcome != "ok":
@@ -138,6 +159,22 @@ def format_record(r: IdentificationRecord) -> str:
     )
     tail = f"fit {r.fit:.4f}, RMSE {r.rmse_c:.3f} °C"
     return f"{head}\n    W/(m²·K), 95 % CI ('?' = poorly identified): {zones}\n    {tail}"
+
+
+def summary_line(records: Sequence[IdentificationRecord]) -> str:
+    """One line counting the lines by status, e.g. ``9 identifications: 0 ok (7/7 H), 3 partial, 6 weak``."""
+    words = [fit_status(r).split()[0] for r in records]
+    ok = [r for r in records if r.outcome == "ok"]
+    parts = [
+        f"{words.count('ok')} ok (7/7 H)",
+        f"{words.count('partial')} partial",
+        f"{words.count('weak')} weak",
+    ]
+    if len(ok) < len(records):
+        parts.append(f"{len(records) - len(ok)} not ok")
+    maps = sum(fit_kind(r) == "speed-map fit" for r in records)
+    kinds = f"{maps} speed-map fits, {len(records) - maps} per-condition fits"
+    return f"{len(records)} identifications: {', '.join(parts)}; {kinds}"
 
 
 def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -> list[str]:
@@ -222,6 +259,7 @@ def main(args: argparse.Namespace) -> int:
 
     try:
         settings = load_settings(args.config)
+        check_log_arguments(args.csv, args.can)
         if args.can is None and args.speed_rpm is None:
             read_temperature_csv(args.csv)  # a broken file is reported first, with its line
             raise ValueError(
@@ -262,6 +300,7 @@ def main(args: argparse.Namespace) -> int:
     print(offsets_line(result.calibration, settings.identification))
     for r in result.records:
         print(format_record(r))
+    print(summary_line(result.records))
     if args.json_out is not None:
         by_id = growth.by_id if growth is not None else {}
         rows = [record_dict(r) | {"growth": growth_dict(by_id.get(r.id))} for r in result.records]

@@ -5,6 +5,8 @@ channel (``drivers.sim.replay``), at ``--speedup`` recorded seconds per wall sec
 as in production (drivers, ring buffer, detector, scheduler, worker process, database writer); its clock
 reads the recorded time, so stored timestamps are the log's. When the log ends (plus the time for running
 identifications) every identification is in the database and in ``--out`` (JSON, or CSV by suffix).
+Each identification is printed as ``chtc identify`` prints it (``format_record``: its status, speed-map or
+per-condition fit, H1-H7 with 95 % CIs and ``?`` marks), and a summary line at the end.
 
 The DAQ serves the recording reduced to the rows the acquisition samples (``write_acquisition_csv``: one row
 per ``acquisition.sample_period_s``, the newest recorded row at each sample instant), and the acquisition is
@@ -13,10 +15,11 @@ real-time recordings with one jittered row per second; see docs/design/service.m
 
 The growth history (docs/design/growth.md): while the log plays, what ``/compensation`` serves is read every
 ``--growth-every-s`` recorded seconds and at each new identification (``GrowthLog``), and written to
-``--growth-out`` (JSON, or CSV by suffix; default next to ``--out``): the time (UTC), the status and
-usability of ``/chtc``, the identification, the axial and radial growth in µm with their 95 % CIs and
-0.1-µm integers, and the steady axial growth. Each identification in ``--out`` (JSON) carries ``growth``:
-the first served after it became current (null if it did not succeed), as ``chtc identify --json`` does.
+``--growth-out`` if given (JSON, or CSV by suffix; nothing is written without it): the time (UTC), the
+status and usability of ``/chtc``, the identification, the axial and radial growth in µm with their 95 %
+CIs and 0.1-µm integers, and the steady axial growth. Each identification in ``--out`` (JSON) carries
+``growth``: the first served after it became current (null if it did not succeed), as ``chtc identify
+--json`` does.
 """
 
 from __future__ import annotations
@@ -41,8 +44,16 @@ if TYPE_CHECKING:
     from service.serve.interface import CompensationSnapshot, IdentificationRecord
     from service.settings import Settings
 
-from service.commands._common import CommandError, check_listen, override, port_number, positive_float
-from service.commands.identify import growth_dict, num, record_dict
+from service.commands._common import (
+    CommandError,
+    check_database_url,
+    check_listen,
+    check_log_arguments,
+    override,
+    port_number,
+    positive_float,
+)
+from service.commands.identify import format_record, growth_dict, num, record_dict, summary_line
 from service.sim.logsamples import REPLAY_PHASE, write_acquisition_csv
 
 
@@ -73,7 +84,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--growth-out",
         type=Path,
         default=None,
-        help="growth history, .json or .csv (default: --out's name with _growth)",
+        help="write the growth history to this .json or .csv (default: not written)",
     )
     parser.add_argument(
         "--growth-every-s",
@@ -194,7 +205,8 @@ async def _replay(
 
     clock = ScaledClock(args.speedup)
     period_s = settings.acquisition.sample_period_s
-    runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: print(m, flush=True))
+    lines = RecordLines()
+    runtime = Runtime(settings=settings, clock=clock, on_event=lines.event)
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)
@@ -206,6 +218,7 @@ async def _replay(
     watcher: asyncio.Task[None] | None = None
     try:
         await runtime.start(daq=daq, can=can_sensor, api=args.api)
+        lines.follow(runtime.service)
         if growth is not None and runtime.service is not None:
             every_s = float(getattr(args, "growth_every_s", 60.0))
             poll = 0.25 * period_s / args.speedup
@@ -222,6 +235,7 @@ async def _replay(
         while service.view.running_job is not None and time.monotonic() < deadline:
             await asyncio.sleep(0.1)
         records = list(reversed(service.view.records))
+        lines.print_new()
         if watcher is not None:  # the growth served after the last identification
             await asyncio.sleep(2.0 * period_s / args.speedup)
         return records
@@ -232,6 +246,32 @@ async def _replay(
                 await watcher
         await runtime.stop()
         await rig.stop()
+
+
+class RecordLines:
+    """Prints the service's events and, after each, the identifications stored since, as ``chtc identify``
+    prints them (records restored from an earlier run's database are not this replay's)."""
+
+    def __init__(self) -> None:
+        self.service: SoftSensorService | None = None
+        self.printed: set[int] = set()
+
+    def follow(self, service: SoftSensorService | None) -> None:
+        self.service = service
+        if service is not None:
+            self.printed |= {r.id for r in service.view.records}
+
+    def event(self, message: str) -> None:
+        print(message, flush=True)
+        self.print_new()
+
+    def print_new(self) -> None:
+        if self.service is None:
+            return
+        for r in sorted(self.service.view.records, key=lambda r: r.id):
+            if r.id not in self.printed:
+                self.printed.add(r.id)
+                print(format_record(r), flush=True)
 
 
 class GridClock:
@@ -277,10 +317,13 @@ def main(args: argparse.Namespace) -> int:
     quiet_third_party_logs()
     try:
         settings = load_settings(args.config)
+        check_log_arguments(args.csv, args.can)
         if args.database_url is not None:
             settings = override(settings, "database", url=args.database_url)
         api = {k: v for k, v in (("host", args.host), ("port", args.port)) if v is not None}
         settings = override(settings, "api", **api) if api else settings
+        url_option = "--database-url" if args.database_url is not None else "database.url"
+        check_database_url(settings.database.url, url_option)
         if args.api:
             check_listen(settings.api.host, settings.api.port)
     except (SettingsError, CommandError) as err:
@@ -293,9 +336,9 @@ def main(args: argparse.Namespace) -> int:
         print(f"chtc replay: {err}", file=sys.stderr)
         return 2
     write_out(args.out, records, growth)
-    growth_out = args.growth_out or args.out.with_name(f"{args.out.stem}_growth{args.out.suffix or '.json'}")
-    growth.write(growth_out)
-    ok = sum(r.outcome == "ok" for r in records)
-    print(f"replay done: {len(records)} identifications ({ok} ok) -> {args.out} and the database")
-    print(f"growth history: {len(growth.rows)} rows -> {growth_out}")
+    print(summary_line(records))
+    print(f"replay done: {len(records)} identifications -> {args.out} and the database")
+    if args.growth_out is not None:
+        growth.write(args.growth_out)
+        print(f"growth history: {len(growth.rows)} rows -> {args.growth_out}")
     return 0

@@ -4,9 +4,11 @@ Settings come from the TOML file and ``CHTC_<SECTION>__<KEY>`` environment varia
 The Modbus DAQ is ``modbus.host:port`` (register map ``modbus.register_map`` or the default of
 docs/drivers.md, "Device contract"), the speed/torque sensor any python-can interface
 (``can.interface``/``can.channel``); the API listens on ``api.host:api.port`` (``--host``/``--port``
-override them; a busy port is reported before the model loads). ``--migrate`` brings the database schema up
-to date first (retried in the background while the database is unreachable; records are buffered
-meanwhile). Stops cleanly on SIGINT/SIGTERM.
+override them; a busy port is reported before the model loads). A SQLite database (a file of this one
+service) is created and upgraded at start; ``--migrate`` does the same for PostgreSQL, whose schema is
+shared and upgraded only when the operator says so (docs/design/persistence.md, "Migrations"). Migrations are
+retried in the background while the database is unreachable; records are buffered meanwhile. Stops cleanly
+on SIGINT/SIGTERM.
 """
 
 from __future__ import annotations
@@ -26,7 +28,13 @@ if TYPE_CHECKING:
     from service.engine.runtime import ScaledClock
     from service.settings import Settings
 
-from service.commands._common import CommandError, check_listen, override, port_number
+from service.commands._common import (
+    CommandError,
+    check_database_url,
+    check_listen,
+    override,
+    port_number,
+)
 
 log = logging.getLogger("chtc")
 
@@ -44,7 +52,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--port", type=port_number, default=None, help="API/dashboard port (default: api.port, 8000)"
     )
-    parser.add_argument("--migrate", action="store_true", help="upgrade the database schema before starting")
+    parser.add_argument(
+        "--migrate",
+        action="store_true",
+        help="create or upgrade a PostgreSQL schema before starting (SQLite: always done)",
+    )
     parser.add_argument("--print-config", action="store_true", help="print the effective settings and exit")
 
 
@@ -103,6 +115,17 @@ async def serve(settings: Settings, *, migrate: bool) -> int:
     return 0
 
 
+def migrates_by_default(url: str) -> bool:
+    """True for SQLite: its file belongs to this one service, so its schema is created and upgraded at start.
+
+    A PostgreSQL schema may be shared (several spindles, readers, a DBA's role without DDL rights) and is
+    upgraded only by ``--migrate`` or the Alembic CLI, after a backup (deploy/OPERATIONS.md, "Upgrades").
+    """
+    from sqlalchemy.engine import make_url
+
+    return make_url(url).get_backend_name() == "sqlite"
+
+
 def main(args: argparse.Namespace) -> int:
     import json
 
@@ -124,8 +147,10 @@ def main(args: argparse.Namespace) -> int:
         print(json.dumps(settings.redacted(), indent=2))
         return 0
     try:
+        check_database_url(settings.database.url, "database.url")
         check_listen(settings.api.host, settings.api.port)
-        return asyncio.run(serve(settings, migrate=args.migrate))
+        migrate = args.migrate or migrates_by_default(settings.database.url)
+        return asyncio.run(serve(settings, migrate=migrate))
     except (ConfigError, CommandError) as err:
         print(f"chtc run: {err}", file=sys.stderr)
         return 2

@@ -24,7 +24,6 @@ Errors::
 
 from __future__ import annotations
 
-import itertools
 from collections.abc import Sequence
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
@@ -55,6 +54,7 @@ from service.engine.events import (
     Calibrated,
     Cancel,
     Event,
+    IdsKnown,
     Instruction,
     JobOutcomeReceived,
     Launch,
@@ -66,6 +66,7 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
+from service.engine.idcounter import IdCounter, rebase_ids
 from service.engine.jobbook import Job, JobBook, MapValues, job_key
 from service.engine.jobs import Offsets, converging_reason, job_request, job_window
 from service.engine.mapbook import MapBook
@@ -170,7 +171,7 @@ class ServiceCore:
             model_version=model.version,
             method=config.method,
         )
-        self._cond_ids = itertools.count(restored.next_condition_id)
+        self._cond_ids = IdCounter(restored.next_condition_id)
         self._resumed = self._condition is not None
         # a condition that started while the live state converges: its schedule counts from the convergence
         self._held: sched.ConditionStarted | None = None
@@ -216,6 +217,8 @@ class ServiceCore:
                 self._on_manual(event.reason, out)
             case BaselineRequested():
                 self._on_baseline(event.t, out)
+            case IdsKnown():
+                rebase_ids(event, self._cond_ids, self._jobs.id_counter, out.log)
             case _:
                 raise CoreError(f"unknown core event {type(event).__name__}")
         return out.instructions

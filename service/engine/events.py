@@ -10,6 +10,7 @@ one that ended it), so a story can be followed from a sample to the stored row w
     JobOutcomeReceived    -> Store(identification), Log, Launch (the next job that fell due)
     ManualRequested       -> ManualAccepted + Launch | Store (skipped at once) | Rejected(BUSY | NOT_READY)
     BaselineRequested     -> Calibrated + Log | Rejected(NOT_READY)
+    IdsKnown              -> Log (ids continue from the database's: service.engine.idcounter)
 
 Refused requests are instructions (``Rejected`` with a :class:`RejectKind`), not exceptions: ``handle`` is
 total for well-formed events. The shell turns ``Rejected`` into ``BusyError`` / ``NotReadyError`` for the API.
@@ -24,6 +25,7 @@ from datetime import datetime
 from drivers.ringbuffer import Sample
 from service.acquire.calibration import Calibration
 from service.contracts.records import Record
+from service.engine.idcounter import IdsKnown
 from service.identify.worker import JobOutcome, JobRequest
 from service.serve.interface import IdentificationJob
 
@@ -32,6 +34,7 @@ __all__ = [
     "Calibrated",
     "Cancel",
     "Event",
+    "IdsKnown",
     "Instruction",
     "JobOutcomeReceived",
     "Launch",
@@ -79,7 +82,7 @@ class BaselineRequested:
     t: datetime
 
 
-Event = SampleReceived | JobOutcomeReceived | ManualRequested | BaselineRequested
+Event = SampleReceived | JobOutcomeReceived | ManualRequested | BaselineRequested | IdsKnown
 
 
 # --- instructions ------------------------------------------------------------------------------------------

@@ -8,7 +8,6 @@ one that ended it (``IdentificationData.started_by_event`` / ``finished_by_event
 
 from __future__ import annotations
 
-import itertools
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from types import MappingProxyType
@@ -16,6 +15,7 @@ from typing import TypedDict
 
 from model.identify import IdentificationResult
 from service.contracts.records import IdentificationData, JsonValue
+from service.engine.idcounter import IdCounter
 from service.identify.scheduler import StartJob
 from service.serve.histogram import DURATION_BUCKETS_S
 from service.serve.interface import (
@@ -100,7 +100,12 @@ class JobBook:
         self.jobs_view: MappingProxyType[str, IdentificationJob] = MappingProxyType({})
         self._jobs: dict[str, IdentificationJob] = {}
         self._waiting: dict[int, Job] = {}
-        self._ids = itertools.count(next_identification_id)
+        self._ids = IdCounter(next_identification_id)
+
+    @property
+    def id_counter(self) -> IdCounter:
+        """The identification ids (``service.engine.idcounter``)."""
+        return self._ids
 
     def first_of(self, condition_id: int) -> bool:
         """Whether no record of this process belongs to ``condition_id`` yet."""

@@ -7,9 +7,11 @@ buffered writer (``service.store.writer.DbWriter``).
 
 The database being down never stops the service:
 
-- at start-up: the service starts without restored state; ids continue from a time-based base
-  (``int(epoch s) * 1000``) so they cannot collide with rows of earlier runs; records are held in a
-  ``GateSink`` until the schema is known to be in place (migrated / checked), retried in the background;
+- at start-up: the service starts without restored state and says so once (a logged warning); ids continue
+  from a time-based base (``int(epoch s) * 1000``) so they cannot collide with rows of earlier runs, unless
+  the database answers before the first id is issued: then they continue from the stored ones
+  (``Persistence.on_open``, ``service.engine.idcounter``); records are held in a ``GateSink`` until the
+  schema is known to be in place (migrated / checked), retried in the background;
 - later: the writer buffers and retries (E's ``DbWriter``).
 """
 
@@ -211,6 +213,8 @@ class Persistence:
     writer_watchdog: StatementWatchdog | None = None
     reads: DbReads | None = None  # API reads, bounded and with a deadline
     read_watchdog: StatementWatchdog | None = None
+    # told the database's next free (condition, identification) ids when it answers after start-up
+    on_open: Callable[[int, int], None] | None = None
     _task: asyncio.Task[None] | None = None
 
     async def ensure_open(self, *, retry_s: float = 2.0) -> None:
@@ -225,6 +229,8 @@ class Persistence:
                 self.sink.last_error = text
                 await asyncio.sleep(retry_s)
                 continue
+            if self.on_open is not None and not self.restored_from_db:
+                await self._tell_ids(self.on_open)
             factory = self.writer_factory or self.session_factory
             self.sink.open(
                 _start_writer(factory, self.settings, clock=self.clock, watchdog=self.writer_watchdog)
@@ -232,6 +238,21 @@ class Persistence:
             self.on_event(
                 f"db: connected ({_safe_url(self.url)}), writing {len(self.sink.held)} held records"
             )
+
+    async def _tell_ids(self, on_open: Callable[[int, int], None]) -> None:
+        """The stored ids, to continue from (``service.engine.idcounter``); a failed read keeps the base."""
+        from service.store.repository import max_ids, session_scope
+
+        def read() -> tuple[int, int]:
+            with session_scope(self.session_factory, "read the largest ids") as session:
+                return max_ids(session)
+
+        try:
+            cond_max, ident_max = await asyncio.to_thread(read)
+        except Exception as err:  # the next write finds the outage; ids keep their collision-free base
+            log.warning("db: could not read the stored ids (%s); ids keep their start-up base", err)
+            return
+        on_open(cond_max + 1, ident_max + 1)
 
     def _prepare_guarded(self) -> None:
         guard = self.read_watchdog.guard("migrate") if self.read_watchdog is not None else nullcontext()
@@ -352,8 +373,14 @@ def open_persistence(
         sink.open(_start_writer(w_factory, db, clock=clock, watchdog=w_watchdog))
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background
         sink.last_error = _describe(err)
-        say(f"db: not available at start-up ({sink.last_error}); buffering records and retrying")
         restored, from_db = fallback_restored(), False
+        # a warning, logged (stderr) once: also under `chtc demo --quiet`, which silences progress lines only
+        log.warning(
+            "db: not available at start-up (%s); buffering records and retrying; ids start at %d (clear of "
+            "any stored row) unless it answers before the first condition",
+            sink.last_error,
+            restored.next_condition_id,
+        )
     reads = DbReads(
         factory,
         threads=db.read_threads,

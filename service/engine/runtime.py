@@ -179,8 +179,12 @@ class Runtime:
             self.model = load_model(ModelRef.from_settings(self.settings), progress=progress)
         return self.model
 
-    async def start(self, *, daq: DaqDevice, can: CanDevice, api: bool = True) -> None:
-        """Open the database, start the worker process, the acquisition and (optionally) the API server."""
+    async def start(self, *, daq: DaqDevice, can: CanDevice, api: bool = True, acquire: bool = True) -> None:
+        """Open the database, start the worker process, the acquisition and (optionally) the API server.
+
+        ``acquire=False``: everything but the acquisition, started later by ``start_acquisition()`` (the demo
+        starts its simulated devices in between, so the drivers never poll a port nobody listens on yet).
+        """
         s = self.settings
         model = self.load()
         self.persistence = open_persistence(
@@ -206,8 +210,21 @@ class Runtime:
             on_event=self.on_event,
             growth=GrowthServer(model, t_ref_c=s.growth.reference_c),
         )
+        self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()
         self.devices = (daq, can)
+        if acquire:
+            self.start_acquisition()
+        if api:
+            self.api_task = asyncio.ensure_future(self._serve_api())
+
+    def start_acquisition(self) -> None:
+        """Start polling the devices given to ``start()`` (once)."""
+        s = self.settings
+        assert self.devices is not None and self.ring is not None and self.service is not None, "start first"
+        if self.acquisition_task is not None:
+            return
+        daq, can = self.devices
         self.acquisition = Acquisition(
             daq,
             can,
@@ -218,8 +235,6 @@ class Runtime:
         )
         poll = min(s.modbus.poll_interval_s, s.acquisition.sample_period_s / 2.0) / self.speedup
         self.acquisition_task = asyncio.ensure_future(self.acquisition.run(poll_interval_s=poll))
-        if api:
-            self.api_task = asyncio.ensure_future(self._serve_api())
 
     async def _serve_api(self) -> None:
         import uvicorn

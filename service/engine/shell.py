@@ -49,6 +49,7 @@ from service.engine.events import (
     Calibrated,
     Cancel,
     Event,
+    IdsKnown,
     Instruction,
     JobOutcomeReceived,
     Launch,
@@ -324,6 +325,10 @@ class SoftSensorService:
     def on_sample(self, sample: Sample) -> None:
         """Feed one acquisition sample (called on the event loop by the acquisition)."""
         self.handle(SampleReceived(self._next_id("sample"), sample))
+
+    def ids_known(self, next_condition_id: int, next_identification_id: int) -> None:
+        """The database answered after start-up: ids continue from its, if none was issued yet."""
+        self.handle(IdsKnown(self._next_id("ids"), next_condition_id, next_identification_id))
 
     def _remember_history(self) -> None:
         """Measured (usable channels only) and predicted temperatures of the newest sample, for the API."""

@@ -29,6 +29,7 @@ import concurrent.futures as cf
 import contextlib
 import multiprocessing
 import os
+import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
@@ -124,6 +125,7 @@ class JobCancelled(ServiceError):
 
 def _init_worker(ref: ModelRef, cancel: CancelFlag, parent_pid: int | None = None, nice: int = 0) -> None:
     global _MODEL, _CANCEL
+    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle (it closes the pool)
     if parent_pid is not None:
         watch_parent(parent_pid)
     if nice > 0:
@@ -341,12 +343,21 @@ _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 @contextlib.contextmanager
 def _single_threaded_children() -> Iterator[None]:
-    """Environment for a spawned worker: one BLAS thread, so it leaves a core to the event loop."""
+    """Environment for a spawned worker: one BLAS thread, so it leaves a core to the event loop; SIGINT
+    ignored from its first instruction (a child inherits an ignored signal, and Python then installs no
+    ``KeyboardInterrupt`` handler), so a Ctrl-C in the terminal, which reaches the whole process group, is
+    left to the parent instead of printing the worker's traceback."""
     saved = {k: os.environ.get(k) for k in _THREAD_VARS}
     os.environ.update(dict.fromkeys(_THREAD_VARS, "1"))
+    main_thread = threading.current_thread() is threading.main_thread()
+    sigint = signal.getsignal(signal.SIGINT) if main_thread else None  # None: not ours to change back
+    if sigint is not None:
+        signal.signal(signal.SIGINT, signal.SIG_IGN)
     try:
         yield
     finally:
+        if sigint is not None:
+            signal.signal(signal.SIGINT, sigint)
         for k, v in saved.items():
             if v is None:
                 os.environ.pop(k, None)

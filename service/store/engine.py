@@ -20,6 +20,9 @@ from sqlalchemy.pool import ConnectionPoolEntry
 
 from service.store.errors import DatabaseUnavailableError
 
+# What the store is built and tested for: backend -> the SQLAlchemy drivers (a URL's ``+driver``).
+SUPPORTED_DATABASES: dict[str, tuple[str, ...]] = {"sqlite": ("pysqlite",), "postgresql": ("psycopg",)}
+
 
 def create_db_engine(
     url: str,
