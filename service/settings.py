@@ -46,6 +46,7 @@ from pydantic_settings import (
 )
 
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
+from service.identify.mode import IdentificationMode
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
@@ -193,7 +194,7 @@ class IdentificationSettings(_Section):
     # after each condition change (and every map_refit_min), served at the current speed at once
     # (docs/hmap.md); "combined": both, the per-condition H served at a condition held longer than the first
     # schedule entry, the map's elsewhere (docs/hmap.md "Combined mode")
-    mode: Literal["per_condition", "speed_map", "combined"] = "combined"
+    mode: IdentificationMode = IdentificationMode.COMBINED
     map_family: Literal["nodes", "physics"] = "nodes"  # model.hmap: tabulated over speed nodes, or physics
     map_window_min: float = Field(default=60.0, gt=0)  # rolling window of each map fit
     # a cold start waits for this much data (7 served 3 min sooner a first map whose bands missed H6/H7 from a

@@ -31,6 +31,7 @@ import numpy as np
 
 from service.bench import identmode
 from service.bench.targets import progress_to_stderr, report
+from service.identify.mode import IdentificationMode
 
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 DT_S = 10.0
@@ -115,7 +116,7 @@ def run_seed(model: Any, settings: Any, seed: int, *, hours: float, warmup_min: 
             out.covered.append((lo <= truth) & (truth <= hi))
             out.identified.append(np.asarray(snap.identified, dtype=bool))
             out.held_served.append(snap.record.method != MAP_METHOD)
-    combined = svc.identification_mode() == "combined"
+    combined = svc.identification_mode() is IdentificationMode.COMBINED
     for rec in svc.view.records:
         if rec.outcome != "ok":
             continue

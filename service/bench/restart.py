@@ -52,6 +52,7 @@ import numpy as np
 
 from service.bench import identmode
 from service.bench.targets import progress_to_stderr, report
+from service.identify.mode import IdentificationMode
 
 PROFILE = (
     (300.0, 0.0, 0.0, 22.0),  # idle and cold
@@ -275,8 +276,9 @@ def run_bench(
     from service.modelload import ModelRef, load_model
 
     settings = identmode.bench_settings(ident_mode, overrides)
-    mode = "per_condition" if path == "filter" else settings.identification.mode
-    if path == "filter" and settings.identification.mode != "per_condition" and ident_mode is not None:
+    per_condition = IdentificationMode.PER_CONDITION
+    mode = per_condition if path == "filter" else settings.identification.mode
+    if path == "filter" and settings.identification.mode is not per_condition and ident_mode is not None:
         raise ValueError("--path filter runs the per-condition protocol only (no --mode speed_map)")
     model = load_model(ModelRef.from_settings(settings.model))
     started = time.perf_counter()

@@ -26,6 +26,8 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.identify.mode import IdentificationMode
+
 if TYPE_CHECKING:
     from service.acquire.calibration import Calibration
     from service.engine.offline import OfflineResult
@@ -146,7 +148,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     """Why a log gave no successful identification: per detected condition, how long it lasted against what an
     identification needs; or why no condition was detected (``can_ok``: samples with a fresh speed/torque)."""
     ident = settings.identification
-    per_condition = ident.mode == "per_condition"
+    per_condition = ident.mode is IdentificationMode.PER_CONDITION
     if per_condition:
         need_s = max(ident.min_window_s, 60.0 * ident.schedule_min[0])
         need = (

@@ -464,10 +464,7 @@ class SoftSensorService:
         )
 
     def identification_mode(self) -> IdentificationMode:
-        config = self.core.config
-        if config.speed_map is None:
-            return "per_condition"
-        return "combined" if config.combined else "speed_map"
+        return self.core.config.mode
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
         v = self._view

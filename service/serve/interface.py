@@ -38,6 +38,7 @@ import numpy as np
 import numpy.typing as npt
 
 from service.estimate.locator import TriangleLocator, locator_for
+from service.identify.mode import IdentificationMode
 from service.store.records import IdentificationData
 
 if TYPE_CHECKING:
@@ -67,9 +68,6 @@ class BusyError(ServiceError):
 
 class NotReadyError(ServiceError):
     """The service cannot do what was asked yet (model not loaded, too little good data)."""
-
-
-IdentificationMode = Literal["per_condition", "speed_map", "combined"]
 
 
 class ChtcStatus(enum.StrEnum):
@@ -525,9 +523,10 @@ class ChtcService(Protocol):
         ...
 
     def identification_mode(self) -> IdentificationMode:
-        """``"per_condition"`` (the paper's protocol: one H per held condition), ``"speed_map"`` (H = F(n,
-        Ti) over the speed range, ``chtc_map()``) or ``"combined"`` (both: the per-condition H at a held
-        condition, the map's elsewhere); fixed for the service's life (``identification.mode``)."""
+        """``PER_CONDITION`` (the paper's protocol: one H per held condition), ``SPEED_MAP`` (H = F(n, Ti)
+        over the speed range, ``chtc_map()``) or ``COMBINED`` (both: the per-condition H at a held condition,
+        the map's elsewhere); fixed for the service's life (``identification.mode``; a ``str`` enum whose
+        values are the settings' spelling)."""
         ...
 
     def field(self, at: FieldAt) -> FieldSnapshot:

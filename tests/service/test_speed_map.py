@@ -14,6 +14,7 @@ from model.plant import VirtualPlant, h_true
 from service.engine.core import ServiceCore
 from service.engine.runtime import core_config, map_config
 from service.engine.shell import SoftSensorService
+from service.identify.mode import IdentificationMode
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
 from service.serve.interface import ChtcStatus
 from service.serve.views import map_freshness
@@ -55,8 +56,9 @@ def served(duty, loaded_model):
 
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
-    assert Settings().identification.mode == "combined"  # docs/hmap.md "Default"
-    assert map_config(Settings(identification={"mode": "per_condition"})) is None
+    assert Settings().identification.mode is IdentificationMode.COMBINED  # docs/hmap.md "Default"
+    for mode in IdentificationMode:  # the settings' spelling is the enum's value
+        assert core_config(Settings(identification={"mode": mode.value})).mode is mode
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
     assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")
