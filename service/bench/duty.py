@@ -237,7 +237,7 @@ def _print_table(out: dict[str, Any]) -> None:
         f"p90 {out['identify_wall_s_p90']} s, max {out['identify_wall_s_max']} s; model runs median "
         f"{out['model_runs_median']}, max {out['model_runs_max']}"
     )
-    if out["mode"] == "combined":
+    if out["mode"] == IdentificationMode.COMBINED:
         print(
             f"per-condition identifications (combined mode): {out['per_condition_fits_per_seed']} per seed, "
             f"wall median {out['per_condition_wall_s_median']} s, max {out['per_condition_wall_s_max']} s; "

@@ -395,7 +395,8 @@ class SoftSensorService:
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
-        # combined mode: the per-condition H of the held condition serves instead of the map (map_serves)
+        # the serving strategy's verdict (map_serves): per-condition mode, and combined mode at a held
+        # condition, serve an identification; the map's H elsewhere
         fresh = self._map_freshness(v, problems, since) if v.map_serves else None
         if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
             # speed-map mode: H from the map at the newest sample's speed and ambient, at once
