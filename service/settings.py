@@ -51,6 +51,7 @@ from pydantic_settings import (
 
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
 from service.errors import ServiceError
+from service.identify.mode import IdentificationMode
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
@@ -233,7 +234,7 @@ class ExperimentalSettings(_Section):
     # map_debounce_s after each condition change (and every map_refit_min), served at the current speed at
     # once (docs/design/hmap.md); "combined": both, the per-condition H served at a condition held longer
     # than the first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode")
-    mode: Literal["per_condition", "speed_map", "combined"] = "combined"
+    mode: IdentificationMode = IdentificationMode.COMBINED
     method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
     seed: int = 0
     estimate_loads: bool = False  # also fit front/rear bearing heat scales

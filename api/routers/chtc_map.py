@@ -15,6 +15,7 @@ from api.deps import ClockDep, ReadAccess, ServiceDep
 from api.errors import ApiError
 from api.routers.conditional import cached_json, weak_etag
 from api.schemas import ChtcMapOut, chtc_map_out
+from service.identify.mode import IdentificationMode
 from service.serve.interface import ChtcMapSnapshot
 
 router = APIRouter(tags=["chtc"], dependencies=[ReadAccess])
@@ -45,7 +46,7 @@ def etag_of(s: ChtcMapSnapshot) -> str:
 async def get_chtc_map(request: Request, service: ServiceDep, clock: ClockDep) -> Response:
     snap = service.chtc_map()
     if snap is None:
-        if service.identification_mode() == "per_condition":
+        if service.identification_mode() is IdentificationMode.PER_CONDITION:
             raise ApiError(status=404, code="not_found", message=PER_CONDITION)
         raise ApiError(
             status=503,

@@ -33,6 +33,7 @@ import numpy as np
 
 from service.bench import identmode
 from service.bench.targets import Target, format_verdicts, progress_to_stderr, report, verdicts
+from service.identify.mode import IdentificationMode
 
 if TYPE_CHECKING:
     from drivers.ringbuffer import Sample
@@ -136,7 +137,9 @@ def run(
         "synthetic": True,
         "mode": settings.experimental.mode,
         "settings": overrides or {},
-        "window_min": ident.map_window_min if settings.experimental.mode == "speed_map" else 40,
+        "window_min": (
+            ident.map_window_min if settings.experimental.mode is IdentificationMode.SPEED_MAP else 40
+        ),
         "conditions": conditions,
         "targets": verdicts(TARGETS, {"ci_coverage_mean_worst": worst}),
         "wall_s": round(time.perf_counter() - started, 1),

@@ -31,6 +31,7 @@ import numpy as np
 
 from service.bench import identmode
 from service.bench.targets import progress_to_stderr, report
+from service.identify.mode import IdentificationMode
 
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 DT_S = 10.0
@@ -115,7 +116,7 @@ def run_seed(model: Any, settings: Any, seed: int, *, hours: float, warmup_min: 
             out.covered.append((lo <= truth) & (truth <= hi))
             out.identified.append(np.asarray(snap.identified, dtype=bool))
             out.held_served.append(snap.record.method != MAP_METHOD)
-    combined = svc.identification_mode() == "combined"
+    combined = svc.identification_mode() is IdentificationMode.COMBINED
     for rec in svc.view.records:
         if rec.outcome != "ok":
             continue
@@ -236,7 +237,7 @@ def _print_table(out: dict[str, Any]) -> None:
         f"p90 {out['identify_wall_s_p90']} s, max {out['identify_wall_s_max']} s; model runs median "
         f"{out['model_runs_median']}, max {out['model_runs_max']}"
     )
-    if out["mode"] == "combined":
+    if out["mode"] == IdentificationMode.COMBINED:
         print(
             f"per-condition identifications (combined mode): {out['per_condition_fits_per_seed']} per seed, "
             f"wall median {out['per_condition_wall_s_median']} s, max {out['per_condition_wall_s_max']} s; "

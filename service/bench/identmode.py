@@ -13,11 +13,13 @@ import json
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
+from service.identify.mode import IdentificationMode
+
 if TYPE_CHECKING:
     from service.serve.interface import IdentificationRecord
     from service.settings import Settings
 
-MODES = ("per_condition", "speed_map", "combined")
+MODES = tuple(m.value for m in IdentificationMode)
 
 
 def add_arguments(

@@ -59,6 +59,7 @@ from service.bench.restart_profile import (
     truth,
 )
 from service.bench.targets import progress_to_stderr, report
+from service.identify.mode import IdentificationMode
 
 STARTS_MIN = (0, 30, 60, 90)
 PATHS = ("core", "filter")
@@ -245,8 +246,9 @@ def run_bench(
     from service.modelload import ModelRef, load_model
 
     settings = identmode.bench_settings(ident_mode, overrides)
-    mode = "per_condition" if path == "filter" else settings.experimental.mode
-    if path == "filter" and settings.experimental.mode != "per_condition" and ident_mode is not None:
+    per_condition = IdentificationMode.PER_CONDITION
+    mode = per_condition if path == "filter" else settings.experimental.mode
+    if path == "filter" and settings.experimental.mode is not per_condition and ident_mode is not None:
         raise ValueError("--path filter runs the per-condition protocol only (no --mode speed_map)")
     model = load_model(ModelRef.from_settings(settings))
     started = time.perf_counter()

@@ -29,6 +29,7 @@ import numpy as np
 
 from service.commands._common import check_log_arguments
 from service.engine.jobbook import MAP_METHOD
+from service.identify.mode import IdentificationMode
 
 if TYPE_CHECKING:
     from service.acquire.calibration import Calibration
@@ -181,7 +182,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     """Why a log gave no successful identification: per detected condition, how long it lasted against what an
     identification needs; or why no condition was detected (``can_ok``: samples with a fresh speed/torque)."""
     ident, exp = settings.identification, settings.experimental
-    per_condition = exp.mode == "per_condition"
+    per_condition = exp.mode is IdentificationMode.PER_CONDITION
     if per_condition:
         need_s = max(ident.min_window_s, 60.0 * ident.schedule_min[0])
         need = (

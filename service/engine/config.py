@@ -9,6 +9,7 @@ from service.acquire.calibration import Calibration, CalibrationConfig
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
+from service.identify.mode import IdentificationMode
 from service.identify.scheduler import PastResult, SchedulerConfig
 from service.identify.speedmap import MapConfig, SpeedMap
 from service.identify.window import WindowRules
@@ -39,14 +40,13 @@ class CoreConfig:
     # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the
     # measurements are taken as they come and no offset uncertainty is carried in the CIs
     calibration: CalibrationConfig | None = field(default_factory=CalibrationConfig)
-    # identification.mode: None = "per_condition" (the paper's protocol, one H per held condition); a
-    # MapConfig = "speed_map" (H = F(n, Ti) over a rolling window, re-fitted on condition changes;
-    # docs/design/hmap.md)
-    speed_map: MapConfig | None = None
-    # identification.mode = "combined" (with a speed_map): the per-condition schedule runs as well, and its
-    # identification of the current, held condition is served instead of the map's H (docs/design/hmap.md
+    # experimental.mode: its serving strategy (service.engine.serving) decides what runs and what serves: the
+    # per-condition schedule (the paper's protocol, one H per held condition), the speed map (H = F(n, Ti)
+    # over a rolling window, re-fitted on condition changes; docs/design/hmap.md) or both ("combined": the
+    # held condition's per-condition identification serves instead of the map's H, docs/design/hmap.md
     # "Combined mode")
-    combined: bool = False
+    mode: IdentificationMode = IdentificationMode.PER_CONDITION
+    speed_map: MapConfig = field(default_factory=MapConfig)  # the map's knobs (used when the mode fits one)
 
 
 @dataclass(frozen=True, kw_only=True)

@@ -1,6 +1,6 @@
-"""The core's speed-map bookkeeping (``identification.mode = "speed_map"``, docs/design/hmap.md): when a map
+"""The core's speed-map bookkeeping (modes ``speed_map`` and ``combined``, docs/design/hmap.md): when a map
 fit is due, the running fit, the posteriors kept for the next windows' priors and the visited-speed tally.
-Pure: no I/O, no clock; ``service.engine.core`` owns one.
+Pure: no I/O, no clock; the core's map track (``service.engine.maptrack.MapTrack``) owns one.
 """
 
 from __future__ import annotations
@@ -24,7 +24,6 @@ class MapBook:
 
     def __init__(self, config: CoreConfig, model: LoadedModel, restored: SpeedMap | None) -> None:
         cfg = config.speed_map
-        assert cfg is not None
         self.cfg = cfg
         self.family = Family(cfg.family)
         self.cold = self.family.prior(model.spec, level_sd=cfg.prior_level_sd)

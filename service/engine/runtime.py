@@ -75,12 +75,9 @@ class CanDevice(CanSource, HealthSource, Protocol):
     async def close(self) -> None: ...
 
 
-def map_config(settings: Settings) -> MapConfig | None:
-    """The speed map's configuration (None: ``experimental.mode = "per_condition"``; the same for
-    ``"speed_map"`` and ``"combined"``)."""
+def map_config(settings: Settings) -> MapConfig:
+    """The speed map's configuration (used in ``experimental.mode`` ``"speed_map"`` and ``"combined"``)."""
     ident, exp = settings.identification, settings.experimental
-    if exp.mode == "per_condition":
-        return None
     return MapConfig(
         window_s=60.0 * ident.map_window_min,
         min_window_s=60.0 * exp.map_min_window_min,
@@ -128,8 +125,8 @@ def core_config(settings: Settings) -> CoreConfig:
         carry_start_error=exp.carry_start_error,
         start_modes=exp.start_modes,
         ci_threshold=ident.ci_rel_threshold,
+        mode=exp.mode,
         speed_map=map_config(settings),
-        combined=exp.mode == "combined",
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
         calibration=CalibrationConfig(

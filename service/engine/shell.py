@@ -400,7 +400,8 @@ class SoftSensorService:
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
-        # combined mode: the per-condition H of the held condition serves instead of the map (map_serves)
+        # the serving strategy's verdict (map_serves): per-condition mode, and combined mode at a held
+        # condition, serve an identification; the map's H elsewhere
         fresh = self._map_freshness(v, problems, since) if v.map_serves else None
         if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
             # speed-map mode: H from the map at the newest sample's speed and ambient, at once
@@ -469,10 +470,7 @@ class SoftSensorService:
         )
 
     def identification_mode(self) -> IdentificationMode:
-        config = self.core.config
-        if config.speed_map is None:
-            return "per_condition"
-        return "combined" if config.combined else "speed_map"
+        return self.core.config.mode
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
         v = self._view

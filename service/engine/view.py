@@ -63,13 +63,13 @@ class CoreView:
     live: FilterView | None  # the filtered live state (None before it started)
     stale_after_s: float
     min_good_channels: int
-    # speed-map mode (docs/design/hmap.md): its configuration (None: per-condition mode) and the latest map
-    # fit
+    # speed-map and combined mode (docs/design/hmap.md): the map's configuration (None: no map in this mode)
+    # and the latest map fit
     map_config: MapConfig | None = None
     speed_map: SpeedMap | None = None
-    # with a map: ``current`` is the map's fit and /chtc serves H from the map at the current speed; false in
-    # combined mode while the held condition's per-condition identification serves (docs/design/hmap.md,
-    # "Combined mode")
+    # the serving strategy's verdict (service.engine.serving): ``current`` is the map's fit and /chtc serves H
+    # from the map at the current speed; false in per-condition mode, and in combined mode while the held
+    # condition's per-condition identification serves (docs/design/hmap.md, "Combined mode")
     map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
 

@@ -42,6 +42,7 @@ import numpy.typing as npt
 from service.contracts.records import IdentificationData
 from service.errors import ServiceError
 from service.estimate.locator import TriangleLocator, locator_for
+from service.identify.mode import IdentificationMode
 
 if TYPE_CHECKING:
     from service.estimate.growth import GrowthEstimate, PlcCompensation
@@ -66,9 +67,6 @@ class BusyError(ServiceError):
 
 class NotReadyError(ServiceError):
     """The service cannot do what was asked yet (model not loaded, too little good data)."""
-
-
-IdentificationMode = Literal["per_condition", "speed_map", "combined"]
 
 
 class ChtcStatus(enum.StrEnum):
@@ -524,9 +522,10 @@ class ChtcService(Protocol):
         ...
 
     def identification_mode(self) -> IdentificationMode:
-        """``"per_condition"`` (the paper's protocol: one H per held condition), ``"speed_map"`` (H = F(n,
-        Ti) over the speed range, ``chtc_map()``) or ``"combined"`` (both: the per-condition H at a held
-        condition, the map's elsewhere); fixed for the service's life (``experimental.mode``)."""
+        """``PER_CONDITION`` (the paper's protocol: one H per held condition), ``SPEED_MAP`` (H = F(n, Ti)
+        over the speed range, ``chtc_map()``) or ``COMBINED`` (both: the per-condition H at a held condition,
+        the map's elsewhere); fixed for the service's life (``experimental.mode``; a ``str`` enum whose
+        values are the settings' spelling)."""
         ...
 
     def field(self, at: FieldAt) -> FieldSnapshot:

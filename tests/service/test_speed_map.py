@@ -15,6 +15,7 @@ from service.engine.core import ServiceCore
 from service.engine.persistence import open_persistence
 from service.engine.runtime import core_config, map_config
 from service.engine.shell import SoftSensorService
+from service.identify.mode import IdentificationMode
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
 from service.serve.interface import ChtcStatus
 from service.serve.views import map_freshness
@@ -58,8 +59,9 @@ def served(duty, loaded_model):
 
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
-    assert Settings().experimental.mode == "combined"  # docs/design/hmap.md "Default"
-    assert map_config(Settings(experimental={"mode": "per_condition"})) is None
+    assert Settings().experimental.mode is IdentificationMode.COMBINED  # docs/design/hmap.md "Default"
+    for mode in IdentificationMode:  # the settings' spelling is the enum's value
+        assert core_config(Settings(experimental={"mode": mode.value})).mode is mode
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
     assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")

@@ -1,0 +1,118 @@
+"""What the core and its identification tracks share (``service.engine.core`` owns one ``CoreParts``; the
+per-condition track ``service.engine.schedtrack`` and the speed map's ``service.engine.maptrack`` work on
+it): the configuration, the live state, the sample history, the job book, the condition and the serving
+strategy; and ``Out``, the instructions of one ``handle`` call. Pure: no I/O, no clock, no lock.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, replace
+from datetime import UTC, datetime
+from typing import TYPE_CHECKING
+
+from service.acquire.calibration import OffsetCalibrator
+from service.acquire.history import RingHistory
+from service.contracts.records import Record
+from service.engine.config import CoreConfig
+from service.engine.events import Instruction, Log, Rejected, RejectKind, Store
+from service.engine.jobbook import Job, JobBook
+from service.engine.jobs import Offsets
+from service.engine.samples import SampleBook
+from service.estimate.state import FilteredState
+from service.estimate.state import h_rel_from_ci as h_rel
+from service.identify import scheduler as sched
+from service.identify.detector import ConditionDetector, DetectorStatus
+from service.modelload import LoadedModel
+from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
+
+if TYPE_CHECKING:
+    from service.engine.serving import Serving
+
+__all__ = ["CONDITIONS_KEPT", "CoreParts", "Out", "h_rel", "utc"]
+
+CONDITIONS_KEPT = 200
+
+
+def utc(ts: float) -> datetime:
+    return datetime.fromtimestamp(ts, tz=UTC)
+
+
+@dataclass
+class Out:
+    """The instructions of one ``handle`` call, each stamped with the event's id."""
+
+    event_id: str
+    instructions: list[Instruction] = field(default_factory=list)
+
+    def store(self, record: Record) -> None:
+        self.instructions.append(Store(self.event_id, record))
+
+    def log(self, message: str) -> None:
+        self.instructions.append(Log(self.event_id, message))
+
+    def reject(self, kind: RejectKind, reason: str) -> None:
+        self.instructions.append(Rejected(event_id=self.event_id, kind=kind, reason=reason))
+
+
+@dataclass(eq=False, kw_only=True)
+class CoreParts:
+    """The core's shared state (see the module docstring); ``condition`` is the current one, ``conditions``
+    the newest ``CONDITIONS_KEPT``, newest first."""
+
+    config: CoreConfig
+    model: LoadedModel
+    live: FilteredState
+    history: RingHistory
+    detector: ConditionDetector
+    scheduler: sched.IdentificationScheduler  # the per-condition schedule; also the job ids' source
+    jobs: JobBook
+    samples: SampleBook
+    calibrator: OffsetCalibrator | None
+    serving: Serving
+    condition: ConditionSnapshot | None = None
+    conditions: tuple[ConditionSnapshot, ...] = ()
+
+    def set_condition(self, snap: ConditionSnapshot, *, new: bool = False) -> None:
+        self.condition = snap
+        if new or not self.conditions:
+            self.conditions = (snap, *self.conditions[: CONDITIONS_KEPT - 1])
+        else:
+            self.conditions = (snap, *self.conditions[1:])
+
+    def follow_condition(self) -> None:
+        """The current condition is CHANGING while the detector holds a candidate, else STABLE."""
+        cond = self.condition
+        if cond is not None and self.detector.status is DetectorStatus.PENDING:
+            if cond.state is not ConditionState.CHANGING:
+                self.set_condition(replace(cond, state=ConditionState.CHANGING))
+        elif cond is not None and cond.state is not ConditionState.STABLE:
+            self.set_condition(replace(cond, state=ConditionState.STABLE))
+
+    def condition_of(self, job: Job) -> ConditionSnapshot:
+        cid = job.start.condition_id
+        cond = next((c for c in self.conditions if c.id == cid), self.condition)
+        assert cond is not None
+        return cond
+
+    def offsets(self) -> Offsets | None:
+        cal = self.calibrator
+        return None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
+
+    def serve(self, served: tuple[IdentificationRecord, tuple[float, float] | None] | None) -> None:
+        """Give the live state the H (and bearing-heat load scales) of an identification the serving strategy
+        has just started to serve (None: the live state's H stays, or comes from the map)."""
+        if served is not None:
+            rec, load = served
+            self.live.set_h(rec.h, load, h_rel=h_rel(rec.h, rec.ci95_hi))
+
+    def store_outcome(self, job: Job, *, outcome: str, message: str, finished_at: datetime, out: Out) -> None:
+        data, _ = self.jobs.ended(
+            job,
+            outcome=outcome,
+            message=message,
+            finished_at=finished_at,
+            event_id=out.event_id,
+            condition=self.condition_of(job),
+        )
+        out.store(data)
+        out.log(f"identification {job.key} {outcome}: {message}")
