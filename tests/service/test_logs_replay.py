@@ -160,6 +160,7 @@ def _identify(logs, out):
     return json.loads(out.read_text())
 
 
+@pytest.mark.slow
 def test_identify_is_deterministic_and_finds_both_conditions(logs, tmp_path, capsys):
     first = _identify(logs, tmp_path / "a.json")
     second = _identify(logs, tmp_path / "b.json")
