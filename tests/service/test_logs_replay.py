@@ -327,8 +327,7 @@ def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path, monke
 def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_path, monkeypatch):
     """One jittered row per second (as chtc record writes): replay used to sample rows one poll apart from
     identify's, and identify fed every row as a sample, so windows and H differed (13 s and H1 52 vs 200).
-    Per-condition mode (one identification per 15-min condition; the test above runs the default mode), so
-    replay = identify is checked in both modes."""
+    Per-condition mode, as the test above (one identification per 15-min condition)."""
     monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")  # chtc identify's settings
     offline = [r for r in _identify(realtime_logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
 
