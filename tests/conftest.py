@@ -3,7 +3,7 @@
 Markers: ``slow`` (more than about 5 s of setup or call on the 2-core box by itself, about 10 s when it is
 shared as usual; run in CI, deselected by the fast subset ``-m "not slow"``), ``postgres`` (needs PostgreSQL
 at ``CHTC_TEST_PG_URL``, default ``postgresql+psycopg://postgres@127.0.0.1:5432/test``), ``browser`` (needs
-``/usr/bin/chromium``).
+``/usr/bin/chromium``; a browser test is also ``slow``: each starts a headless Chromium, 4-11 s).
 In CI (``CI=true``) a missing PostgreSQL or Chromium is a failure, not a skip.
 
 A test not marked ``slow`` whose setup (a module or session fixture counts for the first test that needs it)
@@ -58,6 +58,14 @@ def chromium_path() -> str:
             pytest.fail("chromium not installed (required in CI)")
         pytest.skip("chromium not installed")
     return path
+
+
+@pytest.hookimpl(tryfirst=True)  # before ``-m`` deselects
+def pytest_collection_modifyitems(items: list[pytest.Item]) -> None:
+    for item in items:
+        browser = item.get_closest_marker("browser") is not None
+        if browser or "chromium_path" in getattr(item, "fixturenames", ()):
+            item.add_marker(pytest.mark.slow)
 
 
 def pytest_runtest_logreport(report: pytest.TestReport) -> None:

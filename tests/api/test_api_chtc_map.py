@@ -248,6 +248,7 @@ def test_speed_map_mode_before_the_first_fit_answers_503(tmp_path: Path) -> None
     assert "no speed map fitted yet" in r.json()["error"]["message"]
 
 
+@pytest.mark.slow
 def test_after_a_restart_the_stored_map_is_served_as_restored_and_stale(tmp_path: Path) -> None:
     with served_map_mode(tmp_path) as s:
         before = s.service.chtc_map()

@@ -31,6 +31,7 @@ def map_settings(**kw: object) -> Settings:
     return Settings(identification=IdentificationSettings(mode="speed_map", **kw))  # type: ignore[arg-type]
 
 
+# The tests on the duty cycle below are ``slow``: the plant run and the service over it take ~12 s.
 @pytest.fixture(scope="module")
 def duty():
     profile = duty_profile(7, duration_s=DURATION_S)
@@ -70,6 +71,7 @@ def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
         MapConfig(window_s=0.0)
 
 
+@pytest.mark.slow
 def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> None:
     _, seen = served
     profile, run, _ = duty
@@ -106,6 +108,7 @@ def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> N
     assert med[5] < 0.25 and med[6] < 0.25, med
 
 
+@pytest.mark.slow
 def test_chtc_map_snapshot_and_per_condition_mode(served, loaded_model, duty) -> None:
     svc, _ = served
     snap = svc.chtc_map()
@@ -125,6 +128,7 @@ def test_chtc_map_snapshot_and_per_condition_mode(served, loaded_model, duty) ->
     assert per_cond.chtc_map() is None
 
 
+@pytest.mark.slow
 def test_status_rules(served) -> None:
     svc, _ = served
     m = svc.view.speed_map
@@ -156,6 +160,7 @@ def test_status_rules(served) -> None:
     assert status(newest_t=None, speed_rpm=None) == "no-data no_data"
 
 
+@pytest.mark.slow
 def test_restart_restores_the_map_as_stale(tmp_path, duty, loaded_model) -> None:
     _, _, samples = duty
     s = map_settings()
@@ -289,6 +294,7 @@ def test_theta_start_cov_is_the_draws_spread_of_the_lead(loaded_model) -> None:
     assert abs(s @ cov @ s / (s @ expect @ s) - 1.0) < 0.25
 
 
+@pytest.mark.slow
 def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) -> None:
     """The live state keeps its snapshots 3× the longest window a job may use: the per-condition
     ``max_window_s`` alone (90 s here, as the compose test's trial timing) dropped the snapshot at the
@@ -301,6 +307,7 @@ def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) 
     assert all(r.outcome == "ok" for r in result.records), [r.message for r in result.records]
 
 
+@pytest.mark.slow
 def test_stored_map_json_is_exact_compact_and_reads_the_earlier_form(served) -> None:
     """The covariance is stored as its packed upper triangle (float64, base64): exact, a quarter of the
     list-of-lists form, which is still read; a bad or short field is named."""
