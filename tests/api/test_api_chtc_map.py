@@ -81,6 +81,7 @@ def _snapshot(m: SpeedMap, speed_rpm: float, ambient_c: float = 22.3) -> ChtcMap
     )
 
 
+@pytest.mark.slow
 def test_the_body_carries_the_fitted_map_with_units_bands_and_visited_speeds(
     fitted: SpeedMap, duty: DutyRun
 ) -> None:
@@ -119,6 +120,7 @@ def test_the_body_carries_the_fitted_map_with_units_bands_and_visited_speeds(
     assert sum(steps) == 1800.0
 
 
+@pytest.mark.slow
 def test_the_bands_are_narrow_where_the_data_were_and_wide_where_they_were_not(fitted: SpeedMap) -> None:
     """H7 (the housing, well determined) over the speeds the window visited vs. a speed it never reached:
     the served band says where the map is the prior's interpolation."""
@@ -134,6 +136,7 @@ def test_the_bands_are_narrow_where_the_data_were_and_wide_where_they_were_not(f
     assert near_w.max() < far_w.min(), (near_w, far_w)
 
 
+@pytest.mark.slow
 def test_an_unvisited_current_speed_is_identifying_with_the_reason(fitted: SpeedMap) -> None:
     unvisited = next(s for s in MAP_GRID_RPM if min(abs(s - fitted.visited_rpm)) > 300.0)
     body = chtc_map_out(_snapshot(fitted, float(unvisited)), T_END).model_dump(mode="json")
@@ -245,6 +248,7 @@ def test_speed_map_mode_before_the_first_fit_answers_503(tmp_path: Path) -> None
     assert "no speed map fitted yet" in r.json()["error"]["message"]
 
 
+@pytest.mark.slow
 def test_after_a_restart_the_stored_map_is_served_as_restored_and_stale(tmp_path: Path) -> None:
     with served_map_mode(tmp_path) as s:
         before = s.service.chtc_map()

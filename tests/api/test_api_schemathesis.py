@@ -21,6 +21,8 @@ from service.settings import Settings
 from service.sim.served import DEMO_FED, served_service
 from tests.api.conftest import WRITE_TOKEN, served_map_mode, sqlite_url
 
+pytestmark = pytest.mark.slow  # property-based runs over every operation (~20 s each at load 8)
+
 
 @pytest.fixture(scope="module")
 def api_schema(tmp_path_factory: pytest.TempPathFactory) -> Iterator[schemathesis.BaseSchema]:

@@ -25,7 +25,7 @@ from service.store.models import SampleRow
 from tests.db.conftest import pg_schema_url
 from tests.db.tcp_proxy import TcpProxy, free_port
 
-pytestmark = pytest.mark.postgres
+pytestmark = [pytest.mark.postgres, pytest.mark.slow]  # waits out a frozen database's limit (~15 s at load 8)
 
 FREEZE_S = float(os.environ.get("CHTC_TEST_FREEZE_S", "15"))  # the outage was 60 s: set it to 60
 # samples enough for 20 before the freeze and one per 50 ms through a 60-s freeze

@@ -25,6 +25,7 @@ def small_config(tmp_path: Path) -> Path:
     return path
 
 
+@pytest.mark.slow
 def test_prebuild_fills_the_cache_the_service_loads(
     small_config: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
@@ -44,6 +45,7 @@ def test_prebuild_fills_the_cache_the_service_loads(
     assert again["from_cache"] is True and again["cache_key"] == report["cache_key"]
 
 
+@pytest.mark.slow
 def test_cache_dir_option_overrides_the_settings(
     small_config: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:

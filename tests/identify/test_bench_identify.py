@@ -39,6 +39,7 @@ def test_bench_identify_json_shape(capsys: pytest.CaptureFixture[str]) -> None:
     assert out["warm_vs_cold_nfev_ratio"] > 0.0
 
 
+@pytest.mark.slow
 def test_bench_identify_tables_without_28x150_print_every_target(capsys: pytest.CaptureFixture[str]) -> None:
     """Without ``--json`` and with ``--skip-28x150`` the tables used to crash (TypeError on the skipped
     figure); now every target is printed with its verdict, the skipped one as not measured."""

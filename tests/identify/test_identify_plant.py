@@ -113,6 +113,7 @@ def test_open_circuit_channel_is_not_counted_in_rmse_or_sensors_used(
     assert data.rmse_c < 0.5  # the noise level, not the open circuit
 
 
+@pytest.mark.slow
 def test_warm_start_from_the_neighbouring_condition_needs_fewer_evaluations(
     model: Any, cond4000: Condition, hybrid3000: IdentificationResult
 ) -> None:

@@ -19,6 +19,8 @@ from model.estimator import (
 )
 from tests.model_estimator.conftest import PlantData
 
+pytestmark = pytest.mark.slow  # the session plant_data fixture: a virtual-plant run, ~65 s at load 8
+
 # an identified H is off by ~20 % (1σ) on the poorly determined coefficients, the filter's default h_rel;
 # this draw is a harsh one: 1.50, 0.60, 1.09, 0.89, 0.91, 0.96, 0.67 (three coefficients ~2σ off)
 H_ERROR = np.exp(0.2 * np.random.default_rng(3).standard_normal(7))

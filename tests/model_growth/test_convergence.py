@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from model.geometry import Region, SpindleSpec
 from model.growth_check import mesh_study
@@ -55,6 +56,7 @@ def test_composite_cylinder_converges_at_second_order() -> None:
     assert rates[1] > rates[0]
 
 
+@pytest.mark.slow
 def test_spindle_outputs_converge_to_one_percent(spec: SpindleSpec) -> None:
     rows = mesh_study(spec, sizes_m=(0.005, 0.0025), reference_m=0.00125, speed_rpm=5000.0)
     coarse, default = rows

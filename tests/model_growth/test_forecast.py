@@ -63,6 +63,7 @@ def test_cooling_forecast_matches_direct_simulation(
     assert np.allclose(fc.steady_um, 0.0, atol=1e-9)
 
 
+@pytest.mark.slow
 def test_dominant_time_constant_matches_fitted_exponential(
     spec: SpindleSpec, fe: FEModel, growth: GrowthModel
 ) -> None:

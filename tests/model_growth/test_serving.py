@@ -245,6 +245,7 @@ def test_plc_mapping_units_and_sign() -> None:
         plc_compensation(1.0, tool_dir=0)
 
 
+@pytest.mark.slow
 def test_steady_ci_is_honest_against_the_plant_mesh(spec: SpindleSpec, ctx: GrowthContext) -> None:
     """H drawn from the served Σ_H (as if the identification's CI were right): the plant's own steady growth
     (finer mesh, its own growth model) falls in the served steady CI about 95 % of the time."""

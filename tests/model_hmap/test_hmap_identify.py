@@ -15,6 +15,8 @@ from model.hmap import NODES, Gaussian
 from model.plant import Segment, VirtualPlant, h_true
 from tests.model_hmap.duty import DutyRun, window
 
+pytestmark = pytest.mark.slow  # map fits of the 2-h duty cycle (~60 s of fixtures at load 8)
+
 WELL_DETERMINED = [2, 4, 5, 6]  # H3, H5, H6, H7
 
 

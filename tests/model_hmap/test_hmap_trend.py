@@ -102,6 +102,7 @@ def test_prior_level_term_is_an_overall_factor_per_zone(model: Any) -> None:
     assert np.all(np.log(hi1 / lo1) > np.log(hi0 / lo0) + 1.0)
 
 
+@pytest.mark.slow
 def test_h1_at_4000_rpm_covered_with_the_trend_and_not_without(model: Any, z_with: np.ndarray) -> None:
     """With the trend term H1's band covers the truth at 4000 rpm in every seed; the old prior (trend_sd 0)
     misses on the same data, and every seed's z moves up (measured on seeds 101-108: mean z −1.24 and 3 of

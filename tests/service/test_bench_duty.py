@@ -48,6 +48,7 @@ def test_longest_gap_and_summary() -> None:
     assert out["identify_wall_s_max"] == 1.5  # the map fits' own figures are not mixed with them
 
 
+@pytest.mark.slow
 def test_one_short_seed_through_the_service_in_map_mode() -> None:
     out = duty.run_bench([1], mode="speed_map", hours=0.6, warmup_min=20.0)
     keys = ("fresh_fraction", "longest_gap_min", "identify_wall_s_median", "identify_wall_s_max", "seeds")

@@ -19,6 +19,8 @@ from service.settings import ExperimentalSettings, Settings
 
 from .conftest import inline_service, samples_of
 
+pytestmark = pytest.mark.slow  # the combined-mode service over a duty cycle (~35 s fixture at load 8)
+
 # 5 min idle; 3000 rpm held 20 min (per-condition at 7 and 20 min; the map's first fit after 10 min of
 # data); 4500 rpm for 4 min (shorter than the first schedule entry: the map's only); 2000 rpm held 12 min
 SETTINGS = Settings(experimental=ExperimentalSettings(mode="combined"))

@@ -14,6 +14,8 @@ from model.plant import PlantRun, VirtualPlant
 from service.estimate.state import FilteredState, FilterSettings, LiveStateError
 from tests.model_estimator import conftest as est_conftest
 
+pytestmark = pytest.mark.slow  # the filtered state over a plant run (~20 s fixture at load 8)
+
 SPM = 6  # samples per minute (10 s)
 BAD_CHANNEL = 13
 

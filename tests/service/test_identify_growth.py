@@ -8,7 +8,11 @@ import json
 from datetime import datetime
 from pathlib import Path
 
+import pytest
+
 from service.cli import main as cli_main
+
+pytestmark = pytest.mark.slow  # chtc identify over the example recording (~13 s at load 8)
 
 DATA = Path(__file__).resolve().parents[2] / "service" / "data"
 

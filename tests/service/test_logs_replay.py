@@ -6,6 +6,8 @@ from __future__ import annotations
 import argparse
 import asyncio
 import json
+import os
+import warnings
 from datetime import UTC, datetime, timedelta
 
 import can
@@ -19,6 +21,7 @@ from service.cli import main as cli_main
 from service.commands.replay import GrowthLog
 from service.serve.interface import ChtcStatus
 from service.settings import Settings
+from tests.timing import LoopLag
 
 from .conftest import plant_run
 
@@ -157,6 +160,7 @@ def _identify(logs, out):
     return json.loads(out.read_text())
 
 
+@pytest.mark.slow
 def test_identify_is_deterministic_and_finds_both_conditions(logs, tmp_path, capsys):
     first = _identify(logs, tmp_path / "a.json")
     second = _identify(logs, tmp_path / "b.json")
@@ -180,11 +184,13 @@ def test_identify_names_a_bad_line(tmp_path, capsys, logs):
     assert "line 6" in capsys.readouterr().err
 
 
-@pytest.mark.slow
 def _check_growth_history(growth, replayed, offline, tmp_path):
     """The replay's growth history: what /compensation served, every minute and at each identification (time
     UTC, status of /chtc, axial/radial µm with CIs); at each identification it is the growth identify --json
-    gives at the window end, a few samples later (the replayed job finishes later), within the CI."""
+    gives at the window end, within the CI, served when the replayed job finished: the job's wall time times
+    the speed-up later (identify finishes at once), 2-6 min of recorded time at 60x on the shared box. The
+    growth keeps changing meanwhile (a warm-up after a speed change), so that wait at the history's steepest
+    rate is allowed on top of the CI."""
     rows = growth.rows
     at = [datetime.fromisoformat(r["at"]) for r in rows]
     assert len(rows) >= 10 and all(t.utcoffset() == timedelta(0) for t in at)
@@ -195,80 +201,151 @@ def _check_growth_history(growth, replayed, offline, tmp_path):
         for part in ("axial", "radial", "steady_axial"):
             v = r[part]
             assert v["ci95_um"][0] < v["um"] < v["ci95_um"][1] and v["plc_0p1um"] == round(10 * v["um"])
+    axial = np.array([r["axial"]["um"] for r in rows])
+    steepest = float(np.max(np.abs(np.diff(axial)) / np.diff([t.timestamp() for t in at])))  # µm/s
     for r, o in zip(replayed, offline, strict=True):
         first = growth.by_id[r.id]
-        assert datetime.fromisoformat(first["at"]) >= r.window_to
+        wait_s = (datetime.fromisoformat(first["at"]) - r.window_to).total_seconds()
+        assert wait_s >= 0
         want = o["growth"]["axial"]
         half = 0.5 * (want["ci95_um"][1] - want["ci95_um"][0])
-        assert abs(first["axial"]["um"] - want["um"]) < half, (first, want)
+        allowed = half + steepest * wait_s
+        assert abs(first["axial"]["um"] - want["um"]) < allowed, (first, want, wait_s, steepest)
     out = tmp_path / "replayed.csv"
     growth.write(out)
     lines = out.read_text().splitlines()
     assert len(lines) == len(rows) + 1 and lines[0].startswith("at,status,usable_for_compensation")
 
 
-def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path, monkeypatch):
+def _stall_budget_s(settings: Settings, speedup: float) -> float:
+    """The longest event-loop stall a replay at ``speedup`` absorbs, wall s (docs/design/service.md, "Replay =
+    identify"): a sample sees its own row while the stall ends before the row's half period is over, less
+    one DAQ poll interval (the last poll before the stall may be that old)."""
+    period = settings.acquisition.sample_period_s
+    poll = min(settings.modbus.poll_interval_s, period / 2.0)
+    return (period / 2.0 - poll) / speedup
+
+
+async def _replay_probed(args, settings, growth, monkeypatch):
+    """``run_replay`` with a ``LoopLag`` probe in its event loop: the records and how late the loop ran from
+    the replay's first row on (the start-up before it, a database migration and a worker process spawned on
+    the loop, is no replay)."""
+    from drivers.sim.replay import Replay
     from service.commands.replay import run_replay
 
-    # per condition: every job's result is rebased at its window end, so the replay (results from the worker,
-    # samples later) and identify (inline) agree exactly; a map fit's H reaches the live state at the next
-    # sample after its result, which in the replay depends on the worker's timing (combined and speed-map
-    # mode: the full suite under load once saw one fit fewer in the replay than offline)
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")
+    lag = LoopLag()
+    begin = Replay.begin
 
-    offline = [r for r in _identify(logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
-    settings = Settings()
-    settings = settings.model_copy(
-        update={"database": settings.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'r.db'}"})}
-    )
-    args = argparse.Namespace(csv=logs[0], can=logs[1], speedup=60.0, api=False, grace=30.0)
-    growth = GrowthLog()
-    replayed = [r for r in asyncio.run(run_replay(args, settings, growth=growth)) if r.outcome == "ok"]
-    assert len(replayed) == len(offline) >= 4
-    _check_growth_history(growth, replayed, offline, tmp_path)
-    exact = 0
-    for r, o in zip(replayed, offline, strict=True):
-        assert r.condition.speed_rpm == pytest.approx(o["condition"]["speed_rpm"])
-        assert (r.window_to - r.window_from).total_seconds() / 60 == pytest.approx(_minutes(o))
-        exact += bool(np.allclose(r.h, o["h_w_m2k"], rtol=0.02, atol=0.2))
-    # The replay samples each served row half a period after it: the same data, the same seeded fit, and the
-    # same live state at every window start (a rebase replays from half a step before the window end, so a
-    # job that finishes samples later, as in the running service, rebases exactly as offline, where it
-    # finishes at once). The second condition's windows start from that rebased state.
-    assert exact == len(offline), (
-        exact,
-        [(r.h, o["h_w_m2k"]) for r, o in zip(replayed, offline, strict=True)],
-    )
+    def begin_probed(self: Replay) -> None:
+        lag.late_s.clear()
+        begin(self)
+
+    monkeypatch.setattr(Replay, "begin", begin_probed)
+    probe = asyncio.create_task(lag.run())
+    try:
+        return await run_replay(args, settings, growth=growth), lag
+    finally:
+        probe.cancel()
+
+
+def _replay_paced(logs, tmp_path, monkeypatch, check, *, speedups):
+    """Replay ``logs`` at the first pace of ``speedups`` and ``check(replayed ok records, growth log)``.
+
+    A replay keeps wall time; a replay whose event loop kept time (no stall beyond ``_stall_budget_s``) must
+    pass, so a failure then is a real difference. A failure after a longer stall (the shared 2-core box at
+    load 10-15 stalls a process for a few hundred ms now and then) is the machine's, not the replay's: the
+    test replays again at the next, slower pace, which absorbs longer stalls. If the slowest pace stalled
+    beyond its budget too, the test cannot judge: it is skipped naming the stalls (failed in CI)."""
+    seen: list[str] = []
+    for i, speedup in enumerate(speedups):
+        settings = Settings()
+        url = f"sqlite:///{tmp_path / f'r{i}.db'}"
+        settings = settings.model_copy(update={"database": settings.database.model_copy(update={"url": url})})
+        args = argparse.Namespace(csv=logs[0], can=logs[1], speedup=speedup, api=False, grace=30.0)
+        growth = GrowthLog()
+        records, lag = asyncio.run(_replay_probed(args, settings, growth, monkeypatch))
+        budget = _stall_budget_s(settings, speedup)
+        try:
+            check([r for r in records if r.outcome == "ok"], growth)
+            if seen:
+                warnings.warn(f"replay = identify at {speedup:g}x after {'; '.join(seen)}", stacklevel=2)
+            return
+        except AssertionError as err:
+            seen.append(
+                f"{speedup:g}x: stall {1e3 * lag.max_s:.0f} ms (absorbs {1e3 * budget:.0f} ms): {err!r:.300}"
+            )
+            if lag.max_s <= budget:
+                raise AssertionError(f"the replay kept time and differs; {'; '.join(seen)}") from err
+            if i == len(speedups) - 1:
+                why = f"too loaded to judge replay = identify (docs/design/service.md); {'; '.join(seen)}"
+                if os.environ.get("CI", "").lower() == "true":  # as tests/conftest.py's missing services
+                    raise AssertionError(why) from err
+                pytest.skip(why)
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(600)
+def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path, monkeypatch):
+    # Per condition (combined and speed-map mode: a map fit's H reaches the live state at the first sample
+    # after the worker returns it, and the map's bookkeeping depends on that; the full suite under load once
+    # saw one fit fewer in the replay than offline).
+    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")
+
+    offline = [r for r in _identify(logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
+
+    def check(replayed, growth):
+        assert len(replayed) == len(offline) >= 4
+        _check_growth_history(growth, replayed, offline, tmp_path)
+        first_condition = offline[0]["condition"]["id"]
+        for r, o in zip(replayed, offline, strict=True):
+            assert r.condition.speed_rpm == pytest.approx(o["condition"]["speed_rpm"])
+            assert (r.window_from, r.window_to) == tuple(
+                datetime.fromisoformat(o[k]) for k in ("window_from", "window_to")
+            )  # the sample stamps are identify's (GridClock)
+            h, lo, hi = (np.asarray(o[k]) for k in ("h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k"))
+            if o["condition"]["id"] == first_condition:
+                # the same samples, the same start state (no earlier job's H in it), the same seeded fit
+                allowed = 0.02 * h + 0.2
+            else:
+                # a later condition's windows start from the live state, which took the previous condition's H
+                # when the worker returned it: the job's wall time times the speed-up after the window end
+                # (offline: at once; the filtered state has no rebase, docs/design/service.md). The identified
+                # H equal; a poorly identified one (the fit is flat along it) within 5 % of its CI width
+                # (measured at 20x, load 9: H1 74.6 and 110.0 against 67.3 and 102.8, CI widths 3e5 and 4e3;
+                # every identified H within 0.2 %)
+                allowed = np.where(
+                    o["identified"], 0.02 * h + 0.2, np.maximum(0.02 * h + 0.2, 0.05 * (hi - lo))
+                )
+            assert np.all(np.abs(np.asarray(r.h) - h) <= allowed), (o["id"], r.h, h.tolist(), o["identified"])
+
+    # 60x absorbs a stall of 67 ms (55 s of replay), 20x one of 200 ms (165 s)
+    _replay_paced(logs, tmp_path, monkeypatch, check, speedups=(60.0, 20.0))
+
+
+@pytest.mark.slow
+@pytest.mark.timeout(600)
 def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_path, monkeypatch):
     """One jittered row per second (as chtc record writes): replay used to sample rows one poll apart from
     identify's, and identify fed every row as a sample, so windows and H differed (13 s and H1 52 vs 200).
-    Per-condition mode (one identification per 15-min condition; the test above runs the default mode), so
-    replay = identify is checked in both modes."""
-    from service.commands.replay import run_replay
-
+    Per-condition mode, as the test above (one identification per 15-min condition)."""
     monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")  # chtc identify's settings
     offline = [r for r in _identify(realtime_logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
-    settings = Settings()
-    settings = settings.model_copy(
-        update={"database": settings.database.model_copy(update={"url": f"sqlite:///{tmp_path / 'r.db'}"})}
-    )
-    # 10x: the test shares two cores with other work (load 10-15 seen), and an event-loop stall longer than
-    # half a period of wall time (500 ms here, 83 ms at 60x) gives a sample other than identify's
-    args = argparse.Namespace(csv=realtime_logs[0], can=realtime_logs[1], speedup=10.0, api=False, grace=30.0)
-    replayed = [r for r in asyncio.run(run_replay(args, settings)) if r.outcome == "ok"]
-    assert len(replayed) == len(offline) == 2
-    for r, o in zip(replayed, offline, strict=True):
-        assert (r.window_from, r.window_to) == tuple(
-            datetime.fromisoformat(o[k]) for k in ("window_from", "window_to")
-        )  # the sample stamps are identify's (GridClock)
-        h, lo, hi = (np.asarray(o[k]) for k in ("h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k"))
-        # identified H equal; a poorly identified one (CI half-width > 50 %: the fit is flat along it, and a
-        # worker process's floating point or one sample delayed by a stall moves it) within 5 % of its CI
-        allowed = np.where(o["identified"], 0.02 * h + 0.2, np.maximum(0.02 * h + 0.2, 0.05 * (hi - lo)))
-        assert np.all(np.abs(np.asarray(r.h) - h) <= allowed), (r.h, h.tolist(), o["identified"])
+
+    def check(replayed, growth):
+        assert len(replayed) == len(offline) == 2
+        for r, o in zip(replayed, offline, strict=True):
+            assert (r.window_from, r.window_to) == tuple(
+                datetime.fromisoformat(o[k]) for k in ("window_from", "window_to")
+            )  # the sample stamps are identify's (GridClock)
+            h, lo, hi = (np.asarray(o[k]) for k in ("h_w_m2k", "ci95_lo_w_m2k", "ci95_hi_w_m2k"))
+            # identified H equal; a poorly identified one (CI half-width > 50 %: the fit is flat along it,
+            # and a worker process's floating point or one sample delayed by a stall moves it) within 5 % of
+            # its CI
+            allowed = np.where(o["identified"], 0.02 * h + 0.2, np.maximum(0.02 * h + 0.2, 0.05 * (hi - lo)))
+            assert np.all(np.abs(np.asarray(r.h) - h) <= allowed), (r.h, h.tolist(), o["identified"])
+
+    # 30x absorbs a stall of 133 ms (70 s of replay), 10x one of 400 ms (210 s)
+    _replay_paced(realtime_logs, tmp_path, monkeypatch, check, speedups=(30.0, 10.0))
 
 
 def _assert_well_determined_h_covered(records: list[dict]) -> None:
@@ -286,12 +363,6 @@ def _assert_well_determined_h_covered(records: list[dict]) -> None:
         truth = h_true(c["speed_rpm"], c["ambient_c"])[5:]
         lo, hi = np.asarray(r["ci95_lo_w_m2k"])[5:], np.asarray(r["ci95_hi_w_m2k"])[5:]
         assert np.all((lo <= truth) & (truth <= hi)), (c, lo, hi, truth)
-
-
-def _minutes(o: dict) -> float:
-    a = datetime.fromisoformat(o["window_from"])
-    b = datetime.fromisoformat(o["window_to"])
-    return (b - a).total_seconds() / 60
 
 
 @pytest.mark.parametrize("mode", ["per_condition", "speed_map"])

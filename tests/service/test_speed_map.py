@@ -35,6 +35,7 @@ def map_settings(**kw: object) -> Settings:
     return Settings(identification=ident, experimental={"mode": "speed_map", **exp})  # type: ignore[arg-type]
 
 
+# The tests on the duty cycle below are ``slow``: the plant run and the service over it take ~12 s.
 @pytest.fixture(scope="module")
 def duty():
     profile = duty_profile(7, duration_s=DURATION_S)
@@ -75,6 +76,7 @@ def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
         MapConfig(window_s=0.0)
 
 
+@pytest.mark.slow
 def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> None:
     _, seen = served
     profile, run, _ = duty
@@ -111,6 +113,7 @@ def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> N
     assert med[5] < 0.25 and med[6] < 0.25, med
 
 
+@pytest.mark.slow
 def test_chtc_map_snapshot_and_per_condition_mode(served, loaded_model, duty) -> None:
     svc, _ = served
     snap = svc.chtc_map()
@@ -130,6 +133,7 @@ def test_chtc_map_snapshot_and_per_condition_mode(served, loaded_model, duty) ->
     assert per_cond.chtc_map() is None
 
 
+@pytest.mark.slow
 def test_status_rules(served) -> None:
     svc, _ = served
     m = svc.view.speed_map
@@ -161,6 +165,7 @@ def test_status_rules(served) -> None:
     assert status(newest_t=None, speed_rpm=None) == "no-data no_data"
 
 
+@pytest.mark.slow
 def test_restart_restores_the_map_as_stale(tmp_path, duty, loaded_model) -> None:
     _, _, samples = duty
     s = map_settings()
@@ -227,6 +232,7 @@ def test_covariance_intersection_is_consistent_for_any_correlation(loaded_model)
                 assert not claims_enough  # the naive fusion is overconfident with shared errors
 
 
+@pytest.mark.slow
 def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) -> None:
     """The live state keeps its snapshots 3× the longest window a job may use: the per-condition
     ``max_window_s`` alone (90 s here, as the compose test's trial timing) dropped the snapshot at the
@@ -239,6 +245,7 @@ def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) 
     assert all(r.outcome == "ok" for r in result.records), [r.message for r in result.records]
 
 
+@pytest.mark.slow
 def test_stored_map_json_is_exact_compact_and_reads_the_earlier_form(served) -> None:
     """The covariance is stored as its packed upper triangle (float64, base64): exact, a quarter of the
     list-of-lists form, which is still read; a bad or short field is named."""

@@ -1,5 +1,12 @@
 """Record live (simulated) devices with the real drivers, replay the logs, record again: same values, same
-timing within the documented tolerance (docs/design/simulation.md)."""
+timing within the documented tolerance (docs/design/simulation.md, "Replay timing tolerance").
+
+The replay keeps wall time, and so does the recorder that checks it: on a loaded machine both are woken late
+now and then, by an amount no pacing can undo. A probe thread (``tests.timing.ThreadLag``) measures that
+lateness while the replay plays; each timing bound is the documented one plus the probe's lateness at the
+same quantile (median, 95th percentile, maximum). On a machine that keeps time the probe reads about 0 and
+the documented bounds hold as they are; a replay that drifts, or runs at the wrong speed, misses them by far
+more than the probe's lateness."""
 
 from __future__ import annotations
 
@@ -19,9 +26,10 @@ from drivers.sim.replay import Replay
 from drivers.sim.source import TimelineSource
 from service.commands.record import record
 from tests.sim.simhelpers import ramp_timeline
+from tests.timing import ThreadLag
 
-# Tolerances of docs/design/simulation.md ("Replay timing"), relative to the first row/frame, on a loaded
-# 2-core box.
+# Tolerances of docs/design/simulation.md ("Replay timing"), relative to the first row/frame; each is widened
+# by the probe's lateness at the same quantile (module docstring).
 INTERVAL_S = 0.1
 CSV_MAX_S = INTERVAL_S + 0.15  # a replayed row is seen at the next poll, plus scheduling jitter
 CSV_MEDIAN_S = INTERVAL_S + 0.03
@@ -94,7 +102,9 @@ def test_record_replay_round_trip(tmp_path: Path, speed: float) -> None:
     first.mkdir()
     second.mkdir()
     asyncio.run(_record_live(first))
-    asyncio.run(_record_replay(first, second, speed))
+    with ThreadLag() as lag:
+        asyncio.run(_record_replay(first, second, speed))
+    late = {"median": lag.quantile(0.5), "p95": lag.quantile(0.95), "max": lag.max_s}
 
     a, b = read_temperature_csv(first / "temperatures.csv"), read_temperature_csv(second / "temperatures.csv")
     assert a.n_rows >= 5
@@ -108,8 +118,8 @@ def test_record_replay_round_trip(tmp_path: Path, speed: float) -> None:
     t_a = np.array([a.t_s[i] for i in common])
     t_b = np.array([b.t_s[rows_b[int(a.counter[i])]] for i in common])
     err = np.abs((t_b - t_b[0]) - (t_a - t_a[0]) / speed)
-    assert np.max(err) <= CSV_MAX_S
-    assert np.median(err) <= CSV_MEDIAN_S
+    assert np.max(err) <= CSV_MAX_S + late["max"], ("csv max", float(np.max(err)), late)
+    assert np.median(err) <= CSV_MEDIAN_S + late["median"], ("csv median", float(np.median(err)), late)
 
     fa, fb = read_can_log(first / "can.blf"), read_can_log(second / "can.blf")
     assert len(fa) >= 40
@@ -117,6 +127,6 @@ def test_record_replay_round_trip(tmp_path: Path, speed: float) -> None:
     ta = (np.array([m.timestamp for m in fa]) - fa[0].timestamp) / speed
     tb = np.array([m.timestamp for m in fb]) - fb[0].timestamp
     err = np.abs(tb - ta)
-    assert np.max(err) <= CAN_MAX_S
-    assert np.percentile(err, 95) <= CAN_P95_S
-    assert np.median(err) <= CAN_MEDIAN_S
+    assert np.max(err) <= CAN_MAX_S + late["max"], ("can max", float(np.max(err)), late)
+    assert np.percentile(err, 95) <= CAN_P95_S + late["p95"], ("can p95", float(np.percentile(err, 95)), late)
+    assert np.median(err) <= CAN_MEDIAN_S + late["median"], ("can median", float(np.median(err)), late)
