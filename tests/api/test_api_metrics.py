@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import pytest
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
@@ -108,6 +109,7 @@ def test_h_gauges_status_usable_and_build_info(
     assert codes == {x.split(":")[0].strip() for x in ready.reasons} and (ready.ready or codes)
 
 
+@pytest.mark.slow  # over ~5 s alone (issue 25: the fast subset under 5 min)
 def test_outcome_and_event_counters_are_separate(served_devices_down: Served) -> None:
     """Real drivers: the DAQ's refused connects are poll outcomes, the CAN sensor's silence is an event."""
     s = served_devices_down

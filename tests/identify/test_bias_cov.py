@@ -5,6 +5,7 @@ from __future__ import annotations
 from typing import Any
 
 import numpy as np
+import pytest
 
 from model.identify import IdentifyOptions, identify
 from model.identify_problem import channel_bias_cov
@@ -24,6 +25,7 @@ def test_bias_covariance_matches_the_scatter_of_refits() -> None:
     np.testing.assert_allclose(np.cov(shifts.T), predicted, rtol=0.05, atol=1e-6)
 
 
+@pytest.mark.slow  # over ~5 s alone (issue 25: the fast subset under 5 min)
 def test_offset_uncertainty_widens_the_cis_instead_of_flagging_biased_h(
     model: Any, cond3000: Condition
 ) -> None:

@@ -136,6 +136,7 @@ def test_the_filter_is_consistent_on_the_virtual_plant_and_healthy(loaded_model,
     assert svc.field("steady").std_c is None  # the model's steady state: no filtered uncertainty
 
 
+@pytest.mark.slow  # over ~5 s alone (issue 25: the fast subset under 5 min)
 def test_a_drifting_sensor_is_reported_as_a_persistent_inconsistency(loaded_model, run_samples) -> None:  # type: ignore[no-untyped-def]
     """Eight channels drift by +2 °C/h from minute 10 on (quality stays ok): the NIS rises above its band
     and, after ``inconsistent_after_s``, the filter device is degraded with ``filter_inconsistent``."""

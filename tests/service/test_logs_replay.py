@@ -365,6 +365,7 @@ def _assert_well_determined_h_covered(records: list[dict]) -> None:
         assert np.all((lo <= truth) & (truth <= hi)), (c, lo, hi, truth)
 
 
+@pytest.mark.slow  # over ~5 s alone (issue 25: the fast subset under 5 min)
 @pytest.mark.parametrize("mode", ["per_condition", "speed_map"])
 def test_identify_on_the_shipped_example_recording(tmp_path, capsys, monkeypatch, mode):
     """README's first step: the recording under service/data (made with chtc simulate + chtc record
