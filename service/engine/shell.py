@@ -453,15 +453,21 @@ class SoftSensorService:
         self, v: CoreView, problems: tuple[str, ...], since: datetime | None
     ) -> MapFreshness | None:
         """With a map (speed-map or combined mode): how current it is at the newest sample's speed (else
-        None)."""
+        None). A sample without a speed value (one missing CAN value) is still a sample: the speed is the
+        condition's then, as ``chtc()`` serves the map at (issue 26: it turned /chtc to ``no-data``)."""
         cfg, m = v.map_config, v.speed_map
         if cfg is None or m is None:
             return None
-        s = v.newest
+        s, cond = v.newest, v.condition
+        speed: float | None = None
+        if s is not None and np.isfinite(s.speed_rpm):
+            speed = float(s.speed_rpm)
+        elif cond is not None and np.isfinite(cond.speed_rpm):
+            speed = float(cond.speed_rpm)
         return map_freshness(
             m,
             newest_t=None if s is None else s.t,
-            speed_rpm=None if s is None or not np.isfinite(s.speed_rpm) else float(s.speed_rpm),
+            speed_rpm=speed,
             data_problems=problems,
             converging_since=since,
             fresh_s=cfg.fresh_s,

@@ -319,16 +319,19 @@ def map_freshness(
     min_visit_s: float,
 ) -> MapFreshness:
     """How current the map is at the current speed. In this order: ``no-data`` (no sample), ``stale``
-    (``data_problems``; or ``restored``: the stored map, not re-fitted since the restart; or
-    ``state_converging``), then ``identifying`` with ``map_old`` (the fit's window ended more than
-    ``fresh_s`` before the newest sample) or ``speed_not_visited`` (the current speed is not within
-    ``margin_rpm`` of a speed with >= ``min_visit_s`` of fitted data), else ``fresh``."""
-    if newest_t is None or speed_rpm is None:
+    (``data_problems``; or no speed known at all: ``speed_rpm`` None with a sample; or ``restored``: the
+    stored map, not re-fitted since the restart; or ``state_converging``), then ``identifying`` with
+    ``map_old`` (the fit's window ended more than ``fresh_s`` before the newest sample) or
+    ``speed_not_visited`` (the current speed is not within ``margin_rpm`` of a speed with >= ``min_visit_s``
+    of fitted data), else ``fresh``."""
+    if newest_t is None:
         if speed_map.restored:
             return MapFreshness(ChtcStatus.STALE, "restored: the stored map, no sample since the restart")
         return MapFreshness(ChtcStatus.NO_DATA, "no_data: no sample acquired yet")
     if data_problems:
         return MapFreshness(ChtcStatus.STALE, "stale: " + ", ".join(data_problems) + " (see /readyz)")
+    if speed_rpm is None:
+        return MapFreshness(ChtcStatus.STALE, "stale: no speed value known yet (see /readyz)")
     if speed_map.restored:
         return MapFreshness(ChtcStatus.STALE, "restored: the stored map, not re-fitted since the restart")
     if converging_since is not None:

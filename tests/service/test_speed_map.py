@@ -4,6 +4,7 @@ right after a change, the status rules, the map persisted and restored as stale,
 
 from __future__ import annotations
 
+from dataclasses import replace
 from datetime import UTC, datetime, timedelta
 
 import numpy as np
@@ -163,6 +164,31 @@ def test_status_rules(served) -> None:
     restored = SpeedMap.from_json(m.to_json(), identification_id=m.identification_id)
     assert status(map=restored) == "stale restored"
     assert status(newest_t=None, speed_rpm=None) == "no-data no_data"
+    assert status(speed_rpm=None) == "stale stale"  # a sample, but no speed known at all
+
+
+@pytest.mark.slow
+def test_one_missing_can_value_changes_no_status(duty, loaded_model) -> None:
+    """Issue 26: a sample whose speed is missing (one lost CAN value) while samples keep flowing turned
+    /chtc and /chtc/map to ``no-data`` ("no sample acquired yet"). The map is served at the condition's
+    speed then, with the status the samples around it have."""
+    _, _, samples = duty
+    svc, clock = _service(loaded_model, map_settings(), samples)
+    for s in samples:
+        clock.at_least(s.t)
+        svc.on_sample(s)
+    before, map_before = svc.chtc(), svc.chtc_map()
+    assert before is not None and map_before is not None
+    assert before.status is not ChtcStatus.NO_DATA
+    last = samples[-1]
+    gap = replace(last, t=last.t + timedelta(seconds=10), speed_rpm=float("nan"))
+    clock.at_least(gap.t)
+    svc.on_sample(gap)
+    after, map_after = svc.chtc(), svc.chtc_map()
+    assert after is not None and map_after is not None
+    assert after.status is before.status, (before.status, after.status, after.reason)
+    assert map_after.status is map_before.status
+    assert np.allclose(after.h, before.h)
 
 
 @pytest.mark.slow
