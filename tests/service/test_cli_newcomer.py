@@ -2,7 +2,14 @@
 
 from __future__ import annotations
 
+import contextlib
+import os
+import signal
+import subprocess
+import time
+from collections.abc import Iterator
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -11,12 +18,16 @@ from service.cli import main
 
 @pytest.fixture
 def no_model_load(monkeypatch: pytest.MonkeyPatch) -> None:
-    """A model load fails the test: the check under test must come before it (about 10-46 s)."""
+    """A model load fails the test: the check under test must come before it (about 10-46 s). Patched where
+    the commands call it (``Runtime.load``), with the runtime imported first: imported under the patch, it
+    kept the failing stand-in for the later tests of this module."""
+    import service.engine.runtime as runtime
     import service.modelload as modelload
 
     def no_load(*a: object, **k: object) -> None:
         raise AssertionError("the model was loaded before the database URL was checked")
 
+    monkeypatch.setattr(runtime, "load_model", no_load)
     monkeypatch.setattr(modelload, "load_model", no_load)
 
 
@@ -74,34 +85,42 @@ def test_demo_starts_without_a_connect_warning_and_stops_quietly_on_ctrl_c(tmp_p
     """``chtc demo`` logged ``DeviceUnavailableError ... cannot connect`` at every start (the drivers polled
     before the simulated DAQ listened), and Ctrl-C printed the worker process' ``KeyboardInterrupt``
     traceback. A terminal's Ctrl-C reaches the whole process group: so does the SIGINT here (about 60 s)."""
-    import os
-    import signal
-    import subprocess
     import sys
-    import time
 
     argv = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", "--segment-min", "5"]
     argv += ["--database-url", f"sqlite:///{tmp_path / 'demo.db'}"]
     out, err = tmp_path / "out.txt", tmp_path / "err.txt"
-    with out.open("w") as fo, err.open("w") as fe:
-        proc = subprocess.Popen(argv, stdout=fo, stderr=fe, start_new_session=True)
-        try:
-            deadline = time.monotonic() + 240.0
-            while "plant profile" not in out.read_text() and time.monotonic() < deadline:
-                assert proc.poll() is None, err.read_text()
-                time.sleep(0.5)
-            assert "plant profile" in out.read_text(), "the demo did not start within 240 s"
-            time.sleep(5.0)  # the acquisition polls the devices; the worker process waits for jobs
-            os.killpg(proc.pid, signal.SIGINT)
-            code = proc.wait(timeout=60)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+    with out.open("w") as fo, err.open("w") as fe, _process_group(argv, stdout=fo, stderr=fe) as proc:
+        deadline = time.monotonic() + 240.0
+        while "plant profile" not in out.read_text() and time.monotonic() < deadline:
+            assert proc.poll() is None, err.read_text()
+            time.sleep(0.5)
+        assert "plant profile" in out.read_text(), "the demo did not start within 240 s"
+        # the acquisition polls the devices; the worker process waits for jobs
+        code = _ctrl_c(proc, settle_s=5.0)
     stderr = err.read_text()
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     assert "cannot connect" not in stderr and "DeviceUnavailableError" not in stderr, stderr
     assert code == 0 and "demo stopped" in out.read_text()
+
+
+@contextlib.contextmanager
+def _process_group(argv: list[str], **popen: Any) -> Iterator[subprocess.Popen[bytes]]:
+    """A command in a process group of its own (as a terminal runs it), killed if a test leaves it running."""
+    proc = subprocess.Popen(argv, start_new_session=True, **popen)
+    try:
+        yield proc
+    finally:
+        if proc.poll() is None:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+
+
+def _ctrl_c(proc: subprocess.Popen[bytes], *, settle_s: float) -> int:
+    """After ``settle_s``, Ctrl-C as a terminal sends it (SIGINT to the process group): the exit code."""
+    time.sleep(settle_s)
+    os.killpg(proc.pid, signal.SIGINT)
+    return proc.wait(timeout=60)
 
 
 def _free_port() -> int:
@@ -117,11 +136,7 @@ def test_run_creates_a_fresh_sqlite_schema_and_stops_quietly_on_ctrl_c(tmp_path:
     """``chtc run`` on a new SQLite file used to need ``--migrate`` first (db ``down``: no chtc schema);
     Ctrl-C printed the worker process' traceback (about 30 s: the model comes from the ROM cache)."""
     import json
-    import os
-    import signal
-    import subprocess
     import sys
-    import time
     import urllib.request
 
     api_port = _free_port()
@@ -134,14 +149,8 @@ def test_run_creates_a_fresh_sqlite_schema_and_stops_quietly_on_ctrl_c(tmp_path:
     err = tmp_path / "err.txt"
     db: dict[str, object] = {}
     with err.open("w") as fe:
-        proc = subprocess.Popen(
-            [sys.executable, "-m", "service.cli", "run"],
-            env=env,
-            stdout=subprocess.DEVNULL,
-            stderr=fe,
-            start_new_session=True,
-        )
-        try:
+        argv = [sys.executable, "-m", "service.cli", "run"]
+        with _process_group(argv, env=env, stdout=subprocess.DEVNULL, stderr=fe) as proc:
             deadline = time.monotonic() + 180.0
             while db.get("status") != "ok" and time.monotonic() < deadline:
                 assert proc.poll() is None, err.read_text()
@@ -153,13 +162,7 @@ def test_run_creates_a_fresh_sqlite_schema_and_stops_quietly_on_ctrl_c(tmp_path:
                 except OSError:
                     continue
                 db = next(d for d in devices if d["name"] == "db")
-            time.sleep(2.0)  # the worker process waits for jobs
-            os.killpg(proc.pid, signal.SIGINT)
-            code = proc.wait(timeout=60)
-        finally:
-            if proc.poll() is None:
-                os.killpg(proc.pid, signal.SIGKILL)
-                proc.wait()
+            code = _ctrl_c(proc, settle_s=2.0)  # the worker process waits for jobs
     stderr = err.read_text()
     assert db.get("status") == "ok", (db, stderr)
     assert "no chtc schema" not in stderr
