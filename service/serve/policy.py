@@ -64,8 +64,21 @@ class LiveLike(Protocol):
     def inconsistent(self, t: float) -> bool: ...
 
 
+class NewestLike(Protocol):
+    """What the policy reads of the newest sample (``service.engine.view.NewestSample``)."""
+
+    @property
+    def daq_ok(self) -> bool: ...
+
+    @property
+    def can_ok(self) -> bool: ...
+
+
 class PolicyView(Protocol):
     """What the policy reads of the core's published view (``service.engine.view.CoreView``)."""
+
+    @property
+    def newest(self) -> NewestLike | None: ...
 
     @property
     def live(self) -> LiveLike | None: ...
@@ -148,7 +161,8 @@ def compensation_verdict(
     has_reference: bool = True,
 ) -> Verdict:
     """Whether a controller may apply the growth served now (see the module docstring), in this order:
-    data (``no_data``, ``stale``, ``open_loop_too_long``), live state (``state_converging``,
+    data (``no_data``, ``stale``, ``open_loop_too_long``; ``stale`` at once when the newest sample has neither
+    DAQ nor CAN data), live state (``state_converging``,
     ``state_inconsistent``), ``no_reference``, ``identification_old``, ``ci_too_wide``. The status is
     ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
     data = data_verdict(
@@ -158,9 +172,24 @@ def compensation_verdict(
         now=now,
         open_loop_limit_s=60.0 * limits.max_open_loop_min,
     )
+    status = ChtcStatus.FRESH if data is None else data.status
+    newest = view.newest
+    if (
+        status in (ChtcStatus.FRESH, ChtcStatus.PREDICTED)
+        and newest is not None
+        and not newest.can_ok
+        and (status is ChtcStatus.PREDICTED or not newest.daq_ok)
+    ):
+        # no temperatures and no speed/torque: nothing to predict from, stale at once (not after the
+        # freshness limit, which the data problems wait for)
+        return Verdict(
+            ChtcStatus.STALE,
+            False,
+            Reason.STALE,
+            "neither temperatures (DAQ) nor speed/torque (CAN) in the newest sample (see /readyz)",
+        )
     if data is not None and not data.usable:
         return data
-    status = ChtcStatus.FRESH if data is None else data.status
     live = _live_verdict(view.live, now)
     if live is not None:
         return Verdict(

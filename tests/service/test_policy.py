@@ -26,9 +26,16 @@ class Live:
 
 
 @dataclass(frozen=True)
+class Newest:
+    daq_ok: bool = True
+    can_ok: bool = True
+
+
+@dataclass(frozen=True)
 class View:
     """The part of ``CoreView`` the policy reads, as plain values."""
 
+    newest: Newest | None = field(default_factory=Newest)
     live: Live | None = field(default_factory=Live)
     last_good_daq_t: datetime | None = NOW
     problems: tuple[DataProblem, ...] = ()
@@ -108,3 +115,8 @@ def test_can_down_or_no_samples_is_stale_at_once() -> None:
     assert verdict(View(problems=(CAN_DOWN,)))[:2] == (ChtcStatus.STALE, False)
     stalled = View(problems=(DataProblem(DataCode.NO_SAMPLE, "newest sample 70 s old"),))
     assert verdict(stalled)[2] is Reason.STALE
+    # both devices lost in the newest sample: stale at once, before the freshness limit flags them
+    assert verdict(View(newest=Newest(daq_ok=False, can_ok=False)))[:2] == (ChtcStatus.STALE, False)
+    predicting = View(newest=Newest(daq_ok=True, can_ok=False), problems=(DAQ_DOWN,))
+    assert verdict(predicting)[:2] == (ChtcStatus.STALE, False)
+    assert verdict(View(newest=Newest(can_ok=False)))[1]  # CAN alone, DAQ fine: measured, still usable
