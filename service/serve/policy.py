@@ -48,7 +48,7 @@ class CompensationLimits:
     """The settings ``[compensation]`` (docs/configuration.md)."""
 
     max_ci95_um: float = 2.0  # the growth's 95 % CI half-width the controller tolerates [µm]
-    max_identification_age_min: float = 480.0  # the H in use identified at most this long ago [min]
+    max_identification_age_min: float = 1440.0  # the H in use identified at most this long ago [min]
     max_open_loop_min: float = 10.0  # DAQ down, CAN alive: usable open loop for at most this long [min]
 
 
