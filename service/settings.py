@@ -3,7 +3,8 @@
 ``Settings`` is built once at the edge (``chtc run --config FILE`` → ``load_settings(path)``, or
 ``create_app(settings)``) and handed down as typed sections: ``settings.modbus``, ``settings.can``,
 ``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
-``settings.api``, ``settings.database``, ``settings.growth``, and ``settings.experimental``: the research
+``settings.api``, ``settings.database``, ``settings.growth``, ``settings.compensation``, and
+``settings.experimental``: the research
 switches (identification mode, optimizer, the speed map's inner workings, mesh and rank) an operator leaves at
 their measured defaults (issue 25; docs/configuration.md). Nothing here opens a file, a socket or a database
 at import time.
@@ -320,9 +321,19 @@ PLACEHOLDER_TOKENS = ("change-me", "changeme", "replace-me", "your-token", "exam
 class GrowthSettings(_Section):
     """The thermal growth at the tool (``/compensation``, docs/design/growth.md)."""
 
-    # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed);
-    # None: the live state's start temperature (the spindle as it was when the service started)
+    # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed),
+    # used when no zero is stored (a stored one, POST /api/v1/compensation/reference, wins); None: none
     reference_c: float | None = Field(default=None, ge=-50.0, le=200.0, allow_inf_nan=False)
+
+
+class CompensationSettings(_Section):
+    """The compensation value a controller applies (``/compensation``, docs/design/growth.md "Reference")."""
+
+    # with no stored compensation zero, take one at the first converged live state and store it (source
+    # "first_start"); false: /compensation stays not usable (no_reference) until one is set (POST
+    # /api/v1/compensation/reference or chtc commission zero). Only right if the spindle rests in equilibrium
+    # when the service first starts and the controller was zeroed then.
+    reference_on_first_start: bool = False
 
 
 def check_token(text: str) -> str:
@@ -417,6 +428,7 @@ class Settings(BaseSettings):
     api: ApiSettings = Field(default_factory=ApiSettings)
     database: DatabaseSettings = Field(default_factory=DatabaseSettings)
     growth: GrowthSettings = Field(default_factory=GrowthSettings)
+    compensation: CompensationSettings = Field(default_factory=CompensationSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
 
     @model_validator(mode="after")

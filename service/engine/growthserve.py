@@ -14,9 +14,13 @@ Three stages, by how often their inputs change:
 The live field's uncertainty comes through ONE function, :func:`field_belief`: the filtered live state's
 reduced mean and covariance (issue 16), which already hold the considered H error.
 
-The reference temperature (growth 0: where the controller was zeroed) is ``t_ref_c`` if given (the setting
-``growth.reference_c``), else the live state's start temperature (its uniform start from the first sample's
-good sensors: the spindle as it was when the service started).
+The reference (growth 0: where the controller was zeroed) is a commissioning fact,
+``service.estimate.reference.CompensationReference`` (``reference``): stored (``POST
+/compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
+``growth.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for
+it, taken at the first converged live state and stored (source "first_start"). With none, the growth is served against a
+provisional one (the uniform equivalent of the first converged live field, not stored) and is not usable
+(reason ``no_reference``).
 """
 
 from __future__ import annotations
@@ -44,6 +48,7 @@ from service.estimate.growth import (
     plc_compensation,
 )
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
+from service.estimate.reference import CompensationReference, uniform_equivalent
 from service.estimate.state import FilterView
 from service.serve.interface import (
     ChtcSnapshot,
@@ -58,11 +63,23 @@ if TYPE_CHECKING:
     from service.identify.speedmap import SpeedMap
     from service.modelload import LoadedModel
 
-__all__ = ["GrowthHistory", "GrowthServer", "field_belief", "h_covariance", "map_h_covariance"]
+__all__ = [
+    "NO_REFERENCE",
+    "GrowthHistory",
+    "GrowthServer",
+    "field_belief",
+    "h_covariance",
+    "map_h_covariance",
+    "without_reference",
+]
 
 DT_S = 10.0  # the live state's step [s]
 UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
 TermsKey = tuple[object, ...]
+NO_REFERENCE = (
+    "no_reference: the compensation zero is not set; with the spindle at rest in equilibrium and the "
+    "controller zeroed, POST /api/v1/compensation/reference (or run chtc commission zero)"
+)
 
 
 def field_belief(view: CoreView) -> FieldBelief:
@@ -125,12 +142,32 @@ class GrowthServer:
         model: LoadedModel,
         *,
         t_ref_c: float | None = None,
+        reference: CompensationReference | None = None,
+        reference_on_first_start: bool = False,
+        first_start_by: str = "service",
+        on_reference: Callable[[CompensationReference], None] | None = None,
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
     ) -> None:
+        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
+        "config" one; ``reference_on_first_start``: take one at the first converged live state when there is
+        none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken here (the shell
+        stores it)."""
         self.model = model
-        self._t_ref_c = t_ref_c
-        self.reference_at: datetime | None = None  # when the reference was taken (None: configured)
+        if reference is None and t_ref_c is not None:
+            reference = CompensationReference(
+                temperature_c=float(t_ref_c),
+                sd_c=0.0,
+                at=datetime.now(UTC),
+                source="config",
+                set_by="growth.reference_c",
+            )
+        self._reference = reference
+        self._first_start = bool(reference_on_first_start)
+        self._first_start_by = first_start_by
+        self.on_reference = on_reference
+        self._provisional: tuple[float, float, datetime] | None = None  # (T, 1σ, at) until a reference exists
+        self._ref_lock = threading.RLock()  # API threads and the loop may both take the first-start one
         self.tool_dir = tool_dir
         self._lock = threading.Lock()
         self._ctx: GrowthContext | None = context
@@ -169,10 +206,89 @@ class GrowthServer:
 
     # --- stage 2
     def observe(self, view: CoreView) -> None:
-        """Remember the reference temperature from the first live field (cheap: call after each event)."""
-        if self._t_ref_c is None and view.live is not None:
-            self._t_ref_c = float(np.mean(view.live.field_c))
-            self.reference_at = datetime.fromtimestamp(view.live.t, tz=UTC)
+        """Cheap (call after each event): at the first converged live state, take the first-start reference
+        if configured and none exists, else remember the provisional one."""
+        live = view.live
+        if self._reference is not None or self._provisional is not None or live is None or not live.converged:
+            return
+        if self._ctx is None or self._ctx.g_phi is None:  # built at start() off the loop; never here
+            return
+        with self._ref_lock:
+            if self._reference is not None or self._provisional is not None:
+                return
+            if self._first_start:
+                self.take_reference(view, source="first_start", set_by=self._first_start_by)
+            else:
+                t, sd = self._uniform_equivalent(self._ctx, view)
+                self._provisional = (t, sd, datetime.fromtimestamp(live.t, tz=UTC))
+
+    # --- the reference
+    @property
+    def reference(self) -> CompensationReference | None:
+        """The compensation reference in use (None: none set; the growth is then provisional)."""
+        return self._reference
+
+    def set_reference(self, ref: CompensationReference) -> None:
+        """Use ``ref`` from now on (a restored or configured one: not reported to ``on_reference``)."""
+        self._reference = ref
+
+    def take_reference(
+        self,
+        view: CoreView,
+        *,
+        source: str,
+        set_by: str,
+        temperature_c: float | None = None,
+        at: datetime | None = None,
+    ) -> CompensationReference:
+        """Set the reference now and report it to ``on_reference``: ``temperature_c`` [°C] as given (1σ 0),
+        else the uniform equivalent of ``view``'s live field (``service.estimate.reference``), which needs a
+        converged live state (``NotReadyError`` otherwise). ``at``: default the live state's instant."""
+        live = view.live
+        if temperature_c is None:
+            if live is None or not live.converged:
+                why = (
+                    "no live state yet"
+                    if live is None
+                    else f"the live state has not converged ({live.reason})"
+                )
+                raise NotReadyError(f"no reference taken: {why}; wait, or give temperature_c")
+            t, sd = self._uniform_equivalent(self.prepare(), view)
+        else:
+            t, sd = float(temperature_c), 0.0
+        when = at or (datetime.fromtimestamp(live.t, tz=UTC) if live is not None else datetime.now(UTC))
+        ref = CompensationReference(temperature_c=t, sd_c=sd, at=when, source=source, set_by=set_by)
+        with self._ref_lock:
+            self._reference = ref
+            if self.on_reference is not None:
+                self.on_reference(ref)
+        return ref
+
+    @staticmethod
+    def _uniform_equivalent(ctx: GrowthContext, view: CoreView) -> tuple[float, float]:
+        live = view.live
+        if live is None or ctx.g_phi is None:
+            raise NotReadyError("no live state or no reduced basis: no uniform equivalent")
+        g1 = float(ctx.g[0].sum())
+        return uniform_equivalent(ctx.g_phi[0], g1, live.mean, live.cov)
+
+    def _ref(self, view: CoreView) -> tuple[float, float, datetime | None] | None:
+        """(T_ref [°C], 1σ [°C], at) in use: the reference, else the provisional one, else the live field's
+        own uniform equivalent (growth 0 until the live state converges); None: no live field."""
+        self.observe(view)
+        if self._reference is not None:
+            r = self._reference
+            return r.temperature_c, r.sd_c, r.at
+        if self._provisional is not None:
+            return self._provisional
+        live = view.live
+        if live is None:
+            return None
+        ctx = self._ctx
+        if ctx is None or ctx.g_phi is None:
+            return float(np.mean(live.field_c)), 0.0, None
+        t, sd = self._uniform_equivalent(ctx, view)
+        return t, sd, datetime.fromtimestamp(live.t, tz=UTC)
 
     @staticmethod
     def terms_key(view: CoreView) -> TermsKey | None:
@@ -256,25 +372,25 @@ class GrowthServer:
         terms = self.refresh(view)
         if terms is None or live is None:
             return None
-        self.observe(view)
-        t_ref = self._t_ref_c if self._t_ref_c is not None else float(np.mean(live.field_c))
-        key = (live.t, id(terms), t_ref)
+        ref = self._ref(view)
+        if ref is None:
+            return None
+        t_ref, t_ref_sd, _ = ref
+        key = (live.t, id(terms), t_ref, t_ref_sd)
         cached = self._estimate
         if cached is not None and cached[0] == key:
             return cached[1]
         ctx = self.prepare()
         belief = field_belief(view)
         at = datetime.fromtimestamp(live.t, tz=UTC)
-        est = estimate_growth(ctx, terms, belief, t_ref_c=t_ref, at=at)
+        est = estimate_growth(ctx, terms, belief, t_ref_c=t_ref, t_ref_sd_c=t_ref_sd, at=at)
         self._estimate = (key, est)
         return est
 
     def t_ref_c(self, view: CoreView) -> float | None:
-        """The reference temperature of ``view``'s growth (None: no live field yet)."""
-        self.observe(view)
-        if self._t_ref_c is not None:
-            return self._t_ref_c
-        return None if view.live is None else float(np.mean(view.live.field_c))
+        """The reference temperature of ``view``'s growth [°C] (None: no live field yet)."""
+        ref = self._ref(view)
+        return None if ref is None else ref[0]
 
     def section(self, view: CoreView) -> np.ndarray | None:
         """(u_r, u_z) (2, M) [µm] of the section's outline for ``view``'s live field (cached per live state
@@ -323,18 +439,31 @@ class GrowthServer:
         snap = chtc()
         if est is None or snap is None or view.current is None:
             return None
+        usable, reason = without_reference(snap.usable_for_compensation, snap.reason, self._reference)
         return CompensationSnapshot(
             growth=est,
             status=snap.status,
-            usable_for_compensation=snap.usable_for_compensation,
-            reason=snap.reason,
+            usable_for_compensation=usable,
+            reason=reason,
             newest_sample_at=snap.newest_sample_at,
             identification_id=view.current.id,
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
-            reference_at=self.reference_at,
+            reference_at=None if self._reference is None else self._reference.at,
+            reference=self._reference,
         )
+
+
+def without_reference(
+    usable: bool, reason: str | None, reference: CompensationReference | None
+) -> tuple[bool, str | None]:
+    """(usable, reason) of ``/compensation`` given the reference: not usable without one (``NO_REFERENCE``);
+    another reason already given stays (it is the first thing to fix). The served-value policy
+    (``service.serve.policy``) takes this over."""
+    if reference is None and usable:
+        return False, NO_REFERENCE
+    return usable, reason
 
 
 class GrowthHistory:

@@ -146,6 +146,16 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def os_user() -> str:
+    """The OS user running this process (who set a reference the service took itself), "unknown" if none."""
+    import getpass
+
+    try:
+        return getpass.getuser()[:64] or "unknown"
+    except (KeyError, OSError):
+        return "unknown"
+
+
 @dataclass(kw_only=True)
 class Runtime:
     """One running soft sensor. ``await start(daq=..., can=...)``, ``await stop()``."""
@@ -205,7 +215,13 @@ class Runtime:
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             on_event=self.on_event,
-            growth=GrowthServer(model, t_ref_c=s.growth.reference_c),
+            growth=GrowthServer(
+                model,
+                t_ref_c=s.growth.reference_c,
+                reference=self.persistence.restored.reference,
+                reference_on_first_start=s.compensation.reference_on_first_start,
+                first_start_by=os_user(),
+            ),
         )
         self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()
