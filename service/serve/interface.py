@@ -557,7 +557,8 @@ class ChtcService(Protocol):
         self, *, temperature_c: float | None, source: str, set_by: str
     ) -> CompensationReference:
         """Store the compensation zero now: ``temperature_c`` [°C] as given, else the uniform equivalent of
-        the live field (NotReadyError while the live state has not converged); persisted, restored at start."""
+        the live field (NotReadyError while the live state has not converged); persisted, restored at
+        start."""
         ...
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:

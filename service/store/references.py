@@ -3,8 +3,8 @@
 Every zero set (``POST /compensation/reference``, ``chtc commission zero``, the first start when configured)
 is written through the buffered writer (``reference_record``); the newest is restored at start-up
 (``restore_reference``), so a controller zeroed cold keeps its zero across restarts. A stored row that is
-not a reference (a non-finite temperature, an unknown source) raises ``StoredReferenceError`` naming the row; the
-row stays in the table.
+not a reference (a non-finite temperature, an unknown source) raises ``StoredReferenceError`` naming the
+row; the row stays in the table.
 """
 
 from __future__ import annotations
