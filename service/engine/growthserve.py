@@ -19,8 +19,8 @@ The reference (growth 0: where the controller was zeroed) is a commissioning fac
 /compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
 ``growth.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for
 it, taken at the first converged live state and stored (source "first_start"). With none, the growth is
-served against a provisional one (the uniform equivalent of the first converged live field, not stored) and is not usable
-(reason ``no_reference``).
+served against a provisional one (the uniform equivalent of the first converged live field, not stored) and
+is not usable (reason ``no_reference``).
 """
 
 from __future__ import annotations
