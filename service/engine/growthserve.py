@@ -26,6 +26,7 @@ is not usable (reason ``no_reference``).
 from __future__ import annotations
 
 import itertools
+import math
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -76,6 +77,7 @@ __all__ = [
 DT_S = 10.0  # the live state's step [s]
 UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
 TermsKey = tuple[object, ...]
+REFERENCE_MAX_SD_UM = 0.1  # a zero taken from the live field adds at most this 1σ [µm] to the axial growth
 NO_REFERENCE = (
     "no_reference: the compensation zero is not set; with the spindle at rest in equilibrium and the "
     "controller zeroed, POST /api/v1/compensation/reference (or run chtc commission zero)"
@@ -206,12 +208,17 @@ class GrowthServer:
 
     # --- stage 2
     def observe(self, view: CoreView) -> None:
-        """Cheap (call after each event): at the first converged live state, take the first-start reference
-        if configured and none exists, else remember the provisional one."""
+        """Cheap (call after each event): once the live state knows the field well enough for a zero
+        (``zero_problem``), take the first-start reference if configured and none exists, else remember the
+        provisional one."""
         live = view.live
-        if self._reference is not None or self._provisional is not None or live is None or not live.converged:
+        if self._reference is not None or self._provisional is not None or live is None:
             return
-        if self._ctx is None or self._ctx.g_phi is None:  # built at start() off the loop; never here
+        ctx = self._ctx
+        if ctx is None or ctx.g_phi is None:  # built at start() off the loop; never here
+            return
+        t, sd = self._uniform_equivalent(ctx, view)
+        if self.zero_problem(ctx, view, sd) is not None:
             return
         with self._ref_lock:
             if self._reference is not None or self._provisional is not None:
@@ -219,8 +226,28 @@ class GrowthServer:
             if self._first_start:
                 self.take_reference(view, source="first_start", set_by=self._first_start_by)
             else:
-                t, sd = self._uniform_equivalent(self._ctx, view)
                 self._provisional = (t, sd, datetime.fromtimestamp(live.t, tz=UTC))
+
+    @staticmethod
+    def zero_problem(ctx: GrowthContext, view: CoreView, sd_c: float) -> str | None:
+        """Why the live field cannot give a zero now (None: it can): the live state has not converged, the
+        spindle turns, or the zero's 1σ ``sd_c`` [°C] would add more than ``REFERENCE_MAX_SD_UM`` to the
+        axial growth (at rest after a start, the part the sensors cannot see, the shaft's inside, is learnt
+        within ~15 min)."""
+        live = view.live
+        if live is None:
+            return "no live state yet"
+        if not live.converged:
+            return f"the live state has not converged ({live.reason})"
+        if abs(live.inputs[1]) > 0.0:
+            return f"the spindle turns ({live.inputs[1]:.0f} rpm); zero it at rest in equilibrium"
+        sd_um = abs(float(ctx.g[0].sum())) * sd_c
+        if not sd_um <= REFERENCE_MAX_SD_UM:
+            return (
+                f"the live field is not known well enough yet (the zero's 1σ would be {sd_um:.2f} µm > "
+                f"{REFERENCE_MAX_SD_UM} µm); wait at rest"
+            )
+        return None
 
     # --- the reference
     @property
@@ -243,17 +270,15 @@ class GrowthServer:
     ) -> CompensationReference:
         """Set the reference now and report it to ``on_reference``: ``temperature_c`` [°C] as given (1σ 0),
         else the uniform equivalent of ``view``'s live field (``service.estimate.reference``), which needs a
-        converged live state (``NotReadyError`` otherwise). ``at``: default the live state's instant."""
+        converged live state at rest that knows the field well enough (``zero_problem``; ``NotReadyError``
+        naming it otherwise). ``at``: default the live state's instant."""
         live = view.live
         if temperature_c is None:
-            if live is None or not live.converged:
-                why = (
-                    "no live state yet"
-                    if live is None
-                    else f"the live state has not converged ({live.reason})"
-                )
-                raise NotReadyError(f"no reference taken: {why}; wait, or give temperature_c")
-            t, sd = self._uniform_equivalent(self.prepare(), view)
+            ctx = self.prepare()
+            t, sd = self._uniform_equivalent(ctx, view) if live is not None else (math.nan, math.nan)
+            why = self.zero_problem(ctx, view, sd)
+            if why is not None:
+                raise NotReadyError(f"no reference taken: {why}; or give temperature_c")
         else:
             t, sd = float(temperature_c), 0.0
         when = at or (datetime.fromtimestamp(live.t, tz=UTC) if live is not None else datetime.now(UTC))
