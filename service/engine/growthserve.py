@@ -19,8 +19,8 @@ The reference (growth 0: where the controller was zeroed) is a commissioning fac
 /compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
 ``growth.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for
 it, taken at the first converged live state and stored (source "first_start"). With none, the growth is
-served against a provisional one (the uniform equivalent of the first converged live field, not stored) and
-is not usable (reason ``no_reference``).
+served against a provisional one (the uniform equivalent of the first converged live field, with its 1σ;
+not stored) and is not usable (reason ``no_reference``).
 """
 
 from __future__ import annotations
@@ -208,25 +208,25 @@ class GrowthServer:
 
     # --- stage 2
     def observe(self, view: CoreView) -> None:
-        """Cheap (call after each event): once the live state knows the field well enough for a zero
-        (``zero_problem``), take the first-start reference if configured and none exists, else remember the
-        provisional one."""
+        """Cheap (call after each event): freeze the provisional reference at the first converged live state;
+        with ``reference_on_first_start``, take and store the reference once the live field can give a zero
+        (``zero_problem``: at rest, well known)."""
         live = view.live
-        if self._reference is not None or self._provisional is not None or live is None:
-            return
         ctx = self._ctx
+        if self._reference is not None or live is None or not live.converged:
+            return
         if ctx is None or ctx.g_phi is None:  # built at start() off the loop; never here
             return
-        t, sd = self._uniform_equivalent(ctx, view)
-        if self.zero_problem(ctx, view, sd) is not None:
+        if self._provisional is not None and not self._first_start:
             return
+        t, sd = self._uniform_equivalent(ctx, view)
         with self._ref_lock:
-            if self._reference is not None or self._provisional is not None:
+            if self._reference is not None:
                 return
-            if self._first_start:
-                self.take_reference(view, source="first_start", set_by=self._first_start_by)
-            else:
+            if self._provisional is None:
                 self._provisional = (t, sd, datetime.fromtimestamp(live.t, tz=UTC))
+            if self._first_start and self.zero_problem(ctx, view, sd) is None:
+                self.take_reference(view, source="first_start", set_by=self._first_start_by)
 
     @staticmethod
     def zero_problem(ctx: GrowthContext, view: CoreView, sd_c: float) -> str | None:

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Protocol
 from drivers.acquisition import Acquisition, CanSource, DaqSource
 from drivers.ringbuffer import RingBuffer
 from service.acquire.calibration import CalibrationConfig
-from service.engine.config import CoreConfig
+from service.engine.config import CoreConfig, Restored
 from service.engine.core import ServiceCore
 from service.engine.growthserve import GrowthServer
 from service.engine.health import HealthSource
@@ -146,6 +146,18 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
+def growth_server(model: LoadedModel, settings: Settings, restored: Restored) -> GrowthServer:
+    """``/compensation``'s server: the restored zero, else ``growth.reference_c``, else (if configured) one
+    taken at the first start (docs/design/growth.md, "Reference")."""
+    return GrowthServer(
+        model,
+        t_ref_c=settings.growth.reference_c,
+        reference=restored.reference,
+        reference_on_first_start=settings.compensation.reference_on_first_start,
+        first_start_by=os_user(),
+    )
+
+
 def os_user() -> str:
     """The OS user running this process (who set a reference the service took itself), "unknown" if none."""
     import getpass
@@ -215,13 +227,7 @@ class Runtime:
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             on_event=self.on_event,
-            growth=GrowthServer(
-                model,
-                t_ref_c=s.growth.reference_c,
-                reference=self.persistence.restored.reference,
-                reference_on_first_start=s.compensation.reference_on_first_start,
-                first_start_by=os_user(),
-            ),
+            growth=growth_server(model, s, self.persistence.restored),
         )
         self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()
