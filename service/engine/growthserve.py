@@ -297,7 +297,7 @@ class GrowthServer:
         g1 = float(ctx.g[0].sum())
         return uniform_equivalent(ctx.g_phi[0], g1, live.mean, live.cov)
 
-    def _ref(self, view: CoreView) -> tuple[float, float, datetime | None] | None:
+    def reference_for(self, view: CoreView) -> tuple[float, float, datetime | None] | None:
         """(T_ref [°C], 1σ [°C], at) in use: the reference, else the provisional one, else the live field's
         own uniform equivalent (growth 0 until the live state converges); None: no live field."""
         self.observe(view)
@@ -397,7 +397,7 @@ class GrowthServer:
         terms = self.refresh(view)
         if terms is None or live is None:
             return None
-        ref = self._ref(view)
+        ref = self.reference_for(view)
         if ref is None:
             return None
         t_ref, t_ref_sd, _ = ref
@@ -414,7 +414,7 @@ class GrowthServer:
 
     def t_ref_c(self, view: CoreView) -> float | None:
         """The reference temperature of ``view``'s growth [°C] (None: no live field yet)."""
-        ref = self._ref(view)
+        ref = self.reference_for(view)
         return None if ref is None else ref[0]
 
     def section(self, view: CoreView) -> np.ndarray | None:
