@@ -244,7 +244,9 @@ def test_section_is_the_live_fields_displacement_of_every_parts_outline(served: 
     # every part is outlined: the shaft's axis (r = 0) from end to end, and the housing's outside (r = 100 mm)
     assert np.isclose(r, 0.0).sum() > 10 and np.isclose(r, 0.1).sum() > 10
     gm = build_context(model.spec, model.fe).growth
-    full = gm.displacement_m(np.asarray(v.live.field_c), body["t_ref_c"]) * 1e6  # (Nm, 2)
+    t_ref = served.svc.growth.t_ref_c(v)  # served rounded to 1e-4 °C
+    assert t_ref is not None and body["t_ref_c"] == pytest.approx(t_ref, abs=1e-4)
+    full = gm.displacement_m(np.asarray(v.live.field_c), t_ref) * 1e6  # (Nm, 2)
     p = np.asarray(gm.solver.system.mesh.p).T
     for i in range(0, r.size, 7):  # nodes at one position: a floating surface's two sides; either matches
         at = np.flatnonzero(np.hypot(p[:, 0] - r[i], p[:, 1] - z[i]) < 1e-6)  # served to 0.1 µm
@@ -312,9 +314,10 @@ def test_in_map_mode_the_h_covariance_is_the_maps_at_the_current_speed(
     old = h_covariance(v.current, h)
     assert np.max(np.abs(np.sqrt(np.diag(cov)) / np.sqrt(np.diag(old)) - 1.0)) > 0.05
     ctx, terms = _served_terms(model, v, h, cov)
-    want = estimate_growth(
-        ctx, terms, field_belief(v), t_ref_c=body["t_ref_c"], at=datetime.fromtimestamp(v.live.t, tz=UTC)
-    )
+    ref = svc.growth.reference_for(v)  # the provisional zero (none stored) and its 1σ
+    assert ref is not None and body["t_ref_c"] == pytest.approx(ref[0], abs=1e-4)
+    at = datetime.fromtimestamp(v.live.t, tz=UTC)
+    want = estimate_growth(ctx, terms, field_belief(v), t_ref_c=ref[0], t_ref_sd_c=ref[1], at=at)
     for name, w in (("axial", want.axial), ("radial", want.radial)):
         assert body[name]["um"] == pytest.approx(w.um, abs=1e-4), name
         assert body[name]["ci95_um"] == pytest.approx(list(w.ci95_um), abs=1e-4), name
