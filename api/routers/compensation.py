@@ -95,7 +95,7 @@ def get_reference(service: ServiceDep) -> ReferenceOut:
 def post_reference(
     service: ServiceDep, _: WriteAccess, body: Annotated[ReferenceIn | None, Body()] = None
 ) -> ReferenceOut:
-    req = body if body is not None else ReferenceIn()
+    req = body if body is not None else ReferenceIn.model_validate({})
     try:
         ref = service.set_compensation_reference(
             temperature_c=req.temperature_c, source=req.source, set_by=req.set_by or req.source
