@@ -25,6 +25,7 @@ not stored) and is not usable (reason ``no_reference``).
 
 from __future__ import annotations
 
+import contextlib
 import itertools
 import math
 import threading
@@ -495,7 +496,7 @@ class GrowthHistory:
     """The growth at each identification's end, offline (``run_offline``'s ``on_sample`` hook): after the
     sample whose identification succeeded (the live state then holds the filtered field), and the growth
     of that field is what ``/compensation`` would have served then (the same ``GrowthServer``, the same
-    reference: ``t_ref_c``, by default the live state's start temperature). ``by_id``: identification id ->
+    reference: ``t_ref_c``, by default the provisional zero, the first converged live field's). ``by_id``: identification id ->
     ``GrowthEstimate``; in combined mode an identification that does not serve (a map fit while the held
     condition's per-condition one does) gets the growth served then, the serving one's."""
 
@@ -510,6 +511,8 @@ class GrowthHistory:
         view = core.view()
         if self._server is None:
             self._server = GrowthServer(self.model, t_ref_c=self.t_ref_c)
+            with contextlib.suppress(NotReadyError):  # built now: the provisional zero is the first converged
+                self._server.prepare()  # live field's, as in the service (no mechanics: no growth at all)
         self._server.observe(view)
         rec = view.current
         if rec is None or view.current_from_restore:
