@@ -496,9 +496,9 @@ class GrowthHistory:
     """The growth at each identification's end, offline (``run_offline``'s ``on_sample`` hook): after the
     sample whose identification succeeded (the live state then holds the filtered field), and the growth
     of that field is what ``/compensation`` would have served then (the same ``GrowthServer``, the same
-    reference: ``t_ref_c``, by default the provisional zero, the first converged live field's). ``by_id``: identification id ->
-    ``GrowthEstimate``; in combined mode an identification that does not serve (a map fit while the held
-    condition's per-condition one does) gets the growth served then, the serving one's."""
+    reference: ``t_ref_c``, by default the provisional zero, the first converged live field's). ``by_id``:
+    identification id -> ``GrowthEstimate``; in combined mode an identification that does not serve (a map
+    fit while the held condition's per-condition one does) gets the growth served then, the serving one's."""
 
     def __init__(self, model: LoadedModel, *, t_ref_c: float | None = None) -> None:
         self.model = model
