@@ -18,9 +18,9 @@ The reference (growth 0: where the controller was zeroed) is a commissioning fac
 ``service.estimate.reference.CompensationReference`` (``reference``): stored (``POST
 /compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
 ``growth.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for
-it, taken at the first converged live state and stored (source "first_start"). With none, the growth is
-served against a provisional one (the uniform equivalent of the first converged live field, with its 1σ;
-not stored) and is not usable (reason ``no_reference``).
+it, taken from the first sample at rest in equilibrium and stored (source "first_start"). With none, the
+growth is served against a provisional one (the uniform equivalent of the first converged live field, with its
+1σ; not stored) and is not usable (reason ``no_reference``).
 """
 
 from __future__ import annotations
@@ -50,7 +50,7 @@ from service.estimate.growth import (
     plc_compensation,
 )
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
-from service.estimate.reference import CompensationReference, uniform_equivalent
+from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
 from service.serve.interface import (
     ChtcSnapshot,
@@ -209,25 +209,45 @@ class GrowthServer:
 
     # --- stage 2
     def observe(self, view: CoreView) -> None:
-        """Cheap (call after each event): freeze the provisional reference at the first converged live state;
-        with ``reference_on_first_start``, take and store the reference once the live field can give a zero
-        (``zero_problem``: at rest, well known)."""
-        live = view.live
-        ctx = self._ctx
-        if self._reference is not None or live is None or not live.converged:
+        """Cheap (call after each event): with ``reference_on_first_start`` and no zero, take and store one
+        from the first sample of a spindle at rest in equilibrium (``equilibrium_zero``); else freeze the
+        provisional zero at the first converged live state."""
+        if self._reference is not None:
+            return
+        if self._first_start and self._first_start_zero(view):
+            return
+        live, ctx = view.live, self._ctx
+        if self._provisional is not None or live is None or not live.converged:
             return
         if ctx is None or ctx.g_phi is None:  # built at start() off the loop; never here
             return
-        if self._provisional is not None and not self._first_start:
-            return
         t, sd = self._uniform_equivalent(ctx, view)
         with self._ref_lock:
-            if self._reference is not None:
-                return
             if self._provisional is None:
                 self._provisional = (t, sd, datetime.fromtimestamp(live.t, tz=UTC))
-            if self._first_start and self.zero_problem(ctx, view, sd) is None:
-                self.take_reference(view, source="first_start", set_by=self._first_start_by)
+
+    def _first_start_zero(self, view: CoreView) -> bool:
+        s = view.newest
+        if s is None:
+            return False
+        good = [q == "ok" for q in s.quality]
+        offsets = view.calibration.applied() if view.calibration is not None else None
+        zero = equilibrium_zero(s.temps_c, good, offsets, s.speed_rpm)
+        if zero is None:
+            return False
+        with self._ref_lock:
+            if self._reference is None:
+                ref = CompensationReference(
+                    temperature_c=zero[0],
+                    sd_c=zero[1],
+                    at=s.t,
+                    source="first_start",
+                    set_by=self._first_start_by,
+                )
+                self._reference = ref
+                if self.on_reference is not None:
+                    self.on_reference(ref)
+        return True
 
     @staticmethod
     def zero_problem(ctx: GrowthContext, view: CoreView, sd_c: float) -> str | None:

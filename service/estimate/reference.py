@@ -11,6 +11,11 @@ reference is stored as one **uniform temperature** ``temperature_c`` [°C] with 
   live field's, T_ref = g·T̂ / g·1. The growth served at that instant is then 0 exactly, and it is computed
   from the same filtered field the growth is served from later, so what both share (the filter's memory of
   the sensor noise, a common offset of the sensors) cancels instead of showing up as a growth at rest;
+- at the first start (``equilibrium_zero``, only when configured: the premise is a spindle resting in
+  equilibrium when the service first starts) the live field does not know the shaft's inside yet; under the
+  premise it is the sensors' temperature, so the zero is the mean of the good, offset-corrected readings, 1σ
+  their spread ÷ √n (noise and unknown offsets), refused while the spindle turns or the readings spread more
+  than ``EQUILIBRIUM_SPREAD_C``;
 - its 1σ is the filter's uncertainty of that growth at the instant (÷ g·1); the served growth carries it in
   its CI for as long as the reference is in use (``service.estimate.growth.estimate_growth``,
   ``t_ref_sd_c``). A temperature given by an operator has ``sd_c`` 0 (a declared fact).
@@ -33,14 +38,18 @@ from numpy.typing import ArrayLike
 from service.errors import ServiceError
 
 __all__ = [
+    "EQUILIBRIUM_SPREAD_C",
     "REFERENCE_SOURCES",
     "CompensationReference",
     "ReferenceError",
+    "equilibrium_zero",
     "uniform_equivalent",
 ]
 
 REFERENCE_SOURCES = ("api", "cli", "first_start", "config")
 MAX_SET_BY = 64  # characters of ``set_by`` kept
+EQUILIBRIUM_SPREAD_C = 0.5  # 1σ [°C] across the good channels above which the spindle is not uniform
+MIN_CHANNELS = 8  # good channels an equilibrium zero needs
 
 
 class ReferenceError(ServiceError, ValueError):
@@ -94,3 +103,22 @@ def uniform_equivalent(
     t_ref = float(g @ a) / g1_um_per_k
     sd = math.sqrt(max(float(g @ p @ g), 0.0)) / abs(g1_um_per_k)
     return t_ref, sd
+
+
+def equilibrium_zero(
+    temps_c: ArrayLike, good: ArrayLike, offsets_c: ArrayLike | None, speed_rpm: float
+) -> tuple[float, float] | None:
+    """(T, 1σ) [°C] of a spindle resting in equilibrium from one sample: the mean of the good channels'
+    readings (32,) [°C] minus their ``offsets_c`` (None: 0), 1σ their standard deviation ÷ √n; None while
+    the spindle turns (``speed_rpm`` not 0), with fewer than ``MIN_CHANNELS`` good channels, or when the
+    readings spread more than ``EQUILIBRIUM_SPREAD_C`` (not uniform)."""
+    t = np.asarray(temps_c, dtype=float)
+    off = np.zeros_like(t) if offsets_c is None else np.asarray(offsets_c, dtype=float)
+    ok = np.asarray(good, dtype=bool) & np.isfinite(t) & np.isfinite(off)
+    if not math.isfinite(speed_rpm) or speed_rpm != 0.0 or int(ok.sum()) < MIN_CHANNELS:
+        return None
+    x = t[ok] - off[ok]
+    spread = float(np.std(x, ddof=1))
+    if spread > EQUILIBRIUM_SPREAD_C:
+        return None
+    return float(np.mean(x)), spread / math.sqrt(x.size)
