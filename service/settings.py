@@ -4,10 +4,9 @@
 ``create_app(settings)``) and handed down as typed sections: ``settings.modbus``, ``settings.can``,
 ``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
 ``settings.api``, ``settings.database``, ``settings.growth``, ``settings.compensation``, and
-``settings.experimental``: the research
-switches (identification mode, optimizer, the speed map's inner workings, mesh and rank) an operator leaves at
-their measured defaults (issue 25; docs/configuration.md). Nothing here opens a file, a socket or a database
-at import time.
+``settings.experimental``: the research switches (identification mode, optimizer, the speed map's inner
+workings, mesh and rank) an operator leaves at their measured defaults (issue 25; docs/configuration.md).
+Nothing here opens a file, a socket or a database at import time.
 
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
 the defaults below. Environment variables use the prefix ``CHTC_`` and ``__`` between section and key,
@@ -327,12 +326,20 @@ class GrowthSettings(_Section):
 
 
 class CompensationSettings(_Section):
-    """The compensation value a controller applies (``/compensation``, docs/design/growth.md "Reference")."""
+    """When a controller may apply the growth (``/compensation``'s ``usable_for_compensation``; the policy,
+    ``service.serve.policy``; docs/design/policy.md says how the defaults were chosen)."""
 
-    # with no stored compensation zero, take one at the first converged live state and store it (source
-    # "first_start"); false: /compensation stays not usable (no_reference) until one is set (POST
-    # /api/v1/compensation/reference or chtc commission zero). Only right if the spindle rests in equilibrium
-    # when the service first starts and the controller was zeroed then.
+    # the growth's 95 % CI half-width the controller tolerates [µm]: wider is never usable
+    max_ci95_um: float = Field(default=2.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    # the H in use (the identification or map fit) may be at most this old [min]
+    max_identification_age_min: float = Field(default=1440.0, gt=0.0, allow_inf_nan=False)
+    # DAQ down while CAN speed/torque keep coming: the growth is predicted open loop (status "predicted")
+    # and stays usable at most this long [min] (and only while its CI is within max_ci95_um); 0: never
+    max_open_loop_min: float = Field(default=10.0, ge=0.0, le=1440.0, allow_inf_nan=False)
+    # with no stored compensation zero (and no growth.reference_c), take one from the first sample at rest in
+    # equilibrium and store it (source "first_start"); false: /compensation stays not usable (no_reference)
+    # until one is set (POST /api/v1/compensation/reference or chtc commission zero). Only right if the
+    # spindle rests in equilibrium when the service first starts and the controller was zeroed then.
     reference_on_first_start: bool = False
 
 

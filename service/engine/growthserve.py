@@ -53,36 +53,30 @@ from service.estimate.growth_section import SectionOperator, build_section, sect
 from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
 from service.serve.interface import (
-    ChtcSnapshot,
     CompensationSnapshot,
     ConditionSnapshot,
     IdentificationRecord,
     NotReadyError,
     SectionSnapshot,
 )
+from service.serve.policy import CompensationLimits, compensation_verdict
 
 if TYPE_CHECKING:
     from service.identify.speedmap import SpeedMap
     from service.modelload import LoadedModel
 
 __all__ = [
-    "NO_REFERENCE",
     "GrowthHistory",
     "GrowthServer",
     "field_belief",
     "h_covariance",
     "map_h_covariance",
-    "without_reference",
 ]
 
 DT_S = 10.0  # the live state's step [s]
 UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
 TermsKey = tuple[object, ...]
 REFERENCE_MAX_SD_UM = 0.1  # a zero taken from the live field adds at most this 1σ [µm] to the axial growth
-NO_REFERENCE = (
-    "no_reference: the compensation zero is not set; with the spindle at rest in equilibrium and the "
-    "controller zeroed, POST /api/v1/compensation/reference (or run chtc commission zero)"
-)
 
 
 def field_belief(view: CoreView) -> FieldBelief:
@@ -151,11 +145,13 @@ class GrowthServer:
         on_reference: Callable[[CompensationReference], None] | None = None,
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
+        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
     ) -> None:
         """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
-        "config" one; ``reference_on_first_start``: take one at the first converged live state when there is
-        none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken here (the shell
-        stores it)."""
+        "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
+        when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken
+        here (the shell stores it); ``limits`` the settings' [compensation] (None: the defaults)."""
+        self.limits = limits if limits is not None else CompensationLimits()
         self.model = model
         if reference is None and t_ref_c is not None:
             reference = CompensationReference(
@@ -454,12 +450,10 @@ class GrowthServer:
         self._section = (key, u)
         return u
 
-    def section_snapshot(
-        self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
-    ) -> SectionSnapshot | None:
+    def section_snapshot(self, view: CoreView, now: datetime) -> SectionSnapshot | None:
         """What ``/compensation/section`` serves: the deformed outline of ``view``'s live field, with the
         status of ``/compensation`` (``snapshot``: None when it has nothing to serve)."""
-        comp = self.snapshot(view, chtc)
+        comp = self.snapshot(view, now)
         u = self.section(view)
         if comp is None or u is None:
             return None
@@ -475,41 +469,36 @@ class GrowthServer:
             newest_sample_at=comp.newest_sample_at,
         )
 
-    def snapshot(
-        self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
-    ) -> CompensationSnapshot | None:
-        """What ``/compensation`` serves: the growth with the status and usability of ``/chtc`` (the same
-        rules, evaluated now, after the estimate: never a stale value as fresh). ``identification_id``: the
-        one whose H the growth used (``chtc()`` may already see a newer view)."""
+    def snapshot(self, view: CoreView, now: datetime) -> CompensationSnapshot | None:
+        """What ``/compensation`` serves at ``now`` (UTC): the growth of ``view``'s live field and the
+        policy's verdict on it (``service.serve.policy.compensation_verdict``: judged on the growth the
+        controller applies, its CI against ``limits``, not on the H). ``identification_id``: the one whose H
+        the growth used. None before the first identification or the live state's start."""
         est = self.estimate(view)
-        snap = chtc()
-        if est is None or snap is None or view.current is None:
+        rec = view.current
+        if est is None or rec is None:
             return None
-        usable, reason = without_reference(snap.usable_for_compensation, snap.reason, self._reference)
+        lo, hi = est.axial.ci95_um
+        verdict = compensation_verdict(
+            view,
+            now,
+            limits=self.limits,
+            has_sample=view.newest is not None,
+            ci95_half_um=0.5 * (hi - lo),
+            identified_at=rec.finished_at,
+            has_reference=self._reference is not None,
+        )
         return CompensationSnapshot(
             growth=est,
-            status=snap.status,
-            usable_for_compensation=usable,
-            reason=reason,
-            newest_sample_at=snap.newest_sample_at,
-            identification_id=view.current.id,
+            verdict=verdict,
+            newest_sample_at=None if view.newest is None else view.newest.t,
+            identification_id=rec.id,
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
             reference_at=None if self._reference is None else self._reference.at,
             reference=self._reference,
         )
-
-
-def without_reference(
-    usable: bool, reason: str | None, reference: CompensationReference | None
-) -> tuple[bool, str | None]:
-    """(usable, reason) of ``/compensation`` given the reference: not usable without one (``NO_REFERENCE``);
-    another reason already given stays (it is the first thing to fix). The served-value policy
-    (``service.serve.policy``) takes this over."""
-    if reference is None and usable:
-        return False, NO_REFERENCE
-    return usable, reason
 
 
 class GrowthHistory:

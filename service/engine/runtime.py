@@ -34,6 +34,7 @@ from service.identify.speedmap import MapConfig
 from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.modelload import LoadedModel, ModelRef, load_model
+from service.serve.policy import CompensationLimits
 from service.settings import Settings
 
 if TYPE_CHECKING:
@@ -146,15 +147,23 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
-def growth_server(model: LoadedModel, settings: Settings, restored: Restored) -> GrowthServer:
-    """``/compensation``'s server: the restored zero, else ``growth.reference_c``, else (if configured) one
-    taken at the first start (docs/design/growth.md, "Reference")."""
+def growth_server(model: LoadedModel, settings: Settings, restored: Restored | None = None) -> GrowthServer:
+    """``/compensation``'s server from ``Settings``: the policy's limits and the zero: the restored one, else
+    ``growth.reference_c``, else (if configured) one taken at the first start (docs/design/growth.md,
+    "Reference")."""
+    c = settings.compensation
+    limits = CompensationLimits(
+        max_ci95_um=c.max_ci95_um,
+        max_identification_age_min=c.max_identification_age_min,
+        max_open_loop_min=c.max_open_loop_min,
+    )
     return GrowthServer(
         model,
         t_ref_c=settings.growth.reference_c,
-        reference=restored.reference,
-        reference_on_first_start=settings.compensation.reference_on_first_start,
+        reference=None if restored is None else restored.reference,
+        reference_on_first_start=c.reference_on_first_start,
         first_start_by=os_user(),
+        limits=limits,
     )
 
 

@@ -1,5 +1,5 @@
 """The compensation reference's pure parts: the record's validation, the uniform equivalent of a field and
-its 1σ, the reference's 1σ in the served CI, and the usable flag without a zero."""
+its 1σ, and the zero of a spindle resting in equilibrium from one sample."""
 
 from __future__ import annotations
 
@@ -8,8 +8,12 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from service.engine.growthserve import NO_REFERENCE, without_reference
-from service.estimate.reference import CompensationReference, ReferenceError, uniform_equivalent
+from service.estimate.reference import (
+    CompensationReference,
+    ReferenceError,
+    equilibrium_zero,
+    uniform_equivalent,
+)
 
 AT = datetime(2026, 11, 27, 8, 0, tzinfo=UTC)
 
@@ -52,8 +56,18 @@ def test_the_uniform_equivalent_is_the_uniform_temperature_of_equal_growth() -> 
         uniform_equivalent(g, 0.0, a, cov)
 
 
-def test_without_a_zero_compensation_is_not_usable_and_says_so_first_other_reasons_stay() -> None:
-    assert without_reference(True, None, None) == (False, NO_REFERENCE)
-    assert NO_REFERENCE.startswith("no_reference: ")
-    assert without_reference(False, "stale: no sample", None) == (False, "stale: no sample")
-    assert without_reference(True, None, _ref()) == (True, None)
+def test_an_equilibrium_zero_needs_rest_and_agreeing_channels() -> None:
+    rng = np.random.default_rng(5)
+    temps = 21.3 + rng.normal(0.0, 0.15, 32)
+    off = rng.uniform(-0.2, 0.2, 32)
+    good = np.ones(32, dtype=bool)
+    good[3] = False
+    temps[3] = 80.0  # a broken channel, flagged: not used
+    zero = equilibrium_zero(temps + off, good, off, 0.0)
+    assert zero is not None
+    t, sd = zero
+    assert abs(t - 21.3) < 4 * sd and 0.01 < sd < 0.05
+    assert equilibrium_zero(temps + off, good, off, 1500.0) is None  # turning
+    warm = temps + np.linspace(0.0, 3.0, 32)  # a gradient: not in equilibrium
+    assert equilibrium_zero(warm + off, good, off, 0.0) is None
+    assert equilibrium_zero(temps, np.arange(32) < 5, None, 0.0) is None  # too few good channels
