@@ -170,6 +170,8 @@ class FilterView:
     nis_band: tuple[float, float]
     high_since: float | None
     inconsistent_after_s: float
+    # the unknown sensor offsets' share of ``cov`` (r, r) [°C²] (service.estimate.offsetbias; None: not kept)
+    offset_cov: Array | None = None
 
     @property
     def converged(self) -> bool:
@@ -489,10 +491,11 @@ class FilteredState:
         conv = self._convergence
         reason = "converged" if self.converged_at is not None else conv.reason if conv else "starting"
         total, dof = self._window.totals()
+        offset_cov = self._bias.extra_cov()
         return FilterView(
             t=self.t,
             mean=_frozen(est.mean.copy()),
-            cov=_frozen(est.cov + self._bias.extra_cov()),  # with the unknown offsets' share
+            cov=_frozen(est.cov + offset_cov),  # with the unknown offsets' share
             basis=self.rom.basis,
             sensor_rows=np.asarray(self.rom.sensors),
             sigma_model_c=float(self.settings.noise.sigma_model_c),
@@ -510,6 +513,7 @@ class FilteredState:
             nis_band=self._window.band(),
             high_since=self.high_since,
             inconsistent_after_s=self.settings.inconsistent_after_s,
+            offset_cov=_frozen(offset_cov),
         )
 
     def steady(self) -> Array:
