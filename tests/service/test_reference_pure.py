@@ -71,3 +71,13 @@ def test_an_equilibrium_zero_needs_rest_and_agreeing_channels() -> None:
     warm = temps + np.linspace(0.0, 3.0, 32)  # a gradient: not in equilibrium
     assert equilibrium_zero(warm + off, good, off, 0.0) is None
     assert equilibrium_zero(temps, np.arange(32) < 5, None, 0.0) is None  # too few good channels
+
+
+def test_the_demo_zeroes_on_its_first_start_and_a_plain_service_does_not() -> None:
+    from service.cli import build_parser
+    from service.commands.demo import demo_settings
+    from service.settings import Settings
+
+    args = build_parser(["demo"]).parse_args(["demo", "--port", "8765"])
+    assert demo_settings(args, "sqlite:///:memory:").compensation.reference_on_first_start is True
+    assert Settings().compensation.reference_on_first_start is False
