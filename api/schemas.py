@@ -570,6 +570,7 @@ class ReferenceIn(BaseModel):
         ge=-50.0,
         le=200.0,
         allow_inf_nan=False,
+        strict=True,  # a number: `false` is not 0 °C
         description="the uniform temperature of growth 0, °C (absent: the live field's, now)",
     )
     set_by: str | None = Field(
