@@ -100,6 +100,9 @@ def _document(op: dict[str, Any], path: str, access: str, auth: AuthConfig) -> N
         headers = _error_headers(code)
         if headers:
             entry["headers"] = headers
+    for code, entry in responses.items():  # a route's own error statuses (e.g. a 404) get the shape too
+        if code.isdigit() and int(code) >= 400:
+            entry["content"] = {"application/json": {"schema": ERROR_REF}}
     if path == "/metrics":
         responses["200"]["content"] = {"text/plain": {"schema": {"type": "string"}}}
 

@@ -14,6 +14,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
+from service.estimate.reference import CompensationReference
 from service.serve.interface import (
     H_UNIT,
     ZONE_NAMES,
@@ -560,6 +561,46 @@ class SensitivityOut(BaseModel):
     radial_um_per_c: float = Field(description="radial growth per °C error of this channel, µm/°C")
 
 
+class ReferenceIn(BaseModel):
+    """``POST /compensation/reference``: every field optional."""
+
+    model_config = {"extra": "forbid"}
+    temperature_c: float | None = Field(
+        None,
+        ge=-50.0,
+        le=200.0,
+        allow_inf_nan=False,
+        strict=True,  # a number: `false` is not 0 °C
+        description="the uniform temperature of growth 0, °C (absent: the live field's, now)",
+    )
+    set_by: str | None = Field(
+        None,
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_.:@\- ]+$",
+        description='who zeroed the controller (absent: "api")',
+    )
+    source: Literal["api", "cli"] = Field("api", description='"cli": sent by chtc commission zero')
+
+
+class ReferenceOut(BaseModel):
+    temperature_c: float = Field(description="uniform temperature at which the served growth is 0, °C")
+    sd_c: float = Field(description="its 1σ, °C (carried in every served CI; 0: given by an operator)")
+    at: datetime = Field(description="UTC instant the controller was zeroed")
+    source: Literal["api", "cli", "first_start", "config"]
+    set_by: str
+
+
+def reference_out(r: CompensationReference) -> ReferenceOut:
+    return ReferenceOut(
+        temperature_c=round(r.temperature_c, 4),
+        sd_c=round(r.sd_c, 4),
+        at=r.at,
+        source=r.source,  # type: ignore[arg-type]
+        set_by=r.set_by,
+    )
+
+
 class CompensationOut(VerdictOut):
     """``usable_for_compensation``: the one flag a controller acts on. True when the data are fresh (or the
     DAQ alone is down, status ``predicted``, for at most compensation.max_open_loop_min), the live state has
@@ -571,8 +612,11 @@ class CompensationOut(VerdictOut):
     at: datetime = Field(description="UTC instant of the live field the growth is computed from")
     t_ref_c: float = Field(description="reference temperature (uniform) at which the growth is 0, °C")
     t_ref_at: datetime | None = Field(
-        description="UTC instant the reference was taken (the live state's start); null: the configured "
-        "growth.reference_c"
+        description="UTC instant the compensation zero was set (reference.at); null: none set, the growth is "
+        "provisional (the uniform equivalent of the first converged live field) and not usable"
+    )
+    reference: ReferenceOut | None = Field(
+        None, description="the compensation zero in use (GET /compensation/reference); null: none set"
     )
     axial: GrowthValueOut = Field(description="spindle nose on the axis, + towards the tool")
     radial: GrowthValueOut = Field(description="nose outer diameter, + outwards")
@@ -607,6 +651,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
         at=g.at,
         t_ref_c=round(g.t_ref_c, 4),
         t_ref_at=s.reference_at,
+        reference=None if s.reference is None else reference_out(s.reference),
         axial=_growth_value(g.axial),
         radial=_growth_value(g.radial),
         forecast=GrowthForecastOut(

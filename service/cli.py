@@ -4,7 +4,7 @@ Each sub-command lives in its own module, imported only when it runs, so that ``
 broken optional component cannot break the others:
 
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
-  ``replay``, ``identify``, ``prebuild``);
+  ``replay``, ``identify``, ``prebuild``, ``commission``);
 - ``service.bench.<name>`` for the benchmarks
   (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty``).
 
@@ -30,6 +30,7 @@ COMMANDS: dict[str, str] = {
     "replay": "play recorded logs through simulated devices into the unchanged service",
     "identify": "offline, deterministic identification of H1-H7 from recorded log files",
     "prebuild": "build the FE model and the reduced-model cache ahead of time (container images, installs)",
+    "commission": "commissioning steps on a running service: `zero` stores the compensation zero",
 }
 
 BENCHMARKS: dict[str, str] = {

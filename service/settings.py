@@ -320,8 +320,8 @@ PLACEHOLDER_TOKENS = ("change-me", "changeme", "replace-me", "your-token", "exam
 class GrowthSettings(_Section):
     """The thermal growth at the tool (``/compensation``, docs/design/growth.md)."""
 
-    # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed);
-    # None: the live state's start temperature (the spindle as it was when the service started)
+    # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed),
+    # used when no zero is stored (a stored one, POST /api/v1/compensation/reference, wins); None: none
     reference_c: float | None = Field(default=None, ge=-50.0, le=200.0, allow_inf_nan=False)
 
 
@@ -336,6 +336,11 @@ class CompensationSettings(_Section):
     # DAQ down while CAN speed/torque keep coming: the growth is predicted open loop (status "predicted")
     # and stays usable at most this long [min] (and only while its CI is within max_ci95_um); 0: never
     max_open_loop_min: float = Field(default=10.0, ge=0.0, le=1440.0, allow_inf_nan=False)
+    # with no stored compensation zero (and no growth.reference_c), take one from the first sample at rest in
+    # equilibrium and store it (source "first_start"); false: /compensation stays not usable (no_reference)
+    # until one is set (POST /api/v1/compensation/reference or chtc commission zero). Only right if the
+    # spindle rests in equilibrium when the service first starts and the controller was zeroed then.
+    reference_on_first_start: bool = False
 
 
 def check_token(text: str) -> str:

@@ -2,7 +2,8 @@
 docs/design/growth.md): axial and radial growth in µm and 0.1-µm integers, 95 % CIs, the forecast, the
 controller values, the sensor sensitivity, with the policy's verdict on the growth
 (``service.serve.policy``). GET /compensation/section: the section's outline and its displacement (µm) by
-the live field, for the dashboard's exaggerated drawing.
+the live field, for the dashboard's exaggerated drawing. GET /compensation/reference: the compensation zero
+in use; POST (token): set it now.
 
 A plain (not async) endpoint: FastAPI runs it in a worker thread, because the service may build the growth
 model once and its per-condition terms (~0.3 s) on a new identification or condition; never on the loop.
@@ -10,16 +11,22 @@ model once and its per-condition terms (~0.3 s) on a new identification or condi
 
 from __future__ import annotations
 
-from fastapi import APIRouter
+from typing import Annotated
 
-from api.deps import ClockDep, ReadAccess, ServiceDep
+from fastapi import APIRouter, Body
+
+from api.deps import ClockDep, ReadAccess, ServiceDep, WriteAccess
 from api.errors import ApiError
 from api.schemas import (
     CompensationOut,
     CompensationSectionOut,
+    ReferenceIn,
+    ReferenceOut,
     compensation_out,
     compensation_section_out,
+    reference_out,
 )
+from service.serve.interface import NotReadyError
 
 router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 
@@ -57,3 +64,43 @@ def get_compensation_section(service: ServiceDep, clock: ClockDep) -> Compensati
     if snap is None:
         raise _no_growth()
     return compensation_section_out(snap, clock())
+
+
+@router.get(
+    "/compensation/reference",
+    response_model=ReferenceOut,
+    responses={404: {"description": "no compensation zero set"}},
+    summary="the compensation zero in use: uniform temperature of growth 0, when, how and by whom",
+)
+def get_reference(service: ServiceDep) -> ReferenceOut:
+    ref = service.compensation_reference()
+    if ref is None:
+        raise ApiError(
+            status=404,
+            code="not_found",
+            message="no compensation zero set: POST /api/v1/compensation/reference (or chtc commission zero)",
+        )
+    return reference_out(ref)
+
+
+@router.post(
+    "/compensation/reference",
+    response_model=ReferenceOut,
+    responses={
+        401: {"description": "no token"},
+        403: {"description": "wrong token"},
+        409: {"description": "no live state converged yet (give temperature_c, or wait)"},
+    },
+    summary="set the compensation zero now (needs the bearer token); stored, restored at every start",
+)
+def post_reference(
+    service: ServiceDep, _: WriteAccess, body: Annotated[ReferenceIn | None, Body()] = None
+) -> ReferenceOut:
+    req = body if body is not None else ReferenceIn.model_validate({})
+    try:
+        ref = service.set_compensation_reference(
+            temperature_c=req.temperature_c, source=req.source, set_by=req.set_by or req.source
+        )
+    except NotReadyError as err:
+        raise ApiError(status=409, code="conflict", message=str(err)) from err
+    return reference_out(ref)

@@ -100,6 +100,9 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> Settings:
         port = free_port(args.host)
     s = override(s, "api", host=args.host, port=port)
     s = override(s, "database", url=db_url)
+    # the virtual plant starts at rest in equilibrium: the demo's controller is zeroed there (a real
+    # installation sets its zero at commissioning: docs/commissioning.md)
+    s = override(s, "compensation", reference_on_first_start=True)
     return override(s, "experimental", seed=args.seed)
 
 

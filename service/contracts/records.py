@@ -395,8 +395,41 @@ class OffsetCalibrationData:
 
 CALIBRATION_SOURCES = ("auto", "manual")
 
+
+@dataclass(frozen=True, kw_only=True)
+class CompensationReferenceData:
+    """A compensation zero (``service.estimate.reference.CompensationReference``): the uniform temperature
+    [°C] at which the growth is 0 and its 1σ [°C], when (UTC), how (``source``) and by whom (``set_by``)."""
+
+    at: datetime
+    temperature_c: float
+    sd_c: float
+    source: str
+    set_by: str
+
+    def __post_init__(self) -> None:
+        _check_times(self)
+        if not (math.isfinite(self.temperature_c) and math.isfinite(self.sd_c) and self.sd_c >= 0.0):
+            raise RecordError("CompensationReferenceData: temperature_c and sd_c (>= 0) must be finite")
+
+    def values(self) -> dict[str, Column]:
+        return {
+            "at": self.at,
+            "temperature_c": float(self.temperature_c),
+            "sd_c": float(self.sd_c),
+            "source": self.source[:16],
+            "set_by": self.set_by[:64],
+        }
+
+
 Record = (
-    ConditionStart | ConditionEnd | IdentificationData | DeviceEventData | SampleData | OffsetCalibrationData
+    ConditionStart
+    | ConditionEnd
+    | IdentificationData
+    | DeviceEventData
+    | SampleData
+    | OffsetCalibrationData
+    | CompensationReferenceData
 )
 RECORD_TYPES = (
     ConditionStart,
@@ -405,6 +438,7 @@ RECORD_TYPES = (
     DeviceEventData,
     SampleData,
     OffsetCalibrationData,
+    CompensationReferenceData,
 )
 
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from service.acquire.calibration import Calibration, CalibrationConfig
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
+from service.estimate.reference import CompensationReference
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
 from service.identify.mode import IdentificationMode
@@ -61,3 +62,4 @@ class Restored:
     calibration: Calibration | None = None  # the newest stored sensor offset baseline
     speed_map: SpeedMap | None = None  # the newest stored map fit (speed-map mode), restored as stale
     map_last: IdentificationRecord | None = None  # its identification (``last`` unless combined mode)
+    reference: CompensationReference | None = None  # the newest stored compensation zero

@@ -14,15 +14,22 @@ Three stages, by how often their inputs change:
 The live field's uncertainty comes through ONE function, :func:`field_belief`: the filtered live state's
 reduced mean and covariance (issue 16), which already hold the considered H error.
 
-The reference temperature (growth 0: where the controller was zeroed) is ``t_ref_c`` if given (the setting
-``growth.reference_c``), else the live state's start temperature (its uniform start from the first sample's
-good sensors: the spindle as it was when the service started).
+The reference (growth 0: where the controller was zeroed) is a commissioning fact,
+``service.estimate.reference.CompensationReference`` (``reference``): stored (``POST
+/compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
+``growth.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for
+it, taken from the first sample at rest in equilibrium and stored (source "first_start"). With none, the
+growth is served against a provisional one (the uniform equivalent of the first converged live field, with its
+1σ; not stored) and is not usable (reason ``no_reference``).
 """
 
 from __future__ import annotations
 
+import contextlib
 import itertools
+import math
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Protocol
@@ -43,6 +50,7 @@ from service.estimate.growth import (
     plc_compensation,
 )
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
+from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
 from service.serve.interface import (
     CompensationSnapshot,
@@ -57,11 +65,18 @@ if TYPE_CHECKING:
     from service.identify.speedmap import SpeedMap
     from service.modelload import LoadedModel
 
-__all__ = ["GrowthHistory", "GrowthServer", "field_belief", "h_covariance", "map_h_covariance"]
+__all__ = [
+    "GrowthHistory",
+    "GrowthServer",
+    "field_belief",
+    "h_covariance",
+    "map_h_covariance",
+]
 
 DT_S = 10.0  # the live state's step [s]
 UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
 TermsKey = tuple[object, ...]
+REFERENCE_MAX_SD_UM = 0.1  # a zero taken from the live field adds at most this 1σ [µm] to the axial growth
 
 
 def field_belief(view: CoreView) -> FieldBelief:
@@ -124,14 +139,34 @@ class GrowthServer:
         model: LoadedModel,
         *,
         t_ref_c: float | None = None,
+        reference: CompensationReference | None = None,
+        reference_on_first_start: bool = False,
+        first_start_by: str = "service",
+        on_reference: Callable[[CompensationReference], None] | None = None,
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
         limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
     ) -> None:
+        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
+        "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
+        when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken
+        here (the shell stores it); ``limits`` the settings' [compensation] (None: the defaults)."""
         self.limits = limits if limits is not None else CompensationLimits()
         self.model = model
-        self._t_ref_c = t_ref_c
-        self.reference_at: datetime | None = None  # when the reference was taken (None: configured)
+        if reference is None and t_ref_c is not None:
+            reference = CompensationReference(
+                temperature_c=float(t_ref_c),
+                sd_c=0.0,
+                at=datetime.now(UTC),
+                source="config",
+                set_by="growth.reference_c",
+            )
+        self._reference = reference
+        self._first_start = bool(reference_on_first_start)
+        self._first_start_by = first_start_by
+        self.on_reference = on_reference
+        self._provisional: tuple[float, float, datetime] | None = None  # (T, 1σ, at) until a reference exists
+        self._ref_lock = threading.RLock()  # API threads and the loop may both take the first-start one
         self.tool_dir = tool_dir
         self._lock = threading.Lock()
         self._ctx: GrowthContext | None = context
@@ -170,10 +205,132 @@ class GrowthServer:
 
     # --- stage 2
     def observe(self, view: CoreView) -> None:
-        """Remember the reference temperature from the first live field (cheap: call after each event)."""
-        if self._t_ref_c is None and view.live is not None:
-            self._t_ref_c = float(np.mean(view.live.field_c))
-            self.reference_at = datetime.fromtimestamp(view.live.t, tz=UTC)
+        """Cheap (call after each event): with ``reference_on_first_start`` and no zero, take and store one
+        from the first sample of a spindle at rest in equilibrium (``equilibrium_zero``); else freeze the
+        provisional zero at the first converged live state."""
+        if self._reference is not None:
+            return
+        if self._first_start and self._first_start_zero(view):
+            return
+        live, ctx = view.live, self._ctx
+        if self._provisional is not None or live is None or not live.converged:
+            return
+        if ctx is None or ctx.g_phi is None:  # built at start() off the loop; never here
+            return
+        t, sd = self._uniform_equivalent(ctx, view)
+        with self._ref_lock:
+            if self._provisional is None:
+                self._provisional = (t, sd, datetime.fromtimestamp(live.t, tz=UTC))
+
+    def _first_start_zero(self, view: CoreView) -> bool:
+        s = view.newest
+        if s is None:
+            return False
+        good = [q == "ok" for q in s.quality]
+        offsets = view.calibration.applied() if view.calibration is not None else None
+        zero = equilibrium_zero(s.temps_c, good, offsets, s.speed_rpm)
+        if zero is None:
+            return False
+        with self._ref_lock:
+            if self._reference is None:
+                ref = CompensationReference(
+                    temperature_c=zero[0],
+                    sd_c=zero[1],
+                    at=s.t,
+                    source="first_start",
+                    set_by=self._first_start_by,
+                )
+                self._reference = ref
+                if self.on_reference is not None:
+                    self.on_reference(ref)
+        return True
+
+    @staticmethod
+    def zero_problem(ctx: GrowthContext, view: CoreView, sd_c: float) -> str | None:
+        """Why the live field cannot give a zero now (None: it can): the live state has not converged, the
+        spindle turns, or the zero's 1σ ``sd_c`` [°C] would add more than ``REFERENCE_MAX_SD_UM`` to the
+        axial growth (at rest after a start, the part the sensors cannot see, the shaft's inside, is learnt
+        within ~15 min)."""
+        live = view.live
+        if live is None:
+            return "no live state yet"
+        if not live.converged:
+            return f"the live state has not converged ({live.reason})"
+        if abs(live.inputs[1]) > 0.0:
+            return f"the spindle turns ({live.inputs[1]:.0f} rpm); zero it at rest in equilibrium"
+        sd_um = abs(float(ctx.g[0].sum())) * sd_c
+        if not sd_um <= REFERENCE_MAX_SD_UM:
+            return (
+                f"the live field is not known well enough yet (the zero's 1σ would be {sd_um:.2f} µm > "
+                f"{REFERENCE_MAX_SD_UM} µm); wait at rest"
+            )
+        return None
+
+    # --- the reference
+    @property
+    def reference(self) -> CompensationReference | None:
+        """The compensation reference in use (None: none set; the growth is then provisional)."""
+        return self._reference
+
+    def set_reference(self, ref: CompensationReference) -> None:
+        """Use ``ref`` from now on (a restored or configured one: not reported to ``on_reference``)."""
+        self._reference = ref
+
+    def take_reference(
+        self,
+        view: CoreView,
+        *,
+        source: str,
+        set_by: str,
+        temperature_c: float | None = None,
+        at: datetime | None = None,
+    ) -> CompensationReference:
+        """Set the reference now and report it to ``on_reference``: ``temperature_c`` [°C] as given (1σ 0),
+        else the uniform equivalent of ``view``'s live field (``service.estimate.reference``), which needs a
+        converged live state at rest that knows the field well enough (``zero_problem``; ``NotReadyError``
+        naming it otherwise). ``at``: default the live state's instant."""
+        live = view.live
+        if temperature_c is None:
+            ctx = self.prepare()
+            t, sd = self._uniform_equivalent(ctx, view) if live is not None else (math.nan, math.nan)
+            why = self.zero_problem(ctx, view, sd)
+            if why is not None:
+                raise NotReadyError(f"no reference taken: {why}; or give temperature_c")
+        else:
+            t, sd = float(temperature_c), 0.0
+        when = at or (datetime.fromtimestamp(live.t, tz=UTC) if live is not None else datetime.now(UTC))
+        ref = CompensationReference(temperature_c=t, sd_c=sd, at=when, source=source, set_by=set_by)
+        with self._ref_lock:
+            self._reference = ref
+            if self.on_reference is not None:
+                self.on_reference(ref)
+        return ref
+
+    @staticmethod
+    def _uniform_equivalent(ctx: GrowthContext, view: CoreView) -> tuple[float, float]:
+        live = view.live
+        if live is None or ctx.g_phi is None:
+            raise NotReadyError("no live state or no reduced basis: no uniform equivalent")
+        g1 = float(ctx.g[0].sum())
+        return uniform_equivalent(ctx.g_phi[0], g1, live.mean, live.cov)
+
+    def reference_for(self, view: CoreView) -> tuple[float, float, datetime | None] | None:
+        """(T_ref [°C], 1σ [°C], at) in use: the reference, else the provisional one, else the live field's
+        own uniform equivalent (growth 0 until the live state converges); None: no live field."""
+        self.observe(view)
+        if self._reference is not None:
+            r = self._reference
+            return r.temperature_c, r.sd_c, r.at
+        if self._provisional is not None:
+            return self._provisional
+        live = view.live
+        if live is None:
+            return None
+        ctx = self._ctx
+        if ctx is None or ctx.g_phi is None:
+            return float(np.mean(live.field_c)), 0.0, None
+        t, sd = self._uniform_equivalent(ctx, view)
+        return t, sd, datetime.fromtimestamp(live.t, tz=UTC)
 
     @staticmethod
     def terms_key(view: CoreView) -> TermsKey | None:
@@ -257,25 +414,25 @@ class GrowthServer:
         terms = self.refresh(view)
         if terms is None or live is None:
             return None
-        self.observe(view)
-        t_ref = self._t_ref_c if self._t_ref_c is not None else float(np.mean(live.field_c))
-        key = (live.t, id(terms), t_ref)
+        ref = self.reference_for(view)
+        if ref is None:
+            return None
+        t_ref, t_ref_sd, _ = ref
+        key = (live.t, id(terms), t_ref, t_ref_sd)
         cached = self._estimate
         if cached is not None and cached[0] == key:
             return cached[1]
         ctx = self.prepare()
         belief = field_belief(view)
         at = datetime.fromtimestamp(live.t, tz=UTC)
-        est = estimate_growth(ctx, terms, belief, t_ref_c=t_ref, at=at)
+        est = estimate_growth(ctx, terms, belief, t_ref_c=t_ref, t_ref_sd_c=t_ref_sd, at=at)
         self._estimate = (key, est)
         return est
 
     def t_ref_c(self, view: CoreView) -> float | None:
-        """The reference temperature of ``view``'s growth (None: no live field yet)."""
-        self.observe(view)
-        if self._t_ref_c is not None:
-            return self._t_ref_c
-        return None if view.live is None else float(np.mean(view.live.field_c))
+        """The reference temperature of ``view``'s growth [°C] (None: no live field yet)."""
+        ref = self.reference_for(view)
+        return None if ref is None else ref[0]
 
     def section(self, view: CoreView) -> np.ndarray | None:
         """(u_r, u_z) (2, M) [µm] of the section's outline for ``view``'s live field (cached per live state
@@ -329,6 +486,7 @@ class GrowthServer:
             has_sample=view.newest is not None,
             ci95_half_um=0.5 * (hi - lo),
             identified_at=rec.finished_at,
+            has_reference=self._reference is not None,
         )
         return CompensationSnapshot(
             growth=est,
@@ -338,7 +496,8 @@ class GrowthServer:
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
-            reference_at=self.reference_at,
+            reference_at=None if self._reference is None else self._reference.at,
+            reference=self._reference,
         )
 
 
@@ -346,9 +505,9 @@ class GrowthHistory:
     """The growth at each identification's end, offline (``run_offline``'s ``on_sample`` hook): after the
     sample whose identification succeeded (the live state then holds the filtered field), and the growth
     of that field is what ``/compensation`` would have served then (the same ``GrowthServer``, the same
-    reference: ``t_ref_c``, by default the live state's start temperature). ``by_id``: identification id ->
-    ``GrowthEstimate``; in combined mode an identification that does not serve (a map fit while the held
-    condition's per-condition one does) gets the growth served then, the serving one's."""
+    reference: ``t_ref_c``, by default the provisional zero, the first converged live field's). ``by_id``:
+    identification id -> ``GrowthEstimate``; in combined mode an identification that does not serve (a map
+    fit while the held condition's per-condition one does) gets the growth served then, the serving one's."""
 
     def __init__(self, model: LoadedModel, *, t_ref_c: float | None = None) -> None:
         self.model = model
@@ -361,6 +520,8 @@ class GrowthHistory:
         view = core.view()
         if self._server is None:
             self._server = GrowthServer(self.model, t_ref_c=self.t_ref_c)
+            with contextlib.suppress(NotReadyError):  # built now: the provisional zero is the first converged
+                self._server.prepare()  # live field's, as in the service (no mechanics: no growth at all)
         self._server.observe(view)
         rec = view.current
         if rec is None or view.current_from_restore:

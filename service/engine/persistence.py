@@ -2,7 +2,8 @@
 
 ``open_persistence(settings.database, migrate=...)`` builds the engine and the session factory, optionally
 migrates, reads back what the service needs to resume (``Restored``: the last successful identification,
-the newest result per condition for warm starts, recent conditions, the next free ids) and starts the
+the newest result per condition for warm starts, recent conditions, the offset baseline, the compensation
+zero, the next free ids) and starts the
 buffered writer (``service.store.writer.DbWriter``).
 
 The database being down never stops the service:
@@ -40,6 +41,7 @@ if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
 
     from service.acquire.calibration import Calibration
+    from service.estimate.reference import CompensationReference
     from service.identify.speedmap import SpeedMap
     from service.settings import DatabaseSettings
     from service.store.reads import DbReads
@@ -96,7 +98,9 @@ def restore(
         rows = list_conditions(session, limit=50).items
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
         calibration = _restore_calibration(session, on_problem)
+        reference = _restore_reference(session, on_problem)
     return Restored(
+        reference=reference,
         speed_map=_restore_map(map_last, on_problem),
         map_last=map_last,
         calibration=calibration,
@@ -137,6 +141,21 @@ def _restore_calibration(session: Session, on_problem: Callable[[str], None] | N
         return restore_calibration(session)
     except StoredCalibrationError as err:
         text = f"stored sensor offset baseline not restored ({err}); starting without a baseline"
+        log.warning("%s", text)
+        if on_problem is not None:
+            on_problem(text)
+        return None
+
+
+def _restore_reference(
+    session: Session, on_problem: Callable[[str], None] | None
+) -> CompensationReference | None:
+    from service.store.references import StoredReferenceError, restore_reference
+
+    try:
+        return restore_reference(session)
+    except StoredReferenceError as err:
+        text = f"stored compensation zero not restored ({err}); /compensation is not usable until one is set"
         log.warning("%s", text)
         if on_problem is not None:
             on_problem(text)

@@ -22,7 +22,7 @@ from typing import TYPE_CHECKING, Protocol
 from drivers.acquisition import Acquisition, CanSource, DaqSource
 from drivers.ringbuffer import RingBuffer
 from service.acquire.calibration import CalibrationConfig
-from service.engine.config import CoreConfig
+from service.engine.config import CoreConfig, Restored
 from service.engine.core import ServiceCore
 from service.engine.growthserve import GrowthServer
 from service.engine.health import HealthSource
@@ -94,17 +94,6 @@ def map_config(settings: Settings) -> MapConfig:
     )
 
 
-def growth_server(model: LoadedModel, settings: Settings) -> GrowthServer:
-    """The growth server of ``/compensation`` from ``Settings``: the reference and the policy's limits."""
-    c = settings.compensation
-    limits = CompensationLimits(
-        max_ci95_um=c.max_ci95_um,
-        max_identification_age_min=c.max_identification_age_min,
-        max_open_loop_min=c.max_open_loop_min,
-    )
-    return GrowthServer(model, t_ref_c=settings.growth.reference_c, limits=limits)
-
-
 def core_config(settings: Settings) -> CoreConfig:
     """The core's configuration from ``Settings`` (minutes -> s; the window grid is the sample period)."""
     ident, det, acq = settings.identification, settings.detector, settings.acquisition
@@ -156,6 +145,36 @@ def free_port(host: str = "127.0.0.1") -> int:
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
         s.bind((host, 0))
         return int(s.getsockname()[1])
+
+
+def growth_server(model: LoadedModel, settings: Settings, restored: Restored | None = None) -> GrowthServer:
+    """``/compensation``'s server from ``Settings``: the policy's limits and the zero: the restored one, else
+    ``growth.reference_c``, else (if configured) one taken at the first start (docs/design/growth.md,
+    "Reference")."""
+    c = settings.compensation
+    limits = CompensationLimits(
+        max_ci95_um=c.max_ci95_um,
+        max_identification_age_min=c.max_identification_age_min,
+        max_open_loop_min=c.max_open_loop_min,
+    )
+    return GrowthServer(
+        model,
+        t_ref_c=settings.growth.reference_c,
+        reference=None if restored is None else restored.reference,
+        reference_on_first_start=c.reference_on_first_start,
+        first_start_by=os_user(),
+        limits=limits,
+    )
+
+
+def os_user() -> str:
+    """The OS user running this process (who set a reference the service took itself), "unknown" if none."""
+    import getpass
+
+    try:
+        return getpass.getuser()[:64] or "unknown"
+    except (KeyError, OSError):
+        return "unknown"
 
 
 @dataclass(kw_only=True)
@@ -217,7 +236,7 @@ class Runtime:
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             on_event=self.on_event,
-            growth=growth_server(model, s),
+            growth=growth_server(model, s, self.persistence.restored),
         )
         self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()

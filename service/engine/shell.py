@@ -75,6 +75,7 @@ from service.engine.health import (
 )
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
+from service.estimate.reference import CompensationReference
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
@@ -117,6 +118,7 @@ from service.serve.views import (
     chtc_snapshot,
     map_record,
 )
+from service.store.references import reference_record
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
@@ -210,6 +212,8 @@ class SoftSensorService:
         sensors = [(sp.channel, sp.name, sp.role) for sp in core.model.spec.sensors]
         self._history = SensorHistoryBuffer(history_capacity, sensors)
         self._growth = growth if growth is not None else GrowthServer(core.model)  # /compensation
+        if self._growth.on_reference is None:  # every zero taken is stored (restored at the next start)
+            self._growth.on_reference = self._store_reference
 
     @property
     def growth(self) -> GrowthServer:
@@ -593,6 +597,25 @@ class SoftSensorService:
                     sd_c=tuple(float(x) for x in c.sd_c),
                 )
         raise NotReadyError("no baseline")
+
+    def compensation_reference(self) -> CompensationReference | None:
+        return self._growth.reference
+
+    def set_compensation_reference(
+        self, *, temperature_c: float | None, source: str, set_by: str
+    ) -> CompensationReference:
+        ref = self._growth.take_reference(
+            self._view, source=source, set_by=set_by, temperature_c=temperature_c, at=self.clock()
+        )
+        self.on_event(
+            f"compensation zero set: {ref.temperature_c:.3f} °C ± {ref.sd_c:.3f} "
+            f"({ref.source}, by {ref.set_by})"
+        )
+        return ref
+
+    def _store_reference(self, ref: CompensationReference) -> None:
+        if self.writer is not None:
+            self.writer.submit(reference_record(ref))
 
     def condition(self) -> ConditionSnapshot:
         cond = self._view.condition

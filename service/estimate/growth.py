@@ -411,13 +411,25 @@ def _h_std(rows: Array, cov_h: Array) -> Array:
 
 
 def estimate_growth(
-    ctx: GrowthContext, terms: ConditionTerms, belief: FieldBelief, *, t_ref_c: float, at: datetime
+    ctx: GrowthContext,
+    terms: ConditionTerms,
+    belief: FieldBelief,
+    *,
+    t_ref_c: float,
+    at: datetime,
+    t_ref_sd_c: float = 0.0,
 ) -> GrowthEstimate:
-    """The served growth for the live ``belief`` under ``terms`` (dot products only; see module docstring)."""
+    """The served growth for the live ``belief`` under ``terms`` (dot products only; see module docstring).
+
+    ``t_ref_sd_c`` [°C]: the 1σ of the reference temperature (``service.estimate.reference``); its growth
+    |g·1|·σ joins the field's part of every served 1σ (now, the horizons and the steady forecast), because
+    every served growth is relative to it."""
     if at.tzinfo is None:
         raise GrowthEstimateError("at: must be timezone-aware (UTC)")
     if not np.isfinite(t_ref_c):
         raise GrowthEstimateError(f"t_ref_c: must be finite, got {t_ref_c!r}")
+    if not (np.isfinite(t_ref_sd_c) and t_ref_sd_c >= 0.0):
+        raise GrowthEstimateError(f"t_ref_sd_c: must be a finite 1σ >= 0 °C, got {t_ref_sd_c!r}")
     if terms.w.shape[-1] != ctx.g.shape[1]:
         raise GrowthEstimateError(
             "terms: built for another mesh than the context (condition_terms(ctx, ...))"
@@ -426,7 +438,8 @@ def estimate_growth(
     reduced_mean = belief.state is not None
     g1 = ctx.g.sum(axis=1)  # growth per uniform kelvin (2,)
     now = gx - g1 * t_ref_c
-    std_now = _field_std(ctx.g, ctx.g_phi, belief)
+    ref_std = np.abs(g1) * float(t_ref_sd_c)  # the reference's part (2,) [µm]
+    std_now = np.hypot(_field_std(ctx.g, ctx.g_phi, belief), ref_std)
     h_now = np.zeros(2) if belief.includes_h else _h_std(terms.jg, terms.cov_h)
     steady = terms.steady_um - g1 * t_ref_c
     h_ss = _h_std(terms.jg, terms.cov_h)
@@ -434,15 +447,17 @@ def estimate_growth(
     for i in range(terms.horizons_s.size):
         wx = (terms.w_phi[i] if reduced_mean and terms.w_phi is not None else terms.w[i]) @ x
         y = steady + wx - terms.w_ss[i]
-        s_f = _field_std(terms.w[i], None if terms.w_phi is None else terms.w_phi[i], belief)
+        s_f = np.hypot(
+            _field_std(terms.w[i], None if terms.w_phi is None else terms.w_phi[i], belief), ref_std
+        )
         s_h = _h_std(terms.jw[i], terms.cov_h)
         axial.append(GrowthValue.of(y[0], s_f[0], s_h[0]))
         radial.append(GrowthValue.of(y[1], s_f[1], s_h[1]))
     proj = terms.modes_e_phi @ x if reduced_mean and terms.modes_e_phi is not None else terms.modes_e.T @ x
     gap = terms.modes_g[0] * (proj - terms.modes_ss)
     forecast = GrowthForecastEstimate(
-        steady_axial=GrowthValue.of(steady[0], 0.0, h_ss[0]),
-        steady_radial=GrowthValue.of(steady[1], 0.0, h_ss[1]),
+        steady_axial=GrowthValue.of(steady[0], ref_std[0], h_ss[0]),
+        steady_radial=GrowthValue.of(steady[1], ref_std[1], h_ss[1]),
         tau_s=float(terms.tau_s[int(np.argmax(np.abs(gap)))]),
         slowest_tau_s=float(terms.tau_s[0]),
         horizons_s=tuple(float(v) for v in terms.horizons_s),

@@ -51,7 +51,9 @@ from model.estimator import (
     heated_prior,
     wide_prior,
 )
+from model.estimator import usable as usable_channels
 from service.estimate.live import LiveStateError
+from service.estimate.offsetbias import OffsetBias, kalman_gain
 
 __all__ = [
     "GUESSED_H_REL",
@@ -168,6 +170,8 @@ class FilterView:
     nis_band: tuple[float, float]
     high_since: float | None
     inconsistent_after_s: float
+    # the unknown sensor offsets' share of ``cov`` (r, r) [°C²] (service.estimate.offsetbias; None: not kept)
+    offset_cov: Array | None = None
 
     @property
     def converged(self) -> bool:
@@ -263,6 +267,9 @@ class FilteredState:
         self._convergence: Convergence | None = None
         self.nis_history: deque[tuple[float, float, int]] = deque(maxlen=max(1, int(st.keep_s / self.dt_s)))
         self.steps = 0
+        sensors = np.asarray(rom.sensors)
+        # the unknown offsets' share of the state's error (in ``view().cov``; service.estimate.offsetbias)
+        self._bias = OffsetBias(sensors.shape[1], sensors.shape[0])
 
     # --- state ----------------------------------------------------------------------------------------
     @property
@@ -301,6 +308,7 @@ class FilteredState:
         else:
             prior = wide_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig, sigma_shape_c=sig)
         self._filter = StateEstimator(self.rom, prior, noise=self._noise, offsets_c=self.offsets_c)
+        self._bias.restart()
         self._t = float(t)
         self._inputs = _Inputs(*(float(x) for x in inputs))
         self._window = NisWindow(self.settings.nis_window)
@@ -351,6 +359,8 @@ class FilteredState:
             self._filter.offsets_c = np.zeros(32) if offsets is None else offsets.copy()
         if sd_c is not None:
             sd = np.asarray(sd_c, dtype=np.float64)
+            if sd.shape == (self._bias.n,):
+                self._bias.set_sd(sd)
             sd = sd[np.isfinite(sd)]
             rms = float(np.sqrt(np.mean(sd**2))) if sd.size else 0.0
             sigma = math.hypot(self.settings.noise.sigma_meas_c, rms)
@@ -385,11 +395,14 @@ class FilteredState:
             self._inputs = new
             return SampleUpdate(self._t, 0, 0.0, 0, self._window.verdict())
         step = self._step_input(self._inputs)
+        a = self._filter.transition(step.h, step.dt_s).a
         for _ in range(n - 1):
             self._filter.predict(step)
+            self._bias.predict(a)
             self._t += self.dt_s
             self._keep(self._snapshot())
         self._filter.predict(step)
+        self._bias.predict(a)
         self._t += self.dt_s
         self._inputs = new
         return self._after_step(n, self._measure(temps_c, usable))
@@ -478,10 +491,11 @@ class FilteredState:
         conv = self._convergence
         reason = "converged" if self.converged_at is not None else conv.reason if conv else "starting"
         total, dof = self._window.totals()
+        offset_cov = self._bias.extra_cov()
         return FilterView(
             t=self.t,
             mean=_frozen(est.mean.copy()),
-            cov=_frozen(est.cov.copy()),
+            cov=_frozen(est.cov + offset_cov),  # with the unknown offsets' share
             basis=self.rom.basis,
             sensor_rows=np.asarray(self.rom.sensors),
             sigma_model_c=float(self.settings.noise.sigma_model_c),
@@ -499,6 +513,7 @@ class FilteredState:
             nis_band=self._window.band(),
             high_since=self.high_since,
             inconsistent_after_s=self.settings.inconsistent_after_s,
+            offset_cov=_frozen(offset_cov),
         )
 
     def steady(self) -> Array:
@@ -510,10 +525,18 @@ class FilteredState:
         return np.asarray(self.rom.lift(a))
 
     # --- internals ------------------------------------------------------------------------------------
-    def _measure(self, temps_c: ArrayLike | None, usable: ArrayLike | None) -> StepResult | None:
+    def _measure(self, temps_c: ArrayLike | None, mask: ArrayLike | None) -> StepResult | None:
         if temps_c is None:
             return None
-        return self.estimator.update(np.asarray(temps_c, dtype=np.float64), usable)
+        est = self.estimator
+        y = np.asarray(temps_c, dtype=np.float64)
+        if y.shape == (self._bias.n,):  # else the estimator names the bad shape
+            use = usable_channels(y - est.offsets_c, mask)
+            if use.any():
+                sensors = np.asarray(self.rom.sensors)
+                gain = kalman_gain(est.estimate.cov, sensors, use, est.noise.r_var)
+                self._bias.update(gain, sensors, use)
+        return est.update(y, mask)
 
     def _after_step(self, n: int, res: StepResult | None, *, restarted: bool = False) -> SampleUpdate:
         assert self._t is not None

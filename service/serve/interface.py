@@ -42,6 +42,7 @@ import numpy.typing as npt
 from service.contracts.records import IdentificationData
 from service.errors import ServiceError
 from service.estimate.locator import TriangleLocator, locator_for
+from service.estimate.reference import CompensationReference
 from service.identify.mode import IdentificationMode
 
 # the policy's vocabulary, re-exported for api/ (which imports only this module of service/)
@@ -505,8 +506,9 @@ class CompensationSnapshot:
     plc: PlcCompensation
     tool_dir: int  # -1: the tool points to -Z
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
-    # when the reference temperature was taken (the live state's start); None: configured (growth.reference_c)
+    # when the compensation reference was set (``reference.at``); None: none set (the growth is provisional)
     reference_at: datetime | None = None
+    reference: CompensationReference | None = None  # the zero in use (None: none set, not usable)
 
     @property
     def status(self) -> ChtcStatus:
@@ -578,6 +580,18 @@ class ChtcService(Protocol):
 
     def request_baseline(self) -> OffsetBaseline:
         """Take a sensor-offset baseline now (spindle at rest, at the ambient); NotReadyError says why not."""
+        ...
+
+    def compensation_reference(self) -> CompensationReference | None:
+        """The compensation zero in use (None: none set: ``/compensation`` is then not usable)."""
+        ...
+
+    def set_compensation_reference(
+        self, *, temperature_c: float | None, source: str, set_by: str
+    ) -> CompensationReference:
+        """Store the compensation zero now: ``temperature_c`` [°C] as given, else the uniform equivalent of
+        the live field (NotReadyError while the live state has not converged); persisted, restored at
+        start."""
         ...
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:

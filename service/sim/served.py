@@ -354,7 +354,7 @@ def served_service(
         sources=sources,
         clock=clock,
         on_event=say,
-        growth=growth_server(model, s),
+        growth=growth_server(model, s, persistence.restored),
     )
     served = Served(
         service=service,

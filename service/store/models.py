@@ -1,7 +1,7 @@
 """SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` and ``0002``).
 
-Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``, and (migration ``0002``)
-``offset_calibrations``. Every timestamp is
+Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``, (migration ``0002``)
+``offset_calibrations`` and (``0003``) ``compensation_references``. Every timestamp is
 :class:`~service.store.types.UtcDateTime` (aware UTC in and out, on SQLite too).
 Units: °C, rpm, N·m, W/(m²·K), s.
 
@@ -148,3 +148,16 @@ class OffsetCalibrationRow(Base):
     samples: Mapped[int] = mapped_column(Integer)
     offsets_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel, °C; null = not corrected
     sd_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel 1σ of the offset, °C
+
+
+class CompensationReferenceRow(Base):
+    """A compensation zero (``service.estimate.reference.CompensationReference``); the newest is restored."""
+
+    __tablename__ = "compensation_references"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    at: Mapped[datetime] = mapped_column(index=True)  # when the controller was zeroed
+    temperature_c: Mapped[float]  # the uniform temperature of growth 0, °C
+    sd_c: Mapped[float]  # its 1σ, °C (0: given by an operator)
+    source: Mapped[str] = mapped_column(String(16))  # "api" | "cli" | "first_start" | "config"
+    set_by: Mapped[str] = mapped_column(String(64))

@@ -20,6 +20,7 @@ from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionma
 from sqlalchemy.sql import Select
 
 from service.contracts.records import (
+    CompensationReferenceData,
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
@@ -29,7 +30,15 @@ from service.contracts.records import (
     SampleData,
 )
 from service.store.errors import RecordNotFoundError
-from service.store.models import Base, Condition, DeviceEvent, Identification, OffsetCalibrationRow, SampleRow
+from service.store.models import (
+    Base,
+    CompensationReferenceRow,
+    Condition,
+    DeviceEvent,
+    Identification,
+    OffsetCalibrationRow,
+    SampleRow,
+)
 from service.store.sqlerrors import translate
 
 T = TypeVar("T")
@@ -64,6 +73,7 @@ _TABLE_OF: dict[type, type] = {
     DeviceEventData: DeviceEvent,
     SampleData: SampleRow,
     OffsetCalibrationData: OffsetCalibrationRow,
+    CompensationReferenceData: CompensationReferenceRow,
 }
 
 
@@ -252,6 +262,14 @@ def list_samples(
     """Stored samples at t in [since, until), oldest first (for replay and plots)."""
     query = _time_filter(select(SampleRow), SampleRow.t, since, until)
     return list(session.scalars(query.order_by(SampleRow.t, SampleRow.id).limit(limit)))
+
+
+def last_compensation_reference(session: Session) -> CompensationReferenceRow | None:
+    """The newest compensation zero (latest ``at``, then highest id); None if none was ever set."""
+    query = select(CompensationReferenceRow).order_by(
+        CompensationReferenceRow.at.desc(), CompensationReferenceRow.id.desc()
+    )
+    return session.scalars(query.limit(1)).first()
 
 
 def last_offset_calibration(session: Session) -> OffsetCalibrationRow | None:

@@ -41,7 +41,8 @@ class Served:
     svc: SoftSensorService
     clock: ManualClock
     client: TestClient
-    t_start_c: float  # the live state's start temperature (the reference)
+    t_start_c: float  # the provisional reference: the first converged live field's uniform equivalent [°C]
+    t_start_sd_c: float  # its 1σ [°C]
     ready_before_request: bool  # the growth's terms were computed before any request
 
 
@@ -51,14 +52,15 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     per-condition mode (Σ_H from the record's CIs, ``h_covariance``; the map's: ``served_map`` below)."""
     url = sqlite_url(tmp_path_factory.mktemp("served-compensation"))
     with served_service(database_url=url, settings=per_condition(), feed_samples=1) as s:
-        live = s.service.view.live
-        assert live is not None
-        t_start = float(np.mean(live.field_c))
         s.feed_next()
         assert s.service.view.current is not None, "no identification in the plant run"
         ready = s.service.growth.ready_for(s.service.view)
+        assert s.service.growth.reference is None  # none stored, none configured: the provisional one
+        ref = s.service.growth.reference_for(s.service.view)
+        assert ref is not None
+        t_start, t_start_sd = ref[0], ref[1]
         with TestClient(create_app(Settings(), s.service, clock=s.clock)) as client:
-            yield Served(s.service.core.model, s.service, s.clock, client, t_start, ready)
+            yield Served(s.service.core.model, s.service, s.clock, client, t_start, t_start_sd, ready)
 
 
 def _served_terms(model: Any, v: Any, h: np.ndarray, cov_h: np.ndarray) -> tuple[Any, Any]:
@@ -92,7 +94,9 @@ def test_served_growth_equals_estimate_growth_on_the_same_inputs(served: Served)
     ctx, terms = _served_terms(model, v, h, h_covariance(v.current, h))
     belief = field_belief(v)
     at = datetime.fromtimestamp(v.live.t, tz=UTC)
-    want = estimate_growth(ctx, terms, belief, t_ref_c=served.t_start_c, at=at)
+    want = estimate_growth(
+        ctx, terms, belief, t_ref_c=served.t_start_c, t_ref_sd_c=served.t_start_sd_c, at=at
+    )
     assert datetime.fromisoformat(body["at"]) == at
     assert body["t_ref_c"] == pytest.approx(served.t_start_c, abs=1e-4)
     for name, w in (("axial", want.axial), ("radial", want.radial)):
@@ -143,6 +147,7 @@ def test_the_verdict_is_the_policys_on_the_growth_and_goes_stale_when_data_stop(
         has_sample=True,
         ci95_half_um=0.5 * (hi - lo),
         identified_at=snap_identified_at(served),
+        has_reference=False,  # none stored: no_reference unless something earlier already says no
     )
     assert comp["status"] == expected.status.value != "stale"
     assert comp["usable_for_compensation"] is expected.usable
@@ -260,7 +265,9 @@ def test_section_is_the_live_fields_displacement_of_every_parts_outline(served: 
     # every part is outlined: the shaft's axis (r = 0) from end to end, and the housing's outside (r = 100 mm)
     assert np.isclose(r, 0.0).sum() > 10 and np.isclose(r, 0.1).sum() > 10
     gm = build_context(model.spec, model.fe).growth
-    full = gm.displacement_m(np.asarray(v.live.field_c), body["t_ref_c"]) * 1e6  # (Nm, 2)
+    t_ref = served.svc.growth.t_ref_c(v)  # served rounded to 1e-4 °C
+    assert t_ref is not None and body["t_ref_c"] == pytest.approx(t_ref, abs=1e-4)
+    full = gm.displacement_m(np.asarray(v.live.field_c), t_ref) * 1e6  # (Nm, 2)
     p = np.asarray(gm.solver.system.mesh.p).T
     for i in range(0, r.size, 7):  # nodes at one position: a floating surface's two sides; either matches
         at = np.flatnonzero(np.hypot(p[:, 0] - r[i], p[:, 1] - z[i]) < 1e-6)  # served to 0.1 µm
@@ -274,22 +281,26 @@ def test_section_is_the_live_fields_displacement_of_every_parts_outline(served: 
 
 
 def test_the_reference_temperature_is_a_setting(tmp_path: Path, served: Served) -> None:
-    """``growth.reference_c``: the growth over a uniform 20 °C instead of the live state's start. Linear: it
-    differs from the default by Σg·(T_start − 20) at the nose, and the served reference time is null."""
+    """``growth.reference_c``: the growth over a uniform 20 °C (a "config" zero, 1σ 0) instead of the
+    provisional one. Linear: it differs from the provisional by Σg·(T_prov − 20) at the nose, and its CI
+    lacks the provisional zero's 1σ."""
     default = served.client.get("/api/v1/compensation").json()
-    assert datetime.fromisoformat(default["t_ref_at"]) <= datetime.fromisoformat(default["at"])
+    assert default["reference"] is None and default["usable_for_compensation"] is False
     settings = per_condition(Settings(growth={"reference_c": 20.0}))  # type: ignore[arg-type]  # as ``served``
     with served_service(database_url=sqlite_url(tmp_path), settings=settings) as s:
         client = TestClient(create_app(settings, s.service, clock=s.clock))
         body = client.get("/api/v1/compensation").json()
         section = client.get("/api/v1/compensation/section").json()
     assert body["at"] == default["at"], "the same plan, the same live field"
-    assert body["t_ref_c"] == section["t_ref_c"] == 20.0 and body["t_ref_at"] is None
+    assert body["t_ref_c"] == section["t_ref_c"] == 20.0
+    assert body["reference"]["source"] == "config" and body["reference"]["sd_c"] == 0.0
     ctx = build_context(served.model.spec, served.model.fe)
     for row, name in enumerate(("axial", "radial")):
-        shift = float(ctx.g[row].sum()) * (served.t_start_c - 20.0)
+        g1 = float(ctx.g[row].sum())
+        shift = g1 * (served.t_start_c - 20.0)
         assert body[name]["um"] == pytest.approx(default[name]["um"] + shift, abs=2e-3), name
-        assert body[name]["std_um"] == pytest.approx(default[name]["std_um"], abs=1e-4), name
+        want_sd = np.sqrt(max(default[name]["std_um"] ** 2 - (g1 * served.t_start_sd_c) ** 2, 0.0))
+        assert body[name]["std_um"] == pytest.approx(want_sd, abs=2e-3), name
     assert body["axial"]["um"] > default["axial"]["um"]  # a 22 °C start is warmer than 20 °C
 
 
@@ -324,9 +335,10 @@ def test_in_map_mode_the_h_covariance_is_the_maps_at_the_current_speed(
     old = h_covariance(v.current, h)
     assert np.max(np.abs(np.sqrt(np.diag(cov)) / np.sqrt(np.diag(old)) - 1.0)) > 0.05
     ctx, terms = _served_terms(model, v, h, cov)
-    want = estimate_growth(
-        ctx, terms, field_belief(v), t_ref_c=body["t_ref_c"], at=datetime.fromtimestamp(v.live.t, tz=UTC)
-    )
+    ref = svc.growth.reference_for(v)  # the provisional zero (none stored) and its 1σ
+    assert ref is not None and body["t_ref_c"] == pytest.approx(ref[0], abs=1e-4)
+    at = datetime.fromtimestamp(v.live.t, tz=UTC)
+    want = estimate_growth(ctx, terms, field_belief(v), t_ref_c=ref[0], t_ref_sd_c=ref[1], at=at)
     for name, w in (("axial", want.axial), ("radial", want.radial)):
         assert body[name]["um"] == pytest.approx(w.um, abs=1e-4), name
         assert body[name]["ci95_um"] == pytest.approx(list(w.ci95_um), abs=1e-4), name

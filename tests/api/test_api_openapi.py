@@ -56,6 +56,8 @@ def test_statuses_where_they_occur(ro_client: TestClient) -> None:
     assert "Retry-After" in comp["503"]["headers"] and "401" not in comp
     assert comp["200"]["content"]["application/json"]["schema"]["$ref"].endswith("/CompensationOut")
     assert "text/plain" in ops[("/api/v1/metrics", "get")]["200"]["content"]
+    assert "404" in ops[("/api/v1/compensation/reference", "get")]
+    assert {"401", "403", "409", "422"} <= set(ops[("/api/v1/compensation/reference", "post")])
 
 
 def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
@@ -64,7 +66,11 @@ def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
     doc = _doc(ro_client)
     assert doc["components"]["securitySchemes"]["bearerAuth"] == {"type": "http", "scheme": "bearer"}
     secured = {(p, m) for p, m, op in _operations(doc) if op.get("security")}
-    assert secured == {("/api/v1/identifications", "post"), ("/api/v1/sensors/baseline", "post")}
+    assert secured == {
+        ("/api/v1/identifications", "post"),
+        ("/api/v1/sensors/baseline", "post"),
+        ("/api/v1/compensation/reference", "post"),
+    }
     settings = Settings(api={"token": WRITE_TOKEN, "read_token": "read-token-for-openapi"})
     with TestClient(create_app(settings, ro_service, clock=ro_clock)) as c:
         doc = _doc(c)

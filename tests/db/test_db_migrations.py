@@ -17,7 +17,14 @@ from service.store.errors import DatabaseUnavailableError
 from service.store.models import Base
 from tests.db.tcp_proxy import free_port
 
-TABLES = {"conditions", "identifications", "device_events", "samples", "offset_calibrations"}
+TABLES = {
+    "conditions",
+    "identifications",
+    "device_events",
+    "samples",
+    "offset_calibrations",
+    "compensation_references",
+}
 
 
 def test_upgrade_from_empty_reaches_head_and_matches_models(db_url: str) -> None:
