@@ -215,9 +215,9 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
             print("write token: the configured api.token", flush=True)
         every = "1-6 min" if args.segment_min is None else f"{args.segment_min:g} min"
         print(
-            f"plant profile: {args.idle_min:g} min at rest, then a machining cycle (a new speed every {every},"
-            f" 0-7000 rpm) until stopped; plant time runs x{args.speedup:g} (1 wall s = {args.speedup:g} plant"
-            " s) and every time shown is plant time; Ctrl-C stops",
+            f"plant profile: {args.idle_min:g} min at rest, then a machining cycle (a new speed every "
+            f"{every}, 0-7000 rpm) until stopped; plant time runs x{args.speedup:g} (1 wall s = "
+            f"{args.speedup:g} plant s) and every time shown is plant time; Ctrl-C stops",
             flush=True,
         )
         started = time.monotonic()

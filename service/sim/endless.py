@@ -30,8 +30,8 @@ __all__ = ["EndlessPlant", "PlantRows"]
 @dataclass(frozen=True)
 class PlantRows:
     """Plant rows (a ``drivers.sim.source.Timeline``): ``times_s`` s from the plant's start, measured
-    ``temps_c`` °C (n, 32), ``ambient_c`` °C, ``speed_rpm`` rpm, ``torque_nm`` N·m, ``status`` (n, 32), and the
-    true ``h_true`` (n, 7) W/(m²·K), which only a simulation knows."""
+    ``temps_c`` °C (n, 32), ``ambient_c`` °C, ``speed_rpm`` rpm, ``torque_nm`` N·m, ``status`` (n, 32),
+    and the true ``h_true`` (n, 7) W/(m²·K), which only a simulation knows."""
 
     times_s: NDArray[np.float64]
     temps_c: NDArray[np.float64]
