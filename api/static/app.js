@@ -66,7 +66,7 @@ function signed(v, digits = 1) { // +1.2 / −1.2 (a real minus sign)
   const t = Math.abs(Number(v)).toFixed(digits);
   return (Number(t) === 0 ? "" : Number(v) < 0 ? "−" : "+") + t;
 }
-function timeTitle() { return state.clockInfo?.simulated ? "plant time (simulated), UTC" : timeTitle(); }
+function timeTitle() { return state.clockInfo?.simulated ? "plant time (simulated), UTC" : "time, UTC"; }
 function utc(iso) { return iso ? iso.replace("T", " ").replace(/\.\d+/, "").replace("Z", " UTC") : "–"; }
 function ageText(s) {
   if (s === null || s === undefined) return "–";
