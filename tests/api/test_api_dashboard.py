@@ -472,35 +472,35 @@ def test_the_first_screen_at_1400x1000_is_the_compensation_as_served(
     and, when not, why and what to do; the one status there is the one /compensation serves, and the H card
     shows /chtc's (each card the API's own, never the page's)."""
     settings = LENIENT if lenient else Settings(identification=DEMO_WINDOWS, experimental=PER_CONDITION)
-    with served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED) as s:
-        with _server(s) as server:  # a 1400×1000 viewport (the window's own is smaller by its frame)
-            page.call(
-                "Emulation.setDeviceMetricsOverride",
-                width=1400,
-                height=1000,
-                deviceScaleFactor=1,
-                mobile=False,
-            )
-            page.call("Page.navigate", url=server.url + "/")
-            page.wait(f"{RENDERED} && {SHOWN}")
-            view = page.eval("[window.innerWidth, window.innerHeight, window.scrollY]")
-            boxes = page.eval(
-                "Object.fromEntries(" + json.dumps(FIRST_SCREEN) + ".map((id) => {"
-                " const r = document.getElementById(id).getBoundingClientRect();"
-                " return [id, [r.top, r.bottom, r.left, r.right, r.height]]; }))"
-            )
-            shown = page.eval(
-                "({um: document.getElementById('comp-um').textContent,"
-                " ci: document.getElementById('comp-ci').textContent,"
-                " usable: document.getElementById('comp-usable').textContent,"
-                " reason: document.getElementById('comp-reason').textContent,"
-                " action: document.getElementById('comp-action').textContent,"
-                " pill: document.getElementById('status').textContent,"
-                " pillStatus: document.getElementById('status').dataset.status,"
-                " h: document.getElementById('h-status').textContent})"
-            )
-            comp = httpx.get(server.url + "/api/v1/compensation", timeout=10).json()
-            chtc = httpx.get(server.url + "/api/v1/chtc", timeout=10).json()
+    s = served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED)
+    with s, _server(s) as server:  # a 1400×1000 viewport (the window's own is smaller by its frame)
+        page.call(
+            "Emulation.setDeviceMetricsOverride",
+            width=1400,
+            height=1000,
+            deviceScaleFactor=1,
+            mobile=False,
+        )
+        page.call("Page.navigate", url=server.url + "/")
+        page.wait(f"{RENDERED} && {SHOWN}")
+        view = page.eval("[window.innerWidth, window.innerHeight, window.scrollY]")
+        boxes = page.eval(
+            "Object.fromEntries(" + json.dumps(FIRST_SCREEN) + ".map((id) => {"
+            " const r = document.getElementById(id).getBoundingClientRect();"
+            " return [id, [r.top, r.bottom, r.left, r.right, r.height]]; }))"
+        )
+        shown = page.eval(
+            "({um: document.getElementById('comp-um').textContent,"
+            " ci: document.getElementById('comp-ci').textContent,"
+            " usable: document.getElementById('comp-usable').textContent,"
+            " reason: document.getElementById('comp-reason').textContent,"
+            " action: document.getElementById('comp-action').textContent,"
+            " pill: document.getElementById('status').textContent,"
+            " pillStatus: document.getElementById('status').dataset.status,"
+            " h: document.getElementById('h-status').textContent})"
+        )
+        comp = httpx.get(server.url + "/api/v1/compensation", timeout=10).json()
+        chtc = httpx.get(server.url + "/api/v1/chtc", timeout=10).json()
     assert view == [1400, 1000, 0]
     for name, (top, bottom, left, right, height) in boxes.items():
         assert height > 0 and top >= 0 and bottom <= 1000 and left >= 0 and right <= 1400, (name, boxes[name])
