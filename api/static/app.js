@@ -942,7 +942,7 @@ const ACTION_BY_STATUS = {
 };
 
 function showComp(c, problem) {
-  const cls = verdictClass(c), pill = $("status"), v = $("comp-verdict");
+  const cls = c ? verdictClass(c) : problem.sev || "bad", pill = $("status"), v = $("comp-verdict");
   v.className = `comp-verdict verdict-${cls}`;
   pill.className = `pill pill-${cls}`;
   const ds = { status: c ? c.status : "", usable: c ? String(Boolean(c.usable_for_compensation)) : "false", reasonCode: c?.reason_code || "" };
@@ -969,7 +969,8 @@ function showComp(c, problem) {
   const action = "action" in c ? c.action : (usable ? null : ACTION_BY_STATUS[c.status]);
   $("comp-action").textContent = !usable && action ? "What to do: " + action : "";
   $("comp-status").textContent = c.status + (c.reason_code ? ` · ${c.reason_code}` : "");
-  $("comp-age").textContent = c.sample_age_s === null ? "none yet" : `${ageText(c.sample_age_s)} old`;
+  const plant = state.clockInfo?.simulated ? " (plant time)" : "";
+  $("comp-age").textContent = c.sample_age_s === null ? "none yet" : `${ageText(c.sample_age_s)} old${plant}`;
   const ref = c.reference;
   $("comp-ref").textContent = ref ? `${fmt(ref.temperature_c, 2)} °C, set ${utc(ref.at)} (${ref.source}, ${ref.set_by})`
     : c.t_ref_at ? `${fmt(c.t_ref_c, 2)} °C since ${utc(c.t_ref_at)}` : `${fmt(c.t_ref_c, 2)} °C (none set)`;
@@ -985,8 +986,9 @@ async function pollGrowth() {
       const msg = r.body?.error?.message || "HTTP " + r.status;
       $("growth-now").textContent = msg || "no growth yet";
       const wait = r.status === 503; // no live state or identification yet: normal after a start
-      showComp(null, { title: wait ? "no value yet" : "no value", detail: msg,
+      showComp(null, { title: wait ? "no value yet" : "no value", detail: msg, sev: wait ? "warn" : "bad",
         action: wait ? "Wait: the service serves a value once its live state has converged." : null });
+      if (!state.growthNow) drawGrowth();
       return;
     }
     const g = r.body, a = g.axial;
