@@ -96,8 +96,10 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> tuple[Settings, str 
     if s.api.token is None:
         generated = secrets.token_urlsafe(24)
         s = override(s, "api", token=generated)
-    # TODO(reference): s = override(s, "compensation", reference_on_first_start=True) once the setting exists
-    # (issue 26 item 7, another branch): the demo zeroes the growth at its cold, uniform start.
+    # The demo zeroes the growth at its cold, uniform start (issue 26 item 7: the setting comes with the
+    # compensation reference's branch). TODO(reference): make this unconditional once that branch is merged.
+    if "reference_on_first_start" in type(s.compensation).model_fields:
+        s = override(s, "compensation", reference_on_first_start=True)
     port = args.port
     if port == 0:
         from service.engine.runtime import free_port
