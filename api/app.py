@@ -18,7 +18,7 @@ from fastapi import FastAPI
 from fastapi.responses import FileResponse
 from fastapi.staticfiles import StaticFiles
 
-from api.deps import AuthConfig, Clock
+from api.deps import AuthConfig, Clock, ClockInfo
 from api.errors import install_error_handlers
 from api.guard import GuardLimits, RequestGuard, RouteRule, route_rules
 from api.metrics import ApiMetrics, RequestTimer
@@ -58,11 +58,18 @@ def utc_now() -> datetime:
 
 
 def create_app(
-    settings: Settings, service: ChtcService, *, clock: Clock = utc_now, limits: GuardLimits | None = None
+    settings: Settings,
+    service: ChtcService,
+    *,
+    clock: Clock = utc_now,
+    limits: GuardLimits | None = None,
+    clock_info: ClockInfo | None = None,
 ) -> FastAPI:
     """Build the app around an already running service; nothing is opened here.
 
     ``limits`` bounds bodies, URLs and slow bodies (``api/guard.py``); the defaults suit this API.
+    ``clock_info`` says whether ``clock`` is a simulated plant time (``/healthz``'s ``clock``; the dashboard
+    marks its times as such); default: the wall clock.
     """
     limits = limits or GuardLimits()
     app = FastAPI(
@@ -75,6 +82,7 @@ def create_app(
     )
     app.state.service = service
     app.state.clock = clock
+    app.state.clock_info = clock_info or ClockInfo()
     app.state.auth = AuthConfig.from_settings(settings.api)
     app.state.metrics = ApiMetrics(service)
     install_error_handlers(app)

@@ -31,6 +31,15 @@ Clock = Callable[[], datetime]
 
 
 @dataclass(frozen=True, kw_only=True)
+class ClockInfo:
+    """What the service's clock is: the wall clock (``simulated`` False, ``speedup`` 1), or a simulated
+    plant time (``chtc demo``, ``chtc replay``) running ``speedup`` plant seconds per wall second."""
+
+    simulated: bool = False
+    speedup: float = 1.0
+
+
+@dataclass(frozen=True, kw_only=True)
 class AuthConfig:
     write_token: str | None
     read_token: str | None

@@ -14,6 +14,7 @@ from typing import Any, Literal
 import numpy as np
 from pydantic import BaseModel, Field
 
+from api.deps import ClockInfo
 from service.estimate.reference import CompensationReference
 from service.serve.interface import (
     H_UNIT,
@@ -477,20 +478,31 @@ def device_out(d: DeviceHealth) -> DeviceOut:
     )
 
 
+class ClockOut(BaseModel):
+    simulated: bool = Field(
+        description="true: every timestamp of this API is simulated plant time (`chtc demo`, `chtc replay`), "
+        "not the wall clock"
+    )
+    speedup: float = Field(description="plant seconds per wall second (1 on the wall clock)")
+
+
 class HealthOut(BaseModel):
     status: Literal["ok", "degraded"]
     t: datetime
+    clock: ClockOut = Field(description="what the service's clock (every timestamp served) is")
     model_loaded: bool
     model_version: str | None
     uptime_s: float
     devices: list[DeviceOut]
 
 
-def health_out(h: HealthSnapshot) -> HealthOut:
+def health_out(h: HealthSnapshot, clock: ClockInfo | None = None) -> HealthOut:
     bad = not h.model_loaded or any(str(d.status) in ("degraded", "down") for d in h.devices)
+    c = clock or ClockInfo()
     return HealthOut(
         status="degraded" if bad else "ok",
         t=h.t,
+        clock=ClockOut(simulated=c.simulated, speedup=c.speedup),
         model_loaded=h.model_loaded,
         model_version=h.model_version,
         uptime_s=round(h.uptime_s, 3),

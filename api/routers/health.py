@@ -19,8 +19,8 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", response_model=HealthOut, summary="liveness plus device health (always 200 if alive)")
-async def healthz(service: ServiceDep) -> HealthOut:
-    return health_out(service.health())
+async def healthz(service: ServiceDep, request: Request) -> HealthOut:
+    return health_out(service.health(), request.app.state.clock_info)
 
 
 @router.get(

@@ -1,11 +1,15 @@
 // spindle-chtc operator dashboard: polls /api/v1 and draws on canvases. Vanilla JS, no build step, no CDN.
-// A read token (if the API needs one) can be given once as #token=... in the URL; it stays in sessionStorage.
-// The write token for "Identify now" and "Take baseline" is asked for in a dialog and kept in sessionStorage
-// (this tab only).
+// The first screen is the compensation: the growth to correct, whether it may be applied and what to do when
+// not, exactly as /api/v1/compensation serves it (status, usable_for_compensation, reason_code, reason,
+// action). The page decides nothing itself and parses no reason text.
+// Tokens: a read token (if the API needs one) can be given once as #token=... in the URL, a write token as
+// #write-token=... (chtc demo prints such a URL). A fragment is never sent to the server; the page keeps the
+// tokens in sessionStorage (this tab only) and removes the fragment from the address bar. The write token for
+// "Identify now", "Take baseline" and "Set zero" is otherwise asked for in a dialog.
 "use strict";
 
 const API = "/api/v1";
-const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000, growth: 5000, hmap: 5000 };
+const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000, growth: 2000, deformed: 5000, hmap: 5000 };
 const HISTORY_MAX = 2160; // samples asked for on a (re)load; the page keeps as many as the server does
 const COLORS = ["#4c9be8", "#f0883e", "#3fb950", "#c297ff", "#e3b341", "#39c5cf", "#ff7b72", "#a5d6ff"];
 const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
@@ -13,18 +17,22 @@ const GRID = "#2a333c", AXIS = "#5b6773", TEXT = "#c9d1d9", MUTED = "#8f9ba8";
 const state = {
   etag: null, chtc: null, chtcAt: 0, field: null, fieldKey: null, layout: null, sensorsNow: null,
   hist: null, health: null, ready: null, apiError: null, job: null, growth: [], growthNow: null, deformed: null,
-  hmap: null, hmapEtag: null, hmapAt: 0, hmapOff: false, hmapHidden: new Set(),
+  hmap: null, hmapEtag: null, hmapAt: 0, hmapOff: false, hmapHidden: new Set(), clockInfo: null,
   rendered: { h: false, field: false, sensors: false },
 };
 
 const $ = (id) => document.getElementById(id);
 const esc = (s) => String(s ?? "").replace(/[&<>"]/g, (c) => ({ "&": "&amp;", "<": "&lt;", ">": "&gt;", '"': "&quot;" })[c]);
 
-function token() {
-  const m = location.hash.match(/token=([^&]+)/);
-  if (m) sessionStorage.setItem("chtc-token", decodeURIComponent(m[1]));
-  return sessionStorage.getItem("chtc-token");
+function readFragment() { // #token=...&write-token=... -> sessionStorage, then out of the address bar
+  const frag = new URLSearchParams(location.hash.slice(1));
+  const read = frag.get("token"), write = frag.get("write-token");
+  if (read) sessionStorage.setItem("chtc-token", read);
+  if (write) sessionStorage.setItem("chtc-write-token", write);
+  if (read || write) history.replaceState(null, "", location.pathname + location.search);
 }
+
+function token() { return sessionStorage.getItem("chtc-token"); }
 
 async function api(path, { etag, method = "GET", body, bearer } = {}) {
   const headers = {};
@@ -42,6 +50,23 @@ async function api(path, { etag, method = "GET", body, bearer } = {}) {
 }
 
 function fmt(v, digits = 1) { return v === null || v === undefined || Number.isNaN(v) ? "–" : Number(v).toFixed(digits); }
+// A bound or value with 3 significant digits, never in e-notation: 0.0123, 1.23, 123, 1230; beyond 10^6 or
+// below 10^-3 it says so (a served CI that wide carries no information).
+function sig3(v) {
+  if (v === null || v === undefined || !Number.isFinite(Number(v))) return "–";
+  const x = Number(v), a = Math.abs(x);
+  if (a === 0) return "0";
+  if (a >= 1e6) return (x < 0 ? "< −" : "> ") + "10⁶";
+  if (a < 1e-3) return (x < 0 ? "> −" : "< ") + "0.001";
+  const d = Math.max(0, 2 - Math.floor(Math.log10(a)));
+  return Number(x.toPrecision(3)).toFixed(d).replace("-", "−");
+}
+function signed(v, digits = 1) { // +1.2 / −1.2 (a real minus sign)
+  if (v === null || v === undefined || !Number.isFinite(Number(v))) return "–";
+  const t = Math.abs(Number(v)).toFixed(digits);
+  return (Number(t) === 0 ? "" : Number(v) < 0 ? "−" : "+") + t;
+}
+function timeTitle() { return state.clockInfo?.simulated ? "plant time (simulated), UTC" : "time, UTC"; }
 function utc(iso) { return iso ? iso.replace("T", " ").replace(/\.\d+/, "").replace("Z", " UTC") : "–"; }
 function ageText(s) {
   if (s === null || s === undefined) return "–";
@@ -217,35 +242,6 @@ function deviceCauses(health) {
   return out;
 }
 
-function chtcCauses(c) {
-  if (!c) return [];
-  const out = [];
-  if (c.status === "stale") {
-    out.push({ sev: "alarm", title: "H stale", detail: `newest data ${ageText(c.sample_age_s)} old; the values shown are the last identified ones, do not use them for compensation` });
-  } else if (c.status === "no-data") {
-    out.push({ sev: "alarm", title: "No data", detail: "the service has no samples yet" });
-  } else if (c.status === "at-bound") {
-    const names = (c.zones || []).filter((z) => z.at_bound).map((z) => z.name).join(", ") || "an H";
-    out.push({ sev: "alarm", title: "H at a search bound", detail: `${names} on a bound of the search box: not identified, do not use for compensation` });
-  } else if (c.status === "identifying" && /^(speed_not_visited|map_old)\b/.test(c.reason || "")) {
-    // speed-map mode: H come from the map at once; it is not current here yet and a re-fit follows
-    const why = c.reason.startsWith("map_old") ? "the map's data are older than its freshness limit"
-      : "the fitted data have not covered the current speed yet (the band there is the prior's)";
-    out.push({ sev: "warn", title: "Identifying", detail: `H from the speed map at the current speed; ${why}, a re-fit follows` });
-  } else if (c.status === "identifying") {
-    const k = c.condition;
-    out.push({ sev: "warn", title: "Identifying", detail: "the operating condition changed; H are still those of condition " + (k ? `#${k.id} (${fmt(k.speed_rpm, 0)} rpm)` : "before the change") + " until the new identification finishes" });
-  }
-  if (c.usable_for_compensation === false) {
-    const why = c.reason || "see /api/v1/chtc";
-    // a condition change is transient (the new identification is on its way): amber, not red
-    // (in speed-map mode: a speed the map has not covered yet, or a map due for its re-fit)
-    const sev = /^(condition_changed|speed_not_visited|map_old)\b/.test(why) ? "warn" : "alarm";
-    out.push({ sev, title: "Not usable for compensation", detail: why });
-  }
-  return out;
-}
-
 const UNREACHABLE = { title: "API unreachable", detail: "no answer from the service; values on this page are not being updated" };
 
 function apiProblem(r) {
@@ -260,8 +256,6 @@ function banner() {
   const causes = [];
   if (state.apiError) causes.push({ sev: "alarm", ...state.apiError });
   causes.push(...deviceCauses(state.health));
-  causes.push(...chtcCauses(state.chtc));
-  if (state.noIdentification) causes.push({ sev: "warn", title: "No identification yet", detail: "waiting for the first identification at a stable condition" });
   if (state.ready && !state.ready.ready && (state.ready.reasons || []).length) {
     causes.push({ sev: "alarm", title: "Not ready", detail: state.ready.reasons.join("; ") });
   }
@@ -274,13 +268,13 @@ function banner() {
   el.dataset.causes = causes.map((c) => c.title).join("|");
 }
 
-function setStatus(status, text) {
+// The H card shows the status /chtc serves for H1-H7 (greyed when stale); the page's one status is the
+// compensation's (showComp).
+function setHStatus(status, text) {
   const stale = Boolean(state.chtc) && (status === "stale" || status === "no-data" || status === "error");
   $("card-h").classList.toggle("is-stale", stale);
   $("h-stale").hidden = !stale;
-  const pill = $("status");
-  pill.className = "pill pill-" + status;
-  pill.textContent = text || status;
+  $("h-status").textContent = text ? "H: " + text : "";
   banner();
 }
 
@@ -289,8 +283,8 @@ function hTable(zones, desc) {
   $("h-table").querySelector("tbody").innerHTML = zones.map((z) =>
     `<tr data-zone="${z.name}"><td><b>${z.name}</b></td><td class="wrap desc">${esc((desc.get(z.name) || "").replace(/<->/g, "↔"))}</td>` +
     `<td class="num" id="h-${z.name}">${fmt(z.h_w_m2k, 2)}</td>` +
-    `<td class="num">${fmt(z.ci95_lo_w_m2k)} – ${fmt(z.ci95_hi_w_m2k)}</td><td class="${z.identified ? "" : "no"}">` +
-    `${z.identified ? "yes" : "no (weak)"}</td></tr>`).join("");
+    `<td class="num">${sig3(z.ci95_lo_w_m2k)} – ${sig3(z.ci95_hi_w_m2k)}</td><td class="${z.identified ? "" : "no"}">` +
+    `${z.identified ? "yes" : z.prior_dominated ? "no (prior)" : "no (weak)"}</td></tr>`).join("");
 }
 
 function drawH(c) {
@@ -346,26 +340,24 @@ async function pollChtc() {
     state.apiError = null;
     if (r.status === 304 && state.chtc) {
       const age = state.chtc.sample_age_s === null ? null : state.chtc.sample_age_s + (Date.now() - state.chtcAt) / 1000;
-      setStatus(state.chtc.status, `${state.chtc.status} · ${ageText(age)}`);
+      setHStatus(state.chtc.status, `${state.chtc.status} · ${ageText(age)}`);
       return;
     }
     if (r.status === 503) {
-      state.noIdentification = true;
-      setStatus("waiting", "no identification yet");
+      setHStatus("waiting", "no identification yet");
       placeholder($("h-chart"), "waiting for the first identification");
       if (!state.field) placeholder($("field"), "the field is shown after the first identification");
       return;
     }
-    if (r.status !== 200) { state.apiError = apiProblem(r); setStatus("error", state.apiError.title); return; }
-    state.noIdentification = false;
+    if (r.status !== 200) { state.apiError = apiProblem(r); setHStatus("error", state.apiError.title); return; }
     state.etag = r.headers.get("ETag");
     state.chtc = r.body;
     state.chtcAt = Date.now();
-    setStatus(r.body.status, `${r.body.status} · ${ageText(r.body.sample_age_s)}`);
+    setHStatus(r.body.status, `${r.body.status} · ${ageText(r.body.sample_age_s)}`);
     drawH(r.body);
     const key = r.body.identification_id + "|" + $("field-at").value;
     if (key !== state.fieldKey) pollField();
-  } catch (e) { state.apiError = UNREACHABLE; setStatus("error", "API unreachable"); }
+  } catch (e) { state.apiError = UNREACHABLE; setHStatus("error", "API unreachable"); }
   markRendered();
 }
 
@@ -751,7 +743,7 @@ function drawSensors() {
   if (!vals.length) { lo = 0; hi = 1; }
   const pad = Math.max((hi - lo) * 0.06, 0.25); lo -= pad; hi += pad;
   const y = yAxis(canvas, ctx, box, lo, hi, { title: "temperature, °C" });
-  const x = xTimeAxis(canvas, ctx, box, t0, t1, "time, UTC");
+  const x = xTimeAxis(canvas, ctx, box, t0, t1, timeTitle());
   ctx.save(); ctx.beginPath(); ctx.rect(box.L, box.T, W - box.L - box.R, H - box.T - box.B); ctx.clip();
   chans.forEach((c, k) => {
     const s = h.series.get(c), col = COLORS[k % COLORS.length];
@@ -873,7 +865,7 @@ function drawConditions(current, recent, servedAt) {
   const t0 = Math.min(...segs.map((c) => Date.parse(c.since)), now - 600e3);
   const maxS = Math.max(...segs.map((c) => c.speed_rpm), 1000) * 1.15;
   const y = yAxis(canvas, ctx, box, 0, maxS, { title: "speed, rpm", ticks: niceTicks(0, maxS, 4) });
-  const x = xTimeAxis(canvas, ctx, box, t0, now, "time, UTC");
+  const x = xTimeAxis(canvas, ctx, box, t0, now, timeTitle());
   segs.forEach((c, i) => {
     const a = x(Date.parse(c.since)), b = i + 1 < segs.length ? x(Date.parse(segs[i + 1].since)) : x(now);
     ctx.fillStyle = "rgba(76,155,232,0.28)";
@@ -912,7 +904,7 @@ function drawGrowth() {
   let lo = Math.min(...vals, 0), hi = Math.max(...vals, 1);
   const pad = (hi - lo) * 0.06; lo -= pad; hi += pad;
   const y = yAxis(canvas, ctx, box, lo, hi, { title: "axial growth, µm" });
-  const x = xTimeAxis(canvas, ctx, box, t0, t1, "time, UTC");
+  const x = xTimeAxis(canvas, ctx, box, t0, t1, timeTitle());
   ctx.save(); ctx.beginPath(); ctx.rect(box.L, box.T, W - box.L - box.R, H - box.T - box.B); ctx.clip();
   ctx.fillStyle = "rgba(76,155,232,0.22)"; ctx.beginPath();
   pts.forEach((p, i) => (i ? ctx.lineTo(x(p.t), y(p.ci[1])) : ctx.moveTo(x(p.t), y(p.ci[1]))));
@@ -930,29 +922,129 @@ function drawGrowth() {
   ctx.restore();
 }
 
+// ---------- the compensation (/compensation): the page's one status ----------
+// Colour of the served verdict: green only when the API says usable; red when the value is not being updated
+// or not identified; amber for the transient states. What the verdict is, is the API's.
+const SEVERE = new Set(["stale", "no-data", "at-bound", "error"]);
+function verdictClass(c) {
+  if (!c) return "bad";
+  if (c.usable_for_compensation) return "ok";
+  return SEVERE.has(c.status) ? "bad" : "warn";
+}
+// Only for an API that serves no `action` yet (before the served-value policy): a hint by the served status.
+const ACTION_BY_STATUS = {
+  stale: "Check the DAQ and CAN connections (Devices card): the value is not being updated.",
+  "no-data": "Wait for samples; if none arrive, check the devices.",
+  identifying: "Wait: a new identification is on its way.",
+  "at-bound": "Wait for more data at this condition; if it persists, check the sensors.",
+  predicted: "Restore the temperature DAQ: the value is predicted without measurements.",
+  fresh: "Wait until the estimate is good enough to apply.",
+};
+
+function showComp(c, problem) {
+  const cls = c ? verdictClass(c) : problem.sev || "bad", pill = $("status"), v = $("comp-verdict");
+  v.className = `comp-verdict verdict-${cls}`;
+  pill.className = `pill pill-${cls}`;
+  const ds = { status: c ? c.status : "", usable: c ? String(Boolean(c.usable_for_compensation)) : "false", reasonCode: c?.reason_code || "" };
+  Object.assign(pill.dataset, ds); Object.assign(v.dataset, ds);
+  if (!c) {
+    pill.textContent = problem.title;
+    $("comp-um").textContent = "–"; $("comp-ci").textContent = "no value"; $("comp-correction").textContent = "";
+    $("comp-usable").textContent = "No compensation value";
+    $("comp-reason").textContent = problem.detail;
+    $("comp-action").textContent = problem.action ? "What to do: " + problem.action : "";
+    for (const id of ["comp-status", "comp-age", "comp-at"]) $(id).textContent = "–";
+    banner();
+    return;
+  }
+  const a = c.axial, usable = Boolean(c.usable_for_compensation);
+  pill.textContent = `${usable ? "usable" : "not usable"} · ${c.status}`;
+  pill.title = `/api/v1/compensation: ${c.status}, ${usable ? "usable" : "not usable"}` + (c.reason ? ` (${c.reason})` : "");
+  $("comp-um").textContent = signed(a.um, 1);
+  $("comp-ci").textContent = `95 % CI [${signed(a.ci95_um[0], 1)}, ${signed(a.ci95_um[1], 1)}] µm (± ${fmt((a.ci95_um[1] - a.ci95_um[0]) / 2, 1)})`;
+  $("comp-correction").textContent = `axis correction ${signed(c.plc.correction_um, 1)} µm · SD43900 ` +
+    `${c.plc.sd43900_temp_comp_abs_value_mm.toFixed(4)} mm · ISG ${c.plc.isg_temp_comp_offset_0_0p1um} × 0.1 µm`;
+  $("comp-usable").textContent = usable ? "Usable: apply the correction" : "Not usable: do not apply";
+  $("comp-reason").textContent = usable ? "" : (c.reason || "");
+  const action = "action" in c ? c.action : (usable ? null : ACTION_BY_STATUS[c.status]);
+  $("comp-action").textContent = !usable && action ? "What to do: " + action : "";
+  $("comp-status").textContent = c.status + (c.reason_code ? ` · ${c.reason_code}` : "");
+  const plant = state.clockInfo?.simulated ? " (plant time)" : "";
+  $("comp-age").textContent = c.sample_age_s === null ? "none yet" : `${ageText(c.sample_age_s)} old${plant}`;
+  const ref = c.reference;
+  $("comp-ref").textContent = ref ? `${fmt(ref.temperature_c, 2)} °C, set ${utc(ref.at)} (${ref.source}, ${ref.set_by})`
+    : c.t_ref_at ? `${fmt(c.t_ref_c, 2)} °C since ${utc(c.t_ref_at)}` : `${fmt(c.t_ref_c, 2)} °C (none set)`;
+  $("comp-at").textContent = utc(c.at);
+  $("comp-at-label").textContent = state.clockInfo?.simulated ? "live field at (plant time)" : "live field at";
+  banner();
+}
+
 async function pollGrowth() {
   try {
     const r = await api("/compensation");
-    if (r.status !== 200) { $("growth-now").textContent = r.body?.error?.message || "no growth yet"; return; }
+    if (r.status !== 200) {
+      const msg = r.body?.error?.message || "HTTP " + r.status;
+      $("growth-now").textContent = msg || "no growth yet";
+      const wait = r.status === 503; // no live state or identification yet: normal after a start
+      showComp(null, { title: wait ? "no value yet" : "no value", detail: msg, sev: wait ? "warn" : "bad",
+        action: wait ? "Wait: the service serves a value once its live state has converged." : null });
+      if (!state.growthNow) drawGrowth();
+      return;
+    }
     const g = r.body, a = g.axial;
     state.growthNow = g;
+    showComp(g);
     const t = Date.parse(g.at);
     const last = state.growth[state.growth.length - 1];
     if (!last || t > last.t) state.growth.push({ t, um: a.um, ci: a.ci95_um });
     else if (t < last.t) state.growth = [{ t, um: a.um, ci: a.ci95_um }]; // the server restarted
     if (state.growth.length > GROWTH_KEEP) state.growth.shift();
     const f = g.forecast;
-    $("growth-now").innerHTML = `axial <b id="growth-axial">${fmt(a.um, 1)}</b> µm ` +
-      `[${fmt(a.ci95_um[0], 1)}, ${fmt(a.ci95_um[1], 1)}] · radial <b>${fmt(g.radial.um, 1)}</b> µm · ` +
-      `steady ${fmt(f.steady_axial.um, 1)} µm (τ ${fmt(f.tau_s / 60, 0)} min) · ` +
-      `<span class="${g.usable_for_compensation ? "" : "no"}">${esc(g.status)}</span>`;
+    $("growth-now").innerHTML = `axial <b id="growth-axial">${fmt(a.um, 1)}</b> µm · radial ${fmt(g.radial.um, 1)} µm · ` +
+      `steady ${fmt(f.steady_axial.um, 1)} µm (τ ${fmt(f.tau_s / 60, 0)} min)`;
     $("growth-stale").hidden = g.status !== "stale";
-    $("growth-meta").textContent = `at ${utc(g.at)} over T_ref ${fmt(g.t_ref_c, 2)} °C · PLC: SD43900 ` +
-      `${g.plc.sd43900_temp_comp_abs_value_mm.toFixed(4)} mm, ISG offset ${g.plc.isg_temp_comp_offset_0_0p1um} × 0.1 µm` +
-      (g.usable_for_compensation ? "" : ` · not usable: ${g.reason || ""}`);
+    $("growth-meta").textContent = `at ${utc(g.at)} over T_ref ${fmt(g.t_ref_c, 2)} °C · identification #${g.identification_id}`;
     drawGrowth();
-    await pollDeformed();
-  } catch (e) { $("growth-now").textContent = "growth unavailable"; }
+  } catch (e) {
+    $("growth-now").textContent = "growth unavailable";
+    showComp(null, { title: "API unreachable", detail: "no answer from the service", action: "Check that the service runs." });
+  }
+}
+
+// ---------- set the compensation zero (POST /compensation/reference) ----------
+function openZero() {
+  $("zero-token").value = sessionStorage.getItem("chtc-write-token") || "";
+  $("zero-dialog").showModal();
+  ($("zero-token").value ? $("zero-submit") : $("zero-token")).focus();
+}
+
+async function submitZero(ev) {
+  ev.preventDefault();
+  const tok = $("zero-token").value.trim();
+  if (!tok) { $("zero-token").focus(); return; }
+  sessionStorage.setItem("chtc-write-token", tok);
+  $("zero-dialog").close();
+  const out = $("zero-result");
+  $("zero-now").disabled = true;
+  try {
+    const r = await api("/compensation/reference", { method: "POST", body: { set_by: "dashboard" }, bearer: tok });
+    if (r.status === 200) {
+      out.textContent = `zero set: ${fmt(r.body.temperature_c, 2)} °C at ${utc(r.body.at)}`;
+      out.className = "action-result ok";
+      pollGrowth();
+    } else {
+      if (r.status === 401 || r.status === 403) sessionStorage.removeItem("chtc-write-token");
+      const missing = r.status === 404 || r.status === 405;
+      out.textContent = missing ? "this service cannot store a compensation zero (no /compensation/reference)"
+        : `refused (${r.status}): ${r.body?.error?.message || "HTTP " + r.status}`;
+      out.className = "action-result err";
+    }
+  } catch (e) {
+    out.textContent = "failed: the service did not answer";
+    out.className = "action-result err";
+  }
+  out.title = out.textContent;
+  $("zero-now").disabled = false;
 }
 
 // ---------- the deformed section (/compensation/section): outline + displacement × an exaggeration ----------
@@ -1028,6 +1120,7 @@ async function pollHealth() {
     const [h, rd] = await Promise.all([api("/healthz"), api("/readyz")]);
     if (h.status === 200) {
       state.health = h.body;
+      showClockKind(h.body.clock);
       $("health-table").querySelector("tbody").innerHTML = h.body.devices.map((d) =>
         `<tr data-device="${esc(d.name)}"><td>${esc(DEVICE_LABEL[d.name] || d.name)}</td><td><span class="badge st-${d.status}">${d.status}</span></td>` +
         `<td>${d.age_s === null ? "–" : ageText(d.age_s) + " ago"}</td>` +
@@ -1050,6 +1143,18 @@ async function pollIdents() {
       `${fmt(i.condition.ambient_c, 1)} °C</td><td class="num">${fmt(i.rmse_c, 3)} °C</td><td>${esc(i.method)}</td>` +
       `<td class="wrap ${i.outcome === "ok" ? "" : "no"}">${esc(i.outcome)} · ${esc(i.reason)}</td></tr>`).join("");
   } catch (e) { /* shown by the other panels */ }
+}
+
+// The service's clock: a simulated plant time (chtc demo, chtc replay) is marked as such wherever time shows.
+function showClockKind(info) {
+  state.clockInfo = info || null;
+  const sim = Boolean(info?.simulated), el = $("plant-time");
+  el.hidden = !sim;
+  el.textContent = sim ? `SIMULATED PLANT TIME ×${fmt(info.speedup, 0)}` : "";
+  $("clock").title = sim ? "the service's simulated plant time, UTC" : "server time, UTC";
+  $("footer-time").textContent = sim ? `all times are simulated plant time (UTC), running ×${fmt(info.speedup, 0)} the wall clock`
+    : "all times UTC";
+  document.body.dataset.plantTime = sim ? "1" : "0";
 }
 
 // ---------- identify now ----------
@@ -1112,6 +1217,7 @@ function markRendered() {
 function every(fn, ms) { fn(); setInterval(fn, ms); }
 
 function start() {
+  readFragment();
   setInterval(() => { $("clock").textContent = new Date(serverNow()).toISOString().slice(0, 19).replace("T", " ") + " UTC"; }, 1000);
   $("field-at").addEventListener("change", pollField);
   $("field-show").addEventListener("change", () => { if (state.field) drawField(state.field); });
@@ -1127,6 +1233,9 @@ function start() {
   $("baseline-now").addEventListener("click", openBaseline);
   $("baseline-form").addEventListener("submit", submitBaseline);
   $("baseline-cancel").addEventListener("click", () => $("baseline-dialog").close());
+  $("zero-now").addEventListener("click", openZero);
+  $("zero-form").addEventListener("submit", submitZero);
+  $("zero-cancel").addEventListener("click", () => $("zero-dialog").close());
   let resizeTimer = null;
   window.addEventListener("resize", () => {
     clearTimeout(resizeTimer);
@@ -1144,6 +1253,7 @@ function start() {
     every(pollHealth, POLL_MS.health);
     every(pollIdents, POLL_MS.idents);
     every(pollGrowth, POLL_MS.growth);
+    every(pollDeformed, POLL_MS.deformed);
     every(pollHmap, POLL_MS.hmap);
     setInterval(pollField, POLL_MS.field);
   });

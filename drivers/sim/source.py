@@ -9,7 +9,8 @@ simulated time::
 Values between rows are linearly interpolated (``mode="interpolate"``, the default for the plant, whose rows
 are 10 s apart) or held from the last row at or before the simulated time (``mode="hold"``, used for replays
 so that replayed values equal the recorded ones exactly). Status codes are always held. Past the end the
-last row is held (or the timeline wraps round when ``loop=True``).
+last row is held (or the timeline wraps round when ``loop=True``). ``extend(more)`` appends rows while it
+plays (``chtc demo`` computes its endless machining cycle chunk by chunk).
 
 Errors: :class:`TimelineError` (``ValueError``) names the bad array.
 """
@@ -143,13 +144,32 @@ class TimelineSource:
         validate_timeline(run)
         if not speedup > 0:
             raise TimelineError(f"speedup: must be > 0, got {speedup}")
-        self.run = run
+        self.run: Timeline = run
         self.speedup = float(speedup)
         self.mode: Mode = mode
         self.loop = loop
         self.clock = clock
-        self._times = np.asarray(run.times_s, dtype=float)
         self._wall_start: float | None = None
+
+    @property
+    def _times(self) -> NDArray[np.float64]:
+        return np.asarray(self.run.times_s, dtype=float)
+
+    def extend(self, more: Timeline) -> None:
+        """Append ``more``'s rows after the last one (its ``times_s`` on its own axis, continuing
+        ``run.times_s``: every time must be later than the last row). The timeline is replaced by one new
+        :class:`ArrayTimeline` in a single assignment, so a reader never sees half an extension."""
+        validate_timeline(more)
+        if self.loop:
+            raise TimelineError("extend: a looping timeline cannot grow")
+        run = self.run
+        if float(np.asarray(more.times_s)[0]) <= float(np.asarray(run.times_s)[-1]):
+            raise TimelineError("times_s: the rows appended must come after the last row")
+        joined = {
+            name: np.concatenate([np.asarray(getattr(run, name)), np.asarray(getattr(more, name))])
+            for name in ("times_s", "temps_c", "ambient_c", "speed_rpm", "torque_nm", "status")
+        }
+        self.run = ArrayTimeline(**joined)
 
     @property
     def n_channels(self) -> int:
@@ -186,8 +206,9 @@ class TimelineSource:
 
     def at(self, t_s: float) -> Snapshot:
         """The snapshot at simulated time ``t_s`` (s), interpolated or held according to ``mode``."""
+        run = self.run  # one timeline for the whole lookup (``extend`` may replace it)
         t = self._wrap(t_s)
-        times = self._times
+        times = np.asarray(run.times_s, dtype=float)
         k = int(np.searchsorted(times, t, side="right")) - 1
         k = min(max(k, 0), times.size - 1)
         frac = 0.0
@@ -196,11 +217,11 @@ class TimelineSource:
         return Snapshot(
             t_s=t_s,
             index=k,
-            temps_c=self._blend(self.run.temps_c, k, frac),
-            ambient_c=float(self._blend(self.run.ambient_c, k, frac)),
-            speed_rpm=float(self._blend(self.run.speed_rpm, k, frac)),
-            torque_nm=float(self._blend(self.run.torque_nm, k, frac)),
-            status=np.asarray(self.run.status[k], dtype=np.int64).copy(),
+            temps_c=self._blend(run.temps_c, k, frac),
+            ambient_c=float(self._blend(run.ambient_c, k, frac)),
+            speed_rpm=float(self._blend(run.speed_rpm, k, frac)),
+            torque_nm=float(self._blend(run.torque_nm, k, frac)),
+            status=np.asarray(run.status[k], dtype=np.int64).copy(),
         )
 
     def _wrap(self, t_s: float) -> float:

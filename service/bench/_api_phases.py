@@ -158,7 +158,7 @@ def _start_demo(args: argparse.Namespace) -> tuple[subprocess.Popen[str], str]:
     def read() -> None:
         assert proc.stdout is not None
         for line in proc.stdout:
-            if not found and (m := re.search(r"dashboard: (http://\S+?)/?\s", line)):
+            if not found and (m := re.search(r"dashboard: (http://[^\s#]+?)/?[\s#]", line)):
                 found.append(m.group(1))
 
     threading.Thread(target=read, daemon=True).start()

@@ -1,14 +1,18 @@
 """``chtc demo``: the whole soft sensor against simulated devices driven by the virtual plant, on SQLite.
 
-The virtual plant (``model.plant.VirtualPlant``, its own finer mesh and ground truth) runs an operating
-profile with several speed changes (3000 → 4000 → 5000 → 4000 → 3000 rpm, ``--segment-min`` each); the
-simulated Modbus DAQ and CAN node serve it on a free loopback port and a private virtual CAN channel at
-``--speedup`` plant seconds per wall second. The unchanged service (real drivers, ring buffer, detector,
-scheduler, worker process, database writer) and the API with the dashboard run in this process. Progress
-lines report detected conditions and identifications (H with fit, and the plant's true H for comparison).
+The virtual plant (``model.plant.VirtualPlant``, its own finer mesh and ground truth) runs a seeded machining
+duty cycle until the demo is stopped (``service.sim.endless``: ``--idle-min`` at rest, then the speed changes
+every 1–6 min over 0–7000 rpm with torque; computed 30 plant minutes ahead, chunk by chunk). The simulated
+Modbus DAQ and CAN node serve it on a free loopback port and a private virtual CAN channel at ``--speedup``
+plant seconds per wall second. The unchanged service (real drivers, ring buffer, detector, scheduler, worker
+process, database writer) and the API with the dashboard run in this process. Progress lines report detected
+conditions and identifications (H with fit, and the plant's true H for comparison).
 
-All timestamps are simulated UTC: they start at the real time and run ``--speedup`` times faster. After the
-profile ends the plant holds its last state. Stops on Ctrl-C or after ``--duration`` wall seconds.
+All timestamps are simulated plant time (UTC): they start at the real time and run ``--speedup`` times
+faster; ``/healthz`` says so (``clock.simulated``) and the dashboard marks its times "plant time". The demo
+writes with a token: ``api.token`` from ``--config``, else one generated for this run and printed, with the
+dashboard URL carrying it in its fragment (``#write-token=...``: a fragment is never sent to the server, so
+it lands in no request log). Stops on Ctrl-C or after ``--duration`` wall seconds.
 """
 
 from __future__ import annotations
@@ -17,6 +21,7 @@ import argparse
 import asyncio
 import contextlib
 import logging
+import secrets
 import signal
 import tempfile
 import time
@@ -37,15 +42,14 @@ from service.commands._common import (
 from service.engine.jobbook import MAP_METHOD
 
 if TYPE_CHECKING:
-    from model.plant import PlantRun, Segment
     from service.engine.runtime import Runtime
     from service.serve.interface import IdentificationRecord
     from service.settings import Settings
+    from service.sim.endless import EndlessPlant, PlantRows
     from service.sim.simrig import SimRig
 
-SPEEDS_RPM = (3000.0, 4000.0, 5000.0, 4000.0, 3000.0)
-AMBIENT_C = (23.2, 21.8, 22.0, 22.5, 23.0)
-TORQUE_NM = (5.0, 6.0, 8.0, 6.0, 5.0)
+# plant seconds computed ahead of the plant time served: a chunk is computed when less than this is left
+AHEAD_S = 900.0
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -68,31 +72,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--duration", type=float, default=None, help="stop after this many wall seconds (default: Ctrl-C)"
     )
-    parser.add_argument("--seed", type=int, default=0, help="plant noise seed and identification seed")
-    parser.add_argument("--segment-min", type=positive_float, default=60.0, help="plant minutes per speed")
+    parser.add_argument("--seed", type=int, default=0, help="duty-cycle, plant noise and identification seed")
+    parser.add_argument(
+        "--idle-min", type=float, default=5.0, help="plant minutes at rest before the machining starts"
+    )
+    parser.add_argument(
+        "--segment-min",
+        type=positive_float,
+        default=None,
+        help="plant minutes per speed (default: 1-6 min at random, as on a machining centre)",
+    )
     parser.add_argument("--quiet", action="store_true", help="only print the URL and errors")
 
 
-def build_profile(segment_min: float, *, idle_min: float = 5.0) -> list[Segment]:
-    """The demo's operating profile as ``model.plant.Segment`` (s, rpm, N·m, °C).
-
-    It starts with the spindle idle (cold, uniform at ambient) for ``idle_min``: the service sees the machine
-    start from a known state, as in the paper's runs.
-    """
-    from model.plant import Segment
-
-    idle = [Segment(60.0 * idle_min, 0.0, 0.0, AMBIENT_C[0])] if idle_min > 0 else []
-    return idle + [
-        Segment(60.0 * segment_min, n, m, a) for n, m, a in zip(SPEEDS_RPM, TORQUE_NM, AMBIENT_C, strict=True)
-    ]
-
-
-def demo_settings(args: argparse.Namespace, db_url: str) -> Settings:
+def demo_settings(args: argparse.Namespace, db_url: str) -> tuple[Settings, str | None]:
     """Settings from ``--config`` with the demo's API address, database and seed, validated
-    (``SettingsError`` / ``CommandError`` naming the key)."""
+    (``SettingsError`` / ``CommandError`` naming the key), and the write token generated for this run (None
+    when ``api.token`` is configured: it is then used, and never printed)."""
     from service.settings import load_settings
 
     s = load_settings(args.config)
+    generated = None
+    if s.api.token is None:
+        generated = secrets.token_urlsafe(24)
+        s = override(s, "api", token=generated)
     port = args.port
     if port == 0:
         from service.engine.runtime import free_port
@@ -103,7 +106,7 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> Settings:
     # the virtual plant starts at rest in equilibrium: the demo's controller is zeroed there (a real
     # installation sets its zero at commissioning: docs/commissioning.md)
     s = override(s, "compensation", reference_on_first_start=True)
-    return override(s, "experimental", seed=args.seed)
+    return override(s, "experimental", seed=args.seed), generated
 
 
 class Printer:
@@ -113,18 +116,19 @@ class Printer:
     stored), not at the moment the line is printed: by then the plant may run at the next speed. A speed-map
     fit's record (method ``speed-map``) holds the map's H at its launch condition, the window's end (its
     window spans several speeds): its truth is the plant's there.
-    ``clock`` is the service's (simulated UTC) clock; ``rig.plant_time_s()`` the plant time now.
+    ``rows()`` is the plant's rows so far (``times_s``, ``speed_rpm``, ``h_true``; they grow as the plant
+    runs); ``clock`` is the service's (simulated UTC) clock; ``rig.plant_time_s()`` the plant time now.
     """
 
     def __init__(
         self,
-        run: PlantRun,
+        rows: Callable[[], PlantRows | None],
         *,
         quiet: bool,
         clock: Callable[[], datetime] | None = None,
         current: Callable[[], IdentificationRecord | None] | None = None,
     ) -> None:
-        self.run, self.quiet = run, quiet
+        self.rows, self.quiet = rows, quiet
         self.clock, self.current = clock, current
         self.rig: SimRig | None = None
 
@@ -134,17 +138,18 @@ class Printer:
         elapsed = self.rig.plant_time_s() if self.rig is not None else 0.0
         h, rem = divmod(int(elapsed), 3600)
         line = f"[plant +{h:02d}:{rem // 60:02d}:{rem % 60:02d}] {msg}"
-        if msg.startswith(("identification", "map identification")) and " ok:" in msg:
+        rows = self.rows()
+        if rows is not None and msg.startswith(("identification", "map identification")) and " ok:" in msg:
             rec = self.current() if self.current is not None else None
             if msg.startswith("map") and rec is not None:  # its line has no H: the map's at the launch
                 served = ", ".join(f"{x:.1f}" for x in rec.h)
                 line += f"\n{' ' * 17}map H = [{served}] at {rec.condition.speed_rpm:.0f} rpm"
-            k, where = self._truth_row(elapsed)
-            truth = ", ".join(f"{x:.1f}" for x in self.run.h_true[k])
+            k, where = self._truth_row(rows, elapsed)
+            truth = ", ".join(f"{x:.1f}" for x in rows.h_true[k])
             line += f"\n{' ' * 17}plant truth H = [{truth}] ({where})"
         print(line, flush=True)
 
-    def _truth_row(self, elapsed: float) -> tuple[int, str]:
+    def _truth_row(self, rows: PlantRows, elapsed: float) -> tuple[int, str]:
         """The plant row at the identified window's middle, and how it was chosen."""
         t_plant, where = elapsed, "now"
         rec = self.current() if self.current is not None else None
@@ -153,28 +158,37 @@ class Printer:
             at = rec.window_to if at_end else rec.window_from + (rec.window_to - rec.window_from) / 2
             t_plant = elapsed - (self.clock() - at).total_seconds()
             label = "the map at the window's end" if at_end else "mid-window"
-            where = f"{label}, {float(self.run.speed_rpm[self._row(t_plant)]):.0f} rpm"
-        return self._row(t_plant), where
-
-    def _row(self, t_plant: float) -> int:
-        return min(int(np.searchsorted(self.run.times_s, t_plant)), len(self.run.times_s) - 1)
+            where = f"{label}, {float(rows.speed_rpm[_row(rows, t_plant)]):.0f} rpm"
+        return _row(rows, t_plant), where
 
 
-async def run_demo(args: argparse.Namespace, settings: Settings) -> int:
+def _row(rows: PlantRows, t_plant: float) -> int:
+    return min(int(np.searchsorted(rows.times_s, t_plant)), len(rows.times_s) - 1)
+
+
+def dashboard_url(base: str, token: str | None) -> str:
+    """The dashboard's URL; with a generated write token in its fragment (``#write-token=...``), which the
+    browser never sends to the server: the page keeps it in the tab's sessionStorage for its write buttons."""
+    return base if token is None else f"{base}#write-token={token}"
+
+
+async def run_demo(args: argparse.Namespace, settings: Settings, token: str | None = None) -> int:
     from model.geometry import load_spindle
-    from model.plant import VirtualPlant
     from service.engine.runtime import Runtime, ScaledClock
+    from service.sim.endless import EndlessPlant
     from service.sim.simrig import SimAddress, make_drivers, plant_rig
 
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)
     print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
-    runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: None)
+    runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: None, simulated_time=True)
     await asyncio.to_thread(runtime.load)
-    print("running the virtual plant over the demo profile ...", flush=True)
-    plant = VirtualPlant(load_spindle(settings.model.spindle), seed=args.seed)
-    run = await asyncio.to_thread(plant.run, build_profile(args.segment_min), dt_s=10.0)
-    printer = Printer(run, quiet=args.quiet, clock=clock, current=lambda: _current(runtime))
+    print("starting the virtual plant's machining cycle ...", flush=True)
+    seg_s = None if args.segment_min is None else 60.0 * args.segment_min
+    spec = load_spindle(settings.model.spindle)
+    plant = EndlessPlant(spec, seed=args.seed, idle_s=60.0 * args.idle_min, segment_s=seg_s)
+    plant.append(await asyncio.to_thread(plant.next_chunk))
+    printer = Printer(lambda: plant.rows, quiet=args.quiet, clock=clock, current=lambda: _current(runtime))
     runtime.on_event = printer
     address = SimAddress.free(speedup=args.speedup)
     daq, can_sensor = make_drivers(settings, address, clock=clock)
@@ -185,30 +199,57 @@ async def run_demo(args: argparse.Namespace, settings: Settings) -> int:
         # the simulated devices listen before the drivers first poll them (no "cannot connect" warning)
         await runtime.start(daq=daq, can=can_sensor, api=True, acquire=False)
         await runtime.wait_api()
-        rig = printer.rig = await plant_rig(run, address=address)
+        assert plant.rows is not None
+        rig = printer.rig = await plant_rig(plant.rows, address=address)
         runtime.start_acquisition()
+        grow = asyncio.ensure_future(_keep_ahead(plant, rig, stop))
+        url = dashboard_url(runtime.url, token)
+        print(f"dashboard: {url}", flush=True)
+        print(f"API: {runtime.url}api/v1/compensation; database: {_safe(db_url)}", flush=True)
+        if token is not None:
+            print(
+                f"write token (this run only; the dashboard URL carries it): {token}\n"
+                f"  e.g. curl -X POST -H 'Authorization: Bearer {token}' {runtime.url}api/v1/identifications",
+                flush=True,
+            )
+        else:
+            print("write token: the configured api.token", flush=True)
+        every = "1-6 min" if args.segment_min is None else f"{args.segment_min:g} min"
         print(
-            f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc; database: {_safe(db_url)})",
-            flush=True,
-        )
-        print(
-            f"plant profile: idle, then {' -> '.join(f'{n:.0f}' for n in SPEEDS_RPM)} rpm, "
-            f"{args.segment_min:.0f} min each, "
-            f"x{args.speedup:g} ({args.segment_min * 60 / args.speedup:.0f} s per segment); Ctrl-C stops",
+            f"plant profile: {args.idle_min:g} min at rest, then a machining cycle (a new speed every "
+            f"{every}, 0-7000 rpm) until stopped; plant time runs x{args.speedup:g} (1 wall s = "
+            f"{args.speedup:g} plant s) and every time shown is plant time; Ctrl-C stops",
             flush=True,
         )
         started = time.monotonic()
         while not stop.is_set():
             if args.duration is not None and time.monotonic() - started >= args.duration:
                 break
+            if grow.done():
+                grow.result()  # a failure of the plant is the demo's
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), timeout=0.2)
+        stop.set()
+        await grow
     finally:
         await runtime.stop()
         if rig is not None:
             await rig.stop()
     print("demo stopped", flush=True)
     return 0
+
+
+async def _keep_ahead(plant: EndlessPlant, rig: SimRig, stop: asyncio.Event) -> None:
+    """Compute the plant's next chunk (in a thread) whenever less than ``AHEAD_S`` plant seconds are left
+    ahead of the plant time served, and append it to what the simulated devices play."""
+    while not stop.is_set():
+        if plant.end_s - rig.plant_time_s() < AHEAD_S:
+            chunk = await asyncio.to_thread(plant.next_chunk)
+            plant.append(chunk)
+            rig.daq_server.source.extend(chunk)
+            continue
+        with contextlib.suppress(TimeoutError):
+            await asyncio.wait_for(stop.wait(), timeout=0.5)
 
 
 def _current(runtime: Runtime) -> IdentificationRecord | None:
@@ -241,8 +282,8 @@ def main(args: argparse.Namespace) -> int:
     quiet_third_party_logs()
     with tempfile.TemporaryDirectory(prefix="chtc-demo-") as tmp:
         db_url = args.database_url or f"sqlite:///{Path(tmp) / 'demo.db'}"
-        settings = demo_settings(args, db_url)
+        settings, token = demo_settings(args, db_url)
         if args.database_url is not None:
             check_database_url(settings.database.url, "--database-url")
         check_listen(settings.api.host, settings.api.port)
-        return asyncio.run(run_demo(args, settings))
+        return asyncio.run(run_demo(args, settings, token))

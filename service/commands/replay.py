@@ -206,7 +206,7 @@ async def _replay(
     clock = ScaledClock(args.speedup)
     period_s = settings.acquisition.sample_period_s
     lines = RecordLines()
-    runtime = Runtime(settings=settings, clock=clock, on_event=lines.event)
+    runtime = Runtime(settings=settings, clock=clock, on_event=lines.event, simulated_time=True)
     await asyncio.to_thread(runtime.load)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)

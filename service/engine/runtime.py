@@ -196,6 +196,7 @@ class Runtime:
     sample_clock: Callable[[], datetime] | None = None  # stamps samples (default: clock); replay: a grid
     api_task: asyncio.Task[None] | None = None
     devices: tuple[DaqDevice, CanDevice] | None = None  # closed at stop()
+    simulated_time: bool = False  # the clock is a simulated plant time (demo, replay): the API says so
 
     @property
     def speedup(self) -> float:
@@ -268,10 +269,12 @@ class Runtime:
         import uvicorn
 
         from api.app import create_app
+        from api.deps import ClockInfo
         from api.server import server_config
 
         assert self.service is not None
-        app = create_app(self.settings, self.service, clock=self.clock)
+        info = ClockInfo(simulated=self.simulated_time, speedup=self.clock.speedup)
+        app = create_app(self.settings, self.service, clock=self.clock, clock_info=info)
         config = server_config(app, host=self.settings.api.host, port=self.settings.api.port)
         self.api_server = uvicorn.Server(config)
         await self.api_server.serve()

@@ -25,7 +25,7 @@ if TYPE_CHECKING:
     from drivers.sim.can_node import SimulatedCanNode
     from drivers.sim.modbus_server import SimulatedDaq
     from drivers.sim.replay import Replay
-    from model.plant import PlantRun
+    from drivers.sim.source import Timeline
     from service.settings import Settings
 
 __all__ = ["SimAddress", "SimRig", "make_drivers", "plant_rig", "replay_rig"]
@@ -81,8 +81,8 @@ class SimRig:
                 self.bus.shutdown()
 
 
-async def plant_rig(timeline: PlantRun, *, address: SimAddress, daq_period_s: float = 1.0) -> SimRig:
-    """The DAQ and the CAN node playing ``timeline`` (a ``model.plant.PlantRun``) from now on.
+async def plant_rig(timeline: Timeline, *, address: SimAddress, daq_period_s: float = 1.0) -> SimRig:
+    """The DAQ and the CAN node playing ``timeline`` (a ``model.plant.PlantRun`` or any Timeline) from now on.
 
     Start it after the service: the plant's first row is served once the service is listening, as when a
     machine is switched on next to a running soft sensor. The simulated DAQ converts every ``daq_period_s``

@@ -23,7 +23,7 @@ def _run() -> SimpleNamespace:
 def _printer(plant_now: float, record: SimpleNamespace) -> Printer:
     """The demo's printer at plant time ``plant_now`` [s], with ``record`` as the served identification."""
     printer = Printer(
-        _run(), quiet=False, clock=lambda: T0 + timedelta(seconds=plant_now), current=lambda: record
+        _run, quiet=False, clock=lambda: T0 + timedelta(seconds=plant_now), current=lambda: record
     )
     printer.rig = SimpleNamespace(plant_time_s=lambda: plant_now)
     return printer

@@ -65,3 +65,28 @@ def test_bad_timelines_name_the_array() -> None:
         TimelineSource(bad_speed)
     with pytest.raises(TimelineError, match="speedup"):
         TimelineSource(run, speedup=0.0)
+
+
+def test_extend_appends_rows_that_play_on_past_the_old_end() -> None:
+    """``chtc demo`` grows its timeline while it plays: past the old last row the new rows are served, not
+    the old last row held."""
+    run = ramp_timeline()  # rows at 0 and 100 s
+    clock = FakeClock()
+    src = TimelineSource(run, speedup=1.0, clock=clock)
+    src.start()
+    later = ArrayTimeline(
+        times_s=np.array([200.0]),
+        temps_c=run.temps_c[1:] + 10.0,
+        ambient_c=run.ambient_c[1:],
+        speed_rpm=np.array([5000.0]),
+        torque_nm=run.torque_nm[1:],
+        status=run.status[1:],
+    )
+    src.extend(later)
+    clock.advance(150.0)  # halfway between the old last row and the new one
+    snap = src.now()
+    np.testing.assert_allclose(snap.temps_c, run.temps_c[1] + 5.0)
+    assert snap.speed_rpm == pytest.approx(0.5 * (run.speed_rpm[1] + 5000.0))
+    assert src.duration_s == pytest.approx(200.0) and not src.finished()
+    with pytest.raises(TimelineError, match="after the last row"):
+        src.extend(later)  # the same rows again: not after the last one
