@@ -53,6 +53,13 @@ BoolArray = npt.NDArray[np.bool_]
 ZONE_NAMES: tuple[str, ...] = ("H1", "H2", "H3", "H4", "H5", "H6", "H7")
 
 
+def _no_flags() -> BoolArray:
+    """A read-only (7,) all-False flag array (a record without the flag: unregularised, or stored before)."""
+    out = np.zeros(len(ZONE_NAMES), dtype=bool)
+    out.setflags(write=False)
+    return out
+
+
 class NotFoundError(ServiceError, LookupError):
     """An identification or job id that does not exist."""
 
@@ -190,6 +197,8 @@ class IdentificationRecord:
     ci95_hi: FloatArray
     identified: BoolArray  # (7,) 95 % CI narrow enough and not at a bound
     at_bound: BoolArray  # (7,) H on a bound of the search box (then not identified)
+    # (7,) a MAP fit's H the data did not see: the prior's value and band (then not identified)
+    prior_dominated: BoolArray = field(default_factory=_no_flags)
 
     @property
     def id(self) -> int:
@@ -277,11 +286,17 @@ class ChtcSnapshot:
     reason: str | None = None  # why not usable, "code: detail" (stale, restored, condition_changed, ...)
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
+    box: tuple[float, float] | None = None  # the search box of H, W/(m²·K) (bounds beyond it print "> box")
 
     @property
     def h(self) -> FloatArray:
         """(7,) W/(m²·K)."""
         return self.record.h
+
+    @property
+    def prior_dominated(self) -> BoolArray:
+        """(7,) H the data did not see: the prior's value and band (a MAP fit; never identified)."""
+        return self.record.prior_dominated
 
     @property
     def ci95_lo(self) -> FloatArray:

@@ -108,9 +108,10 @@ def _ci_lo(values: Sequence[float | None] | None) -> FloatArray:
     return out
 
 
-def _at_bound_flags(data: IdentificationData) -> BoolArray:
+def _flags(data: IdentificationData, name: str) -> BoolArray:
+    """A (7,) flag stored in the diagnostics (``at_bound``, ``prior_dominated``); all False when absent."""
     diagnostics = data.diagnostics or {}
-    flags = diagnostics.get("at_bound")
+    flags = diagnostics.get(name)
     return _bools(flags if isinstance(flags, list) else None)
 
 
@@ -124,7 +125,8 @@ def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> Id
         ci95_lo=_ci_lo(data.ci95_lo),
         ci95_hi=_floats(data.ci95_hi),
         identified=_bools(data.identified),
-        at_bound=_at_bound_flags(data),
+        at_bound=_flags(data, "at_bound"),
+        prior_dominated=_flags(data, "prior_dominated"),
     )
 
 
@@ -250,7 +252,7 @@ def chtc_snapshot(
         converging_since=converging_since,
         not_fresh=not_fresh,
     )
-    identified = rec.identified & ~bound
+    identified = rec.identified & ~bound & ~rec.prior_dominated
     identified.setflags(write=False)
     return ChtcSnapshot(
         record=rec,
@@ -260,6 +262,7 @@ def chtc_snapshot(
         at_bound=bound,
         usable_for_compensation=use.usable,
         reason=use.reason,
+        box=None if box is None else (float(box[0]), float(box[1])),
     )
 
 
