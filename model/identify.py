@@ -300,7 +300,9 @@ def _hybrid(
     return np.asarray(sol.x), message, pop
 
 
-def _polish(problem: Problem, start: Array, opts: IdentifyOptions, prior: HPrior | None, noise_c: float) -> Any:
+def _polish(
+    problem: Problem, start: Array, opts: IdentifyOptions, prior: HPrior | None, noise_c: float
+) -> Any:
     """Bounded TRF least squares from ``start``; with a prior its rows σ·W·(ln H − μ) are appended."""
     scale = 1.0 / np.sqrt(problem.usable.m)
     cache: dict[bytes, Array] = {}
