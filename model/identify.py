@@ -174,7 +174,7 @@ class IdentificationResult:
     theta: Array = field(default_factory=lambda: np.zeros(0), repr=False)
     population: Array | None = field(default=None, repr=False)
     at_bound: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_H, dtype=bool))  # (7,)
-    # (7,) with a prior: the data reduced var(ln H) by less than half of the cold prior's (then not identified)
+    # (7,) with a prior: the data cut var(ln H) by less than half of the cold prior's (then not identified)
     prior_dominated: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_H, dtype=bool))
     prior_source: str | None = None  # where the prior came from (None: unregularised)
 

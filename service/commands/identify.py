@@ -142,9 +142,9 @@ def fit_kind(r: IdentificationRecord) -> str:
 
 
 def format_record(r: IdentificationRecord, box: tuple[float, float] | None = None) -> str:
-    """One identification as ``chtc identify`` prints it; CI bounds beyond the search ``box`` W/(m²·K) print as
-    ``> high`` / ``< low`` (``service.serve.numbers.format_bound``), a prior-dominated H (a MAP fit's H the
-    data did not see) is marked ``(prior)``."""
+    """One identification as ``chtc identify`` prints it; CI bounds beyond the search ``box`` W/(m²·K) print
+    as ``> high`` / ``< low`` (``service.serve.numbers.format_bound``), a prior-dominated H (a MAP fit's H
+    the data did not see) is marked ``(prior)``."""
     at = "H at the window's end, " if fit_kind(r) == "speed-map fit" else ""
     head = (
         f"#{r.id} {fit_status(r):<13} {fit_kind(r):<17}  {at}condition {r.condition.id} "

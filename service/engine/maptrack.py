@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from model.identify_prior import HPrior
 from service.engine.events import JobOutcomeReceived, Launch, ManualAccepted, RejectKind
 from service.engine.jobbook import Job, MapValues, job_key
 from service.engine.jobs import converging_reason, job_request, job_window
@@ -21,7 +22,6 @@ from service.engine.view import NewestSample
 from service.estimate.live import LiveStateError
 from service.identify import scheduler as sched
 from service.identify.detector import OperatingPoint
-from model.identify_prior import HPrior
 from service.identify.mapjob import MapJob
 from service.identify.prior import job_prior
 from service.identify.speedmap import MapConfig, SpeedMap

@@ -38,9 +38,7 @@ class ManualTrack(Protocol):
 class ScheduleTrack:
     """See the module docstring."""
 
-    def __init__(
-        self, parts: CoreParts, *, prior: Callable[[float, float], HPrior] | None = None
-    ) -> None:
+    def __init__(self, parts: CoreParts, *, prior: Callable[[float, float], HPrior] | None = None) -> None:
         self.p = parts
         # the jobs' prior at (speed rpm, ambient °C): a MAP fit (combined mode); None: unregularised
         self.prior = prior
