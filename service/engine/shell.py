@@ -75,6 +75,7 @@ from service.engine.health import (
 )
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
+from service.identify.prior import ServedMapPrior
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
@@ -210,6 +211,8 @@ class SoftSensorService:
         sensors = [(sp.channel, sp.name, sp.role) for sp in core.model.spec.sensors]
         self._history = SensorHistoryBuffer(history_capacity, sensors)
         self._growth = growth if growth is not None else GrowthServer(core.model)  # /compensation
+        # /chtc from the map: its information on the cold physics prior (finite, honest bands)
+        self._map_prior = ServedMapPrior(core.model.spec, core.model.ref.h_box)
 
     @property
     def growth(self) -> GrowthServer:
@@ -407,13 +410,16 @@ class SoftSensorService:
         if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
             # speed-map mode: H from the map at the newest sample's speed and ambient, at once
             s = v.newest
+            speed, ambient = _finite_or(s.speed_rpm, cond.speed_rpm), _finite_or(s.ambient_c, cond.ambient_c)
+            level_sd = 0.0 if v.map_config is None else v.map_config.prior_level_sd
             rec = map_record(
                 rec,
                 v.speed_map,
-                speed_rpm=_finite_or(s.speed_rpm, cond.speed_rpm),
-                ambient_c=_finite_or(s.ambient_c, cond.ambient_c),
+                speed_rpm=speed,
+                ambient_c=ambient,
                 condition=cond,
                 ci_threshold=v.ci_threshold,
+                prior=self._map_prior.at(v.speed_map, level_sd=level_sd, speed_rpm=speed, ambient_c=ambient),
             )
             # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
             # one: an H there is never fresh (at-bound), as in per-condition mode

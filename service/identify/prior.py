@@ -14,10 +14,10 @@ from typing import Any
 import numpy as np
 
 from model.hmap import Gaussian
-from model.identify_prior import HPrior, condition_prior, with_map
+from model.identify_prior import COLD_SD_LOG, HPrior, condition_prior, with_map
 from service.identify.speedmap import SpeedMap
 
-__all__ = ["job_prior", "log_h_marginal"]
+__all__ = ["ServedMapPrior", "job_prior", "log_h_marginal"]
 
 
 def log_h_marginal(family: Any, mean: Any, cov: Any, speed_rpm: float, ambient_c: float) -> tuple[Any, Any]:
@@ -55,5 +55,33 @@ def job_prior(
         map_cold_mean=mu0,
         map_cold_cov=cov0,
         weight=weight,
-        source=f"physics curves σ(ln H) {np.log(3.0):.2f} + speed map to {fitted} ×{weight:g}",
+        source=f"physics curves σ(ln H) {COLD_SD_LOG:.2f} + speed map to {fitted} ×{weight:g}",
     )
+
+
+class ServedMapPrior:
+    """What ``/chtc`` serves from a speed map at one speed (``service.serve.views.map_record``): the same
+    fusion with weight 1 (no window shares the map's data here), the cold physics prior in place of the map's
+    own wider one (σ 1.5–2.3 in ln H with its trend term: 95 % bounds up to 100× the box at a speed the data
+    never visited). At visited speeds the map's data dominate and nothing changes; elsewhere the band is the
+    cold prior's, flagged ``prior_dominated``. Keeps each map family's cold prior (a 56 × 56 inverse)."""
+
+    def __init__(self, spec: Any, box: tuple[float, float]) -> None:
+        self.spec = spec
+        self.box = (float(box[0]), float(box[1]))
+        self._cold: dict[tuple[str, float], Gaussian] = {}
+
+    def at(self, speed_map: SpeedMap, *, level_sd: float, speed_rpm: float, ambient_c: float) -> HPrior:
+        key = (speed_map.family, float(level_sd))
+        cold = self._cold.get(key)
+        if cold is None:
+            cold = self._cold[key] = speed_map.model_family.prior(self.spec, level_sd=float(level_sd))
+        return job_prior(
+            self.spec,
+            self.box,
+            speed_rpm,
+            ambient_c,
+            speed_map=speed_map,
+            map_cold=cold,
+            weight=1.0,
+        )
