@@ -60,11 +60,12 @@ def job_prior(
 
 
 class ServedMapPrior:
-    """What ``/chtc`` serves from a speed map at one speed (``service.serve.views.map_record``): the same
-    fusion with weight 1 (no window shares the map's data here), the cold physics prior in place of the map's
-    own wider one (σ 1.5–2.3 in ln H with its trend term: 95 % bounds up to 100× the box at a speed the data
-    never visited). At visited speeds the map's data dominate and nothing changes; elsewhere the band is the
-    cold prior's, flagged ``prior_dominated``. Keeps each map family's cold prior (a 56 × 56 inverse)."""
+    """What ``/chtc`` serves from a speed map at one speed (``service.serve.views.map_record``), per H: the
+    map's own value and band where its σ(ln H) there is at most the cold prior's (ln 3; the speeds the data
+    visited: exactly the map's answer); elsewhere the map's information there on the cold physics prior
+    (``job_prior`` with weight 1: no window shares the map's data here). The map's own cold prior is σ
+    1.5–2.3 in ln H with its trend term: 95 % bounds up to 100× the box at a speed never visited. Keeps each
+    map family's cold prior (a 56 × 56 inverse)."""
 
     def __init__(self, spec: Any, box: tuple[float, float]) -> None:
         self.spec = spec
@@ -72,16 +73,34 @@ class ServedMapPrior:
         self._cold: dict[tuple[str, float], Gaussian] = {}
 
     def at(self, speed_map: SpeedMap, *, level_sd: float, speed_rpm: float, ambient_c: float) -> HPrior:
+        """ln H (7,) and its covariance served at ``speed_rpm`` [rpm] and ``ambient_c`` [°C], as an ``HPrior``
+        whose ``reference_var`` is the cold prior's (``dominated`` then flags the H no data saw)."""
         key = (speed_map.family, float(level_sd))
         cold = self._cold.get(key)
         if cold is None:
             cold = self._cold[key] = speed_map.model_family.prior(self.spec, level_sd=float(level_sd))
-        return job_prior(
-            self.spec,
-            self.box,
-            speed_rpm,
-            ambient_c,
-            speed_map=speed_map,
-            map_cold=cold,
-            weight=1.0,
-        )
+        mu, cov = log_h_marginal(speed_map.model_family, speed_map.mean, speed_map.cov, speed_rpm, ambient_c)
+        wide = np.diag(cov) > COLD_SD_LOG**2
+        # prior_dominated against the prior each H's answer rests on: the map's own cold prior there, or ln 3
+        _, cold_cov = log_h_marginal(speed_map.model_family, cold.mean, cold.cov, speed_rpm, ambient_c)
+        ref = np.where(wide, COLD_SD_LOG**2, np.diag(cold_cov))
+        source = "speed map"
+        if wide.any():
+            fused = job_prior(
+                self.spec,
+                self.box,
+                speed_rpm,
+                ambient_c,
+                speed_map=speed_map,
+                map_cold=cold,
+                weight=1.0,
+            )
+            keep = ~wide
+            mu = np.where(wide, fused.log_mean, mu)
+            cov = np.where(np.outer(keep, keep), cov, 0.0) + np.diag(
+                np.where(wide, np.diag(fused.log_cov), 0.0)
+            )
+            source = (
+                "speed map; " + ", ".join(f"H{i + 1}" for i in np.flatnonzero(wide)) + " on the cold prior"
+            )
+        return HPrior(mu, cov, ref, source=source)
