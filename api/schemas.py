@@ -62,6 +62,11 @@ class ZoneOut(BaseModel):
     at_bound: bool = Field(
         False, description="H lies on a bound of the search box (the optimum may be outside): not identified"
     )
+    prior_dominated: bool = Field(
+        False,
+        description="the data did not see this H: value and band are the prior's (physics correlations, "
+        "σ(ln H) = ln 3, plus the speed map's information): not identified",
+    )
 
 
 def zones_out(
@@ -71,6 +76,7 @@ def zones_out(
     hi: np.ndarray,
     identified: np.ndarray,
     at_bound: np.ndarray | None = None,
+    prior_dominated: np.ndarray | None = None,
 ) -> list[ZoneOut]:
     return [
         ZoneOut(
@@ -80,6 +86,7 @@ def zones_out(
             ci95_hi_w_m2k=_num(hi[i], 4),
             identified=bool(identified[i]),
             at_bound=bool(at_bound[i]) if at_bound is not None else False,
+            prior_dominated=bool(prior_dominated[i]) if prior_dominated is not None else False,
         )
         for i, n in enumerate(ZONE_NAMES)
     ]
@@ -132,6 +139,13 @@ class ChtcOut(VerdictOut):
 
     unit: str = Field(H_UNIT, description="unit of every h_w_m2k / ci95_*_w_m2k")
     zones: list[ZoneOut]
+    prior_dominated: list[bool] = Field(
+        default_factory=lambda: [False] * len(ZONE_NAMES),
+        description="per H (H1..H7): the data did not see it, value and band are the prior's",
+    )
+    h_box_w_m2k: list[float] | None = Field(
+        None, description="the search box of H [low, high], W/(m²·K): a CI bound beyond it means 'unknown'"
+    )
     identified_at: datetime
     identification_id: int
     condition: ConditionOut
@@ -150,7 +164,16 @@ def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
     return ChtcOut(
         **_verdict(s.verdict),
         unit=s.unit,
-        zones=zones_out(s.h, lo=s.ci95_lo, hi=s.ci95_hi, identified=s.identified, at_bound=s.at_bound),
+        zones=zones_out(
+            s.h,
+            lo=s.ci95_lo,
+            hi=s.ci95_hi,
+            identified=s.identified,
+            at_bound=s.at_bound,
+            prior_dominated=s.prior_dominated,
+        ),
+        prior_dominated=[bool(x) for x in s.prior_dominated],
+        h_box_w_m2k=None if s.box is None else [float(s.box[0]), float(s.box[1])],
         identified_at=s.identified_at,
         identification_id=s.identification_id,
         condition=condition_out(s.condition),
@@ -407,7 +430,14 @@ def identification_out(r: IdentificationRecord) -> IdentificationOut:
         condition=condition_out(r.condition),
         window_from=r.window_from,
         window_to=r.window_to,
-        zones=zones_out(r.h, lo=r.ci95_lo, hi=r.ci95_hi, identified=r.identified, at_bound=r.at_bound),
+        zones=zones_out(
+            r.h,
+            lo=r.ci95_lo,
+            hi=r.ci95_hi,
+            identified=r.identified,
+            at_bound=r.at_bound,
+            prior_dominated=r.prior_dominated,
+        ),
         f_c2=_num(r.f),
         fit=_num(r.fit),
         rmse_c=_num(r.rmse_c),

@@ -171,10 +171,12 @@ def carry(
     *,
     samples: int = ENSEMBLE,
     seed: int = 0,
+    normal: Array | None = None,
 ) -> Carried:
     """θ's total covariance and the window-end state covariance, given P₀ = ``start_cov`` (r, r) [°C²].
 
-    ``jac`` (m, p) is the residuals' Jacobian at θ̂ over the usable entries, ``fit_cov`` (p, p) = σ²(JᵀJ)⁺.
+    ``jac`` (m, p) is the residuals' Jacobian at θ̂ over the usable entries, ``fit_cov`` (p, p) = σ²(JᵀJ)⁺
+    (``normal``: a MAP fit's JᵀJ + σ²P instead of JᵀJ).
     The end covariance is the second moment about the fitted end state of an ensemble of ``samples``
     windows (``end_ensemble``; fixed ``seed``: the same window gives the same answer).
     """
@@ -184,7 +186,8 @@ def carry(
     dt, n = float(problem.inputs.dt_s), len(problem.inputs.ambient_c)
     h = np.asarray(theta[:N_H], dtype=np.float64)
     resp = problem.select(start_responses(rom, h, dt, n, u))  # (k, m)
-    gain = -np.linalg.pinv(jac.T @ jac) @ (jac.T @ resp.T)  # (p, k)
+    normal = jac.T @ jac if normal is None else normal  # a MAP fit's: JᵀJ + σ²P
+    gain = -np.linalg.pinv(normal) @ (jac.T @ resp.T)  # (p, k)
     total = fit_cov + gain @ gain.T
     ens = end_ensemble(problem, theta, gain, u, fit_cov, samples=samples, seed=seed)
     return Carried(0.5 * (total + total.T), gain, ens)

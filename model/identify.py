@@ -18,6 +18,12 @@ start field's error (``model.carry``) and the result has the window-end state's 
 with ``options.start_modes`` k > 0 the start's k leading uncertain directions are fitted too (a Gaussian
 prior from ``start_cov``, ``StartFitProblem``) and only the rest is carried.
 
+With ``prior`` (``model.identify_prior.HPrior``, a Gaussian on ln H: the served modes) the fit is a MAP fit:
+the prior's whitened rows are appended to the residuals (σ = ``options.prior_noise_c`` in the search, then the
+fit's own σ), the covariance is the posterior's, (JᵀJ/σ² + P)⁻¹, and an H the data did not see
+(``HPrior.dominated``) keeps the prior's value and band, flagged ``prior_dominated``, never ``identified``.
+Without it (the paper's protocol) nothing changes.
+
 Errors::
 
     IdentificationError(ValueError)        bad window, method, warm start or option (the field is named)
@@ -39,6 +45,7 @@ from model import optim, rom_modal
 from model.carry import CarryError, carry, check_cov
 from model.defaults import BOUND_REL_TOL, CI_REL_THRESHOLD
 from model.errors import ModelError
+from model.identify_prior import HPrior
 from model.identify_problem import (
     N_H,
     Array,
@@ -127,6 +134,9 @@ class IdentifyOptions:
     # directions are only carried in the CIs. 0: no fit (the carry alone)
     start_modes: int = 0
     start_noise_c: float = 0.15
+    # °C, the measurement noise 1σ that weighs a prior's rows against the residuals in the search (the
+    # plant's and the DAQ's 0.15 °C); the hybrid's polish then re-weighs them with the fit's own σ
+    prior_noise_c: float = 0.15
 
 
 @dataclass
@@ -164,6 +174,9 @@ class IdentificationResult:
     theta: Array = field(default_factory=lambda: np.zeros(0), repr=False)
     population: Array | None = field(default=None, repr=False)
     at_bound: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_H, dtype=bool))  # (7,)
+    # (7,) with a prior: the data cut var(ln H) by less than half of the cold prior's (then not identified)
+    prior_dominated: NDArray[np.bool_] = field(default_factory=lambda: np.zeros(N_H, dtype=bool))
+    prior_source: str | None = None  # where the prior came from (None: unregularised)
 
 
 def _check_window(window: Window, n_nodes: int | None) -> Array:
@@ -216,9 +229,27 @@ def _warm_vector(warm_start: Any, layout: Layout, bounds: Array) -> Array | None
     return np.clip(np.concatenate([theta[:N_H], loads, shift]), bounds[:, 0], bounds[:, 1])
 
 
+def _objective(problem: Problem, prior: HPrior | None, noise_c: float) -> Any:
+    """f(θ) (P,) [°C²] the optimizers minimise: mean(r²), plus σ²·(prior penalty)/m with a prior."""
+    if prior is None:
+        return problem.objective
+    weight = float(noise_c) ** 2 / max(problem.usable.m, 1)
+
+    def objective(theta: Array) -> Array:
+        return np.asarray(problem.objective(theta) + weight * prior.penalty(theta))
+
+    return objective
+
+
 def _metaheuristic(
-    problem: Problem, method: str, rng: np.random.Generator, x0: Array | None, opts: IdentifyOptions
+    problem: Problem,
+    method: str,
+    rng: np.random.Generator,
+    x0: Array | None,
+    opts: IdentifyOptions,
+    prior: HPrior | None = None,
 ) -> tuple[Array, str, Array]:
+    objective = _objective(problem, prior, opts.prior_noise_c)
     common: dict[str, Any] = {
         "rng": rng,
         "x0": x0,
@@ -230,7 +261,7 @@ def _metaheuristic(
     if method in ("gwo", "igwo"):
         a0 = opts.warm_a_start if x0 is not None else opts.a_start
         res = optim.grey_wolf(
-            problem.objective,
+            objective,
             problem.bounds,
             variant="gwo" if method == "gwo" else "igwo",
             a_start=a0,
@@ -238,14 +269,18 @@ def _metaheuristic(
             **common,
         )
     elif method == "woa":
-        res = optim.whale(problem.objective, problem.bounds, **common)
+        res = optim.whale(objective, problem.bounds, **common)
     else:
-        res = optim.genetic(problem.objective, problem.bounds, **common)
+        res = optim.genetic(objective, problem.bounds, **common)
     return res.x, res.message, res.population
 
 
 def _hybrid(
-    problem: Problem, rng: np.random.Generator, x0: Array | None, opts: IdentifyOptions
+    problem: Problem,
+    rng: np.random.Generator,
+    x0: Array | None,
+    opts: IdentifyOptions,
+    prior: HPrior | None = None,
 ) -> tuple[Array, str, Array]:
     stage = replace(
         opts,
@@ -253,7 +288,22 @@ def _hybrid(
         maxiter=opts.warm_hybrid_maxiter if x0 is not None else opts.hybrid_maxiter,
         fun_target=None,
     )
-    start, _, pop = _metaheuristic(problem, "igwo", rng, x0, stage)
+    start, _, pop = _metaheuristic(problem, "igwo", rng, x0, stage, prior)
+    sol = _polish(problem, start, opts, prior, opts.prior_noise_c)
+    message = f"IGWO {stage.popsize}x{stage.maxiter} + TRF: {sol.message}"
+    if prior is not None:  # re-weigh the prior with the fit's own noise σ (what the covariance uses)
+        r = problem.residuals(np.asarray(sol.x)[None, :])[0]
+        sigma = float(np.sqrt(r @ r / max(r.size - problem.p, 1)))
+        if abs(sigma / opts.prior_noise_c - 1.0) > 0.1:
+            sol = _polish(problem, np.asarray(sol.x), opts, prior, sigma)
+        message += f"; MAP fit, prior: {prior.source}"
+    return np.asarray(sol.x), message, pop
+
+
+def _polish(
+    problem: Problem, start: Array, opts: IdentifyOptions, prior: HPrior | None, noise_c: float
+) -> Any:
+    """Bounded TRF least squares from ``start``; with a prior its rows σ·W·(ln H − μ) are appended."""
     scale = 1.0 / np.sqrt(problem.usable.m)
     cache: dict[bytes, Array] = {}
 
@@ -261,13 +311,17 @@ def _hybrid(
         r = problem.residuals(x[None, :])[0]
         cache.clear()
         cache[x.tobytes()] = r
+        if prior is not None:
+            r = np.concatenate([r, noise_c * prior.rows(x)[0]])
         return np.asarray(r * scale)
 
     def jac(x: Array) -> Array:
         j, _ = problem.jacobian(x, cache.get(x.tobytes()))
+        if prior is not None:
+            j = np.vstack([j, noise_c * prior.rows_jacobian(x)])
         return np.asarray(j * scale)
 
-    sol = least_squares(
+    return least_squares(
         fun,
         start,
         jac=jac,
@@ -279,7 +333,6 @@ def _hybrid(
         gtol=opts.lsq_tol,
         max_nfev=opts.lsq_max_nfev,
     )
-    return np.asarray(sol.x), f"IGWO {stage.popsize}x{stage.maxiter} + TRF: {sol.message}", pop
 
 
 def _empirical(window: Window, spec: Any, bounds: Array) -> tuple[Array, str]:
@@ -319,6 +372,7 @@ def identify(
     fe: Any = None,
     spec: Any = None,
     options: IdentifyOptions | None = None,
+    prior: HPrior | None = None,
 ) -> IdentificationResult:
     """Identify H1..H7 [W/(m²·K)] from ``window`` by fitting the reduced model ``rom``.
 
@@ -344,6 +398,8 @@ def identify(
         fe: full FE model for an optional re-check of the answer (``fe_check``).
         spec: ``SpindleSpec`` for the test-point channels and the empirical method (None: packaged spindle).
         options: tuning (``IdentifyOptions``).
+        prior: a Gaussian prior on ln H (``model.identify_prior``): a MAP fit with the posterior covariance
+            and ``prior_dominated`` flags (not for ``"empirical"``); None: the unregularised fit.
 
     Raises:
         IdentificationError: bad method, window shape, mask, warm start or box.
@@ -387,9 +443,9 @@ def identify(
     if method == "empirical":
         theta, message = _empirical(window, spec, bounds)
     elif method == "hybrid":
-        theta, message, population = _hybrid(problem, generator, x0, opts)
+        theta, message, population = _hybrid(problem, generator, x0, opts, prior)
     else:
-        theta, message, population = _metaheuristic(problem, method, generator, x0, opts)
+        theta, message, population = _metaheuristic(problem, method, generator, x0, opts, prior)
     nfev = problem.nfev
     bias_sd = _bias_sd(offset_sd_c, opts.model_error_c)
     result = _assemble(
@@ -403,6 +459,7 @@ def identify(
         opts=opts,
         start_cov=p0,
         bias_sd=bias_sd,
+        prior=None if method == "empirical" else prior,
     )
     result.population = population
     if fe is not None:
@@ -516,14 +573,19 @@ def _assemble(
     opts: IdentifyOptions,
     start_cov: Array | None = None,
     bias_sd: Array | None = None,
+    prior: HPrior | None = None,
 ) -> IdentificationResult:
     jac, r = problem.jacobian(theta)
-    conf = confidence(jac, r)
+    info = None if prior is None else prior.information(theta)
+    conf, normal = confidence(jac, r, prior_information=info), None
+    if info is not None:  # the MAP estimate's normal matrix: its gain is (JᵀJ + σ²P)⁻¹·Jᵀ
+        normal = jac.T @ jac + conf.sigma_c**2 * info
     if bias_sd is not None:  # before the carry: the end ensemble must carry the biases' H error too
-        conf = with_cov(conf.sigma_c, conf.cov + channel_bias_cov(jac, problem.channels, bias_sd))
+        bias = channel_bias_cov(jac, problem.channels, bias_sd, normal=normal)
+        conf = with_cov(conf.sigma_c, conf.cov + bias)
     ensemble = None
     if start_cov is not None:
-        carried = carry(problem, theta, jac, conf.cov, start_cov)
+        carried = carry(problem, theta, jac, conf.cov, start_cov, normal=normal)
         conf, ensemble = with_cov(conf.sigma_c, carried.cov), carried.ensemble
     f = float(np.mean(r * r))
     pred = problem.predict(theta[None, :])[0]
@@ -531,13 +593,16 @@ def _assemble(
     h = theta[:N_H]
     rel = conf.half_width[:N_H] / np.maximum(np.abs(h), 1e-12)  # z·σ(log H), delta method
     at_bound = _at_bound(h, problem.bounds[:N_H], opts.bound_rel_tol)
+    dominated = np.zeros(N_H, dtype=bool)
+    if prior is not None:
+        dominated = prior.dominated(np.diag(conf.cov)[:N_H] / np.maximum(h, 1e-12) ** 2)
     used = np.where(problem.usable.entries, meas, np.nan)  # masked-out channels and NaNs excluded
     lay = problem.layout
     loads, shift = lay.load_scale(theta), lay.shift(theta)
     return IdentificationResult(
         h=h.copy(),
         h_ci95=np.column_stack([lo[:N_H], hi[:N_H]]),
-        identified=np.asarray((rel <= opts.ci_threshold) & ~at_bound),
+        identified=np.asarray((rel <= opts.ci_threshold) & ~at_bound & ~dominated),
         correlation=conf.correlation[:N_H, :N_H].copy(),
         load_scale=None if loads is None else loads.copy(),
         f=f,
@@ -555,6 +620,8 @@ def _assemble(
         end_ensemble=ensemble,
         theta=theta.copy(),
         at_bound=at_bound,
+        prior_dominated=dominated,
+        prior_source=None if prior is None else prior.source,
     )
 
 

@@ -211,26 +211,38 @@ class Confidence:
     correlation: Array  # (p, p)
 
 
-def confidence(jac: Array, residual: Array, *, z: float = 1.959964) -> Confidence:
-    """95 % confidence from the Jacobian (m, p) and residuals (m,) at the optimum (pinv if singular)."""
+def confidence(
+    jac: Array, residual: Array, *, z: float = 1.959964, prior_information: Array | None = None
+) -> Confidence:
+    """95 % confidence from the Jacobian (m, p) and residuals (m,) at the optimum (pinv if singular).
+
+    With ``prior_information`` P (p, p) (a Gaussian prior's, ``model.identify_prior``) the posterior's:
+    cov = (JᵀJ/σ² + P)⁻¹ = σ²·(JᵀJ + σ²P)⁻¹, σ from the data's residuals alone."""
     m, p = jac.shape
     ssr = float(residual @ residual)
     sigma2 = ssr / max(m - p, 1)
-    return with_cov(float(np.sqrt(sigma2)), sigma2 * np.linalg.pinv(jac.T @ jac), z=z)
+    normal = jac.T @ jac
+    if prior_information is not None:
+        normal = normal + sigma2 * np.asarray(prior_information)
+    return with_cov(float(np.sqrt(sigma2)), sigma2 * np.linalg.pinv(normal), z=z)
 
 
-def channel_bias_cov(jac: Array, channels: NDArray[np.int64], sd_c: Array) -> Array:
+def channel_bias_cov(
+    jac: Array, channels: NDArray[np.int64], sd_c: Array, *, normal: Array | None = None
+) -> Array:
     """θ's covariance (p, p) from an unknown constant bias per channel with standard deviation ``sd_c`` (32,)
     [°C]: a sensor offset left after (or without) a baseline, and the model error's slow part.
 
     A bias b_c on channel c shifts the residuals of that channel's entries by b_c; the least-squares answer
     moves by δθ = −(JᵀJ)⁺·Jᵀ·B·b with B (m, 32) the entries' channel indicator, so cov = G·diag(sd²)·Gᵀ with
     G = (JᵀJ)⁺·Jᵀ·B. Unlike the noise this does not average out over the window, which is why it goes into
-    the covariance rather than into σ. ``channels`` (m,) is the channel index (0..31) of each residual entry.
+    the covariance rather than into σ. ``channels`` (m,) is the channel index (0..31) of each residual entry;
+    ``normal`` (p, p) replaces JᵀJ (a MAP fit's JᵀJ + σ²P: its answer moves less).
     """
     per_channel = np.zeros((jac.shape[1], sd_c.size))
     np.add.at(per_channel.T, channels, jac)  # Jᵀ·B: the sum of each channel's Jacobian rows
-    gain = np.linalg.pinv(jac.T @ jac) @ per_channel * sd_c[None, :]
+    normal = jac.T @ jac if normal is None else normal
+    gain = np.linalg.pinv(normal) @ per_channel * sd_c[None, :]
     return np.asarray(gain @ gain.T)
 
 

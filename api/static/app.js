@@ -67,6 +67,22 @@ function signed(v, digits = 1) { // +1.2 / −1.2 (a real minus sign)
   return (Number(t) === 0 ? "" : Number(v) < 0 ? "−" : "+") + t;
 }
 function timeTitle() { return state.clockInfo?.simulated ? "plant time (simulated), UTC" : "time, UTC"; }
+// 3 significant digits, no exponent (service/serve/numbers.py format_sig)
+function fmtSig(v, digits = 3) {
+  if (v === null || v === undefined || !Number.isFinite(Number(v))) return "–";
+  const x = Number(v);
+  if (x === 0) return "0";
+  const dec = Math.max(0, digits - 1 - Math.floor(Math.log10(Math.abs(x))));
+  return x.toFixed(Math.min(dec, 20));
+}
+// a CI bound of H: "> high" / "< low" beyond the search box (service/serve/numbers.py format_bound)
+function fmtBound(v, box) {
+  if (v === null || v === undefined || Number.isNaN(Number(v))) return "–";
+  const [lo, hi] = box || [0.1, 1e4];
+  if (v > hi) return "> " + hi;
+  if (v < lo) return "< " + lo;
+  return fmtSig(v);
+}
 function utc(iso) { return iso ? iso.replace("T", " ").replace(/\.\d+/, "").replace("Z", " UTC") : "–"; }
 function ageText(s) {
   if (s === null || s === undefined) return "–";
@@ -279,12 +295,19 @@ function setHStatus(status, text) {
 }
 
 // ---------- H1..H7 ----------
-function hTable(zones, desc) {
+function identifiedText(z) {
+  if (z.identified) return "yes";
+  if (z.prior_dominated) return "no (prior)"; // not seen by the data: the prior's value and band
+  return z.at_bound ? "no (at bound)" : "no (weak)";
+}
+
+function hTable(zones, desc, box) {
   $("h-table").querySelector("tbody").innerHTML = zones.map((z) =>
     `<tr data-zone="${z.name}"><td><b>${z.name}</b></td><td class="wrap desc">${esc((desc.get(z.name) || "").replace(/<->/g, "↔"))}</td>` +
     `<td class="num" id="h-${z.name}">${fmt(z.h_w_m2k, 2)}</td>` +
-    `<td class="num">${sig3(z.ci95_lo_w_m2k)} – ${sig3(z.ci95_hi_w_m2k)}</td><td class="${z.identified ? "" : "no"}">` +
-    `${z.identified ? "yes" : z.prior_dominated ? "no (prior)" : "no (weak)"}</td></tr>`).join("");
+    `<td class="num">${fmtBound(z.ci95_lo_w_m2k, box)} – ${fmtBound(z.ci95_hi_w_m2k, box)}</td>` +
+    `<td class="${z.identified ? "" : "no"}"${z.prior_dominated ? ' title="the data did not see this H: value and band are the prior\'s"' : ""}>` +
+    `${identifiedText(z)}</td></tr>`).join("");
 }
 
 function drawH(c) {
@@ -326,7 +349,7 @@ function drawH(c) {
   ctx.fillStyle = MUTED; ctx.textAlign = "center";
   ctx.fillText("zone (see table for the surface)", (box.L + W - box.R) / 2, H - 5);
   canvas.dataset.xTitle = "zone"; canvas.dataset.xTicks = zones.map((z) => z.name).join(" ");
-  hTable(zones, desc);
+  hTable(zones, desc, c.h_box_w_m2k);
   $("h-unit").textContent = c.unit;
   $("h-meta").textContent = `identification #${c.identification_id} at ${utc(c.identified_at)} · ${c.method} · ` +
     `RMSE ${fmt(c.rmse_c, 2)} °C · fit ${fmt(c.fit, 3)} · condition #${c.condition.id} ` +

@@ -31,6 +31,7 @@ import numpy as np
 from service.commands._common import check_log_arguments
 from service.engine.jobbook import MAP_METHOD
 from service.identify.mode import IdentificationMode
+from service.serve.numbers import format_bound
 
 if TYPE_CHECKING:
     from service.acquire.calibration import Calibration
@@ -95,6 +96,7 @@ def record_dict(r: IdentificationRecord) -> dict[str, object]:
         "ci95_lo_w_m2k": [num(x) for x in r.ci95_lo],
         "ci95_hi_w_m2k": [num(x) for x in r.ci95_hi],
         "identified": [bool(x) for x in r.identified],
+        "prior_dominated": [bool(x) for x in getattr(r, "prior_dominated", [False] * len(r.h))],
         "f_c2": num(r.f),
         "fit": num(r.fit),
         "rmse_c": num(r.rmse_c),
@@ -124,12 +126,6 @@ def growth_dict(g: GrowthEstimate | None) -> dict[str, object] | None:
     }
 
 
-def _bound(x: float) -> str:
-    """A CI bound, W/(m²·K): 0.1 resolution in the plausible range, 3 significant digits outside (a bound of
-    a hopeless H can be 1e-30 or 1e+60: the CI is computed in log H and is > 0)."""
-    return f"{x:.1f}" if 0.1 <= x < 1e5 else f"{x:.3g}"
-
-
 def fit_status(r: IdentificationRecord) -> str:
     """What a line's status says: the outcome unless it is ``ok``; then how many H are identified (a CI
     narrow enough): ``ok 7/7 H``, ``partial 3/7 H`` or ``weak 0/7 H`` (a fit that ran but pins no H)."""
@@ -146,7 +142,10 @@ def fit_kind(r: IdentificationRecord) -> str:
     return "speed-map fit" if getattr(r, "method", None) == MAP_METHOD else "per-condition fit"
 
 
-def format_record(r: IdentificationRecord) -> str:
+def format_record(r: IdentificationRecord, box: tuple[float, float] | None = None) -> str:
+    """One identification as ``chtc identify`` prints it; CI bounds beyond the search ``box`` W/(m²·K) print
+    as ``> high`` / ``< low`` (``service.serve.numbers.format_bound``), a prior-dominated H (a MAP fit's H
+    the data did not see) is marked ``(prior)``."""
     at = "H at the window's end, " if fit_kind(r) == "speed-map fit" else ""
     head = (
         f"#{r.id} {fit_status(r):<13} {fit_kind(r):<17}  {at}condition {r.condition.id} "
@@ -155,12 +154,18 @@ def format_record(r: IdentificationRecord) -> str:
     )
     if r.outcome != "ok":
         return f"{head}\n    {r.message}"
+    prior = getattr(r, "prior_dominated", None)
+    prior = [False] * len(r.h) if prior is None else list(prior)
     zones = "  ".join(
-        f"H{i + 1}={h:.1f} [{_bound(lo)}, {_bound(hi)}]{'' if ok else '?'}"
-        for i, (h, lo, hi, ok) in enumerate(zip(r.h, r.ci95_lo, r.ci95_hi, r.identified, strict=True))
+        f"H{i + 1}={h:.1f} [{format_bound(lo, box)}, {format_bound(hi, box)}]"
+        f"{'' if ok else '?'}{' (prior)' if p else ''}"
+        for i, (h, lo, hi, ok, p) in enumerate(
+            zip(r.h, r.ci95_lo, r.ci95_hi, r.identified, prior, strict=True)
+        )
     )
     tail = f"fit {r.fit:.4f}, RMSE {r.rmse_c:.3f} °C"
-    return f"{head}\n    W/(m²·K), 95 % CI ('?' = poorly identified): {zones}\n    {tail}"
+    legend = "'?' = poorly identified, '(prior)' = not seen by the data: the prior's value and band"
+    return f"{head}\n    W/(m²·K), 95 % CI ({legend}): {zones}\n    {tail}"
 
 
 def summary_line(records: Sequence[IdentificationRecord]) -> str:
@@ -301,7 +306,7 @@ def main(args: argparse.Namespace) -> int:
     )
     print(offsets_line(result.calibration, settings.identification))
     for r in result.records:
-        print(format_record(r))
+        print(format_record(r, model.ref.h_box))
     print(summary_line(result.records))
     if args.json_out is not None:
         by_id = growth.by_id if growth is not None else {}

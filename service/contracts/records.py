@@ -257,7 +257,11 @@ class IdentificationData:
             "test_points": _plain(result.test_points),
             "rmse_per_sensor": list(per_sensor),
             "at_bound": [bool(v) for v in result.at_bound],
+            # a MAP fit (served modes): H the data did not see, kept at the prior (never identified)
+            "prior_dominated": [bool(v) for v in result.prior_dominated],
         }
+        if result.prior_source is not None:
+            diagnostics["prior"] = str(result.prior_source)
         return cls(
             id=id,
             condition_id=condition_id,

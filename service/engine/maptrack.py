@@ -12,6 +12,7 @@ from typing import Protocol
 
 import numpy as np
 
+from model.identify_prior import HPrior
 from service.engine.events import JobOutcomeReceived, Launch, ManualAccepted, RejectKind
 from service.engine.jobbook import Job, MapValues, job_key
 from service.engine.jobs import converging_reason, job_request, job_window
@@ -22,6 +23,7 @@ from service.estimate.live import LiveStateError
 from service.identify import scheduler as sched
 from service.identify.detector import OperatingPoint
 from service.identify.mapjob import MapJob
+from service.identify.prior import job_prior
 from service.identify.speedmap import MapConfig, SpeedMap
 from service.identify.window import InsufficientWindowError
 from service.identify.worker import JobStatus
@@ -78,6 +80,20 @@ class MapTrack:
 
     def owns(self, job_id: int) -> bool:
         return self.book.running == job_id
+
+    def h_prior(self, speed_rpm: float, ambient_c: float) -> HPrior:
+        """The prior of a per-condition fit at ``speed_rpm`` [rpm] and ``ambient_c`` [°C] (combined mode): the
+        cold physics prior plus the newest map's data information there (``service.identify.prior``)."""
+        model = self.p.model
+        return job_prior(
+            model.spec,
+            model.ref.h_box,
+            speed_rpm,
+            ambient_c,
+            speed_map=self.speed_map,
+            map_cold=self.book.cold,
+            weight=self.book.cfg.prior_weight,
+        )
 
     def condition_started(self, t: float) -> None:
         """A confirmed change triggers a map fit (debounced)."""

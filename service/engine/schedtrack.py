@@ -7,11 +7,12 @@ recorded). Pure: no I/O, no clock; the serving strategy (``service.engine.servin
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import replace
 from typing import Protocol
 
 from model.identify import IdentificationResult
+from model.identify_prior import HPrior
 from service.engine.events import Cancel, JobOutcomeReceived, Launch, ManualAccepted, RejectKind
 from service.engine.jobbook import Job, job_key
 from service.engine.jobs import converging_reason, job_request, job_window
@@ -37,8 +38,10 @@ class ManualTrack(Protocol):
 class ScheduleTrack:
     """See the module docstring."""
 
-    def __init__(self, parts: CoreParts) -> None:
+    def __init__(self, parts: CoreParts, *, prior: Callable[[float, float], HPrior] | None = None) -> None:
         self.p = parts
+        # the jobs' prior at (speed rpm, ambient °C): a MAP fit (combined mode); None: unregularised
+        self.prior = prior
         # a condition that started while the live state converges: its schedule counts from the convergence
         self.held: sched.ConditionStarted | None = None
 
@@ -108,6 +111,8 @@ class ScheduleTrack:
             p.store_outcome(job, outcome="insufficient-data", message=msg, finished_at=now, out=out)
             return p.scheduler.handle(sched.JobSkipped(t=ts, job_id=start.job_id, reason=msg))
         request = job_request(start, window, config=p.config, offsets=p.offsets())
+        if self.prior is not None:
+            request = replace(request, prior=self.prior(start.point.speed_rpm, start.point.ambient_c))
         snap, arrays = window.start, window.arrays
         job = p.jobs.launched(job, window_from=utc(snap.t), window_to=utc(float(arrays.times_s[-1])))
         out.instructions.append(Launch(event_id=out.event_id, job_key=job.key, request=request))

@@ -151,7 +151,8 @@ class CombinedServing(SpeedMapServing):
 
     def tracks(self, parts: CoreParts, restored: Restored) -> Tracks:
         maps = MapTrack(parts, restored.speed_map)
-        return Tracks(maps=maps, schedule=ScheduleTrack(parts), manual=maps)
+        # the held condition's fits are MAP fits: the physics prior plus the map's information there
+        return Tracks(maps=maps, schedule=ScheduleTrack(parts, prior=maps.h_prior), manual=maps)
 
     def identified(
         self, rec: IdentificationRecord, load: Load, condition: ConditionSnapshot | None

@@ -76,6 +76,7 @@ from service.engine.health import (
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
 from service.estimate.reference import CompensationReference
+from service.identify.prior import ServedMapPrior
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
@@ -214,6 +215,8 @@ class SoftSensorService:
         self._growth = growth if growth is not None else GrowthServer(core.model)  # /compensation
         if self._growth.on_reference is None:  # every zero taken is stored (restored at the next start)
             self._growth.on_reference = self._store_reference
+        # /chtc from the map: its information on the cold physics prior (finite, honest bands)
+        self._map_prior = ServedMapPrior(core.model.spec, core.model.ref.h_box)
 
     @property
     def growth(self) -> GrowthServer:
@@ -411,13 +414,16 @@ class SoftSensorService:
         if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
             # speed-map mode: H from the map at the newest sample's speed and ambient, at once
             s = v.newest
+            speed, ambient = _finite_or(s.speed_rpm, cond.speed_rpm), _finite_or(s.ambient_c, cond.ambient_c)
+            level_sd = 0.0 if v.map_config is None else v.map_config.prior_level_sd
             rec = map_record(
                 rec,
                 v.speed_map,
-                speed_rpm=_finite_or(s.speed_rpm, cond.speed_rpm),
-                ambient_c=_finite_or(s.ambient_c, cond.ambient_c),
+                speed_rpm=speed,
+                ambient_c=ambient,
                 condition=cond,
                 ci_threshold=v.ci_threshold,
+                prior=self._map_prior.at(v.speed_map, level_sd=level_sd, speed_rpm=speed, ambient_c=ambient),
             )
             # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
             # one: an H there is never fresh (at-bound), as in per-condition mode
@@ -453,7 +459,7 @@ class SoftSensorService:
             restored=v.current_from_restore,
             zones=ZONE_NAMES,
         )
-        snap = chtc_snapshot(rec, newest_sample_at=newest, verdict=verdict, bound=bound)
+        snap = chtc_snapshot(rec, newest_sample_at=newest, verdict=verdict, bound=bound, box=box)
         self._snap_cache = (key, snap)
         return snap
 

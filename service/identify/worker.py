@@ -49,6 +49,7 @@ from service.modelload import LoadedModel, ModelRef, load_model
 if TYPE_CHECKING:
     from model.hmap_identify import MapFit
     from model.identify import IdentificationResult, Window
+    from model.identify_prior import HPrior
     from model.rom import InputLike, ReducedModel
     from service.identify.mapjob import MapJob
 
@@ -93,6 +94,9 @@ class JobRequest:
     offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
     # speed-map mode (docs/design/hmap.md): fit H = F(n, Ti) with this prior instead of one H for the window
     speed_map: MapJob | None = None
+    # served modes' per-condition fits: a Gaussian prior on ln H, a MAP fit (service.identify.prior;
+    # None: the paper's unregularised fit)
+    prior: HPrior | None = None
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -230,6 +234,7 @@ def run_identification(
         options=IdentifyOptions(
             time_budget_s=req.time_budget_s, ci_threshold=req.ci_threshold, start_modes=req.start_modes
         ),
+        prior=req.prior,
     )
     return result, window
 

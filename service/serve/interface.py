@@ -276,6 +276,7 @@ class ChtcSnapshot:
     verdict: Verdict  # the policy's (service.serve.policy.chtc_verdict): status, usable, reason
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
+    box: tuple[float, float] | None = None  # the search box of H, W/(m²·K) (bounds beyond it print "> box")
 
     @property
     def status(self) -> ChtcStatus:
@@ -295,6 +296,11 @@ class ChtcSnapshot:
     def h(self) -> FloatArray:
         """(7,) W/(m²·K)."""
         return self.record.h
+
+    @property
+    def prior_dominated(self) -> BoolArray:
+        """(7,) H the data did not see: the prior's value and band (a MAP fit; never identified)."""
+        return self.record.prior_dominated
 
     @property
     def ci95_lo(self) -> FloatArray:

@@ -28,6 +28,8 @@ from typing import Protocol
 import numpy as np
 import numpy.typing as npt
 
+from model.hmap import Z95
+from model.identify_prior import HPrior
 from service.contracts.records import IdentificationData, IdentificationRow, JsonValue
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
 from service.serve.interface import (
@@ -166,11 +168,12 @@ def chtc_snapshot(
     newest_sample_at: datetime | None,
     verdict: Verdict,
     bound: BoolArray,
+    box: tuple[float, float] | None = None,
 ) -> ChtcSnapshot:
     """What ``/chtc`` serves: the current identification ``rec`` and the policy's ``verdict`` on it now
     (``service.serve.policy.chtc_verdict``); ``bound``: ``at_bound(rec, ...)`` (an H there is not
-    identified)."""
-    identified = rec.identified & ~bound
+    identified); ``box``: the search box of H, W/(m²·K), served for readable bounds (``> box``)."""
+    identified = rec.identified & ~bound & ~rec.prior_dominated
     identified.setflags(write=False)
     return ChtcSnapshot(
         record=rec,
@@ -178,6 +181,7 @@ def chtc_snapshot(
         identified=identified,
         at_bound=bound,
         verdict=verdict,
+        box=None if box is None else (float(box[0]), float(box[1])),
     )
 
 
@@ -202,20 +206,34 @@ def map_record(
     ambient_c: float,
     condition: ConditionSnapshot,
     ci_threshold: float,
+    prior: HPrior | None = None,
 ) -> IdentificationRecord:
     """The record ``/chtc`` serves in speed-map mode: the stored map fit ``rec`` (provenance, fit) with H1-H7
     and their 95 % bands from the map at ``speed_rpm`` and ``ambient_c`` (the newest sample's), taken at the
-    current ``condition``; ``identified`` where the band's half-width in ln H is <= ``ci_threshold``."""
-    h, lo, hi = speed_map.h_at([speed_rpm], ambient_c)
-    half = 0.5 * np.log(hi[0] / lo[0])
+    current ``condition``; ``identified`` where the band's half-width in ln H is <= ``ci_threshold``.
+
+    With ``prior`` (``service.identify.prior.ServedMapPrior``: the map's information there on the cold
+    physics prior) H and the band are its instead, and ``prior_dominated`` where the data did not see an H
+    (never identified)."""
+    dominated = np.zeros(N_ZONES, dtype=bool)
+    if prior is None:
+        h3, lo3, hi3 = speed_map.h_at([speed_rpm], ambient_c)
+        h, lo, hi = h3[0], lo3[0], hi3[0]
+    else:
+        sd = np.sqrt(np.diag(prior.log_cov))
+        h = np.exp(prior.log_mean)
+        lo, hi = h * np.exp(-Z95 * sd), h * np.exp(Z95 * sd)
+        dominated = prior.dominated(sd**2)
+    half = 0.5 * np.log(hi / lo)
     return replace(
         rec,
         condition=condition,
-        h=_ro(np.array(h[0], dtype=float)),
-        ci95_lo=_ro(np.array(lo[0], dtype=float)),
-        ci95_hi=_ro(np.array(hi[0], dtype=float)),
-        identified=_ro_bool(np.asarray(half <= ci_threshold, dtype=bool)),
+        h=_ro(np.array(h, dtype=float)),
+        ci95_lo=_ro(np.array(lo, dtype=float)),
+        ci95_hi=_ro(np.array(hi, dtype=float)),
+        identified=_ro_bool(np.asarray((half <= ci_threshold) & ~dominated, dtype=bool)),
         at_bound=_ro_bool(np.zeros(N_ZONES, dtype=bool)),
+        prior_dominated=_ro_bool(np.array(dominated, dtype=bool)),
     )
 
 

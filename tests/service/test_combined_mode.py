@@ -14,6 +14,7 @@ from service.bench.chain import last_per_condition
 from service.bench.identmode import served_in_order
 from service.engine.jobbook import MAP_METHOD
 from service.engine.persistence import open_persistence
+from service.identify.prior import ServedMapPrior
 from service.serve.interface import ChtcStatus
 from service.settings import ExperimentalSettings, Settings
 
@@ -68,7 +69,8 @@ def test_both_kinds_run_and_share_the_job_book(combined) -> None:
 
 
 def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(combined) -> None:
-    _, seen, _ = combined
+    svc, seen, _ = combined
+    served_prior = ServedMapPrior(svc.core.model.spec, svc.core.model.ref.h_box)
     kinds: dict[int, set[str]] = {0: set(), 1: set(), 2: set(), 3: set()}
     for k, (speed, ambient, snap, view, live_h) in enumerate(seen):
         if snap is None:
@@ -85,8 +87,11 @@ def test_held_condition_serves_its_per_condition_h_and_the_map_elsewhere(combine
             np.testing.assert_allclose(live_h, rec.h)  # the live state uses the served H
         else:
             assert view.map_serves and view.speed_map is not None
-            h, _, _ = view.speed_map.h_at([speed], ambient)
-            np.testing.assert_allclose(snap.h, h[0])  # the map at the current speed
+            h, lo, hi = view.speed_map.h_at([speed], ambient)
+            # the map's information at the current speed on the cold physics prior (service.identify.prior)
+            prior = served_prior.at(view.speed_map, level_sd=0.0, speed_rpm=speed, ambient_c=ambient)
+            np.testing.assert_allclose(snap.h, np.exp(prior.log_mean))
+            assert np.all((lo[0] <= snap.h) & (snap.h <= hi[0]))  # inside the map's own band
             if view.speed_map is seen[k - 1][3].speed_map:  # a fit that came back now: from the next sample
                 np.testing.assert_allclose(live_h, h[0], rtol=0.02)  # within the map's 50-rpm live bin
     assert kinds[2] == {MAP_METHOD}, kinds  # 4 min at 4500 rpm: the map's only
@@ -144,3 +149,20 @@ def test_restart_restores_the_map_when_a_per_condition_identification_was_last(
     snap = svc2.chtc()
     assert snap is not None and snap.status is ChtcStatus.STALE and snap.record.id == newest_map.id
     second.close()
+
+
+def test_no_served_bound_beyond_ten_times_the_search_box(combined) -> None:
+    """Issue 26: /chtc served H1 [0.0, 498406011]; a MAP fit (per-condition) and the map on the cold prior
+    (map-served) keep every bound within 10x the search box, and a prior-dominated H is never identified."""
+    svc, seen, _ = combined
+    lo_box, hi_box = svc.core.model.ref.h_box
+    snaps = [snap for _, _, snap, _, _ in seen if snap is not None]
+    assert snaps
+    for snap in snaps:
+        assert np.all(np.isfinite(snap.ci95_hi)) and np.all(snap.ci95_hi <= 10 * hi_box)
+        assert np.all(snap.ci95_lo >= lo_box / 10)
+        assert not np.any(snap.identified & snap.prior_dominated)
+    fits = [r for r in svc.view.records if r.outcome == "ok" and r.method != MAP_METHOD]
+    assert fits and all(
+        "prior" in (r.data.diagnostics or {}) for r in fits
+    )  # per-condition fits are MAP fits

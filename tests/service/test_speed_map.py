@@ -11,12 +11,14 @@ import numpy as np
 import pytest
 
 from model.geometry import load_spindle
+from model.hmap import Z95
 from model.plant import VirtualPlant, h_true
 from service.engine.core import ServiceCore
 from service.engine.persistence import open_persistence
 from service.engine.runtime import core_config, map_config
 from service.engine.shell import SoftSensorService
 from service.identify.mode import IdentificationMode
+from service.identify.prior import ServedMapPrior
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
 from service.serve.interface import ChtcStatus, DataCode, DataProblem
 from service.serve.policy import map_verdict
@@ -79,7 +81,8 @@ def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
 
 @pytest.mark.slow
 def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> None:
-    _, seen = served
+    svc, seen = served
+    served_prior = ServedMapPrior(svc.core.model.spec, svc.core.model.ref.h_box)
     profile, run, _ = duty
     fitted = [k for k, (_, _, _, m) in enumerate(seen) if m is not None]
     assert fitted, "no map fit in 45 min"
@@ -93,10 +96,14 @@ def test_map_served_at_the_current_speed_right_after_a_change(served, duty) -> N
     for k in changes:  # the first sample at the new speed: no fit since, H from the map at the new speed
         speed, ambient, snap, m = seen[k]
         assert snap is not None
-        h, lo, hi = m.h_at([speed], ambient)
-        np.testing.assert_allclose(snap.h, h[0])
-        np.testing.assert_allclose(snap.ci95_lo, lo[0])
-        np.testing.assert_allclose(snap.ci95_hi, hi[0])
+        # the map's information at the new speed on the cold physics prior (service.identify.prior)
+        prior = served_prior.at(m, level_sd=0.0, speed_rpm=speed, ambient_c=ambient)
+        np.testing.assert_allclose(snap.h, np.exp(prior.log_mean))
+        np.testing.assert_allclose(np.log(snap.ci95_hi / snap.h), Z95 * np.sqrt(np.diag(prior.log_cov)))
+        np.testing.assert_array_equal(snap.record.prior_dominated, prior.dominated(np.diag(prior.log_cov)))
+        _, lo, hi = m.h_at([speed], ambient)
+        assert np.all((lo[0] <= snap.h) & (snap.h <= hi[0]))  # inside the map's own band there
+        assert np.all(snap.ci95_hi <= 10 * svc.core.model.ref.h_box[1])  # never beyond 10x the search box
         assert not np.allclose(snap.h, m.h_at([seen[k - 1][0]], ambient)[0])
         visited = m.covered(speed, margin_rpm=500.0, min_visit_s=60.0)
         assert (snap.status is ChtcStatus.FRESH) == visited, (speed, snap.status, snap.reason)
