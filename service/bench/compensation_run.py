@@ -1,11 +1,11 @@
-"""One seed of ``chtc bench compensation`` (``service.bench.compensation``): the plant runs and the service runs
-of its five scenarios, read every minute as ``/compensation`` and ``/chtc`` serve.
+"""One seed of ``chtc bench compensation`` (``service.bench.compensation``): the plant runs and the service
+runs of its five scenarios, read every minute as ``/compensation`` and ``/chtc`` serve.
 
 Per seed and variant (``clean``; ``offsets``: per-channel offsets uniform in ±0.2 °C) the virtual plant
 (``model.plant.VirtualPlant``: its finer mesh, 2.5-s internal steps, σ = 0.15 °C) runs the seed's duty cycle
 (``service.sim.duty``: ``rest_min`` at rest, then the speed changing every 1–6 min over 0–7000 rpm) with the
-seed's random truth (``service.sim.randomtruth``, never ``model.plant.h_true``) and keeps its whole field every
-minute; the true axial growth is that field's through a growth model built on the plant's mesh, over the
+seed's random truth (``service.sim.randomtruth``, never ``model.plant.h_true``) and keeps its whole field
+every minute; the true axial growth is that field's through a growth model built on the plant's mesh, over the
 plant's uniform start (the controller zeroed cold). The service (``SoftSensorService``: shell, core, the
 identification inline, its own ``GrowthServer`` as ``chtc run`` builds it) sees the samples on a manual clock:
 
@@ -198,7 +198,7 @@ class Session:
                 "identified": np.asarray(chtc.identified, dtype=bool),
                 "h_fresh": chtc.status.value == "fresh",
             }
-        common = {
+        common: dict[str, Any] = {
             "t_s": t_s,
             "truth_um": truth_um,
             "h_truth": h_truth,
@@ -334,7 +334,8 @@ def _serve(
     both_ticks: list[tuple[float, bool]] | None = None,
 ) -> tuple[list[Minute], tuple[Any, float | None] | None]:
     """The samples from ``first`` on through one service; with ``plan`` its two outages. Returns the minute
-    rows and, with ``capture_at``, what is stored (``stored_state``, the reference) just before that sample."""
+    rows and, with ``capture_at``, what is stored (``stored_state``, the reference) just before that
+    sample."""
     session = Session(model, settings, ctx, start=samples[first].t, restored=restored, t_ref_c=t_ref_c)
     svc = session.svc
     rows: list[Minute] = []
