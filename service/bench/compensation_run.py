@@ -226,10 +226,11 @@ class Session:
 def stored_state(view: Any) -> Any:
     """What the database holds of a run at ``view`` (``service.engine.persistence.restore`` builds the same
     ``Restored`` from its tables): the served identification, the newest complete H per condition, the
-    conditions (stable), the offset calibration and the speed map."""
+    conditions (stable), the offset calibration, the speed map and its newest fit."""
     from dataclasses import replace
 
     from service.engine.config import Restored
+    from service.engine.jobbook import MAP_METHOD
     from service.identify.detector import OperatingPoint
     from service.identify.scheduler import PastResult
     from service.serve.interface import ConditionState
@@ -261,7 +262,7 @@ def stored_state(view: Any) -> Any:
         next_identification_id=max(ids) + 1,
         calibration=view.calibration,
         speed_map=view.speed_map,
-        map_last=view.current if view.speed_map is not None else None,
+        map_last=next((r for r in view.records if r.outcome == "ok" and r.method == MAP_METHOD), None),
     )
 
 
