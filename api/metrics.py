@@ -82,8 +82,8 @@ def _chtc_gauges(snap: ChtcSnapshot | None) -> Iterator[Metric]:
     why = GaugeMetricFamily(
         "chtc_not_usable_reason", "1 for the code of /chtc reason while not usable", labels=["code"]
     )
-    if not snap.usable_for_compensation and snap.reason:
-        why.add_metric([reason_code(snap.reason)], 1.0)
+    if snap.verdict.reason is not None:
+        why.add_metric([snap.verdict.reason.value], 1.0)
     yield why
 
 
@@ -114,10 +114,24 @@ def _growth_gauges(snap: CompensationSnapshot | None) -> Iterator[Metric]:
     for st in STATUSES:
         status.add_metric([st], 1.0 if str(snap.status) == st else 0.0)
     yield status
+    yield GaugeMetricFamily(
+        "chtc_compensation_usable",
+        "1 if a controller may apply the growth now (/compensation usable_for_compensation)",
+        value=1.0 if snap.verdict.usable else 0.0,
+    )
+    why = GaugeMetricFamily(
+        "chtc_compensation_not_usable_reason",
+        "1 for the /compensation reason code while not usable",
+        labels=["code"],
+    )
+    if snap.verdict.reason is not None:
+        why.add_metric([snap.verdict.reason.value], 1.0)
+    yield why
 
 
 def reason_code(reason: str) -> str:
-    """``"stale: daq_no_good_data ..."`` -> ``"stale"``: the code before the first colon (bounded labels)."""
+    """A ``/readyz`` reason ``"daq_no_good_data: ..."`` -> ``"daq_no_good_data"`` (bounded labels; the
+    /chtc and /compensation verdicts carry typed codes)."""
     return reason.split(":", 1)[0].strip() or "unknown"
 
 

@@ -27,8 +27,10 @@ from service.serve.interface import (
     IdentificationJob,
     IdentificationRecord,
     OffsetBaseline,
+    Reason,
     SectionSnapshot,
     SensorReading,
+    Verdict,
 )
 
 
@@ -101,16 +103,31 @@ def condition_out(c: ConditionSnapshot) -> ConditionOut:
     )
 
 
-class ChtcOut(BaseModel):
-    status: Literal["fresh", "identifying", "stale", "at-bound", "no-data"]
-    usable_for_compensation: bool = Field(
-        description="the one flag a controller checks: data fresh, identified at the current stable "
-        "condition, every H identified and inside the search box"
-    )
-    reason: str | None = Field(
-        description="why not usable, 'code: detail'; codes: no_data, stale, restored, condition_changed, "
-        "at_bound, not_identified (null when usable)"
-    )
+class VerdictOut(BaseModel):
+    """The served-value policy's verdict (service.serve.policy): one status, the usable flag, and when not
+    usable the typed reason, a human detail and what the operator should do."""
+
+    status: ChtcStatus = Field(description="freshness of the served value")
+    usable_for_compensation: bool
+    reason_code: Reason | None = Field(description="why not usable, one code of the enum (null when usable)")
+    reason: str | None = Field(description="why not usable, for humans: 'code: detail' (never parse it)")
+    action: str | None = Field(description="what the operator should do (null when usable)")
+
+
+def _verdict(v: Verdict) -> dict[str, Any]:
+    return {
+        "status": _enum(v.status),
+        "usable_for_compensation": v.usable,
+        "reason_code": None if v.reason is None else _enum(v.reason),
+        "reason": v.text,
+        "action": v.action,
+    }
+
+
+class ChtcOut(VerdictOut):
+    """``usable_for_compensation``: these H may be used by a model that needs them (fresh data, identified at
+    the current stable condition, each H identified or prior-dominated, none on a bound of the search box)."""
+
     unit: str = Field(H_UNIT, description="unit of every h_w_m2k / ci95_*_w_m2k")
     zones: list[ZoneOut]
     identified_at: datetime
@@ -129,9 +146,7 @@ class ChtcOut(BaseModel):
 def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     return ChtcOut(
-        status=_enum(s.status),
-        usable_for_compensation=bool(s.usable_for_compensation),
-        reason=s.reason,
+        **_verdict(s.verdict),
         unit=s.unit,
         zones=zones_out(s.h, lo=s.ci95_lo, hi=s.ci95_hi, identified=s.identified, at_bound=s.at_bound),
         identified_at=s.identified_at,
@@ -168,14 +183,9 @@ class VisitedOut(BaseModel):
     )
 
 
-class ChtcMapOut(BaseModel):
-    status: Literal["fresh", "identifying", "stale", "at-bound", "no-data"] = Field(
-        description="how current the map is at the current speed (the /chtc rules in speed-map mode)"
-    )
-    reason: str | None = Field(
-        description="why not fresh, 'code: detail'; codes: no_data, stale, restored, state_converging, "
-        "map_old, speed_not_visited (null when fresh)"
-    )
+class ChtcMapOut(VerdictOut):
+    """The verdict: how current the map is at the current speed (``usable_for_compensation``: fresh there)."""
+
     unit: str = Field(H_UNIT, description="unit of every h_w_m2k / ci95_*_w_m2k")
     family: str = Field(description="the map's model family: 'nodes' (ln H at speed nodes) or 'physics'")
     fitted_at: datetime = Field(description="UTC end of the window of the fit the map comes from")
@@ -202,8 +212,7 @@ def _nums(a: np.ndarray, digits: int) -> list[float | None]:
 def chtc_map_out(s: ChtcMapSnapshot, now: datetime) -> ChtcMapOut:
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     return ChtcMapOut(
-        status=_enum(s.status),
-        reason=s.reason,
+        **_verdict(s.verdict),
         unit=s.unit,
         family=s.family,
         fitted_at=s.fitted_at,
@@ -551,10 +560,13 @@ class SensitivityOut(BaseModel):
     radial_um_per_c: float = Field(description="radial growth per °C error of this channel, µm/°C")
 
 
-class CompensationOut(BaseModel):
-    status: ChtcStatus = Field(description="the same rules as /chtc, evaluated at the same instant")
-    usable_for_compensation: bool = Field(description="the /chtc flag: data fresh, H identified and usable")
-    reason: str | None = Field(description="why not usable, 'code: detail' (the /chtc codes)")
+class CompensationOut(VerdictOut):
+    """``usable_for_compensation``: the one flag a controller acts on. True when the data are fresh (or the
+    DAQ alone is down, status ``predicted``, for at most compensation.max_open_loop_min), the live state has
+    converged and is consistent, a reference is stored, the H in use are not older than
+    compensation.max_identification_age_min, and the axial growth's 95 % CI half-width is within
+    compensation.max_ci95_um. A condition change does not clear it."""
+
     unit: str = Field("µm", description="unit of every *_um value")
     at: datetime = Field(description="UTC instant of the live field the growth is computed from")
     t_ref_c: float = Field(description="reference temperature (uniform) at which the growth is 0, °C")
@@ -590,9 +602,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
     g, f, p = s.growth, s.growth.forecast, s.plc
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     return CompensationOut(
-        status=_enum(s.status),
-        usable_for_compensation=bool(s.usable_for_compensation),
-        reason=s.reason,
+        **_verdict(s.verdict),
         unit="µm",
         at=g.at,
         t_ref_c=round(g.t_ref_c, 4),

@@ -3,9 +3,9 @@
 ``Settings`` is built once at the edge (``chtc run --config FILE`` → ``load_settings(path)``, or
 ``create_app(settings)``) and handed down as typed sections: ``settings.modbus``, ``settings.can``,
 ``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
-``settings.api``, ``settings.database``, ``settings.growth``, and ``settings.experimental``: the research
-switches (identification mode, optimizer, the speed map's inner workings, mesh and rank) an operator leaves at
-their measured defaults (issue 25; docs/configuration.md). Nothing here opens a file, a socket or a database
+``settings.api``, ``settings.database``, ``settings.growth``, ``settings.compensation``, and
+``settings.experimental``: the research switches (identification mode, optimizer, the speed map's inner
+workings, mesh and rank) an operator leaves at their measured defaults (issue 25; docs/configuration.md). Nothing here opens a file, a socket or a database
 at import time.
 
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
@@ -325,6 +325,19 @@ class GrowthSettings(_Section):
     reference_c: float | None = Field(default=None, ge=-50.0, le=200.0, allow_inf_nan=False)
 
 
+class CompensationSettings(_Section):
+    """When a controller may apply the growth (``/compensation``'s ``usable_for_compensation``; the policy,
+    ``service.serve.policy``; docs/design/policy.md says how the defaults were chosen)."""
+
+    # the growth's 95 % CI half-width the controller tolerates [µm]: wider is never usable
+    max_ci95_um: float = Field(default=2.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    # the H in use (the identification or map fit) may be at most this old [min]
+    max_identification_age_min: float = Field(default=480.0, gt=0.0, allow_inf_nan=False)
+    # DAQ down while CAN speed/torque keep coming: the growth is predicted open loop (status "predicted")
+    # and stays usable at most this long [min] (and only while its CI is within max_ci95_um); 0: never
+    max_open_loop_min: float = Field(default=10.0, ge=0.0, le=1440.0, allow_inf_nan=False)
+
+
 def check_token(text: str) -> str:
     """A bearer token without surrounding whitespace (a secret file's trailing newline); refuses one that is
     short or a placeholder, naming why but never the token."""
@@ -417,6 +430,7 @@ class Settings(BaseSettings):
     api: ApiSettings = Field(default_factory=ApiSettings)
     database: DatabaseSettings = Field(default_factory=DatabaseSettings)
     growth: GrowthSettings = Field(default_factory=GrowthSettings)
+    compensation: CompensationSettings = Field(default_factory=CompensationSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
 
     @model_validator(mode="after")

@@ -108,7 +108,7 @@ def run_seed(model: Any, settings: Any, seed: int, *, hours: float, warmup_min: 
         fresh = snap is not None and snap.status is ChtcStatus.FRESH
         out.fresh.append(fresh)
         if not fresh:
-            code = "none" if snap is None else (snap.reason or snap.status.value).split(":")[0]
+            code = "none" if snap is None else (snap.verdict.reason or snap.status).value
             out.not_fresh[code] = out.not_fresh.get(code, 0) + 1
         if snap is not None and fresh:
             h, lo, hi = (np.asarray(a, dtype=float) for a in (snap.h, snap.ci95_lo, snap.ci95_hi))

@@ -23,7 +23,6 @@ from __future__ import annotations
 
 import itertools
 import threading
-from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Protocol
@@ -46,13 +45,13 @@ from service.estimate.growth import (
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
 from service.estimate.state import FilterView
 from service.serve.interface import (
-    ChtcSnapshot,
     CompensationSnapshot,
     ConditionSnapshot,
     IdentificationRecord,
     NotReadyError,
     SectionSnapshot,
 )
+from service.serve.policy import CompensationLimits, compensation_verdict
 
 if TYPE_CHECKING:
     from service.identify.speedmap import SpeedMap
@@ -127,7 +126,9 @@ class GrowthServer:
         t_ref_c: float | None = None,
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
+        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
     ) -> None:
+        self.limits = limits if limits is not None else CompensationLimits()
         self.model = model
         self._t_ref_c = t_ref_c
         self.reference_at: datetime | None = None  # when the reference was taken (None: configured)
@@ -292,12 +293,10 @@ class GrowthServer:
         self._section = (key, u)
         return u
 
-    def section_snapshot(
-        self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
-    ) -> SectionSnapshot | None:
+    def section_snapshot(self, view: CoreView, now: datetime) -> SectionSnapshot | None:
         """What ``/compensation/section`` serves: the deformed outline of ``view``'s live field, with the
         status of ``/compensation`` (``snapshot``: None when it has nothing to serve)."""
-        comp = self.snapshot(view, chtc)
+        comp = self.snapshot(view, now)
         u = self.section(view)
         if comp is None or u is None:
             return None
@@ -313,23 +312,29 @@ class GrowthServer:
             newest_sample_at=comp.newest_sample_at,
         )
 
-    def snapshot(
-        self, view: CoreView, chtc: Callable[[], ChtcSnapshot | None]
-    ) -> CompensationSnapshot | None:
-        """What ``/compensation`` serves: the growth with the status and usability of ``/chtc`` (the same
-        rules, evaluated now, after the estimate: never a stale value as fresh). ``identification_id``: the
-        one whose H the growth used (``chtc()`` may already see a newer view)."""
+    def snapshot(self, view: CoreView, now: datetime) -> CompensationSnapshot | None:
+        """What ``/compensation`` serves at ``now`` (UTC): the growth of ``view``'s live field and the
+        policy's verdict on it (``service.serve.policy.compensation_verdict``: judged on the growth the
+        controller applies, its CI against ``limits``, not on the H). ``identification_id``: the one whose H
+        the growth used. None before the first identification or the live state's start."""
         est = self.estimate(view)
-        snap = chtc()
-        if est is None or snap is None or view.current is None:
+        rec = view.current
+        if est is None or rec is None:
             return None
+        lo, hi = est.axial.ci95_um
+        verdict = compensation_verdict(
+            view,
+            now,
+            limits=self.limits,
+            has_sample=view.newest is not None,
+            ci95_half_um=0.5 * (hi - lo),
+            identified_at=rec.finished_at,
+        )
         return CompensationSnapshot(
             growth=est,
-            status=snap.status,
-            usable_for_compensation=snap.usable_for_compensation,
-            reason=snap.reason,
-            newest_sample_at=snap.newest_sample_at,
-            identification_id=view.current.id,
+            verdict=verdict,
+            newest_sample_at=None if view.newest is None else view.newest.t,
+            identification_id=rec.id,
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),

@@ -34,6 +34,7 @@ from service.identify.speedmap import MapConfig
 from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.modelload import LoadedModel, ModelRef, load_model
+from service.serve.policy import CompensationLimits
 from service.settings import Settings
 
 if TYPE_CHECKING:
@@ -91,6 +92,17 @@ def map_config(settings: Settings) -> MapConfig:
         prior_weight=exp.map_prior_weight,
         prior_level_sd=exp.map_prior_level_sd,
     )
+
+
+def growth_server(model: LoadedModel, settings: Settings) -> GrowthServer:
+    """The growth server of ``/compensation`` from ``Settings``: the reference and the policy's limits."""
+    c = settings.compensation
+    limits = CompensationLimits(
+        max_ci95_um=c.max_ci95_um,
+        max_identification_age_min=c.max_identification_age_min,
+        max_open_loop_min=c.max_open_loop_min,
+    )
+    return GrowthServer(model, t_ref_c=settings.growth.reference_c, limits=limits)
 
 
 def core_config(settings: Settings) -> CoreConfig:
@@ -205,7 +217,7 @@ class Runtime:
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             on_event=self.on_event,
-            growth=GrowthServer(model, t_ref_c=s.growth.reference_c),
+            growth=growth_server(model, s),
         )
         self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()

@@ -78,12 +78,13 @@ from service.estimate.live import steady_field
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
+    ZONE_NAMES,
     BusyError,
     ChtcMapSnapshot,
     ChtcSnapshot,
-    ChtcStatus,
     CompensationSnapshot,
     ConditionSnapshot,
+    DataProblem,
     DeviceHealth,
     DeviceStatus,
     FieldAt,
@@ -106,14 +107,14 @@ from service.serve.interface import (
     SensorHistoryBuffer,
     SensorReading,
     SpindleLayout,
+    Verdict,
     ZoneInfo,
 )
+from service.serve.policy import chtc_verdict, map_verdict
 from service.serve.views import (
-    MapFreshness,
     at_bound,
     chtc_map_snapshot,
     chtc_snapshot,
-    map_freshness,
     map_record,
 )
 
@@ -393,16 +394,16 @@ class SoftSensorService:
         rec = v.current
         if rec is None:
             return None
+        now = self.clock()
         newest = v.newest.t if v.newest is not None else None
-        # codes only ("daq_no_good_data"): the snapshot and its ETag stay put while stale (ages: /readyz)
-        problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
+        problems = self._problems(v, now)
         box: tuple[float, float] | None = self.core.model.ref.h_box
         cond = v.condition
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
         # the serving strategy's verdict (map_serves): per-condition mode, and combined mode at a held
         # condition, serve an identification; the map's H elsewhere
-        fresh = self._map_freshness(v, problems, since) if v.map_serves else None
+        fresh = self._map_verdict(v, problems, since) if v.map_serves else None
         if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
             # speed-map mode: H from the map at the newest sample's speed and ambient, at once
             s = v.newest
@@ -417,41 +418,52 @@ class SoftSensorService:
             # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
             # one: an H there is never fresh (at-bound), as in per-condition mode
             box = MAP_H_BOX
-            status = fresh.status
-        else:
-            status = _status(v, rec, newest, problems)
-        if status is ChtcStatus.FRESH and bool(np.any(at_bound(rec, box, BOUND_REL_TOL))):
-            status = ChtcStatus.AT_BOUND  # an H on a bound is not identified: never fresh, in either mode
         key = (
             rec.id,
-            status,
             newest,
             cond.id if cond else None,
             cond.state if cond else None,
             problems,
             since,
-            None if fresh is None else (id(v.speed_map), fresh.reason),
+            v.running_job is not None,
+            v.current_from_restore,
+            None if fresh is None else (id(v.speed_map), fresh),
         )
         cached = self._snap_cache
         if cached is not None and cached[0] == key:
             return cached[1]
-        snap = chtc_snapshot(
-            rec,
-            status=status,
-            newest_sample_at=newest,
+        bound = at_bound(rec, box, BOUND_REL_TOL)
+        verdict = chtc_verdict(
+            has_sample=newest is not None,
+            problems=problems,
+            live=live,
+            now=now,
             condition=cond,
-            data_problems=problems,
+            record_condition_id=rec.condition.id,
+            map_verdict=fresh,
+            running=v.running_job is not None,
+            bound=[bool(b) for b in bound],
+            identified=[bool(b) for b in rec.identified],
+            prior_dominated=[bool(b) for b in rec.prior_dominated],
+            h=[float(x) for x in rec.h],
             restored=v.current_from_restore,
-            box=box,
-            converging_since=since,
-            not_fresh=None if fresh is None else fresh.reason,
+            zones=ZONE_NAMES,
         )
+        snap = chtc_snapshot(rec, newest_sample_at=newest, verdict=verdict, bound=bound)
         self._snap_cache = (key, snap)
         return snap
 
-    def _map_freshness(
-        self, v: CoreView, problems: tuple[str, ...], since: datetime | None
-    ) -> MapFreshness | None:
+    @staticmethod
+    def _problems(v: CoreView, now: datetime) -> tuple[DataProblem, ...]:
+        """The data problems by code only (their ages change every second: the snapshots and their ETags stay
+        put while stale; the ages are on /readyz); none before the first sample (``no_data`` then)."""
+        if v.newest is None:
+            return ()
+        return tuple(DataProblem(p.code, "") for p in v.data_problems(now))
+
+    def _map_verdict(
+        self, v: CoreView, problems: tuple[DataProblem, ...], since: datetime | None
+    ) -> Verdict | None:
         """With a map (speed-map or combined mode): how current it is at the newest sample's speed (else
         None). A sample without a speed value (one missing CAN value) is still a sample: the speed is the
         condition's then, as ``chtc()`` serves the map at (issue 26: it turned /chtc to ``no-data``)."""
@@ -464,11 +476,11 @@ class SoftSensorService:
             speed = float(s.speed_rpm)
         elif cond is not None and np.isfinite(cond.speed_rpm):
             speed = float(cond.speed_rpm)
-        return map_freshness(
+        return map_verdict(
             m,
             newest_t=None if s is None else s.t,
             speed_rpm=speed,
-            data_problems=problems,
+            problems=problems,
             converging_since=since,
             fresh_s=cfg.fresh_s,
             margin_rpm=cfg.margin_rpm,
@@ -485,10 +497,10 @@ class SoftSensorService:
             return None
         s = v.newest
         newest = None if s is None else s.t
-        problems = tuple(p.split(":")[0] for p in v.data_problems(self.clock())) if newest else ()
+        problems = self._problems(v, self.clock())
         live = v.live
         since = None if live is None or live.converged else _utc(live.started_at)
-        fresh = self._map_freshness(v, problems, since)
+        fresh = self._map_verdict(v, problems, since)
         assert fresh is not None
         ambient = 20.0 if s is None or not np.isfinite(s.ambient_c) else round(float(s.ambient_c), 1)
         speed = None if s is None or not np.isfinite(s.speed_rpm) else float(s.speed_rpm)
@@ -499,7 +511,7 @@ class SoftSensorService:
         snap = chtc_map_snapshot(
             m,
             ambient_c=ambient,
-            freshness=fresh,
+            verdict=fresh,
             newest_sample_at=newest,
             current_speed_rpm=speed,
             ci_threshold=v.ci_threshold,
@@ -532,10 +544,10 @@ class SoftSensorService:
         return out
 
     def compensation(self) -> CompensationSnapshot | None:
-        return self._growth.snapshot(self._view, self.chtc)
+        return self._growth.snapshot(self._view, self.clock())
 
     def compensation_section(self) -> SectionSnapshot | None:
-        return self._growth.section_snapshot(self._view, self.chtc)
+        return self._growth.section_snapshot(self._view, self.clock())
 
     def sensors(self) -> Sequence[SensorReading]:
         v = self._view
@@ -670,7 +682,7 @@ class SoftSensorService:
         reasons = []
         if not self.model_loaded:
             reasons.append("model not loaded")
-        reasons.extend(self._view.data_problems(self.clock()))
+        reasons.extend(str(p) for p in self._view.data_problems(self.clock()))
         return Readiness(not reasons, tuple(reasons))
 
     def metrics(self) -> MetricsSnapshot:
@@ -719,24 +731,6 @@ def _filter_metrics(v: CoreView) -> FilterMetrics | None:
         converged=live.converged,
         inconsistent=live.inconsistent(live.t),
     )
-
-
-def _status(
-    v: CoreView, rec: IdentificationRecord, newest: datetime | None, problems: tuple[str, ...]
-) -> ChtcStatus:
-    """Per-condition mode's freshness of /chtc (and /compensation): ``fresh`` only for H identified at the
-    current, stable condition from recent good data with a converged live state; ``SoftSensorService.chtc``
-    then makes a record with an H on a bound of the search box ``at-bound`` (both modes)."""
-    if newest is None:
-        return ChtcStatus.STALE if v.current_from_restore else ChtcStatus.NO_DATA
-    if problems or v.current_from_restore or (v.live is not None and not v.live.converged):
-        return ChtcStatus.STALE
-    cond = v.condition
-    if v.running_job is not None or cond is None or cond.id != rec.condition.id:
-        return ChtcStatus.IDENTIFYING
-    if cond.state.value != "stable":
-        return ChtcStatus.IDENTIFYING
-    return ChtcStatus.FRESH
 
 
 def _finite_or(x: float, fallback: float) -> float:

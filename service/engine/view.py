@@ -19,6 +19,8 @@ from service.estimate.state import FilterView
 from service.identify.speedmap import MapConfig, SpeedMap
 from service.serve.interface import (
     ConditionSnapshot,
+    DataCode,
+    DataProblem,
     HistogramData,
     IdentificationJob,
     IdentificationRecord,
@@ -73,24 +75,29 @@ class CoreView:
     map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
 
-    def data_problems(self, now: datetime) -> tuple[str, ...]:
-        """Why the data are not fresh at ``now`` (empty: fresh), each "code: detail". Codes: ``no_sample``
-        (nothing acquired for ``stale_after_s``: acquisition stalled), ``daq_no_good_data`` (no sample with
-        ``min_good_channels`` usable channels and the ambient for that long: DAQ unreachable, hung,
-        garbled, frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent, fault).
-        """
+    def data_problems(self, now: datetime) -> tuple[DataProblem, ...]:
+        """Why the data are not fresh at ``now`` (empty: fresh). Codes (``DataCode``): ``no_sample`` (nothing
+        acquired for ``stale_after_s``: acquisition stalled), ``daq_no_good_data`` (no sample with
+        ``min_good_channels`` usable channels and the ambient for that long: DAQ unreachable, hung, garbled,
+        frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent, fault)."""
         limit = self.stale_after_s
         if self.newest is None:
-            return ("no_sample: no sample acquired yet",)
+            return (DataProblem(DataCode.NO_SAMPLE, "no sample acquired yet"),)
         out = []
         age = (now - self.newest.t).total_seconds()
         if age > limit:
-            out.append(f"no_sample: newest sample {age:.0f} s old (limit {limit:.0f} s)")
+            out.append(
+                DataProblem(DataCode.NO_SAMPLE, f"newest sample {age:.0f} s old (limit {limit:.0f} s)")
+            )
         n = self.min_good_channels
         what = f"sample with >= {n} usable temperature channels and the ambient"
-        out += _age_problem("daq_no_good_data", what=what, last=self.last_good_daq_t, now=now, limit_s=limit)
+        out += _age_problem(
+            DataCode.DAQ_NO_GOOD_DATA, what=what, last=self.last_good_daq_t, now=now, limit_s=limit
+        )
         can = "speed and torque from CAN"
-        out += _age_problem("can_no_good_data", what=can, last=self.last_good_can_t, now=now, limit_s=limit)
+        out += _age_problem(
+            DataCode.CAN_NO_GOOD_DATA, what=can, last=self.last_good_can_t, now=now, limit_s=limit
+        )
         return tuple(out)
 
     def channel_ages(self, now: datetime) -> list[float | None]:
@@ -99,8 +106,14 @@ class CoreView:
         return [None if not np.isfinite(t) else max(0.0, ts - float(t)) for t in self.last_ok_t]
 
 
-def _age_problem(code: str, *, what: str, last: datetime | None, now: datetime, limit_s: float) -> list[str]:
+def _age_problem(
+    code: DataCode, *, what: str, last: datetime | None, now: datetime, limit_s: float
+) -> list[DataProblem]:
     if last is None:
-        return [f"{code}: no {what} yet"]
+        return [DataProblem(code, f"no {what} yet")]
     age = (now - last).total_seconds()
-    return [f"{code}: newest {what} is {age:.1f} s old (limit {limit_s:.0f} s)"] if age > limit_s else []
+    return (
+        [DataProblem(code, f"newest {what} is {age:.1f} s old (limit {limit_s:.0f} s)")]
+        if age > limit_s
+        else []
+    )

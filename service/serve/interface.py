@@ -44,6 +44,14 @@ from service.errors import ServiceError
 from service.estimate.locator import TriangleLocator, locator_for
 from service.identify.mode import IdentificationMode
 
+# the policy's vocabulary, re-exported for api/ (which imports only this module of service/)
+from service.serve.verdict import ACTIONS as ACTIONS
+from service.serve.verdict import ChtcStatus as ChtcStatus
+from service.serve.verdict import DataCode as DataCode
+from service.serve.verdict import DataProblem as DataProblem
+from service.serve.verdict import Reason as Reason
+from service.serve.verdict import Verdict as Verdict
+
 if TYPE_CHECKING:
     from service.estimate.growth import GrowthEstimate, PlcCompensation
 
@@ -67,16 +75,6 @@ class BusyError(ServiceError):
 
 class NotReadyError(ServiceError):
     """The service cannot do what was asked yet (model not loaded, too little good data)."""
-
-
-class ChtcStatus(enum.StrEnum):
-    """Freshness of the H values the API serves."""
-
-    FRESH = "fresh"  # identified at the current, stable condition from recent data
-    IDENTIFYING = "identifying"  # condition changed; a new identification is queued or running
-    STALE = "stale"  # no recent good data (DAQ/CAN down, hung, frozen) or restored, not re-identified
-    AT_BOUND = "at-bound"  # identified at the current condition, but an H sits on a bound of the search box
-    NO_DATA = "no-data"  # no samples at all
 
 
 class ConditionState(enum.StrEnum):
@@ -190,6 +188,8 @@ class IdentificationRecord:
     ci95_hi: FloatArray
     identified: BoolArray  # (7,) 95 % CI narrow enough and not at a bound
     at_bound: BoolArray  # (7,) H on a bound of the search box (then not identified)
+    # (7,) H the data could not see: value and band are the prior's (a MAP fit; never identified)
+    prior_dominated: BoolArray = field(default_factory=lambda: np.zeros(len(ZONE_NAMES), dtype=bool))
 
     @property
     def id(self) -> int:
@@ -269,14 +269,26 @@ class ChtcSnapshot:
     """
 
     record: IdentificationRecord  # the identification served: H, CIs, fit, provenance
-    status: ChtcStatus
     newest_sample_at: datetime | None  # UTC of the newest sample in the ring buffer
     identified: BoolArray  # (7,) the record's flag and not at a bound of the search box
     at_bound: BoolArray  # (7,) H on a bound of the search box (not identified)
-    usable_for_compensation: bool = False  # the one flag a controller checks: fresh, identified, in the box
-    reason: str | None = None  # why not usable, "code: detail" (stale, restored, condition_changed, ...)
+    verdict: Verdict  # the policy's (service.serve.policy.chtc_verdict): status, usable, reason
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
+
+    @property
+    def status(self) -> ChtcStatus:
+        return self.verdict.status
+
+    @property
+    def usable_for_compensation(self) -> bool:
+        """The /chtc flag: these H may be used by a model that needs them (the policy's verdict)."""
+        return self.verdict.usable
+
+    @property
+    def reason(self) -> str | None:
+        """Why not usable, for humans ("code: detail"; ``verdict.reason`` is the typed code)."""
+        return self.verdict.text
 
     @property
     def h(self) -> FloatArray:
@@ -349,15 +361,23 @@ class ChtcMapSnapshot:
     identified: BoolArray  # (k, 7) 95 % band narrower than identification.ci_rel_threshold
     visited_rpm: FloatArray  # (m,) speeds the data covered (binned), ascending
     visited_s: FloatArray  # (m,) seconds of data at each visited speed (decayed like the map's information)
-    status: ChtcStatus  # how current the map is at the current speed (the /chtc rules)
+    verdict: Verdict  # how current the map is at the current speed (service.serve.policy.map_verdict)
     newest_sample_at: datetime | None  # UTC of the newest sample
     current_speed_rpm: float | None = None  # the newest sample's speed (None before any)
     visited_margin_rpm: float = 0.0  # a speed within this of a visited one counts as covered
     rmse_c: float | None = None  # the fit's RMS residual, °C
     restored: bool = False  # the stored map, not re-fitted since the restart
-    reason: str | None = None  # why not fresh, "code: detail" (the /chtc codes)
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
+
+    @property
+    def status(self) -> ChtcStatus:
+        return self.verdict.status
+
+    @property
+    def reason(self) -> str | None:
+        """Why not fresh, for humans ("code: detail"; ``verdict.reason`` is the typed code)."""
+        return self.verdict.text
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -474,13 +494,12 @@ class MetricsSnapshot:
 class CompensationSnapshot:
     """What ``/compensation`` serves (docs/design/growth.md): the thermal growth at the spindle nose from the
     live field (``growth``: µm, 0.1-µm integers, 95 % CIs, forecast, sensor sensitivity; frozen) with the
-    status and usability of ``/chtc`` at the same instant (the same rules), and the controller values of the
-    axial growth (``plc``, for a tool pointing along ``tool_dir`` of the machine axis)."""
+    policy's verdict on it at the same instant (``service.serve.policy.compensation_verdict``: judged on the
+    growth itself, not on the H), and the controller values of the axial growth (``plc``, for a tool pointing
+    along ``tool_dir`` of the machine axis)."""
 
     growth: GrowthEstimate
-    status: ChtcStatus
-    usable_for_compensation: bool
-    reason: str | None  # why not usable, "code: detail" (the /chtc codes)
+    verdict: Verdict  # the policy's (service.serve.policy.compensation_verdict): status, usable, reason
     newest_sample_at: datetime | None
     identification_id: int  # the identification whose H the growth uses
     plc: PlcCompensation
@@ -488,6 +507,20 @@ class CompensationSnapshot:
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
     # when the reference temperature was taken (the live state's start); None: configured (growth.reference_c)
     reference_at: datetime | None = None
+
+    @property
+    def status(self) -> ChtcStatus:
+        return self.verdict.status
+
+    @property
+    def usable_for_compensation(self) -> bool:
+        """The one flag a controller acts on (the policy's verdict)."""
+        return self.verdict.usable
+
+    @property
+    def reason(self) -> str | None:
+        """Why not usable, for humans ("code: detail"; ``verdict.reason`` is the typed code)."""
+        return self.verdict.text
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

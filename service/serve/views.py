@@ -4,7 +4,7 @@ An identification exists as ``service.contracts.records.IdentificationData``: bu
 ``model.identify.IdentificationResult`` by ``IdentificationData.from_result``, stored as is (``values()``) and
 read back after a restart or by the history endpoints (``IdentificationData.from_row``). ``data_to_record``
 turns it, with the condition it was taken at, into the ``IdentificationRecord`` the API serves, and
-``chtc_snapshot`` wraps the current record with what makes it trustworthy now (status, bounds, usability)::
+``chtc_snapshot`` wraps the current record with the policy's verdict on it now (``service.serve.policy``)::
 
     IdentificationResult --from_result--> IdentificationData --values()/from_row--> database row
                                                 |
@@ -20,43 +20,37 @@ served record holds the stored one.
 
 from __future__ import annotations
 
-import math
 from collections.abc import Sequence
-from dataclasses import dataclass, replace
+from dataclasses import replace
 from datetime import datetime
 from typing import Protocol
 
 import numpy as np
 import numpy.typing as npt
 
-from model.defaults import BOUND_REL_TOL
 from service.contracts.records import IdentificationData, IdentificationRow, JsonValue
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
 from service.serve.interface import (
     ZONE_NAMES,
     ChtcMapSnapshot,
     ChtcSnapshot,
-    ChtcStatus,
     ConditionSnapshot,
     ConditionState,
     IdentificationRecord,
+    Verdict,
 )
 
 __all__ = [
     "ConditionRow",
-    "MapFreshness",
     "StoredIdentification",
-    "Usability",
     "age_s",
     "at_bound",
     "chtc_map_snapshot",
     "chtc_snapshot",
     "condition_from_row",
     "data_to_record",
-    "map_freshness",
     "map_record",
     "row_to_record",
-    "usability",
 ]
 
 N_ZONES = len(ZONE_NAMES)
@@ -108,9 +102,10 @@ def _ci_lo(values: Sequence[float | None] | None) -> FloatArray:
     return out
 
 
-def _at_bound_flags(data: IdentificationData) -> BoolArray:
+def _diagnostic_flags(data: IdentificationData, name: str) -> BoolArray:
+    """(7,) bool flags stored in the record's diagnostics under ``name`` (all False when absent)."""
     diagnostics = data.diagnostics or {}
-    flags = diagnostics.get("at_bound")
+    flags = diagnostics.get(name)
     return _bools(flags if isinstance(flags, list) else None)
 
 
@@ -124,7 +119,8 @@ def data_to_record(data: IdentificationData, condition: ConditionSnapshot) -> Id
         ci95_lo=_ci_lo(data.ci95_lo),
         ci95_hi=_floats(data.ci95_hi),
         identified=_bools(data.identified),
-        at_bound=_at_bound_flags(data),
+        at_bound=_diagnostic_flags(data, "at_bound"),
+        prior_dominated=_diagnostic_flags(data, "prior_dominated"),
     )
 
 
@@ -164,102 +160,24 @@ def at_bound(rec: IdentificationRecord, box: tuple[float, float] | None, rel_tol
     return flags
 
 
-@dataclass(frozen=True)
-class Usability:
-    usable: bool
-    reason: str | None  # "code: detail" when not usable
-
-
-def usability(
-    rec: IdentificationRecord,
-    *,
-    bound: BoolArray,
-    condition: ConditionSnapshot | None,
-    data_problems: tuple[str, ...],
-    restored: bool,
-    has_sample: bool = True,
-    converging_since: datetime | None = None,
-    not_fresh: str | None = None,
-) -> Usability:
-    """Whether a compensation controller may apply ``rec``'s H now, else the first reason why not.
-
-    Codes, in this order: ``no_data`` (no sample acquired yet), ``stale`` (the data are not fresh:
-    ``data_problems``), ``state_converging`` (the live state has not converged since ``converging_since``,
-    a restart or a data gap: no identification window may start yet, the H are the last ones),
-    ``condition_changed`` (identified at another condition, or the condition is changing), in speed-map
-    mode ``not_fresh`` instead (the map's own reason, ``map_freshness``: ``map_old``, ``speed_not_visited``),
-    ``at_bound`` (an H on a bound of the search box), ``not_identified`` (an H's 95 % CI wider than the
-    threshold), ``restored`` (otherwise usable, but the last stored H, not re-identified since the
-    restart)."""
-    if not has_sample:
-        return Usability(False, "no_data: no sample acquired yet")
-    if data_problems:
-        return Usability(False, "stale: " + ", ".join(data_problems) + " (see /readyz)")
-    if converging_since is not None:
-        since = converging_since.isoformat(timespec="seconds")
-        return Usability(
-            False,
-            f"state_converging: the live temperature state has not converged since {since} (restart or data "
-            "gap): no identification window starts before it has, the H are the last identified ones",
-        )
-    if not_fresh is not None:
-        return Usability(False, not_fresh)
-    if condition is None or condition.id != rec.condition.id or condition.state is not ConditionState.STABLE:
-        now = "none" if condition is None else f"{condition.id} ({condition.state.value})"
-        return Usability(False, f"condition_changed: identified at condition {rec.condition.id}, now {now}")
-    if bool(np.any(bound)):
-        names = ", ".join(n for n, b in zip(ZONE_NAMES, bound, strict=True) if b)
-        return Usability(False, f"at_bound: {names} on a bound of the search box (not identified)")
-    weak = [n for n, ok in zip(ZONE_NAMES, rec.identified, strict=True) if not ok]
-    positive = len(rec.h) == N_ZONES and all(math.isfinite(float(x)) and x > 0 for x in rec.h)
-    if weak or not positive:
-        return Usability(False, f"not_identified: {', '.join(weak) or 'H'} (95 % CI too wide)")
-    if restored:
-        return Usability(False, "restored: the last stored H, not re-identified since the restart")
-    return Usability(True, None)
-
-
 def chtc_snapshot(
     rec: IdentificationRecord,
     *,
-    status: ChtcStatus,
     newest_sample_at: datetime | None,
-    condition: ConditionSnapshot | None,
-    data_problems: tuple[str, ...],
-    restored: bool,
-    box: tuple[float, float] | None,
-    converging_since: datetime | None = None,
-    not_fresh: str | None = None,
+    verdict: Verdict,
+    bound: BoolArray,
 ) -> ChtcSnapshot:
-    """What ``/chtc`` serves: the current identification ``rec`` and whether a controller may use it now.
-
-    ``data_problems``: codes of ``core.data_problems`` (empty: fresh); ``restored``: ``rec`` is the last
-    stored one, not re-identified since the restart; ``box``: the search box of H (an H within
-    ``BOUND_REL_TOL`` of a bound is not identified); ``converging_since``: the live state's (re)start while
-    it has not converged (``usability``); ``not_fresh``: in speed-map mode, why the map is not fresh at the
-    current speed (``map_freshness``; ``rec`` is then ``map_record``'s: H from the map at the current
-    condition)."""
-    bound = at_bound(rec, box, BOUND_REL_TOL)
-    use = usability(
-        rec,
-        bound=bound,
-        condition=condition,
-        data_problems=data_problems,
-        restored=restored,
-        has_sample=newest_sample_at is not None,
-        converging_since=converging_since,
-        not_fresh=not_fresh,
-    )
+    """What ``/chtc`` serves: the current identification ``rec`` and the policy's ``verdict`` on it now
+    (``service.serve.policy.chtc_verdict``); ``bound``: ``at_bound(rec, ...)`` (an H there is not
+    identified)."""
     identified = rec.identified & ~bound
     identified.setflags(write=False)
     return ChtcSnapshot(
         record=rec,
-        status=status,
         newest_sample_at=newest_sample_at,
         identified=identified,
         at_bound=bound,
-        usable_for_compensation=use.usable,
-        reason=use.reason,
+        verdict=verdict,
     )
 
 
@@ -301,72 +219,19 @@ def map_record(
     )
 
 
-@dataclass(frozen=True)
-class MapFreshness:
-    status: ChtcStatus
-    reason: str | None  # why not fresh, "code: detail" (None: fresh)
-
-
-def map_freshness(
-    speed_map: SpeedMap,
-    *,
-    newest_t: datetime | None,
-    speed_rpm: float | None,
-    data_problems: tuple[str, ...],
-    converging_since: datetime | None,
-    fresh_s: float,
-    margin_rpm: float,
-    min_visit_s: float,
-) -> MapFreshness:
-    """How current the map is at the current speed. In this order: ``no-data`` (no sample), ``stale``
-    (``data_problems``; or no speed known at all: ``speed_rpm`` None with a sample; or ``restored``: the
-    stored map, not re-fitted since the restart; or ``state_converging``), then ``identifying`` with
-    ``map_old`` (the fit's window ended more than ``fresh_s`` before the newest sample) or
-    ``speed_not_visited`` (the current speed is not within ``margin_rpm`` of a speed with >= ``min_visit_s``
-    of fitted data), else ``fresh``."""
-    if newest_t is None:
-        if speed_map.restored:
-            return MapFreshness(ChtcStatus.STALE, "restored: the stored map, no sample since the restart")
-        return MapFreshness(ChtcStatus.NO_DATA, "no_data: no sample acquired yet")
-    if data_problems:
-        return MapFreshness(ChtcStatus.STALE, "stale: " + ", ".join(data_problems) + " (see /readyz)")
-    if speed_rpm is None:
-        return MapFreshness(ChtcStatus.STALE, "stale: no speed value known yet (see /readyz)")
-    if speed_map.restored:
-        return MapFreshness(ChtcStatus.STALE, "restored: the stored map, not re-fitted since the restart")
-    if converging_since is not None:
-        since = converging_since.isoformat(timespec="seconds")
-        return MapFreshness(
-            ChtcStatus.STALE, f"state_converging: the live temperature state has not converged since {since}"
-        )
-    age = (newest_t - speed_map.fitted_at).total_seconds()
-    if age > fresh_s:
-        return MapFreshness(
-            ChtcStatus.IDENTIFYING,
-            f"map_old: the map's data end {age / 60:.1f} min before the newest sample "
-            f"(limit {fresh_s / 60:.0f} min)",
-        )
-    if not speed_map.covered(speed_rpm, margin_rpm=margin_rpm, min_visit_s=min_visit_s):
-        return MapFreshness(
-            ChtcStatus.IDENTIFYING,
-            f"speed_not_visited: {abs(speed_rpm):.0f} rpm is not within {margin_rpm:.0f} rpm of a speed "
-            f"with >= {min_visit_s:.0f} s of fitted data",
-        )
-    return MapFreshness(ChtcStatus.FRESH, None)
-
-
 def chtc_map_snapshot(
     speed_map: SpeedMap,
     *,
     ambient_c: float,
-    freshness: MapFreshness,
+    verdict: Verdict,
     newest_sample_at: datetime | None,
     current_speed_rpm: float | None,
     ci_threshold: float,
     margin_rpm: float,
 ) -> ChtcMapSnapshot:
     """What ``chtc_map()`` serves: the map on ``MAP_GRID_RPM`` at ``ambient_c`` with its bands, ``identified``
-    where the band's half-width in ln H is <= ``ci_threshold``, the visited speeds and the freshness."""
+    where the band's half-width in ln H is <= ``ci_threshold``, the visited speeds and the policy's
+    ``verdict`` (``service.serve.policy.map_verdict``)."""
     h, lo, hi = speed_map.h_at(MAP_GRID_RPM, ambient_c)
     half = 0.5 * np.log(hi / lo)
     return ChtcMapSnapshot(
@@ -381,11 +246,10 @@ def chtc_map_snapshot(
         identified=_ro_bool(np.asarray(half <= ci_threshold, dtype=bool)),
         visited_rpm=speed_map.visited_rpm,
         visited_s=speed_map.visited_s,
-        status=freshness.status,
+        verdict=verdict,
         newest_sample_at=newest_sample_at,
         current_speed_rpm=current_speed_rpm,
         visited_margin_rpm=float(margin_rpm),
         rmse_c=speed_map.rmse_c,
         restored=speed_map.restored,
-        reason=freshness.reason,
     )

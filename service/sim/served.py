@@ -38,9 +38,8 @@ from drivers.ringbuffer import Sample
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
 from service.engine.core import ServiceCore
-from service.engine.growthserve import GrowthServer
 from service.engine.persistence import Persistence, open_persistence
-from service.engine.runtime import CanDevice, DaqDevice, core_config
+from service.engine.runtime import CanDevice, DaqDevice, core_config, growth_server
 from service.engine.shell import SoftSensorService
 from service.errors import ServiceError
 from service.identify.worker import JobOutcome, JobRequest, run_job
@@ -355,7 +354,7 @@ def served_service(
         sources=sources,
         clock=clock,
         on_event=say,
-        growth=GrowthServer(model, t_ref_c=s.growth.reference_c),
+        growth=growth_server(model, s),
     )
     served = Served(
         service=service,

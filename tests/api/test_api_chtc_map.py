@@ -24,7 +24,8 @@ from model.hmap import NODES
 from model.plant import VirtualPlant
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
 from service.serve.interface import H_UNIT, ZONE_NAMES, ChtcMapSnapshot
-from service.serve.views import chtc_map_snapshot, map_freshness
+from service.serve.policy import map_verdict
+from service.serve.views import chtc_map_snapshot
 from service.settings import Settings
 from service.sim.served import Served
 from tests.api.conftest import served_map_mode
@@ -60,11 +61,11 @@ def fitted(duty: DutyRun) -> SpeedMap:
 
 def _snapshot(m: SpeedMap, speed_rpm: float, ambient_c: float = 22.3) -> ChtcMapSnapshot:
     newest = T_END + timedelta(seconds=60)
-    fresh = map_freshness(
+    fresh = map_verdict(
         m,
         newest_t=newest,
         speed_rpm=speed_rpm,
-        data_problems=(),
+        problems=(),
         converging_since=None,
         fresh_s=900.0,
         margin_rpm=300.0,
@@ -73,7 +74,7 @@ def _snapshot(m: SpeedMap, speed_rpm: float, ambient_c: float = 22.3) -> ChtcMap
     return chtc_map_snapshot(
         m,
         ambient_c=ambient_c,
-        freshness=fresh,
+        verdict=fresh,
         newest_sample_at=newest,
         current_speed_rpm=speed_rpm,
         ci_threshold=CI_THRESHOLD,
@@ -140,7 +141,7 @@ def test_the_bands_are_narrow_where_the_data_were_and_wide_where_they_were_not(f
 def test_an_unvisited_current_speed_is_identifying_with_the_reason(fitted: SpeedMap) -> None:
     unvisited = next(s for s in MAP_GRID_RPM if min(abs(s - fitted.visited_rpm)) > 300.0)
     body = chtc_map_out(_snapshot(fitted, float(unvisited)), T_END).model_dump(mode="json")
-    assert body["status"] == "identifying"
+    assert body["status"] == "identifying" and body["reason_code"] == "speed_not_visited"
     assert body["reason"].startswith(f"speed_not_visited: {unvisited:.0f} rpm is not within 300 rpm")
 
 

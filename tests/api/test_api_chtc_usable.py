@@ -1,5 +1,5 @@
 """GET /chtc: one `usable_for_compensation` flag with the reason when false, and `at_bound` per zone
-(issue 12, item 17), by the real service's rules (``service.serve.views.usability``)."""
+(issue 12, item 17), by the real service's rules (``service.serve.policy.chtc_verdict``)."""
 
 from __future__ import annotations
 
@@ -47,6 +47,7 @@ def test_usable_only_when_fresh_and_every_h_identified(lenient: tuple[Served, Te
     assert body["status"] == "stale" and body["usable_for_compensation"] is False
     # every kind of data stopped: the codes only (the ages are in /readyz, so the snapshot stays put)
     assert body["reason"] == "stale: no_sample, daq_no_good_data, can_no_good_data (see /readyz)"
+    assert body["reason_code"] == "stale" and body["action"]
 
 
 def test_samples_without_enough_good_channels_do_not_keep_it_fresh(

@@ -27,6 +27,7 @@ from service.engine.shell import SoftSensorService
 from service.estimate.growth import build_context, condition_terms, estimate_growth
 from service.modelload import LoadedModel
 from service.serve.interface import NotReadyError
+from service.serve.policy import CompensationLimits, compensation_verdict
 from service.settings import Settings
 from service.sim.served import ManualClock, served_service
 from tests.api.conftest import MAP_MODE, LiveServer, served_map_mode, sqlite_url
@@ -124,15 +125,29 @@ def test_served_growth_equals_estimate_growth_on_the_same_inputs(served: Served)
     assert body["identification_id"] == v.current.id
 
 
-def test_status_and_usability_are_those_of_chtc_and_go_stale_when_data_stop(served: Served) -> None:
+def test_the_verdict_is_the_policys_on_the_growth_and_goes_stale_when_data_stop(served: Served) -> None:
+    """/compensation is judged on the growth (service.serve.policy.compensation_verdict), not copied from
+    /chtc: the body carries exactly the policy's verdict on the served growth's CI."""
     client, clock = served.client, served.clock
     last = served.svc.view.newest
     assert last is not None
-    chtc = client.get("/api/v1/chtc").json()
     comp = client.get("/api/v1/compensation").json()
-    assert comp["status"] == chtc["status"] and comp["status"] != "stale"
-    assert comp["usable_for_compensation"] == chtc["usable_for_compensation"]
-    assert comp["reason"] == chtc["reason"]
+    snap = served.svc.compensation()
+    assert snap is not None
+    lo, hi = comp["axial"]["ci95_um"]
+    limits = CompensationLimits()
+    expected = compensation_verdict(
+        served.svc.view,
+        served.clock(),
+        limits=limits,
+        has_sample=True,
+        ci95_half_um=0.5 * (hi - lo),
+        identified_at=snap_identified_at(served),
+    )
+    assert comp["status"] == expected.status.value != "stale"
+    assert comp["usable_for_compensation"] is expected.usable
+    assert comp["reason_code"] == (None if expected.reason is None else expected.reason.value)
+    assert (comp["action"] is None) is expected.usable
     limit = served.svc.view.stale_after_s
     try:
         clock.now = last.t + timedelta(seconds=limit - 1)
@@ -142,9 +157,16 @@ def test_status_and_usability_are_those_of_chtc_and_go_stale_when_data_stop(serv
         assert stale["status"] == client.get("/api/v1/chtc").json()["status"] == "stale"
         assert client.get("/api/v1/compensation/section").json()["status"] == "stale"
         assert stale["usable_for_compensation"] is False and stale["reason"].startswith("stale:")
+        assert stale["reason_code"] == "stale" and stale["action"]
         assert stale["sample_age_s"] == pytest.approx(limit + 1, abs=1e-3)
     finally:
         clock.now = last.t
+
+
+def snap_identified_at(served: Served) -> datetime:
+    rec = served.svc.view.current
+    assert rec is not None
+    return rec.finished_at
 
 
 def test_nothing_to_serve_is_503_and_the_schema_is_in_openapi(tmp_path: Path) -> None:
@@ -206,7 +228,7 @@ def test_a_spindle_without_mechanics_serves_h_and_says_why_there_is_no_growth(se
     bare = dataclasses.replace(served.model, spec=dataclasses.replace(served.model.spec, mechanics=None))
     server = GrowthServer(bare)
     with pytest.raises(NotReadyError, match="growth model unavailable"):
-        server.snapshot(served.svc.view, served.svc.chtc)
+        server.snapshot(served.svc.view, served.clock())
     events: list[str] = []
     svc = SoftSensorService(
         ServiceCore(core_config(Settings()), model=bare), worker=None, on_event=events.append

@@ -83,6 +83,7 @@ def test_h_gauges_status_usable_and_build_info(
     status = {s.labels["status"]: s.value for s in fam["chtc_status"]}
     assert status == {
         "fresh": 0.0,
+        "predicted": 0.0,
         "identifying": 0.0,
         "stale": 0.0,
         "at-bound": 0.0,

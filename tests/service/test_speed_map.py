@@ -18,8 +18,8 @@ from service.engine.runtime import core_config, map_config
 from service.engine.shell import SoftSensorService
 from service.identify.mode import IdentificationMode
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
-from service.serve.interface import ChtcStatus
-from service.serve.views import map_freshness
+from service.serve.interface import ChtcStatus, DataCode, DataProblem
+from service.serve.policy import map_verdict
 from service.settings import ExperimentalSettings, Settings, SettingsError
 from service.sim.duty import condition_at, duty_profile
 from tests.modes import per_condition
@@ -147,19 +147,20 @@ def test_status_rules(served) -> None:
         base: dict[str, object] = {
             "newest_t": now,
             "speed_rpm": vis,
-            "data_problems": (),
+            "problems": (),
             "converging_since": None,
             "fresh_s": 900.0,
             "margin_rpm": 500.0,
             "min_visit_s": 60.0,
         }
-        f = map_freshness(kw.pop("map", m), **(base | kw))  # type: ignore[arg-type]
-        return f"{f.status.value} {(f.reason or '').split(':')[0]}".strip()
+        f = map_verdict(kw.pop("map", m), **(base | kw))  # type: ignore[arg-type]
+        assert f.usable == (f.reason is None)
+        return f"{f.status.value} {'' if f.reason is None else f.reason.value}".strip()
 
     assert status() == "fresh"
     assert status(speed_rpm=far) == "identifying speed_not_visited"
     assert status(newest_t=m.fitted_at + timedelta(minutes=16)) == "identifying map_old"
-    assert status(data_problems=("daq_no_good_data",)) == "stale stale"
+    assert status(problems=(DataProblem(DataCode.DAQ_NO_GOOD_DATA, ""),)) == "stale stale"
     assert status(converging_since=now) == "stale state_converging"
     restored = SpeedMap.from_json(m.to_json(), identification_id=m.identification_id)
     assert status(map=restored) == "stale restored"

@@ -9,9 +9,20 @@ from typing import Any
 import numpy as np
 
 from api.schemas import chtc_out
+from model.defaults import BOUND_REL_TOL
 from service.contracts.records import IdentificationData
-from service.serve.interface import ChtcSnapshot, ChtcStatus, ConditionSnapshot, ConditionState
-from service.serve.views import chtc_snapshot, data_to_record
+from service.serve.interface import (
+    ZONE_NAMES,
+    ChtcSnapshot,
+    ChtcStatus,
+    ConditionSnapshot,
+    ConditionState,
+    DataCode,
+    DataProblem,
+    Reason,
+)
+from service.serve.policy import chtc_verdict
+from service.serve.views import at_bound, chtc_snapshot, data_to_record
 
 T = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
 COND = ConditionSnapshot(
@@ -54,19 +65,30 @@ def _snap(
     *,
     newest_sample_at: datetime | None = T,
     condition: ConditionSnapshot = COND,
-    data_problems: tuple[str, ...] = (),
+    problems: tuple[DataProblem, ...] = (),
     restored: bool = False,
     box: tuple[float, float] | None = (5.0, 200.0),
 ) -> ChtcSnapshot:
-    return chtc_snapshot(
-        data_to_record(data, COND),
-        status=ChtcStatus.FRESH,
-        newest_sample_at=newest_sample_at,
+    """The snapshot the shell builds: the record, and the policy's verdict on it (``chtc_verdict``)."""
+    rec = data_to_record(data, COND)
+    bound = at_bound(rec, box, BOUND_REL_TOL)
+    verdict = chtc_verdict(
+        has_sample=newest_sample_at is not None,
+        problems=problems,
+        live=None,
+        now=T,
         condition=condition,
-        data_problems=data_problems,
+        record_condition_id=rec.condition.id,
+        map_verdict=None,
+        running=False,
+        bound=[bool(b) for b in bound],
+        identified=[bool(b) for b in rec.identified],
+        prior_dominated=[bool(b) for b in rec.prior_dominated],
+        h=[float(x) for x in rec.h],
         restored=restored,
-        box=box,
+        zones=ZONE_NAMES,
     )
+    return chtc_snapshot(rec, newest_sample_at=newest_sample_at, verdict=verdict, bound=bound)
 
 
 def test_the_record_is_the_stored_data_with_read_only_arrays() -> None:
@@ -100,8 +122,9 @@ def test_an_h_on_the_search_box_bound_is_not_identified_and_not_usable() -> None
 def test_usability_says_the_first_reason_in_order() -> None:
     assert _snap(_data()).usable_for_compensation and _snap(_data()).reason is None
     assert _snap(_data(), newest_sample_at=None).reason == "no_data: no sample acquired yet"
-    stale = _snap(_data(), data_problems=("daq_no_good_data",), restored=True)
+    stale = _snap(_data(), problems=(DataProblem(DataCode.DAQ_NO_GOOD_DATA, ""),), restored=True)
     assert stale.reason == "stale: daq_no_good_data (see /readyz)"
+    assert stale.verdict.reason is Reason.STALE and stale.status is ChtcStatus.STALE
     moved = _snap(_data(), condition=replace(COND, id=8), restored=True)
     assert moved.reason == "condition_changed: identified at condition 7, now 8 (stable)"
     changing = replace(COND, state=ConditionState.CHANGING)
@@ -109,7 +132,9 @@ def test_usability_says_the_first_reason_in_order() -> None:
         "condition_changed: identified at condition 7, now 7 (changing)"
     )
     weak = _snap(_data(identified=[False, True, True, False, True, True, True]), restored=True)
-    assert weak.reason == "not_identified: H1, H4 (95 % CI too wide)"
+    assert weak.reason == "not_identified: H1, H4 (95 % CI too wide, no prior holds it)"
+    held = _snap(_data(identified=[False] * 7, diagnostics={"prior_dominated": [True] * 7}))
+    assert held.usable_for_compensation  # a prior-dominated H has a finite, honest band: usable by a model
     restored = _snap(_data(), restored=True)
     assert not restored.usable_for_compensation
     assert restored.reason == "restored: the last stored H, not re-identified since the restart"

@@ -1,0 +1,122 @@
+"""The served-value policy (``service.serve.policy``): the compensation's verdict is judged on the growth the
+controller applies (data, live state, reference, the H's age, the CI against the tolerance), not on the H."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from datetime import UTC, datetime, timedelta
+
+import pytest
+
+from service.serve.interface import ChtcStatus, DataCode, DataProblem, Reason
+from service.serve.policy import CompensationLimits, compensation_verdict
+
+NOW = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
+LIMITS = CompensationLimits(max_ci95_um=2.0, max_identification_age_min=480.0, max_open_loop_min=10.0)
+
+
+@dataclass(frozen=True)
+class Live:
+    converged: bool = True
+    started_at: float = (NOW - timedelta(hours=1)).timestamp()
+    high_since: float | None = None
+
+    def inconsistent(self, t: float) -> bool:
+        return self.high_since is not None and t - self.high_since >= 300.0
+
+
+@dataclass(frozen=True)
+class Newest:
+    daq_ok: bool = True
+    can_ok: bool = True
+
+
+@dataclass(frozen=True)
+class View:
+    """The part of ``CoreView`` the policy reads, as plain values."""
+
+    newest: Newest | None = field(default_factory=Newest)
+    live: Live | None = field(default_factory=Live)
+    last_good_daq_t: datetime | None = NOW
+    problems: tuple[DataProblem, ...] = ()
+
+    def data_problems(self, now: datetime) -> tuple[DataProblem, ...]:
+        return self.problems
+
+
+DAQ_DOWN = DataProblem(DataCode.DAQ_NO_GOOD_DATA, "newest sample ... is 75.0 s old (limit 60 s)")
+CAN_DOWN = DataProblem(DataCode.CAN_NO_GOOD_DATA, "no speed and torque from CAN yet")
+
+
+def verdict(view: View | None = None, **kw: object) -> tuple[ChtcStatus, bool, Reason | None]:
+    args: dict[str, object] = {
+        "limits": LIMITS,
+        "has_sample": True,
+        "ci95_half_um": 0.7,
+        "identified_at": NOW - timedelta(minutes=30),
+        "has_reference": True,
+    }
+    v = compensation_verdict(view or View(), NOW, **(args | kw))  # type: ignore[arg-type]
+    assert v.usable == (v.reason is None) and (v.action is None) == v.usable
+    return v.status, v.usable, v.reason
+
+
+def test_a_known_growth_is_usable_whatever_the_h_flags_say() -> None:
+    """The policy takes no per-H flag and no condition: a condition change or an H the data cannot see does
+    not withhold a growth whose CI is within the tolerance (issue 26: usable 0 of 1266 minutes)."""
+    assert verdict() == (ChtcStatus.FRESH, True, None)
+
+
+@pytest.mark.parametrize(
+    ("kw", "expected"),
+    [
+        ({"has_sample": False}, (ChtcStatus.NO_DATA, False, Reason.NO_DATA)),
+        ({"ci95_half_um": 2.01}, (ChtcStatus.FRESH, False, Reason.CI_TOO_WIDE)),
+        ({"ci95_half_um": float("nan")}, (ChtcStatus.FRESH, False, Reason.CI_TOO_WIDE)),
+        ({"identified_at": None}, (ChtcStatus.FRESH, False, Reason.NO_IDENTIFICATION)),
+        (
+            {"identified_at": NOW - timedelta(minutes=481)},
+            (ChtcStatus.FRESH, False, Reason.IDENTIFICATION_OLD),
+        ),
+        ({"has_reference": False}, (ChtcStatus.FRESH, False, Reason.NO_REFERENCE)),
+    ],
+)
+def test_each_limit_withholds_with_its_own_code(kw: dict[str, object], expected: tuple[object, ...]) -> None:
+    assert verdict(**kw) == expected
+
+
+def test_the_live_state_must_have_converged_and_agree_with_the_data() -> None:
+    assert verdict(View(live=None))[2] is Reason.STATE_CONVERGING
+    assert verdict(View(live=Live(converged=False))) == (ChtcStatus.STALE, False, Reason.STATE_CONVERGING)
+    recent = Live(high_since=NOW.timestamp() - 60.0)  # NIS high for 1 min: not yet inconsistent
+    assert verdict(View(live=recent))[1]
+    long = Live(high_since=NOW.timestamp() - 600.0)
+    assert verdict(View(live=long)) == (ChtcStatus.STALE, False, Reason.STATE_INCONSISTENT)
+
+
+def test_daq_down_with_can_alive_is_predicted_for_at_most_the_open_loop_limit() -> None:
+    """Open loop: status ``predicted`` (never ``fresh``), usable while the CI is within the tolerance and for
+    at most ``max_open_loop_min`` after the last good temperatures."""
+    for minutes, usable in ((1.5, True), (9.9, True), (10.1, False)):
+        view = View(problems=(DAQ_DOWN,), last_good_daq_t=NOW - timedelta(minutes=minutes))
+        status, ok, why = verdict(view)
+        assert status is ChtcStatus.PREDICTED and ok is usable
+        assert why is (None if usable else Reason.OPEN_LOOP_TOO_LONG)
+    wide = View(problems=(DAQ_DOWN,), last_good_daq_t=NOW - timedelta(minutes=2))
+    assert verdict(wide, ci95_half_um=3.0) == (ChtcStatus.PREDICTED, False, Reason.CI_TOO_WIDE)
+    never = CompensationLimits(max_open_loop_min=0.0)
+    assert verdict(wide, limits=never)[2] is Reason.OPEN_LOOP_TOO_LONG
+
+
+def test_can_down_or_no_samples_is_stale_at_once() -> None:
+    """Without speed and torque the live state's inputs are unknown: no prediction, stale at once."""
+    both = View(problems=(DAQ_DOWN, CAN_DOWN), last_good_daq_t=NOW - timedelta(seconds=70))
+    assert verdict(both) == (ChtcStatus.STALE, False, Reason.STALE)
+    assert verdict(View(problems=(CAN_DOWN,)))[:2] == (ChtcStatus.STALE, False)
+    stalled = View(problems=(DataProblem(DataCode.NO_SAMPLE, "newest sample 70 s old"),))
+    assert verdict(stalled)[2] is Reason.STALE
+    # both devices lost in the newest sample: stale at once, before the freshness limit flags them
+    assert verdict(View(newest=Newest(daq_ok=False, can_ok=False)))[:2] == (ChtcStatus.STALE, False)
+    predicting = View(newest=Newest(daq_ok=True, can_ok=False), problems=(DAQ_DOWN,))
+    assert verdict(predicting)[:2] == (ChtcStatus.STALE, False)
+    assert verdict(View(newest=Newest(can_ok=False)))[1]  # CAN alone, DAQ fine: measured, still usable
