@@ -294,18 +294,16 @@ def run_bench(
 ) -> dict[str, Any]:
     """The bench over ``seeds`` (module docstring); ``ValueError`` for a bad option."""
     from service.bench.compensation_run import Plant
-    from service.estimate.growth import build_context
     from service.modelload import ModelRef, load_model
 
     plan = plan_for(hours, rest_min=rest_min)
     settings = identmode.bench_settings(mode, overrides)
     model = load_model(ModelRef.from_settings(settings))
     started = time.perf_counter()
-    ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
     plant = Plant(model.spec)
     results: dict[int, SeedRows] = {}
     for seed in seeds:
-        results[seed] = run_seed(model, settings, ctx, plant, seed, plan, progress=progress)
+        results[seed] = run_seed(model, settings, plant, seed, plan, progress=progress)
         if progress is not None:
             progress(
                 f"seed {seed} done: {results[seed].wall_s:.0f} s ({time.perf_counter() - started:.0f} s)"

@@ -98,13 +98,10 @@ class Minute:
 
 
 def reason_code(snap: Any) -> str | None:
-    """The typed reason of a snapshot: its ``reason_code`` once the served-value policy provides one, else the
-    code before ':' of the older ``"code: detail"`` text (None: usable or no reason)."""
-    if hasattr(snap, "reason_code"):
-        code = snap.reason_code
-        return None if code is None else str(getattr(code, "value", code))
-    text = getattr(snap, "reason", None)
-    return None if not text else str(text).split(":")[0].strip()
+    """The typed reason of a ``/chtc`` or ``/compensation`` snapshot (its policy verdict's ``Reason``, what
+    the API serves as ``reason_code``; None when usable). Never parsed from the human text."""
+    code = snap.verdict.reason
+    return None if code is None else str(code.value)
 
 
 class Plant:
@@ -152,26 +149,28 @@ def stale_daq(last: Sample, now: Sample) -> Sample:
 
 
 class Session:
-    """One service instance on a manual clock (what ``chtc run`` wires, with the identification inline)."""
+    """One service instance on a manual clock, wired as ``chtc run`` wires it (``core_config``,
+    ``growth_server``: the settings' reference and compensation limits), with the identification inline;
+    ``t_ref_c`` a stored compensation reference (the setting ``growth.reference_c``)."""
 
     def __init__(
         self,
         model: Any,
         settings: Any,
-        ctx: Any,
         *,
         start: datetime,
         restored: Any = None,
         t_ref_c: float | None = None,
     ) -> None:
+        from service.commands._common import override
         from service.engine.core import ServiceCore
-        from service.engine.growthserve import GrowthServer
-        from service.engine.runtime import core_config
+        from service.engine.runtime import core_config, growth_server
         from service.engine.shell import SoftSensorService
         from service.identify.worker import run_job
         from service.sim.served import ManualClock
 
-        ref = settings.growth.reference_c if t_ref_c is None else t_ref_c
+        if t_ref_c is not None:
+            settings = override(settings, "growth", reference_c=round(float(t_ref_c), 6))
         core = ServiceCore(core_config(settings), model=model, restored=restored, history_capacity=100_000)
         self.clock = ManualClock(start)
         self.svc = SoftSensorService(
@@ -180,7 +179,7 @@ class Session:
             clock=self.clock,
             on_event=lambda _m: None,
             run_job=lambda req: run_job(model, req),
-            growth=GrowthServer(model, t_ref_c=ref, context=ctx),
+            growth=growth_server(model, settings),
         )
 
     def read(self, t_s: float, truth_um: float, h_truth: np.ndarray) -> Minute:
@@ -279,7 +278,6 @@ class SeedRows:
 def run_seed(
     model: Any,
     settings: Any,
-    ctx: Any,
     plant: Plant,
     seed: int,
     plan: Plan,
@@ -299,7 +297,7 @@ def run_seed(
         run, growth = plant.run(seed, variant, profile, truth)
         samples = samples_from_plant(run, t0_s=T0)
         restart_k = plan.restart_min * PER_MIN
-        normal, stored = _serve(model, settings, ctx, samples, run, growth, capture_at=restart_k)
+        normal, stored = _serve(model, settings, samples, run, growth, capture_at=restart_k)
         out.rows[f"normal_{variant}"] = normal
         if progress is not None:
             progress(f"  seed {seed} {variant}: normal run ({time.perf_counter() - started:.0f} s)")
@@ -309,11 +307,11 @@ def run_seed(
         restored, t_ref = stored
         out.ref_before_restart = t_ref
         out.rows["restart_stored"], _ = _serve(
-            model, settings, ctx, samples, run, growth, first=restart_k, restored=restored, t_ref_c=t_ref
+            model, settings, samples, run, growth, first=restart_k, restored=restored, t_ref_c=t_ref
         )
-        out.rows["restart_no_state"], _ = _serve(model, settings, ctx, samples, run, growth, first=restart_k)
+        out.rows["restart_no_state"], _ = _serve(model, settings, samples, run, growth, first=restart_k)
         out.rows["outages"], _ = _serve(
-            model, settings, ctx, samples, run, growth, plan=plan, both_ticks=out.both_ticks
+            model, settings, samples, run, growth, plan=plan, both_ticks=out.both_ticks
         )
     out.wall_s = time.perf_counter() - started
     return out
@@ -322,7 +320,6 @@ def run_seed(
 def _serve(
     model: Any,
     settings: Any,
-    ctx: Any,
     samples: list[Sample],
     run: Any,
     growth: np.ndarray,
@@ -337,7 +334,7 @@ def _serve(
     """The samples from ``first`` on through one service; with ``plan`` its two outages. Returns the minute
     rows and, with ``capture_at``, what is stored (``stored_state``, the reference) just before that
     sample."""
-    session = Session(model, settings, ctx, start=samples[first].t, restored=restored, t_ref_c=t_ref_c)
+    session = Session(model, settings, start=samples[first].t, restored=restored, t_ref_c=t_ref_c)
     svc = session.svc
     rows: list[Minute] = []
     captured = None

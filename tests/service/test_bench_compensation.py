@@ -55,12 +55,14 @@ def test_random_truth_is_the_plants_h_law_signature() -> None:
     assert h.shape == (7,) and np.array_equal(h, t(4000.0)) and np.array_equal(t(-4000.0), h)
 
 
-def test_reason_code_prefers_the_typed_field() -> None:
-    assert reason_code(SimpleNamespace(reason="stale: no data for 30 s")) == "stale"
-    assert reason_code(SimpleNamespace(reason=None)) is None
-    typed = SimpleNamespace(reason_code="ci_too_wide", reason="the CI is 3.1 µm wide")
-    assert reason_code(typed) == "ci_too_wide"
-    assert reason_code(SimpleNamespace(reason_code=None, reason="anything")) is None
+def test_reason_code_is_the_verdicts_typed_reason() -> None:
+    from service.serve.verdict import ChtcStatus, Reason, Verdict
+
+    stale = Verdict(ChtcStatus.STALE, False, Reason.STALE, "daq_no_good_data: no data for 70 s")
+    assert reason_code(SimpleNamespace(verdict=stale)) == "stale"
+    wide = Verdict(ChtcStatus.PREDICTED, False, Reason.CI_TOO_WIDE, "2.4 µm > 2.0 µm")
+    assert reason_code(SimpleNamespace(verdict=wide)) == "ci_too_wide"
+    assert reason_code(SimpleNamespace(verdict=Verdict(ChtcStatus.FRESH, True))) is None
 
 
 def test_plan_places_the_events_inside_the_machining() -> None:
