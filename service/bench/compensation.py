@@ -159,11 +159,12 @@ def restart_stored_figures(seed: SeedRows, plan: Plan) -> dict[str, Any]:
         if conv is not None and m.served and base[round(m.t_s)].served
     ]
     first = next((m.t_s / 60.0 - plan.restart_min for m in rows if m.usable), None)
-    refs = {round(m.t_ref_c, 9) for m in rows if m.served}
+    refs = [m.t_ref_c for m in rows if m.served]
+    before = np.nan if seed.ref_before_restart is None else seed.ref_before_restart
     return {
         "err_um_max_after_converged": _r(max(gaps)) if gaps else None,
         "first_usable_min": _r(first, 1),
-        "reference_kept": None if not refs else refs == {round(seed.ref_before_restart or np.nan, 9)},
+        "reference_kept": None if not refs else bool(np.max(np.abs(np.array(refs) - before)) <= 1e-6),
     }
 
 

@@ -170,7 +170,7 @@ class Session:
         from service.sim.served import ManualClock
 
         if t_ref_c is not None:
-            settings = override(settings, "growth", reference_c=round(float(t_ref_c), 6))
+            settings = override(settings, "growth", reference_c=float(t_ref_c))
         core = ServiceCore(core_config(settings), model=model, restored=restored, history_capacity=100_000)
         self.clock = ManualClock(start)
         self.svc = SoftSensorService(
