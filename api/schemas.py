@@ -654,7 +654,7 @@ class CompensationSectionOut(BaseModel):
     """The spindle's section deformed by the live field (docs/design/growth.md, 'The deformed section'): draw
     (r + k·u_r, z + k·u_z) for an exaggeration k of your choice next to the undeformed outline."""
 
-    status: ChtcStatus = Field(description="the status of /compensation (the /chtc rules)")
+    status: ChtcStatus = Field(description="the status of /compensation (its verdict, service.serve.policy)")
     unit: str = Field("µm", description="unit of u_r_um and u_z_um")
     at: datetime = Field(description="UTC instant of the live field the displacement is computed from")
     t_ref_c: float = Field(description="reference temperature (uniform) at which the displacement is 0, °C")

@@ -5,8 +5,8 @@
 ``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
 ``settings.api``, ``settings.database``, ``settings.growth``, ``settings.compensation``, and
 ``settings.experimental``: the research switches (identification mode, optimizer, the speed map's inner
-workings, mesh and rank) an operator leaves at their measured defaults (issue 25; docs/configuration.md). Nothing here opens a file, a socket or a database
-at import time.
+workings, mesh and rank) an operator leaves at their measured defaults (issue 25; docs/configuration.md).
+Nothing here opens a file, a socket or a database at import time.
 
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
 the defaults below. Environment variables use the prefix ``CHTC_`` and ``__`` between section and key,
@@ -332,7 +332,7 @@ class CompensationSettings(_Section):
     # the growth's 95 % CI half-width the controller tolerates [µm]: wider is never usable
     max_ci95_um: float = Field(default=2.0, gt=0.0, le=1000.0, allow_inf_nan=False)
     # the H in use (the identification or map fit) may be at most this old [min]
-    max_identification_age_min: float = Field(default=480.0, gt=0.0, allow_inf_nan=False)
+    max_identification_age_min: float = Field(default=1440.0, gt=0.0, allow_inf_nan=False)
     # DAQ down while CAN speed/torque keep coming: the growth is predicted open loop (status "predicted")
     # and stays usable at most this long [min] (and only while its CI is within max_ci95_um); 0: never
     max_open_loop_min: float = Field(default=10.0, ge=0.0, le=1440.0, allow_inf_nan=False)

@@ -1,8 +1,8 @@
 """GET /compensation: the thermal growth at the tool for a compensation controller (docs/api.md,
 docs/design/growth.md): axial and radial growth in µm and 0.1-µm integers, 95 % CIs, the forecast, the
-controller values, the sensor sensitivity, with the status and usability of ``/chtc``. GET
-/compensation/section: the section's outline and its displacement (µm) by the live field, for the dashboard's
-exaggerated drawing.
+controller values, the sensor sensitivity, with the policy's verdict on the growth
+(``service.serve.policy``). GET /compensation/section: the section's outline and its displacement (µm) by
+the live field, for the dashboard's exaggerated drawing.
 
 A plain (not async) endpoint: FastAPI runs it in a worker thread, because the service may build the growth
 model once and its per-condition terms (~0.3 s) on a new identification or condition; never on the loop.

@@ -16,10 +16,10 @@ real-time recordings with one jittered row per second; see docs/design/service.m
 The growth history (docs/design/growth.md): while the log plays, what ``/compensation`` serves is read every
 ``--growth-every-s`` recorded seconds and at each new identification (``GrowthLog``), and written to
 ``--growth-out`` if given (JSON, or CSV by suffix; nothing is written without it): the time (UTC), the
-status and usability of ``/chtc``, the identification, the axial and radial growth in µm with their 95 %
-CIs and 0.1-µm integers, and the steady axial growth. Each identification in ``--out`` (JSON) carries
-``growth``: the first served after it became current (null if it did not succeed), as ``chtc identify
---json`` does.
+status and usability of ``/compensation`` (the policy's verdict on the growth), the identification, the
+axial and radial growth in µm with their 95 % CIs and 0.1-µm integers, and the steady axial growth. Each
+identification in ``--out`` (JSON) carries ``growth``: the first served after it became current (null if it
+did not succeed), as ``chtc identify --json`` does.
 """
 
 from __future__ import annotations

@@ -48,7 +48,7 @@ class CompensationLimits:
     """The settings ``[compensation]`` (docs/configuration.md)."""
 
     max_ci95_um: float = 2.0  # the growth's 95 % CI half-width the controller tolerates [µm]
-    max_identification_age_min: float = 480.0  # the H in use identified at most this long ago [min]
+    max_identification_age_min: float = 1440.0  # the H in use identified at most this long ago [min]
     max_open_loop_min: float = 10.0  # DAQ down, CAN alive: usable open loop for at most this long [min]
 
 
@@ -66,6 +66,9 @@ class LiveLike(Protocol):
 
 class NewestLike(Protocol):
     """What the policy reads of the newest sample (``service.engine.view.NewestSample``)."""
+
+    @property
+    def t(self) -> datetime: ...
 
     @property
     def daq_ok(self) -> bool: ...
@@ -165,15 +168,25 @@ def compensation_verdict(
     DAQ nor CAN data), live state (``state_converging``,
     ``state_inconsistent``), ``no_reference``, ``identification_old``, ``ci_too_wide``. The status is
     ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
+    open_loop_s = 60.0 * limits.max_open_loop_min
     data = data_verdict(
         view.data_problems(now),
         has_sample=has_sample,
         last_good_daq_t=view.last_good_daq_t,
         now=now,
-        open_loop_limit_s=60.0 * limits.max_open_loop_min,
+        open_loop_limit_s=open_loop_s,
     )
     status = ChtcStatus.FRESH if data is None else data.status
     newest = view.newest
+    good_daq = view.last_good_daq_t
+    if data is None and newest is not None and (good_daq is None or newest.t > good_daq):
+        # the newest sample had too few usable temperatures: the live state runs open loop from that sample
+        # on, before the freshness limit flags the DAQ (never served as fresh)
+        early = DataProblem(DataCode.DAQ_NO_GOOD_DATA, "the newest sample has too few usable temperatures")
+        data = data_verdict(
+            (early,), has_sample=True, last_good_daq_t=good_daq, now=now, open_loop_limit_s=open_loop_s
+        )
+        status = ChtcStatus.STALE if data is None else data.status
     if (
         status in (ChtcStatus.FRESH, ChtcStatus.PREDICTED)
         and newest is not None

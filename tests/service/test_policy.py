@@ -27,6 +27,7 @@ class Live:
 
 @dataclass(frozen=True)
 class Newest:
+    t: datetime = NOW
     daq_ok: bool = True
     can_ok: bool = True
 
@@ -106,6 +107,14 @@ def test_daq_down_with_can_alive_is_predicted_for_at_most_the_open_loop_limit() 
     assert verdict(wide, ci95_half_um=3.0) == (ChtcStatus.PREDICTED, False, Reason.CI_TOO_WIDE)
     never = CompensationLimits(max_open_loop_min=0.0)
     assert verdict(wide, limits=never)[2] is Reason.OPEN_LOOP_TOO_LONG
+
+
+def test_the_first_sample_without_temperatures_is_predicted_before_the_freshness_limit_flags_it() -> None:
+    """The newest sample came after the last good DAQ data: open loop from there, never ``fresh``."""
+    early = View(last_good_daq_t=NOW - timedelta(seconds=20))
+    assert verdict(early) == (ChtcStatus.PREDICTED, True, None)
+    assert verdict(early, limits=CompensationLimits(max_open_loop_min=0.0))[2] is Reason.OPEN_LOOP_TOO_LONG
+    assert verdict(View(last_good_daq_t=None))[:2] == (ChtcStatus.STALE, False)
 
 
 def test_can_down_or_no_samples_is_stale_at_once() -> None:
