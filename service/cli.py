@@ -6,7 +6,7 @@ broken optional component cannot break the others:
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
   ``replay``, ``identify``, ``prebuild``, ``commission``);
 - ``service.bench.<name>`` for the benchmarks
-  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty``).
+  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty|compensation``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -45,6 +45,8 @@ BENCHMARKS: dict[str, str] = {
     "restart": "restart on a warm spindle (minute 0/30/60/90): H error, CI coverage, time to the first H",
     "growth": "served thermal growth at the nose vs the plant's own: error, CI coverage, forecast, cost",
     "duty": "a machining duty cycle (speed changes every 1-6 min): fresh H, error and coverage vs the truth",
+    "compensation": "served /compensation every minute vs random H(speed) truths: usable, error, coverage, "
+    "restarts, outages",
 }
 
 
