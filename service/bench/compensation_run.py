@@ -12,11 +12,16 @@ identification inline, its own ``GrowthServer`` as ``chtc run`` builds it) sees 
 - ``normal``: every sample (both variants);
 - ``restart_stored`` (offsets): the service stops at ``plan.restart_min`` and a new one starts on the next
   sample with what the database holds then (``stored_state``: the served identification, the per-condition
-  history, the conditions, the offset calibration, the speed map, and the reference temperature);
-- ``restart_no_state`` (offsets): the same restart with nothing stored;
+  history, the conditions, the offset calibration, the speed map, and the compensation zero);
+- ``restart_no_state`` (offsets): the same restart with nothing stored (no zero either: the first-start zero
+  waits for the spindle at rest in equilibrium, so the growth is ``no_reference`` until then);
 - ``outages`` (offsets): one run with a DAQ outage while CAN keeps coming (the acquisition's stale DAQ
   sample: the last temperatures with quality ``stale``, ambient NaN, ``daq_ok`` False, speed and torque
-  live) and later both devices down (no sample at all; the clock goes on), ``plan.outage_min`` each.
+  live) and later both devices down (the acquisition's sample with neither: the last values, ``daq_ok`` and
+  ``can_ok`` False), ``plan.outage_min`` each.
+
+The controller is zeroed at the cold start: ``compensation.reference_on_first_start`` (the service's zero from
+the first sample at rest in equilibrium, as the demo and a commissioning take it).
 
 Every minute (and every 10 s while both devices are down) a :class:`Minute` row holds what is served.
 """
@@ -132,26 +137,27 @@ class Plant:
         return run, growth
 
 
-def stale_daq(last: Sample, now: Sample) -> Sample:
-    """The acquisition's sample while the DAQ is silent and CAN is alive (``drivers.acquisition.combine``):
-    the last temperatures, quality ``stale``, no ambient, ``daq_ok`` False; speed and torque live."""
+def stale_daq(last: Sample, now: Sample, *, can_ok: bool = True) -> Sample:
+    """The acquisition's sample while the DAQ is silent (``drivers.acquisition.combine``): the last
+    temperatures, quality ``stale``, no ambient, ``daq_ok`` False; speed and torque live (``can_ok``), or
+    the last ones with ``can_ok`` False (CAN silent too)."""
     quality = np.full(len(last.temps_c), np.uint8(Quality.STALE))
     return Sample(
         now.t,
         np.asarray(last.temps_c, dtype=float).copy(),
         math.nan,
-        now.speed_rpm,
-        now.torque_nm,
+        now.speed_rpm if can_ok else last.speed_rpm,
+        now.torque_nm if can_ok else last.torque_nm,
         quality,
         daq_ok=False,
-        can_ok=True,
+        can_ok=can_ok,
     )
 
 
 class Session:
     """One service instance on a manual clock, wired as ``chtc run`` wires it (``core_config``,
     ``growth_server``: the settings' reference and compensation limits), with the identification inline;
-    ``t_ref_c`` a stored compensation reference (the setting ``growth.reference_c``)."""
+    ``restored`` what the database held (its compensation zero included)."""
 
     def __init__(
         self,
@@ -160,17 +166,13 @@ class Session:
         *,
         start: datetime,
         restored: Any = None,
-        t_ref_c: float | None = None,
     ) -> None:
-        from service.commands._common import override
         from service.engine.core import ServiceCore
         from service.engine.runtime import core_config, growth_server
         from service.engine.shell import SoftSensorService
         from service.identify.worker import run_job
         from service.sim.served import ManualClock
 
-        if t_ref_c is not None:
-            settings = override(settings, "growth", reference_c=float(t_ref_c))
         core = ServiceCore(core_config(settings), model=model, restored=restored, history_capacity=100_000)
         self.clock = ManualClock(start)
         self.svc = SoftSensorService(
@@ -179,7 +181,7 @@ class Session:
             clock=self.clock,
             on_event=lambda _m: None,
             run_job=lambda req: run_job(model, req),
-            growth=growth_server(model, settings),
+            growth=growth_server(model, settings, restored),
         )
 
     def read(self, t_s: float, truth_um: float, h_truth: np.ndarray) -> Minute:
@@ -222,10 +224,11 @@ class Session:
         )
 
 
-def stored_state(view: Any) -> Any:
+def stored_state(view: Any, reference: Any = None) -> Any:
     """What the database holds of a run at ``view`` (``service.engine.persistence.restore`` builds the same
     ``Restored`` from its tables): the served identification, the newest complete H per condition, the
-    conditions (stable), the offset calibration, the speed map and its newest fit."""
+    conditions (stable), the offset calibration, the speed map and its newest fit, and the compensation
+    zero ``reference`` (the growth server's)."""
     from dataclasses import replace
 
     from service.engine.config import Restored
@@ -262,6 +265,7 @@ def stored_state(view: Any) -> Any:
         calibration=view.calibration,
         speed_map=view.speed_map,
         map_last=next((r for r in view.records if r.outcome == "ok" and r.method == MAP_METHOD), None),
+        reference=reference,
     )
 
 
@@ -285,10 +289,12 @@ def run_seed(
     progress: Callable[[str], None] | None = None,
 ) -> SeedRows:
     """The five scenarios of one seed (module docstring)."""
+    from service.commands._common import override
     from service.sim.duty import duty_profile
     from service.sim.logsamples import samples_from_plant
     from service.sim.randomtruth import draw_truth
 
+    settings = override(settings, "compensation", reference_on_first_start=True)
     started = time.perf_counter()
     truth = draw_truth(np.random.default_rng([seed, 7]))
     profile = duty_profile(seed, duration_s=60.0 * plan.total_min, idle_s=60.0 * plan.rest_min)
@@ -307,7 +313,7 @@ def run_seed(
         restored, t_ref = stored
         out.ref_before_restart = t_ref
         out.rows["restart_stored"], _ = _serve(
-            model, settings, samples, run, growth, first=restart_k, restored=restored, t_ref_c=t_ref
+            model, settings, samples, run, growth, first=restart_k, restored=restored
         )
         out.rows["restart_no_state"], _ = _serve(model, settings, samples, run, growth, first=restart_k)
         out.rows["outages"], _ = _serve(
@@ -326,7 +332,6 @@ def _serve(
     *,
     first: int = 0,
     restored: Any = None,
-    t_ref_c: float | None = None,
     capture_at: int | None = None,
     plan: Plan | None = None,
     both_ticks: list[tuple[float, bool]] | None = None,
@@ -334,7 +339,7 @@ def _serve(
     """The samples from ``first`` on through one service; with ``plan`` its two outages. Returns the minute
     rows and, with ``capture_at``, what is stored (``stored_state``, the reference) just before that
     sample."""
-    session = Session(model, settings, start=samples[first].t, restored=restored, t_ref_c=t_ref_c)
+    session = Session(model, settings, start=samples[first].t, restored=restored)
     svc = session.svc
     rows: list[Minute] = []
     captured = None
@@ -345,12 +350,14 @@ def _serve(
     last_good = samples[first]
     for k in range(first, len(samples)):
         if k == capture_at:
-            captured = (stored_state(svc.view), svc.growth.t_ref_c(svc.view))
+            captured = (stored_state(svc.view, svc.growth.reference), svc.growth.t_ref_c(svc.view))
         sample = samples[k]
         session.clock.at_least(sample.t)
         if daq[0] <= k < daq[1]:
             svc.on_sample(stale_daq(last_good, sample))
-        elif not both[0] <= k < both[1]:
+        elif both[0] <= k < both[1]:
+            svc.on_sample(stale_daq(last_good, sample, can_ok=False))
+        else:
             svc.on_sample(sample)
             last_good = sample
         t_s = float(run.times_s[k])
