@@ -665,7 +665,10 @@ class CompensationOut(VerdictOut):
     forecast: GrowthForecastOut
     plc: PlcOut
     sensitivity: list[SensitivityOut] = Field(description="growth per unit temperature error of each sensor")
-    identification_id: int = Field(description="the identification whose H the growth uses")
+    identification_id: int | None = Field(
+        description="the identification whose H the growth uses (null before the first one: the live state's "
+        "guessed H with the widest band; then never usable, reason no_identification)"
+    )
     h_w_m2k: list[float] = Field(description="H1-H7 the growth uses (the live state's), W/(m²·K)")
     ambient_c: float = Field(description="the held ambient of the forecast, °C")
     newest_sample_at: datetime | None
@@ -745,7 +748,9 @@ class CompensationSectionOut(BaseModel):
     unit: str = Field("µm", description="unit of u_r_um and u_z_um")
     at: datetime = Field(description="UTC instant of the live field the displacement is computed from")
     t_ref_c: float = Field(description="reference temperature (uniform) at which the displacement is 0, °C")
-    identification_id: int = Field(description="the identification whose H the live state uses")
+    identification_id: int | None = Field(
+        description="the identification whose H the live state uses (null before the first one)"
+    )
     nodes_r_m: list[float] = Field(description="outline nodes: radius, m")
     nodes_z_m: list[float] = Field(description="outline nodes: axial position, m")
     edges: list[tuple[int, int]] = Field(description="outline edges (every part's boundary): node indices")

@@ -1026,7 +1026,7 @@ async function pollGrowth() {
     $("growth-now").innerHTML = `axial <b id="growth-axial">${fmt(a.um, 1)}</b> µm · radial ${fmt(g.radial.um, 1)} µm · ` +
       `steady ${fmt(f.steady_axial.um, 1)} µm (τ ${fmt(f.tau_s / 60, 0)} min)`;
     $("growth-stale").hidden = g.status !== "stale";
-    $("growth-meta").textContent = `at ${utc(g.at)} over T_ref ${fmt(g.t_ref_c, 2)} °C · identification #${g.identification_id}`;
+    $("growth-meta").textContent = `at ${utc(g.at)} over T_ref ${fmt(g.t_ref_c, 2)} °C · ${g.identification_id === null ? "no identification yet (H guessed)" : "identification #" + g.identification_id}`;
     drawGrowth();
   } catch (e) {
     $("growth-now").textContent = "growth unavailable";

@@ -116,7 +116,8 @@ class GrowthLog:
         if self.rows and self.rows[-1]["at"] == row["at"]:
             return
         self.rows.append(row)
-        self.by_id.setdefault(snap.identification_id, row)
+        if snap.identification_id is not None:  # the first growth served with each identification's H
+            self.by_id.setdefault(snap.identification_id, row)
 
     def write(self, path: Path) -> None:
         if path.suffix.lower() == ".csv":

@@ -106,6 +106,14 @@ def h_covariance(rec: IdentificationRecord, h_live: np.ndarray) -> np.ndarray:
     return np.asarray(cov * np.outer(h_live / h, h_live / h))
 
 
+def guessed_h_covariance(h_live: np.ndarray) -> np.ndarray:
+    """Σ_H (7, 7) of H no identification gave (before the first one): each 95 % CI H/100..H·100, the cap of
+    ``h_covariance`` (uncorrelated)."""
+    h = np.asarray(h_live, dtype=float)
+    ci = np.column_stack([h / UNKNOWN_CI_FACTOR, h * UNKNOWN_CI_FACTOR])
+    return np.asarray(h_cov_from_ci(h, ci))
+
+
 def map_h_covariance(m: SpeedMap, speed_rpm: float, ambient_c: float, h_live: np.ndarray) -> np.ndarray:
     """Σ_H (7, 7) in speed-map mode: the map's posterior at ``speed_rpm`` and ``ambient_c`` (the live state's
     held condition, where its H comes from), Σ_lnH = J Σ_θ Jᵀ with J = d ln H/dθ there, so with the
@@ -336,10 +344,10 @@ class GrowthServer:
     def terms_key(view: CoreView) -> TermsKey | None:
         """What the condition terms depend on (None: nothing to serve yet)."""
         rec, live, cond = view.current, view.live, view.condition
-        if rec is None or live is None:
+        if live is None:
             return None
         held = (cond.id, cond.speed_rpm, cond.torque_nm, cond.ambient_c) if cond is not None else live.inputs
-        return (rec.id, tuple(live.h), tuple(live.load_scale), held)
+        return (None if rec is None else rec.id, tuple(live.h), tuple(live.load_scale), held)
 
     def wants_refresh(self, view: CoreView) -> bool:
         """True once per new key (the caller then runs ``refresh`` off the event loop)."""
@@ -354,7 +362,7 @@ class GrowthServer:
     def refresh(self, view: CoreView) -> ConditionTerms | None:
         """The condition terms for ``view`` (computed ~0.25 s unless current; blocking)."""
         key = self.terms_key(view)
-        if key is None or view.current is None or view.live is None:
+        if key is None or view.live is None:
             return None
         with self._lock:
             if self._terms is not None and self._terms.key == key:
@@ -372,11 +380,13 @@ class GrowthServer:
         ctx: GrowthContext,
         live: FilterView,
         cond: ConditionSnapshot | None,
-        rec: IdentificationRecord,
+        rec: IdentificationRecord | None,
         speed_map: SpeedMap | None = None,
     ) -> ConditionTerms:
         """The terms at the held condition; Σ_H from ``rec``'s CIs (per-condition mode) or, in speed-map mode,
-        from ``speed_map``'s band at the live state's speed and ambient (the H the live state uses)."""
+        from ``speed_map``'s band at the live state's speed and ambient (the H the live state uses); before
+        the first identification (``rec`` None) the live state's guessed H with the widest band
+        (``guessed_h_covariance``: at rest, with no heat input, the growth barely depends on H)."""
         from model.inputs import inputs_from_operation
 
         ambient, speed, torque = (
@@ -386,7 +396,9 @@ class GrowthServer:
             self.model.spec, dt_s=DT_S, speed_rpm=speed, torque_nm=torque, ambient_c=ambient
         )
         h = np.asarray(live.h, dtype=float)
-        if speed_map is None:
+        if rec is None:
+            cov_h = guessed_h_covariance(h)
+        elif speed_map is None:
             cov_h = h_covariance(rec, h)
         else:
             live_ambient, live_speed, _ = live.inputs
@@ -473,10 +485,11 @@ class GrowthServer:
         """What ``/compensation`` serves at ``now`` (UTC): the growth of ``view``'s live field and the
         policy's verdict on it (``service.serve.policy.compensation_verdict``: judged on the growth the
         controller applies, its CI against ``limits``, not on the H). ``identification_id``: the one whose H
-        the growth used. None before the first identification or the live state's start."""
+        the growth used (None before the first identification: the live state's guessed H, the widest band,
+        never usable: ``no_identification``). None before the live state's start."""
         est = self.estimate(view)
         rec = view.current
-        if est is None or rec is None:
+        if est is None:
             return None
         lo, hi = est.axial.ci95_um
         verdict = compensation_verdict(
@@ -485,14 +498,14 @@ class GrowthServer:
             limits=self.limits,
             has_sample=view.newest is not None,
             ci95_half_um=0.5 * (hi - lo),
-            identified_at=rec.finished_at,
+            identified_at=None if rec is None else rec.finished_at,
             has_reference=self._reference is not None,
         )
         return CompensationSnapshot(
             growth=est,
             verdict=verdict,
             newest_sample_at=None if view.newest is None else view.newest.t,
-            identification_id=rec.id,
+            identification_id=None if rec is None else rec.id,
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),

@@ -508,7 +508,7 @@ class CompensationSnapshot:
     growth: GrowthEstimate
     verdict: Verdict  # the policy's (service.serve.policy.compensation_verdict): status, usable, reason
     newest_sample_at: datetime | None
-    identification_id: int  # the identification whose H the growth uses
+    identification_id: int | None  # the identification whose H the growth uses (None: none yet, H guessed)
     plc: PlcCompensation
     tool_dir: int  # -1: the tool points to -Z
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
@@ -544,7 +544,7 @@ class SectionSnapshot:
     edges: npt.NDArray[np.int64]
     u_um: FloatArray
     status: ChtcStatus
-    identification_id: int
+    identification_id: int | None
     newest_sample_at: datetime | None
 
 
