@@ -230,7 +230,7 @@ def test_replay_prints_h_with_cis_and_writes_no_undocumented_file(
     ok = [r for r in rows if r["outcome"] == "ok"]
     maps = [r for r in ok if r["method"] == "speed-map"]
     assert ok and maps  # the default (combined) mode fits the speed map too
-    blocks = [b for b in printed.split("\n#")[1:] if "W/(m²·K), 95 % CI ('?' = poorly identified)" in b]
+    blocks = [b for b in printed.split("\n#")[1:] if "W/(m²·K), 95 % CI ('?' = poorly identified" in b]
     assert len(blocks) == len(ok)
     # each block's first line names its fit (the summary line after the last block names both kinds)
     assert sum("speed-map fit" in b.splitlines()[0] for b in blocks) == len(maps)

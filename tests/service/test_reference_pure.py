@@ -79,5 +79,6 @@ def test_the_demo_zeroes_on_its_first_start_and_a_plain_service_does_not() -> No
     from service.settings import Settings
 
     args = build_parser(["demo"]).parse_args(["demo", "--port", "8765"])
-    assert demo_settings(args, "sqlite:///:memory:").compensation.reference_on_first_start is True
+    settings, _token = demo_settings(args, "sqlite:///:memory:")
+    assert settings.compensation.reference_on_first_start is True
     assert Settings().compensation.reference_on_first_start is False
