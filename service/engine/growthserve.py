@@ -509,7 +509,6 @@ class GrowthServer:
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
-            reference_at=None if self._reference is None else self._reference.at,
             reference=self._reference,
         )
 

@@ -262,8 +262,29 @@ class IdentificationRecord:
         return self.data.n_sensors_used
 
 
+class Judged:
+    """A snapshot carrying the served-value policy's ``verdict`` (``service.serve.policy``), read through
+    these properties: its status, the usable flag a consumer acts on, and the reason for humans."""
+
+    verdict: Verdict
+
+    @property
+    def status(self) -> ChtcStatus:
+        return self.verdict.status
+
+    @property
+    def usable_for_compensation(self) -> bool:
+        """The flag a consumer acts on (the policy's verdict)."""
+        return self.verdict.usable
+
+    @property
+    def reason(self) -> str | None:
+        """Why not usable, for humans ("code: detail"; ``verdict.reason`` is the typed code)."""
+        return self.verdict.text
+
+
 @dataclass(frozen=True, eq=False, kw_only=True)
-class ChtcSnapshot:
+class ChtcSnapshot(Judged):
     """The current H1-H7 (the identification ``record``) and whether a controller may use them now.
 
     Built by ``service.serve.views.chtc_snapshot`` only; the record's values are read through it.
@@ -277,20 +298,6 @@ class ChtcSnapshot:
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
     box: tuple[float, float] | None = None  # the search box of H, W/(m²·K) (bounds beyond it print "> box")
-
-    @property
-    def status(self) -> ChtcStatus:
-        return self.verdict.status
-
-    @property
-    def usable_for_compensation(self) -> bool:
-        """The /chtc flag: these H may be used by a model that needs them (the policy's verdict)."""
-        return self.verdict.usable
-
-    @property
-    def reason(self) -> str | None:
-        """Why not usable, for humans ("code: detail"; ``verdict.reason`` is the typed code)."""
-        return self.verdict.text
 
     @property
     def h(self) -> FloatArray:
@@ -347,7 +354,7 @@ class ChtcSnapshot:
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class ChtcMapSnapshot:
+class ChtcMapSnapshot(Judged):
     """The identified H map H = F(n, Ti) over the speed range (``experimental.mode = "speed_map"``,
     docs/design/hmap.md): H1-H7 and their 95 % bands on a speed grid at the current ambient, the speeds the
     data have covered, and how current the map is.
@@ -376,15 +383,6 @@ class ChtcMapSnapshot:
     restored: bool = False  # the stored map, not re-fitted since the restart
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
-
-    @property
-    def status(self) -> ChtcStatus:
-        return self.verdict.status
-
-    @property
-    def reason(self) -> str | None:
-        """Why not fresh, for humans ("code: detail"; ``verdict.reason`` is the typed code)."""
-        return self.verdict.text
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -498,7 +496,7 @@ class MetricsSnapshot:
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
-class CompensationSnapshot:
+class CompensationSnapshot(Judged):
     """What ``/compensation`` serves (docs/design/growth.md): the thermal growth at the spindle nose from the
     live field (``growth``: µm, 0.1-µm integers, 95 % CIs, forecast, sensor sensitivity; frozen) with the
     policy's verdict on it at the same instant (``service.serve.policy.compensation_verdict``: judged on the
@@ -512,23 +510,12 @@ class CompensationSnapshot:
     plc: PlcCompensation
     tool_dir: int  # -1: the tool points to -Z
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
-    # when the compensation reference was set (``reference.at``); None: none set (the growth is provisional)
-    reference_at: datetime | None = None
     reference: CompensationReference | None = None  # the zero in use (None: none set, not usable)
 
     @property
-    def status(self) -> ChtcStatus:
-        return self.verdict.status
-
-    @property
-    def usable_for_compensation(self) -> bool:
-        """The one flag a controller acts on (the policy's verdict)."""
-        return self.verdict.usable
-
-    @property
-    def reason(self) -> str | None:
-        """Why not usable, for humans ("code: detail"; ``verdict.reason`` is the typed code)."""
-        return self.verdict.text
+    def reference_at(self) -> datetime | None:
+        """When the compensation reference was set; None: none set (the growth is provisional)."""
+        return None if self.reference is None else self.reference.at
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
