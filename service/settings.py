@@ -49,7 +49,7 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
-from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.errors import ServiceError
 from service.identify.mode import IdentificationMode
 
@@ -182,6 +182,9 @@ class IdentificationSettings(_Section):
     # 95 % half-width of log H (≈ relative half-width) above this → "not identified"
     # (docs/design/identification.md)
     ci_rel_threshold: float = Field(default=CI_REL_THRESHOLD, gt=0)
+    # 1σ in ln H added in quadrature to every band /chtc serves: the model-form error no statistical band
+    # sees (docs/design/policy.md, "The served H band"); the ``identified`` flag is judged on the widened band
+    h_form_sd_ln: float = Field(default=H_FORM_SD_LN, ge=0, le=2)
     timeout_s: float = Field(default=120.0, gt=0)
     # zero the sensor offsets against a baseline at thermal equilibrium (spindle idle, offset_rest_s, sensors
     # flat, at the ambient: service.acquire.calibration); without a baseline their 1σ offset_sd_c widens the

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2
 
 from model.estimator import (
     Convergence,
@@ -84,7 +85,10 @@ class FilterSettings:
     without a usable temperature (a DAQ outage with CAN alive: the state runs open loop) holds identification
     windows back until the state passes the convergence test again on data (``ready_at``); snapshots every
     ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``;
-    ``inconsistent_after_s`` [s]: the NIS window above its band this long is reported (``FilterView``).
+    ``inconsistent_after_s`` [s]: the NIS window above its band this long is reported (``FilterView``);
+    ``reacquire_restart_p``: after such an open-loop run, a first update whose NIS has a χ² upper-tail
+    probability below this restarts the state from the prior on that sample (the prediction left its band:
+    the held inputs were not the machine's, CAN down too).
     """
 
     noise: NoiseModel = field(default_factory=NoiseModel)
@@ -101,6 +105,9 @@ class FilterSettings:
     keep_s: float = 3 * 3600.0
     recent_steps: int = 64
     inconsistent_after_s: float = 600.0  # NIS window "high" this long [s]: a persistent inconsistency
+    # after an open-loop run longer than max_gap_s, the first update on data whose NIS is this improbable
+    # (χ² upper tail) restarts the state from the prior on that sample instead of correcting it
+    reacquire_restart_p: float = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -413,7 +420,13 @@ class FilteredState:
         self._bias.predict(a)
         self._t += self.dt_s
         self._inputs = new
-        return self._after_step(n, self._measure(temps_c, usable))
+        res = self._measure(temps_c, usable)
+        if self._prediction_lost(res):
+            # the open-loop prediction is out of its own band (CAN was down too, say: the inputs held were
+            # not the machine's): restart from the prior on these data rather than bend the unobserved field
+            # (the shaft) by a correction the covariance does not cover
+            return self.initialize(float(t), (new.ambient_c, new.speed_rpm, new.torque_nm), temps_c, usable)
+        return self._after_step(n, res)
 
     def mark(self, t: float) -> StateSnapshot:
         """Keep the estimate of the latest step at or before ``t`` [s] as a snapshot (a window can start
@@ -582,6 +595,12 @@ class FilteredState:
         self._keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
         self.steps += n
         return SampleUpdate(self._t, n, nis, dof, verdict, restarted)
+
+    def _prediction_lost(self, res: StepResult | None) -> bool:
+        """The first update after an open-loop run longer than ``max_gap_s`` has an improbable NIS."""
+        if not (self._reacquiring and self._blind_from is not None and res is not None and res.dof):
+            return False
+        return bool(res.nis > chi2.isf(self.settings.reacquire_restart_p, res.dof))
 
     def _track_blind(self, n: int, dof: int) -> None:
         """Follow runs of steps without a measurement update; past ``max_gap_s`` the state re-acquires: the

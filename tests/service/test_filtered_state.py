@@ -213,6 +213,34 @@ def test_open_loop_longer_than_max_gap_holds_windows_until_data_converge_again(
     assert state.converged_at == first_ready  # the serving side's convergence is not reset
 
 
+def test_data_far_outside_the_open_loop_band_restart_the_state(case: Case) -> None:
+    """Both devices down: the samples hold the last speed (idle) while the machine runs at 3000 rpm. When the
+    temperatures come back, the prediction is far outside its band: the state restarts from the prior on
+    that sample (not converged, a wide band) instead of bending the unobserved field to the innovation."""
+    run = case.run
+    state = _filter(case, 0, run.h_true[0])
+    k = 1
+    while state.ready_at() is None or run.speed_rpm[k] < 1000.0:
+        state.push(float(run.times_s[k]), **_sample(run, k))
+        k += 1
+    held = {**_sample(run, k), "speed_rpm": 0.0, "torque_nm": 0.0, "usable": np.zeros(32, dtype=bool)}
+    for _ in range(int(state.settings.max_gap_s / 10.0) + 30):  # 300 s + 5 min of the wrong inputs
+        state.push(float(run.times_s[k]), **held)
+        k += 1
+    upd = state.push(float(run.times_s[k]), **_sample(run, k))
+    assert upd.restarted and state.started_at == float(run.times_s[k])
+    assert state.ready_at() is None and not state.reacquiring
+    # the same run with the true inputs held: the prediction stays in its band, no restart
+    state = _filter(case, 0, run.h_true[0])
+    for j in range(1, k):
+        s = _sample(run, j)
+        if j >= k - int(state.settings.max_gap_s / 10.0) - 30:
+            s = {**s, "usable": np.zeros(32, dtype=bool)}
+        state.push(float(run.times_s[j]), **s)
+    upd = state.push(float(run.times_s[k]), **_sample(run, k))
+    assert not upd.restarted and state.converged_at is not None
+
+
 def test_considered_h_error_follows_set_h(case: Case) -> None:
     """``set_h(h_rel=...)``: a stale H with 100 % relative 1σ leaves the field's interior less certain on a
     running spindle than one identified to 5 %, with the same data."""
