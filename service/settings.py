@@ -182,9 +182,6 @@ class IdentificationSettings(_Section):
     # 95 % half-width of log H (≈ relative half-width) above this → "not identified"
     # (docs/design/identification.md)
     ci_rel_threshold: float = Field(default=CI_REL_THRESHOLD, gt=0)
-    # 1σ in ln H added in quadrature to every band /chtc serves: the model-form error no statistical band
-    # sees (docs/design/policy.md, "The served H band"); the ``identified`` flag is judged on the widened band
-    h_form_sd_ln: float = Field(default=H_FORM_SD_LN, ge=0, le=2)
     timeout_s: float = Field(default=120.0, gt=0)
     # zero the sensor offsets against a baseline at thermal equilibrium (spindle idle, offset_rest_s, sensors
     # flat, at the ambient: service.acquire.calibration); without a baseline their 1σ offset_sd_c widens the
@@ -239,6 +236,9 @@ class ExperimentalSettings(_Section):
     # than the first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode")
     mode: IdentificationMode = IdentificationMode.COMBINED
     method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
+    # 1σ in ln H added in quadrature to every band /chtc serves: the model-form error no statistical band
+    # sees (docs/design/policy.md, "The served H band"); the ``identified`` flag is judged on the widened band
+    h_form_sd_ln: float = Field(default=H_FORM_SD_LN, ge=0, le=2)
     seed: int = 0
     estimate_loads: bool = False  # also fit front/rear bearing heat scales
     # the filtered start state's leading uncertain directions fitted in each window (0: only carried)

@@ -32,7 +32,7 @@ class CoreConfig:
     filter: FilterSettings = field(default_factory=FilterSettings)  # the live state's Kalman filter
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD
-    h_form_sd: float = H_FORM_SD_LN  # identification.h_form_sd_ln: added to every served H band (ln H)
+    h_form_sd: float = H_FORM_SD_LN  # experimental.h_form_sd_ln: added to every served H band (ln H)
     # sample time without good data (a sample, >= rules.min_good_channels usable channels and the ambient,
     # speed and torque from CAN) before H is reported stale
     stale_after_s: float = 60.0

@@ -74,7 +74,7 @@ class CoreView:
     # condition's per-condition identification serves (docs/design/hmap.md, "Combined mode")
     map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
-    h_form_sd: float = 0.0  # identification.h_form_sd_ln: 1σ in ln H added to every served H band
+    h_form_sd: float = 0.0  # experimental.h_form_sd_ln: 1σ in ln H added to every served H band
 
     def data_problems(self, now: datetime) -> tuple[DataProblem, ...]:
         """Why the data are not fresh at ``now`` (empty: fresh). Codes (``DataCode``): ``no_sample`` (nothing
