@@ -7,8 +7,8 @@ grid point, the nearest sample within ``dt_s/2``. A channel enters the fit (``ma
 ``max_gap_s`` in a row; its isolated bad or missing points are filled by linear interpolation in time
 (they would otherwise bias the squared residual). Speed, torque and ambient must be finite on at least
 ``min_good_fraction`` of the grid too; their holes are interpolated the same way. A window whose last grid
-points have fewer than ``min_good_channels`` usable channels (the DAQ went silent, CAN alive) ends at its last
-good point instead: nothing is extrapolated past the data.
+points have no usable channel at all (the DAQ went silent, CAN alive) ends at its last good point instead:
+nothing is extrapolated past the data.
 
 Errors::
 
@@ -98,12 +98,11 @@ def resample_window(raw: RawWindow, t_from: float, t_to: float, rules: WindowRul
         raise InsufficientWindowError(f"no samples between t={t_from:.0f} s and t={t_to:.0f} s")
     temps = np.where(hit[:, None], np.asarray(raw.temps_c, dtype=float)[idx], np.nan)
     q_ok = hit[:, None] & usable(np.asarray(raw.quality)[idx]) & np.isfinite(temps)
-    last = _last_good_point(q_ok, rules.min_good_channels)
+    last = _last_good_point(q_ok)
     if 0 <= last < n_steps:  # the DAQ went silent before the end: the window ends at its last good point
         if last * rules.dt_s < rules.min_window_s - 0.5 * rules.dt_s:
             raise InsufficientWindowError(
-                f"the DAQ gave no usable temperatures since t={grid[last]:.0f} s "
-                f"(fewer than min_good_channels={rules.min_good_channels} channels OK): "
+                f"the DAQ gave no usable temperature since t={grid[last]:.0f} s: "
                 f"{last * rules.dt_s:.0f} s of data, need min_window_s {rules.min_window_s:.0f} s"
             )
         n_steps, grid, idx, hit = last, grid[: last + 1], idx[: last + 1], hit[: last + 1]
@@ -171,11 +170,12 @@ def _fill(grid: np.ndarray, values: np.ndarray, ok: np.ndarray) -> np.ndarray:
     return np.interp(grid, grid[ok], values[ok])
 
 
-def _last_good_point(q_ok: np.ndarray, min_good_channels: int) -> int:
-    """The last grid index with at least ``min_good_channels`` usable channels (-1: none; the per-channel
-    rules then name the bad channels). Holding the last
-    good values over a trailing DAQ outage would feed the fit temperatures nobody measured."""
-    good = np.flatnonzero(q_ok.sum(axis=1) >= min_good_channels)
+def _last_good_point(q_ok: np.ndarray) -> int:
+    """The last grid index with any usable channel (-1: none; the per-channel rules then name the bad
+    channels). Holding the last good values over a trailing DAQ outage (every channel stale) would feed the
+    fit temperatures nobody measured; channels failing alone are the per-channel rules' (mask, or fill up to
+    ``max_gap_s``)."""
+    good = np.flatnonzero(q_ok.any(axis=1))
     return int(good[-1]) if good.size else -1
 
 

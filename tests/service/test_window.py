@@ -106,7 +106,5 @@ def test_a_daq_silent_for_most_of_the_window_is_insufficient_and_says_since_when
     r = raw()
     q = r.quality.copy()
     q[40:] = 1
-    with pytest.raises(
-        InsufficientWindowError, match=r"no usable temperatures since t=1390 s.*390 s of data"
-    ):
+    with pytest.raises(InsufficientWindowError, match=r"no usable temperature since t=1390 s: 390 s of data"):
         resample_window(replace(r, quality=q), 1000.0, 2200.0, RULES)
