@@ -193,7 +193,8 @@ def widen_band(
     the fit searches only there, the map's levels are bounded by it; a Gaussian band past it is the
     approximation's, not the data's). Returns (lo, hi, the widened half-width in ln H before truncation)."""
     h = np.asarray(h, dtype=float)
-    sd = np.log(np.asarray(hi, dtype=float) / np.asarray(lo, dtype=float)) / (2.0 * Z95)
+    with np.errstate(divide="ignore"):  # a lower bound of 0 (clamped): an unbounded band, σ = inf
+        sd = np.log(np.asarray(hi, dtype=float) / np.asarray(lo, dtype=float)) / (2.0 * Z95)
     sd = np.sqrt(sd**2 + float(form_sd) ** 2)
     half = Z95 * sd
     wlo = np.maximum(h * np.exp(-half), np.minimum(float(box[0]), h))
