@@ -27,6 +27,7 @@ import numpy as np
 import scipy.sparse.linalg as spla
 from numpy.typing import ArrayLike, NDArray
 
+from model.banded import BandedCholesky, SolverError, band_order
 from model.errors import ModelError
 from model.fem import FEModel, make_stepper, steady_state, stiffness
 from model.inputs import InputSeries
@@ -97,14 +98,23 @@ def steady_jacobian_h(
     q_front_w: float,
     q_rear_w: float,
     load_scale: tuple[float, float] = (1.0, 1.0),
+    t_ss: ArrayLike | None = None,
 ) -> Array:
-    """∂T_ss/∂H_i (N, 7) [°C per W/(m² K)] of the steady field: K ∂T/∂H_i = z_i Ti − K_i T (exact)."""
-    t_ss = steady_state(
-        fe, h, ambient_c=ambient_c, q_front_w=q_front_w, q_rear_w=q_rear_w, load_scale=load_scale
-    )
-    rhs = np.column_stack([z * ambient_c - k @ t_ss for z, k in zip(fe.z_zone, fe.K_zone, strict=True)])
-    lu = spla.splu(stiffness(fe, h).tocsc())
-    return np.asarray(lu.solve(rhs))
+    """∂T_ss/∂H_i (N, 7) [°C per W/(m² K)] of the steady field: K ∂T/∂H_i = z_i Ti − K_i T (exact).
+
+    ``t_ss`` (N,) [°C]: the steady field for the same H and condition when the caller has it (else solved
+    here); the 7 right-hand sides share one banded Cholesky factorisation of K(H)."""
+    if t_ss is None:
+        t_ss = steady_state(
+            fe, h, ambient_c=ambient_c, q_front_w=q_front_w, q_rear_w=q_rear_w, load_scale=load_scale
+        )
+    t = np.asarray(t_ss, dtype=float)
+    rhs = np.column_stack([z * ambient_c - k @ t for z, k in zip(fe.z_zone, fe.K_zone, strict=True)])
+    try:
+        chol = BandedCholesky(stiffness(fe, h), band_order(fe.nodes_rz))
+    except SolverError as err:
+        raise GrowthError(f"h: stiffness not positive definite ({err})") from err
+    return np.asarray(chol.solve(rhs))
 
 
 def h_growth_std_um(operators: ArrayLike, jacobian_h: ArrayLike, cov_h: ArrayLike) -> Array:

@@ -222,6 +222,8 @@ class SoftSensorService:
         self._map_cache: tuple[tuple[object, ...], ChtcMapSnapshot] | None = None
         self._steady_cache: tuple[tuple[object, ...], FieldSnapshot] | None = None
         self._poll_latency = Histogram(LATENCY_BUCKETS_S)
+        self._terms_view: CoreView | None = None  # the newest view whose growth terms are wanted
+        self._terms_task: asyncio.Task[None] | None = None
         modbus = self.sources.get("modbus")
         if modbus is not None and hasattr(modbus, "on_read_s"):
             modbus.on_read_s = self._poll_latency.observe  # the driver's own poll timing (drivers.base)
@@ -373,13 +375,19 @@ class SoftSensorService:
             self._on_loop(functools.partial(self._spawn_terms, view))
 
     def _spawn_terms(self, view: CoreView) -> None:
-        self._spawn(self._growth_terms(view))
+        """One refresh at a time, for the newest view wanting one: keys that change while a refresh runs
+        (a condition change, then the live H at its speed, then an identification) coalesce into one."""
+        self._terms_view = view
+        if self._terms_task is None or self._terms_task.done():
+            self._terms_task = self._spawn(self._growth_terms())
 
-    async def _growth_terms(self, view: CoreView) -> None:
-        try:
-            await asyncio.to_thread(self._growth.refresh, view)
-        except Exception as err:  # a request retries it and raises to its caller; say it here too
-            log.warning("growth terms failed: %s: %s", type(err).__name__, err)
+    async def _growth_terms(self) -> None:
+        while (view := self._terms_view) is not None:
+            self._terms_view = None
+            try:
+                await asyncio.to_thread(self._growth.refresh, view)
+            except Exception as err:  # a request retries it and raises to its caller; say it here too
+                log.warning("growth terms failed: %s: %s", type(err).__name__, err)
 
     def _execute(self, ins: Instruction) -> None:
         if isinstance(ins, Store):

@@ -229,7 +229,7 @@ def condition_terms(
         raise GrowthEstimateError(f"horizons_s: must be positive multiples of dt_s = {dt_s}, got {list(hz)}")
     cond = {"ambient_c": ambient_c, "q_front_w": q_front_w, "q_rear_w": q_rear_w, "load_scale": load_scale}
     t_ss = steady_state(ctx.fe, hv, **cond)  # type: ignore[arg-type]
-    jac = steady_jacobian_h(ctx.fe, hv, **cond)  # type: ignore[arg-type]
+    jac = steady_jacobian_h(ctx.fe, hv, t_ss=t_ss, **cond)  # type: ignore[arg-type]
     modes = thermal_modes(ctx.fe, hv, n_modes=n_modes + 1)
     w = _horizon_functionals(ctx, modes.vectors, modes.tau_s, steps, dt_s)
     jg = ctx.g @ jac
