@@ -385,6 +385,9 @@ class EngineSettings(_Section):
     max_core_lag_s: float = Field(default=30.0, gt=0)  # a sample waiting longer: served values core_behind
     max_loop_lag_s: float = Field(default=0.25, gt=0)  # event-loop lag past this: /healthz degraded
     loop_lag_window_s: float = Field(default=30.0, gt=0)  # ... judged on the largest of this window
+    # CPython's GIL switch interval in the service process (sys.setswitchinterval; Python's default 5 ms):
+    # how long the event loop may wait for the GIL while the core or the growth terms compute
+    gil_switch_interval_s: float = Field(default=0.001, gt=0, le=0.1)
 
 
 class DatabaseSettings(_Section):

@@ -13,6 +13,7 @@ import asyncio
 import contextlib
 import logging
 import socket
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass
@@ -237,6 +238,7 @@ class Runtime:
         starts its simulated devices in between, so the drivers never poll a port nobody listens on yet).
         """
         s = self.settings
+        sys.setswitchinterval(s.engine.gil_switch_interval_s)  # the loop waits less for the GIL
         model = self.load()
         self.persistence = open_persistence(
             s.database, migrate=self.migrate, on_event=self.on_event, clock=self.clock
