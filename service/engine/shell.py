@@ -339,9 +339,19 @@ class SoftSensorService:
         if isinstance(self.runner, InlineRunner):
             for ins in instructions:
                 self._execute(ins)
-        elif instructions:
+            return instructions
+        if instructions:
             self._on_loop(functools.partial(self._execute_all, instructions))
+        self._prepare_answers()
         return instructions
+
+    def _prepare_answers(self) -> None:
+        """With the core thread: build ``/chtc``'s snapshot of the new view here, so that a request on the
+        loop finds it cached (the map's H and prior at the new sample's speed cost a few ms of CPU)."""
+        try:
+            self.chtc()
+        except Exception as err:  # the request raises it to its caller; never stop the core for it
+            log.debug("chtc snapshot not prepared: %s: %s", type(err).__name__, err)
 
     def _publish(self) -> None:
         """Swap the published view: the core's last one with the core thread's backlog (``pending_since``);
