@@ -200,16 +200,22 @@ async def _loaded(url: str, rate: float, duration_s: float, clients: int) -> dic
 
 
 def phase(url: str, args: argparse.Namespace, *, hog: bool) -> dict[str, Any]:
-    before = _lag_buckets(_metric_samples(url))
+    """One load phase; the service's own histograms (event-loop lag, /chtc request duration as uvicorn's
+    app saw it) between scrapes before and after it."""
+    from service.bench.api import _server_buckets, histogram_quantile
+
+    before, server0 = _lag_buckets(_metric_samples(url)), _server_buckets(url)
     with cpu_hog() if hog else contextlib.nullcontext():
         r = asyncio.run(_loaded(url, args.rate, args.duration, args.clients))
-    after_samples = _metric_samples(url)
-    after = _lag_buckets(after_samples)
-    from service.bench.api import histogram_quantile
-
+    after, server1 = _lag_buckets(_metric_samples(url)), _server_buckets(url)
     r["loop_lag_max_ms"] = 1e3 * lag_max_bound_s(before, after)
-    p99 = histogram_quantile(0.99, before, after)
-    r["loop_lag_p99_ms"] = None if p99 is None else 1e3 * p99
+    for name, q, b0, b1 in (
+        ("loop_lag_p99_ms", 0.99, before, after),
+        ("server_p50_ms", 0.5, server0, server1),
+        ("server_p99_ms", 0.99, server0, server1),
+    ):
+        v = histogram_quantile(q, b0, b1)
+        r[name] = None if v is None else 1e3 * v
     return r
 
 
@@ -264,6 +270,8 @@ def one_speedup(speedup: float, args: argparse.Namespace) -> dict[str, Any]:
                 "p99_ms_not_identifying",
                 "loop_lag_max_ms",
                 "loop_lag_p99_ms",
+                "server_p50_ms",
+                "server_p99_ms",
                 "late_ms_p99",
             )
         }
