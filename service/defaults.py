@@ -6,7 +6,13 @@ No imports beyond ``model.defaults`` (which has none): settings load fast.
 
 from model.defaults import CI_REL_THRESHOLD
 
-__all__ = ["CARRY_START_ERROR", "CI_REL_THRESHOLD", "START_MODES"]
+__all__ = ["CARRY_START_ERROR", "CI_REL_THRESHOLD", "H_FORM_SD_LN", "START_MODES"]
+
+# 1σ in ln H of what no statistical band of a served H sees: the service's coarser mesh, its lumped bearings
+# and the speed map's shape against the machine's (docs/design/policy.md, "The served H band"). Measured on
+# the compensation bench's tuning seeds 0-3: flagged H missed their random truth by up to 1.2σ of their
+# own band (z table there); checked on held-out seeds. Added in quadrature to every band /chtc serves.
+H_FORM_SD_LN = 0.15
 
 # windows start from the filtered live state: fit its leading uncertain directions too
 # (docs/design/estimator.md, "Identification after a restart": without them the restarted H6/H7 are 1.5-4x

@@ -49,7 +49,7 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
-from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.errors import ServiceError
 from service.identify.mode import IdentificationMode
 
@@ -236,6 +236,9 @@ class ExperimentalSettings(_Section):
     # than the first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode")
     mode: IdentificationMode = IdentificationMode.COMBINED
     method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
+    # 1σ in ln H added in quadrature to every band /chtc serves: the model-form error no statistical band
+    # sees (docs/design/policy.md, "The served H band"); the ``identified`` flag is judged on the widened band
+    h_form_sd_ln: float = Field(default=H_FORM_SD_LN, ge=0, le=2)
     seed: int = 0
     estimate_loads: bool = False  # also fit front/rear bearing heat scales
     # the filtered start state's leading uncertain directions fitted in each window (0: only carried)

@@ -41,6 +41,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--first-seed", type=int, default=0, help="first seed (split a long run), default 0")
     parser.add_argument("--hours", type=float, default=2.5, help="profile length incl. the rest (2.5 h)")
     parser.add_argument("--rest-min", type=int, default=30, help="rest before machining, min (30)")
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="seeds run in this many processes at once (default 1; each takes one core and ~1 GiB)",
+    )
     identmode.add_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
@@ -92,6 +98,7 @@ def growth_figures(rows: list[Minute]) -> dict[str, Any]:
     half = [0.5 * (m.hi - m.lo) for m in usable]
     served = [m for m in rows if m.served]
     err_all = np.array([abs(m.um - m.truth_um) for m in served])
+    z = np.array([(m.um - m.truth_um) / (0.5 * (m.hi - m.lo) / 1.959964) for m in served if m.hi > m.lo])
     reasons: dict[str, int] = {}
     for m in rows:
         if not m.usable:
@@ -111,6 +118,9 @@ def growth_figures(rows: list[Minute]) -> dict[str, Any]:
         "err_um_median_served": _r(np.median(err_all)) if err_all.size else None,
         "err_um_max_served": _r(err_all.max()) if err_all.size else None,
         "coverage_served": _r(np.mean([m.lo <= m.truth_um <= m.hi for m in served])) if served else None,
+        # the growth's z-score (error / its 1σ) over the served minutes: mean (bias) and spread (1: honest)
+        "growth_z_mean_served": _r(z.mean(), 2) if z.size else None,
+        "growth_z_sd_served": _r(z.std(), 2) if z.size else None,
     }
 
 
@@ -119,12 +129,22 @@ def h_figures(rows: list[Minute]) -> dict[str, Any]:
     whose CI misses it (None where no minute or no flag)."""
     fresh = [m for m in rows if m.h_fresh and m.h is not None]
     if not fresh:
-        return {"h_minutes": 0, "h_coverage": [None] * 7, "flag_miss": [None] * 7}
+        none = [None] * 7
+        return {"h_minutes": 0, "h_coverage": none, "flag_miss": none, "h_z_mean": none, "h_z_sd": none}
     truth = np.array([m.h_truth for m in fresh])
-    cov = (np.array([m.h_lo for m in fresh]) <= truth) & (truth <= np.array([m.h_hi for m in fresh]))
+    lo, hi = np.array([m.h_lo for m in fresh]), np.array([m.h_hi for m in fresh])
+    cov = (lo <= truth) & (truth <= hi)
     flags = np.array([m.identified for m in fresh], dtype=bool)
     miss = [_r(np.mean(~cov[flags[:, i], i])) if flags[:, i].any() else None for i in range(7)]
-    return {"h_minutes": len(fresh), "h_coverage": [_r(c) for c in cov.mean(axis=0)], "flag_miss": miss}
+    # z = ln(H / truth) / σ, σ the served band's in ln H (its half-width / 1.96; truncated bands read wider)
+    z = np.log(np.array([m.h for m in fresh]) / truth) / (np.log(hi / lo) / (2.0 * 1.959964))
+    return {
+        "h_minutes": len(fresh),
+        "h_coverage": [_r(c) for c in cov.mean(axis=0)],
+        "flag_miss": miss,
+        "h_z_mean": [_r(v, 2) for v in z.mean(axis=0)],
+        "h_z_sd": [_r(v, 2) for v in z.std(axis=0)],
+    }
 
 
 def _max_or_none(values: list[float | None]) -> float | None:
@@ -292,8 +312,10 @@ def run_bench(
     mode: str | None = None,
     overrides: dict[str, Any] | None = None,
     progress: Any = None,
+    jobs: int = 1,
 ) -> dict[str, Any]:
-    """The bench over ``seeds`` (module docstring); ``ValueError`` for a bad option."""
+    """The bench over ``seeds`` (module docstring), ``jobs`` seeds at a time in worker processes;
+    ``ValueError`` for a bad option."""
     from service.bench.compensation_run import Plant
     from service.modelload import ModelRef, load_model
 
@@ -301,14 +323,25 @@ def run_bench(
     settings = identmode.bench_settings(mode, overrides)
     model = load_model(ModelRef.from_settings(settings))
     started = time.perf_counter()
-    plant = Plant(model.spec)
     results: dict[int, SeedRows] = {}
-    for seed in seeds:
-        results[seed] = run_seed(model, settings, plant, seed, plan, progress=progress)
+
+    def done(seed: int, rows: SeedRows) -> None:
+        results[seed] = rows
         if progress is not None:
-            progress(
-                f"seed {seed} done: {results[seed].wall_s:.0f} s ({time.perf_counter() - started:.0f} s)"
-            )
+            progress(f"seed {seed} done: {rows.wall_s:.0f} s ({time.perf_counter() - started:.0f} s)")
+
+    if jobs > 1 and len(seeds) > 1:
+        from concurrent.futures import ProcessPoolExecutor, as_completed
+
+        with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
+            futures = {pool.submit(_seed_job, s, hours, rest_min, mode, overrides): s for s in seeds}
+            for fut in as_completed(futures):
+                done(futures[fut], fut.result())
+        results = dict(sorted(results.items()))
+    else:
+        plant = Plant(model.spec)
+        for seed in seeds:
+            done(seed, run_seed(model, settings, plant, seed, plan, progress=progress))
     box_hi = float(model.ref.h_box[1])
     out: dict[str, Any] = {
         "synthetic": True,
@@ -331,6 +364,16 @@ def run_bench(
     out["targets"] = verdicts(targets(settings), _flat(out))
     out["wall_s"] = round(time.perf_counter() - started, 1)
     return out
+
+
+def _seed_job(seed: int, hours: float, rest_min: int, mode: str | None, overrides: Any) -> SeedRows:
+    """One seed in a worker process (``--jobs``): its own model, plant and service; no progress lines."""
+    from service.bench.compensation_run import Plant
+    from service.modelload import ModelRef, load_model
+
+    settings = identmode.bench_settings(mode, overrides)
+    model = load_model(ModelRef.from_settings(settings))
+    return run_seed(model, settings, Plant(model.spec), seed, plan_for(hours, rest_min=rest_min))
 
 
 # ------------------------------------------------------------------------------------------------ output
@@ -371,6 +414,12 @@ def _print_table(out: dict[str, Any]) -> None:
     print(f"{'':32}" + "".join(f"{'H' + str(i + 1):>7}" for i in range(7)))
     print(f"{'H CI coverage (fresh minutes)':32}{_h(out['h_coverage'])}")
     print(f"{'identified but missing':32}{_h(out['flag_miss'])}")
+    print(f"{'z = ln(H/truth)/σ: mean':32}{_h(out['h_z_mean'])}")
+    print(f"{'z: sd (1 = honest band)':32}{_h(out['h_z_sd'])}")
+    print(
+        f"  growth z over the served minutes: mean {out['growth_z_mean_served']}, "
+        f"sd {out['growth_z_sd_served']}"
+    )
     ns = out["restart_no_state"]
     print(
         f"\nwarm restart without stored state: usable {ns['usable_fraction']}, coverage when usable "
@@ -378,6 +427,8 @@ def _print_table(out: dict[str, Any]) -> None:
     )
     print(f"{'H CI coverage':32}{_h(ns['h_coverage'])}")
     print(f"{'identified but missing':32}{_h(ns['flag_miss'])}")
+    print(f"{'z: mean':32}{_h(ns['h_z_mean'])}")
+    print(f"{'z: sd':32}{_h(ns['h_z_sd'])}")
     st = out["restart_stored"]
     print(
         f"warm restart with stored state: first usable after {st['first_usable_min_per_seed']} min; "
@@ -395,8 +446,8 @@ def _print_table(out: dict[str, Any]) -> None:
 
 
 def main(args: argparse.Namespace) -> int:
-    if args.seeds < 1:
-        print("error: --seeds must be >= 1", file=sys.stderr)
+    if args.seeds < 1 or args.jobs < 1:
+        print("error: --seeds and --jobs must be >= 1", file=sys.stderr)
         return 2
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     try:
@@ -407,6 +458,7 @@ def main(args: argparse.Namespace) -> int:
             mode=args.ident_mode,
             overrides=identmode.parse_sets(args.set),
             progress=progress_to_stderr,
+            jobs=int(args.jobs),
         )
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from service.acquire.calibration import Calibration, CalibrationConfig
-from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, START_MODES
+from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.estimate.reference import CompensationReference
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
@@ -32,6 +32,7 @@ class CoreConfig:
     filter: FilterSettings = field(default_factory=FilterSettings)  # the live state's Kalman filter
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD
+    h_form_sd: float = H_FORM_SD_LN  # experimental.h_form_sd_ln: added to every served H band (ln H)
     # sample time without good data (a sample, >= rules.min_good_channels usable channels and the ambient,
     # speed and torque from CAN) before H is reported stale
     stale_after_s: float = 60.0

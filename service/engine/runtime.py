@@ -137,6 +137,7 @@ def core_config(settings: Settings) -> CoreConfig:
         carry_start_error=exp.carry_start_error,
         start_modes=exp.start_modes,
         ci_threshold=ident.ci_rel_threshold,
+        h_form_sd=exp.h_form_sd_ln,
         mode=exp.mode,
         speed_map=map_config(settings),
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),

@@ -125,6 +125,7 @@ from service.serve.views import (
     chtc_map_snapshot,
     chtc_snapshot,
     map_record,
+    served_record,
 )
 from service.store.references import reference_record
 
@@ -529,6 +530,8 @@ class SoftSensorService:
         cached = self._snap_cache
         if cached is not None and cached[0] == key:
             return cached[1]
+        if box is not None:
+            rec = served_record(rec, form_sd=v.h_form_sd, ci_threshold=v.ci_threshold, box=box)
         bound = at_bound(rec, box, BOUND_REL_TOL)
         verdict = chtc_verdict(
             has_sample=newest is not None,
@@ -613,6 +616,8 @@ class SoftSensorService:
             current_speed_rpm=speed,
             ci_threshold=v.ci_threshold,
             margin_rpm=cfg.margin_rpm,
+            form_sd=v.h_form_sd,
+            box=MAP_H_BOX,
         )
         self._map_cache = (key, snap)
         return snap

@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.stats import chi2
 
 from model.estimator import (
     Convergence,
@@ -80,9 +81,14 @@ class FilterSettings:
     the NIS part of the convergence gate (shorter: a χ² test over 6 × 32 dof already rejects an
     inconsistent start, and the gate delays every identification after a (re)start);
     ``sensor_std_bound_c``/``field_rms_bound_c`` [°C] the convergence bounds;
-    ``max_gap_s`` [s] a longer gap between samples restarts from the wide prior; snapshots every
+    ``max_gap_s`` [s] a longer gap between samples restarts from the wide prior, and a longer run of samples
+    without a usable temperature (a DAQ outage with CAN alive: the state runs open loop) holds identification
+    windows back until the state passes the convergence test again on data (``ready_at``); snapshots every
     ``snapshot_every_s`` [s] for ``keep_s`` [s], the last ``recent_steps`` steps for ``mark``;
-    ``inconsistent_after_s`` [s]: the NIS window above its band this long is reported (``FilterView``).
+    ``inconsistent_after_s`` [s]: the NIS window above its band this long is reported (``FilterView``);
+    ``reacquire_restart_p``: after such an open-loop run, a first update whose NIS has a χ² upper-tail
+    probability below this restarts the state from the prior on that sample (the prediction left its band:
+    the held inputs were not the machine's, CAN down too).
     """
 
     noise: NoiseModel = field(default_factory=NoiseModel)
@@ -99,6 +105,9 @@ class FilterSettings:
     keep_s: float = 3 * 3600.0
     recent_steps: int = 64
     inconsistent_after_s: float = 600.0  # NIS window "high" this long [s]: a persistent inconsistency
+    # after an open-loop run longer than max_gap_s, the first update on data whose NIS is this improbable
+    # (χ² upper tail) restarts the state from the prior on that sample instead of correcting it
+    reacquire_restart_p: float = 1e-6
 
 
 @dataclass(frozen=True, eq=False)
@@ -261,6 +270,11 @@ class FilteredState:
         self._t: float | None = None
         self._inputs: _Inputs | None = None
         self.converged_at: float | None = None  # [s] first converged sample since the (re)start
+        # a run of steps without a measurement update (open loop): since when [s], and whether it was long
+        # enough (> max_gap_s) that windows wait for the convergence test on data again (``ready_at``)
+        self._blind_from: float | None = None
+        self._reacquiring = False
+        self.reacquired_at: float | None = None  # [s] the state passed the test again after an open-loop run
         self.started_at: float | None = None
         self.high_since: float | None = None  # [s] the NIS window "high" since (None: not high)
         self._last: tuple[float, int] = (0.0, 0)
@@ -314,6 +328,7 @@ class FilteredState:
         self._window = NisWindow(self.settings.nis_window)
         self._gate = NisWindow(self.settings.converge_nis_samples)
         self.converged_at = None
+        self._blind_from, self._reacquiring, self.reacquired_at = None, False, None
         self.started_at = float(t)
         self.high_since = None
         self._convergence = None
@@ -405,7 +420,13 @@ class FilteredState:
         self._bias.predict(a)
         self._t += self.dt_s
         self._inputs = new
-        return self._after_step(n, self._measure(temps_c, usable))
+        res = self._measure(temps_c, usable)
+        if self._prediction_lost(res):
+            # the open-loop prediction is out of its own band (CAN was down too, say: the inputs held were
+            # not the machine's): restart from the prior on these data rather than bend the unobserved field
+            # (the shaft) by a correction the covariance does not cover
+            return self.initialize(float(t), (new.ambient_c, new.speed_rpm, new.torque_nm), temps_c, usable)
+        return self._after_step(n, res)
 
     def mark(self, t: float) -> StateSnapshot:
         """Keep the estimate of the latest step at or before ``t`` [s] as a snapshot (a window can start
@@ -475,9 +496,20 @@ class FilteredState:
         )
 
     def ready_at(self) -> float | None:
-        """Earliest window start [s] allowed: the first converged sample since the (re)start (None: not
-        yet)."""
-        return self.converged_at
+        """Earliest window start [s] allowed: the first converged sample since the (re)start, or after the
+        last open-loop run longer than ``max_gap_s`` the first sample the state passed the convergence test
+        on data again (None: not yet). An identification window never starts on a state that ran open loop
+        (a DAQ outage): its start field would be the open-loop prediction, and the fit would bend H to it."""
+        if self._reacquiring:
+            return None
+        if self.converged_at is None or self.reacquired_at is None:
+            return self.converged_at
+        return max(self.converged_at, self.reacquired_at)
+
+    @property
+    def reacquiring(self) -> bool:
+        """The state ran open loop for longer than ``max_gap_s`` and has not passed the test on data again."""
+        return self._reacquiring
 
     def nis_verdict(self) -> str:
         """The NIS window's verdict: "filling", "ok", "high" (inconsistent: the model misses something) or
@@ -541,6 +573,7 @@ class FilteredState:
     def _after_step(self, n: int, res: StepResult | None, *, restarted: bool = False) -> SampleUpdate:
         assert self._t is not None
         nis, dof = (0.0, 0) if res is None else (res.nis, res.dof)
+        self._track_blind(n, dof)
         self._window.push(nis, dof)
         self._gate.push(nis, dof)
         if dof:
@@ -552,18 +585,41 @@ class FilteredState:
         elif self.high_since is None:
             self.high_since = self._t
         newly = False
-        if self.converged_at is None:
+        if self.converged_at is None or (self._reacquiring and dof):
             self._convergence = self.convergence()
             newly = self._convergence.converged
-        if newly:
+        if newly and self.converged_at is None:
             self.converged_at = self._t
+        elif newly:
+            self._reacquiring, self.reacquired_at = False, self._t
         self._keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
         self.steps += n
         return SampleUpdate(self._t, n, nis, dof, verdict, restarted)
 
+    def _prediction_lost(self, res: StepResult | None) -> bool:
+        """The first update after an open-loop run longer than ``max_gap_s`` has an improbable NIS."""
+        if not (self._reacquiring and self._blind_from is not None and res is not None and res.dof):
+            return False
+        return bool(res.nis > chi2.isf(self.settings.reacquire_restart_p, res.dof))
+
+    def _track_blind(self, n: int, dof: int) -> None:
+        """Follow runs of steps without a measurement update; past ``max_gap_s`` the state re-acquires: the
+        convergence gate starts again with the first update on data (``ready_at``)."""
+        assert self._t is not None
+        if dof:
+            if self._reacquiring and self._blind_from is not None:
+                self._gate = NisWindow(self.settings.converge_nis_samples)
+            self._blind_from = None
+            return
+        if self._blind_from is None:
+            self._blind_from = self._t - n * self.dt_s
+        if self.converged_at is not None and self._t - self._blind_from > self.settings.max_gap_s:
+            self._reacquiring = True
+
     def _snapshot(self) -> StateSnapshot:
         est = self.estimator.estimate
-        return StateSnapshot(self.t, est.mean, est.cov, self.converged_at is None, self.rom.basis)
+        initial = self.converged_at is None or self._reacquiring
+        return StateSnapshot(self.t, est.mean, est.cov, initial, self.rom.basis)
 
     def _keep(self, snap: StateSnapshot, *, force: bool = False) -> None:
         self._recent.append(snap)

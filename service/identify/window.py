@@ -6,7 +6,9 @@ grid point, the nearest sample within ``dt_s/2``. A channel enters the fit (``ma
 ``Quality.OK`` on at least ``min_good_fraction`` of the grid points and never misses more than
 ``max_gap_s`` in a row; its isolated bad or missing points are filled by linear interpolation in time
 (they would otherwise bias the squared residual). Speed, torque and ambient must be finite on at least
-``min_good_fraction`` of the grid too; their holes are interpolated the same way.
+``min_good_fraction`` of the grid too; their holes are interpolated the same way. A window whose last grid
+points have no usable channel at all (the DAQ went silent, CAN alive) ends at its last good point instead:
+nothing is extrapolated past the data.
 
 Errors::
 
@@ -96,6 +98,15 @@ def resample_window(raw: RawWindow, t_from: float, t_to: float, rules: WindowRul
         raise InsufficientWindowError(f"no samples between t={t_from:.0f} s and t={t_to:.0f} s")
     temps = np.where(hit[:, None], np.asarray(raw.temps_c, dtype=float)[idx], np.nan)
     q_ok = hit[:, None] & usable(np.asarray(raw.quality)[idx]) & np.isfinite(temps)
+    last = _last_good_point(q_ok)
+    if 0 <= last < n_steps:  # the DAQ went silent before the end: the window ends at its last good point
+        if last * rules.dt_s < rules.min_window_s - 0.5 * rules.dt_s:
+            raise InsufficientWindowError(
+                f"the DAQ gave no usable temperature since t={grid[last]:.0f} s: "
+                f"{last * rules.dt_s:.0f} s of data, need min_window_s {rules.min_window_s:.0f} s"
+            )
+        n_steps, grid, idx, hit = last, grid[: last + 1], idx[: last + 1], hit[: last + 1]
+        temps, q_ok = temps[: last + 1], q_ok[: last + 1]
     inputs = [
         _input(np.asarray(a, dtype=float), idx=idx, hit=hit, rules=rules, name=name, grid=grid)
         for a, name in _named_inputs(raw)
@@ -157,6 +168,15 @@ def _fill(grid: np.ndarray, values: np.ndarray, ok: np.ndarray) -> np.ndarray:
     if ok.all():
         return values.astype(float)
     return np.interp(grid, grid[ok], values[ok])
+
+
+def _last_good_point(q_ok: np.ndarray) -> int:
+    """The last grid index with any usable channel (-1: none; the per-channel rules then name the bad
+    channels). Holding the last good values over a trailing DAQ outage (every channel stale) would feed the
+    fit temperatures nobody measured; channels failing alone are the per-channel rules' (mask, or fill up to
+    ``max_gap_s``)."""
+    good = np.flatnonzero(q_ok.any(axis=1))
+    return int(good[-1]) if good.size else -1
 
 
 def _longest_false_run(ok: np.ndarray) -> int:

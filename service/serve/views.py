@@ -185,6 +185,36 @@ def chtc_snapshot(
     )
 
 
+def widen_band(
+    h: FloatArray, lo: FloatArray, hi: FloatArray, *, form_sd: float, box: tuple[float, float]
+) -> tuple[FloatArray, FloatArray, FloatArray]:
+    """The 95 % band served for H (7,) [W/(m²·K)] with the fit's band [lo, hi]: its σ in ln H and ``form_sd``
+    (the model-form error no statistical band sees) in quadrature, truncated to ``box`` (the support of H:
+    the fit searches only there, the map's levels are bounded by it; a Gaussian band past it is the
+    approximation's, not the data's). Returns (lo, hi, the widened half-width in ln H before truncation)."""
+    h = np.asarray(h, dtype=float)
+    sd = np.log(np.asarray(hi, dtype=float) / np.asarray(lo, dtype=float)) / (2.0 * Z95)
+    sd = np.sqrt(sd**2 + float(form_sd) ** 2)
+    half = Z95 * sd
+    wlo = np.maximum(h * np.exp(-half), np.minimum(float(box[0]), h))
+    whi = np.minimum(h * np.exp(half), np.maximum(float(box[1]), h))
+    return wlo, whi, half
+
+
+def served_record(
+    rec: IdentificationRecord, *, form_sd: float, ci_threshold: float, box: tuple[float, float]
+) -> IdentificationRecord:
+    """The record ``/chtc`` serves of ``rec``: each band widened and truncated (``widen_band``), and an H
+    ``identified`` only where the widened band's half-width in ln H is at most ``ci_threshold``."""
+    lo, hi, half = widen_band(rec.h, rec.ci95_lo, rec.ci95_hi, form_sd=form_sd, box=box)
+    return replace(
+        rec,
+        ci95_lo=_ro(lo),
+        ci95_hi=_ro(hi),
+        identified=_ro_bool(np.asarray(rec.identified & (half <= ci_threshold), dtype=bool)),
+    )
+
+
 # --- speed-map mode (docs/design/hmap.md) -------------------------------------------------------------------
 
 
@@ -246,12 +276,15 @@ def chtc_map_snapshot(
     current_speed_rpm: float | None,
     ci_threshold: float,
     margin_rpm: float,
+    form_sd: float = 0.0,
+    box: tuple[float, float] = (0.0, np.inf),
 ) -> ChtcMapSnapshot:
     """What ``chtc_map()`` serves: the map on ``MAP_GRID_RPM`` at ``ambient_c`` with its bands, ``identified``
     where the band's half-width in ln H is <= ``ci_threshold``, the visited speeds and the policy's
-    ``verdict`` (``service.serve.policy.map_verdict``)."""
+    ``verdict`` (``service.serve.policy.map_verdict``); the bands widened by ``form_sd`` and truncated to
+    ``box`` as ``/chtc``'s (``widen_band``)."""
     h, lo, hi = speed_map.h_at(MAP_GRID_RPM, ambient_c)
-    half = 0.5 * np.log(hi / lo)
+    lo, hi, half = widen_band(h, lo, hi, form_sd=form_sd, box=box)
     return ChtcMapSnapshot(
         fitted_at=speed_map.fitted_at,
         identification_id=speed_map.identification_id,

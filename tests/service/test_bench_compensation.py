@@ -116,6 +116,9 @@ def test_growth_figures_count_errors_coverage_and_reasons() -> None:
     assert out["coverage_usable"] == 0.5 and out["ci_half_um_max_usable"] == pytest.approx(0.5)
     assert out["reasons"] == {"nothing_served": 1, "stale": 1}
     assert out["served_fraction"] == 0.75 and out["coverage_served"] == pytest.approx(2 / 3, abs=1e-3)
+    z = np.array([-0.2, -1.0, 0.0]) / (0.5 / 1.959964)  # error / (half-width / 1.96) over the served minutes
+    assert out["growth_z_mean_served"] == round(z.mean(), 2)
+    assert out["growth_z_sd_served"] == round(z.std(), 2)
 
 
 def test_rest_counts_nothing_served_as_not_covering_zero() -> None:
@@ -176,6 +179,10 @@ def test_h_figures_flag_misses_only_among_flags() -> None:
     out = cb.h_figures(rows)
     assert out["h_minutes"] == 3 and out["h_coverage"] == [0.333] * 7 and out["flag_miss"] == [0.5] * 7
     assert cb.ci_bound_over_box(rows, 200.0) == pytest.approx(0.35)
+    # z per minute: ln(50/50)/σ = 0, then ln(62.5/50)/σ twice (σ = ln(70/55)/3.92): mean and spread of those
+    z = np.log(62.5 / 50.0) / (np.log(70.0 / 55.0) / (2 * 1.959964))
+    assert out["h_z_mean"] == [round(2 * z / 3, 2)] * 7
+    assert out["h_z_sd"] == [round(float(np.std([0.0, z, z])), 2)] * 7
 
 
 @pytest.mark.slow

@@ -174,6 +174,73 @@ def test_snapshots_marks_gaps_and_errors(case: Case) -> None:
         state.set_h(-np.ones(7))
 
 
+def test_open_loop_longer_than_max_gap_holds_windows_until_data_converge_again(
+    case: Case,
+) -> None:
+    """A DAQ outage with CAN alive: samples keep coming without usable temperatures. A short one changes
+    nothing; past ``max_gap_s`` no window may start until the state passed the convergence test on data
+    again, and the snapshots of the open-loop run are marked initial (no window starts there)."""
+    run = case.run
+    state = _filter(case, 0, run.h_true[0])
+    k = 1
+    while state.ready_at() is None:
+        state.push(float(run.times_s[k]), **_sample(run, k))
+        k += 1
+    first_ready = state.ready_at()
+    blind = {**_sample(run, k), "usable": np.zeros(32, dtype=bool)}
+
+    def push_blind(n: int) -> None:
+        nonlocal k
+        for _ in range(n):
+            state.push(float(run.times_s[k]), **{**blind, "speed_rpm": float(run.speed_rpm[k])})
+            k += 1
+
+    push_blind(int(state.settings.max_gap_s / 10.0) - 1)  # shorter than max_gap_s: still ready
+    assert state.ready_at() == first_ready and not state.reacquiring
+    state.push(float(run.times_s[k]), **_sample(run, k))
+    k += 1
+    push_blind(int(state.settings.max_gap_s / 10.0) + 5)  # longer: windows wait
+    assert state.reacquiring and state.ready_at() is None
+    assert state.field_now().initial
+    back = float(run.times_s[k])
+    while state.ready_at() is None:
+        state.push(float(run.times_s[k]), **_sample(run, k))
+        k += 1
+        assert k < run.times_s.size, "never converged again on data"
+    ready = state.ready_at()
+    assert ready is not None and ready >= back and state.reacquired_at == ready
+    assert state.field_at(ready).t == ready and not state.field_at(ready).initial
+    assert state.converged_at == first_ready  # the serving side's convergence is not reset
+
+
+def test_data_far_outside_the_open_loop_band_restart_the_state(case: Case) -> None:
+    """Both devices down: the samples hold the last speed (idle) while the machine runs at 3000 rpm. When the
+    temperatures come back, the prediction is far outside its band: the state restarts from the prior on
+    that sample (not converged, a wide band) instead of bending the unobserved field to the innovation."""
+    run = case.run
+    state = _filter(case, 0, run.h_true[0])
+    k = 1
+    while state.ready_at() is None or run.speed_rpm[k] < 1000.0:
+        state.push(float(run.times_s[k]), **_sample(run, k))
+        k += 1
+    held = {**_sample(run, k), "speed_rpm": 0.0, "torque_nm": 0.0, "usable": np.zeros(32, dtype=bool)}
+    for _ in range(int(state.settings.max_gap_s / 10.0) + 30):  # 300 s + 5 min of the wrong inputs
+        state.push(float(run.times_s[k]), **held)
+        k += 1
+    upd = state.push(float(run.times_s[k]), **_sample(run, k))
+    assert upd.restarted and state.started_at == float(run.times_s[k])
+    assert state.ready_at() is None and not state.reacquiring
+    # the same run with the true inputs held: the prediction stays in its band, no restart
+    state = _filter(case, 0, run.h_true[0])
+    for j in range(1, k):
+        s = _sample(run, j)
+        if j >= k - int(state.settings.max_gap_s / 10.0) - 30:
+            s = {**s, "usable": np.zeros(32, dtype=bool)}
+        state.push(float(run.times_s[j]), **s)
+    upd = state.push(float(run.times_s[k]), **_sample(run, k))
+    assert not upd.restarted and state.converged_at is not None
+
+
 def test_considered_h_error_follows_set_h(case: Case) -> None:
     """``set_h(h_rel=...)``: a stale H with 100 % relative 1σ leaves the field's interior less certain on a
     running spindle than one identified to 5 %, with the same data."""

@@ -10,6 +10,7 @@ import numpy as np
 
 from api.schemas import chtc_out
 from model.defaults import BOUND_REL_TOL
+from model.hmap import Z95
 from service.contracts.records import IdentificationData
 from service.serve.interface import (
     ZONE_NAMES,
@@ -22,7 +23,7 @@ from service.serve.interface import (
     Reason,
 )
 from service.serve.policy import chtc_verdict
-from service.serve.views import at_bound, chtc_snapshot, data_to_record
+from service.serve.views import at_bound, chtc_snapshot, data_to_record, served_record
 
 T = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
 COND = ConditionSnapshot(
@@ -138,3 +139,26 @@ def test_usability_says_the_first_reason_in_order() -> None:
     restored = _snap(_data(), restored=True)
     assert not restored.usable_for_compensation
     assert restored.reason == "restored: the last stored H, not re-identified since the restart"
+
+
+def test_the_served_band_carries_the_model_form_error_and_stays_in_the_search_box() -> None:
+    # H7's fit band σ(ln H) 0.05 (narrow: flagged), H1's 0.24 (just identified), H2's the prior's ln 3
+    sd = np.array([0.24, np.log(3.0), 0.1, 0.1, 0.1, 0.1, 0.05])
+    h = np.array([150.0, 60.0, *H[2:]])
+    z = Z95
+    data = _data(h=list(h), ci95_lo=list(h * np.exp(-z * sd)), ci95_hi=list(h * np.exp(z * sd)))
+    data = replace(data, identified=[True, False, True, True, True, True, True])
+    rec = data_to_record(data, COND)
+    served = served_record(rec, form_sd=0.15, ci_threshold=0.5, box=(5.0, 200.0))
+    wide = np.sqrt(sd**2 + 0.15**2)
+    np.testing.assert_allclose(served.ci95_lo[2:], h[2:] * np.exp(-z * wide[2:]), rtol=1e-9)
+    np.testing.assert_allclose(served.ci95_hi[2:], h[2:] * np.exp(z * wide[2:]), rtol=1e-9)
+    assert served.ci95_hi[0] == 200.0 and served.ci95_hi[1] == 200.0  # truncated to the box
+    assert served.ci95_lo[1] == 60.0 * np.exp(-z * wide[1])
+    # H1's band widened past the threshold: no longer identified; H2 never was
+    assert served.identified.tolist() == [False, False, True, True, True, True, True]
+    # nothing else changes, and without the form error and with a wide box the band is the fit's
+    assert served.h is rec.h and served.id == rec.id
+    same = served_record(rec, form_sd=0.0, ci_threshold=0.5, box=(0.0, np.inf))
+    np.testing.assert_allclose(same.ci95_hi, rec.ci95_hi, rtol=1e-12)
+    assert same.identified.tolist() == rec.identified.tolist()

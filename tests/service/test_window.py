@@ -88,3 +88,23 @@ def test_samples_missing_in_time_count_as_bad():
         resample_window(r2, 1000.0, 2200.0, RULES)
     with pytest.raises(InsufficientWindowError, match="no samples"):
         resample_window(r, 5000.0, 6000.0, RULES)
+
+
+def test_a_daq_silent_at_the_end_ends_the_window_at_its_last_good_point():
+    # the acquisition's stale samples (DAQ down, CAN alive): the last temperatures repeated, quality stale
+    r = raw()
+    q, temps = r.quality.copy(), r.temps_c.copy()
+    q[100:] = 1
+    temps[100:] = temps[99]
+    w = resample_window(replace(r, temps_c=temps, quality=q), 1000.0, 2200.0, RULES)
+    assert w.n_steps == 99 and w.times_s[-1] == 1990.0
+    assert w.mask.all()  # no channel lost: nothing was held over the outage
+    np.testing.assert_allclose(w.measured_c, r.temps_c[:100])
+
+
+def test_a_daq_silent_for_most_of_the_window_is_insufficient_and_says_since_when():
+    r = raw()
+    q = r.quality.copy()
+    q[40:] = 1
+    with pytest.raises(InsufficientWindowError, match=r"no usable temperature since t=1390 s: 390 s of data"):
+        resample_window(replace(r, quality=q), 1000.0, 2200.0, RULES)
