@@ -29,6 +29,7 @@ from service.serve.interface import (
     CompensationSnapshot,
     FilterMetrics,
     HistogramData,
+    MetricsSnapshot,
     ServiceError,
 )
 
@@ -206,6 +207,45 @@ class ServiceCollector(Collector):
         )
         yield CounterMetricFamily("chtc_db_errors", "database write errors", value=m.db_errors_total)
         yield from _filter_gauges(m.filter)
+        yield from _loop_metrics(m)
+
+
+def _loop_metrics(m: MetricsSnapshot) -> Iterator[Metric]:
+    """The event loop's lag and the core thread's backlog (docs/design/threading.md)."""
+    if m.loop_lag_s is not None:
+        yield _hist(
+            "chtc_event_loop_lag_seconds",
+            "how late the event loop ran a callback it scheduled (sampled every 0.1 s)",
+            m.loop_lag_s,
+        )
+    if m.loop_lag_recent_max_s is not None:
+        yield GaugeMetricFamily(
+            "chtc_event_loop_lag_recent_max_seconds",
+            "largest event-loop lag of the last window (/healthz event_loop)",
+            value=m.loop_lag_recent_max_s,
+        )
+    yield CounterMetricFamily(
+        "chtc_growth_terms_computed",
+        "/compensation's condition terms computed (new identification, condition or live H)",
+        value=m.growth_terms_computed,
+    )
+    yield CounterMetricFamily(
+        "chtc_growth_terms_cpu_seconds", "CPU spent computing them", value=m.growth_terms_cpu_s
+    )
+    c = m.core
+    if c is None:
+        return
+    yield _hist("chtc_core_wait_seconds", "how long each event waited for the core thread", c.wait_s)
+    yield GaugeMetricFamily("chtc_core_queued_events", "events waiting for the core thread", value=c.queued)
+    yield GaugeMetricFamily(
+        "chtc_core_lag_seconds",
+        "how long the oldest sample not handled yet has waited for the core (service clock)",
+        value=c.lag_s,
+    )
+    yield CounterMetricFamily(
+        "chtc_core_dropped_samples", "samples dropped: the core thread's queue was full", value=c.dropped
+    )
+    yield CounterMetricFamily("chtc_core_handled_events", "events the core thread handled", value=c.handled)
 
 
 def _filter_gauges(f: FilterMetrics | None) -> Iterator[Metric]:

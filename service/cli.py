@@ -38,7 +38,7 @@ BENCHMARKS: dict[str, str] = {
     "optim": "IGWO (paper/normalized), GWO, WOA, GA on the paper's benchmark functions and shifted versions",
     "identify": "identification methods on virtual-plant data at the paper's two conditions",
     "acquisition": "Modbus poll latency, CAN decode rate, ring buffer, reconnect time",
-    "api": "GET /chtc latency idle and during identification; condition change to fresh H",
+    "api": "GET /chtc latency on chtc demo (real rate, x60; quiet, beside a CPU hog)",
     "chain": "the service's answers over a chain of conditions: H error and CI coverage vs the plant's truth",
     "fleet": "PostgreSQL write capacity: concurrent instances' sample commits/s (scaling note)",
     "truth": "hidden random truths (6000-7000 rpm, drift, torque steps, offsets): H error, CI coverage",

@@ -379,6 +379,20 @@ class ApiSettings(_Section):
         return None if value is None else SecretStr(check_token(value.get_secret_value()))
 
 
+class EngineSettings(_Section):
+    """Where the core's per-sample work runs and when the service says it falls behind
+    (docs/design/threading.md)."""
+
+    core_thread: bool = True  # the core in its own thread (False: on the event loop, as before issue 30)
+    core_queue_samples: int = Field(default=1000, ge=1)  # samples waiting for the core (more: dropped)
+    max_core_lag_s: float = Field(default=30.0, gt=0)  # a sample waiting longer: served values core_behind
+    max_loop_lag_s: float = Field(default=0.25, gt=0)  # event-loop lag past this: /healthz degraded
+    loop_lag_window_s: float = Field(default=30.0, gt=0)  # ... judged on the largest of this window
+    # CPython's GIL switch interval in the service process (sys.setswitchinterval; Python's default 5 ms):
+    # how long the event loop may wait for the GIL while the core or the growth terms compute
+    gil_switch_interval_s: float = Field(default=0.001, gt=0, le=0.1)
+
+
 class DatabaseSettings(_Section):
     url: str = Field(default_factory=default_database_url)  # sqlite:///… or postgresql+psycopg://…
     sample_store_period_s: float = Field(default=10.0, gt=0)  # store at most one Sample per period
@@ -440,6 +454,7 @@ class Settings(BaseSettings):
     growth: GrowthSettings = Field(default_factory=GrowthSettings)
     compensation: CompensationSettings = Field(default_factory=CompensationSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
+    engine: EngineSettings = Field(default_factory=EngineSettings)
 
     @model_validator(mode="after")
     def _across_sections(self) -> Settings:

@@ -68,7 +68,7 @@ async def get_sensors(
     response_model=BaselineOut,
     summary="take a sensor-offset baseline now (spindle at rest, at the ambient); 409 names why not",
 )
-async def post_baseline(service: ServiceDep, _: WriteAccess) -> Response:
+def post_baseline(service: ServiceDep, _: WriteAccess) -> Response:  # waits for the core: a thread
     try:
         taken = service.request_baseline()
     except NotReadyError as err:  # the spindle's state refuses it (running, not at rest): a conflict

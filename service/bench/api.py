@@ -1,6 +1,9 @@
 """``chtc bench api``: GET /api/v1/chtc latency at a fixed rate, idle and while an identification runs.
 
-Set-up (all on loopback):
+By default it measures the service users run (``service.bench.api_live``: ``chtc demo`` at real rate and
+×60, quiet and beside a CPU hog; issue 30). ``--served`` runs the earlier bench described below.
+
+Set-up of ``--served`` (all on loopback):
 
 - the API (``api.app.create_app``) runs under uvicorn in a **subprocess**, one worker, around the real
   service (``service.sim.served``: the core and the shell on SQLite, fed a virtual-plant run, a new sample
@@ -52,9 +55,14 @@ TARGET_CHANGE_TO_FRESH_S = 2.0
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--json", action="store_true", help="print JSON instead of a table")
-    parser.add_argument("--rate", type=float, default=200.0, help="requests per second (default 200)")
-    parser.add_argument("--clients", type=int, default=8, help="concurrent clients (default 8)")
-    parser.add_argument("--duration", type=float, default=5.0, help="seconds per run (default 5)")
+    parser.add_argument(
+        "--served",
+        action="store_true",
+        help="the earlier bench: a served service fed a plant run, no devices (default: chtc demo, live)",
+    )
+    parser.add_argument("--rate", type=float, default=100.0, help="requests per second (default 100)")
+    parser.add_argument("--clients", type=int, default=4, help="concurrent clients (default 4)")
+    parser.add_argument("--duration", type=float, default=10.0, help="seconds per run (default 10)")
     parser.add_argument("--runs", type=int, default=3, help="runs per phase; medians are quoted (default 3)")
     parser.add_argument(
         "--no-busy", action="store_true", help="skip the phase with an identification running"
@@ -72,6 +80,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--field-period", type=float, default=10.0, help="s between field changes (a sample; default 10)"
     )
+    from service.bench.api_live import add_arguments as live_arguments
+
+    live_arguments(parser)
     parser.add_argument(
         "--nice",
         type=int,
@@ -174,8 +185,16 @@ class HttpxClient:
 
 
 async def _load(
-    url: str, *, rate: float, duration_s: float, clients: int, kind: str, headers: str = ""
+    url: str,
+    *,
+    rate: float,
+    duration_s: float,
+    clients: int,
+    kind: str,
+    headers: str = "",
+    records: list[tuple[float, float]] | None = None,
 ) -> dict[str, Any]:
+    """Open-loop load; ``records`` (if given) gets (send time perf_counter, latency s) per request."""
     n = max(1, int(rate * duration_s))
     loop = asyncio.get_running_loop()
     lat: list[float] = []
@@ -197,6 +216,8 @@ async def _load(
             start = time.perf_counter()
             status = await client.get()
             lat.append(time.perf_counter() - start)
+            if records is not None:
+                records.append((start, lat[-1]))
             errors += status != 200
             statuses[status] = statuses.get(status, 0) + 1
 
@@ -508,6 +529,12 @@ def _table(r: dict[str, Any]) -> str:
 
 
 def main(args: argparse.Namespace) -> int:
+    if not args.served:  # the service users run (service.bench.api_live)
+        from service.bench.api_live import live_bench, table
+
+        live = live_bench(args)
+        print(json.dumps(live, indent=2) if args.json else table(live))
+        return 0
     result = run_bench(args)
     print(json.dumps(result, indent=2) if args.json else _table(result))
     return 0

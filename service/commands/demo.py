@@ -4,8 +4,10 @@ The virtual plant (``model.plant.VirtualPlant``, its own finer mesh and ground t
 duty cycle until the demo is stopped (``service.sim.endless``: ``--idle-min`` at rest, then the speed changes
 every 1–6 min over 0–7000 rpm with torque; computed 30 plant minutes ahead, chunk by chunk). The simulated
 Modbus DAQ and CAN node serve it on a free loopback port and a private virtual CAN channel at ``--speedup``
-plant seconds per wall second. The unchanged service (real drivers, ring buffer, detector, scheduler, worker
-process, database writer) and the API with the dashboard run in this process. Progress lines report detected
+plant seconds per wall second, on an event loop of their own in their own thread (``service.sim.rigthread``:
+a busy service cannot starve them). The unchanged service (real drivers, ring buffer, detector, scheduler,
+worker process, database writer, the core in its own thread) and the API with the dashboard run in this
+process. Progress lines report detected
 conditions and identifications (H with fit, and the plant's true H for comparison).
 
 All timestamps are simulated plant time (UTC): they start at the real time and run ``--speedup`` times
@@ -176,6 +178,7 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
     from model.geometry import load_spindle
     from service.engine.runtime import Runtime, ScaledClock
     from service.sim.endless import EndlessPlant
+    from service.sim.rigthread import RigThread
     from service.sim.simrig import SimAddress, make_drivers, plant_rig
 
     db_url = settings.database.url
@@ -195,12 +198,13 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
     stop = asyncio.Event()
     _install_signals(stop)
     rig = None
+    devices = RigThread()  # the simulated devices run apart from the service, as real ones do
     try:
         # the simulated devices listen before the drivers first poll them (no "cannot connect" warning)
         await runtime.start(daq=daq, can=can_sensor, api=True, acquire=False)
         await runtime.wait_api()
         assert plant.rows is not None
-        rig = printer.rig = await plant_rig(plant.rows, address=address)
+        rig = printer.rig = await devices.run(plant_rig(plant.rows, address=address))
         runtime.start_acquisition()
         grow = asyncio.ensure_future(_keep_ahead(plant, rig, stop))
         url = dashboard_url(runtime.url, token)
@@ -234,7 +238,8 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
     finally:
         await runtime.stop()
         if rig is not None:
-            await rig.stop()
+            await devices.run(rig.stop())
+        devices.close()
     print("demo stopped", flush=True)
     return 0
 

@@ -25,12 +25,13 @@ growth is served against a provisional one (the uniform equivalent of the first 
 
 from __future__ import annotations
 
+import collections
 import contextlib
 import itertools
 import math
 import threading
+import time
 from collections.abc import Callable
-from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Protocol
 
@@ -76,6 +77,7 @@ __all__ = [
 DT_S = 10.0  # the live state's step [s]
 UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ)
 TermsKey = tuple[object, ...]
+TERMS_KEPT = 16  # condition terms kept (~1 MB each on the service mesh)
 REFERENCE_MAX_SD_UM = 0.1  # a zero taken from the live field adds at most this 1σ [µm] to the axial growth
 
 
@@ -133,12 +135,6 @@ def map_h_covariance(m: SpeedMap, speed_rpm: float, ambient_c: float, h_live: np
     return np.asarray(out)
 
 
-@dataclass(frozen=True)
-class _Terms:
-    key: TermsKey
-    terms: ConditionTerms
-
-
 class GrowthServer:
     """See the module docstring. Thread-safe: the API threads and the shell's worker threads call it."""
 
@@ -179,8 +175,13 @@ class GrowthServer:
         self._lock = threading.Lock()
         self._ctx: GrowthContext | None = context
         self._error: str | None = None
-        self._terms: _Terms | None = None
+        # the condition terms of the last TERMS_KEPT keys, newest last: in speed-map and combined mode the
+        # live H follows the map at the speed bin and the rounded ambient, which flip back and forth
+        # (noise at a bin's edge): each value comes back from here instead of ~0.2 s of eigen-solves
+        self._terms: collections.OrderedDict[TermsKey, ConditionTerms] = collections.OrderedDict()
         self._pending: TermsKey | None = None
+        self.computed = 0  # condition terms computed (cache misses), and their CPU [s]
+        self.compute_cpu_s = 0.0
         self._estimate: tuple[tuple[object, ...], GrowthEstimate] | None = None
         self._section_op: SectionOperator | None = None
         self._section: tuple[tuple[object, ...], np.ndarray] | None = None
@@ -353,8 +354,7 @@ class GrowthServer:
         """True once per new key (the caller then runs ``refresh`` off the event loop)."""
         key = self.terms_key(view)
         with self._lock:
-            current = self._terms.key if self._terms is not None else None
-            if key is None or key == current or key == self._pending:
+            if key is None or key in self._terms or key == self._pending:
                 return False
             self._pending = key
             return True
@@ -365,12 +365,19 @@ class GrowthServer:
         if key is None or view.live is None:
             return None
         with self._lock:
-            if self._terms is not None and self._terms.key == key:
-                return self._terms.terms
+            cached = self._terms.get(key)
+            if cached is not None:
+                self._terms.move_to_end(key)
+                return cached
         speed_map = view.speed_map if view.map_serves else None
+        cpu = time.thread_time()
         terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current, speed_map)
         with self._lock:
-            self._terms = _Terms(key, terms)
+            self.computed += 1
+            self.compute_cpu_s += time.thread_time() - cpu
+            self._terms[key] = terms
+            while len(self._terms) > TERMS_KEPT:
+                self._terms.popitem(last=False)
             if self._pending == key:
                 self._pending = None
         return terms
@@ -417,7 +424,7 @@ class GrowthServer:
         """True when the condition terms for ``view`` are computed (a request then does dot products only)."""
         key = self.terms_key(view)
         with self._lock:
-            return key is not None and self._terms is not None and self._terms.key == key
+            return key is not None and key in self._terms
 
     # --- stage 3
     def estimate(self, view: CoreView) -> GrowthEstimate | None:

@@ -11,6 +11,8 @@ from datetime import datetime
 from typing import Protocol
 
 from drivers.base import SourceMetrics
+from service.engine.corethread import CoreLoad
+from service.engine.looplag import LoopLag
 from service.engine.view import CoreView
 from service.serve.interface import DeviceHealth, DeviceStatus
 from service.serve.views import age_s
@@ -19,10 +21,12 @@ from service.store.writer import WriterStatus
 __all__ = [
     "HealthSource",
     "StatusSource",
+    "core_health",
     "db_health",
     "filter_health",
     "frame_events",
     "frame_outcomes",
+    "loop_health",
     "poll_events",
     "poll_outcomes",
     "source_health",
@@ -219,3 +223,36 @@ def filter_health(view: CoreView, now: datetime) -> DeviceHealth:
         msg = f"filter_inconsistent: NIS above its band for {since / 60:.0f} min; {figures}"
         status = DeviceStatus.DEGRADED
     return DeviceHealth(name="filter", status=status, last_ok_at=t, age_s=age, counters=counters, message=msg)
+
+
+def core_health(load: CoreLoad, view: CoreView, now: datetime) -> DeviceHealth:
+    """The core thread as a ``/healthz`` device ("core"): ``degraded`` while a sample has waited for it longer
+    than ``view.max_core_lag_s`` (reason ``core_behind``: the served values say so too), ``ok`` otherwise.
+    Counters: events queued, handled, samples dropped (queue full)."""
+    lag = view.core_lag_s(now)
+    counters = {"queued": load.queued, "handled": load.handled, "dropped": load.dropped}
+    figures = f"{load.queued} queued (capacity {load.capacity}), oldest sample waits {lag:.2f} s"
+    behind = lag > view.max_core_lag_s
+    return DeviceHealth(
+        name="core",
+        status=DeviceStatus.DEGRADED if behind else DeviceStatus.OK,
+        last_ok_at=None,
+        age_s=None,
+        counters=counters,
+        message=f"core_behind: {figures} (limit {view.max_core_lag_s:g} s)" if behind else figures,
+    )
+
+
+def loop_health(lag: LoopLag) -> DeviceHealth:
+    """The event loop as a ``/healthz`` device ("event_loop"): ``degraded`` when its largest lag of the last
+    ``lag.window_s`` exceeds ``lag.limit_s`` (``loop_lagging``: requests and acquisition wait that long)."""
+    ms, limit_ms = 1e3 * lag.recent_max_s, 1e3 * lag.limit_s
+    figures = f"max lag {ms:.1f} ms in the last {lag.window_s:g} s (limit {limit_ms:g} ms)"
+    return DeviceHealth(
+        name="event_loop",
+        status=DeviceStatus.DEGRADED if lag.over_limit else DeviceStatus.OK,
+        last_ok_at=None,
+        age_s=None,
+        counters={"observations": lag.observations},
+        message=f"loop_lagging: {figures}" if lag.over_limit else figures,
+    )

@@ -13,19 +13,22 @@ import asyncio
 import contextlib
 import logging
 import socket
+import sys
 import time
 from collections.abc import Callable
 from dataclasses import KW_ONLY, dataclass
 from datetime import UTC, datetime, timedelta
-from typing import TYPE_CHECKING, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
 from drivers.acquisition import Acquisition, CanSource, DaqSource
 from drivers.ringbuffer import RingBuffer
 from service.acquire.calibration import CalibrationConfig
 from service.engine.config import CoreConfig, Restored
 from service.engine.core import ServiceCore
+from service.engine.corethread import CoreThread, InlineRunner
 from service.engine.growthserve import GrowthServer
 from service.engine.health import HealthSource
+from service.engine.looplag import LoopLagMonitor
 from service.engine.persistence import Persistence, open_persistence
 from service.engine.shell import SoftSensorService
 from service.identify.detector import DetectorConfig
@@ -40,7 +43,15 @@ from service.settings import Settings
 if TYPE_CHECKING:
     import uvicorn
 
-__all__ = ["CanDevice", "DaqDevice", "Runtime", "ScaledClock", "core_config", "free_port"]
+__all__ = [
+    "CanDevice",
+    "DaqDevice",
+    "Runtime",
+    "ScaledClock",
+    "core_config",
+    "engine_parts",
+    "free_port",
+]
 
 log = logging.getLogger(__name__)
 
@@ -168,6 +179,18 @@ def growth_server(model: LoadedModel, settings: Settings, restored: Restored | N
     )
 
 
+def engine_parts(settings: Settings) -> dict[str, Any]:
+    """The shell's threading parts from ``[engine]`` (docs/design/threading.md): the core thread (or inline),
+    its lag limit and the event loop's lag monitor."""
+    e = settings.engine
+    runner = CoreThread(capacity=e.core_queue_samples) if e.core_thread else InlineRunner()
+    return {
+        "runner": runner,
+        "max_core_lag_s": e.max_core_lag_s,
+        "loop_lag": LoopLagMonitor(limit_s=e.max_loop_lag_s, window_s=e.loop_lag_window_s),
+    }
+
+
 def os_user() -> str:
     """The OS user running this process (who set a reference the service took itself), "unknown" if none."""
     import getpass
@@ -216,6 +239,7 @@ class Runtime:
         starts its simulated devices in between, so the drivers never poll a port nobody listens on yet).
         """
         s = self.settings
+        sys.setswitchinterval(s.engine.gil_switch_interval_s)  # the loop waits less for the GIL
         model = self.load()
         self.persistence = open_persistence(
             s.database, migrate=self.migrate, on_event=self.on_event, clock=self.clock
@@ -239,6 +263,7 @@ class Runtime:
             clock=self.clock,
             on_event=self.on_event,
             growth=growth_server(model, s, self.persistence.restored),
+            **engine_parts(s),
         )
         self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()

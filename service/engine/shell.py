@@ -29,9 +29,11 @@ import concurrent.futures as cf
 import functools
 import itertools
 import logging
+import math
 import threading
 import time
 from collections.abc import Callable, Coroutine, Mapping, Sequence
+from dataclasses import replace
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Protocol
 
@@ -44,6 +46,7 @@ from service.acquire.devicewatch import DeviceWatch
 from service.contracts.records import DeviceEventData, Record
 from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
+from service.engine.corethread import CoreRunner, InlineRunner
 from service.engine.events import (
     BaselineRequested,
     Calibrated,
@@ -65,14 +68,17 @@ from service.engine.growthserve import GrowthServer
 from service.engine.health import (
     HealthSource,
     StatusSource,
+    core_health,
     db_health,
     filter_health,
     frame_events,
     frame_outcomes,
+    loop_health,
     poll_events,
     poll_outcomes,
     source_health,
 )
+from service.engine.looplag import LoopLagMonitor
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
 from service.estimate.reference import CompensationReference
@@ -86,6 +92,7 @@ from service.serve.interface import (
     ChtcSnapshot,
     CompensationSnapshot,
     ConditionSnapshot,
+    CoreMetrics,
     DataProblem,
     DeviceHealth,
     DeviceStatus,
@@ -185,8 +192,17 @@ class SoftSensorService:
         history_capacity: int = 2160,  # samples of measured vs predicted kept for the API (6 h at 10 s)
         run_job: Callable[[JobRequest], JobOutcome] | None = None,
         growth: GrowthServer | None = None,  # /compensation; default: referred to the live state's start
+        runner: CoreRunner | None = None,  # where the core's work runs (default inline; runtime: CoreThread)
+        max_core_lag_s: float = math.inf,  # a sample waiting longer for the core: served as core_behind
+        loop_lag: LoopLagMonitor | None = None,  # measured on the loop from start(); /healthz, /metrics
     ) -> None:
         self.core = core
+        self.runner: CoreRunner = runner if runner is not None else InlineRunner()
+        if run_job is not None and not isinstance(self.runner, InlineRunner):
+            raise ValueError("run_job (jobs inline) needs the inline runner")
+        self.max_core_lag_s = float(max_core_lag_s)
+        self.loop_lag = loop_lag
+        self._pub_lock = threading.Lock()
         self.worker = worker
         self.writer = writer
         self._archive = IdentificationArchive(session_factory, db_reads)
@@ -194,7 +210,8 @@ class SoftSensorService:
         self.clock = clock
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
         self.run_job = run_job
-        self._view: CoreView = core.view()
+        self._core_view: CoreView = core.view()
+        self._view: CoreView = self._core_view
         self._event_ids: dict[str, itertools.count[int]] = {}
         self._deferred: list[Event] = []
         self._loop: asyncio.AbstractEventLoop | None = None
@@ -206,6 +223,8 @@ class SoftSensorService:
         self._map_cache: tuple[tuple[object, ...], ChtcMapSnapshot] | None = None
         self._steady_cache: tuple[tuple[object, ...], FieldSnapshot] | None = None
         self._poll_latency = Histogram(LATENCY_BUCKETS_S)
+        self._terms_view: CoreView | None = None  # the newest view whose growth terms are wanted
+        self._terms_task: asyncio.Task[None] | None = None
         modbus = self.sources.get("modbus")
         if modbus is not None and hasattr(modbus, "on_read_s"):
             modbus.on_read_s = self._poll_latency.observe  # the driver's own poll timing (drivers.base)
@@ -218,6 +237,7 @@ class SoftSensorService:
             self._growth.on_reference = self._store_reference
         # /chtc from the map: its information on the cold physics prior (finite, honest bands)
         self._map_prior = ServedMapPrior(core.model.spec, core.model.ref.h_box)
+        self.runner.start(self._handle_here, self._publish)
 
     @property
     def growth(self) -> GrowthServer:
@@ -243,12 +263,15 @@ class SoftSensorService:
             self.model_loaded = True
             self.record_event("worker", "started", f"model {version}")
         self._spawn(self._watch_health())
+        if self.loop_lag is not None:
+            self._spawn(self.loop_lag.run())
 
     async def close(self) -> None:
         self.closed = True
         for task in list(self._tasks):
             task.cancel()
         await asyncio.gather(*self._tasks, return_exceptions=True)
+        await asyncio.to_thread(self.runner.close)
         if self.worker is not None:
             self.worker.close()
 
@@ -262,8 +285,17 @@ class SoftSensorService:
     def handle(self, event: Event) -> list[Instruction]:
         """Hand ``event`` to the core, execute its instructions, publish the new view; returns them.
 
-        From a thread other than the running loop's, the event is handled on the loop and waited for.
+        With the inline runner, from a thread other than the running loop's, the event is handled on the loop
+        and waited for; with the core thread, it is queued behind the events before it and waited for (never
+        call this on the loop then: ``post``).
         """
+        if not isinstance(self.runner, InlineRunner):
+            try:
+                return self.runner.call(event, HANDOVER_TIMEOUT_S)
+            except cf.TimeoutError as err:
+                raise NotReadyError(
+                    f"the service did not handle the request within {HANDOVER_TIMEOUT_S:.0f} s"
+                ) from err
         loop = self._loop
         if loop is None or threading.get_ident() == self._loop_thread or not loop.is_running():
             return self._handle_here(event)
@@ -283,6 +315,13 @@ class SoftSensorService:
                 f"the service did not take the request within {HANDOVER_TIMEOUT_S:.0f} s"
             ) from err
 
+    def post(self, event: Event) -> None:
+        """Hand ``event`` to the core without waiting for it (the event loop's events: samples, outcomes)."""
+        if isinstance(self.runner, InlineRunner):
+            self.handle(event)
+        else:
+            self.runner.post(event)
+
     def _handle_here(self, event: Event) -> list[Instruction]:
         instructions = self._step(event)
         while self._deferred:  # outcomes known at once (no worker, no loop): handled after, not inside
@@ -290,28 +329,76 @@ class SoftSensorService:
         return instructions
 
     def _step(self, event: Event) -> list[Instruction]:
+        """The per-event work, in the runner's thread: the core decides, the view is published; the
+        instructions' side effects run on the loop (in order), or here with the inline runner."""
         instructions = self.core.handle(event)
-        self._view = self.core.view()
+        self._core_view = self.core.view()
+        self._publish()
         if isinstance(event, SampleReceived):
             self._remember_history()
         self._refresh_growth()
+        if isinstance(self.runner, InlineRunner):
+            for ins in instructions:
+                self._execute(ins)
+            return instructions
+        if instructions:
+            self._on_loop(functools.partial(self._execute_all, instructions))
+        self._prepare_answers()
+        return instructions
+
+    def _prepare_answers(self) -> None:
+        """With the core thread: build ``/chtc``'s snapshot of the new view here, so that a request on the
+        loop finds it cached (the map's H and prior at the new sample's speed cost a few ms of CPU)."""
+        try:
+            self.chtc()
+        except Exception as err:  # the request raises it to its caller; never stop the core for it
+            log.debug("chtc snapshot not prepared: %s: %s", type(err).__name__, err)
+
+    def _publish(self) -> None:
+        """Swap the published view: the core's last one with the core thread's backlog (``pending_since``);
+        called by the core thread after each event and by the loop when a sample starts a backlog."""
+        with self._pub_lock:
+            v = self._core_view
+            pending = self.runner.pending_since
+            if pending is not None or v.max_core_lag_s != self.max_core_lag_s or v.pending_since is not None:
+                v = replace(v, pending_since=pending, max_core_lag_s=self.max_core_lag_s)
+            self._view = v
+
+    def _on_loop(self, fn: Callable[[], None]) -> None:
+        """Run ``fn`` on the event loop (now, when called there or when there is none running)."""
+        loop = self._loop
+        if loop is None or not loop.is_running() or threading.get_ident() == self._loop_thread:
+            fn()
+        else:
+            loop.call_soon_threadsafe(fn)
+
+    def _execute_all(self, instructions: Sequence[Instruction]) -> None:
         for ins in instructions:
             self._execute(ins)
-        return instructions
 
     def _refresh_growth(self) -> None:
         """New identification or condition: the growth's condition terms in a thread (with a loop; without,
         the first ``compensation()`` computes them in its caller's thread)."""
-        self._growth.observe(self._view)
+        view = self._view
+        self._growth.observe(view)
         loop = self._loop
-        if loop is not None and loop.is_running() and self._growth.wants_refresh(self._view):
-            self._spawn(self._growth_terms(self._view))
+        if loop is not None and loop.is_running() and self._growth.wants_refresh(view):
+            self._on_loop(functools.partial(self._spawn_terms, view))
 
-    async def _growth_terms(self, view: CoreView) -> None:
-        try:
-            await asyncio.to_thread(self._growth.refresh, view)
-        except Exception as err:  # a request retries it and raises to its caller; say it here too
-            log.warning("growth terms failed: %s: %s", type(err).__name__, err)
+    def _spawn_terms(self, view: CoreView) -> None:
+        """One refresh at a time, for the newest view wanting one: keys that change while a refresh runs
+        (a condition change, then the live H at its speed, then an identification) coalesce into one."""
+        self._terms_view = view
+        if self._terms_task is None or self._terms_task.done():
+            self._terms_task = self._spawn(self._growth_terms())
+
+    async def _growth_terms(self) -> None:
+        while (view := self._terms_view) is not None:
+            self._terms_view = None
+            try:
+                await asyncio.to_thread(self._growth.refresh, view)
+            except Exception as err:  # a request retries it and raises to its caller; say it here too
+                log.warning("growth terms failed: %s: %s", type(err).__name__, err)
 
     def _execute(self, ins: Instruction) -> None:
         if isinstance(ins, Store):
@@ -333,11 +420,11 @@ class SoftSensorService:
 
     def on_sample(self, sample: Sample) -> None:
         """Feed one acquisition sample (called on the event loop by the acquisition)."""
-        self.handle(SampleReceived(self._next_id("sample"), sample))
+        self.post(SampleReceived(self._next_id("sample"), sample))
 
     def ids_known(self, next_condition_id: int, next_identification_id: int) -> None:
         """The database answered after start-up: ids continue from its, if none was issued yet."""
-        self.handle(IdsKnown(self._next_id("ids"), next_condition_id, next_identification_id))
+        self.post(IdsKnown(self._next_id("ids"), next_condition_id, next_identification_id))
 
     def _remember_history(self) -> None:
         """Measured (usable channels only) and predicted temperatures of the newest sample, for the API."""
@@ -377,7 +464,7 @@ class SoftSensorService:
                 )
         if self.worker is not None and self.worker.restarts:
             self.record_event("worker", "restarted", f"{self.worker.restarts} restart(s) so far")
-        self.handle(self._outcome_event(outcome))
+        self.post(self._outcome_event(outcome))
 
     def _outcome_event(self, outcome: JobOutcome) -> JobOutcomeReceived:
         return JobOutcomeReceived(
@@ -683,6 +770,10 @@ class SoftSensorService:
         out.append(db_health(self.writer, now))
         out.append(self._worker_health())
         out.append(filter_health(self._view, now))
+        if self.runner.load().threaded:
+            out.append(core_health(self.runner.load(), self._view, now))
+        if self.loop_lag is not None:
+            out.append(loop_health(self.loop_lag.lag()))
         return out
 
     def _worker_health(self) -> DeviceHealth:
@@ -750,6 +841,24 @@ class SoftSensorService:
             db_errors_total=0 if st is None else int(st.errors),
             reconnects_total=reconnects,
             filter=_filter_metrics(v),
+            loop_lag_s=None if self.loop_lag is None else self.loop_lag.histogram.snapshot(),
+            loop_lag_recent_max_s=None if self.loop_lag is None else self.loop_lag.lag().recent_max_s,
+            core=self._core_metrics(v, now),
+            growth_terms_computed=self._growth.computed,
+            growth_terms_cpu_s=self._growth.compute_cpu_s,
+        )
+
+    def _core_metrics(self, v: CoreView, now: datetime) -> CoreMetrics | None:
+        wait = self.runner.wait_s()
+        if wait is None:
+            return None
+        load = self.runner.load()
+        return CoreMetrics(
+            wait_s=wait.snapshot(),
+            queued=load.queued,
+            lag_s=v.core_lag_s(now),
+            dropped=load.dropped,
+            handled=load.handled,
         )
 
 

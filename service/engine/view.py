@@ -8,6 +8,7 @@ at the reader's ``now`` (the data go stale while no event arrives).
 
 from __future__ import annotations
 
+import math
 from collections.abc import Mapping
 from dataclasses import dataclass
 from datetime import datetime
@@ -75,16 +76,34 @@ class CoreView:
     map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
     h_form_sd: float = 0.0  # experimental.h_form_sd_ln: 1σ in ln H added to every served H band
+    # the core thread's backlog (service.engine.corethread; the shell sets both when it publishes): the time
+    # stamp of the oldest sample acquired but not handled yet (None: none waits), and how old it may get
+    # before the data are not fresh (``core_behind``)
+    pending_since: datetime | None = None
+    max_core_lag_s: float = math.inf
 
     def data_problems(self, now: datetime) -> tuple[DataProblem, ...]:
         """Why the data are not fresh at ``now`` (empty: fresh). Codes (``DataCode``): ``no_sample`` (nothing
         acquired for ``stale_after_s``: acquisition stalled), ``daq_no_good_data`` (no sample with
         ``min_good_channels`` usable channels and the ambient for that long: DAQ unreachable, hung, garbled,
-        frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent, fault)."""
+        frozen or channels broken), ``can_no_good_data`` (no speed/torque from CAN: silent, fault),
+        ``core_behind`` (a sample acquired ``max_core_lag_s`` ago still waits for the core: what this view
+        holds trails what was acquired)."""
         limit = self.stale_after_s
+        behind = self.core_lag_s(now)
+        lag = (
+            [
+                DataProblem(
+                    DataCode.CORE_BEHIND,
+                    f"samples wait {behind:.1f} s for the core (limit {self.max_core_lag_s:g} s)",
+                )
+            ]
+            if behind > self.max_core_lag_s
+            else []
+        )
         if self.newest is None:
-            return (DataProblem(DataCode.NO_SAMPLE, "no sample acquired yet"),)
-        out = []
+            return (DataProblem(DataCode.NO_SAMPLE, "no sample acquired yet"), *lag)
+        out = lag
         age = (now - self.newest.t).total_seconds()
         if age > limit:
             out.append(
@@ -100,6 +119,12 @@ class CoreView:
             DataCode.CAN_NO_GOOD_DATA, what=can, last=self.last_good_can_t, now=now, limit_s=limit
         )
         return tuple(out)
+
+    def core_lag_s(self, now: datetime) -> float:
+        """How long the oldest sample not yet handled by the core has waited at ``now`` [s] (0: none)."""
+        if self.pending_since is None:
+            return 0.0
+        return max(0.0, (now - self.pending_since).total_seconds())
 
     def channel_ages(self, now: datetime) -> list[float | None]:
         """Seconds since each channel's last OK value (None: never)."""

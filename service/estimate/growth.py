@@ -192,6 +192,9 @@ def _horizon_functionals(
     return out
 
 
+RITZ_BASIS_FACTOR = 4  # thermal modes from the reduced basis when it has >= 4x as many vectors as modes
+
+
 def condition_terms(
     ctx: GrowthContext,
     *,
@@ -229,8 +232,11 @@ def condition_terms(
         raise GrowthEstimateError(f"horizons_s: must be positive multiples of dt_s = {dt_s}, got {list(hz)}")
     cond = {"ambient_c": ambient_c, "q_front_w": q_front_w, "q_rear_w": q_rear_w, "load_scale": load_scale}
     t_ss = steady_state(ctx.fe, hv, **cond)  # type: ignore[arg-type]
-    jac = steady_jacobian_h(ctx.fe, hv, **cond)  # type: ignore[arg-type]
-    modes = thermal_modes(ctx.fe, hv, n_modes=n_modes + 1)
+    jac = steady_jacobian_h(ctx.fe, hv, t_ss=t_ss, **cond)  # type: ignore[arg-type]
+    # Rayleigh–Ritz in the reduced basis when it is rich enough (the service's: r = 56 for 13 modes), else
+    # Lanczos on the full model (docs/design/threading.md, "Growth refresh")
+    rich = ctx.phi is not None and ctx.phi.shape[1] >= RITZ_BASIS_FACTOR * (n_modes + 1)
+    modes = thermal_modes(ctx.fe, hv, n_modes=n_modes + 1, basis=ctx.phi if rich else None)
     w = _horizon_functionals(ctx, modes.vectors, modes.tau_s, steps, dt_s)
     jg = ctx.g @ jac
     modes_e = np.asarray(ctx.fe.E @ modes.vectors[:, :-1])

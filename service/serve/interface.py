@@ -471,6 +471,18 @@ class FilterMetrics:
 
 
 @dataclass(frozen=True, kw_only=True)
+class CoreMetrics:
+    """The core thread: ``wait_s`` each event's wait in its queue [s]; ``queued`` events now; ``lag_s`` how
+    long the oldest waiting sample has waited [s]; ``dropped`` samples (queue full) and ``handled`` events."""
+
+    wait_s: HistogramData
+    queued: int
+    lag_s: float
+    dropped: int
+    handled: int
+
+
+@dataclass(frozen=True, kw_only=True)
 class MetricsSnapshot:
     """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
 
@@ -493,6 +505,13 @@ class MetricsSnapshot:
     build_version: str = ""  # package version (chtc_build_info)
     model_version: str | None = None
     filter: FilterMetrics | None = None  # None before the live state started
+    # docs/design/threading.md: the event loop's lag (None: not measured), its largest of the last window [s];
+    # the core thread (None: the core runs inline): how long events waited for it, its backlog now
+    loop_lag_s: HistogramData | None = None
+    loop_lag_recent_max_s: float | None = None
+    core: CoreMetrics | None = None
+    growth_terms_computed: int = 0  # /compensation's condition terms computed (cache misses) and their CPU
+    growth_terms_cpu_s: float = 0.0
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

@@ -106,16 +106,20 @@ def data_verdict(
 ) -> Verdict | None:
     """The data's part of every verdict (None: the data are fresh).
 
-    ``no_data`` without a sample; ``stale`` when samples stopped or CAN is silent (the inputs of the live
-    state are unknown); with the DAQ alone down (``daq_no_good_data``) and ``open_loop_limit_s`` given (the
-    compensation), ``predicted``: usable so far (the caller checks the CI), or ``open_loop_too_long`` past the
-    limit; without ``open_loop_limit_s`` (the H, which need measured temperatures), ``stale``."""
+    ``no_data`` without a sample; ``core_behind`` (status ``stale``) when the core has not handled the
+    samples acquired for longer than its limit (what is published trails what was acquired); ``stale`` when
+    samples stopped or CAN is silent (the inputs of the live state are unknown); with the DAQ alone down
+    (``daq_no_good_data``) and ``open_loop_limit_s`` given (the compensation), ``predicted``: usable so far
+    (the caller checks the CI), or ``open_loop_too_long`` past the limit; without ``open_loop_limit_s``
+    (the H, which need measured temperatures), ``stale``."""
     if not has_sample:
         return Verdict(ChtcStatus.NO_DATA, False, Reason.NO_DATA, "no sample acquired yet")
     if not problems:
         return None
     codes = {p.code for p in problems}
     detail = ", ".join(str(p) for p in problems) + " (see /readyz)"
+    if DataCode.CORE_BEHIND in codes:  # what is published trails what was acquired: never fresh
+        return Verdict(ChtcStatus.STALE, False, Reason.CORE_BEHIND, detail)
     if codes != {DataCode.DAQ_NO_GOOD_DATA} or open_loop_limit_s is None:
         return Verdict(ChtcStatus.STALE, False, Reason.STALE, detail)
     if last_good_daq_t is None:

@@ -41,6 +41,7 @@ class Reason(enum.StrEnum):
     CI_TOO_WIDE = "ci_too_wide"  # the growth's 95 % CI half-width exceeds the tolerance
     NO_REFERENCE = "no_reference"  # no compensation reference (zero) stored
     OPEN_LOOP_TOO_LONG = "open_loop_too_long"  # DAQ down longer than the open-loop limit
+    CORE_BEHIND = "core_behind"  # the core thread's backlog of samples is older than its limit
 
 
 ACTIONS: dict[Reason, str] = {
@@ -60,6 +61,8 @@ ACTIONS: dict[Reason, str] = {
     Reason.CI_TOO_WIDE: "Wait for more data, or widen compensation.max_ci95_um if the machine allows.",
     Reason.NO_REFERENCE: "Set the compensation zero at rest (Set zero, or `chtc commission zero`).",
     Reason.OPEN_LOOP_TOO_LONG: "Restore the temperature DAQ: the prediction without it has run too long.",
+    Reason.CORE_BEHIND: "Check the machine's CPU load: the service falls behind its samples; it catches up "
+    "in order and clears itself (see /healthz, chtc_core_lag_seconds).",
 }
 
 
@@ -69,6 +72,7 @@ class DataCode(enum.StrEnum):
     NO_SAMPLE = "no_sample"  # acquisition stalled: no sample at all for too long
     DAQ_NO_GOOD_DATA = "daq_no_good_data"  # no sample with enough temperatures and the ambient
     CAN_NO_GOOD_DATA = "can_no_good_data"  # no speed/torque from CAN
+    CORE_BEHIND = "core_behind"  # samples acquired but not yet handled by the core for too long
 
 
 @dataclass(frozen=True)
