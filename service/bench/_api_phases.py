@@ -25,6 +25,18 @@ import numpy as np
 Phase = Callable[[str, argparse.Namespace], dict[str, Any]]
 
 
+def run_header(args: argparse.Namespace, load_before: float) -> dict[str, Any]:
+    """What every ``chtc bench api`` report starts with: the load offered, the runs, the machine."""
+    return {
+        "rate_rps": args.rate,
+        "clients": args.clients,
+        "duration_s": args.duration,
+        "runs": args.runs,
+        "cpus": os.cpu_count(),
+        "loadavg_1min_at_start": load_before,
+    }
+
+
 def stop_process(proc: subprocess.Popen[Any] | mp.process.BaseProcess) -> None:
     proc.terminate()
     if isinstance(proc, subprocess.Popen):
@@ -150,8 +162,22 @@ def busy_phase(url: str, args: argparse.Namespace, *, nice: int, phase: Phase) -
 
 # --- condition change -> fresh H, through the whole running service (chtc demo) ------------------------
 def _start_demo(args: argparse.Namespace) -> tuple[subprocess.Popen[str], str]:
-    cmd = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", "--duration", "900"]
-    cmd += ["--speedup", str(args.fresh_speedup), "--segment-min", str(args.fresh_segment_min)]
+    return start_demo(
+        [
+            "--duration",
+            "900",
+            "--speedup",
+            str(args.fresh_speedup),
+            "--segment-min",
+            str(args.fresh_segment_min),
+        ]
+    )
+
+
+def start_demo(options: list[str]) -> tuple[subprocess.Popen[str], str]:
+    """``chtc demo --port 0 --quiet`` with ``options`` in a child process; returns it and its dashboard URL
+    (``RuntimeError`` when it exits or prints none within 600 s)."""
+    cmd = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", *options]
     proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     found: list[str] = []
 

@@ -46,7 +46,7 @@ import httpx
 import numpy as np
 from prometheus_client.parser import text_string_to_metric_families
 
-from service.bench._api_phases import bench_service, busy_phase, change_to_fresh, stop_process
+from service.bench._api_phases import bench_service, busy_phase, change_to_fresh, run_header, stop_process
 
 TARGET_P99_MS = 10.0
 TARGET_BUSY_RATIO = 2.0
@@ -390,12 +390,7 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
     hx, raw = idle["httpx"], idle["raw"]
     bhx, braw = (busy["httpx"], busy["raw"]) if busy else ({}, {})
     out: dict[str, Any] = {
-        "rate_rps": args.rate,
-        "clients": args.clients,
-        "duration_s": args.duration,
-        "runs": args.runs,
-        "cpus": os.cpu_count(),
-        "loadavg_1min_at_start": load_before,
+        **run_header(args, load_before),
         "chtc_p50_ms": raw["p50_ms"],
         "chtc_p99_ms": raw["p99_ms"],
         "chtc_p50_ms_busy": braw.get("p50_ms"),

@@ -23,11 +23,8 @@ import asyncio
 import contextlib
 import multiprocessing as mp
 import os
-import re
 import statistics
 import subprocess
-import sys
-import threading
 import time
 from collections.abc import Iterator
 from typing import Any
@@ -36,7 +33,8 @@ import httpx
 import numpy as np
 from prometheus_client.parser import text_string_to_metric_families
 
-from service.bench._api_phases import stop_process
+from service.bench._api_phases import run_header, stop_process
+from service.bench._api_phases import start_demo as _start
 
 TARGETS = {
     "quiet_p99_ms": 10.0,
@@ -56,25 +54,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 # --- the demo -------------------------------------------------------------------------------------------
 def start_demo(speedup: float, seed: int = 0) -> tuple[subprocess.Popen[str], str]:
-    cmd = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", "--speedup", str(speedup)]
-    cmd += ["--seed", str(seed), "--duration", "36000"]
-    proc = subprocess.Popen(cmd, stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
-    found: list[str] = []
-
-    def read() -> None:
-        assert proc.stdout is not None
-        for line in proc.stdout:
-            if not found and (m := re.search(r"dashboard: (http://[^\s#]+?)/?[\s#]", line)):
-                found.append(m.group(1))
-
-    threading.Thread(target=read, daemon=True).start()
-    deadline = time.monotonic() + 600.0
-    while not found and time.monotonic() < deadline and proc.poll() is None:
-        time.sleep(0.1)
-    if not found:
-        stop_process(proc)
-        raise RuntimeError("chtc demo did not print its URL (exited or took > 600 s)")
-    return proc, found[0]
+    """``chtc demo`` at ``speedup`` for up to 10 h (``_api_phases.start_demo``)."""
+    return _start(["--speedup", str(speedup), "--seed", str(seed), "--duration", "36000"])
 
 
 def process_cpu_s(pid: int) -> float:
@@ -297,12 +278,7 @@ def live_bench(args: argparse.Namespace) -> dict[str, Any]:
     calm = [p["quiet"]["p99_ms_not_identifying"] for p in per if p["quiet"]["p99_ms_identifying"] is not None]
     ratio = max(b / c for b, c in zip(busy, calm, strict=True) if c) if busy and all(calm) else None
     out: dict[str, Any] = {
-        "rate_rps": args.rate,
-        "clients": args.clients,
-        "duration_s": args.duration,
-        "runs": args.runs,
-        "cpus": os.cpu_count(),
-        "loadavg_1min_at_start": load_before,
+        **run_header(args, load_before),
         "quiet": {
             "p99_ms": _worst(per, "quiet", "p99_ms"),
             "max_ms": _worst(per, "quiet", "max_ms"),
