@@ -396,6 +396,9 @@ class EngineSettings(_Section):
 class DatabaseSettings(_Section):
     url: str = Field(default_factory=default_database_url)  # sqlite:///… or postgresql+psycopg://…
     sample_store_period_s: float = Field(default=10.0, gt=0)  # store at most one Sample per period
+    # store the live state (one row, replaced; ~70 kB) this often [s of sample time]: a restart within the
+    # filter's 300-s gap resumes from it instead of its prior (service.estimate.checkpoint); 0: never
+    live_checkpoint_s: float = Field(default=60.0, ge=0)
     batch_size: int = Field(default=500, ge=1)
     retry_initial_s: float = Field(default=0.5, gt=0)
     retry_max_s: float = Field(default=30.0, gt=0)

@@ -12,7 +12,8 @@ identification inline, its own ``GrowthServer`` as ``chtc run`` builds it) sees 
 - ``normal``: every sample (both variants);
 - ``restart_stored`` (offsets): the service stops at ``plan.restart_min`` and a new one starts on the next
   sample with what the database holds then (``stored_state``: the served identification, the per-condition
-  history, the conditions, the offset calibration, the speed map, and the compensation zero);
+  history, the conditions, the offset calibration, the speed map, the compensation zero, and the live
+  state's newest checkpoint, stored once a minute: up to a minute old at the restart);
 - ``restart_no_state`` (offsets): the same restart with nothing stored (no zero either: the first-start zero
   waits for the spindle at rest in equilibrium, so the growth is ``no_reference`` until then);
 - ``outages`` (offsets): one run with a DAQ outage while CAN keeps coming (the acquisition's stale DAQ
@@ -39,6 +40,9 @@ import numpy as np
 
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
+from service.contracts.records import LiveStateData, Record
+from service.engine.persistence import GateSink
+from service.estimate.checkpoint import LiveCheckpoint
 
 DT_S = 10.0
 PER_MIN = 6  # samples per minute
@@ -154,6 +158,33 @@ def stale_daq(last: Sample, now: Sample, *, can_ok: bool = True) -> Sample:
     )
 
 
+class NewestLiveState(GateSink):
+    """The bench's database writer: keeps the newest live-state checkpoint the core stored (what the
+    ``live_state`` table holds at a restart), drops every other record."""
+
+    def __init__(self) -> None:
+        super().__init__(max_held=0)
+        self.record: LiveStateData | None = None
+
+    def submit(self, record: Record) -> bool:
+        if isinstance(record, LiveStateData):
+            self.record = record
+        return True
+
+    def checkpoint(self) -> LiveCheckpoint | None:
+        """The stored checkpoint as ``restore`` reads it back (None: none stored yet)."""
+        rec = self.record
+        if rec is None:
+            return None
+        return LiveCheckpoint.from_parts(
+            rec.payload,
+            t=rec.at.timestamp(),
+            model_version=rec.model_version,
+            converged=rec.converged,
+            inputs=(rec.ambient_c, rec.speed_rpm, rec.torque_nm),
+        )
+
+
 class Session:
     """One service instance on a manual clock, wired as ``chtc run`` wires it (``core_config``,
     ``growth_server``: the settings' reference and compensation limits), with the identification inline;
@@ -175,9 +206,11 @@ class Session:
 
         core = ServiceCore(core_config(settings), model=model, restored=restored, history_capacity=100_000)
         self.clock = ManualClock(start)
+        self.stored = NewestLiveState()
         self.svc = SoftSensorService(
             core,
             worker=None,
+            writer=self.stored,
             clock=self.clock,
             on_event=lambda _m: None,
             run_job=lambda req: run_job(model, req),
@@ -224,11 +257,11 @@ class Session:
         )
 
 
-def stored_state(view: Any, reference: Any = None) -> Any:
+def stored_state(view: Any, reference: Any = None, live: LiveCheckpoint | None = None) -> Any:
     """What the database holds of a run at ``view`` (``service.engine.persistence.restore`` builds the same
     ``Restored`` from its tables): the served identification, the newest complete H per condition, the
-    conditions (stable), the offset calibration, the speed map and its newest fit, and the compensation
-    zero ``reference`` (the growth server's)."""
+    conditions (stable), the offset calibration, the speed map and its newest fit, the compensation
+    zero ``reference`` (the growth server's) and the live state's newest checkpoint ``live``."""
     from dataclasses import replace
 
     from service.engine.config import Restored
@@ -266,6 +299,7 @@ def stored_state(view: Any, reference: Any = None) -> Any:
         speed_map=view.speed_map,
         map_last=next((r for r in view.records if r.outcome == "ok" and r.method == MAP_METHOD), None),
         reference=reference,
+        live=live,
     )
 
 
@@ -350,7 +384,8 @@ def _serve(
     last_good = samples[first]
     for k in range(first, len(samples)):
         if k == capture_at:
-            captured = (stored_state(svc.view, svc.growth.reference), svc.growth.t_ref_c(svc.view))
+            stored = stored_state(svc.view, svc.growth.reference, session.stored.checkpoint())
+            captured = (stored, svc.growth.t_ref_c(svc.view))
         sample = samples[k]
         session.clock.at_least(sample.t)
         if daq[0] <= k < daq[1]:

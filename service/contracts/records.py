@@ -31,7 +31,8 @@ K = TypeVar("K")
 
 # What a JSON column holds (``diagnostics``): built by ``_plain`` from numpy values.
 JsonValue = None | bool | int | float | str | list["JsonValue"] | dict[str, "JsonValue"]
-Column = datetime | int | float | str | bool | None | list[float | None] | list[bool] | dict[str, JsonValue]
+ColumnScalar = datetime | int | float | str | bool | bytes | None
+Column = ColumnScalar | list[float | None] | list[bool] | dict[str, JsonValue]
 
 
 def finite(value: SupportsFloat | None) -> float | None:
@@ -426,6 +427,39 @@ class CompensationReferenceData:
         }
 
 
+@dataclass(frozen=True, kw_only=True, eq=False)
+class LiveStateData:
+    """The live state's checkpoint (``service.estimate.checkpoint.LiveCheckpoint``): its time ``at`` (UTC),
+    the reduced model it belongs to, whether it had converged, the held inputs (ambient °C, speed rpm,
+    torque N·m) and the arrays as an ``.npz`` ``payload``. The writer keeps only the newest row."""
+
+    at: datetime
+    model_version: str
+    converged: bool
+    ambient_c: float
+    speed_rpm: float
+    torque_nm: float
+    payload: bytes
+
+    def __post_init__(self) -> None:
+        _check_times(self)
+        if not all(math.isfinite(x) for x in (self.ambient_c, self.speed_rpm, self.torque_nm)):
+            raise RecordError("LiveStateData: ambient_c, speed_rpm and torque_nm must be finite")
+        if not self.payload:
+            raise RecordError("LiveStateData.payload: empty")
+
+    def values(self) -> dict[str, Column]:
+        return {
+            "at": self.at,
+            "model_version": self.model_version[:64],
+            "converged": bool(self.converged),
+            "ambient_c": float(self.ambient_c),
+            "speed_rpm": float(self.speed_rpm),
+            "torque_nm": float(self.torque_nm),
+            "payload": self.payload,
+        }
+
+
 Record = (
     ConditionStart
     | ConditionEnd
@@ -434,6 +468,7 @@ Record = (
     | SampleData
     | OffsetCalibrationData
     | CompensationReferenceData
+    | LiveStateData
 )
 RECORD_TYPES = (
     ConditionStart,
@@ -443,6 +478,7 @@ RECORD_TYPES = (
     SampleData,
     OffsetCalibrationData,
     CompensationReferenceData,
+    LiveStateData,
 )
 
 

@@ -7,6 +7,7 @@ from dataclasses import dataclass, field
 
 from service.acquire.calibration import Calibration, CalibrationConfig
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
+from service.estimate.checkpoint import LiveCheckpoint
 from service.estimate.reference import CompensationReference
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
@@ -37,6 +38,9 @@ class CoreConfig:
     # speed and torque from CAN) before H is reported stale
     stale_after_s: float = 60.0
     sample_store_period_s: float = 10.0
+    # the live state is handed to the writer this often [s of sample time] (a restart resumes the filter
+    # from it: service.estimate.checkpoint); 0: never
+    live_checkpoint_s: float = 60.0
     min_speed_rpm: float = 100.0  # below: spindle idle, no bearing heat, H not identifiable -> skipped
     initial_h: tuple[float, ...] = (50.0,) * 7  # live-state H before the first identification (no data yet)
     # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the
@@ -64,3 +68,4 @@ class Restored:
     speed_map: SpeedMap | None = None  # the newest stored map fit (speed-map mode), restored as stale
     map_last: IdentificationRecord | None = None  # its identification (``last`` unless combined mode)
     reference: CompensationReference | None = None  # the newest stored compensation zero
+    live: LiveCheckpoint | None = None  # the live state's stored checkpoint (the filter resumes from it)

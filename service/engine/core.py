@@ -30,6 +30,7 @@ Errors::
 
 from __future__ import annotations
 
+import math
 from collections.abc import Sequence
 from dataclasses import replace
 from datetime import datetime
@@ -68,12 +69,14 @@ from service.engine.samples import SampleBook
 from service.engine.serving import serving_for
 from service.engine.view import CoreView, NewestSample
 from service.errors import ServiceError
+from service.estimate.checkpoint import CheckpointError
 from service.estimate.state import FilteredState
 from service.identify import scheduler as sched
 from service.identify.detector import ConditionChanged, ConditionDetector, OperatingPoint, SampleEvent
 from service.modelload import LoadedModel
 from service.serve.interface import ConditionSnapshot, ConditionState
 from service.store.calibrations import calibration_record
+from service.store.livestate import live_state_record
 
 __all__ = ["CoreConfig", "CoreError", "Restored", "ServiceCore"]
 
@@ -122,6 +125,15 @@ class ServiceCore:
         )
         if calibrator is not None:  # a restored baseline's offsets go to the filter at once
             live.set_offsets(calibrator.offsets(), calibrator.offset_sd())
+        self._notes: list[str] = []  # said with the first event (the constructor has no ``Out``)
+        if restored.live is not None:  # the stored checkpoint: the filter resumes instead of restarting
+            try:
+                live.resume(restored.live, model.version)
+                at = utc(restored.live.t).isoformat(timespec="seconds")
+                self._notes.append(f"live state resumed from its checkpoint of {at}")
+            except CheckpointError as err:
+                self._notes.append(f"live state not resumed ({err}); it starts from its prior")
+        self._checkpoint_t = -math.inf  # sample time [s] of the last checkpoint handed to the writer
         self._p = CoreParts(
             config=config,
             model=model,
@@ -223,6 +235,7 @@ class ServiceCore:
         if row is not None:
             out.store(row)
         self._advance_live(newest, ts)
+        self._checkpoint(ts, out)
         todo: list[sched.Instruction] = []
         if self._resumed:
             todo += self._resume(ts, out)
@@ -238,6 +251,18 @@ class ServiceCore:
             todo += self._on_change(change, out)
         self._tracks.maps.sample(newest, ts, out)
         self._tracks.schedule.tick(todo, ts, out)
+
+    def _checkpoint(self, ts: float, out: Out) -> None:
+        """Hand the live state to the writer every ``live_checkpoint_s`` of sample time; log start notes."""
+        for note in self._notes:
+            out.log(note)
+        self._notes.clear()
+        every = self.config.live_checkpoint_s
+        live = self._p.live
+        if every <= 0.0 or not live.initialized or ts - self._checkpoint_t < every:
+            return
+        self._checkpoint_t = ts
+        out.store(live_state_record(live.checkpoint(self.model.version)))
 
     def _calibrate(self, s: NewestSample, out: Out) -> None:
         cal = self._p.calibrator

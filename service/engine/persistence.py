@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, TypeVar
 
 from service.contracts.records import Record
 from service.engine.config import Restored
@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
 
     from service.acquire.calibration import Calibration
+    from service.estimate.checkpoint import LiveCheckpoint
     from service.estimate.reference import CompensationReference
     from service.identify.speedmap import SpeedMap
     from service.settings import DatabaseSettings
@@ -51,6 +52,7 @@ if TYPE_CHECKING:
 __all__ = ["GateSink", "Persistence", "open_persistence", "restore"]
 
 log = logging.getLogger(__name__)
+T = TypeVar("T")
 
 
 def restore(
@@ -99,7 +101,9 @@ def restore(
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
         calibration = _restore_calibration(session, on_problem)
         reference = _restore_reference(session, on_problem)
+        live = _restore_live(session, on_problem)
     return Restored(
+        live=live,
         reference=reference,
         speed_map=_restore_map(map_last, on_problem),
         map_last=map_last,
@@ -134,32 +138,49 @@ def _restore_map(
         return None
 
 
-def _restore_calibration(session: Session, on_problem: Callable[[str], None] | None) -> Calibration | None:
-    from service.store.calibrations import StoredCalibrationError, restore_calibration
+def _restore_or_report(
+    read: Callable[[Session], T | None],
+    session: Session,
+    what: str,
+    then: str,
+    on_problem: Callable[[str], None] | None,
+) -> T | None:
+    """``read(session)``; a stored row it refuses (``RecordRejectedError``, naming the row) is logged and told
+    to ``on_problem`` as "stored {what} not restored (...); {then}", and None is restored in its place."""
+    from service.store.errors import RecordRejectedError
 
     try:
-        return restore_calibration(session)
-    except StoredCalibrationError as err:
-        text = f"stored sensor offset baseline not restored ({err}); starting without a baseline"
+        return read(session)
+    except RecordRejectedError as err:
+        text = f"stored {what} not restored ({err}); {then}"
         log.warning("%s", text)
         if on_problem is not None:
             on_problem(text)
         return None
+
+
+def _restore_calibration(session: Session, on_problem: Callable[[str], None] | None) -> Calibration | None:
+    from service.store.calibrations import restore_calibration
+
+    return _restore_or_report(
+        restore_calibration, session, "sensor offset baseline", "starting without a baseline", on_problem
+    )
 
 
 def _restore_reference(
     session: Session, on_problem: Callable[[str], None] | None
 ) -> CompensationReference | None:
-    from service.store.references import StoredReferenceError, restore_reference
+    from service.store.references import restore_reference
 
-    try:
-        return restore_reference(session)
-    except StoredReferenceError as err:
-        text = f"stored compensation zero not restored ({err}); /compensation is not usable until one is set"
-        log.warning("%s", text)
-        if on_problem is not None:
-            on_problem(text)
-        return None
+    then = "/compensation is not usable until one is set"
+    return _restore_or_report(restore_reference, session, "compensation zero", then, on_problem)
+
+
+def _restore_live(session: Session, on_problem: Callable[[str], None] | None) -> LiveCheckpoint | None:
+    from service.store.livestate import restore_live_state
+
+    then = "the filter starts from its prior"
+    return _restore_or_report(restore_live_state, session, "live state", then, on_problem)
 
 
 def fallback_restored(now_s: float | None = None) -> Restored:

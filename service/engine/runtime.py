@@ -142,6 +142,7 @@ def core_config(settings: Settings) -> CoreConfig:
         speed_map=map_config(settings),
         stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
+        live_checkpoint_s=settings.database.live_checkpoint_s,
         calibration=CalibrationConfig(
             rest_s=ident.offset_rest_s,
             no_baseline_sd_c=ident.offset_sd_c,

@@ -42,6 +42,7 @@ from scipy.stats import chi2
 
 from model.estimator import (
     Convergence,
+    Estimate,
     NisWindow,
     NoiseModel,
     StateEstimator,
@@ -53,6 +54,7 @@ from model.estimator import (
     wide_prior,
 )
 from model.estimator import usable as usable_channels
+from service.estimate.checkpoint import LiveCheckpoint
 from service.estimate.live import LiveStateError
 from service.estimate.offsetbias import OffsetBias, kalman_gain
 
@@ -335,6 +337,44 @@ class FilteredState:
         for dq in (self._snapshots, self._recent):
             dq.clear()
         return self._after_step(0, self._measure(temps_c, usable), restarted=True)
+
+    def checkpoint(self, model_version: str) -> LiveCheckpoint:
+        """The state now as a ``LiveCheckpoint`` (``service.estimate.checkpoint``) of ``model_version``."""
+        est, inp = self.estimator.estimate, self._inputs
+        assert inp is not None
+        return LiveCheckpoint(
+            t=self.t,
+            model_version=model_version,
+            converged=self.converged_at is not None and not self._reacquiring,
+            inputs=(inp.ambient_c, inp.speed_rpm, inp.torque_nm),
+            mean=est.mean.copy(),
+            cov=est.cov.copy(),
+            cross=est.cross.copy(),
+            bias_s=self._bias.s.copy(),
+            bias_m=self._bias.m.copy(),
+        )
+
+    def resume(self, cp: LiveCheckpoint, model_version: str) -> None:
+        """Continue from a stored checkpoint (after a restart) instead of the prior: the next ``push``
+        predicts across the gap with the checkpoint's inputs held (a gap over ``max_gap_s`` starts from the
+        prior as ever). A converged checkpoint is converged from its time on: the NIS windows start empty.
+        ``CheckpointError`` if it is another model's or another size (the state is then left as it was)."""
+        cp.check_for(model_version, int(self.rom.k0.shape[0]), self._bias.n)
+        estimate = Estimate(mean=cp.mean.copy(), cov=cp.cov.copy(), cross=cp.cross.copy())
+        self._filter = StateEstimator(self.rom, estimate, noise=self._noise, offsets_c=self.offsets_c)
+        self._bias.s, self._bias.m = cp.bias_s.copy(), cp.bias_m.copy()
+        self._t = float(cp.t)
+        self._inputs = _Inputs(*cp.inputs)
+        self._window = NisWindow(self.settings.nis_window)
+        self._gate = NisWindow(self.settings.converge_nis_samples)
+        self.converged_at = float(cp.t) if cp.converged else None
+        self._blind_from, self._reacquiring, self.reacquired_at = None, False, None
+        self.started_at = float(cp.t)
+        self.high_since = None
+        self._convergence = None
+        for dq in (self._snapshots, self._recent):
+            dq.clear()
+        self._keep(self._snapshot(), force=True)
 
     def set_h(
         self,

@@ -1,8 +1,8 @@
 """SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` and ``0002``).
 
 Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``, (migration ``0002``)
-``offset_calibrations`` and (``0003``) ``compensation_references``. Every timestamp is
-:class:`~service.store.types.UtcDateTime` (aware UTC in and out, on SQLite too).
+``offset_calibrations``, (``0003``) ``compensation_references`` and (``0004``) ``live_state``. Every
+timestamp is :class:`~service.store.types.UtcDateTime` (aware UTC in and out, on SQLite too).
 Units: °C, rpm, N·m, W/(m²·K), s.
 
 Ids of conditions and identifications are assigned by the service (it needs them before the row is stored,
@@ -18,7 +18,18 @@ from __future__ import annotations
 
 from datetime import datetime
 
-from sqlalchemy import JSON, BigInteger, Boolean, Double, ForeignKey, Integer, MetaData, String, Text
+from sqlalchemy import (
+    JSON,
+    BigInteger,
+    Boolean,
+    Double,
+    ForeignKey,
+    Integer,
+    LargeBinary,
+    MetaData,
+    String,
+    Text,
+)
 from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
 
 from service.contracts.records import JsonValue
@@ -161,3 +172,19 @@ class CompensationReferenceRow(Base):
     sd_c: Mapped[float]  # its 1σ, °C (0: given by an operator)
     source: Mapped[str] = mapped_column(String(16))  # "api" | "cli" | "first_start" | "config"
     set_by: Mapped[str] = mapped_column(String(64))
+
+
+class LiveStateRow(Base):
+    """The live state's newest checkpoint (``service.estimate.checkpoint.LiveCheckpoint``): one row, replaced
+    on every write (``service.store.repository.write_records``); a restart resumes the filter from it."""
+
+    __tablename__ = "live_state"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    at: Mapped[datetime]  # the state's time (a sample's), UTC
+    model_version: Mapped[str] = mapped_column(String(64))  # the reduced model it belongs to
+    converged: Mapped[bool] = mapped_column(Boolean)
+    ambient_c: Mapped[float]  # the inputs held at the checkpoint: °C, rpm, N·m
+    speed_rpm: Mapped[float]
+    torque_nm: Mapped[float]
+    payload: Mapped[bytes] = mapped_column(LargeBinary)  # .npz: mean, cov, cross, bias_s, bias_m (float64)

@@ -14,8 +14,8 @@ from datetime import datetime
 from itertools import groupby
 from typing import Generic, TypeVar
 
+from sqlalchemy import delete, func, insert, select, update
 from sqlalchemy import exc as sa_exc
-from sqlalchemy import func, insert, select, update
 from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
@@ -25,6 +25,7 @@ from service.contracts.records import (
     ConditionStart,
     DeviceEventData,
     IdentificationData,
+    LiveStateData,
     OffsetCalibrationData,
     Record,
     SampleData,
@@ -36,6 +37,7 @@ from service.store.models import (
     Condition,
     DeviceEvent,
     Identification,
+    LiveStateRow,
     OffsetCalibrationRow,
     SampleRow,
 )
@@ -74,6 +76,7 @@ _TABLE_OF: dict[type, type] = {
     SampleData: SampleRow,
     OffsetCalibrationData: OffsetCalibrationRow,
     CompensationReferenceData: CompensationReferenceRow,
+    LiveStateData: LiveStateRow,
 }
 
 
@@ -85,6 +88,9 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
             for end in run:
                 assert isinstance(end, ConditionEnd)
                 _end_condition(session, end)
+        elif kind is LiveStateData:  # one row: the newest checkpoint replaces the stored one
+            session.execute(delete(LiveStateRow))
+            session.execute(insert(LiveStateRow), [run[-1].values()])  # type: ignore[union-attr]
         else:
             session.execute(insert(_TABLE_OF[kind]), [r.values() for r in run])  # type: ignore[union-attr]
 
@@ -269,6 +275,12 @@ def last_compensation_reference(session: Session) -> CompensationReferenceRow | 
     query = select(CompensationReferenceRow).order_by(
         CompensationReferenceRow.at.desc(), CompensationReferenceRow.id.desc()
     )
+    return session.scalars(query.limit(1)).first()
+
+
+def last_live_state(session: Session) -> LiveStateRow | None:
+    """The live state's stored checkpoint (the newest, should a write have left two); None if none."""
+    query = select(LiveStateRow).order_by(LiveStateRow.at.desc(), LiveStateRow.id.desc())
     return session.scalars(query.limit(1)).first()
 
 

@@ -24,6 +24,7 @@ TABLES = {
     "samples",
     "offset_calibrations",
     "compensation_references",
+    "live_state",
 }
 
 

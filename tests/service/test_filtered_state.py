@@ -269,3 +269,39 @@ def test_considered_h_error_from_a_ci_is_the_log_normal_sigma() -> None:
     hi = h.copy()
     hi[0], hi[1] = np.nan, 40.0  # no CI; an upper end below H (counts as no spread)
     assert h_rel_from_ci(h, hi)[0] == GUESSED_H_REL and h_rel_from_ci(h, hi)[1] == 0.0
+
+
+def test_a_resumed_checkpoint_continues_the_same_state_and_a_stale_one_restarts(case: Case) -> None:
+    """A restart with the stored checkpoint (``service.estimate.checkpoint``, through its ``.npz`` bytes):
+    the new state continues where the old one stood, converged, and its next updates equal the uninterrupted
+    state's. A checkpoint older than ``max_gap_s`` at the first sample starts from the prior; one of another
+    model is refused, naming the model."""
+    from service.estimate.checkpoint import CheckpointError, LiveCheckpoint
+
+    run = case.run
+    state = _filter(case, 0, run.h_true[0])
+    k = 1
+    while state.ready_at() is None or run.speed_rpm[k] < 1000.0:
+        state.push(float(run.times_s[k]), **_sample(run, k))
+        k += 1
+    cp = state.checkpoint("m1")
+    stored = LiveCheckpoint.from_parts(
+        cp.to_bytes(), t=cp.t, model_version=cp.model_version, converged=cp.converged, inputs=cp.inputs
+    )
+    resumed = FilteredState(case.model.rom, case.model.spec, h=run.h_true[0], offsets_c=case.offsets_c)
+    resumed.resume(stored, "m1")
+    assert resumed.converged_at == cp.t and resumed.ready_at() == cp.t
+    for j in range(k, k + 6):  # the next minute, with one sample missing (a restart takes time)
+        if j != k:
+            state.push(float(run.times_s[j]), **_sample(run, j))
+            resumed.push(float(run.times_s[j]), **_sample(run, j))
+    np.testing.assert_allclose(resumed.field_now().mean, state.field_now().mean, atol=1e-9)
+    np.testing.assert_allclose(resumed.view().cov, state.view().cov, atol=1e-9)
+    fresh = FilteredState(case.model.rom, case.model.spec, h=run.h_true[0], offsets_c=case.offsets_c)
+    with pytest.raises(CheckpointError, match=r"'m1'.*'m2'"):
+        fresh.resume(stored, "m2")
+    assert not fresh.initialized
+    fresh.resume(stored, "m1")
+    late = k + int(fresh.settings.max_gap_s / 10.0) + 6
+    upd = fresh.push(float(run.times_s[late]), **_sample(run, late))
+    assert upd.restarted and fresh.converged_at is None and fresh.started_at == float(run.times_s[late])
