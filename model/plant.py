@@ -29,6 +29,8 @@ from model.errors import ModelError
 from model.fem import FEModel, Stepper, build_fe_model, make_stepper
 from model.geometry import N_CHANNELS, SpindleSpec
 from model.inputs import InputSeries, inputs_from_operation
+from model.plantmech import PlantMechanics, build_plant_growth
+from model.thermoelastic import GrowthModel
 
 H_TABLE4 = np.array([88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54])  # 3000 rpm, 23.2 degC
 H_TABLE10 = np.array([79.75, 46.25, 61.89, 45.31, 46.20, 68.23, 11.12])  # 4000 rpm, 21.8 degC
@@ -178,6 +180,9 @@ class VirtualPlant:
     ``steady_tol_c``: within a segment, once the sensors change by less than this over
     30 samples, the rest of the segment is filled with the converged values (fast long profiles); 0 disables
     the shortcut.
+    ``mechanics``: the plant's own mechanics (``model.plantmech``: mount restraint, α factors), None the
+    description's (nominal); its true growth (``growth``, ``growth_um``) comes from them on the plant's mesh,
+    built on first use (or ``growth`` given, built with the same mechanics on ``fe``).
     """
 
     def __init__(
@@ -195,8 +200,12 @@ class VirtualPlant:
         h_law: Callable[[float, float, float], NDArray[np.float64]] | None = None,
         steady_tol_c: float = 1e-3,
         fe: FEModel | None = None,
+        mechanics: PlantMechanics | None = None,
+        growth: GrowthModel | None = None,
     ) -> None:
         self.spec = spec
+        self.mechanics = mechanics
+        self._growth = growth
         self.fe = (
             fe if fe is not None else build_fe_model(spec, mesh_size_m=mesh_size_m or spec.plant_mesh_size_m)
         )
@@ -214,6 +223,18 @@ class VirtualPlant:
         self.steady_tol_c = steady_tol_c
         self.h_law = h_law if h_law is not None else h_true
         self._steppers: dict[tuple[bytes, float], Stepper] = {}
+
+    @property
+    def growth(self) -> GrowthModel:
+        """The plant's growth model: its own mechanics (nominal when None) on its own mesh."""
+        if self._growth is None:
+            mech = self.mechanics if self.mechanics is not None else PlantMechanics.nominal(self.spec)
+            self._growth = build_plant_growth(self.spec, self.fe, mech)
+        return self._growth
+
+    def growth_um(self, field_c: ArrayLike, t_ref_c: float | ArrayLike) -> NDArray[np.float64]:
+        """The true growth [µm] (every output) of plant-mesh fields (N,) or (n, N) over ``t_ref_c``."""
+        return np.asarray(self.growth.growth_um(field_c, t_ref_c), dtype=np.float64)
 
     def _stepper(self, h: NDArray[np.float64], dt_s: float) -> Stepper:
         key = (h.tobytes(), dt_s)

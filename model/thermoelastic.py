@@ -312,17 +312,46 @@ def _on_segment(p: Array, seg: Segment2D) -> NDArray[np.bool_]:
     )
 
 
-def _fixed_dofs(spec: SpindleSpec, split: _Split, dofs: NDArray[np.int64]) -> NDArray[np.int64]:
-    mech = _mechanics(spec)
-    fixed = [dofs[0, np.abs(split.p[0]) < _TOL]]  # symmetry axis: u_r = 0
-    for i, seg in enumerate(mech.mount.segments):
+def _mount_nodes(spec: SpindleSpec, split: _Split) -> list[NDArray[np.int64]]:
+    out = []
+    for i, seg in enumerate(_mechanics(spec).mount.segments):
         nodes = np.flatnonzero(_on_segment(split.p, seg) & _used(split.t, split.p.shape[1]))
         if nodes.size < 2:
             raise ThermoelasticError(f"mechanics.mount.segments[{i}]: no edge of the mesh lies on it")
+        out.append(nodes)
+    return out
+
+
+def _fixed_dofs(spec: SpindleSpec, split: _Split, dofs: NDArray[np.int64], fix: str) -> NDArray[np.int64]:
+    fixed = [dofs[0, np.abs(split.p[0]) < _TOL]]  # symmetry axis: u_r = 0
+    for nodes in _mount_nodes(spec, split):
         fixed.append(dofs[1, nodes])
-        if mech.mount.fix == "axial_radial":
+        if fix == "axial_radial":
             fixed.append(dofs[0, nodes])
     return np.unique(np.concatenate(fixed))
+
+
+def mount_spring(
+    spec: SpindleSpec, split: _Split, dofs: NDArray[np.int64], stiffness_pa_per_m: float
+) -> sp.csr_matrix:
+    """Radial Winkler spring on the mounting face: k [Pa/m = N/m per m² of face] on u_r, lumped per node.
+
+    Node i of a face segment carries k · 2π r_i · ℓ_i [N/m], ℓ_i half the length of its face edges
+    (trapezoidal rule of ∫ k u_r v_r 2πr ds): the flange's radial friction/bolt stiffness against the spindle
+    head, between free (k = 0) and held (k → ∞)."""
+    n = int(dofs.max()) + 1
+    diag = np.zeros(n)
+    for nodes in _mount_nodes(spec, split):
+        pts = split.p[:, nodes]
+        s = np.hypot(pts[0] - pts[0, 0], pts[1] - pts[1, 0])  # arc length along the straight segment
+        order = np.argsort(s)
+        s_sorted = s[order]
+        edge = np.diff(s_sorted)
+        half = np.zeros(s_sorted.size)
+        half[:-1] += 0.5 * edge
+        half[1:] += 0.5 * edge
+        diag[dofs[0, nodes[order]]] += stiffness_pa_per_m * TWO_PI * pts[0, order] * half
+    return sp.diags(diag).tocsr()
 
 
 def _selectors(spec: SpindleSpec, mesh: MeshTri, dofs: NDArray[np.int64]) -> NDArray[np.float64]:
@@ -338,18 +367,61 @@ def _selectors(spec: SpindleSpec, mesh: MeshTri, dofs: NDArray[np.int64]) -> NDA
     return c
 
 
-def build_growth_model(spec: SpindleSpec, fe: FEModel) -> GrowthModel:
+@dataclass(frozen=True)
+class MechanicsVariant:
+    """What a plant's mechanics change against the spindle description (all neutral by default).
+
+    ``fix``: the mount's fixing, None keeps ``[mechanics.mount].fix``; ``mount_spring_pa_per_m``: a radial
+    Winkler spring on the mounting face [N/m per m²] (only with an axial fix: between free and held);
+    ``region_alpha_scale`` / ``region_e_scale``: per region (in ``spec.regions`` order) factors on α and E;
+    ``floating``: False fuses the floating surfaces (a stuck rear bearing)."""
+
+    fix: str | None = None
+    mount_spring_pa_per_m: float = 0.0
+    region_alpha_scale: tuple[float, ...] | None = None
+    region_e_scale: tuple[float, ...] | None = None
+    floating: bool = True
+
+
+def _scaled(
+    spec: SpindleSpec, props: ElasticProperties, region: NDArray[np.int64], v: MechanicsVariant
+) -> ElasticProperties:
+    n = len(spec.regions)
+    a = np.ones(n) if v.region_alpha_scale is None else np.asarray(v.region_alpha_scale, dtype=float)
+    e = np.ones(n) if v.region_e_scale is None else np.asarray(v.region_e_scale, dtype=float)
+    if a.shape != (n,) or e.shape != (n,) or not (np.all(np.isfinite(a)) and np.all(e > 0)):
+        raise ThermoelasticError(f"variant: region scales must be {n} finite values (E scales > 0)")
+    return ElasticProperties(props.e_pa * e[region], props.nu, props.alpha_per_k * a[region])
+
+
+def build_growth_model(
+    spec: SpindleSpec, fe: FEModel, *, variant: MechanicsVariant | None = None
+) -> GrowthModel:
     """Assemble, constrain and factorise the thermoelastic model on ``fe``'s mesh; precompute the operators.
 
-    Cost: one sparse LU of about 2N dofs and one back-substitution per output (about a second at the default
-    mesh); afterwards every evaluation is ``operators @ ΔT``.
+    ``variant`` (a plant's own mechanics, ``model.plantmech``) changes the mount, α, E or the floating
+    bearing; None is the description as written. Cost: one sparse LU of about 2N dofs and one
+    back-substitution per output (about a second at the default mesh); afterwards every evaluation is
+    ``operators @ ΔT``.
     """
     mech = _mechanics(spec)
-    split = split_floating(spec, fe)
-    system = assemble_elasticity(split.p, split.t, element_properties(spec, fe.element_region))
+    v = variant if variant is not None else MechanicsVariant()
+    fix = mech.mount.fix if v.fix is None else v.fix
+    if fix not in ("axial", "axial_radial"):
+        raise ThermoelasticError(f"variant.fix: must be axial or axial_radial, got {fix!r}")
+    if not (np.isfinite(v.mount_spring_pa_per_m) and v.mount_spring_pa_per_m >= 0):
+        raise ThermoelasticError(
+            f"variant.mount_spring_pa_per_m: must be >= 0, got {v.mount_spring_pa_per_m}"
+        )
+    split = split_floating(spec, fe) if v.floating else _no_split(fe)
+    props = _scaled(spec, element_properties(spec, fe.element_region), fe.element_region, v)
+    system = assemble_elasticity(split.p, split.t, props)
+    if v.mount_spring_pa_per_m > 0 and fix == "axial":
+        spring = mount_spring(spec, split, system.dofs, v.mount_spring_pa_per_m)
+        system = ElasticSystem(system.mesh, (system.K + spring).tocsr(), system.B, system.dofs)
     solver = make_solver(
         system,
-        fixed=_fixed_dofs(spec, split, system.dofs),
+        fixed=_fixed_dofs(spec, split, system.dofs, fix),
         slaves=system.dofs[0, split.slaves],
         masters=system.dofs[0, split.masters],
         expand=split.expand,
@@ -363,3 +435,8 @@ def build_growth_model(spec: SpindleSpec, fe: FEModel) -> GrowthModel:
         operators=ops,
         solver=solver,
     )
+
+
+def _no_split(fe: FEModel) -> _Split:
+    empty = np.zeros(0, dtype=np.int64)
+    return _Split(fe.nodes_rz.T.copy(), fe.triangles.T.copy(), np.arange(fe.n_nodes), empty, empty)

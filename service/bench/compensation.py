@@ -3,14 +3,16 @@
 
 Data are SYNTHETIC, on duty cycles of the product's own making whose truth appears nowhere else: per seed a
 random smooth H(speed) curve per zone (``service.sim.randomtruth``, never ``model.plant.h_true``), the duty
-cycle of ``service.sim.duty`` (``--rest-min`` at rest, 30, then the speed changing every 1–6 min over
-0–7000 rpm, torque 3–15 N·m, ambient drifting ±1 °C), the virtual plant on its own finer mesh and time step,
-run clean and with per-channel offsets of ±0.2 °C. Scenarios per seed (``service.bench.compensation_run``):
-the normal run (both variants), a warm restart half-way with the stored state and one without, a 10-min DAQ
-outage with CAN alive, and 10 min with both devices down (offsets variant). Every minute the bench reads
-``SoftSensorService.compensation()`` and ``chtc()`` (what the API serves) and compares the axial growth and
-its 95 % CI with the plant's true growth (over the plant's cold uniform start: the controller zeroed cold) and
-each served H with the truth at the plant's speed then.
+cycle of ``service.sim.duty`` (``--rest-min`` at rest, 30, then the speed changing every 1–6 min over 0–7000
+rpm, torque 3–15 N·m, ambient drifting ±1 °C), the virtual plant on its own finer mesh and time step, run
+clean and with per-channel offsets of ±0.2 °C, with its own mechanics (``--plant-mechanics drawn``, the
+default: per seed a mount restraint between free and held and α factors within ±5 %, ``model.plantmech``; the
+service keeps its TOML's; ``nominal``: the plant shares them, as before issue 27). Scenarios per seed
+(``service.bench.compensation_run``): the normal run (both variants), a warm restart half-way with the stored
+state and one without, a 10-min DAQ outage with CAN alive, and 10 min with both devices down (offsets
+variant). Every minute the bench reads ``SoftSensorService.compensation()`` and ``chtc()`` (what the API
+serves) and compares the axial growth and its 95 % CI with the plant's true growth (over the plant's cold
+uniform start: the controller zeroed cold) and each served H with the truth at the plant's speed then.
 
 Figures (JSON keys), pooled over the seeds: ``usable_fraction`` (normal runs, minutes after the rest), the
 ``reasons`` when not usable, the axial |error| median / 95th percentile / max when usable, the CI coverage
@@ -46,6 +48,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=int,
         default=1,
         help="seeds run in this many processes at once (default 1; each takes one core and ~1 GiB)",
+    )
+    parser.add_argument(
+        "--plant-mechanics",
+        choices=("drawn", "nominal"),
+        default="drawn",
+        help="the plant's mechanics: drawn per seed (mount restraint, α ±5 %%; default) or nominal (the "
+        "service's own, the figures before issue 27)",
     )
     identmode.add_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
@@ -238,6 +247,7 @@ def seed_figures(seed: SeedRows, plan: Plan, box_hi: float) -> dict[str, Any]:
         },
         **outage_figures(seed, plan),
         "max_ci_bound_over_box": ci_bound_over_box([m for rows in seed.rows.values() for m in rows], box_hi),
+        "plant_mechanics": seed.mechanics,
         "wall_s": round(seed.wall_s, 1),
     }
 
@@ -313,6 +323,7 @@ def run_bench(
     overrides: dict[str, Any] | None = None,
     progress: Any = None,
     jobs: int = 1,
+    plant_mechanics: str = "drawn",
 ) -> dict[str, Any]:
     """The bench over ``seeds`` (module docstring), ``jobs`` seeds at a time in worker processes;
     ``ValueError`` for a bad option."""
@@ -334,12 +345,14 @@ def run_bench(
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(max_workers=min(jobs, len(seeds))) as pool:
-            futures = {pool.submit(_seed_job, s, hours, rest_min, mode, overrides): s for s in seeds}
+            futures = {
+                pool.submit(_seed_job, s, hours, rest_min, mode, overrides, plant_mechanics): s for s in seeds
+            }
             for fut in as_completed(futures):
                 done(futures[fut], fut.result())
         results = dict(sorted(results.items()))
     else:
-        plant = Plant(model.spec)
+        plant = Plant(model.spec, mechanics=plant_mechanics)
         for seed in seeds:
             done(seed, run_seed(model, settings, plant, seed, plan, progress=progress))
     box_hi = float(model.ref.h_box[1])
@@ -349,6 +362,7 @@ def run_bench(
         "settings": overrides or {},
         "seeds": len(seeds),
         "seed_list": seeds,
+        "plant_mechanics": plant_mechanics,
         "hours": hours,
         "plan_min": {
             "rest": plan.rest_min,
@@ -366,14 +380,17 @@ def run_bench(
     return out
 
 
-def _seed_job(seed: int, hours: float, rest_min: int, mode: str | None, overrides: Any) -> SeedRows:
+def _seed_job(
+    seed: int, hours: float, rest_min: int, mode: str | None, overrides: Any, plant_mechanics: str
+) -> SeedRows:
     """One seed in a worker process (``--jobs``): its own model, plant and service; no progress lines."""
     from service.bench.compensation_run import Plant
     from service.modelload import ModelRef, load_model
 
     settings = identmode.bench_settings(mode, overrides)
     model = load_model(ModelRef.from_settings(settings))
-    return run_seed(model, settings, Plant(model.spec), seed, plan_for(hours, rest_min=rest_min))
+    plant = Plant(model.spec, mechanics=plant_mechanics)
+    return run_seed(model, settings, plant, seed, plan_for(hours, rest_min=rest_min))
 
 
 # ------------------------------------------------------------------------------------------------ output
@@ -459,6 +476,7 @@ def main(args: argparse.Namespace) -> int:
             overrides=identmode.parse_sets(args.set),
             progress=progress_to_stderr,
             jobs=int(args.jobs),
+            plant_mechanics=str(args.plant_mechanics),
         )
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

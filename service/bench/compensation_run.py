@@ -5,8 +5,10 @@ Per seed and variant (``clean``; ``offsets``: per-channel offsets uniform in ±0
 (``model.plant.VirtualPlant``: its finer mesh, 2.5-s internal steps, σ = 0.15 °C) runs the seed's duty cycle
 (``service.sim.duty``: ``rest_min`` at rest, then the speed changing every 1–6 min over 0–7000 rpm) with the
 seed's random truth (``service.sim.randomtruth``, never ``model.plant.h_true``) and keeps its whole field
-every minute; the true axial growth is that field's through a growth model built on the plant's mesh, over the
-plant's uniform start (the controller zeroed cold). The service (``SoftSensorService``: shell, core, the
+every minute; the true axial growth is that field's through a growth model built on the plant's mesh with the
+plant's own mechanics (``--plant-mechanics drawn``, the default: the seed's mount restraint and α factors,
+``model.plantmech``, which the service does not know; ``nominal``: the description's), over the plant's
+uniform start (the controller zeroed cold). The service (``SoftSensorService``: shell, core, the
 identification inline, its own ``GrowthServer`` as ``chtc run`` builds it) sees the samples on a manual clock:
 
 - ``normal``: every sample (both variants);
@@ -113,17 +115,40 @@ def reason_code(snap: Any) -> str | None:
     return None if code is None else str(code.value)
 
 
+MECHANICS = ("drawn", "nominal")
+
+
 class Plant:
-    """The plant's mesh, its growth model (nose axial) and the runs of a seed."""
+    """The plant's mesh, its growth model (nose axial) and the runs of a seed.
 
-    def __init__(self, spec: Any) -> None:
+    ``mechanics`` "drawn" (default): each seed's plant has its own mechanics
+    (``model.plantmech.mechanics_for_seed``: mount restraint, α factors), unknown to the service, and its
+    true growth comes from them on the plant's mesh; "nominal": the description's own (the figures before
+    issue 27)."""
+
+    def __init__(self, spec: Any, *, mechanics: str = "drawn") -> None:
         from model.fem import build_fe_model
-        from model.thermoelastic import build_growth_model
 
+        if mechanics not in MECHANICS:
+            raise ValueError(f"--plant-mechanics: must be one of {MECHANICS}, got {mechanics!r}")
         self.spec = spec
+        self.mode = mechanics
         self.fe = build_fe_model(spec, mesh_size_m=spec.plant_mesh_size_m)
-        self.growth = build_growth_model(spec, self.fe)
-        self.row = self.growth.names.index("nose_axial")
+        self._growth: dict[int, Any] = {}
+
+    def mechanics(self, seed: int) -> Any:
+        """The seed's plant mechanics (``model.plantmech.PlantMechanics``)."""
+        from model.plantmech import PlantMechanics, mechanics_for_seed
+
+        return mechanics_for_seed(seed) if self.mode == "drawn" else PlantMechanics.nominal(self.spec)
+
+    def growth(self, seed: int) -> Any:
+        """The seed's plant growth model (built once per seed, shared by its variants)."""
+        from model.plantmech import build_plant_growth
+
+        if seed not in self._growth:
+            self._growth = {seed: build_plant_growth(self.spec, self.fe, self.mechanics(seed))}
+        return self._growth[seed]
 
     def run(self, seed: int, variant: str, profile: list[Any], truth: Any) -> tuple[Any, np.ndarray]:
         """The plant run (samples every 10 s, fields every minute) and the true axial growth [µm] per minute
@@ -133,11 +158,18 @@ class Plant:
         rng = np.random.default_rng([seed, VARIANTS.index(variant)])
         offsets = rng.uniform(-OFFSET_C, OFFSET_C, 32) if variant == "offsets" else None
         plant = VirtualPlant(
-            self.spec, fe=self.fe, offsets_c=offsets, h_law=truth, seed=int(rng.integers(2**31))
+            self.spec,
+            fe=self.fe,
+            offsets_c=offsets,
+            h_law=truth,
+            seed=int(rng.integers(2**31)),
+            mechanics=self.mechanics(seed),
+            growth=self.growth(seed),
         )
         run = plant.run(profile, dt_s=DT_S, keep_fields_every=PER_MIN)
         t_ref = float(run.fields_c[0].mean())
-        growth = np.asarray(self.growth.growth_um(run.fields_c, t_ref))[:, self.row]
+        row = plant.growth.names.index("nose_axial")
+        growth = np.asarray(plant.growth_um(run.fields_c, t_ref))[:, row]
         return run, growth
 
 
@@ -310,6 +342,7 @@ class SeedRows:
     rows: dict[str, list[Minute]] = field(default_factory=dict)
     both_ticks: list[tuple[float, bool]] = field(default_factory=list)
     ref_before_restart: float | None = None
+    mechanics: dict[str, float] = field(default_factory=dict)  # the plant's (``PlantMechanics.as_dict``)
     wall_s: float = 0.0
 
 
@@ -332,7 +365,7 @@ def run_seed(
     started = time.perf_counter()
     truth = draw_truth(np.random.default_rng([seed, 7]))
     profile = duty_profile(seed, duration_s=60.0 * plan.total_min, idle_s=60.0 * plan.rest_min)
-    out = SeedRows()
+    out = SeedRows(mechanics=plant.mechanics(seed).as_dict())
     for variant in VARIANTS:
         run, growth = plant.run(seed, variant, profile, truth)
         samples = samples_from_plant(run, t0_s=T0)

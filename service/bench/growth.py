@@ -21,7 +21,10 @@ settings (``service.bench.identmode``; default: the settings'), reported as ``mo
 Profiles: ``chain`` (the chain bench's: idle,
 3000/4000/5000 rpm for 45 min each) and ``duty`` (5 min idle, 45 min at 4000 rpm so that an identification
 exists, then 90 min of speed changes every 1-6 min, 0-7000 rpm, torque 3-15 N·m, ambient drifting ±1 °C;
-seeded). The reference temperature is the plant's uniform start (the controller is zeroed cold).
+seeded). The plant has its own mechanics (``--plant-mechanics drawn``, the default: per seed a mount restraint
+between free and held and α factors within ±5 %, ``model.plantmech``; the service keeps its TOML's;
+``nominal``: the plant shares them). The reference temperature is the plant's uniform start (the controller
+is zeroed cold).
 
 Figures: |axial error| median and max [µm], 95 % CI coverage (axial, radial), the steady-state forecast's
 coverage at the end of every held condition (≥ 30 min), the forecast's error at 5/15/30 min where the plant's
@@ -64,6 +67,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--profiles", default="chain,duty", help="comma-separated: chain, duty (default both)"
     )
     parser.add_argument("--every-s", type=float, default=60.0, help="evaluation period [s] (default 60)")
+    parser.add_argument(
+        "--plant-mechanics",
+        choices=("drawn", "nominal"),
+        default="drawn",
+        help="the plant's mechanics: drawn per seed (mount restraint, α ±5 %%; default) or nominal (the "
+        "service's own, the figures before issue 27)",
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     identmode.add_arguments(parser)
 
@@ -102,22 +112,40 @@ class _Rows:
 
 
 class _Plant:
-    """The plant's mesh, its growth model and its steady growth per condition (cached)."""
+    """The plant's mesh, its growth model and its steady growth per condition (cached).
 
-    def __init__(self, spec: Any) -> None:
+    ``mechanics`` "drawn" (default): each seed's plant has its own mechanics
+    (``model.plantmech.mechanics_for_seed``), unknown to the service; "nominal": the description's own."""
+
+    def __init__(self, spec: Any, *, mechanics: str = "drawn") -> None:
         from model.fem import build_fe_model
-        from model.thermoelastic import build_growth_model
 
+        if mechanics not in ("drawn", "nominal"):
+            raise ValueError(f"--plant-mechanics: must be drawn or nominal, got {mechanics!r}")
         self.spec = spec
+        self.mode = mechanics
         self.fe = build_fe_model(spec, mesh_size_m=spec.plant_mesh_size_m)
-        self.growth = build_growth_model(spec, self.fe)
-        self.rows = [self.growth.names.index(n) for n in ("nose_axial", "nose_radial")]
+        self.growth: Any = None
+        self.rows: list[int] = []
+        self.seed: int | None = None
         self._steady: dict[tuple[float, float, float], np.ndarray] = {}
+
+    def use(self, seed: int) -> None:
+        """Build the growth model of seed ``seed``'s plant mechanics (once per seed in a row)."""
+        from model.plantmech import PlantMechanics, build_plant_growth, mechanics_for_seed
+
+        if self.seed == seed and self.growth is not None:
+            return
+        mech = mechanics_for_seed(seed) if self.mode == "drawn" else PlantMechanics.nominal(self.spec)
+        self.growth = build_plant_growth(self.spec, self.fe, mech)
+        self.rows = [self.growth.names.index(n) for n in ("nose_axial", "nose_radial")]
+        self.seed = seed
 
     def run(self, profile: Any, seed: int, every: int) -> Any:
         from model.plant import Segment, VirtualPlant
 
-        plant = VirtualPlant(self.spec, seed=seed, fe=self.fe)
+        self.use(seed)
+        plant = VirtualPlant(self.spec, seed=seed, fe=self.fe, growth=self.growth)
         return plant.run([Segment(*s) for s in profile], dt_s=DT_S, keep_fields_every=every)
 
     def growth_um(self, field_c: np.ndarray, t_ref_c: float) -> np.ndarray:
@@ -310,6 +338,7 @@ def run(
     ident_mode: str | None = None,
     overrides: dict[str, Any] | None = None,
     progress: Any = None,
+    plant_mechanics: str = "drawn",
 ) -> dict[str, Any]:
     from service.engine.runtime import core_config
     from service.estimate.growth import build_context
@@ -324,7 +353,7 @@ def run(
     config = core_config(settings)
     started = time.perf_counter()
     ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
-    plant = _Plant(model.spec)
+    plant = _Plant(model.spec, mechanics=plant_mechanics)
     per: dict[str, list[_Rows]] = {}
     last: _Evaluator | None = None
     for name in profiles:
@@ -342,6 +371,7 @@ def run(
         "mode": settings.experimental.mode,
         "settings": overrides or {},
         "seeds": seeds,
+        "plant_mechanics": plant_mechanics,
         "every_s": every * DT_S,
     }
     out |= summarise(_merge([r for rows in per.values() for r in rows]))
@@ -408,6 +438,7 @@ def main(args: argparse.Namespace) -> int:
             ident_mode=args.ident_mode,
             overrides=identmode.parse_sets(args.set),
             progress=lambda m: print(m, file=sys.stderr, flush=True),
+            plant_mechanics=str(args.plant_mechanics),
         )
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -38,3 +38,9 @@ def test_registered_as_a_bench() -> None:
     )
     assert args._module.__name__ == "service.bench.growth" and args.seeds == 2 and args.json
     assert CHAIN[0][1] == 0.0  # starts idle and cold, like the chain bench
+
+
+def test_plant_mechanics_option_defaults_to_drawn() -> None:
+    parse = build_parser(["bench", "growth"]).parse_args
+    assert parse(["bench", "growth"]).plant_mechanics == "drawn"
+    assert parse(["bench", "growth", "--plant-mechanics", "nominal"]).plant_mechanics == "nominal"

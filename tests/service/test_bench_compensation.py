@@ -187,7 +187,7 @@ def test_h_figures_flag_misses_only_among_flags() -> None:
 
 @pytest.mark.slow
 def test_one_short_seed_through_the_service() -> None:
-    out = cb.run_bench([2], hours=0.9, rest_min=10)
+    out = cb.run_bench([2], hours=0.9, rest_min=10, plant_mechanics="nominal")  # the service's mechanics
     for key in (
         "usable_fraction",
         "reasons",
@@ -209,6 +209,7 @@ def test_one_short_seed_through_the_service() -> None:
     ):
         assert key in out
     assert out["seeds"] == 1 and set(out["per_seed"]) == {"2"}
+    assert out["plant_mechanics"] == "nominal" and out["per_seed"]["2"]["plant_mechanics"]["restraint"] == 0.0
     assert out["rest_truth_um_max"] < 0.05  # the plant at rest from a uniform start: no growth
     assert 0.0 <= out["usable_fraction"] <= 1.0 and out["minutes"] == 2 * 45
     assert len(out["h_coverage"]) == 7 and all(c is None or 0.0 <= c <= 1.0 for c in out["h_coverage"])
@@ -232,3 +233,13 @@ def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFi
     assert "--hours" in capsys.readouterr().out
     assert cli.main(["bench", "compensation", "--seeds", "0"]) == 2
     assert cli.main(["bench", "compensation", "--hours", "0.5"]) == 2
+
+
+def test_plant_mechanics_option_defaults_to_drawn() -> None:
+    from service import cli
+
+    parse = cli.build_parser(["bench", "compensation"]).parse_args
+    assert parse(["bench", "compensation"]).plant_mechanics == "drawn"
+    assert parse(["bench", "compensation", "--plant-mechanics", "nominal"]).plant_mechanics == "nominal"
+    with pytest.raises(SystemExit):
+        parse(["bench", "compensation", "--plant-mechanics", "random"])
