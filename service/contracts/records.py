@@ -460,6 +460,52 @@ class LiveStateData:
         }
 
 
+@dataclass(frozen=True, kw_only=True, eq=False)
+class MechanicsCalibrationData:
+    """A commissioning of the growth's mechanics (``service.estimate.mechanics.MechanicsCalibration``): when
+    (UTC), how (``source``) and by whom, θ = (restraint, α shaft, α housing) and its covariance (3×3, row
+    major), the fit's residual RMS and max [µm], its verdict, the SHA-256 of the test's files and the report."""
+
+    at: datetime
+    set_by: str
+    source: str
+    restraint: float
+    alpha_shaft: float
+    alpha_housing: float
+    cov: list[list[float]]
+    residual_rms_um: float
+    residual_max_um: float
+    explained: bool
+    temperatures_sha256: str
+    canlog_sha256: str | None
+    displacements_sha256: str
+    report: dict[str, JsonValue]
+
+    def __post_init__(self) -> None:
+        _check_times(self)
+        vals = (self.restraint, self.alpha_shaft, self.alpha_housing, *(v for r in self.cov for v in r))
+        if not all(math.isfinite(v) for v in vals) or len(self.cov) != 3:
+            raise RecordError("MechanicsCalibrationData: θ and its 3×3 covariance must be finite")
+
+    def values(self) -> dict[str, Column]:
+        return {
+            "at": self.at,
+            "set_by": self.set_by[:64],
+            "source": self.source[:16],
+            "restraint": float(self.restraint),
+            "alpha_shaft": float(self.alpha_shaft),
+            "alpha_housing": float(self.alpha_housing),
+            "cov": [float(v) for r in self.cov for v in r],  # row major
+            "residual_rms_um": finite(self.residual_rms_um),
+            "residual_max_um": finite(self.residual_max_um),
+            "explained": bool(self.explained),
+            "temperatures_sha256": self.temperatures_sha256[:64],
+            "canlog_sha256": None if self.canlog_sha256 is None else self.canlog_sha256[:64],
+            "displacements_sha256": self.displacements_sha256[:64],
+            "report": _plain_dict(self.report),
+        }
+
+
 Record = (
     ConditionStart
     | ConditionEnd
@@ -469,6 +515,7 @@ Record = (
     | OffsetCalibrationData
     | CompensationReferenceData
     | LiveStateData
+    | MechanicsCalibrationData
 )
 RECORD_TYPES = (
     ConditionStart,
@@ -479,6 +526,7 @@ RECORD_TYPES = (
     OffsetCalibrationData,
     CompensationReferenceData,
     LiveStateData,
+    MechanicsCalibrationData,
 )
 
 

@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 from service.acquire.calibration import Calibration, CalibrationConfig
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.estimate.checkpoint import LiveCheckpoint
+from service.estimate.mechanics import MechanicsCalibration
 from service.estimate.reference import CompensationReference
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
@@ -69,3 +70,4 @@ class Restored:
     map_last: IdentificationRecord | None = None  # its identification (``last`` unless combined mode)
     reference: CompensationReference | None = None  # the newest stored compensation zero
     live: LiveCheckpoint | None = None  # the live state's stored checkpoint (the filter resumes from it)
+    mechanics: MechanicsCalibration | None = None  # the newest stored commissioning of the mechanics

@@ -42,6 +42,7 @@ if TYPE_CHECKING:
 
     from service.acquire.calibration import Calibration
     from service.estimate.checkpoint import LiveCheckpoint
+    from service.estimate.mechanics import MechanicsCalibration
     from service.estimate.reference import CompensationReference
     from service.identify.speedmap import SpeedMap
     from service.settings import DatabaseSettings
@@ -101,10 +102,12 @@ def restore(
         conditions = tuple(condition_from_row(c, state=ConditionState.STABLE) for c in rows)
         calibration = _restore_calibration(session, on_problem)
         reference = _restore_reference(session, on_problem)
+        mechanics = _restore_mechanics(session, on_problem)
         live = _restore_live(session, on_problem)
     return Restored(
         live=live,
         reference=reference,
+        mechanics=mechanics,
         speed_map=_restore_map(map_last, on_problem),
         map_last=map_last,
         calibration=calibration,
@@ -174,6 +177,15 @@ def _restore_reference(
 
     then = "/compensation is not usable until one is set"
     return _restore_or_report(restore_reference, session, "compensation zero", then, on_problem)
+
+
+def _restore_mechanics(
+    session: Session, on_problem: Callable[[str], None] | None
+) -> MechanicsCalibration | None:
+    from service.store.mechanics import restore_mechanics
+
+    then = "the growth is served with the described mechanics, uncalibrated"
+    return _restore_or_report(restore_mechanics, session, "mechanics calibration", then, on_problem)
 
 
 def _restore_live(session: Session, on_problem: Callable[[str], None] | None) -> LiveCheckpoint | None:

@@ -17,7 +17,7 @@ and backward Euler at Δt (the service's discretisation, μ_k = 1/(1 + Δt/τ_k)
 where the part of g·(T − T_ss) outside the k modes decays like the fastest computed mode μ_* (its modes
 are all faster). Its error against a full backward-Euler march is tested (``tests/estimate``).
 
-Uncertainty, each part reported and combined as independent (σ² = σ_field² + σ_H²):
+Uncertainty, each part reported and combined as independent (σ² = σ_field² + σ_H² + σ_mech²):
 
 - field part: the live state's belief (``FieldBelief``): a reduced covariance P (r, r) (the Kalman filter's,
   ``model.estimator``; a carried ensemble's, ``model.carry``), reduced ensemble deviations, a nodal factor
@@ -28,6 +28,9 @@ Uncertainty, each part reported and combined as independent (σ² = σ_field² +
   field's belief does not already contain H's error (``FieldBelief.includes_h``, true for the Kalman filter
   with considered H and for a carried ensemble, whose members ran with their own H); otherwise the steady
   Jacobian stands in for the current field's (exact at steady state, an over-estimate early in a warm-up).
+- mechanical part (only with a commissioned calibration, ``with_mechanics``): the posterior of the mount
+  restraint and the α factors (``service.estimate.mechanics``) through ∂g/∂θ·(T − T_ref); exact now and at
+  steady state; at a horizon the larger of the two (the field between them is not formed).
 
 Errors::
 
@@ -37,7 +40,7 @@ Errors::
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 
 import numpy as np
@@ -69,6 +72,7 @@ __all__ = [
     "estimate_growth",
     "h_cov_from_ci",
     "plc_compensation",
+    "with_mechanics",
 ]
 
 Array = NDArray[np.float64]
@@ -94,6 +98,32 @@ class GrowthContext:
     g: Array
     phi: Array | None
     g_phi: Array | None
+    # a commissioned calibration (``with_mechanics``): ∂g/∂θ (2, 3, N), its reduced (2, 3, r), Σ_θ (3, 3)
+    g_mech: Array | None = None
+    g_mech_phi: Array | None = None
+    cov_mech: Array | None = None
+
+
+def with_mechanics(ctx: GrowthContext, operators: ArrayLike, jacobian: ArrayLike, cov: ArrayLike) -> GrowthContext:
+    """``ctx`` with the calibrated operators g(θ) (2, N), their Jacobian ∂g/∂θ (2, 3, N) and the posterior
+    Σ_θ (3, 3) (``service.estimate.mechanics``); the growth model (section drawing) keeps its own."""
+    g = np.asarray(operators, dtype=float)
+    jac = np.asarray(jacobian, dtype=float)
+    c = np.asarray(cov, dtype=float)
+    n = ctx.fe.n_nodes
+    if g.shape != (2, n) or jac.shape != (2, 3, n) or c.shape != (3, 3):
+        raise GrowthEstimateError(
+            f"mechanics: expected operators (2, {n}), jacobian (2, 3, {n}), cov (3, 3); "
+            f"got {g.shape}, {jac.shape}, {c.shape}"
+        )
+    return replace(
+        ctx,
+        g=g,
+        g_phi=None if ctx.phi is None else g @ ctx.phi,
+        g_mech=jac,
+        g_mech_phi=None if ctx.phi is None else np.einsum("opn,nr->opr", jac, ctx.phi),
+        cov_mech=0.5 * (c + c.T),
+    )
 
 
 def build_context(
@@ -348,8 +378,8 @@ def _field_std(nodal: Array, reduced: Array | None, b: FieldBelief) -> Array:
 
 @dataclass(frozen=True, kw_only=True)
 class GrowthValue:
-    """One growth [µm] with its 1σ parts (field, H), total 1σ, 95 % CIs (total and each part alone) and
-    the value in 0.1 µm as an integer for a PLC."""
+    """One growth [µm] with its 1σ parts (field, H, mechanics), total 1σ, 95 % CIs (total and each part
+    alone) and the value in 0.1 µm as an integer for a PLC."""
 
     um: float
     std_field_um: float
@@ -359,11 +389,13 @@ class GrowthValue:
     ci95_field_um: tuple[float, float]
     ci95_h_um: tuple[float, float]
     plc_0p1um: int
+    std_mech_um: float = 0.0
+    ci95_mech_um: tuple[float, float] = (0.0, 0.0)
 
     @classmethod
-    def of(cls, um: float, std_field_um: float, std_h_um: float) -> GrowthValue:
-        """The value with both parts combined as independent."""
-        total = float(np.hypot(std_field_um, std_h_um))
+    def of(cls, um: float, std_field_um: float, std_h_um: float, std_mech_um: float = 0.0) -> GrowthValue:
+        """The value with the parts combined as independent."""
+        total = float(np.sqrt(std_field_um**2 + std_h_um**2 + std_mech_um**2))
 
         def ci(s: float) -> tuple[float, float]:
             return (float(um - Z95 * s), float(um + Z95 * s))
@@ -377,6 +409,8 @@ class GrowthValue:
             ci95_field_um=ci(std_field_um),
             ci95_h_um=ci(std_h_um),
             plc_0p1um=int(np.rint(10.0 * um)),
+            std_mech_um=float(std_mech_um),
+            ci95_mech_um=ci(std_mech_um),
         )
 
 
@@ -449,6 +483,8 @@ def estimate_growth(
     h_now = np.zeros(2) if belief.includes_h else _h_std(terms.jg, terms.cov_h)
     steady = terms.steady_um - g1 * t_ref_c
     h_ss = _h_std(terms.jg, terms.cov_h)
+    m_now, m_ss = _mech_std(ctx, x, reduced_mean, terms.t_ss, t_ref_c)
+    m_hz = np.maximum(m_now, m_ss)
     axial, radial = [], []
     for i in range(terms.horizons_s.size):
         wx = (terms.w_phi[i] if reduced_mean and terms.w_phi is not None else terms.w[i]) @ x
@@ -457,13 +493,13 @@ def estimate_growth(
             _field_std(terms.w[i], None if terms.w_phi is None else terms.w_phi[i], belief), ref_std
         )
         s_h = _h_std(terms.jw[i], terms.cov_h)
-        axial.append(GrowthValue.of(y[0], s_f[0], s_h[0]))
-        radial.append(GrowthValue.of(y[1], s_f[1], s_h[1]))
+        axial.append(GrowthValue.of(y[0], s_f[0], s_h[0], m_hz[0]))
+        radial.append(GrowthValue.of(y[1], s_f[1], s_h[1], m_hz[1]))
     proj = terms.modes_e_phi @ x if reduced_mean and terms.modes_e_phi is not None else terms.modes_e.T @ x
     gap = terms.modes_g[0] * (proj - terms.modes_ss)
     forecast = GrowthForecastEstimate(
-        steady_axial=GrowthValue.of(steady[0], ref_std[0], h_ss[0]),
-        steady_radial=GrowthValue.of(steady[1], ref_std[1], h_ss[1]),
+        steady_axial=GrowthValue.of(steady[0], ref_std[0], h_ss[0], m_ss[0]),
+        steady_radial=GrowthValue.of(steady[1], ref_std[1], h_ss[1], m_ss[1]),
         tau_s=float(terms.tau_s[int(np.argmax(np.abs(gap)))]),
         slowest_tau_s=float(terms.tau_s[0]),
         horizons_s=tuple(float(v) for v in terms.horizons_s),
@@ -473,14 +509,35 @@ def estimate_growth(
     return GrowthEstimate(
         at=at.astimezone(UTC),
         t_ref_c=float(t_ref_c),
-        axial=GrowthValue.of(now[0], std_now[0], h_now[0]),
-        radial=GrowthValue.of(now[1], std_now[1], h_now[1]),
+        axial=GrowthValue.of(now[0], std_now[0], h_now[0], m_now[0]),
+        radial=GrowthValue.of(now[1], std_now[1], h_now[1], m_now[1]),
         forecast=forecast,
         sensitivity_axial_um_per_k=tuple(float(v) for v in terms.sens[0]),
         sensitivity_radial_um_per_k=tuple(float(v) for v in terms.sens[1]),
         h=tuple(float(v) for v in terms.h),
         ambient_c=terms.ambient_c,
     )
+
+
+def _mech_std(
+    ctx: GrowthContext, x: Array, reduced_mean: bool, t_ss: Array, t_ref_c: float
+) -> tuple[Array, Array]:
+    """The mechanical 1σ (2,) [µm] now (field ``x``, nodal or reduced) and at the steady field ``t_ss``, over
+    the uniform ``t_ref_c``; zeros without a calibration in ``ctx``."""
+    if ctx.g_mech is None or ctx.cov_mech is None:
+        return np.zeros(2), np.zeros(2)
+    ones = ctx.g_mech.sum(axis=2) * t_ref_c  # (2, 3)
+    if reduced_mean and ctx.g_mech_phi is not None:
+        j_now = ctx.g_mech_phi @ x - ones
+    else:
+        j_now = ctx.g_mech @ x - ones
+    j_ss = ctx.g_mech @ t_ss - ones
+
+    def std(j: Array) -> Array:
+        var = np.einsum("op,pq,oq->o", j, ctx.cov_mech, j)
+        return np.asarray(np.sqrt(np.maximum(var, 0.0)))
+
+    return std(j_now), std(j_ss)
 
 
 # ---------------------------------------------------------------- controller values

@@ -1,7 +1,8 @@
 """SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` and ``0002``).
 
 Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``, (migration ``0002``)
-``offset_calibrations``, (``0003``) ``compensation_references`` and (``0004``) ``live_state``. Every
+``offset_calibrations``, (``0003``) ``compensation_references``, (``0004``) ``live_state`` and (``0005``)
+``mechanics_calibrations``. Every
 timestamp is :class:`~service.store.types.UtcDateTime` (aware UTC in and out, on SQLite too).
 Units: °C, rpm, N·m, W/(m²·K), s.
 
@@ -172,6 +173,29 @@ class CompensationReferenceRow(Base):
     sd_c: Mapped[float]  # its 1σ, °C (0: given by an operator)
     source: Mapped[str] = mapped_column(String(16))  # "api" | "cli" | "first_start" | "config"
     set_by: Mapped[str] = mapped_column(String(64))
+
+
+class MechanicsCalibrationRow(Base):
+    """A commissioning of the growth's mechanics (``service.estimate.mechanics.MechanicsCalibration``); the
+    newest is restored and serves ``/compensation``."""
+
+    __tablename__ = "mechanics_calibrations"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    at: Mapped[datetime] = mapped_column(index=True)  # when the calibration was made
+    set_by: Mapped[str] = mapped_column(String(64))
+    source: Mapped[str] = mapped_column(String(16))  # "cli" | "api"
+    restraint: Mapped[float]  # mount radial restraint s in [0, 1]
+    alpha_shaft: Mapped[float]  # α factor of the shaft's material
+    alpha_housing: Mapped[float]  # α factor of the housing's material
+    cov: Mapped[list[float | None]] = mapped_column(JSON)  # 3×3 posterior covariance of θ, row major
+    residual_rms_um: Mapped[float | None]
+    residual_max_um: Mapped[float | None]
+    explained: Mapped[bool] = mapped_column(Boolean)  # the fit's verdict: the model explains the test
+    temperatures_sha256: Mapped[str] = mapped_column(String(64))
+    canlog_sha256: Mapped[str | None] = mapped_column(String(64))
+    displacements_sha256: Mapped[str] = mapped_column(String(64))
+    report: Mapped[dict[str, JsonValue]] = mapped_column(JSON)  # the whole report (JSON)
 
 
 class LiveStateRow(Base):

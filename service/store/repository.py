@@ -21,6 +21,7 @@ from sqlalchemy.sql import Select
 
 from service.contracts.records import (
     CompensationReferenceData,
+    MechanicsCalibrationData,
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
@@ -34,6 +35,7 @@ from service.store.errors import RecordNotFoundError
 from service.store.models import (
     Base,
     CompensationReferenceRow,
+    MechanicsCalibrationRow,
     Condition,
     DeviceEvent,
     Identification,
@@ -77,6 +79,7 @@ _TABLE_OF: dict[type, type] = {
     OffsetCalibrationData: OffsetCalibrationRow,
     CompensationReferenceData: CompensationReferenceRow,
     LiveStateData: LiveStateRow,
+    MechanicsCalibrationData: MechanicsCalibrationRow,
 }
 
 
@@ -274,6 +277,14 @@ def last_compensation_reference(session: Session) -> CompensationReferenceRow | 
     """The newest compensation zero (latest ``at``, then highest id); None if none was ever set."""
     query = select(CompensationReferenceRow).order_by(
         CompensationReferenceRow.at.desc(), CompensationReferenceRow.id.desc()
+    )
+    return session.scalars(query.limit(1)).first()
+
+
+def last_mechanics_calibration(session: Session) -> MechanicsCalibrationRow | None:
+    """The newest commissioning of the mechanics (latest ``at``, then highest id); None if none."""
+    query = select(MechanicsCalibrationRow).order_by(
+        MechanicsCalibrationRow.at.desc(), MechanicsCalibrationRow.id.desc()
     )
     return session.scalars(query.limit(1)).first()
 

@@ -1,0 +1,520 @@
+"""Commissioning the growth's mechanics from a measured thermal test (issue 27, docs/commissioning.md).
+
+An ISO 230-3 style test records the spindle's temperatures (the DAQ's CSV), its speed and torque (the CAN log)
+and the nose's displacement (a capacitive sensor on a test mandrel: ``DISPLACEMENTS``, a CSV of UTC time and
+axial, optionally radial, µm). ``commission_growth``:
+
+1. reads the displacement CSV (``read_displacement_csv``: any rate, empty cells allowed, a bad line named);
+2. runs the service's own core over the temperature CSV and the CAN log (``service.engine.offline``, the
+   same samples as ``chtc identify`` and ``chtc replay``), so the field is the **service's** filtered live
+   state, as it would be served, not a plant's truth; keeps its reduced mean at each sample;
+3. forms the fit's features (``model.growthfit``: each mount/α operator applied to the field's rise over the
+   test's zero, the first converged field's uniform temperature), interpolated (linearly) to the
+   displacement times inside the converged span;
+4. fits the restraint, the α factors, the fixture offset and the drift (``model.growthfit.fit_mechanics``);
+5. judges it (``judge_fit``): the residual RMS and max against their limits, per phase (heat-up: the spindle
+   turning; cool-down: at rest), a parameter at its bound, a restraint the test did not determine.
+
+Errors (``CommissioningError`` is reported by the commands as one line; the API answers 422)::
+
+    CommissioningError(ServiceError, ValueError)
+    └── DisplacementFormatError     the displacement CSV: file, line and field named
+"""
+
+from __future__ import annotations
+
+import csv
+import hashlib
+import io
+import math
+import time
+from collections.abc import Sequence
+from dataclasses import dataclass, field
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
+from numpy.typing import NDArray
+
+from model.growthfit import PARAMS, MechanicsBasis, MechanicsFitResult, MechanicsPrior, fit_mechanics
+from service.errors import ServiceError
+from service.estimate.mechanics import MECH_PARAMS, MechanicsCalibration, ServedMechanicsBasis
+
+if TYPE_CHECKING:
+    from service.modelload import LoadedModel
+    from service.settings import Settings
+
+__all__ = [
+    "CommissionReport",
+    "CommissioningError",
+    "DisplacementFormatError",
+    "Displacements",
+    "FitLimits",
+    "FieldHistory",
+    "commission_growth",
+    "judge_fit",
+    "read_displacement_csv",
+    "sha256_file",
+]
+
+Array = NDArray[np.float64]
+TIME_COLUMNS = ("time", "utc", "at", "timestamp")
+AXIAL, RADIAL = "axial_um", "radial_um"
+RUNNING_RPM = 100.0  # above: the spindle turns (heat-up); below: at rest (cool-down)
+MISSING = ("", "nan", "na", "n/a", "-")
+
+
+class CommissioningError(ServiceError, ValueError):
+    """Input a commissioning cannot use; the message names the file, line or field."""
+
+
+class DisplacementFormatError(CommissioningError):
+    """A displacement CSV that cannot be read; the message names the file, line and field."""
+
+
+# ---------------------------------------------------------------- the displacement CSV
+
+
+@dataclass(frozen=True)
+class Displacements:
+    """The measured nose displacement: ``t_s`` (n,) UTC epoch [s], ``axial_um`` (n,) and ``radial_um`` (n,)
+    or None [µm] (NaN: missing)."""
+
+    t_s: Array
+    axial_um: Array
+    radial_um: Array | None
+
+
+def _parse_time(path: str, lineno: int, text: str) -> float:
+    raw = text.strip()
+    try:
+        at = datetime.fromisoformat(raw.replace("Z", "+00:00").replace("z", "+00:00"))
+    except ValueError as err:
+        raise DisplacementFormatError(
+            f"{path}:{lineno}: time: not an ISO-8601 time: {raw!r} (e.g. 2026-11-27T08:00:00Z)"
+        ) from err
+    off = at.utcoffset()
+    if off is None or off.total_seconds() != 0.0:
+        raise DisplacementFormatError(
+            f"{path}:{lineno}: time: {raw!r} is not UTC; write it with Z or +00:00 (no local times)"
+        )
+    return at.timestamp()
+
+
+def _parse_um(path: str, lineno: int, name: str, text: str) -> float:
+    raw = text.strip()
+    if raw.lower() in MISSING:
+        return math.nan
+    try:
+        v = float(raw)
+    except ValueError as err:
+        raise DisplacementFormatError(f"{path}:{lineno}: {name}: not a number: {raw!r}") from err
+    if not math.isfinite(v):
+        return math.nan
+    return v
+
+
+def parse_displacement_csv(text: str, name: str = "DISPLACEMENTS") -> Displacements:
+    """The displacement CSV's text (see ``read_displacement_csv``)."""
+    rows = [(i, r) for i, r in enumerate(csv.reader(io.StringIO(text)), start=1)]
+    rows = [(i, r) for i, r in rows if r and not r[0].lstrip().startswith("#") and any(c.strip() for c in r)]
+    if not rows:
+        raise DisplacementFormatError(f"{name}: empty file (expected a header: time,{AXIAL}[,{RADIAL}])")
+    head_line, header = rows[0]
+    cols = [c.strip().lower() for c in header]
+    t_col = next((cols.index(c) for c in TIME_COLUMNS if c in cols), None)
+    if t_col is None:
+        raise DisplacementFormatError(
+            f"{name}:{head_line}: header: no time column (one of {', '.join(TIME_COLUMNS)}); got {header}"
+        )
+    if AXIAL not in cols:
+        raise DisplacementFormatError(f"{name}:{head_line}: header: missing column {AXIAL!r}; got {header}")
+    a_col = cols.index(AXIAL)
+    r_col = cols.index(RADIAL) if RADIAL in cols else None
+    t, ax, rad = [], [], []
+    for lineno, r in rows[1:]:
+        if len(r) < len(cols):
+            raise DisplacementFormatError(
+                f"{name}:{lineno}: expected {len(cols)} fields ({','.join(cols)}), got {len(r)}"
+            )
+        t.append(_parse_time(name, lineno, r[t_col]))
+        ax.append(_parse_um(name, lineno, AXIAL, r[a_col]))
+        rad.append(_parse_um(name, lineno, RADIAL, r[r_col]) if r_col is not None else math.nan)
+    if not t:
+        raise DisplacementFormatError(f"{name}: no data rows after the header")
+    order = np.argsort(np.asarray(t), kind="stable")
+    tt = np.asarray(t)[order]
+    if np.any(np.diff(tt) == 0.0):
+        k = int(np.flatnonzero(np.diff(tt) == 0.0)[0])
+        raise DisplacementFormatError(f"{name}: time: two rows at the same instant ({tt[k]:.3f} s epoch)")
+    axial = np.asarray(ax)[order]
+    if not np.any(np.isfinite(axial)):
+        raise DisplacementFormatError(f"{name}: {AXIAL}: no value in any row")
+    radial = np.asarray(rad)[order] if r_col is not None else None
+    return Displacements(t_s=tt, axial_um=axial, radial_um=radial)
+
+
+def read_displacement_csv(path: str | Path) -> Displacements:
+    """Read ``path``: a header with a time column (``time``, ``utc``, ``at`` or ``timestamp``: ISO-8601 UTC,
+    ``Z`` or ``+00:00``), ``axial_um`` and optionally ``radial_um`` [µm], one row per reading at any rate;
+    an empty cell (or ``nan``) is a missing value; ``#`` lines are comments. ``DisplacementFormatError``
+    naming the file, line and field for anything else."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8-sig")
+    except UnicodeDecodeError as err:
+        raise DisplacementFormatError(f"{p}: not a UTF-8 text CSV ({err.reason})") from err
+    except OSError as err:
+        raise DisplacementFormatError(f"{p}: cannot read: {err.strerror or err}") from err
+    return parse_displacement_csv(text, str(p))
+
+
+def sha256_file(path: str | Path) -> str:
+    """The file's SHA-256 (hex)."""
+    h = hashlib.sha256()
+    with Path(path).open("rb") as f:
+        for chunk in iter(lambda: f.read(1 << 20), b""):
+            h.update(chunk)
+    return h.hexdigest()
+
+
+# ---------------------------------------------------------------- the service's field over the test
+
+
+@dataclass(frozen=True)
+class FieldHistory:
+    """The service's filtered live state over the test: ``t_s`` (n,) epoch [s], reduced ``states`` (n, r)
+    [°C], ``converged`` (n,), the spindle ``speed_rpm`` (n,) held by the live state."""
+
+    t_s: Array
+    states: Array
+    converged: NDArray[np.bool_]
+    speed_rpm: Array
+
+
+def field_history(model: LoadedModel, settings: Settings, temperatures: Path, canlog: Path | None) -> FieldHistory:
+    """Run the service's core over the logs (``run_offline``: the same samples, live state and
+    identifications as ``chtc identify``) and keep the live state after every sample."""
+    from service.engine.offline import run_offline
+    from service.engine.runtime import core_config
+    from service.sim.logsamples import samples_from_logs
+
+    data = samples_from_logs(temperatures, canlog, period_s=settings.acquisition.sample_period_s)
+    t: list[float] = []
+    states: list[Array] = []
+    conv: list[bool] = []
+    speed: list[float] = []
+
+    def keep(core: Any, k: int, last_ok: object) -> None:
+        live = core.view().live
+        if live is None:
+            return
+        t.append(float(live.t))
+        states.append(np.array(live.mean, dtype=float))
+        conv.append(bool(live.converged))
+        speed.append(float(live.inputs[1]))
+
+    run_offline(data.samples, model=model, config=core_config(settings), on_sample=keep)
+    if not states:
+        raise CommissioningError(
+            f"{temperatures}: the live state never started over this log (no sample with temperatures "
+            "and a speed/torque from the CAN log)"
+        )
+    return FieldHistory(
+        t_s=np.asarray(t), states=np.vstack(states), converged=np.asarray(conv), speed_rpm=np.asarray(speed)
+    )
+
+
+# ---------------------------------------------------------------- the verdict
+
+
+@dataclass(frozen=True)
+class FitLimits:
+    """When the model explains the test: residual RMS ≤ ``max_rms_um`` and |residual| ≤ ``max_abs_um``
+    overall and in each phase; the restraint off its bounds by ``bound_margin``; the α factors within
+    ``alpha_band`` of 1; the restraint's posterior sd at most ``min_sd_reduction`` of its prior's."""
+
+    max_rms_um: float = 1.0
+    max_abs_um: float = 3.0
+    bound_margin: float = 0.02
+    alpha_band: float = 0.15
+    min_sd_reduction: float = 0.5
+
+
+@dataclass(frozen=True)
+class PhaseResidual:
+    name: str
+    n: int
+    rms_um: float
+    max_um: float
+    mean_um: float
+
+
+def judge_fit(
+    fit: MechanicsFitResult, running: NDArray[np.bool_], limits: FitLimits
+) -> tuple[bool, list[str], list[PhaseResidual]]:
+    """(explained, problems, per-phase residuals) of ``fit``; ``running`` (n_used,) the spindle turning at
+    each used sample (heat-up) or not (cool-down)."""
+    r = fit.residual_um
+    phases = []
+    for name, mask in (("heat-up (spindle turning)", running), ("cool-down (at rest)", ~running)):
+        if int(mask.sum()) == 0:
+            continue
+        rr = r[mask]
+        phases.append(
+            PhaseResidual(
+                name=name,
+                n=int(mask.sum()),
+                rms_um=float(np.sqrt(np.mean(rr**2))),
+                max_um=float(np.max(np.abs(rr))),
+                mean_um=float(np.mean(rr)),
+            )
+        )
+    problems = []
+    if fit.residual_rms_um > limits.max_rms_um or fit.residual_max_um > limits.max_abs_um:
+        problems.append(
+            f"residual RMS {fit.residual_rms_um:.2f} µm / max {fit.residual_max_um:.2f} µm over the limits "
+            f"{limits.max_rms_um:g} / {limits.max_abs_um:g} µm"
+        )
+    for ph in phases:
+        if ph.rms_um > limits.max_rms_um or ph.max_um > limits.max_abs_um:
+            problems.append(
+                f"the model fails in the {ph.name}: residual RMS {ph.rms_um:.2f} µm, max {ph.max_um:.2f} µm, "
+                f"mean {ph.mean_um:+.2f} µm over {ph.n} readings"
+            )
+    if not any(ph.name.startswith("cool") for ph in phases):
+        problems.append("the test has no cool-down at rest: heat-up and cool-down cannot be told apart")
+    s, s_sd = float(fit.x[0]), float(fit.sd[0])
+    if s <= limits.bound_margin or s >= 1.0 - limits.bound_margin:
+        side = "free (0)" if s <= limits.bound_margin else "held (1)"
+        problems.append(
+            f"restraint at its bound {side}: the mount behaves beyond the model's range (check the mounting "
+            "and the sensor's sign)"
+        )
+    for i, name in ((1, "alpha_shaft"), (2, "alpha_housing")):
+        if abs(float(fit.x[i]) - 1.0) > limits.alpha_band:
+            problems.append(f"{name} = {fit.x[i]:.3f}: beyond 1 ± {limits.alpha_band:g} (a material not as described?)")
+    if s_sd > limits.min_sd_reduction * float(fit.prior_sd[0]):
+        problems.append(
+            f"the test does not determine the restraint (posterior sd {s_sd:.2f} vs prior {fit.prior_sd[0]:.2f}): "
+            "run the recommended profile (more heating)"
+        )
+    return not problems, problems, phases
+
+
+# ---------------------------------------------------------------- the whole commissioning
+
+
+@dataclass(frozen=True)
+class CommissionReport:
+    """A commissioning: the fit, its verdict, the calibration to store and what it cost."""
+
+    fit: MechanicsFitResult
+    explained: bool
+    problems: list[str]
+    phases: list[PhaseResidual]
+    calibration: MechanicsCalibration
+    t_ref_c: float
+    n_readings: int
+    span_s: tuple[float, float]
+    radial: dict[str, float] | None
+    timings_s: dict[str, float] = field(default_factory=dict)
+
+    def as_dict(self) -> dict[str, Any]:
+        """JSON-ready: the parameters with prior and posterior, residuals, verdict, phases, timings."""
+        f = self.fit
+        params = []
+        for i, name in enumerate(PARAMS):
+            prior_sd = float(f.prior_sd[i])
+            params.append(
+                {
+                    "name": name,
+                    "value": round(float(f.x[i]), 6),
+                    "sd": round(float(f.sd[i]), 6),
+                    "ci95": [round(float(f.ci95[i, 0]), 6), round(float(f.ci95[i, 1]), 6)],
+                    "prior_sd": None if not math.isfinite(prior_sd) else round(prior_sd, 6),
+                    "unit": {"offset_um": "µm", "drift_um_per_h": "µm/h"}.get(name, "1"),
+                }
+            )
+        return {
+            "explained": self.explained,
+            "verdict": "the model explains the test"
+            if self.explained
+            else "the model does not explain the test: " + "; ".join(self.problems),
+            "problems": self.problems,
+            "residual_rms_um": round(f.residual_rms_um, 4),
+            "residual_max_um": round(f.residual_max_um, 4),
+            "noise_um": round(f.noise_um, 4),
+            "readings_used": f.n_used,
+            "readings": self.n_readings,
+            "span": [datetime.fromtimestamp(v, tz=UTC).isoformat() for v in self.span_s],
+            "t_ref_c": round(self.t_ref_c, 4),
+            "parameters": params,
+            "phases": [
+                {"phase": p.name, "n": p.n, "rms_um": round(p.rms_um, 4), "max_um": round(p.max_um, 4),
+                 "mean_um": round(p.mean_um, 4)}
+                for p in self.phases
+            ],
+            "radial_check": self.radial,
+            "timings_s": {k: round(v, 3) for k, v in self.timings_s.items()},
+            "sources": self.calibration.sources,
+        }
+
+
+def _features(basis: ServedMechanicsBasis, phi: Array, states: Array, t_ref_c: float) -> Array:
+    """F (n, 2, 3) of the axial output from reduced states (n, r): op·(Φa − T_ref)."""
+    op = basis.operators[0]  # (2, 3, N) nose axial
+    op_phi = np.einsum("mjn,nr->mjr", op, phi)
+    return np.asarray(np.einsum("mjr,kr->kmj", op_phi, states) - op.sum(axis=2)[None] * t_ref_c)
+
+
+def _interp(t_src: Array, values: Array, t_dst: Array) -> Array:
+    """Linear interpolation of ``values`` (n, ...) at ``t_dst``; NaN outside [t_src[0], t_src[-1]]."""
+    flat = values.reshape(values.shape[0], -1)
+    out = np.column_stack([np.interp(t_dst, t_src, flat[:, j]) for j in range(flat.shape[1])])
+    out[(t_dst < t_src[0]) | (t_dst > t_src[-1])] = np.nan
+    return out.reshape((t_dst.size, *values.shape[1:]))
+
+
+def fit_test(
+    basis: ServedMechanicsBasis,
+    phi: Array,
+    hist: FieldHistory,
+    disp: Displacements,
+    *,
+    noise_um: float | None = None,
+    limits: FitLimits | None = None,
+    prior: MechanicsPrior | None = None,
+) -> tuple[MechanicsFitResult, bool, list[str], list[PhaseResidual], float, dict[str, float] | None, float]:
+    """The pure part of ``commission_growth`` on a field history: (fit, explained, problems, phases, T_ref,
+    radial check, fit wall time [s])."""
+    ok = np.flatnonzero(hist.converged)
+    if ok.size < 2:
+        raise CommissioningError("the live state never converged over the test: nothing to fit against")
+    first = int(ok[0])
+    t_ref = float(np.mean(phi @ hist.states[first]))
+    t_src, states = hist.t_s[first:], hist.states[first:]
+    feats = _interp(t_src, _features(basis, phi, states, t_ref), disp.t_s)
+    inside = np.isfinite(feats).all(axis=(1, 2)) & np.isfinite(disp.axial_um)
+    if int(inside.sum()) < 2 * len(PARAMS):
+        raise CommissioningError(
+            f"DISPLACEMENTS: {int(inside.sum())} readings inside the converged span of the temperature log "
+            f"({datetime.fromtimestamp(t_src[0], tz=UTC):%Y-%m-%dT%H:%M:%SZ} .. "
+            f"{datetime.fromtimestamp(t_src[-1], tz=UTC):%H:%M:%SZ}); need >= {2 * len(PARAMS)}: do the "
+            "displacement and temperature logs cover the same time (both UTC)?"
+        )
+    t0 = time.perf_counter()
+    fit = fit_mechanics(feats[inside], disp.t_s[inside], disp.axial_um[inside], prior=prior, noise_um=noise_um)
+    fit_s = time.perf_counter() - t0
+    speed = np.interp(disp.t_s[inside], t_src, np.abs(hist.speed_rpm[first:]))
+    explained, problems, phases = judge_fit(fit, speed >= RUNNING_RPM, limits or FitLimits())
+    radial = None
+    if disp.radial_um is not None and np.isfinite(disp.radial_um).sum() >= 3:
+        g = _radial_model(basis, phi, states, t_ref, fit.x[:3])
+        pred = np.interp(disp.t_s, t_src, g)
+        m = np.isfinite(disp.radial_um) & inside
+        if m.sum() >= 3:
+            res = disp.radial_um[m] - pred[m]
+            res = res - np.mean(res)  # its own fixture offset
+            radial = {"rms_um": round(float(np.sqrt(np.mean(res**2))), 4), "max_um": round(float(np.max(np.abs(res))), 4), "n": int(m.sum())}
+    return fit, explained, problems, phases, t_ref, radial, fit_s
+
+
+def _radial_model(basis: ServedMechanicsBasis, phi: Array, states: Array, t_ref: float, x: Array) -> Array:
+    g = basis.operators_at(x)[1]  # (N,) nose radial
+    return np.asarray(states @ (g @ phi) - g.sum() * t_ref)
+
+
+def commission_growth(
+    model: LoadedModel,
+    settings: Settings,
+    temperatures: Path,
+    canlog: Path | None,
+    displacements: Path,
+    *,
+    set_by: str,
+    source: str,
+    basis: ServedMechanicsBasis | None = None,
+    noise_um: float | None = None,
+    limits: FitLimits | None = None,
+    now: datetime | None = None,
+) -> CommissionReport:
+    """The whole commissioning (module docstring) on the three files; ``basis`` built when None (~2 s)."""
+    from service.estimate.mechanics import served_mechanics_basis
+
+    disp = read_displacement_csv(displacements)
+    sources = {"temperatures": sha256_file(temperatures), "displacements": sha256_file(displacements)}
+    if canlog is not None:
+        sources["canlog"] = sha256_file(canlog)
+    timings: dict[str, float] = {}
+    t0 = time.perf_counter()
+    hist = field_history(model, settings, temperatures, canlog)
+    timings["field_history_s"] = time.perf_counter() - t0
+    t0 = time.perf_counter()
+    b = basis if basis is not None else served_mechanics_basis(model.spec, model.fe)
+    timings["basis_s"] = time.perf_counter() - t0
+    phi = np.asarray(model.rom.basis, dtype=float)
+    fit, explained, problems, phases, t_ref, radial, fit_s = fit_test(
+        b, phi, hist, disp, noise_um=noise_um, limits=limits
+    )
+    timings["fit_s"] = fit_s
+    report_at = now if now is not None else datetime.now(UTC)
+    cal = MechanicsCalibration(
+        x=(float(fit.x[0]), float(fit.x[1]), float(fit.x[2])),
+        cov=tuple(tuple(float(v) for v in row) for row in fit.cov[:3, :3]),
+        at=report_at,
+        set_by=set_by,
+        source=source,
+        sources=sources,
+        residual_rms_um=fit.residual_rms_um,
+        residual_max_um=fit.residual_max_um,
+        explained=explained,
+    )
+    rep = CommissionReport(
+        fit=fit,
+        explained=explained,
+        problems=problems,
+        phases=phases,
+        calibration=cal,
+        t_ref_c=t_ref,
+        n_readings=int(disp.t_s.size),
+        span_s=(float(disp.t_s[0]), float(disp.t_s[-1])),
+        radial=radial,
+        timings_s=timings,
+    )
+    full = MechanicsCalibration(**{**cal.__dict__, "report": rep.as_dict()})
+    return CommissionReport(**{**rep.__dict__, "calibration": full})
+
+
+def format_report(rep: CommissionReport) -> list[str]:
+    """The report as ``chtc commission growth`` prints it."""
+    f = rep.fit
+    d = rep.as_dict()
+    lines = [
+        f"{d['readings_used']} of {d['readings']} displacement readings fitted "
+        f"({d['span'][0]} .. {d['span'][1]}), zero at {rep.t_ref_c:.2f} °C",
+        f"residual RMS {f.residual_rms_um:.3f} µm, max {f.residual_max_um:.3f} µm (σ used {f.noise_um:.3f} µm)",
+        "parameter         value     95 % CI (posterior)        prior 1σ   posterior 1σ",
+    ]
+    for p in d["parameters"]:
+        prior = "flat" if p["prior_sd"] is None else f"{p['prior_sd']:.3f}"
+        lo, hi = p["ci95"]
+        lines.append(
+            f"  {p['name']:<15} {p['value']:>8.4f}  [{lo:>9.4f}, {hi:>9.4f}] {p['unit']:<5}  {prior:>8}   {p['sd']:.4f}"
+        )
+    for ph in rep.phases:
+        lines.append(f"  {ph.name}: {ph.n} readings, RMS {ph.rms_um:.3f} µm, max {ph.max_um:.3f} µm, mean {ph.mean_um:+.3f} µm")
+    if rep.radial is not None:
+        lines.append(f"  radial check (calibrated model, own offset): RMS {rep.radial['rms_um']:.3f} µm, max {rep.radial['max_um']:.3f} µm")
+    lines.append(f"verdict: {d['verdict']}")
+    t = rep.timings_s
+    lines.append(
+        f"cost: field history {t.get('field_history_s', 0):.1f} s, basis {t.get('basis_s', 0):.1f} s, "
+        f"fit {t.get('fit_s', 0):.3f} s"
+    )
+    return lines
+
+
+def mech_names() -> Sequence[str]:
+    return MECH_PARAMS

@@ -1,0 +1,166 @@
+"""The served growth's mechanics: a commissioning's calibration and its posterior in ``/compensation`` (pure).
+
+The service's ``[mechanics]`` (mount ``fix``, the materials' α) is a guess; a commissioning test
+(``chtc commission growth``, docs/commissioning.md) fits the three parameters that matter
+(``model.growthfit``): the mount's radial restraint s in [0, 1] (0 free, 1 held), and α factors of the
+shaft's and the housing's material. Their posterior mean and covariance (3, 3) make the served operators::
+
+    g(θ) = (1 − s) · (g_free,0 + a_s g_free,shaft + a_h g_free,housing) + s · (g_held,0 + ...)   (2, N)
+    ∂g/∂θ (2, 3, N):  ∂/∂s = G_held − G_free,  ∂/∂a_s = (1 − s) g_free,shaft + s g_held,shaft,  ∂/∂a_h alike
+
+for both served outputs (nose axial, nose radial), and the growth's mechanical 1σ at a field T over T_ref is
+√(J Σ_θ Jᵀ) with J = ∂g/∂θ · (T − T_ref) (``mechanics_std_um``; exact for the linearisation in θ, which is
+bilinear). The fixture offset and the drift of the test set-up are the test's nuisances: they are fitted and
+reported, never served.
+
+Errors::
+
+    MechanicsError(ValueError)   a calibration of the wrong shape or value, a basis for another mesh (named)
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field, replace
+from datetime import datetime
+from typing import Any
+
+import numpy as np
+from numpy.typing import ArrayLike, NDArray
+
+from model.fem import FEModel
+from model.geometry import SpindleSpec
+from model.plantmech import ALPHA_REL, alpha_region_scales
+from model.thermoelastic import MechanicsVariant, build_growth_model
+from service.errors import ServiceError
+
+__all__ = [
+    "MECH_PARAMS",
+    "PRIOR_MEAN",
+    "PRIOR_SD",
+    "MechanicsCalibration",
+    "MechanicsError",
+    "ServedMechanicsBasis",
+    "mechanics_std_um",
+    "served_mechanics_basis",
+]
+
+Array = NDArray[np.float64]
+MECH_PARAMS = ("restraint", "alpha_shaft", "alpha_housing")
+SERVED = ("nose_axial", "nose_radial")
+# what is known before a test: s anywhere in [0, 1] (uniform: mean 0.5, sd 1/√12 ≈ 0.29), α within ±5 %
+# (uniform ±5 %: sd 0.05/√3 ≈ 0.029; the fit's Gaussian prior takes 0.05, wider)
+PRIOR_MEAN = (0.5, 1.0, 1.0)
+PRIOR_SD = (1.0 / math.sqrt(12.0), ALPHA_REL / math.sqrt(3.0), ALPHA_REL / math.sqrt(3.0))
+
+
+class MechanicsError(ServiceError, ValueError):
+    """A bad mechanical calibration or basis; the message names the field."""
+
+
+@dataclass(frozen=True, eq=False)
+class ServedMechanicsBasis:
+    """``operators`` (2 outputs, 2 mounts (free, held), 3 groups (other, shaft's α, housing's α), N) [µm/K]
+    for the served outputs (nose axial, nose radial): g_o,m(a_s, a_h) = op[o, m, 0] + a_s op[o, m, 1] + a_h
+    op[o, m, 2]."""
+
+    operators: Array
+
+    @property
+    def n_nodes(self) -> int:
+        return int(self.operators.shape[3])
+
+    def operators_at(self, x: ArrayLike) -> Array:
+        """g(θ) (2, N) [µm/K] at θ = (s, a_s, a_h)."""
+        s, a_s, a_h = (float(v) for v in np.asarray(x, dtype=float)[:3])
+        op = self.operators
+        g = op[:, :, 0] + a_s * op[:, :, 1] + a_h * op[:, :, 2]  # (2, 2, N)
+        return np.asarray((1.0 - s) * g[:, 0] + s * g[:, 1])
+
+    def jacobian_at(self, x: ArrayLike) -> Array:
+        """∂g/∂θ (2, 3, N) [µm/K per unit θ] at θ = (s, a_s, a_h)."""
+        s, a_s, a_h = (float(v) for v in np.asarray(x, dtype=float)[:3])
+        op = self.operators
+        g = op[:, :, 0] + a_s * op[:, :, 1] + a_h * op[:, :, 2]
+        w = np.array([1.0 - s, s])
+        return np.stack(
+            [g[:, 1] - g[:, 0], np.einsum("omn,m->on", op[:, :, 1], w), np.einsum("omn,m->on", op[:, :, 2], w)],
+            axis=1,
+        )
+
+
+def served_mechanics_basis(spec: SpindleSpec, fe: FEModel) -> ServedMechanicsBasis:
+    """The served outputs' operators on ``fe``'s mesh for both mount idealisations and the α groups (six
+    growth-model builds: ~2 s at the service's mesh, once per process)."""
+    base = np.array(alpha_region_scales(spec, 0.0, 0.0))
+    shaft = np.array(alpha_region_scales(spec, 1.0, 0.0)) - base
+    housing = np.array(alpha_region_scales(spec, 0.0, 1.0)) - base
+    groups = [tuple(float(v) for v in g) for g in (base, shaft, housing)]
+    ops = np.zeros((len(SERVED), 2, 3, fe.n_nodes))
+    for m, fix in enumerate(("axial", "axial_radial")):
+        for j, scales in enumerate(groups):
+            gm = build_growth_model(spec, fe, variant=MechanicsVariant(fix=fix, region_alpha_scale=scales))
+            for o, name in enumerate(SERVED):
+                ops[o, m, j] = gm.operator(name)
+    return ServedMechanicsBasis(operators=ops)
+
+
+@dataclass(frozen=True, kw_only=True)
+class MechanicsCalibration:
+    """A stored commissioning of the mechanics: θ = (s, a_s, a_h) ``x`` and its posterior covariance ``cov``
+    (3, 3); ``at`` (UTC) when it was made, ``set_by`` who ran it, ``source`` (``cli``/``api``), the SHA-256 of
+    the test's files (``sources``: role -> hex), the fit's residual RMS and max [µm], its verdict
+    (``explained``) and the whole report (``report``, JSON-ready)."""
+
+    x: tuple[float, float, float]
+    cov: tuple[tuple[float, ...], ...]
+    at: datetime
+    set_by: str
+    source: str
+    sources: dict[str, str] = field(default_factory=dict)
+    residual_rms_um: float = math.nan
+    residual_max_um: float = math.nan
+    explained: bool = False
+    report: dict[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        x = np.asarray(self.x, dtype=float)
+        c = np.asarray(self.cov, dtype=float)
+        if x.shape != (3,) or not np.all(np.isfinite(x)):
+            raise MechanicsError(f"x: expected 3 finite values (s, a_s, a_h), got {self.x!r}")
+        if not 0.0 <= x[0] <= 1.0 or not (0.5 < x[1] < 1.5 and 0.5 < x[2] < 1.5):
+            raise MechanicsError(f"x: restraint in [0, 1] and α factors in (0.5, 1.5), got {self.x!r}")
+        if c.shape != (3, 3) or not np.all(np.isfinite(c)) or np.any(np.diag(c) < 0):
+            raise MechanicsError(f"cov: expected a finite (3, 3) covariance, got shape {c.shape}")
+        if self.at.tzinfo is None:
+            raise MechanicsError("at: must be timezone-aware (UTC)")
+
+    @property
+    def mean(self) -> Array:
+        return np.asarray(self.x, dtype=float)
+
+    @property
+    def covariance(self) -> Array:
+        c = np.asarray(self.cov, dtype=float)
+        return np.asarray(0.5 * (c + c.T))
+
+    @property
+    def sd(self) -> Array:
+        return np.asarray(np.sqrt(np.maximum(np.diag(self.covariance), 0.0)))
+
+    def as_dict(self) -> dict[str, float]:
+        """Name -> value."""
+        return {n: float(v) for n, v in zip(MECH_PARAMS, self.x, strict=True)}
+
+
+def mechanics_std_um(jac: Array, cov: Array, rise: Array) -> Array:
+    """The growth's mechanical 1σ (2,) [µm]: ``jac`` (2, 3, N) applied to ``rise`` (N,) = T − T_ref, through
+    ``cov`` (3, 3)."""
+    j = np.einsum("opn,n->op", jac, rise)
+    var = np.einsum("op,pq,oq->o", j, cov, j)
+    return np.asarray(np.sqrt(np.maximum(var, 0.0)))
+
+
+def with_values(cal: MechanicsCalibration, **changes: Any) -> MechanicsCalibration:
+    """``cal`` with fields replaced (validated again)."""
+    return replace(cal, **changes)
