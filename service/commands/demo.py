@@ -107,7 +107,8 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> tuple[Settings, str 
     s = override(s, "database", url=db_url)
     # the virtual plant starts at rest in equilibrium: the demo's controller is zeroed there (a real
     # installation sets its zero at commissioning: docs/commissioning.md)
-    s = override(s, "compensation", reference_on_first_start=True)
+    # the demo's plant has the spindle description's own mechanics: nothing to commission
+    s = override(s, "compensation", reference_on_first_start=True, require_mechanics_calibration=False)
     return override(s, "experimental", seed=args.seed), generated
 
 

@@ -14,6 +14,12 @@ Three stages, by how often their inputs change:
 The live field's uncertainty comes through ONE function, :func:`field_belief`: the filtered live state's
 reduced mean and covariance (issue 16), which already hold the considered H error.
 
+The mechanics (docs/commissioning.md, "Commission the growth"): without a commissioning the operators are the
+spindle description's (``[mechanics]`` as written) and the policy's ``mechanics_uncalibrated`` rule applies
+(``compensation.require_mechanics_calibration``); with one (``mechanics``, restored or set by
+``set_mechanics``) the served operators are the calibrated ones and every CI carries the mechanical posterior
+(``service.estimate.mechanics``, ``service.estimate.growth.with_mechanics``).
+
 The reference (growth 0: where the controller was zeroed) is a commissioning fact,
 ``service.estimate.reference.CompensationReference`` (``reference``): stored (``POST
 /compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
@@ -49,7 +55,9 @@ from service.estimate.growth import (
     estimate_growth,
     h_cov_from_ci,
     plc_compensation,
+    with_mechanics,
 )
+from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis, served_mechanics_basis
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
 from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
@@ -150,6 +158,8 @@ class GrowthServer:
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
         limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
+        mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
+        mechanics_basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
     ) -> None:
         """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
         "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
@@ -185,6 +195,9 @@ class GrowthServer:
         self._estimate: tuple[tuple[object, ...], GrowthEstimate] | None = None
         self._section_op: SectionOperator | None = None
         self._section: tuple[tuple[object, ...], np.ndarray] | None = None
+        self._mechanics = mechanics
+        self._mech_basis = mechanics_basis
+        self._base_ctx: GrowthContext | None = None  # the described mechanics' context
 
     # --- stage 1
     def prepare(self) -> GrowthContext:
@@ -194,12 +207,47 @@ class GrowthServer:
             if self._ctx is None and self._error is None:
                 m = self.model
                 try:
-                    self._ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
+                    self._base_ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
+                    self._ctx = self._calibrated(self._base_ctx, self._mechanics)
                 except Exception as err:  # any failure of the optional growth model: served as 503
                     self._error = f"growth model unavailable: {type(err).__name__}: {err}"
             if self._ctx is None:
                 raise NotReadyError(self._error or "growth model unavailable")
             return self._ctx
+
+    def _calibrated(self, base: GrowthContext, cal: MechanicsCalibration | None) -> GrowthContext:
+        """``base`` with ``cal``'s operators and posterior (the basis built once, ~2 s); ``base`` if None."""
+        if cal is None:
+            return base
+        if self._mech_basis is None:
+            self._mech_basis = served_mechanics_basis(self.model.spec, self.model.fe)
+        b = self._mech_basis
+        return with_mechanics(base, b.operators_at(cal.x), b.jacobian_at(cal.x), cal.covariance)
+
+    @property
+    def mechanics(self) -> MechanicsCalibration | None:
+        """The commissioning in use (None: the described mechanics, uncalibrated)."""
+        return self._mechanics
+
+    def mechanics_basis(self) -> ServedMechanicsBasis:
+        """The served outputs' mount/α operators (built once, ~2 s; blocking)."""
+        with self._lock:
+            if self._mech_basis is None:
+                self._mech_basis = served_mechanics_basis(self.model.spec, self.model.fe)
+            return self._mech_basis
+
+    def set_mechanics(self, cal: MechanicsCalibration) -> None:
+        """Serve with ``cal`` from now on (blocking: may build the basis; call it off the event loop): the
+        condition terms, which depend on the operators, are recomputed on the next request."""
+        self.prepare()
+        self.mechanics_basis()
+        with self._lock:
+            assert self._base_ctx is not None
+            self._ctx = self._calibrated(self._base_ctx, cal)
+            self._mechanics = cal
+            self._terms.clear()
+            self._pending = None
+            self._estimate = None
 
     def section_operator(self) -> SectionOperator:
         """The section's outline and its displacement operators (once, ~0.2 s; blocking)."""
@@ -437,7 +485,7 @@ class GrowthServer:
         if ref is None:
             return None
         t_ref, t_ref_sd, _ = ref
-        key = (live.t, id(terms), t_ref, t_ref_sd)
+        key = (live.t, id(terms), t_ref, t_ref_sd, id(self._mechanics))
         cached = self._estimate
         if cached is not None and cached[0] == key:
             return cached[1]
@@ -507,6 +555,7 @@ class GrowthServer:
             ci95_half_um=0.5 * (hi - lo),
             identified_at=None if rec is None else rec.finished_at,
             has_reference=self._reference is not None,
+            has_mechanics=self._mechanics is not None,
         )
         return CompensationSnapshot(
             growth=est,

@@ -169,11 +169,13 @@ def growth_server(model: LoadedModel, settings: Settings, restored: Restored | N
         max_ci95_um=c.max_ci95_um,
         max_identification_age_min=c.max_identification_age_min,
         max_open_loop_min=c.max_open_loop_min,
+        require_mechanics_calibration=c.require_mechanics_calibration,
     )
     return GrowthServer(
         model,
         t_ref_c=settings.growth.reference_c,
         reference=None if restored is None else restored.reference,
+        mechanics=None if restored is None else restored.mechanics,
         reference_on_first_start=c.reference_on_first_start,
         first_start_by=os_user(),
         limits=limits,

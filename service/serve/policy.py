@@ -50,6 +50,10 @@ class CompensationLimits:
     max_ci95_um: float = 2.0  # the growth's 95 % CI half-width the controller tolerates [µm]
     max_identification_age_min: float = 1440.0  # the H in use identified at most this long ago [min]
     max_open_loop_min: float = 10.0  # DAQ down, CAN alive: usable open loop for at most this long [min]
+    # not usable before a commissioning of the mechanics (``mechanics_uncalibrated``); the settings'
+    # default is true (docs/design/policy.md), the pure default keeps the rule off for callers that judge the
+    # growth alone
+    require_mechanics_calibration: bool = False
 
 
 class LiveLike(Protocol):
@@ -166,11 +170,13 @@ def compensation_verdict(
     ci95_half_um: float,
     identified_at: datetime | None,
     has_reference: bool = True,
+    has_mechanics: bool = True,
 ) -> Verdict:
     """Whether a controller may apply the growth served now (see the module docstring), in this order:
     data (``no_data``, ``stale``, ``open_loop_too_long``; ``stale`` at once when the newest sample has neither
     DAQ nor CAN data), live state (``state_converging``,
-    ``state_inconsistent``), ``no_reference``, ``identification_old``, ``ci_too_wide``. The status is
+    ``state_inconsistent``), ``no_reference``, ``mechanics_uncalibrated`` (only when ``limits`` require a
+    commissioning and ``has_mechanics`` is false), ``identification_old``, ``ci_too_wide``. The status is
     ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
     open_loop_s = 60.0 * limits.max_open_loop_min
     data = data_verdict(
@@ -214,6 +220,14 @@ def compensation_verdict(
         )
     if not has_reference:
         return Verdict(status, False, Reason.NO_REFERENCE, "no compensation reference (zero) is stored")
+    if limits.require_mechanics_calibration and not has_mechanics:
+        return Verdict(
+            status,
+            False,
+            Reason.MECHANICS_UNCALIBRATED,
+            "the mechanics (mount restraint, α) are not commissioned: the growth's CI does not cover an "
+            "unknown mount (compensation.require_mechanics_calibration)",
+        )
     if identified_at is None:
         return Verdict(status, False, Reason.NO_IDENTIFICATION, "no H identified yet")
     age_min = max(0.0, (now - identified_at).total_seconds()) / 60.0

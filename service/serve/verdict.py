@@ -42,6 +42,7 @@ class Reason(enum.StrEnum):
     NO_REFERENCE = "no_reference"  # no compensation reference (zero) stored
     OPEN_LOOP_TOO_LONG = "open_loop_too_long"  # DAQ down longer than the open-loop limit
     CORE_BEHIND = "core_behind"  # the core thread's backlog of samples is older than its limit
+    MECHANICS_UNCALIBRATED = "mechanics_uncalibrated"  # no commissioning of the growth's mechanics yet
 
 
 ACTIONS: dict[Reason, str] = {
@@ -63,6 +64,8 @@ ACTIONS: dict[Reason, str] = {
     Reason.OPEN_LOOP_TOO_LONG: "Restore the temperature DAQ: the prediction without it has run too long.",
     Reason.CORE_BEHIND: "Check the machine's CPU load: the service falls behind its samples; it catches up "
     "in order and clears itself (see /healthz, chtc_core_lag_seconds).",
+    Reason.MECHANICS_UNCALIBRATED: "Commission the growth from a measured thermal test "
+    "(`chtc commission growth`, docs/commissioning.md).",
 }
 
 
