@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, Field
 
 from api.deps import ClockInfo
+from service.estimate.mechanics import MECH_PARAMS, MechanicsCalibration
 from service.estimate.reference import CompensationReference
 from service.serve.interface import (
     H_UNIT,
@@ -559,10 +560,15 @@ def _ci95(mean: float | None, sd: float | None) -> tuple[float, float] | None:
 class GrowthValueOut(BaseModel):
     um: float = Field(description="growth, µm")
     plc_0p1um: int = Field(description="the growth in 0.1 µm, rounded (an integer for a PLC)")
-    ci95_um: tuple[float, float] = Field(description="95 % CI, µm (field and H parts combined)")
-    std_um: float = Field(description="1σ, µm (root sum of squares of the two parts)")
+    ci95_um: tuple[float, float] = Field(description="95 % CI, µm (field, H and mechanics parts combined)")
+    std_um: float = Field(description="1σ, µm (root sum of squares of the parts)")
     std_field_um: float = Field(description="1σ from the live field's uncertainty, µm")
     std_h_um: float = Field(description="1σ from H's uncertainty, µm")
+    std_mech_um: float = Field(
+        0.0,
+        description="1σ from the commissioned mechanics' posterior (mount restraint, α), µm; 0 without a "
+        "commissioning (then the policy's mechanics_uncalibrated rule applies)",
+    )
 
 
 class GrowthHorizonOut(BaseModel):
@@ -643,6 +649,85 @@ def reference_out(r: CompensationReference) -> ReferenceOut:
     )
 
 
+class MechanicsParameterOut(BaseModel):
+    name: str = Field(description="restraint (0 free, 1 held radially), alpha_shaft, alpha_housing (factors)")
+    value: float
+    sd: float = Field(description="posterior 1σ")
+    ci95: tuple[float, float] = Field(description="posterior 95 % CI")
+
+
+class MechanicsOut(BaseModel):
+    """A commissioning of the growth's mechanics (docs/commissioning.md): what ``/compensation`` uses."""
+
+    at: datetime = Field(description="UTC instant the commissioning was made")
+    set_by: str
+    source: Literal["api", "cli"]
+    parameters: list[MechanicsParameterOut]
+    residual_rms_um: float | None = Field(description="the fit's axial residual RMS, µm")
+    residual_max_um: float | None = Field(description="the fit's axial residual max |·|, µm")
+    explained: bool = Field(description="the fit's verdict: the model explains the test")
+    sources_sha256: dict[str, str] = Field(description="SHA-256 of the test's files by role")
+
+
+def mechanics_out(c: MechanicsCalibration) -> MechanicsOut:
+    sd = c.sd
+    return MechanicsOut(
+        at=c.at,
+        set_by=c.set_by,
+        source=c.source,  # type: ignore[arg-type]
+        parameters=[
+            MechanicsParameterOut(
+                name=n,
+                value=round(float(v), 6),
+                sd=round(float(s), 6),
+                ci95=(round(float(v - 1.959963984540054 * s), 6), round(float(v + 1.959963984540054 * s), 6)),
+            )
+            for n, v, s in zip(MECH_PARAMS, c.x, sd, strict=True)
+        ],
+        residual_rms_um=None if not math.isfinite(c.residual_rms_um) else round(c.residual_rms_um, 4),
+        residual_max_um=None if not math.isfinite(c.residual_max_um) else round(c.residual_max_um, 4),
+        explained=c.explained,
+        sources_sha256=dict(c.sources),
+    )
+
+
+class MechanicsCommissionIn(BaseModel):
+    """``POST /compensation/mechanics``: a measured thermal test, the files' contents (docs/commissioning.md)."""
+
+    model_config = {"extra": "forbid"}
+    temperatures_csv: str = Field(
+        min_length=1, max_length=64_000_000, description="the temperature CSV (chtc record format), text"
+    )
+    can_log_base64: str = Field(
+        min_length=1, max_length=64_000_000, description="the CAN log, base64 of the file's bytes"
+    )
+    can_log_format: Literal["blf", "asc", "log", "csv", "trc", "mf4"] = Field(
+        "blf", description="the CAN log's format (its file suffix)"
+    )
+    displacements_csv: str = Field(
+        min_length=1,
+        max_length=16_000_000,
+        description="time (UTC ISO-8601), axial_um, optionally radial_um; empty cells: missing",
+    )
+    set_by: str | None = Field(
+        None,
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_.:@\- ]+$",
+        description='who ran the test (absent: "api")',
+    )
+    source: Literal["api", "cli"] = Field("api", description='"cli": sent by chtc commission growth')
+    force: bool = Field(
+        False, description="store and use the calibration even when the model does not explain the test"
+    )
+
+
+class MechanicsCommissionOut(BaseModel):
+    stored: bool = Field(description="the calibration is stored and used by /compensation now")
+    mechanics: MechanicsOut
+    report: dict[str, Any] = Field(description="the fit's report: parameters with prior/posterior, residuals")
+
+
 class CompensationOut(VerdictOut):
     """``usable_for_compensation``: the one flag a controller acts on. True when the data are fresh (or the
     DAQ alone is down, status ``predicted``, for at most compensation.max_open_loop_min), the live state has
@@ -659,6 +744,11 @@ class CompensationOut(VerdictOut):
     )
     reference: ReferenceOut | None = Field(
         None, description="the compensation zero in use (GET /compensation/reference); null: none set"
+    )
+    mechanics: MechanicsOut | None = Field(
+        None,
+        description="the commissioned mechanics in use (GET /compensation/mechanics); null: the spindle "
+        "description's, uncalibrated",
     )
     axial: GrowthValueOut = Field(description="spindle nose on the axis, + towards the tool")
     radial: GrowthValueOut = Field(description="nose outer diameter, + outwards")
@@ -684,6 +774,7 @@ def _growth_value(v: Any) -> GrowthValueOut:
         std_um=round(float(v.std_um), 4),
         std_field_um=round(float(v.std_field_um), 4),
         std_h_um=round(float(v.std_h_um), 4),
+        std_mech_um=round(float(getattr(v, "std_mech_um", 0.0)), 4),
     )
 
 
@@ -697,6 +788,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
         t_ref_c=round(g.t_ref_c, 4),
         t_ref_at=s.reference_at,
         reference=None if s.reference is None else reference_out(s.reference),
+        mechanics=None if getattr(s, "mechanics", None) is None else mechanics_out(s.mechanics),  # type: ignore[arg-type]
         axial=_growth_value(g.axial),
         radial=_growth_value(g.radial),
         forecast=GrowthForecastOut(

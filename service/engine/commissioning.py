@@ -44,8 +44,8 @@ from service.errors import ServiceError
 from service.estimate.mechanics import MECH_PARAMS, MechanicsCalibration, ServedMechanicsBasis
 
 if TYPE_CHECKING:
+    from service.engine.config import CoreConfig
     from service.modelload import LoadedModel
-    from service.settings import Settings
 
 __all__ = [
     "CommissionReport",
@@ -195,14 +195,14 @@ class FieldHistory:
     speed_rpm: Array
 
 
-def field_history(model: LoadedModel, settings: Settings, temperatures: Path, canlog: Path | None) -> FieldHistory:
-    """Run the service's core over the logs (``run_offline``: the same samples, live state and
-    identifications as ``chtc identify``) and keep the live state after every sample."""
+def field_history(model: LoadedModel, config: CoreConfig, temperatures: Path, canlog: Path | None) -> FieldHistory:
+    """Run the service's core (``config``) over the logs (``run_offline``: the same samples, live state and
+    identifications as ``chtc identify``, one sample per ``config.rules.dt_s``) and keep the live state after
+    every sample."""
     from service.engine.offline import run_offline
-    from service.engine.runtime import core_config
     from service.sim.logsamples import samples_from_logs
 
-    data = samples_from_logs(temperatures, canlog, period_s=settings.acquisition.sample_period_s)
+    data = samples_from_logs(temperatures, canlog, period_s=config.rules.dt_s)
     t: list[float] = []
     states: list[Array] = []
     conv: list[bool] = []
@@ -217,7 +217,7 @@ def field_history(model: LoadedModel, settings: Settings, temperatures: Path, ca
         conv.append(bool(live.converged))
         speed.append(float(live.inputs[1]))
 
-    run_offline(data.samples, model=model, config=core_config(settings), on_sample=keep)
+    run_offline(data.samples, model=model, config=config, on_sample=keep)
     if not states:
         raise CommissioningError(
             f"{temperatures}: the live state never started over this log (no sample with temperatures "
@@ -436,7 +436,7 @@ def fit_test(
 
 def commission_growth(
     model: LoadedModel,
-    settings: Settings,
+    config: CoreConfig,
     temperatures: Path,
     canlog: Path | None,
     displacements: Path,
@@ -456,7 +456,7 @@ def commission_growth(
         sources["canlog"] = sha256_file(canlog)
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
-    hist = field_history(model, settings, temperatures, canlog)
+    hist = field_history(model, config, temperatures, canlog)
     timings["field_history_s"] = time.perf_counter() - t0
     t0 = time.perf_counter()
     b = basis if basis is not None else served_mechanics_basis(model.spec, model.fe)

@@ -566,6 +566,7 @@ class GrowthServer:
             tool_dir=self.tool_dir,
             channels=tuple(s.channel for s in self.model.spec.sensors),
             reference=self._reference,
+            mechanics=self._mechanics,
         )
 
 

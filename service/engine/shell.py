@@ -33,6 +33,7 @@ import math
 import threading
 import time
 from collections.abc import Callable, Coroutine, Mapping, Sequence
+from pathlib import Path
 from dataclasses import replace
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING, Protocol
@@ -81,6 +82,7 @@ from service.engine.health import (
 from service.engine.looplag import LoopLagMonitor
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
+from service.estimate.mechanics import MechanicsCalibration
 from service.estimate.reference import CompensationReference
 from service.identify.prior import ServedMapPrior
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
@@ -127,11 +129,13 @@ from service.serve.views import (
     map_record,
     served_record,
 )
+from service.store.mechanics import mechanics_record
 from service.store.references import reference_record
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
 
+    from service.engine.commissioning import CommissionReport
     from service.store.reads import DbReads
 
 __all__ = ["RecordWriter", "SoftSensorService", "Worker"]
@@ -710,6 +714,53 @@ class SoftSensorService:
             f"({ref.source}, by {ref.set_by})"
         )
         return ref
+
+    def compensation_mechanics(self) -> MechanicsCalibration | None:
+        return self._growth.mechanics
+
+    def commission_mechanics(
+        self,
+        *,
+        temperatures: Path,
+        canlog: Path | None,
+        displacements: Path,
+        set_by: str,
+        source: str,
+        force: bool = False,
+    ) -> tuple[CommissionReport, bool]:
+        """Fit the mechanics to a measured thermal test with this service's own core and model
+        (``service.engine.commissioning``; blocking, seconds to a minute: call it off the event loop);
+        store and use the calibration when the model explains the test (or ``force``). (report, stored)."""
+        from service.engine.commissioning import commission_growth
+
+        rep = commission_growth(
+            self.core.model,
+            self.core.config,
+            temperatures,
+            canlog,
+            displacements,
+            set_by=set_by,
+            source=source,
+            basis=self._growth.mechanics_basis(),
+            now=self.clock(),
+        )
+        stored = rep.explained or force
+        if stored:
+            self.set_mechanics(rep.calibration)
+        return rep, stored
+
+    def set_mechanics(self, cal: MechanicsCalibration) -> None:
+        """Serve with ``cal`` from now on and store it (restored at every start); blocking (~2 s the first
+        time: the mount/α operators)."""
+        self._growth.set_mechanics(cal)
+        if self.writer is not None:
+            self.writer.submit(mechanics_record(cal))
+        x = cal.x
+        self.on_event(
+            f"mechanics commissioned: restraint {x[0]:.3f}, α shaft {x[1]:.3f}, α housing {x[2]:.3f} "
+            f"({cal.source}, by {cal.set_by}; the model {'explains' if cal.explained else 'does NOT explain'} "
+            "the test)"
+        )
 
     def _store_reference(self, ref: CompensationReference) -> None:
         if self.writer is not None:

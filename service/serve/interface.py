@@ -34,7 +34,8 @@ import threading
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import TYPE_CHECKING, Literal, Protocol, runtime_checkable
+from pathlib import Path
+from typing import TYPE_CHECKING, Any, Literal, Protocol, runtime_checkable
 
 import numpy as np
 import numpy.typing as npt
@@ -43,6 +44,7 @@ from service.contracts.records import IdentificationData
 from service.errors import ServiceError
 from service.estimate.locator import TriangleLocator, locator_for
 from service.estimate.reference import CompensationReference
+from service.estimate.mechanics import MechanicsCalibration
 from service.identify.mode import IdentificationMode
 
 # the policy's vocabulary, re-exported for api/ (which imports only this module of service/)
@@ -530,6 +532,7 @@ class CompensationSnapshot(Judged):
     tool_dir: int  # -1: the tool points to -Z
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
     reference: CompensationReference | None = None  # the zero in use (None: none set, not usable)
+    mechanics: MechanicsCalibration | None = None  # the commissioned mechanics (None: the description's)
 
     @property
     def reference_at(self) -> datetime | None:
@@ -604,6 +607,25 @@ class ChtcService(Protocol):
         """Store the compensation zero now: ``temperature_c`` [°C] as given, else the uniform equivalent of
         the live field (NotReadyError while the live state has not converged); persisted, restored at
         start."""
+        ...
+
+    def compensation_mechanics(self) -> MechanicsCalibration | None:
+        """The commissioned mechanics in use (None: the spindle description's, uncalibrated)."""
+        ...
+
+    def commission_mechanics(
+        self,
+        *,
+        temperatures: Path,
+        canlog: Path | None,
+        displacements: Path,
+        set_by: str,
+        source: str,
+        force: bool = False,
+    ) -> tuple[Any, bool]:
+        """Fit the mechanics to a measured thermal test (``service.engine.commissioning``; blocking); store
+        and use it when the model explains the test or ``force``: (report, stored). ``CommissioningError``
+        (and ``drivers.logs.LogFormatError``) for unusable files, naming the line."""
         ...
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
