@@ -14,7 +14,10 @@ time, and an axial series alone leaves the restraint s and the shaft's α factor
 
 - **correlated residuals**: each series' σ_i is its residual RMS inflated by the AR(1) factor
   √((1 + ρ_i)/(1 − ρ_i)), ρ_i its residuals' lag-1 autocorrelation (clipped to [0, 0.95]): the effective
-  number of independent readings is n (1 − ρ)/(1 + ρ). Iterated three times (σ, ρ from the fit before).
+  number of independent readings is n (1 − ρ)/(1 + ρ). Iterated (σ, ρ from the fit before).
+- **outliers**: a reading whose residual exceeds ``OUTLIER_K`` robust σ (1.4826 · MAD of its series) is left
+  out of the next pass, and counted; a field estimate that jumps for a few minutes (the live state's, measured
+  once on a drawn plant: 250 °C for a minute after a stop) would otherwise drag a_s to 0.
 
 Parameters: ``restraint, alpha_shaft, alpha_housing`` then ``offset_um, drift_um_per_h`` per series
 (suffixed by the series' name after the first). Priors as ``model.growthfit.MechanicsPrior``.
@@ -37,7 +40,8 @@ from model.growthfit import Z95, GrowthFitError, MechanicsFitResult, MechanicsPr
 
 Array = NDArray[np.float64]
 MAX_RHO = 0.95
-PASSES = 3
+PASSES = 4
+OUTLIER_K = 6.0
 
 __all__ = ["FitSeries", "JointFit", "fit_mechanics_joint"]
 
@@ -56,13 +60,16 @@ class FitSeries:
 @dataclass(frozen=True)
 class JointFit:
     """``result``: the fit (``x``, ``cov``, ``sd``, ``ci95`` over all parameters; residuals, RMS and max of
-    the first series); per series its residuals [µm], σ used [µm] and lag-1 autocorrelation ρ."""
+    the first series' readings kept); per series its residuals [µm] (kept readings), σ used [µm], lag-1
+    autocorrelation ρ, readings left out as outliers and the kept readings' mask over its usable ones."""
 
     result: MechanicsFitResult
     residuals_um: tuple[Array, ...]
     sigma_um: tuple[float, ...]
     rho: tuple[float, ...]
     names: tuple[str, ...]
+    outliers: tuple[int, ...] = ()
+    kept: tuple[NDArray[np.bool_], ...] = ()
 
 
 @dataclass(frozen=True)
@@ -173,12 +180,15 @@ def fit_mechanics_joint(
 ) -> JointFit:
     """Fit s, a_s, a_h and each series' offset and drift (module docstring); σ_i from the residuals."""
     pr = prior if prior is not None else MechanicsPrior()
-    data = _prepare(series)
-    m = len(data)
+    full = _prepare(series)
+    m = len(full)
+    keep = [np.ones(d.y.size, dtype=bool) for d in full]
+    data = full
     sig = np.ones(m)
     rho = np.zeros(m)
     nfev = 0
     for _ in range(PASSES):
+        data = [_S(f=d.f[k], tau_h=d.tau_h[k], y=d.y[k]) for d, k in zip(full, keep, strict=True)]
         s, theta, obj, n, ok = _search(data, pr, sig)
         nfev += n
         x = np.r_[s, theta[:2], theta[2:]]
@@ -187,6 +197,13 @@ def fit_mechanics_joint(
             rms = max(float(np.sqrt(np.mean(r**2))), 1e-6)
             rho[i] = _lag1(r) if correlated else 0.0
             sig[i] = rms * float(np.sqrt((1.0 + rho[i]) / (1.0 - rho[i])))
+            r_all = full[i].y - _model(full[i], x, i)
+            robust = 1.4826 * float(np.median(np.abs(r_all - np.median(r_all))))
+            new = np.abs(r_all - np.median(r_all)) <= OUTLIER_K * max(robust, 1e-6)
+            keep[i] = new if int(new.sum()) >= 10 else keep[i]
+    data = [_S(f=d.f[k], tau_h=d.tau_h[k], y=d.y[k]) for d, k in zip(full, keep, strict=True)]
+    s, theta, obj, n, ok = _search(data, pr, sig)
+    nfev += n
     x = np.r_[s, theta[:2], theta[2:]]
     resid = tuple(d.y - _model(d, x, i) for i, d in enumerate(data))
     jac = np.vstack([_jacobian(d, x, i, m) / sig[i] for i, d in enumerate(data)])
@@ -224,4 +241,6 @@ def fit_mechanics_joint(
         sigma_um=tuple(float(v) for v in sig),
         rho=tuple(float(v) for v in rho),
         names=tuple(s.name for s in series),
+        outliers=tuple(int((~k).sum()) for k in keep),
+        kept=tuple(keep),
     )

@@ -1,4 +1,14 @@
-"""``chtc commission zero``: store the compensation zero in a running service, through its API.
+"""``chtc commission zero`` and ``chtc commission growth``: commissioning steps.
+
+``chtc commission growth TEMPERATURES CANLOG DISPLACEMENTS``: fit the growth's mechanics (mount restraint, α
+factors) to a measured thermal test (docs/commissioning.md, "Commission the growth";
+``service.engine.commissioning``): the service's own core runs over the temperature CSV and the CAN log, as
+``chtc identify`` does, and the displacement CSV (UTC time, ``axial_um``, optionally ``radial_um``) is fitted.
+Prints the residuals, the parameters with their prior and posterior, and the verdict; ``--json FILE`` writes
+the report. Exit status 0 when the model explains the test, 1 when it does not, 2 for unusable input. With
+``--url`` the files are sent to the running service instead (``POST /api/v1/compensation/mechanics`` with the
+write token), which fits them with its own core, stores the calibration and uses it at once (only when the
+model explains the test, or ``--force``).
 
 The zero is a commissioning fact (docs/commissioning.md, "Zero the compensation"): with the spindle at rest in
 equilibrium, the controller's thermal compensation is zeroed (the tool measured), and the service is told the
@@ -38,6 +48,26 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     z.add_argument("--set-by", default=None, help="who zeroed the controller (default: the OS user)")
     z.add_argument("--timeout", type=float, default=30.0, help="seconds to wait for the service")
+    g = sub.add_parser(
+        "growth",
+        help="fit the growth's mechanics to a measured thermal test (temperatures, CAN log, displacements)",
+    )
+    g.add_argument("temperatures", type=Path, help="temperature CSV (chtc record / drivers.logs format)")
+    g.add_argument("canlog", type=Path, help="CAN log (.blf/.asc/.log/.csv/.trc/.mf4)")
+    g.add_argument("displacements", type=Path, help="displacement CSV: time (UTC), axial_um[, radial_um]")
+    g.add_argument("--config", type=Path, default=None, help="settings TOML (default: built-in defaults)")
+    g.add_argument("--json", dest="json_out", default=None, help="write the report as JSON here (- stdout)")
+    g.add_argument("--max-rms-um", type=float, default=1.0, help="the residual RMS the model may leave, µm")
+    g.add_argument("--max-abs-um", type=float, default=3.0, help="the largest residual it may leave, µm")
+    g.add_argument(
+        "--url",
+        default=None,
+        help="send the test to this running service, which fits, stores and uses it (default: fit here only)",
+    )
+    g.add_argument("--token", default=None, help="with --url: the write token (default: api.token)")
+    g.add_argument("--set-by", default=None, help="who ran the test (default: the OS user)")
+    g.add_argument("--force", action="store_true", help="with --url: store even if the model fails the test")
+    g.add_argument("--timeout", type=float, default=600.0, help="with --url: seconds to wait for the service")
 
 
 def zero(
@@ -72,7 +102,118 @@ def zero(
     return out
 
 
+def send_growth(
+    url: str,
+    token: str,
+    *,
+    temperatures: Path,
+    canlog: Path,
+    displacements: Path,
+    set_by: str,
+    force: bool = False,
+    timeout_s: float = 600.0,
+    transport: Any = None,
+) -> dict[str, Any]:
+    """POST the test's files to ``url``'s ``/api/v1/compensation/mechanics``; the service's answer (JSON);
+    ``CommandError`` with the service's message when it refuses (401/403/409/422) or cannot be reached."""
+    import base64
+
+    import httpx
+
+    try:
+        body: dict[str, Any] = {
+            "temperatures_csv": temperatures.read_text(encoding="utf-8"),
+            "can_log_base64": base64.b64encode(canlog.read_bytes()).decode("ascii"),
+            "can_log_format": canlog.suffix.lower().lstrip("."),
+            "displacements_csv": displacements.read_text(encoding="utf-8-sig"),
+            "set_by": set_by,
+            "source": "cli",
+            "force": force,
+        }
+    except (OSError, UnicodeDecodeError) as err:
+        raise CommandError(f"cannot read the test's files: {err}") from err
+    target = url.rstrip("/") + "/api/v1/compensation/mechanics"
+    try:
+        with httpx.Client(timeout=timeout_s, transport=transport) as client:
+            resp = client.post(target, json=body, headers={"Authorization": f"Bearer {token}"})
+    except httpx.HTTPError as err:
+        raise CommandError(f"--url: cannot reach {target}: {err}") from err
+    if resp.status_code != 200:
+        try:
+            message = resp.json().get("error", {}).get("message", resp.text)
+        except ValueError:
+            message = resp.text
+        raise CommandError(f"the service refused the commissioning ({resp.status_code}): {message}")
+    out: dict[str, Any] = resp.json()
+    return out
+
+
+def _token(args: argparse.Namespace, settings: Any) -> str:
+    token = args.token or (settings.api.token.get_secret_value() if settings.api.token is not None else None)
+    if not token:
+        raise CommandError("--token: a write token is needed (or api.token in the settings, CHTC_API__TOKEN)")
+    return str(token)
+
+
+def growth(args: argparse.Namespace) -> int:
+    """``chtc commission growth`` (module docstring)."""
+    from service.commands._common import check_log_arguments
+    from service.engine.commissioning import FitLimits, commission_growth, format_report
+    from service.engine.runtime import core_config, os_user
+    from service.settings import load_settings
+
+    settings = load_settings(args.config)
+    check_log_arguments(args.temperatures, args.canlog)
+    set_by = args.set_by or os_user()
+    if args.url is not None:
+        out = send_growth(
+            args.url,
+            _token(args, settings),
+            temperatures=args.temperatures,
+            canlog=args.canlog,
+            displacements=args.displacements,
+            set_by=set_by,
+            force=args.force,
+            timeout_s=args.timeout,
+        )
+        print(json.dumps(out, indent=2))
+        print(f"mechanics stored and in use: {out['report']['verdict']}", file=sys.stderr)
+        return 0
+    from service.engine.commissioning import read_displacement_csv
+    from service.modelload import ModelRef, load_model
+
+    read_displacement_csv(args.displacements)  # a bad file is reported before the model loads
+    model = load_model(ModelRef.from_settings(settings))
+    rep = commission_growth(
+        model,
+        core_config(settings),
+        args.temperatures,
+        args.canlog,
+        args.displacements,
+        set_by=set_by,
+        source="cli",
+        limits=FitLimits(max_rms_um=args.max_rms_um, max_abs_um=args.max_abs_um),
+    )
+    for line in format_report(rep):
+        print(line)
+    if args.json_out is not None:
+        text = json.dumps(rep.as_dict(), indent=2)
+        if args.json_out == "-":
+            print(text)
+        else:
+            Path(args.json_out).write_text(text + "\n", encoding="utf-8")
+    if rep.explained:
+        print(
+            "store it in the running service: the same command with --url http://HOST:PORT/ "
+            "(and --token or api.token)",
+            file=sys.stderr,
+        )
+    return 0 if rep.explained else 1
+
+
 def main(args: argparse.Namespace) -> int:
+    if args.action == "growth":
+        return growth(args)
     from service.engine.runtime import os_user
     from service.settings import load_settings
 

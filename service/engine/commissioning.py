@@ -322,6 +322,7 @@ class CommissionReport:
     span_s: tuple[float, float]
     radial: dict[str, float] | None
     timings_s: dict[str, float] = field(default_factory=dict)
+    outliers: int = 0
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: the parameters with prior and posterior, residuals, verdict, phases, timings."""
@@ -348,6 +349,7 @@ class CommissionReport:
             "residual_rms_um": round(f.residual_rms_um, 4),
             "residual_max_um": round(f.residual_max_um, 4),
             "noise_um": round(f.noise_um, 4),
+            "outliers": self.outliers,
             "readings_used": int(f.residual_um.size),
             "readings": self.n_readings,
             "span": [datetime.fromtimestamp(v, tz=UTC).isoformat() for v in self.span_s],
@@ -397,7 +399,14 @@ def fit_test(
     first = int(ok[0])
     t_ref = float(np.mean(phi @ hist.states[first]))
     t_src, states = hist.t_s[first:], hist.states[first:]
-    feats = _interp(t_src, _features(basis, phi, states, t_ref, output=0), disp.t_s)
+    unconverged = ~hist.converged[first:]  # the live state restarted (an improbable jump): not its field
+
+    def feats_of(output: int) -> Array:
+        f = _features(basis, phi, states, t_ref, output=output)
+        f[unconverged] = np.nan  # readings next to an unconverged state are left out
+        return _interp(t_src, f, disp.t_s)
+
+    feats = feats_of(0)
     inside = np.isfinite(feats).all(axis=(1, 2)) & np.isfinite(disp.axial_um)
     if int(inside.sum()) < 2 * len(PARAMS):
         raise CommissioningError(
@@ -409,14 +418,20 @@ def fit_test(
     series = [FitSeries("axial", feats[inside], disp.t_s[inside], disp.axial_um[inside])]
     has_radial = disp.radial_um is not None and int(np.isfinite(disp.radial_um).sum()) >= 10
     if has_radial and disp.radial_um is not None:
-        feats_r = _interp(t_src, _features(basis, phi, states, t_ref, output=1), disp.t_s)
+        feats_r = feats_of(1)
         series.append(FitSeries("radial", feats_r, disp.t_s, disp.radial_um))
     t0 = time.perf_counter()
     joint = fit_mechanics_joint(series, prior=prior)
     fit_s = time.perf_counter() - t0
     fit = joint.result
-    speed = np.interp(disp.t_s[inside], t_src, np.abs(hist.speed_rpm[first:]))
+    speed = np.interp(disp.t_s[inside], t_src, np.abs(hist.speed_rpm[first:]))[joint.kept[0]]
     explained, problems, phases = judge_fit(fit, speed >= RUNNING_RPM, limits or FitLimits())
+    n_out = sum(joint.outliers)
+    if n_out > max(3, 0.05 * fit.n_used):
+        explained = False
+        problems.append(
+            f"{n_out} readings left out as outliers (more than 5 %): the service's field or the sensor jumped"
+        )
     radial = None
     if has_radial:
         r = joint.residuals_um[1]
@@ -466,6 +481,12 @@ def commission_growth(
     fit = joint.result
     timings["fit_s"] = fit_s
     report_at = now if now is not None else datetime.now(UTC)
+    if not (0.0 <= fit.x[0] <= 1.0 and 0.5 < fit.x[1] < 1.5 and 0.5 < fit.x[2] < 1.5):
+        raise CommissioningError(
+            f"the fit left the physical range (restraint {fit.x[0]:.3f}, α shaft {fit.x[1]:.3f}, α housing "
+            f"{fit.x[2]:.3f}; residual RMS {fit.residual_rms_um:.2f} µm): the model does not explain the test; "
+            "check the sensor's sign and units and that the logs cover the same time"
+        )
     cal = MechanicsCalibration(
         x=(float(fit.x[0]), float(fit.x[1]), float(fit.x[2])),
         cov=tuple(tuple(float(v) for v in row) for row in fit.cov[:3, :3]),
@@ -488,6 +509,7 @@ def commission_growth(
         span_s=(float(disp.t_s[0]), float(disp.t_s[-1])),
         radial=radial,
         timings_s=timings,
+        outliers=int(sum(joint.outliers)),
     )
     full = MechanicsCalibration(**{**cal.__dict__, "report": rep.as_dict()})
     return CommissionReport(**{**rep.__dict__, "calibration": full})
@@ -500,14 +522,15 @@ def format_report(rep: CommissionReport) -> list[str]:
     lines = [
         f"{d['readings_used']} of {d['readings']} displacement readings fitted "
         f"({d['span'][0]} .. {d['span'][1]}), zero at {rep.t_ref_c:.2f} °C",
-        f"residual RMS {f.residual_rms_um:.3f} µm, max {f.residual_max_um:.3f} µm (σ used {f.noise_um:.3f} µm)",
-        "parameter         value     95 % CI (posterior)        prior 1σ   posterior 1σ",
+        f"residual RMS {f.residual_rms_um:.3f} µm, max {f.residual_max_um:.3f} µm (σ used {f.noise_um:.3f} µm, "
+        f"correlation included); {rep.outliers} readings left out as outliers",
+        "parameter                 value     95 % CI (posterior)        prior 1σ   posterior 1σ",
     ]
     for p in d["parameters"]:
         prior = "flat" if p["prior_sd"] is None else f"{p['prior_sd']:.3f}"
         lo, hi = p["ci95"]
         lines.append(
-            f"  {p['name']:<15} {p['value']:>8.4f}  [{lo:>9.4f}, {hi:>9.4f}] {p['unit']:<5}  {prior:>8}   {p['sd']:.4f}"
+            f"  {p['name']:<21} {p['value']:>8.4f}  [{lo:>9.4f}, {hi:>9.4f}] {p['unit']:<5}  {prior:>8}   {p['sd']:.4f}"
         )
     for ph in rep.phases:
         lines.append(f"  {ph.name}: {ph.n} readings, RMS {ph.rms_um:.3f} µm, max {ph.max_um:.3f} µm, mean {ph.mean_um:+.3f} µm")

@@ -25,6 +25,7 @@ TABLES = {
     "offset_calibrations",
     "compensation_references",
     "live_state",
+    "mechanics_calibrations",
 }
 
 
