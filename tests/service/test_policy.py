@@ -129,3 +129,23 @@ def test_can_down_or_no_samples_is_stale_at_once() -> None:
     predicting = View(newest=Newest(daq_ok=True, can_ok=False), problems=(DAQ_DOWN,))
     assert verdict(predicting)[:2] == (ChtcStatus.STALE, False)
     assert verdict(View(newest=Newest(can_ok=False)))[1]  # CAN alone, DAQ fine: measured, still usable
+
+
+def test_an_uncalibrated_mechanics_is_not_usable_when_the_setting_asks_for_it() -> None:
+    """Issue 27: with the mount restraint and α unknown the served CI covered the truth 4 % of the time, so
+    ``compensation.require_mechanics_calibration`` (default true) withholds the growth until a commissioning;
+    a commissioned one passes to the later rules (here: usable)."""
+    from service.settings import Settings
+
+    strict = CompensationLimits(max_ci95_um=2.0, require_mechanics_calibration=True)
+    assert Settings().compensation.require_mechanics_calibration is True
+    assert verdict(limits=strict, has_mechanics=False) == (
+        ChtcStatus.FRESH,
+        False,
+        Reason.MECHANICS_UNCALIBRATED,
+    )
+    assert verdict(limits=strict, has_mechanics=True) == (ChtcStatus.FRESH, True, None)
+    assert verdict(limits=strict, has_mechanics=True, ci95_half_um=2.5)[2] is Reason.CI_TOO_WIDE
+    assert verdict(has_mechanics=False) == (ChtcStatus.FRESH, True, None)  # the rule off: judged as before
+    # the zero comes first: nothing to compensate against without one
+    assert verdict(limits=strict, has_mechanics=False, has_reference=False)[2] is Reason.NO_REFERENCE
