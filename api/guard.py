@@ -8,7 +8,9 @@ without a token would be a 422 instead of a 401. The guard runs first, in this o
 2. the route: a path the API knows with a method it does not -> 405 with ``Allow`` listing every method of
    that path (``HEAD`` is answered for every GET route: the GET's status and headers without the body);
 3. the route's bearer-token rule (taken from its ``require_write`` / ``require_read`` dependency) -> 401/403;
-4. ``Content-Length`` above ``max_body_bytes`` -> 413 ``too_large``.
+4. ``Content-Length`` above ``max_body_bytes`` -> 413 ``too_large`` (``large_body_bytes`` for the write
+   routes in ``large_body_routes``: a thermal test's files, ``POST /compensation/mechanics``, only after the
+   token was checked).
 
 Each of these answers in the error shape with ``Connection: close`` and without reading the body. While a
 route reads its body the guard counts the bytes (413 once a chunked body exceeds the cap) and gives each
@@ -46,6 +48,9 @@ class GuardLimits:
     max_body_bytes: int = 4096  # the largest legitimate body is {"reason": "<= 64 chars"}
     max_url_bytes: int = 64 * 1024  # format=points takes up to 20 000 characters (percent-encoded: more)
     body_timeout_s: float = 10.0  # per received chunk of a body
+    # write routes that take files: a 4-h thermal test at 1 Hz is ~15 MB of CSV and CAN log (base64)
+    large_body_routes: tuple[str, ...] = ("/compensation/mechanics",)
+    large_body_bytes: int = 96 * 1024 * 1024
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -131,8 +136,8 @@ class RequestGuard:
             await send(message)
 
         try:
-            scope, send_on = self._admit(scope, tracking_send)
-            await self.app(scope, self._counting(receive), send_on)
+            scope, send_on, cap = self._admit(scope, tracking_send)
+            await self.app(scope, self._counting(receive, cap), send_on)
         except _Rejected as rej:
             if not started[0]:
                 await _send_error(tracking_send, rej.error, close=True)
@@ -145,8 +150,9 @@ class RequestGuard:
                     tracking_send, ApiError(status=500, code="internal", message=message), close=True
                 )
 
-    def _admit(self, scope: Scope, send: Send) -> tuple[Scope, Send]:
-        """Raise :class:`_Rejected` for the checks 1-4; return the scope and send to run the app with."""
+    def _admit(self, scope: Scope, send: Send) -> tuple[Scope, Send, int]:
+        """Raise :class:`_Rejected` for the checks 1-4; return the scope and send to run the app with, and the
+        body cap of its route."""
         target = len(scope.get("raw_path") or scope["path"].encode()) + len(scope.get("query_string", b""))
         if target > self.limits.max_url_bytes:
             raise _Rejected(
@@ -158,7 +164,7 @@ class RequestGuard:
             )
         candidates = [r for r in self.rules if r.pattern.match(scope["path"])]
         if not candidates:
-            return scope, send
+            return scope, send, self.limits.max_body_bytes
         method = scope["method"]
         head = method == "HEAD" and not any("HEAD" in r.methods for r in candidates)
         wanted = "GET" if head else method
@@ -174,10 +180,12 @@ class RequestGuard:
                 )
             )
         self._authorize(rule.access, scope)
-        self._check_length(scope)
+        large = rule.access == "write" and any(rule.path.endswith(r) for r in self.limits.large_body_routes)
+        cap = self.limits.large_body_bytes if large else self.limits.max_body_bytes
+        self._check_length(scope, cap)
         if head:
-            return {**scope, "method": "GET"}, _without_body(send)
-        return scope, send
+            return {**scope, "method": "GET"}, _without_body(send), cap
+        return scope, send, cap
 
     def _authorize(self, access: Access, scope: Scope) -> None:
         if access == "open":
@@ -187,19 +195,20 @@ class RequestGuard:
         if denial is not None:
             raise _Rejected(denial)
 
-    def _check_length(self, scope: Scope) -> None:
+    def _check_length(self, scope: Scope, cap: int) -> None:
         length = _header(scope, b"content-length")
-        if length is not None and length.strip().isdigit() and int(length) > self.limits.max_body_bytes:
-            raise _Rejected(self._too_large(int(length)))
+        if length is not None and length.strip().isdigit() and int(length) > cap:
+            raise _Rejected(self._too_large(int(length), cap))
 
-    def _too_large(self, size: int) -> ApiError:
+    @staticmethod
+    def _too_large(size: int, cap: int) -> ApiError:
         return ApiError(
             status=413,
             code="too_large",
-            message=f"request body is {size} bytes or more, at most {self.limits.max_body_bytes} allowed",
+            message=f"request body is {size} bytes or more, at most {cap} allowed",
         )
 
-    def _counting(self, receive: Receive) -> Receive:
+    def _counting(self, receive: Receive, cap: int) -> Receive:
         """``receive`` with the body cap and the per-chunk timeout applied while a body is being read."""
         state = {"received": 0, "done": False}
 
@@ -214,8 +223,8 @@ class RequestGuard:
                 ) from None
             if message["type"] == "http.request":
                 state["received"] += len(message.get("body", b""))
-                if state["received"] > self.limits.max_body_bytes:
-                    err = self._too_large(state["received"])
+                if state["received"] > cap:
+                    err = self._too_large(state["received"], cap)
                     raise HTTPException(413, err.message, {"Connection": "close"})
                 state["done"] = not message.get("more_body", False)
             else:
