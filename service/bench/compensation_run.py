@@ -361,7 +361,11 @@ def run_seed(
     from service.sim.logsamples import samples_from_plant
     from service.sim.randomtruth import draw_truth
 
-    settings = override(settings, "compensation", reference_on_first_start=True)
+    # a plant with the description's own mechanics needs no commissioning (issue 27's rule, off); a drawn
+    # plant's are unknown to the service: the settings' rule applies (default: not usable, reason
+    # mechanics_uncalibrated)
+    known = {"require_mechanics_calibration": False} if plant.mode == "nominal" else {}
+    settings = override(settings, "compensation", reference_on_first_start=True, **known)
     started = time.perf_counter()
     truth = draw_truth(np.random.default_rng([seed, 7]))
     profile = duty_profile(seed, duration_s=60.0 * plan.total_min, idle_s=60.0 * plan.rest_min)

@@ -333,6 +333,11 @@ def served_service(
     """
     s = settings if settings is not None else Settings()
     s = s.model_copy(update={"database": s.database.model_copy(update={"url": database_url})})
+    if "require_mechanics_calibration" not in s.compensation.model_fields_set:
+        # the plan's plant has the spindle description's own mechanics: nothing to commission unless the
+        # settings ask for the rule explicitly (issue 27)
+        comp = s.compensation.model_copy(update={"require_mechanics_calibration": False})
+        s = s.model_copy(update={"compensation": comp})
     samples = plant_samples(plan) if plan is not None else ()
     clock = clock if clock is not None else ManualClock(samples[0].t if samples else PLAN_T0)
     say = on_event or (lambda _msg: None)

@@ -54,7 +54,13 @@ def _body(t: ThermalTest, **kw: object) -> dict[str, object]:
 def test_commissioning_needs_the_token_names_bad_input_and_is_used_and_restored(
     thermal_test: ThermalTest, tmp_path: Path
 ) -> None:
-    settings = per_condition(Settings(api={"token": WRITE_TOKEN}, identification=DEMO_WINDOWS))  # type: ignore[arg-type]
+    settings = per_condition(
+        Settings(
+            api={"token": WRITE_TOKEN},  # type: ignore[arg-type]
+            identification=DEMO_WINDOWS,  # type: ignore[arg-type]
+            compensation={"require_mechanics_calibration": True},  # type: ignore[arg-type]
+        )
+    )
     url = sqlite_url(tmp_path, "mech.db")
     with served_service(database_url=url, settings=settings, feed_samples=40) as s:
         with TestClient(create_app(settings, s.service, clock=s.clock)) as c:

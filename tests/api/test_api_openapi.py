@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import json
+
 from typing import Any
 
 from fastapi.testclient import TestClient
@@ -58,6 +60,9 @@ def test_statuses_where_they_occur(ro_client: TestClient) -> None:
     assert "text/plain" in ops[("/api/v1/metrics", "get")]["200"]["content"]
     assert "404" in ops[("/api/v1/compensation/reference", "get")]
     assert {"401", "403", "409", "422"} <= set(ops[("/api/v1/compensation/reference", "post")])
+    assert {"401", "403", "409", "422"} <= set(ops[("/api/v1/compensation/mechanics", "post")])
+    assert "404" in ops[("/api/v1/compensation/mechanics", "get")]
+    assert "mechanics_uncalibrated" in json.dumps(_doc(ro_client)["components"]["schemas"]["Reason"])
 
 
 def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
@@ -70,6 +75,7 @@ def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
         ("/api/v1/identifications", "post"),
         ("/api/v1/sensors/baseline", "post"),
         ("/api/v1/compensation/reference", "post"),
+        ("/api/v1/compensation/mechanics", "post"),
     }
     settings = Settings(api={"token": WRITE_TOKEN, "read_token": "read-token-for-openapi"})
     with TestClient(create_app(settings, ro_service, clock=ro_clock)) as c:
