@@ -12,9 +12,12 @@ time, and an axial series alone leaves the restraint s and the shaft's α factor
 
       y_i,k = (1 − s) G_i,free(a)·ΔT_k + s G_i,held(a)·ΔT_k + c_i + d_i (t_k − t_0)/3600 + e_i,k
 
-- **correlated residuals**: each series' σ_i is its residual RMS inflated by the AR(1) factor
-  √((1 + ρ_i)/(1 − ρ_i)), ρ_i its residuals' lag-1 autocorrelation (clipped to [0, 0.95]): the effective
-  number of independent readings is n (1 − ρ)/(1 + ρ). Iterated (σ, ρ from the fit before).
+- **correlated residuals**: each series' σ_i is its residual RMS inflated by √(n / n_eff), n_eff = n / (1 + 2
+  Σ_k ρ_k) the effective number of independent readings, ρ_k the residuals' autocorrelation at lag k summed
+  while positive (the initial positive sequence; by reading index, so irregular sampling counts as even).
+  A lag-1 AR(1) factor is not enough: at 1 Hz the slow error's correlation spans hundreds of readings (a 4-h
+  test at 1 Hz then claimed 370 independent readings, and α housing went to 1.43). Iterated (σ, n_eff from
+  the fit before).
 - **outliers**: a reading whose residual exceeds ``OUTLIER_K`` robust σ (1.4826 · MAD of its series) is left
   out of the next pass, and counted; a field estimate that jumps for a few minutes (the live state's, measured
   once on a drawn plant: 250 °C for a minute after a stop) would otherwise drag a_s to 0.
@@ -39,11 +42,10 @@ from scipy.optimize import minimize_scalar
 from model.growthfit import Z95, GrowthFitError, MechanicsFitResult, MechanicsPrior
 
 Array = NDArray[np.float64]
-MAX_RHO = 0.95
 PASSES = 4
 OUTLIER_K = 6.0
 
-__all__ = ["FitSeries", "JointFit", "fit_mechanics_joint"]
+__all__ = ["FitSeries", "JointFit", "correlation_factor", "fit_mechanics_joint"]
 
 
 @dataclass(frozen=True)
@@ -60,8 +62,9 @@ class FitSeries:
 @dataclass(frozen=True)
 class JointFit:
     """``result``: the fit (``x``, ``cov``, ``sd``, ``ci95`` over all parameters; residuals, RMS and max of
-    the first series' readings kept); per series its residuals [µm] (kept readings), σ used [µm], lag-1
-    autocorrelation ρ, readings left out as outliers and the kept readings' mask over its usable ones."""
+    the first series' readings kept); per series its residuals [µm] (kept readings), σ used [µm], the
+    correlation factor n / n_eff (``rho``), readings left out as outliers and the kept readings' mask over its
+    usable ones."""
 
     result: MechanicsFitResult
     residuals_um: tuple[Array, ...]
@@ -165,11 +168,20 @@ def _jacobian(d: _S, x: Array, i: int, m: int) -> Array:
     return j
 
 
-def _lag1(r: Array) -> float:
-    if r.size < 3 or float(np.std(r)) == 0.0:
-        return 0.0
-    rho = float(np.corrcoef(r[:-1], r[1:])[0, 1])
-    return float(np.clip(rho if np.isfinite(rho) else 0.0, 0.0, MAX_RHO))
+def correlation_factor(r: ArrayLike) -> float:
+    """n / n_eff = 1 + 2 Σ ρ_k over the initial positive autocorrelations of ``r`` (>= 1)."""
+    x = np.asarray(r, dtype=float)
+    x = x - x.mean()
+    n = x.size
+    if n < 3 or float(x @ x) == 0.0:
+        return 1.0
+    size = 1 << (2 * n - 1).bit_length()
+    spec = np.fft.rfft(x, size)
+    acf = np.fft.irfft(spec * np.conj(spec), size)[:n]
+    rho = acf[1:] / acf[0]
+    stop = np.flatnonzero(rho <= 0.0)
+    pos = rho[: int(stop[0]) if stop.size else rho.size]
+    return float(max(1.0, 1.0 + 2.0 * float(pos.sum())))
 
 
 def fit_mechanics_joint(
@@ -185,7 +197,7 @@ def fit_mechanics_joint(
     keep = [np.ones(d.y.size, dtype=bool) for d in full]
     data = full
     sig = np.ones(m)
-    rho = np.zeros(m)
+    rho = np.ones(m)
     nfev = 0
     for _ in range(PASSES):
         data = [_S(f=d.f[k], tau_h=d.tau_h[k], y=d.y[k]) for d, k in zip(full, keep, strict=True)]
@@ -195,8 +207,8 @@ def fit_mechanics_joint(
         for i, d in enumerate(data):
             r = d.y - _model(d, x, i)
             rms = max(float(np.sqrt(np.mean(r**2))), 1e-6)
-            rho[i] = _lag1(r) if correlated else 0.0
-            sig[i] = rms * float(np.sqrt((1.0 + rho[i]) / (1.0 - rho[i])))
+            rho[i] = correlation_factor(r) if correlated else 1.0
+            sig[i] = rms * float(np.sqrt(rho[i]))
             r_all = full[i].y - _model(full[i], x, i)
             robust = 1.4826 * float(np.median(np.abs(r_all - np.median(r_all))))
             new = np.abs(r_all - np.median(r_all)) <= OUTLIER_K * max(robust, 1e-6)
@@ -232,7 +244,7 @@ def fit_mechanics_joint(
         success=ok,
         message="joint profiled least squares over "
         + ", ".join(s.name for s in series)
-        + (", σ inflated for lag-1 correlation" if correlated else ""),
+        + (", σ inflated for the residuals' correlation" if correlated else ""),
         names=tuple(names),
     )
     return JointFit(
