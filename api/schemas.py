@@ -692,7 +692,7 @@ def mechanics_out(c: MechanicsCalibration) -> MechanicsOut:
 
 
 class MechanicsCommissionIn(BaseModel):
-    """``POST /compensation/mechanics``: a measured thermal test, the files' contents (docs/commissioning.md)."""
+    """``POST /compensation/mechanics``: a thermal test, its files' contents (docs/commissioning.md)."""
 
     model_config = {"extra": "forbid"}
     temperatures_csv: str = Field(

@@ -107,9 +107,7 @@ def _blend(f: Array, s: float) -> Array:
     return np.asarray(np.einsum("kmj,m->kj", f, np.array([1.0 - s, s])))
 
 
-def _linear(
-    data: list[_S], s: float, prior: MechanicsPrior, sig: Array
-) -> tuple[Array, float]:
+def _linear(data: list[_S], s: float, prior: MechanicsPrior, sig: Array) -> tuple[Array, float]:
     """(a_s, a_h, c_1, d_1, c_2, d_2, ...) at s and the objective."""
     m = len(data)
     rows, rhs_y = [], []

@@ -30,8 +30,8 @@ COMMANDS: dict[str, str] = {
     "replay": "play recorded logs through simulated devices into the unchanged service",
     "identify": "offline, deterministic identification of H1-H7 from recorded log files",
     "prebuild": "build the FE model and the reduced-model cache ahead of time (container images, installs)",
-    "commission": "commissioning steps: `zero` stores the compensation zero; `growth` fits the mechanics to a "
-    "measured thermal test",
+    "commission": "commissioning steps: `zero` stores the compensation zero; `growth` fits the mechanics "
+    "to a measured thermal test",
 }
 
 BENCHMARKS: dict[str, str] = {

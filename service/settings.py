@@ -344,7 +344,8 @@ class CompensationSettings(_Section):
     # until one is set (POST /api/v1/compensation/reference or chtc commission zero). Only right if the
     # spindle rests in equilibrium when the service first starts and the controller was zeroed then.
     reference_on_first_start: bool = False
-    # /compensation is not usable (reason mechanics_uncalibrated) until the growth's mechanics are commissioned
+    # /compensation is not usable (reason mechanics_uncalibrated) until the growth's mechanics are
+    # commissioned
     # from a measured thermal test (chtc commission growth): with the mount restraint and α unknown the served
     # CI covered the truth 4 % of the time (docs/design/policy.md); false only for a machine whose mechanics
     # match the spindle description (the simulator's plant)

@@ -3,9 +3,9 @@ docs/design/growth.md): axial and radial growth in µm and 0.1-µm integers, 95 
 controller values, the sensor sensitivity, with the policy's verdict on the growth
 (``service.serve.policy``). GET /compensation/section: the section's outline and its displacement (µm) by
 the live field, for the dashboard's exaggerated drawing. GET /compensation/reference: the compensation zero
-in use; POST (token): set it now. GET /compensation/mechanics: the commissioned mechanics in use; POST (token):
-commission them from a measured thermal test (the files' contents; the fit runs in this request's thread,
-seconds to a minute: the service's own core over the test's logs).
+in use; POST (token): set it now. GET /compensation/mechanics: the commissioned mechanics in use; POST
+(token): commission them from a measured thermal test (the files' contents; the fit runs in this request's
+thread, seconds to a minute: the service's own core over the test's logs).
 
 A plain (not async) endpoint: FastAPI runs it in a worker thread, because the service may build the growth
 model once and its per-condition terms (~0.3 s) on a new identification or condition; never on the loop.
@@ -140,13 +140,17 @@ def get_mechanics(service: ServiceDep) -> MechanicsOut:
     responses={
         401: {"description": "no token"},
         403: {"description": "wrong token"},
-        409: {"description": "the model does not explain the test (nothing stored; see the message, or force)"},
+        409: {
+            "description": "the model does not explain the test (nothing stored; see the message, or force)"
+        },
         422: {"description": "a file that cannot be read (the message names the file, line and field)"},
     },
     summary="commission the growth's mechanics from a measured thermal test (needs the bearer token); "
     "stored, restored at every start",
 )
-def post_mechanics(service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()]) -> MechanicsCommissionOut:
+def post_mechanics(
+    service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()]
+) -> MechanicsCommissionOut:
     from drivers.logs import LogFormatError
     from service.engine.commissioning import CommissioningError
 
@@ -156,7 +160,11 @@ def post_mechanics(service: ServiceDep, _: WriteAccess, body: Annotated[Mechanic
         raise ApiError(status=422, code="invalid", message=f"can_log_base64: not base64 ({err})") from err
     with tempfile.TemporaryDirectory(prefix="chtc-commission-") as tmp:
         d = Path(tmp)
-        temps, canlog, disp = d / "temperatures.csv", d / f"can.{body.can_log_format}", d / "displacements.csv"
+        temps, canlog, disp = (
+            d / "temperatures.csv",
+            d / f"can.{body.can_log_format}",
+            d / "displacements.csv",
+        )
         temps.write_text(body.temperatures_csv, encoding="utf-8")
         canlog.write_bytes(can_bytes)
         disp.write_text(body.displacements_csv, encoding="utf-8")
@@ -174,5 +182,9 @@ def post_mechanics(service: ServiceDep, _: WriteAccess, body: Annotated[Mechanic
             raise ApiError(status=422, code="invalid", message=message) from err
     report = rep.as_dict()
     if not stored:
-        raise ApiError(status=409, code="conflict", message=f"nothing stored: {report['verdict']} (force to store it anyway)")
+        raise ApiError(
+            status=409,
+            code="conflict",
+            message=f"nothing stored: {report['verdict']} (force to store it anyway)",
+        )
     return MechanicsCommissionOut(stored=stored, mechanics=mechanics_out(rep.calibration), report=report)

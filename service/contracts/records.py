@@ -464,7 +464,8 @@ class LiveStateData:
 class MechanicsCalibrationData:
     """A commissioning of the growth's mechanics (``service.estimate.mechanics.MechanicsCalibration``): when
     (UTC), how (``source``) and by whom, θ = (restraint, α shaft, α housing) and its covariance (3×3, row
-    major), the fit's residual RMS and max [µm], its verdict, the SHA-256 of the test's files and the report."""
+    major), the fit's residual RMS and max [µm], its verdict, the SHA-256 of the test's files and its
+    report."""
 
     at: datetime
     set_by: str

@@ -52,8 +52,8 @@ __all__ = [
     "CommissioningError",
     "DisplacementFormatError",
     "Displacements",
-    "FitLimits",
     "FieldHistory",
+    "FitLimits",
     "commission_growth",
     "judge_fit",
     "read_displacement_csv",
@@ -195,7 +195,9 @@ class FieldHistory:
     speed_rpm: Array
 
 
-def field_history(model: LoadedModel, config: CoreConfig, temperatures: Path, canlog: Path | None) -> FieldHistory:
+def field_history(
+    model: LoadedModel, config: CoreConfig, temperatures: Path, canlog: Path | None
+) -> FieldHistory:
     """Run the service's core (``config``) over the logs (``run_offline``: the same samples, live state and
     identifications as ``chtc identify``, one sample per ``config.rules.dt_s``) and keep the live state after
     every sample."""
@@ -299,16 +301,20 @@ def judge_fit(
         )
     for i, name in ((1, "alpha_shaft"), (2, "alpha_housing")):
         if abs(float(fit.x[i]) - 1.0) > limits.alpha_band:
-            problems.append(f"{name} = {fit.x[i]:.3f}: beyond 1 ± {limits.alpha_band:g} (a material not as described?)")
+            problems.append(
+                f"{name} = {fit.x[i]:.3f}: beyond 1 ± {limits.alpha_band:g} (a material not as described?)"
+            )
     for name, value in zip(fit.names, fit.x, strict=True):
         if name.startswith("drift") and abs(float(value)) > limits.max_drift_um_per_h:
             problems.append(
-                f"{name} = {value:+.2f} µm/h beyond ±{limits.max_drift_um_per_h:g}: the fixture slipped or the "
-                "model misses a growth that the drift absorbs (look at the residuals around the speed changes)"
+                f"{name} = {value:+.2f} µm/h beyond ±{limits.max_drift_um_per_h:g}: the fixture slipped or "
+                "the model misses a growth that the drift absorbs (look at the residuals around the speed "
+                "changes)"
             )
     if s_sd > limits.min_sd_reduction * float(fit.prior_sd[0]):
         problems.append(
-            f"the test does not determine the restraint (posterior sd {s_sd:.2f} vs prior {fit.prior_sd[0]:.2f}): "
+            f"the test does not determine the restraint (posterior sd {s_sd:.2f} vs prior "
+            f"{fit.prior_sd[0]:.2f}): "
             "run the recommended profile (more heating)"
         )
     return not problems, problems, phases
@@ -346,7 +352,11 @@ class CommissionReport:
                     "sd": round(float(f.sd[i]), 6),
                     "ci95": [round(float(f.ci95[i, 0]), 6), round(float(f.ci95[i, 1]), 6)],
                     "prior_sd": None if not math.isfinite(prior_sd) else round(prior_sd, 6),
-                    "unit": "µm" if name.startswith("offset") else "µm/h" if name.startswith("drift") else "1",
+                    "unit": "µm"
+                    if name.startswith("offset")
+                    else "µm/h"
+                    if name.startswith("drift")
+                    else "1",
                 }
             )
         return {
@@ -365,8 +375,13 @@ class CommissionReport:
             "t_ref_c": round(self.t_ref_c, 4),
             "parameters": params,
             "phases": [
-                {"phase": p.name, "n": p.n, "rms_um": round(p.rms_um, 4), "max_um": round(p.max_um, 4),
-                 "mean_um": round(p.mean_um, 4)}
+                {
+                    "phase": p.name,
+                    "n": p.n,
+                    "rms_um": round(p.rms_um, 4),
+                    "max_um": round(p.max_um, 4),
+                    "mean_um": round(p.mean_um, 4),
+                }
                 for p in self.phases
             ],
             "radial_residual": self.radial,
@@ -375,7 +390,9 @@ class CommissionReport:
         }
 
 
-def _features(basis: ServedMechanicsBasis, phi: Array, states: Array, t_ref_c: float, *, output: int) -> Array:
+def _features(
+    basis: ServedMechanicsBasis, phi: Array, states: Array, t_ref_c: float, *, output: int
+) -> Array:
     """F (n, 2, 3) of ``output`` (0 nose axial, 1 nose radial) from reduced states (n, r): op·(Φa − T_ref)."""
     op = basis.operators[output]  # (2, 3, N)
     op_phi = np.einsum("mjn,nr->mjr", op, phi)
@@ -493,7 +510,8 @@ def commission_growth(
     if not (0.0 <= fit.x[0] <= 1.0 and 0.5 < fit.x[1] < 1.5 and 0.5 < fit.x[2] < 1.5):
         raise CommissioningError(
             f"the fit left the physical range (restraint {fit.x[0]:.3f}, α shaft {fit.x[1]:.3f}, α housing "
-            f"{fit.x[2]:.3f}; residual RMS {fit.residual_rms_um:.2f} µm): the model does not explain the test; "
+            f"{fit.x[2]:.3f}; residual RMS {fit.residual_rms_um:.2f} µm): the model does not explain the "
+            "test; "
             "check the sensor's sign and units and that the logs cover the same time"
         )
     cal = MechanicsCalibration(
@@ -531,7 +549,8 @@ def format_report(rep: CommissionReport) -> list[str]:
     lines = [
         f"{d['readings_used']} of {d['readings']} displacement readings fitted "
         f"({d['span'][0]} .. {d['span'][1]}), zero at {rep.t_ref_c:.2f} °C",
-        f"residual RMS {f.residual_rms_um:.3f} µm, max {f.residual_max_um:.3f} µm (σ used {f.noise_um:.3f} µm, "
+        f"residual RMS {f.residual_rms_um:.3f} µm, max {f.residual_max_um:.3f} µm "
+        f"(σ used {f.noise_um:.3f} µm, "
         f"correlation included); {rep.outliers} readings left out as outliers",
         "parameter                 value     95 % CI (posterior)        prior 1σ   posterior 1σ",
     ]
@@ -539,12 +558,18 @@ def format_report(rep: CommissionReport) -> list[str]:
         prior = "flat" if p["prior_sd"] is None else f"{p['prior_sd']:.3f}"
         lo, hi = p["ci95"]
         lines.append(
-            f"  {p['name']:<21} {p['value']:>8.4f}  [{lo:>9.4f}, {hi:>9.4f}] {p['unit']:<5}  {prior:>8}   {p['sd']:.4f}"
+            f"  {p['name']:<21} {p['value']:>8.4f}  [{lo:>9.4f}, {hi:>9.4f}] {p['unit']:<5}  {prior:>8}   "
+            f"{p['sd']:.4f}"
         )
     for ph in rep.phases:
-        lines.append(f"  {ph.name}: {ph.n} readings, RMS {ph.rms_um:.3f} µm, max {ph.max_um:.3f} µm, mean {ph.mean_um:+.3f} µm")
+        lines.append(
+            f"  {ph.name}: {ph.n} readings, RMS {ph.rms_um:.3f} µm, max {ph.max_um:.3f} µm, "
+            f"mean {ph.mean_um:+.3f} µm"
+        )
     if rep.radial is not None:
-        lines.append(f"  radial residual: RMS {rep.radial['rms_um']:.3f} µm, max {rep.radial['max_um']:.3f} µm")
+        lines.append(
+            f"  radial residual: RMS {rep.radial['rms_um']:.3f} µm, max {rep.radial['max_um']:.3f} µm"
+        )
     lines.append(f"verdict: {d['verdict']}")
     t = rep.timings_s
     lines.append(

@@ -57,8 +57,8 @@ from service.estimate.growth import (
     plc_compensation,
     with_mechanics,
 )
-from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis, served_mechanics_basis
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
+from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis, served_mechanics_basis
 from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
 from service.serve.interface import (

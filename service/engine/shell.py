@@ -33,9 +33,9 @@ import math
 import threading
 import time
 from collections.abc import Callable, Coroutine, Mapping, Sequence
-from pathlib import Path
 from dataclasses import replace
 from datetime import UTC, datetime
+from pathlib import Path
 from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
@@ -758,7 +758,8 @@ class SoftSensorService:
         x = cal.x
         self.on_event(
             f"mechanics commissioned: restraint {x[0]:.3f}, α shaft {x[1]:.3f}, α housing {x[2]:.3f} "
-            f"({cal.source}, by {cal.set_by}; the model {'explains' if cal.explained else 'does NOT explain'} "
+            f"({cal.source}, by {cal.set_by}; the model "
+            f"{'explains' if cal.explained else 'does NOT explain'} "
             "the test)"
         )
 

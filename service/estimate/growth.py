@@ -104,7 +104,9 @@ class GrowthContext:
     cov_mech: Array | None = None
 
 
-def with_mechanics(ctx: GrowthContext, operators: ArrayLike, jacobian: ArrayLike, cov: ArrayLike) -> GrowthContext:
+def with_mechanics(
+    ctx: GrowthContext, operators: ArrayLike, jacobian: ArrayLike, cov: ArrayLike
+) -> GrowthContext:
     """``ctx`` with the calibrated operators g(θ) (2, N), their Jacobian ∂g/∂θ (2, 3, N) and the posterior
     Σ_θ (3, 3) (``service.estimate.mechanics``); the growth model (section drawing) keeps its own."""
     g = np.asarray(operators, dtype=float)

@@ -84,7 +84,11 @@ class ServedMechanicsBasis:
         g = op[:, :, 0] + a_s * op[:, :, 1] + a_h * op[:, :, 2]
         w = np.array([1.0 - s, s])
         return np.stack(
-            [g[:, 1] - g[:, 0], np.einsum("omn,m->on", op[:, :, 1], w), np.einsum("omn,m->on", op[:, :, 2], w)],
+            [
+                g[:, 1] - g[:, 0],
+                np.einsum("omn,m->on", op[:, :, 1], w),
+                np.einsum("omn,m->on", op[:, :, 2], w),
+            ],
             axis=1,
         )
 

@@ -43,8 +43,8 @@ import numpy.typing as npt
 from service.contracts.records import IdentificationData
 from service.errors import ServiceError
 from service.estimate.locator import TriangleLocator, locator_for
-from service.estimate.reference import CompensationReference
 from service.estimate.mechanics import MechanicsCalibration
+from service.estimate.reference import CompensationReference
 from service.identify.mode import IdentificationMode
 
 # the policy's vocabulary, re-exported for api/ (which imports only this module of service/)

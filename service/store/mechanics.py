@@ -54,7 +54,10 @@ def mechanics_from_row(row: MechanicsCalibrationRow) -> MechanicsCalibration:
         flat = [float(v) for v in row.cov]  # type: ignore[arg-type]
         if len(flat) != 9:
             raise MechanicsError(f"cov: expected 9 values (3×3), got {len(flat)}")
-        sources = {"temperatures": str(row.temperatures_sha256), "displacements": str(row.displacements_sha256)}
+        sources = {
+            "temperatures": str(row.temperatures_sha256),
+            "displacements": str(row.displacements_sha256),
+        }
         if row.canlog_sha256 is not None:
             sources["canlog"] = str(row.canlog_sha256)
         return MechanicsCalibration(

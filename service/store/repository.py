@@ -21,12 +21,12 @@ from sqlalchemy.sql import Select
 
 from service.contracts.records import (
     CompensationReferenceData,
-    MechanicsCalibrationData,
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
     IdentificationData,
     LiveStateData,
+    MechanicsCalibrationData,
     OffsetCalibrationData,
     Record,
     SampleData,
@@ -35,11 +35,11 @@ from service.store.errors import RecordNotFoundError
 from service.store.models import (
     Base,
     CompensationReferenceRow,
-    MechanicsCalibrationRow,
     Condition,
     DeviceEvent,
     Identification,
     LiveStateRow,
+    MechanicsCalibrationRow,
     OffsetCalibrationRow,
     SampleRow,
 )

@@ -62,34 +62,36 @@ def test_commissioning_needs_the_token_names_bad_input_and_is_used_and_restored(
         )
     )
     url = sqlite_url(tmp_path, "mech.db")
-    with served_service(database_url=url, settings=settings, feed_samples=40) as s:
-        with TestClient(create_app(settings, s.service, clock=s.clock)) as c:
-            assert c.post("/api/v1/compensation/reference", headers=AUTH, json={"temperature_c": 21.0}).is_success
-            assert c.get(MECH).status_code == 404
-            before = c.get("/api/v1/compensation").json()
-            assert before["mechanics"] is None and before["reason_code"] == "mechanics_uncalibrated"
-            assert before["axial"]["std_mech_um"] == 0.0
-            assert c.post(MECH, json=_body(thermal_test)).status_code == 401
-            wrong = {"Authorization": "Bearer " + "w" * 40}
-            assert c.post(MECH, headers=wrong, json=_body(thermal_test)).status_code == 403
-            bad = _body(thermal_test, displacements_csv="time,radial_um\n2026-11-27T06:00:00Z,1\n")
-            r = c.post(MECH, headers=AUTH, json=bad)
-            assert r.status_code == 422 and "missing column 'axial_um'" in r.json()["error"]["message"], r.text
-            assert "/tmp" not in r.json()["error"]["message"]  # the service's temporary paths stay inside
-            r = c.post(MECH, headers=AUTH, json=_body(thermal_test))
-            assert r.status_code == 200, r.text
-            body = r.json()
-            assert body["stored"] and body["report"]["explained"]
-            p = {q["name"]: q for q in body["mechanics"]["parameters"]}
-            lo, hi = p["restraint"]["ci95"]
-            assert lo <= thermal_test.mechanics.restraint <= hi
-            assert body["mechanics"]["set_by"] == "carol" and body["mechanics"]["source"] == "api"
-            assert set(body["mechanics"]["sources_sha256"]) == {"temperatures", "canlog", "displacements"}
-            assert c.get(MECH).json() == body["mechanics"]
-            after = c.get("/api/v1/compensation").json()
-            assert after["mechanics"] == body["mechanics"]
-            assert after["reason_code"] != "mechanics_uncalibrated"
-            stored_x = [q["value"] for q in body["mechanics"]["parameters"]]
+    with (
+        served_service(database_url=url, settings=settings, feed_samples=40) as s,
+        TestClient(create_app(settings, s.service, clock=s.clock)) as c,
+    ):
+        assert c.post("/api/v1/compensation/reference", headers=AUTH, json={"temperature_c": 21.0}).is_success
+        assert c.get(MECH).status_code == 404
+        before = c.get("/api/v1/compensation").json()
+        assert before["mechanics"] is None and before["reason_code"] == "mechanics_uncalibrated"
+        assert before["axial"]["std_mech_um"] == 0.0
+        assert c.post(MECH, json=_body(thermal_test)).status_code == 401
+        wrong = {"Authorization": "Bearer " + "w" * 40}
+        assert c.post(MECH, headers=wrong, json=_body(thermal_test)).status_code == 403
+        bad = _body(thermal_test, displacements_csv="time,radial_um\n2026-11-27T06:00:00Z,1\n")
+        r = c.post(MECH, headers=AUTH, json=bad)
+        assert r.status_code == 422 and "missing column 'axial_um'" in r.json()["error"]["message"], r.text
+        assert "/tmp" not in r.json()["error"]["message"]  # the service's temporary paths stay inside
+        r = c.post(MECH, headers=AUTH, json=_body(thermal_test))
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert body["stored"] and body["report"]["explained"]
+        p = {q["name"]: q for q in body["mechanics"]["parameters"]}
+        lo, hi = p["restraint"]["ci95"]
+        assert lo <= thermal_test.mechanics.restraint <= hi
+        assert body["mechanics"]["set_by"] == "carol" and body["mechanics"]["source"] == "api"
+        assert set(body["mechanics"]["sources_sha256"]) == {"temperatures", "canlog", "displacements"}
+        assert c.get(MECH).json() == body["mechanics"]
+        after = c.get("/api/v1/compensation").json()
+        assert after["mechanics"] == body["mechanics"]
+        assert after["reason_code"] != "mechanics_uncalibrated"
+        stored_x = [q["value"] for q in body["mechanics"]["parameters"]]
     with served_service(database_url=url, settings=settings, feed_samples=40) as s:  # a restart
         cal = s.service.compensation_mechanics()
         assert cal is not None and [round(v, 6) for v in cal.x] == stored_x

@@ -50,7 +50,9 @@ def test_the_newest_commissioning_is_restored_with_its_posterior(factory: sessio
     assert got.residual_rms_um == 0.41 and got.residual_max_um == 2.3
 
 
-def test_an_unusable_stored_commissioning_is_reported_and_none_is_used(factory: sessionmaker[Session]) -> None:
+def test_an_unusable_stored_commissioning_is_reported_and_none_is_used(
+    factory: sessionmaker[Session],
+) -> None:
     row = mechanics_record(_cal(AT, 0.5, "x")).values() | {"restraint": 1.7}
     with session_scope(factory, "write") as s:
         s.execute(insert(MechanicsCalibrationRow), [row])

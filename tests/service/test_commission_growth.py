@@ -24,7 +24,13 @@ from service.engine.commissioning import (
     read_displacement_csv,
 )
 from service.engine.runtime import core_config
-from service.estimate.growth import FieldBelief, build_context, condition_terms, estimate_growth, with_mechanics
+from service.estimate.growth import (
+    FieldBelief,
+    build_context,
+    condition_terms,
+    estimate_growth,
+    with_mechanics,
+)
 from service.estimate.mechanics import served_mechanics_basis
 from service.modelload import LoadedModel
 from service.settings import Settings
@@ -51,7 +57,15 @@ def test_the_cli_recovers_the_drawn_mechanics_within_their_ci(
 ) -> None:
     t = thermal_test
     out = tmp_path / "report.json"
-    argv = ["commission", "growth", str(t.temperatures), str(t.canlog), str(t.displacements), "--json", str(out)]
+    argv = [
+        "commission",
+        "growth",
+        str(t.temperatures),
+        str(t.canlog),
+        str(t.displacements),
+        "--json",
+        str(out),
+    ]
     assert cli_main(argv) == 0, capsys.readouterr()
     text = capsys.readouterr().out
     assert "verdict: the model explains the test" in text and "prior 1σ" in text
@@ -72,7 +86,9 @@ def test_the_cli_recovers_the_drawn_mechanics_within_their_ci(
 
 @pytest.fixture(scope="module")
 def fitted(thermal_test: ThermalTest, loaded_model: LoadedModel) -> tuple[object, object, Displacements]:
-    hist = field_history(loaded_model, core_config(Settings()), thermal_test.temperatures, thermal_test.canlog)
+    hist = field_history(
+        loaded_model, core_config(Settings()), thermal_test.temperatures, thermal_test.canlog
+    )
     basis = served_mechanics_basis(loaded_model.spec, loaded_model.fe)
     return hist, basis, read_displacement_csv(thermal_test.displacements)
 
@@ -82,7 +98,7 @@ def test_a_test_the_model_cannot_explain_says_which_part_fails(
 ) -> None:
     hist, basis, disp = fitted
     phi = np.asarray(loaded_model.rom.basis)
-    joint, ok, problems, _, _, _, _ = fit_test(basis, phi, hist, disp)  # type: ignore[arg-type]
+    _, ok, problems, _, _, _, _ = fit_test(basis, phi, hist, disp)  # type: ignore[arg-type]
     assert ok, problems
     # the fixture slipped by 4 µm at the stop: the fit can only absorb it in the set-up's drift, which says so
     t_stop = disp.t_s[0] + 3000.0
@@ -129,4 +145,6 @@ def test_the_served_growth_uses_the_calibration_and_carries_its_posterior(
     assert est.axial.std_um == pytest.approx(np.hypot(est.axial.std_h_um, est.axial.std_mech_um), rel=1e-9)
     # at the zero's own uniform temperature nothing grows, whatever the mechanics
     flat = FieldBelief(mean_c=np.full(m.fe.n_nodes, 21.0))
-    assert estimate_growth(ctx, terms, flat, t_ref_c=21.0, at=at).axial.std_mech_um == pytest.approx(0.0, abs=1e-9)
+    assert estimate_growth(ctx, terms, flat, t_ref_c=21.0, at=at).axial.std_mech_um == pytest.approx(
+        0.0, abs=1e-9
+    )

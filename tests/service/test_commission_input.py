@@ -52,7 +52,9 @@ def test_a_test_log_with_missing_values_any_rate_and_radial_reads(tmp_path: Path
         ("time,axial_um\n2026-11-27T08:00:00Z,\n", r"axial_um: no value in any row"),
     ],
 )
-def test_a_bad_displacement_csv_names_the_line_and_field(tmp_path: Path, text: str, match: str | None) -> None:
+def test_a_bad_displacement_csv_names_the_line_and_field(
+    tmp_path: Path, text: str, match: str | None
+) -> None:
     p = _write(tmp_path, text)
     if match is None:  # extra trailing fields are tolerated (a sensor's status column)
         read_displacement_csv(p)
@@ -66,7 +68,13 @@ def test_the_cli_reports_a_bad_displacement_csv_in_one_line(
 ) -> None:
     data = Path(__file__).resolve().parents[2] / "service" / "data"
     p = _write(tmp_path, "time,radial_um\n2026-11-27T08:00:00Z,1\n")
-    argv = ["commission", "growth", str(data / "example_temperatures.csv"), str(data / "example_can.blf"), str(p)]
+    argv = [
+        "commission",
+        "growth",
+        str(data / "example_temperatures.csv"),
+        str(data / "example_can.blf"),
+        str(p),
+    ]
     assert cli_main(argv) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and err[0].startswith("chtc commission: ") and "missing column 'axial_um'" in err[0]
