@@ -237,9 +237,10 @@ def field_history(
 class FitLimits:
     """When the model explains the test: residual RMS ≤ ``max_rms_um`` and |residual| ≤ ``max_abs_um``
     overall and in each phase; the restraint off its bounds by ``bound_margin``; the α factors within
-    ``alpha_band`` of 1; the restraint's posterior sd at most ``min_sd_reduction`` of its prior's; the test
-    set-up's fitted drift within ``max_drift_um_per_h`` (a capacitive sensor on a mandrel drifts a few tenths
-    of a µm per hour; more is a fixture that slipped or a growth the model misses, absorbed by the drift)."""
+    ``alpha_band`` of 1; at most ``max_outlier_fraction`` of the readings left out; the restraint's
+    posterior sd at most ``min_sd_reduction`` of its prior's; the test set-up's fitted drift within
+    ``max_drift_um_per_h`` (a capacitive sensor on a mandrel drifts a few tenths of a µm per hour; more is a
+    fixture that slipped or a growth the model misses, absorbed by the drift)."""
 
     max_rms_um: float = 1.0
     max_abs_um: float = 3.0
@@ -247,6 +248,9 @@ class FitLimits:
     alpha_band: float = 0.15
     min_sd_reduction: float = 0.5
     max_drift_um_per_h: float = 1.0
+    # readings left out as outliers (``model.growthfit_joint``): the service's field lags at speed changes,
+    # 0–10 % of a 4-h test's readings on drawn plants with the fit within its CI (docs/design/growth.md)
+    max_outlier_fraction: float = 0.15
 
 
 @dataclass(frozen=True)
@@ -453,10 +457,12 @@ def fit_test(
     speed = np.interp(disp.t_s[inside], t_src, np.abs(hist.speed_rpm[first:]))[joint.kept[0]]
     explained, problems, phases = judge_fit(fit, speed >= RUNNING_RPM, limits or FitLimits())
     n_out = sum(joint.outliers)
-    if n_out > max(3, 0.05 * fit.n_used):
+    lim = limits or FitLimits()
+    if n_out > max(3.0, lim.max_outlier_fraction * (fit.n_used + n_out)):
         explained = False
         problems.append(
-            f"{n_out} readings left out as outliers (more than 5 %): the service's field or the sensor jumped"
+            f"{n_out} readings left out as outliers (more than {100 * lim.max_outlier_fraction:.0f} %): the "
+            "service's field or the sensor jumped"
         )
     radial = None
     if has_radial:

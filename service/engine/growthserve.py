@@ -419,10 +419,15 @@ class GrowthServer:
                 return cached
         speed_map = view.speed_map if view.map_serves else None
         cpu = time.thread_time()
-        terms = self._compute_terms(self.prepare(), view.live, view.condition, view.current, speed_map)
+        ctx = self.prepare()
+        terms = self._compute_terms(ctx, view.live, view.condition, view.current, speed_map)
         with self._lock:
             self.computed += 1
             self.compute_cpu_s += time.thread_time() - cpu
+            if ctx is not self._ctx:  # a commissioning changed the operators meanwhile: not cached
+                if self._pending == key:
+                    self._pending = None
+                return terms
             self._terms[key] = terms
             while len(self._terms) > TERMS_KEPT:
                 self._terms.popitem(last=False)
