@@ -496,7 +496,7 @@ class MechanicsCalibrationData:
             "restraint": float(self.restraint),
             "alpha_shaft": float(self.alpha_shaft),
             "alpha_housing": float(self.alpha_housing),
-            "cov": [float(v) for r in self.cov for v in r],  # row major
+            "cov": [finite(v) for r in self.cov for v in r],  # row major
             "residual_rms_um": finite(self.residual_rms_um),
             "residual_max_um": finite(self.residual_max_um),
             "explained": bool(self.explained),

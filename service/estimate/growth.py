@@ -534,9 +534,10 @@ def _mech_std(
     else:
         j_now = ctx.g_mech @ x - ones
     j_ss = ctx.g_mech @ t_ss - ones
+    cov = np.asarray(ctx.cov_mech, dtype=np.float64)
 
     def std(j: Array) -> Array:
-        var = np.einsum("op,pq,oq->o", j, ctx.cov_mech, j)
+        var = np.sum((j @ cov) * j, axis=1)
         return np.asarray(np.sqrt(np.maximum(var, 0.0)))
 
     return std(j_now), std(j_ss)

@@ -14,13 +14,14 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
 from model.plant import Segment, VirtualPlant
 from model.plantmech import PlantMechanics
 
-__all__ = ["RECOMMENDED_PROFILE", "ThermalTest", "write_thermal_test"]
+__all__ = ["RECOMMENDED_PROFILE", "SHORT_PROFILE", "ThermalTest", "commission_seeds", "write_thermal_test"]
 
 # heat-up in two speed steps, then a cool-down at rest (docs/commissioning.md, "The test profile")
 RECOMMENDED_PROFILE: tuple[Segment, ...] = (
@@ -121,3 +122,100 @@ def write_thermal_test(
         offset_um=offset_um,
         drift_um_per_h=drift_um_per_h,
     )
+
+
+SHORT_PROFILE: tuple[Segment, ...] = (  # the smallest test that pins the restraint (the shipped example)
+    Segment(duration_s=600.0, speed_rpm=0.0, torque_nm=0.0, ambient_c=21.0),
+    Segment(duration_s=2400.0, speed_rpm=7000.0, torque_nm=5.0, ambient_c=21.0),
+    Segment(duration_s=1800.0, speed_rpm=0.0, torque_nm=0.0, ambient_c=21.0),
+)
+
+
+def commission_seeds(
+    first: int, last: int, *, profile: Sequence[Segment] = RECOMMENDED_PROFILE
+) -> list[dict[str, Any]]:
+    """Seeds ``first``..``last - 1``: a thermal test on each drawn plant, commissioned with the default
+    settings; per seed the truth, the fit (value, 1σ, CI covers the truth), the verdict and the cost (the
+    figures of docs/design/growth.md, "Commissioning on the service's field")."""
+    import tempfile
+    import time
+
+    from model.plantmech import mechanics_for_seed
+    from service.engine.commissioning import CommissioningError, commission_growth
+    from service.engine.runtime import core_config
+    from service.estimate.mechanics import served_mechanics_basis
+    from service.modelload import ModelRef, load_model
+    from service.settings import Settings
+
+    settings = Settings()
+    model = load_model(ModelRef.from_settings(settings))
+    basis = served_mechanics_basis(model.spec, model.fe)
+    rows: list[dict[str, Any]] = []
+    for seed in range(first, last):
+        mech = mechanics_for_seed(seed)
+        with tempfile.TemporaryDirectory(prefix="chtc-thermal-test-") as tmp:
+            t = write_thermal_test(Path(tmp), mechanics=mech, profile=profile, seed=seed)
+            started = time.perf_counter()
+            try:
+                rep = commission_growth(
+                    model,
+                    core_config(settings),
+                    t.temperatures,
+                    t.canlog,
+                    t.displacements,
+                    set_by="bench",
+                    source="cli",
+                    basis=basis,
+                )
+            except CommissioningError as err:
+                rows.append({"seed": seed, "error": str(err)})
+                continue
+        f = rep.fit
+        truth = (mech.restraint, mech.alpha_shaft, mech.alpha_housing)
+        rows.append(
+            {
+                "seed": seed,
+                "truth": [round(v, 4) for v in truth],
+                "x": [round(float(v), 4) for v in f.x[:3]],
+                "sd": [round(float(v), 4) for v in f.sd[:3]],
+                "covered": [bool(f.ci95[i, 0] <= truth[i] <= f.ci95[i, 1]) for i in range(3)],
+                "explained": rep.explained,
+                "residual_rms_um": round(f.residual_rms_um, 4),
+                "residual_max_um": round(f.residual_max_um, 4),
+                "outliers": rep.outliers,
+                "problems": rep.problems,
+                "fit_s": round(rep.timings_s["fit_s"], 4),
+                "wall_s": round(time.perf_counter() - started, 1),
+            }
+        )
+    return rows
+
+
+def main(argv: Sequence[str] | None = None) -> int:
+    """``python -m service.sim.thermaltest OUT [--seed N] [--short]``: write a thermal test into OUT;
+    ``--commission-seeds A B``: commission seeds A..B-1 and print one JSON line each."""
+    import argparse
+    import json
+
+    from model.plantmech import mechanics_for_seed
+
+    p = argparse.ArgumentParser(prog="python -m service.sim.thermaltest", description=__doc__)
+    p.add_argument("out", type=Path, nargs="?", default=None, help="directory for the three files")
+    p.add_argument("--seed", type=int, default=3, help="the plant's seed (its drawn mechanics)")
+    p.add_argument("--short", action="store_true", help="the 80-min profile instead of the 4-h one")
+    p.add_argument("--commission-seeds", type=int, nargs=2, metavar=("FIRST", "END"), default=None)
+    args = p.parse_args(argv)
+    profile = SHORT_PROFILE if args.short else RECOMMENDED_PROFILE
+    if args.commission_seeds is not None:
+        for row in commission_seeds(*args.commission_seeds, profile=profile):
+            print(json.dumps(row), flush=True)
+        return 0
+    if args.out is None:
+        p.error("OUT is needed unless --commission-seeds")
+    t = write_thermal_test(args.out, mechanics=mechanics_for_seed(args.seed), profile=profile, seed=args.seed)
+    print(f"{t.temperatures}, {t.canlog}, {t.displacements}: plant mechanics {t.mechanics.as_dict()}")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())

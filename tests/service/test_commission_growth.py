@@ -52,6 +52,20 @@ def thermal_test(tmp_path_factory: pytest.TempPathFactory) -> ThermalTest:
     return write_thermal_test(out, mechanics=mechanics_for_seed(SEED), profile=SHORT, seed=SEED)
 
 
+def test_the_shipped_example_is_this_test(thermal_test: ThermalTest) -> None:
+    """service/data/example_thermal_test_*: ``python -m service.sim.thermaltest OUT --short --seed 3``."""
+    from drivers.logs import read_can_log, read_temperature_csv
+
+    data = Path(__file__).resolve().parents[2] / "service" / "data"
+    shipped = read_displacement_csv(data / "example_thermal_test_displacements.csv")
+    made = read_displacement_csv(thermal_test.displacements)
+    assert np.array_equal(shipped.t_s, made.t_s)
+    assert np.allclose(shipped.axial_um, made.axial_um, atol=0.002, equal_nan=True)
+    temps = read_temperature_csv(data / "example_thermal_test_temperatures.csv")
+    assert np.allclose(temps.temps_c, read_temperature_csv(thermal_test.temperatures).temps_c, atol=0.011)
+    assert len(read_can_log(data / "example_thermal_test_can.blf")) == len(read_can_log(thermal_test.canlog))
+
+
 def test_the_cli_recovers_the_drawn_mechanics_within_their_ci(
     thermal_test: ThermalTest, tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
