@@ -29,7 +29,6 @@ import hashlib
 import io
 import math
 import time
-from collections.abc import Sequence
 from dataclasses import dataclass, field
 from datetime import UTC, datetime
 from pathlib import Path
@@ -41,7 +40,7 @@ from numpy.typing import NDArray
 from model.growthfit import PARAMS, MechanicsFitResult, MechanicsPrior
 from model.growthfit_joint import FitSeries, JointFit, fit_mechanics_joint
 from service.errors import ServiceError
-from service.estimate.mechanics import MECH_PARAMS, MechanicsCalibration, ServedMechanicsBasis
+from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis
 
 if TYPE_CHECKING:
     from service.engine.config import CoreConfig
@@ -583,7 +582,3 @@ def format_report(rep: CommissionReport) -> list[str]:
         f"fit {t.get('fit_s', 0):.3f} s"
     )
     return lines
-
-
-def mech_names() -> Sequence[str]:
-    return MECH_PARAMS

@@ -9,9 +9,9 @@ shaft's and the housing's material. Their posterior mean and covariance (3, 3) m
     ∂g/∂θ (2, 3, N):  ∂/∂s = G_held − G_free,  ∂/∂a_s = (1 − s) g_free,shaft + s g_held,shaft,  ∂/∂a_h alike
 
 for both served outputs (nose axial, nose radial), and the growth's mechanical 1σ at a field T over T_ref is
-√(J Σ_θ Jᵀ) with J = ∂g/∂θ · (T − T_ref) (``mechanics_std_um``; exact for the linearisation in θ, which is
-bilinear). The fixture offset and the drift of the test set-up are the test's nuisances: they are fitted and
-reported, never served.
+√(J Σ_θ Jᵀ) with J = ∂g/∂θ · (T − T_ref) (``service.estimate.growth``; exact to first order in θ: the
+growth is bilinear in s and α). The fixture offset and the drift of the test set-up are the test's
+nuisances: they are fitted and reported, never served.
 
 Errors::
 
@@ -21,7 +21,7 @@ Errors::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from datetime import datetime
 from typing import Any
 
@@ -41,7 +41,6 @@ __all__ = [
     "MechanicsCalibration",
     "MechanicsError",
     "ServedMechanicsBasis",
-    "mechanics_std_um",
     "served_mechanics_basis",
 ]
 
@@ -155,16 +154,3 @@ class MechanicsCalibration:
     def as_dict(self) -> dict[str, float]:
         """Name -> value."""
         return {n: float(v) for n, v in zip(MECH_PARAMS, self.x, strict=True)}
-
-
-def mechanics_std_um(jac: Array, cov: Array, rise: Array) -> Array:
-    """The growth's mechanical 1σ (2,) [µm]: ``jac`` (2, 3, N) applied to ``rise`` (N,) = T − T_ref, through
-    ``cov`` (3, 3)."""
-    j = np.einsum("opn,n->op", jac, rise)
-    var = np.einsum("op,pq,oq->o", j, cov, j)
-    return np.asarray(np.sqrt(np.maximum(var, 0.0)))
-
-
-def with_values(cal: MechanicsCalibration, **changes: Any) -> MechanicsCalibration:
-    """``cal`` with fields replaced (validated again)."""
-    return replace(cal, **changes)
