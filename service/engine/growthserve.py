@@ -197,7 +197,9 @@ class GrowthServer:
         self._section: tuple[tuple[object, ...], np.ndarray] | None = None
         self._mechanics = mechanics
         self._mech_basis = mechanics_basis
-        self._base_ctx: GrowthContext | None = None  # the described mechanics' context
+        self._base_ctx: GrowthContext | None = context  # the described mechanics' context
+        if context is not None and mechanics is not None:
+            self._ctx = None  # calibrated by prepare()
 
     # --- stage 1
     def prepare(self) -> GrowthContext:
@@ -207,7 +209,8 @@ class GrowthServer:
             if self._ctx is None and self._error is None:
                 m = self.model
                 try:
-                    self._base_ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
+                    if self._base_ctx is None:
+                        self._base_ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
                     self._ctx = self._calibrated(self._base_ctx, self._mechanics)
                 except Exception as err:  # any failure of the optional growth model: served as 503
                     self._error = f"growth model unavailable: {type(err).__name__}: {err}"

@@ -21,7 +21,14 @@ import numpy as np
 from model.plant import Segment, VirtualPlant
 from model.plantmech import PlantMechanics
 
-__all__ = ["RECOMMENDED_PROFILE", "SHORT_PROFILE", "ThermalTest", "commission_seeds", "write_thermal_test"]
+__all__ = [
+    "RECOMMENDED_PROFILE",
+    "SHORT_PROFILE",
+    "ThermalTest",
+    "commission_seeds",
+    "duty_check",
+    "write_thermal_test",
+]
 
 # heat-up in two speed steps, then a cool-down at rest (docs/commissioning.md, "The test profile")
 RECOMMENDED_PROFILE: tuple[Segment, ...] = (
@@ -191,9 +198,100 @@ def commission_seeds(
     return rows
 
 
+def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dict[str, Any]:
+    """Out of sample: commission seed ``seed``'s drawn plant on the 4-h test, then serve a duty cycle
+    (``service.sim.duty``, seed + 1000) on the same plant through the service's core: the axial growth with
+    the calibrated operators against the plant's truth every minute after ``after_min``, its CI (the live
+    state's covariance, which holds the considered H error, and the mechanical posterior) and its coverage;
+    the uncalibrated (the description's mechanics) error beside it. No reference 1σ and no identification
+    gating: the growth and its CI as ``estimate_growth`` forms them now."""
+    import tempfile
+
+    from model.geometry import load_spindle
+    from model.plantmech import mechanics_for_seed
+    from service.engine.commissioning import commission_growth
+    from service.engine.offline import run_offline
+    from service.engine.runtime import core_config
+    from service.estimate.mechanics import served_mechanics_basis
+    from service.modelload import ModelRef, load_model
+    from service.settings import Settings
+    from service.sim.duty import duty_profile
+    from service.sim.logsamples import samples_from_plant
+
+    z95 = 1.959963984540054
+    settings = Settings()
+    model = load_model(ModelRef.from_settings(settings))
+    config = core_config(settings)
+    basis = served_mechanics_basis(model.spec, model.fe)
+    phi = np.asarray(model.rom.basis)
+    mech = mechanics_for_seed(seed)
+    with tempfile.TemporaryDirectory(prefix="chtc-thermal-test-") as tmp:
+        t = write_thermal_test(Path(tmp), mechanics=mech, seed=seed)
+        rep = commission_growth(
+            model,
+            config,
+            t.temperatures,
+            t.canlog,
+            t.displacements,
+            set_by="check",
+            source="cli",
+            basis=basis,
+        )
+    x, cov = rep.fit.x[:3], rep.fit.cov[:3, :3]
+    profile = duty_profile(seed + 1000, duration_s=3600.0 * hours, idle_s=600.0)
+    t_ref = profile[0].ambient_c
+    plant = VirtualPlant(load_spindle(), seed=seed + 1000, mechanics=mech)
+    run = plant.run(profile, keep_fields_every=6)
+    truth = plant.growth_um(run.fields_c, t_ref)[:, list(plant.growth.names).index("nose_axial")]
+    t0 = 1.8e9
+    states: dict[float, tuple[np.ndarray, np.ndarray]] = {}
+
+    def keep(core: Any, k: int, last: object) -> None:
+        live = core.view().live
+        if live is not None and live.converged:
+            states[round(float(live.t) - t0, 3)] = (np.array(live.mean), np.array(live.cov))
+
+    run_offline(samples_from_plant(run, t0_s=t0), model=model, config=config, on_sample=keep)
+    ops = {"cal": basis.operators_at(x)[0], "nominal": basis.operators_at((0.0, 1.0, 1.0))[0]}
+    g = {k: v @ phi for k, v in ops.items()}
+    g1 = {k: float(v.sum()) for k, v in ops.items()}
+    jac = basis.jacobian_at(x)[0]
+    j_phi, j1 = jac @ phi, jac.sum(axis=1)
+    err: dict[str, list[float]] = {"cal": [], "nominal": []}
+    covered, half = [], []
+    for i, tt in enumerate(run.field_times_s):
+        key = round(float(tt), 3)
+        if key not in states or tt < 60.0 * after_min:
+            continue
+        a, p = states[key]
+        for k in err:
+            err[k].append(float(g[k] @ a - g1[k] * t_ref - truth[i]))
+        j = j_phi @ a - j1 * t_ref
+        sd = float(np.sqrt(g["cal"] @ p @ g["cal"] + j @ cov @ j))
+        covered.append(abs(err["cal"][-1]) <= z95 * sd)
+        half.append(z95 * sd)
+    e, en = np.abs(err["cal"]), np.abs(err["nominal"])
+    return {
+        "seed": seed,
+        "mechanics": [round(v, 3) for v in (mech.restraint, mech.alpha_shaft, mech.alpha_housing)],
+        "fitted": [round(float(v), 3) for v in x],
+        "explained": rep.explained,
+        "minutes": int(e.size),
+        "err_um_median": round(float(np.median(e)), 3),
+        "err_um_p95": round(float(np.percentile(e, 95)), 3),
+        "err_um_max": round(float(e.max()), 3),
+        "coverage": round(float(np.mean(covered)), 3),
+        "ci95_half_um_median": round(float(np.median(half)), 3),
+        "uncalibrated_err_um_median": round(float(np.median(en)), 3),
+        "uncalibrated_err_um_p95": round(float(np.percentile(en, 95)), 3),
+        "truth_um_max": round(float(np.abs(truth).max()), 2),
+    }
+
+
 def main(argv: Sequence[str] | None = None) -> int:
     """``python -m service.sim.thermaltest OUT [--seed N] [--short]``: write a thermal test into OUT;
-    ``--commission-seeds A B``: commission seeds A..B-1 and print one JSON line each."""
+    ``--commission-seeds A B``: commission seeds A..B-1 and print one JSON line each; ``--duty-check-seeds S
+    ...``: ``duty_check`` for each seed, one JSON line each."""
     import argparse
     import json
 
@@ -204,7 +302,12 @@ def main(argv: Sequence[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=3, help="the plant's seed (its drawn mechanics)")
     p.add_argument("--short", action="store_true", help="the 80-min profile instead of the 4-h one")
     p.add_argument("--commission-seeds", type=int, nargs=2, metavar=("FIRST", "END"), default=None)
+    p.add_argument("--duty-check-seeds", type=int, nargs="+", metavar="SEED", default=None)
     args = p.parse_args(argv)
+    if args.duty_check_seeds is not None:
+        for seed in args.duty_check_seeds:
+            print(json.dumps(duty_check(seed)), flush=True)
+        return 0
     profile = SHORT_PROFILE if args.short else RECOMMENDED_PROFILE
     if args.commission_seeds is not None:
         for row in commission_seeds(*args.commission_seeds, profile=profile):
