@@ -162,3 +162,29 @@ def test_the_served_growth_uses_the_calibration_and_carries_its_posterior(
     assert estimate_growth(ctx, terms, flat, t_ref_c=21.0, at=at).axial.std_mech_um == pytest.approx(
         0.0, abs=1e-9
     )
+
+
+def test_the_growth_server_uses_a_restored_or_new_commissioning(
+    fitted: tuple[object, object, Displacements], loaded_model: LoadedModel
+) -> None:
+    """``GrowthServer``: a shared context plus a restored calibration is calibrated on first use; a new
+    commissioning replaces the operators and drops the condition terms computed with the old ones."""
+    from service.engine.growthserve import GrowthServer
+    from service.estimate.mechanics import MechanicsCalibration
+
+    _, basis, _ = fitted
+    m = loaded_model
+    base = build_context(m.spec, m.fe, basis=m.rom.basis)
+    cov = tuple(tuple(float(v) for v in row) for row in np.diag([0.04**2, 0.02**2, 0.05**2]))
+    at = datetime(2026, 11, 27, 7, 0, tzinfo=UTC)
+    cal = MechanicsCalibration(x=(0.6, 0.97, 1.0), cov=cov, at=at, set_by="t", source="cli")
+    restored = GrowthServer(m, context=base, mechanics=cal, mechanics_basis=basis)  # type: ignore[arg-type]
+    ctx = restored.prepare()
+    assert ctx.g_mech is not None and np.allclose(ctx.g, basis.operators_at(cal.x))  # type: ignore[attr-defined]
+    plain = GrowthServer(m, context=base, mechanics_basis=basis)  # type: ignore[arg-type]
+    assert plain.prepare() is base and plain.mechanics is None
+    plain._terms[("key",)] = object()  # type: ignore[assignment]  # a term of the old operators
+    other = MechanicsCalibration(x=(0.2, 1.01, 0.99), cov=cov, at=at, set_by="t", source="api")
+    plain.set_mechanics(other)
+    assert plain.mechanics is other and not plain._terms
+    assert np.allclose(plain.prepare().g, basis.operators_at(other.x))  # type: ignore[attr-defined]
