@@ -16,8 +16,12 @@ identification inline, its own ``GrowthServer`` as ``chtc run`` builds it) sees 
   sample with what the database holds then (``stored_state``: the served identification, the per-condition
   history, the conditions, the offset calibration, the speed map, the compensation zero, and the live
   state's newest checkpoint, stored once a minute: up to a minute old at the restart);
-- ``restart_no_state`` (offsets): the same restart with nothing stored (no zero either: the first-start zero
-  waits for the spindle at rest in equilibrium, so the growth is ``no_reference`` until then);
+- ``restart_no_state`` (offsets): the same restart with an empty database (no identification, history,
+  calibration, map, live state nor stored zero). "No stored state" is the database's: the commissioned zero
+  also lives in the configuration, so this run is given ``growth.reference_c`` = the plant's uniform start
+  temperature, the zero its true growth is measured against (``Plant.start_c``). Without it the warm spindle
+  never rests in equilibrium, the growth would stay ``no_reference`` for the whole run and its coverage would
+  measure a provisional zero nobody applies;
 - ``outages`` (offsets): one run with a DAQ outage while CAN keeps coming (the acquisition's stale DAQ
   sample: the last temperatures with quality ``stale``, ambient NaN, ``daq_ok`` False, speed and torque
   live) and later both devices down (the acquisition's sample with neither: the last values, ``daq_ok`` and
@@ -150,6 +154,12 @@ class Plant:
             self._growth = {seed: build_plant_growth(self.spec, self.fe, self.mechanics(seed))}
         return self._growth[seed]
 
+    @staticmethod
+    def start_c(run: Any) -> float:
+        """The plant's uniform start temperature [°C] (the mean of its first kept field): the zero its true
+        growth is measured against, the controller's commissioned zero."""
+        return float(run.fields_c[0].mean())
+
     def run(self, seed: int, variant: str, profile: list[Any], truth: Any) -> tuple[Any, np.ndarray]:
         """The plant run (samples every 10 s, fields every minute) and the true axial growth [µm] per minute
         over the uniform start."""
@@ -167,7 +177,7 @@ class Plant:
             growth=self.growth(seed),
         )
         run = plant.run(profile, dt_s=DT_S, keep_fields_every=PER_MIN)
-        t_ref = float(run.fields_c[0].mean())
+        t_ref = self.start_c(run)
         row = plant.growth.names.index("nose_axial")
         growth = np.asarray(plant.growth_um(run.fields_c, t_ref))[:, row]
         return run, growth
@@ -386,7 +396,8 @@ def run_seed(
         out.rows["restart_stored"], _ = _serve(
             model, settings, samples, run, growth, first=restart_k, restored=restored
         )
-        out.rows["restart_no_state"], _ = _serve(model, settings, samples, run, growth, first=restart_k)
+        zeroed = override(settings, "growth", reference_c=plant.start_c(run))
+        out.rows["restart_no_state"], _ = _serve(model, zeroed, samples, run, growth, first=restart_k)
         out.rows["outages"], _ = _serve(
             model, settings, samples, run, growth, plan=plan, both_ticks=out.both_ticks
         )

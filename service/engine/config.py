@@ -6,7 +6,13 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from service.acquire.calibration import Calibration, CalibrationConfig
-from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
+from service.defaults import (
+    CARRY_START_ERROR,
+    CI_REL_THRESHOLD,
+    H_FORM_SD_LN,
+    H_NO_BASELINE_SD_LN,
+    START_MODES,
+)
 from service.estimate.checkpoint import LiveCheckpoint
 from service.estimate.mechanics import MechanicsCalibration
 from service.estimate.reference import CompensationReference
@@ -35,6 +41,9 @@ class CoreConfig:
     time_budget_s: float | None = None
     ci_threshold: float = CI_REL_THRESHOLD
     h_form_sd: float = H_FORM_SD_LN  # experimental.h_form_sd_ln: added to every served H band (ln H)
+    # added to h_form_sd and to the live state's considered H error while calibration is on but has no
+    # baseline yet (ln H; CoreParts.no_baseline_sd)
+    h_no_baseline_sd: float = H_NO_BASELINE_SD_LN
     # sample time without good data (a sample, >= rules.min_good_channels usable channels and the ambient,
     # speed and torque from CAN) before H is reported stale
     stale_after_s: float = 60.0

@@ -17,7 +17,7 @@ from service.engine.events import JobOutcomeReceived, Launch, ManualAccepted, Re
 from service.engine.jobbook import Job, MapValues, job_key
 from service.engine.jobs import converging_reason, job_request, job_window
 from service.engine.mapbook import MapBook
-from service.engine.parts import CoreParts, Out, h_rel, utc
+from service.engine.parts import CoreParts, Out, utc
 from service.engine.view import NewestSample
 from service.estimate.live import LiveStateError
 from service.identify import scheduler as sched
@@ -127,7 +127,7 @@ class MapTrack:
             return
         book.live_key = key
         h, _, hi = book.family.h_ci95_at(mean, cov, [abs(s.speed_rpm)], s.ambient_c)
-        self.p.live.set_h(h[0], h_rel=h_rel(h[0], hi[0]))
+        self.p.live.set_h(h[0], h_rel=self.p.h_rel_for(h[0], hi[0]))
 
     def _launch(self, ts: float, reason: str, out: Out) -> str | None:
         """Launch a map fit over the rolling window ending now; None, or why not (stored when it is a job

@@ -8,7 +8,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
+
+import numpy as np
 
 from service.acquire.calibration import OffsetCalibrator
 from service.acquire.history import RingHistory
@@ -94,6 +96,18 @@ class CoreParts:
         assert cond is not None
         return cond
 
+    def no_baseline_sd(self) -> float:
+        """1σ in ln H (``config.h_no_baseline_sd``) the H bands carry while offset calibration is on and has
+        no baseline (the offsets unknown, 0.17 °C per channel: a warm start with an empty database), else 0
+        (docs/design/estimator.md, "Warm restart with no stored state")."""
+        cal = self.calibrator
+        return self.config.h_no_baseline_sd if cal is not None and cal.current is None else 0.0
+
+    def h_rel_for(self, h: Any, hi: Any) -> np.ndarray:
+        """The live state's considered H error (relative 1σ, 7) for H ``h`` with 95 % upper bound ``hi``:
+        the band's σ(ln H) (``h_rel``) and ``no_baseline_sd`` in quadrature."""
+        return np.asarray(np.hypot(h_rel(h, hi), self.no_baseline_sd()))
+
     def offsets(self) -> Offsets | None:
         cal = self.calibrator
         return None if cal is None else Offsets(cal.offsets(), cal.offset_sd())
@@ -103,7 +117,7 @@ class CoreParts:
         has just started to serve (None: the live state's H stays, or comes from the map)."""
         if served is not None:
             rec, load = served
-            self.live.set_h(rec.h, load, h_rel=h_rel(rec.h, rec.ci95_hi))
+            self.live.set_h(rec.h, load, h_rel=self.h_rel_for(rec.h, rec.ci95_hi))
 
     def store_outcome(self, job: Job, *, outcome: str, message: str, finished_at: datetime, out: Out) -> None:
         data, _ = self.jobs.ended(

@@ -12,9 +12,10 @@ the end.
 
 The only deviation from the compose file is the identification timing (``TRIAL_TIMING``), for either
 ``experimental.mode``: the shipped per-condition schedule identifies 7 min after a condition change on 7 min
-of data, the speed map fits first after 10 min of data; the test asks for 90 s (2-s samples) so that it ends
-in a few minutes. The plant still runs in real time, as in the compose file. The mode is the settings'
-default (the compose file does not set it): the test is about the deployment, not the identification.
+of data, the speed map fits first after 10 min of data; the test asks for 45 s (1-s samples: 45 of them, 30
+needed) so that it ends in a few minutes (it asked for 90 s of 2-s samples: 45 s more of the run). The plant
+still runs in real time, as in the compose file. The mode is the settings' default (the compose file does not
+set it): the test is about the deployment, not the identification.
 """
 
 from __future__ import annotations
@@ -55,15 +56,15 @@ from tests.deploy.localstack import (
 pytestmark = [pytest.mark.slow, pytest.mark.postgres, pytest.mark.timeout(1200)]
 
 DATABASE = f"chtc_compose_test_{os.getpid()}"  # unique: concurrent runs must not drop each other's database
-TRIAL_TIMING = {  # identify 90 s after the condition starts on 45 samples (model.identify needs >= 30)
-    "CHTC_ACQUISITION__SAMPLE_PERIOD_S": "2",
-    "CHTC_IDENTIFICATION__SCHEDULE_MIN": "[1.5]",
-    "CHTC_IDENTIFICATION__MIN_WINDOW_S": "90",
-    "CHTC_IDENTIFICATION__MAX_WINDOW_S": "90",
+TRIAL_TIMING = {  # identify 45 s after the condition starts on 45 samples (model.identify needs >= 30)
+    "CHTC_ACQUISITION__SAMPLE_PERIOD_S": "1",
+    "CHTC_IDENTIFICATION__SCHEDULE_MIN": "[0.75]",
+    "CHTC_IDENTIFICATION__MIN_WINDOW_S": "45",
+    "CHTC_IDENTIFICATION__MAX_WINDOW_S": "45",
     "CHTC_DETECTOR__HOLD_S": "10",
-    # speed-map mode: the first map fit after 90 s of data, refits every 1.5 min
-    "CHTC_EXPERIMENTAL__MAP_MIN_WINDOW_MIN": "1.5",
-    "CHTC_IDENTIFICATION__MAP_REFIT_MIN": "1.5",
+    # speed-map mode: the first map fit after 45 s of data, refits every 45 s
+    "CHTC_EXPERIMENTAL__MAP_MIN_WINDOW_MIN": "0.75",
+    "CHTC_IDENTIFICATION__MAP_REFIT_MIN": "0.75",
 }
 CONTAINER_DIRS = ("/etc/chtc", "/var/lib/chtc")  # mapped under the test's work directory
 OPERATIONS = ROOT / "deploy" / "OPERATIONS.md"
@@ -154,7 +155,7 @@ def test_compose_stack_serves_fresh_h_from_the_simulator(stack: dict[str, Any], 
     assert_postgres_healthcheck_passes(stack["compose"], stack["localize"])
 
     def current() -> tuple[bool, Any]:
-        # identified at the current condition from fresh data: `fresh`, or `at-bound` when the 90-s trial
+        # identified at the current condition from fresh data: `fresh`, or `at-bound` when the 45-s trial
         # window leaves an H on a bound of the search box (never `fresh` then, and not usable)
         code, body = get_json(f"{api}/api/v1/chtc")
         return code == 200 and body["status"] in ("fresh", "at-bound"), body

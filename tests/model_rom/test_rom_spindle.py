@@ -9,25 +9,25 @@ import numpy as np
 import pytest
 
 from model import rom_check, rom_train
-from model.fem import FEModel, build_fe_model, simulate, steady_state
-from model.geometry import SpindleSpec, load_spindle
+from model.fem import FEModel, simulate, steady_state
+from model.geometry import SpindleSpec
 from model.inputs import InputSeries
 from model.rom import DEFAULT_RANK, ReducedModel, RomError, load_or_build_rom
 
 
 @pytest.fixture(scope="module")
-def spec() -> SpindleSpec:
-    return load_spindle()
+def spec(spindle_spec: SpindleSpec) -> SpindleSpec:
+    return spindle_spec
 
 
 @pytest.fixture(scope="module")
-def fe(spec: SpindleSpec) -> FEModel:
-    return build_fe_model(spec, mesh_size_m=0.008)
+def fe(coarse_fe: FEModel) -> FEModel:
+    return coarse_fe
 
 
 @pytest.fixture(scope="module")
-def rom(fe: FEModel, spec: SpindleSpec, tmp_path_factory: pytest.TempPathFactory) -> ReducedModel:
-    return load_or_build_rom(fe, spec, tmp_path_factory.mktemp("rom"), n_train=10, n_check=4)
+def rom(coarse_rom: ReducedModel) -> ReducedModel:
+    return coarse_rom
 
 
 def test_reference_stepper_is_the_full_fe_theta_method(fe: FEModel) -> None:

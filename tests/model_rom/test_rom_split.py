@@ -8,21 +8,19 @@ import numpy as np
 import pytest
 
 from model import rom_modal, rom_split, rom_stream
-from model.fem import FEModel, build_fe_model, steady_state
-from model.geometry import SpindleSpec, load_spindle
+from model.fem import FEModel, steady_state
 from model.inputs import InputSeries
-from model.rom import ReducedModel, load_or_build_rom
+from model.rom import ReducedModel
 
 
 @pytest.fixture(scope="module")
-def fe() -> FEModel:
-    return build_fe_model(load_spindle(), mesh_size_m=0.008)
+def fe(coarse_fe: FEModel) -> FEModel:
+    return coarse_fe
 
 
 @pytest.fixture(scope="module")
-def rom(fe: FEModel, tmp_path_factory: pytest.TempPathFactory) -> ReducedModel:
-    spec: SpindleSpec = load_spindle()
-    return load_or_build_rom(fe, spec, tmp_path_factory.mktemp("rom_split"), n_train=10, n_check=4)
+def rom(coarse_rom: ReducedModel) -> ReducedModel:
+    return coarse_rom
 
 
 def _window(n: int) -> InputSeries:

@@ -219,6 +219,8 @@ def test_one_short_seed_through_the_service() -> None:
     assert set(out["outage_can_alive"]) >= {"usable_min", "coverage_usable", "fresh_minutes"}
     assert 0 <= out["outage_both"]["usable_s_after_loss"] <= 600.0
     assert out["restart_stored"]["reference_kept"] is True  # the stored reference comes back
+    # no stored state is an empty database: the commissioned zero still comes from the configuration
+    assert "no_reference" not in out["restart_no_state"]["reasons"]
     # the served growth is the plant's growth, not another quantity: within a few µm of it when served
     assert out["served_fraction"] > 0.5 and out["err_um_median_served"] < 2.0
     assert out["max_ci_bound_over_box"] is not None and out["max_ci_bound_over_box"] > 0

@@ -33,10 +33,10 @@ PROFILE = [
 ]
 
 
-PROFILE_RT = [
+PROFILE_RT = [  # one identification per condition, 7 min after its start (identification.schedule_min)
     Segment(300.0, 0.0, 0.0, 22.0),
-    Segment(900.0, 3000.0, 5.0, 22.0),
-    Segment(900.0, 4000.0, 6.0, 22.0),
+    Segment(600.0, 3000.0, 5.0, 22.0),
+    Segment(600.0, 4000.0, 6.0, 22.0),
 ]
 
 
@@ -70,7 +70,9 @@ def logs(tmp_path_factory):
 def realtime_logs(tmp_path_factory):
     """The same plant as ``logs`` recorded as ``chtc record`` does in real time: one row per second at a
     jittered receive time (each row with its own sensor noise), CAN frames every 0.1 s, also jittered.
-    Shorter than ``logs``: one 10-min identification per condition, so the test can replay it at 10x."""
+    Shorter than ``logs``: 10-min conditions, one identification each (3 min before the next change or the
+    end: the job's wall time at 30x is 30 recorded s per s), so the test can replay it at 30x (50 s; 15-min
+    conditions took 70 s)."""
     run = plant_run(PROFILE_RT, seed=5, mesh_size_m=0.003)
     rng = np.random.default_rng(11)
     d = tmp_path_factory.mktemp("realtime")
@@ -327,7 +329,7 @@ def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path, monke
 def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_path, monkeypatch):
     """One jittered row per second (as chtc record writes): replay used to sample rows one poll apart from
     identify's, and identify fed every row as a sample, so windows and H differed (13 s and H1 52 vs 200).
-    Per-condition mode, as the test above (one identification per 15-min condition)."""
+    Per-condition mode, as the test above (one identification per 10-min condition)."""
     monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")  # chtc identify's settings
     offline = [r for r in _identify(realtime_logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
 
@@ -344,7 +346,7 @@ def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_
             allowed = np.where(o["identified"], 0.02 * h + 0.2, np.maximum(0.02 * h + 0.2, 0.05 * (hi - lo)))
             assert np.all(np.abs(np.asarray(r.h) - h) <= allowed), (r.h, h.tolist(), o["identified"])
 
-    # 30x absorbs a stall of 133 ms (70 s of replay), 10x one of 400 ms (210 s)
+    # 30x absorbs a stall of 133 ms (50 s of replay), 10x one of 400 ms (150 s)
     _replay_paced(realtime_logs, tmp_path, monkeypatch, check, speedups=(30.0, 10.0))
 
 
