@@ -5,11 +5,12 @@ After a restart the filter would start from its prior at the ambient (``Filtered
 sensors then see the housing at once, but the shaft's inside only through the slow heat flow, so the served
 growth stays off by what the prior did not know of the warm shaft until the data have seen it (measured: up to
 2.9 µm for an hour after a warm restart, docs/design/estimator.md "Resuming after a restart"). The service
-therefore stores the filter's belief every ``engine.live_checkpoint_s`` of sample time (one row, replaced:
+therefore stores the filter's belief every ``database.live_checkpoint_s`` of sample time (one row, replaced:
 ``service.store.livestate``) and a restart resumes from it when the first sample comes within the filter's
 ``max_gap_s`` (300 s) of the checkpoint. Across the gap the state runs open loop with the inputs held at the
 checkpoint, its covariance growing by the process noise, as over any gap in the data; a longer gap starts
-from the prior as before.
+from the prior as before. The resumed state serves as converged at once; identification windows start only
+once it has passed the convergence test on the new process's data (``FilteredState.resume``).
 
 A checkpoint holds the belief (reduced ``mean`` (r,) [°C], ``cov`` (r, r) [°C²], ``cross`` (r, 9)), the
 unknown offsets' share (``bias_s`` (r, n), ``bias_m`` (r, r): ``service.estimate.offsetbias``), the held

@@ -357,8 +357,13 @@ class FilteredState:
     def resume(self, cp: LiveCheckpoint, model_version: str) -> None:
         """Continue from a stored checkpoint (after a restart) instead of the prior: the next ``push``
         predicts across the gap with the checkpoint's inputs held (a gap over ``max_gap_s`` starts from the
-        prior as ever). A converged checkpoint is converged from its time on: the NIS windows start empty.
-        ``CheckpointError`` if it is another model's or another size (the state is then left as it was)."""
+        prior as ever). A converged checkpoint is converged from its time on (the served values need no new
+        convergence), but identification windows wait, as after an open-loop run, until the state has passed
+        the convergence test on data after the restart (``ready_at``): a window may not start at the
+        checkpoint, before the first sample the new process has (the speed map's prior would then overlap the
+        restored fit's window and fall back to the cold prior: measured, H1 and H5 at the box bound for an
+        hour after a restart). ``CheckpointError`` if it is another model's or another size (the state is
+        then left as it was)."""
         cp.check_for(model_version, int(self.rom.k0.shape[0]), self._bias.n)
         estimate = Estimate(mean=cp.mean.copy(), cov=cp.cov.copy(), cross=cp.cross.copy())
         self._filter = StateEstimator(self.rom, estimate, noise=self._noise, offsets_c=self.offsets_c)
@@ -368,7 +373,7 @@ class FilteredState:
         self._window = NisWindow(self.settings.nis_window)
         self._gate = NisWindow(self.settings.converge_nis_samples)
         self.converged_at = float(cp.t) if cp.converged else None
-        self._blind_from, self._reacquiring, self.reacquired_at = None, False, None
+        self._blind_from, self._reacquiring, self.reacquired_at = None, cp.converged, None
         self.started_at = float(cp.t)
         self.high_since = None
         self._convergence = None
