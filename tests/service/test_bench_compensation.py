@@ -137,6 +137,7 @@ def test_restart_and_outage_figures() -> None:
         _m(30, um=90.0, converged=False, ref=21.5),  # before convergence: not counted
         _m(31, um=31.4, ref=21.5),
         _m(32, um=31.9, usable=True, ref=21.5),
+        _m(33, um=33.2, usable=True, ref=21.5, truth=33.0),
     ]
     seed.rows["outages"] = [
         _m(15, usable=True, um=1.0, truth=1.1),
@@ -147,6 +148,8 @@ def test_restart_and_outage_figures() -> None:
     st = cb.restart_stored_figures(seed, plan)
     assert st["err_um_max_after_converged"] == pytest.approx(0.4)
     assert st["first_usable_min"] == 2.0 and st["reference_kept"] is True
+    # the usable minutes against the truth: 31.9 ± 0.5 misses 0, 33.2 ± 0.5 covers 33.0
+    assert st["coverage_usable"] == 0.5 and st["err_um_max_usable"] == pytest.approx(31.9)
     out = cb.outage_figures(seed, plan)
     assert out["outage_can_alive"] == {
         "usable_min": 1,
