@@ -450,8 +450,8 @@ class FilteredState:
 
         The state moves on a fixed grid of ``dt_s``: ``round((t − t_state)/dt_s)`` steps, predictions only
         except the last, which is updated. A gap over ``max_gap_s`` restarts from the wide prior, and so does
-        a belief that stopped being a distribution (``CovarianceError``: never served as converged). Non-finite
-        inputs hold the last valid ones.
+        a belief that stopped being a distribution (``CovarianceError``: never served as converged).
+        Non-finite inputs hold the last valid ones.
         """
         if self._filter is None or self._t is None or self._inputs is None:
             raise LiveStateError("initialize() the live state before pushing samples")

@@ -191,7 +191,7 @@ def test_a_narrower_parameter_sigma_rescales_the_cross_covariance(model: Any) ->
     before = est.estimate
     stale = StateEstimator(rom, before, noise=narrow)  # the old assignment: the cross kept as it was
     assert _joint_min_eig(stale.estimate, narrow.param_std()) < -1e-5
-    with pytest.raises(CovarianceError, match="positive semi-definite|negative variance"):
+    with pytest.raises(CovarianceError, match=r"positive semi-definite|negative variance"):
         for k in range(60, 120):
             stale.predict(_step(inputs, k))
     est.set_noise(narrow)
@@ -227,7 +227,7 @@ def test_a_belief_that_is_no_distribution_raises_and_is_kept_out(model: Any) -> 
             check_covariance(Estimate(prior.mean, cov, prior.cross))
     est = StateEstimator(rom, prior)
     est.estimate = Estimate(prior.mean, indefinite, prior.cross)
-    with pytest.raises(CovarianceError, match="positive semi-definite|negative variance"):
+    with pytest.raises(CovarianceError, match=r"positive semi-definite|negative variance"):
         est.predict(_step(_inputs(2), 0))
     assert est.estimate.cov is indefinite  # not replaced by the bad prediction
     est.estimate = Estimate(prior.mean, nan_cov, prior.cross)

@@ -1,11 +1,11 @@
 """The filtered state's covariance stays a covariance (docs/design/estimator.md, "Covariance health").
 
-The bug (2026-11-27, the simulated ISO 230-3 thermal test ``python -m service.sim.thermaltest --short --seed 4``
-commissioned through the core): an identification's ``set_h`` with a narrower CI lowered the considered H
-errors' 1σ while their cross-covariance with the state was kept, so the next predictions made P indefinite
-(negative variances, negative NIS) and the served field reached 165 °C, still "converged". Data here: the
-service's own reduced model run open loop with noise 0.15 °C (what matters is the covariance algebra, not the
-model's truth), warming up at 7000 rpm, then a new H with a 5 % CI.
+The bug (2026-11-27, the simulated ISO 230-3 thermal test ``python -m service.sim.thermaltest --short
+--seed 4`` commissioned through the core): an identification's ``set_h`` with a narrower CI lowered the
+considered H errors' 1σ while their cross-covariance with the state was kept, so the next predictions made
+P indefinite (negative variances, negative NIS) and the served field reached 165 °C, still "converged".
+Data here: the service's own reduced model run open loop with noise 0.15 °C (what matters is the covariance
+algebra, not the model's truth), warming up at 7000 rpm, then a new H with a 5 % CI.
 """
 
 from __future__ import annotations
@@ -30,7 +30,9 @@ def _warm_up(model: Any, n_idle: int, n_run: int, seed: int = 4) -> list[dict[st
     rom, spec = model.rom, model.spec
     speed = np.r_[np.zeros(n_idle), np.full(n_run, 7000.0)]
     torque = np.r_[np.zeros(n_idle), np.full(n_run, 5.0)]
-    inp = inputs_from_operation(spec, dt_s=DT, speed_rpm=speed, torque_nm=torque, ambient_c=np.full(speed.size, AMBIENT))
+    inp = inputs_from_operation(
+        spec, dt_s=DT, speed_rpm=speed, torque_nm=torque, ambient_c=np.full(speed.size, AMBIENT)
+    )
     tr = transition(rom, H_TRUE, DT)
     a = rom.steady_state(H_TRUE, ambient_c=AMBIENT, q_front_w=0.0, q_rear_w=0.0)
     rng = np.random.default_rng(seed)
