@@ -56,6 +56,7 @@ from model.estimator import (
     convergence,
     field_std,
     heated_prior,
+    rescale_cross,
     wide_prior,
 )
 from model.estimator import usable as usable_channels
@@ -364,15 +365,20 @@ class FilteredState:
             cross=est.cross.copy(),
             bias_s=self._bias.s.copy(),
             bias_m=self._bias.m.copy(),
+            param_std=self._noise.param_std(),
         )
 
     def resume(self, cp: LiveCheckpoint, model_version: str) -> None:
         """Continue from a stored checkpoint (after a restart) instead of the prior: the next ``push``
         predicts across the gap with the checkpoint's inputs held (a gap over ``max_gap_s`` starts from the
         prior as ever). A converged checkpoint is converged from its time on: the NIS windows start empty.
+        Its cross-covariance is rescaled from the checkpoint's considered 1σ to the current ones (``set_h``
+        before ``resume`` sets them), so the joint covariance stays positive semi-definite.
         ``CheckpointError`` if it is another model's or another size (the state is then left as it was)."""
         cp.check_for(model_version, int(self.rom.k0.shape[0]), self._bias.n)
         estimate = Estimate(mean=cp.mean.copy(), cov=cp.cov.copy(), cross=cp.cross.copy())
+        if cp.param_std is not None:  # the cross goes with the checkpoint's 1σ: rescale it to the H set now
+            estimate = rescale_cross(estimate, cp.param_std, self._noise.param_std())
         self._filter = StateEstimator(self.rom, estimate, noise=self._noise, offsets_c=self.offsets_c)
         self._bias.s, self._bias.m = cp.bias_s.copy(), cp.bias_m.copy()
         self._t = float(cp.t)

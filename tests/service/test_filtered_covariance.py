@@ -100,3 +100,38 @@ def test_a_belief_that_is_no_distribution_is_never_served_converged(loaded_model
     assert state.converged_at is None and not state.view().converged
     assert state.last_restart == (10 * DT, upd.reason)
     assert _min_eig_rel(state.estimator.estimate) > -1e-9
+
+
+def test_a_checkpoint_resumed_under_a_narrower_h_ci_stays_positive(loaded_model: Any) -> None:
+    """A checkpoint written with the considered H errors at 100 %, resumed after ``set_h`` with 5 % (the
+    core sets the stored result's CI before ``resume``): the cross-covariance is rescaled to the new 1σ, and
+    the resumed state keeps a positive semi-definite P without restarting (without the rescale: a negative
+    variance at the first sample, and a restart). A checkpoint without ``param_std`` (written before it was
+    kept) still loads."""
+    from service.estimate.checkpoint import LiveCheckpoint
+
+    samples = _warm_up(loaded_model, 6, 72)
+    state = FilteredState(loaded_model.rom, loaded_model.spec, h=H_GUESS)
+    state.set_h(H_GUESS, h_rel=1.0)
+    s0 = samples[0]
+    state.initialize(0.0, (s0["ambient_c"], s0["speed_rpm"], s0["torque_nm"]), s0["temps_c"])
+    for k in range(1, 66):
+        state.push(k * DT, **samples[k])
+    cp = state.checkpoint("m1")
+    assert cp.param_std is not None and np.all(cp.param_std[:7] == 1.0)
+    stored = LiveCheckpoint.from_parts(
+        cp.to_bytes(), t=cp.t, model_version="m1", converged=cp.converged, inputs=cp.inputs
+    )
+    resumed = FilteredState(loaded_model.rom, loaded_model.spec, h=H_TRUE)
+    resumed.set_h(H_TRUE, h_rel=0.05)
+    resumed.resume(stored, "m1")
+    for k in range(66, 72):
+        upd = resumed.push(k * DT, **samples[k])
+        assert not upd.restarted, upd.reason
+        assert _min_eig_rel(resumed.estimator.estimate) > -1e-9
+    old = LiveCheckpoint(**{**cp.__dict__, "param_std": None})
+    again = LiveCheckpoint.from_parts(
+        old.to_bytes(), t=cp.t, model_version="m1", converged=cp.converged, inputs=cp.inputs
+    )
+    assert again.param_std is None
+    np.testing.assert_array_equal(again.cross, cp.cross)
