@@ -37,9 +37,19 @@ from a setting or from the innovations (``matched_sigma_c``, covariance matching
 State: only a. No augmentation: a uniform offset of the field is already a state direction (the uniform
 field is the first basis vector), and per-channel offsets come from calibration (``offsets_c``).
 
+Changing the considered parameters' 1σ (``StateEstimator.set_noise``, e.g. a new H with a narrower CI)
+rescales their cross-covariance with the state (``rescale_cross``): the joint covariance [[P, X], [Xᵀ, Σ]]
+must stay positive semi-definite, or the prediction's P⁺ = A·P·Aᵀ + A·X·Jᵀ + J·Xᵀ·Aᵀ + J·Σ·Jᵀ is not a
+covariance (docs/design/estimator.md, "Covariance health"). Every predicted and updated covariance is checked
+(``check_covariance``): a non-finite mean, a negative or non-finite variance or a non-PSD covariance raises
+``CovarianceError`` and leaves the belief as it was.
+
 Errors::
 
-    EstimatorError(ValueError)   a bad argument (shape, non-finite, H <= 0, dt <= 0); the field is named
+    EstimatorError(ModelError, ValueError)   a bad argument (shape, non-finite, H <= 0, dt <= 0); the field
+                                             is named
+      CovarianceError                        the belief stopped being a distribution (non-finite, negative
+                                             variance, not positive semi-definite): restart from a prior
 """
 
 from __future__ import annotations
@@ -51,6 +61,7 @@ from typing import Any
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
+from scipy.linalg import lapack
 from scipy.stats import chi2
 
 from model.errors import ModelError
@@ -65,6 +76,12 @@ N_PARAMS = N_H + 2  # considered parameter errors: H1..H7, front and rear bearin
 
 class EstimatorError(ModelError, ValueError):
     """A bad argument to the state estimator; the message names the field."""
+
+
+class CovarianceError(EstimatorError):
+    """The filter's belief is no longer a distribution: a non-finite mean or covariance, a negative variance
+    or a covariance that is not positive semi-definite. The belief must not be served; restart from a
+    prior."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -176,6 +193,53 @@ class Transition:
     zone_loads: Array
     d_mu: Array
     d_gamma: Array
+
+
+# a covariance's smallest eigenvalue may be this far below 0, relative to its largest variance (round-off:
+# measured ~1e-19 on healthy runs of the default model, r = 46)
+PSD_REL_TOL = 1e-9
+
+
+def check_covariance(est: Estimate, *, rel_tol: float = PSD_REL_TOL) -> None:
+    """Raise ``CovarianceError`` unless ``est`` is a distribution: finite mean, cov and cross, every variance
+    ≥ 0 and cov positive semi-definite up to ``rel_tol`` × its largest variance (one Cholesky factorisation
+    of cov + tol·I, ~15 µs at r = 56). The message names what failed."""
+    cov = est.cov
+    # one sum per array: NaN or ±inf anywhere makes it non-finite (cheaper than isfinite over every entry)
+    if not np.isfinite(float(est.mean.sum()) + float(cov.sum()) + float(est.cross.sum())):
+        raise CovarianceError("state estimate: non-finite mean, covariance or cross-covariance")
+    diag = np.diagonal(cov)
+    scale = float(diag.max()) if diag.size else 0.0
+    tol = rel_tol * max(scale, np.finfo(np.float64).tiny)
+    if diag.min() < -tol:
+        i = int(np.argmin(diag))
+        raise CovarianceError(f"state covariance: negative variance {diag[i]:.3g} at reduced coordinate {i}")
+    shifted = cov.copy()
+    shifted.flat[:: cov.shape[0] + 1] += tol
+    _, info = lapack.dpotrf(shifted, lower=1, clean=0, overwrite_a=1)
+    if info != 0:
+        low = float(np.linalg.eigvalsh(0.5 * (cov + cov.T))[0])
+        raise CovarianceError(
+            f"state covariance: not positive semi-definite (smallest eigenvalue {low:.3g}, largest variance "
+            f"{scale:.3g})"
+        )
+
+
+def rescale_cross(est: Estimate, old_std: ArrayLike, new_std: ArrayLike) -> Estimate:
+    """The belief with the considered parameters' 1σ changed from ``old_std`` to ``new_std`` (9,) [relative]:
+    each column of the cross-covariance X scaled by new/old (0 where old is 0), so the parameters keep their
+    correlation with the state's error. The joint covariance [[P, X], [Xᵀ, Σ]] is transformed by
+    diag(I, new/old) on both sides and stays positive semi-definite; keeping X with a smaller Σ does not
+    (X·Σ⁻¹·Xᵀ may exceed P, and the next prediction's P is then indefinite)."""
+    old = np.asarray(old_std, dtype=np.float64)
+    new = np.asarray(new_std, dtype=np.float64)
+    if old.shape != (N_PARAMS,) or new.shape != (N_PARAMS,):
+        raise EstimatorError(f"rescale_cross: expected {N_PARAMS} values of 1σ, got {old.shape}, {new.shape}")
+    with np.errstate(divide="ignore", invalid="ignore"):
+        factor = np.where(old > 0.0, new / old, 0.0)
+    if np.all(factor == 1.0):
+        return est
+    return Estimate(est.mean, est.cov, est.cross * factor[None, :])
 
 
 def _check_h(h: ArrayLike) -> Array:
@@ -523,15 +587,29 @@ class StateEstimator:
             self._cache[key] = tr
         return tr
 
+    def set_noise(self, noise: NoiseModel) -> None:
+        """Use ``noise`` from now on. A change of the considered parameters' 1σ (``h_rel``, ``load_rel``)
+        rescales their cross-covariance with the state (``rescale_cross``), so the joint covariance stays a
+        covariance; the state's own P is unchanged."""
+        if noise.model_cov is not None and np.shape(noise.model_cov) != (self.r, self.r):
+            raise EstimatorError(f"noise.model_cov: expected shape ({self.r}, {self.r})")
+        self.estimate = rescale_cross(self.estimate, self.noise.param_std(), noise.param_std())
+        self.noise = noise
+
     def predict(self, inputs: StepInput) -> Estimate:
-        """Advance the belief over one step (no measurement)."""
+        """Advance the belief over one step (no measurement); ``CovarianceError`` (the belief left as it was)
+        if the predicted covariance is not a covariance (``check_covariance``)."""
         self._check_inputs(inputs)
         tr = self.transition(inputs.h, inputs.dt_s)
-        self.estimate = predict(self.rom, tr, self.estimate, inputs, self.noise)
+        post = predict(self.rom, tr, self.estimate, inputs, self.noise)
+        check_covariance(post)
+        self.estimate = post
         return self.estimate
 
     def update(self, measured_c: ArrayLike, mask: ArrayLike | None = None) -> StepResult:
-        """Correct the belief with one sample's channels (32,) [°C]; ``mask`` True = usable."""
+        """Correct the belief with one sample's channels (32,) [°C]; ``mask`` True = usable.
+        ``CovarianceError`` (the belief left as it was) if the posterior is not a distribution
+        (``check_covariance``)."""
         y = np.asarray(measured_c, dtype=np.float64)
         if y.shape != self.offsets_c.shape:
             raise EstimatorError(f"measurement: expected shape {self.offsets_c.shape}, got {y.shape}")
@@ -539,6 +617,7 @@ class StateEstimator:
         use = usable(y, mask)
         prior = self.estimate
         post, nu, nis, s_diag = update(self._sensors, prior, y, use, self.noise.r_var)
+        check_covariance(post)
         innovation = np.full(y.shape, np.nan)
         innovation[use] = nu
         self.estimate = post

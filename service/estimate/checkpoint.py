@@ -15,7 +15,9 @@ once it has passed the convergence test on the new process's data (``FilteredSta
 A checkpoint holds the belief (reduced ``mean`` (r,) [°C], ``cov`` (r, r) [°C²], ``cross`` (r, 9)), the
 unknown offsets' share (``bias_s`` (r, n), ``bias_m`` (r, r): ``service.estimate.offsetbias``), the held
 ``inputs`` (ambient °C, speed rpm, torque N·m), its time ``t`` [s since the epoch], whether the state had
-converged, and the ``model_version`` it was computed with: a checkpoint of another reduced model (a new mesh,
+converged, the considered parameters' 1σ ``param_std`` (9,) that ``cross`` goes with (None in checkpoints
+written before 2026-11-27: the resumed cross is then taken as it is), and the ``model_version`` it was
+computed with: a checkpoint of another reduced model (a new mesh,
 rank or geometry) is refused (``CheckpointError``) and the state starts from the prior.
 
 Errors::
@@ -58,6 +60,7 @@ class LiveCheckpoint:
     cross: Array
     bias_s: Array
     bias_m: Array
+    param_std: Array | None = None  # (9,) the considered parameters' 1σ at the checkpoint (``cross``'s)
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.t):
@@ -74,6 +77,13 @@ class LiveCheckpoint:
                 raise CheckpointError(f"live checkpoint: {name} has shape {arr.shape}, state size {r}")
             if not np.all(np.isfinite(arr)):
                 raise CheckpointError(f"live checkpoint: {name} holds non-finite values")
+        ps = self.param_std
+        if ps is not None and (
+            ps.shape != (self.cross.shape[1],) or not np.all(np.isfinite(ps)) or np.any(ps < 0)
+        ):
+            raise CheckpointError(
+                f"live checkpoint: param_std must be {self.cross.shape[1]} finite values >= 0, got {ps!r}"
+            )
 
     @property
     def rank(self) -> int:
@@ -98,6 +108,8 @@ class LiveCheckpoint:
         """The arrays as an ``.npz`` archive (float64, no pickles)."""
         buf = io.BytesIO()
         arrays: dict[str, Any] = {name: np.asarray(getattr(self, name), dtype="<f8") for name in _ARRAYS}
+        if self.param_std is not None:
+            arrays["param_std"] = np.asarray(self.param_std, dtype="<f8")
         np.savez(buf, **arrays)
         return buf.getvalue()
 
@@ -116,6 +128,8 @@ class LiveCheckpoint:
         try:
             with np.load(io.BytesIO(payload), allow_pickle=False) as npz:
                 arrays = {name: np.array(npz[name], dtype=np.float64) for name in _ARRAYS}
+                if "param_std" in npz.files:  # older checkpoints lack it
+                    arrays["param_std"] = np.array(npz["param_std"], dtype=np.float64)
         except KeyError as err:
             raise CheckpointError(f"live checkpoint: payload lacks the array {err}") from err
         except (OSError, ValueError, EOFError) as err:

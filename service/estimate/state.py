@@ -22,6 +22,10 @@ Compared with ``LiveModel``:
 - ``Snapshot.initial`` is True while the state has not yet passed the convergence test since the (re)start:
   windows should not start there (``ready_at``).
 
+- a belief that stops being a distribution (``model.estimator.CovarianceError``: a non-finite or negative
+  variance, a covariance not positive semi-definite) is never served: the state restarts from the prior on
+  that sample, not converged (``SampleUpdate.restarted``, ``reason``; ``last_restart``), as after a long gap.
+
 Errors::
 
     LiveStateError(RuntimeError)   (``service.estimate.live``) asked before ``initialize`` / no snapshot
@@ -42,6 +46,7 @@ from scipy.stats import chi2
 
 from model.estimator import (
     Convergence,
+    CovarianceError,
     Estimate,
     NisWindow,
     NoiseModel,
@@ -51,6 +56,7 @@ from model.estimator import (
     convergence,
     field_std,
     heated_prior,
+    rescale_cross,
     wide_prior,
 )
 from model.estimator import usable as usable_channels
@@ -137,8 +143,9 @@ class StateSnapshot:
 @dataclass(frozen=True)
 class SampleUpdate:
     """What one ``push`` did: ``t`` [s] of the state, ``steps`` advanced, ``nis`` over ``dof`` used channels
-    (0, 0 without an update), the NIS window's ``verdict`` ("filling", "ok", "high", "low"), and whether the
-    state ``restarted`` from the wide prior (a long gap)."""
+    (0, 0 without an update), the NIS window's ``verdict`` ("filling", "ok", "high", "low"), whether the
+    state ``restarted`` from the wide prior and why (``reason``: "start", "gap", "prediction lost",
+    "covariance: ..."; "" when it did not)."""
 
     t: float
     steps: int
@@ -146,6 +153,7 @@ class SampleUpdate:
     dof: int
     verdict: str
     restarted: bool = False
+    reason: str = ""
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -279,6 +287,7 @@ class FilteredState:
         self.reacquired_at: float | None = None  # [s] the state passed the test again after an open-loop run
         self.started_at: float | None = None
         self.high_since: float | None = None  # [s] the NIS window "high" since (None: not high)
+        self.last_restart: tuple[float, str] | None = None  # [s] and why the state last restarted
         self._last: tuple[float, int] = (0.0, 0)
         self._convergence: Convergence | None = None
         self.nis_history: deque[tuple[float, float, int]] = deque(maxlen=max(1, int(st.keep_s / self.dt_s)))
@@ -310,9 +319,12 @@ class FilteredState:
         inputs: tuple[float, float, float],
         temps_c: ArrayLike | None = None,
         usable: ArrayLike | None = None,
+        *,
+        reason: str = "start",
     ) -> SampleUpdate:
         """Start at ``t`` [s] from the wide prior at the ambient (``inputs`` = ambient [°C], speed [rpm],
-        torque [N·m]), then update with the sample's temperatures (32,) [°C] and usable mask, if given."""
+        torque [N·m]), then update with the sample's temperatures (32,) [°C] and usable mask, if given;
+        ``reason`` why (``SampleUpdate.reason``, ``last_restart``)."""
         ambient = float(inputs[0])
         if not all(math.isfinite(float(x)) for x in inputs):
             raise LiveStateError(
@@ -336,7 +348,8 @@ class FilteredState:
         self._convergence = None
         for dq in (self._snapshots, self._recent):
             dq.clear()
-        return self._after_step(0, self._measure(temps_c, usable), restarted=True)
+        self.last_restart = (float(t), reason)
+        return self._after_step(0, self._measure(temps_c, usable), restarted=True, reason=reason)
 
     def checkpoint(self, model_version: str) -> LiveCheckpoint:
         """The state now as a ``LiveCheckpoint`` (``service.estimate.checkpoint``) of ``model_version``."""
@@ -352,6 +365,7 @@ class FilteredState:
             cross=est.cross.copy(),
             bias_s=self._bias.s.copy(),
             bias_m=self._bias.m.copy(),
+            param_std=self._noise.param_std(),
         )
 
     def resume(self, cp: LiveCheckpoint, model_version: str) -> None:
@@ -362,10 +376,14 @@ class FilteredState:
         the convergence test on data after the restart (``ready_at``): a window may not start at the
         checkpoint, before the first sample the new process has (the speed map's prior would then overlap the
         restored fit's window and fall back to the cold prior: measured, H1 and H5 at the box bound for an
-        hour after a restart). ``CheckpointError`` if it is another model's or another size (the state is
-        then left as it was)."""
+        hour after a restart). Its cross-covariance is rescaled from the checkpoint's considered 1σ to the
+        current ones (``set_h`` before ``resume`` sets them), so the joint covariance stays positive
+        semi-definite. ``CheckpointError`` if it is another model's or another size (the state is then left
+        as it was)."""
         cp.check_for(model_version, int(self.rom.k0.shape[0]), self._bias.n)
         estimate = Estimate(mean=cp.mean.copy(), cov=cp.cov.copy(), cross=cp.cross.copy())
+        if cp.param_std is not None:  # the cross goes with the checkpoint's 1σ: rescale it to the H set now
+            estimate = rescale_cross(estimate, cp.param_std, self._noise.param_std())
         self._filter = StateEstimator(self.rom, estimate, noise=self._noise, offsets_c=self.offsets_c)
         self._bias.s, self._bias.m = cp.bias_s.copy(), cp.bias_m.copy()
         self._t = float(cp.t)
@@ -404,8 +422,8 @@ class FilteredState:
             if not np.all(np.isfinite(rel)):
                 raise LiveStateError(f"set_h: h_rel must be finite, got {h_rel!r}")
             self._noise = replace(self._noise, h_rel=tuple(float(x) for x in np.clip(rel, 0.05, 1.0)))
-            if self._filter is not None:
-                self._filter.noise = self._noise
+            if self._filter is not None:  # rescales the cross-covariance with the considered H errors
+                self._filter.set_noise(self._noise)
 
     def set_offsets(self, offsets_c: ArrayLike | None, sd_c: ArrayLike | None = None) -> None:
         """Per-channel offsets (32,) [°C] subtracted before each update (a new calibration) and the 1σ (32,)
@@ -426,7 +444,7 @@ class FilteredState:
             sigma = math.hypot(self.settings.noise.sigma_meas_c, rms)
             self._noise = replace(self._noise, sigma_meas_c=sigma)
             if self._filter is not None:
-                self._filter.noise = self._noise
+                self._filter.set_noise(self._noise)
 
     def push(
         self,
@@ -442,35 +460,41 @@ class FilteredState:
         sample's temperatures (32,) [°C] over the ``usable`` channels (True = quality OK; None: all finite).
 
         The state moves on a fixed grid of ``dt_s``: ``round((t − t_state)/dt_s)`` steps, predictions only
-        except the last, which is updated. A gap over ``max_gap_s`` restarts from the wide prior. Non-finite
-        inputs hold the last valid ones.
+        except the last, which is updated. A gap over ``max_gap_s`` restarts from the wide prior, and so does
+        a belief that stopped being a distribution (``CovarianceError``: never served as converged).
+        Non-finite inputs hold the last valid ones.
         """
         if self._filter is None or self._t is None or self._inputs is None:
             raise LiveStateError("initialize() the live state before pushing samples")
         new = self._valid(ambient_c, speed_rpm, torque_nm)
         n = int(np.floor((float(t) - self._t) / self.dt_s + 0.5))
+        inputs = (new.ambient_c, new.speed_rpm, new.torque_nm)
         if n * self.dt_s > self.settings.max_gap_s:
-            return self.initialize(float(t), (new.ambient_c, new.speed_rpm, new.torque_nm), temps_c, usable)
+            return self.initialize(float(t), inputs, temps_c, usable, reason="gap")
         if n <= 0:
             self._inputs = new
             return SampleUpdate(self._t, 0, 0.0, 0, self._window.verdict())
         step = self._step_input(self._inputs)
         a = self._filter.transition(step.h, step.dt_s).a
-        for _ in range(n - 1):
+        try:
+            for _ in range(n - 1):
+                self._filter.predict(step)
+                self._bias.predict(a)
+                self._t += self.dt_s
+                self._keep(self._snapshot())
             self._filter.predict(step)
             self._bias.predict(a)
             self._t += self.dt_s
-            self._keep(self._snapshot())
-        self._filter.predict(step)
-        self._bias.predict(a)
-        self._t += self.dt_s
-        self._inputs = new
-        res = self._measure(temps_c, usable)
+            self._inputs = new
+            res = self._measure(temps_c, usable)
+        except CovarianceError as err:
+            # the belief is no longer a distribution: never serve it (nor its convergence); start again
+            return self.initialize(float(t), inputs, temps_c, usable, reason=f"covariance: {err}")
         if self._prediction_lost(res):
             # the open-loop prediction is out of its own band (CAN was down too, say: the inputs held were
             # not the machine's): restart from the prior on these data rather than bend the unobserved field
             # (the shaft) by a correction the covariance does not cover
-            return self.initialize(float(t), (new.ambient_c, new.speed_rpm, new.torque_nm), temps_c, usable)
+            return self.initialize(float(t), inputs, temps_c, usable, reason="prediction lost")
         return self._after_step(n, res)
 
     def mark(self, t: float) -> StateSnapshot:
@@ -615,7 +639,9 @@ class FilteredState:
                 self._bias.update(gain, sensors, use)
         return est.update(y, mask)
 
-    def _after_step(self, n: int, res: StepResult | None, *, restarted: bool = False) -> SampleUpdate:
+    def _after_step(
+        self, n: int, res: StepResult | None, *, restarted: bool = False, reason: str = ""
+    ) -> SampleUpdate:
         assert self._t is not None
         nis, dof = (0.0, 0) if res is None else (res.nis, res.dof)
         self._track_blind(n, dof)
@@ -639,7 +665,7 @@ class FilteredState:
             self._reacquiring, self.reacquired_at = False, self._t
         self._keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
         self.steps += n
-        return SampleUpdate(self._t, n, nis, dof, verdict, restarted)
+        return SampleUpdate(self._t, n, nis, dof, verdict, restarted, reason)
 
     def _prediction_lost(self, res: StepResult | None) -> bool:
         """The first update after an open-loop run longer than ``max_gap_s`` has an improbable NIS."""

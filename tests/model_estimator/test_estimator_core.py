@@ -12,17 +12,20 @@ from scipy.stats import chi2
 
 from model.estimator import (
     N_PARAMS,
+    CovarianceError,
     Estimate,
     EstimatorError,
     NisWindow,
     NoiseModel,
     StateEstimator,
     StepInput,
+    check_covariance,
     convergence,
     field_std,
     heated_prior,
     param_jacobian,
     predict_mean,
+    rescale_cross,
     transition,
     uniform_state,
     wide_prior,
@@ -165,6 +168,73 @@ def test_considered_parameter_errors_match_monte_carlo(model: Any) -> None:
     mc_std = runs[:, -1, :].std(axis=0)
     assert mc_std.max() > 0.05  # the errors matter: tenths of a degree at the bearings
     np.testing.assert_allclose(est.sensors_std(), mc_std, rtol=0.06)
+
+
+def _joint_min_eig(est: Estimate, std: np.ndarray) -> float:
+    """Smallest eigenvalue of [[P, X], [Xᵀ, Σ]] over P's largest variance."""
+    joint = np.block([[est.cov, est.cross], [est.cross.T, np.diag(std**2)]])
+    return float(np.linalg.eigvalsh(joint)[0] / np.diagonal(est.cov).max())
+
+
+def test_a_narrower_parameter_sigma_rescales_the_cross_covariance(model: Any) -> None:
+    """Heating with the considered H errors at 100 %, then 5 % (a new H with a narrow CI): ``set_noise``
+    rescales the cross-covariance, the joint covariance and every predicted P stay positive semi-definite.
+    Assigning the new noise without it (the old ``FilteredState.set_h``) leaves an indefinite joint and, a
+    few steps later, an indefinite P: the bug of the simulated thermal test (docs/design/estimator.md)."""
+    rom, inputs = model.rom, _inputs(120)
+    wide, narrow = NoiseModel(h_rel=1.0), NoiseModel(h_rel=0.05)
+    est = _filter(rom, _hot_start(rom), noise=wide)
+    for k in range(60):
+        est.predict(_step(inputs, k))
+        est.update(est.sensors_mean())
+    assert _joint_min_eig(est.estimate, wide.param_std()) > -1e-9
+    before = est.estimate
+    stale = StateEstimator(rom, before, noise=narrow)  # the old assignment: the cross kept as it was
+    assert _joint_min_eig(stale.estimate, narrow.param_std()) < -1e-5
+    with pytest.raises(CovarianceError, match=r"positive semi-definite|negative variance"):
+        for k in range(60, 120):
+            stale.predict(_step(inputs, k))
+    est.set_noise(narrow)
+    np.testing.assert_array_equal(est.estimate.cov, before.cov)
+    np.testing.assert_allclose(est.estimate.cross[:, :7], 0.05 * before.cross[:, :7])
+    np.testing.assert_array_equal(est.estimate.cross[:, 7:], before.cross[:, 7:])  # load_rel unchanged
+    assert _joint_min_eig(est.estimate, narrow.param_std()) > -1e-9
+    for k in range(60, 120):
+        est.predict(_step(inputs, k))
+        assert float(np.linalg.eigvalsh(est.estimate.cov)[0]) > -1e-9 * est.estimate.cov.diagonal().max()
+    same = rescale_cross(est.estimate, narrow.param_std(), narrow.param_std())
+    assert same is est.estimate  # nothing changes when the 1σ do not
+
+
+def test_a_belief_that_is_no_distribution_raises_and_is_kept_out(model: Any) -> None:
+    """``check_covariance`` names a non-finite value, a negative variance, an indefinite covariance; the
+    filter raises ``CovarianceError`` and keeps its previous belief; round-off below 0 passes."""
+    rom = model.rom
+    prior = wide_prior(rom, ambient_c=22.0)
+    check_covariance(prior)
+    lam, phi = np.linalg.eigh(prior.cov)
+    roundoff = Estimate(prior.mean, (phi * np.r_[-1e-14 * lam[-1], lam[1:]]) @ phi.T, prior.cross)
+    check_covariance(roundoff)
+    bad_diag = prior.cov.copy()
+    bad_diag[2, 2] = -1.0
+    indefinite = prior.cov.copy()  # every variance > 0, but a correlation of 2 between two coordinates
+    indefinite[0, 1] = indefinite[1, 0] = 2.0 * np.sqrt(indefinite[0, 0] * indefinite[1, 1])
+    nan_cov = prior.cov.copy()
+    nan_cov[1, 1] = np.nan
+    cases = ((bad_diag, "negative variance"), (indefinite, "positive semi-definite"), (nan_cov, "non-finite"))
+    for cov, match in cases:
+        with pytest.raises(CovarianceError, match=match):
+            check_covariance(Estimate(prior.mean, cov, prior.cross))
+    est = StateEstimator(rom, prior)
+    est.estimate = Estimate(prior.mean, indefinite, prior.cross)
+    with pytest.raises(CovarianceError, match=r"positive semi-definite|negative variance"):
+        est.predict(_step(_inputs(2), 0))
+    assert est.estimate.cov is indefinite  # not replaced by the bad prediction
+    est.estimate = Estimate(prior.mean, nan_cov, prior.cross)
+    with pytest.raises(CovarianceError, match="non-finite"):
+        est.update(est.sensors_mean() + 0.1)
+    assert est.estimate.cov is nan_cov  # nor by the bad posterior
+    assert issubclass(CovarianceError, EstimatorError)
 
 
 def test_wide_prior_is_uniform_at_ambient_with_the_requested_spread(model: Any) -> None:
