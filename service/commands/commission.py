@@ -81,12 +81,20 @@ def zero(
 ) -> dict[str, Any]:
     """POST the zero to ``url`` (the service's base URL) and return the stored reference (JSON object);
     ``CommandError`` with the service's message when it refuses (401/403/409/422) or cannot be reached."""
-    import httpx
-
     body: dict[str, Any] = {"source": "cli", "set_by": set_by}
     if temperature_c is not None:
         body["temperature_c"] = temperature_c
-    target = url.rstrip("/") + "/api/v1/compensation/reference"
+    return _post(url, "/api/v1/compensation/reference", body, token, "the zero", timeout_s, transport)
+
+
+def _post(
+    url: str, path: str, body: dict[str, Any], token: str, what: str, timeout_s: float, transport: Any
+) -> dict[str, Any]:
+    """POST ``body`` with the write ``token`` to ``url`` + ``path``; the JSON answer, or ``CommandError``
+    naming ``what`` was refused and the service's message (or why it could not be reached)."""
+    import httpx
+
+    target = url.rstrip("/") + path
     try:
         with httpx.Client(timeout=timeout_s, transport=transport) as client:
             resp = client.post(target, json=body, headers={"Authorization": f"Bearer {token}"})
@@ -97,7 +105,7 @@ def zero(
             message = resp.json().get("error", {}).get("message", resp.text)
         except ValueError:
             message = resp.text
-        raise CommandError(f"the service refused the zero ({resp.status_code}): {message}")
+        raise CommandError(f"the service refused {what} ({resp.status_code}): {message}")
     out: dict[str, Any] = resp.json()
     return out
 
@@ -118,8 +126,6 @@ def send_growth(
     ``CommandError`` with the service's message when it refuses (401/403/409/422) or cannot be reached."""
     import base64
 
-    import httpx
-
     try:
         body: dict[str, Any] = {
             "temperatures_csv": temperatures.read_text(encoding="utf-8"),
@@ -132,20 +138,8 @@ def send_growth(
         }
     except (OSError, UnicodeDecodeError) as err:
         raise CommandError(f"cannot read the test's files: {err}") from err
-    target = url.rstrip("/") + "/api/v1/compensation/mechanics"
-    try:
-        with httpx.Client(timeout=timeout_s, transport=transport) as client:
-            resp = client.post(target, json=body, headers={"Authorization": f"Bearer {token}"})
-    except httpx.HTTPError as err:
-        raise CommandError(f"--url: cannot reach {target}: {err}") from err
-    if resp.status_code != 200:
-        try:
-            message = resp.json().get("error", {}).get("message", resp.text)
-        except ValueError:
-            message = resp.text
-        raise CommandError(f"the service refused the commissioning ({resp.status_code}): {message}")
-    out: dict[str, Any] = resp.json()
-    return out
+    path = "/api/v1/compensation/mechanics"
+    return _post(url, path, body, token, "the commissioning", timeout_s, transport)
 
 
 def _token(args: argparse.Namespace, settings: Any) -> str:
