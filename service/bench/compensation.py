@@ -31,7 +31,15 @@ from typing import Any
 import numpy as np
 
 from service.bench import identmode
-from service.bench.compensation_run import PER_MIN, Minute, Plan, SeedRows, plan_for, run_seed
+from service.bench.compensation_run import (
+    PER_MIN,
+    Minute,
+    Plan,
+    SeedRows,
+    add_plant_mechanics_argument,
+    plan_for,
+    run_seed,
+)
 from service.bench.targets import Target, format_verdicts, progress_to_stderr, report, verdicts
 
 NORMAL = ("normal_clean", "normal_offsets")
@@ -49,13 +57,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=1,
         help="seeds run in this many processes at once (default 1; each takes one core and ~1 GiB)",
     )
-    parser.add_argument(
-        "--plant-mechanics",
-        choices=("drawn", "nominal"),
-        default="drawn",
-        help="the plant's mechanics: drawn per seed (mount restraint, α ±5 %%; default) or nominal (the "
-        "service's own, the figures before issue 27)",
-    )
+    add_plant_mechanics_argument(parser)
     identmode.add_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 

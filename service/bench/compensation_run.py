@@ -122,6 +122,17 @@ def reason_code(snap: Any) -> str | None:
 MECHANICS = ("drawn", "nominal")
 
 
+def add_plant_mechanics_argument(parser: Any) -> None:
+    """``--plant-mechanics drawn|nominal`` of the growth benches (``chtc bench compensation``, ``growth``)."""
+    parser.add_argument(
+        "--plant-mechanics",
+        choices=("drawn", "nominal"),
+        default="drawn",
+        help="the plant's mechanics: drawn per seed (mount restraint, α ±5 %%; default) or nominal (the "
+        "service's own, the figures before issue 27)",
+    )
+
+
 class Plant:
     """The plant's mesh, its growth model (nose axial) and the runs of a seed.
 

@@ -47,6 +47,7 @@ import numpy as np
 from service.bench import identmode
 from service.bench.chain import PROFILE as CHAIN
 from service.bench.chain import T0
+from service.bench.compensation_run import add_plant_mechanics_argument
 from service.bench.targets import Target, format_verdicts, report, verdicts
 from service.engine.growthserve import GrowthServer
 
@@ -67,13 +68,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--profiles", default="chain,duty", help="comma-separated: chain, duty (default both)"
     )
     parser.add_argument("--every-s", type=float, default=60.0, help="evaluation period [s] (default 60)")
-    parser.add_argument(
-        "--plant-mechanics",
-        choices=("drawn", "nominal"),
-        default="drawn",
-        help="the plant's mechanics: drawn per seed (mount restraint, α ±5 %%; default) or nominal (the "
-        "service's own, the figures before issue 27)",
-    )
+    add_plant_mechanics_argument(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     identmode.add_arguments(parser)
 
