@@ -12,10 +12,11 @@ from datetime import datetime, timedelta
 from typing import Any, Literal
 
 import numpy as np
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, Field, field_validator
 
 from api.deps import ClockInfo
 from service.estimate.mechanics import MECH_PARAMS, MechanicsCalibration
+from service.estimate.probe import ProbeMeasurement
 from service.estimate.reference import CompensationReference
 from service.serve.interface import (
     H_UNIT,
@@ -661,12 +662,19 @@ class MechanicsOut(BaseModel):
 
     at: datetime = Field(description="UTC instant the commissioning was made")
     set_by: str
-    source: Literal["api", "cli"]
+    source: Literal["api", "cli", "prior"] = Field(
+        description='"prior": not commissioned, the mechanics prior updated by probe readings alone'
+    )
     parameters: list[MechanicsParameterOut]
     residual_rms_um: float | None = Field(description="the fit's axial residual RMS, µm")
     residual_max_um: float | None = Field(description="the fit's axial residual max |·|, µm")
     explained: bool = Field(description="the fit's verdict: the model explains the test")
     sources_sha256: dict[str, str] = Field(description="SHA-256 of the test's files by role")
+    probe_readings_absorbed: int = Field(
+        0,
+        description="probe readings absorbed since (POST /compensation/measurements): the posterior "
+        "includes them",
+    )
 
 
 def mechanics_out(c: MechanicsCalibration) -> MechanicsOut:
@@ -688,7 +696,91 @@ def mechanics_out(c: MechanicsCalibration) -> MechanicsOut:
         residual_max_um=None if not math.isfinite(c.residual_max_um) else round(c.residual_max_um, 4),
         explained=c.explained,
         sources_sha256=dict(c.sources),
+        probe_readings_absorbed=int(c.report.get("probe_readings_absorbed", 0)),
     )
+
+
+class MeasurementIn(BaseModel):
+    """``POST /compensation/measurements``: a probe reading (a tool setter, a probe on an artefact) of the
+    tool's axial position relative to the commissioned zero (docs/commissioning.md, "Probe measurements")."""
+
+    model_config = {"extra": "forbid"}
+    at: datetime = Field(description="UTC ISO-8601 instant of the reading (Z or +00:00), not in the future")
+    axial_um: float = Field(
+        ge=-10_000.0,
+        le=10_000.0,
+        allow_inf_nan=False,
+        description="axial growth measured, µm, + towards the tool",
+    )
+    sd_um: float = Field(gt=0.0, le=1000.0, allow_inf_nan=False, description="the reading's 1σ, µm")
+    set_by: str | None = Field(
+        None,
+        min_length=1,
+        max_length=64,
+        pattern=r"^[A-Za-z0-9_.:@\- ]+$",
+        description='who sent it (absent: "api")',
+    )
+
+    @field_validator("at")
+    @classmethod
+    def _utc(cls, v: datetime) -> datetime:
+        off = v.utcoffset()
+        if off is None or off.total_seconds() != 0.0:
+            raise ValueError("must be UTC (end it with Z or +00:00)")
+        return v
+
+
+class MeasurementOut(BaseModel):
+    id: int | None = Field(description="stored row (null: not stored yet: the writer is asynchronous)")
+    at: datetime
+    axial_um: float
+    sd_um: float
+    predicted_um: float = Field(description="the served growth at `at` before the reading, µm")
+    sigma_um: float = Field(description="1σ of the predicted reading (growth CI and the reading's sd), µm")
+    innovation_um: float = Field(description="reading − predicted, µm")
+    sigma_ratio: float = Field(description="|innovation| / sigma_um")
+    accepted: bool = Field(
+        description="absorbed into the mechanics; false: beyond compensation.probe_gate_sigma"
+    )
+    message: str
+    set_by: str
+    source: str
+
+
+class MeasurementPostOut(MeasurementOut):
+    mechanics: MechanicsOut | None = Field(description="the mechanics in use after the reading")
+
+
+def measurement_out(m: ProbeMeasurement) -> MeasurementOut:
+    return MeasurementOut(**_measurement_fields(m))
+
+
+def _measurement_fields(m: ProbeMeasurement) -> dict[str, Any]:
+    msg = (
+        "absorbed: the mechanical posterior and the served CI tightened"
+        if m.accepted
+        else f"flagged, NOT absorbed: innovation {m.innovation_um:+.2f} µm is {m.sigma_ratio:.1f} σ "
+        f"(σ {m.sigma_um:.2f} µm), beyond the gate compensation.probe_gate_sigma: a crash or a tool "
+        "change since the last reading? Check the machine; re-commission if its mechanics changed"
+    )
+    return {
+        "id": m.id,
+        "at": m.at,
+        "axial_um": round(m.axial_um, 4),
+        "sd_um": round(m.sd_um, 4),
+        "predicted_um": round(m.predicted_um, 4),
+        "sigma_um": round(m.sigma_um, 4),
+        "innovation_um": round(m.innovation_um, 4),
+        "sigma_ratio": round(m.sigma_ratio, 3) if math.isfinite(m.sigma_ratio) else 1e9,
+        "accepted": m.accepted,
+        "message": msg,
+        "set_by": m.set_by,
+        "source": m.source,
+    }
+
+
+def measurement_post_out(m: ProbeMeasurement, cal: MechanicsCalibration | None) -> MeasurementPostOut:
+    return MeasurementPostOut(**_measurement_fields(m), mechanics=None if cal is None else mechanics_out(cal))
 
 
 class MechanicsCommissionIn(BaseModel):

@@ -350,6 +350,9 @@ class CompensationSettings(_Section):
     # CI covered the truth 4 % of the time (docs/design/policy.md); false only for a machine whose mechanics
     # match the spindle description (the simulator's plant)
     require_mechanics_calibration: bool = True
+    # a probe reading (POST /api/v1/compensation/measurements) further than this many σ of its prediction (the
+    # served growth's CI with the probe's own sd) is flagged and not absorbed (a crash or a tool change)
+    probe_gate_sigma: float = Field(default=3.0, gt=0.0, le=100.0, allow_inf_nan=False)
 
 
 def check_token(text: str) -> str:

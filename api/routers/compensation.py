@@ -5,7 +5,9 @@ controller values, the sensor sensitivity, with the policy's verdict on the grow
 the live field, for the dashboard's exaggerated drawing. GET /compensation/reference: the compensation zero
 in use; POST (token): set it now. GET /compensation/mechanics: the commissioned mechanics in use; POST
 (token): commission them from a measured thermal test (the files' contents; the fit runs in this request's
-thread, seconds to a minute: the service's own core over the test's logs).
+thread, seconds to a minute: the service's own core over the test's logs). GET /compensation/measurements:
+the probe readings taken; POST (token): one more, absorbed into the mechanical posterior unless it disagrees
+beyond its CI (docs/commissioning.md, "Probe measurements").
 
 A plain (not async) endpoint: FastAPI runs it in a worker thread, because the service may build the growth
 model once and its per-condition terms (~0.3 s) on a new identification or condition; never on the loop.
@@ -26,6 +28,9 @@ from api.errors import ApiError
 from api.schemas import (
     CompensationOut,
     CompensationSectionOut,
+    MeasurementIn,
+    MeasurementOut,
+    MeasurementPostOut,
     MechanicsCommissionIn,
     MechanicsCommissionOut,
     MechanicsOut,
@@ -33,10 +38,12 @@ from api.schemas import (
     ReferenceOut,
     compensation_out,
     compensation_section_out,
+    measurement_out,
+    measurement_post_out,
     mechanics_out,
     reference_out,
 )
-from service.serve.interface import NotReadyError
+from service.serve.interface import NotReadyError, ProbeError
 
 router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 
@@ -188,3 +195,38 @@ def post_mechanics(
             message=f"nothing stored: {report['verdict']} (force to store it anyway)",
         )
     return MechanicsCommissionOut(stored=stored, mechanics=mechanics_out(rep.calibration), report=report)
+
+
+@router.get(
+    "/compensation/measurements",
+    response_model=list[MeasurementOut],
+    summary="the probe readings taken (restored and new, absorbed or flagged), newest first",
+)
+def get_measurements(service: ServiceDep) -> list[MeasurementOut]:
+    return [measurement_out(m) for m in service.compensation_measurements()]
+
+
+@router.post(
+    "/compensation/measurements",
+    response_model=MeasurementPostOut,
+    responses={
+        401: {"description": "no token"},
+        403: {"description": "wrong token"},
+        422: {"description": "a bad field, `at` in the future or older than the live state's kept history"},
+        503: {"description": "the growth model is not available"},
+    },
+    summary="a probe reading of the axial growth (needs the bearer token): absorbed into the mechanical "
+    "posterior (the served CI tightens) unless it disagrees beyond its CI (flagged); stored, replayed at "
+    "start",
+)
+def post_measurement(
+    service: ServiceDep, _: WriteAccess, body: Annotated[MeasurementIn, Body()]
+) -> MeasurementPostOut:
+    try:
+        m = service.add_measurement(
+            at=body.at, axial_um=body.axial_um, sd_um=body.sd_um, set_by=body.set_by or "api", source="api"
+        )
+    except ProbeError as err:
+        field = str(err).split(":", 1)[0]
+        raise ApiError(status=422, code="invalid", message=str(err), field=field) from err
+    return measurement_post_out(m, service.compensation_mechanics())

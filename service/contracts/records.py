@@ -507,6 +507,56 @@ class MechanicsCalibrationData:
         }
 
 
+@dataclass(frozen=True, kw_only=True, eq=False)
+class ProbeMeasurementData:
+    """A probe reading in service (``service.estimate.probe.ProbeMeasurement``): its instant (UTC), the axial
+    reading and its 1σ [µm], the field's feature row (2×3, row major) [µm] and growth variance [µm²] then,
+    the prediction, its 1σ and the innovation [µm], whether it was absorbed, who sent it."""
+
+    at: datetime
+    recorded_at: datetime
+    axial_um: float
+    sd_um: float
+    features: list[list[float]]
+    field_var_um2: float
+    predicted_um: float
+    sigma_um: float
+    innovation_um: float
+    accepted: bool
+    set_by: str
+    source: str
+
+    def __post_init__(self) -> None:
+        _check_times(self)
+        vals = (
+            self.axial_um,
+            self.sd_um,
+            self.field_var_um2,
+            self.predicted_um,
+            self.sigma_um,
+            self.innovation_um,
+        )
+        flat = [v for r in self.features for v in r]
+        if not all(math.isfinite(v) for v in (*vals, *flat)) or len(flat) != 6:
+            raise RecordError("ProbeMeasurementData: finite values and a 2×3 feature row needed")
+
+    def values(self) -> dict[str, Column]:
+        return {
+            "at": self.at,
+            "recorded_at": self.recorded_at,
+            "axial_um": float(self.axial_um),
+            "sd_um": float(self.sd_um),
+            "features": [finite(v) for r in self.features for v in r],  # row major
+            "field_var_um2": float(self.field_var_um2),
+            "predicted_um": float(self.predicted_um),
+            "sigma_um": float(self.sigma_um),
+            "innovation_um": float(self.innovation_um),
+            "accepted": bool(self.accepted),
+            "set_by": self.set_by[:64],
+            "source": self.source[:16],
+        }
+
+
 Record = (
     ConditionStart
     | ConditionEnd
@@ -517,6 +567,7 @@ Record = (
     | CompensationReferenceData
     | LiveStateData
     | MechanicsCalibrationData
+    | ProbeMeasurementData
 )
 RECORD_TYPES = (
     ConditionStart,

@@ -15,6 +15,7 @@ from service.defaults import (
 )
 from service.estimate.checkpoint import LiveCheckpoint
 from service.estimate.mechanics import MechanicsCalibration
+from service.estimate.probe import ProbeMeasurement
 from service.estimate.reference import CompensationReference
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
@@ -80,3 +81,4 @@ class Restored:
     reference: CompensationReference | None = None  # the newest stored compensation zero
     live: LiveCheckpoint | None = None  # the live state's stored checkpoint (the filter resumes from it)
     mechanics: MechanicsCalibration | None = None  # the newest stored commissioning of the mechanics
+    probes: tuple[ProbeMeasurement, ...] = ()  # the newest stored probe readings, oldest first

@@ -33,6 +33,7 @@ from __future__ import annotations
 
 import collections
 import contextlib
+import dataclasses
 import itertools
 import math
 import threading
@@ -59,6 +60,15 @@ from service.estimate.growth import (
 )
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
 from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis, served_mechanics_basis
+from service.estimate.probe import (
+    DEFAULT_GATE_SIGMA,
+    ProbeError,
+    ProbeMeasurement,
+    absorb,
+    prior_covariance,
+    prior_mean,
+    replay,
+)
 from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
 from service.serve.interface import (
@@ -87,6 +97,9 @@ UNKNOWN_CI_FACTOR = 100.0  # each CI bound capped at H/100 and H·100 (a huge σ
 TermsKey = tuple[object, ...]
 TERMS_KEPT = 16  # condition terms kept (~1 MB each on the service mesh)
 REFERENCE_MAX_SD_UM = 0.1  # a zero taken from the live field adds at most this 1σ [µm] to the axial growth
+FIELD_KEEP_S = 3 * 3600.0  # the live fields kept for probe readings: the live state's own history (keep_s)
+FIELD_KEEP_EVERY_S = 30.0  # one kept every this [s]; a reading takes the nearest
+PROBES_KEPT = 1000  # probe readings listed (GET /compensation/measurements), newest kept
 
 
 def field_belief(view: CoreView) -> FieldBelief:
@@ -160,6 +173,8 @@ class GrowthServer:
         limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
         mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
         mechanics_basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
+        probes: tuple[ProbeMeasurement, ...] = (),  # the stored probe readings (restored), oldest first
+        probe_gate_sigma: float = DEFAULT_GATE_SIGMA,
     ) -> None:
         """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
         "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
@@ -195,10 +210,17 @@ class GrowthServer:
         self._estimate: tuple[tuple[object, ...], GrowthEstimate] | None = None
         self._section_op: SectionOperator | None = None
         self._section: tuple[tuple[object, ...], np.ndarray] | None = None
-        self._mechanics = mechanics
+        self._commissioning = mechanics
+        self._probes: collections.deque[ProbeMeasurement] = collections.deque(probes, maxlen=PROBES_KEPT)
+        self.probe_gate_sigma = float(probe_gate_sigma)
+        self._fields: collections.deque[tuple[float, np.ndarray, np.ndarray]] = collections.deque(
+            maxlen=int(FIELD_KEEP_S / FIELD_KEEP_EVERY_S) + 2
+        )
+        self._op_phi: np.ndarray | None = None  # the axial mount/α operators on the reduced basis (2, 3, r)
+        self._mechanics = self._replayed(mechanics, probes)
         self._mech_basis = mechanics_basis
         self._base_ctx: GrowthContext | None = context  # the described mechanics' context
-        if context is not None and mechanics is not None:
+        if context is not None and self._mechanics is not None:
             self._ctx = None  # calibrated by prepare()
 
     # --- stage 1
@@ -229,8 +251,54 @@ class GrowthServer:
 
     @property
     def mechanics(self) -> MechanicsCalibration | None:
-        """The commissioning in use (None: the described mechanics, uncalibrated)."""
+        """The mechanics in use: the commissioning updated by the probe readings absorbed since (None: the
+        described mechanics, uncalibrated, and no reading absorbed)."""
         return self._mechanics
+
+    @property
+    def commissioning(self) -> MechanicsCalibration | None:
+        """The commissioning (stored or set), before any probe reading (None: not commissioned)."""
+        return self._commissioning
+
+    @staticmethod
+    def _prior_calibration(at: datetime) -> MechanicsCalibration:
+        """The mechanics before any test (``service.estimate.probe``): a probe reading's start without a
+        commissioning; never counts as one (the policy's ``mechanics_uncalibrated`` rule still applies)."""
+        cov = prior_covariance()
+        return MechanicsCalibration(
+            x=(float(prior_mean()[0]), float(prior_mean()[1]), float(prior_mean()[2])),
+            cov=tuple(tuple(float(v) for v in row) for row in cov),
+            at=at,
+            set_by="prior",
+            source="prior",
+        )
+
+    @staticmethod
+    def _posterior(
+        base: MechanicsCalibration, x: np.ndarray, cov: np.ndarray, n: int
+    ) -> MechanicsCalibration:
+        """``base`` with θ ``x`` (clipped to the calibration's range) and Σ ``cov`` after ``n`` readings."""
+        xs = (
+            float(np.clip(x[0], 0.0, 1.0)),
+            float(np.clip(x[1], 0.51, 1.49)),
+            float(np.clip(x[2], 0.51, 1.49)),
+        )
+        report = {**base.report, "probe_readings_absorbed": n}
+        return dataclasses.replace(
+            base, x=xs, cov=tuple(tuple(float(v) for v in row) for row in cov), report=report
+        )
+
+    def _replayed(
+        self, cal: MechanicsCalibration | None, probes: tuple[ProbeMeasurement, ...]
+    ) -> MechanicsCalibration | None:
+        """``cal`` (None: the prior) after the accepted readings measured after it (oldest first); ``cal``
+        when there are none."""
+        use = sorted((m for m in probes if m.accepted and (cal is None or m.at > cal.at)), key=lambda m: m.at)
+        if not use:
+            return cal
+        base = cal if cal is not None else self._prior_calibration(use[0].at)
+        x, cov = replay(base.mean, base.covariance, use)
+        return self._posterior(base, x, cov, len(use))
 
     def mechanics_basis(self) -> ServedMechanicsBasis:
         """The served outputs' mount/α operators (built once, ~2 s; blocking)."""
@@ -248,9 +316,132 @@ class GrowthServer:
             assert self._base_ctx is not None
             self._ctx = self._calibrated(self._base_ctx, cal)
             self._mechanics = cal
+            self._commissioning = cal
             self._terms.clear()
             self._pending = None
             self._estimate = None
+
+    # --- probe readings (docs/commissioning.md, "Probe measurements")
+    def _keep_field(self, view: CoreView) -> None:
+        """Keep the converged live field (reduced mean and covariance) every ``FIELD_KEEP_EVERY_S``."""
+        live = view.live
+        if live is None or not live.converged:
+            return
+        kept = self._fields
+        if kept and live.t - kept[-1][0] < FIELD_KEEP_EVERY_S - 1e-6:
+            return
+        if kept and live.t < kept[-1][0]:  # the clock went back (a restart of the live state): start again
+            kept.clear()
+        kept.append((float(live.t), np.array(live.mean, dtype=float), np.array(live.cov, dtype=float)))
+
+    def kept_span(self) -> tuple[float, float] | None:
+        """(oldest, newest) epoch [s] of the live fields kept for probe readings (None: none yet)."""
+        kept = list(self._fields)
+        return None if not kept else (kept[0][0], kept[-1][0])
+
+    def probes(self) -> list[ProbeMeasurement]:
+        """The probe readings kept (restored and new, at most ``PROBES_KEPT``), newest first."""
+        return sorted(self._probes, key=lambda m: (m.at, m.id or 0), reverse=True)
+
+    def _field_at(self, view: CoreView, t: float) -> tuple[np.ndarray, np.ndarray]:
+        """The kept live field (reduced mean, cov) nearest ``t`` [epoch s], the live one included;
+        ``ProbeError`` naming ``at`` when ``t`` is outside what is kept."""
+        self._keep_field(view)
+        cands = list(self._fields)
+        live = view.live
+        if live is not None and live.converged:
+            cands.append((float(live.t), np.asarray(live.mean), np.asarray(live.cov)))
+        if not cands:
+            raise ProbeError(
+                "at: no converged live field is kept yet; send the reading once the live state converged"
+            )
+        oldest, newest = cands[0][0], cands[-1][0]
+        tol = FIELD_KEEP_EVERY_S
+        if t < oldest - tol:
+            raise ProbeError(
+                f"at: {datetime.fromtimestamp(t, tz=UTC).isoformat()} is older than the live state's kept "
+                f"history (from {datetime.fromtimestamp(oldest, tz=UTC).isoformat()})"
+            )
+        best = min(cands, key=lambda c: abs(c[0] - t))
+        if abs(best[0] - t) > tol + DT_S:
+            raise ProbeError(
+                f"at: no live field kept within {tol + DT_S:.0f} s of "
+                f"{datetime.fromtimestamp(t, tz=UTC).isoformat()} (newest "
+                f"{datetime.fromtimestamp(newest, tz=UTC).isoformat()}; the live state restarted?)"
+            )
+        return best[1], best[2]
+
+    def measure(
+        self,
+        view: CoreView,
+        *,
+        at: datetime,
+        axial_um: float,
+        sd_um: float,
+        set_by: str = "api",
+        source: str = "api",
+    ) -> ProbeMeasurement:
+        """Take a probe reading (the tool's axial position over the commissioned zero at ``at`` [µm], 1σ
+        ``sd_um``): predict it from the live field kept nearest ``at`` and the mechanics in use, absorb it
+        (a Kalman step, ``service.estimate.probe``) unless it lies beyond ``probe_gate_sigma`` σ of the
+        prediction, and keep it (the caller stores it). Blocking (the basis, ~2 s the first time).
+        ``ProbeError`` naming the field for a reading that cannot be used."""
+        if not (math.isfinite(axial_um) and math.isfinite(sd_um) and sd_um > 0.0):
+            raise ProbeError(f"axial_um, sd_um: need finite values and sd_um > 0, got {axial_um}, {sd_um}")
+        t = at.timestamp()
+        mean, cov = self._field_at(view, t)
+        ref = self.reference_for(view)
+        if ref is None:
+            raise ProbeError("at: no live field yet")
+        t_ref, t_ref_sd, _ = ref
+        ctx = self.prepare()
+        basis = self.mechanics_basis()
+        if ctx.phi is None:
+            raise NotReadyError("probe readings need the reduced model's basis")
+        with self._lock:
+            if self._op_phi is None:
+                self._op_phi = np.einsum("mjn,nr->mjr", basis.operators[0], ctx.phi)
+            op_phi = self._op_phi
+            feats = op_phi @ mean - basis.operators[0].sum(axis=2) * t_ref  # (2, 3) [µm]
+            g_phi = ctx.g_phi[0] if ctx.g_phi is not None else ctx.g[0] @ ctx.phi
+            g1 = float(ctx.g[0].sum())
+            field_var = float(g_phi @ cov @ g_phi) + (g1 * t_ref_sd) ** 2
+            base = self._mechanics if self._mechanics is not None else self._prior_calibration(at)
+            up = absorb(
+                base.mean,
+                base.covariance,
+                feats,
+                float(axial_um),
+                float(sd_um) ** 2 + field_var,
+                gate_sigma=self.probe_gate_sigma,
+            )
+            m = ProbeMeasurement(
+                at=at,
+                axial_um=float(axial_um),
+                sd_um=float(sd_um),
+                features=tuple(tuple(float(v) for v in row) for row in feats),
+                field_var_um2=field_var,
+                predicted_um=up.predicted_um,
+                sigma_um=up.sigma_um,
+                innovation_um=up.innovation_um,
+                accepted=up.accepted,
+                set_by=set_by,
+                source=source,
+            )
+            self._probes.append(m)
+            if not up.accepted:
+                return m
+            n = int(base.report.get("probe_readings_absorbed", 0)) + 1
+            cal = self._posterior(base, up.x, up.cov, n)
+        self.mechanics_basis()
+        with self._lock:
+            assert self._base_ctx is not None
+            self._ctx = self._calibrated(self._base_ctx, cal)
+            self._mechanics = cal
+            self._terms.clear()
+            self._pending = None
+            self._estimate = None
+        return m
 
     def section_operator(self) -> SectionOperator:
         """The section's outline and its displacement operators (once, ~0.2 s; blocking)."""
@@ -268,6 +459,7 @@ class GrowthServer:
         """Cheap (call after each event): with ``reference_on_first_start`` and no zero, take and store one
         from the first sample of a spindle at rest in equilibrium (``equilibrium_zero``); else freeze the
         provisional zero at the first converged live state."""
+        self._keep_field(view)
         if self._reference is not None:
             return
         if self._first_start and self._first_start_zero(view):
@@ -563,7 +755,7 @@ class GrowthServer:
             ci95_half_um=0.5 * (hi - lo),
             identified_at=None if rec is None else rec.finished_at,
             has_reference=self._reference is not None,
-            has_mechanics=self._mechanics is not None,
+            has_mechanics=self._commissioning is not None,
         )
         return CompensationSnapshot(
             growth=est,

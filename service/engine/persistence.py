@@ -43,6 +43,7 @@ if TYPE_CHECKING:
     from service.acquire.calibration import Calibration
     from service.estimate.checkpoint import LiveCheckpoint
     from service.estimate.mechanics import MechanicsCalibration
+    from service.estimate.probe import ProbeMeasurement
     from service.estimate.reference import CompensationReference
     from service.identify.speedmap import SpeedMap
     from service.settings import DatabaseSettings
@@ -103,11 +104,13 @@ def restore(
         calibration = _restore_calibration(session, on_problem)
         reference = _restore_reference(session, on_problem)
         mechanics = _restore_mechanics(session, on_problem)
+        probes = _restore_probes(session, on_problem)
         live = _restore_live(session, on_problem)
     return Restored(
         live=live,
         reference=reference,
         mechanics=mechanics,
+        probes=probes,
         speed_map=_restore_map(map_last, on_problem),
         map_last=map_last,
         calibration=calibration,
@@ -186,6 +189,15 @@ def _restore_mechanics(
 
     then = "the growth is served with the described mechanics, uncalibrated"
     return _restore_or_report(restore_mechanics, session, "mechanics calibration", then, on_problem)
+
+
+def _restore_probes(
+    session: Session, on_problem: Callable[[str], None] | None
+) -> tuple[ProbeMeasurement, ...]:
+    from service.store.probes import restore_probes
+
+    then = "the mechanics are served without the probe readings"
+    return _restore_or_report(restore_probes, session, "probe readings", then, on_problem) or ()
 
 
 def _restore_live(session: Session, on_problem: Callable[[str], None] | None) -> LiveCheckpoint | None:

@@ -176,6 +176,8 @@ def growth_server(model: LoadedModel, settings: Settings, restored: Restored | N
         t_ref_c=settings.growth.reference_c,
         reference=None if restored is None else restored.reference,
         mechanics=None if restored is None else restored.mechanics,
+        probes=() if restored is None else restored.probes,
+        probe_gate_sigma=c.probe_gate_sigma,
         reference_on_first_start=c.reference_on_first_start,
         first_start_by=os_user(),
         limits=limits,

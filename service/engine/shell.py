@@ -83,6 +83,7 @@ from service.engine.looplag import LoopLagMonitor
 from service.engine.view import CoreView
 from service.estimate.live import steady_field
 from service.estimate.mechanics import MechanicsCalibration
+from service.estimate.probe import ProbeError, ProbeMeasurement
 from service.estimate.reference import CompensationReference
 from service.identify.prior import ServedMapPrior
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
@@ -130,6 +131,7 @@ from service.serve.views import (
     served_record,
 )
 from service.store.mechanics import mechanics_record
+from service.store.probes import probe_record
 from service.store.references import reference_record
 
 if TYPE_CHECKING:
@@ -762,6 +764,35 @@ class SoftSensorService:
             f"{'explains' if cal.explained else 'does NOT explain'} "
             "the test)"
         )
+
+    def compensation_measurements(self) -> list[ProbeMeasurement]:
+        """The probe readings kept (restored and new), newest first."""
+        return self._growth.probes()
+
+    def add_measurement(
+        self, *, at: datetime, axial_um: float, sd_um: float, set_by: str, source: str
+    ) -> ProbeMeasurement:
+        """Take a probe reading (``GrowthServer.measure``; blocking, ~2 s the first time: call it off the
+        event loop) and store it, absorbed or not. ``ProbeError`` naming the field: ``at`` in the future
+        (beyond the live state's newest instant) or outside the kept history, a bad value."""
+        now = self.clock()
+        if at > now:
+            raise ProbeError(f"at: {at.isoformat()} is in the future (now {now.isoformat()})")
+        m = self._growth.measure(
+            self._view, at=at, axial_um=axial_um, sd_um=sd_um, set_by=set_by, source=source
+        )
+        if self.writer is not None:
+            self.writer.submit(probe_record(m, now))
+        verdict = (
+            "absorbed"
+            if m.accepted
+            else f"NOT absorbed: {m.sigma_ratio:.1f} σ off (a crash or a tool change since the last one?)"
+        )
+        self.on_event(
+            f"probe reading {m.axial_um:+.2f} ± {m.sd_um:.2f} µm at {m.at.isoformat()} (predicted "
+            f"{m.predicted_um:+.2f} ± {m.sigma_um:.2f} µm): {verdict}"
+        )
+        return m
 
     def _store_reference(self, ref: CompensationReference) -> None:
         if self.writer is not None:

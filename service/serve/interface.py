@@ -44,6 +44,8 @@ from service.contracts.records import IdentificationData
 from service.errors import ServiceError
 from service.estimate.locator import TriangleLocator, locator_for
 from service.estimate.mechanics import MechanicsCalibration
+from service.estimate.probe import ProbeError as ProbeError
+from service.estimate.probe import ProbeMeasurement
 from service.estimate.reference import CompensationReference
 from service.identify.mode import IdentificationMode
 
@@ -626,6 +628,18 @@ class ChtcService(Protocol):
         """Fit the mechanics to a measured thermal test (``service.engine.commissioning``; blocking); store
         and use it when the model explains the test or ``force``: (report, stored). ``CommissioningError``
         (and ``drivers.logs.LogFormatError``) for unusable files, naming the line."""
+        ...
+
+    def compensation_measurements(self) -> list[ProbeMeasurement]:
+        """The probe readings kept (restored and new, absorbed or not), newest first."""
+        ...
+
+    def add_measurement(
+        self, *, at: datetime, axial_um: float, sd_um: float, set_by: str, source: str
+    ) -> ProbeMeasurement:
+        """Take a probe reading of the axial growth at ``at`` (``service.estimate.probe``; blocking), absorb
+        it into the mechanical posterior unless it lies beyond the gate, and store it. ``ProbeError`` naming
+        the field for one that cannot be used (``at`` in the future or outside the kept history)."""
         ...
 
     def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:

@@ -198,6 +198,27 @@ class MechanicsCalibrationRow(Base):
     report: Mapped[dict[str, JsonValue]] = mapped_column(JSON)  # the whole report (JSON)
 
 
+class ProbeMeasurementRow(Base):
+    """A probe reading in service (``service.estimate.probe.ProbeMeasurement``); the accepted ones measured
+    after the newest commissioning are replayed into the mechanical posterior at start-up."""
+
+    __tablename__ = "probe_measurements"
+
+    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    at: Mapped[datetime] = mapped_column(index=True)  # the reading's instant
+    recorded_at: Mapped[datetime]  # when the service took it
+    axial_um: Mapped[float]  # the tool's axial position over the commissioned zero, µm
+    sd_um: Mapped[float]  # its 1σ, µm
+    features: Mapped[list[float | None]] = mapped_column(JSON)  # the field's feature row 2×3, µm, row major
+    field_var_um2: Mapped[float]  # the served growth's variance from the field then, µm²
+    predicted_um: Mapped[float]
+    sigma_um: Mapped[float]  # 1σ of the predicted reading (√S), µm
+    innovation_um: Mapped[float]
+    accepted: Mapped[bool] = mapped_column(Boolean)  # absorbed into the posterior
+    set_by: Mapped[str] = mapped_column(String(64))
+    source: Mapped[str] = mapped_column(String(16))
+
+
 class LiveStateRow(Base):
     """The live state's newest checkpoint (``service.estimate.checkpoint.LiveCheckpoint``): one row, replaced
     on every write (``service.store.repository.write_records``); a restart resumes the filter from it."""

@@ -28,6 +28,7 @@ from service.contracts.records import (
     LiveStateData,
     MechanicsCalibrationData,
     OffsetCalibrationData,
+    ProbeMeasurementData,
     Record,
     SampleData,
 )
@@ -41,6 +42,7 @@ from service.store.models import (
     LiveStateRow,
     MechanicsCalibrationRow,
     OffsetCalibrationRow,
+    ProbeMeasurementRow,
     SampleRow,
 )
 from service.store.sqlerrors import translate
@@ -80,6 +82,7 @@ _TABLE_OF: dict[type, type] = {
     CompensationReferenceData: CompensationReferenceRow,
     LiveStateData: LiveStateRow,
     MechanicsCalibrationData: MechanicsCalibrationRow,
+    ProbeMeasurementData: ProbeMeasurementRow,
 }
 
 
@@ -287,6 +290,12 @@ def last_mechanics_calibration(session: Session) -> MechanicsCalibrationRow | No
         MechanicsCalibrationRow.at.desc(), MechanicsCalibrationRow.id.desc()
     )
     return session.scalars(query.limit(1)).first()
+
+
+def recent_probe_measurements(session: Session, limit: int = 1000) -> list[ProbeMeasurementRow]:
+    """The newest ``limit`` probe readings, oldest first (by ``at``, then id)."""
+    query = select(ProbeMeasurementRow).order_by(ProbeMeasurementRow.at.desc(), ProbeMeasurementRow.id.desc())
+    return list(reversed(session.scalars(query.limit(limit)).all()))
 
 
 def last_live_state(session: Session) -> LiveStateRow | None:

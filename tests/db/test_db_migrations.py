@@ -26,6 +26,7 @@ TABLES = {
     "compensation_references",
     "live_state",
     "mechanics_calibrations",
+    "probe_measurements",
 }
 
 
