@@ -579,6 +579,7 @@ RECORD_TYPES = (
     CompensationReferenceData,
     LiveStateData,
     MechanicsCalibrationData,
+    ProbeMeasurementData,
 )
 
 

@@ -341,7 +341,8 @@ class GrowthServer:
 
     def probes(self) -> list[ProbeMeasurement]:
         """The probe readings kept (restored and new, at most ``PROBES_KEPT``), newest first."""
-        return sorted(self._probes, key=lambda m: (m.at, m.id or 0), reverse=True)
+        order = sorted(enumerate(self._probes), key=lambda im: (im[1].at, im[0]), reverse=True)
+        return [m for _, m in order]  # taken later first among readings of one instant
 
     def _field_at(self, view: CoreView, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The kept live field (reduced mean, cov) nearest ``t`` [epoch s], the live one included;
