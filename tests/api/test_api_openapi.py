@@ -61,6 +61,7 @@ def test_statuses_where_they_occur(ro_client: TestClient) -> None:
     assert {"401", "403", "409", "422"} <= set(ops[("/api/v1/compensation/reference", "post")])
     assert {"401", "403", "409", "422"} <= set(ops[("/api/v1/compensation/mechanics", "post")])
     assert "404" in ops[("/api/v1/compensation/mechanics", "get")]
+    assert {"401", "403", "422"} <= set(ops[("/api/v1/compensation/measurements", "post")])
     assert "mechanics_uncalibrated" in json.dumps(_doc(ro_client)["components"]["schemas"]["Reason"])
 
 
@@ -75,6 +76,7 @@ def test_bearer_scheme_on_writes_and_on_reads_when_a_read_token_is_set(
         ("/api/v1/sensors/baseline", "post"),
         ("/api/v1/compensation/reference", "post"),
         ("/api/v1/compensation/mechanics", "post"),
+        ("/api/v1/compensation/measurements", "post"),
     }
     settings = Settings(api={"token": WRITE_TOKEN, "read_token": "read-token-for-openapi"})
     with TestClient(create_app(settings, ro_service, clock=ro_clock)) as c:
