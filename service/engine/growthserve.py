@@ -347,7 +347,6 @@ class GrowthServer:
     def _field_at(self, view: CoreView, t: float) -> tuple[np.ndarray, np.ndarray]:
         """The kept live field (reduced mean, cov) nearest ``t`` [epoch s], the live one included;
         ``ProbeError`` naming ``at`` when ``t`` is outside what is kept."""
-        self._keep_field(view)
         cands = list(self._fields)
         live = view.live
         if live is not None and live.converged:
@@ -434,10 +433,8 @@ class GrowthServer:
                 return m
             n = int(base.report.get("probe_readings_absorbed", 0)) + 1
             cal = self._posterior(base, up.x, up.cov, n)
-        self.mechanics_basis()
-        with self._lock:
             assert self._base_ctx is not None
-            self._ctx = self._calibrated(self._base_ctx, cal)
+            self._ctx = self._calibrated(self._base_ctx, cal)  # the basis is built (above): cheap
             self._mechanics = cal
             self._terms.clear()
             self._pending = None

@@ -73,6 +73,9 @@ def test_readings_need_the_token_name_bad_fields_tighten_flag_and_survive_a_rest
         assert r.status_code == 200, r.text
         ok = r.json()
         assert ok["accepted"] and ok["mechanics"]["probe_readings_absorbed"] == 1
+        # the prediction is the served growth at that instant (the feature row is the served operator's)
+        assert abs(ok["predicted_um"] - before["axial"]["um"]) < 0.01, (ok, before["axial"])
+        assert ok["sigma_um"] ** 2 > before["axial"]["std_mech_um"] ** 2 + 0.5**2
         after = c.get(COMP).json()
         assert after["axial"]["std_mech_um"] < before["axial"]["std_mech_um"]
         assert after["axial"]["std_um"] < before["axial"]["std_um"]
