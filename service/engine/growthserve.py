@@ -62,6 +62,7 @@ from service.estimate.growth_section import SectionOperator, build_section, sect
 from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis, served_mechanics_basis
 from service.estimate.probe import (
     DEFAULT_GATE_SIGMA,
+    PROBES_KEPT,
     ProbeError,
     ProbeMeasurement,
     absorb,
@@ -99,7 +100,6 @@ TERMS_KEPT = 16  # condition terms kept (~1 MB each on the service mesh)
 REFERENCE_MAX_SD_UM = 0.1  # a zero taken from the live field adds at most this 1σ [µm] to the axial growth
 FIELD_KEEP_S = 3 * 3600.0  # the live fields kept for probe readings: the live state's own history (keep_s)
 FIELD_KEEP_EVERY_S = 30.0  # one kept every this [s]; a reading takes the nearest
-PROBES_KEPT = 1000  # probe readings listed (GET /compensation/measurements), newest kept
 
 
 def field_belief(view: CoreView) -> FieldBelief:

@@ -35,6 +35,7 @@ from service.errors import ServiceError
 from service.estimate.mechanics import PRIOR_MEAN
 
 __all__ = [
+    "PROBES_KEPT",
     "PROBE_PRIOR_SD",
     "ProbeError",
     "ProbeMeasurement",
@@ -50,6 +51,7 @@ Array = NDArray[np.float64]
 # 1/√12), α factors ±5 % as 1σ (the commissioning fit's Gaussian prior, ``model.growthfit.MechanicsPrior``)
 PROBE_PRIOR_SD = (1.0 / math.sqrt(12.0), 0.05, 0.05)
 DEFAULT_GATE_SIGMA = 3.0
+PROBES_KEPT = 1000  # readings kept in memory and restored at start (listed by GET), the newest
 
 
 class ProbeError(ServiceError, ValueError):

@@ -612,7 +612,9 @@ class ChtcService(Protocol):
         ...
 
     def compensation_mechanics(self) -> MechanicsCalibration | None:
-        """The commissioned mechanics in use (None: the spindle description's, uncalibrated)."""
+        """The mechanics in use: the commissioning updated by the probe readings absorbed since, or the
+        prior updated by them (source "prior") when not commissioned (None: the spindle description's,
+        uncalibrated, and no reading absorbed)."""
         ...
 
     def commission_mechanics(

@@ -14,7 +14,7 @@ from datetime import datetime
 from typing import TYPE_CHECKING
 
 from service.contracts.records import ProbeMeasurementData
-from service.estimate.probe import ProbeMeasurement
+from service.estimate.probe import PROBES_KEPT, ProbeMeasurement
 from service.store.errors import RecordRejectedError
 
 if TYPE_CHECKING:
@@ -76,7 +76,6 @@ def probe_from_row(row: ProbeMeasurementRow) -> ProbeMeasurement:
 
 def restore_probes(session: Session) -> tuple[ProbeMeasurement, ...]:
     """The newest stored readings, oldest first; ``StoredProbeError`` for the first unusable one."""
-    from service.engine.growthserve import PROBES_KEPT
     from service.store.repository import recent_probe_measurements
 
     return tuple(probe_from_row(r) for r in recent_probe_measurements(session, limit=PROBES_KEPT))
