@@ -388,6 +388,11 @@ class GrowthServer:
         ``ProbeError`` naming the field for a reading that cannot be used."""
         if not (math.isfinite(axial_um) and math.isfinite(sd_um) and sd_um > 0.0):
             raise ProbeError(f"axial_um, sd_um: need finite values and sd_um > 0, got {axial_um}, {sd_um}")
+        if self._reference is None:
+            raise ProbeError(
+                "reference: no compensation zero is set; a reading is the growth over it (POST "
+                "/api/v1/compensation/reference or chtc commission zero first)"
+            )
         t = at.timestamp()
         mean, cov = self._field_at(view, t)
         ref = self.reference_for(view)

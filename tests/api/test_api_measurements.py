@@ -107,3 +107,36 @@ def test_readings_need_the_token_name_bad_fields_tighten_flag_and_survive_a_rest
             comp = c.get(COMP).json()
             assert comp["mechanics"]["probe_readings_absorbed"] == 1
             assert comp["axial"]["std_mech_um"] > 0.0
+
+
+def test_without_a_commissioning_readings_start_from_the_prior_and_do_not_make_it_usable(
+    tmp_path: Path,
+) -> None:
+    settings = per_condition(
+        Settings(
+            api={"token": WRITE_TOKEN},  # type: ignore[arg-type]
+            identification=DEMO_WINDOWS,  # type: ignore[arg-type]
+            compensation={"require_mechanics_calibration": True},  # type: ignore[arg-type]
+        )
+    )
+    with (
+        served_service(
+            database_url=sqlite_url(tmp_path, "prior.db"), settings=settings, feed_samples=40
+        ) as s,
+        TestClient(create_app(settings, s.service, clock=s.clock)) as c,
+    ):
+        reading = {"at": s.clock().isoformat(), "axial_um": 2.0, "sd_um": 1.0}
+        r = c.post(MEAS, headers=AUTH, json=reading)
+        assert r.status_code == 422 and "reference" in r.json()["error"]["message"], r.text  # no zero yet
+        assert c.post("/api/v1/compensation/reference", headers=AUTH, json={"temperature_c": 21.0}).is_success
+        assert c.get("/api/v1/compensation/mechanics").status_code == 404
+        r = c.post(MEAS, headers=AUTH, json=reading)
+        assert r.status_code == 200, r.text
+        body = r.json()
+        assert body["accepted"] and body["mechanics"]["source"] == "prior"
+        sd = {p["name"]: p["sd"] for p in body["mechanics"]["parameters"]}
+        # from the prior (restraint 1σ 1/√12, α 5 %): never wider after a reading
+        assert sd["restraint"] <= 0.2887 + 1e-4 and sd["alpha_shaft"] <= 0.05 + 1e-6
+        comp = c.get(COMP).json()
+        assert comp["mechanics"]["source"] == "prior" and comp["axial"]["std_mech_um"] > 0.0
+        assert comp["reason_code"] == "mechanics_uncalibrated"  # readings alone are not a commissioning

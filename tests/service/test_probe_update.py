@@ -123,3 +123,50 @@ def test_bad_readings_are_refused_naming_the_field(
 ) -> None:
     with pytest.raises(ProbeError, match=match):
         absorb(prior_mean(), prior_covariance(), features, y, var)
+
+
+def test_a_restart_replays_the_accepted_readings_after_the_commissioning_only() -> None:
+    from typing import Any, cast
+
+    from service.engine.growthserve import GrowthServer
+    from service.estimate.mechanics import MechanicsCalibration
+
+    rng = np.random.default_rng(11)
+    truth = _truth(rng)
+    cal = MechanicsCalibration(
+        x=(0.5, 1.0, 1.0),
+        cov=tuple(tuple(float(v) for v in r) for r in prior_covariance()),
+        at=AT,
+        set_by="test",
+        source="cli",
+    )
+
+    def reading(at: datetime, accepted: bool) -> ProbeMeasurement:
+        f = _features(rng, 0.8)
+        y = predict(f, truth)[0]
+        return ProbeMeasurement(
+            at=at,
+            axial_um=y,
+            sd_um=0.5,
+            features=tuple(tuple(float(v) for v in r) for r in f),
+            field_var_um2=0.0,
+            predicted_um=0.0,
+            sigma_um=1.0,
+            innovation_um=0.0,
+            accepted=accepted,
+        )
+
+    before = reading(AT - timedelta(hours=1), True)  # measured before the commissioning: not replayed
+    flagged = reading(AT + timedelta(hours=1), False)
+    after = reading(AT + timedelta(hours=2), True)
+    server = GrowthServer(cast(Any, None), mechanics=cal, probes=(before, flagged, after))
+    got = server.mechanics
+    assert got is not None and server.commissioning is cal
+    want_x, want_cov = replay(cal.mean, cal.covariance, [after])
+    assert np.allclose(got.mean, want_x, rtol=0, atol=1e-12)
+    assert np.allclose(got.covariance, want_cov, rtol=0, atol=1e-12)
+    assert got.report["probe_readings_absorbed"] == 1
+    assert [m.at for m in server.probes()] == [after.at, flagged.at, before.at]
+    assert GrowthServer(cast(Any, None), mechanics=cal, probes=(before,)).mechanics is cal
+    alone = GrowthServer(cast(Any, None), probes=(after,)).mechanics  # no commissioning: from the prior
+    assert alone is not None and alone.source == "prior" and server.commissioning is not None
