@@ -13,7 +13,7 @@ def _groups(rng: np.random.Generator, n: int = 400) -> tuple[np.ndarray, list[li
     t = np.linspace(0.0, 1.0, n)
     base = [np.sin(2 * np.pi * f * t + p) for f, p in ((1, 0.0), (2.3, 1.0), (3.7, 2.0), (5.1, 0.5))]
     cols, groups = [], []
-    for g, b in enumerate(base):
+    for b in base:
         groups.append([])
         for _ in range(3):
             groups[-1].append(len(cols))
