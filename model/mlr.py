@@ -15,10 +15,12 @@ from dataclasses import dataclass
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
+from model.errors import ModelError
+
 __all__ = ["MlrError", "MlrModel", "fit_mlr", "select_sensors"]
 
 
-class MlrError(ValueError):
+class MlrError(ModelError, ValueError):
     """Bad input to the MLR fit (shapes, too few rows, constant data)."""
 
 

@@ -6,7 +6,8 @@ broken optional component cannot break the others:
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
   ``replay``, ``identify``, ``prebuild``, ``commission``);
 - ``service.bench.<name>`` for the benchmarks
-  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty|compensation``).
+  (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty|compensation|
+  commission``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -48,6 +49,8 @@ BENCHMARKS: dict[str, str] = {
     "duty": "a machining duty cycle (speed changes every 1-6 min): fresh H, error and coverage vs the truth",
     "compensation": "served /compensation every minute vs random H(speed) truths: usable, error, coverage, "
     "restarts, outages",
+    "commission": "the product's commissioning vs an MLR peer (correlation-clustered sensors) on the same "
+    "thermal test, then on a duty cycle: axial error of each",
 }
 
 

@@ -1,0 +1,62 @@
+"""``chtc bench commission``: the pooled figures from hand-made rows, and one short seed end to end (thermal
+test, commissioning, MLR, duty cycle through the service's core)."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+
+from service.bench import commission as bc
+from service.cli import main
+
+
+def _row(seed: int, cal: list[float], mlr: list[float]) -> dict:
+    n = len(cal)
+    return {
+        "seed": seed,
+        "mechanics": [0.5, 1.0, 1.0],
+        "fitted": [0.5, 1.0, 1.0],
+        "mlr_sensors": [1, 2, 3, 4],
+        "mlr_fit_rms_um": 0.1,
+        "minutes": n + 1,  # one minute without a converged state
+        "err": {"none": [2.0] * (n + 1), "mlr": mlr, "uncalibrated": [-1.0] * n, "calibrated": cal},
+        "covered": {"calibrated": [True] * (n - 1) + [False], "uncalibrated": [False] * n},
+        "fit_s": 1.0,
+        "mlr_fit_s": 0.01,
+    }
+
+
+def test_summary_pools_seeds_and_ratios_per_seed() -> None:
+    out = bc.summarize([_row(0, [0.5, -0.5, 0.5, -0.5], [1.0] * 5), _row(1, [1.0] * 4, [-0.5] * 5)])
+    assert out["seeds"] == [0, 1]
+    assert out["rms_ratio_calibrated_over_mlr"] == [0.5, 2.0]
+    assert out["none"]["rms_um"] == 2.0
+    assert out["uncalibrated"]["removed"] == 0.5
+    assert out["calibrated"]["coverage"] == 0.75
+    assert out["calibrated"]["usable_fraction"] == 0.8
+    assert out["calibrated"]["err_um_median"] == pytest.approx(0.75)
+    assert out["probe"]["err_um_p95"] is None
+
+
+@pytest.mark.slow
+def test_one_short_seed_end_to_end(capsys: pytest.CaptureFixture[str]) -> None:
+    argv = ["bench", "commission", "--seeds", "1", "--short", "--hours", "1", "--rest-min", "10", "--json"]
+    assert main(argv) == 0
+    out = json.loads(capsys.readouterr().out)
+    assert out["seeds"] == [0]
+    for m in ("none", "mlr", "uncalibrated", "calibrated"):
+        for k in ("err_um_median", "err_um_p95", "err_um_max", "rms_um"):
+            assert math.isfinite(out[m][k]) and out[m][k] >= 0.0
+    for m in ("calibrated", "uncalibrated"):
+        assert 0.0 <= out[m]["coverage"] <= 1.0
+        assert 0.5 <= out[m]["usable_fraction"] <= 1.0
+    assert out["calibrated"]["err_um_median"] < out["none"]["err_um_median"]
+    assert out["calibrated"]["rms_um"] < out["none"]["rms_um"]
+    assert out["mlr"]["rms_um"] < out["none"]["rms_um"]
+    ratio = out["rms_ratio_calibrated_over_mlr"]
+    assert len(ratio) == 1 and np.isfinite(ratio[0])
+    assert 4 <= len(out["per_seed"][0]["mlr_sensors"]) <= 6
+    assert out["fit_wall_s"]["product"][0] > 0
