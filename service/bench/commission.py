@@ -16,13 +16,16 @@ minute after the rest, the axial error against the plant's true growth (over its
 - ``none``: no compensation (the error is the growth itself);
 - ``mlr``: the MLR's prediction minus its prediction at the first sample (zeroed cold, as the controller is);
 - ``uncalibrated``: the product's growth with the description's mechanics; CI from the live state only;
-- ``calibrated``: with the commissioned mechanics; CI from the live state and the mechanical posterior.
+- ``calibrated``: with the commissioned mechanics; CI from the live state and the mechanical posterior;
+- ``probe``: the calibrated, plus a probe reading (the true growth + N(0, ``--probe-sd-um``²)) every
+  ``--probe-min`` after the rest absorbed into the mechanical posterior (``service.estimate.probe.absorb``);
+  each minute's error is the one served before that minute's reading.
 
 The product's growth is formed as ``service.sim.thermaltest.duty_check`` forms it (the core's converged live
 state through the growth operators, no identification gating): ``usable_fraction`` here is the share of the
 minutes with a converged live state, not the served policy's verdict (``chtc bench compensation`` has that).
 Figures per method, pooled over the seeds: |error| median, p95, max and RMS [µm], and ``removed`` (1 − RMS /
-RMS without compensation). ``probe`` (calibrated plus hourly probe readings) is not built yet: null.
+RMS without compensation).
 """
 
 from __future__ import annotations
@@ -38,7 +41,8 @@ from typing import Any
 import numpy as np
 
 Z95 = 1.959963984540054
-METHODS = ("none", "mlr", "uncalibrated", "calibrated")
+METHODS = ("none", "mlr", "uncalibrated", "calibrated", "probe")
+PRODUCT = ("calibrated", "uncalibrated", "probe")
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -49,6 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--rest-min", type=int, default=30, help="rest before machining, min (30)")
     parser.add_argument("--short", action="store_true", help="the 80-min thermal test instead of the 4-h one")
     parser.add_argument("--sensors", type=int, default=5, help="MLR sensors (clusters), 4-6 (default 5)")
+    parser.add_argument("--probe-min", type=float, default=60.0, help="probe reading period, min (60)")
+    parser.add_argument("--probe-sd-um", type=float, default=1.0, help="probe reading 1σ, µm (1)")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 
@@ -87,6 +93,7 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
+    from service.estimate.probe import absorb
     from service.sim.duty import duty_profile
     from service.sim.logsamples import samples_from_plant
     from service.sim.randomtruth import draw_truth
@@ -135,9 +142,15 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
     g1 = {k: float(v.sum()) for k, v in ops.items()}
     jac = basis.jacobian_at(x)[0]
     j_phi, j1 = jac @ phi, jac.sum(axis=1)
+    op_ax = basis.operators[0]  # (2 mounts, 3 α groups, N)
+    f_phi, f1 = np.einsum("mjn,nr->mjr", op_ax, phi), op_ax.sum(axis=2)
+    xp, covp = np.array(x, dtype=float), np.array(cov, dtype=float)
+    probe_every = round(args.probe_min * 60.0)
     mlr_pred = peer.predict(run.temps_c)
+    rng = np.random.default_rng([seed, 11])
     err: dict[str, list[float]] = {m: [] for m in METHODS}
-    covered: dict[str, list[bool]] = {"calibrated": [], "uncalibrated": []}
+    covered: dict[str, list[bool]] = {m: [] for m in PRODUCT}
+    readings = accepted = 0
     minutes = 0
     for i, tt in enumerate(run.field_times_s):
         if tt < 60.0 * args.rest_min:
@@ -149,13 +162,27 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
         if key not in states:
             continue
         a, p = states[key]
-        for m in covered:
+        for m in ("calibrated", "uncalibrated"):
             err[m].append(float(g[m] @ a - g1[m] * t_ref - truth[i]))
         j = j_phi @ a - j1 * t_ref
-        sd_cal = float(np.sqrt(g["calibrated"] @ p @ g["calibrated"] + j @ cov @ j))
+        field_var = float(g["calibrated"] @ p @ g["calibrated"])
+        sd_cal = float(np.sqrt(field_var + j @ cov @ j))
         sd_nom = float(np.sqrt(g["uncalibrated"] @ p @ g["uncalibrated"]))
         covered["calibrated"].append(abs(err["calibrated"][-1]) <= Z95 * sd_cal)
         covered["uncalibrated"].append(abs(err["uncalibrated"][-1]) <= Z95 * sd_nom)
+        gp = basis.operators_at(xp)[0] @ phi
+        jp = basis.jacobian_at(xp)[0]
+        jpa = jp @ phi @ a - jp.sum(axis=1) * t_ref
+        var_p = float(gp @ p @ gp)
+        err["probe"].append(float(gp @ a - float(basis.operators_at(xp)[0].sum()) * t_ref - truth[i]))
+        covered["probe"].append(abs(err["probe"][-1]) <= Z95 * float(np.sqrt(var_p + jpa @ covp @ jpa)))
+        since = round(float(tt)) - 60 * args.rest_min
+        if since > 0 and probe_every > 0 and since % probe_every == 0:
+            reading = float(truth[i]) + float(rng.normal(0.0, args.probe_sd_um))
+            up = absorb(xp, covp, f_phi @ a - f1 * t_ref, reading, args.probe_sd_um**2 + var_p)
+            xp, covp = up.x, up.cov
+            readings += 1
+            accepted += int(up.accepted)
     return {
         "seed": seed,
         "mechanics": [round(v, 3) for v in (mech.restraint, mech.alpha_shaft, mech.alpha_housing)],
@@ -163,6 +190,9 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
         "mlr_sensors": list(peer.sensors),
         "mlr_fit_rms_um": round(peer.residual_rms_um, 3),
         "minutes": minutes,
+        "probe_readings": readings,
+        "probe_accepted": accepted,
+        "probe_fitted": [round(float(v), 3) for v in xp],
         "err": err,
         "covered": covered,
         "fit_s": fit_s,
@@ -198,7 +228,7 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
     minutes = sum(r["minutes"] for r in rows)
     for m in METHODS[1:]:
         out[m] = method_figures(pooled[m], none["rms_um"])
-    for m in ("calibrated", "uncalibrated"):
+    for m in PRODUCT:
         cov = [c for r in rows for c in r["covered"][m]]
         out[m]["coverage"] = _r(np.mean(cov)) if cov else None
         out[m]["usable_fraction"] = _r(len(cov) / minutes) if minutes else None
@@ -208,13 +238,25 @@ def summarize(rows: list[dict[str, Any]]) -> dict[str, Any]:
         ok = cal["rms_um"] is not None and mlr["rms_um"]
         ratio.append(_r(cal["rms_um"] / mlr["rms_um"]) if ok else None)
     out["rms_ratio_calibrated_over_mlr"] = ratio
-    out["probe"] = {"err_um_p95": None, "note": "not built yet"}
     out["fit_wall_s"] = {
         "product": [_r(r["fit_s"], 2) for r in rows],
         "mlr": [_r(r["mlr_fit_s"], 4) for r in rows],
     }
     out["per_seed"] = [
-        {k: r[k] for k in ("seed", "mechanics", "fitted", "mlr_sensors", "mlr_fit_rms_um", "minutes")}
+        {
+            k: r[k]
+            for k in (
+                "seed",
+                "mechanics",
+                "fitted",
+                "probe_fitted",
+                "probe_readings",
+                "probe_accepted",
+                "mlr_sensors",
+                "mlr_fit_rms_um",
+                "minutes",
+            )
+        }
         for r in rows
     ]
     return out

@@ -21,9 +21,22 @@ def _row(seed: int, cal: list[float], mlr: list[float]) -> dict:
         "fitted": [0.5, 1.0, 1.0],
         "mlr_sensors": [1, 2, 3, 4],
         "mlr_fit_rms_um": 0.1,
+        "probe_fitted": [0.5, 1.0, 1.0],
+        "probe_readings": 1,
+        "probe_accepted": 1,
         "minutes": n + 1,  # one minute without a converged state
-        "err": {"none": [2.0] * (n + 1), "mlr": mlr, "uncalibrated": [-1.0] * n, "calibrated": cal},
-        "covered": {"calibrated": [True] * (n - 1) + [False], "uncalibrated": [False] * n},
+        "err": {
+            "none": [2.0] * (n + 1),
+            "mlr": mlr,
+            "uncalibrated": [-1.0] * n,
+            "calibrated": cal,
+            "probe": cal,
+        },
+        "covered": {
+            "calibrated": [True] * (n - 1) + [False],
+            "uncalibrated": [False] * n,
+            "probe": [True] * n,
+        },
         "fit_s": 1.0,
         "mlr_fit_s": 0.01,
     }
@@ -38,19 +51,21 @@ def test_summary_pools_seeds_and_ratios_per_seed() -> None:
     assert out["calibrated"]["coverage"] == 0.75
     assert out["calibrated"]["usable_fraction"] == 0.8
     assert out["calibrated"]["err_um_median"] == pytest.approx(0.75)
-    assert out["probe"]["err_um_p95"] is None
+    assert out["probe"]["coverage"] == 1.0
+    assert out["probe"]["err_um_p95"] == out["calibrated"]["err_um_p95"]
 
 
 @pytest.mark.slow
 def test_one_short_seed_end_to_end(capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["bench", "commission", "--seeds", "1", "--short", "--hours", "1", "--rest-min", "10", "--json"]
+    argv = ["bench", "commission", "--seeds", "1", "--short", "--hours", "1", "--rest-min", "10"]
+    argv += ["--probe-min", "20", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["seeds"] == [0]
-    for m in ("none", "mlr", "uncalibrated", "calibrated"):
+    for m in ("none", "mlr", "uncalibrated", "calibrated", "probe"):
         for k in ("err_um_median", "err_um_p95", "err_um_max", "rms_um"):
             assert math.isfinite(out[m][k]) and out[m][k] >= 0.0
-    for m in ("calibrated", "uncalibrated"):
+    for m in ("calibrated", "uncalibrated", "probe"):
         assert 0.0 <= out[m]["coverage"] <= 1.0
         assert 0.5 <= out[m]["usable_fraction"] <= 1.0
     assert out["calibrated"]["err_um_median"] < out["none"]["err_um_median"]
@@ -58,5 +73,7 @@ def test_one_short_seed_end_to_end(capsys: pytest.CaptureFixture[str]) -> None:
     assert out["mlr"]["rms_um"] < out["none"]["rms_um"]
     ratio = out["rms_ratio_calibrated_over_mlr"]
     assert len(ratio) == 1 and np.isfinite(ratio[0])
+    assert out["per_seed"][0]["probe_readings"] == 2  # minutes 20 and 40 of the 50 after the rest
+    assert out["probe"]["err_um_median"] < out["none"]["err_um_median"]
     assert 4 <= len(out["per_seed"][0]["mlr_sensors"]) <= 6
     assert out["fit_wall_s"]["product"][0] > 0
