@@ -89,7 +89,6 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
     docstring)."""
     from model.plant import VirtualPlant
     from service.bench.compensation_run import PER_MIN, T0
-    from service.engine.commissioning import commission_growth
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
@@ -107,16 +106,7 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
         profile = SHORT_PROFILE if args.short else RECOMMENDED_PROFILE
         t = write_thermal_test(Path(tmp), mechanics=mech, profile=profile, seed=seed, plant=test_plant)
         started = time.perf_counter()
-        rep = commission_growth(
-            model,
-            config,
-            t.temperatures,
-            t.canlog,
-            t.displacements,
-            set_by="bench",
-            source="cli",
-            basis=basis,
-        )
+        rep = t.commission(model, config, basis=basis)
         fit_s = time.perf_counter() - started
         started = time.perf_counter()
         peer = fit_peer(t.temperatures, t.displacements, n_sensors=args.sensors)

@@ -55,6 +55,22 @@ class ThermalTest:
     offset_um: float
     drift_um_per_h: float
 
+    def commission(self, model: Any, config: Any, *, basis: Any, set_by: str = "bench") -> Any:
+        """The product's commissioning of these files (``service.engine.commissioning.commission_growth``,
+        the service's own core under ``config``; ``basis`` the served mechanics basis, built once)."""
+        from service.engine.commissioning import commission_growth
+
+        return commission_growth(
+            model,
+            config,
+            self.temperatures,
+            self.canlog,
+            self.displacements,
+            set_by=set_by,
+            source="cli",
+            basis=basis,
+        )
+
 
 def write_thermal_test(
     out: Path,
@@ -148,7 +164,7 @@ def commission_seeds(
     import time
 
     from model.plantmech import mechanics_for_seed
-    from service.engine.commissioning import CommissioningError, commission_growth
+    from service.engine.commissioning import CommissioningError
     from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
     from service.modelload import ModelRef, load_model
@@ -164,16 +180,7 @@ def commission_seeds(
             t = write_thermal_test(Path(tmp), mechanics=mech, profile=profile, seed=seed)
             started = time.perf_counter()
             try:
-                rep = commission_growth(
-                    model,
-                    core_config(settings),
-                    t.temperatures,
-                    t.canlog,
-                    t.displacements,
-                    set_by="bench",
-                    source="cli",
-                    basis=basis,
-                )
+                rep = t.commission(model, core_config(settings), basis=basis)
             except CommissioningError as err:
                 rows.append({"seed": seed, "error": str(err)})
                 continue
@@ -209,7 +216,6 @@ def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dic
 
     from model.geometry import load_spindle
     from model.plantmech import mechanics_for_seed
-    from service.engine.commissioning import commission_growth
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
@@ -227,16 +233,7 @@ def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dic
     mech = mechanics_for_seed(seed)
     with tempfile.TemporaryDirectory(prefix="chtc-thermal-test-") as tmp:
         t = write_thermal_test(Path(tmp), mechanics=mech, seed=seed)
-        rep = commission_growth(
-            model,
-            config,
-            t.temperatures,
-            t.canlog,
-            t.displacements,
-            set_by="check",
-            source="cli",
-            basis=basis,
-        )
+        rep = t.commission(model, config, basis=basis, set_by="check")
     x, cov = rep.fit.x[:3], rep.fit.cov[:3, :3]
     profile = duty_profile(seed + 1000, duration_s=3600.0 * hours, idle_s=600.0)
     t_ref = profile[0].ambient_c
