@@ -386,7 +386,9 @@ def main(args: argparse.Namespace) -> int:
         from concurrent.futures import ProcessPoolExecutor, as_completed
 
         with ProcessPoolExecutor(max_workers=min(args.jobs, len(seeds))) as pool:
-            futures = {pool.submit(_seed_job, seed, args): seed for seed in seeds}
+            # the options without the CLI's dispatch entries (a module does not pickle)
+            opts = argparse.Namespace(**{k: v for k, v in vars(args).items() if not k.startswith("_")})
+            futures = {pool.submit(_seed_job, seed, opts): seed for seed in seeds}
             for fut in as_completed(futures):
                 done(futures[fut], fut.result())
     else:
