@@ -52,6 +52,7 @@ from pydantic_settings import (
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.errors import ServiceError
 from service.identify.mode import IdentificationMode
+from service.mqtt.config import MqttSettings
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
@@ -467,6 +468,7 @@ class Settings(BaseSettings):
     compensation: CompensationSettings = Field(default_factory=CompensationSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
     engine: EngineSettings = Field(default_factory=EngineSettings)
+    mqtt: MqttSettings = Field(default_factory=MqttSettings)  # the MQTT outlet (off by default)
 
     @model_validator(mode="after")
     def _across_sections(self) -> Settings:
