@@ -52,7 +52,7 @@ from pydantic_settings import (
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.errors import ServiceError
 from service.identify.mode import IdentificationMode
-from service.mqtt.config import MqttSettings
+from service.serve.mqtt.config import MqttSettings
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS

@@ -111,7 +111,6 @@ RULES = [
     ("service.identify", (*_SHELL, "service.store", "service.serve")),
     ("service.estimate", (*_SHELL, "service.store", "service.serve")),
     ("service.acquire", (*_SHELL, "service.store")),
-    ("service.mqtt", (*_SHELL, "service.store")),  # an outlet: reads the served values only
 ]
 
 

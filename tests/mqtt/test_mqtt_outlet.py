@@ -18,9 +18,6 @@ from typing import TypeVar
 
 import pytest
 
-from service.mqtt.config import MqttSettings
-from service.mqtt.outlet import MqttOutlet
-from service.mqtt.points import CATALOGUE
 from service.serve.interface import (
     ChtcSnapshot,
     CompensationSnapshot,
@@ -30,6 +27,9 @@ from service.serve.interface import (
     HealthSnapshot,
     NoDataYetError,
 )
+from service.serve.mqtt.config import MqttSettings
+from service.serve.mqtt.outlet import MqttOutlet
+from service.serve.mqtt.points import CATALOGUE
 from tests.mqtt.peers import Broker, broker, kind, metrics_by_name, need_peers, peer
 
 T = TypeVar("T")
@@ -225,8 +225,8 @@ def test_a_broker_outage_buffers_up_to_the_bound_and_reconnects_with_a_new_birth
 CHILD = """
 import asyncio, sys
 from pathlib import Path
-from service.mqtt.config import MqttSettings
-from service.mqtt.outlet import MqttOutlet
+from service.serve.mqtt.config import MqttSettings
+from service.serve.mqtt.outlet import MqttOutlet
 sys.path.insert(0, {tests!r})
 from tests.mqtt.test_mqtt_outlet import Reader
 

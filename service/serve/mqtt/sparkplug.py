@@ -9,8 +9,8 @@ Edge node = this instance (``group_id``/``edge_node_id``), device = the spindle 
     spBv1.0/{group}/NDEATH/{node}            bdSeq (the MQTT Will; no seq)
     spBv1.0/{group}/NCMD/{node}              Node Control/Rebirth = true -> births again, same bdSeq
 
-``SparkplugSession`` holds the sequence number and the aliases; the outlet (``service.mqtt.outlet``) owns the
-connection. Payloads are the generated ``sparkplug_b_pb2`` (Eclipse Tahu's ``sparkplug_b.proto``).
+``SparkplugSession`` holds the sequence number and the aliases; the outlet (``service.serve.mqtt.outlet``)
+owns the connection. Payloads are the generated ``sparkplug_b_pb2`` (Eclipse Tahu's ``sparkplug_b.proto``).
 """
 
 from __future__ import annotations
@@ -20,8 +20,8 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 
 from service.errors import ServiceError
-from service.mqtt import sparkplug_b_pb2 as pb
-from service.mqtt.points import CATALOGUE, DataType, MetricDef, Point, Quality, Value
+from service.serve.mqtt import sparkplug_b_pb2 as pb
+from service.serve.mqtt.points import CATALOGUE, DataType, MetricDef, Point, Quality, Value
 
 __all__ = ["NAMESPACE", "REBIRTH", "PayloadError", "SparkplugSession", "SparkplugTopics", "ms"]
 

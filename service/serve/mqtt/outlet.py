@@ -1,4 +1,4 @@
-"""The MQTT outlet: the asyncio shell around ``service.mqtt.points`` / ``sparkplug`` / ``plainjson``.
+"""The MQTT outlet: the asyncio shell around ``service.serve.mqtt.points`` / ``sparkplug`` / ``plainjson``.
 
 Three tasks, none of which the service waits for::
 
@@ -33,12 +33,12 @@ from pathlib import Path
 import aiomqtt
 
 from service.errors import ServiceError
-from service.mqtt.bdseq import BdSeqStore
-from service.mqtt.buffer import OutBuffer, OutletCounters
-from service.mqtt.config import MqttSettings
-from service.mqtt.plainjson import OFFLINE, ONLINE, JsonTopics, payload
-from service.mqtt.points import CATALOGUE, Point, ServedReader, changed, read_points
-from service.mqtt.sparkplug import PayloadError, SparkplugSession, SparkplugTopics, is_rebirth_request
+from service.serve.mqtt.bdseq import BdSeqStore
+from service.serve.mqtt.buffer import OutBuffer, OutletCounters
+from service.serve.mqtt.config import MqttSettings
+from service.serve.mqtt.plainjson import OFFLINE, ONLINE, JsonTopics, payload
+from service.serve.mqtt.points import CATALOGUE, Point, ServedReader, changed, read_points
+from service.serve.mqtt.sparkplug import PayloadError, SparkplugSession, SparkplugTopics, is_rebirth_request
 
 __all__ = ["MqttOutlet", "MqttOutletError"]
 

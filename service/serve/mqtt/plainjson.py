@@ -4,9 +4,9 @@
     {prefix}/{device}/Status/Usable           {"v": true, "q": "good", "t": "2026-11-27T23:10:00.000Z"}
     {prefix}/{device}/Chtc/H1                 {"v": 41.7, "q": "uncertain", "t": "..."}
 
-The metric names are the Sparkplug ones (``service.mqtt.points.CATALOGUE``) as topic levels; ``v`` is the
-value (null when absent; a time as UTC ISO-8601), ``q`` ``good`` | ``uncertain`` | ``bad``, ``t`` the data's
-time (UTC ISO-8601).
+The metric names are the Sparkplug ones (``service.serve.mqtt.points.CATALOGUE``) as topic levels; ``v``
+is the value (null when absent; a time as UTC ISO-8601), ``q`` ``good`` | ``uncertain`` | ``bad``, ``t``
+the data's time (UTC ISO-8601).
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ import json
 from dataclasses import dataclass
 from datetime import UTC, datetime
 
-from service.mqtt.points import Point
+from service.serve.mqtt.points import Point
 
 __all__ = ["OFFLINE", "ONLINE", "JsonTopics", "iso", "payload"]
 
