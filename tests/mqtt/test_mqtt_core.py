@@ -1,5 +1,5 @@
-"""The MQTT outlet's pure parts: deadbands, the quality mapping, bdSeq across restarts, the bounded buffer, the
-Sparkplug sequence and payloads, the JSON payload (no broker)."""
+"""The MQTT outlet's pure parts: deadbands, the quality mapping, bdSeq across restarts, the bounded buffer,
+the Sparkplug sequence and payloads, the JSON payload (no broker)."""
 
 from __future__ import annotations
 
