@@ -207,7 +207,9 @@ def test_a_broker_outage_buffers_up_to_the_bound_and_reconnects_with_a_new_birth
             failures = outlet.stats().connect_failures
             assert failures >= 1  # new clients tried, refused
             await off_loop(mosquitto.start)
+            t_up = time.monotonic()
             nb = await off_loop(lambda: p.wait_for(kind("NBIRTH"), timeout_s=20, what="NBIRTH after restart"))
+            back_s = time.monotonic() - t_up
             assert metrics_by_name(nb)["bdSeq"]["value"] == 1
             await off_loop(lambda: p.wait_for(kind("DBIRTH")))
             historical = []
@@ -217,6 +219,11 @@ def test_a_broker_outage_buffers_up_to_the_bound_and_reconnects_with_a_new_birth
                 historical.append(dd["payload"]["seq"])
             assert historical == [2, 3, 4, 5, 6]
             assert outlet.stats().reconnects == 1 and outlet.buffered == 0
+            print(
+                f"outage {time.monotonic() - t0 - back_s:.1f} s: buffered 5, dropped 3, "
+                f"{failures} refused connects (backoff 0.2 s doubling to 1 s), NBIRTH {back_s:.2f} s after "
+                "the broker was back, bdSeq 0 -> 1, the 5 buffered DDATA after the DBIRTH as historical"
+            )
             await outlet.close()
 
     asyncio.run(scenario())

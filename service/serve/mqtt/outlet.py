@@ -73,9 +73,11 @@ class MqttOutlet:
         *,
         state_dir: Path,
         clock: Clock = _utc_now,
+        on_event: Callable[[str], None] | None = None,
     ) -> None:
         self.settings = settings
         self.clock = clock
+        self.on_event = on_event or (lambda msg: log.info("%s", msg))
         self.sparkplug = settings.mode == "sparkplug"
         s = settings
         self.session = SparkplugSession(SparkplugTopics(s.group_id, s.edge_node_id, s.device_id))
@@ -98,6 +100,7 @@ class MqttOutlet:
         self._tasks: list[asyncio.Task[None]] = []
         self._client: aiomqtt.Client | None = None
         self._closing = False
+        self._said_down = False
 
     # --- the outlet protocol ------------------------------------------------------------------------------
     async def start(self) -> None:
@@ -215,12 +218,16 @@ class MqttOutlet:
                         self.counters.reconnects += 1
                     ever = True
                     backoff = s.backoff_initial_s
-                    log.info("mqtt: connected to %s:%d (%s)", s.host, s.port, s.mode)
+                    self._said_down = False
+                    self.on_event(f"mqtt: connected to {s.host}:{s.port} ({s.mode}, bdSeq {self.bd_seq})")
                     await self._serve(client)
             except aiomqtt.MqttError as err:
                 if not connected:
                     self.counters.connect_failures += 1
-                log.warning("mqtt: %s (retry in %.1f s)", err, backoff)
+                if connected or not self._said_down:  # once per outage, not every retry
+                    self.on_event(f"mqtt: {'connection lost' if connected else 'cannot connect'}: {err}")
+                self._said_down = True
+                log.debug("mqtt: %s (retry in %.1f s)", err, backoff)
             finally:
                 self.counters.connected = False
                 self._client = None

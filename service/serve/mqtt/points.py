@@ -129,7 +129,7 @@ class ServedReader(Protocol):
 
 H_UNIT = "W/(m²·K)"
 # the devices of the health report (service.engine.health); one String metric each
-DEVICES: tuple[str, ...] = ("modbus", "can", "db", "worker", "filter", "core", "loop")
+DEVICES: tuple[str, ...] = ("modbus", "can", "db", "worker", "filter", "core", "event_loop")
 
 
 def _h_metrics() -> list[MetricDef]:
