@@ -29,18 +29,24 @@ from collections.abc import Callable
 from dataclasses import dataclass, replace
 from datetime import UTC, datetime
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import aiomqtt
 
 from service.errors import ServiceError
+from service.serve.interface import OutletMetrics
 from service.serve.mqtt.bdseq import BdSeqStore
 from service.serve.mqtt.buffer import OutBuffer, OutletCounters
 from service.serve.mqtt.config import MqttSettings
 from service.serve.mqtt.plainjson import OFFLINE, ONLINE, JsonTopics, payload
 from service.serve.mqtt.points import CATALOGUE, Point, ServedReader, changed, read_points
 from service.serve.mqtt.sparkplug import PayloadError, SparkplugSession, SparkplugTopics, is_rebirth_request
+from service.settings import default_data_dir
 
-__all__ = ["MqttOutlet", "MqttOutletError"]
+if TYPE_CHECKING:
+    from service.serve.outlet import OutletContext
+
+__all__ = ["MqttOutlet", "MqttOutletError", "mqtt_outlet"]
 
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
@@ -131,6 +137,18 @@ class MqttOutlet:
     def stats(self) -> OutletCounters:
         """The counters now (a copy), with the buffer's drops."""
         return replace(self.counters, dropped=self.buffer.dropped)
+
+    def outlet_metrics(self) -> OutletMetrics:
+        """For ``/metrics`` (``service.serve.interface.CountedOutlet``)."""
+        c = self.counters
+        return OutletMetrics(
+            sent=c.sent,
+            dropped=self.buffer.dropped,
+            buffered=len(self.buffer),
+            reconnects=c.reconnects,
+            connect_failures=c.connect_failures,
+            connected=c.connected,
+        )
 
     @property
     def buffered(self) -> int:
@@ -330,3 +348,11 @@ class MqttOutlet:
             )
         elif not self.sparkplug:
             await client.publish(self.json_topics.availability, OFFLINE, qos=1, retain=True)
+
+
+def mqtt_outlet(ctx: OutletContext) -> MqttOutlet:
+    """The factory the runtime finds by name (``service.serve.outlet.OUTLETS["mqtt"]``): ``[mqtt]`` of the
+    settings, bdSeq kept in ``mqtt.state_dir`` (default: the data directory), the run's clock."""
+    s = ctx.settings.mqtt
+    state = s.state_dir if s.state_dir is not None else default_data_dir()
+    return MqttOutlet(s, state_dir=state, clock=ctx.clock, on_event=ctx.on_event)
