@@ -54,15 +54,22 @@ class Broker:
     """Mosquitto on 127.0.0.1:``port`` with persistence in ``workdir`` (a restart keeps the peer's session and
     its queued QoS 0 messages, so the peer sees what was published while it reconnected)."""
 
-    def __init__(self, workdir: Path) -> None:
+    def __init__(self, workdir: Path, *, tls: tuple[Path, Path, Path] | None = None) -> None:
         self.port = free_port()
         self.workdir = workdir
         self.conf = workdir / "mosquitto.conf"
-        self.conf.write_text(
-            f"listener {self.port} 127.0.0.1\nallow_anonymous true\npersistence true\n"
-            f"persistence_location {workdir}/\nqueue_qos0_messages true\n",
-            encoding="utf-8",
+        text = (
+            # user root: mosquitto started as root would drop to "mosquitto", which cannot read the test's
+            # private temporary directory (certificates, persistence); ignored when not started as root
+            f"user root\nper_listener_settings false\nallow_anonymous true\npersistence true\n"
+            f"persistence_location {workdir}/\nqueue_qos0_messages true\nlistener {self.port} 127.0.0.1\n"
         )
+        self.tls_port: int | None = None
+        if tls is not None:  # a second listener with TLS: (CA, server certificate, server key)
+            self.tls_port = free_port()
+            ca, cert, key = tls
+            text += f"listener {self.tls_port} 127.0.0.1\ncafile {ca}\ncertfile {cert}\nkeyfile {key}\n"
+        self.conf.write_text(text, encoding="utf-8")
         self.proc: subprocess.Popen[bytes] | None = None
 
     def start(self) -> None:
@@ -83,8 +90,8 @@ class Broker:
 
 
 @contextlib.contextmanager
-def broker(workdir: Path) -> Iterator[Broker]:
-    b = Broker(workdir)
+def broker(workdir: Path, *, tls: tuple[Path, Path, Path] | None = None) -> Iterator[Broker]:
+    b = Broker(workdir, tls=tls)
     b.start()
     try:
         yield b
@@ -159,3 +166,35 @@ def kind(k: str) -> Callable[[Line], bool]:
 
 def metrics_by_name(line: Line) -> dict[str, Line]:
     return {m["name"]: m for m in line["payload"]["metrics"]}
+
+
+def make_certificates(into: Path) -> tuple[Path, Path, Path]:
+    """A throw-away CA and a server certificate for 127.0.0.1 signed by it (openssl): (ca, cert, key)."""
+    if shutil.which("openssl") is None:
+        pytest.skip("openssl not installed")
+    ca, ca_key = into / "ca.pem", into / "ca.key"
+    cert, key, csr, ext = into / "server.pem", into / "server.key", into / "server.csr", into / "san.ext"
+    ext.write_text("subjectAltName=IP:127.0.0.1\n", encoding="ascii")
+    for argv in (
+        ["req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", ca_key, "-out", ca, "-days", "1"]
+        + ["-subj", "/CN=chtc test CA"],
+        ["req", "-newkey", "rsa:2048", "-nodes", "-keyout", key, "-out", csr, "-subj", "/CN=127.0.0.1"],
+        [
+            "x509",
+            "-req",
+            "-in",
+            csr,
+            "-CA",
+            ca,
+            "-CAkey",
+            ca_key,
+            "-CAcreateserial",
+            "-out",
+            cert,
+            "-days",
+            "1",
+        ]
+        + ["-extfile", ext],
+    ):
+        subprocess.run(["openssl", *map(str, argv)], check=True, capture_output=True)
+    return ca, cert, key

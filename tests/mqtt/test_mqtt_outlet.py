@@ -30,7 +30,7 @@ from service.serve.interface import (
 from service.serve.mqtt.config import MqttSettings
 from service.serve.mqtt.outlet import MqttOutlet
 from service.serve.mqtt.points import CATALOGUE
-from tests.mqtt.peers import Broker, broker, kind, metrics_by_name, need_peers, peer
+from tests.mqtt.peers import Broker, broker, kind, make_certificates, metrics_by_name, need_peers, peer
 
 T = TypeVar("T")
 GROUP, NODE, DEVICE = "plant", "cell-7", "spindle1"
@@ -198,9 +198,10 @@ def test_a_broker_outage_buffers_up_to_the_bound_and_reconnects_with_a_new_birth
             await off_loop(mosquitto.stop)
             await until(lambda: not outlet.stats().connected)
             t0 = time.monotonic()
-            for _ in range(8):  # a view each: heartbeat changes, one DDATA each
+            for _ in range(8):  # a view each: the heartbeat changes, one DDATA each
+                before = outlet.buffered + outlet.stats().dropped
                 outlet.on_view(reader)
-                await asyncio.sleep(0.05)
+                await until(lambda b=before: outlet.buffered + outlet.stats().dropped > b)
             await until(lambda: outlet.buffered + outlet.stats().dropped == 8)
             assert outlet.buffered == 5 and outlet.stats().dropped == 3
             await asyncio.sleep(max(0.0, OUTAGE_S - (time.monotonic() - t0)))
@@ -281,3 +282,30 @@ def test_json_mode_publishes_retained_topics_and_its_will_says_offline_after_kil
         if child.poll() is None:
             os.killpg(child.pid, signal.SIGKILL)
             child.wait()
+
+
+def test_tls_to_the_broker_verifies_its_certificate(tmp_path: Path) -> None:
+    """With ``tls.ca`` the outlet connects over TLS (the peer, on the plain listener, sees the births); without
+    it the broker's certificate (not signed by a system CA) is refused and nothing is published."""
+    need_peers()
+    ca, cert, key = make_certificates(tmp_path)
+
+    async def scenario(b: Broker) -> None:
+        assert b.tls_port is not None
+        with peer(b.url, "sparkplug", GROUP, NODE) as p:
+            untrusted = MqttOutlet(
+                settings(b.tls_port, tls={"enabled": True}, edge_node_id="other"), state_dir=tmp_path
+            )
+            await untrusted.start()
+            await until(lambda: untrusted.stats().connect_failures >= 1)
+            assert untrusted.stats().sent == 0
+            await untrusted.close()
+            outlet = MqttOutlet(settings(b.tls_port, tls={"ca": ca}), state_dir=tmp_path)
+            outlet.on_view(Reader())
+            await outlet.start()
+            nb = await off_loop(lambda: p.wait_for(kind("NBIRTH"), what="NBIRTH over TLS"))
+            assert nb["node"] == NODE
+            await outlet.close()
+
+    with broker(tmp_path, tls=(ca, cert, key)) as b:
+        asyncio.run(scenario(b))
