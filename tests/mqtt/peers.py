@@ -175,10 +175,10 @@ def make_certificates(into: Path) -> tuple[Path, Path, Path]:
     ca, ca_key = into / "ca.pem", into / "ca.key"
     cert, key, csr, ext = into / "server.pem", into / "server.key", into / "server.csr", into / "san.ext"
     ext.write_text("subjectAltName=IP:127.0.0.1\n", encoding="ascii")
+    days, rsa = ["-days", "1"], ["-newkey", "rsa:2048", "-nodes"]
     for argv in (
-        ["req", "-x509", "-newkey", "rsa:2048", "-nodes", "-keyout", ca_key, "-out", ca, "-days", "1"]
-        + ["-subj", "/CN=chtc test CA"],
-        ["req", "-newkey", "rsa:2048", "-nodes", "-keyout", key, "-out", csr, "-subj", "/CN=127.0.0.1"],
+        ["req", "-x509", *rsa, "-keyout", ca_key, "-out", ca, *days, "-subj", "/CN=ca"],
+        ["req", *rsa, "-keyout", key, "-out", csr, "-subj", "/CN=127.0.0.1"],
         [
             "x509",
             "-req",
@@ -191,10 +191,10 @@ def make_certificates(into: Path) -> tuple[Path, Path, Path]:
             "-CAcreateserial",
             "-out",
             cert,
-            "-days",
-            "1",
-        ]
-        + ["-extfile", ext],
+            *days,
+            "-extfile",
+            ext,
+        ],
     ):
         subprocess.run(["openssl", *map(str, argv)], check=True, capture_output=True)
     return ca, cert, key

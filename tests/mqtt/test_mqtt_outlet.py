@@ -285,8 +285,8 @@ def test_json_mode_publishes_retained_topics_and_its_will_says_offline_after_kil
 
 
 def test_tls_to_the_broker_verifies_its_certificate(tmp_path: Path) -> None:
-    """With ``tls.ca`` the outlet connects over TLS (the peer, on the plain listener, sees the births); without
-    it the broker's certificate (not signed by a system CA) is refused and nothing is published."""
+    """With ``tls.ca`` the outlet connects over TLS (the peer, on the plain listener, sees the births);
+    without it the broker's certificate (not signed by a system CA) is refused and nothing is published."""
     need_peers()
     ca, cert, key = make_certificates(tmp_path)
 
