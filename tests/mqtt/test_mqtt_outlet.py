@@ -296,6 +296,7 @@ def test_tls_to_the_broker_verifies_its_certificate(tmp_path: Path) -> None:
             untrusted = MqttOutlet(
                 settings(b.tls_port, tls={"enabled": True}, edge_node_id="other"), state_dir=tmp_path
             )
+            untrusted.on_view(Reader())
             await untrusted.start()
             await until(lambda: untrusted.stats().connect_failures >= 1)
             assert untrusted.stats().sent == 0

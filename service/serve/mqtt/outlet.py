@@ -100,6 +100,7 @@ class MqttOutlet:
         self._serial = 0
         self._birth_mark = 0  # Sparkplug: items with serial <= this were queued before the current birth
         self._wake = asyncio.Event()  # the sampler: a new view
+        self._have_points = asyncio.Event()  # the first values are read: births carry them
         self._send = asyncio.Event()  # the sender: a buffered message or a rebirth
         self._rebirth_due = False
         self._last_rebirth = -float("inf")
@@ -172,6 +173,7 @@ class MqttOutlet:
 
     def _enqueue(self, points: dict[str, Point]) -> None:
         self._current = points
+        self._have_points.set()
         names = changed(CATALOGUE, points, self._queued, self._deadbands)
         if not names:
             return
@@ -222,6 +224,8 @@ class MqttOutlet:
         s = self.settings
         backoff = s.backoff_initial_s
         ever = False
+        with contextlib.suppress(TimeoutError):  # births with values rather than nulls, if they come soon
+            await asyncio.wait_for(self._have_points.wait(), timeout=s.tick_s)
         while not self._closing:
             client = self._client_for_try()
             connected = False

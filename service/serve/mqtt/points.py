@@ -32,6 +32,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Protocol
 
+from service.errors import ServiceError
 from service.serve.interface import (
     ZONE_NAMES,
     ChtcSnapshot,
@@ -303,7 +304,11 @@ def _health_points(health: HealthSnapshot) -> dict[str, Point]:
 def read_points(reader: ServedReader, *, now: datetime, heartbeat: int) -> dict[str, Point]:
     """Every catalogue metric's value now, read from ``reader`` (may block: ``compensation()`` can build the
     growth's condition terms, ~0.3 s; call it off the event loop)."""
-    out = _growth_points(reader.compensation(), now)
+    try:
+        comp = reader.compensation()
+    except ServiceError:  # no growth model (REST answers 503 with the cause): served as none
+        comp = None
+    out = _growth_points(comp, now)
     out |= _chtc_points(reader.chtc(), now)
     out |= _condition_points(reader, now)
     out |= _health_points(reader.health())
