@@ -3,7 +3,6 @@ the Sparkplug sequence and payloads, the JSON payload (no broker)."""
 
 from __future__ import annotations
 
-import asyncio
 import json
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
@@ -63,16 +62,13 @@ def test_bdseq_continues_after_a_restart_and_wraps_at_255(tmp_path: Path) -> Non
 
 
 def test_the_buffer_drops_the_oldest_and_counts() -> None:
-    async def run() -> None:
-        buf: OutBuffer[int] = OutBuffer(3)
-        for i in range(5):
-            buf.put(i)
-        assert (len(buf), buf.dropped) == (3, 2)
-        assert [buf.take(), buf.take()] == [2, 3]
-        buf.put_back(3)
-        assert [buf.take(), buf.take(), buf.take()] == [3, 4, None]
-
-    asyncio.run(run())
+    buf: OutBuffer[int] = OutBuffer(3)
+    for i in range(5):
+        buf.put(i)
+    assert (len(buf), buf.dropped) == (3, 2)
+    assert [buf.take(), buf.take()] == [2, 3]
+    buf.put_back(3)
+    assert [buf.take(), buf.take(), buf.take()] == [3, 4, None]
 
 
 def _decode(body: bytes) -> pb.Payload:

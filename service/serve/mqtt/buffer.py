@@ -1,12 +1,12 @@
 """The outlet's bounded outgoing buffer and its counters (never blocks the producer).
 
 The producer (``put``) never waits: when the buffer is full the oldest message is dropped and counted. The
-publisher takes messages in order and puts one back at the front if the send failed.
+publisher takes messages in order and puts one back at the front if the send failed. Not thread-safe: the
+outlet uses it on the event loop only.
 """
 
 from __future__ import annotations
 
-import asyncio
 from collections import deque
 from dataclasses import dataclass
 from typing import Generic, TypeVar
@@ -38,7 +38,6 @@ class OutBuffer(Generic[T]):
             raise ValueError(f"maxlen: must be >= 1, got {maxlen}")
         self.maxlen = int(maxlen)
         self._items: deque[T] = deque()
-        self._ready = asyncio.Event()
         self.dropped = 0
 
     def __len__(self) -> int:
@@ -49,7 +48,6 @@ class OutBuffer(Generic[T]):
             self._items.popleft()
             self.dropped += 1
         self._items.append(item)
-        self._ready.set()
 
     def put_back(self, item: T) -> None:
         """A message whose send failed goes back to the front (it is the oldest)."""
@@ -57,16 +55,7 @@ class OutBuffer(Generic[T]):
             self.dropped += 1
             return
         self._items.appendleft(item)
-        self._ready.set()
 
     def take(self) -> T | None:
-        if not self._items:
-            self._ready.clear()
-            return None
-        return self._items.popleft()
-
-    async def wait(self) -> None:
-        """Until something is buffered."""
-        while not self._items:
-            self._ready.clear()
-            await self._ready.wait()
+        """The oldest message (None: empty)."""
+        return self._items.popleft() if self._items else None

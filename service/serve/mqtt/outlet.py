@@ -106,6 +106,7 @@ class MqttOutlet:
         self._last_rebirth = -float("inf")
         self._tasks: list[asyncio.Task[None]] = []
         self._client: aiomqtt.Client | None = None
+        self._tls: ssl.SSLContext | None = None
         self._closing = False
         self._said_down = False
 
