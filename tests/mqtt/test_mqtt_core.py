@@ -124,3 +124,14 @@ def test_settings_refuse_ids_that_are_not_one_topic_level() -> None:
     with pytest.raises(ValidationError, match="topic_prefix"):
         MqttSettings(topic_prefix="plant/#")
     assert MqttSettings(topic_prefix="plant/hall2").topic_prefix == "plant/hall2"
+
+
+def test_relative_mqtt_paths_in_a_config_file_are_relative_to_it(tmp_path: Path) -> None:
+    from service.settings import load_settings
+
+    path = tmp_path / "etc" / "chtc.toml"
+    path.parent.mkdir()
+    path.write_text('[mqtt]\nstate_dir = "state"\n[mqtt.tls]\nca = "certs/ca.pem"\n', encoding="utf-8")
+    s = load_settings(path).mqtt
+    assert s.state_dir == tmp_path / "etc" / "state"
+    assert s.tls.ca == tmp_path / "etc" / "certs" / "ca.pem" and s.tls.active
