@@ -233,8 +233,7 @@ class MqttOutlet:
             try:
                 async with client:
                     connected = True
-                    if self.bd_seq is not None:
-                        self.bdseq.commit(self.bd_seq)
+                    self._commit_bdseq()
                     self._client = client
                     self.counters.connected = True
                     if ever:
@@ -251,11 +250,23 @@ class MqttOutlet:
                     self.on_event(f"mqtt: {'connection lost' if connected else 'cannot connect'}: {err}")
                 self._said_down = True
                 log.debug("mqtt: %s (retry in %.1f s)", err, backoff)
+            except Exception as err:  # a bug must not end the outlet for good: say it, retry as for a loss
+                log.exception("mqtt: unexpected %s: %s", type(err).__name__, err)
             finally:
                 self.counters.connected = False
                 self._client = None
             await asyncio.sleep(backoff)
             backoff = min(2.0 * backoff, s.backoff_max_s)
+
+    def _commit_bdseq(self) -> None:
+        if self.bd_seq is None:
+            return
+        try:
+            self.bdseq.commit(self.bd_seq)
+        except (
+            OSError
+        ) as err:  # publish anyway; the next start may repeat this number (hosts may be confused)
+            self.on_event(f"mqtt: cannot store bdSeq in {self.bdseq.path}: {err}")
 
     async def _serve(self, client: aiomqtt.Client) -> None:
         if self.sparkplug:
