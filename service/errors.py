@@ -32,6 +32,8 @@ still works where a caller relies on it. Each package keeps its errors in its ow
     ├── SettingsError(ServiceError, ValueError)              service.settings: names the key
     ├── CommandError(ServiceError, ValueError)               service.commands._common: a CLI user error
     ├── ProfileError(ServiceError, ValueError)               service.commands.simulate: a bad profile file
+    ├── OutletError(ServiceError, RuntimeError)              service.serve.errors: an outlet (REST, OPC UA,
+    │                                                        MQTT) cannot be loaded, configured or started
     └── ServedError(ServiceError, RuntimeError)              service.sim.served: the test rig's service
 
 The layers below (``model.errors.ModelError``, ``drivers.errors.DriverError``) keep their own roots: the

@@ -52,6 +52,7 @@ from pydantic_settings import (
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.errors import ServiceError
 from service.identify.mode import IdentificationMode
+from service.serve.mqtt.config import MqttSettings
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
@@ -467,6 +468,7 @@ class Settings(BaseSettings):
     compensation: CompensationSettings = Field(default_factory=CompensationSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
     engine: EngineSettings = Field(default_factory=EngineSettings)
+    mqtt: MqttSettings = Field(default_factory=MqttSettings)  # the MQTT outlet (off by default)
 
     @model_validator(mode="after")
     def _across_sections(self) -> Settings:
@@ -527,13 +529,24 @@ def read_toml(path: str | Path) -> dict[str, object]:
         raise SettingsError(f"{path}: invalid TOML: {err}") from err
 
 
-_PATH_KEYS = (("modbus", "register_map"), ("can", "dbc"), ("model", "spindle"), ("model", "rom_cache_dir"))
+_PATH_KEYS: tuple[tuple[str, ...], ...] = (
+    ("modbus", "register_map"),
+    ("can", "dbc"),
+    ("model", "spindle"),
+    ("model", "rom_cache_dir"),
+    ("mqtt", "state_dir"),
+    ("mqtt", "tls", "ca"),
+    ("mqtt", "tls", "cert"),
+    ("mqtt", "tls", "key"),
+)
 
 
 def _resolve_paths(data: dict[str, object], base: Path) -> dict[str, object]:
     """Relative file paths in a config file are relative to that file's directory (``~`` is expanded)."""
-    for section, key in _PATH_KEYS:
-        block = data.get(section)
+    for *sections, key in _PATH_KEYS:
+        block: object = data
+        for section in sections:
+            block = block.get(section) if isinstance(block, dict) else None
         if isinstance(block, dict) and isinstance(block.get(key), str):
             value = Path(block[key]).expanduser()
             block[key] = str(value if value.is_absolute() else base / value)

@@ -103,6 +103,7 @@ _SHELL = ("service.engine", "service.commands", "service.bench", "service.sim", 
 RULES = [
     ("model", ("drivers", "service", "api")),
     ("drivers", ("service", "api")),
+    ("service", ("api",)),  # issue 28: the REST outlet is found by name (service.serve.outlet.OUTLETS)
     ("service.errors", ("service.", "model", "drivers", "api")),
     ("service.contracts", (*_SERVICE_PACKAGES, "drivers", "api")),  # below every other service package
     ("service.store", (*_SHELL, "service.serve")),

@@ -5,7 +5,7 @@ By default it measures the service users run (``service.bench.api_live``: ``chtc
 
 Set-up of ``--served`` (all on loopback):
 
-- the API (``api.app.create_app``) runs under uvicorn in a **subprocess**, one worker, around the real
+- the API (REST outlet, ``api.outlet``) runs under uvicorn in a **subprocess**, one worker, around the real
   service (``service.sim.served``: the core and the shell on SQLite, fed a virtual-plant run, a new sample
   every ``--field-period`` s; no devices and no worker process run beside it);
 - the load is open-loop: ``--rate`` requests/s spread over ``--clients`` concurrent clients (one keep-alive
@@ -98,10 +98,7 @@ def serve(port: int, field_period_s: float = 10.0) -> None:
     import tempfile
     from pathlib import Path
 
-    import uvicorn
-
-    from api.app import create_app
-    from service.settings import Settings
+    from service.settings import ApiSettings, Settings
     from service.sim.served import exit_on_sigterm
 
     exit_on_sigterm()
@@ -110,8 +107,20 @@ def serve(port: int, field_period_s: float = 10.0) -> None:
         bench_service(Path(tmp), field_period_s=field_period_s) as (served, what),
     ):
         print(f"service: {what}", file=sys.stderr, flush=True)
-        app = create_app(Settings(), served.service, clock=served.clock)
-        uvicorn.run(app, host="127.0.0.1", port=port, log_level="warning", access_log=False)
+        settings = Settings(api=ApiSettings(host="127.0.0.1", port=port))
+        asyncio.run(serve_rest(settings, served.service, served.clock))
+
+
+async def serve_rest(settings: Any, service: Any, clock: Any) -> None:
+    """The REST outlet (``service.serve.outlet``, found by name: no import of ``api``) until it stops."""
+    from service.serve.outlet import OutletContext, load_factory
+
+    outlet: Any = load_factory("rest")(OutletContext(settings=settings, service=service, clock=clock))
+    await outlet.start()
+    try:
+        await outlet.task
+    finally:
+        await outlet.close()
 
 
 def _free_port() -> int:

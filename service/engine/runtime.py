@@ -1,4 +1,10 @@
-"""Assemble and run the whole soft sensor from ``Settings``: model, database, worker, acquisition, API.
+"""Assemble and run the whole soft sensor from ``Settings``: model, database, worker, acquisition, outlets.
+
+The outlets (``service.serve.outlet``: REST, OPC UA, MQTT) are started after the service, by name: ``"rest"``
+when ``start(api=True)``, and each other registered outlet whose settings section says ``enabled = true``
+(``[opcua]``, ``[mqtt]``); their factories come from ``Runtime(outlets=...)`` or the registry
+``service.serve.outlet.OUTLETS`` (so ``service`` never imports ``api``). They are closed first at ``stop()``,
+in reverse order.
 
 Used by ``chtc run`` (real devices), ``chtc demo`` (simulated devices at a speed-up) and ``chtc replay``.
 ``ScaledClock`` is the one clock of a run: the acquisition stamps samples with it and the service and the API
@@ -15,8 +21,8 @@ import logging
 import socket
 import sys
 import time
-from collections.abc import Callable
-from dataclasses import KW_ONLY, dataclass
+from collections.abc import Callable, Mapping
+from dataclasses import KW_ONLY, dataclass, field
 from datetime import UTC, datetime, timedelta
 from typing import TYPE_CHECKING, Any, Protocol
 
@@ -37,6 +43,7 @@ from service.identify.speedmap import MapConfig
 from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.modelload import LoadedModel, ModelRef, load_model
+from service.serve.outlet import OUTLETS, Outlet, OutletContext, OutletFactory, load_factory
 from service.serve.policy import CompensationLimits
 from service.settings import Settings
 
@@ -49,6 +56,7 @@ __all__ = [
     "Runtime",
     "ScaledClock",
     "core_config",
+    "enabled_outlets",
     "engine_parts",
     "free_port",
 ]
@@ -196,6 +204,17 @@ def engine_parts(settings: Settings) -> dict[str, Any]:
     }
 
 
+def enabled_outlets(settings: Settings, *, api: bool, registry: Mapping[str, object] = OUTLETS) -> list[str]:
+    """The outlets to start, in order: ``"rest"`` with ``api``, then every other registered one whose settings
+    section (``settings.<name>``) has ``enabled`` true."""
+    names = ["rest"] if api else []
+    for name in registry:
+        section = getattr(settings, name, None)
+        if name != "rest" and bool(getattr(section, "enabled", False)):
+            names.append(name)
+    return names
+
+
 def os_user() -> str:
     """The OS user running this process (who set a reference the service took itself), "unknown" if none."""
     import getpass
@@ -220,10 +239,10 @@ class Runtime:
     service: SoftSensorService | None = None
     acquisition: Acquisition | None = None
     ring: RingBuffer | None = None  # the acquisition's (the core keeps a history of its own)
-    api_server: uvicorn.Server | None = None
     acquisition_task: asyncio.Task[None] | None = None
     sample_clock: Callable[[], datetime] | None = None  # stamps samples (default: clock); replay: a grid
-    api_task: asyncio.Task[None] | None = None
+    outlets: Mapping[str, OutletFactory] | None = None  # name -> factory (default: OUTLETS, by name)
+    running_outlets: dict[str, Outlet] = field(default_factory=dict)  # started, in order
     devices: tuple[DaqDevice, CanDevice] | None = None  # closed at stop()
     simulated_time: bool = False  # the clock is a simulated plant time (demo, replay): the API says so
 
@@ -275,8 +294,8 @@ class Runtime:
         self.devices = (daq, can)
         if acquire:
             self.start_acquisition()
-        if api:
-            self.api_task = asyncio.ensure_future(self._serve_api())
+        for name in enabled_outlets(s, api=api, registry=self.outlets or OUTLETS):
+            await self.start_outlet(name)
 
     def start_acquisition(self) -> None:
         """Start polling the devices given to ``start()`` (once)."""
@@ -296,19 +315,32 @@ class Runtime:
         poll = min(s.modbus.poll_interval_s, s.acquisition.sample_period_s / 2.0) / self.speedup
         self.acquisition_task = asyncio.ensure_future(self.acquisition.run(poll_interval_s=poll))
 
-    async def _serve_api(self) -> None:
-        import uvicorn
+    async def start_outlet(self, name: str) -> Outlet:
+        """Build, start and subscribe the outlet ``name`` (``OutletError`` if it cannot be loaded)."""
+        assert self.service is not None, "start first"
+        factory = (self.outlets or {}).get(name) or load_factory(name)
+        ctx = OutletContext(
+            settings=self.settings,
+            service=self.service,
+            clock=self.clock,
+            simulated=self.simulated_time,
+            speedup=self.clock.speedup,
+            on_event=self.on_event,
+        )
+        outlet = factory(ctx)
+        await outlet.start()
+        self.running_outlets[name] = outlet
+        self.service.subscribe(outlet)
+        return outlet
 
-        from api.app import create_app
-        from api.deps import ClockInfo
-        from api.server import server_config
+    @property
+    def api_server(self) -> uvicorn.Server | None:
+        """The REST outlet's uvicorn server (None: no API)."""
+        return getattr(self.running_outlets.get("rest"), "server", None)
 
-        assert self.service is not None
-        info = ClockInfo(simulated=self.simulated_time, speedup=self.clock.speedup)
-        app = create_app(self.settings, self.service, clock=self.clock, clock_info=info)
-        config = server_config(app, host=self.settings.api.host, port=self.settings.api.port)
-        self.api_server = uvicorn.Server(config)
-        await self.api_server.serve()
+    @property
+    def api_task(self) -> asyncio.Task[None] | None:
+        return getattr(self.running_outlets.get("rest"), "task", None)
 
     async def wait_api(self, timeout_s: float = 20.0) -> None:
         """Wait until the API server accepts connections (raises TimeoutError)."""
@@ -328,20 +360,25 @@ class Runtime:
         return f"http://{self.settings.api.host}:{self.settings.api.port}/"
 
     async def stop(self) -> None:
-        """Stop the API (gracefully), the acquisition, the worker and the writer (flushing it)."""
-        if self.api_server is not None:
-            self.api_server.should_exit = True
-        if self.acquisition_task is not None:
-            self.acquisition_task.cancel()
-        for task in (self.api_task, self.acquisition_task):
-            if task is not None:
-                # asyncio.wait, not wait_for: on a timeout wait_for cancels and then waits for the task
-                # without limit, which hung the shutdown when a client library swallowed the cancellation.
-                done, _ = await asyncio.wait({task}, timeout=10.0)
-                if not done:
-                    self.on_event(f"shutdown: {task.get_name()} did not stop within 10 s; abandoned")
-                elif not task.cancelled():
-                    task.exception()  # retrieved: a failure at shutdown was already reported by the task
+        """Stop the outlets (the API gracefully), the acquisition, the worker and the writer (flushing it)."""
+        for name, outlet in reversed(list(self.running_outlets.items())):
+            if self.service is not None:
+                self.service.unsubscribe(outlet)
+            try:
+                await outlet.close()
+            except Exception as err:  # stop the rest regardless
+                self.on_event(f"shutdown: outlet {name} failed to close: {type(err).__name__}: {err}")
+        self.running_outlets.clear()
+        task = self.acquisition_task
+        if task is not None:
+            task.cancel()
+            # asyncio.wait, not wait_for: on a timeout wait_for cancels and then waits for the task
+            # without limit, which hung the shutdown when a client library swallowed the cancellation.
+            done, _ = await asyncio.wait({task}, timeout=10.0)
+            if not done:
+                self.on_event(f"shutdown: {task.get_name()} did not stop within 10 s; abandoned")
+            elif not task.cancelled():
+                task.exception()  # retrieved: a failure at shutdown was already reported by the task
         if self.devices is not None:
             for src in self.devices:
                 with contextlib.suppress(Exception):

@@ -5,18 +5,23 @@ Data flow::
     acquisition (drivers) --Sample--> on_sample --SampleReceived--> core.handle --> instructions
     instructions: Store -> database writer, Launch -> worker process --JobOutcome--> JobOutcomeReceived,
                   Cancel -> worker, Log -> on_event
-    after each event: core.view() --published--> API threads (ChtcService methods, no lock)
+    after each event: core.view() --published--> readers (service.serve.reader.ViewReader, no lock)
+                                                 --subscribe()--> outlets' on_view (service.serve.outlet)
 
 The shell owns every side effect; the core only decides. Each event gets an id (``"sample-1042"``,
 ``"outcome-3"``, ``"manual-1"``, ...) that the instructions and the stored identification records keep.
 When started, events are handled on the event loop: an API thread's request (``request_identification``,
 ``request_baseline``) is handed over to the loop and waited for; before ``start()`` the caller's thread
 handles it (one thread at a time). After each event the shell publishes the core's immutable snapshot
-(``service.engine.view.CoreView``) by swapping one reference, which the API threads read without a lock.
+(``service.serve.view.CoreView``) by swapping one reference, which the API threads read without a lock, and
+hands it to the subscribed outlets (REST, OPC UA, MQTT; ``subscribe``, coalesced, at most every
+``outlet_interval_s``).
 Jobs run in the worker process; with ``run_job`` (offline use, tests) they run inline, synchronously, and
 their outcome is handled right after the event that launched them.
 
-:class:`SoftSensorService` implements ``service.serve.interface.ChtcService`` for the API. Device health is
+:class:`SoftSensorService` implements ``service.serve.interface.ChtcService`` for the API: the reads are
+answered by ``reader()`` (a ``ViewReader`` of the newest view: the same values every outlet serves), the
+writes and the database history here. Device health is
 sampled once a second and transitions are stored as device events. Time comes from an injected ``clock``
 (UTC ``datetime``), the same clock the acquisition stamps samples with, so ``chtc demo`` can run the whole
 service at a speed-up.
@@ -26,6 +31,7 @@ from __future__ import annotations
 
 import asyncio
 import concurrent.futures as cf
+import contextlib
 import functools
 import itertools
 import logging
@@ -41,8 +47,6 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from drivers.ringbuffer import Sample
-from model.defaults import BOUND_REL_TOL
-from model.hmap import LEVEL_BOUNDS
 from service.acquire.devicewatch import DeviceWatch
 from service.contracts.records import DeviceEventData, Record
 from service.engine.archive import IdentificationArchive
@@ -80,23 +84,19 @@ from service.engine.health import (
     source_health,
 )
 from service.engine.looplag import LoopLagMonitor
-from service.engine.view import CoreView
-from service.estimate.live import steady_field
 from service.estimate.mechanics import MechanicsCalibration
 from service.estimate.probe import ProbeError, ProbeMeasurement
 from service.estimate.reference import CompensationReference
-from service.identify.prior import ServedMapPrior
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
-    ZONE_NAMES,
     BusyError,
     ChtcMapSnapshot,
     ChtcSnapshot,
     CompensationSnapshot,
     ConditionSnapshot,
     CoreMetrics,
-    DataProblem,
+    CountedOutlet,
     DeviceHealth,
     DeviceStatus,
     FieldAt,
@@ -108,28 +108,17 @@ from service.serve.interface import (
     IdentificationPage,
     IdentificationRecord,
     MetricsSnapshot,
-    NoDataYetError,
-    NotFoundError,
     NotReadyError,
     OffsetBaseline,
     Readiness,
-    SectionPart,
     SectionSnapshot,
     SensorHistory,
     SensorHistoryBuffer,
     SensorReading,
     SpindleLayout,
-    Verdict,
-    ZoneInfo,
 )
-from service.serve.policy import chtc_verdict, map_verdict
-from service.serve.views import (
-    at_bound,
-    chtc_map_snapshot,
-    chtc_snapshot,
-    map_record,
-    served_record,
-)
+from service.serve.reader import MAP_H_BOX, ReadContext, ViewReader
+from service.serve.view import CoreView
 from service.store.mechanics import mechanics_record
 from service.store.probes import probe_record
 from service.store.references import reference_record
@@ -138,15 +127,14 @@ if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
 
     from service.engine.commissioning import CommissionReport
+    from service.serve.outlet import Outlet
     from service.store.reads import DbReads
 
-__all__ = ["RecordWriter", "SoftSensorService", "Worker"]
+__all__ = ["MAP_H_BOX", "RecordWriter", "SoftSensorService", "Worker"]
 
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
 HANDOVER_TIMEOUT_S = 30.0  # an API thread waits this long for the event loop to handle its request
-# the speed map's bounds of H, W/(m²·K) (its family's ln-H bounds)
-MAP_H_BOX = (float(np.exp(LEVEL_BOUNDS[0])), float(np.exp(LEVEL_BOUNDS[1])))
 
 
 class RecordWriter(StatusSource, Protocol):
@@ -201,6 +189,7 @@ class SoftSensorService:
         runner: CoreRunner | None = None,  # where the core's work runs (default inline; runtime: CoreThread)
         max_core_lag_s: float = math.inf,  # a sample waiting longer for the core: served as core_behind
         loop_lag: LoopLagMonitor | None = None,  # measured on the loop from start(); /healthz, /metrics
+        outlet_interval_s: float = 0.1,  # subscribed outlets get a new view at most this often (coalesced)
     ) -> None:
         self.core = core
         self.runner: CoreRunner = runner if runner is not None else InlineRunner()
@@ -223,11 +212,7 @@ class SoftSensorService:
         self._loop: asyncio.AbstractEventLoop | None = None
         self._loop_thread: int | None = None
         self._tasks: set[asyncio.Task[None]] = set()
-        self._started_mono = time.monotonic()
         self._device_watch = DeviceWatch()
-        self._snap_cache: tuple[tuple[object, ...], ChtcSnapshot] | None = None
-        self._map_cache: tuple[tuple[object, ...], ChtcMapSnapshot] | None = None
-        self._steady_cache: tuple[tuple[object, ...], FieldSnapshot] | None = None
         self._poll_latency = Histogram(LATENCY_BUCKETS_S)
         self._terms_view: CoreView | None = None  # the newest view whose growth terms are wanted
         self._terms_task: asyncio.Task[None] | None = None
@@ -241,8 +226,18 @@ class SoftSensorService:
         self._growth = growth if growth is not None else GrowthServer(core.model)  # /compensation
         if self._growth.on_reference is None:  # every zero taken is stored (restored at the next start)
             self._growth.on_reference = self._store_reference
-        # /chtc from the map: its information on the cold physics prior (finite, honest bands)
-        self._map_prior = ServedMapPrior(core.model.spec, core.model.ref.h_box)
+        self._read_ctx = ReadContext(
+            core.model,
+            clock=clock,
+            mode=core.config.mode,
+            growth=self._growth,
+            devices=self._devices,
+            model_loaded=lambda: self.model_loaded,
+        )
+        self._outlets: list[Outlet] = []
+        self.outlet_interval_s = float(outlet_interval_s)
+        self._notify_pending = False
+        self._notified_mono = -math.inf
         self.runner.start(self._handle_here, self._publish)
 
     @property
@@ -260,6 +255,7 @@ class SoftSensorService:
         """Remember the loop, start the worker process (loads the model there) and the health watcher."""
         self._loop = asyncio.get_running_loop()
         self._loop_thread = threading.get_ident()
+        self._schedule_outlets()  # outlets subscribed before start() get the current view
         try:
             await asyncio.to_thread(self._growth.prepare)  # the growth model: once, off the loop
         except NotReadyError as err:  # /compensation answers 503 with the cause; H is served as before
@@ -369,6 +365,45 @@ class SoftSensorService:
             if pending is not None or v.max_core_lag_s != self.max_core_lag_s or v.pending_since is not None:
                 v = replace(v, pending_since=pending, max_core_lag_s=self.max_core_lag_s)
             self._view = v
+        self._schedule_outlets()
+
+    # --- outlets (service.serve.outlet) ---------------------------------------------------------------------
+    def subscribe(self, outlet: Outlet) -> None:
+        """Hand every newly published view to ``outlet.on_view`` from now on: on the event loop, coalesced and
+        at most every ``outlet_interval_s`` (the newest view; see ``service.serve.outlet``). The current view
+        is delivered at once (with a running loop; else from ``start()``)."""
+        self._outlets.append(outlet)
+        self._schedule_outlets()
+
+    def unsubscribe(self, outlet: Outlet) -> None:
+        with contextlib.suppress(ValueError):
+            self._outlets.remove(outlet)
+
+    def _schedule_outlets(self) -> None:
+        """Called by whichever thread published: one delivery pending at a time (a later publish finds it and
+        is delivered by it, since the delivery reads the newest view when it runs)."""
+        loop = self._loop
+        if not self._outlets or self._notify_pending or loop is None or not loop.is_running():
+            return
+        self._notify_pending = True
+        loop.call_soon_threadsafe(self._notify_outlets)
+
+    def _notify_outlets(self) -> None:
+        loop = self._loop
+        wait = self.outlet_interval_s - (time.monotonic() - self._notified_mono)
+        if wait > 0 and loop is not None:
+            loop.call_later(wait, self._notify_outlets)  # still pending: publishes meanwhile coalesce here
+            return
+        self._notify_pending = False  # before reading the view: a publish from now on schedules anew
+        self._notified_mono = time.monotonic()
+        if self.closed:
+            return
+        reader = self.reader()
+        for outlet in list(self._outlets):
+            try:
+                outlet.on_view(reader)
+            except Exception as err:  # one outlet's bug must not stop the others nor the service
+                log.warning("outlet %s: on_view failed: %s: %s", outlet.name, type(err).__name__, err)
 
     def _on_loop(self, fn: Callable[[], None]) -> None:
         """Run ``fn`` on the event loop (now, when called there or when there is none running)."""
@@ -489,202 +524,40 @@ class SoftSensorService:
             self.writer.submit(DeviceEventData(t=self.clock(), device=device, kind=kind, detail=detail))
         self.on_event(f"{device}: {kind} {detail}".rstrip())
 
-    # --- ChtcService: current values ------------------------------------------------------------------------
+    # --- ChtcService: current values (service.serve.reader.ViewReader of the published view) ----------------
+    def reader(self) -> ViewReader:
+        """The read side of the newest published view (cheap; what every outlet reads)."""
+        return ViewReader(self._view, self._read_ctx)
+
     def chtc(self) -> ChtcSnapshot | None:
-        v = self._view
-        rec = v.current
-        if rec is None:
-            return None
-        now = self.clock()
-        newest = v.newest.t if v.newest is not None else None
-        problems = self._problems(v, now)
-        box: tuple[float, float] | None = self.core.model.ref.h_box
-        cond = v.condition
-        live = v.live
-        since = None if live is None or live.converged else _utc(live.started_at)
-        # the serving strategy's verdict (map_serves): per-condition mode, and combined mode at a held
-        # condition, serve an identification; the map's H elsewhere
-        fresh = self._map_verdict(v, problems, since) if v.map_serves else None
-        if fresh is not None and v.speed_map is not None and cond is not None and v.newest is not None:
-            # speed-map mode: H from the map at the newest sample's speed and ambient, at once
-            s = v.newest
-            speed, ambient = _finite_or(s.speed_rpm, cond.speed_rpm), _finite_or(s.ambient_c, cond.ambient_c)
-            level_sd = 0.0 if v.map_config is None else v.map_config.prior_level_sd
-            rec = map_record(
-                rec,
-                v.speed_map,
-                speed_rpm=speed,
-                ambient_c=ambient,
-                condition=cond,
-                ci_threshold=v.ci_threshold,
-                prior=self._map_prior.at(v.speed_map, level_sd=level_sd, speed_rpm=speed, ambient_c=ambient),
-            )
-            # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
-            # one: an H there is never fresh (at-bound), as in per-condition mode
-            box = MAP_H_BOX
-        key = (
-            rec.id,
-            newest,
-            cond.id if cond else None,
-            cond.state if cond else None,
-            problems,
-            since,
-            v.running_job is not None,
-            v.current_from_restore,
-            None if fresh is None else (id(v.speed_map), fresh),
-        )
-        cached = self._snap_cache
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        if box is not None:
-            rec = served_record(rec, form_sd=v.h_form_sd, ci_threshold=v.ci_threshold, box=box)
-        bound = at_bound(rec, box, BOUND_REL_TOL)
-        verdict = chtc_verdict(
-            has_sample=newest is not None,
-            problems=problems,
-            live=live,
-            now=now,
-            condition=cond,
-            record_condition_id=rec.condition.id,
-            map_verdict=fresh,
-            running=v.running_job is not None,
-            bound=[bool(b) for b in bound],
-            identified=[bool(b) for b in rec.identified],
-            prior_dominated=[bool(b) for b in rec.prior_dominated],
-            h=[float(x) for x in rec.h],
-            restored=v.current_from_restore,
-            zones=ZONE_NAMES,
-        )
-        snap = chtc_snapshot(rec, newest_sample_at=newest, verdict=verdict, bound=bound, box=box)
-        self._snap_cache = (key, snap)
-        return snap
-
-    @staticmethod
-    def _problems(v: CoreView, now: datetime) -> tuple[DataProblem, ...]:
-        """The data problems by code only (their ages change every second: the snapshots and their ETags stay
-        put while stale; the ages are on /readyz); none before the first sample (``no_data`` then)."""
-        if v.newest is None:
-            return ()
-        return tuple(DataProblem(p.code, "") for p in v.data_problems(now))
-
-    def _map_verdict(
-        self, v: CoreView, problems: tuple[DataProblem, ...], since: datetime | None
-    ) -> Verdict | None:
-        """With a map (speed-map or combined mode): how current it is at the newest sample's speed (else
-        None). A sample without a speed value (one missing CAN value) is still a sample: the speed is the
-        condition's then, as ``chtc()`` serves the map at (issue 26: it turned /chtc to ``no-data``)."""
-        cfg, m = v.map_config, v.speed_map
-        if cfg is None or m is None:
-            return None
-        s, cond = v.newest, v.condition
-        speed: float | None = None
-        if s is not None and np.isfinite(s.speed_rpm):
-            speed = float(s.speed_rpm)
-        elif cond is not None and np.isfinite(cond.speed_rpm):
-            speed = float(cond.speed_rpm)
-        return map_verdict(
-            m,
-            newest_t=None if s is None else s.t,
-            speed_rpm=speed,
-            problems=problems,
-            converging_since=since,
-            fresh_s=cfg.fresh_s,
-            margin_rpm=cfg.margin_rpm,
-            min_visit_s=cfg.min_visit_s,
-        )
+        return self.reader().chtc()
 
     def identification_mode(self) -> IdentificationMode:
         return self.core.config.mode
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
-        v = self._view
-        cfg, m = v.map_config, v.speed_map
-        if cfg is None or m is None:
-            return None
-        s = v.newest
-        newest = None if s is None else s.t
-        problems = self._problems(v, self.clock())
-        live = v.live
-        since = None if live is None or live.converged else _utc(live.started_at)
-        fresh = self._map_verdict(v, problems, since)
-        assert fresh is not None
-        ambient = 20.0 if s is None or not np.isfinite(s.ambient_c) else round(float(s.ambient_c), 1)
-        speed = None if s is None or not np.isfinite(s.speed_rpm) else float(s.speed_rpm)
-        key = (id(m), ambient, newest, speed, fresh)
-        cached = self._map_cache
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        snap = chtc_map_snapshot(
-            m,
-            ambient_c=ambient,
-            verdict=fresh,
-            newest_sample_at=newest,
-            current_speed_rpm=speed,
-            ci_threshold=v.ci_threshold,
-            margin_rpm=cfg.margin_rpm,
-            form_sd=v.h_form_sd,
-            box=MAP_H_BOX,
-        )
-        self._map_cache = (key, snap)
-        return snap
+        return self.reader().chtc_map()
 
     def field(self, at: FieldAt) -> FieldSnapshot:
-        v = self._view
-        rec = v.current
-        if rec is None:
-            raise NoDataYetError("no identification yet: no temperature field")
-        live = v.live
-        if live is None:
-            raise NoDataYetError("no sample yet: the live temperature field has not started")
-        fe = self.core.model.fe
-        if at == "now":
-            # the filtered estimate and its 1σ (computed once per view, on the first request)
-            return FieldSnapshot(
-                _utc(live.t), "now", fe.nodes_rz, fe.triangles, live.field_c, rec.id, std_c=live.field_std_c
-            )
-        key = (rec.id, v.condition.id if v.condition else None)
-        cached = self._steady_cache
-        if cached is not None and cached[0] == key:
-            return cached[1]
-        steady = steady_field(fe, self.core.model.spec, live)
-        out = FieldSnapshot(self.clock(), "steady", fe.nodes_rz, fe.triangles, steady, rec.id)
-        self._steady_cache = (key, out)
-        return out
+        return self.reader().field(at)
 
     def compensation(self) -> CompensationSnapshot | None:
-        return self._growth.snapshot(self._view, self.clock())
+        return self.reader().compensation()
 
     def compensation_section(self) -> SectionSnapshot | None:
-        return self._growth.section_snapshot(self._view, self.clock())
+        return self.reader().compensation_section()
 
     def sensors(self) -> Sequence[SensorReading]:
-        v = self._view
-        s = v.newest
-        if s is None:
-            raise NoDataYetError("no sample yet")
-        live = v.live
-        pred = None if live is None else live.sensors_c
-        pred_sd = None if live is None else live.sensors_std_c
-        cal, sd = v.calibration, v.offset_sd_c
-        applied = cal.applied() if cal is not None else None
-        out = []
-        for i, spec in enumerate(self.core.model.spec.sensors):
-            q = s.quality[i] if i < len(s.quality) else "no_data"
-            m = float(s.temps_c[i]) if q == "ok" and np.isfinite(s.temps_c[i]) else None
-            p = float(pred[i]) if pred is not None else None
-            off = float(applied[i]) if applied is not None else None
-            res = m - (off or 0.0) - p if m is not None and p is not None else None  # offset-corrected
-            out.append(
-                SensorReading(
-                    *(spec.channel, spec.name, spec.role, spec.r_m, spec.z_m, m, p, res, q, s.t),
-                    offset_c=off,
-                    offset_sd_c=None if sd is None else float(sd[i]),
-                    offset_calibrated_at=None if cal is None else cal.t_to,
-                    offset_source=None if cal is None else cal.source,
-                    predicted_sd_c=None if pred_sd is None else float(pred_sd[i]),
-                )
-            )
-        return out
+        return self.reader().sensors()
+
+    def condition(self) -> ConditionSnapshot:
+        return self.reader().condition()
+
+    def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
+        return self.reader().recent_conditions(limit)
+
+    def layout(self) -> SpindleLayout:
+        return self.reader().layout()
 
     def request_baseline(self) -> OffsetBaseline:
         for ins in self.handle(BaselineRequested(self._next_id("baseline"), self.clock())):
@@ -798,26 +671,8 @@ class SoftSensorService:
         if self.writer is not None:
             self.writer.submit(reference_record(ref))
 
-    def condition(self) -> ConditionSnapshot:
-        cond = self._view.condition
-        if cond is None:
-            raise NoDataYetError("no operating condition yet")
-        return cond
-
-    def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
-        return list(self._view.conditions[: max(0, limit)])
-
     def sensor_history(self, since: datetime | None) -> SensorHistory:
         return self._history.since(since)
-
-    def layout(self) -> SpindleLayout:
-        spec = self.core.model.spec
-        parts = tuple(
-            SectionPart(name=r.name, material=r.material, r0_m=r.r0_m, r1_m=r.r1_m, z0_m=r.z0_m, z1_m=r.z1_m)
-            for r in spec.regions
-        )
-        zones = tuple(ZoneInfo(z.name, z.description) for z in spec.zones)
-        return SpindleLayout(name=spec.name, parts=parts, zones=zones)
 
     # --- ChtcService: history ---------------------------------------------------------------------------
     def list_identifications(
@@ -841,25 +696,24 @@ class SoftSensorService:
         raise NotReadyError("the identification request was not answered")
 
     def job(self, job_id: str) -> IdentificationJob:
-        job = self._view.jobs.get(job_id)
-        if job is None:
-            raise NotFoundError(f"job {job_id!r} not found")
-        return job
+        return self.reader().job(job_id)
 
     # --- ChtcService: health and metrics ----------------------------------------------------------------
-    def _devices(self) -> list[DeviceHealth]:
-        now = self.clock()
+    def _devices(self, view: CoreView | None = None, now: datetime | None = None) -> list[DeviceHealth]:
+        """The device health at ``now`` (default: the clock's) with ``view`` (default: the newest)."""
+        view = self._view if view is None else view
+        now = self.clock() if now is None else now
         out = [source_health(name, src, now) for name, src in self.sources.items()]
         out.append(db_health(self.writer, now))
-        out.append(self._worker_health())
-        out.append(filter_health(self._view, now))
+        out.append(self._worker_health(view))
+        out.append(filter_health(view, now))
         if self.runner.load().threaded:
-            out.append(core_health(self.runner.load(), self._view, now))
+            out.append(core_health(self.runner.load(), view, now))
         if self.loop_lag is not None:
             out.append(loop_health(self.loop_lag.lag()))
         return out
 
-    def _worker_health(self) -> DeviceHealth:
+    def _worker_health(self, view: CoreView) -> DeviceHealth:
         if self.worker is None:
             return DeviceHealth(
                 name="worker",
@@ -870,7 +724,7 @@ class SoftSensorService:
                 message="no identification worker",
             )
         status = DeviceStatus.OK if self.worker.model_version is not None else DeviceStatus.DOWN
-        counters = {"restarts": self.worker.restarts, **self._view.counts}
+        counters = {"restarts": self.worker.restarts, **view.counts}
         running = self.worker.running_job
         msg = f"running job-{running}" if running is not None else "idle"
         return DeviceHealth(
@@ -878,20 +732,10 @@ class SoftSensorService:
         )
 
     def health(self) -> HealthSnapshot:
-        return HealthSnapshot(
-            t=self.clock(),
-            devices=self._devices(),
-            model_loaded=self.model_loaded,
-            model_version=self.core.model.version if self.model_loaded else None,
-            uptime_s=time.monotonic() - self._started_mono,
-        )
+        return self.reader().health()
 
     def ready(self) -> Readiness:
-        reasons = []
-        if not self.model_loaded:
-            reasons.append("model not loaded")
-        reasons.extend(str(p) for p in self._view.data_problems(self.clock()))
-        return Readiness(not reasons, tuple(reasons))
+        return self.reader().ready()
 
     def metrics(self) -> MetricsSnapshot:
         v = self._view
@@ -929,6 +773,7 @@ class SoftSensorService:
             core=self._core_metrics(v, now),
             growth_terms_computed=self._growth.computed,
             growth_terms_cpu_s=self._growth.compute_cpu_s,
+            outlets={o.name: o.outlet_metrics() for o in self._outlets if isinstance(o, CountedOutlet)},
         )
 
     def _core_metrics(self, v: CoreView, now: datetime) -> CoreMetrics | None:
@@ -959,10 +804,6 @@ def _filter_metrics(v: CoreView) -> FilterMetrics | None:
     )
 
 
-def _finite_or(x: float, fallback: float) -> float:
-    return float(x) if np.isfinite(x) else float(fallback)
-
-
 def _no_worker(launch: Launch) -> JobOutcome:
     return JobOutcome(
         job_id=launch.request.job_id, status=JobStatus.FAILED, message="no identification worker"
@@ -977,7 +818,3 @@ def _build_version() -> str:
         return version("spindle-chtc")
     except PackageNotFoundError:
         return "unknown"
-
-
-def _utc(ts: float) -> datetime:
-    return datetime.fromtimestamp(ts, tz=UTC)
