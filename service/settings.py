@@ -422,6 +422,13 @@ class DatabaseSettings(_Section):
     stall_s: float = Field(default=3.0, gt=0)  # a write/probe waiting longer: health says db "degraded"
     read_timeout_s: float = Field(default=2.0, gt=0)  # API reads of the database: 503 after this
     read_threads: int = Field(default=4, ge=1)  # at most this many API reads wait on the database
+    # PostgreSQL connection pool of each engine (the writer's, the API reads'): its size and how many more
+    # connections it may open at a peak (docs/deployment.md, "Connections")
+    pool_size: int = Field(default=5, ge=1)
+    max_overflow: int = Field(default=10, ge=0)
+    # the server is reached through a pooler in transaction mode (PgBouncer pool_mode = transaction): no
+    # prepared statements (psycopg prepare_threshold=None); the statement timeout is SET LOCAL either way
+    transaction_pooling: bool = False
 
     @field_validator("url")
     @classmethod
