@@ -33,6 +33,7 @@ from service.sim.served import DEMO_FED, Served, served_service
 USER, PASSWORD = "plc1", "a-long-test-password"
 CLIENT_URI = "urn:freeopcua:client"  # asyncua's client application URI (its certificate must name it)
 NS = "urn:spindle-chtc:opcua"
+NODE_URI = "urn:spindle-chtc:node-peer"
 
 
 def free_port() -> int:
@@ -51,10 +52,14 @@ class Pki:
     rogue_cert: Path  # not trusted
     rogue_key: Path
     users_file: Path
+    node_cert: Path  # node-opcua's (PEM), trusted
+    node_key: Path
+    node_rogue_cert: Path  # node-opcua's, not trusted
+    node_rogue_key: Path
 
 
-def make_cert(directory: Path, name: str, *, uri: str, server: bool) -> tuple[Path, Path]:
-    """A self-signed OPC UA application certificate (DER) and its key (PEM) in ``directory``."""
+def make_cert(directory: Path, name: str, *, uri: str, server: bool, pem: bool = False) -> tuple[Path, Path]:
+    """A self-signed OPC UA application certificate (DER, or PEM) and its key (PEM) in ``directory``."""
     key = generate_private_key()
     usage = ExtendedKeyUsageOID.SERVER_AUTH if server else ExtendedKeyUsageOID.CLIENT_AUTH
     cert = generate_self_signed_app_certificate(
@@ -65,8 +70,9 @@ def make_cert(directory: Path, name: str, *, uri: str, server: bool) -> tuple[Pa
         extended=[usage],
         days=2,
     )
-    cert_path, key_path = directory / f"{name}.der", directory / f"{name}.pem"
-    cert_path.write_bytes(cert.public_bytes(Encoding.DER))
+    cert_path = directory / f"{name}-cert.{'pem' if pem else 'der'}"
+    key_path = directory / f"{name}-key.pem"
+    cert_path.write_bytes(cert.public_bytes(Encoding.PEM if pem else Encoding.DER))
     key_path.write_bytes(dump_private_key_as_pem(key))
     return cert_path, key_path
 
@@ -78,11 +84,15 @@ def pki(tmp_path_factory: pytest.TempPathFactory) -> Pki:
     server_cert, server_key = make_cert(root, "server", uri="urn:spindle-chtc:server", server=True)
     client_cert, client_key = make_cert(root, "client", uri=CLIENT_URI, server=False)
     rogue_cert, rogue_key = make_cert(root, "rogue", uri=CLIENT_URI, server=False)
+    node_cert, node_key = make_cert(root, "node", uri=NODE_URI, server=False, pem=True)
+    node_rogue_cert, node_rogue_key = make_cert(root, "node-rogue", uri=NODE_URI, server=False, pem=True)
     (root / "trusted" / "client.der").write_bytes(client_cert.read_bytes())
+    (root / "trusted" / "node.pem").write_bytes(node_cert.read_bytes())
     users = root / "users.toml"
     users.write_text(f'[users]\n{USER} = "{hash_password(PASSWORD, iterations=1000)}"\n', encoding="utf-8")
     return Pki(
-        server_cert, server_key, root / "trusted", client_cert, client_key, rogue_cert, rogue_key, users
+        *(server_cert, server_key, root / "trusted", client_cert, client_key, rogue_cert, rogue_key, users),
+        *(node_cert, node_key, node_rogue_cert, node_rogue_key),
     )
 
 

@@ -10,19 +10,22 @@ this module replaces them:
   S7-1500's ``OPC_UA_NodeGetHandleList`` uses); only an authenticated user may call a method (the same
   rule as the REST writes: a credential, not anonymity); nobody writes, adds or deletes nodes or
   references: anything not listed is refused.
-- :func:`load_trust_list` / :func:`trust_validator`: the client certificates trusted (a directory of DER or
-  PEM files); any other is refused at CreateSession.
+- :func:`load_trust_list`: the client certificates trusted (a directory of DER or PEM files). A session over
+  a secure channel whose client certificate is not among them is refused at ActivateSession
+  (``BadCertificateUntrusted``). The check is the user manager's, not asyncua's CreateSession validator:
+  that one also judges the certificate a client sends over a None channel, which OPC UA says to ignore
+  (Part 4, CreateSession), and so refused every node-opcua client on the None endpoint.
 """
 
 from __future__ import annotations
 
 import hashlib
+import logging
 import hmac
 import secrets
 import tomllib
-from collections.abc import Awaitable, Callable, Mapping
+from collections.abc import Mapping
 from pathlib import Path
-from typing import Any
 
 from asyncua import ua
 from asyncua.common.utils import ServiceError as UaServiceError
@@ -39,10 +42,10 @@ __all__ = [
     "hash_password",
     "load_trust_list",
     "load_users",
-    "trust_validator",
     "verify_password",
 ]
 
+log = logging.getLogger(__name__)
 SCHEME = "pbkdf2_sha256"
 ITERATIONS = 200_000
 
@@ -118,20 +121,10 @@ def load_trust_list(directory: Path) -> frozenset[bytes]:
     return frozenset(found)
 
 
-def trust_validator(trusted: frozenset[bytes]) -> Callable[[x509.Certificate, Any], Awaitable[None]]:
-    """asyncua's certificate validator: a client certificate not in ``trusted`` is refused
-    (``BadCertificateUntrusted``)."""
-
-    async def validate(cert: x509.Certificate, _app: Any) -> None:
-        if cert.public_bytes(Encoding.DER) not in trusted:
-            raise UaServiceError(ua.StatusCodes.BadCertificateUntrusted)
-
-    return validate
-
-
 class HashedUserManager:
-    """asyncua's user manager (see the module docstring). ``require_trusted``: sessions must come over a
-    secure channel with a client certificate in ``trusted`` (a Sign&Encrypt-only server)."""
+    """asyncua's user manager (see the module docstring): a session over a secure channel needs its client
+    certificate in ``trusted``; ``require_trusted``: every session must come over one (a Sign&Encrypt-only
+    server: no session over a None channel, which asyncua keeps open for discovery)."""
 
     def __init__(
         self,
@@ -153,8 +146,12 @@ class HashedUserManager:
         password: str | None = None,
         certificate: object = None,
     ) -> User | None:
-        if self.require_trusted and _der(certificate) not in self.trusted:
-            return None
+        der = _der(certificate)
+        if der is None:
+            if self.require_trusted:
+                return None
+        elif der not in self.trusted:
+            raise UaServiceError(ua.StatusCodes.BadCertificateUntrusted)
         if username is None:
             return User(role=UserRole.Anonymous) if self.anonymous else None
         stored = self._users.get(username)
@@ -172,14 +169,22 @@ class ReadOnlyRules(PermissionRuleset):
         call = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
         self._call = call
         self._read = {ua.NodeId(t) for t in READ_TYPES} - {call}
-        self._read |= {
-            ua.NodeId(ua.ObjectIds.RegisterNodesRequest_Encoding_DefaultBinary),
-            ua.NodeId(ua.ObjectIds.UnregisterNodesRequest_Encoding_DefaultBinary),
+        self._read |= {  # further read-only services asyncua's list lacks (PLC and SCADA clients use them)
+            ua.NodeId(getattr(ua.ObjectIds, f"{name}Request_Encoding_DefaultBinary"))
+            for name in (
+                "RegisterNodes",
+                "UnregisterNodes",
+                "BrowseNext",
+                "ModifySubscription",
+                "SetTriggering",
+                "TransferSubscriptions",
+            )
         }
 
     def check_validity(self, user: User, action_type_id: ua.NodeId, body: object) -> bool:
         if user is None or user.role is UserRole.Admin:
             return False
+        log.debug("request %s by %s", action_type_id, user)
         if action_type_id in self._read:
             return True
         return action_type_id == self._call and user.role is UserRole.User

@@ -37,7 +37,6 @@ from service.serve.opcua.security import (
     ReadOnlyRules,
     load_trust_list,
     load_users,
-    trust_validator,
 )
 
 if TYPE_CHECKING:
@@ -340,8 +339,6 @@ class OpcUaServer:
         if cfg.certificate is not None and cfg.private_key is not None:
             await server.load_certificate(str(cfg.certificate))
             await server.load_private_key(str(cfg.private_key))
-        if cfg.trust_dir is not None:
-            server.set_certificate_validator(trust_validator(trusted))
         idx = await server.register_namespace(cfg.namespace_uri)
         _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.spindle)
         self._nodeids = {v.path: ua.NodeId(f"{cfg.spindle}.{v.path}", idx) for v in self.variables}
