@@ -411,7 +411,7 @@ class OpcUaSettings(_Section):
     users_file: Path | None = None  # TOML [users] name = "hash", merged over ``users``
     max_connections: int = Field(default=10, ge=1, le=1000)
     methods: bool = False  # StartIdentification and TakeSensorBaseline (authenticated users only)
-    update_interval_s: float = Field(default=0.5, gt=0, le=60)  # at most one address-space update per this
+    update_interval_s: float = Field(default=0.2, gt=0, le=60)  # at most one address-space update per this
     refresh_s: float = Field(default=1.0, gt=0, le=60)  # re-evaluate ages and statuses without a new view
     bad_after_s: float | None = Field(default=None, gt=0)  # lost data: Bad past this; None: max_open_loop_min
 

@@ -20,8 +20,8 @@ this module replaces them:
 from __future__ import annotations
 
 import hashlib
-import logging
 import hmac
+import logging
 import secrets
 import tomllib
 from collections.abc import Mapping

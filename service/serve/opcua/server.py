@@ -300,6 +300,7 @@ class OpcUaServer:
 
     async def _write(self, readings: dict[str, Reading], now: datetime) -> None:
         assert self.server is not None
+        wall = datetime.now(UTC)
         for var in self.variables:
             r = readings.get(var.path)
             if r is None:
@@ -310,8 +311,8 @@ class OpcUaServer:
             dv = ua.DataValue(
                 Value=_variant(var, r.value),
                 StatusCode_=ua.StatusCode(int(r.status)),
-                SourceTimestamp=_ua_time(r.source_time or now),
-                ServerTimestamp=_ua_time(now),
+                SourceTimestamp=_ua_time(r.source_time or now),  # the data's time (the service's clock)
+                ServerTimestamp=wall,  # when this server took the value (its own clock)
             )
             await self.server.write_attribute_value(self._nodeids[var.path], dv)
             self._written[var.path] = key
@@ -342,6 +343,10 @@ class OpcUaServer:
         idx = await server.register_namespace(cfg.namespace_uri)
         _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.spindle)
         self._nodeids = {v.path: ua.NodeId(f"{cfg.spindle}.{v.path}", idx) for v in self.variables}
+        waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
+        for var in self.variables:  # nothing is known before the first view
+            dv = ua.DataValue(Value=_initial(var), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC))
+            await server.write_attribute_value(self._nodeids[var.path], dv)
         if self.methods is not None:
             await self._add_methods(server, instance, idx, self.methods)
         return server
@@ -392,5 +397,5 @@ async def export_nodeset(cfg: OpcUaSettings, variables: Sequence[Var], path: Pat
     await server.init()
     idx = await server.register_namespace(cfg.namespace_uri)
     await build_address_space(server, idx, variables, spindle=cfg.spindle)
-    await server.export_xml_by_ns(str(path), [idx])
+    await server.export_xml_by_ns(str(path), [idx], export_values=True)
     return sum(1 for _ in path.read_text(encoding="utf-8").split("<UAVariable")) - 1
