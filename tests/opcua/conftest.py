@@ -169,9 +169,14 @@ async def node_path(client: Client, path: str) -> Any:
 async def next_updates(client: Client, n: int = 2, timeout_s: float = 20.0) -> None:
     """Wait until the server has updated its address space ``n`` more times (Status.Heartbeat)."""
     hb = await node_path(client, "Status.Heartbeat")
-    start = await hb.read_value()
+
+    async def beat() -> int:  # Bad_WaitingForInitialData before the first update: -1
+        dv = await hb.read_data_value(raise_on_bad_status=False)
+        return int(dv.Value.Value) if dv.StatusCode_.is_good() else -1
+
+    start = await beat()
     loop = asyncio.get_running_loop()
     deadline = loop.time() + timeout_s
-    while await hb.read_value() < start + n:
+    while await beat() < start + n:
         assert loop.time() < deadline, "the OPC UA server did not update"
         await asyncio.sleep(0.02)

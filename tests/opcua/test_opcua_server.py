@@ -347,3 +347,21 @@ def test_with_no_sample_yet_every_value_waits_for_initial_data(tmp_path, pki: Pk
     assert got["Status.Heartbeat"].StatusCode_.value == UaStatus.GOOD
     assert got["Status.Heartbeat"].SourceTimestamp is not None
     assert got["Status.Heartbeat"].SourceTimestamp.tzinfo is not None or UTC
+
+
+def test_sessions_beyond_max_connections_are_refused(tmp_path, pki: Pki) -> None:  # type: ignore[no-untyped-def]
+    r = start_rig(tmp_path, opcua_settings(pki, max_connections=2), feed=3)
+    try:
+
+        async def run() -> None:
+            first, second, third = Client(r.url), Client(r.url), Client(r.url)
+            async with first, second:
+                with pytest.raises(ua.UaStatusCodeError, match="BadMaxConnectionsReached"):
+                    async with third:
+                        pass
+            async with Client(r.url) as fourth:  # a slot is free again
+                await next_updates(fourth, 1)
+
+        r.run(run)
+    finally:
+        stop_rig(r)
