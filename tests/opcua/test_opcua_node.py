@@ -19,7 +19,6 @@ import pytest
 
 from service.serve.opcua.nodes import UNITS_NAMESPACE
 from service.serve.opcua.status import UaStatus
-
 from tests.conftest import IN_CI
 
 from .conftest import NODE_URI, NS, PASSWORD, USER, Pki, Rig, opcua_settings, start_rig, stop_rig
@@ -37,6 +36,8 @@ def _peer_installed() -> None:
         if IN_CI:
             pytest.fail("node-opcua not installed in tests/opcua/node (required in CI: .ci/run runs npm ci)")
         pytest.skip("needs node and `npm ci` in tests/opcua/node (.ci/run installs them)")
+
+
 PATHS = [
     "Status.Usable",
     "Status.Text",
