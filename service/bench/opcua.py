@@ -267,9 +267,11 @@ def _run_readers(endpoint: str, args: argparse.Namespace) -> dict[str, Any]:
 
 # --- phases -------------------------------------------------------------------------------------------------
 def _rest(url: str, args: argparse.Namespace) -> dict[str, Any]:
-    from service.bench.api import _load
+    """The REST load; also the API's own p99 of the same requests (its latency histogram, scraped around)."""
+    from service.bench.api import _load, _server_buckets, histogram_quantile
 
-    return asyncio.run(
+    before = _server_buckets(url)
+    out = asyncio.run(
         _load(
             url + "/api/v1/chtc",
             rate=args.rate,
@@ -278,6 +280,9 @@ def _rest(url: str, args: argparse.Namespace) -> dict[str, Any]:
             kind="raw",
         )
     )
+    p99 = histogram_quantile(0.99, before, _server_buckets(url))
+    out["server_p99_ms"] = None if p99 is None else 1e3 * p99
+    return out
 
 
 def _phase(args: argparse.Namespace, *, on: bool, mqtt: bool) -> dict[str, Any]:
@@ -320,6 +325,8 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
     subs = [x for r in ons for x in r["opcua"]["sub_ms"]]
     rest_off = statistics.median(r["rest"]["p99_ms"] for r in offs)
     rest_on = statistics.median(r["rest"]["p99_ms"] for r in ons)
+    server_off = _median([r["rest"]["server_p99_ms"] for r in offs])
+    server_on = _median([r["rest"]["server_p99_ms"] for r in ons])
     read_p99 = _p(reads, 99)
     ratio = rest_on / rest_off if rest_off > 0 else None
     return {
@@ -338,6 +345,15 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
         "rest_p99_ms_outlets_off": rest_off,
         "rest_p99_ms_outlets_on": rest_on,
         "rest_p99_ratio_outlets_on": ratio,
+        "rest_server_p99_ms_outlets_off": server_off,
+        "rest_server_p99_ms_outlets_on": server_on,
+        "rest_server_p99_ratio_outlets_on": None
+        if not server_off or server_on is None
+        else server_on / server_off,
+        "rest_p99_ms_per_run": {
+            "off": [r["rest"]["p99_ms"] for r in offs],
+            "on": [r["rest"]["p99_ms"] for r in ons],
+        },
         "rest_errors": sum(r["rest"]["errors"] for r in (*offs, *ons)),
         "outlets_on": ["rest", "opcua", *(["mqtt"] if mqtt else [])],
         "runs": args.runs,
@@ -347,6 +363,11 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
         "meets_read_p99": None if read_p99 is None else read_p99 <= TARGET_READ_P99_MS,
         "meets_rest_ratio": None if ratio is None else ratio <= TARGET_REST_RATIO,
     }
+
+
+def _median(xs: list[float | None]) -> float | None:
+    vals = [x for x in xs if x is not None]
+    return statistics.median(vals) if vals else None
 
 
 def _mqtt_available() -> bool:
