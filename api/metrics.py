@@ -30,6 +30,7 @@ from service.serve.interface import (
     FilterMetrics,
     HistogramData,
     MetricsSnapshot,
+    OutletMetrics,
     ServiceError,
 )
 
@@ -208,6 +209,40 @@ class ServiceCollector(Collector):
         yield CounterMetricFamily("chtc_db_errors", "database write errors", value=m.db_errors_total)
         yield from _filter_gauges(m.filter)
         yield from _loop_metrics(m)
+        yield from _outlet_metrics(m.outlets)
+
+
+def _outlet_metrics(outlets: Mapping[str, OutletMetrics]) -> Iterator[Metric]:
+    """The outlets' deliveries (MQTT: messages sent and dropped, the buffer, reconnects; integration.md)."""
+    if not outlets:
+        return
+    sent = CounterMetricFamily(
+        "chtc_outlet_messages",
+        "outlet messages by result (sent, dropped: buffer full)",
+        labels=["outlet", "result"],
+    )
+    families: dict[str, CounterMetricFamily | GaugeMetricFamily] = {
+        "reconnects": CounterMetricFamily(
+            "chtc_outlet_reconnects", "connections after the first", labels=["outlet"]
+        ),
+        "connect_failures": CounterMetricFamily(
+            "chtc_outlet_connect_failures", "connect tries refused or failed", labels=["outlet"]
+        ),
+        "buffered": GaugeMetricFamily(
+            "chtc_outlet_buffered", "messages waiting to be sent", labels=["outlet"]
+        ),
+    }
+    connected = GaugeMetricFamily("chtc_outlet_connected", "1 while connected", labels=["outlet"])
+    for name, o in sorted(outlets.items()):
+        sent.add_metric([name, "sent"], o.sent)
+        sent.add_metric([name, "dropped"], o.dropped)
+        for key, fam in families.items():
+            fam.add_metric([name], getattr(o, key))
+        if o.connected is not None:
+            connected.add_metric([name], 1.0 if o.connected else 0.0)
+    yield sent
+    yield from families.values()
+    yield connected
 
 
 def _loop_metrics(m: MetricsSnapshot) -> Iterator[Metric]:

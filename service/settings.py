@@ -52,6 +52,7 @@ from pydantic_settings import (
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.errors import ServiceError
 from service.identify.mode import IdentificationMode
+from service.serve.mqtt.config import MqttSettings
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS
@@ -461,6 +462,13 @@ class DatabaseSettings(_Section):
     stall_s: float = Field(default=3.0, gt=0)  # a write/probe waiting longer: health says db "degraded"
     read_timeout_s: float = Field(default=2.0, gt=0)  # API reads of the database: 503 after this
     read_threads: int = Field(default=4, ge=1)  # at most this many API reads wait on the database
+    # PostgreSQL connection pool of each engine (the writer's, the API reads'): its size and how many more
+    # connections it may open at a peak (docs/deployment.md, "Connections")
+    pool_size: int = Field(default=5, ge=1)
+    max_overflow: int = Field(default=10, ge=0)
+    # the server is reached through a pooler in transaction mode (PgBouncer pool_mode = transaction): no
+    # prepared statements (psycopg prepare_threshold=None); the statement timeout is SET LOCAL either way
+    transaction_pooling: bool = False
 
     @field_validator("url")
     @classmethod
@@ -508,6 +516,7 @@ class Settings(BaseSettings):
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
     engine: EngineSettings = Field(default_factory=EngineSettings)
     opcua: OpcUaSettings = Field(default_factory=OpcUaSettings)
+    mqtt: MqttSettings = Field(default_factory=MqttSettings)  # the MQTT outlet (off by default)
 
     @model_validator(mode="after")
     def _across_sections(self) -> Settings:
@@ -569,7 +578,7 @@ def read_toml(path: str | Path) -> dict[str, object]:
         raise SettingsError(f"{path}: invalid TOML: {err}") from err
 
 
-_PATH_KEYS = (
+_PATH_KEYS: tuple[tuple[str, ...], ...] = (
     ("modbus", "register_map"),
     ("can", "dbc"),
     ("model", "spindle"),
@@ -578,13 +587,19 @@ _PATH_KEYS = (
     ("opcua", "private_key"),
     ("opcua", "trust_dir"),
     ("opcua", "users_file"),
+    ("mqtt", "state_dir"),
+    ("mqtt", "tls", "ca"),
+    ("mqtt", "tls", "cert"),
+    ("mqtt", "tls", "key"),
 )
 
 
 def _resolve_paths(data: dict[str, object], base: Path) -> dict[str, object]:
     """Relative file paths in a config file are relative to that file's directory (``~`` is expanded)."""
-    for section, key in _PATH_KEYS:
-        block = data.get(section)
+    for *sections, key in _PATH_KEYS:
+        block: object = data
+        for section in sections:
+            block = block.get(section) if isinstance(block, dict) else None
         if isinstance(block, dict) and isinstance(block.get(key), str):
             value = Path(block[key]).expanduser()
             block[key] = str(value if value.is_absolute() else base / value)

@@ -399,6 +399,9 @@ def _engine(db: DatabaseSettings) -> tuple[Engine, sessionmaker[Session], Statem
         echo=db.echo,
         connect_timeout_s=float(db.connect_timeout_s),
         statement_timeout_s=statement_s,
+        pool_size=db.pool_size,
+        max_overflow=db.max_overflow,
+        transaction_pooling=db.transaction_pooling,
     )
     watchdog = StatementWatchdog(engine, abort_after_s=statement_s + 1.0).start()
     return engine, make_session_factory(engine), watchdog

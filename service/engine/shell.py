@@ -96,6 +96,7 @@ from service.serve.interface import (
     CompensationSnapshot,
     ConditionSnapshot,
     CoreMetrics,
+    CountedOutlet,
     DeviceHealth,
     DeviceStatus,
     FieldAt,
@@ -772,6 +773,7 @@ class SoftSensorService:
             core=self._core_metrics(v, now),
             growth_terms_computed=self._growth.computed,
             growth_terms_cpu_s=self._growth.compute_cpu_s,
+            outlets={o.name: o.outlet_metrics() for o in self._outlets if isinstance(o, CountedOutlet)},
         )
 
     def _core_metrics(self, v: CoreView, now: datetime) -> CoreMetrics | None:

@@ -487,6 +487,29 @@ class CoreMetrics:
 
 
 @dataclass(frozen=True, kw_only=True)
+class OutletMetrics:
+    """An outlet's delivery counters since start (``chtc_outlet_*``): messages ``sent``, ``dropped`` (its
+    buffer full), ``buffered`` now, ``reconnects`` (connections after the first), ``connect_failures``
+    (refused tries) and ``connected`` now (None: an outlet without a connection of its own, a server)."""
+
+    sent: int = 0
+    dropped: int = 0
+    buffered: int = 0
+    reconnects: int = 0
+    connect_failures: int = 0
+    connected: bool | None = None
+
+
+@runtime_checkable
+class CountedOutlet(Protocol):
+    """An outlet (``service.serve.outlet.Outlet``) that counts its deliveries for ``/metrics``."""
+
+    name: str
+
+    def outlet_metrics(self) -> OutletMetrics: ...
+
+
+@dataclass(frozen=True, kw_only=True)
 class MetricsSnapshot:
     """Numbers the service exposes; the API turns them into Prometheus metrics (``chtc_*``)."""
 
@@ -516,6 +539,7 @@ class MetricsSnapshot:
     core: CoreMetrics | None = None
     growth_terms_computed: int = 0  # /compensation's condition terms computed (cache misses) and their CPU
     growth_terms_cpu_s: float = 0.0
+    outlets: Mapping[str, OutletMetrics] = field(default_factory=dict)  # by outlet name (those counting)
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

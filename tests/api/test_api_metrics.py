@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from pathlib import Path
+
 import pytest
 from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
@@ -129,3 +131,24 @@ def test_outcome_and_event_counters_are_separate(served_devices_down: Served) ->
     assert polls == {"ok": 0.0, "link_down": 1.0, "device_unavailable": 1.0}
     silence = {x.labels["event"]: x.value for x in fam["chtc_can_events"] if x.name.endswith("_total")}
     assert silence == {"device_timeout": 2.0}
+
+
+def test_an_outlet_that_counts_shows_on_metrics(
+    client: TestClient, service: SoftSensorService, tmp_path: Path
+) -> None:
+    """The MQTT outlet's counters (service.serve.interface.CountedOutlet) reach /metrics as chtc_outlet_*;
+    never started here (no broker): nothing sent, not connected."""
+    from service.serve.mqtt.config import MqttSettings
+    from service.serve.mqtt.outlet import MqttOutlet
+
+    outlet = MqttOutlet(MqttSettings(enabled=True), state_dir=tmp_path)
+    service.subscribe(outlet)
+    try:
+        fam = _families(client)
+    finally:
+        service.unsubscribe(outlet)
+    sent = {s.labels["result"]: s.value for s in fam["chtc_outlet_messages"] if s.labels["outlet"] == "mqtt"}
+    assert sent == {"sent": 0.0, "dropped": 0.0}
+    assert fam["chtc_outlet_buffered"][0].value == 0.0
+    assert fam["chtc_outlet_connected"][0].value == 0.0
+    assert "chtc_outlet_messages" not in _families(client)  # unsubscribed: gone
