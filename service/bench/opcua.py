@@ -6,7 +6,8 @@ Set-up (all on loopback; figures, not assertions):
 - the **server** is a subprocess: the real service (``service.sim.served``: the demo plan through the real
   core and shell on SQLite, two identifications, a configured zero so ``/compensation`` is usable), fed the
   plan's next sample every ``--feed-period`` wall seconds, serving REST (the REST outlet, as ``chtc run``)
-  and, in the "on" phase, the OPC UA outlet (and MQTT when available: ``--mqtt``). It prints the wall time
+  and, in the "on" phase, the OPC UA outlet (and MQTT when available: ``--mqtt``; to a Mosquitto the bench
+  starts on its own loopback port). It prints the wall time
   at which it hands each sample to the service.
 - the **OPC UA clients** are a second subprocess (so their CPU is not the REST clients'): ``--clients``
   asyncua clients, each reading the compensation values (``Status.Usable``, ``Status.Heartbeat``,
@@ -98,12 +99,15 @@ def serve(config: str) -> None:
             "port": cfg["opcua_port"],
             "max_connections": cfg["max_connections"],
         }
+    state = tempfile.TemporaryDirectory(prefix="chtc-bench-mqtt-")  # the Sparkplug bdSeq file
     if cfg["mqtt"]:
-        sections["mqtt"] = {"enabled": True}
+        mqtt = {"enabled": True, "host": "127.0.0.1", "port": cfg["mqtt"], "state_dir": state.name}
+        sections["mqtt"] = mqtt
     settings = Settings(**sections)
     sys.setswitchinterval(settings.engine.gil_switch_interval_s)  # as Runtime.start does
     names = ["rest"] + (["opcua"] if cfg["opcua_port"] else []) + (["mqtt"] if cfg["mqtt"] else [])
     with (
+        state,
         tempfile.TemporaryDirectory(prefix="chtc-bench-opcua-") as tmp,
         served_service(
             database_url=f"sqlite:///{Path(tmp) / 'chtc.db'}", settings=settings, feed_samples=DEMO_FED
@@ -149,7 +153,7 @@ def _hand_over(served: Any, sample: Any) -> None:
 class Server:
     """The server subprocess and the wall times of its fed samples (a reader thread)."""
 
-    def __init__(self, *, opcua: bool, mqtt: bool, feed_period_s: float, clients: int) -> None:
+    def __init__(self, *, opcua: bool, mqtt: int, feed_period_s: float, clients: int) -> None:
         self.rest_port = _free_port()
         self.opcua_port = _free_port() if opcua else 0
         cfg = {
@@ -285,8 +289,8 @@ def _rest(url: str, args: argparse.Namespace) -> dict[str, Any]:
     return out
 
 
-def _phase(args: argparse.Namespace, *, on: bool, mqtt: bool) -> dict[str, Any]:
-    server = Server(opcua=on, mqtt=on and mqtt, feed_period_s=args.feed_period, clients=args.clients)
+def _phase(args: argparse.Namespace, *, on: bool, mqtt: int) -> dict[str, Any]:
+    server = Server(opcua=on, mqtt=mqtt if on else 0, feed_period_s=args.feed_period, clients=args.clients)
     try:
         out: dict[str, Any] = {}
         if not on:
@@ -316,11 +320,17 @@ def _p(xs: list[float], q: float) -> float | None:
 
 
 def run_bench(args: argparse.Namespace) -> dict[str, Any]:
-    mqtt = _mqtt_available() if args.mqtt == "auto" else args.mqtt == "on"
+    want_mqtt = _mqtt_available() if args.mqtt == "auto" else args.mqtt == "on"
+    broker = Broker() if want_mqtt else None
     offs, ons = [], []
-    for _ in range(args.runs):
-        offs.append(_phase(args, on=False, mqtt=mqtt))
-        ons.append(_phase(args, on=True, mqtt=mqtt))
+    try:
+        mqtt = broker.port if broker is not None else 0
+        for _ in range(args.runs):
+            offs.append(_phase(args, on=False, mqtt=0))
+            ons.append(_phase(args, on=True, mqtt=mqtt))
+    finally:
+        if broker is not None:
+            broker.stop()
     reads = [x for r in ons for x in r["opcua"]["latencies_ms"]]
     subs = [x for r in ons for x in r["opcua"]["sub_ms"]]
     rest_off = statistics.median(r["rest"]["p99_ms"] for r in offs)
@@ -355,7 +365,7 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
             "on": [r["rest"]["p99_ms"] for r in ons],
         },
         "rest_errors": sum(r["rest"]["errors"] for r in (*offs, *ons)),
-        "outlets_on": ["rest", "opcua", *(["mqtt"] if mqtt else [])],
+        "outlets_on": ["rest", "opcua", *(["mqtt"] if want_mqtt else [])],
         "runs": args.runs,
         "duration_s": args.duration,
         "cpus": os.cpu_count(),
@@ -370,16 +380,48 @@ def _median(xs: list[float | None]) -> float | None:
     return statistics.median(vals) if vals else None
 
 
+MOSQUITTO = "/usr/sbin/mosquitto"
+
+
 def _mqtt_available() -> bool:
+    """The settings know an MQTT outlet and Mosquitto is installed (the bench starts its own broker)."""
+    import shutil
+
     from service.settings import Settings
 
-    if "mqtt" not in Settings.model_fields:
-        return False
-    try:
-        with socket.create_connection(("127.0.0.1", 1883), timeout=1.0):
-            return True
-    except OSError:
-        return False
+    installed = shutil.which("mosquitto") is not None or os.path.exists(MOSQUITTO)
+    return "mqtt" in Settings.model_fields and installed
+
+
+class Broker:
+    """A Mosquitto of the bench's own on a free loopback port (never the machine's shared one)."""
+
+    def __init__(self) -> None:
+        import shutil
+        import tempfile
+
+        self.port = _free_port()
+        self.dir = tempfile.mkdtemp(prefix="chtc-bench-broker-")
+        conf = os.path.join(self.dir, "mosquitto.conf")
+        with open(conf, "w", encoding="utf-8") as f:
+            f.write(f"user root\nallow_anonymous true\nlistener {self.port} 127.0.0.1\n")
+        exe = shutil.which("mosquitto") or MOSQUITTO
+        self.proc = subprocess.Popen([exe, "-c", conf], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        deadline = time.monotonic() + 10.0
+        while True:
+            try:
+                with socket.create_connection(("127.0.0.1", self.port), timeout=0.5):
+                    return
+            except OSError:
+                if time.monotonic() > deadline or self.proc.poll() is not None:
+                    self.stop()
+                    raise RuntimeError("mosquitto did not start") from None
+                time.sleep(0.05)
+
+    def stop(self) -> None:
+        from service.bench._api_phases import stop_process
+
+        stop_process(self.proc)
 
 
 def _free_port() -> int:
