@@ -4,10 +4,10 @@ Each sub-command lives in its own module, imported only when it runs, so that ``
 broken optional component cannot break the others:
 
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
-  ``replay``, ``identify``, ``prebuild``, ``commission``);
+  ``replay``, ``identify``, ``prebuild``, ``commission``, ``opcua``);
 - ``service.bench.<name>`` for the benchmarks
   (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty|compensation|
-  commission``).
+  commission|opcua``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -33,6 +33,8 @@ COMMANDS: dict[str, str] = {
     "prebuild": "build the FE model and the reduced-model cache ahead of time (container images, installs)",
     "commission": "commissioning steps: `zero` stores the compensation zero; `growth` fits the mechanics "
     "to a measured thermal test",
+    "opcua": "OPC UA outlet tools: `nodeset` writes the NodeSet2 XML (TIA Portal, TwinCAT); `user` hashes a "
+    "password",
 }
 
 BENCHMARKS: dict[str, str] = {
@@ -49,6 +51,7 @@ BENCHMARKS: dict[str, str] = {
     "duty": "a machining duty cycle (speed changes every 1-6 min): fresh H, error and coverage vs the truth",
     "compensation": "served /compensation every minute vs random H(speed) truths: usable, error, coverage, "
     "restarts, outages",
+    "opcua": "OPC UA: read p99 with 10 clients, subscription latency, REST /chtc p99 with the outlets on/off",
     "commission": "the product's commissioning vs an MLR peer (correlation-clustered sensors) on the same "
     "thermal test, then on a duty cycle: axial error of each",
 }
