@@ -193,7 +193,8 @@ def widen_band(
     the fit searches only there, the map's levels are bounded by it; a Gaussian band past it is the
     approximation's, not the data's). Returns (lo, hi, the widened half-width in ln H before truncation)."""
     h = np.asarray(h, dtype=float)
-    with np.errstate(divide="ignore"):  # a lower bound of 0 (clamped): an unbounded band, σ = inf
+    # a lower bound of 0 (clamped) or one so small that hi/lo overflows: an unbounded band, σ = inf
+    with np.errstate(divide="ignore", over="ignore"):
         sd = np.log(np.asarray(hi, dtype=float) / np.asarray(lo, dtype=float)) / (2.0 * Z95)
     sd = np.sqrt(sd**2 + float(form_sd) ** 2)
     half = Z95 * sd
