@@ -15,6 +15,9 @@ waits longer than the watchdog's ``abort_after_s`` (a hung database) is aborted 
 seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
 database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh.
 
+Every sample submitted also feeds a 1-minute mean (``service.store.downsample``), submitted when the minute
+is over (and at ``close()``): what retention keeps after the raw samples are dropped.
+
 ``flush(timeout_s)`` waits until everything submitted so far is written; ``close(timeout_s)`` flushes, stops
 the thread and counts what could not be written as ``lost_on_close``.
 """
@@ -35,7 +38,8 @@ from types import TracebackType
 from sqlalchemy import text
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.contracts.records import RECORD_TYPES, DeviceEventData, Record
+from service.contracts.records import RECORD_TYPES, DeviceEventData, Record, SampleData
+from service.store.downsample import MinuteMeans
 from service.store.errors import DatabaseUnavailableError
 from service.store.repository import session_scope, write_records
 from service.store.watchdog import StatementWatchdog
@@ -80,6 +84,7 @@ class DbWriter:
         stall_s: float = 3.0,
         monotonic: Callable[[], float] = time.monotonic,
         name: str = "chtc-db-writer",
+        downsample: bool = True,
     ) -> None:
         if batch_size < 1 or buffer_max < 1 or not 0 < retry_initial_s <= retry_max_s:
             raise ValueError("need batch_size >= 1, buffer_max >= 1, 0 < retry_initial_s <= retry_max_s")
@@ -103,6 +108,8 @@ class DbWriter:
         self._counts = {"written": 0, "dropped": 0, "rejected": 0, "errors": 0, "lost_on_close": 0}
         self._last_error: tuple[str, datetime] | None = None
         self._last_ok_at: datetime | None = None
+        # 1-minute means of the samples submitted, written beside them (kept after the raw ones are dropped)
+        self._minutes = MinuteMeans() if downsample else None
 
     # --- caller side ------------------------------------------------------------------------------
     def start(self) -> DbWriter:
@@ -118,6 +125,10 @@ class DbWriter:
                 self._counts["dropped"] += 1
                 return False
             self._queue.append(record)
+            if self._minutes is not None and isinstance(record, SampleData):
+                done = self._minutes.add(record)
+                if done is not None:
+                    self._queue.append(done)
             self._cond.notify_all()
             return True
 
@@ -134,6 +145,9 @@ class DbWriter:
         """Flush (up to ``timeout_s``), stop the worker and return the final status."""
         with self._cond:
             self._closed = True
+            last = self._minutes.flush() if self._minutes is not None else None
+            if last is not None:
+                self._queue.append(last)
         if self._thread.is_alive():
             self.flush(timeout_s)
             self._stop.set()
