@@ -14,7 +14,7 @@ from datetime import datetime
 from itertools import groupby
 from typing import Generic, TypeVar
 
-from sqlalchemy import Table, delete, func, insert, select, update
+from sqlalchemy import Connection, Table, delete, func, insert, select, update
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy import exc as sa_exc
 from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
@@ -50,6 +50,7 @@ from service.store.models import (
     SpeedMapStateRow,
     Spindle,
 )
+from service.store.partitions import ensure_days, utc_day
 from service.store.sqlerrors import translate
 
 T = TypeVar("T")
@@ -110,6 +111,9 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
     """Write records in order, stamped with the session's spindle; runs of one kind become one multi-row
     INSERT (or one UPDATE each for ends); samples and minute means skip rows already stored."""
     sid = spindle_of(session)
+    days = {utc_day(r.t) for r in records if isinstance(r, SampleData)}
+    if days:  # PostgreSQL: the days' partitions first, before any insert of the batch
+        ensure_days(session.connection(), days)
     for kind, group in groupby(records, key=type):
         run = list(group)
         if kind is ConditionEnd:
@@ -123,8 +127,7 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
             rows = [_split_speed_map(session, r, sid) for r in run]  # type: ignore[arg-type]
             session.execute(insert(Identification), rows)
         elif kind in _IDEMPOTENT:
-            table = _TABLE_OF[kind].__table__
-            session.execute(_insert_ignore(session, table), [_stamped(r, sid) for r in run])
+            insert_ignore_rows(session, _TABLE_OF[kind], [_stamped(r, sid) for r in run])
         else:
             session.execute(insert(_TABLE_OF[kind]), [_stamped(r, sid) for r in run])
 
@@ -133,15 +136,19 @@ def _stamped(record: Record, sid: str) -> dict[str, object]:
     return {**record.values(), "spindle_id": sid}  # type: ignore[union-attr]
 
 
-def _insert_ignore(session: Session, table: Table):  # type: ignore[no-untyped-def]
-    """``INSERT … ON CONFLICT DO NOTHING`` on SQLite and PostgreSQL."""
-    dialect = session.get_bind().dialect.name
-    ins = postgresql.insert if dialect == "postgresql" else sqlite.insert
-    return ins(table).on_conflict_do_nothing()
+def insert_ignore_rows(target: Session | Connection, model: type[Base], rows: Sequence[dict[str, object]]) -> None:
+    """``INSERT … ON CONFLICT DO NOTHING`` of ``rows`` (column dicts) on SQLite and PostgreSQL."""
+    table = model.__table__
+    ins = postgresql.insert if _dialect(target) == "postgresql" else sqlite.insert
+    target.execute(ins(table).on_conflict_do_nothing(), list(rows))  # type: ignore[arg-type]
+
+
+def _dialect(target: Session | Connection) -> str:
+    return str(target.dialect.name if isinstance(target, Connection) else target.get_bind().dialect.name)
 
 
 def _upsert(session: Session, table: Table, values: dict[str, object], keys: list[str]) -> None:
-    dialect = session.get_bind().dialect.name
+    dialect = _dialect(session)
     ins = (postgresql.insert if dialect == "postgresql" else sqlite.insert)(table).values(**values)
     changed = {k: v for k, v in values.items() if k not in keys}
     session.execute(ins.on_conflict_do_update(index_elements=keys, set_=changed))

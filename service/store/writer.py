@@ -16,7 +16,7 @@ seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbea
 database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh.
 
 Every sample submitted also feeds a 1-minute mean (``service.store.downsample``), submitted when the minute
-is over (and at ``close()``): what retention keeps after the raw samples are dropped.
+is over (and at ``close()``), with ``downsample=True`` (the service's writer): what retention keeps after the raw samples are dropped.
 
 ``flush(timeout_s)`` waits until everything submitted so far is written; ``close(timeout_s)`` flushes, stops
 the thread and counts what could not be written as ``lost_on_close``.
@@ -38,7 +38,7 @@ from types import TracebackType
 from sqlalchemy import text
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.contracts.records import RECORD_TYPES, DeviceEventData, Record, SampleData
+from service.contracts.records import RECORD_TYPES, DeviceEventData, Record, SampleData, SampleMinuteData
 from service.store.downsample import MinuteMeans
 from service.store.errors import DatabaseUnavailableError
 from service.store.repository import session_scope, write_records
@@ -84,7 +84,7 @@ class DbWriter:
         stall_s: float = 3.0,
         monotonic: Callable[[], float] = time.monotonic,
         name: str = "chtc-db-writer",
-        downsample: bool = True,
+        downsample: bool = False,
     ) -> None:
         if batch_size < 1 or buffer_max < 1 or not 0 < retry_initial_s <= retry_max_s:
             raise ValueError("need batch_size >= 1, buffer_max >= 1, 0 < retry_initial_s <= retry_max_s")
@@ -231,7 +231,7 @@ class DbWriter:
         except Exception:  # refused for good (or a bug): find the culprits one by one
             self._isolate(batch)
             return
-        self._done(len(batch), "written")
+        self._done(len(batch), "written", derived=_derived(batch))
 
     def _isolate(self, batch: Sequence[Record]) -> None:
         """Write one by one to find the records the database refuses; skip those, keep order for the rest."""
@@ -245,20 +245,21 @@ class DbWriter:
             except Exception as err:
                 log.warning("database writer: record rejected: %s", err)
                 self._note_error(str(err))
-                self._done(1, "rejected")
+                self._done(1, "rejected", derived=_derived([record]))
             else:
-                self._done(1, "written")
+                self._done(1, "written", derived=_derived([record]))
 
     def _probe(self) -> None:
         with self._guard("probe"), session_scope(self._factory, "probe") as session:
             session.execute(text("SELECT 1"))
         self._mark_ok()
 
-    def _done(self, n: int, counter: str) -> None:
+    def _done(self, n: int, counter: str, *, derived: int = 0) -> None:
+        """``n`` records off the queue; the counters count what was submitted (not the minute means)."""
         with self._cond:
             for _ in range(min(n, len(self._queue))):  # close() may have given up on these already
                 self._queue.popleft()
-            self._counts[counter] += n
+            self._counts[counter] += n - derived
             self._cond.notify_all()
         self._mark_ok()
 
@@ -291,3 +292,8 @@ class DbWriter:
         with self._cond:
             self._counts["errors"] += 1
             self._last_error = (message, self._clock())
+
+
+def _derived(batch: Sequence[Record]) -> int:
+    """Records the writer made itself (minute means), not counted as submitted ones."""
+    return sum(isinstance(r, SampleMinuteData) for r in batch)
