@@ -4,10 +4,10 @@ Each sub-command lives in its own module, imported only when it runs, so that ``
 broken optional component cannot break the others:
 
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
-  ``replay``, ``identify``, ``prebuild``, ``commission``);
+  ``replay``, ``identify``, ``prebuild``, ``commission``, ``db``);
 - ``service.bench.<name>`` for the benchmarks
   (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty|compensation|
-  commission``).
+  commission|storage``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -33,6 +33,8 @@ COMMANDS: dict[str, str] = {
     "prebuild": "build the FE model and the reduced-model cache ahead of time (container images, installs)",
     "commission": "commissioning steps: `zero` stores the compensation zero; `growth` fits the mechanics "
     "to a measured thermal test",
+    "db": "database chores: `upgrade` migrates, `retention` drops old samples now, `merge` copies a "
+    "one-spindle database into a shared one",
 }
 
 BENCHMARKS: dict[str, str] = {
@@ -49,6 +51,8 @@ BENCHMARKS: dict[str, str] = {
     "duty": "a machining duty cycle (speed changes every 1-6 min): fresh H, error and coverage vs the truth",
     "compensation": "served /compensation every minute vs random H(speed) truths: usable, error, coverage, "
     "restarts, outages",
+    "storage": "rows and bytes per spindle-day per table (PostgreSQL), JSON vs real[] temperatures, the "
+    "retention pass at many spindle-days",
     "commission": "the product's commissioning vs an MLR peer (correlation-clustered sensors) on the same "
     "thermal test, then on a duty cycle: axial error of each",
 }

@@ -21,6 +21,7 @@ spindles' services) are serialized by an advisory lock on PostgreSQL and harmles
 from __future__ import annotations
 
 import time
+from types import SimpleNamespace
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta
 
@@ -128,8 +129,8 @@ def backfill_minutes(conn: Connection, spindle_id: str, since: datetime, until: 
         select(SampleRow.__table__)
         .where(SampleRow.spindle_id == spindle_id, SampleRow.t >= since, SampleRow.t < until)
         .order_by(SampleRow.t)
-    ).all()
-    means = minute_means(rows)  # type: ignore[arg-type]
+    ).mappings()  # (a Row's ``.t`` is SQLAlchemy's own attribute, not the column)
+    means = minute_means(SimpleNamespace(**r) for r in rows)  # type: ignore[misc]
     if means:
         insert_ignore_rows(conn, SampleMinuteRow, [{**m.values(), "spindle_id": spindle_id} for m in means])
     return len(means)
