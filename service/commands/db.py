@@ -36,7 +36,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
             p.add_argument("--raw-days", type=int, default=None, help="default: database.raw_days")
             p.add_argument("--minute-days", type=int, default=None, help="default: database.minute_days")
         if name == "merge":
-            p.add_argument("source", help="the one-spindle database's URL (sqlite:///path or postgresql+psycopg://…)")
+            p.add_argument(
+                "source", help="the one-spindle database's URL (sqlite:///path or postgresql+psycopg://…)"
+            )
             p.add_argument("--spindle", required=True, help="the spindle id its rows get (e.g. cell3-s07)")
 
 

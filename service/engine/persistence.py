@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from service.contracts.records import Record
 from service.engine.config import Restored
@@ -47,8 +47,8 @@ if TYPE_CHECKING:
     from service.estimate.reference import CompensationReference
     from service.identify.speedmap import SpeedMap
     from service.settings import DatabaseSettings, SpindleSettings
-    from service.store.retention import RetentionReport
     from service.store.reads import DbReads
+    from service.store.retention import RetentionReport
     from service.store.watchdog import StatementWatchdog
     from service.store.writer import DbWriter, WriterStatus
 
@@ -128,7 +128,7 @@ def restore(
 
 def _restore_map(
     last: IdentificationRecord | None,
-    state: tuple[int, object] | None,
+    state: tuple[int, Any] | None,
     on_problem: Callable[[str], None] | None,
 ) -> SpeedMap | None:
     """The speed map of the last served map fit, as restored: stale until re-fitted (None: no map fit).
@@ -350,7 +350,11 @@ class Persistence:
                 try:
                     self.last_retention = await asyncio.to_thread(self.retention_once)
                 except Exception as err:
-                    log.warning("db: retention pass failed (%s); next try in %g s", err, self.settings.retention_every_s)
+                    log.warning(
+                        "db: retention pass failed (%s); next try in %g s",
+                        err,
+                        self.settings.retention_every_s,
+                    )
                 else:
                     self.on_event(f"db: retention pass: {_retention_text(self.last_retention)}")
                 await asyncio.sleep(self.settings.retention_every_s)
@@ -460,9 +464,7 @@ def _start_writer(
     ).start()
 
 
-def _engine(
-    db: DatabaseSettings, spindle_id: str
-) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
+def _engine(db: DatabaseSettings, spindle_id: str) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
     """(engine, session factory, watchdog): one per use (the writer's, the API reads'), each its own pool."""
     from service.store.engine import create_db_engine, make_session_factory
     from service.store.watchdog import StatementWatchdog

@@ -19,8 +19,9 @@ from __future__ import annotations
 from collections.abc import Iterator
 from dataclasses import dataclass
 from datetime import UTC, datetime
+from typing import Any, cast
 
-from sqlalchemy import Connection, Engine, func, select
+from sqlalchemy import Connection, Engine, Select, Table, func, select
 
 from service.store import migrate
 from service.store.engine import create_db_engine
@@ -80,7 +81,9 @@ def merge(source: str | Engine, target: str | Engine, *, spindle_id: str, chunk:
     try:
         migrate.upgrade(src, spindle_id=spindle_id)
         if migrate.current_revision(dst) != migrate.head_revision():
-            raise MergeError("the target database is not at the newest revision: run `chtc db upgrade` on it first")
+            raise MergeError(
+                "the target database is not at the newest revision: run `chtc db upgrade` on it first"
+            )
         rows: dict[str, int] = {}
         with src.connect() as s_conn, dst.begin() as d_conn:
             _check(s_conn, d_conn, spindle_id)
@@ -95,43 +98,60 @@ def merge(source: str | Engine, target: str | Engine, *, spindle_id: str, chunk:
             dst.dispose()
 
 
+def _table(model: type[Base]) -> Table:
+    return cast(Table, model.__table__)
+
+
 def _count(conn: Connection, model: type[Base], spindle_id: str) -> int:
-    table = model.__table__
-    return int(conn.execute(select(func.count()).select_from(table).where(table.c.spindle_id == spindle_id)).scalar() or 0)
+    table = _table(model)
+    return int(
+        conn.execute(select(func.count()).select_from(table).where(table.c.spindle_id == spindle_id)).scalar()
+        or 0
+    )
 
 
 def _check(src: Connection, dst: Connection, spindle_id: str) -> None:
     if sum(_count(src, m, spindle_id) for m, _ in ORDER) == 0:
-        raise MergeError(f"the source holds no rows of spindle {spindle_id!r} (already migrated under another id?)")
+        raise MergeError(
+            f"the source holds no rows of spindle {spindle_id!r} (already migrated under another id?)"
+        )
     taken = [m.__tablename__ for m, _ in ORDER if _count(dst, m, spindle_id)]
     if taken:
         raise MergeError(f"the target already holds rows of spindle {spindle_id!r} ({', '.join(taken)})")
 
 
 def _register(src: Connection, dst: Connection, spindle_id: str) -> None:
-    spindles = Spindle.__table__
+    spindles = _table(Spindle)
     if dst.execute(select(spindles.c.id).where(spindles.c.id == spindle_id)).first() is not None:
         return
     row = src.execute(select(spindles).where(spindles.c.id == spindle_id)).mappings().first()
-    values = dict(row) if row is not None else {"id": spindle_id, "description": "", "created_at": datetime.now(UTC)}
+    values = (
+        dict(row)
+        if row is not None
+        else {"id": spindle_id, "description": "", "created_at": datetime.now(UTC)}
+    )
     dst.execute(spindles.insert(), [values])
 
 
-def _copy(src: Connection, dst: Connection, model: type[Base], spindle_id: str, *, db_id: bool, chunk: int) -> int:
-    table = model.__table__
+def _copy(
+    src: Connection, dst: Connection, model: type[Base], spindle_id: str, *, db_id: bool, chunk: int
+) -> int:
+    table = _table(model)
     cols = [c for c in table.columns if not (db_id and c.name == "id")]
-    order = [table.c.t] if "t" in table.c and model in (SampleRow, SampleMinuteRow) else list(table.primary_key)
+    order = (
+        [table.c.t] if "t" in table.c and model in (SampleRow, SampleMinuteRow) else list(table.primary_key)
+    )
     query = select(*cols).where(table.c.spindle_id == spindle_id).order_by(*order)
     n = 0
     for batch in _chunks(src, query, chunk):
         if model is SampleRow:
-            ensure_days(dst, {utc_day(r["t"]) for r in batch})
+            ensure_days(dst, {utc_day(cast(datetime, r["t"])) for r in batch})
         dst.execute(table.insert(), batch)
         n += len(batch)
     return n
 
 
-def _chunks(conn: Connection, query: object, size: int) -> Iterator[list[dict[str, object]]]:
-    result = conn.execution_options(yield_per=size).execute(query)  # type: ignore[arg-type]
+def _chunks(conn: Connection, query: Select[Any], size: int) -> Iterator[list[dict[str, object]]]:
+    result = conn.execution_options(yield_per=size).execute(query)
     for part in result.mappings().partitions(size):
         yield [dict(r) for r in part]

@@ -78,7 +78,7 @@ class SpindleScoped:
     """A table whose rows belong to one spindle: ``spindle_id`` (→ ``spindles``), filtered in every query."""
 
     @declared_attr
-    def spindle_id(cls) -> Mapped[str]:  # noqa: N805
+    def spindle_id(cls) -> Mapped[str]:
         return mapped_column(String(SPINDLE_ID_LENGTH), ForeignKey("spindles.id"))
 
 

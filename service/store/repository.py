@@ -15,8 +15,8 @@ from itertools import groupby
 from typing import Generic, TypeVar
 
 from sqlalchemy import Connection, Table, delete, func, insert, select, update
-from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy import exc as sa_exc
+from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
@@ -136,7 +136,9 @@ def _stamped(record: Record, sid: str) -> dict[str, object]:
     return {**record.values(), "spindle_id": sid}  # type: ignore[union-attr]
 
 
-def insert_ignore_rows(target: Session | Connection, model: type[Base], rows: Sequence[dict[str, object]]) -> None:
+def insert_ignore_rows(
+    target: Session | Connection, model: type[Base], rows: Sequence[dict[str, object]]
+) -> None:
     """``INSERT … ON CONFLICT DO NOTHING`` of ``rows`` (column dicts) on SQLite and PostgreSQL."""
     table = model.__table__
     ins = postgresql.insert if _dialect(target) == "postgresql" else sqlite.insert

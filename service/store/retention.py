@@ -21,9 +21,9 @@ spindles' services) are serialized by an advisory lock on PostgreSQL and harmles
 from __future__ import annotations
 
 import time
-from types import SimpleNamespace
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta
+from types import SimpleNamespace
 
 from sqlalchemy import Connection, Engine, delete, func, select, text
 
@@ -67,11 +67,10 @@ def retention_pass(
                 dropped = drop_before(conn, raw_cut)
             else:
                 lo, _ = day_bounds(raw_cut)
-                raw_deleted = conn.execute(delete(SampleRow.__table__).where(SampleRow.t < lo)).rowcount
+                raw_deleted = conn.execute(delete(SampleRow).where(SampleRow.t < lo)).rowcount
         if min_cut is not None:
             lo, _ = day_bounds(min_cut)
-            table = SampleMinuteRow.__table__
-            min_deleted = conn.execute(delete(table).where(SampleMinuteRow.t < lo)).rowcount
+            min_deleted = conn.execute(delete(SampleMinuteRow).where(SampleMinuteRow.t < lo)).rowcount
         created = ensure_days(conn, [today + timedelta(days=i) for i in range(premake_days + 1)])
     return RetentionReport(
         raw_cutoff=raw_cut,
@@ -115,7 +114,9 @@ def _backfill_before(conn: Connection, cutoff: date, *, keep_from: date | None) 
     return n
 
 
-def _has(conn: Connection, model: type[SampleRow] | type[SampleMinuteRow], sid: str, lo: datetime, hi: datetime) -> bool:
+def _has(
+    conn: Connection, model: type[SampleRow] | type[SampleMinuteRow], sid: str, lo: datetime, hi: datetime
+) -> bool:
     query = select(model.t).where(model.spindle_id == sid, model.t >= lo, model.t < hi).limit(1)
     return conn.execute(query).first() is not None
 

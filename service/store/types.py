@@ -4,6 +4,7 @@
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from typing import Any
 
 import numpy as np
 from sqlalchemy import JSON, REAL, DateTime
@@ -48,9 +49,10 @@ class TemperatureArray(TypeDecorator[list[float | None]]):
     impl = JSON
     cache_ok = True
 
-    def load_dialect_impl(self, dialect: Dialect) -> TypeEngine[object]:
+    def load_dialect_impl(self, dialect: Dialect) -> TypeEngine[Any]:
         if dialect.name == "postgresql":
-            return dialect.type_descriptor(ARRAY(REAL()))
+            array: TypeEngine[Any] = ARRAY(REAL())
+            return dialect.type_descriptor(array)
         return dialect.type_descriptor(JSON())
 
     def process_result_value(self, value: object, dialect: Dialect) -> list[float | None] | None:

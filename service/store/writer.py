@@ -15,8 +15,9 @@ waits longer than the watchdog's ``abort_after_s`` (a hung database) is aborted 
 seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
 database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh.
 
-Every sample submitted also feeds a 1-minute mean (``service.store.downsample``), submitted when the minute
-is over (and at ``close()``), with ``downsample=True`` (the service's writer): what retention keeps after the raw samples are dropped.
+With ``downsample=True`` (the service's writer) every sample submitted also feeds a 1-minute mean
+(``service.store.downsample``), submitted when the minute is over (and at ``close()``): what retention keeps
+after the raw samples are dropped. The counters count the submitted records, not these.
 
 ``flush(timeout_s)`` waits until everything submitted so far is written; ``close(timeout_s)`` flushes, stops
 the thread and counts what could not be written as ``lost_on_close``.

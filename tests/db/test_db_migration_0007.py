@@ -45,18 +45,42 @@ def _row(name: str, i: int) -> dict[str, object]:
     t = T0 + timedelta(seconds=10 * i)
     common = {"id": i + 1}
     if name == "conditions":
-        return common | {"started_at": t, "ended_at": None, "speed_rpm": 3000.0 + i, "torque_nm": 8.0, "ambient_c": 22.0}
+        return common | {
+            "started_at": t,
+            "ended_at": None,
+            "speed_rpm": 3000.0 + i,
+            "torque_nm": 8.0,
+            "ambient_c": 22.0,
+        }
     if name == "identifications":
         diag = {"at_bound": [False] * 7}
         method = "hybrid"
         if i >= 2:  # two speed-map fits, each with its covariance
             method = "speed-map"
-            diag["speed_map"] = {"family": "nodes", "mean": [float(i)] * 3, "cov_upper_b64": "AAAA" * 100,
-                                 "visited_rpm": [], "visited_s": [], "fitted_at": t.isoformat(), "rmse_c": 0.1}
+            diag["speed_map"] = {
+                "family": "nodes",
+                "mean": [float(i)] * 3,
+                "cov_upper_b64": "AAAA" * 100,
+                "visited_rpm": [],
+                "visited_s": [],
+                "fitted_at": t.isoformat(),
+                "rmse_c": 0.1,
+            }
         return common | {
-            "condition_id": 1 + i % 3, "started_at": t, "finished_at": t, "window_start": t, "window_end": t,
-            "reason": "schedule", "outcome": "ok", "message": "", "method": method, "model_version": "m",
-            **{f"h{k}": 50.0 + i for k in range(1, 8)}, "nfev": 3, "duration_s": 0.5, "n_sensors_used": 32,
+            "condition_id": 1 + i % 3,
+            "started_at": t,
+            "finished_at": t,
+            "window_start": t,
+            "window_end": t,
+            "reason": "schedule",
+            "outcome": "ok",
+            "message": "",
+            "method": method,
+            "model_version": "m",
+            **{f"h{k}": 50.0 + i for k in range(1, 8)},
+            "nfev": 3,
+            "duration_s": 0.5,
+            "n_sensors_used": 32,
             "diagnostics": diag,
         }
     if name == "device_events":
@@ -64,25 +88,70 @@ def _row(name: str, i: int) -> dict[str, object]:
     if name == "samples":
         temps = [20.0 + 0.01 * i + c for c in range(32)]
         temps[3] = None
-        return common | {"t": t, "ambient_c": 22.0, "speed_rpm": 3000.0, "torque_nm": 8.0, "temps_c": temps,
-                         "n_good": 31, "bad_channels": {"4": "open_circuit"}, "can_ok": True, "daq_ok": True}
+        return common | {
+            "t": t,
+            "ambient_c": 22.0,
+            "speed_rpm": 3000.0,
+            "torque_nm": 8.0,
+            "temps_c": temps,
+            "n_good": 31,
+            "bad_channels": {"4": "open_circuit"},
+            "can_ok": True,
+            "daq_ok": True,
+        }
     if name == "offset_calibrations":
-        return common | {"t_from": t, "t_to": t, "source": "auto", "samples": 30, "offsets_c": [0.1] * 32,
-                         "sd_c": [0.01] * 32}
+        return common | {
+            "t_from": t,
+            "t_to": t,
+            "source": "auto",
+            "samples": 30,
+            "offsets_c": [0.1] * 32,
+            "sd_c": [0.01] * 32,
+        }
     if name == "compensation_references":
         return common | {"at": t, "temperature_c": 21.0, "sd_c": 0.1, "source": "api", "set_by": "x"}
     if name == "live_state":
-        return common | {"at": t, "model_version": "m", "converged": True, "ambient_c": 22.0, "speed_rpm": 1.0,
-                         "torque_nm": 1.0, "payload": b"npz"}
+        return common | {
+            "at": t,
+            "model_version": "m",
+            "converged": True,
+            "ambient_c": 22.0,
+            "speed_rpm": 1.0,
+            "torque_nm": 1.0,
+            "payload": b"npz",
+        }
     if name == "mechanics_calibrations":
-        return common | {"at": t, "set_by": "x", "source": "cli", "restraint": 0.5, "alpha_shaft": 1.0,
-                         "alpha_housing": 1.0, "cov": [0.0] * 9, "residual_rms_um": 0.4, "residual_max_um": 2.0,
-                         "explained": True, "temperatures_sha256": "a", "canlog_sha256": None,
-                         "displacements_sha256": "b", "report": {}}
+        return common | {
+            "at": t,
+            "set_by": "x",
+            "source": "cli",
+            "restraint": 0.5,
+            "alpha_shaft": 1.0,
+            "alpha_housing": 1.0,
+            "cov": [0.0] * 9,
+            "residual_rms_um": 0.4,
+            "residual_max_um": 2.0,
+            "explained": True,
+            "temperatures_sha256": "a",
+            "canlog_sha256": None,
+            "displacements_sha256": "b",
+            "report": {},
+        }
     assert name == "probe_measurements"
-    return common | {"at": t, "recorded_at": t, "axial_um": 1.0, "sd_um": 0.5, "features": [0.0] * 6,
-                     "field_var_um2": 1.0, "predicted_um": 1.0, "sigma_um": 1.0, "innovation_um": 0.0,
-                     "accepted": True, "set_by": "x", "source": "api"}
+    return common | {
+        "at": t,
+        "recorded_at": t,
+        "axial_um": 1.0,
+        "sd_um": 0.5,
+        "features": [0.0] * 6,
+        "field_var_um2": 1.0,
+        "predicted_um": 1.0,
+        "sigma_um": 1.0,
+        "innovation_um": 0.0,
+        "accepted": True,
+        "set_by": "x",
+        "source": "api",
+    }
 
 
 def test_0007_keeps_every_row_of_a_0006_database_and_stamps_the_spindle(db_url: str) -> None:
@@ -95,10 +164,14 @@ def test_0007_keeps_every_row_of_a_0006_database_and_stamps_the_spindle(db_url: 
         migrate.upgrade(eng, spindle_id="line3-spindle7")
         with eng.connect() as conn:
             for name, n in OLD_TABLES.items():
-                got = conn.execute(sa.text(f"SELECT spindle_id, count(*) FROM {name} GROUP BY spindle_id")).all()
+                got = conn.execute(
+                    sa.text(f"SELECT spindle_id, count(*) FROM {name} GROUP BY spindle_id")
+                ).all()
                 assert [tuple(r) for r in got] == [("line3-spindle7", n)], name
             assert conn.execute(sa.text("SELECT id FROM spindles")).scalars().all() == ["line3-spindle7"]
-            diags = conn.execute(sa.text("SELECT diagnostics FROM identifications ORDER BY id")).scalars().all()
+            diags = (
+                conn.execute(sa.text("SELECT diagnostics FROM identifications ORDER BY id")).scalars().all()
+            )
             maps = [(json.loads(d) if isinstance(d, str) else d).get("speed_map") for d in diags]
             assert maps[:2] == [None, None] and all("cov_upper_b64" not in m for m in maps[2:])
             state = conn.execute(sa.text("SELECT identification_id, state FROM speed_map_state")).one()
@@ -108,8 +181,13 @@ def test_0007_keeps_every_row_of_a_0006_database_and_stamps_the_spindle(db_url: 
                 days = [d for _, d in list_partitions(conn)]
                 assert days == [T0.date(), T0.date() + timedelta(days=1)]
                 unfiltered = compare_metadata(MigrationContext.configure(conn), Base.metadata)
-                assert {d[1].name for d in unfiltered if d[0] == "remove_table"} == {"samples_p20260301", "samples_p20260302"}
-            ctx = MigrationContext.configure(conn, opts={"compare_type": True, "include_object": _env_filter()})
+                assert {d[1].name for d in unfiltered if d[0] == "remove_table"} == {
+                    "samples_p20260301",
+                    "samples_p20260302",
+                }
+            ctx = MigrationContext.configure(
+                conn, opts={"compare_type": True, "include_object": _env_filter()}
+            )
             assert compare_metadata(ctx, Base.metadata) == []
         factory = make_session_factory(eng, spindle_id="line3-spindle7")
         with repo.session_scope(factory) as s:
@@ -140,6 +218,6 @@ def _env_filter():  # type: ignore[no-untyped-def]
     start = source.index("PARTITION = ")
     end = source.index("def _configure")
     scope: dict[str, object] = {}
-    exec("import re\n" + source[start:end], scope)  # noqa: S102 - our own file, the function alone
+    exec("import re\n" + source[start:end], scope)
     assert importlib.util is not None
     return scope["include_object"]

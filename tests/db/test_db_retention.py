@@ -33,8 +33,14 @@ def day_samples(day: date, n: int = 12) -> list[SampleData]:
     """``n`` samples 2 min apart from 08:00 UTC of ``day`` (each its own minute)."""
     t0 = datetime(day.year, day.month, day.day, 8, tzinfo=UTC)
     return [
-        SampleData(t=t0 + timedelta(minutes=2 * i), temps_c=[20.0 + i] * 4, ambient_c=22.0, speed_rpm=3e3,
-                   torque_nm=1.0, quality=["ok"] * 4)
+        SampleData(
+            t=t0 + timedelta(minutes=2 * i),
+            temps_c=[20.0 + i] * 4,
+            ambient_c=22.0,
+            speed_rpm=3e3,
+            torque_nm=1.0,
+            quality=["ok"] * 4,
+        )
         for i in range(n)
     ]
 
@@ -46,7 +52,9 @@ def store_days(factory: sessionmaker[Session], days: list[date], *, with_minutes
             repo.write_records(s, data + (minute_means(data) if with_minutes else []))
 
 
-def days_of(factory: sessionmaker[Session], model: type[SampleRow] | type[SampleMinuteRow]) -> dict[date, int]:
+def days_of(
+    factory: sessionmaker[Session], model: type[SampleRow] | type[SampleMinuteRow]
+) -> dict[date, int]:
     with repo.session_scope(factory) as s:
         rows = s.scalars(sa.select(model.t)).all()
     out: dict[date, int] = {}
@@ -61,9 +69,15 @@ def test_retention_keeps_the_right_rows_and_drops_whole_days(engine: sa.Engine) 
     store_days(a, days, with_minutes=True)  # as the writer stores them
     store_days(b, days, with_minutes=False)  # stored before the minute means existed: backfilled
     with repo.session_scope(a) as s:
-        repo.write_records(s, [ConditionStart(id=1, started_at=NOW - timedelta(days=30), speed_rpm=1.0,
-                                              torque_nm=1.0, ambient_c=1.0),
-                               ident(1, 1, NOW - timedelta(days=30))])
+        repo.write_records(
+            s,
+            [
+                ConditionStart(
+                    id=1, started_at=NOW - timedelta(days=30), speed_rpm=1.0, torque_nm=1.0, ambient_c=1.0
+                ),
+                ident(1, 1, NOW - timedelta(days=30)),
+            ],
+        )
     report = retention_pass(engine, now=NOW, raw_days=2, minute_days=4)
     raw_kept = {TODAY - timedelta(days=k): 12 for k in (2, 1, 0)}
     for f in (a, b):
@@ -71,14 +85,17 @@ def test_retention_keeps_the_right_rows_and_drops_whole_days(engine: sa.Engine) 
         minutes = days_of(f, SampleMinuteRow)
         # minute means of days 4 and 3 ago kept (b's computed from the raw rows before they went)
         assert {d: minutes[d] for d in minutes if d < TODAY - timedelta(days=2)} == {
-            TODAY - timedelta(days=4): 12, TODAY - timedelta(days=3): 12
+            TODAY - timedelta(days=4): 12,
+            TODAY - timedelta(days=3): 12,
         }
     with repo.session_scope(a) as s:
         assert repo.count_rows(s, Identification) == 1  # identifications kept, however old
     assert report.minutes_backfilled == 24  # b: days 4 and 3 ago (6 and 5 ago are not kept: not computed)
     assert report.minute_rows_deleted == 2 * 12  # a's days 6 and 5 ago
     if engine.dialect.name == "postgresql":
-        assert report.partitions_dropped == tuple(partition_name(TODAY - timedelta(days=k)) for k in (6, 5, 4, 3))
+        assert report.partitions_dropped == tuple(
+            partition_name(TODAY - timedelta(days=k)) for k in (6, 5, 4, 3)
+        )
         with engine.connect() as conn:
             assert [d for _, d in list_partitions(conn)] == [TODAY + timedelta(days=k) for k in range(-2, 4)]
     else:
@@ -92,8 +109,9 @@ def test_storage_is_flat_after_n_days(factory: sessionmaker[Session], engine: sa
     for k in range(8):
         day = TODAY + timedelta(days=k)
         store_days(factory, [day], with_minutes=True)
-        retention_pass(engine, now=datetime(day.year, day.month, day.day, 23, tzinfo=UTC), raw_days=3,
-                       minute_days=5)
+        retention_pass(
+            engine, now=datetime(day.year, day.month, day.day, 23, tzinfo=UTC), raw_days=3, minute_days=5
+        )
         raw_rows.append(sum(days_of(factory, SampleRow).values()))
     assert raw_rows == [12, 24, 36, 48, 48, 48, 48, 48]  # today and the 3 days before
 
@@ -121,7 +139,9 @@ def test_two_one_spindle_databases_merge_into_a_shared_one(db_url: str, tmp_path
     try:
         with eng.connect() as conn:
             for name, n in OLD_TABLES.items():
-                got = conn.execute(sa.text(f"SELECT spindle_id, count(*) FROM {name} GROUP BY spindle_id ORDER BY 1"))
+                got = conn.execute(
+                    sa.text(f"SELECT spindle_id, count(*) FROM {name} GROUP BY spindle_id ORDER BY 1")
+                )
                 assert [tuple(r) for r in got] == [("s1", n), ("s2", n)], name
         for sid in sources:
             got = restore(make_session_factory(eng, spindle_id=sid))

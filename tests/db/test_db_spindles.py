@@ -54,11 +54,19 @@ def fill(factory: sessionmaker[Session], *, base: float, h1: float) -> None:
     records = [
         ConditionStart(id=1, started_at=T0, speed_rpm=3000.0, torque_nm=8.0, ambient_c=base),
         ConditionEnd(1, T0 + timedelta(minutes=30)),
-        ConditionStart(id=2, started_at=T0 + timedelta(minutes=30), speed_rpm=4000.0, torque_nm=8.0, ambient_c=base),
+        ConditionStart(
+            id=2, started_at=T0 + timedelta(minutes=30), speed_rpm=4000.0, torque_nm=8.0, ambient_c=base
+        ),
         ident(1, 1, T0 + timedelta(minutes=20), h=[h1, 46.0, 68.0, 46.0, 52.0, 70.0, 16.0]),
         DeviceEventData(t=T0, device="can", kind=f"gap-{base}"),
         LiveStateData(
-            at=T0, model_version="m", converged=True, ambient_c=base, speed_rpm=1.0, torque_nm=1.0, payload=b"x"
+            at=T0,
+            model_version="m",
+            converged=True,
+            ambient_c=base,
+            speed_rpm=1.0,
+            torque_nm=1.0,
+            payload=b"x",
         ),
         *samples(30, base=base),
     ]
@@ -72,9 +80,10 @@ def test_two_spindles_never_see_each_others_rows(engine: sa.Engine) -> None:
     fill(b, base=30.0, h1=91.0)
     for factory, base, h1 in ((a, 20.0, 81.0), (b, 30.0, 91.0)):
         with repo.session_scope(factory) as s:
-            assert {m.__tablename__: repo.count_rows(s, m) for m in (Condition, Identification, DeviceEvent, SampleRow, LiveStateRow)} == {
-                "conditions": 2, "identifications": 1, "device_events": 1, "samples": 30, "live_state": 1
-            }
+            assert {
+                m.__tablename__: repo.count_rows(s, m)
+                for m in (Condition, Identification, DeviceEvent, SampleRow, LiveStateRow)
+            } == {"conditions": 2, "identifications": 1, "device_events": 1, "samples": 30, "live_state": 1}
             assert repo.get_identification(s, 1).h[0] == h1
             assert repo.get_identification(s, 1).condition.ambient_c == base  # the join stays in the spindle
             assert repo.get_condition(s, 1).ended_at == T0 + timedelta(minutes=30)  # ended in its own spindle
@@ -83,7 +92,9 @@ def test_two_spindles_never_see_each_others_rows(engine: sa.Engine) -> None:
             assert page.total == 1 and [r.h[0] for r in page.items] == [h1]
             assert [r.h[0] for r in repo.latest_per_condition(s)] == [h1]
             assert repo.max_ids(s) == (2, 1)
-            assert {r.temps_c[0] for r in repo.list_samples(s)} == {round(base + 0.01 * i, 2) for i in range(30)}
+            assert {r.temps_c[0] for r in repo.list_samples(s)} == {
+                round(base + 0.01 * i, 2) for i in range(30)
+            }
             assert [e.kind for e in repo.list_device_events(s).items] == [f"gap-{base}"]
             live = repo.last_live_state(s)
             assert live is not None and live.ambient_c == base
@@ -123,10 +134,14 @@ def speed_map(seed: int, at: datetime) -> SpeedMap:
     )
 
 
-def test_the_speed_maps_newest_state_is_one_upserted_row_and_is_restored(factory: sessionmaker[Session]) -> None:
+def test_the_speed_maps_newest_state_is_one_upserted_row_and_is_restored(
+    factory: sessionmaker[Session],
+) -> None:
     maps = [speed_map(i, T0 + timedelta(minutes=10 * i)) for i in range(3)]
     with repo.session_scope(factory) as s:
-        repo.write_records(s, [ConditionStart(id=1, started_at=T0, speed_rpm=3e3, torque_nm=8.0, ambient_c=22.0)])
+        repo.write_records(
+            s, [ConditionStart(id=1, started_at=T0, speed_rpm=3e3, torque_nm=8.0, ambient_c=22.0)]
+        )
         for i, m in enumerate(maps):
             diag = {"speed_map": m.to_json(), "at_bound": [False] * 7}
             repo.write_records(
@@ -139,7 +154,11 @@ def test_the_speed_maps_newest_state_is_one_upserted_row_and_is_restored(factory
         history = repo.get_identification(s, 1).diagnostics
         assert history is not None
         stored = history["speed_map"]
-        assert isinstance(stored, dict) and "cov_upper_b64" not in stored and stored["mean"] == maps[0].to_json()["mean"]
+        assert (
+            isinstance(stored, dict)
+            and "cov_upper_b64" not in stored
+            and stored["mean"] == maps[0].to_json()["mean"]
+        )
     got = restore(factory).speed_map
     assert got is not None and got.restored and got.identification_id == 3
     np.testing.assert_array_equal(got.cov, maps[2].cov)

@@ -27,10 +27,12 @@ import json
 import os
 from collections.abc import Sequence
 from datetime import UTC, date, datetime, timedelta
+from typing import Any
 
 import sqlalchemy as sa
 from alembic import context, op
 from sqlalchemy.dialects import postgresql
+from sqlalchemy.schema import SchemaItem
 
 revision = "0007"
 down_revision = "0006"
@@ -96,7 +98,7 @@ def _retire(name: str, *, had_id_seq: bool, pk_old: str, fk_old: Sequence[str]) 
     conn = op.get_bind()
     old = sa.Table(name, sa.MetaData(), autoload_with=conn)
     for ix in old.indexes:
-        op.drop_index(ix.name, table_name=name)
+        op.drop_index(str(ix.name), table_name=name)
     if _pg():
         op.execute(f'ALTER TABLE "{name}" RENAME CONSTRAINT "{pk_old}" TO "{pk_old}_old"')
         for fk in fk_old:
@@ -171,7 +173,7 @@ def _upgrade_table(name: str, pk: tuple[str, ...], indexes: list[tuple[str, ...]
         cols = [sa.Column("temps_c", postgresql.ARRAY(sa.REAL()), nullable=False) if c.name == "temps_c" else c
                 for c in cols]
     names = [c.name for c in cols]
-    extra: list[sa.SchemaItem] = []
+    extra: list[SchemaItem] = []
     if name == "identifications":
         extra.append(
             sa.ForeignKeyConstraint(
@@ -179,7 +181,7 @@ def _upgrade_table(name: str, pk: tuple[str, ...], indexes: list[tuple[str, ...]
                 name=COND_FK, ondelete="CASCADE",
             )
         )
-    kw = {"postgresql_partition_by": "RANGE (t)"} if name == "samples" else {}
+    kw: dict[str, Any] = {"postgresql_partition_by": "RANGE (t)"} if name == "samples" else {}
     op.create_table(
         name,
         *cols,
@@ -317,7 +319,7 @@ def _downgrade_table(name: str, pk: tuple[str, ...], sid: str) -> None:
     names = [c.name for c in cols]
     if name == "samples":
         cols.insert(0, sa.Column("id", sa.Integer(), nullable=False))
-    extra: list[sa.SchemaItem] = []
+    extra: list[SchemaItem] = []
     if name == "identifications":
         extra.append(sa.ForeignKeyConstraint(["condition_id"], ["conditions.id"],
                                              name="fk_identifications_condition_id_conditions",
