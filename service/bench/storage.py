@@ -153,8 +153,8 @@ def _sizes(eng: sa.Engine) -> dict[str, tuple[int, int]]:
             query = f"SELECT pg_total_relation_size('{t}')"
             if t == "samples":  # the parent holds nothing: its partitions do
                 query = (
-                    "SELECT COALESCE((SELECT sum(pg_total_relation_size(relid)) FROM pg_partition_tree('samples')),"
-                    " pg_total_relation_size('samples'))"
+                    "SELECT COALESCE((SELECT sum(pg_total_relation_size(relid)) "
+                    "FROM pg_partition_tree('samples')), pg_total_relation_size('samples'))"
                 )
             size = conn.execute(sa.text(query)).scalar()
             out[t] = (int(rows), int(size or 0))
@@ -191,22 +191,22 @@ def per_spindle_day(base_url: str, idents: int) -> dict[str, dict[str, tuple[int
             repo.write_records(s, [r for r in records if not isinstance(r, SampleData)])
             for k in range(0, len(data), 1000):
                 repo.write_records(s, data[k : k + 1000])
-            repo.write_records(s, minute_means(data))  # type: ignore[arg-type]
+            repo.write_records(s, minute_means(data))
         out["after"] = _sizes(eng)
     return out
 
 
-GEN_SAMPLES = """
-INSERT INTO samples (spindle_id, t, ambient_c, speed_rpm, torque_nm, temps_c, n_good, bad_channels, can_ok, daq_ok)
-SELECT s.id, :t0 + (g * interval '10 seconds'), 22.0, 3000.0, 8.0,
-       (SELECT array_agg((20 + random() * 10)::real) FROM generate_series(1, 32) WHERE g >= 0), 32, '{}', true, true
+TEMPS_SQL = "(SELECT array_agg((20 + random() * 10)::real) FROM generate_series(1, 32) WHERE g >= 0)"
+GEN_SAMPLES = f"""
+INSERT INTO samples (spindle_id, t, ambient_c, speed_rpm, torque_nm, temps_c, n_good, bad_channels, can_ok,
+                     daq_ok)
+SELECT s.id, :t0 + (g * interval '10 seconds'), 22.0, 3000.0, 8.0, {TEMPS_SQL}, 32, '{{}}', true, true
 FROM spindles s, generate_series(0, 8639) g
 """
-GEN_MINUTES = """
-INSERT INTO samples_1min (spindle_id, t, n, ambient_c, speed_rpm, torque_nm, speed_max_rpm, temps_c, n_good_min,
-                          can_ok, daq_ok)
-SELECT s.id, :t0 + (g * interval '1 minute'), 6, 22.0, 3000.0, 8.0, 3000.0,
-       (SELECT array_agg((20 + random() * 10)::real) FROM generate_series(1, 32) WHERE g >= 0), 32, true, true
+GEN_MINUTES = f"""
+INSERT INTO samples_1min (spindle_id, t, n, ambient_c, speed_rpm, torque_nm, speed_max_rpm, temps_c,
+                          n_good_min, can_ok, daq_ok)
+SELECT s.id, :t0 + (g * interval '1 minute'), 6, 22.0, 3000.0, 8.0, 3000.0, {TEMPS_SQL}, 32, true, true
 FROM spindles s, generate_series(0, 1439) g
 """
 
@@ -277,9 +277,8 @@ def main(args: argparse.Namespace) -> int:
     print(f"per spindle-day ({args.idents} speed-map fits a day), PostgreSQL rows / bytes:")
     for phase in ("before", "after"):
         total = sum(b for t, (_, b) in day[phase].items() if t != "speed_map_state")
-        print(
-            f"  {phase} ({'0006' if phase == 'before' else '0007'}): {total / 1e6:.2f} MB a day (+ one map state)"
-        )
+        rev = "0006" if phase == "before" else "0007"
+        print(f"  {phase} ({rev}): {total / 1e6:.2f} MB a day (+ one map state)")
         for table, (rows, size) in day[phase].items():
             print(f"    {table:<18} {rows:>7} rows {size / 1e6:>8.3f} MB  {size / max(rows, 1):>8.0f} B/row")
     print(
