@@ -465,6 +465,12 @@ class DatabaseSettings(_Section):
             raise ValueError("retry_max_s must be >= retry_initial_s")
         return self
 
+    @model_validator(mode="after")
+    def _retention_order(self) -> DatabaseSettings:
+        if self.raw_days > 0 and 0 < self.minute_days < self.raw_days:
+            raise ValueError("minute_days must be >= raw_days (or 0: for ever): the means outlive the samples")
+        return self
+
 
 _TOML_DATA: ContextVar[dict[str, object] | None] = ContextVar("_chtc_toml_data", default=None)
 
