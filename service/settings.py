@@ -468,7 +468,9 @@ class DatabaseSettings(_Section):
     @model_validator(mode="after")
     def _retention_order(self) -> DatabaseSettings:
         if self.raw_days > 0 and 0 < self.minute_days < self.raw_days:
-            raise ValueError("minute_days must be >= raw_days (or 0: for ever): the means outlive the samples")
+            raise ValueError(
+                "minute_days must be >= raw_days (or 0: for ever): the means outlive the samples"
+            )
         return self
 
 

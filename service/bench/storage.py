@@ -201,13 +201,13 @@ GEN_SAMPLES = f"""
 INSERT INTO samples (spindle_id, t, ambient_c, speed_rpm, torque_nm, temps_c, n_good, bad_channels, can_ok,
                      daq_ok)
 SELECT s.id, :t0 + (g * interval '10 seconds'), 22.0, 3000.0, 8.0, {TEMPS_SQL}, 32, '{{}}', true, true
-FROM spindles s, generate_series(0, 8639) g
+FROM spindles s, generate_series(0, 8639) g WHERE s.id LIKE 'bench-%'
 """
 GEN_MINUTES = f"""
 INSERT INTO samples_1min (spindle_id, t, n, ambient_c, speed_rpm, torque_nm, speed_max_rpm, temps_c,
                           n_good_min, can_ok, daq_ok)
 SELECT s.id, :t0 + (g * interval '1 minute'), 6, 22.0, 3000.0, 8.0, 3000.0, {TEMPS_SQL}, 32, true, true
-FROM spindles s, generate_series(0, 1439) g
+FROM spindles s, generate_series(0, 1439) g WHERE s.id LIKE 'bench-%'
 """
 
 
@@ -215,7 +215,7 @@ def _fill_days(eng: sa.Engine, spindles: int, days: list[date], *, first_id: int
     with eng.begin() as conn:
         conn.execute(
             sa.text(
-                "INSERT INTO spindles (id, description, created_at) SELECT 's' || g, '', now() "
+                "INSERT INTO spindles (id, description, created_at) SELECT 'bench-' || g, '', now() "
                 "FROM generate_series(CAST(:a AS int), CAST(:b AS int)) g ON CONFLICT DO NOTHING"
             ),
             {"a": first_id, "b": first_id + spindles - 1},
