@@ -101,10 +101,14 @@ def spindle_of(session: Session) -> str:
 
 
 def ensure_spindle(session: Session, spindle_id: str, *, description: str = "", now: datetime) -> None:
-    """Register ``spindle_id`` in ``spindles`` (nothing if it is there): every row refers to it."""
-    if session.get(Spindle, spindle_id) is None:
+    """Register ``spindle_id`` in ``spindles`` (every row refers to it); a new description replaces the
+    stored one."""
+    row = session.get(Spindle, spindle_id)
+    if row is None:
         session.add(Spindle(id=spindle_id, description=description, created_at=now))
-        session.flush()
+    elif description and row.description != description:
+        row.description = description
+    session.flush()
 
 
 def write_records(session: Session, records: Sequence[Record]) -> None:

@@ -179,3 +179,31 @@ def test_the_writer_stores_minute_means_beside_the_samples(factory: sessionmaker
     first = np.array([d.temps_c for d in data[:6]], dtype=float).mean(axis=0)
     np.testing.assert_allclose(np.array(minutes[0].temps_c, dtype=float), first, atol=1e-4)
     assert minutes[0].speed_max_rpm == 3050.0 and minutes[0].speed_rpm == 3025.0
+
+
+def test_the_service_registers_its_spindle_stamps_its_rows_and_runs_retention(db_url: str) -> None:
+    from service.engine.persistence import open_persistence
+    from service.settings import Settings, SpindleSettings
+
+    db = Settings().database.model_copy(update={"url": db_url, "raw_days": 1, "minute_days": 2})
+    spindle = SpindleSettings(id="cell2-s05", description="lathe 5")
+    p = open_persistence(db, migrate=True, spindle=spindle, clock=lambda: T0 + timedelta(days=3))
+    old = samples(12, base=20.0)  # 3 days before the clock: dropped, their minute means too
+    assert all(p.sink.submit(x) for x in old)
+    assert p.sink.submit(ConditionStart(id=1, started_at=T0, speed_rpm=1.0, torque_nm=1.0, ambient_c=1.0))
+    p.sink.writer.flush(10.0)  # type: ignore[union-attr]
+    report = p.retention_once()
+    assert report.raw_cutoff == (T0 + timedelta(days=2)).date()
+    assert p.close() is not None
+    eng = sa.create_engine(db_url)
+    try:
+        with eng.connect() as conn:
+            spindles = conn.execute(sa.text("SELECT id, description FROM spindles ORDER BY id")).all()
+            assert [tuple(r) for r in spindles] == [("cell2-s05", "lathe 5")]
+            assert conn.execute(sa.text("SELECT spindle_id FROM conditions")).scalars().all() == ["cell2-s05"]
+            assert conn.execute(sa.text("SELECT count(*) FROM samples")).scalar() == 0
+            minutes = conn.execute(sa.text("SELECT count(*) FROM samples_1min")).scalar()
+    finally:
+        eng.dispose()
+    # 08:00's mean was written and dropped; 08:01's was still in progress, written at close
+    assert minutes == 1 and (report.partitions_dropped or report.raw_rows_deleted == 12)
