@@ -221,3 +221,35 @@ def _env_filter():  # type: ignore[no-untyped-def]
     exec("import re\n" + source[start:end], scope)
     assert importlib.util is not None
     return scope["include_object"]
+
+
+def test_downgrade_below_0007_keeps_one_spindles_rows(db_url: str) -> None:
+    from tests.db.test_db_spindles import fill
+
+    eng = create_db_engine(db_url)
+    try:
+        migrate.upgrade(eng)
+        from tests.db.conftest import spindle_factory
+
+        fill(spindle_factory(eng, "a"), base=20.0, h1=81.0)
+        fill(spindle_factory(eng, "b"), base=30.0, h1=91.0)
+        migrate.downgrade(eng, "0006", spindle_id="b")
+        with eng.connect() as conn:
+            counts = {
+                t: conn.execute(sa.text(f"SELECT count(*) FROM {t}")).scalar()
+                for t in ("conditions", "identifications", "device_events", "samples", "live_state")
+            }
+            assert counts == {
+                "conditions": 2,
+                "identifications": 1,
+                "device_events": 1,
+                "samples": 30,
+                "live_state": 1,
+            }
+            assert conn.execute(sa.text("SELECT h1 FROM identifications")).scalar() == 91.0
+            assert "spindles" not in sa.inspect(conn).get_table_names()
+        migrate.upgrade(eng, spindle_id="b")  # and back, the rows kept
+        with repo.session_scope(make_session_factory(eng, spindle_id="b")) as s:
+            assert repo.count_rows(s, SampleRow) == 30 and repo.get_identification(s, 1).h[0] == 91.0
+    finally:
+        eng.dispose()
