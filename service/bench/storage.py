@@ -53,8 +53,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--idents", type=int, default=192, help="speed-map identifications per spindle-day")
     parser.add_argument("--spindles", type=int, default=50, help="retention part: spindles")
     parser.add_argument("--days", type=int, default=10, help="retention part: days (spindle-days = product)")
-    parser.add_argument("--flat-spindles", type=int, default=5)
-    parser.add_argument("--flat-days", type=int, default=7)
+    parser.add_argument("--flat-spindles", type=int, default=5, help="flat part: spindles")
+    parser.add_argument("--flat-days", type=int, default=7, help="flat part: days written, a pass after each")
     parser.add_argument("--migrate-days", type=int, default=30, help="migration part: one spindle's days")
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
