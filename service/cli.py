@@ -4,10 +4,10 @@ Each sub-command lives in its own module, imported only when it runs, so that ``
 broken optional component cannot break the others:
 
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
-  ``replay``, ``identify``, ``prebuild``, ``commission``, ``db``);
+  ``replay``, ``identify``, ``prebuild``, ``commission``, ``opcua``, ``db``);
 - ``service.bench.<name>`` for the benchmarks
   (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty|compensation|
-  commission|storage``).
+  commission|opcua|storage``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -33,6 +33,8 @@ COMMANDS: dict[str, str] = {
     "prebuild": "build the FE model and the reduced-model cache ahead of time (container images, installs)",
     "commission": "commissioning steps: `zero` stores the compensation zero; `growth` fits the mechanics "
     "to a measured thermal test",
+    "opcua": "OPC UA outlet tools: `nodeset` writes the NodeSet2 XML (TIA Portal, TwinCAT); `user` hashes a "
+    "password",
     "db": "database chores: `upgrade` migrates, `retention` drops old samples now, `merge` copies a "
     "one-spindle database into a shared one",
 }
@@ -51,6 +53,7 @@ BENCHMARKS: dict[str, str] = {
     "duty": "a machining duty cycle (speed changes every 1-6 min): fresh H, error and coverage vs the truth",
     "compensation": "served /compensation every minute vs random H(speed) truths: usable, error, coverage, "
     "restarts, outages",
+    "opcua": "OPC UA: read p99 with 10 clients, subscription latency, REST /chtc p99 with the outlets on/off",
     "storage": "rows and bytes per spindle-day per table (PostgreSQL), JSON vs real[] temperatures, the "
     "retention pass at many spindle-days",
     "commission": "the product's commissioning vs an MLR peer (correlation-clustered sensors) on the same "

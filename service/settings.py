@@ -400,6 +400,46 @@ class ApiSettings(_Section):
         return None if value is None else SecretStr(check_token(value.get_secret_value()))
 
 
+OpcUaPolicy = Literal["None", "Basic256Sha256_SignAndEncrypt"]
+
+
+class OpcUaSettings(_Section):
+    """The OPC UA server, an outlet beside the REST API (``service.serve.opcua``; docs/integration.md): off by
+    default; anonymous read-only on loopback unless configured otherwise."""
+
+    enabled: bool = False
+    host: str = "127.0.0.1"
+    port: int = Field(default=4840, ge=1, le=65535)
+    path: str = "/chtc"  # endpoint opc.tcp://host:port/path
+    spindle: str = Field(default="Spindle1", pattern=r"^[A-Za-z][A-Za-z0-9_]{0,31}$")  # NodeId prefix
+    namespace_uri: str = "urn:spindle-chtc:opcua"
+    # the endpoints offered: "None" (no security) and/or "Basic256Sha256_SignAndEncrypt"
+    security_policies: tuple[OpcUaPolicy, ...] = ("None",)
+    certificate: Path | None = None  # the server's certificate (DER or PEM); needed for Sign&Encrypt
+    private_key: Path | None = None  # its private key (PEM)
+    trust_dir: Path | None = None  # trusted client certificates (*.der, *.pem); any other is refused
+    anonymous: bool = True  # anonymous sessions (read-only); false: user/password only
+    users: dict[str, SecretStr] = Field(default_factory=dict)  # name -> pbkdf2_sha256 hash (chtc opcua user)
+    users_file: Path | None = None  # TOML [users] name = "hash", merged over ``users``
+    max_connections: int = Field(default=10, ge=1, le=1000)
+    methods: bool = False  # StartIdentification and TakeSensorBaseline (authenticated users only)
+    update_interval_s: float = Field(default=0.2, gt=0, le=60)  # at most one address-space update per this
+    refresh_s: float = Field(default=1.0, gt=0, le=60)  # re-evaluate ages and statuses without a new view
+    bad_after_s: float | None = Field(default=None, gt=0)  # lost data: Bad past this; None: max_open_loop_min
+
+    @model_validator(mode="after")
+    def _security_complete(self) -> OpcUaSettings:
+        if not self.security_policies:
+            raise ValueError("security_policies: at least one policy")
+        if "Basic256Sha256_SignAndEncrypt" in self.security_policies:
+            missing = [k for k in ("certificate", "private_key", "trust_dir") if getattr(self, k) is None]
+            if missing:
+                raise ValueError(f"Basic256Sha256_SignAndEncrypt needs {', '.join(missing)}")
+        if not self.path.startswith("/"):
+            raise ValueError(f"path: must start with '/', got {self.path!r}")
+        return self
+
+
 class EngineSettings(_Section):
     """Where the core's per-sample work runs and when the service says it falls behind
     (docs/design/threading.md)."""
@@ -501,6 +541,7 @@ class Settings(BaseSettings):
     compensation: CompensationSettings = Field(default_factory=CompensationSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
     engine: EngineSettings = Field(default_factory=EngineSettings)
+    opcua: OpcUaSettings = Field(default_factory=OpcUaSettings)
     mqtt: MqttSettings = Field(default_factory=MqttSettings)  # the MQTT outlet (off by default)
 
     @model_validator(mode="after")
@@ -540,6 +581,7 @@ class Settings(BaseSettings):
         for key in ("token", "read_token"):
             if data["api"][key] is not None:
                 data["api"][key] = "**********"
+        data["opcua"]["users"] = {name: "**********" for name in data["opcua"]["users"]}
         data["database"]["url"] = make_url(self.database.url).render_as_string(hide_password=True)
         return data
 
@@ -567,6 +609,10 @@ _PATH_KEYS: tuple[tuple[str, ...], ...] = (
     ("can", "dbc"),
     ("model", "spindle"),
     ("model", "rom_cache_dir"),
+    ("opcua", "certificate"),
+    ("opcua", "private_key"),
+    ("opcua", "trust_dir"),
+    ("opcua", "users_file"),
     ("mqtt", "state_dir"),
     ("mqtt", "tls", "ca"),
     ("mqtt", "tls", "cert"),

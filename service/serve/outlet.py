@@ -1,8 +1,8 @@
 """The outlet seam: how REST, OPC UA and MQTT (and any later outlet) get the service's published values.
 
-Contract (issue 28; docs/design/outlets.md is this docstring)::
+Contract (issue 28)::
 
-    shell.publish(CoreView) --(on the event loop, at most every min_interval_s)--> outlet.on_view(reader)
+    shell.publish(CoreView) --(on the event loop, at most every outlet_interval_s)--> outlet.on_view(reader)
 
 - An :class:`Outlet` has a ``name``, ``async start()``, ``on_view(reader)`` and ``async close()``. The runtime
   starts the enabled ones after the service (``SoftSensorService.start()``) and closes them, in reverse

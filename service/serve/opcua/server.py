@@ -1,0 +1,401 @@
+"""The asyncua server of the OPC UA outlet, in its own thread with its own event loop.
+
+asyncua's ``init()`` blocks its loop for about 0.6 s and every read, subscription and secure-channel
+operation runs Python on it; on a thread of its own none of that runs on the loop that serves REST.
+Values cross over through a latest-value slot (:meth:`OpcUaServer.offer`: the newest ``ViewReader``, and a
+wake-up by ``call_soon_threadsafe``); the server's loop renders it (``service.serve.opcua.nodes.render``) at
+most every ``update_interval_s`` and at least every ``refresh_s`` (so ages and statuses move on while no view
+arrives: the acquisition stopped), and writes only the values that changed.
+
+Address space (namespace ``[opcua] namespace_uri``, index 2 on this server): the object type
+``SpindleThermalModelType`` (below BaseObjectType) with one object per group (``Status``, ``H``,
+``Condition``, ``Temperatures``, ``Growth``, ``Controller``, ``Devices``) and their variables; the instance
+``Spindle1`` below Objects, whose NodeIds are the browse paths (``ns=2;s=Spindle1.Growth.Axial``). Analog
+values are ``AnalogUnitRangeType`` variables with ``EngineeringUnits`` (UNECE) and ``EURange``; every variable
+is read-only (AccessLevel CurrentRead).
+"""
+
+from __future__ import annotations
+
+import asyncio
+import contextlib
+import logging
+import threading
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass
+from datetime import UTC, datetime
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
+
+from asyncua import Server, ua
+from asyncua.server.internal_session import InternalSession
+
+from service.serve.errors import OutletError
+from service.serve.opcua.nodes import EPOCH, GROUPS, UNECE, UNITS_NAMESPACE, Reading, Var, render, unit_id
+from service.serve.opcua.security import (
+    HashedUserManager,
+    ReadOnlyRules,
+    load_trust_list,
+    load_users,
+)
+
+if TYPE_CHECKING:
+    from service.serve.reader import ViewReader
+    from service.settings import OpcUaSettings
+
+__all__ = ["TYPE_NAME", "Methods", "OpcUaServer", "build_address_space"]
+
+log = logging.getLogger(__name__)
+TYPE_NAME = "SpindleThermalModelType"
+POLICIES = {
+    "None": ua.SecurityPolicyType.NoSecurity,
+    "Basic256Sha256_SignAndEncrypt": ua.SecurityPolicyType.Basic256Sha256_SignAndEncrypt,
+}
+_VT = {
+    "Double": (ua.VariantType.Double, ua.ObjectIds.Double),
+    "Boolean": (ua.VariantType.Boolean, ua.ObjectIds.Boolean),
+    "String": (ua.VariantType.String, ua.ObjectIds.String),
+    "UInt32": (ua.VariantType.UInt32, ua.ObjectIds.UInt32),
+    "Int32": (ua.VariantType.Int32, ua.ObjectIds.Int32),
+    "Int64": (ua.VariantType.Int64, ua.ObjectIds.Int64),
+    "DateTime": (ua.VariantType.DateTime, ua.ObjectIds.DateTime),
+}
+_ZERO: dict[str, object] = {
+    "Double": float("nan"),
+    "Boolean": False,
+    "String": "",
+    "UInt32": 0,
+    "Int32": 0,
+    "Int64": 0,
+    "DateTime": EPOCH,
+}
+
+
+@dataclass(frozen=True)
+class Methods:
+    """The optional methods' actions (blocking; called in a worker thread): each returns a message."""
+
+    start_identification: Callable[[str], str]
+    take_sensor_baseline: Callable[[], str]
+
+
+def _variant(var: Var, value: object) -> ua.Variant:
+    vt = _VT[var.vtype][0]
+    if var.length:
+        return ua.Variant(list(value), vt, is_array=True)  # type: ignore[call-overload]
+    return ua.Variant(value, vt)
+
+
+def _initial(var: Var) -> ua.Variant:
+    zero = _ZERO[var.vtype]
+    return _variant(var, [zero] * max(var.length, 0) if var.length else zero)
+
+
+async def _add_variable(
+    server: Server, parent: ua.NodeId, nodeid: ua.NodeId, var: Var, idx: int
+) -> ua.NodeId:
+    attrs = ua.VariableAttributes()
+    attrs.DisplayName = ua.LocalizedText(var.name)
+    attrs.Description = ua.LocalizedText(var.description)
+    attrs.Value = _initial(var)
+    attrs.DataType = ua.NodeId(_VT[var.vtype][1])
+    attrs.ValueRank = 1 if var.length else -1
+    attrs.ArrayDimensions = [max(var.length, 0)] if var.length else []
+    attrs.AccessLevel = ua.AccessLevel.CurrentRead.mask
+    attrs.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
+    item = ua.AddNodesItem()
+    item.RequestedNewNodeId = nodeid
+    item.BrowseName = ua.QualifiedName(var.name, idx)
+    item.NodeClass = ua.NodeClass.Variable
+    item.ParentNodeId = parent
+    item.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasComponent)
+    item.TypeDefinition = ua.NodeId(
+        ua.ObjectIds.AnalogUnitRangeType if var.analog else ua.ObjectIds.BaseDataVariableType
+    )
+    item.NodeAttributes = attrs
+    res = (await server.iserver.isession.add_nodes([item]))[0]
+    res.StatusCode.check()
+    node = server.get_node(res.AddedNodeId)
+    await node.set_modelling_rule(True)
+    if var.unit is not None:
+        name, desc = UNECE[var.unit]
+        eu = ua.EUInformation(
+            NamespaceUri=UNITS_NAMESPACE,
+            UnitId=unit_id(var.unit),
+            DisplayName=ua.LocalizedText(name),
+            Description=ua.LocalizedText(desc),
+        )
+        prop = await node.add_property(0, "EngineeringUnits", ua.Variant(eu, ua.VariantType.ExtensionObject))
+        await prop.write_attribute(
+            ua.AttributeIds.DataType, ua.DataValue(ua.Variant(ua.NodeId(ua.ObjectIds.EUInformation)))
+        )
+        await prop.set_modelling_rule(True)
+    if var.range is not None:
+        rng = ua.Range(Low=float(var.range[0]), High=float(var.range[1]))
+        prop = await node.add_property(0, "EURange", ua.Variant(rng, ua.VariantType.ExtensionObject))
+        await prop.write_attribute(
+            ua.AttributeIds.DataType, ua.DataValue(ua.Variant(ua.NodeId(ua.ObjectIds.Range)))
+        )
+        await prop.set_modelling_rule(True)
+    return res.AddedNodeId
+
+
+async def build_address_space(
+    server: Server, idx: int, variables: Sequence[Var], *, spindle: str
+) -> tuple[Any, Any]:
+    """Add ``SpindleThermalModelType`` (with the groups and ``variables``) and its instance ``spindle`` under
+    Objects; (type node, instance node)."""
+    base = server.get_node(ua.ObjectIds.BaseObjectType)
+    otype = await base.add_object_type(ua.NodeId(TYPE_NAME, idx), ua.QualifiedName(TYPE_NAME, idx))
+    await otype.write_attribute(
+        ua.AttributeIds.Description,
+        ua.DataValue(ua.Variant(ua.LocalizedText("Soft sensor of a spindle's thermal state (spindle-chtc)"))),
+    )
+    groups: dict[str, ua.NodeId] = {}
+    for group, desc in GROUPS.items():
+        gid = ua.NodeId(f"{TYPE_NAME}.{group}", idx)
+        node = await otype.add_object(gid, ua.QualifiedName(group, idx))
+        await node.write_attribute(
+            ua.AttributeIds.Description, ua.DataValue(ua.Variant(ua.LocalizedText(desc)))
+        )
+        await node.set_modelling_rule(True)
+        groups[group] = gid
+    for var in variables:
+        await _add_variable(server, groups[var.group], ua.NodeId(f"{TYPE_NAME}.{var.path}", idx), var, idx)
+    instance = await server.nodes.objects.add_object(
+        ua.NodeId(spindle, idx), ua.QualifiedName(spindle, idx), objecttype=otype.nodeid
+    )
+    return otype, instance
+
+
+class OpcUaServer:
+    """See the module docstring. ``start()`` (blocks until serving or raises ``OutletError``),
+    ``offer(reader)`` from any thread, ``stop()``."""
+
+    def __init__(
+        self,
+        cfg: OpcUaSettings,
+        *,
+        variables: Sequence[Var],
+        clock: Callable[[], datetime],
+        bad_after_s: float,
+        n_sensors: int = 32,
+        methods: Methods | None = None,
+    ) -> None:
+        self.cfg = cfg
+        self.variables = tuple(variables)
+        self.clock = clock
+        self.bad_after_s = float(bad_after_s)
+        self.n_sensors = n_sensors
+        self.methods = methods
+        self.heartbeat = 0
+        self.updates = 0
+        self.update_errors = 0
+        self._slot: ViewReader | None = None
+        self._loop: asyncio.AbstractEventLoop | None = None
+        self._wake: asyncio.Event | None = None
+        self._stop: asyncio.Event | None = None
+        self._thread: threading.Thread | None = None
+        self._ready = threading.Event()
+        self._failed: BaseException | None = None
+        self._written: dict[str, tuple[object, int, datetime | None]] = {}
+        self._nodeids: dict[str, ua.NodeId] = {}
+        self.server: Server | None = None
+        self.on_update: Callable[[], None] | None = None  # after each update (tests, the bench)
+
+    @property
+    def endpoint(self) -> str:
+        return f"opc.tcp://{self.cfg.host}:{self.cfg.port}{self.cfg.path}"
+
+    # --- lifecycle (caller's thread) ---------------------------------------------------------------------
+    def start(self, timeout_s: float = 60.0) -> None:
+        self._thread = threading.Thread(target=self._run, name="chtc-opcua", daemon=True)
+        self._thread.start()
+        if not self._ready.wait(timeout_s):
+            raise OutletError(f"the OPC UA server did not start within {timeout_s:.0f} s")
+        if self._failed is not None:
+            raise OutletError(f"the OPC UA server did not start: {self._failed}") from self._failed
+
+    def offer(self, reader: ViewReader) -> None:
+        """Hand over the newest reader (any thread; never blocks)."""
+        self._slot = reader
+        loop, wake = self._loop, self._wake
+        if loop is not None and wake is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):  # the loop just closed
+                loop.call_soon_threadsafe(wake.set)
+
+    def stop(self, timeout_s: float = 10.0) -> None:
+        loop, stop = self._loop, self._stop
+        if loop is not None and stop is not None and not loop.is_closed():
+            with contextlib.suppress(RuntimeError):
+                loop.call_soon_threadsafe(stop.set)
+        if self._thread is not None:
+            self._thread.join(timeout_s)
+
+    # --- the server's thread -----------------------------------------------------------------------------
+    def _run(self) -> None:
+        try:
+            asyncio.run(self._main())
+        except BaseException as err:  # reported to start() if it has not returned yet
+            self._failed = self._failed or err
+            log.exception("OPC UA server stopped: %s", err)
+        finally:
+            self._ready.set()
+
+    async def _main(self) -> None:
+        self._loop = asyncio.get_running_loop()
+        self._wake, self._stop = asyncio.Event(), asyncio.Event()
+        try:
+            server = await self._build()
+            await server.start()
+        except BaseException as err:
+            self._failed = err
+            self._ready.set()
+            raise
+        self.server = server
+        try:
+            await self._update()
+            self._ready.set()
+            await self._serve()
+        finally:
+            await server.stop()
+
+    async def _serve(self) -> None:
+        assert self._wake is not None and self._stop is not None
+        loop = asyncio.get_running_loop()
+        last = loop.time()
+        while not self._stop.is_set():
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self._wake.wait(), timeout=self.cfg.refresh_s)
+            self._wake.clear()
+            if self._stop.is_set():
+                break
+            wait = self.cfg.update_interval_s - (loop.time() - last)
+            if wait > 0:  # views coalesce: the newest one is rendered after the wait
+                await asyncio.sleep(wait)
+            last = loop.time()
+            await self._update()
+
+    async def _update(self) -> None:
+        reader = self._slot
+        if reader is None or self.server is None:
+            return
+        try:
+            self.heartbeat += 1
+            now = self.clock()
+            readings = render(
+                reader,
+                now=now,
+                bad_after_s=self.bad_after_s,
+                heartbeat=self.heartbeat,
+                n_sensors=self.n_sensors,
+            )
+            await self._write(readings, now)
+            self.updates += 1
+        except Exception as err:  # keep serving the last values; say why once per failure
+            self.update_errors += 1
+            log.warning("OPC UA update failed: %s: %s", type(err).__name__, err)
+        if self.on_update is not None:
+            self.on_update()
+
+    async def _write(self, readings: dict[str, Reading], now: datetime) -> None:
+        assert self.server is not None
+        wall = datetime.now(UTC)
+        for var in self.variables:
+            r = readings.get(var.path)
+            if r is None:
+                continue
+            key = (r.value, int(r.status), r.source_time)
+            if self._written.get(var.path) == key:
+                continue
+            dv = ua.DataValue(
+                Value=_variant(var, r.value),
+                StatusCode_=ua.StatusCode(int(r.status)),
+                SourceTimestamp=_ua_time(r.source_time or now),  # the data's time (the service's clock)
+                ServerTimestamp=wall,  # when this server took the value (its own clock)
+            )
+            await self.server.write_attribute_value(self._nodeids[var.path], dv)
+            self._written[var.path] = key
+
+    async def _build(self) -> Server:
+        cfg = self.cfg
+        sec_only = "None" not in cfg.security_policies
+        trusted = load_trust_list(cfg.trust_dir) if cfg.trust_dir is not None else frozenset()
+        users = load_users({k: v.get_secret_value() for k, v in cfg.users.items()}, cfg.users_file)
+        manager = HashedUserManager(users, anonymous=cfg.anonymous, require_trusted=sec_only, trusted=trusted)
+        server = Server(user_manager=manager)
+        await server.init()
+        server.iserver.allow_remote_admin = False
+        InternalSession.max_connections = cfg.max_connections  # asyncua keeps the bound per process
+        server.set_endpoint(self.endpoint)
+        server.set_server_name("spindle-chtc OPC UA")
+        await server.set_application_uri("urn:spindle-chtc:server")
+        server.set_security_policy(
+            [POLICIES[p] for p in cfg.security_policies], permission_ruleset=ReadOnlyRules()
+        )
+        ids = (["Anonymous"] if cfg.anonymous else []) + (["Username"] if users else [])
+        if not ids:
+            raise OutletError("opcua: anonymous = false and no users: nobody could connect")
+        server.set_security_IDs(ids)
+        if cfg.certificate is not None and cfg.private_key is not None:
+            await server.load_certificate(str(cfg.certificate))
+            await server.load_private_key(str(cfg.private_key))
+        idx = await server.register_namespace(cfg.namespace_uri)
+        _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.spindle)
+        self._nodeids = {v.path: ua.NodeId(f"{cfg.spindle}.{v.path}", idx) for v in self.variables}
+        waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
+        for var in self.variables:  # nothing is known before the first view
+            dv = ua.DataValue(Value=_initial(var), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC))
+            await server.write_attribute_value(self._nodeids[var.path], dv)
+        if self.methods is not None:
+            await self._add_methods(server, instance, idx, self.methods)
+        return server
+
+    async def _add_methods(self, server: Server, instance: Any, idx: int, methods: Methods) -> None:
+        spindle = self.cfg.spindle
+
+        async def run(fn: Callable[[], str]) -> list[ua.Variant]:
+            try:
+                msg = await asyncio.to_thread(fn)  # the service's handover blocks: off this loop
+            except Exception as err:  # the service's refusal (busy, not ready) is the call's status
+                log.info("OPC UA method refused: %s: %s", type(err).__name__, err)
+                raise ua.UaStatusCodeError(ua.StatusCodes.BadInvalidState) from err
+            return [ua.Variant(msg, ua.VariantType.String)]
+
+        async def start_identification(_parent: ua.NodeId, reason: ua.Variant) -> list[ua.Variant]:
+            text = str(reason.Value or "OPC UA StartIdentification")[:200]
+            return await run(lambda: methods.start_identification(text))
+
+        async def take_sensor_baseline(_parent: ua.NodeId) -> list[ua.Variant]:
+            return await run(methods.take_sensor_baseline)
+
+        reason = ua.Argument(Name="Reason", DataType=ua.NodeId(ua.ObjectIds.String), ValueRank=-1)
+        out = ua.Argument(Name="Result", DataType=ua.NodeId(ua.ObjectIds.String), ValueRank=-1)
+        await instance.add_method(
+            ua.NodeId(f"{spindle}.StartIdentification", idx),
+            ua.QualifiedName("StartIdentification", idx),
+            start_identification,
+            [reason],
+            [out],
+        )
+        await instance.add_method(
+            ua.NodeId(f"{spindle}.TakeSensorBaseline", idx),
+            ua.QualifiedName("TakeSensorBaseline", idx),
+            take_sensor_baseline,
+            [],
+            [out],
+        )
+
+
+def _ua_time(t: datetime) -> datetime:
+    return t.astimezone(UTC) if t.tzinfo is not None else t.replace(tzinfo=UTC)
+
+
+async def export_nodeset(cfg: OpcUaSettings, variables: Sequence[Var], path: Path) -> int:
+    """Write the NodeSet2 XML of our namespace (the type and the instance) to ``path``; the node count."""
+    server = Server()
+    await server.init()
+    idx = await server.register_namespace(cfg.namespace_uri)
+    await build_address_space(server, idx, variables, spindle=cfg.spindle)
+    await server.export_xml_by_ns(str(path), [idx], export_values=True)
+    return sum(1 for _ in path.read_text(encoding="utf-8").split("<UAVariable")) - 1
