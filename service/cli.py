@@ -4,10 +4,10 @@ Each sub-command lives in its own module, imported only when it runs, so that ``
 broken optional component cannot break the others:
 
 - ``service.commands.<name>`` for the product commands (``run``, ``demo``, ``simulate``, ``record``,
-  ``replay``, ``identify``, ``prebuild``, ``commission``, ``opcua``);
+  ``replay``, ``identify``, ``prebuild``, ``commission``, ``opcua``, ``db``);
 - ``service.bench.<name>`` for the benchmarks
   (``chtc bench model|optim|identify|chain|acquisition|api|fleet|truth|restart|growth|duty|compensation|
-  commission|opcua``).
+  commission|opcua|storage``).
 
 Every such module exposes ``add_arguments(parser)`` and ``main(args) -> int``.
 """
@@ -35,6 +35,8 @@ COMMANDS: dict[str, str] = {
     "to a measured thermal test",
     "opcua": "OPC UA outlet tools: `nodeset` writes the NodeSet2 XML (TIA Portal, TwinCAT); `user` hashes a "
     "password",
+    "db": "database chores: `upgrade` migrates, `retention` drops old samples now, `merge` copies a "
+    "one-spindle database into a shared one",
 }
 
 BENCHMARKS: dict[str, str] = {
@@ -52,6 +54,8 @@ BENCHMARKS: dict[str, str] = {
     "compensation": "served /compensation every minute vs random H(speed) truths: usable, error, coverage, "
     "restarts, outages",
     "opcua": "OPC UA: read p99 with 10 clients, subscription latency, REST /chtc p99 with the outlets on/off",
+    "storage": "rows and bytes per spindle-day per table (PostgreSQL), JSON vs real[] temperatures, the "
+    "retention pass at many spindle-days",
     "commission": "the product's commissioning vs an MLR peer (correlation-clustered sensors) on the same "
     "thermal test, then on a duty cycle: axial error of each",
 }

@@ -87,6 +87,17 @@ class _Section(BaseModel):
     model_config = ConfigDict(extra="forbid", frozen=True)
 
 
+SPINDLE_ID_PATTERN = r"^[A-Za-z][A-Za-z0-9_-]{0,62}$"
+
+
+class SpindleSettings(_Section):
+    """Which spindle this instance serves: a stable name stored in every database row (``spindle_id``), so
+    many spindles can share one database (docs/design/persistence.md, "Many spindles in one database")."""
+
+    id: str = Field(default="spindle1", pattern=SPINDLE_ID_PATTERN)  # never rename a spindle in service
+    description: str = Field(default="", max_length=200)  # stored in the ``spindles`` table
+
+
 class ModbusSettings(_Section):
     """Temperature DAQ over Modbus TCP (input registers, read-only)."""
 
@@ -469,6 +480,12 @@ class DatabaseSettings(_Section):
     # the server is reached through a pooler in transaction mode (PgBouncer pool_mode = transaction): no
     # prepared statements (psycopg prepare_threshold=None); the statement timeout is SET LOCAL either way
     transaction_pooling: bool = False
+    # retention (service.store.retention): raw samples are kept this many days (by sample time), then only
+    # their 1-minute means, kept ``minute_days``; then dropped. Identifications and calibrations are kept.
+    # 0 days: keep for ever. The pass runs every ``retention_every_s`` (and ``chtc db retention``).
+    raw_days: int = Field(default=30, ge=0)
+    minute_days: int = Field(default=365, ge=0)
+    retention_every_s: float = Field(default=86_400.0, gt=0)
 
     @field_validator("url")
     @classmethod
@@ -488,6 +505,14 @@ class DatabaseSettings(_Section):
             raise ValueError("retry_max_s must be >= retry_initial_s")
         return self
 
+    @model_validator(mode="after")
+    def _retention_order(self) -> DatabaseSettings:
+        if self.raw_days > 0 and 0 < self.minute_days < self.raw_days:
+            raise ValueError(
+                "minute_days must be >= raw_days (or 0: for ever): the means outlive the samples"
+            )
+        return self
+
 
 _TOML_DATA: ContextVar[dict[str, object] | None] = ContextVar("_chtc_toml_data", default=None)
 
@@ -503,6 +528,7 @@ class Settings(BaseSettings):
         hide_input_in_errors=True,  # a raw ValidationError must not echo a token
     )
 
+    spindle: SpindleSettings = Field(default_factory=SpindleSettings)
     modbus: ModbusSettings = Field(default_factory=ModbusSettings)
     can: CanSettings = Field(default_factory=CanSettings)
     acquisition: AcquisitionSettings = Field(default_factory=AcquisitionSettings)

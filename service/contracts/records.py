@@ -141,6 +141,43 @@ class SampleData:
         }
 
 
+@dataclass(frozen=True, kw_only=True)
+class SampleMinuteData:
+    """The means of the stored samples of one minute ``[t, t + 60 s)`` (``service.store.downsample``):
+    °C per channel (a channel's mean over its non-null values; None: none), ambient °C, speed rpm (mean and
+    max), torque N·m; ``n`` samples; the fewest good channels; whether CAN and the DAQ were ok throughout."""
+
+    t: datetime
+    n: int
+    temps_c: Sequence[float | None]
+    ambient_c: float | None
+    speed_rpm: float | None
+    speed_max_rpm: float | None
+    torque_nm: float | None
+    n_good_min: int
+    can_ok: bool
+    daq_ok: bool
+
+    def __post_init__(self) -> None:
+        _check_times(self)
+        if self.n < 1:
+            raise RecordError(f"SampleMinuteData.n: need >= 1, got {self.n}")
+
+    def values(self) -> dict[str, Column]:
+        return {
+            "t": self.t,
+            "n": int(self.n),
+            "temps_c": finite_list(self.temps_c),
+            "ambient_c": finite(self.ambient_c),
+            "speed_rpm": finite(self.speed_rpm),
+            "speed_max_rpm": finite(self.speed_max_rpm),
+            "torque_nm": finite(self.torque_nm),
+            "n_good_min": int(self.n_good_min),
+            "can_ok": bool(self.can_ok),
+            "daq_ok": bool(self.daq_ok),
+        }
+
+
 class IdentificationRow(Protocol):
     """The columns of a stored identification (``service.store.models.Identification``) that are read back."""
 
@@ -563,6 +600,7 @@ Record = (
     | IdentificationData
     | DeviceEventData
     | SampleData
+    | SampleMinuteData
     | OffsetCalibrationData
     | CompensationReferenceData
     | LiveStateData
@@ -575,6 +613,7 @@ RECORD_TYPES = (
     IdentificationData,
     DeviceEventData,
     SampleData,
+    SampleMinuteData,
     OffsetCalibrationData,
     CompensationReferenceData,
     LiveStateData,

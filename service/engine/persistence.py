@@ -25,7 +25,7 @@ from collections.abc import Callable, Mapping
 from contextlib import nullcontext
 from dataclasses import dataclass, field
 from datetime import datetime
-from typing import TYPE_CHECKING, TypeVar
+from typing import TYPE_CHECKING, Any, TypeVar
 
 from service.contracts.records import Record
 from service.engine.config import Restored
@@ -46,8 +46,9 @@ if TYPE_CHECKING:
     from service.estimate.probe import ProbeMeasurement
     from service.estimate.reference import CompensationReference
     from service.identify.speedmap import SpeedMap
-    from service.settings import DatabaseSettings
+    from service.settings import DatabaseSettings, SpindleSettings
     from service.store.reads import DbReads
+    from service.store.retention import RetentionReport
     from service.store.watchdog import StatementWatchdog
     from service.store.writer import DbWriter, WriterStatus
 
@@ -70,6 +71,7 @@ def restore(
     """
     from service.store.repository import (
         last_served_identification,
+        last_speed_map_state,
         latest_per_condition,
         list_conditions,
         max_ids,
@@ -106,12 +108,14 @@ def restore(
         mechanics = _restore_mechanics(session, on_problem)
         probes = _restore_probes(session, on_problem)
         live = _restore_live(session, on_problem)
+        state = last_speed_map_state(session)
+        map_state = None if state is None else (int(state.identification_id), state.state)
     return Restored(
         live=live,
         reference=reference,
         mechanics=mechanics,
         probes=probes,
-        speed_map=_restore_map(map_last, on_problem),
+        speed_map=_restore_map(map_last, map_state, on_problem),
         map_last=map_last,
         calibration=calibration,
         last=last,
@@ -123,10 +127,13 @@ def restore(
 
 
 def _restore_map(
-    last: IdentificationRecord | None, on_problem: Callable[[str], None] | None
+    last: IdentificationRecord | None,
+    state: tuple[int, Any] | None,
+    on_problem: Callable[[str], None] | None,
 ) -> SpeedMap | None:
-    """The speed map stored with the last served identification (a map fit's diagnostics), as restored:
-    stale until re-fitted (None: the last one is not a map fit)."""
+    """The speed map of the last served map fit, as restored: stale until re-fitted (None: no map fit).
+    Its whole state (with the covariance) is the spindle's ``speed_map_state`` row when that row is this
+    fit's; rows stored before revision 0007 carry it in their diagnostics."""
     from service.identify.speedmap import SpeedMap, SpeedMapError
 
     if last is None or not isinstance(last.data.diagnostics, Mapping):
@@ -134,6 +141,8 @@ def _restore_map(
     stored = last.data.diagnostics.get("speed_map")
     if stored is None:
         return None
+    if state is not None and state[0] == last.id:
+        stored = state[1]
     try:
         return SpeedMap.from_json(stored, identification_id=last.id, restored=True)
     except SpeedMapError as err:
@@ -279,7 +288,10 @@ class Persistence:
     read_watchdog: StatementWatchdog | None = None
     # told the database's next free (condition, identification) ids when it answers after start-up
     on_open: Callable[[int, int], None] | None = None
+    spindle: SpindleSettings | None = None  # whose rows (None: the default spindle)
     _task: asyncio.Task[None] | None = None
+    _retention_task: asyncio.Task[None] | None = None
+    last_retention: RetentionReport | None = None
 
     async def ensure_open(self, *, retry_s: float = 2.0) -> None:
         """Retry migration/check until the database answers, then open the writer (background task)."""
@@ -321,13 +333,49 @@ class Persistence:
     def _prepare_guarded(self) -> None:
         guard = self.read_watchdog.guard("migrate") if self.read_watchdog is not None else nullcontext()
         with guard:
-            _prepare_schema(self.engine, self.migrate)
+            _prepare_schema(self.engine, self.migrate, self.spindle)
 
     def start_background(self) -> None:
         if self.sink.writer is None and self._task is None:
             self._task = asyncio.ensure_future(self.ensure_open())
+        db = self.settings
+        if self._retention_task is None and (db.raw_days > 0 or db.minute_days > 0):
+            self._retention_task = asyncio.ensure_future(self._retention_loop())
+
+    async def _retention_loop(self) -> None:
+        """``service.store.retention.retention_pass`` every ``database.retention_every_s`` (the first once
+        the writer is open); a failed pass is logged and tried again at the next period."""
+        while True:
+            if self.sink.writer is not None:
+                try:
+                    self.last_retention = await asyncio.to_thread(self.retention_once)
+                except Exception as err:
+                    log.warning(
+                        "db: retention pass failed (%s); next try in %g s",
+                        err,
+                        self.settings.retention_every_s,
+                    )
+                else:
+                    self.on_event(f"db: retention pass: {_retention_text(self.last_retention)}")
+                await asyncio.sleep(self.settings.retention_every_s)
+            else:
+                await asyncio.sleep(5.0)
+
+    def retention_once(self) -> RetentionReport:
+        from datetime import UTC
+        from datetime import datetime as _dt
+
+        from service.store.retention import retention_pass
+
+        now = self.clock() if self.clock is not None else _dt.now(UTC)
+        db = self.settings
+        return retention_pass(
+            self.writer_engine or self.engine, now=now, raw_days=db.raw_days, minute_days=db.minute_days
+        )
 
     def close(self, timeout_s: float = 10.0) -> WriterStatus | None:
+        if self._retention_task is not None:
+            self._retention_task.cancel()
         if self._task is not None:
             self._task.cancel()
         status = None
@@ -351,17 +399,44 @@ def _describe(err: BaseException) -> str:
     return f"database not reachable: {err}"
 
 
-def _prepare_schema(engine: Engine, migrate: bool) -> None:
+def _retention_text(r: RetentionReport) -> str:
+    return (
+        f"{len(r.partitions_dropped)} partitions dropped, {r.raw_rows_deleted} raw and "
+        f"{r.minute_rows_deleted} minute rows deleted, {r.minutes_backfilled} minutes backfilled "
+        f"in {r.seconds:.2f} s"
+    )
+
+
+def _prepare_schema(engine: Engine, migrate: bool, spindle: SpindleSettings | None = None) -> None:
+    """Migrate (or check the revision), then register the spindle (every row refers to it)."""
     from service.store.migrate import current_revision, head_revision, upgrade
 
+    sid = spindle.id if spindle is not None else None
     if migrate:
-        upgrade(engine)
-        return
-    rev = current_revision(engine)
-    if rev != head_revision():
+        upgrade(engine, spindle_id=sid)
+    else:
+        _check_revision(engine, current_revision(engine), head_revision())
+    _register_spindle(engine, spindle)
+
+
+def _register_spindle(engine: Engine, spindle: SpindleSettings | None) -> None:
+    from datetime import UTC
+    from datetime import datetime as _dt
+
+    from service.store.engine import DEFAULT_SPINDLE_ID, make_session_factory
+    from service.store.repository import ensure_spindle, session_scope
+
+    sid = spindle.id if spindle is not None else DEFAULT_SPINDLE_ID
+    desc = spindle.description if spindle is not None else ""
+    with session_scope(make_session_factory(engine, spindle_id=sid), "register the spindle") as session:
+        ensure_spindle(session, sid, description=desc, now=_dt.now(UTC))
+
+
+def _check_revision(engine: Engine, rev: str | None, head: str) -> None:
+    if rev != head:
         missing = "has no chtc schema" if rev is None else f"schema is at revision {rev}"
         raise SchemaError(
-            f"database reachable, but it {missing}; this version needs revision {head_revision()}: "
+            f"database reachable, but it {missing}; this version needs revision {head}: "
             "run once with --migrate (chtc run --migrate)"
         )
 
@@ -385,10 +460,11 @@ def _start_writer(
         watchdog=watchdog,
         heartbeat_s=db.heartbeat_s,
         stall_s=db.stall_s,
+        downsample=True,
     ).start()
 
 
-def _engine(db: DatabaseSettings) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
+def _engine(db: DatabaseSettings, spindle_id: str) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
     """(engine, session factory, watchdog): one per use (the writer's, the API reads'), each its own pool."""
     from service.store.engine import create_db_engine, make_session_factory
     from service.store.watchdog import StatementWatchdog
@@ -404,7 +480,7 @@ def _engine(db: DatabaseSettings) -> tuple[Engine, sessionmaker[Session], Statem
         transaction_pooling=db.transaction_pooling,
     )
     watchdog = StatementWatchdog(engine, abort_after_s=statement_s + 1.0).start()
-    return engine, make_session_factory(engine), watchdog
+    return engine, make_session_factory(engine, spindle_id=spindle_id), watchdog
 
 
 def _safe_url(url: str) -> str:
@@ -419,6 +495,7 @@ def open_persistence(
     migrate: bool,
     on_event: Callable[[str], None] | None = None,
     clock: Callable[[], datetime] | None = None,
+    spindle: SpindleSettings | None = None,
 ) -> Persistence:
     """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage.
 
@@ -429,12 +506,15 @@ def open_persistence(
     from service.store.reads import DbReads
 
     say = on_event or (lambda _m: None)
-    engine, factory, read_watchdog = _engine(db)
-    w_engine, w_factory, w_watchdog = _engine(db)
+    from service.store.engine import DEFAULT_SPINDLE_ID
+
+    sid = spindle.id if spindle is not None else DEFAULT_SPINDLE_ID
+    engine, factory, read_watchdog = _engine(db, sid)
+    w_engine, w_factory, w_watchdog = _engine(db, sid)
     sink = GateSink(max_held=db.buffer_max)
     try:
         with read_watchdog.guard("migrate and restore"):  # a hung database cannot hold the start-up
-            _prepare_schema(engine, migrate)
+            _prepare_schema(engine, migrate, spindle)
             restored = restore(factory, on_problem=say)
         from_db = True
         sink.open(_start_writer(w_factory, db, clock=clock, watchdog=w_watchdog))
@@ -470,6 +550,7 @@ def open_persistence(
         writer_watchdog=w_watchdog,
         reads=reads,
         read_watchdog=read_watchdog,
+        spindle=spindle,
     )
 
 

@@ -266,7 +266,7 @@ class Runtime:
         sys.setswitchinterval(s.engine.gil_switch_interval_s)  # the loop waits less for the GIL
         model = self.load()
         self.persistence = open_persistence(
-            s.database, migrate=self.migrate, on_event=self.on_event, clock=self.clock
+            s.database, migrate=self.migrate, on_event=self.on_event, clock=self.clock, spindle=s.spindle
         )
         self.persistence.start_background()
         self.ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))

@@ -4,6 +4,7 @@ CLI use takes the URL from ``sqlalchemy.url`` or ``CHTC_DATABASE__URL``. Logging
 from __future__ import annotations
 
 import os
+import re
 
 from alembic import context
 from sqlalchemy.engine import Connection
@@ -22,10 +23,19 @@ def _url() -> str:
     return url
 
 
+PARTITION = re.compile(r"^samples_p\d{8}$")  # service.store.partitions: made and dropped at run time
+
+
+def include_object(obj: object, name: str | None, type_: str, reflected: bool, compare_to: object) -> bool:
+    """Autogenerate ignores the daily partitions of ``samples`` (it would propose dropping them)."""
+    return not (type_ == "table" and reflected and name is not None and PARTITION.match(name))
+
+
 def _configure(connection: Connection) -> None:
     context.configure(
         connection=connection,
         target_metadata=target_metadata,
+        include_object=include_object,
         compare_type=True,
         render_as_batch=connection.dialect.name == "sqlite",
     )

@@ -342,7 +342,7 @@ def served_service(
     clock = clock if clock is not None else ManualClock(samples[0].t if samples else PLAN_T0)
     say = on_event or (lambda _msg: None)
     model = _model(ModelRef.from_settings(s))
-    persistence = open_persistence(s.database, migrate=True, on_event=say, clock=clock)
+    persistence = open_persistence(s.database, migrate=True, on_event=say, clock=clock, spindle=s.spindle)
     core = ServiceCore(
         core_config(s),
         model=model,

@@ -8,7 +8,9 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
 
     eng = engine.create_db_engine(settings.database.url, echo=settings.database.echo)  # SQLite: WAL, FKs on
     migrate.upgrade(eng)                       # or URL; to "head"; current_revision(eng), head_revision()
-    factory = engine.make_session_factory(eng) # sessionmaker, expire_on_commit=False
+    factory = engine.make_session_factory(eng, spindle_id="spindle1")  # sessions see this spindle's rows only
+    with repo.session_scope(factory) as s:     # the service registers its spindle at start-up
+        repo.ensure_spindle(s, "spindle1", description="", now=datetime.now(UTC))
 
     # one session per job/request; SQLAlchemy errors → DatabaseUnavailableError / RecordError
     with repo.session_scope(factory, "list identifications") as s:
@@ -40,6 +42,10 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
     w.status()   # WriterStatus(connected, pending, written, dropped, rejected, errors, lost_on_close,
                  #              last_error, last_error_at, last_ok_at)  -> health / metrics
     w.flush(timeout_s=10.0) -> bool ; w.close(timeout_s=10.0) -> WriterStatus   # on shutdown
+
+    # many spindles in one database (docs/design/persistence.md): rows stamped and filtered by spindle;
+    retention.retention_pass(eng, now=now, raw_days=30, minute_days=365)  # -> RetentionReport (all spindles)
+    merge.merge("sqlite:///old.db", eng, spindle_id="cell3-s07")            # a one-spindle database in
 
 Ids of conditions and identifications are assigned by the service (start from ``repo.max_ids`` + 1; if the
 database is down at start, any larger unique integers, e.g. epoch milliseconds, work): the writer may hold

@@ -23,7 +23,7 @@ from pathlib import Path
 from sqlalchemy import Connection, Engine, create_engine, event
 from sqlalchemy.engine import make_url
 from sqlalchemy.engine.interfaces import DBAPIConnection
-from sqlalchemy.orm import Session, sessionmaker
+from sqlalchemy.orm import ORMExecuteState, Session, sessionmaker, with_loader_criteria
 from sqlalchemy.pool import ConnectionPoolEntry
 
 from service.store.errors import DatabaseUnavailableError
@@ -107,6 +107,29 @@ def _sqlite_engine(url: str, *, echo: bool, busy_timeout_ms: int, create_dirs: b
     return engine
 
 
-def make_session_factory(engine: Engine) -> sessionmaker[Session]:
-    """Sessions that keep loaded attributes after commit (rows are handed to other threads read-only)."""
-    return sessionmaker(engine, expire_on_commit=False)
+DEFAULT_SPINDLE_ID = "spindle1"  # the settings' default ([spindle] id) and the id 0007 gives old rows
+
+
+def make_session_factory(engine: Engine, *, spindle_id: str = DEFAULT_SPINDLE_ID) -> sessionmaker[Session]:
+    """Sessions of one spindle that keep loaded attributes after commit (rows are handed to other threads
+    read-only).
+
+    Every ORM query, update and delete run in these sessions sees only ``spindle_id``'s rows: a
+    ``with_loader_criteria`` on every spindle-scoped table (``service.store.models.SpindleScoped``) is added
+    to each statement, in subqueries and joins too, so no query can forget the filter. Writes stamp the id
+    (``service.store.repository.write_records``); ``session.info["spindle_id"]`` holds it.
+    """
+    factory = sessionmaker(engine, expire_on_commit=False, info={"spindle_id": spindle_id})
+    event.listen(factory, "do_orm_execute", _only_this_spindle)
+    return factory
+
+
+def _only_this_spindle(state: ORMExecuteState) -> None:
+    from service.store.models import SpindleScoped
+
+    if not (state.is_select or state.is_update or state.is_delete) or state.is_column_load:
+        return
+    sid = state.session.info["spindle_id"]
+    state.statement = state.statement.options(
+        with_loader_criteria(SpindleScoped, lambda cls: cls.spindle_id == sid, include_aliases=True)
+    )

@@ -31,13 +31,18 @@ def alembic_config(url: str | None = None) -> Config:
     return cfg
 
 
-def upgrade(target: str | Engine, revision: str = "head") -> None:
-    """Upgrade the database at ``target`` (URL or engine) to ``revision``; raises ``DatabaseError`` types."""
+def upgrade(target: str | Engine, revision: str = "head", *, spindle_id: str | None = None) -> None:
+    """Upgrade the database at ``target`` (URL or engine) to ``revision``; raises ``DatabaseError`` types.
+
+    ``spindle_id``: the id revision ``0007`` gives the rows stored before it (default ``CHTC_SPINDLE__ID``,
+    else ``spindle1``)."""
     engine, owned = _engine(target)
     try:
         with engine.begin() as conn:
             cfg = alembic_config()
             cfg.attributes["connection"] = conn
+            if spindle_id is not None:
+                cfg.attributes["spindle_id"] = spindle_id
             command.upgrade(cfg, revision)
     except sa_exc.SQLAlchemyError as err:
         raise translate(err, f"migrate to {revision}") from err
@@ -46,13 +51,16 @@ def upgrade(target: str | Engine, revision: str = "head") -> None:
             engine.dispose()
 
 
-def downgrade(target: str | Engine, revision: str) -> None:
-    """Downgrade the database at ``target`` to ``revision`` (``"base"``: drop everything)."""
+def downgrade(target: str | Engine, revision: str, *, spindle_id: str | None = None) -> None:
+    """Downgrade the database at ``target`` to ``revision`` (``"base"``: drop everything); below ``0007`` only
+    ``spindle_id``'s rows are kept (default as in ``upgrade``)."""
     engine, owned = _engine(target)
     try:
         with engine.begin() as conn:
             cfg = alembic_config()
             cfg.attributes["connection"] = conn
+            if spindle_id is not None:
+                cfg.attributes["spindle_id"] = spindle_id
             command.downgrade(cfg, revision)
     finally:
         if owned:

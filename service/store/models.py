@@ -1,4 +1,11 @@
-"""SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` and ``0002``).
+"""SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` to ``0007``).
+
+Since ``0007`` every table but ``spindles`` carries ``spindle_id`` (``SpindleScoped``): many spindles share
+one database. Service-assigned ids (conditions, identifications) are unique per spindle (composite keys
+``(spindle_id, id)``); database-assigned ids are BIGINT and unique over the database. Samples are keyed by
+``(spindle_id, t)`` (a retried batch is ``ON CONFLICT DO NOTHING``), and on PostgreSQL the table is
+partitioned by day on ``t`` (``service.store.partitions``). Sessions from
+``service.store.engine.make_session_factory(engine, spindle_id=...)`` see one spindle's rows only.
 
 Tables: ``conditions``, ``identifications``, ``device_events``, ``samples``, (migration ``0002``)
 ``offset_calibrations``, (``0003``) ``compensation_references``, (``0004``) ``live_state`` and (``0005``)
@@ -25,16 +32,23 @@ from sqlalchemy import (
     Boolean,
     Double,
     ForeignKey,
+    ForeignKeyConstraint,
+    Index,
     Integer,
     LargeBinary,
     MetaData,
+    PrimaryKeyConstraint,
     String,
     Text,
 )
-from sqlalchemy.orm import DeclarativeBase, Mapped, mapped_column, relationship
+from sqlalchemy.orm import DeclarativeBase, Mapped, declared_attr, mapped_column, relationship
 
 from service.contracts.records import JsonValue
-from service.store.types import UtcDateTime
+from service.store.types import TemperatureArray, UtcDateTime
+
+# BIGINT everywhere; on SQLite an INTEGER PRIMARY KEY (the 64-bit rowid) so database ids autoincrement there
+BigId = BigInteger().with_variant(Integer(), "sqlite")
+SPINDLE_ID_LENGTH = 64
 
 NAMING = {
     "ix": "ix_%(table_name)s_%(column_0_N_name)s",
@@ -50,34 +64,59 @@ class Base(DeclarativeBase):
     type_annotation_map = {datetime: UtcDateTime, float: Double}  # noqa: RUF012
 
 
-class Condition(Base):
+class Spindle(Base):
+    """A spindle known to the database (``[spindle] id``); registered by the service at start-up."""
+
+    __tablename__ = "spindles"
+
+    id: Mapped[str] = mapped_column(String(SPINDLE_ID_LENGTH), primary_key=True)
+    description: Mapped[str] = mapped_column(Text, default="")
+    created_at: Mapped[datetime]
+
+
+class SpindleScoped:
+    """A table whose rows belong to one spindle: ``spindle_id`` (→ ``spindles``), filtered in every query."""
+
+    @declared_attr
+    def spindle_id(cls) -> Mapped[str]:
+        return mapped_column(String(SPINDLE_ID_LENGTH), ForeignKey("spindles.id"))
+
+
+class Condition(SpindleScoped, Base):
     """An operating condition (speed, torque, ambient) from its start until the next one starts."""
 
     __tablename__ = "conditions"
+    __table_args__ = (PrimaryKeyConstraint("spindle_id", "id"), Index(None, "spindle_id", "started_at"))
 
-    id: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
-    started_at: Mapped[datetime] = mapped_column(index=True)
+    id: Mapped[int] = mapped_column(BigInteger, autoincrement=False)
+    started_at: Mapped[datetime]
     ended_at: Mapped[datetime | None]
     speed_rpm: Mapped[float]
     torque_nm: Mapped[float]
     ambient_c: Mapped[float]
 
     identifications: Mapped[list[Identification]] = relationship(
-        back_populates="condition", foreign_keys="Identification.condition_id", passive_deletes=True
+        back_populates="condition", passive_deletes=True
     )
 
 
-class Identification(Base):
+class Identification(SpindleScoped, Base):
     """One identification of H1–H7 (also the failed, skipped and cancelled ones, with their message)."""
 
     __tablename__ = "identifications"
-
-    id: Mapped[int] = mapped_column(BigInteger, primary_key=True, autoincrement=False)
-    condition_id: Mapped[int] = mapped_column(
-        BigInteger, ForeignKey("conditions.id", ondelete="CASCADE"), index=True
+    __table_args__ = (
+        PrimaryKeyConstraint("spindle_id", "id"),
+        ForeignKeyConstraint(
+            ["spindle_id", "condition_id"], ["conditions.spindle_id", "conditions.id"], ondelete="CASCADE"
+        ),
+        Index(None, "spindle_id", "finished_at"),
+        Index(None, "spindle_id", "condition_id"),
     )
+
+    id: Mapped[int] = mapped_column(BigInteger, autoincrement=False)
+    condition_id: Mapped[int] = mapped_column(BigInteger)
     started_at: Mapped[datetime]
-    finished_at: Mapped[datetime] = mapped_column(index=True)
+    finished_at: Mapped[datetime]
     window_start: Mapped[datetime]
     window_end: Mapped[datetime]
     reason: Mapped[str] = mapped_column(String(32))  # trigger: "schedule", "manual", ...
@@ -111,7 +150,7 @@ class Identification(Base):
         JSON
     )  # free-form: test-point errors, per-sensor RMSE, ...
 
-    condition: Mapped[Condition] = relationship(back_populates="identifications", foreign_keys=[condition_id])
+    condition: Mapped[Condition] = relationship(back_populates="identifications")
 
     @property
     def h(self) -> tuple[float | None, ...]:
@@ -119,70 +158,110 @@ class Identification(Base):
         return (self.h1, self.h2, self.h3, self.h4, self.h5, self.h6, self.h7)
 
 
-class DeviceEvent(Base):
+class DeviceEvent(SpindleScoped, Base):
     """Something a device (or the database, or the worker) did: connected, lost, fault frame, restarted."""
 
     __tablename__ = "device_events"
+    __table_args__ = (Index(None, "spindle_id", "t"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    t: Mapped[datetime] = mapped_column(index=True)
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    t: Mapped[datetime]
     device: Mapped[str] = mapped_column(String(16))  # "modbus" | "can" | "db" | "worker" | ...
     kind: Mapped[str] = mapped_column(String(64))  # "connected", "timeout", "fault-status", ...
     detail: Mapped[str] = mapped_column(Text, default="")
 
 
-class SampleRow(Base):
-    """One stored acquisition instant (the service stores one per ``database.sample_store_period_s``)."""
+class SampleRow(SpindleScoped, Base):
+    """One stored acquisition instant (the service stores one per ``database.sample_store_period_s``).
+
+    Key ``(spindle_id, t)``: a retried batch is ``ON CONFLICT DO NOTHING``. On PostgreSQL the table is
+    partitioned by day on ``t`` (``service.store.partitions``; the retention pass drops whole days)."""
 
     __tablename__ = "samples"
+    __table_args__ = (PrimaryKeyConstraint("spindle_id", "t"), {"postgresql_partition_by": "RANGE (t)"})
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    t: Mapped[datetime] = mapped_column(index=True)
+    t: Mapped[datetime]
     ambient_c: Mapped[float | None]
     speed_rpm: Mapped[float | None]
     torque_nm: Mapped[float | None]
-    temps_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel, °C; null = no usable value
+    # per channel, °C; null = no usable value. PostgreSQL: real[] (float32: 0.01 °C data, 7 digits kept)
+    temps_c: Mapped[list[float | None]] = mapped_column(TemperatureArray)
     n_good: Mapped[int] = mapped_column(Integer)  # channels with quality "ok"
     bad_channels: Mapped[dict[str, str]] = mapped_column(JSON)  # {"7": "open_circuit", ...} (1-based)
     can_ok: Mapped[bool] = mapped_column(Boolean)
     daq_ok: Mapped[bool] = mapped_column(Boolean)
 
 
-class OffsetCalibrationRow(Base):
+class SampleMinuteRow(SpindleScoped, Base):
+    """The 1-minute means of the stored samples (``service.store.downsample``): kept ``database.minute_days``
+    after the raw samples (``database.raw_days``) are dropped. Means over the samples of the minute
+    ``[t, t + 60 s)``; a channel's mean over its non-null values (null: none)."""
+
+    __tablename__ = "samples_1min"
+    __table_args__ = (PrimaryKeyConstraint("spindle_id", "t"),)
+
+    t: Mapped[datetime]  # the minute's start, UTC
+    n: Mapped[int] = mapped_column(Integer)  # samples averaged
+    ambient_c: Mapped[float | None]
+    speed_rpm: Mapped[float | None]
+    torque_nm: Mapped[float | None]
+    speed_max_rpm: Mapped[float | None]
+    temps_c: Mapped[list[float | None]] = mapped_column(TemperatureArray)
+    n_good_min: Mapped[int] = mapped_column(Integer)  # the fewest good channels in a sample of the minute
+    can_ok: Mapped[bool] = mapped_column(Boolean)  # every sample of the minute
+    daq_ok: Mapped[bool] = mapped_column(Boolean)
+
+
+class SpeedMapStateRow(SpindleScoped, Base):
+    """The speed map's newest state (``SpeedMap.to_json`` with its covariance): one row per spindle,
+    upserted with every map fit. The identification history rows keep the map without the covariance."""
+
+    __tablename__ = "speed_map_state"
+    __table_args__ = (PrimaryKeyConstraint("spindle_id"),)
+
+    identification_id: Mapped[int] = mapped_column(BigInteger)  # the map fit it came from
+    fitted_at: Mapped[datetime]
+    state: Mapped[dict[str, JsonValue]] = mapped_column(JSON)
+
+
+class OffsetCalibrationRow(SpindleScoped, Base):
     """A sensor offset baseline (``service.acquire.calibration.Calibration``); the newest is restored."""
 
     __tablename__ = "offset_calibrations"
+    __table_args__ = (Index(None, "spindle_id", "t_to"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
     t_from: Mapped[datetime]  # the rest window the offsets were averaged over
-    t_to: Mapped[datetime] = mapped_column(index=True)
+    t_to: Mapped[datetime]
     source: Mapped[str] = mapped_column(String(16))  # "auto" | "manual"
     samples: Mapped[int] = mapped_column(Integer)
     offsets_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel, °C; null = not corrected
     sd_c: Mapped[list[float | None]] = mapped_column(JSON)  # per channel 1σ of the offset, °C
 
 
-class CompensationReferenceRow(Base):
+class CompensationReferenceRow(SpindleScoped, Base):
     """A compensation zero (``service.estimate.reference.CompensationReference``); the newest is restored."""
 
     __tablename__ = "compensation_references"
+    __table_args__ = (Index(None, "spindle_id", "at"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    at: Mapped[datetime] = mapped_column(index=True)  # when the controller was zeroed
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    at: Mapped[datetime]  # when the controller was zeroed
     temperature_c: Mapped[float]  # the uniform temperature of growth 0, °C
     sd_c: Mapped[float]  # its 1σ, °C (0: given by an operator)
     source: Mapped[str] = mapped_column(String(16))  # "api" | "cli" | "first_start" | "config"
     set_by: Mapped[str] = mapped_column(String(64))
 
 
-class MechanicsCalibrationRow(Base):
+class MechanicsCalibrationRow(SpindleScoped, Base):
     """A commissioning of the growth's mechanics (``service.estimate.mechanics.MechanicsCalibration``); the
     newest is restored and serves ``/compensation``."""
 
     __tablename__ = "mechanics_calibrations"
+    __table_args__ = (Index(None, "spindle_id", "at"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    at: Mapped[datetime] = mapped_column(index=True)  # when the calibration was made
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    at: Mapped[datetime]  # when the calibration was made
     set_by: Mapped[str] = mapped_column(String(64))
     source: Mapped[str] = mapped_column(String(16))  # "cli" | "api"
     restraint: Mapped[float]  # mount radial restraint s in [0, 1]
@@ -198,14 +277,15 @@ class MechanicsCalibrationRow(Base):
     report: Mapped[dict[str, JsonValue]] = mapped_column(JSON)  # the whole report (JSON)
 
 
-class ProbeMeasurementRow(Base):
+class ProbeMeasurementRow(SpindleScoped, Base):
     """A probe reading in service (``service.estimate.probe.ProbeMeasurement``); the accepted ones measured
     after the newest commissioning are replayed into the mechanical posterior at start-up."""
 
     __tablename__ = "probe_measurements"
+    __table_args__ = (Index(None, "spindle_id", "at"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
-    at: Mapped[datetime] = mapped_column(index=True)  # the reading's instant
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
+    at: Mapped[datetime]  # the reading's instant
     recorded_at: Mapped[datetime]  # when the service took it
     axial_um: Mapped[float]  # the tool's axial position over the commissioned zero, µm
     sd_um: Mapped[float]  # its 1σ, µm
@@ -219,13 +299,14 @@ class ProbeMeasurementRow(Base):
     source: Mapped[str] = mapped_column(String(16))
 
 
-class LiveStateRow(Base):
+class LiveStateRow(SpindleScoped, Base):
     """The live state's newest checkpoint (``service.estimate.checkpoint.LiveCheckpoint``): one row, replaced
     on every write (``service.store.repository.write_records``); a restart resumes the filter from it."""
 
     __tablename__ = "live_state"
+    __table_args__ = (Index(None, "spindle_id"),)
 
-    id: Mapped[int] = mapped_column(Integer, primary_key=True)
+    id: Mapped[int] = mapped_column(BigId, primary_key=True)
     at: Mapped[datetime]  # the state's time (a sample's), UTC
     model_version: Mapped[str] = mapped_column(String(64))  # the reduced model it belongs to
     converged: Mapped[bool] = mapped_column(Boolean)

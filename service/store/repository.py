@@ -14,8 +14,9 @@ from datetime import datetime
 from itertools import groupby
 from typing import Generic, TypeVar
 
-from sqlalchemy import delete, func, insert, select, update
+from sqlalchemy import Connection, Table, delete, func, insert, select, update
 from sqlalchemy import exc as sa_exc
+from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
@@ -31,6 +32,7 @@ from service.contracts.records import (
     ProbeMeasurementData,
     Record,
     SampleData,
+    SampleMinuteData,
 )
 from service.store.errors import RecordNotFoundError
 from service.store.models import (
@@ -43,8 +45,12 @@ from service.store.models import (
     MechanicsCalibrationRow,
     OffsetCalibrationRow,
     ProbeMeasurementRow,
+    SampleMinuteRow,
     SampleRow,
+    SpeedMapStateRow,
+    Spindle,
 )
+from service.store.partitions import ensure_days, utc_day
 from service.store.sqlerrors import translate
 
 T = TypeVar("T")
@@ -83,11 +89,35 @@ _TABLE_OF: dict[type, type] = {
     LiveStateData: LiveStateRow,
     MechanicsCalibrationData: MechanicsCalibrationRow,
     ProbeMeasurementData: ProbeMeasurementRow,
+    SampleMinuteData: SampleMinuteRow,
 }
+# keyed by (spindle_id, t): a retried batch (the commit went through, its acknowledgement did not) is skipped
+_IDEMPOTENT = (SampleData, SampleMinuteData)
+
+
+def spindle_of(session: Session) -> str:
+    """The spindle a session belongs to (``service.store.engine.make_session_factory``)."""
+    return str(session.info["spindle_id"])
+
+
+def ensure_spindle(session: Session, spindle_id: str, *, description: str = "", now: datetime) -> None:
+    """Register ``spindle_id`` in ``spindles`` (every row refers to it); a new description replaces the
+    stored one."""
+    row = session.get(Spindle, spindle_id)
+    if row is None:
+        session.add(Spindle(id=spindle_id, description=description, created_at=now))
+    elif description and row.description != description:
+        row.description = description
+    session.flush()
 
 
 def write_records(session: Session, records: Sequence[Record]) -> None:
-    """Write records in order; runs of one kind become one multi-row INSERT (or one UPDATE each for ends)."""
+    """Write records in order, stamped with the session's spindle; runs of one kind become one multi-row
+    INSERT (or one UPDATE each for ends); samples and minute means skip rows already stored."""
+    sid = spindle_of(session)
+    days = {utc_day(r.t) for r in records if isinstance(r, SampleData)}
+    if days:  # PostgreSQL: the days' partitions first, before any insert of the batch
+        ensure_days(session.connection(), days)
     for kind, group in groupby(records, key=type):
         run = list(group)
         if kind is ConditionEnd:
@@ -95,20 +125,81 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
                 assert isinstance(end, ConditionEnd)
                 _end_condition(session, end)
         elif kind is LiveStateData:  # one row: the newest checkpoint replaces the stored one
-            session.execute(delete(LiveStateRow))
-            session.execute(insert(LiveStateRow), [run[-1].values()])  # type: ignore[union-attr]
+            session.execute(delete(LiveStateRow).where(LiveStateRow.spindle_id == sid))
+            session.execute(insert(LiveStateRow), [_stamped(run[-1], sid)])
+        elif kind is IdentificationData:
+            rows = [_split_speed_map(session, r, sid) for r in run]  # type: ignore[arg-type]
+            session.execute(insert(Identification), rows)
+        elif kind in _IDEMPOTENT:
+            insert_ignore_rows(session, _TABLE_OF[kind], [_stamped(r, sid) for r in run])
         else:
-            session.execute(insert(_TABLE_OF[kind]), [r.values() for r in run])  # type: ignore[union-attr]
+            session.execute(insert(_TABLE_OF[kind]), [_stamped(r, sid) for r in run])
+
+
+def _stamped(record: Record, sid: str) -> dict[str, object]:
+    return {**record.values(), "spindle_id": sid}  # type: ignore[union-attr]
+
+
+def insert_ignore_rows(
+    target: Session | Connection, model: type[Base], rows: Sequence[dict[str, object]]
+) -> None:
+    """``INSERT … ON CONFLICT DO NOTHING`` of ``rows`` (column dicts) on SQLite and PostgreSQL."""
+    table = model.__table__
+    ins = postgresql.insert if _dialect(target) == "postgresql" else sqlite.insert
+    target.execute(ins(table).on_conflict_do_nothing(), list(rows))  # type: ignore[arg-type]
+
+
+def _dialect(target: Session | Connection) -> str:
+    return str(target.dialect.name if isinstance(target, Connection) else target.get_bind().dialect.name)
+
+
+def _upsert(session: Session, table: Table, values: dict[str, object], keys: list[str]) -> None:
+    dialect = _dialect(session)
+    ins = (postgresql.insert if dialect == "postgresql" else sqlite.insert)(table).values(**values)
+    changed = {k: v for k, v in values.items() if k not in keys}
+    session.execute(ins.on_conflict_do_update(index_elements=keys, set_=changed))
+
+
+COV_KEYS = ("cov_upper_b64", "cov")  # SpeedMap.to_json's covariance (now, earlier form)
+
+
+def _split_speed_map(session: Session, record: IdentificationData, sid: str) -> dict[str, object]:
+    """The identification row, its speed map stored without the covariance; a successful map fit's whole
+    state (with the covariance, ~19 kB) replaces the spindle's row in ``speed_map_state``."""
+    row = _stamped(record, sid)
+    diag = row.get("diagnostics")
+    stored = diag.get("speed_map") if isinstance(diag, dict) else None
+    if not isinstance(stored, dict) or not any(k in stored for k in COV_KEYS):
+        return row
+    if record.outcome == "ok":
+        state = {
+            "spindle_id": sid,
+            "identification_id": record.id,
+            "fitted_at": _fitted_at(stored, record.finished_at),
+            "state": stored,
+        }
+        _upsert(session, SpeedMapStateRow.__table__, state, ["spindle_id"])  # type: ignore[arg-type]
+    light = {k: v for k, v in stored.items() if k not in COV_KEYS}
+    return {**row, "diagnostics": {**diag, "speed_map": {**light, "covariance_in": "speed_map_state"}}}  # type: ignore[dict-item]
+
+
+def _fitted_at(stored: dict[str, object], default: datetime) -> datetime:
+    try:
+        at = datetime.fromisoformat(str(stored["fitted_at"]))
+    except (KeyError, ValueError):
+        return default
+    return at if at.tzinfo is not None else default
 
 
 def _end_condition(session: Session, end: ConditionEnd) -> None:
-    result = session.execute(update(Condition).where(Condition.id == end.id).values(ended_at=end.ended_at))
+    query = update(Condition).where(Condition.spindle_id == spindle_of(session), Condition.id == end.id)
+    result = session.execute(query.values(ended_at=end.ended_at))
     if getattr(result, "rowcount", 1) == 0:
         raise RecordNotFoundError(f"conditions: no id {end.id} to end")
 
 
 def add_condition(session: Session, record: ConditionStart) -> Condition:
-    row = Condition(**record.values())
+    row = Condition(**record.values(), spindle_id=spindle_of(session))
     session.add(row)
     session.flush()
     return row
@@ -119,14 +210,12 @@ def end_condition(session: Session, record: ConditionEnd) -> None:
 
 
 def add_identification(session: Session, record: IdentificationData) -> Identification:
-    row = Identification(**record.values())
-    session.add(row)
-    session.flush()
-    return row
+    write_records(session, [record])
+    return get_identification(session, record.id)
 
 
 def add_device_event(session: Session, record: DeviceEventData) -> DeviceEvent:
-    row = DeviceEvent(**record.values())
+    row = DeviceEvent(**record.values(), spindle_id=spindle_of(session))
     session.add(row)
     session.flush()
     return row
@@ -134,11 +223,11 @@ def add_device_event(session: Session, record: DeviceEventData) -> DeviceEvent:
 
 def add_samples(session: Session, records: Sequence[SampleData]) -> None:
     if records:
-        session.execute(insert(SampleRow), [r.values() for r in records])
+        write_records(session, records)
 
 
 def add_offset_calibration(session: Session, record: OffsetCalibrationData) -> OffsetCalibrationRow:
-    row = OffsetCalibrationRow(**record.values())
+    row = OffsetCalibrationRow(**record.values(), spindle_id=spindle_of(session))
     session.add(row)
     session.flush()
     return row
@@ -146,7 +235,7 @@ def add_offset_calibration(session: Session, record: OffsetCalibrationData) -> O
 
 # --- reads ----------------------------------------------------------------------------------------
 def get_condition(session: Session, condition_id: int) -> Condition:
-    row = session.get(Condition, condition_id)
+    row = session.scalars(select(Condition).where(Condition.id == condition_id)).first()
     if row is None:
         raise RecordNotFoundError(f"conditions: no id {condition_id}")
     return row
@@ -166,7 +255,8 @@ def list_conditions(
 
 
 def get_identification(session: Session, identification_id: int) -> Identification:
-    row = session.get(Identification, identification_id, options=[joinedload(Identification.condition)])
+    query = select(Identification).where(Identification.id == identification_id)
+    row = session.scalars(query.options(joinedload(Identification.condition))).first()
     if row is None:
         raise RecordNotFoundError(f"identifications: no id {identification_id}")
     return row
@@ -273,7 +363,20 @@ def list_samples(
 ) -> list[SampleRow]:
     """Stored samples at t in [since, until), oldest first (for replay and plots)."""
     query = _time_filter(select(SampleRow), SampleRow.t, since, until)
-    return list(session.scalars(query.order_by(SampleRow.t, SampleRow.id).limit(limit)))
+    return list(session.scalars(query.order_by(SampleRow.t).limit(limit)))
+
+
+def list_sample_minutes(
+    session: Session, *, since: datetime | None = None, until: datetime | None = None, limit: int = 10_000
+) -> list[SampleMinuteRow]:
+    """Stored 1-minute means starting in [since, until), oldest first."""
+    query = _time_filter(select(SampleMinuteRow), SampleMinuteRow.t, since, until)
+    return list(session.scalars(query.order_by(SampleMinuteRow.t).limit(limit)))
+
+
+def last_speed_map_state(session: Session) -> SpeedMapStateRow | None:
+    """The spindle's newest speed-map state (with its covariance); None if no map was ever fitted."""
+    return session.scalars(select(SpeedMapStateRow).limit(1)).first()
 
 
 def last_compensation_reference(session: Session) -> CompensationReferenceRow | None:

@@ -1,12 +1,16 @@
-"""Column types: :class:`UtcDateTime` stores UTC and always returns timezone-aware UTC datetimes."""
+"""Column types: :class:`UtcDateTime` stores UTC and always returns timezone-aware UTC datetimes;
+:class:`TemperatureArray` is ``real[]`` on PostgreSQL and JSON elsewhere."""
 
 from __future__ import annotations
 
 from datetime import UTC, datetime
+from typing import Any
 
-from sqlalchemy import DateTime
+import numpy as np
+from sqlalchemy import JSON, REAL, DateTime
+from sqlalchemy.dialects.postgresql import ARRAY
 from sqlalchemy.engine import Dialect
-from sqlalchemy.types import TypeDecorator
+from sqlalchemy.types import TypeDecorator, TypeEngine
 
 
 class UtcDateTime(TypeDecorator[datetime]):
@@ -35,3 +39,26 @@ class UtcDateTime(TypeDecorator[datetime]):
         if value.tzinfo is None:
             return value.replace(tzinfo=UTC)
         return value.astimezone(UTC)
+
+
+class TemperatureArray(TypeDecorator[list[float | None]]):
+    """Per-channel temperatures [°C]: ``real[]`` on PostgreSQL (4 bytes a value, NULL kept), a JSON array
+    elsewhere. A ``real`` read back is the shortest decimal that is the same float32 (23.45, not
+    23.450000762939453): the data come at 0.01 °C, which float32 holds to 7 significant digits."""
+
+    impl = JSON
+    cache_ok = True
+
+    def load_dialect_impl(self, dialect: Dialect) -> TypeEngine[Any]:
+        if dialect.name == "postgresql":
+            array: TypeEngine[Any] = ARRAY(REAL())
+            return dialect.type_descriptor(array)
+        return dialect.type_descriptor(JSON())
+
+    def process_result_value(self, value: object, dialect: Dialect) -> list[float | None] | None:
+        if value is None:
+            return None
+        values = list(value)  # type: ignore[call-overload]
+        if dialect.name != "postgresql":
+            return values
+        return [None if v is None else float(str(np.float32(v))) for v in values]

@@ -15,6 +15,10 @@ waits longer than the watchdog's ``abort_after_s`` (a hung database) is aborted 
 seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
 database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh.
 
+With ``downsample=True`` (the service's writer) every sample submitted also feeds a 1-minute mean
+(``service.store.downsample``), submitted when the minute is over (and at ``close()``): what retention keeps
+after the raw samples are dropped. The counters count the submitted records, not these.
+
 ``flush(timeout_s)`` waits until everything submitted so far is written; ``close(timeout_s)`` flushes, stops
 the thread and counts what could not be written as ``lost_on_close``.
 """
@@ -35,7 +39,8 @@ from types import TracebackType
 from sqlalchemy import text
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.contracts.records import RECORD_TYPES, DeviceEventData, Record
+from service.contracts.records import RECORD_TYPES, DeviceEventData, Record, SampleData, SampleMinuteData
+from service.store.downsample import MinuteMeans
 from service.store.errors import DatabaseUnavailableError
 from service.store.repository import session_scope, write_records
 from service.store.watchdog import StatementWatchdog
@@ -80,6 +85,7 @@ class DbWriter:
         stall_s: float = 3.0,
         monotonic: Callable[[], float] = time.monotonic,
         name: str = "chtc-db-writer",
+        downsample: bool = False,
     ) -> None:
         if batch_size < 1 or buffer_max < 1 or not 0 < retry_initial_s <= retry_max_s:
             raise ValueError("need batch_size >= 1, buffer_max >= 1, 0 < retry_initial_s <= retry_max_s")
@@ -103,6 +109,8 @@ class DbWriter:
         self._counts = {"written": 0, "dropped": 0, "rejected": 0, "errors": 0, "lost_on_close": 0}
         self._last_error: tuple[str, datetime] | None = None
         self._last_ok_at: datetime | None = None
+        # 1-minute means of the samples submitted, written beside them (kept after the raw ones are dropped)
+        self._minutes = MinuteMeans() if downsample else None
 
     # --- caller side ------------------------------------------------------------------------------
     def start(self) -> DbWriter:
@@ -118,6 +126,10 @@ class DbWriter:
                 self._counts["dropped"] += 1
                 return False
             self._queue.append(record)
+            if self._minutes is not None and isinstance(record, SampleData):
+                done = self._minutes.add(record)
+                if done is not None:
+                    self._queue.append(done)
             self._cond.notify_all()
             return True
 
@@ -134,6 +146,9 @@ class DbWriter:
         """Flush (up to ``timeout_s``), stop the worker and return the final status."""
         with self._cond:
             self._closed = True
+            last = self._minutes.flush() if self._minutes is not None else None
+            if last is not None:
+                self._queue.append(last)
         if self._thread.is_alive():
             self.flush(timeout_s)
             self._stop.set()
@@ -217,7 +232,7 @@ class DbWriter:
         except Exception:  # refused for good (or a bug): find the culprits one by one
             self._isolate(batch)
             return
-        self._done(len(batch), "written")
+        self._done(len(batch), "written", derived=_derived(batch))
 
     def _isolate(self, batch: Sequence[Record]) -> None:
         """Write one by one to find the records the database refuses; skip those, keep order for the rest."""
@@ -231,20 +246,21 @@ class DbWriter:
             except Exception as err:
                 log.warning("database writer: record rejected: %s", err)
                 self._note_error(str(err))
-                self._done(1, "rejected")
+                self._done(1, "rejected", derived=_derived([record]))
             else:
-                self._done(1, "written")
+                self._done(1, "written", derived=_derived([record]))
 
     def _probe(self) -> None:
         with self._guard("probe"), session_scope(self._factory, "probe") as session:
             session.execute(text("SELECT 1"))
         self._mark_ok()
 
-    def _done(self, n: int, counter: str) -> None:
+    def _done(self, n: int, counter: str, *, derived: int = 0) -> None:
+        """``n`` records off the queue; the counters count what was submitted (not the minute means)."""
         with self._cond:
             for _ in range(min(n, len(self._queue))):  # close() may have given up on these already
                 self._queue.popleft()
-            self._counts[counter] += n
+            self._counts[counter] += n - derived
             self._cond.notify_all()
         self._mark_ok()
 
@@ -277,3 +293,8 @@ class DbWriter:
         with self._cond:
             self._counts["errors"] += 1
             self._last_error = (message, self._clock())
+
+
+def _derived(batch: Sequence[Record]) -> int:
+    """Records the writer made itself (minute means), not counted as submitted ones."""
+    return sum(isinstance(r, SampleMinuteData) for r in batch)

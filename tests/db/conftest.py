@@ -5,6 +5,7 @@ from __future__ import annotations
 import time
 import uuid
 from collections.abc import Callable, Iterator
+from datetime import UTC, datetime
 
 import pytest
 import sqlalchemy as sa
@@ -12,7 +13,8 @@ from sqlalchemy.engine import make_url
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.store import migrate
-from service.store.engine import create_db_engine, make_session_factory
+from service.store import repository as repo
+from service.store.engine import DEFAULT_SPINDLE_ID, create_db_engine, make_session_factory
 
 
 def pg_schema_url(base_url: str, schema: str, *, port: int | None = None) -> str:
@@ -58,7 +60,16 @@ def engine(db_url: str) -> Iterator[sa.Engine]:
 
 @pytest.fixture
 def factory(engine: sa.Engine) -> sessionmaker[Session]:
-    return make_session_factory(engine)
+    """Sessions of the default spindle (registered)."""
+    return spindle_factory(engine, DEFAULT_SPINDLE_ID)
+
+
+def spindle_factory(engine: sa.Engine, spindle_id: str) -> sessionmaker[Session]:
+    """Sessions of ``spindle_id``, registered in ``spindles``."""
+    f = make_session_factory(engine, spindle_id=spindle_id)
+    with repo.session_scope(f, "register") as s:
+        repo.ensure_spindle(s, spindle_id, now=datetime.now(UTC))
+    return f
 
 
 def wait_until(predicate: Callable[[], bool], *, timeout_s: float = 15.0, what: str = "condition") -> None:

@@ -78,6 +78,7 @@ def test_a_bad_stored_baseline_is_named_kept_and_the_rest_restored(db_url: str) 
     first.close()
     with repo.session_scope(first.session_factory) as s:  # a later row, damaged: 31 channels
         bad = OffsetCalibrationRow(
+            spindle_id="spindle1",
             t_from=T0,
             t_to=T0 + timedelta(hours=1),
             source="auto",

@@ -53,7 +53,7 @@ def test_the_newest_commissioning_is_restored_with_its_posterior(factory: sessio
 def test_an_unusable_stored_commissioning_is_reported_and_none_is_used(
     factory: sessionmaker[Session],
 ) -> None:
-    row = mechanics_record(_cal(AT, 0.5, "x")).values() | {"restraint": 1.7}
+    row = mechanics_record(_cal(AT, 0.5, "x")).values() | {"restraint": 1.7, "spindle_id": "spindle1"}
     with session_scope(factory, "write") as s:
         s.execute(insert(MechanicsCalibrationRow), [row])
     said: list[str] = []

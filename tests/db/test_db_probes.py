@@ -52,7 +52,7 @@ def test_readings_are_stored_and_restored_oldest_first(factory: sessionmaker[Ses
 
 
 def test_an_unusable_stored_reading_is_reported_and_none_are_replayed(factory: sessionmaker[Session]) -> None:
-    row = probe_record(_m(AT, 1.0, True), AT).values() | {"features": [1.0, 2.0]}
+    row = probe_record(_m(AT, 1.0, True), AT).values() | {"features": [1.0, 2.0], "spindle_id": "spindle1"}
     with session_scope(factory, "write") as s:
         s.execute(insert(ProbeMeasurementRow), [row])
     said: list[str] = []

@@ -32,7 +32,16 @@ def test_an_unusable_stored_zero_is_reported_and_none_is_used(factory: sessionma
     with session_scope(factory, "write") as s:
         s.execute(
             insert(CompensationReferenceRow),
-            [{"at": AT, "temperature_c": 21.0, "sd_c": 0.0, "source": "guessed", "set_by": "x"}],
+            [
+                {
+                    "at": AT,
+                    "temperature_c": 21.0,
+                    "sd_c": 0.0,
+                    "source": "guessed",
+                    "set_by": "x",
+                    "spindle_id": "spindle1",
+                }
+            ],
         )
     said: list[str] = []
     assert restore(factory, on_problem=said.append).reference is None

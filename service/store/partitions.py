@@ -1,0 +1,111 @@
+"""Daily partitions of ``samples`` on PostgreSQL (declarative range partitioning on ``t``, bounds in UTC).
+
+A partition is ``samples_pYYYYMMDD`` holding ``[day 00:00 UTC, next day 00:00 UTC)``. What makes them:
+
+- the writer, for the days of each batch it has not seen yet (``ensure_days``: ``CREATE TABLE IF NOT EXISTS
+  … PARTITION OF``, serialized by an advisory lock so concurrent spindles' writers do not race), before any
+  insert of the batch;
+- the retention pass (``service.store.retention``), ``PREMAKE_DAYS`` ahead, so the writer rarely has to.
+
+What drops them: the retention pass (``drop_before``), whole days older than ``database.raw_days``
+(``DROP TABLE`` of the partition: immediate, and the space is freed, unlike a ``DELETE``).
+
+pg_partman (Debian ``postgresql-15-partman``) would do the same creation and dropping; it is not used: its
+retention drops a partition without the minute-means backfill the pass does first, its configuration is
+database-wide (one ``part_config`` row per parent table) and needs superuser rights to install, and it needs
+a scheduler of its own (its background worker or cron). These ~80 lines, run by the service, need none.
+SQLite has no partitions; everything here is a no-op there.
+"""
+
+from __future__ import annotations
+
+import re
+import weakref
+from collections.abc import Iterable
+from datetime import UTC, date, datetime, timedelta
+
+from sqlalchemy import Connection, Engine, text
+
+__all__ = ["PREFIX", "day_bounds", "drop_before", "ensure_days", "list_partitions", "partition_name"]
+
+PREFIX = "samples_p"
+PREMAKE_DAYS = 3
+_NAME = re.compile(r"^samples_p(\d{8})$")
+_LOCK = 0x43485443  # pg_advisory_xact_lock key: partition DDL of this schema, one at a time ("CHTC")
+_known: weakref.WeakKeyDictionary[Engine, set[date]] = weakref.WeakKeyDictionary()
+
+
+def partition_name(day: date) -> str:
+    return f"{PREFIX}{day:%Y%m%d}"
+
+
+def day_bounds(day: date) -> tuple[datetime, datetime]:
+    lo = datetime(day.year, day.month, day.day, tzinfo=UTC)
+    return lo, lo + timedelta(days=1)
+
+
+def utc_day(t: datetime) -> date:
+    return t.astimezone(UTC).date()
+
+
+def partitioned(conn: Connection) -> bool:
+    return conn.dialect.name == "postgresql"
+
+
+def ensure_days(conn: Connection, days: Iterable[date]) -> list[str]:
+    """Create the partitions of ``days`` that do not exist yet (PostgreSQL); the names created."""
+    if not partitioned(conn):
+        return []
+    known = _known.setdefault(conn.engine, set())
+    wanted = sorted(set(days) - known)
+    if not wanted:
+        return []
+    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+    existing = {d for _, d in list_partitions(conn)}
+    created = []
+    for day in wanted:
+        if day not in existing:
+            lo, hi = day_bounds(day)
+            conn.execute(
+                text(
+                    f'CREATE TABLE IF NOT EXISTS "{partition_name(day)}" PARTITION OF samples '
+                    f"FOR VALUES FROM ('{lo.isoformat()}') TO ('{hi.isoformat()}')"
+                )
+            )
+            created.append(partition_name(day))
+    known.update(d for d in wanted if d in existing)  # a new one is known once committed (seen next time)
+    return created
+
+
+def list_partitions(conn: Connection) -> list[tuple[str, date]]:
+    """(name, day) of the partitions of ``samples`` in the current schema, oldest first."""
+    if not partitioned(conn):
+        return []
+    rows = conn.execute(
+        text(
+            "SELECT c.relname FROM pg_inherits i JOIN pg_class c ON c.oid = i.inhrelid "
+            "WHERE i.inhparent = 'samples'::regclass"
+        )
+    ).scalars()
+    out = []
+    for name in rows:
+        m = _NAME.match(name)
+        if m:
+            out.append((name, datetime.strptime(m.group(1), "%Y%m%d").date()))
+    return sorted(out, key=lambda p: p[1])
+
+
+def drop_before(conn: Connection, cutoff: date) -> list[str]:
+    """Drop the partitions of the days before ``cutoff`` (whole days only); the names dropped."""
+    if not partitioned(conn):
+        return []
+    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+    dropped = []
+    for name, day in list_partitions(conn):
+        if day < cutoff:
+            conn.execute(text(f'DROP TABLE "{name}"'))
+            dropped.append(name)
+    known = _known.get(conn.engine)
+    if known is not None:
+        known.difference_update(d for d in set(known) if d < cutoff)
+    return dropped
