@@ -84,7 +84,7 @@ def create_app(
     app.state.clock = clock
     app.state.clock_info = clock_info or ClockInfo()
     app.state.auth = AuthConfig.from_settings(settings.api)
-    app.state.metrics = ApiMetrics(service)
+    app.state.metrics = ApiMetrics(service, spindle_id=settings.spindle.id)
     install_error_handlers(app)
     modules = (
         chtc,

@@ -315,11 +315,29 @@ def _filter_gauges(f: FilterMetrics | None) -> Iterator[Metric]:
     )
 
 
-class ApiMetrics:
-    """The app's registry plus the request-latency histogram."""
+class SpindleLabelled:
+    """What ``/metrics`` exposes: ``registry``'s families with ``spindle="<id>"`` on every sample (the
+    ``[spindle] id``), so one Prometheus, one Grafana dashboard (deploy/grafana) and one alert rule serve many
+    spindles; a sample's own ``spindle`` label, if any, is kept."""
 
-    def __init__(self, service: ChtcService) -> None:
+    def __init__(self, registry: CollectorRegistry, spindle_id: str) -> None:
+        self.registry = registry
+        self.spindle_id = spindle_id
+
+    def collect(self) -> Iterator[Metric]:
+        for fam in self.registry.collect():
+            out = Metric(fam.name, fam.documentation, fam.type, fam.unit)
+            out.samples = [s._replace(labels={"spindle": self.spindle_id, **s.labels}) for s in fam.samples]
+            yield out
+
+
+class ApiMetrics:
+    """The app's registry plus the request-latency histogram; ``exposed`` labels every sample with the
+    spindle."""
+
+    def __init__(self, service: ChtcService, spindle_id: str = "spindle1") -> None:
         self.registry = CollectorRegistry(auto_describe=False)
+        self.exposed = SpindleLabelled(self.registry, spindle_id)
         self.request_latency = Histogram(
             "chtc_http_request_duration_seconds",
             "API request latency",

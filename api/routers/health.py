@@ -46,7 +46,7 @@ async def readyz(service: ServiceDep, clock: ClockDep) -> JSONResponse:
     "/metrics", dependencies=[ReadAccess], summary="Prometheus text exposition", response_class=Response
 )
 def metrics(request: Request) -> Response:
-    data = generate_latest(request.app.state.metrics.registry)
+    data = generate_latest(request.app.state.metrics.exposed)
     return Response(data, media_type=CONTENT_TYPE_LATEST)
 
 

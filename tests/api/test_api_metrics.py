@@ -68,6 +68,23 @@ def test_each_app_has_its_own_registry(ro_service: SoftSensorService, ro_clock: 
     assert a.state.metrics.registry is not b.state.metrics.registry
 
 
+def test_every_sample_is_labelled_with_the_spindle(
+    ro_service: SoftSensorService, ro_clock: ManualClock
+) -> None:
+    from api.app import create_app
+    from service.settings import Settings
+
+    settings = Settings.model_validate({"spindle": {"id": "cell3-s7"}})
+    with TestClient(create_app(settings, ro_service, clock=ro_clock)) as client:
+        client.get("/api/v1/chtc")  # a request latency sample too
+        fam = _families(client)
+    samples = [s for values in fam.values() for s in values]
+    assert len(fam) > 20 and samples
+    assert {s.labels.get("spindle") for s in samples} == {"cell3-s7"}
+    # the other labels are kept beside it
+    assert {s.labels["zone"] for s in fam["chtc_h_w_m2k"]} == {f"H{i}" for i in range(1, 8)}
+
+
 def test_h_gauges_status_usable_and_build_info(
     client: TestClient, service: SoftSensorService, clock: ManualClock
 ) -> None:
