@@ -154,6 +154,7 @@ def make_drivers(
         interface=rig.can_interface,
         channel=rig.channel,
         stale_after_s=max(1.0, 3.0 * period_wall),
+        batch_s=settings.can.batch_s,
         now=clock,
     )
     return daq, can_sensor
