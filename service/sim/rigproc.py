@@ -16,9 +16,10 @@ of a Linux machine, so :meth:`RigProcess.plant_time_s` needs no round trip), ``(
 exits on a failure. Parent to child: ``"start"`` (serve from now on: the service is listening), ``"stop"``.
 
 Lifetime: the child is spawned (a fresh interpreter, no forked copy of the service), with SIGINT ignored (a
-Ctrl-C in the terminal is the parent's to handle) and one BLAS thread. It never outlives the parent: it stops
-when the pipe reaches end of file (the parent exited or was killed, even with SIGKILL: the kernel closes its
-end) and, as a second guard, when it is re-parented (``service.identify.worker.watch_parent``).
+Ctrl-C in the terminal is the parent's to handle) and one BLAS thread, and named ``chtc-rig``. It never
+outlives the parent: it stops when the pipe reaches end of file (the parent exited or was killed, even with
+SIGKILL: the kernel closes its end) and, as a second guard, when it is re-parented
+(``service.identify.worker.watch_parent``).
 
 Errors::
 
@@ -47,8 +48,10 @@ if TYPE_CHECKING:
     from drivers.sim.source import TimelineSource
     from service.sim.endless import EndlessPlant, PlantRows
 
-__all__ = ["AHEAD_S", "RigPlan", "RigProcess", "RigProcessError"]
+__all__ = ["AHEAD_S", "PROCESS_NAME", "RigPlan", "RigProcess", "RigProcessError"]
 
+# the child's name in ps, top and /proc/PID/comm (Linux), so that ``chtc bench api`` tells its CPU apart
+PROCESS_NAME = "chtc-rig"
 # plant seconds computed ahead of the plant time served: a chunk is computed when less than this is left
 AHEAD_S = 900.0
 
@@ -208,6 +211,7 @@ def rig_main(conn: Connection, plan: RigPlan, parent_pid: int) -> None:
     from service.identify.worker import watch_parent
 
     signal.signal(signal.SIGINT, signal.SIG_IGN)
+    name_process(PROCESS_NAME)
     watch_parent(parent_pid)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)  # the service's drivers report their errors
     try:
@@ -216,6 +220,17 @@ def rig_main(conn: Connection, plan: RigPlan, parent_pid: int) -> None:
         with contextlib.suppress(OSError, ValueError):
             conn.send(("error", f"{type(err).__name__}: {err}"))
         raise SystemExit(1) from err
+
+
+def name_process(name: str) -> None:
+    """Set this process's name as ``ps`` and ``/proc/PID/comm`` show it (Linux ``prctl(PR_SET_NAME)``; a
+    no-op where it is not available)."""
+    import ctypes
+    import ctypes.util
+
+    with contextlib.suppress(OSError, AttributeError, TypeError):
+        libc = ctypes.CDLL(ctypes.util.find_library("c"), use_errno=True)
+        libc.prctl(15, name.encode()[:15], 0, 0, 0)  # 15: PR_SET_NAME
 
 
 class _Inbox:

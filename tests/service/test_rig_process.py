@@ -50,6 +50,7 @@ def test_the_demo_rig_serves_from_a_child_process() -> None:
                 await daq.close()
                 await can_sensor.close()
             assert rig.pid != os.getpid() and rig.process.is_alive()
+            assert Path(f"/proc/{rig.pid}/comm").read_text().strip() == "chtc-rig"  # named for ps and top
             assert rig.plant_time_s() > 0.0
         finally:
             await rig.stop()
