@@ -118,6 +118,7 @@ class RigProcess:
         self._t0: float | None = None
         self._failure: str | None = None
         self._changed = asyncio.Event()
+        self._loop = asyncio.get_running_loop()
         ctx = mp.get_context("spawn")
         self._conn, child = ctx.Pipe()
         self.process = ctx.Process(
@@ -126,7 +127,6 @@ class RigProcess:
         with single_threaded_children():
             self.process.start()
         child.close()  # only the child holds its end: the parent sees EOF when the child exits
-        self._loop = asyncio.get_running_loop()
         self._loop.add_reader(self._conn.fileno(), self._on_message)
 
     @property
@@ -157,8 +157,8 @@ class RigProcess:
         """Ask the child to stop, wait for it (killed after ``timeout_s``); idempotent."""
         if self._conn.closed:
             return
-        with contextlib.suppress(OSError, ValueError):
-            self._send("stop")
+        with contextlib.suppress(OSError, ValueError):  # the child may be gone already
+            self._conn.send("stop")
         await asyncio.to_thread(self.process.join, timeout_s)
         if self.process.is_alive():
             self.process.kill()

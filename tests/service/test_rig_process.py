@@ -18,7 +18,7 @@ import pytest
 
 from service.engine.runtime import ScaledClock
 from service.settings import Settings
-from service.sim.rigproc import RigPlan, RigProcess
+from service.sim.rigproc import RigPlan, RigProcess, RigProcessError
 from service.sim.simrig import make_drivers
 
 # at rest for the whole test (10 plant min at real rate): the speed is 0, the temperatures the first rows';
@@ -65,9 +65,23 @@ def test_the_demo_rig_serves_from_a_child_process() -> None:
     assert _refused(plan.host, plan.modbus_port) and _refused(plan.host, plan.can_port)
 
 
+def test_a_failing_rig_process_is_a_typed_error_naming_the_cause(tmp_path: Path) -> None:
+    plan = RigPlan.on_free_ports(**{**PLAN, "spindle": tmp_path / "missing.toml"})
+
+    async def main() -> None:
+        rig = RigProcess(plan)
+        try:
+            await rig.computed()
+        finally:
+            await rig.stop()
+
+    with pytest.raises(RigProcessError, match=r"the rig process failed: .*missing\.toml"):
+        asyncio.run(main())
+
+
 CHILD_OF = """
 import asyncio, sys
-from service.sim.rigproc import RigPlan, RigProcess
+from service.sim.rigproc import RigPlan, RigProcess, RigProcessError
 
 async def main():
     plan = RigPlan.on_free_ports(**{plan!r})
