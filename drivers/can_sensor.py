@@ -29,7 +29,6 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import threading
-import time
 from collections import deque
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass, replace
@@ -58,7 +57,7 @@ from drivers.errors import (
 from drivers.quality import Quality
 
 INBOX_SIZE = 10_000  # frames buffered between the reader thread and the event loop (100 s at 100 Hz)
-BATCH_S = 0.0  # s; > 0 lets the reader thread group frames per event-loop wake-up (0.05 saves CPU at 100 Hz)
+BATCH_S = 0.0  # s; > 0 lets the reader thread group frames per wake-up (the service's setting: can.batch_s)
 
 
 @dataclass(frozen=True)
@@ -83,11 +82,13 @@ class _BusReader:
     in the event loop's exception handler (and keeps firing on a dead socket), and its thread mode keeps
     calling ``recv`` after an error. Here the first error ends the thread and reaches ``read()``.
 
-    Frames go into a bounded deque; the loop is woken once per batch: ``batch_s`` after the first frame not
-    yet announced (or at once when ``batch_s`` is 0), and only if no wake-up is pending. At 100 frames/s
-    and 50 ms that is 20 wake-ups/s instead of 100; a frame reaches ``read()`` at most ``batch_s`` late
-    (the acquisition does not need better: samples are 10 s apart, silence is judged over 0.5 s). The
-    default is 0 (no added latency) because callers that react frame by frame expect it.
+    Frames go into a bounded deque; the loop is woken once per batch, and only if no wake-up is pending.
+    With ``batch_s`` > 0 the thread, woken by a batch's first frame, sleeps ``batch_s`` and then takes every
+    frame that arrived meanwhile (``recv(0)`` until none is left): at 100 frames/s and 50 ms that is 20
+    wake-ups/s of this thread and of the loop instead of 100 each (docs/design/threading.md, "CPU at real
+    rate"); a frame reaches ``read()`` at most about ``batch_s`` late (the acquisition does not need
+    better: samples are 10 s apart, silence is judged over 0.5 s). The default is 0 (each frame handed
+    over at once) because callers that react frame by frame expect it.
     """
 
     def __init__(
@@ -134,21 +135,28 @@ class _BusReader:
             await self._ready.wait()
 
     def _run(self) -> None:
-        oldest: float | None = None  # arrival time of the oldest frame the loop has not been woken for
         while not self._stop.is_set():
-            timeout = self._poll_s if oldest is None else max(0.0, oldest + self._batch_s - time.monotonic())
             try:
-                msg = self._bus.recv(timeout)
+                received = self._receive()
             except Exception as exc:  # any interface's failure (CanError, OSError, websocket, ...) ends it
                 self._store(exc)
                 self._wake_loop()
                 return
-            if msg is not None:
-                self._store(msg)
-                oldest = time.monotonic() if oldest is None else oldest
-            if oldest is not None and time.monotonic() - oldest >= self._batch_s:
+            if received:
                 self._wake_loop()
-                oldest = None
+
+    def _receive(self) -> bool:
+        """Wait up to ``poll_s`` for a frame and store it; with batching, then let ``batch_s`` pass and store
+        every frame that arrived meanwhile (one wake-up of this thread per batch). False: nothing came."""
+        msg = self._bus.recv(self._poll_s)
+        if msg is None:
+            return False
+        self._store(msg)
+        if self._batch_s > 0:
+            self._stop.wait(self._batch_s)
+            while (msg := self._bus.recv(0.0)) is not None:
+                self._store(msg)
+        return True
 
     def _store(self, item: can.Message | BaseException) -> None:
         with self._lock:

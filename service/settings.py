@@ -132,6 +132,10 @@ class CanSettings(_Section):
     stale_after_s: float = Field(
         default=0.5, gt=0
     )  # no SpindleStatus frame for this long → speed/torque STALE
+    # the reader thread wakes the event loop once per batch of frames (after the first frame waited this
+    # long; 0: once per frame): at 100 frames/s, 0.05 s is 20 wake-ups/s instead of 100
+    # (docs/design/threading.md)
+    batch_s: float = Field(default=0.05, ge=0, le=0.25)
     fd: bool = False  # open the bus in CAN FD mode (SpindleStatus frames must still be CAN 2.0A)
     data_bitrate: int | None = Field(default=None, gt=0)  # CAN FD data-phase bit rate, bit/s
     filters: list[CanFilter] | None = None  # python-can can_filters, applied by the interface

@@ -2,13 +2,14 @@
 
 The virtual plant (``model.plant.VirtualPlant``, its own finer mesh and ground truth) runs a seeded machining
 duty cycle until the demo is stopped (``service.sim.endless``: ``--idle-min`` at rest, then the speed changes
-every 1–6 min over 0–7000 rpm with torque; computed 30 plant minutes ahead, chunk by chunk). The simulated
-Modbus DAQ and CAN node serve it on a free loopback port and a private virtual CAN channel at ``--speedup``
-plant seconds per wall second, on an event loop of their own in their own thread (``service.sim.rigthread``:
-a busy service cannot starve them). The unchanged service (real drivers, ring buffer, detector, scheduler,
-worker process, database writer, the core in its own thread) and the API with the dashboard run in this
-process. Progress lines report detected
-conditions and identifications (H with fit, and the plant's true H for comparison).
+every 1–6 min over 0–7000 rpm with torque; computed 30 plant minutes ahead, chunk by chunk). The plant and
+the simulated Modbus DAQ and CAN node that serve it at ``--speedup`` plant seconds per wall second run in a
+child process (``service.sim.rigproc``: a busy service cannot starve them, and they take nothing from the
+service's GIL), on free loopback ports: Modbus TCP, and CAN through a python-can-remote hub, as ``chtc
+simulate`` serves them. The unchanged service (real drivers, ring buffer, detector, scheduler, worker
+process, database writer, the core in its own thread) and the API with the dashboard run in this process.
+Progress lines report detected conditions and identifications (H with fit, and the plant's true H for
+comparison).
 
 All timestamps are simulated plant time (UTC): they start at the real time and run ``--speedup`` times
 faster; ``/healthz`` says so (``clock.simulated``) and the dashboard marks its times "plant time". The demo
@@ -47,11 +48,8 @@ if TYPE_CHECKING:
     from service.engine.runtime import Runtime
     from service.serve.interface import IdentificationRecord
     from service.settings import Settings
-    from service.sim.endless import EndlessPlant, PlantRows
-    from service.sim.simrig import SimRig
-
-# plant seconds computed ahead of the plant time served: a chunk is computed when less than this is left
-AHEAD_S = 900.0
+    from service.sim.endless import PlantRows
+    from service.sim.rigproc import RigProcess
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -133,7 +131,7 @@ class Printer:
     ) -> None:
         self.rows, self.quiet = rows, quiet
         self.clock, self.current = clock, current
-        self.rig: SimRig | None = None
+        self.rig: RigProcess | None = None
 
     def __call__(self, msg: str) -> None:
         if self.quiet:
@@ -176,86 +174,72 @@ def dashboard_url(base: str, token: str | None) -> str:
 
 
 async def run_demo(args: argparse.Namespace, settings: Settings, token: str | None = None) -> int:
-    from model.geometry import load_spindle
     from service.engine.runtime import Runtime, ScaledClock
-    from service.sim.endless import EndlessPlant
-    from service.sim.rigthread import RigThread
-    from service.sim.simrig import SimAddress, make_drivers, plant_rig
+    from service.sim.rigproc import RigPlan, RigProcess
+    from service.sim.simrig import make_drivers
 
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)
-    print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
+    # the devices and the plant run in a process of their own, as real ones do: it computes the plant's
+    # first chunk while this one loads the model
+    plan = RigPlan.on_free_ports(
+        spindle=settings.model.spindle,
+        seed=args.seed,
+        idle_s=60.0 * args.idle_min,
+        segment_s=None if args.segment_min is None else 60.0 * args.segment_min,
+        speedup=args.speedup,
+    )
+    rig = RigProcess(plan)
     runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: None, simulated_time=True)
-    await asyncio.to_thread(runtime.load)
-    print("starting the virtual plant's machining cycle ...", flush=True)
-    seg_s = None if args.segment_min is None else 60.0 * args.segment_min
-    spec = load_spindle(settings.model.spindle)
-    plant = EndlessPlant(spec, seed=args.seed, idle_s=60.0 * args.idle_min, segment_s=seg_s)
-    plant.append(await asyncio.to_thread(plant.next_chunk))
-    printer = Printer(lambda: plant.rows, quiet=args.quiet, clock=clock, current=lambda: _current(runtime))
-    runtime.on_event = printer
-    address = SimAddress.free(speedup=args.speedup)
-    daq, can_sensor = make_drivers(settings, address, clock=clock)
     stop = asyncio.Event()
     _install_signals(stop)
-    rig = None
-    devices = RigThread()  # the simulated devices run apart from the service, as real ones do
     try:
+        print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
+        await asyncio.to_thread(runtime.load)
+        print("starting the virtual plant's machining cycle ...", flush=True)
+        await rig.computed()
+        printer = Printer(lambda: rig.rows, quiet=args.quiet, clock=clock, current=lambda: _current(runtime))
+        runtime.on_event = printer
+        printer.rig = rig
+        daq, can_sensor = make_drivers(settings, plan.address(), clock=clock)
         # the simulated devices listen before the drivers first poll them (no "cannot connect" warning)
         await runtime.start(daq=daq, can=can_sensor, api=True, acquire=False)
         await runtime.wait_api()
-        assert plant.rows is not None
-        rig = printer.rig = await devices.run(plant_rig(plant.rows, address=address))
+        await rig.start()
         runtime.start_acquisition()
-        grow = asyncio.ensure_future(_keep_ahead(plant, rig, stop))
-        url = dashboard_url(runtime.url, token)
-        print(f"dashboard: {url}", flush=True)
-        print(f"API: {runtime.url}api/v1/compensation; database: {_safe(db_url)}", flush=True)
-        if token is not None:
-            print(
-                f"write token (this run only; the dashboard URL carries it): {token}\n"
-                f"  e.g. curl -X POST -H 'Authorization: Bearer {token}' {runtime.url}api/v1/identifications",
-                flush=True,
-            )
-        else:
-            print("write token: the configured api.token", flush=True)
-        every = "1-6 min" if args.segment_min is None else f"{args.segment_min:g} min"
-        print(
-            f"plant profile: {args.idle_min:g} min at rest, then a machining cycle (a new speed every "
-            f"{every}, 0-7000 rpm) until stopped; plant time runs x{args.speedup:g} (1 wall s = "
-            f"{args.speedup:g} plant s) and every time shown is plant time; Ctrl-C stops",
-            flush=True,
-        )
+        _announce(args, runtime.url, db_url, token)
         started = time.monotonic()
         while not stop.is_set():
             if args.duration is not None and time.monotonic() - started >= args.duration:
                 break
-            if grow.done():
-                grow.result()  # a failure of the plant is the demo's
+            rig.check()  # a failure of the plant or the devices is the demo's
             with contextlib.suppress(TimeoutError):
                 await asyncio.wait_for(stop.wait(), timeout=0.2)
-        stop.set()
-        await grow
     finally:
         await runtime.stop()
-        if rig is not None:
-            await devices.run(rig.stop())
-        devices.close()
+        await rig.stop()
     print("demo stopped", flush=True)
     return 0
 
 
-async def _keep_ahead(plant: EndlessPlant, rig: SimRig, stop: asyncio.Event) -> None:
-    """Compute the plant's next chunk (in a thread) whenever less than ``AHEAD_S`` plant seconds are left
-    ahead of the plant time served, and append it to what the simulated devices play."""
-    while not stop.is_set():
-        if plant.end_s - rig.plant_time_s() < AHEAD_S:
-            chunk = await asyncio.to_thread(plant.next_chunk)
-            plant.append(chunk)
-            rig.daq_server.source.extend(chunk)
-            continue
-        with contextlib.suppress(TimeoutError):
-            await asyncio.wait_for(stop.wait(), timeout=0.5)
+def _announce(args: argparse.Namespace, base_url: str, db_url: str, token: str | None) -> None:
+    print(f"dashboard: {dashboard_url(base_url, token)}", flush=True)
+    print(f"API: {base_url}api/v1/compensation; database: {_safe(db_url)}", flush=True)
+    if token is not None:
+        print(
+            f"write token (this run only; the dashboard URL carries it): {token}\n"
+            f"  e.g. curl -X POST -H 'Authorization: Bearer {token}' {base_url}api/v1/identifications",
+            flush=True,
+        )
+    else:
+        print("write token: the configured api.token", flush=True)
+    every = "1-6 min" if args.segment_min is None else f"{args.segment_min:g} min"
+    print(
+        f"plant profile: {args.idle_min:g} min at rest, then a machining cycle (a new speed every "
+        f"{every}, 0-7000 rpm) until stopped; plant time runs x{args.speedup:g} (1 wall s = "
+        f"{args.speedup:g} plant s) and every time shown is plant time; Ctrl-C stops",
+        flush=True,
+    )
 
 
 def _current(runtime: Runtime) -> IdentificationRecord | None:

@@ -86,6 +86,7 @@ def make_device_drivers(settings: Settings, *, clock: ScaledClock) -> tuple[Modb
         bus_kwargs=dict(c.options),
         dbc=c.dbc,
         stale_after_s=c.stale_after_s,
+        batch_s=c.batch_s,
         now=clock,
     )
     return daq, can_sensor

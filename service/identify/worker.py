@@ -347,7 +347,7 @@ _THREAD_VARS = ("OMP_NUM_THREADS", "OPENBLAS_NUM_THREADS", "MKL_NUM_THREADS")
 
 
 @contextlib.contextmanager
-def _single_threaded_children() -> Iterator[None]:
+def single_threaded_children() -> Iterator[None]:
     """Environment for a spawned worker: one BLAS thread, so it leaves a core to the event loop; SIGINT
     ignored from its first instruction (a child inherits an ignored signal, and Python then installs no
     ``KeyboardInterrupt`` handler), so a Ctrl-C in the terminal, which reaches the whole process group, is
@@ -409,7 +409,7 @@ class IdentificationWorker:
     async def start(self) -> str:
         """Start the process and load the model there; returns the model version (waits for it)."""
         loop = asyncio.get_running_loop()
-        with _single_threaded_children():  # the process is spawned by this first submit
+        with single_threaded_children():  # the process is spawned by this first submit
             fut = loop.run_in_executor(self._ensure_pool(), _ping)
         self.model_version = await fut
         return self.model_version
@@ -419,7 +419,7 @@ class IdentificationWorker:
         started = time.perf_counter()
         self.running_job = req.job_id  # the cancel flag is not reset: job ids are unique
         try:
-            with _single_threaded_children():  # a recreated pool spawns its process on this submit
+            with single_threaded_children():  # a recreated pool spawns its process on this submit
                 fut = loop.run_in_executor(self._ensure_pool(), run_job_in_process, req)
             try:
                 return await asyncio.wait_for(asyncio.shield(fut), timeout=self.timeout_s)

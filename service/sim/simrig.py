@@ -1,4 +1,5 @@
-"""In-process simulated devices for ``chtc demo``, ``chtc replay`` and the end-to-end tests.
+"""In-process simulated devices for ``chtc replay`` and the end-to-end tests (``chtc demo`` runs its own in a
+child process: ``service.sim.rigproc``).
 
 A rig is the simulated Modbus DAQ (``drivers.sim.modbus_server.SimulatedDaq``) on a free loopback port and
 the CAN side on a private python-can ``virtual`` channel: either the simulated sensor node driven by a
@@ -39,12 +40,15 @@ def _channel() -> str:
 
 @dataclass(frozen=True, kw_only=True)
 class SimAddress:
-    """Where a rig will serve: DAQ ``host:port`` and the virtual CAN ``channel`` (chosen before it starts)."""
+    """Where a rig will serve: DAQ ``host:port`` and the CAN ``channel`` (chosen before it starts): a
+    private ``virtual`` channel in this process, or a python-can-remote hub's URL (``can_interface="remote"``:
+    a rig in another process, ``service.sim.rigproc``)."""
 
     host: str
     port: int
     channel: str
     speedup: float
+    can_interface: str = "virtual"
 
     @classmethod
     def free(cls, *, speedup: float, host: str = "127.0.0.1") -> SimAddress:
@@ -60,6 +64,7 @@ class SimRig:
     channel: str
     speedup: float
     daq_server: SimulatedDaq
+    can_interface: str = "virtual"
     can_node: SimulatedCanNode | None = None
     replay: Replay | None = None
     bus: can.BusABC | None = None
@@ -146,6 +151,10 @@ def make_drivers(
         now=clock,
     )
     can_sensor = CanSpindleSensor(
-        interface="virtual", channel=rig.channel, stale_after_s=max(1.0, 3.0 * period_wall), now=clock
+        interface=rig.can_interface,
+        channel=rig.channel,
+        stale_after_s=max(1.0, 3.0 * period_wall),
+        batch_s=settings.can.batch_s,
+        now=clock,
     )
     return daq, can_sensor

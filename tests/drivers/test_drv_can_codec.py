@@ -63,3 +63,17 @@ def test_bad_dbc_file_names_the_file(tmp_path: Path) -> None:
         load_dbc(p)
     with pytest.raises(ConfigError, match=r"missing\.dbc"):
         load_dbc(tmp_path / "missing.dbc")
+
+
+def test_a_decoded_payload_is_remembered_and_a_bad_one_raises_every_time() -> None:
+    """``decode_frame`` caches decoded payloads (the sensor repeats a few at 100 frames/s); it must give the
+    same answer as a first decode, keep a bytearray from aliasing its key, and never cache a failure."""
+    buf = bytearray(encode_status(4321, 2.5, 3, 1))
+    first = decode_frame(0x181, buf)
+    buf[0] ^= 0xFF  # the caller reuses its buffer: the cached entry must not change with it
+    assert decode_frame(0x181, encode_status(4321, 2.5, 3, 1)) == first
+    assert decode_frame(0x181, buf).speed_rpm != first.speed_rpm
+    bad = encode_status(4321, 2.5, 3, 0)[:5] + b"\x09"
+    for _ in range(2):
+        with pytest.raises(BadSignalError, match="status byte 9"):
+            decode_frame(0x181, bad)

@@ -6,7 +6,14 @@ import argparse
 
 import pytest
 
-from service.bench.api_live import add_arguments, classify, cpu_hog, lag_max_bound_s, process_cpu_s
+from service.bench.api_live import (
+    add_arguments,
+    classify,
+    cpu_hog,
+    lag_max_bound_s,
+    process_cpu_s,
+    rig_pids,
+)
 
 
 def test_requests_are_classed_by_the_last_poll_before_them() -> None:
@@ -40,6 +47,29 @@ def test_process_cpu_reads_proc() -> None:
     import os
 
     assert process_cpu_s(os.getpid()) > 0.0
+
+
+def test_the_rig_process_is_told_apart_by_its_name() -> None:
+    """The bench reports the service's CPU without the demo's rig: the child named ``chtc-rig``."""
+    import os
+    import subprocess
+    import sys
+
+    other = "print(1, flush=True); input()"
+    code = "from service.sim.rigproc import name_process; name_process('chtc-rig'); " + other
+    env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
+    procs = [
+        subprocess.Popen([sys.executable, "-c", c], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)
+        for c in (code, other)
+    ]
+    try:
+        for p in procs:
+            assert p.stdout is not None and p.stdout.readline()  # named (or not) by now
+        assert rig_pids(os.getpid()) == [procs[0].pid]
+    finally:
+        for p in procs:
+            p.kill()
+            p.wait()
 
 
 def test_short_mode_and_runs_are_options() -> None:

@@ -87,6 +87,8 @@ def test_demo_starts_without_a_connect_warning_and_stops_quietly_on_ctrl_c(tmp_p
     traceback. A terminal's Ctrl-C reaches the whole process group: so does the SIGINT here (about 60 s)."""
     import sys
 
+    from service.bench.api_live import rig_pids
+
     argv = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", "--segment-min", "5"]
     argv += ["--database-url", f"sqlite:///{tmp_path / 'demo.db'}"]
     out, err = tmp_path / "out.txt", tmp_path / "err.txt"
@@ -96,8 +98,12 @@ def test_demo_starts_without_a_connect_warning_and_stops_quietly_on_ctrl_c(tmp_p
             assert proc.poll() is None, err.read_text()
             time.sleep(0.5)
         assert "plant profile" in out.read_text(), "the demo did not start within 240 s"
+        # the simulated devices and the plant run in a child process of their own (issue 30)
+        rigs = rig_pids(proc.pid)
+        assert len(rigs) == 1, rigs
         # the acquisition polls the devices; the worker process waits for jobs
         code = _ctrl_c(proc, settle_s=5.0)
+    assert not Path(f"/proc/{rigs[0]}").exists(), "the rig process outlived the demo (the demo reaps it)"
     stderr = err.read_text()
     assert "Traceback" not in stderr and "KeyboardInterrupt" not in stderr, stderr
     assert "cannot connect" not in stderr and "DeviceUnavailableError" not in stderr, stderr

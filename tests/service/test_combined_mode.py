@@ -166,3 +166,20 @@ def test_no_served_bound_beyond_ten_times_the_search_box(combined) -> None:
     assert fits and all(
         "prior" in (r.data.diagnostics or {}) for r in fits
     )  # per-condition fits are MAP fits
+
+
+def test_the_served_map_prior_keeps_its_last_answer(combined) -> None:
+    """``/chtc`` asks for the map's H at the newest sample's speed and ambient on every request until the
+    next sample: the last answer is kept (the same object), and any other argument computes afresh."""
+    svc, seen, _ = combined
+    m = next(view.speed_map for *_, view, _ in reversed(seen) if view.speed_map is not None)
+    served_prior = ServedMapPrior(svc.core.model.spec, svc.core.model.ref.h_box)
+    a = served_prior.at(m, level_sd=0.0, speed_rpm=4000.0, ambient_c=21.0)
+    assert served_prior.at(m, level_sd=0.0, speed_rpm=4000.0, ambient_c=21.0) is a
+    b = served_prior.at(m, level_sd=0.0, speed_rpm=5000.0, ambient_c=21.0)
+    assert b is not a and not np.allclose(b.log_mean, a.log_mean)
+    again = served_prior.at(m, level_sd=0.0, speed_rpm=4000.0, ambient_c=21.0)
+    fresh = ServedMapPrior(svc.core.model.spec, svc.core.model.ref.h_box)
+    expected = fresh.at(m, level_sd=0.0, speed_rpm=4000.0, ambient_c=21.0)
+    np.testing.assert_array_equal(again.log_mean, expected.log_mean)
+    np.testing.assert_array_equal(again.log_cov, expected.log_cov)

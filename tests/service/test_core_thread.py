@@ -1,7 +1,8 @@
 """The core off the event loop (issue 30): the core thread handles events in order, the published view is
 immutable, a backlog past its limit is served as ``core_behind`` (and /healthz says so), the event loop's lag
-is measured and degrades /healthz past its limit, and the demo's simulated devices run in a thread of their
-own. Driven deterministically: a gate holds the core thread, an injected lag source stands for the loop."""
+is measured and degrades /healthz past its limit (the demo's simulated devices, in a process of their own:
+test_rig_process.py). Driven deterministically: a gate holds the core thread, an injected lag source stands
+for the loop."""
 
 from __future__ import annotations
 
@@ -233,31 +234,6 @@ def test_event_loop_lag_metric_on_metrics_endpoint(loaded_model, samples) -> Non
     assert "chtc_core_wait_seconds_count" in text and "chtc_core_dropped_samples_total 0.0" in text
     assert {"core", "event_loop"} <= {d["name"] for d in health["devices"]}
     svc.runner.close()
-
-
-def test_demo_devices_run_on_their_own_loop_in_their_own_thread() -> None:
-    from service.sim.rigthread import RigThread
-
-    rig = RigThread()
-
-    async def where() -> tuple[int, asyncio.AbstractEventLoop]:
-        return threading.get_ident(), asyncio.get_running_loop()
-
-    async def main() -> tuple[tuple[int, asyncio.AbstractEventLoop], asyncio.AbstractEventLoop]:
-        return await rig.run(where()), asyncio.get_running_loop()
-
-    (thread, loop), mine = asyncio.run(main())
-    rig.close()
-    assert thread != threading.get_ident() and loop is not mine
-
-
-def test_demo_starts_its_rig_in_the_rig_thread() -> None:
-    import inspect
-
-    from service.commands import demo
-
-    src = inspect.getsource(demo.run_demo)
-    assert "devices.run(plant_rig(" in src  # the rig's servers are created on the rig thread's loop
 
 
 def test_growth_terms_are_computed_once_per_key(loaded_model, samples) -> None:  # type: ignore[no-untyped-def]
