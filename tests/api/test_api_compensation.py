@@ -192,17 +192,19 @@ def test_metrics_carry_the_served_growth(served: Served) -> None:
     text = served.client.get("/api/v1/metrics").text
     for direction in ("axial", "radial"):
         line = next(
-            x for x in text.splitlines() if x.startswith(f'chtc_growth_um{{direction="{direction}"}}')
+            x
+            for x in text.splitlines()
+            if x.startswith(f'chtc_growth_um{{direction="{direction}",spindle="spindle1"}}')
         )
         assert float(line.split()[-1]) == pytest.approx(body[direction]["um"], abs=1e-3)
         lo, hi = body[direction]["ci95_um"]
         half = next(
             x
             for x in text.splitlines()
-            if x.startswith(f'chtc_growth_ci95_half_width_um{{direction="{direction}"}}')
+            if x.startswith(f'chtc_growth_ci95_half_width_um{{direction="{direction}",spindle="spindle1"}}')
         )
         assert float(half.split()[-1]) == pytest.approx(0.5 * (hi - lo), abs=1e-3)
-    assert f'chtc_growth_status{{status="{body["status"]}"}} 1.0' in text
+    assert f'chtc_growth_status{{spindle="spindle1",status="{body["status"]}"}} 1.0' in text
 
 
 @pytest.mark.browser

@@ -145,8 +145,8 @@ def test_the_service_births_survives_a_broker_outage_and_dies_with_its_bdseq(
             p.wait_for(kind("DBIRTH"), what="DBIRTH after the outage")
             p.wait_for(carries(heartbeat), what="DDATA after the outage")
             text = metrics_text(api_port)
-            assert 'chtc_outlet_reconnects_total{outlet="mqtt"} 1.0' in text, text
-            assert 'chtc_outlet_connected{outlet="mqtt"} 1.0' in text
+            assert 'chtc_outlet_reconnects_total{outlet="mqtt",spindle="spindle1"} 1.0' in text, text
+            assert 'chtc_outlet_connected{outlet="mqtt",spindle="spindle1"} 1.0' in text
 
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait(timeout=10)

@@ -230,8 +230,11 @@ def test_event_loop_lag_metric_on_metrics_endpoint(loaded_model, samples) -> Non
     with TestClient(create_app(Settings(), svc, clock=clock)) as client:
         text = client.get("/api/v1/metrics").text
         health = client.get("/healthz").json()
-    assert 'chtc_event_loop_lag_seconds_bucket{le="0.005"} 1.0' in text
-    assert "chtc_core_wait_seconds_count" in text and "chtc_core_dropped_samples_total 0.0" in text
+    assert 'chtc_event_loop_lag_seconds_bucket{le="0.005",spindle="spindle1"} 1.0' in text
+    assert (
+        "chtc_core_wait_seconds_count" in text
+        and 'chtc_core_dropped_samples_total{spindle="spindle1"} 0.0' in text
+    )
     assert {"core", "event_loop"} <= {d["name"] for d in health["devices"]}
     svc.runner.close()
 
