@@ -5,12 +5,15 @@ OPC UA outlet subscribed to it on loopback, and REST on the same service for com
 from __future__ import annotations
 
 import asyncio
+import dataclasses
 import socket
 from collections.abc import Awaitable, Callable, Iterator
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 import pytest
 from asyncua import Client
 from asyncua.crypto.cert_gen import (
@@ -24,6 +27,7 @@ from cryptography.x509.oid import ExtendedKeyUsageOID
 from fastapi.testclient import TestClient
 
 from api.app import create_app
+from drivers.quality import Quality
 from service.serve.opcua.outlet import OpcUaOutlet, opcua_outlet
 from service.serve.opcua.security import hash_password
 from service.serve.outlet import OutletContext
@@ -180,3 +184,15 @@ async def next_updates(client: Client, n: int = 2, timeout_s: float = 20.0) -> N
     while await beat() < start + n:
         assert loop.time() < deadline, "the OPC UA server did not update"
         await asyncio.sleep(0.02)
+
+
+def daq_lost(s: Any, t: datetime) -> Any:
+    """The sample as the acquisition builds it when the DAQ stopped answering: no temperature, CAN alive."""
+    return dataclasses.replace(
+        s,
+        t=t,
+        temps_c=np.full_like(s.temps_c, np.nan),
+        quality=np.full_like(s.quality, int(Quality.STALE)),
+        ambient_c=float("nan"),
+        daq_ok=False,
+    )

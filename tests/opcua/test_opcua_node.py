@@ -21,7 +21,7 @@ from service.serve.opcua.nodes import UNITS_NAMESPACE
 from service.serve.opcua.status import UaStatus
 from tests.conftest import IN_CI
 
-from .conftest import NODE_URI, NS, PASSWORD, USER, Pki, Rig, opcua_settings, start_rig, stop_rig
+from .conftest import NODE_URI, NS, PASSWORD, USER, Pki, Rig, daq_lost, opcua_settings, start_rig, stop_rig
 
 NODE_DIR = Path(__file__).parent / "node"
 NODE = shutil.which("node")
@@ -181,3 +181,41 @@ def test_node_opcua_untrusted_certificate_is_refused(node_rig: Rig, tmp_path: Pa
         node_rig, tmp_path, mode="connect", security=_secure(pki, rogue=True), user=USER, password=PASSWORD
     )
     assert "error" in got and "connected" not in got, got
+
+
+def test_node_opcua_sees_the_status_codes_change_when_the_daq_stops(tmp_path: Path, pki: Pki) -> None:
+    """The DAQ stops answering while CAN keeps coming (the acquisition's stale sample): REST turns
+    ``predicted`` and node-opcua reads Uncertain_SubNormal on the growth, then, with nothing at all for two
+    minutes, ``stale`` and Uncertain_NoCommunicationLastUsableValue."""
+    import time
+    from datetime import timedelta
+
+    from service.sim.served import feed
+
+    r = start_rig(tmp_path / "rig", opcua_settings(pki))
+    paths = ["Status.Text", "Status.Code", "Status.Usable", "Growth.Axial"]
+    refresh_s = 2.5 * r.settings.opcua.refresh_s  # the address space re-evaluates ages this often
+    try:
+        seen = []
+        got = _run(r, tmp_path, mode="read", paths=paths, units=[])
+        seen.append((r.rest.get("/api/v1/compensation").json()["status"], got["values"]))
+        last = r.served.samples[r.served.fed - 1]
+        t = r.served.clock()
+        for _ in range(2):
+            t += timedelta(seconds=r.settings.acquisition.sample_period_s)
+            feed(r.served, daq_lost(last, t))
+        time.sleep(refresh_s)
+        got = _run(r, tmp_path, mode="read", paths=paths, units=[])
+        seen.append((r.rest.get("/api/v1/compensation").json()["status"], got["values"]))
+        r.served.clock.advance(120.0)  # nothing at all now
+        time.sleep(refresh_s)
+        got = _run(r, tmp_path, mode="read", paths=paths, units=[])
+        seen.append((r.rest.get("/api/v1/compensation").json()["status"], got["values"]))
+    finally:
+        stop_rig(r)
+    summary = [(rest, v["Status.Text"]["value"], v["Growth.Axial"]["status"]) for rest, v in seen]
+    assert summary == [
+        ("fresh", "fresh", UaStatus.GOOD),
+        ("predicted", "predicted", UaStatus.UNCERTAIN_SUB_NORMAL),
+        ("stale", "stale", UaStatus.UNCERTAIN_NO_COMMUNICATION_LAST_USABLE_VALUE),
+    ], summary

@@ -9,7 +9,6 @@ Sign&Encrypt only)."""
 from __future__ import annotations
 
 import asyncio
-import dataclasses
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -18,7 +17,6 @@ import pytest
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
-from drivers.quality import Quality
 from service.serve.opcua.nodes import UNITS_NAMESPACE, VARS, Var
 from service.serve.opcua.status import UaStatus, lost_since, status_of
 from service.serve.verdict import ChtcStatus, Reason, Verdict
@@ -30,6 +28,7 @@ from .conftest import (
     USER,
     Pki,
     Rig,
+    daq_lost,
     next_updates,
     node_path,
     opcua_settings,
@@ -272,18 +271,6 @@ def test_sign_and_encrypt_only_has_no_none_endpoint_and_no_anonymous_channel(tmp
         stop_rig(r)
 
 
-def _daq_lost(s: Any, t: datetime) -> Any:
-    """The sample as the acquisition builds it when the DAQ stopped answering: no temperature, CAN alive."""
-    return dataclasses.replace(
-        s,
-        t=t,
-        temps_c=np.full_like(s.temps_c, np.nan),
-        quality=np.full_like(s.quality, int(Quality.STALE)),
-        ambient_c=float("nan"),
-        daq_ok=False,
-    )
-
-
 def test_status_codes_follow_rest_when_the_daq_stops_and_when_all_data_stop(tmp_path, pki: Pki) -> None:  # type: ignore[no-untyped-def]
     r = start_rig(tmp_path, opcua_settings(pki))
     served = r.served
@@ -305,7 +292,7 @@ def test_status_codes_follow_rest_when_the_daq_stops_and_when_all_data_stop(tmp_
         limit_s = 60.0 * r.settings.compensation.max_open_loop_min
         for i in range(int(limit_s / period.total_seconds())):  # CAN comes back, the DAQ stays silent
             t += period
-            feed(served, _daq_lost(last, t))
+            feed(served, daq_lost(last, t))
             if i == 1:
                 r.run(lambda: observe("daq lost"))
         r.run(lambda: observe("daq lost too long"))
