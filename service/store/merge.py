@@ -25,6 +25,7 @@ from sqlalchemy import Connection, Engine, Select, Table, func, select
 
 from service.store import migrate
 from service.store.engine import create_db_engine
+from service.store.errors import DatabaseError
 from service.store.models import (
     Base,
     CompensationReferenceRow,
@@ -60,7 +61,7 @@ ORDER: tuple[tuple[type[Base], bool], ...] = (
 )
 
 
-class MergeError(ValueError):
+class MergeError(DatabaseError, ValueError):
     """A merge refused before anything was written (the message says why)."""
 
 
