@@ -45,6 +45,7 @@ from typing import Any
 
 import numpy as np
 
+from service.bench.compensation_run import add_jobs_argument
 from service.estimate.probe import ProbeError
 
 Z95 = 1.959963984540054
@@ -62,12 +63,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--sensors", type=int, default=5, help="MLR sensors (clusters), 4-6 (default 5)")
     parser.add_argument("--probe-min", type=float, default=60.0, help="probe reading period, min (60)")
     parser.add_argument("--probe-sd-um", type=float, default=1.0, help="probe reading 1σ, µm (1)")
-    parser.add_argument(
-        "--jobs",
-        type=int,
-        default=1,
-        help="seeds run in this many processes at once (default 1; each takes one core and ~1 GiB)",
-    )
+    add_jobs_argument(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
 
 

@@ -36,6 +36,7 @@ from service.bench.compensation_run import (
     Minute,
     Plan,
     SeedRows,
+    add_jobs_argument,
     add_plant_mechanics_argument,
     plan_for,
     run_seed,
@@ -51,12 +52,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--first-seed", type=int, default=0, help="first seed (split a long run), default 0")
     parser.add_argument("--hours", type=float, default=2.5, help="profile length incl. the rest (2.5 h)")
     parser.add_argument("--rest-min", type=int, default=30, help="rest before machining, min (30)")
-    parser.add_argument(
-        "--jobs",
-        type=int,
-        default=1,
-        help="seeds run in this many processes at once (default 1; each takes one core and ~1 GiB)",
-    )
+    add_jobs_argument(parser)
     add_plant_mechanics_argument(parser)
     identmode.add_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")

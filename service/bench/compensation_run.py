@@ -122,6 +122,16 @@ def reason_code(snap: Any) -> str | None:
 MECHANICS = ("drawn", "nominal")
 
 
+def add_jobs_argument(parser: Any) -> None:
+    """``--jobs N`` of the seed benches (``chtc bench compensation``, ``commission``)."""
+    parser.add_argument(
+        "--jobs",
+        type=int,
+        default=1,
+        help="seeds run in this many processes at once (default 1; each takes one core and ~1 GiB)",
+    )
+
+
 def add_plant_mechanics_argument(parser: Any) -> None:
     """``--plant-mechanics drawn|nominal`` of the growth benches (``chtc bench compensation``, ``growth``)."""
     parser.add_argument(
