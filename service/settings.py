@@ -29,9 +29,10 @@ from __future__ import annotations
 
 import os
 import tomllib
+from collections.abc import Callable
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Literal
+from typing import Any, Literal, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -96,6 +97,20 @@ class SpindleSettings(_Section):
 
     id: str = Field(default="spindle1", pattern=SPINDLE_ID_PATTERN)  # never rename a spindle in service
     description: str = Field(default="", max_length=200)  # stored in the ``spindles`` table
+
+
+class SpindleEntry(_Section):
+    """One spindle of an instance that hosts several (``[[spindles]]``; docs/design/fleet.md).
+
+    ``modbus`` and ``can`` hold only the keys that differ from the top-level ``[modbus]``/``[can]`` (its DAQ
+    address, its CAN channel), merged over them; ``geometry`` is its ``model.spindle`` file (default: the
+    top-level one). Spindles with the same geometry share one reduced model."""
+
+    id: str = Field(pattern=SPINDLE_ID_PATTERN)
+    description: str = Field(default="", max_length=200)
+    modbus: dict[str, Any] = Field(default_factory=dict)  # raw keys, validated merged over [modbus]
+    can: dict[str, Any] = Field(default_factory=dict)  # raw keys, validated merged over [can]
+    geometry: Path | None = None
 
 
 class ModbusSettings(_Section):
@@ -547,11 +562,43 @@ class Settings(BaseSettings):
     engine: EngineSettings = Field(default_factory=EngineSettings)
     opcua: OpcUaSettings = Field(default_factory=OpcUaSettings)
     mqtt: MqttSettings = Field(default_factory=MqttSettings)  # the MQTT outlet (off by default)
+    # several spindles in this one instance; empty: one, described by [spindle], [modbus] and [can]
+    spindles: list[SpindleEntry] = Field(default_factory=list, max_length=1000)
 
     @model_validator(mode="after")
     def _across_sections(self) -> Settings:
         check_across_sections(self)
+        self.per_spindle()  # every entry merged and validated here, so a bad one names its key at load
         return self
+
+    def per_spindle(self) -> list[Settings]:
+        """One ``Settings`` per hosted spindle: ``[[spindles]]`` merged over the top-level sections (and
+        ``spindles`` emptied), or ``[self]`` without entries. ``ValueError`` names the entry's key."""
+        if not self.spindles:
+            return [self]
+        out: list[Settings] = []
+        seen: dict[str, str] = {}
+        for i, entry in enumerate(self.spindles):
+            where = f"spindles[{i}]"
+            if entry.id in seen:
+                raise ValueError(f"{where}.id: {entry.id!r} is also {seen[entry.id]}.id; ids must be unique")
+            seen[entry.id] = where
+            modbus = _merged(ModbusSettings, self.modbus, entry.modbus, f"{where}.modbus")
+            can = _merged(CanSettings, self.can, entry.can, f"{where}.can")
+            model = (
+                self.model
+                if entry.geometry is None
+                else self.model.model_copy(update={"spindle": entry.geometry})
+            )
+            spindle = SpindleSettings(id=entry.id, description=entry.description)
+            out.append(
+                self.model_copy(
+                    update={"spindle": spindle, "modbus": modbus, "can": can, "model": model, "spindles": []}
+                )
+            )
+        _check_unique(out, lambda s: f"{s.modbus.host}:{s.modbus.port}/unit {s.modbus.unit}", "modbus")
+        _check_unique(out, lambda s: f"{s.can.interface}:{s.can.channel}", "can")
+        return out
 
     @classmethod
     def settings_customise_sources(
@@ -590,6 +637,29 @@ class Settings(BaseSettings):
         return data
 
 
+_S = TypeVar("_S", bound=BaseModel)
+
+
+def _merged(cls: type[_S], base: _S, changes: dict[str, Any], where: str) -> _S:  # raw input for pydantic
+    """``base`` with ``changes`` merged over it, validated; ``ValueError`` names ``where.<key>``."""
+    try:
+        return cls.model_validate({**base.model_dump(), **changes})
+    except ValidationError as err:
+        first = err.errors()[0]
+        key = ".".join(str(p) for p in first["loc"])
+        raise ValueError(f"{where}.{key}: {first['msg']}") from None
+
+
+def _check_unique(spindles: list[Settings], key: Callable[[Settings], str], section: str) -> None:
+    """Two hosted spindles on one device address would read each other's data: refused, naming both."""
+    seen: dict[str, str] = {}
+    for s in spindles:
+        k = key(s)
+        if k in seen:
+            raise ValueError(f"spindles: {seen[k]} and {s.spindle.id} share the {section} device {k}")
+        seen[k] = s.spindle.id
+
+
 def load_settings(path: str | Path | None = None, **overrides: Any) -> Settings:  # raw input
     """The edge entry point: ``Settings.from_toml(path)``; every failure is a ``SettingsError``."""
     return Settings.from_toml(path, **overrides)
@@ -624,9 +694,22 @@ _PATH_KEYS: tuple[tuple[str, ...], ...] = (
 )
 
 
+_SPINDLE_PATH_KEYS: tuple[tuple[str, ...], ...] = (("geometry",), ("modbus", "register_map"), ("can", "dbc"))
+
+
 def _resolve_paths(data: dict[str, object], base: Path) -> dict[str, object]:
     """Relative file paths in a config file are relative to that file's directory (``~`` is expanded)."""
-    for *sections, key in _PATH_KEYS:
+    entries = data.get("spindles")
+    for entry in entries if isinstance(entries, list) else ():
+        if isinstance(entry, dict):
+            _resolve_keys(entry, base, _SPINDLE_PATH_KEYS)
+    return _resolve_keys(data, base, _PATH_KEYS)
+
+
+def _resolve_keys(
+    data: dict[str, object], base: Path, keys: tuple[tuple[str, ...], ...]
+) -> dict[str, object]:
+    for *sections, key in keys:
         block: object = data
         for section in sections:
             block = block.get(section) if isinstance(block, dict) else None
