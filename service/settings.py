@@ -471,6 +471,8 @@ class EngineSettings(_Section):
     # CPython's GIL switch interval in the service process (sys.setswitchinterval; Python's default 5 ms):
     # how long the event loop may wait for the GIL while the core or the growth terms compute
     gil_switch_interval_s: float = Field(default=0.001, gt=0, le=0.1)
+    # identification processes shared by the spindles of an instance with [[spindles]] (None: one per core)
+    identification_workers: int | None = Field(default=None, ge=1, le=256)
 
 
 class DatabaseSettings(_Section):

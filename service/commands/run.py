@@ -95,6 +95,8 @@ def make_device_drivers(settings: Settings, *, clock: ScaledClock) -> tuple[Modb
 async def serve(settings: Settings, *, migrate: bool) -> int:
     from service.engine.runtime import Runtime, ScaledClock
 
+    if settings.spindles:
+        return await serve_host(settings, migrate=migrate)
     clock = ScaledClock(1.0)
     runtime = Runtime(settings=settings, clock=clock, migrate=migrate, on_event=lambda m: log.info("%s", m))
     log.info("loading the model (cache %s)", settings.model.rom_cache_dir)
@@ -116,6 +118,38 @@ async def serve(settings: Settings, *, migrate: bool) -> int:
     return 0
 
 
+async def serve_host(settings: Settings, *, migrate: bool) -> int:
+    """Several spindles (``[[spindles]]``) in this one process: ``service.engine.host``."""
+    from service.engine.host import Host
+    from service.engine.runtime import ScaledClock
+
+    clock = ScaledClock(1.0)
+    host = Host(
+        settings=settings,
+        clock=clock,
+        devices=lambda s: make_device_drivers(s, clock=clock),
+        migrate=migrate,
+        on_event=lambda m: log.info("%s", m),
+    )
+    log.info("hosting %d spindles (model cache %s)", len(settings.spindles), settings.model.rom_cache_dir)
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    try:
+        await host.start(api=True)
+        await host.wait_api()
+        log.info(
+            "serving %d spindles on %s (list: %sapi/v1/spindles)", len(host.spindles), host.url, host.url
+        )
+        await stop.wait()
+    finally:
+        await host.stop()
+    log.info("stopped")
+    return 0
+
+
 def migrates_by_default(url: str) -> bool:
     """True for SQLite: its file belongs to this one service, so its schema is created and upgraded at start.
 
@@ -132,6 +166,7 @@ def main(args: argparse.Namespace) -> int:
 
     from drivers.errors import ConfigError
     from service.commands.demo import quiet_third_party_logs
+    from service.engine.host import HostError
     from service.settings import SettingsError, load_settings
 
     quiet_third_party_logs()
@@ -152,6 +187,6 @@ def main(args: argparse.Namespace) -> int:
         check_listen(settings.api.host, settings.api.port)
         migrate = args.migrate or migrates_by_default(settings.database.url)
         return asyncio.run(serve(settings, migrate=migrate))
-    except (ConfigError, CommandError) as err:
+    except (ConfigError, CommandError, HostError) as err:
         print(f"chtc run: {err}", file=sys.stderr)
         return 2

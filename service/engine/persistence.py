@@ -52,7 +52,7 @@ if TYPE_CHECKING:
     from service.store.watchdog import StatementWatchdog
     from service.store.writer import DbWriter, WriterStatus
 
-__all__ = ["GateSink", "Persistence", "open_persistence", "restore"]
+__all__ = ["GateSink", "Persistence", "SharedDatabase", "open_persistence", "restore"]
 
 log = logging.getLogger(__name__)
 T = TypeVar("T")
@@ -289,6 +289,8 @@ class Persistence:
     # told the database's next free (condition, identification) ids when it answers after start-up
     on_open: Callable[[int, int], None] | None = None
     spindle: SpindleSettings | None = None  # whose rows (None: the default spindle)
+    owns_engines: bool = True  # False: the engines are a SharedDatabase's, closed by its owner
+    retention: bool = True  # run the retention pass (it covers every spindle: one per database suffices)
     _task: asyncio.Task[None] | None = None
     _retention_task: asyncio.Task[None] | None = None
     last_retention: RetentionReport | None = None
@@ -339,7 +341,7 @@ class Persistence:
         if self.sink.writer is None and self._task is None:
             self._task = asyncio.ensure_future(self.ensure_open())
         db = self.settings
-        if self._retention_task is None and (db.raw_days > 0 or db.minute_days > 0):
+        if self.retention and self._retention_task is None and (db.raw_days > 0 or db.minute_days > 0):
             self._retention_task = asyncio.ensure_future(self._retention_loop())
 
     async def _retention_loop(self) -> None:
@@ -383,6 +385,8 @@ class Persistence:
             status = self.sink.writer.close(timeout_s)
         if self.reads is not None:
             self.reads.close()
+        if not self.owns_engines:
+            return status
         for watchdog in (self.writer_watchdog, self.read_watchdog):
             if watchdog is not None:
                 watchdog.close()
@@ -466,7 +470,14 @@ def _start_writer(
 
 def _engine(db: DatabaseSettings, spindle_id: str) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
     """(engine, session factory, watchdog): one per use (the writer's, the API reads'), each its own pool."""
-    from service.store.engine import create_db_engine, make_session_factory
+    from service.store.engine import make_session_factory
+
+    engine, watchdog = _bare_engine(db)
+    return engine, make_session_factory(engine, spindle_id=spindle_id), watchdog
+
+
+def _bare_engine(db: DatabaseSettings) -> tuple[Engine, StatementWatchdog]:
+    from service.store.engine import create_db_engine
     from service.store.watchdog import StatementWatchdog
 
     statement_s = float(db.statement_timeout_s)
@@ -480,13 +491,37 @@ def _engine(db: DatabaseSettings, spindle_id: str) -> tuple[Engine, sessionmaker
         transaction_pooling=db.transaction_pooling,
     )
     watchdog = StatementWatchdog(engine, abort_after_s=statement_s + 1.0).start()
-    return engine, make_session_factory(engine, spindle_id=spindle_id), watchdog
+    return engine, watchdog
 
 
 def _safe_url(url: str) -> str:
     from sqlalchemy.engine import make_url
 
     return make_url(url).render_as_string(hide_password=True)
+
+
+@dataclass(kw_only=True)
+class SharedDatabase:
+    """The engines (and their watchdogs) of one instance that hosts several spindles: one pool for the API's
+    reads and one for the writers, shared by every spindle's ``Persistence`` (each keeps its own
+    spindle-bound session factory, writer thread and read threads). Closed by its owner, after them."""
+
+    engine: Engine
+    read_watchdog: StatementWatchdog
+    writer_engine: Engine
+    writer_watchdog: StatementWatchdog
+
+    @classmethod
+    def open(cls, db: DatabaseSettings) -> SharedDatabase:
+        engine, watchdog = _bare_engine(db)
+        w_engine, w_watchdog = _bare_engine(db)
+        return cls(engine=engine, read_watchdog=watchdog, writer_engine=w_engine, writer_watchdog=w_watchdog)
+
+    def close(self) -> None:
+        for watchdog in (self.writer_watchdog, self.read_watchdog):
+            watchdog.close()
+        self.engine.dispose()
+        self.writer_engine.dispose()
 
 
 def open_persistence(
@@ -496,6 +531,8 @@ def open_persistence(
     on_event: Callable[[str], None] | None = None,
     clock: Callable[[], datetime] | None = None,
     spindle: SpindleSettings | None = None,
+    shared: SharedDatabase | None = None,
+    retention: bool = True,
 ) -> Persistence:
     """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage.
 
@@ -509,8 +546,16 @@ def open_persistence(
     from service.store.engine import DEFAULT_SPINDLE_ID
 
     sid = spindle.id if spindle is not None else DEFAULT_SPINDLE_ID
-    engine, factory, read_watchdog = _engine(db, sid)
-    w_engine, w_factory, w_watchdog = _engine(db, sid)
+    if shared is None:
+        engine, factory, read_watchdog = _engine(db, sid)
+        w_engine, w_factory, w_watchdog = _engine(db, sid)
+    else:
+        from service.store.engine import make_session_factory
+
+        engine, read_watchdog = shared.engine, shared.read_watchdog
+        w_engine, w_watchdog = shared.writer_engine, shared.writer_watchdog
+        factory = make_session_factory(engine, spindle_id=sid)
+        w_factory = make_session_factory(w_engine, spindle_id=sid)
     sink = GateSink(max_held=db.buffer_max)
     try:
         with read_watchdog.guard("migrate and restore"):  # a hung database cannot hold the start-up
@@ -551,6 +596,8 @@ def open_persistence(
         reads=reads,
         read_watchdog=read_watchdog,
         spindle=spindle,
+        owns_engines=shared is None,
+        retention=retention,
     )
 
 

@@ -35,8 +35,8 @@ from service.engine.corethread import CoreThread, InlineRunner
 from service.engine.growthserve import GrowthServer
 from service.engine.health import HealthSource
 from service.engine.looplag import LoopLagMonitor
-from service.engine.persistence import Persistence, open_persistence
-from service.engine.shell import SoftSensorService
+from service.engine.persistence import Persistence, SharedDatabase, open_persistence
+from service.engine.shell import SoftSensorService, Worker
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
 from service.identify.speedmap import MapConfig
@@ -245,6 +245,12 @@ class Runtime:
     running_outlets: dict[str, Outlet] = field(default_factory=dict)  # started, in order
     devices: tuple[DaqDevice, CanDevice] | None = None  # closed at stop()
     simulated_time: bool = False  # the clock is a simulated plant time (demo, replay): the API says so
+    # an instance hosting several spindles (service.engine.host) injects what they share: a lease of the
+    # identification pool (default: a worker process of this spindle's own), the database engines (default:
+    # engines of its own), and whether this spindle's persistence runs the database-wide retention pass
+    worker: Worker | None = None
+    shared_db: SharedDatabase | None = None
+    retention: bool = True
 
     @property
     def speedup(self) -> float:
@@ -266,7 +272,13 @@ class Runtime:
         sys.setswitchinterval(s.engine.gil_switch_interval_s)  # the loop waits less for the GIL
         model = self.load()
         self.persistence = open_persistence(
-            s.database, migrate=self.migrate, on_event=self.on_event, clock=self.clock, spindle=s.spindle
+            s.database,
+            migrate=self.migrate,
+            on_event=self.on_event,
+            clock=self.clock,
+            spindle=s.spindle,
+            shared=self.shared_db,
+            retention=self.retention,
         )
         self.persistence.start_background()
         self.ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))
@@ -276,7 +288,9 @@ class Runtime:
             restored=self.persistence.restored,
             history_capacity=s.acquisition.ring_capacity,
         )
-        worker = IdentificationWorker(ModelRef.from_settings(s), timeout_s=s.identification.timeout_s)
+        worker = self.worker or IdentificationWorker(
+            ModelRef.from_settings(s), timeout_s=s.identification.timeout_s
+        )
         self.service = SoftSensorService(
             core,
             worker=worker,

@@ -84,6 +84,7 @@ OutletFactory = Callable[[OutletContext], Outlet]
 # their settings section ([opcua] enabled = true, [mqtt] enabled = true)
 OUTLETS: Mapping[str, str] = {
     "rest": "api.outlet:rest_outlet",
+    "rest_fleet": "api.fleet:fleet_outlet",  # an instance hosting several spindles (service.engine.host)
     "opcua": "service.serve.opcua.outlet:opcua_outlet",
     "mqtt": "service.serve.mqtt.outlet:mqtt_outlet",
 }
