@@ -207,6 +207,10 @@ class ServiceCollector(Collector):
             "chtc_db_pending_rows", "rows buffered for the database", value=m.db_pending_rows
         )
         yield CounterMetricFamily("chtc_db_errors", "database write errors", value=m.db_errors_total)
+        if m.db_write_s is not None:
+            yield _hist(
+                "chtc_db_write_seconds", "database writes: one batch written and committed, s", m.db_write_s
+            )
         yield from _filter_gauges(m.filter)
         yield from _loop_metrics(m)
         yield from _outlet_metrics(m.outlets)

@@ -103,6 +103,7 @@ from service.serve.interface import (
     FieldSnapshot,
     FilterMetrics,
     HealthSnapshot,
+    HistogramData,
     IdentificationJob,
     IdentificationMode,
     IdentificationPage,
@@ -167,6 +168,12 @@ class Worker(Protocol):
 
 def utc_now() -> datetime:
     return datetime.now(UTC)
+
+
+def _write_latency(writer: object) -> HistogramData | None:
+    """The database writer's batch latencies, if it keeps them (``persistence.GateSink`` does)."""
+    hist = getattr(writer, "write_latency", None)
+    return None if hist is None else hist.snapshot()
 
 
 class SoftSensorService:
@@ -766,6 +773,7 @@ class SoftSensorService:
             last_rmse_c=None if last is None else last.rmse_c,
             db_pending_rows=0 if st is None else int(st.pending),
             db_errors_total=0 if st is None else int(st.errors),
+            db_write_s=_write_latency(self.writer),
             reconnects_total=reconnects,
             filter=_filter_metrics(v),
             loop_lag_s=None if self.loop_lag is None else self.loop_lag.histogram.snapshot(),

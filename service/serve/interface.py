@@ -525,6 +525,7 @@ class MetricsSnapshot:
     last_rmse_c: float | None
     db_pending_rows: int = 0
     db_errors_total: int = 0
+    db_write_s: HistogramData | None = None  # each batch's write and commit (None: no database writer)
     reconnects_total: Mapping[str, int] = field(default_factory=dict)  # by device
     modbus_events_total: Mapping[str, int] = field(default_factory=dict)  # "new_samples", "restarts", ...
     can_events_total: Mapping[str, int] = field(default_factory=dict)  # "counter_gaps", "faults", silence...

@@ -86,6 +86,7 @@ class DbWriter:
         monotonic: Callable[[], float] = time.monotonic,
         name: str = "chtc-db-writer",
         downsample: bool = False,
+        on_write: Callable[[float], None] | None = None,
     ) -> None:
         if batch_size < 1 or buffer_max < 1 or not 0 < retry_initial_s <= retry_max_s:
             raise ValueError("need batch_size >= 1, buffer_max >= 1, 0 < retry_initial_s <= retry_max_s")
@@ -111,6 +112,8 @@ class DbWriter:
         self._last_ok_at: datetime | None = None
         # 1-minute means of the samples submitted, written beside them (kept after the raw ones are dropped)
         self._minutes = MinuteMeans() if downsample else None
+        # told the wall seconds of every batch written (commit included): /metrics chtc_db_write_seconds
+        self._on_write = on_write
 
     # --- caller side ------------------------------------------------------------------------------
     def start(self) -> DbWriter:
@@ -223,6 +226,7 @@ class DbWriter:
         return contextlib.nullcontext() if self._watchdog is None else self._watchdog.guard(what)
 
     def _write(self, batch: Sequence[Record]) -> None:
+        started = time.perf_counter()
         try:
             what = f"write {len(batch)} records"
             with self._guard(what), session_scope(self._factory, what) as session:
@@ -232,6 +236,8 @@ class DbWriter:
         except Exception:  # refused for good (or a bug): find the culprits one by one
             self._isolate(batch)
             return
+        if self._on_write is not None:
+            self._on_write(time.perf_counter() - started)
         self._done(len(batch), "written", derived=_derived(batch))
 
     def _isolate(self, batch: Sequence[Record]) -> None:
