@@ -46,7 +46,7 @@ BENCHMARKS: dict[str, str] = {
     "acquisition": "Modbus poll latency, CAN decode rate, ring buffer, reconnect time",
     "api": "GET /chtc latency on chtc demo (real rate, x60; quiet, beside a CPU hog)",
     "chain": "the service's answers over a chain of conditions: H error and CI coverage vs the plant's truth",
-    "fleet": "PostgreSQL write capacity: concurrent instances' sample commits/s (scaling note)",
+    "fleet": "N spindles in one process at real rates, one PostgreSQL: write p99, MiB and CPU per spindle",
     "truth": "hidden random truths (6000-7000 rpm, drift, torque steps, offsets): H error, CI coverage",
     "restart": "restart on a warm spindle (minute 0/30/60/90): H error, CI coverage, time to the first H",
     "growth": "served thermal growth at the nose vs the plant's own: error, CI coverage, forecast, cost",

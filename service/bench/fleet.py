@@ -1,4 +1,13 @@
-"""``chtc bench fleet``: how many soft-sensor instances one PostgreSQL server holds (the write side).
+"""``chtc bench fleet``: spindles hosted as the product hosts them (``--spindles``), and how many
+instances one PostgreSQL server holds on the write side (``--writers``).
+
+``--spindles 10,50`` (the default): ``service.bench.fleet_host``: N spindles in one ``chtc run`` with
+``[[spindles]]``, their devices in another process at real rates, one PostgreSQL; write p99, memory per added
+spindle, CPU per spindle, connections, bytes per spindle-day; plus the retention pass at 500 spindle-days
+(``service.bench.storage.retention_at``). ``--writers-only`` skips it and runs only the write-capacity part
+below.
+
+The write-capacity part:
 
 Each instance writes about one sample row per ``database.sample_store_period_s`` (10 s), plus rare condition,
 identification and device-event rows, each batch in its own transaction (``service.store.writer``). This bench
@@ -43,6 +52,19 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--writers", default="1,4,16", help="comma-separated K (concurrent instances)")
     parser.add_argument("--seconds", type=float, default=5.0, help="measuring time per K, s")
     parser.add_argument("--runs", type=int, default=3, help="repeats per K (medians are reported)")
+    parser.add_argument(
+        "--spindles",
+        default="10,50",
+        help="comma-separated N spindles hosted in one process (N = 1 is run first)",
+    )
+    parser.add_argument("--warmup-s", type=float, default=60.0, help="per N: seconds before the window")
+    parser.add_argument("--window-s", type=float, default=120.0, help="per N: the measuring window, s")
+    parser.add_argument(
+        "--plants", type=int, default=4, help="distinct virtual-plant duty cycles the spindles play"
+    )
+    parser.add_argument(
+        "--writers-only", action="store_true", help="only the write-capacity part (no hosting)"
+    )
     parser.add_argument("--json", action="store_true")
 
 
@@ -144,6 +166,42 @@ def _sqlite_run(seconds: float, runs: int) -> dict[str, float]:
 
 def main(args: argparse.Namespace) -> int:
     """Run ``chtc bench fleet``."""
+    if args.writers_only:
+        return writers_main(args)
+    from service.bench.fleet_host import measure_fleet, verdicts
+    from service.bench.storage import retention_at
+
+    ns = sorted({int(x) for x in args.spindles.split(",") if x.strip()})
+    report: dict[str, Any] = measure_fleet(
+        ns, pg_url=args.pg_url, warmup_s=args.warmup_s, window_s=args.window_s, plants=args.plants
+    )
+    retention = retention_at(args.pg_url, 50, 10)
+    report["retention_pass_s_500_spindle_days"] = round(float(retention["pass_s"]), 3)
+    report["cpu_count"] = os.cpu_count()
+    checks = verdicts(report["runs"])
+    report["verdicts"] = [{"bar": text, "met": ok} for text, ok in checks]
+    if args.json:
+        print(json.dumps(report, indent=2))
+        return 0
+    head = (
+        f"{'N':>5}{'running':>9}{'write p99 ms':>14}{'MiB/added':>11}{'CPU %/sp.':>11}{'B/sp.-day':>12}"
+        f"{'conns':>7}{'load':>7}"
+    )
+    print(head)
+    for r in [report["baseline"], *report["runs"]]:
+        print(
+            f"{r['spindles']:>5}{r['running']:>9}{r['write_p99_ms'] or float('nan'):>14.2f}"
+            f"{r.get('mib_per_added_spindle', float('nan')):>11.2f}{r['cpu_pct_per_spindle']:>11.3f}"
+            f"{r['bytes_per_spindle_day']:>12d}{r['connections']:>7d}{r['load_average_1min']:>7.2f}"
+        )
+    print(f"retention pass at 500 spindle-days: {report['retention_pass_s_500_spindle_days']} s")
+    for text, ok in checks:
+        print(f"  {'met   ' if ok else 'MISSED'} {text}")
+    return 0
+
+
+def writers_main(args: argparse.Namespace) -> int:
+    """The write-capacity part (``--writers-only``)."""
     ks = sorted({int(x) for x in args.writers.split(",") if x.strip()})
     factories, handles = _pg_databases(args.pg_url, max(ks))
     report: dict[str, Any] = {"sample_period_s": SAMPLE_PERIOD_S, "seconds": args.seconds, "runs": args.runs}

@@ -1,0 +1,330 @@
+"""``chtc bench fleet --spindles 10,50``: N spindles hosted as the product hosts them, at their real rates,
+writing into one PostgreSQL (issue 29, item 8; docs/design/fleet.md).
+
+For each N (and N = 1 first, the baseline the per-spindle figures are taken against):
+
+1. a fresh schema in the PostgreSQL of ``--pg-url``;
+2. the devices of N spindles in a child process (``service.sim.fleetrig``): N Modbus DAQs and N CAN nodes
+   behind N python-can-remote hubs, at real rate, playing virtual-plant duty cycles;
+3. the product: ``chtc run --config host.toml --migrate``, a real process with one ``[[spindles]]`` entry
+   each (shared model, identification pool, engines; its REST server on a free port);
+4. after ``--warmup-s``, a window of ``--window-s``: the product's CPU (its process and the pool's, from
+   /proc), its memory (RSS of both, at the end), the database writes' latency (``chtc_db_write_seconds``
+   from its /metrics, the window's difference), its connections (``pg_stat_activity`` by application
+   name), and the schema's growth (``pg_total_relation_size``) per spindle-day.
+
+``mib_per_added_spindle`` = (RSS(N) − RSS(1)) / (N − 1); ``cpu_pct_per_spindle`` = CPU(N) / wall / N (the
+steady share, identifications included; the pool's processes count). ``bytes_per_spindle_day`` is the
+window's growth scaled to a day: coarse on short windows (8 kB pages, a partition's first pages), so
+``chtc bench storage`` is the figure to quote for storage; this one checks it under the real write path.
+The devices' process is not the product's and is not counted. The machine runs the devices, the product and
+PostgreSQL on the same cores: on a 2-core machine the larger N measure a saturated machine, and the output
+says so (load average).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import json
+import os
+import re
+import subprocess
+import sys
+import tempfile
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+from service.engine.runtime import free_port
+
+__all__ = ["BARS", "measure_fleet", "p99_of", "run_n"]
+
+BARS = {"write_p99_ms": 50.0, "mib_per_added_spindle": 60.0, "cpu_pct_per_spindle": 2.0}
+_TICKS = os.sysconf("SC_CLK_TCK")
+_PAGE_MIB = os.sysconf("SC_PAGE_SIZE") / 2**20
+
+
+def say(msg: str) -> None:
+    print(f"bench fleet: {msg}", file=sys.stderr, flush=True)
+
+
+# --- /proc ------------------------------------------------------------------------------------------
+def _stat(pid: int) -> list[str] | None:
+    try:
+        text = Path(f"/proc/{pid}/stat").read_text()
+    except OSError:
+        return None
+    return text[text.rindex(")") + 2 :].split()  # fields from the 3rd (state) on
+
+
+def children(pid: int) -> list[int]:
+    """Live child processes of ``pid`` (the identification pool's)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            st = _stat(int(entry.name))
+            if st is not None and int(st[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+def cpu_s(pid: int) -> float:
+    """CPU seconds of ``pid`` and its live children (user + system, and reaped children's)."""
+    total = 0.0
+    for p in (pid, *children(pid)):
+        st = _stat(p)
+        if st is not None:
+            total += sum(int(x) for x in st[11:15]) / _TICKS  # utime, stime, cutime, cstime
+    return total
+
+
+def rss_mib(pid: int) -> float:
+    total = 0.0
+    for p in (pid, *children(pid)):
+        st = _stat(p)
+        if st is not None:
+            total += int(st[21]) * _PAGE_MIB  # rss, pages
+    return total
+
+
+# --- /metrics ---------------------------------------------------------------------------------------
+_BUCKET = re.compile(r"^chtc_db_write_seconds_bucket\{([^}]*)\} ([0-9.eE+-]+)$", re.M)
+
+
+def write_buckets(metrics_text: str) -> dict[float, float]:
+    """Cumulative counts per upper bound (s), summed over the spindles."""
+    out: dict[float, float] = {}
+    for labels, value in _BUCKET.findall(metrics_text):
+        le = re.search(r'le="([^"]+)"', labels)
+        if le is not None:
+            bound = float("inf") if le.group(1) == "+Inf" else float(le.group(1))
+            out[bound] = out.get(bound, 0.0) + float(value)
+    return out
+
+
+def p99_of(before: dict[float, float], after: dict[float, float], q: float = 0.99) -> float | None:
+    """The q-quantile (s) of the observations between two scrapes of a cumulative histogram, interpolated
+    linearly inside its bucket (Prometheus' histogram_quantile); None without observations."""
+    bounds = sorted(after)
+    counts = [after[b] - before.get(b, 0.0) for b in bounds]
+    total = counts[-1] if counts else 0.0
+    if total <= 0:
+        return None
+    rank = q * total
+    prev_b, prev_c = 0.0, 0.0
+    for b, c in zip(bounds, counts, strict=True):
+        if c >= rank:
+            if b == float("inf"):
+                return prev_b
+            return prev_b + (b - prev_b) * (rank - prev_c) / max(c - prev_c, 1e-12)
+        prev_b, prev_c = b, c
+    return bounds[-2] if len(bounds) > 1 else None
+
+
+# --- PostgreSQL -------------------------------------------------------------------------------------
+@contextlib.contextmanager
+def fresh_schema(pg_url: str) -> Iterator[tuple[str, str, Any]]:
+    """(schema, url for the product with search_path and application_name, admin engine)."""
+    import sqlalchemy as sa
+    from sqlalchemy.engine import make_url
+
+    schema = f"chtc_fleet_{uuid.uuid4().hex[:10]}"
+    app = f"chtc-bench-{schema}"
+    admin = sa.create_engine(pg_url, isolation_level="AUTOCOMMIT")
+    with admin.connect() as conn:
+        conn.execute(sa.text(f'CREATE SCHEMA "{schema}"'))
+    url = make_url(pg_url).update_query_dict({"options": f"-csearch_path={schema}", "application_name": app})
+    try:
+        yield schema, url.render_as_string(hide_password=False), admin
+    finally:
+        with admin.connect() as conn:
+            conn.execute(sa.text(f'DROP SCHEMA "{schema}" CASCADE'))
+        admin.dispose()
+
+
+def schema_bytes(admin: Any, schema: str) -> int:
+    import sqlalchemy as sa
+
+    with admin.connect() as conn:
+        value = conn.execute(
+            sa.text(
+                "SELECT coalesce(sum(pg_total_relation_size(c.oid)), 0) FROM pg_class c "
+                "JOIN pg_namespace n ON n.oid = c.relnamespace WHERE n.nspname = :s AND c.relkind = 'r'"
+            ),
+            {"s": schema},
+        ).scalar_one()
+    return int(value)
+
+
+def connections(admin: Any, schema: str) -> int:
+    import sqlalchemy as sa
+
+    with admin.connect() as conn:
+        value = conn.execute(
+            sa.text("SELECT count(*) FROM pg_stat_activity WHERE application_name = :a"),
+            {"a": f"chtc-bench-{schema}"},
+        ).scalar_one()
+    return int(value)
+
+
+# --- one N ------------------------------------------------------------------------------------------
+def host_toml(url: str, api_port: int, modbus_ports: list[int], can_ports: list[int]) -> str:
+    lines = [
+        "[api]",
+        f"port = {api_port}",
+        "[database]",
+        f"url = {json.dumps(url)}",
+    ]
+    for i, (m, c) in enumerate(zip(modbus_ports, can_ports, strict=True)):
+        lines += [
+            "[[spindles]]",
+            f'id = "bench-{i + 1:03d}"',
+            f"modbus = {{ port = {m} }}",
+            f'can = {{ interface = "remote", channel = "ws://127.0.0.1:{c}/" }}',
+        ]
+    return "\n".join(lines) + "\n"
+
+
+def _get(url: str, timeout_s: float = 5.0) -> tuple[int, str]:
+    import httpx
+
+    try:
+        r = httpx.get(url, timeout=timeout_s)
+    except httpx.HTTPError:
+        return 0, ""
+    return r.status_code, r.text
+
+
+def _wait(pred: Any, timeout_s: float, what: str, proc: subprocess.Popen[bytes] | None = None) -> None:
+    deadline = time.monotonic() + timeout_s
+    while not pred():
+        if proc is not None and proc.poll() is not None:
+            raise RuntimeError(f"{what}: the process exited with code {proc.returncode}")
+        if time.monotonic() > deadline:
+            raise TimeoutError(f"{what}: not within {timeout_s:g} s")
+        time.sleep(0.5)
+
+
+def run_n(
+    n: int, *, pg_url: str, warmup_s: float, window_s: float, plants: int, workdir: Path
+) -> dict[str, Any]:
+    """One N: devices, the product, the window; the figures of that run."""
+    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+    modbus_ports = [free_port() for _ in range(n)]
+    can_ports = [free_port() for _ in range(n)]
+    hours = (warmup_s + window_s) / 3600.0 + 0.5
+    plan = {"host": "127.0.0.1", "modbus_ports": modbus_ports, "can_ports": can_ports, "plants": plants}
+    plan["hours"] = round(hours, 3)
+    say(f"N={n}: devices (plants: {min(plants, n)} × {hours:.2f} h)")
+    rig = subprocess.Popen(
+        [sys.executable, "-m", "service.sim.fleetrig", json.dumps(plan)],
+        stdin=subprocess.PIPE,
+        stdout=subprocess.PIPE,
+        env=env,
+    )
+    product: subprocess.Popen[bytes] | None = None
+    try:
+        assert rig.stdout is not None
+        line = rig.stdout.readline().decode().strip()
+        if line != "ready":
+            raise RuntimeError(f"the devices' process did not start (said {line!r}, code {rig.poll()})")
+        with fresh_schema(pg_url) as (schema, url, admin):
+            api_port = free_port()
+            config = workdir / f"host-{n}.toml"
+            config.write_text(host_toml(url, api_port, modbus_ports, can_ports), encoding="utf-8")
+            log = (workdir / f"product-{n}.log").open("wb")
+            say(f"N={n}: product (chtc run --config {config.name} --migrate)")
+            product = subprocess.Popen(
+                [sys.executable, "-m", "service.cli", "run", "--config", str(config), "--migrate"],
+                stdout=log,
+                stderr=subprocess.STDOUT,
+                env=env,
+            )
+            base = f"http://127.0.0.1:{api_port}"
+            _wait(lambda: _get(f"{base}/readyz")[0] == 200, 600.0, "the product's /readyz", product)
+            listed = json.loads(_get(f"{base}/api/v1/spindles")[1])["spindles"]
+            running = sum(1 for s in listed if s["running"])
+            say(f"N={n}: {running}/{n} spindles running; warm-up {warmup_s:g} s")
+            time.sleep(warmup_s)
+            m0, c0, b0, t0 = (
+                write_buckets(_get(f"{base}/metrics")[1]),
+                cpu_s(product.pid),
+                schema_bytes(admin, schema),
+                time.monotonic(),
+            )
+            say(f"N={n}: measuring {window_s:g} s")
+            time.sleep(window_s)
+            m1, c1, b1, t1 = (
+                write_buckets(_get(f"{base}/metrics")[1]),
+                cpu_s(product.pid),
+                schema_bytes(admin, schema),
+                time.monotonic(),
+            )
+            fresh = sum(
+                1
+                for sid in (s["id"] for s in listed)
+                if json.loads(_get(f"{base}/api/v1/spindles/{sid}/healthz")[1] or "{}").get("status") == "ok"
+            )
+            result = {
+                "spindles": n,
+                "running": running,
+                "healthy_at_end": fresh,
+                "write_p99_ms": _ms(p99_of(m0, m1)),
+                "writes": int(m1.get(float("inf"), 0) - m0.get(float("inf"), 0)),
+                "rss_mib": round(rss_mib(product.pid), 1),
+                "cpu_pct": round(100.0 * (c1 - c0) / (t1 - t0), 2),
+                "cpu_pct_per_spindle": round(100.0 * (c1 - c0) / (t1 - t0) / n, 3),
+                "bytes_per_spindle_day": int((b1 - b0) / n / ((t1 - t0) / 86400.0)),
+                "connections": connections(admin, schema),
+                "load_average_1min": round(os.getloadavg()[0], 2),
+            }
+            _stop(product)
+            product = None
+            return result
+    finally:
+        if product is not None:
+            _stop(product)
+        _stop(rig)
+
+
+def _ms(s: float | None) -> float | None:
+    return None if s is None else round(1e3 * s, 2)
+
+
+def _stop(proc: subprocess.Popen[bytes]) -> None:
+    if proc.poll() is None:
+        proc.terminate()
+        try:
+            proc.wait(30.0)
+        except subprocess.TimeoutExpired:
+            proc.kill()
+            proc.wait(10.0)
+
+
+def measure_fleet(
+    ns: list[int], *, pg_url: str, warmup_s: float, window_s: float, plants: int
+) -> dict[str, Any]:
+    """The runs (N = 1 first as the baseline) with the per-added-spindle memory."""
+    with tempfile.TemporaryDirectory(prefix="chtc-bench-fleet-") as tmp:
+        base = run_n(1, pg_url=pg_url, warmup_s=warmup_s, window_s=window_s, plants=plants, workdir=Path(tmp))
+        runs = []
+        for n in ns:
+            r = run_n(
+                n, pg_url=pg_url, warmup_s=warmup_s, window_s=window_s, plants=plants, workdir=Path(tmp)
+            )
+            r["mib_per_added_spindle"] = round((r["rss_mib"] - base["rss_mib"]) / max(n - 1, 1), 2)
+            runs.append(r)
+    return {"baseline": base, "runs": runs}
+
+
+def verdicts(runs: list[dict[str, Any]]) -> list[tuple[str, bool]]:
+    """The issue's bars, on the runs with N ≥ 50."""
+    out = []
+    for r in runs:
+        if r["spindles"] >= 50:
+            for key, bar in BARS.items():
+                value = r[key]
+                out.append((f"N={r['spindles']}: {key} {value} <= {bar}", value is not None and value <= bar))
+    return out
