@@ -14,12 +14,17 @@ from __future__ import annotations
 import copy
 import shutil
 import subprocess
+from datetime import UTC, datetime
 from pathlib import Path
+from types import SimpleNamespace
 from typing import Any
 
 import pytest
 import yaml
+from fastapi.testclient import TestClient
 
+from api.deps import ClockInfo
+from api.fleet import create_fleet_app
 from api.routers.health import probes
 from model.geometry import load_spindle
 from service.cli import build_parser
@@ -215,8 +220,8 @@ def test_database_url_and_token_come_from_secrets_and_name_real_settings(plant: 
     assert "postgresql" not in text and "password" not in text.lower()
 
 
-def test_probes_are_the_services_root_health_endpoints(plant: dict[str, str]) -> None:
-    served = {route.path for route in probes.routes}
+def test_probes_are_the_instances_root_health_endpoints(plant: dict[str, str]) -> None:
+    served = {route.path for route in probes.routes}  # a one-spindle instance (api/app.py)
     for d in of_kind(plant, "Deployment").values():
         c = container(d)
         paths = {p: c[p]["httpGet"]["path"] for p in ("startupProbe", "livenessProbe", "readinessProbe")}
@@ -224,9 +229,16 @@ def test_probes_are_the_services_root_health_endpoints(plant: dict[str, str]) ->
         assert set(paths.values()) <= served
         assert all(c[p]["httpGet"]["port"] == c["ports"][0]["name"] for p in paths)
         startup = c["startupProbe"]
-        assert (
-            startup["periodSeconds"] * startup["failureThreshold"] >= 300
-        )  # a reduced model builds in ~1 min
+        assert startup["periodSeconds"] * startup["failureThreshold"] >= 300  # a model build: ~1 min
+
+
+def test_a_multi_spindle_instance_answers_the_probes_paths() -> None:
+    """Cells run ``[[spindles]]`` instances (api/fleet.py): their own /healthz and /readyz answer."""
+    host = SimpleNamespace(settings=Settings(), spindles={}, failed=[], clock=lambda: datetime.now(UTC))
+    with TestClient(create_fleet_app(host, {}, clock_info=ClockInfo())) as client:  # type: ignore[arg-type]
+        assert client.get("/healthz").status_code == 200
+        ready = client.get("/readyz")
+        assert ready.status_code == 503 and "no spindle runs" in ready.text  # not ready until models load
 
 
 def test_commands_parse_and_only_the_hook_job_migrates(plant: dict[str, str]) -> None:
