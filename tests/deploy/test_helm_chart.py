@@ -297,6 +297,25 @@ def test_schema_check_would_catch_a_broken_render(
     assert kubernetes_validate(bad).returncode != 0
 
 
+def helm_lint(chart: Path, values: dict[str, Any]) -> dict[str, Any]:
+    import helm_python
+
+    report: dict[str, Any] = helm_python.lint(
+        str(chart), values, strict=True, namespace=NAMESPACE, kube_version=f"v{K8S_VERSION}"
+    )
+    return report
+
+
+def test_helm_lint_strict_finds_nothing_above_info(tmp_path: Path) -> None:
+    report = helm_lint(CHART, plant_values())
+    assert report["errors"] == [] and [m for m in report["messages"] if m["severity"] >= 2] == []
+    broken = tmp_path / "spindle-chtc"
+    shutil.copytree(CHART, broken)
+    (broken / "templates" / "broken.yaml").write_text("kind: ConfigMap\nmetadata: {name: [\n")
+    report = helm_lint(broken, plant_values())  # the same lint does report a broken template
+    assert report["errors"] or any(m["severity"] >= 2 for m in report["messages"])
+
+
 def _edit(path: str, value: Any) -> dict[str, Any]:
     """The plant values with one dotted path (list indices as numbers) set; ``...`` deletes it."""
     values = plant_values()
