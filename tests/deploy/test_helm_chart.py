@@ -14,6 +14,7 @@ from __future__ import annotations
 import copy
 import shutil
 import subprocess
+import tomllib
 from datetime import UTC, datetime
 from pathlib import Path
 from types import SimpleNamespace
@@ -132,6 +133,20 @@ def test_one_deployment_config_map_and_service_per_cell(plant: dict[str, str]) -
         for d in of_kind(plant, "Deployment").values()
     ]
     assert len(set(selectors)) == 3  # no Deployment adopts another cell's pod
+
+
+def test_image_is_the_projects_own_release(plant: dict[str, str]) -> None:
+    chart = yaml.safe_load((CHART / "Chart.yaml").read_text(encoding="utf-8"))
+    version = tomllib.loads((ROOT / "pyproject.toml").read_text(encoding="utf-8"))["project"]["version"]
+    assert chart["appVersion"] == version
+    single = next(
+        d
+        for d in yaml.safe_load_all((ROOT / "deploy" / "k8s" / "spindle.yaml").read_text())
+        if d["kind"] == "Deployment"
+    )
+    image = single["spec"]["template"]["spec"]["containers"][0]["image"]  # the one-spindle example's
+    for d in of_kind(plant, "Deployment").values():
+        assert {c["image"] for c in pod(d)["containers"] + pod(d)["initContainers"]} == {image}
 
 
 def test_each_cell_hosts_its_four_spindles_through_the_services_own_settings(
@@ -281,6 +296,32 @@ def test_rendered_plant_passes_kubernetes_validate_strict(plant: dict[str, str],
     result = kubernetes_validate(out)
     assert result.returncode == 0, result.stdout + result.stderr
     assert (result.stdout + result.stderr).count(" passed for resource ") == len(documents(plant)) == 10
+
+
+def test_the_optional_branches_render_valid_manifests(tmp_path: Path) -> None:
+    values = plant_values()
+    cell = values["cells"][2]
+    del cell["nodeName"]
+    cell.update(
+        nodeSelector={"plant.example/cell": "3"},
+        hostNetwork=False,
+        resources={"requests": {"cpu": "2", "memory": "3Gi"}, "limits": {"memory": "5Gi"}},
+    )
+    values.update(imagePullSecrets=[{"name": "regcred"}], apiToken={"existingSecret": ""})
+    values["romCache"] = {"seedFromImage": False, "sizeLimit": "2Gi"}
+    values["image"] = {"repository": "registry.plant.example/chtc", "tag": "0.2.0", "pullPolicy": "Always"}
+    rendered = render(values)
+    spec = pod(of_kind(rendered, "Deployment")[f"{RELEASE}-cell3"])
+    assert spec["nodeSelector"] == {"plant.example/cell": "3"} and "nodeName" not in spec
+    assert spec["hostNetwork"] is False and spec["dnsPolicy"] == "ClusterFirst"
+    assert container({"spec": {"template": {"spec": spec}}})["resources"]["limits"]["memory"] == "5Gi"
+    assert "initContainers" not in spec and spec["imagePullSecrets"] == [{"name": "regcred"}]
+    assert all(c["image"].endswith(":0.2.0") for c in spec["containers"])
+    assert "CHTC_API__TOKEN" not in {v["name"] for v in spec["containers"][0]["env"]}
+    out = tmp_path / "variant.yaml"
+    out.write_text("\n---\n".join(rendered.values()), encoding="utf-8")
+    result = kubernetes_validate(out)
+    assert result.returncode == 0, result.stdout + result.stderr
 
 
 @pytest.mark.parametrize(
