@@ -13,7 +13,7 @@ For each N (and N = 1 first, the baseline the per-spindle figures are taken agai
    from its /metrics, the window's difference), its connections (``pg_stat_activity`` by application
    name), and the schema's growth (``pg_total_relation_size``) per spindle-day.
 
-``mib_per_added_spindle`` = (RSS(N) − RSS(1)) / (N − 1); ``cpu_pct_per_spindle`` = CPU(N) / wall / N (the
+``mib_per_added_spindle`` = (RSS(N) − RSS(N')) / (N − N'), N' the previous N (the first: 1); ``cpu_pct_per_spindle`` = CPU(N) / wall / N (the
 steady share, identifications included; the pool's processes count). ``bytes_per_spindle_day`` is the
 window's growth scaled to a day: coarse on short windows (8 kB pages, a partition's first pages), so
 ``chtc bench storage`` is the figure to quote for storage; this one checks it under the real write path.
@@ -80,9 +80,9 @@ def cpu_s(pid: int) -> float:
     return total
 
 
-def rss_mib(pid: int) -> float:
+def rss_mib(pid: int, *, with_children: bool = True) -> float:
     total = 0.0
-    for p in (pid, *children(pid)):
+    for p in (pid, *children(pid)) if with_children else (pid,):
         st = _stat(p)
         if st is not None:
             total += int(st[21]) * _PAGE_MIB  # rss, pages
@@ -274,6 +274,8 @@ def run_n(
                 "write_p99_ms": _ms(p99_of(m0, m1)),
                 "writes": int(m1.get(float("inf"), 0) - m0.get(float("inf"), 0)),
                 "rss_mib": round(rss_mib(product.pid), 1),
+                "rss_main_mib": round(rss_mib(product.pid, with_children=False), 1),
+                "pool_processes": len(children(product.pid)),
                 "cpu_pct": round(100.0 * (c1 - c0) / (t1 - t0), 2),
                 "cpu_pct_per_spindle": round(100.0 * (c1 - c0) / (t1 - t0) / n, 3),
                 "bytes_per_spindle_day": int((b1 - b0) / n / ((t1 - t0) / 86400.0)),

@@ -113,6 +113,8 @@ class Host:
         self.db = await asyncio.to_thread(SharedDatabase.open, s.database)
         for i, spindle in enumerate(s.per_spindle()):
             await self._start_spindle(spindle, first=(i == 0))
+        if self.models:  # every pool process loads every geometry now (memory at start, first jobs quick)
+            await self.pool.warm(list(self.models))
         started = len(self.spindles) - len(self.failed)
         self.on_event(
             f"host: {started} of {len(self.spindles)} spindles running, {len(self.models)} model(s), "

@@ -176,6 +176,18 @@ class WorkerPool:
             self._free = asyncio.Semaphore(self.workers)
         return self._free
 
+    async def warm(self, refs: list[ModelRef]) -> None:
+        """Start every process and load ``refs`` in each (concurrent loads spread over the processes), so no
+        spindle's first identification pays a model load and the memory is taken at start, not mid-shift."""
+        loop = asyncio.get_running_loop()
+        with single_threaded_children():
+            futs = [
+                loop.run_in_executor(self._executor(), _load, ref)
+                for ref in refs
+                for _ in range(self.workers)
+            ]
+        await asyncio.gather(*futs)
+
     async def load(self, ref: ModelRef) -> str:
         """Load ``ref`` in a pool process (the others load it at their first job of that geometry)."""
         loop = asyncio.get_running_loop()
