@@ -13,7 +13,8 @@ For each N (and N = 1 first, the baseline the per-spindle figures are taken agai
    from its /metrics, the window's difference), its connections (``pg_stat_activity`` by application
    name), and the schema's growth (``pg_total_relation_size``) per spindle-day.
 
-``mib_per_added_spindle`` = (RSS(N) − RSS(N')) / (N − N'), N' the previous N (the first: 1); ``cpu_pct_per_spindle`` = CPU(N) / wall / N (the
+``mib_per_added_spindle`` = (RSS(N) − RSS(N')) / (N − N'), N' the previous N (the first: 1);
+``cpu_pct_per_spindle`` = CPU(N) / wall / N (the
 steady share, identifications included; the pool's processes count). ``bytes_per_spindle_day`` is the
 window's growth scaled to a day: coarse on short windows (8 kB pages, a partition's first pages), so
 ``chtc bench storage`` is the figure to quote for storage; this one checks it under the real write path.

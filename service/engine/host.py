@@ -4,7 +4,8 @@
 (``Settings.per_spindle()``), each with its own devices, acquisition, core, writer and verdicts, and shares
 what one process can share:
 
-- the **reduced model**: loaded once per geometry (``ModelRef``) and handed to every spindle of that geometry;
+- the **reduced model** and the **growth operators**: built once per geometry (``ModelRef``) and handed to
+  every spindle of that geometry;
 - one **identification pool** (``service.identify.pool.WorkerPool``, ``[engine] identification_workers``
   processes, one per core by default) instead of a worker process per spindle, fair in the order asked;
 - one **database engine** pair (``SharedDatabase``: reads, writes), with spindle-bound sessions; the
@@ -37,6 +38,7 @@ from service.serve.outlet import Outlet, OutletContext, OutletFactory, load_fact
 if TYPE_CHECKING:
     from service.engine.persistence import SharedDatabase
     from service.engine.runtime import CanDevice, DaqDevice, Runtime, ScaledClock
+    from service.estimate.growth import GrowthContext
     from service.identify.pool import WorkerPool
     from service.settings import Settings
 
@@ -79,6 +81,7 @@ class Host:
     outlets: Mapping[str, OutletFactory] | None = None  # name -> factory (default: OUTLETS)
     spindles: dict[str, HostedSpindle] = field(default_factory=dict)  # in the order of the file
     models: dict[ModelRef, LoadedModel] = field(default_factory=dict)
+    growth_contexts: dict[ModelRef, GrowthContext | None] = field(default_factory=dict)  # None: unavailable
     pool: WorkerPool | None = None
     db: SharedDatabase | None = None
     rest: Outlet | None = None
@@ -101,6 +104,21 @@ class Host:
         if ref not in self.models:
             self.models[ref] = load_model(ref, progress=lambda m: self.on_event(f"model: {m}"))
         return self.models[ref]
+
+    def growth_context(self, model: LoadedModel) -> GrowthContext | None:
+        """The growth operators of ``model``'s geometry (about 20 MiB and 0.7 s each): built once, shared by
+        its spindles (read-only; a commissioned spindle derives its own calibrated copy of the operators).
+        None when the geometry has no usable mechanics: each spindle then reports why, as alone."""
+        from service.estimate.growth import build_context
+
+        if model.ref not in self.growth_contexts:
+            try:
+                ctx = build_context(model.spec, model.fe, basis=model.rom.basis)
+            except Exception as err:
+                self.on_event(f"growth model of {model.version} unavailable: {type(err).__name__}: {err}")
+                ctx = None
+            self.growth_contexts[model.ref] = ctx
+        return self.growth_contexts[model.ref]
 
     async def start(self, *, api: bool = True) -> None:
         """Open the shared parts, then start each spindle (a failing one is reported, the rest start)."""
@@ -144,6 +162,7 @@ class Host:
         runtime: Runtime | None = None
         try:
             model = await asyncio.to_thread(self.model, s)
+            growth = await asyncio.to_thread(self.growth_context, model)
             daq, can = self.devices(s)
             assert self.pool is not None and self.db is not None
             runtime = Runtime(
@@ -155,6 +174,7 @@ class Host:
                 worker=self.pool.lease(model.ref, timeout_s=s.identification.timeout_s),
                 shared_db=self.db,
                 retention=first,
+                growth_context=growth,
                 simulated_time=self.simulated_time,
             )
             await runtime.start(daq=daq, can=can, api=False)

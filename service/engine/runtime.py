@@ -50,6 +50,8 @@ from service.settings import Settings
 if TYPE_CHECKING:
     import uvicorn
 
+    from service.estimate.growth import GrowthContext
+
 __all__ = [
     "CanDevice",
     "DaqDevice",
@@ -168,10 +170,17 @@ def free_port(host: str = "127.0.0.1") -> int:
         return int(s.getsockname()[1])
 
 
-def growth_server(model: LoadedModel, settings: Settings, restored: Restored | None = None) -> GrowthServer:
+def growth_server(
+    model: LoadedModel,
+    settings: Settings,
+    restored: Restored | None = None,
+    *,
+    context: GrowthContext | None = None,
+) -> GrowthServer:
     """``/compensation``'s server from ``Settings``: the policy's limits and the zero: the restored one, else
     ``growth.reference_c``, else (if configured) one taken at the first start (docs/design/growth.md,
-    "Reference")."""
+    "Reference"). ``context``: the model's growth context, built once and shared by the spindles of one
+    geometry (``service.engine.host``; default: built by the server when first needed)."""
     c = settings.compensation
     limits = CompensationLimits(
         max_ci95_um=c.max_ci95_um,
@@ -189,6 +198,7 @@ def growth_server(model: LoadedModel, settings: Settings, restored: Restored | N
         reference_on_first_start=c.reference_on_first_start,
         first_start_by=os_user(),
         limits=limits,
+        context=context,
     )
 
 
@@ -251,6 +261,7 @@ class Runtime:
     worker: Worker | None = None
     shared_db: SharedDatabase | None = None
     retention: bool = True
+    growth_context: GrowthContext | None = None  # the geometry's, shared (default: this spindle builds one)
 
     @property
     def speedup(self) -> float:
@@ -300,7 +311,7 @@ class Runtime:
             sources={"modbus": daq, "can": can},
             clock=self.clock,
             on_event=self.on_event,
-            growth=growth_server(model, s, self.persistence.restored),
+            growth=growth_server(model, s, self.persistence.restored, context=self.growth_context),
             **engine_parts(s),
         )
         self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
