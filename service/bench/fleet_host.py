@@ -11,13 +11,15 @@ For each N (and N = 1 first, the baseline the per-spindle figures are taken agai
 4. after ``--warmup-s``, a window of ``--window-s``: the product's CPU (its process and the pool's, from
    /proc), its memory (RSS of both, at the end), the database writes' latency (``chtc_db_write_seconds``
    from its /metrics, the window's difference), its connections (``pg_stat_activity`` by application
-   name), and the schema's growth (``pg_total_relation_size``) per spindle-day.
+   name), and the rows each table gained per spindle-day.
 
 ``mib_per_added_spindle`` = (RSS(N) − RSS(N')) / (N − N'), N' the previous N (the first: 1);
 ``cpu_pct_per_spindle`` = CPU(N) / wall / N (the
-steady share, identifications included; the pool's processes count). ``bytes_per_spindle_day`` is the
-window's growth scaled to a day: coarse on short windows (8 kB pages, a partition's first pages), so
-``chtc bench storage`` is the figure to quote for storage; this one checks it under the real write path.
+steady share, identifications included; the pool's processes count). ``bytes_per_spindle_day`` = the rows
+each table gained per spindle-day in the window (what the hosted product really writes: samples, minute
+means, conditions, identifications, events) × that table's bytes per row at a day's scale (``chtc bench
+storage``'s synthetic day through the same write path; a few minutes of rows in fresh partitions would
+measure mostly empty pages).
 The devices' process is not the product's and is not counted. The machine runs the devices, the product and
 PostgreSQL on the same cores: on a 2-core machine the larger N measure a saturated machine, and the output
 says so (load average).
@@ -145,18 +147,33 @@ def fresh_schema(pg_url: str) -> Iterator[tuple[str, str, Any]]:
         admin.dispose()
 
 
-def schema_bytes(admin: Any, schema: str) -> int:
+def table_rows(admin: Any, schema: str) -> dict[str, int]:
+    """Rows per table of the schema (``samples``: its partitions through the parent)."""
     import sqlalchemy as sa
 
+    from service.bench.storage import TABLES
+
+    out = {}
     with admin.connect() as conn:
-        value = conn.execute(
-            sa.text(
-                "SELECT coalesce(sum(pg_total_relation_size(c.oid)), 0) FROM pg_class c "
-                "JOIN pg_namespace n ON n.oid = c.relnamespace WHERE n.nspname = :s AND c.relkind = 'r'"
-            ),
-            {"s": schema},
-        ).scalar_one()
-    return int(value)
+        present = {
+            r[0]
+            for r in conn.execute(
+                sa.text("SELECT tablename FROM pg_tables WHERE schemaname = :s"), {"s": schema}
+            )
+        }
+        for t in TABLES:
+            if t in present:
+                out[t] = int(conn.execute(sa.text(f'SELECT count(*) FROM "{schema}"."{t}"')).scalar_one())
+    return out
+
+
+def day_bytes_per_row(pg_url: str) -> dict[str, float]:
+    """Bytes per row of each table at the scale of a spindle-day (``chtc bench storage``'s synthetic day,
+    through the product's write path: heap, indexes and TOAST of a day's partition)."""
+    from service.bench.storage import per_spindle_day
+
+    after = per_spindle_day(pg_url, 150)["after"]
+    return {t: size / rows for t, (rows, size) in after.items() if rows > 0}
 
 
 def connections(admin: Any, schema: str) -> int:
@@ -209,7 +226,14 @@ def _wait(pred: Any, timeout_s: float, what: str, proc: subprocess.Popen[bytes] 
 
 
 def run_n(
-    n: int, *, pg_url: str, warmup_s: float, window_s: float, plants: int, workdir: Path
+    n: int,
+    *,
+    pg_url: str,
+    warmup_s: float,
+    window_s: float,
+    plants: int,
+    workdir: Path,
+    row_bytes: dict[str, float],
 ) -> dict[str, Any]:
     """One N: devices, the product, the window; the figures of that run."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
@@ -249,20 +273,22 @@ def run_n(
             running = sum(1 for s in listed if s["running"])
             say(f"N={n}: {running}/{n} spindles running; warm-up {warmup_s:g} s")
             time.sleep(warmup_s)
-            m0, c0, b0, t0 = (
+            m0, c0, r0, t0 = (
                 write_buckets(_get(f"{base}/metrics")[1]),
                 cpu_s(product.pid),
-                schema_bytes(admin, schema),
+                table_rows(admin, schema),
                 time.monotonic(),
             )
             say(f"N={n}: measuring {window_s:g} s")
             time.sleep(window_s)
-            m1, c1, b1, t1 = (
+            m1, c1, r1, t1 = (
                 write_buckets(_get(f"{base}/metrics")[1]),
                 cpu_s(product.pid),
-                schema_bytes(admin, schema),
+                table_rows(admin, schema),
                 time.monotonic(),
             )
+            days = n * (t1 - t0) / 86400.0
+            rows_day = {t: (r1.get(t, 0) - r0.get(t, 0)) / days for t in r1}
             fresh = sum(
                 1
                 for sid in (s["id"] for s in listed)
@@ -279,7 +305,8 @@ def run_n(
                 "pool_processes": len(children(product.pid)),
                 "cpu_pct": round(100.0 * (c1 - c0) / (t1 - t0), 2),
                 "cpu_pct_per_spindle": round(100.0 * (c1 - c0) / (t1 - t0) / n, 3),
-                "bytes_per_spindle_day": int((b1 - b0) / n / ((t1 - t0) / 86400.0)),
+                "rows_per_spindle_day": {t: round(v) for t, v in rows_day.items() if v > 0},
+                "bytes_per_spindle_day": int(sum(v * row_bytes.get(t, 0.0) for t, v in rows_day.items())),
                 "connections": connections(admin, schema),
                 "load_average_1min": round(os.getloadavg()[0], 2),
             }
@@ -310,16 +337,23 @@ def measure_fleet(
     ns: list[int], *, pg_url: str, warmup_s: float, window_s: float, plants: int
 ) -> dict[str, Any]:
     """The runs (N = 1 first as the baseline) with the per-added-spindle memory."""
+    say("bytes per row at a spindle-day's scale (chtc bench storage's synthetic day)")
+    row_bytes = day_bytes_per_row(pg_url)
     with tempfile.TemporaryDirectory(prefix="chtc-bench-fleet-") as tmp:
-        base = run_n(1, pg_url=pg_url, warmup_s=warmup_s, window_s=window_s, plants=plants, workdir=Path(tmp))
+        kw: dict[str, Any] = {"pg_url": pg_url, "warmup_s": warmup_s, "window_s": window_s, "plants": plants}
+        kw.update(workdir=Path(tmp), row_bytes=row_bytes)
+        base = run_n(1, **kw)
         runs = []
+        prev = base
         for n in ns:
-            r = run_n(
-                n, pg_url=pg_url, warmup_s=warmup_s, window_s=window_s, plants=plants, workdir=Path(tmp)
+            r = run_n(n, **kw)
+            # the slope from the previous N (the first: from N = 1): fixed costs (the pool, the model) cancel
+            r["mib_per_added_spindle"] = round(
+                (r["rss_mib"] - prev["rss_mib"]) / max(n - prev["spindles"], 1), 2
             )
-            r["mib_per_added_spindle"] = round((r["rss_mib"] - base["rss_mib"]) / max(n - 1, 1), 2)
             runs.append(r)
-    return {"baseline": base, "runs": runs}
+            prev = r
+    return {"baseline": base, "runs": runs, "bytes_per_row": {t: round(b, 1) for t, b in row_bytes.items()}}
 
 
 def verdicts(runs: list[dict[str, Any]]) -> list[tuple[str, bool]]:
