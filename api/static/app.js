@@ -8,7 +8,10 @@
 // "Identify now", "Take baseline" and "Set zero" is otherwise asked for in a dialog.
 "use strict";
 
-const API = "/api/v1";
+// An instance hosting several spindles serves each one's page at /spindles/<id>/ and its API under
+// /api/v1/spindles/<id> (docs/design/fleet.md); a one-spindle instance serves both at the root.
+const SPINDLE_PAGE = location.pathname.match(/^\/spindles\/([A-Za-z][A-Za-z0-9_-]{0,62})\//);
+const API = SPINDLE_PAGE ? `/api/v1/spindles/${SPINDLE_PAGE[1]}` : "/api/v1";
 const POLL_MS = { chtc: 1000, sensors: 2000, condition: 5000, health: 3000, field: 10000, idents: 10000, growth: 2000, deformed: 5000, hmap: 5000 };
 const HISTORY_MAX = 2160; // samples asked for on a (re)load; the page keeps as many as the server does
 const COLORS = ["#4c9be8", "#f0883e", "#3fb950", "#c297ff", "#e3b341", "#39c5cf", "#ff7b72", "#a5d6ff"];
