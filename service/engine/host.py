@@ -9,7 +9,7 @@ what one process can share:
 - one **identification pool** (``service.identify.pool.WorkerPool``, ``[engine] identification_workers``
   processes, one per core by default) instead of a worker process per spindle, fair in the order asked;
 - one **database engine** pair (``SharedDatabase``: reads, writes), with spindle-bound sessions; the
-  database-wide retention pass runs once, from the first spindle;
+  database-wide retention pass runs once, from the first spindle that starts;
 - one **REST server**: the ``"rest_fleet"`` outlet (``api.fleet``) answers ``/api/v1/spindles`` and
   ``/api/v1/spindles/{id}/…``, one ``/metrics`` labelled by spindle, and today's paths when it hosts one.
 
@@ -129,8 +129,8 @@ class Host:
         workers = s.engine.identification_workers or max(1, os.cpu_count() or 1)
         self.pool = WorkerPool(workers=workers)
         self.db = await asyncio.to_thread(SharedDatabase.open, s.database)
-        for i, spindle in enumerate(s.per_spindle()):
-            await self._start_spindle(spindle, first=(i == 0))
+        for spindle in s.per_spindle():
+            await self._start_spindle(spindle)
         if self.models:  # every pool process loads every geometry now (memory at start, first jobs quick)
             await self.pool.warm(list(self.models))
         started = len(self.spindles) - len(self.failed)
@@ -151,10 +151,13 @@ class Host:
             self.rest = factory(ctx)
             await self.rest.start()
 
-    async def _start_spindle(self, s: Settings, *, first: bool) -> None:
+    async def _start_spindle(self, s: Settings) -> None:
         from service.engine.runtime import Runtime
 
         sid = s.spindle.id
+        # the first spindle that starts migrates the database (once) and runs its retention pass (it covers
+        # every spindle); a spindle that failed before does not leave the schema unmigrated
+        lead = not any(h.runtime is not None for h in self.spindles.values())
 
         def say(msg: str) -> None:
             self.on_event(f"[{sid}] {msg}")
@@ -169,11 +172,11 @@ class Host:
                 settings=s,
                 clock=self.clock,
                 on_event=say,
-                migrate=self.migrate and first,  # one upgrade per database; the others check the revision
+                migrate=self.migrate and lead,  # one upgrade per database; the others check the revision
                 model=model,
                 worker=self.pool.lease(model.ref, timeout_s=s.identification.timeout_s),
                 shared_db=self.db,
-                retention=first,
+                retention=lead,
                 growth_context=growth,
                 simulated_time=self.simulated_time,
             )
