@@ -348,10 +348,10 @@ class GrowthServer:
         self.mechanics_basis()
         with self._lock:
             assert self._base_ctx is not None
-            self._probe_state = None  # a new commissioning: the readings before it no longer apply
             self._ctx = self._calibrated(self._base_ctx, cal)
             self._mechanics = cal
             self._commissioning = cal
+            self._probe_state = None
             self._terms.clear()
             self._pending = None
             self._estimate = None

@@ -8,7 +8,7 @@ from __future__ import annotations
 import hashlib
 import json
 from dataclasses import replace
-from datetime import UTC, datetime, timedelta
+from datetime import UTC, datetime
 from pathlib import Path
 
 import numpy as np
@@ -26,7 +26,6 @@ from service.engine.commissioning import (
 from service.engine.runtime import core_config
 from service.estimate.growth import (
     FieldBelief,
-    GrowthEstimateError,
     build_context,
     condition_terms,
     estimate_growth,
@@ -158,21 +157,6 @@ def test_the_served_growth_uses_the_calibration_and_carries_its_posterior(
     assert est.axial.std_mech_um == pytest.approx(float(np.sqrt(jac[0] @ cov @ jac[0])), rel=1e-9)
     assert est.axial.std_mech_um > 0.0 and nominal.axial.std_mech_um == 0.0
     assert est.axial.std_um == pytest.approx(np.hypot(est.axial.std_h_um, est.axial.std_mech_um), rel=1e-9)
-    # probe readings' scale κ (service.estimate.probe): the axial operators ×(1 + κ), its variance · y² joins
-    # the mechanical 1σ² of the axial growth only
-    ops, jk = basis.operators_at(x), basis.jacobian_at(x)  # type: ignore[attr-defined]
-    ops[0] *= 1.1
-    jk[0] *= 1.1
-    scaled = with_mechanics(base, ops, jk, cov, scale_var=(0.02**2, 0.0))
-    est_k = estimate_growth(scaled, terms, belief, t_ref_c=21.0, at=at)
-    assert est_k.axial.um == pytest.approx(1.1 * est.axial.um, rel=1e-9)
-    assert est_k.axial.std_mech_um**2 == pytest.approx(
-        1.1**2 * est.axial.std_mech_um**2 + 0.02**2 * est_k.axial.um**2, rel=1e-9
-    )
-    assert est_k.radial.um == pytest.approx(est.radial.um, rel=1e-12)
-    assert est_k.radial.std_mech_um == pytest.approx(est.radial.std_mech_um, rel=1e-12)
-    with pytest.raises(GrowthEstimateError, match="scale_var"):
-        with_mechanics(base, ops, jk, cov, scale_var=(-1.0, 0.0))
     # at the zero's own uniform temperature nothing grows, whatever the mechanics
     flat = FieldBelief(mean_c=np.full(m.fe.n_nodes, 21.0))
     assert estimate_growth(ctx, terms, flat, t_ref_c=21.0, at=at).axial.std_mech_um == pytest.approx(
@@ -204,54 +188,3 @@ def test_the_growth_server_uses_a_restored_or_new_commissioning(
     plain.set_mechanics(other)
     assert plain.mechanics is other and not plain._terms
     assert np.allclose(plain.prepare().g, basis.operators_at(other.x))  # type: ignore[attr-defined]
-
-
-def test_restored_probe_readings_replay_the_growths_scale_after_a_commissioning_that_reports_it(
-    fitted: tuple[object, object, Displacements], loaded_model: LoadedModel
-) -> None:
-    """A commissioning whose report has the growth it measured (``growth_rms_um``) gives the probe readings
-    a scale κ (prior: residual RMS / growth RMS, ``service.estimate.probe``): restored readings 30 % above
-    the model's prediction replay into κ > 0, the axial operators are scaled by 1 + κ and κ's variance is
-    served; one stored before (no ``growth_rms_um``) keeps the θ-only update; a new commissioning drops κ."""
-    from service.engine.growthserve import GrowthServer
-    from service.estimate.mechanics import MechanicsCalibration
-    from service.estimate.probe import ProbeMeasurement, predict
-
-    _, basis, _ = fitted
-    m = loaded_model
-    base = build_context(m.spec, m.fe, basis=m.rom.basis)
-    cov = tuple(tuple(float(v) for v in row) for row in np.diag([0.03**2, 0.016**2, 0.049**2]))
-    at = datetime(2026, 11, 27, 7, 0, tzinfo=UTC)
-    report = {"growth_rms_um": 2.0}
-    cal = MechanicsCalibration(
-        x=(0.3, 0.97, 1.0), cov=cov, at=at, set_by="t", source="cli", residual_rms_um=0.4, report=report
-    )
-    f = ((2.0, 9.0, -3.0), (1.0, -1.0, -2.5))
-    y = predict(np.array(f), np.array(cal.x))[0]
-    readings = tuple(
-        ProbeMeasurement(
-            at=at + timedelta(hours=k + 1),
-            axial_um=1.3 * y,
-            sd_um=1.0,
-            features=f,
-            field_var_um2=0.05,
-            predicted_um=y,
-            sigma_um=1.0,
-            innovation_um=0.3 * y,
-            accepted=True,
-        )
-        for k in range(3)
-    )
-    srv = GrowthServer(m, context=base, mechanics=cal, mechanics_basis=basis, probes=readings)  # type: ignore[arg-type]
-    kappa, var = srv.probe_scale
-    assert 0.0 < kappa < 0.3 and 0.0 < var < 0.2**2  # prior 0.4 / 2.0 = 0.2
-    ctx = srv.prepare()
-    ops = basis.operators_at(srv.mechanics.x)  # type: ignore[attr-defined, union-attr]
-    assert np.allclose(ctx.g[0], (1.0 + kappa) * ops[0]) and np.allclose(ctx.g[1], ops[1])
-    assert ctx.scale_var is not None and ctx.scale_var[0] == pytest.approx(var) and ctx.scale_var[1] == 0.0
-    old = MechanicsCalibration(x=cal.x, cov=cov, at=at, set_by="t", source="cli", residual_rms_um=0.4)
-    srv_old = GrowthServer(m, context=base, mechanics=old, mechanics_basis=basis, probes=readings)  # type: ignore[arg-type]
-    assert srv_old.probe_scale == (0.0, 0.0) and srv_old.prepare().scale_var is None
-    assert srv_old.mechanics is not None and srv_old.mechanics.report["probe_readings_absorbed"] == 3
-    srv.set_mechanics(cal)  # a new commissioning: κ starts again
-    assert srv.probe_scale == (0.0, 0.0) and srv.prepare().scale_var is None
