@@ -54,7 +54,6 @@ __all__ = [
     "FieldHistory",
     "FitLimits",
     "commission_growth",
-    "growth_rms",
     "judge_fit",
     "read_displacement_csv",
     "sha256_file",
@@ -342,7 +341,6 @@ class CommissionReport:
     radial: dict[str, float] | None
     timings_s: dict[str, float] = field(default_factory=dict)
     outliers: int = 0
-    growth_rms_um: float = math.nan  # the measured axial growth's RMS over its first reading (``growth_rms``)
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: the parameters with prior and posterior, residuals, verdict, phases, timings."""
@@ -372,7 +370,6 @@ class CommissionReport:
             "problems": self.problems,
             "residual_rms_um": round(f.residual_rms_um, 4),
             "residual_max_um": round(f.residual_max_um, 4),
-            "growth_rms_um": None if not math.isfinite(self.growth_rms_um) else round(self.growth_rms_um, 4),
             "noise_um": round(f.noise_um, 4),
             "outliers": self.outliers,
             "readings_used": int(f.residual_um.size),
@@ -403,18 +400,6 @@ def _features(
     op = basis.operators[output]  # (2, 3, N)
     op_phi = np.einsum("mjn,nr->mjr", op, phi)
     return np.asarray(np.einsum("mjr,kr->kmj", op_phi, states) - op.sum(axis=2)[None] * t_ref_c)
-
-
-def growth_rms(axial_um: Array) -> float:
-    """The RMS [µm] of the measured axial displacement over its first reading (NaN readings skipped; NaN
-    with fewer than two): the size of the growth the test saw, the fixture offset removed (the set-up's
-    drift, ≤ 1 µm/h by the verdict, is left in). The probe readings' scale prior divides the fit's residual
-    RMS by it (``service.estimate.probe.scale_prior_sd``)."""
-    y = np.asarray(axial_um, dtype=float)
-    y = y[np.isfinite(y)]
-    if y.size < 2:
-        return math.nan
-    return float(np.sqrt(np.mean(np.square(y - y[0]))))
 
 
 def _interp(t_src: Array, values: Array, t_dst: Array) -> Array:
@@ -557,7 +542,6 @@ def commission_growth(
         radial=radial,
         timings_s=timings,
         outliers=int(sum(joint.outliers)),
-        growth_rms_um=growth_rms(disp.axial_um),
     )
     full = MechanicsCalibration(**{**cal.__dict__, "report": rep.as_dict()})
     return CommissionReport(**{**rep.__dict__, "calibration": full})

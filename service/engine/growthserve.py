@@ -69,7 +69,6 @@ from service.estimate.probe import (
     prior_covariance,
     prior_mean,
     replay,
-    scale_prior_sd,
 )
 from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
@@ -218,10 +217,7 @@ class GrowthServer:
             maxlen=int(FIELD_KEEP_S / FIELD_KEEP_EVERY_S) + 2
         )
         self._op_phi: np.ndarray | None = None  # the axial mount/α operators on the reduced basis (2, 3, r)
-        # the probe readings' state after the commissioning: θ (3,) or (θ, κ) (4,) and its covariance (None:
-        # no reading absorbed since; κ, the served axial growth's scale, ``service.estimate.probe``)
-        self._probe_state: tuple[np.ndarray, np.ndarray] | None = None
-        self._mechanics, self._probe_state = self._replayed(mechanics, probes)
+        self._mechanics = self._replayed(mechanics, probes)
         self._mech_basis = mechanics_basis
         self._base_ctx: GrowthContext | None = context  # the described mechanics' context
         if context is not None and self._mechanics is not None:
@@ -245,43 +241,13 @@ class GrowthServer:
             return self._ctx
 
     def _calibrated(self, base: GrowthContext, cal: MechanicsCalibration | None) -> GrowthContext:
-        """``base`` with ``cal``'s operators and posterior (the basis built once, ~2 s), the axial ones
-        scaled by the probe readings' κ and its variance carried (``probe_scale``); ``base`` if None."""
+        """``base`` with ``cal``'s operators and posterior (the basis built once, ~2 s); ``base`` if None."""
         if cal is None:
             return base
         if self._mech_basis is None:
             self._mech_basis = served_mechanics_basis(self.model.spec, self.model.fe)
         b = self._mech_basis
-        k, var = self.probe_scale
-        ops, jac = b.operators_at(cal.x), b.jacobian_at(cal.x)
-        ops[0] *= 1.0 + k
-        jac[0] *= 1.0 + k
-        return with_mechanics(base, ops, jac, cal.covariance, scale_var=(var, 0.0))
-
-    @property
-    def probe_scale(self) -> tuple[float, float]:
-        """(κ, its variance): the served axial growth's scale learnt from the probe readings since the
-        commissioning (``service.estimate.probe``); (0, 0) before any or without the term."""
-        st = self._probe_state
-        if st is None or st[0].size < 4:
-            return 0.0, 0.0
-        return float(st[0][3]), float(st[1][3, 3])
-
-    @staticmethod
-    def _start_state(cal: MechanicsCalibration | None, at: datetime) -> tuple[np.ndarray, np.ndarray]:
-        """The state a first reading updates: ``cal`` (None: the prior) and, after a commissioning that
-        reports the growth it measured, κ 0 ± ``scale_prior_sd`` (``service.estimate.probe``)."""
-        base = cal if cal is not None else GrowthServer._prior_calibration(at)
-        sd = 0.0
-        if cal is not None:
-            growth = cal.report.get("growth_rms_um")
-            sd = scale_prior_sd(cal.residual_rms_um, math.nan if growth is None else float(growth))
-        if sd <= 0.0:
-            return base.mean, base.covariance
-        p = np.zeros((4, 4))
-        p[:3, :3] = base.covariance
-        p[3, 3] = sd**2
-        return np.append(base.mean, 0.0), p
+        return with_mechanics(base, b.operators_at(cal.x), b.jacobian_at(cal.x), cal.covariance)
 
     @property
     def mechanics(self) -> MechanicsCalibration | None:
@@ -324,15 +290,15 @@ class GrowthServer:
 
     def _replayed(
         self, cal: MechanicsCalibration | None, probes: tuple[ProbeMeasurement, ...]
-    ) -> tuple[MechanicsCalibration | None, tuple[np.ndarray, np.ndarray] | None]:
-        """``cal`` (None: the prior) after the accepted readings measured after it (oldest first), and the
-        readings' whole state (``_probe_state``); ``(cal, None)`` when there are none."""
+    ) -> MechanicsCalibration | None:
+        """``cal`` (None: the prior) after the accepted readings measured after it (oldest first); ``cal``
+        when there are none."""
         use = sorted((m for m in probes if m.accepted and (cal is None or m.at > cal.at)), key=lambda m: m.at)
         if not use:
-            return cal, None
+            return cal
         base = cal if cal is not None else self._prior_calibration(use[0].at)
-        x, cov = replay(*self._start_state(cal, use[0].at), use)
-        return self._posterior(base, x[:3], cov[:3, :3], len(use)), (x, cov)
+        x, cov = replay(base.mean, base.covariance, use)
+        return self._posterior(base, x, cov, len(use))
 
     def mechanics_basis(self) -> ServedMechanicsBasis:
         """The served outputs' mount/α operators (built once, ~2 s; blocking)."""
@@ -351,7 +317,6 @@ class GrowthServer:
             self._ctx = self._calibrated(self._base_ctx, cal)
             self._mechanics = cal
             self._commissioning = cal
-            self._probe_state = None
             self._terms.clear()
             self._pending = None
             self._estimate = None
@@ -447,10 +412,9 @@ class GrowthServer:
             g1 = float(ctx.g[0].sum())
             field_var = float(g_phi @ cov @ g_phi) + (g1 * t_ref_sd) ** 2
             base = self._mechanics if self._mechanics is not None else self._prior_calibration(at)
-            state = self._probe_state or self._start_state(self._commissioning, at)
             up = absorb(
-                state[0],
-                state[1],
+                base.mean,
+                base.covariance,
                 feats,
                 float(axial_um),
                 float(sd_um) ** 2 + field_var,
@@ -473,8 +437,7 @@ class GrowthServer:
             if not up.accepted:
                 return m
             n = int(base.report.get("probe_readings_absorbed", 0)) + 1
-            cal = self._posterior(base, up.x[:3], up.cov[:3, :3], n)
-            self._probe_state = (up.x, up.cov)
+            cal = self._posterior(base, up.x, up.cov, n)
             assert self._base_ctx is not None
             self._ctx = self._calibrated(self._base_ctx, cal)  # the basis is built (above): cheap
             self._mechanics = cal

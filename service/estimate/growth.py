@@ -102,34 +102,22 @@ class GrowthContext:
     g_mech: Array | None = None
     g_mech_phi: Array | None = None
     cov_mech: Array | None = None
-    # the variance of each output's scale (2,) from probe readings (``service.estimate.probe``, κ): adds
-    # var · y² to the mechanical 1σ² of a served growth y
-    scale_var: Array | None = None
 
 
 def with_mechanics(
-    ctx: GrowthContext,
-    operators: ArrayLike,
-    jacobian: ArrayLike,
-    cov: ArrayLike,
-    scale_var: ArrayLike = (0.0, 0.0),
+    ctx: GrowthContext, operators: ArrayLike, jacobian: ArrayLike, cov: ArrayLike
 ) -> GrowthContext:
     """``ctx`` with the calibrated operators g(θ) (2, N), their Jacobian ∂g/∂θ (2, 3, N) and the posterior
-    Σ_θ (3, 3) (``service.estimate.mechanics``); ``scale_var`` (2,): the variance of each output's scale
-    (a probe-learnt κ, ``service.estimate.probe``; its mean is in ``operators``); the growth model (section
-    drawing) keeps its own."""
+    Σ_θ (3, 3) (``service.estimate.mechanics``); the growth model (section drawing) keeps its own."""
     g = np.asarray(operators, dtype=float)
     jac = np.asarray(jacobian, dtype=float)
     c = np.asarray(cov, dtype=float)
-    sv = np.asarray(scale_var, dtype=float)
     n = ctx.fe.n_nodes
     if g.shape != (2, n) or jac.shape != (2, 3, n) or c.shape != (3, 3):
         raise GrowthEstimateError(
             f"mechanics: expected operators (2, {n}), jacobian (2, 3, {n}), cov (3, 3); "
             f"got {g.shape}, {jac.shape}, {c.shape}"
         )
-    if sv.shape != (2,) or not np.all(np.isfinite(sv)) or np.any(sv < 0.0):
-        raise GrowthEstimateError(f"scale_var: expected 2 finite variances >= 0, got {scale_var!r}")
     return replace(
         ctx,
         g=g,
@@ -137,7 +125,6 @@ def with_mechanics(
         g_mech=jac,
         g_mech_phi=None if ctx.phi is None else np.einsum("opn,nr->opr", jac, ctx.phi),
         cov_mech=0.5 * (c + c.T),
-        scale_var=sv if np.any(sv > 0.0) else None,
     )
 
 
@@ -498,7 +485,7 @@ def estimate_growth(
     h_now = np.zeros(2) if belief.includes_h else _h_std(terms.jg, terms.cov_h)
     steady = terms.steady_um - g1 * t_ref_c
     h_ss = _h_std(terms.jg, terms.cov_h)
-    m_now, m_ss = _mech_std(ctx, x, reduced_mean, terms.t_ss, t_ref_c, now, steady)
+    m_now, m_ss = _mech_std(ctx, x, reduced_mean, terms.t_ss, t_ref_c)
     m_hz = np.maximum(m_now, m_ss)
     axial, radial = [], []
     for i in range(terms.horizons_s.size):
@@ -535,20 +522,12 @@ def estimate_growth(
 
 
 def _mech_std(
-    ctx: GrowthContext,
-    x: Array,
-    reduced_mean: bool,
-    t_ss: Array,
-    t_ref_c: float,
-    y_now: Array,
-    y_ss: Array,
+    ctx: GrowthContext, x: Array, reduced_mean: bool, t_ss: Array, t_ref_c: float
 ) -> tuple[Array, Array]:
-    """The mechanical 1σ (2,) [µm] now (field ``x``, nodal or reduced; growth ``y_now``) and at the steady
-    field ``t_ss`` (growth ``y_ss``), over the uniform ``t_ref_c``, with the scale's part (``scale_var`` ·
-    y²) when probe readings learnt one; zeros without a calibration in ``ctx``."""
+    """The mechanical 1σ (2,) [µm] now (field ``x``, nodal or reduced) and at the steady field ``t_ss``, over
+    the uniform ``t_ref_c``; zeros without a calibration in ``ctx``."""
     if ctx.g_mech is None or ctx.cov_mech is None:
         return np.zeros(2), np.zeros(2)
-    sv = ctx.scale_var if ctx.scale_var is not None else np.zeros(2)
     ones = ctx.g_mech.sum(axis=2) * t_ref_c  # (2, 3)
     if reduced_mean and ctx.g_mech_phi is not None:
         j_now = ctx.g_mech_phi @ x - ones
@@ -557,11 +536,11 @@ def _mech_std(
     j_ss = ctx.g_mech @ t_ss - ones
     cov = np.asarray(ctx.cov_mech, dtype=np.float64)
 
-    def std(j: Array, y: Array) -> Array:
-        var = np.sum((j @ cov) * j, axis=1) + sv * np.square(y)
+    def std(j: Array) -> Array:
+        var = np.sum((j @ cov) * j, axis=1)
         return np.asarray(np.sqrt(np.maximum(var, 0.0)))
 
-    return std(j_now, y_now), std(j_ss, y_ss)
+    return std(j_now), std(j_ss)
 
 
 # ---------------------------------------------------------------- controller values

@@ -17,14 +17,6 @@ one extended-Kalman step linearised at the current mean (exact in each of s and 
 
 A reading with |ν| > ``gate_sigma`` · √S (a crash or a tool change since the last one) is not absorbed.
 
-**The model's own error** (docs/design/growth.md, "Probe readings against the model's error"): after a
-commissioning, θ's posterior is tight (α shaft ±0.016), but what remains of the served error on another duty
-cycle is the field's, with the effective α having absorbed the *test's* field error; it grows with the rise
-(0 at the zero) and persists over a machining. So the state may carry a fourth term, a scale κ of the served
-axial growth, ``y = (1 + κ) · y(θ)``, with prior 0 ± ``scale_prior_sd`` (the commissioning's residual RMS
-over the RMS of the growth it measured: the model's relative misfit on its own test), and
-h = ((1 + κ) ∂y/∂θ, y(θ)). ``predict``, ``absorb`` and ``replay`` take θ (3,) or (θ, κ) (4,).
-
 Errors::
 
     ProbeError(ServiceError, ValueError)   a reading of the wrong shape or value (the field named)
@@ -52,7 +44,6 @@ __all__ = [
     "predict",
     "prior_covariance",
     "replay",
-    "scale_prior_sd",
 ]
 
 Array = NDArray[np.float64]
@@ -84,38 +75,16 @@ def _features(features: ArrayLike) -> Array:
     return f
 
 
-def scale_prior_sd(residual_rms_um: float, growth_rms_um: float) -> float:
-    """The prior 1σ of the served axial growth's scale κ (module docstring): a commissioning's axial residual
-    RMS over the RMS of the axial growth it measured [µm/µm]; 0 (no κ term) when either is unknown or not
-    positive (a calibration stored before this term, or a test without growth)."""
-    r, g = float(residual_rms_um), float(growth_rms_um)
-    if not (math.isfinite(r) and math.isfinite(g) and r > 0.0 and g > 0.0):
-        return 0.0
-    return r / g
-
-
-def _state(x: ArrayLike) -> Array:
-    xv = np.asarray(x, dtype=float)
-    if xv.shape not in ((3,), (4,)) or not np.all(np.isfinite(xv)):
-        raise ProbeError(f"x: expected finite θ (3,) or (θ, κ) (4,), got shape {xv.shape}")
-    return xv
-
-
 def predict(features: ArrayLike, x: ArrayLike) -> tuple[float, Array]:
-    """(ŷ [µm], h = ∂ŷ/∂x) of the axial growth with feature row ``features`` (2, 3) at ``x``: θ (3,), or
-    (θ, κ) (4,) with the growth's scale κ (module docstring); h has ``x``'s length."""
+    """(ŷ [µm], h = ∂ŷ/∂θ (3,)) of the axial growth with feature row ``features`` (2, 3) at θ ``x``."""
     f = _features(features)
-    xv = _state(x)
-    s, a_s, a_h = (float(v) for v in xv[:3])
+    s, a_s, a_h = (float(v) for v in np.asarray(x, dtype=float)[:3])
     c = np.array([1.0, a_s, a_h])
     g = f @ c  # growth under each mount idealisation (2,)
     w = np.array([1.0 - s, s])
     y = float(w @ g)
     h = np.array([g[1] - g[0], float(w @ f[:, 1]), float(w @ f[:, 2])])
-    if xv.size == 3:
-        return y, h
-    k = float(xv[3])
-    return (1.0 + k) * y, np.append((1.0 + k) * h, y)
+    return y, h
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -167,14 +136,11 @@ def absorb(
     *,
     gate_sigma: float | None = DEFAULT_GATE_SIGMA,
 ) -> ProbeUpdate:
-    """One Kalman step (module docstring) of θ ``x`` (3,) or (θ, κ) (4,), Σ ``cov`` alike, with a reading
-    ``axial_um`` of variance ``var_um2`` (the probe's sd² plus the field's growth variance) [µm²]; not
-    absorbed when |ν| > ``gate_sigma`` · √S (None: always absorbed, as a replay of readings accepted
-    before)."""
-    xv = _state(x)
+    """One Kalman step (module docstring) of θ ``x`` (3,), Σ ``cov`` (3, 3) with a reading ``axial_um`` of
+    variance ``var_um2`` (the probe's sd² plus the field's growth variance) [µm²]; not absorbed when
+    |ν| > ``gate_sigma`` · √S (None: always absorbed, as a replay of readings accepted before)."""
+    xv = np.asarray(x, dtype=float)
     p = np.asarray(cov, dtype=float)
-    if p.shape != (xv.size, xv.size):
-        raise ProbeError(f"cov: expected ({xv.size}, {xv.size}) for x of {xv.size}, got {p.shape}")
     if not (math.isfinite(axial_um) and math.isfinite(var_um2) and var_um2 > 0.0):
         raise ProbeError(
             f"axial_um, variance: need finite values and a variance > 0, got {axial_um}, {var_um2}"
@@ -186,7 +152,7 @@ def absorb(
     if gate_sigma is not None and abs(nu) > gate_sigma * sigma:
         return ProbeUpdate(xv.copy(), p.copy(), y_hat, sigma, nu, False)
     k = p @ h / s
-    a = np.eye(xv.size) - np.outer(k, h)
+    a = np.eye(3) - np.outer(k, h)
     new_p = a @ p @ a.T + float(var_um2) * np.outer(k, k)
     return ProbeUpdate(xv + k * nu, 0.5 * (new_p + new_p.T), y_hat, sigma, nu, True)
 
