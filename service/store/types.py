@@ -1,6 +1,7 @@
-"""Column types: :class:`UtcDateTime` stores UTC and always returns timezone-aware UTC datetimes; the samples'
-compact types (revision ``0008``): :class:`TemperatureArray` (``smallint[]`` centi-degrees on PostgreSQL),
-:class:`Float32` (``real``) and :class:`QualityMap` (``bytea``), JSON or doubles of the same values elsewhere."""
+"""Column types: :class:`UtcDateTime` stores UTC and always returns timezone-aware UTC datetimes; the
+samples' compact types (revision ``0008``): :class:`TemperatureArray` (``smallint[]`` centi-degrees on
+PostgreSQL), :class:`Float32` (``real``) and :class:`QualityMap` (``bytea``), JSON or doubles of the same
+values elsewhere."""
 
 from __future__ import annotations
 
@@ -106,16 +107,16 @@ def float32(value: float) -> float:
 
 
 class Float32(TypeDecorator[float]):
-    """A scalar stored as float32: ``real`` on PostgreSQL (4 bytes, not 8), a double elsewhere holding the same
-    value (``float32`` on write), so every backend reads back the same float. Lossless for the default devices
-    (rpm at 1 rpm/bit, N·m and °C at 0.01/bit: at most 6 significant digits); otherwise a relative error of
-    at most 6e-8."""
+    """A scalar stored as float32: ``real`` on PostgreSQL (4 bytes, not 8), a double elsewhere holding the
+    same value (``float32`` on write), so every backend reads back the same float. Lossless for the default
+    devices (rpm at 1 rpm/bit, N·m and °C at 0.01/bit: at most 6 significant digits); otherwise a relative
+    error of at most 6e-8."""
 
     impl = Double
     cache_ok = True
 
     def load_dialect_impl(self, dialect: Dialect) -> TypeEngine[Any]:
-        # not through dialect.type_descriptor: psycopg's adaptation of REAL would render (and so compare) FLOAT
+        # not via dialect.type_descriptor: psycopg's adaptation of REAL renders (and so compares) as FLOAT
         return REAL() if dialect.name == "postgresql" else Double()
 
     def process_bind_param(self, value: object, dialect: Dialect) -> float | None:
@@ -131,7 +132,8 @@ class QualityMap(TypeDecorator[dict[str, str]]):
     and the quality's code, ``Quality`` value 1–7), so a sample with every channel ok stores one byte (the
     JSON ``{}`` took three) and an open-circuit channel three instead of twenty-two; JSON elsewhere.
 
-    A channel outside 1–255 or an unknown label is refused on write (``ValueError`` naming it)."""
+    A channel outside 1–255 or an unknown label is refused on write, on every backend (``ValueError`` naming
+    it)."""
 
     impl = JSON
     cache_ok = True
@@ -144,9 +146,8 @@ class QualityMap(TypeDecorator[dict[str, str]]):
     def process_bind_param(self, value: object, dialect: Dialect) -> bytes | dict[str, str] | None:
         if value is None:
             return None
-        if dialect.name != "postgresql":
-            return value  # type: ignore[return-value]
-        return encode_quality_map(value)  # type: ignore[arg-type]
+        encoded = encode_quality_map(value)  # type: ignore[arg-type]  # (validates, on every backend)
+        return encoded if dialect.name == "postgresql" else value  # type: ignore[return-value]
 
     def process_result_value(self, value: object, dialect: Dialect) -> dict[str, str] | None:
         if value is None:

@@ -29,6 +29,7 @@ from __future__ import annotations
 
 import re
 from datetime import UTC, date, datetime, timedelta
+from typing import Any
 
 import sqlalchemy as sa
 from alembic import op
@@ -273,19 +274,19 @@ def _scalar(compact: bool) -> sa.types.TypeEngine[float]:
     return sa.REAL() if compact else sa.Double()
 
 
-def _temps(compact: bool) -> sa.types.TypeEngine[object]:
+def _temps(compact: bool) -> sa.types.TypeEngine[Any]:
     return postgresql.ARRAY(sa.SmallInteger() if compact else sa.REAL())
 
 
 def _create_samples(*, compact: bool, days: list[date]) -> None:
     f = _scalar(compact)
     scalars = [sa.Column(n, f, nullable=True) for n in ("speed_rpm", "torque_nm", "ambient_c")]
-    flags = [
+    flags: list[sa.Column[Any]] = [
         sa.Column("can_ok", sa.Boolean(), nullable=False),
         sa.Column("daq_ok", sa.Boolean(), nullable=False),
     ]
     if compact:
-        cols = [
+        cols: list[sa.Column[Any]] = [
             *scalars,
             sa.Column("n_good", sa.SmallInteger(), nullable=False),
             *flags,
@@ -325,13 +326,13 @@ def _create_minutes(*, compact: bool) -> None:
     scalars = [
         sa.Column(n, f, nullable=True) for n in ("ambient_c", "speed_rpm", "torque_nm", "speed_max_rpm")
     ]
-    flags = [
+    flags: list[sa.Column[Any]] = [
         sa.Column("can_ok", sa.Boolean(), nullable=False),
         sa.Column("daq_ok", sa.Boolean(), nullable=False),
     ]
     n = sa.Column("n", sa.Integer(), nullable=False)
     if compact:
-        cols = [
+        cols: list[sa.Column[Any]] = [
             *scalars,
             n,
             sa.Column("n_good_min", sa.SmallInteger(), nullable=False),
