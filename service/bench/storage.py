@@ -375,7 +375,7 @@ def main(args: argparse.Namespace) -> int:
     fl = flat(args.pg_url, args.flat_spindles, args.flat_days)
     mig = migration(args.pg_url, args.migrate_days)
     if args.json:
-        per_day = {phase: _total(sizes) for phase, sizes in day.items()}
+        per_day = {phase: _total(sizes) / 1e6 for phase, sizes in day.items()}
         out = {
             "per_spindle_day": day,
             "mb_per_spindle_day": per_day,
