@@ -48,7 +48,7 @@ from service.store import migrate
 from service.store import repository as repo
 from service.store.downsample import minute_means
 from service.store.engine import create_db_engine, make_session_factory
-from service.store.partitions import ensure_days
+from service.store.partitions import ensure_days, partition_name
 from service.store.retention import retention_pass
 
 DEFAULT_PG = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
@@ -234,7 +234,24 @@ def per_spindle_day(
                 repo.write_records(s, data[k : k + 1000])
             repo.write_records(s, minute_means(data))
         out["after"] = _sizes(eng)
+        _next_days_pass(eng)
+        n_samples = out["after"]["samples"][0]
+        out["after_closed"] = {**out["after"], "samples": (n_samples, _day_bytes(eng, DAY0))}
     return out
+
+
+def _next_days_pass(eng: sa.Engine) -> None:
+    """The retention pass of the next day: it compacts the closed day's key index (nothing is dropped)."""
+    next_day = DAY0 + timedelta(days=1)
+    now = datetime(next_day.year, next_day.month, next_day.day, 1, tzinfo=UTC)
+    retention_pass(eng, now=now, raw_days=30, minute_days=365)
+
+
+def _day_bytes(eng: sa.Engine, day: date) -> int:
+    """The bytes of ``day``'s samples partition (heap, indexes, TOAST, maps)."""
+    with eng.connect() as conn:
+        size = conn.execute(sa.text(f"SELECT pg_total_relation_size('{partition_name(day)}')")).scalar()
+    return int(size or 0)
 
 
 def _minutes(data: list[SampleData]) -> list[dict[str, object]]:
@@ -260,9 +277,12 @@ def plant_day(base_url: str, spindles: int, bad_channels: int = 0) -> dict[str, 
                     repo.write_records(s, [*data[6 * minute : 6 * minute + 6], means[minute]])
         seconds = time.perf_counter() - t
         sizes = _sizes(eng)
+        _next_days_pass(eng)
+        closed = _day_bytes(eng, DAY0)
     return {
         "spindles": spindles,
         "samples_mb": sizes["samples"][1] / 1e6 / spindles,
+        "samples_mb_closed": closed / 1e6 / spindles,
         "samples_1min_mb": sizes["samples_1min"][1] / 1e6 / spindles,
         "write_s": seconds,
     }
@@ -398,6 +418,10 @@ def main(args: argparse.Namespace) -> int:
     after = _total(day["after"]) / 1e6
     verdict = "met" if after <= BAR_MB else "NOT met"
     print(f"storage per spindle-day: {after:.2f} MB against the bar of {BAR_MB:g} MB: {verdict}")
+    print(
+        f"  once the day is closed (the next pass compacts its key index): samples "
+        f"{day['after_closed']['samples'][1] / 1e6:.3f} MB, {_total(day['after_closed']) / 1e6:.2f} MB a day"
+    )
     if plant is not None:
         minutes = plant["samples_1min_mb"]
         rest = sum(
@@ -406,7 +430,9 @@ def main(args: argparse.Namespace) -> int:
         print(
             f"plant day, {plant['spindles']} spindles writing at once: samples {plant['samples_mb']:.3f} MB, "
             f"samples_1min {minutes:.3f} MB per spindle-day; with the rest above "
-            f"{(plant['samples_mb'] + minutes + rest / 1e6):.2f} MB (written in {plant['write_s']:.0f} s)"
+            f"{(plant['samples_mb'] + minutes + rest / 1e6):.2f} MB (written in {plant['write_s']:.0f} s); "
+            f"once closed (compacted) samples {plant['samples_mb_closed']:.3f} MB, "
+            f"{(plant['samples_mb_closed'] + minutes + rest / 1e6):.2f} MB"
         )
     print(
         f"retention pass at {ret['spindle_days']} spindle-days ({ret['rows_before']} samples, "
