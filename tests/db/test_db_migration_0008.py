@@ -185,16 +185,17 @@ def test_0008_downgrade_converts_back_and_keeps_every_row(db_url: str) -> None:
         with eng.connect() as conn:
             row = conn.execute(
                 sa.text(
-                    "SELECT temps_c, bad_channels, speed_rpm FROM samples WHERE spindle_id = 'b' ORDER BY t"
+                    "SELECT temps_c, bad_channels, speed_rpm, ambient_c FROM samples "
+                    "WHERE spindle_id = 'b' ORDER BY t"
                 )
             ).all()[1]
-        temps, bad, speed = row
+        temps, bad, speed, ambient = row
         if isinstance(bad, str):  # SQLite JSON as text
             import json
 
             temps, bad = json.loads(temps), json.loads(bad)
         assert [None if v is None else float32(v) for v in temps[:5]] == [20.01, 21.01, 22.01, None, 24.01]
-        assert bad == {"4": "open_circuit", "12": "stuck"} and speed == 3001.0
+        assert bad == {"4": "open_circuit", "12": "stuck"} and (speed, ambient) == (3001.0, 22.01)
         migrate.upgrade(eng)
         assert _counts(eng) == before
     finally:

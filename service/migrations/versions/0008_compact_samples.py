@@ -18,8 +18,8 @@ becomes NULL (no usable value), like the application's ``centi_celsius``. ``bad_
 revision (copied below: a migration never imports application code); an unknown label or a channel outside
 1–255 stops the migration before anything is changed, naming it. Doubles become ``real`` (float32).
 
-Downgrade converts back (centi-degrees / 100 as ``real``, the bytes to JSON, ``real`` to double precision):
-what the upgrade rounded stays rounded.
+Downgrade converts back (centi-degrees / 100 as ``real``, the bytes to JSON, ``real`` to double precision
+through its shortest decimal, 22.01 not 22.0100002…): what the upgrade rounded stays rounded.
 
 Written by hand. Revision ID: 0008, Revises: 0007
 Create Date: 2026-11-28 02:30:00 UTC
@@ -167,9 +167,9 @@ def downgrade() -> None:
         ],
         [
             "t",
-            "ambient_c::float8",
-            "speed_rpm::float8",
-            "torque_nm::float8",
+            "ambient_c::text::float8",
+            "speed_rpm::text::float8",
+            "torque_nm::text::float8",
             temps,
             "n_good::int",
             bad,
@@ -199,10 +199,10 @@ def downgrade() -> None:
         [
             "t",
             "n",
-            "ambient_c::float8",
-            "speed_rpm::float8",
-            "torque_nm::float8",
-            "speed_max_rpm::float8",
+            "ambient_c::text::float8",
+            "speed_rpm::text::float8",
+            "torque_nm::text::float8",
+            "speed_max_rpm::text::float8",
             temps,
             "n_good_min::int",
             "can_ok",
