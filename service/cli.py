@@ -54,7 +54,7 @@ BENCHMARKS: dict[str, str] = {
     "compensation": "served /compensation every minute vs random H(speed) truths: usable, error, coverage, "
     "restarts, outages",
     "opcua": "OPC UA: read p99 with 10 clients, subscription latency, REST /chtc p99 with the outlets on/off",
-    "storage": "rows and bytes per spindle-day per table (PostgreSQL), JSON vs real[] temperatures, the "
+    "storage": "rows and bytes per spindle-day per table (PostgreSQL), 0006, 0007, head vs the 3 MB bar; the "
     "retention pass at many spindle-days",
     "commission": "the product's commissioning vs an MLR peer (correlation-clustered sensors) on the same "
     "thermal test, then on a duty cycle: axial error of each",

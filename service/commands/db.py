@@ -91,6 +91,7 @@ def _retention(url: str, args: argparse.Namespace, raw_days: int, minute_days: i
         f"retention: raw samples before {r.raw_cutoff or 'never'}, minute means before "
         f"{r.minute_cutoff or 'never'}; {len(r.partitions_dropped)} partitions dropped, "
         f"{r.raw_rows_deleted} raw and {r.minute_rows_deleted} minute rows deleted, {r.minutes_backfilled} "
-        f"minutes backfilled, {len(r.partitions_created)} partitions made, {r.seconds:.3f} s"
+        f"minutes backfilled, {len(r.partitions_created)} partitions made, {r.seconds:.3f} s; "
+        f"{len(r.partitions_compacted)} closed days' indexes compacted, {r.compact_seconds:.3f} s"
     )
     return 0

@@ -1,4 +1,4 @@
-"""SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` to ``0007``).
+"""SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` to ``0008``).
 
 Since ``0007`` every table but ``spindles`` carries ``spindle_id`` (``SpindleScoped``): many spindles share
 one database. Service-assigned ids (conditions, identifications) are unique per spindle (composite keys
@@ -16,9 +16,12 @@ Units: °C, rpm, N·m, W/(m²·K), s.
 Ids of conditions and identifications are assigned by the service (it needs them before the row is stored,
 because the writer may hold rows while the database is down); device events and samples get database ids.
 
-Per-channel sample temperatures are one JSON array per row rather than 32 columns: the number of channels is
+Per-channel sample temperatures are one array per row rather than 32 columns: the number of channels is
 configuration (the spindle file), so a different DAQ needs no migration, and the array is always read whole.
-The cost is that one channel cannot be filtered or indexed in SQL; nobody needs that.
+The cost is that one channel cannot be indexed in SQL; nobody needs that. Since ``0008`` the samples are
+compact on PostgreSQL (``service.store.types``): temperatures ``smallint[]`` of centi-degrees, speed, torque
+and ambient ``real``, the bad channels' qualities ``bytea``, columns ordered for alignment
+(docs/design/persistence.md, "Storage per spindle-day").
 H1–H7 of an identification are seven columns because they are what trend queries read.
 """
 
@@ -38,16 +41,18 @@ from sqlalchemy import (
     LargeBinary,
     MetaData,
     PrimaryKeyConstraint,
+    SmallInteger,
     String,
     Text,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, declared_attr, mapped_column, relationship
 
 from service.contracts.records import JsonValue
-from service.store.types import TemperatureArray, UtcDateTime
+from service.store.types import Float32, QualityMap, TemperatureArray, UtcDateTime
 
 # BIGINT everywhere; on SQLite an INTEGER PRIMARY KEY (the 64-bit rowid) so database ids autoincrement there
 BigId = BigInteger().with_variant(Integer(), "sqlite")
+SmallInt = SmallInteger().with_variant(Integer(), "sqlite")  # SQLite: INTEGER as before 0008
 SPINDLE_ID_LENGTH = 64
 
 NAMING = {
@@ -180,16 +185,18 @@ class SampleRow(SpindleScoped, Base):
     __tablename__ = "samples"
     __table_args__ = (PrimaryKeyConstraint("spindle_id", "t"), {"postgresql_partition_by": "RANGE (t)"})
 
+    # Column order is the PostgreSQL row layout (revision 0008): fixed widths by alignment, then the varlenas
     t: Mapped[datetime]
-    ambient_c: Mapped[float | None]
-    speed_rpm: Mapped[float | None]
-    torque_nm: Mapped[float | None]
-    # per channel, °C; null = no usable value. PostgreSQL: real[] (float32: 0.01 °C data, 7 digits kept)
-    temps_c: Mapped[list[float | None]] = mapped_column(TemperatureArray)
-    n_good: Mapped[int] = mapped_column(Integer)  # channels with quality "ok"
-    bad_channels: Mapped[dict[str, str]] = mapped_column(JSON)  # {"7": "open_circuit", ...} (1-based)
+    speed_rpm: Mapped[float | None] = mapped_column(Float32)  # PostgreSQL: real (float32)
+    torque_nm: Mapped[float | None] = mapped_column(Float32)
+    ambient_c: Mapped[float | None] = mapped_column(Float32)
+    n_good: Mapped[int] = mapped_column(SmallInt)  # channels with quality "ok"
     can_ok: Mapped[bool] = mapped_column(Boolean)
     daq_ok: Mapped[bool] = mapped_column(Boolean)
+    # per channel, °C to 0.01 °C; null = no usable value. PostgreSQL: smallint[] of centi-degrees
+    temps_c: Mapped[list[float | None]] = mapped_column(TemperatureArray)
+    # {"7": "open_circuit", ...} (1-based), the channels not ok. PostgreSQL: bytea, 2 bytes a bad channel
+    bad_channels: Mapped[dict[str, str]] = mapped_column(QualityMap)
 
 
 class SampleMinuteRow(SpindleScoped, Base):
@@ -201,15 +208,15 @@ class SampleMinuteRow(SpindleScoped, Base):
     __table_args__ = (PrimaryKeyConstraint("spindle_id", "t"),)
 
     t: Mapped[datetime]  # the minute's start, UTC
+    ambient_c: Mapped[float | None] = mapped_column(Float32)
+    speed_rpm: Mapped[float | None] = mapped_column(Float32)
+    torque_nm: Mapped[float | None] = mapped_column(Float32)
+    speed_max_rpm: Mapped[float | None] = mapped_column(Float32)
     n: Mapped[int] = mapped_column(Integer)  # samples averaged
-    ambient_c: Mapped[float | None]
-    speed_rpm: Mapped[float | None]
-    torque_nm: Mapped[float | None]
-    speed_max_rpm: Mapped[float | None]
-    temps_c: Mapped[list[float | None]] = mapped_column(TemperatureArray)
-    n_good_min: Mapped[int] = mapped_column(Integer)  # the fewest good channels in a sample of the minute
+    n_good_min: Mapped[int] = mapped_column(SmallInt)  # the fewest good channels in a sample of the minute
     can_ok: Mapped[bool] = mapped_column(Boolean)  # every sample of the minute
     daq_ok: Mapped[bool] = mapped_column(Boolean)
+    temps_c: Mapped[list[float | None]] = mapped_column(TemperatureArray)  # means to 0.01 °C
 
 
 class SpeedMapStateRow(SpindleScoped, Base):

@@ -10,6 +10,11 @@ A partition is ``samples_pYYYYMMDD`` holding ``[day 00:00 UTC, next day 00:00 UT
 What drops them: the retention pass (``drop_before``), whole days older than ``database.raw_days``
 (``DROP TABLE`` of the partition: immediate, and the space is freed, unlike a ``DELETE``).
 
+What compacts them: the retention pass (``compact_day``) rebuilds a closed day's key index once, packed full.
+Many spindles writing at once each insert in the middle of the ``(spindle_id, t)`` index, whose pages then
+split half full: measured 0.60 MB a spindle-day instead of 0.32 MB packed (docs/design/persistence.md,
+"Storage per spindle-day").
+
 pg_partman (Debian ``postgresql-15-partman``) would do the same creation and dropping; it is not used: its
 retention drops a partition without the minute-means backfill the pass does first, its configuration is
 database-wide (one ``part_config`` row per parent table) and needs superuser rights to install, and it needs
@@ -26,12 +31,22 @@ from datetime import UTC, date, datetime, timedelta
 
 from sqlalchemy import Connection, Engine, text
 
-__all__ = ["PREFIX", "day_bounds", "drop_before", "ensure_days", "list_partitions", "partition_name"]
+__all__ = [
+    "COMPACTED",
+    "PREFIX",
+    "compact_day",
+    "day_bounds",
+    "drop_before",
+    "ensure_days",
+    "list_partitions",
+    "partition_name",
+]
 
 PREFIX = "samples_p"
 PREMAKE_DAYS = 3
 _NAME = re.compile(r"^samples_p(\d{8})$")
 _LOCK = 0x43485443  # pg_advisory_xact_lock key: partition DDL of this schema, one at a time ("CHTC")
+COMPACTED = "chtc: compacted"  # the comment on a closed day's rebuilt index (done once)
 _known: weakref.WeakKeyDictionary[Engine, set[date]] = weakref.WeakKeyDictionary()
 
 
@@ -109,3 +124,25 @@ def drop_before(conn: Connection, cutoff: date) -> list[str]:
     if known is not None:
         known.difference_update(d for d in set(known) if d < cutoff)
     return dropped
+
+
+def compact_day(conn: Connection, day: date) -> bool:
+    """Rebuild the indexes of ``day``'s partition packed full (``fillfactor`` 100, ``REINDEX``) unless done
+    already (the ``COMPACTED`` comment); True if rebuilt. For a closed day: its few late inserts wait for the
+    rebuild (it locks the partition against writes while it runs, ~60 ms per 86 400 rows measured) and split
+    the full pages they land in. No-op on SQLite and for a day without a partition."""
+    if not partitioned(conn):
+        return False
+    rows = conn.execute(
+        text(
+            "SELECT c.relname, obj_description(c.oid, 'pg_class') FROM pg_index x "
+            "JOIN pg_class c ON c.oid = x.indexrelid WHERE x.indrelid = to_regclass(:p)"
+        ),
+        {"p": f'"{partition_name(day)}"'},
+    ).all()
+    todo = [str(name) for name, note in rows if note != COMPACTED]
+    for name in todo:
+        conn.execute(text(f'ALTER INDEX "{name}" SET (fillfactor = 100)'))
+        conn.execute(text(f'REINDEX INDEX "{name}"'))
+        conn.execute(text(f"COMMENT ON INDEX \"{name}\" IS '{COMPACTED}'"))
+    return bool(todo)

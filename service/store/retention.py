@@ -10,7 +10,11 @@ partitions are shared), in one transaction:
 2. **raw samples** older than ``raw_days`` (whole UTC days before ``today - raw_days``): PostgreSQL drops
    their daily partitions (``service.store.partitions``; immediate, space freed); SQLite deletes the rows;
 3. **minute means** older than ``minute_days``: deleted (a small table: 1440 rows per spindle-day);
-4. PostgreSQL: the next ``PREMAKE_DAYS`` days' partitions are created.
+4. PostgreSQL: the next ``PREMAKE_DAYS`` days' partitions are created;
+5. PostgreSQL, after that transaction: the closed days still kept whose key index was not rebuilt yet are
+   compacted (``partitions.compact_day``), newest first, at most ``compact_per_pass`` (2) a pass, each in its
+   own short transaction (timed apart: ``compact_seconds``; ``seconds`` is steps 1–4). A failure (say, a
+   partition another role owns: ``REINDEX`` needs its owner) is logged and ends the step; it is never fatal.
 
 Identifications, conditions, calibrations, references, probe readings and device events are kept.
 ``0`` days keeps for ever. What runs it: the service, every ``database.retention_every_s`` (a day) of wall
@@ -20,20 +24,33 @@ spindles' services) are serialized by an advisory lock on PostgreSQL and harmles
 
 from __future__ import annotations
 
+import logging
 import time
 from dataclasses import dataclass
 from datetime import date, datetime, timedelta
 from types import SimpleNamespace
 
 from sqlalchemy import Connection, Engine, delete, func, select, text
+from sqlalchemy.exc import DBAPIError
 
 from service.store.downsample import minute_means
 from service.store.models import SampleMinuteRow, SampleRow, Spindle
-from service.store.partitions import PREMAKE_DAYS, day_bounds, drop_before, ensure_days, utc_day
+from service.store.partitions import (
+    PREMAKE_DAYS,
+    compact_day,
+    day_bounds,
+    drop_before,
+    ensure_days,
+    list_partitions,
+    partition_name,
+    utc_day,
+)
 
 __all__ = ["RetentionReport", "backfill_minutes", "retention_pass"]
 
+log = logging.getLogger(__name__)
 _LOCK = 0x43485452  # pg_advisory_xact_lock key: one retention pass at a time ("CHTR")
+COMPACT_PER_PASS = 2  # closed days' indexes rebuilt a pass (yesterday, and one of a backlog)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -45,11 +62,19 @@ class RetentionReport:
     raw_rows_deleted: int  # SQLite (PostgreSQL drops partitions: not counted)
     minute_rows_deleted: int
     minutes_backfilled: int
-    seconds: float
+    seconds: float  # steps 1-4
+    partitions_compacted: tuple[str, ...] = ()  # PostgreSQL: closed days' key indexes rebuilt packed
+    compact_seconds: float = 0.0
 
 
 def retention_pass(
-    engine: Engine, *, now: datetime, raw_days: int, minute_days: int, premake_days: int = PREMAKE_DAYS
+    engine: Engine,
+    *,
+    now: datetime,
+    raw_days: int,
+    minute_days: int,
+    premake_days: int = PREMAKE_DAYS,
+    compact_per_pass: int = COMPACT_PER_PASS,
 ) -> RetentionReport:
     """One pass over the database (see the module docstring); ``now`` aware UTC."""
     t0 = time.perf_counter()
@@ -72,6 +97,8 @@ def retention_pass(
             lo, _ = day_bounds(min_cut)
             min_deleted = conn.execute(delete(SampleMinuteRow).where(SampleMinuteRow.t < lo)).rowcount
         created = ensure_days(conn, [today + timedelta(days=i) for i in range(premake_days + 1)])
+    seconds = time.perf_counter() - t0
+    compacted = _compact_closed(engine, today, raw_cut, compact_per_pass)
     return RetentionReport(
         raw_cutoff=raw_cut,
         minute_cutoff=min_cut,
@@ -80,14 +107,38 @@ def retention_pass(
         raw_rows_deleted=int(raw_deleted or 0),
         minute_rows_deleted=int(min_deleted or 0),
         minutes_backfilled=backfilled,
-        seconds=time.perf_counter() - t0,
+        seconds=seconds,
+        partitions_compacted=tuple(compacted),
+        compact_seconds=time.perf_counter() - t0 - seconds,
     )
+
+
+def _compact_closed(engine: Engine, today: date, raw_cut: date | None, limit: int) -> list[str]:
+    """Step 5: the closed, kept days' partitions not compacted yet, newest first, at most ``limit``."""
+    if engine.dialect.name != "postgresql" or limit < 1:
+        return []
+    with engine.connect() as conn:
+        days = sorted(
+            (d for _, d in list_partitions(conn) if d < today and (raw_cut is None or d >= raw_cut)),
+            reverse=True,
+        )
+    done: list[str] = []
+    for day in days:
+        if len(done) >= limit:
+            break
+        try:
+            with engine.begin() as conn:
+                conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+                if compact_day(conn, day):
+                    done.append(partition_name(day))
+        except DBAPIError as err:  # e.g. a partition another role owns: storage only, never fatal
+            log.warning("retention: compacting %s failed, left as is: %s", partition_name(day), err.orig)
+            break
+    return done
 
 
 def _raw_days_before(conn: Connection, cutoff: date) -> list[date]:
     """The UTC days before ``cutoff`` that still hold raw samples."""
-    from service.store.partitions import list_partitions
-
     if conn.dialect.name == "postgresql":
         return [d for _, d in list_partitions(conn) if d < cutoff]
     lo, _ = day_bounds(cutoff)

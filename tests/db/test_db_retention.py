@@ -164,3 +164,65 @@ def test_chtc_db_retention_and_merge_commands(tmp_path: Path, capsys: pytest.Cap
     out = capsys.readouterr().out
     # the source's samples are from 2026-03-01/02: long gone after 1 day (their minutes after 2)
     assert "240 raw and 0 minute rows deleted, 0 minutes backfilled" in out
+
+
+def test_a_closed_days_key_index_written_by_many_spindles_is_compacted_once(engine: sa.Engine) -> None:
+    """Ten spindles write the same 2 h of 32-channel samples a minute each in turn (as their writers do): each
+    spindle's key range grows in the middle of the index, whose pages split half full (PostgreSQL packs them
+    only when the heap rows are adjacent, i.e. few spindles with small rows); the next day's pass rebuilds
+    that index packed, once, keeping every row; a late batch still goes in. SQLite: nothing to compact."""
+    ids = [f"cell1-s{k:02d}" for k in range(10)]  # ids of realistic length (the split depends on it)
+    factories = [spindle_factory(engine, sid) for sid in ids]
+    day = TODAY - timedelta(days=1)
+    t0 = datetime(day.year, day.month, day.day, 8, tzinfo=UTC)
+    data = [
+        SampleData(
+            t=t0 + timedelta(seconds=10 * i),
+            temps_c=[20.0] * 32,
+            ambient_c=22.0,
+            speed_rpm=3e3,
+            torque_nm=1.0,
+            quality=["ok"] * 32,
+        )
+        for i in range(720)
+    ]
+    for minute in range(120):
+        for f in factories:
+            with repo.session_scope(f) as s:
+                repo.write_records(s, data[6 * minute : 6 * minute + 6])
+    pg = engine.dialect.name == "postgresql"
+
+    def index_bytes() -> int:
+        with engine.connect() as conn:
+            return int(
+                conn.execute(
+                    sa.text("SELECT pg_indexes_size(CAST(:p AS regclass))"), {"p": partition_name(day)}
+                ).scalar()
+                or 0
+            )
+
+    before = index_bytes() if pg else 0
+    report = retention_pass(engine, now=NOW, raw_days=30, minute_days=365)
+    if not pg:
+        assert report.partitions_compacted == () and report.compact_seconds < 1.0
+        return
+    assert report.partitions_compacted == (partition_name(day),)  # today is open: not compacted
+    after = index_bytes()
+    assert after < 0.7 * before, (before, after)  # measured: about 0.55 of it
+    for f in factories:
+        with repo.session_scope(f) as s:
+            assert [r.t for r in repo.list_samples(s)] == [d.t for d in data]
+    again = retention_pass(engine, now=NOW, raw_days=30, minute_days=365)
+    assert again.partitions_compacted == ()  # done once
+    late = SampleData(
+        t=t0 - timedelta(seconds=5),
+        temps_c=[21.0] * 32,
+        ambient_c=22.0,
+        speed_rpm=3e3,
+        torque_nm=1.0,
+        quality=["ok"] * 32,
+    )
+    with repo.session_scope(factories[0]) as s:
+        repo.write_records(s, [late, data[0]])  # a late sample, and a retried one (skipped)
+    with repo.session_scope(factories[0]) as s:
+        assert repo.count_rows(s, SampleRow) == 721

@@ -177,7 +177,8 @@ def test_the_writer_stores_minute_means_beside_the_samples(factory: sessionmaker
     assert [m.t for m in minutes] == [T0 + timedelta(minutes=i) for i in range(5)]
     assert [m.n for m in minutes] == [6] * 5
     first = np.array([d.temps_c for d in data[:6]], dtype=float).mean(axis=0)
-    np.testing.assert_allclose(np.array(minutes[0].temps_c, dtype=float), first, atol=1e-4)
+    # stored to 0.01 °C (revision 0008: centi-degrees), so within half of that
+    np.testing.assert_allclose(np.array(minutes[0].temps_c, dtype=float), first, rtol=0, atol=0.005 + 1e-9)
     assert minutes[0].speed_max_rpm == 3050.0 and minutes[0].speed_rpm == 3025.0
 
 
