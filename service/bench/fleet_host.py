@@ -289,15 +289,12 @@ def run_n(
             )
             days = n * (t1 - t0) / 86400.0
             rows_day = {t: (r1.get(t, 0) - r0.get(t, 0)) / days for t in r1}
-            fresh = sum(
-                1
-                for sid in (s["id"] for s in listed)
-                if json.loads(_get(f"{base}/api/v1/spindles/{sid}/healthz")[1] or "{}").get("status") == "ok"
-            )
+            healthy, degraded = _health(base, [str(x["id"]) for x in listed])
             result = {
                 "spindles": n,
                 "running": running,
-                "healthy_at_end": fresh,
+                "healthy_at_end": healthy,
+                "degraded_parts": degraded,
                 "write_p99_ms": _ms(p99_of(m0, m1)),
                 "writes": int(m1.get(float("inf"), 0) - m0.get(float("inf"), 0)),
                 "rss_mib": round(rss_mib(product.pid), 1),
@@ -317,6 +314,19 @@ def run_n(
         if product is not None:
             _stop(product)
         _stop(rig)
+
+
+def _health(base: str, ids: list[str]) -> tuple[int, dict[str, int]]:
+    """How many spindles' /healthz say ok, and which parts are not ok how often (e.g. event_loop, modbus)."""
+    healthy = 0
+    parts: dict[str, int] = {}
+    for sid in ids:
+        body = json.loads(_get(f"{base}/api/v1/spindles/{sid}/healthz")[1] or "{}")
+        healthy += body.get("status") == "ok"
+        for dev in body.get("devices", []):
+            if dev.get("status") not in ("ok", "disabled"):
+                parts[str(dev.get("name"))] = parts.get(str(dev.get("name")), 0) + 1
+    return healthy, parts
 
 
 def _ms(s: float | None) -> float | None:
