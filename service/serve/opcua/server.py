@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 from asyncua import Server, ua
 from asyncua.server.internal_session import InternalSession
 
+from service.logctx import in_current_context
 from service.serve.errors import OutletError
 from service.serve.opcua.nodes import EPOCH, GROUPS, UNECE, UNITS_NAMESPACE, Reading, Var, render, unit_id
 from service.serve.opcua.security import (
@@ -209,7 +210,7 @@ class OpcUaServer:
 
     # --- lifecycle (caller's thread) ---------------------------------------------------------------------
     def start(self, timeout_s: float = 60.0) -> None:
-        self._thread = threading.Thread(target=self._run, name="chtc-opcua", daemon=True)
+        self._thread = threading.Thread(target=in_current_context(self._run), name="chtc-opcua", daemon=True)
         self._thread.start()
         if not self._ready.wait(timeout_s):
             raise OutletError(f"the OPC UA server did not start within {timeout_s:.0f} s")
