@@ -342,8 +342,8 @@ class OpcUaServer:
             await server.load_certificate(str(cfg.certificate))
             await server.load_private_key(str(cfg.private_key))
         idx = await server.register_namespace(cfg.namespace_uri)
-        _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.spindle)
-        self._nodeids = {v.path: ua.NodeId(f"{cfg.spindle}.{v.path}", idx) for v in self.variables}
+        _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.node_prefix)
+        self._nodeids = {v.path: ua.NodeId(f"{cfg.node_prefix}.{v.path}", idx) for v in self.variables}
         waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
         for var in self.variables:  # nothing is known before the first view
             dv = ua.DataValue(Value=_initial(var), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC))
@@ -353,7 +353,7 @@ class OpcUaServer:
         return server
 
     async def _add_methods(self, server: Server, instance: Any, idx: int, methods: Methods) -> None:
-        spindle = self.cfg.spindle
+        spindle = self.cfg.node_prefix
 
         async def run(fn: Callable[[], str]) -> list[ua.Variant]:
             try:
@@ -397,6 +397,6 @@ async def export_nodeset(cfg: OpcUaSettings, variables: Sequence[Var], path: Pat
     server = Server()
     await server.init()
     idx = await server.register_namespace(cfg.namespace_uri)
-    await build_address_space(server, idx, variables, spindle=cfg.spindle)
+    await build_address_space(server, idx, variables, spindle=cfg.node_prefix)
     await server.export_xml_by_ns(str(path), [idx], export_values=True)
     return sum(1 for _ in path.read_text(encoding="utf-8").split("<UAVariable")) - 1
