@@ -1,8 +1,9 @@
 """``chtc opcua``: the OPC UA outlet's tools (docs/integration.md, "OPC UA").
 
 - ``chtc opcua nodeset [--out FILE]``: the NodeSet2 XML of our namespace (the ``SpindleThermalModelType`` and
-  the ``Spindle1`` instance with its string NodeIds), to import into TIA Portal (OPC UA client interface) or
-  TwinCAT (TF6100 ``UA_*`` blocks, the Target Browser). Built offline: no service, no network.
+  the spindle's instance with its string NodeIds, named ``[opcua] spindle`` or ``spindle.id``), to import into
+  TIA Portal (OPC UA client interface) or TwinCAT (TF6100 ``UA_*`` blocks, the Target Browser). Built
+  offline: no service, no network.
 - ``chtc opcua user NAME``: a PBKDF2-SHA256 hash of a password read from the terminal (or
   ``--password-stdin``) for ``[opcua] users`` or the users file (``NAME = "pbkdf2_sha256$..."``).
 """

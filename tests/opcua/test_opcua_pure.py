@@ -207,7 +207,7 @@ def test_the_opcua_and_sparkplug_names_resolve_from_the_spindle_id() -> None:
 
     s = Settings(spindle={"id": "cell3-sp07"})  # type: ignore[arg-type]
     assert s.opcua.spindle is None and s.opcua.for_spindle(s.spindle.id).node_prefix == "cell3-sp07"
-    with pytest.raises(ValueError, match="opcua.spindle"):
+    with pytest.raises(ValueError, match=r"opcua\.spindle"):
         _ = s.opcua.node_prefix  # unresolved: no silent default
     mqtt = s.mqtt.for_spindle(s.spindle.id)
     assert mqtt.device == "cell3-sp07" and mqtt.effective_client_id == "chtc-chtc-1"

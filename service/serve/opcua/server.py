@@ -10,9 +10,9 @@ arrives: the acquisition stopped), and writes only the values that changed.
 Address space (namespace ``[opcua] namespace_uri``, index 2 on this server): the object type
 ``SpindleThermalModelType`` (below BaseObjectType) with one object per group (``Status``, ``H``,
 ``Condition``, ``Temperatures``, ``Growth``, ``Controller``, ``Devices``) and their variables; the instance
-``Spindle1`` below Objects, whose NodeIds are the browse paths (``ns=2;s=Spindle1.Growth.Axial``). Analog
-values are ``AnalogUnitRangeType`` variables with ``EngineeringUnits`` (UNECE) and ``EURange``; every variable
-is read-only (AccessLevel CurrentRead).
+``<spindle>`` (``opcua.spindle``, unset: ``spindle.id``) below Objects, whose NodeIds are the browse paths
+(``ns=2;s=<spindle>.Growth.Axial``). Analog values are ``AnalogUnitRangeType`` variables with
+``EngineeringUnits`` (UNECE) and ``EURange``; every variable is read-only (AccessLevel CurrentRead).
 """
 
 from __future__ import annotations
