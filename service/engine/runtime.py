@@ -271,7 +271,8 @@ class Runtime:
     def load(self, *, progress: Callable[[str], None] | None = None) -> LoadedModel:
         """Load the model (builds and caches the reduced model on the first run)."""
         if self.model is None:
-            self.model = load_model(ModelRef.from_settings(self.settings), progress=progress)
+            with spindle_context(self.settings.spindle.id):
+                self.model = load_model(ModelRef.from_settings(self.settings), progress=progress)
         return self.model
 
     async def start(self, *, daq: DaqDevice, can: CanDevice, api: bool = True, acquire: bool = True) -> None:

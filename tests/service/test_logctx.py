@@ -198,3 +198,52 @@ def test_a_request_is_answered_as_the_apps_spindle(records: _Records) -> None:
         r = client.get("/")
     assert r.headers[HEADER] == "cell5-sp02"
     assert records.spindles("in the route at 2026-01-01") == ["cell5-sp02"]
+
+
+def test_a_running_spindle_logs_its_id_from_its_tasks_and_threads(tmp_path, records: _Records) -> None:  # type: ignore[no-untyped-def]
+    """The real runtime, its devices unreachable (nobody listens on the simulated addresses): the acquisition
+    task's device warnings, the database threads' lines (the writer, SQLAlchemy's statements from the
+    writer and the read pool) and the runtime's own events all name the spindle; nothing is logged outside
+    its context (the process default is unset: such a line would say ``-``)."""
+    from service.engine.runtime import Runtime, ScaledClock
+    from service.settings import Settings
+    from service.sim.simrig import SimAddress, make_drivers
+
+    sql = logging.getLogger("sqlalchemy.engine")
+    sql_level = sql.level
+    sql.setLevel(logging.INFO)
+    events = logging.getLogger("chtc.test")
+    settings = Settings(
+        spindle={"id": "cell9-sp01"},  # type: ignore[arg-type]
+        database={"url": f"sqlite:///{tmp_path / 'ids.db'}"},  # type: ignore[arg-type]
+    )
+
+    async def main() -> None:
+        clock = ScaledClock(20.0)
+        runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: events.info("%s", m))
+        await asyncio.to_thread(runtime.load)
+        daq, can = make_drivers(settings, SimAddress.free(speedup=20.0), clock=clock)
+        records.records.clear()  # the test's own set-up (the drivers' libraries) ran outside the spindle
+        try:
+            await runtime.start(daq=daq, can=can, api=False)
+            deadline = asyncio.get_running_loop().time() + 20.0
+            while not any(r.name.startswith("drivers") for r in records.records):
+                assert asyncio.get_running_loop().time() < deadline, "no device warning"
+                await asyncio.sleep(0.05)
+            assert runtime.service is not None
+            page = runtime.service.list_identifications
+            with spindle_context("cell9-sp01"):  # a read as an API request makes it (api/spindlehdr.py)
+                await asyncio.to_thread(page, since=None, until=None, limit=5, offset=0)  # the read pool
+        finally:
+            await runtime.stop()
+
+    try:
+        asyncio.run(main())
+    finally:
+        sql.setLevel(sql_level)
+    mine = [r for r in records.records if not r.name.startswith("asyncio")]  # asyncio.run's own, outside
+    strays = [(r.threadName, r.name, r.getMessage()[:80]) for r in mine if r.spindle != "cell9-sp01"]  # type: ignore[attr-defined]
+    assert strays == []
+    threads = {r.threadName for r in mine}
+    assert "MainThread" in threads and len(threads) >= 3, threads  # the loop's tasks and database threads
+    assert any(r.name == "chtc.test" for r in mine) and any(r.name.startswith("drivers") for r in mine)
