@@ -3,8 +3,9 @@
 ``/healthz`` and ``/readyz`` answer at the root too (the same as ``/api/v1/healthz`` and ``/api/v1/readyz``).
 
 The app reads the service only through :class:`service.serve.interface.ChtcService`. ``settings`` is the
-service's
-``Settings`` (only ``settings.api`` is read: ``token``, ``read_token``); binding (``api.host``/``api.port``,
+service's ``Settings``; only ``settings.api`` (``token``, ``read_token``) and ``settings.spindle.id`` are
+read. Every answer names its spindle: a ``spindle_id`` member of the top-level JSON of the read endpoints and
+a ``Chtc-Spindle-Id`` header on every answer (``api/spindlehdr.py``). Binding (``api.host``/``api.port``,
 127.0.0.1 by default) is the caller's job (``chtc run`` / ``chtc demo`` run uvicorn with them).
 """
 
@@ -35,6 +36,7 @@ from api.routers import (
     sensors,
     spindle,
 )
+from api.spindlehdr import SpindleHeader
 from service.serve.interface import ChtcService
 
 if TYPE_CHECKING:
@@ -81,6 +83,7 @@ def create_app(
         redoc_url=None,
     )
     app.state.service = service
+    app.state.spindle_id = settings.spindle.id
     app.state.clock = clock
     app.state.clock_info = clock_info or ClockInfo()
     app.state.auth = AuthConfig.from_settings(settings.api)
@@ -108,6 +111,7 @@ def create_app(
     app.add_middleware(RequestGuard, rules=[*rules, *probe_rules], auth=app.state.auth, limits=limits)
     _install_openapi(app, rules)
     app.add_middleware(RequestTimer, metrics=app.state.metrics, prefix=API_PREFIX)
+    app.add_middleware(SpindleHeader, spindle_id=settings.spindle.id)  # outermost: on every answer
     return app
 
 

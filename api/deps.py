@@ -1,6 +1,7 @@
 """Dependencies of the routers, as ``Annotated`` aliases.
 
 - ``ServiceDep``: the :class:`service.serve.interface.ChtcService` the app was built with.
+- ``SpindleIdDep``: the id of the spindle the app serves (``settings.spindle.id``), named in every answer.
 - ``ClockDep``: a callable returning the current UTC ``datetime`` (injected, so tests control "now").
 - ``ReadAccess`` / ``WriteAccess``: bearer-token checks. Writes need ``settings.api.token`` (401 when the
   header is missing, 403 when it is wrong or no token is configured). Reads are open unless
@@ -135,11 +136,16 @@ async def get_service(request: Request) -> ChtcService:
     return request.app.state.service  # type: ignore[no-any-return,unused-ignore]
 
 
+async def get_spindle_id(request: Request) -> str:
+    return request.app.state.spindle_id  # type: ignore[no-any-return,unused-ignore]
+
+
 async def get_clock(request: Request) -> Clock:
     return request.app.state.clock  # type: ignore[no-any-return,unused-ignore]
 
 
 ServiceDep = Annotated[ChtcService, Depends(get_service)]
+SpindleIdDep = Annotated[str, Depends(get_spindle_id)]
 ClockDep = Annotated[Clock, Depends(get_clock)]
 ReadAccess = Depends(require_read)
 WriteAccess = Annotated[None, Depends(require_write)]

@@ -7,6 +7,7 @@ scheme where the route's token rule applies (reads only when ``api.read_token`` 
 a body is read, 404 for ids, 409 busy, 414 for an over-long URL, 422 where there are inputs, 503 with
 ``Retry-After`` where the service may have nothing to show or the database is down. A method a path does
 not have answers 405 with ``Allow`` (stated in the description: OpenAPI cannot list undeclared methods).
+Every response documents the ``Chtc-Spindle-Id`` header (``api/spindlehdr.py``).
 """
 
 from __future__ import annotations
@@ -20,13 +21,20 @@ from pydantic import BaseModel, Field
 
 from api.deps import AuthConfig
 from api.guard import RouteRule
+from api.spindlehdr import HEADER as SPINDLE_HEADER
 
 BEARER = "bearerAuth"
 ERROR_REF = {"$ref": "#/components/schemas/Error"}
 METHOD_NOTE = (
     '\n\nEvery error answers `{"error": {"code", "message", "field", "detail"}}`. A method a path does '
     "not declare answers 405 `method_not_allowed` with an `Allow` header; every GET path also answers HEAD."
+    f" Every answer names its spindle in a `{SPINDLE_HEADER}` header, and the JSON answers of the read"
+    " endpoints in a top-level `spindle_id` (settings `spindle.id`)."
 )
+SPINDLE_HEADER_DOC = {
+    "schema": {"type": "string"},
+    "description": "the id of the spindle that answers (settings spindle.id)",
+}
 _DESCRIPTIONS = {
     "400": "the body cannot be read",
     "401": "no or malformed `Authorization: Bearer` header",
@@ -103,6 +111,7 @@ def _document(op: dict[str, Any], path: str, access: str, auth: AuthConfig) -> N
     for code, entry in responses.items():  # a route's own error statuses (e.g. a 404) get the shape too
         if code.isdigit() and int(code) >= 400:
             entry["content"] = {"application/json": {"schema": ERROR_REF}}
+        entry.setdefault("headers", {})[SPINDLE_HEADER] = SPINDLE_HEADER_DOC
     if path == "/metrics":
         responses["200"]["content"] = {"text/plain": {"schema": {"type": "string"}}}
 

@@ -114,7 +114,15 @@ def condition_out(c: ConditionSnapshot) -> ConditionOut:
     )
 
 
-class VerdictOut(BaseModel):
+class SpindleAnswer(BaseModel):
+    """A top-level answer: ``spindle_id`` first, so every body says which spindle it is about."""
+
+    spindle_id: str = Field(
+        description="which spindle answers: its id (settings spindle.id), as stored in the database"
+    )
+
+
+class VerdictOut(SpindleAnswer):
     """The served-value policy's verdict (service.serve.policy): one status, the usable flag, and when not
     usable the typed reason, a human detail and what the operator should do."""
 
@@ -161,9 +169,10 @@ class ChtcOut(VerdictOut):
     served_at: datetime
 
 
-def chtc_out(s: ChtcSnapshot, now: datetime) -> ChtcOut:
+def chtc_out(s: ChtcSnapshot, now: datetime, *, spindle_id: str) -> ChtcOut:
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     return ChtcOut(
+        spindle_id=spindle_id,
         **_verdict(s.verdict),
         unit=s.unit,
         zones=zones_out(
@@ -236,9 +245,10 @@ def _nums(a: np.ndarray, digits: int) -> list[float | None]:
     return [_num(x, digits) for x in a]
 
 
-def chtc_map_out(s: ChtcMapSnapshot, now: datetime) -> ChtcMapOut:
+def chtc_map_out(s: ChtcMapSnapshot, now: datetime, *, spindle_id: str) -> ChtcMapOut:
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     return ChtcMapOut(
+        spindle_id=spindle_id,
         **_verdict(s.verdict),
         unit=s.unit,
         family=s.family,
@@ -270,7 +280,7 @@ def chtc_map_out(s: ChtcMapSnapshot, now: datetime) -> ChtcMapOut:
     )
 
 
-class FieldMeta(BaseModel):
+class FieldMeta(SpindleAnswer):
     at: Literal["now", "steady"]
     t: datetime = Field(description="UTC instant the field belongs to")
     identification_id: int | None
@@ -386,14 +396,14 @@ def sensor_out(s: SensorReading) -> SensorOut:
     )
 
 
-class SensorsOut(BaseModel):
+class SensorsOut(SpindleAnswer):
     t: datetime | None = Field(description="UTC of the newest sample")
     sample_age_s: float | None
     served_at: datetime
     channels: list[SensorOut]
 
 
-class ConditionsOut(BaseModel):
+class ConditionsOut(SpindleAnswer):
     current: ConditionOut
     recent: list[ConditionOut] = Field(description="newest first, the current one included")
     served_at: datetime
@@ -451,7 +461,7 @@ def identification_out(r: IdentificationRecord) -> IdentificationOut:
     )
 
 
-class IdentificationPageOut(BaseModel):
+class IdentificationPageOut(SpindleAnswer):
     items: list[IdentificationOut]
     total: int
     limit: int
@@ -466,7 +476,7 @@ class IdentificationRequest(BaseModel):
     reason: str = Field("manual", min_length=1, max_length=64, pattern=r"^[A-Za-z0-9_.:\- ]+$")
 
 
-class JobOut(BaseModel):
+class JobOut(SpindleAnswer):
     job_id: str
     reason: str
     state: Literal["queued", "running", "done", "failed"]
@@ -477,8 +487,9 @@ class JobOut(BaseModel):
     href: str = Field(description="poll this URL for the job's state")
 
 
-def job_out(j: IdentificationJob, prefix: str) -> JobOut:
+def job_out(j: IdentificationJob, prefix: str, *, spindle_id: str) -> JobOut:
     return JobOut(
+        spindle_id=spindle_id,
         job_id=j.job_id,
         reason=j.reason,
         state=_enum(j.state),
@@ -518,7 +529,7 @@ class ClockOut(BaseModel):
     speedup: float = Field(description="plant seconds per wall second (1 on the wall clock)")
 
 
-class HealthOut(BaseModel):
+class HealthOut(SpindleAnswer):
     status: Literal["ok", "degraded"]
     t: datetime
     clock: ClockOut = Field(description="what the service's clock (every timestamp served) is")
@@ -528,10 +539,11 @@ class HealthOut(BaseModel):
     devices: list[DeviceOut]
 
 
-def health_out(h: HealthSnapshot, clock: ClockInfo | None = None) -> HealthOut:
+def health_out(h: HealthSnapshot, clock: ClockInfo | None = None, *, spindle_id: str) -> HealthOut:
     bad = not h.model_loaded or any(str(d.status) in ("degraded", "down") for d in h.devices)
     c = clock or ClockInfo()
     return HealthOut(
+        spindle_id=spindle_id,
         status="degraded" if bad else "ok",
         t=h.t,
         clock=ClockOut(simulated=c.simulated, speedup=c.speedup),
@@ -542,7 +554,7 @@ def health_out(h: HealthSnapshot, clock: ClockInfo | None = None) -> HealthOut:
     )
 
 
-class ReadyOut(BaseModel):
+class ReadyOut(SpindleAnswer):
     ready: bool
     reasons: list[str]
     t: datetime
@@ -870,10 +882,11 @@ def _growth_value(v: Any) -> GrowthValueOut:
     )
 
 
-def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
+def compensation_out(s: CompensationSnapshot, now: datetime, *, spindle_id: str) -> CompensationOut:
     g, f, p = s.growth, s.growth.forecast, s.plc
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     return CompensationOut(
+        spindle_id=spindle_id,
         **_verdict(s.verdict),
         unit="µm",
         at=g.at,
@@ -924,7 +937,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime) -> CompensationOut:
     )
 
 
-class CompensationSectionOut(BaseModel):
+class CompensationSectionOut(SpindleAnswer):
     """The spindle's section deformed by the live field (docs/design/growth.md, 'The deformed section'): draw
     (r + k·u_r, z + k·u_z) for an exaggeration k of your choice next to the undeformed outline."""
 
@@ -946,10 +959,11 @@ class CompensationSectionOut(BaseModel):
     served_at: datetime
 
 
-def compensation_section_out(s: SectionSnapshot, now: datetime) -> CompensationSectionOut:
+def compensation_section_out(s: SectionSnapshot, now: datetime, *, spindle_id: str) -> CompensationSectionOut:
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
     u = np.asarray(s.u_um, dtype=float)
     return CompensationSectionOut(
+        spindle_id=spindle_id,
         status=s.status,
         unit="µm",
         at=s.at,

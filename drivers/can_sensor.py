@@ -28,6 +28,7 @@ from __future__ import annotations
 
 import asyncio
 import contextlib
+import contextvars
 import threading
 from collections import deque
 from collections.abc import Callable, Sequence
@@ -109,7 +110,11 @@ class _BusReader:
         self._wake_pending = False
         self._ready = asyncio.Event()
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=f"can-reader {bus.channel_info}", daemon=True)
+        # in a copy of the starter's context: a log line from this thread (python-can's) names its spindle
+        ctx = contextvars.copy_context()
+        self._thread = threading.Thread(
+            target=ctx.run, args=(self._run,), name=f"can-reader {bus.channel_info}", daemon=True
+        )
 
     def start(self) -> None:
         self._thread.start()

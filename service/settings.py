@@ -430,7 +430,8 @@ class OpcUaSettings(_Section):
     host: str = "127.0.0.1"
     port: int = Field(default=4840, ge=1, le=65535)
     path: str = "/chtc"  # endpoint opc.tcp://host:port/path
-    spindle: str = Field(default="Spindle1", pattern=r"^[A-Za-z][A-Za-z0-9_]{0,31}$")  # NodeId prefix
+    # the NodeId prefix (ns=<idx>;s=<spindle>.H.H1) and the object's name; None: the spindle's id (spindle.id)
+    spindle: str | None = Field(default=None, pattern=SPINDLE_ID_PATTERN)
     namespace_uri: str = "urn:spindle-chtc:opcua"
     # the endpoints offered: "None" (no security) and/or "Basic256Sha256_SignAndEncrypt"
     security_policies: tuple[OpcUaPolicy, ...] = ("None",)
@@ -445,6 +446,17 @@ class OpcUaSettings(_Section):
     update_interval_s: float = Field(default=0.2, gt=0, le=60)  # at most one address-space update per this
     refresh_s: float = Field(default=1.0, gt=0, le=60)  # re-evaluate ages and statuses without a new view
     bad_after_s: float | None = Field(default=None, gt=0)  # lost data: Bad past this; None: max_open_loop_min
+
+    def for_spindle(self, spindle_id: str) -> OpcUaSettings:
+        """This section with ``spindle`` set: as given, else ``spindle_id`` (this instance's spindle.id)."""
+        return self if self.spindle is not None else self.model_copy(update={"spindle": spindle_id})
+
+    @property
+    def node_prefix(self) -> str:
+        """The NodeId prefix; ``ValueError`` before :meth:`for_spindle` resolved a default one."""
+        if self.spindle is None:
+            raise ValueError("opcua.spindle: unset; resolve it with for_spindle(spindle.id)")
+        return self.spindle
 
     @model_validator(mode="after")
     def _security_complete(self) -> OpcUaSettings:

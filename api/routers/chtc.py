@@ -8,7 +8,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
 
-from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep
 from api.errors import ApiError
 from api.routers.conditional import cached_json, weak_etag
 from api.schemas import ChtcOut, chtc_out
@@ -33,7 +33,9 @@ def etag_of(s: ChtcSnapshot) -> str:
     },
     summary="current H1-H7 with 95 % CI, status and provenance",
 )
-async def get_chtc(request: Request, service: ServiceDep, clock: ClockDep) -> Response:
+async def get_chtc(
+    request: Request, service: ServiceDep, clock: ClockDep, spindle_id: SpindleIdDep
+) -> Response:
     snap = service.chtc()
     if snap is None:
         raise ApiError(
@@ -47,7 +49,7 @@ async def get_chtc(request: Request, service: ServiceDep, clock: ClockDep) -> Re
         request,
         etag=etag_of(snap),
         slot="chtc_body",
-        out=lambda: chtc_out(snap, now),
+        out=lambda: chtc_out(snap, now, spindle_id=spindle_id),
         newest=snap.newest_sample_at,
         now=now,
     )

@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from fastapi import APIRouter, Request, Response
 
-from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep
 from api.errors import ApiError
 from api.routers.conditional import cached_json, weak_etag
 from api.schemas import ChtcMapOut, chtc_map_out
@@ -43,7 +43,9 @@ def etag_of(s: ChtcMapSnapshot) -> str:
     },
     summary="H1-H7 over the speed range with 95 % bands, the visited speeds and the map's status",
 )
-async def get_chtc_map(request: Request, service: ServiceDep, clock: ClockDep) -> Response:
+async def get_chtc_map(
+    request: Request, service: ServiceDep, clock: ClockDep, spindle_id: SpindleIdDep
+) -> Response:
     snap = service.chtc_map()
     if snap is None:
         if service.identification_mode() is IdentificationMode.PER_CONDITION:
@@ -59,7 +61,7 @@ async def get_chtc_map(request: Request, service: ServiceDep, clock: ClockDep) -
         request,
         etag=etag_of(snap),
         slot="chtc_map_body",
-        out=lambda: chtc_map_out(snap, now),
+        out=lambda: chtc_map_out(snap, now, spindle_id=spindle_id),
         newest=snap.newest_sample_at,
         now=now,
     )

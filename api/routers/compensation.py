@@ -23,7 +23,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Body
 
-from api.deps import ClockDep, ReadAccess, ServiceDep, WriteAccess
+from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep, WriteAccess
 from api.errors import ApiError
 from api.schemas import (
     CompensationOut,
@@ -63,11 +63,11 @@ def _no_growth() -> ApiError:
     responses={503: {"description": "no identification or no live field yet"}},
     summary="thermal growth at the tool (µm, 0.1 µm), 95 % CI, forecast, controller values, status",
 )
-def get_compensation(service: ServiceDep, clock: ClockDep) -> CompensationOut:
+def get_compensation(service: ServiceDep, clock: ClockDep, spindle_id: SpindleIdDep) -> CompensationOut:
     snap = service.compensation()
     if snap is None:
         raise _no_growth()
-    return compensation_out(snap, clock())
+    return compensation_out(snap, clock(), spindle_id=spindle_id)
 
 
 @router.get(
@@ -76,11 +76,13 @@ def get_compensation(service: ServiceDep, clock: ClockDep) -> CompensationOut:
     responses={503: {"description": "no identification or no live field yet"}},
     summary="the spindle's section outline and its displacement (u_r, u_z, µm) by the live field",
 )
-def get_compensation_section(service: ServiceDep, clock: ClockDep) -> CompensationSectionOut:
+def get_compensation_section(
+    service: ServiceDep, clock: ClockDep, spindle_id: SpindleIdDep
+) -> CompensationSectionOut:
     snap = service.compensation_section()
     if snap is None:
         raise _no_growth()
-    return compensation_section_out(snap, clock())
+    return compensation_section_out(snap, clock(), spindle_id=spindle_id)
 
 
 @router.get(

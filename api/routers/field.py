@@ -60,9 +60,10 @@ def parse_points(text: str) -> np.ndarray:
     return out
 
 
-def _meta(f: FieldSnapshot) -> dict[str, object]:
+def _meta(f: FieldSnapshot, spindle_id: str) -> dict[str, object]:
     finite = f.temps_c[np.isfinite(f.temps_c)]
     return {
+        "spindle_id": spindle_id,
         "at": f.at,
         "t": f.t,
         "identification_id": f.identification_id,
@@ -74,9 +75,9 @@ def _meta(f: FieldSnapshot) -> dict[str, object]:
 
 # mesh_out / grid_out: the schema-level forms of the bodies. The route serves field_render's cached bodies,
 # which must parse to exactly these (tests/api/test_api_field.py compares them).
-def mesh_out(f: FieldSnapshot) -> FieldMeshOut:
+def mesh_out(f: FieldSnapshot, *, spindle_id: str) -> FieldMeshOut:
     return FieldMeshOut(
-        **_meta(f),  # type: ignore[arg-type]
+        **_meta(f, spindle_id),  # type: ignore[arg-type]
         nodes_r_m=np.round(f.nodes_rz[:, 0], 7).tolist(),
         nodes_z_m=np.round(f.nodes_rz[:, 1], 7).tolist(),
         temps_c=_clean(f.temps_c),
@@ -85,7 +86,7 @@ def mesh_out(f: FieldSnapshot) -> FieldMeshOut:
     )
 
 
-def grid_out(f: FieldSnapshot, nr: int, nz: int) -> FieldGridOut:
+def grid_out(f: FieldSnapshot, nr: int, nz: int, *, spindle_id: str) -> FieldGridOut:
     r0, r1, z0, z1 = f.bounds_rz
     r = np.linspace(r0, r1, nr)
     z = np.linspace(z0, z1, nz)
@@ -94,7 +95,7 @@ def grid_out(f: FieldSnapshot, nr: int, nz: int) -> FieldGridOut:
     temps = f.evaluate(pts).reshape(nr, nz)
     std = f.evaluate_std(pts)
     return FieldGridOut(
-        **_meta(f),  # type: ignore[arg-type]
+        **_meta(f, spindle_id),  # type: ignore[arg-type]
         r_m=np.round(r, 7).tolist(),
         z_m=np.round(z, 7).tolist(),
         temps_c=[_clean(row) for row in temps],
@@ -102,12 +103,12 @@ def grid_out(f: FieldSnapshot, nr: int, nz: int) -> FieldGridOut:
     )
 
 
-def points_out(f: FieldSnapshot, pts: np.ndarray) -> FieldPointsOut:
+def points_out(f: FieldSnapshot, pts: np.ndarray, *, spindle_id: str) -> FieldPointsOut:
     temps = f.evaluate(pts)
     std = f.evaluate_std(pts)
     stds = [math.nan] * len(temps) if std is None else std.tolist()
     return FieldPointsOut(
-        **_meta(f),  # type: ignore[arg-type]
+        **_meta(f, spindle_id),  # type: ignore[arg-type]
         points=[
             _point(float(r), float(z), float(t), float(s))
             for (r, z), t, s in zip(pts, temps, stds, strict=True)
@@ -130,7 +131,7 @@ def _point(r: float, z: float, t: float, s: float) -> PointOut:
 def _renderer(request: Request) -> tuple[FieldRenderer, FieldGate]:
     state = request.app.state
     if getattr(state, "field_renderer", None) is None:
-        state.field_renderer = FieldRenderer()
+        state.field_renderer = FieldRenderer(spindle_id=state.spindle_id)
         state.field_gate = FieldGate(MAX_IN_PROGRESS)
     return state.field_renderer, state.field_gate
 
@@ -161,7 +162,7 @@ def _render(
     if format == "grid":
         return renderer.grid(snap, nr, nz)
     assert pts is not None  # format=points requires them (checked in get_field)
-    return points_out(snap, pts).model_dump_json().encode()
+    return points_out(snap, pts, spindle_id=renderer.spindle_id).model_dump_json().encode()
 
 
 @router.get(

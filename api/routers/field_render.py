@@ -48,10 +48,12 @@ def _clean(values: np.ndarray) -> list[float | None]:
     return [None if not math.isfinite(v) else v for v in np.round(values, 4).tolist()]
 
 
-def meta_json(f: FieldSnapshot) -> str:
-    """The metadata members (``at``, ``t``, ``identification_id``, units, min/max) without braces."""
+def meta_json(f: FieldSnapshot, spindle_id: str) -> str:
+    """The metadata members (``spindle_id``, ``at``, ``t``, ``identification_id``, units, min/max) without
+    braces."""
     finite = f.temps_c[np.isfinite(f.temps_c)]
     meta = FieldMeta(
+        spindle_id=spindle_id,
         at=f.at,
         t=f.t,
         identification_id=f.identification_id,
@@ -103,9 +105,11 @@ class _MeshGeometry:
 
 
 class FieldRenderer:
-    """Thread-safe cache of field bodies (the newest ``entries``) and of the mesh geometry."""
+    """Thread-safe cache of field bodies (the newest ``entries``) and of the mesh geometry, of one spindle's
+    fields (``spindle_id``, named in every body)."""
 
-    def __init__(self, *, entries: int = 8) -> None:
+    def __init__(self, *, spindle_id: str, entries: int = 8) -> None:
+        self.spindle_id = spindle_id
         self._entries = entries
         self._bodies: OrderedDict[str, Rendered] = OrderedDict()
         self._geometry: tuple[object, object, _MeshGeometry] | None = None  # (nodes, triangles) by identity
@@ -158,7 +162,8 @@ class FieldRenderer:
             geom = self._geometry_of(f)
             std = "null" if f.std_c is None else _dumps(_clean(f.std_c))
             dynamic = (
-                f'"format":"mesh",{meta_json(f)},"temps_c":{_dumps(_clean(f.temps_c))},"std_c":{std}}}'
+                f'"format":"mesh",{meta_json(f, self.spindle_id)},'
+                f'"temps_c":{_dumps(_clean(f.temps_c))},"std_c":{std}}}'
             ).encode()
             return Rendered(
                 body=geom.head + dynamic, etag=key, _gzip_tail=(geom.compressor, geom.head_gz, dynamic)
@@ -177,7 +182,7 @@ class FieldRenderer:
                 sd = f.locator.interpolate(f.std_c, located).reshape(nr, nz)
                 std = _dumps([_clean(row) for row in sd])
             body = (
-                f'{{"format":"grid",{meta_json(f)},"r_m":{_dumps(np.round(r, 7).tolist())},'
+                f'{{"format":"grid",{meta_json(f, self.spindle_id)},"r_m":{_dumps(np.round(r, 7).tolist())},'
                 f'"z_m":{_dumps(np.round(z, 7).tolist())},'
                 f'"temps_c":{_dumps([_clean(row) for row in temps])},"std_c":{std}}}'
             )

@@ -11,7 +11,7 @@ from fastapi import APIRouter, Request, Response
 from fastapi.responses import JSONResponse
 from prometheus_client import CONTENT_TYPE_LATEST, generate_latest
 
-from api.deps import ClockDep, ReadAccess, ServiceDep
+from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep
 from api.errors import error_body
 from api.schemas import HealthOut, ReadyOut, health_out
 
@@ -19,8 +19,8 @@ router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz", response_model=HealthOut, summary="liveness plus device health (always 200 if alive)")
-async def healthz(service: ServiceDep, request: Request) -> HealthOut:
-    return health_out(service.health(), request.app.state.clock_info)
+async def healthz(service: ServiceDep, request: Request, spindle_id: SpindleIdDep) -> HealthOut:
+    return health_out(service.health(), request.app.state.clock_info, spindle_id=spindle_id)
 
 
 @router.get(
@@ -29,9 +29,9 @@ async def healthz(service: ServiceDep, request: Request) -> HealthOut:
     responses={503: {"description": "model not loaded or data not fresh"}},
     summary="ready = model loaded and data fresh",
 )
-async def readyz(service: ServiceDep, clock: ClockDep) -> JSONResponse:
+async def readyz(service: ServiceDep, clock: ClockDep, spindle_id: SpindleIdDep) -> JSONResponse:
     r = service.ready()
-    body = ReadyOut(ready=r.ready, reasons=list(r.reasons), t=clock())
+    body = ReadyOut(spindle_id=spindle_id, ready=r.ready, reasons=list(r.reasons), t=clock())
     if r.ready:
         return JSONResponse(body.model_dump(mode="json"))
     msg = "not ready: " + "; ".join(r.reasons) if r.reasons else "not ready"

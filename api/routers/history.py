@@ -14,9 +14,10 @@ import numpy as np
 from fastapi import APIRouter, Query, Response
 from pydantic import BaseModel, Field
 
-from api.deps import ClockDep, ReadAccess, ServiceDep, UtcDateTime
+from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep, UtcDateTime
 from api.errors import invalid
 from api.routers.sensors import CHANNELS_PATTERN, parse_channels
+from api.schemas import SpindleAnswer
 
 router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
 
@@ -33,7 +34,7 @@ class ChannelHistoryOut(BaseModel):
     predicted_c: list[float | None] = Field(description="°C per sample; null = no identification yet")
 
 
-class SensorHistoryOut(BaseModel):
+class SensorHistoryOut(SpindleAnswer):
     unit: str = "°C"
     since: datetime | None = Field(description="the query's since (UTC), samples are strictly later")
     served_at: datetime
@@ -55,6 +56,7 @@ def _values(column: np.ndarray) -> list[float | None]:
 async def get_sensor_history(
     service: ServiceDep,
     clock: ClockDep,
+    spindle_id: SpindleIdDep,
     since: Annotated[UtcDateTime | None, Query(description="only samples after this UTC instant")] = None,
     channels: Annotated[
         str | None,
@@ -75,6 +77,7 @@ async def get_sensor_history(
         columns = [k for k, c in enumerate(hist.channels) if c in chosen]
     first = max(0, len(hist.t) - limit)
     out = SensorHistoryOut(
+        spindle_id=spindle_id,
         since=since,
         served_at=clock(),
         t=list(hist.t[first:]),

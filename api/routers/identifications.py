@@ -7,7 +7,7 @@ from typing import Annotated
 from fastapi import APIRouter, Body, Path, Query, Request
 from fastapi.responses import JSONResponse
 
-from api.deps import ReadAccess, ServiceDep, UtcDateTime, WriteAccess
+from api.deps import ReadAccess, ServiceDep, SpindleIdDep, UtcDateTime, WriteAccess
 from api.errors import invalid
 from api.schemas import (
     IdentificationOut,
@@ -31,6 +31,7 @@ MAX_ID = 2**63 - 1  # the database's BIGINT; larger ids cannot exist (and would 
 )
 def list_identifications(
     service: ServiceDep,
+    spindle_id: SpindleIdDep,
     since: Annotated[
         UtcDateTime | None, Query(description="finished at or after (ISO-8601 with offset)")
     ] = None,
@@ -46,6 +47,7 @@ def list_identifications(
     page = service.list_identifications(since=since, until=until, limit=limit, offset=offset)
     nxt = offset + len(page.items)
     return IdentificationPageOut(
+        spindle_id=spindle_id,
         items=[identification_out(r) for r in page.items],
         total=page.total,
         limit=limit,
@@ -62,8 +64,10 @@ def list_identifications(
     dependencies=[ReadAccess],
     summary="state of a requested identification",
 )
-def get_job(service: ServiceDep, job_id: Annotated[str, Path(max_length=64)]) -> JobOut:
-    return job_out(service.job(job_id), PREFIX)
+def get_job(
+    service: ServiceDep, spindle_id: SpindleIdDep, job_id: Annotated[str, Path(max_length=64)]
+) -> JobOut:
+    return job_out(service.job(job_id), PREFIX, spindle_id=spindle_id)
 
 
 @router.get(
@@ -92,9 +96,10 @@ def get_identification(
 def start_identification(
     request: Request,
     service: ServiceDep,
+    spindle_id: SpindleIdDep,
     _: WriteAccess,
     body: Annotated[IdentificationRequest | None, Body()] = None,
 ) -> JSONResponse:
     reason = body.reason if body is not None else "manual"
-    job = job_out(service.request_identification(reason), PREFIX)
+    job = job_out(service.request_identification(reason), PREFIX, spindle_id=spindle_id)
     return JSONResponse(job.model_dump(mode="json"), status_code=202, headers={"Location": job.href})

@@ -7,7 +7,7 @@ from typing import Annotated
 
 from fastapi import APIRouter, Query, Response
 
-from api.deps import ClockDep, ReadAccess, ServiceDep, WriteAccess
+from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep, WriteAccess
 from api.errors import ApiError, invalid
 from api.schemas import BaselineOut, SensorsOut, baseline_out, sensor_out
 from service.serve.interface import NotReadyError
@@ -42,6 +42,7 @@ def _only_known(chosen: set[int], known: set[int]) -> None:
 async def get_sensors(
     service: ServiceDep,
     clock: ClockDep,
+    spindle_id: SpindleIdDep,
     channels: Annotated[
         str | None,
         Query(max_length=200, pattern=CHANNELS_PATTERN, description="comma-separated channel numbers 1..32"),
@@ -55,6 +56,7 @@ async def get_sensors(
     now = clock()
     newest = max((r.t for r in readings), default=None)
     out = SensorsOut(
+        spindle_id=spindle_id,
         t=newest,
         sample_age_s=None if newest is None else round((now - newest).total_seconds(), 3),
         served_at=now,

@@ -5,7 +5,8 @@ from __future__ import annotations
 from fastapi import APIRouter
 from pydantic import BaseModel, Field
 
-from api.deps import ReadAccess, ServiceDep
+from api.deps import ReadAccess, ServiceDep, SpindleIdDep
+from api.schemas import SpindleAnswer
 
 router = APIRouter(tags=["spindle"], dependencies=[ReadAccess])
 
@@ -24,16 +25,17 @@ class ZoneOut(BaseModel):
     description: str
 
 
-class SpindleOut(BaseModel):
+class SpindleOut(SpindleAnswer):
     name: str
     parts: list[PartOut] = Field(description="rectangles in (r, z), m; z from the rear (pulley) end")
     zones: list[ZoneOut]
 
 
 @router.get("/spindle", response_model=SpindleOut, summary="named parts and convective zones of the section")
-async def get_spindle(service: ServiceDep) -> SpindleOut:
+async def get_spindle(service: ServiceDep, spindle_id: SpindleIdDep) -> SpindleOut:
     lay = service.layout()
     return SpindleOut(
+        spindle_id=spindle_id,
         name=lay.name,
         parts=[
             PartOut(name=p.name, material=p.material, r0_m=p.r0_m, r1_m=p.r1_m, z0_m=p.z0_m, z1_m=p.z1_m)

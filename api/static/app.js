@@ -718,6 +718,7 @@ async function loadLayout() {
     const r = await api("/spindle");
     if (r.status !== 200) return;
     state.layout = r.body;
+    $("spindle-id").textContent = r.body.spindle_id || "";
     $("spindle-name").textContent = `${r.body.name} · convective heat transfer coefficients H1–H7`;
     if (state.chtc) drawH(state.chtc);
     if (state.field) drawField(state.field);

@@ -98,6 +98,7 @@ def serve(config: str) -> None:
             "enabled": True,
             "port": cfg["opcua_port"],
             "max_connections": cfg["max_connections"],
+            "spindle": "Spindle1",  # the NodeIds the readers use (unset: spindle.id)
         }
     state = tempfile.TemporaryDirectory(prefix="chtc-bench-mqtt-")  # the Sparkplug bdSeq file
     if cfg["mqtt"]:

@@ -43,6 +43,7 @@ from service.commands._common import (
     positive_float,
 )
 from service.engine.jobbook import MAP_METHOD
+from service.logctx import install_logging, set_default
 
 if TYPE_CHECKING:
     from service.engine.runtime import Runtime
@@ -262,9 +263,17 @@ def _safe(url: str) -> str:
 
 
 def quiet_third_party_logs() -> None:
-    """pymodbus logs every timeout and dumps frames; the drivers count and report those errors already."""
-    logging.basicConfig(level=logging.WARNING, format="%(asctime)s %(levelname)s %(name)s: %(message)s")
+    """The log format with the spindle id (``service.logctx``; the id is set once the settings are read,
+    ``log_spindle_default``); pymodbus logs every timeout and dumps frames; the drivers count and report
+    those errors already."""
+    install_logging(default=None)
     logging.getLogger("pymodbus").setLevel(logging.CRITICAL)
+
+
+def log_spindle_default(settings: Settings) -> None:
+    """Log lines outside every spindle's context name this instance's spindle (none when it hosts several:
+    ``-``, never a wrong id)."""
+    set_default(None if settings.spindles else settings.spindle.id)
 
 
 def main(args: argparse.Namespace) -> int:
@@ -273,6 +282,7 @@ def main(args: argparse.Namespace) -> int:
     with tempfile.TemporaryDirectory(prefix="chtc-demo-") as tmp:
         db_url = args.database_url or f"sqlite:///{Path(tmp) / 'demo.db'}"
         settings, token = demo_settings(args, db_url)
+        log_spindle_default(settings)
         if args.database_url is not None:
             check_database_url(settings.database.url, "--database-url")
         check_listen(settings.api.host, settings.api.port)

@@ -1,8 +1,9 @@
 """``chtc opcua``: the OPC UA outlet's tools (docs/integration.md, "OPC UA").
 
 - ``chtc opcua nodeset [--out FILE]``: the NodeSet2 XML of our namespace (the ``SpindleThermalModelType`` and
-  the ``Spindle1`` instance with its string NodeIds), to import into TIA Portal (OPC UA client interface) or
-  TwinCAT (TF6100 ``UA_*`` blocks, the Target Browser). Built offline: no service, no network.
+  the spindle's instance with its string NodeIds, named ``[opcua] spindle`` or ``spindle.id``), to import into
+  TIA Portal (OPC UA client interface) or TwinCAT (TF6100 ``UA_*`` blocks, the Target Browser). Built
+  offline: no service, no network.
 - ``chtc opcua user NAME``: a PBKDF2-SHA256 hash of a password read from the terminal (or
   ``--password-stdin``) for ``[opcua] users`` or the users file (``NAME = "pbkdf2_sha256$..."``).
 """
@@ -25,7 +26,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     sub = parser.add_subparsers(dest="action", metavar="ACTION", required=True)
     n = sub.add_parser("nodeset", help="write the NodeSet2 XML (for TIA Portal / TwinCAT)")
     n.add_argument("--out", type=Path, default=None, help="file to write (default: stdout)")
-    n.add_argument("--config", type=Path, default=None, help="settings TOML ([opcua] spindle, namespace_uri)")
+    n.add_argument(
+        "--config",
+        type=Path,
+        default=None,
+        help="settings TOML ([spindle] id or [opcua] spindle, namespace_uri)",
+    )
     u = sub.add_parser("user", help="print a password hash for [opcua] users")
     u.add_argument("name", help="the user name")
     u.add_argument("--password-stdin", action="store_true", help="read the password from stdin")
@@ -38,7 +44,8 @@ def main(args: argparse.Namespace) -> int:
     from service.serve.opcua.server import export_nodeset
     from service.settings import load_settings
 
-    cfg = load_settings(args.config).opcua
+    settings = load_settings(args.config)
+    cfg = settings.opcua.for_spindle(settings.spindle.id)
     if args.out is not None:
         count = asyncio.run(export_nodeset(cfg, variables(), args.out))
         print(f"wrote {args.out}: {count} variables in {cfg.namespace_uri}", file=sys.stderr)

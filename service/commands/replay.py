@@ -312,7 +312,7 @@ async def _begin_in_phase(
 
 def main(args: argparse.Namespace) -> int:
     from drivers.logs import LogFormatError
-    from service.commands.demo import quiet_third_party_logs
+    from service.commands.demo import log_spindle_default, quiet_third_party_logs
     from service.settings import SettingsError, load_settings
 
     quiet_third_party_logs()
@@ -330,6 +330,7 @@ def main(args: argparse.Namespace) -> int:
     except (SettingsError, CommandError) as err:
         print(f"chtc replay: {err}", file=sys.stderr)
         return 2
+    log_spindle_default(settings)
     growth = GrowthLog()
     try:
         records = asyncio.run(run_replay(args, settings, growth=growth))

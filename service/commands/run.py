@@ -165,7 +165,7 @@ def main(args: argparse.Namespace) -> int:
     import json
 
     from drivers.errors import ConfigError
-    from service.commands.demo import quiet_third_party_logs
+    from service.commands.demo import log_spindle_default, quiet_third_party_logs
     from service.engine.host import HostError
     from service.settings import SettingsError, load_settings
 
@@ -179,6 +179,7 @@ def main(args: argparse.Namespace) -> int:
     except (SettingsError, CommandError) as err:
         print(f"chtc run: {err}", file=sys.stderr)
         return 2
+    log_spindle_default(settings)
     if args.print_config:
         print(json.dumps(settings.redacted(), indent=2))
         return 0

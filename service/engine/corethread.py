@@ -32,6 +32,7 @@ from typing import Protocol
 
 from service.engine.events import Event, Instruction, SampleReceived
 from service.errors import ServiceError
+from service.logctx import in_current_context
 from service.serve.histogram import Histogram
 
 __all__ = ["WAIT_BUCKETS_S", "CoreClosedError", "CoreLoad", "CoreRunner", "CoreThread", "InlineRunner"]
@@ -147,7 +148,8 @@ class CoreThread:
 
     def start(self, step: Step, on_change: Callable[[], None]) -> None:
         self._step, self._on_change = step, on_change
-        self._thread = threading.Thread(target=self._run, name="chtc-core", daemon=True)
+        # the starter's context (its spindle id, service.logctx) goes with the thread
+        self._thread = threading.Thread(target=in_current_context(self._run), name="chtc-core", daemon=True)
         self._thread.start()
 
     # --- producers

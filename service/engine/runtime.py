@@ -42,6 +42,7 @@ from service.identify.scheduler import SchedulerConfig
 from service.identify.speedmap import MapConfig
 from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
+from service.logctx import spindle_context
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.serve.outlet import OUTLETS, Outlet, OutletContext, OutletFactory, load_factory
 from service.serve.policy import CompensationLimits
@@ -270,7 +271,8 @@ class Runtime:
     def load(self, *, progress: Callable[[str], None] | None = None) -> LoadedModel:
         """Load the model (builds and caches the reduced model on the first run)."""
         if self.model is None:
-            self.model = load_model(ModelRef.from_settings(self.settings), progress=progress)
+            with spindle_context(self.settings.spindle.id):
+                self.model = load_model(ModelRef.from_settings(self.settings), progress=progress)
         return self.model
 
     async def start(self, *, daq: DaqDevice, can: CanDevice, api: bool = True, acquire: bool = True) -> None:
@@ -278,7 +280,12 @@ class Runtime:
 
         ``acquire=False``: everything but the acquisition, started later by ``start_acquisition()`` (the demo
         starts its simulated devices in between, so the drivers never poll a port nobody listens on yet).
+        Everything runs as this spindle (``service.logctx``): the tasks and threads started here log its id.
         """
+        with spindle_context(self.settings.spindle.id):
+            await self._start(daq=daq, can=can, api=api, acquire=acquire)
+
+    async def _start(self, *, daq: DaqDevice, can: CanDevice, api: bool, acquire: bool) -> None:
         s = self.settings
         sys.setswitchinterval(s.engine.gil_switch_interval_s)  # the loop waits less for the GIL
         model = self.load()
@@ -318,12 +325,16 @@ class Runtime:
         await self.service.start()
         self.devices = (daq, can)
         if acquire:
-            self.start_acquisition()
+            self._start_acquisition()
         for name in enabled_outlets(s, api=api, registry=self.outlets or OUTLETS):
-            await self.start_outlet(name)
+            await self._start_outlet(name)
 
     def start_acquisition(self) -> None:
         """Start polling the devices given to ``start()`` (once)."""
+        with spindle_context(self.settings.spindle.id):
+            self._start_acquisition()
+
+    def _start_acquisition(self) -> None:
         s = self.settings
         assert self.devices is not None and self.ring is not None and self.service is not None, "start first"
         if self.acquisition_task is not None:
@@ -342,6 +353,10 @@ class Runtime:
 
     async def start_outlet(self, name: str) -> Outlet:
         """Build, start and subscribe the outlet ``name`` (``OutletError`` if it cannot be loaded)."""
+        with spindle_context(self.settings.spindle.id):
+            return await self._start_outlet(name)
+
+    async def _start_outlet(self, name: str) -> Outlet:
         assert self.service is not None, "start first"
         factory = (self.outlets or {}).get(name) or load_factory(name)
         ctx = OutletContext(
@@ -386,6 +401,10 @@ class Runtime:
 
     async def stop(self) -> None:
         """Stop the outlets (the API gracefully), the acquisition, the worker and the writer (flushing it)."""
+        with spindle_context(self.settings.spindle.id):
+            await self._stop()
+
+    async def _stop(self) -> None:
         for name, outlet in reversed(list(self.running_outlets.items())):
             if self.service is not None:
                 self.service.unsubscribe(outlet)

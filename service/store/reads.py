@@ -24,6 +24,7 @@ from typing import TypeVar
 
 from sqlalchemy.orm import Session, sessionmaker
 
+from service.logctx import in_current_context
 from service.store.errors import DatabaseBusyError, DatabaseTimeoutError
 from service.store.repository import session_scope
 from service.store.watchdog import StatementWatchdog
@@ -60,7 +61,7 @@ class DbReads:
             self.rejected += 1
             raise DatabaseBusyError(f"{what}: the database is not answering (every read is waiting)")
         try:
-            fut = self._pool.submit(self._read, fn, what)
+            fut = self._pool.submit(in_current_context(self._read), fn, what)  # the caller's spindle
         except BaseException:
             self._slots.release()
             raise

@@ -34,6 +34,8 @@ from sqlalchemy import Engine, event
 from sqlalchemy.engine.interfaces import DBAPIConnection
 from sqlalchemy.pool import ConnectionPoolEntry
 
+from service.logctx import in_current_context
+
 log = logging.getLogger(__name__)
 
 __all__ = ["StatementWatchdog", "abort_connection"]
@@ -82,7 +84,7 @@ class StatementWatchdog:
         self._conns: dict[int, DBAPIConnection] = {}
         self.aborts = 0
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread = threading.Thread(target=in_current_context(self._run), name=name, daemon=True)
         event.listen(engine, "connect", self._on_connect)
         event.listen(engine, "close", self._on_close)
         event.listen(engine, "close_detached", self._on_close)

@@ -40,6 +40,7 @@ from sqlalchemy import text
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.contracts.records import RECORD_TYPES, DeviceEventData, Record, SampleData, SampleMinuteData
+from service.logctx import in_current_context
 from service.store.downsample import MinuteMeans
 from service.store.errors import DatabaseUnavailableError
 from service.store.repository import session_scope, write_records
@@ -103,7 +104,7 @@ class DbWriter:
         self._queue: deque[Record] = deque()
         self._cond = threading.Condition()
         self._stop = threading.Event()
-        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread = threading.Thread(target=in_current_context(self._run), name=name, daemon=True)
         self._closed = False
         self._connected = False
         self._outage_reported = False

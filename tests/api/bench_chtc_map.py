@@ -43,7 +43,11 @@ def main() -> None:
             assert snap is not None
             print(f"body {len(r.content)} bytes, status {r.json()['status']}")
             print("chtc_map():", _ms(svc.chtc_map, 2000))
-            print("body build + JSON:", _ms(lambda: chtc_map_out(snap, s.clock.now).model_dump_json()))
+            sid = r.json()["spindle_id"]
+            print(
+                "body build + JSON:",
+                _ms(lambda: chtc_map_out(snap, s.clock.now, spindle_id=sid).model_dump_json()),
+            )
             print("GET /chtc/map 200:", _ms(lambda: c.get("/api/v1/chtc/map")))
             print(
                 "GET /chtc/map 304:", _ms(lambda: c.get("/api/v1/chtc/map", headers={"If-None-Match": etag}))

@@ -89,7 +89,7 @@ def test_the_body_carries_the_fitted_map_with_units_bands_and_visited_speeds(
     speed = float(duty.run.speed_rpm[179])  # the window's last speed: visited
     snap = _snapshot(fitted, speed)
     now = T_END + timedelta(seconds=65)
-    body = chtc_map_out(snap, now).model_dump(mode="json")
+    body = chtc_map_out(snap, now, spindle_id="s1").model_dump(mode="json")
     assert body["status"] == "fresh" and body["reason"] is None
     assert body["unit"] == H_UNIT == "W/(m²·K)"
     assert body["family"] == "nodes" and body["identification_id"] == 4
@@ -125,7 +125,7 @@ def test_the_body_carries_the_fitted_map_with_units_bands_and_visited_speeds(
 def test_the_bands_are_narrow_where_the_data_were_and_wide_where_they_were_not(fitted: SpeedMap) -> None:
     """H7 (the housing, well determined) over the speeds the window visited vs. a speed it never reached:
     the served band says where the map is the prior's interpolation."""
-    body = chtc_map_out(_snapshot(fitted, 0.0), T_END).model_dump(mode="json")
+    body = chtc_map_out(_snapshot(fitted, 0.0), T_END, spindle_id="s1").model_dump(mode="json")
     grid = np.array(body["speeds_rpm"])
     h7 = body["zones"][6]
     width = np.log(np.array(h7["ci95_hi_w_m2k"]) / np.array(h7["ci95_lo_w_m2k"]))
@@ -140,7 +140,7 @@ def test_the_bands_are_narrow_where_the_data_were_and_wide_where_they_were_not(f
 @pytest.mark.slow
 def test_an_unvisited_current_speed_is_identifying_with_the_reason(fitted: SpeedMap) -> None:
     unvisited = next(s for s in MAP_GRID_RPM if min(abs(s - fitted.visited_rpm)) > 300.0)
-    body = chtc_map_out(_snapshot(fitted, float(unvisited)), T_END).model_dump(mode="json")
+    body = chtc_map_out(_snapshot(fitted, float(unvisited)), T_END, spindle_id="s1").model_dump(mode="json")
     assert body["status"] == "identifying" and body["reason_code"] == "speed_not_visited"
     assert body["reason"].startswith(f"speed_not_visited: {unvisited:.0f} rpm is not within 300 rpm")
 

@@ -116,6 +116,9 @@ def test_dashboard_renders_h_field_and_chart_in_chromium(
     cls, hidden, text = _banner(dom)
     assert hidden, (cls, text)
     assert "identification #2" in dom
+    # the header names the spindle the API says it serves (the layout is read before the first poll)
+    spindle_id = httpx.get(server.url + "/api/v1/spindle", timeout=10).json()["spindle_id"]
+    assert re.search(rf'id="spindle-id"[^>]*>{re.escape(spindle_id)}<', dom), spindle_id
     shot = tmp_path / "dashboard.png"
     _chromium(chromium_path, tmp_path, server.url + "/", "--window-size=1400,1500", f"--screenshot={shot}")
     assert shot.stat().st_size > 20_000  # a blank page is a few kB

@@ -56,11 +56,11 @@ def test_fast_bodies_equal_the_schema_serialisation(
     f = ro_service.field("steady")
     if with_std:
         f = replace(f, std_c=0.05 + 0.01 * np.abs(f.temps_c - f.temps_c.mean()))
-    renderer = FieldRenderer()
+    renderer = FieldRenderer(spindle_id="s1")
     if fmt == "mesh":
-        fast, reference = renderer.mesh(f), mesh_out(f)
+        fast, reference = renderer.mesh(f), mesh_out(f, spindle_id="s1")
     else:
-        fast, reference = renderer.grid(f, 12, 30), grid_out(f, 12, 30)
+        fast, reference = renderer.grid(f, 12, 30), grid_out(f, 12, 30, spindle_id="s1")
     assert json.loads(fast.body) == json.loads(reference.model_dump_json())
     assert gzip.decompress(fast.gzip()) == fast.body
     body = json.loads(fast.body)
@@ -76,21 +76,22 @@ def test_points_carry_their_1_sigma_and_95_percent(ro_service: SoftSensorService
     f = ro_service.field("steady")
     sd = np.full_like(f.temps_c, 0.1)
     inside = f.nodes_rz[:1] * 0.999 + f.nodes_rz[1:2] * 0.001
-    p = points_out(replace(f, std_c=sd), inside).points[0]
+    p = points_out(replace(f, std_c=sd), inside, spindle_id="s1").points[0]
     assert p.inside and p.std_c == pytest.approx(0.1, abs=1e-4)
     assert p.ci95_c is not None and p.ci95_c[1] - p.ci95_c[0] == pytest.approx(2 * 1.96 * 0.1, abs=2e-4)
-    assert points_out(f, inside).points[0].std_c is None  # the steady state has no filtered uncertainty
+    steady = points_out(f, inside, spindle_id="s1").points[0]
+    assert steady.std_c is None  # the steady state has no filtered uncertainty
 
 
 def test_a_new_field_reuses_the_geometry_and_makes_a_new_body(ro_service: SoftSensorService) -> None:
     f = ro_service.field("now")
-    renderer = FieldRenderer()
+    renderer = FieldRenderer(spindle_id="s1")
     a = renderer.mesh(f)
     assert renderer.mesh(replace(f)) is a  # same content: cached
     g = replace(f, temps_c=f.temps_c + 0.5)
     b = renderer.mesh(g)
     assert b.etag != a.etag and renderer.builds == 2
-    assert json.loads(b.body) == json.loads(mesh_out(g).model_dump_json())
+    assert json.loads(b.body) == json.loads(mesh_out(g, spindle_id="s1").model_dump_json())
     assert gzip.decompress(b.gzip()) == b.body  # the primed compressor, copied per field
 
 

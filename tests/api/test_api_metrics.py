@@ -158,7 +158,7 @@ def test_an_outlet_that_counts_shows_on_metrics(
     from service.serve.mqtt.config import MqttSettings
     from service.serve.mqtt.outlet import MqttOutlet
 
-    outlet = MqttOutlet(MqttSettings(enabled=True), state_dir=tmp_path)
+    outlet = MqttOutlet(MqttSettings(enabled=True).for_spindle("spindle1"), state_dir=tmp_path)
     service.subscribe(outlet)
     try:
         fam = _families(client)

@@ -243,5 +243,6 @@ def test_chtc_body_equals_the_schema_serialisation(
         r = client.get("/api/v1/chtc")
         snap = service.chtc()
         assert snap is not None
-        assert r.json() == json.loads(chtc_out(snap, clock()).model_dump_json())
+        out = chtc_out(snap, clock(), spindle_id=Settings().spindle.id)
+        assert r.json() == json.loads(out.model_dump_json())
         ChtcOut.model_validate_json(r.content)

@@ -135,3 +135,26 @@ def test_relative_mqtt_paths_in_a_config_file_are_relative_to_it(tmp_path: Path)
     s = load_settings(path).mqtt
     assert s.state_dir == tmp_path / "etc" / "state"
     assert s.tls.ca == tmp_path / "etc" / "certs" / "ca.pem" and s.tls.active
+
+
+@pytest.mark.parametrize(
+    ("mqtt", "device"),
+    [
+        ({}, "cell3-sp07"),  # unset: the spindle's id
+        ({"device_id": "press-2"}, "press-2"),  # set: kept
+    ],
+)
+def test_the_outlet_names_its_sparkplug_device_and_json_level_after_the_spindle(
+    tmp_path: Path, mqtt: dict[str, str], device: str
+) -> None:
+    """The factory the runtime calls (nothing connects before ``start()``)."""
+    from service.serve.mqtt.outlet import mqtt_outlet
+    from service.serve.outlet import OutletContext
+    from service.settings import Settings
+
+    section = {"enabled": True, "state_dir": str(tmp_path), **mqtt}
+    settings = Settings(spindle={"id": "cell3-sp07"}, mqtt=section)  # type: ignore[arg-type]
+    outlet = mqtt_outlet(OutletContext(settings=settings, service=None, clock=lambda: datetime.now(UTC)))
+    assert outlet.session.topics.device == device
+    assert outlet.session.topics.ddata == f"spBv1.0/chtc/DDATA/chtc-1/{device}"
+    assert outlet.json_topics.availability == f"chtc/{device}/availability"

@@ -82,7 +82,7 @@ def opcua_heartbeat(port: int) -> int:
     async def read() -> int:
         async with Client(f"opc.tcp://127.0.0.1:{port}/chtc", timeout=5) as client:
             ns = await client.get_namespace_index("urn:spindle-chtc:opcua")
-            node = client.get_node(f"ns={ns};s=Spindle1.Status.Heartbeat")
+            node = client.get_node(f"ns={ns};s=spindle1.Status.Heartbeat")  # unset opcua.spindle: spindle.id
             return int(await node.read_value())
 
     return asyncio.run(read())

@@ -116,7 +116,8 @@ def opcua_settings(
         "refresh_s": 0.2,
         **kw,
     }
-    return Settings(opcua=cfg, growth={"reference_c": 20.0})  # type: ignore[arg-type]
+    # no [opcua] spindle: the NodeIds follow the spindle's id (ns=2;s=Spindle1.…, as the Node peer reads them)
+    return Settings(opcua=cfg, growth={"reference_c": 20.0}, spindle={"id": "Spindle1"})  # type: ignore[arg-type]
 
 
 @dataclass

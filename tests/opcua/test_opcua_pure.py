@@ -151,7 +151,9 @@ def test_the_exported_nodeset_loads_into_a_fresh_server(
     tmp_path: Path, capsys: pytest.CaptureFixture[str]
 ) -> None:
     out = tmp_path / "chtc.NodeSet2.xml"
-    assert chtc(["opcua", "nodeset", "--out", str(out)]) == 0
+    config = tmp_path / "chtc.toml"
+    config.write_text('[spindle]\nid = "Spindle1"\n', encoding="utf-8")  # the NodeIds follow spindle.id
+    assert chtc(["opcua", "nodeset", "--out", str(out), "--config", str(config)]) == 0
     text = out.read_text(encoding="utf-8")
     assert "<Uri>urn:spindle-chtc:opcua</Uri>" in text and 'BrowseName="1:SpindleThermalModelType"' in text
 
@@ -171,3 +173,54 @@ def test_the_exported_nodeset_loads_into_a_fresh_server(
     assert typedef.Identifier == "SpindleThermalModelType"  # type: ignore[attr-defined]
     assert chtc(["opcua", "user", "admin", "--password-stdin"]) == 2
     assert "admin" in capsys.readouterr().err
+
+
+@pytest.mark.parametrize(
+    ("toml", "prefix"),
+    [
+        ("", "spindle1"),  # the default spindle id
+        ('[spindle]\nid = "cell3-sp07"\n', "cell3-sp07"),  # a plant's id, '-' included
+        ('[spindle]\nid = "cell3-sp07"\n[opcua]\nspindle = "Spindle1"\n', "Spindle1"),  # set explicitly
+    ],
+)
+def test_the_node_ids_follow_the_spindle_id_unless_set(tmp_path: Path, toml: str, prefix: str) -> None:
+    config = tmp_path / "chtc.toml"
+    config.write_text(toml, encoding="utf-8")
+    out = tmp_path / "chtc.NodeSet2.xml"
+    assert chtc(["opcua", "nodeset", "--out", str(out), "--config", str(config)]) == 0
+
+    async def browse() -> tuple[str, list[str]]:
+        server = Server()
+        await server.init()
+        await server.import_xml(str(out))
+        idx = await server.get_namespace_index("urn:spindle-chtc:opcua")
+        spindle = server.get_node(f"ns={idx};s={prefix}")
+        name = (await spindle.read_browse_name()).Name
+        h1 = server.get_node(f"ns={idx};s={prefix}.H.H1")
+        return name, [(await h1.read_browse_name()).Name]
+
+    assert asyncio.run(browse()) == (prefix, ["H1"])
+
+
+def test_the_opcua_and_sparkplug_names_resolve_from_the_spindle_id() -> None:
+    from service.serve.mqtt.config import MqttSettings
+
+    s = Settings(spindle={"id": "cell3-sp07"})  # type: ignore[arg-type]
+    assert s.opcua.spindle is None and s.opcua.for_spindle(s.spindle.id).node_prefix == "cell3-sp07"
+    with pytest.raises(ValueError, match=r"opcua\.spindle"):
+        _ = s.opcua.node_prefix  # unresolved: no silent default
+    mqtt = s.mqtt.for_spindle(s.spindle.id)
+    assert mqtt.device == "cell3-sp07" and mqtt.effective_client_id == "chtc-chtc-1"
+    json_mode = MqttSettings(mode="json").for_spindle("cell3-sp07")
+    assert json_mode.effective_client_id == "chtc-cell3-sp07"
+    explicit = MqttSettings(device_id="press-2").for_spindle("cell3-sp07")
+    assert explicit.device == "press-2"
+    with pytest.raises(SettingsError, match="device_id"):
+        Settings.from_toml(None, mqtt={"device_id": "a/b"})
+    hosted = [
+        {"id": "sp-a"},
+        {"id": "sp-b", "modbus": {"port": 5021}, "can": {"channel": "chtc-b"}},
+    ]
+    for per in Settings(spindles=hosted).per_spindle():  # type: ignore[arg-type]
+        assert per.opcua.for_spindle(per.spindle.id).node_prefix == per.spindle.id
+        assert per.mqtt.for_spindle(per.spindle.id).device == per.spindle.id

@@ -8,6 +8,7 @@ DAQ hangs: a goes stale, b stays ``fresh`` throughout. Slow: about a minute."""
 from __future__ import annotations
 
 import asyncio
+import logging
 import time
 import uuid
 from collections.abc import Iterator
@@ -20,6 +21,7 @@ from drivers.sim.faults import FaultKind
 from model.plant import Segment
 from service.engine.host import Host
 from service.engine.runtime import ScaledClock, free_port
+from service.logctx import SpindleFilter
 from service.settings import Settings
 from service.sim.simrig import SimAddress, make_drivers, plant_rig
 
@@ -72,7 +74,7 @@ async def scenario(db_url: str, bad_map: Path) -> dict[str, object]:
     host = Host(settings=settings, clock=clock, devices=devices, on_event=events.append, simulated_time=True)
     run = plant_run([Segment(7200.0, 3000.0, 5.0, 22.0)], seed=11)
     rigs = []
-    out: dict[str, object] = {"events": events}
+    out: dict[str, object] = {"events": events, "addresses": addresses}
     try:
         await host.start(api=True)
         await host.wait_api()
@@ -93,6 +95,7 @@ async def scenario(db_url: str, bad_map: Path) -> dict[str, object]:
             out["unknown"] = await client.get("/api/v1/spindles/zz/chtc")
             out["metrics"] = (await client.get("/metrics")).text
             out["sensors_a"] = (await client.get("/api/v1/spindles/a/sensors")).json()
+            out["chtc_b"] = await client.get("/api/v1/spindles/b/chtc")
             out["readyz"] = await client.get("/readyz")
             out["models"] = len(host.models)
             assert host.pool is not None
@@ -156,7 +159,13 @@ def pg_schema_db(pg_url: str) -> Iterator[str]:
 def test_two_spindles_share_one_process_and_a_daq_down_is_only_its_own(
     pg_schema_db: str, tmp_path: Path
 ) -> None:
-    out = asyncio.run(scenario(pg_schema_db, tmp_path / "missing-map.toml"))
+    records = _Records()
+    root = logging.getLogger()
+    root.addHandler(records)
+    try:
+        out = asyncio.run(scenario(pg_schema_db, tmp_path / "missing-map.toml"))
+    finally:
+        root.removeHandler(records)
     assert out["both_fresh"], out["events"]
     rows = {r["id"]: r for r in out["list"]["spindles"]}  # type: ignore[index]
     assert set(rows) == {"a", "b", "c"}
@@ -176,3 +185,26 @@ def test_two_spindles_share_one_process_and_a_daq_down_is_only_its_own(
     assert out["b_during"] and all(s == "fresh" for s in out["b_during"]), out["b_during"]  # type: ignore[union-attr]
     rows_per_spindle = out["stored"]
     assert set(rows_per_spindle) == {"a", "b"} and min(rows_per_spindle.values()) > 0, rows_per_spindle  # type: ignore[union-attr]
+    # each spindle's answers and log lines name it (service.logctx, api/spindlehdr.py)
+    chtc_b = out["chtc_b"]
+    assert chtc_b.json()["spindle_id"] == "b" and chtc_b.headers["Chtc-Spindle-Id"] == "b"  # type: ignore[attr-defined]
+    ports = {str(a.port): sid for sid, a in out["addresses"].items()}  # type: ignore[attr-defined]
+    device_lines = [
+        (sid, r.spindle)  # type: ignore[attr-defined]
+        for r in records.records
+        if r.name.startswith("drivers")
+        for port, sid in ports.items()
+        if f":{port}" in r.getMessage()
+    ]
+    assert ("a", "a") in device_lines, device_lines  # a's hang was logged, as spindle a
+    assert all(sid == spindle for sid, spindle in device_lines), device_lines
+
+
+class _Records(logging.Handler):
+    def __init__(self) -> None:
+        super().__init__(logging.INFO)
+        self.records: list[logging.LogRecord] = []
+        self.addFilter(SpindleFilter())
+
+    def emit(self, record: logging.LogRecord) -> None:
+        self.records.append(record)

@@ -105,7 +105,7 @@ def test_a_value_the_identification_did_not_give_is_served_as_null() -> None:
     """The running service served a missing f as NaN and the in-memory one as 0.0; one builder, one answer."""
     snap = _snap(_data(f=None, fit=None, rmse_c=None))
     assert (snap.f, snap.fit, snap.rmse_c) == (None, None, None)
-    body = chtc_out(snap, T)
+    body = chtc_out(snap, T, spindle_id="s1")
     assert (body.f_c2, body.fit, body.rmse_c) == (None, None, None)
     assert _snap(_data()).f == 0.0225
 

@@ -57,20 +57,21 @@ class MqttDeadbands(_Section):
 
 class MqttSettings(_Section):
     """The MQTT outlet: Sparkplug B (edge node = this instance, device = the spindle) or plain JSON
-    (retained topics ``{topic_prefix}/{device_id}/...``)."""
+    (retained topics ``{topic_prefix}/{device_id}/...``). ``device_id`` defaults to the spindle's id
+    (``for_spindle``)."""
 
     enabled: bool = False
     mode: Literal["sparkplug", "json"] = "sparkplug"
     host: str = "127.0.0.1"
     port: int = Field(default=1883, ge=1, le=65535)  # 8883 for TLS, usually
-    client_id: str | None = None  # None: "chtc-{edge_node_id}" (Sparkplug) / "chtc-{device_id}" (JSON)
+    client_id: str | None = None  # None: "chtc-{edge_node_id}" (Sparkplug) / "chtc-{device}" (JSON)
     username: str | None = None
     password: SecretStr | None = None
     tls: MqttTls = Field(default_factory=MqttTls)
     keepalive_s: int = Field(default=30, ge=5, le=65535)  # the broker sends the Will after 1.5 × this silent
     group_id: str = "chtc"  # Sparkplug group
     edge_node_id: str = "chtc-1"  # Sparkplug edge node: this instance
-    device_id: str = "spindle1"  # Sparkplug device (and the JSON topics' level): the spindle
+    device_id: str | None = None  # Sparkplug device (and the JSON topics' level); None: spindle.id
     topic_prefix: str = "chtc"  # JSON mode: {topic_prefix}/{device_id}/...
     buffer_messages: int = Field(default=1000, ge=1)  # kept while the broker is away (oldest dropped)
     deadbands: MqttDeadbands = Field(default_factory=MqttDeadbands)
@@ -82,8 +83,8 @@ class MqttSettings(_Section):
 
     @field_validator("group_id", "edge_node_id", "device_id")
     @classmethod
-    def _plain_id(cls, value: str) -> str:
-        if not _ID.match(value):
+    def _plain_id(cls, value: str | None) -> str | None:
+        if value is not None and not _ID.match(value):
             raise ValueError(f"{value!r}: no '/', '+', '#' or spaces (one MQTT topic level)")
         return value
 
@@ -106,8 +107,20 @@ class MqttSettings(_Section):
             raise ValueError("backoff_max_s must be >= backoff_initial_s")
         return self
 
+    def for_spindle(self, spindle_id: str) -> MqttSettings:
+        """This section with ``device_id`` set: as given, else ``spindle_id`` (the instance's ``spindle.id``,
+        whose pattern is a valid Sparkplug id and topic level)."""
+        return self if self.device_id is not None else self.model_copy(update={"device_id": spindle_id})
+
+    @property
+    def device(self) -> str:
+        """The Sparkplug device id (the JSON topics' level); ``ValueError`` until :meth:`for_spindle`."""
+        if self.device_id is None:
+            raise ValueError("mqtt.device_id: unset; resolve it with for_spindle(spindle.id)")
+        return self.device_id
+
     @property
     def effective_client_id(self) -> str:
         if self.client_id:
             return self.client_id
-        return f"chtc-{self.edge_node_id if self.mode == 'sparkplug' else self.device_id}"
+        return f"chtc-{self.edge_node_id if self.mode == 'sparkplug' else self.device}"

@@ -86,8 +86,8 @@ class MqttOutlet:
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
         self.sparkplug = settings.mode == "sparkplug"
         s = settings
-        self.session = SparkplugSession(SparkplugTopics(s.group_id, s.edge_node_id, s.device_id))
-        self.json_topics = JsonTopics(s.topic_prefix, s.device_id)
+        self.session = SparkplugSession(SparkplugTopics(s.group_id, s.edge_node_id, s.device))
+        self.json_topics = JsonTopics(s.topic_prefix, s.device)
         self.bdseq = BdSeqStore(Path(state_dir) / f"mqtt-bdseq-{s.group_id}-{s.edge_node_id}")
         self.bd_seq: int | None = None  # this connection's
         self.buffer: OutBuffer[_Item] = OutBuffer(s.buffer_messages)
@@ -368,7 +368,8 @@ class MqttOutlet:
 
 def mqtt_outlet(ctx: OutletContext) -> MqttOutlet:
     """The factory the runtime finds by name (``service.serve.outlet.OUTLETS["mqtt"]``): ``[mqtt]`` of the
-    settings, bdSeq kept in ``mqtt.state_dir`` (default: the data directory), the run's clock."""
-    s = ctx.settings.mqtt
+    settings (the Sparkplug device named after the spindle unless ``mqtt.device_id`` is set), bdSeq kept in
+    ``mqtt.state_dir`` (default: the data directory), the run's clock."""
+    s = ctx.settings.mqtt.for_spindle(ctx.settings.spindle.id)
     state = s.state_dir if s.state_dir is not None else default_data_dir()
     return MqttOutlet(s, state_dir=state, clock=ctx.clock, on_event=ctx.on_event)

@@ -1,11 +1,12 @@
 """The OPC UA address space as data, and the values of one reader (pure: no asyncua here).
 
 Every variable is a :class:`Var`: its path below the spindle object (``Growth.Axial`` -> NodeId
-``ns=<ours>;s=Spindle1.Growth.Axial``), its OPC UA data type, scalar or 1-D array (S7-1500 clients resolve no
-structures), its UNECE unit and its EURange. :func:`render` evaluates a ``ViewReader`` at ``now`` into one
-:class:`Reading` per variable: the value, its StatusCode (``service.serve.opcua.status``) and its
-SourceTimestamp (the data's time: the sample's, the growth's instant, the identification's end; the
-evaluation's for the status and device nodes, which describe the service now).
+``ns=<ours>;s=<spindle>.Growth.Axial``; ``<spindle>``: ``opcua.spindle``, unset: ``spindle.id``), its OPC UA
+data type, scalar or 1-D array (S7-1500 clients resolve no structures), its UNECE unit and its EURange.
+:func:`render` evaluates a ``ViewReader`` at ``now`` into one :class:`Reading` per variable: the value, its
+StatusCode (``service.serve.opcua.status``) and its SourceTimestamp (the data's time: the sample's, the
+growth's instant, the identification's end; the evaluation's for the status and device nodes, which describe
+the service now).
 """
 
 from __future__ import annotations

@@ -27,7 +27,7 @@ class OpcUaOutlet:
 
     def __init__(self, ctx: OutletContext) -> None:
         s = ctx.settings
-        cfg = s.opcua
+        cfg = s.opcua.for_spindle(s.spindle.id)  # NodeIds named after the spindle unless set
         service = ctx.service
         n_sensors = len(service.core.model.spec.sensors) if hasattr(service, "core") else 32
         bad_after_s = (

@@ -10,9 +10,9 @@ arrives: the acquisition stopped), and writes only the values that changed.
 Address space (namespace ``[opcua] namespace_uri``, index 2 on this server): the object type
 ``SpindleThermalModelType`` (below BaseObjectType) with one object per group (``Status``, ``H``,
 ``Condition``, ``Temperatures``, ``Growth``, ``Controller``, ``Devices``) and their variables; the instance
-``Spindle1`` below Objects, whose NodeIds are the browse paths (``ns=2;s=Spindle1.Growth.Axial``). Analog
-values are ``AnalogUnitRangeType`` variables with ``EngineeringUnits`` (UNECE) and ``EURange``; every variable
-is read-only (AccessLevel CurrentRead).
+``<spindle>`` (``opcua.spindle``, unset: ``spindle.id``) below Objects, whose NodeIds are the browse paths
+(``ns=2;s=<spindle>.Growth.Axial``). Analog values are ``AnalogUnitRangeType`` variables with
+``EngineeringUnits`` (UNECE) and ``EURange``; every variable is read-only (AccessLevel CurrentRead).
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ from typing import TYPE_CHECKING, Any
 from asyncua import Server, ua
 from asyncua.server.internal_session import InternalSession
 
+from service.logctx import in_current_context
 from service.serve.errors import OutletError
 from service.serve.opcua.nodes import EPOCH, GROUPS, UNECE, UNITS_NAMESPACE, Reading, Var, render, unit_id
 from service.serve.opcua.security import (
@@ -209,7 +210,7 @@ class OpcUaServer:
 
     # --- lifecycle (caller's thread) ---------------------------------------------------------------------
     def start(self, timeout_s: float = 60.0) -> None:
-        self._thread = threading.Thread(target=self._run, name="chtc-opcua", daemon=True)
+        self._thread = threading.Thread(target=in_current_context(self._run), name="chtc-opcua", daemon=True)
         self._thread.start()
         if not self._ready.wait(timeout_s):
             raise OutletError(f"the OPC UA server did not start within {timeout_s:.0f} s")
@@ -341,8 +342,8 @@ class OpcUaServer:
             await server.load_certificate(str(cfg.certificate))
             await server.load_private_key(str(cfg.private_key))
         idx = await server.register_namespace(cfg.namespace_uri)
-        _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.spindle)
-        self._nodeids = {v.path: ua.NodeId(f"{cfg.spindle}.{v.path}", idx) for v in self.variables}
+        _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.node_prefix)
+        self._nodeids = {v.path: ua.NodeId(f"{cfg.node_prefix}.{v.path}", idx) for v in self.variables}
         waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
         for var in self.variables:  # nothing is known before the first view
             dv = ua.DataValue(Value=_initial(var), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC))
@@ -352,7 +353,7 @@ class OpcUaServer:
         return server
 
     async def _add_methods(self, server: Server, instance: Any, idx: int, methods: Methods) -> None:
-        spindle = self.cfg.spindle
+        spindle = self.cfg.node_prefix
 
         async def run(fn: Callable[[], str]) -> list[ua.Variant]:
             try:
@@ -396,6 +397,6 @@ async def export_nodeset(cfg: OpcUaSettings, variables: Sequence[Var], path: Pat
     server = Server()
     await server.init()
     idx = await server.register_namespace(cfg.namespace_uri)
-    await build_address_space(server, idx, variables, spindle=cfg.spindle)
+    await build_address_space(server, idx, variables, spindle=cfg.node_prefix)
     await server.export_xml_by_ns(str(path), [idx], export_values=True)
     return sum(1 for _ in path.read_text(encoding="utf-8").split("<UAVariable")) - 1
