@@ -44,8 +44,9 @@ def host_settings(db_url: str, addresses: dict[str, SimAddress], bad_map: Path) 
     entries = [
         {"id": sid, "modbus": {"port": a.port}, "can": {"channel": a.channel}} for sid, a in addresses.items()
     ]
-    entries.append(
-        {"id": "c", "modbus": {"port": free_port(), "register_map": str(bad_map)}, "can": {"channel": "c"}}
+    # first in the file: a spindle that fails before its start must not leave the schema unmigrated
+    entries.insert(
+        0, {"id": "c", "modbus": {"port": free_port(), "register_map": str(bad_map)}, "can": {"channel": "c"}}
     )
     return Settings(
         spindles=entries,
