@@ -16,7 +16,6 @@ spindle (each with its own token checks, guard, metrics and routes, reading only
 
 from __future__ import annotations
 
-import asyncio
 import re
 from collections.abc import Iterator, Mapping
 from typing import TYPE_CHECKING, Any
@@ -30,14 +29,11 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from api.app import API_PREFIX, create_app
 from api.deps import AuthConfig, ClockInfo, ReadAccess
 from api.errors import error_body
-from api.server import server_config
+from api.outlet import RestOutlet
 
 if TYPE_CHECKING:
-    import uvicorn
-
     from service.engine.host import Host
     from service.serve.outlet import OutletContext
-    from service.serve.reader import ViewReader
 
 __all__ = ["FleetDispatch", "FleetOutlet", "create_fleet_app", "fleet_outlet"]
 
@@ -202,52 +198,24 @@ async def _not_found(send: Send, message: str) -> None:
     await send({"type": "http.response.body", "body": body})
 
 
-class FleetOutlet:
-    """uvicorn serving :class:`FleetDispatch` on ``[api] host:port`` (the ``"rest_fleet"`` outlet)."""
+class FleetOutlet(RestOutlet):
+    """uvicorn serving :class:`FleetDispatch` on ``[api] host:port`` (the ``"rest_fleet"`` outlet); the
+    context's ``service`` is the ``service.engine.host.Host``."""
 
     name = "rest_fleet"
 
     def __init__(self, ctx: OutletContext) -> None:
-        self.ctx = ctx
-        self.server: uvicorn.Server | None = None
-        self.task: asyncio.Task[None] | None = None
+        super().__init__(ctx)
         self.apps: dict[str, FastAPI] = {}
 
-    async def start(self) -> None:
-        import uvicorn
-
+    def build_app(self, info: ClockInfo) -> ASGIApp:
         ctx = self.ctx
         host: Host = ctx.service
-        info = ClockInfo(simulated=ctx.simulated, speedup=ctx.speedup)
         for sid, hosted in host.spindles.items():
             if hosted.runtime is not None and hosted.runtime.service is not None:
-                self.apps[sid] = create_app(
-                    hosted.settings, hosted.runtime.service, clock=ctx.clock, clock_info=info
-                )
-        fleet = create_fleet_app(host, self.apps, clock_info=info)
-        app: ASGIApp = FleetDispatch(fleet, self.apps)
-        config = server_config(app, host=ctx.settings.api.host, port=ctx.settings.api.port)  # type: ignore[arg-type]
-        self.server = uvicorn.Server(config)
-        self.task = asyncio.ensure_future(self.server.serve())
-
-    def on_view(self, reader: ViewReader) -> None:
-        return None  # requests read the newest views themselves
-
-    @property
-    def started(self) -> bool:
-        return self.server is not None and bool(self.server.started)
-
-    async def close(self) -> None:
-        if self.server is not None:
-            self.server.should_exit = True
-        task = self.task
-        if task is None:
-            return
-        done, _ = await asyncio.wait({task}, timeout=10.0)
-        if not done:
-            self.ctx.on_event("shutdown: the API server did not stop within 10 s; abandoned")
-        elif not task.cancelled():
-            task.exception()
+                service = hosted.runtime.service
+                self.apps[sid] = create_app(hosted.settings, service, clock=ctx.clock, clock_info=info)
+        return FleetDispatch(create_fleet_app(host, self.apps, clock_info=info), self.apps)
 
 
 def fleet_outlet(ctx: OutletContext) -> FleetOutlet:

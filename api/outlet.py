@@ -16,6 +16,7 @@ from api.server import server_config
 
 if TYPE_CHECKING:
     import uvicorn
+    from starlette.types import ASGIApp
 
     from service.serve.outlet import OutletContext
     from service.serve.reader import ViewReader
@@ -37,11 +38,14 @@ class RestOutlet:
         import uvicorn
 
         ctx = self.ctx
-        info = ClockInfo(simulated=ctx.simulated, speedup=ctx.speedup)
-        app = create_app(ctx.settings, ctx.service, clock=ctx.clock, clock_info=info)
-        config = server_config(app, host=ctx.settings.api.host, port=ctx.settings.api.port)
+        app = self.build_app(ClockInfo(simulated=ctx.simulated, speedup=ctx.speedup))
+        config = server_config(app, host=ctx.settings.api.host, port=ctx.settings.api.port)  # type: ignore[arg-type]
         self.server = uvicorn.Server(config)
         self.task = asyncio.ensure_future(self.server.serve())
+
+    def build_app(self, info: ClockInfo) -> ASGIApp:
+        """The app served: the spindle's API and dashboard."""
+        return create_app(self.ctx.settings, self.ctx.service, clock=self.ctx.clock, clock_info=info)
 
     def on_view(self, reader: ViewReader) -> None:
         return None  # requests read the newest view themselves

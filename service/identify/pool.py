@@ -38,6 +38,7 @@ from service.identify.worker import (
     WorkerError,
     run_job,
     single_threaded_children,
+    terminate_pool,
     watch_parent,
 )
 from service.modelload import LoadedModel, ModelRef, load_model
@@ -248,9 +249,7 @@ class WorkerPool:
         if pool is None:
             return
         self.restarts += 1
-        for proc in list(getattr(pool, "_processes", {}).values()):
-            proc.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        terminate_pool(pool, wait=False)
 
     def pids(self) -> list[int]:
         procs = getattr(self._pool, "_processes", None) or {}
@@ -260,6 +259,4 @@ class WorkerPool:
         self._closed = True
         pool, self._pool = self._pool, None
         if pool is not None:
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.terminate()
-            pool.shutdown(wait=True, cancel_futures=True)
+            terminate_pool(pool, wait=True)

@@ -62,6 +62,7 @@ __all__ = [
     "job_outcome_of",
     "run_job",
     "run_job_in_process",
+    "terminate_pool",
 ]
 
 
@@ -340,6 +341,14 @@ def run_job_in_process(req: JobRequest) -> JobOutcome:
 
 
 # --- in the service process -----------------------------------------------------------------------
+def terminate_pool(pool: cf.ProcessPoolExecutor, *, wait: bool) -> None:
+    """Terminate the pool's processes and shut it down: ``ProcessPoolExecutor`` has no public terminate, and
+    a stuck job has to be killed to free its process."""
+    for proc in list(getattr(pool, "_processes", {}).values()):
+        proc.terminate()
+    pool.shutdown(wait=wait, cancel_futures=True)
+
+
 # The worker runs at a lower priority so that an identification (a whole core for up to a second) does not
 # push the API's /chtc p99 above twice its idle value on a 2-core machine (docs/design/api.md).
 WORKER_NICE = 10
@@ -471,15 +480,10 @@ class IdentificationWorker:
         if pool is None:
             return
         self.restarts += 1
-        # ProcessPoolExecutor has no public terminate; a stuck job has to be killed to free the single slot.
-        for proc in list(getattr(pool, "_processes", {}).values()):
-            proc.terminate()
-        pool.shutdown(wait=False, cancel_futures=True)
+        terminate_pool(pool, wait=False)
 
     def close(self) -> None:
         self._closed = True
         pool, self._pool = self._pool, None
         if pool is not None:
-            for proc in list(getattr(pool, "_processes", {}).values()):
-                proc.terminate()
-            pool.shutdown(wait=True, cancel_futures=True)
+            terminate_pool(pool, wait=True)

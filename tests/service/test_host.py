@@ -10,8 +10,6 @@ from __future__ import annotations
 import asyncio
 import logging
 import time
-import uuid
-from collections.abc import Iterator
 from pathlib import Path
 
 import httpx
@@ -24,8 +22,11 @@ from service.engine.runtime import ScaledClock, free_port
 from service.logctx import SpindleFilter
 from service.settings import Settings
 from service.sim.simrig import SimAddress, make_drivers, plant_rig
+from tests.db.conftest import pg_schema, pg_schema_url
 
 from .conftest import plant_run
+
+__all__ = ["pg_schema"]  # a fixture of tests/db, used here
 
 pytestmark = pytest.mark.slow
 SPEEDUP = 40.0
@@ -138,22 +139,9 @@ def stored_samples(db_url: str) -> dict[str, int]:
 
 
 @pytest.fixture
-def pg_schema_db(pg_url: str) -> Iterator[str]:
+def pg_schema_db(pg_url: str, pg_schema: str) -> str:
     """A fresh PostgreSQL schema (the fleet's database), dropped after the test."""
-    import sqlalchemy as sa
-
-    from tests.db.conftest import pg_schema_url
-
-    schema = f"chtc_host_{uuid.uuid4().hex[:12]}"
-    admin = sa.create_engine(pg_url)
-    with admin.begin() as conn:
-        conn.execute(sa.text(f'CREATE SCHEMA "{schema}"'))
-    try:
-        yield pg_schema_url(pg_url, schema)
-    finally:
-        with admin.begin() as conn:
-            conn.execute(sa.text(f'DROP SCHEMA "{schema}" CASCADE'))
-        admin.dispose()
+    return pg_schema_url(pg_url, pg_schema)
 
 
 @pytest.mark.postgres
