@@ -237,11 +237,8 @@ def run_n(
 ) -> dict[str, Any]:
     """One N: devices, the product, the window; the figures of that run."""
     env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    modbus_ports = [free_port() for _ in range(n)]
-    can_ports = [free_port() for _ in range(n)]
     hours = (warmup_s + window_s) / 3600.0 + 0.5
-    plan = {"host": "127.0.0.1", "modbus_ports": modbus_ports, "can_ports": can_ports, "plants": plants}
-    plan["hours"] = round(hours, 3)
+    plan = {"host": "127.0.0.1", "spindles": n, "plants": plants, "hours": round(hours, 3)}
     say(f"N={n}: devices (plants: {min(plants, n)} × {hours:.2f} h)")
     rig = subprocess.Popen(
         [sys.executable, "-m", "service.sim.fleetrig", json.dumps(plan)],
@@ -253,8 +250,10 @@ def run_n(
     try:
         assert rig.stdout is not None
         line = rig.stdout.readline().decode().strip()
-        if line != "ready":
+        if not line.startswith("ready "):
             raise RuntimeError(f"the devices' process did not start (said {line!r}, code {rig.poll()})")
+        ports = json.loads(line.removeprefix("ready "))
+        modbus_ports, can_ports = ports["modbus_ports"], ports["can_ports"]
         with fresh_schema(pg_url) as (schema, url, admin):
             api_port = free_port()
             config = workdir / f"host-{n}.toml"
@@ -353,6 +352,7 @@ def measure_fleet(
         kw: dict[str, Any] = {"pg_url": pg_url, "warmup_s": warmup_s, "window_s": window_s, "plants": plants}
         kw.update(workdir=Path(tmp), row_bytes=row_bytes)
         base = run_n(1, **kw)
+        say(f"N=1: {json.dumps(base)}")  # each run's figures as they come (a later failure keeps them)
         runs = []
         prev = base
         for n in ns:
@@ -362,6 +362,7 @@ def measure_fleet(
                 (r["rss_mib"] - prev["rss_mib"]) / max(n - prev["spindles"], 1), 2
             )
             runs.append(r)
+            say(f"N={n}: {json.dumps(r)}")
             prev = r
     return {"baseline": base, "runs": runs, "bytes_per_row": {t: round(b, 1) for t, b in row_bytes.items()}}
 

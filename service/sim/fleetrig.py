@@ -7,9 +7,10 @@ it reaches real devices. They play virtual-plant runs (``service.sim.endless``: 
 plant's own mesh and step) of ``--plants`` seeds; spindle i plays plant ``i % plants``, so the spindles of
 one plant change speed at the same moments, as a cell does.
 
-Input: one JSON object on the command line: ``{"host", "modbus_ports": [...], "can_ports": [...],
-"plants", "hours", "seed"}``. Output: one line ``ready`` on stdout once every device serves (progress on
-stderr). It stops at end of file on stdin (the parent closed it or died) or on SIGTERM.
+Input: one JSON object on the command line: ``{"host", "spindles", "plants", "hours", "seed"}``. Every
+device binds a port of its own choosing (port 0: no race with other processes between choosing and
+binding). Output: one line ``ready {"modbus_ports": [...], "can_ports": [...]}`` on stdout once every device
+serves (progress on stderr). It stops at end of file on stdin (the parent closed it or died) or on SIGTERM.
 """
 
 from __future__ import annotations
@@ -33,15 +34,14 @@ __all__ = ["FleetRigPlan", "main"]
 @dataclass(frozen=True, kw_only=True)
 class FleetRigPlan:
     host: str
-    modbus_ports: list[int]
-    can_ports: list[int]
+    spindles: int
     plants: int = 4
     hours: float = 1.0
     seed: int = 0
 
     def __post_init__(self) -> None:
-        if len(self.modbus_ports) != len(self.can_ports) or not self.modbus_ports:
-            raise ValueError("modbus_ports and can_ports: one of each per spindle, at least one spindle")
+        if self.spindles < 1 or self.plants < 1:
+            raise ValueError(f"spindles and plants: at least 1, got {self.spindles}, {self.plants}")
 
 
 def _plants(plan: FleetRigPlan) -> list[PlantRows]:
@@ -50,7 +50,7 @@ def _plants(plan: FleetRigPlan) -> list[PlantRows]:
 
     spec = load_spindle()
     rows: list[PlantRows] = []
-    for k in range(min(plan.plants, len(plan.modbus_ports))):
+    for k in range(min(plan.plants, plan.spindles)):
         plant = EndlessPlant(spec, seed=plan.seed + k, chunk_s=3600.0 * plan.hours, idle_s=300.0)
         rows.append(plant.next_chunk())
         print(f"fleetrig: plant {k + 1} computed ({plan.hours:g} h)", file=sys.stderr, flush=True)
@@ -68,22 +68,23 @@ async def serve(plan: FleetRigPlan) -> None:
     rows = await asyncio.to_thread(_plants, plan)
     hubs, buses, daqs, nodes = [], [], [], []
     try:
-        for i, (mport, cport) in enumerate(zip(plan.modbus_ports, plan.can_ports, strict=True)):
+        for i in range(plan.spindles):
             channel = f"fleetrig-{i}"
-            hub = CanHub(f"ws://{plan.host}:{cport}/", channel)
+            hub = CanHub(f"ws://{plan.host}:0/", channel)
             hub.start()
             hubs.append(hub)
             bus = can.Bus(interface="virtual", channel=channel, ignore_config=True)
             buses.append(bus)
             source = TimelineSource(rows[i % len(rows)], speedup=1.0)
             source.start()
-            daq = SimulatedDaq(source, host=plan.host, port=mport, sample_period_s=1.0)
+            daq = SimulatedDaq(source, host=plan.host, port=0, sample_period_s=1.0)
             await daq.start()
             daqs.append(daq)
             node = SimulatedCanNode(source, bus=bus)
             await node.start()
             nodes.append(node)
-        print("ready", flush=True)
+        ports = {"modbus_ports": [d.port for d in daqs], "can_ports": [h.port for h in hubs]}
+        print("ready " + json.dumps(ports), flush=True)
         await _until_told_to_stop()
     finally:
         for node in nodes:
