@@ -63,6 +63,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--plants", type=int, default=4, help="distinct virtual-plant duty cycles the spindles play"
     )
     parser.add_argument(
+        "--retention-runs", type=int, default=3, help="retention passes at 500 spindle-days (median quoted)"
+    )
+    parser.add_argument(
         "--writers-only", action="store_true", help="only the write-capacity part (no hosting)"
     )
     parser.add_argument("--json", action="store_true")
