@@ -20,8 +20,8 @@ each table gained per spindle-day in the window (what the hosted product really 
 means, conditions, identifications, events) × that table's bytes per row at a day's scale (``chtc bench
 storage``'s synthetic day through the same write path; a few minutes of rows in fresh partitions would
 measure mostly empty pages).
-The devices' process is not the product's and is not counted; it runs at nice 10 (on a plant the devices are
-other hardware). The machine runs the devices, the product and
+The devices' process is not the product's and is not counted; it runs at nice 10 on the last core, the product
+on the others (``taskset``; on a plant the devices are other hardware): on 2 cores the product gets one. The machine runs the devices, the product and
 PostgreSQL on the same cores: on a 2-core machine the larger N measure a saturated machine, and the output
 says so (load average).
 """
@@ -47,6 +47,20 @@ __all__ = ["BARS", "measure_fleet", "p99_of", "run_n"]
 
 BARS = {"write_p99_ms": 50.0, "mib_per_added_spindle": 60.0, "cpu_pct_per_spindle": 2.0}
 DEVICES_NICE = 10
+# On a plant the devices are other hardware: here, with 2 cores or more, they get the last core and the product
+# the others (PostgreSQL floats), so the devices' 100 frames/s per spindle cannot take the product's core
+_CPUS = os.cpu_count() or 1
+DEVICES_CPUS = f"{_CPUS - 1}" if _CPUS >= 2 else None
+PRODUCT_CPUS = f"0-{_CPUS - 2}" if _CPUS >= 2 else None
+
+
+def pin(cpus: str | None) -> list[str]:
+    """``taskset -c CPUS`` as a command prefix (none with one core or without taskset)."""
+    import shutil
+
+    return ["taskset", "-c", cpus] if cpus is not None and shutil.which("taskset") else []
+
+
 _TICKS = os.sysconf("SC_CLK_TCK")
 _PAGE_MIB = os.sysconf("SC_PAGE_SIZE") / 2**20
 
@@ -245,7 +259,16 @@ def run_n(
     rig = subprocess.Popen(
         # at nice 10: on a plant the devices are other hardware; here they must not take the cores the product
         # and the database need (at N = 50 they send 5 000 CAN frames/s through 50 websocket hubs)
-        ["nice", "-n", str(DEVICES_NICE), sys.executable, "-m", "service.sim.fleetrig", json.dumps(plan)],
+        [
+            *pin(DEVICES_CPUS),
+            "nice",
+            "-n",
+            str(DEVICES_NICE),
+            sys.executable,
+            "-m",
+            "service.sim.fleetrig",
+            json.dumps(plan),
+        ],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
         env=env,
@@ -265,7 +288,16 @@ def run_n(
             log = (workdir / f"product-{n}.log").open("wb")
             say(f"N={n}: product (chtc run --config {config.name} --migrate)")
             product = subprocess.Popen(
-                [sys.executable, "-m", "service.cli", "run", "--config", str(config), "--migrate"],
+                [
+                    *pin(PRODUCT_CPUS),
+                    sys.executable,
+                    "-m",
+                    "service.cli",
+                    "run",
+                    "--config",
+                    str(config),
+                    "--migrate",
+                ],
                 stdout=log,
                 stderr=subprocess.STDOUT,
                 env=env,
