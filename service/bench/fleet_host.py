@@ -20,10 +20,10 @@ each table gained per spindle-day in the window (what the hosted product really 
 means, conditions, identifications, events) × that table's bytes per row at a day's scale (``chtc bench
 storage``'s synthetic day through the same write path; a few minutes of rows in fresh partitions would
 measure mostly empty pages).
-The devices' process is not the product's and is not counted; it runs at nice 10 on the last core, the product
-on the others (``taskset``; on a plant the devices are other hardware): on 2 cores the product gets one. The machine runs the devices, the product and
-PostgreSQL on the same cores: on a 2-core machine the larger N measure a saturated machine, and the output
-says so (load average).
+
+The devices' process is not the product's and is not counted. On a plant the devices are other hardware;
+here they run at nice 10 on the last core and the product on the others (``taskset``), so on 2 cores the
+product gets one core. PostgreSQL floats over both; the load average is reported.
 """
 
 from __future__ import annotations
@@ -47,8 +47,8 @@ __all__ = ["BARS", "measure_fleet", "p99_of", "run_n"]
 
 BARS = {"write_p99_ms": 50.0, "mib_per_added_spindle": 60.0, "cpu_pct_per_spindle": 2.0}
 DEVICES_NICE = 10
-# On a plant the devices are other hardware: here, with 2 cores or more, they get the last core and the product
-# the others (PostgreSQL floats), so the devices' 100 frames/s per spindle cannot take the product's core
+# On a plant the devices are other hardware: here, with 2 cores or more, they get the last core and the
+# product the others (PostgreSQL floats), so the devices' 100 frames/s per spindle cannot take its core
 _CPUS = os.cpu_count() or 1
 DEVICES_CPUS = f"{_CPUS - 1}" if _CPUS >= 2 else None
 PRODUCT_CPUS = f"0-{_CPUS - 2}" if _CPUS >= 2 else None
