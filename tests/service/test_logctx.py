@@ -218,6 +218,10 @@ def test_a_running_spindle_logs_its_id_from_its_tasks_and_threads(tmp_path, reco
         database={"url": f"sqlite:///{tmp_path / 'ids.db'}"},  # type: ignore[arg-type]
     )
 
+    # threads alive before this runtime starts are not its own (a database writer another test left running
+    # probes and logs its SQL at any time); the main thread, where the loop runs, is
+    before = {t.ident for t in threading.enumerate()} - {threading.main_thread().ident}
+
     async def main() -> None:
         clock = ScaledClock(20.0)
         runtime = Runtime(settings=settings, clock=clock, on_event=lambda m: events.info("%s", m))
@@ -241,7 +245,9 @@ def test_a_running_spindle_logs_its_id_from_its_tasks_and_threads(tmp_path, reco
         asyncio.run(main())
     finally:
         sql.setLevel(sql_level)
-    mine = [r for r in records.records if not r.name.startswith("asyncio")]  # asyncio.run's own, outside
+    mine = [  # asyncio.run's own lines are outside; so are other tests' threads
+        r for r in records.records if not r.name.startswith("asyncio") and r.thread not in before
+    ]
     strays = [(r.threadName, r.name, r.getMessage()[:80]) for r in mine if r.spindle != "cell9-sp01"]  # type: ignore[attr-defined]
     assert strays == []
     threads = {r.threadName for r in mine}
