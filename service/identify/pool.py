@@ -30,7 +30,6 @@ import time
 from dataclasses import dataclass, field
 from typing import TYPE_CHECKING
 
-from service.contracts.outcome import Outcome
 from service.identify.worker import (
     WORKER_NICE,
     JobOutcome,
@@ -38,6 +37,7 @@ from service.identify.worker import (
     WorkerError,
     run_job,
     single_threaded_children,
+    supervise_job,
     terminate_pool,
     watch_parent,
 )
@@ -201,46 +201,21 @@ class WorkerPool:
         loop = asyncio.get_running_loop()
         asked = time.perf_counter()
         async with self._semaphore():  # FIFO: in the order the spindles asked
-            started = time.perf_counter()
-            self.waited_s += started - asked
+            self.waited_s += time.perf_counter() - asked
             try:
-                with single_threaded_children():
-                    fut = loop.run_in_executor(self._executor(), _run_pooled, lease.ref, lease.slot, req)
-                try:
-                    return await asyncio.wait_for(asyncio.shield(fut), timeout=lease.timeout_s)
-                except TimeoutError:
-                    self.cancel(lease.slot, req.job_id)
-                    msg = f"identification exceeded timeout_s={lease.timeout_s:.0f} s"
-                    return await self._after_cancel(fut, lease, req.job_id, msg, started, Outcome.FAILED)
-                except asyncio.CancelledError:
-                    self.cancel(lease.slot, req.job_id)
-                    await self._after_cancel(fut, lease, req.job_id, "cancelled", started, Outcome.CANCELLED)
-                    raise
-            except cf.process.BrokenProcessPool as err:
-                self._discard(lease)
-                return JobOutcome(
-                    job_id=req.job_id, status=Outcome.FAILED, message=f"worker process died: {err}"
+                return await supervise_job(
+                    lambda: loop.run_in_executor(self._executor(), _run_pooled, lease.ref, lease.slot, req),
+                    req.job_id,
+                    timeout_s=lease.timeout_s,
+                    cancel_grace_s=self.cancel_grace_s,
+                    cancel=lambda: self.cancel(lease.slot, req.job_id),
+                    discard=lambda: self._discard(lease),
                 )
             finally:
                 self.jobs_run += 1
 
     def cancel(self, slot: int, job_id: int) -> None:
         self._cancels[slot] = job_id
-
-    async def _after_cancel(
-        self,
-        fut: asyncio.Future[JobOutcome],
-        lease: PooledWorker,
-        job_id: int,
-        message: str,
-        started: float,
-        status: Outcome,
-    ) -> JobOutcome:
-        try:
-            await asyncio.wait_for(asyncio.shield(fut), timeout=self.cancel_grace_s)
-        except (TimeoutError, cf.process.BrokenProcessPool):
-            self._discard(lease)
-        return JobOutcome(job_id=job_id, status=status, message=message, wall_s=time.perf_counter() - started)
 
     def _discard(self, lease: PooledWorker) -> None:
         """Terminate the pool's processes (a hung job holds one; there is no way to kill only it)."""

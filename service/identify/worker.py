@@ -33,6 +33,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Iterator
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, replace
 from typing import TYPE_CHECKING, Protocol
 
@@ -62,6 +63,7 @@ __all__ = [
     "job_outcome_of",
     "run_job",
     "run_job_in_process",
+    "supervise_job",
     "terminate_pool",
 ]
 
@@ -379,6 +381,60 @@ def single_threaded_children() -> Iterator[None]:
                 os.environ[k] = v
 
 
+async def supervise_job(
+    submit: Callable[[], asyncio.Future[JobOutcome]],
+    job_id: int,
+    *,
+    timeout_s: float,
+    cancel_grace_s: float,
+    cancel: Callable[[], None],
+    discard: Callable[[], None],
+) -> JobOutcome:
+    """One job's life in a process pool, the one copy that ``IdentificationWorker`` and
+    ``service.identify.pool.WorkerPool`` both run.
+
+    ``submit()`` hands the job to the pool (in ``single_threaded_children``: a recreated pool spawns its
+    process on this submit). Past ``timeout_s`` the job is asked to stop (``cancel()``) and ends as FAILED; a
+    cancelled caller asks it to stop too and the ``CancelledError`` goes on. A job that does not stop within
+    ``cancel_grace_s`` after either has its pool's processes terminated (``discard()``), as has a broken pool,
+    whose job ends as FAILED "worker process died".
+    """
+    started = time.perf_counter()
+    try:
+        with single_threaded_children():
+            fut = submit()
+        try:
+            return await asyncio.wait_for(asyncio.shield(fut), timeout=timeout_s)
+        except TimeoutError:
+            cancel()
+            msg = f"identification exceeded timeout_s={timeout_s:.0f} s"
+            return await _after_cancel(fut, job_id, msg, started, Outcome.FAILED, cancel_grace_s, discard)
+        except asyncio.CancelledError:
+            cancel()
+            await _after_cancel(fut, job_id, "cancelled", started, Outcome.CANCELLED, cancel_grace_s, discard)
+            raise
+    except BrokenProcessPool as err:
+        discard()
+        return JobOutcome(job_id=job_id, status=Outcome.FAILED, message=f"worker process died: {err}")
+
+
+async def _after_cancel(
+    fut: asyncio.Future[JobOutcome],
+    job_id: int,
+    message: str,
+    started: float,
+    status: Outcome,
+    grace_s: float,
+    discard: Callable[[], None],
+) -> JobOutcome:
+    """Wait ``grace_s`` for a job asked to stop; one that does not (or whose pool broke) is discarded."""
+    try:
+        await asyncio.wait_for(asyncio.shield(fut), timeout=grace_s)
+    except (TimeoutError, BrokenProcessPool):
+        discard()
+    return JobOutcome(job_id=job_id, status=status, message=message, wall_s=time.perf_counter() - started)
+
+
 class IdentificationWorker:
     """Async façade over a one-process pool; ``await run(req)`` returns a :class:`JobOutcome`."""
 
@@ -425,28 +481,16 @@ class IdentificationWorker:
 
     async def run(self, req: JobRequest) -> JobOutcome:
         loop = asyncio.get_running_loop()
-        started = time.perf_counter()
         self.running_job = req.job_id  # the cancel flag is not reset: job ids are unique
         try:
-            with single_threaded_children():  # a recreated pool spawns its process on this submit
-                fut = loop.run_in_executor(self._ensure_pool(), run_job_in_process, req)
-            try:
-                return await asyncio.wait_for(asyncio.shield(fut), timeout=self.timeout_s)
-            except TimeoutError:
-                self.cancel(req.job_id)
-                msg = f"identification exceeded timeout_s={self.timeout_s:.0f} s"
-                return await self._after_cancel(
-                    fut, req.job_id, message=msg, started=started, status=Outcome.FAILED
-                )
-            except asyncio.CancelledError:
-                self.cancel(req.job_id)
-                await self._after_cancel(
-                    fut, req.job_id, message="cancelled", started=started, status=Outcome.CANCELLED
-                )
-                raise
-        except cf.process.BrokenProcessPool as err:
-            self._discard_pool()
-            return JobOutcome(job_id=req.job_id, status=Outcome.FAILED, message=f"worker process died: {err}")
+            return await supervise_job(
+                lambda: loop.run_in_executor(self._ensure_pool(), run_job_in_process, req),
+                req.job_id,
+                timeout_s=self.timeout_s,
+                cancel_grace_s=self.cancel_grace_s,
+                cancel=lambda: self.cancel(req.job_id),
+                discard=self._discard_pool,
+            )
         finally:
             self.running_job = None
 
@@ -459,21 +503,6 @@ class IdentificationWorker:
     def cancel(self, job_id: int) -> None:
         """Ask the running job ``job_id`` to stop at its next reduced-model evaluation."""
         self._cancel.value = job_id
-
-    async def _after_cancel(
-        self,
-        fut: asyncio.Future[JobOutcome],
-        job_id: int,
-        *,
-        message: str,
-        started: float,
-        status: Outcome,
-    ) -> JobOutcome:
-        try:
-            await asyncio.wait_for(asyncio.shield(fut), timeout=self.cancel_grace_s)
-        except (TimeoutError, cf.process.BrokenProcessPool):
-            self._discard_pool()
-        return JobOutcome(job_id=job_id, status=status, message=message, wall_s=time.perf_counter() - started)
 
     def _discard_pool(self) -> None:
         pool, self._pool = self._pool, None
