@@ -92,6 +92,17 @@ def make_device_drivers(settings: Settings, *, clock: ScaledClock) -> tuple[Modb
     return daq, can_sensor
 
 
+def until_signal() -> asyncio.Event:
+    """An event set on SIGINT or SIGTERM, the stop of ``serve`` and ``serve_host`` (handlers on the running
+    loop; where it cannot take them, e.g. outside the main thread, only the caller sets it)."""
+    stop = asyncio.Event()
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+    return stop
+
+
 async def serve(settings: Settings, *, migrate: bool) -> int:
     from service.engine.runtime import Runtime, ScaledClock
 
@@ -102,11 +113,7 @@ async def serve(settings: Settings, *, migrate: bool) -> int:
     log.info("loading the model (cache %s)", settings.model.rom_cache_dir)
     await asyncio.to_thread(runtime.load, progress=lambda m: log.info("%s", m))
     daq, can_sensor = make_device_drivers(settings, clock=clock)
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, stop.set)
+    stop = until_signal()
     try:
         await runtime.start(daq=daq, can=can_sensor, api=True)
         await runtime.wait_api()
@@ -132,11 +139,7 @@ async def serve_host(settings: Settings, *, migrate: bool) -> int:
         on_event=lambda m: log.info("%s", m),
     )
     log.info("hosting %d spindles (model cache %s)", len(settings.spindles), settings.model.rom_cache_dir)
-    stop = asyncio.Event()
-    loop = asyncio.get_running_loop()
-    for sig in (signal.SIGINT, signal.SIGTERM):
-        with contextlib.suppress(NotImplementedError, RuntimeError):
-            loop.add_signal_handler(sig, stop.set)
+    stop = until_signal()
     try:
         await host.start(api=True)
         await host.wait_api()
