@@ -38,6 +38,7 @@ import tempfile
 import time
 import uuid
 from collections.abc import Iterator
+from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
@@ -241,6 +242,25 @@ def _wait(pred: Any, timeout_s: float, what: str, proc: subprocess.Popen[bytes] 
         time.sleep(0.5)
 
 
+@dataclass(frozen=True)
+class _Snapshot:
+    """What the window's figures are differences of, read at its start and at its end."""
+
+    writes: dict[float, float]  # chtc_db_write_seconds buckets, cumulative (``write_buckets``)
+    cpu_s: float  # the product's and its pool's CPU seconds (``cpu_s``)
+    rows: dict[str, int]  # rows per table (``table_rows``)
+    t: float  # time.monotonic(), s
+
+
+def _snapshot(base: str, pid: int, admin: Any, schema: str) -> _Snapshot:
+    return _Snapshot(
+        writes=write_buckets(_get(f"{base}/metrics")[1]),
+        cpu_s=cpu_s(pid),
+        rows=table_rows(admin, schema),
+        t=time.monotonic(),
+    )
+
+
 def run_n(
     n: int,
     *,
@@ -308,35 +328,26 @@ def run_n(
             running = sum(1 for s in listed if s["running"])
             say(f"N={n}: {running}/{n} spindles running; warm-up {warmup_s:g} s")
             time.sleep(warmup_s)
-            m0, c0, r0, t0 = (
-                write_buckets(_get(f"{base}/metrics")[1]),
-                cpu_s(product.pid),
-                table_rows(admin, schema),
-                time.monotonic(),
-            )
+            w0 = _snapshot(base, product.pid, admin, schema)
             say(f"N={n}: measuring {window_s:g} s")
             time.sleep(window_s)
-            m1, c1, r1, t1 = (
-                write_buckets(_get(f"{base}/metrics")[1]),
-                cpu_s(product.pid),
-                table_rows(admin, schema),
-                time.monotonic(),
-            )
-            days = n * (t1 - t0) / 86400.0
-            rows_day = {t: (r1.get(t, 0) - r0.get(t, 0)) / days for t in r1}
+            w1 = _snapshot(base, product.pid, admin, schema)
+            wall_s = w1.t - w0.t
+            days = n * wall_s / 86400.0
+            rows_day = {t: (w1.rows.get(t, 0) - w0.rows.get(t, 0)) / days for t in w1.rows}
             healthy, degraded = _health(base, [str(x["id"]) for x in listed])
             result = {
                 "spindles": n,
                 "running": running,
                 "healthy_at_end": healthy,
                 "degraded_parts": degraded,
-                "write_p99_ms": _ms(p99_of(m0, m1)),
-                "writes": int(m1.get(float("inf"), 0) - m0.get(float("inf"), 0)),
+                "write_p99_ms": _ms(p99_of(w0.writes, w1.writes)),
+                "writes": int(w1.writes.get(float("inf"), 0) - w0.writes.get(float("inf"), 0)),
                 "rss_mib": round(rss_mib(product.pid), 1),
                 "rss_main_mib": round(rss_mib(product.pid, with_children=False), 1),
                 "pool_processes": len(children(product.pid)),
-                "cpu_pct": round(100.0 * (c1 - c0) / (t1 - t0), 2),
-                "cpu_pct_per_spindle": round(100.0 * (c1 - c0) / (t1 - t0) / n, 3),
+                "cpu_pct": round(100.0 * (w1.cpu_s - w0.cpu_s) / wall_s, 2),
+                "cpu_pct_per_spindle": round(100.0 * (w1.cpu_s - w0.cpu_s) / wall_s / n, 3),
                 "rows_per_spindle_day": {t: round(v) for t, v in rows_day.items() if v > 0},
                 "bytes_per_spindle_day": int(sum(v * row_bytes.get(t, 0.0) for t, v in rows_day.items())),
                 "connections": connections(admin, schema),
