@@ -10,6 +10,8 @@ what one process can share:
   processes, one per core by default) instead of a worker process per spindle, fair in the order asked;
 - one **database engine** pair (``SharedDatabase``: reads, writes), with spindle-bound sessions; the
   database-wide retention pass runs once, from the first spindle that starts;
+- one **event-loop lag monitor** (``service.engine.looplag``): the spindles share the loop, so one
+  measurement serves every spindle's ``/healthz`` (``event_loop``) and ``/metrics``;
 - one **REST server**: the ``"rest_fleet"`` outlet (``api.fleet``) answers ``/api/v1/spindles`` and
   ``/api/v1/spindles/{id}/…``, one ``/metrics`` labelled by spindle, and today's paths when it hosts one.
 
@@ -36,6 +38,7 @@ from service.modelload import LoadedModel, ModelRef, load_model
 from service.serve.outlet import Outlet, OutletContext, OutletFactory, load_factory
 
 if TYPE_CHECKING:
+    from service.engine.looplag import LoopLagMonitor
     from service.engine.persistence import SharedDatabase
     from service.engine.runtime import CanDevice, DaqDevice, Runtime, ScaledClock
     from service.estimate.growth import GrowthContext
@@ -85,6 +88,8 @@ class Host:
     pool: WorkerPool | None = None
     db: SharedDatabase | None = None
     rest: Outlet | None = None
+    loop_lag: LoopLagMonitor | None = None
+    _loop_lag_task: asyncio.Task[None] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
         for name in ("opcua", "mqtt"):
@@ -123,9 +128,12 @@ class Host:
     async def start(self, *, api: bool = True) -> None:
         """Open the shared parts, then start each spindle (a failing one is reported, the rest start)."""
         from service.engine.persistence import SharedDatabase
+        from service.engine.runtime import loop_lag_monitor
         from service.identify.pool import WorkerPool
 
         s = self.settings
+        self.loop_lag = loop_lag_monitor(s)
+        self._loop_lag_task = asyncio.ensure_future(self.loop_lag.run())
         workers = s.engine.identification_workers or max(1, os.cpu_count() or 1)
         self.pool = WorkerPool(workers=workers)
         self.db = await asyncio.to_thread(SharedDatabase.open, s.database)
@@ -178,6 +186,7 @@ class Host:
                 shared_db=self.db,
                 retention=lead,
                 growth_context=growth,
+                loop_lag=self.loop_lag,
                 simulated_time=self.simulated_time,
             )
             await runtime.start(daq=daq, can=can, api=False)
@@ -223,3 +232,7 @@ class Host:
             await asyncio.to_thread(self.pool.close)
         if self.db is not None:
             await asyncio.to_thread(self.db.close)
+        task, self._loop_lag_task = self._loop_lag_task, None
+        if task is not None:
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)

@@ -62,6 +62,7 @@ __all__ = [
     "enabled_outlets",
     "engine_parts",
     "free_port",
+    "loop_lag_monitor",
 ]
 
 log = logging.getLogger(__name__)
@@ -203,15 +204,23 @@ def growth_server(
     )
 
 
-def engine_parts(settings: Settings) -> dict[str, Any]:
+def loop_lag_monitor(settings: Settings) -> LoopLagMonitor:
+    """The event loop's lag monitor from ``[engine]`` (its limit and window)."""
+    e = settings.engine
+    return LoopLagMonitor(limit_s=e.max_loop_lag_s, window_s=e.loop_lag_window_s)
+
+
+def engine_parts(settings: Settings, *, loop_lag: LoopLagMonitor | None = None) -> dict[str, Any]:
     """The shell's threading parts from ``[engine]`` (docs/design/threading.md): the core thread (or inline),
-    its lag limit and the event loop's lag monitor."""
+    its lag limit and the event loop's lag monitor: ``loop_lag``, run by whoever gave it (a host's, shared by
+    its spindles on its one loop), else one of this shell's own, run by it."""
     e = settings.engine
     runner = CoreThread(capacity=e.core_queue_samples) if e.core_thread else InlineRunner()
     return {
         "runner": runner,
         "max_core_lag_s": e.max_core_lag_s,
-        "loop_lag": LoopLagMonitor(limit_s=e.max_loop_lag_s, window_s=e.loop_lag_window_s),
+        "loop_lag": loop_lag or loop_lag_monitor(settings),
+        "own_loop_lag": loop_lag is None,
     }
 
 
@@ -263,6 +272,7 @@ class Runtime:
     shared_db: SharedDatabase | None = None
     retention: bool = True
     growth_context: GrowthContext | None = None  # the geometry's, shared (default: this spindle builds one)
+    loop_lag: LoopLagMonitor | None = None  # the loop's lag monitor, run by the host (default: its own)
 
     @property
     def speedup(self) -> float:
@@ -319,7 +329,7 @@ class Runtime:
             clock=self.clock,
             on_event=self.on_event,
             growth=growth_server(model, s, self.persistence.restored, context=self.growth_context),
-            **engine_parts(s),
+            **engine_parts(s, loop_lag=self.loop_lag),
         )
         self.persistence.on_open = self.service.ids_known  # a database answering late: small ids
         await self.service.start()

@@ -196,6 +196,7 @@ class SoftSensorService:
         runner: CoreRunner | None = None,  # where the core's work runs (default inline; runtime: CoreThread)
         max_core_lag_s: float = math.inf,  # a sample waiting longer for the core: served as core_behind
         loop_lag: LoopLagMonitor | None = None,  # measured on the loop from start(); /healthz, /metrics
+        own_loop_lag: bool = True,  # run loop_lag's measuring task (False: its owner runs it, e.g. a Host)
         outlet_interval_s: float = 0.1,  # subscribed outlets get a new view at most this often (coalesced)
     ) -> None:
         self.core = core
@@ -204,6 +205,7 @@ class SoftSensorService:
             raise ValueError("run_job (jobs inline) needs the inline runner")
         self.max_core_lag_s = float(max_core_lag_s)
         self.loop_lag = loop_lag
+        self._own_loop_lag = own_loop_lag
         self._pub_lock = threading.Lock()
         self.worker = worker
         self.writer = writer
@@ -272,7 +274,7 @@ class SoftSensorService:
             self.model_loaded = True
             self.record_event("worker", "started", f"model {version}")
         self._spawn(self._watch_health())
-        if self.loop_lag is not None:
+        if self.loop_lag is not None and self._own_loop_lag:
             self._spawn(self.loop_lag.run())
 
     async def close(self) -> None:

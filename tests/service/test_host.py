@@ -98,6 +98,15 @@ async def scenario(db_url: str, bad_map: Path) -> dict[str, object]:
             out["metrics"] = (await client.get("/metrics")).text
             out["sensors_a"] = (await client.get("/api/v1/spindles/a/sensors")).json()
             out["chtc_b"] = await client.get("/api/v1/spindles/b/chtc")
+            out["healthz"] = {
+                sid: (await client.get(f"/api/v1/spindles/{sid}/healthz")).json() for sid in "ab"
+            }
+            out["loop_lags"] = [
+                h.runtime.service.loop_lag
+                for h in host.spindles.values()
+                if h.runtime is not None and h.runtime.service is not None
+            ]
+            out["host_loop_lag"] = host.loop_lag
             out["readyz"] = await client.get("/readyz")
             out["models"] = len(host.models)
             assert host.pool is not None
@@ -170,6 +179,13 @@ def test_two_spindles_share_one_process_and_a_daq_down_is_only_its_own(
     assert out["models"] == 1  # one geometry, one reduced model
     assert len(out["pool_pids"]) == 1 and int(out["pool_jobs"]) >= 2  # type: ignore[arg-type]
     assert len(out["sensors_a"]["channels"]) == 32  # type: ignore[index]
+    # one loop, one lag monitor (the host's), read by every spindle's /healthz
+    lags = out["loop_lags"]
+    assert len(lags) == 2 and all(lag is out["host_loop_lag"] for lag in lags), lags  # type: ignore[arg-type]
+    for sid, health in out["healthz"].items():  # type: ignore[attr-defined]
+        (loop,) = [d for d in health["devices"] if d["name"] == "event_loop"]
+        assert loop["status"] in ("ok", "degraded") and "max lag" in loop["message"], (sid, loop)
+        assert loop["counters"]["observations"] > 0, (sid, loop)  # measured: the host runs it
     assert out["a_stale"]
     assert out["b_during"] and all(s == "fresh" for s in out["b_during"]), out["b_during"]  # type: ignore[union-attr]
     rows_per_spindle = out["stored"]
