@@ -51,7 +51,7 @@ if TYPE_CHECKING:
     from service.store.reads import DbReads
     from service.store.retention import RetentionReport
     from service.store.watchdog import StatementWatchdog
-    from service.store.writer import DbWriter, WriterStatus
+    from service.store.writer import DbWriter, Heartbeat, WriterStatus
 
 __all__ = ["GateSink", "Persistence", "SharedDatabase", "open_persistence", "restore"]
 
@@ -294,6 +294,7 @@ class Persistence:
     on_open: Callable[[int, int], None] | None = None
     spindle: SpindleSettings | None = None  # whose rows (None: the default spindle)
     owns_engines: bool = True  # False: the engines are a SharedDatabase's, closed by its owner
+    heartbeat: Heartbeat | None = None  # the writer engine's idle probe (a SharedDatabase's, shared)
     retention: bool = True  # run the retention pass (it covers every spindle: one per database suffices)
     _task: asyncio.Task[None] | None = None
     _retention_task: asyncio.Task[None] | None = None
@@ -321,6 +322,7 @@ class Persistence:
                     clock=self.clock,
                     watchdog=self.writer_watchdog,
                     on_write=self.sink.write_latency.observe,
+                    heartbeat=self.heartbeat,
                 )
             )
             self.on_event(
@@ -462,6 +464,7 @@ def _start_writer(
     clock: Callable[[], datetime] | None,
     watchdog: StatementWatchdog | None = None,
     on_write: Callable[[float], None] | None = None,
+    heartbeat: Heartbeat | None = None,
 ) -> DbWriter:
     from service.store.writer import DbWriter, utc_now
 
@@ -474,6 +477,7 @@ def _start_writer(
         retry_max_s=db.retry_max_s,
         watchdog=watchdog,
         heartbeat_s=db.heartbeat_s,
+        heartbeat=heartbeat,
         stall_s=db.stall_s,
         downsample=True,
         on_write=on_write,
@@ -516,18 +520,28 @@ def _safe_url(url: str) -> str:
 class SharedDatabase:
     """The engines (and their watchdogs) of one instance that hosts several spindles: one pool for the API's
     reads and one for the writers, shared by every spindle's ``Persistence`` (each keeps its own
-    spindle-bound session factory, writer thread and read threads). Closed by its owner, after them."""
+    spindle-bound session factory, writer thread and read threads), and the writer engine's idle probe
+    (``writer_heartbeat``: one ``SELECT 1`` answers every idle writer). Closed by its owner, after them."""
 
     engine: Engine
     read_watchdog: StatementWatchdog
     writer_engine: Engine
     writer_watchdog: StatementWatchdog
+    writer_heartbeat: Heartbeat
 
     @classmethod
     def open(cls, db: DatabaseSettings) -> SharedDatabase:
+        from service.store.writer import Heartbeat
+
         engine, watchdog = _bare_engine(db)
         w_engine, w_watchdog = _bare_engine(db)
-        return cls(engine=engine, read_watchdog=watchdog, writer_engine=w_engine, writer_watchdog=w_watchdog)
+        return cls(
+            engine=engine,
+            read_watchdog=watchdog,
+            writer_engine=w_engine,
+            writer_watchdog=w_watchdog,
+            writer_heartbeat=Heartbeat(),
+        )
 
     def close(self) -> None:
         for watchdog in (self.writer_watchdog, self.read_watchdog):
@@ -558,6 +572,7 @@ def open_persistence(
     from service.store.engine import DEFAULT_SPINDLE_ID
 
     sid = spindle.id if spindle is not None else DEFAULT_SPINDLE_ID
+    heartbeat = None if shared is None else shared.writer_heartbeat
     if shared is None:
         engine, factory, read_watchdog = _engine(db, sid)
         w_engine, w_factory, w_watchdog = _engine(db, sid)
@@ -576,7 +591,12 @@ def open_persistence(
         from_db = True
         sink.open(
             _start_writer(
-                w_factory, db, clock=clock, watchdog=w_watchdog, on_write=sink.write_latency.observe
+                w_factory,
+                db,
+                clock=clock,
+                watchdog=w_watchdog,
+                on_write=sink.write_latency.observe,
+                heartbeat=heartbeat,
             )
         )
     except Exception as err:  # unreachable or unmigrated: run on, buffer, retry in the background
@@ -613,6 +633,7 @@ def open_persistence(
         read_watchdog=read_watchdog,
         spindle=spindle,
         owns_engines=shared is None,
+        heartbeat=heartbeat,
         retention=retention,
     )
 

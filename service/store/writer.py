@@ -13,7 +13,9 @@ With a ``watchdog`` (``service.store.watchdog.StatementWatchdog``) every write a
 waits longer than the watchdog's ``abort_after_s`` (a hung database) is aborted and handled like an outage;
 ``status().busy_s`` says how long the current one has been waiting (health: ``degraded`` after a few
 seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
-database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh.
+database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh. The writers of
+one engine (an instance hosting several spindles) share a ``Heartbeat``: one probe answers all of them, and a
+success of any of them (a write or a probe) within ``heartbeat_s`` stands for a probe of the others.
 
 With ``downsample=True`` (the service's writer) every sample submitted also feeds a 1-minute mean
 (``service.store.downsample``), submitted when the minute is over (and at ``close()``): what retention keeps
@@ -69,6 +71,51 @@ class WriterStatus:
     stall_s: float = 3.0  # busy_s above this: the database is hung (health: degraded)
 
 
+class Heartbeat:
+    """The idle probe of one engine, shared by its writers (``service.engine.persistence.SharedDatabase``).
+
+    A connected writer whose heartbeat is due calls ``beat(probe, max_age_s)``: the newest success of any
+    writer of the engine younger than ``max_age_s`` is its answer; else the first caller runs ``probe()``
+    (``SELECT 1``) while the others that ask meanwhile wait for it and share its result, a success or its
+    ``DatabaseUnavailableError``. Every success of a writer is told to ``ok()``. Times are the writers'
+    monotonic seconds (they share one clock) and their clock's UTC time. Thread-safe.
+    """
+
+    def __init__(self, *, monotonic: Callable[[], float] = time.monotonic) -> None:
+        self._monotonic = monotonic
+        self._probing = threading.Lock()  # held while one writer probes: the others wait for its answer
+        self._lock = threading.Lock()
+        self._ok: tuple[float, datetime] | None = None  # the newest success: (monotonic s, UTC)
+        self._failed: tuple[float, DatabaseUnavailableError] | None = None  # the newest failed probe
+        self.probes = 0
+
+    def ok(self, mono: float, at: datetime) -> None:
+        """A writer of the engine succeeded (a write or a probe) at ``mono`` (``at`` on its clock)."""
+        with self._lock:
+            if self._ok is None or mono >= self._ok[0]:
+                self._ok = (mono, at)
+
+    def beat(self, probe: Callable[[], tuple[float, datetime]], max_age_s: float) -> tuple[float, datetime]:
+        """The engine's success to count as this writer's heartbeat (see the class docstring)."""
+        asked = self._monotonic()
+        with self._probing:
+            with self._lock:
+                ok, failed = self._ok, self._failed
+            if failed is not None and failed[0] >= asked and (ok is None or failed[0] > ok[0]):
+                raise failed[1]  # probed for us while we waited, and failed
+            if ok is not None and (ok[0] >= asked or self._monotonic() - ok[0] < max_age_s):
+                return ok
+            self.probes += 1
+            try:
+                done = probe()
+            except DatabaseUnavailableError as err:
+                with self._lock:
+                    self._failed = (self._monotonic(), err)
+                raise
+            self.ok(*done)
+            return done
+
+
 class DbWriter:
     """See the module docstring. Thread-safe; use as a context manager or call ``start()``/``close()``."""
 
@@ -83,6 +130,7 @@ class DbWriter:
         clock: Callable[[], datetime] = utc_now,
         watchdog: StatementWatchdog | None = None,
         heartbeat_s: float | None = None,
+        heartbeat: Heartbeat | None = None,  # shared by the writers of one engine (None: probes alone)
         stall_s: float = 3.0,
         monotonic: Callable[[], float] = time.monotonic,
         name: str = "chtc-db-writer",
@@ -98,6 +146,7 @@ class DbWriter:
         self._clock = clock
         self._watchdog = watchdog
         self._heartbeat_s = heartbeat_s
+        self._heartbeat = heartbeat
         self._stall_s = stall_s
         self._monotonic = monotonic
         self._last_ok_mono = -float("inf")
@@ -197,8 +246,10 @@ class DbWriter:
             try:
                 if batch:
                     self._write(batch)
-                elif not self._connected or self._heartbeat_due():
+                elif not self._connected:
                     self._probe()
+                elif self._heartbeat_due():
+                    self._beat()
                 else:
                     continue
                 failures = 0
@@ -258,9 +309,25 @@ class DbWriter:
                 self._done(1, "written", derived=_derived([record]))
 
     def _probe(self) -> None:
+        self._select_one()
+        self._mark_ok()
+
+    def _select_one(self) -> tuple[float, datetime]:
+        """``SELECT 1``; when it answered (monotonic s, clock)."""
         with self._guard("probe"), session_scope(self._factory, "probe") as session:
             session.execute(text("SELECT 1"))
-        self._mark_ok()
+        return self._monotonic(), self._clock()
+
+    def _beat(self) -> None:
+        """The idle heartbeat: a probe of its own, or the engine's shared one (``Heartbeat``)."""
+        if self._heartbeat is None:
+            self._probe()
+            return
+        assert self._heartbeat_s is not None
+        mono, at = self._heartbeat.beat(self._select_one, self._heartbeat_s)
+        with self._cond:
+            if mono > self._last_ok_mono:
+                self._last_ok_mono, self._last_ok_at = mono, at
 
     def _done(self, n: int, counter: str, *, derived: int = 0) -> None:
         """``n`` records off the queue; the counters count what was submitted (not the minute means)."""
@@ -272,12 +339,15 @@ class DbWriter:
         self._mark_ok()
 
     def _mark_ok(self) -> None:
+        at, mono = self._clock(), self._monotonic()
         with self._cond:
             was = self._connected
             self._connected = True
-            self._last_ok_at = self._clock()
-            self._last_ok_mono = self._monotonic()
+            self._last_ok_at = at
+            self._last_ok_mono = mono
             reported, self._outage_reported = self._outage_reported, False
+        if self._heartbeat is not None:
+            self._heartbeat.ok(mono, at)
         if not was:
             log.info("database writer: connected")
         if reported:

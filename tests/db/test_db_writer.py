@@ -263,3 +263,101 @@ def test_concurrent_submitters_never_wait_for_a_locked_database(
             events = repo.list_device_events(s, device=f"dev{k}", limit=100).items
             assert [e.kind for e in reversed(events)] == [f"e{i}" for i in range(50)]
     eng.dispose()
+
+
+class FrozenTime:
+    """The writers' monotonic seconds, moved by the test (their clock reads T0 + that)."""
+
+    def __init__(self) -> None:
+        self.s = 0.0
+
+    def mono(self) -> float:
+        return self.s
+
+    def clock(self) -> datetime:
+        return T0 + timedelta(seconds=self.s)
+
+
+def probes_of(engine: sa.Engine) -> list[str]:
+    """Every ``SELECT 1`` sent on ``engine`` (the writers' probes), appended as it is sent."""
+    sent: list[str] = []
+
+    @sa.event.listens_for(engine, "before_cursor_execute")
+    def _count(conn, cursor, statement, parameters, context, executemany):  # type: ignore[no-untyped-def]
+        if statement.strip() == "SELECT 1":
+            sent.append(statement)
+
+    return sent
+
+
+@pytest.mark.parametrize("shared", [True, False], ids=["shared", "alone"])
+def test_writers_of_one_engine_share_the_idle_probe(
+    engine: sa.Engine, factory: sessionmaker[Session], writer_for: list[DbWriter], shared: bool
+) -> None:
+    """Two idle writers on one engine (a host's spindles): with a shared ``Heartbeat`` one ``SELECT 1`` per
+    ``heartbeat_s`` answers both, and a write of one stands for the other's probe; alone, each probes."""
+    from service.store.writer import Heartbeat
+
+    time_ = FrozenTime()
+    sent = probes_of(engine)
+    beat = Heartbeat(monotonic=time_.mono) if shared else None
+    kw = {"heartbeat_s": 5.0, "heartbeat": beat, "monotonic": time_.mono, "clock": time_.clock, **FAST}
+    a, b = DbWriter(factory, **kw).start(), DbWriter(factory, **kw).start()  # type: ignore[arg-type]
+    writer_for.extend([a, b])
+    wait_until(lambda: a.status().connected and b.status().connected, what="both writers connected")
+    assert len(sent) == 2  # each one's own first probe
+
+    def both_ok_at(s: float) -> bool:
+        return a.status().last_ok_at == b.status().last_ok_at == T0 + timedelta(seconds=s)
+
+    time_.s = 10.0  # both heartbeats due
+    wait_until(lambda: both_ok_at(10.0), what="both heartbeats at 10 s")
+    assert len(sent) == (3 if shared else 4)
+    time_.s = 13.0  # a writes (its success at 13 s) ...
+    assert a.submit(DeviceEventData(t=T0, device="can", kind="gap"))
+    wait_until(lambda: a.status().written == 1, what="a's write")
+    time_.s = 16.0  # ... b's heartbeat is due, a's is not
+    if shared:  # b takes a's write at 13 s as its heartbeat
+        wait_until(lambda: both_ok_at(13.0), what="b's heartbeat from a's write")
+        assert len(sent) == 3
+    else:
+        wait_until(lambda: b.status().last_ok_at == T0 + timedelta(seconds=16.0), what="b's own probe")
+        assert len(sent) == 5
+
+
+def test_a_heartbeat_probe_that_fails_fails_the_writers_waiting_for_it() -> None:
+    """The writers that ask while one probes wait for its answer: a failure is theirs too (one probe)."""
+    import threading
+
+    from service.store.errors import DatabaseUnavailableError
+    from service.store.writer import Heartbeat
+
+    time_ = FrozenTime()
+    beat = Heartbeat(monotonic=time_.mono)
+    release = threading.Event()
+    outcomes: list[str] = []
+
+    def failing_probe() -> tuple[float, datetime]:
+        release.wait(10.0)
+        raise DatabaseUnavailableError("server closed the connection")
+
+    def ask() -> None:
+        try:
+            beat.beat(failing_probe, 5.0)
+        except DatabaseUnavailableError as err:
+            outcomes.append(str(err))
+
+    askers = [threading.Thread(target=ask) for _ in range(3)]
+    for th in askers:
+        th.start()
+    wait_until(lambda: beat.probes == 1, what="the first probe")
+    release.set()
+    for th in askers:
+        th.join(10.0)
+    assert beat.probes == 1 and outcomes == ["server closed the connection"] * 3
+    # later, a success: a caller within max_age_s takes it, one after it probes again
+    beat.ok(20.0, T0)
+    time_.s = 24.0
+    assert beat.beat(failing_probe, 5.0) == (20.0, T0) and beat.probes == 1
+    time_.s = 26.0
+    assert beat.beat(lambda: (26.0, T0), 5.0) == (26.0, T0) and beat.probes == 2
