@@ -299,7 +299,10 @@ class Runtime:
         s = self.settings
         sys.setswitchinterval(s.engine.gil_switch_interval_s)  # the loop waits less for the GIL
         model = self.load()
-        self.persistence = open_persistence(
+        # in a thread: the schema check and the restore queries (~0.1 s on PostgreSQL, a migration more) would
+        # hold the loop, and in a host the spindles started before this one run on it
+        self.persistence = await asyncio.to_thread(
+            open_persistence,
             s.database,
             migrate=self.migrate,
             on_event=self.on_event,
