@@ -92,10 +92,11 @@ def served(tmp_path: Path) -> Iterator[Served]:
         yield s
 
 
-@pytest.fixture(scope="session")
+@pytest.fixture(scope="package")
 def served_ro(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     """The same service, shared by the tests that only read it and never move its clock (request
-    validation, the OpenAPI document): built once per session."""
+    validation, the OpenAPI document): built once for tests/api and closed after its last test (session
+    scope kept its database writer probing through every later package: test_logctx saw its SQL)."""
     url = sqlite_url(tmp_path_factory.mktemp("served-ro"))
     demo = Settings(identification=DEMO_WINDOWS, experimental=PER_CONDITION)
     with served_service(database_url=url, settings=demo, feed_samples=DEMO_FED) as s:
