@@ -221,21 +221,33 @@ class Tangents:
 
 
 def simulate_tangents(
-    rom: Any, h_seg: ArrayLike, dh_seg: ArrayLike, plan: SegmentPlan, inputs: Any, t0: float | ArrayLike
+    rom: Any,
+    h_seg: ArrayLike,
+    dh_seg: ArrayLike,
+    plan: SegmentPlan,
+    inputs: Any,
+    t0: float | ArrayLike,
+    *,
+    states: Array | None = None,
 ) -> Tangents:
     """Sensors for one H per segment ``h_seg`` (S, 7) and their derivatives along J directions ``dh_seg``
     (J, S, 7) of H (tangent-linear model of the discrete step, exact to round-off).
 
     Differentiating a⁺ = A_s·a + G_s·z gives δa⁺ = A_s·δa + δA_s·a + δG_s·z + G_s·δz, with δA_s·a =
     Φ·(L_μ ∘ Φᵀ·δK_s·Φ)·Φᵀ·a and likewise δG_s (``loewner``): the J tangents reuse the candidate's S
-    eigendecompositions, so a full Jacobian costs about two runs instead of J + 1.
+    eigendecompositions, so a full Jacobian costs about two runs instead of J + 1. ``states``: the run's
+    reduced states (n_steps+1, r) when the caller has them (``simulate_states(...)[0]`` of the same H,
+    inputs and start), not recomputed.
     """
     h = _check_h(np.asarray(h_seg, dtype=np.float64)[None], plan)
     dh = np.asarray(dh_seg, dtype=np.float64)
     if dh.ndim != 3 or dh.shape[1:] != (plan.n_segments, 7) or not np.all(np.isfinite(dh)):
         raise SegmentError(f"dh_seg: expected finite (J, {plan.n_segments}, 7), got shape {dh.shape}")
     dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
-    states = simulate_states(rom, h, plan, inputs, t0)[0]  # (n+1, r)
+    if states is None:
+        states = simulate_states(rom, h, plan, inputs, t0)[0]  # (n+1, r)
+    elif states.shape != (plan.n_steps + 1, rom.k0.shape[0]):
+        raise SegmentError(f"states: expected ({plan.n_steps + 1}, {rom.k0.shape[0]}), got {states.shape}")
     ops = operators(rom, h, dt)
     r = states.shape[1]
     w = np.empty((dh.shape[0], plan.n_steps, r))
