@@ -10,13 +10,14 @@ step, s ≥ 1 = s θ-steps of Δt/s)::
     a(k+1) = A_s·a(k) + G_s·z_k,   A_s = Φ_s·diag(μ)·Φ_sᵀ,  G_s = Φ_s·diag(γ)·Φ_sᵀ,
     z_k = Ti_k·Σ H_s,i·z_i + Qf_k·q_f + Qr_k·q_r,   K_s = K0_r + Σ H_s,i·K_i,r = Φ_s·diag(λ)·Φ_sᵀ
 
-with one eigendecomposition of K_s per (candidate, segment) (batched LAPACK), the per-step loads mapped by
-G_s in one product per segment, and one batched matrix–vector product per step for the whole population.
-The tangent model differentiates A_s and G_s as matrix functions of K_s (Daleckii–Krein: the derivative of
-f(K) along δK is Φ·(L_f ∘ Φᵀ·δK·Φ)·Φᵀ with L_f the divided differences of f over the eigenvalues), so it is
-exact for every ``substeps``. It reads the public arrays of a ``ReducedModel`` (k0, k_zone, z_zone, q_front,
-q_rear, sensors, theta, substeps, initial_state, lift) and changes nothing there; with one segment it
-reproduces ``simulate_sensors`` to round-off (a test checks it).
+with one eigendecomposition of K_s per (candidate, segment) (batched LAPACK); each segment runs in its modes
+(b = Φ_sᵀ·a: b(k+1) = μ∘b(k) + γ∘Φ_sᵀ·z_k, a diagonal recursion done in vectorised blocks by
+``rom_modal.blocked_recursion``; the state goes back through Φ_s at the segment's end). The tangent model
+differentiates A_s and G_s as matrix functions of K_s (Daleckii–Krein: the derivative of f(K) along δK
+is Φ·(L_f ∘ Φᵀ·δK·Φ)·Φᵀ with L_f the divided differences of f over the eigenvalues), so it is exact for
+every ``substeps``; the tangents step in the same modes. It reads the public arrays of a ``ReducedModel``
+(k0, k_zone, z_zone, q_front, q_rear, sensors, theta, substeps, initial_state, lift) and changes nothing
+there; with one segment it reproduces ``simulate_sensors`` to round-off (a test checks it).
 
 Errors::
 
@@ -112,6 +113,8 @@ class Operators:
     phi: Array
     l_mu: Array
     l_gamma: Array
+    mu: Array | None = None  # (P, S, r): μ(λ) and γ(λ) of the step, the modal form of A and G
+    gamma: Array | None = None
 
 
 def step_derivatives(lam: Array, dt_s: float, theta: float, substeps: int) -> tuple[Array, Array]:
@@ -155,6 +158,8 @@ def operators(rom: Any, h: Array, dt: float) -> Operators:
         phi,
         loewner(lam, mu, dmu),
         loewner(lam, gamma, dgamma),
+        mu,
+        gamma,
     )
 
 
@@ -173,33 +178,37 @@ def simulate_states(
 
     ``t0``: uniform start [°C], an (N,) field (projected) or (P, r) reduced start states.
     """
-    h = _check_h(h_seg, plan)
+    return _run(rom, _check_h(h_seg, plan), plan, inputs, t0)[0]
+
+
+def _run(
+    rom: Any, h: Array, plan: SegmentPlan, inputs: Any, t0: float | ArrayLike
+) -> tuple[Array, Operators]:
+    """``simulate_states`` for checked H (P, S, 7), with the step operators it used.
+
+    Each segment runs in its modes (A_s = Φ·diag(μ)·Φᵀ, G_s = Φ·diag(γ)·Φᵀ): b = Φᵀ·a steps as
+    b⁺ = μ∘b + γ∘Φᵀ·z, a diagonal recursion done in vectorised blocks (``rom_modal.blocked_recursion``)."""
     dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
     ops = operators(rom, h, dt)
+    assert ops.mu is not None and ops.gamma is not None
     p = h.shape[0]
     hz = h @ rom.z_zone  # (P, S, r): ambient load per °C
     out = np.empty((p, plan.n_steps + 1, rom.k0.shape[0]))
     out[:, 0] = _start(rom, t0, p)
-    w = np.empty((p, plan.n_steps, out.shape[2]))
     ends = np.append(plan.start[1:], plan.n_steps)
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
+        phi = ops.phi[:, s]  # (P, r, r)
         z = (
             amb[None, k0:k1, None] * hz[:, s, None, :]
             + qf[k0:k1, None] * rom.q_front
             + qr[k0:k1, None] * rom.q_rear
-        )
-        w[:, k0:k1] = z @ np.swapaxes(ops.g[:, s], 1, 2)  # G_s·z_k for all steps of the segment
-    _recur(out, w, ops.a, plan)
-    return out
-
-
-def _recur(out: Array, w: Array, a_op: Array, plan: SegmentPlan) -> None:
-    """a(k+1) = A_s(k)·a(k) + w_k in place over all steps (one batched mat-vec per step)."""
-    a_t = np.ascontiguousarray(np.swapaxes(a_op, 2, 3))  # row-vector form: a(k+1) = a(k)·A_sᵀ
-    seg = plan.of_step.tolist()
-    for k in range(plan.n_steps):
-        np.matmul(out[:, k, None, :], a_t[:, seg[k]], out=out[:, k + 1, None, :])
-        out[:, k + 1] += w[:, k]
+        )  # (P, n_s, r): z_k for all steps of the segment
+        y = np.empty((k1 - k0 + 1, p, phi.shape[1]))
+        y[0] = np.einsum("pr,prs->ps", out[:, k0], phi)  # Φᵀ·a(k0)
+        y[1:] = np.swapaxes((z @ phi) * ops.gamma[:, s, None, :], 0, 1)  # γ∘Φᵀ·z_k
+        rom_modal.blocked_recursion(y, ops.mu[:, s])
+        out[:, k0 + 1 : k1 + 1] = np.swapaxes(y[1:], 0, 1) @ np.swapaxes(phi, 1, 2)
+    return out, ops
 
 
 def simulate_sensors(
@@ -244,49 +253,46 @@ def simulate_tangents(
     if dh.ndim != 3 or dh.shape[1:] != (plan.n_segments, 7) or not np.all(np.isfinite(dh)):
         raise SegmentError(f"dh_seg: expected finite (J, {plan.n_segments}, 7), got shape {dh.shape}")
     dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
+    r = rom.k0.shape[0]
     if states is None:
-        states = simulate_states(rom, h, plan, inputs, t0)[0]  # (n+1, r)
-    elif states.shape != (plan.n_steps + 1, rom.k0.shape[0]):
-        raise SegmentError(f"states: expected ({plan.n_steps + 1}, {rom.k0.shape[0]}), got {states.shape}")
-    ops = operators(rom, h, dt)
-    r = states.shape[1]
-    w = np.empty((dh.shape[0], plan.n_steps, r))
+        run, ops = _run(rom, h, plan, inputs, t0)
+        states = run[0]  # (n+1, r)
+    elif states.shape != (plan.n_steps + 1, r):
+        raise SegmentError(f"states: expected ({plan.n_steps + 1}, {r}), got {states.shape}")
+    else:
+        ops = operators(rom, h, dt)
+    assert ops.mu is not None and ops.gamma is not None
+    n_dir = dh.shape[0]
+    d_sensors = np.zeros((n_dir, plan.n_steps + 1, rom.sensors.shape[0]))
+    d_end = np.zeros((n_dir, r))  # δa at the segment's start (none at the window's start)
     ends = np.append(plan.start[1:], plan.n_steps)
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
+        # the tangents in the segment's modes: β = Φᵀ·δa steps as β⁺ = μ∘β + Φᵀ·(δA·a + δG·z + G·δz)
+        phi = ops.phi[0, s]
+        y = np.zeros((k1 - k0 + 1, n_dir, r))
+        y[0] = d_end @ phi
         # only the directions that move this segment's H (a tabulated family: 2 nodes per zone of 8)
         act = np.flatnonzero(np.any(dh[:, s] != 0.0, axis=1))
-        w[:, k0:k1] = 0.0
-        if act.size == 0:
-            continue
-        phi = ops.phi[0, s]
-        load = amb[k0:k1, None] * (h[0, s] @ rom.z_zone) + qf[k0:k1, None] * rom.q_front
-        load += qr[k0:k1, None] * rom.q_rear  # (n_s, r): z_k
-        dk = (dh[act, s] @ rom.k_zone.reshape(7, r * r)).reshape(-1, r, r)  # (J', r, r): δK_s
-        d_modal = phi.T @ dk @ phi  # Φᵀ·δK·Φ
-        b, c = states[k0:k1] @ phi, load @ phi  # (n_s, r) modal state and load
-        src = b @ np.swapaxes(ops.l_mu[0, s] * d_modal, 1, 2) + c @ np.swapaxes(
-            ops.l_gamma[0, s] * d_modal, 1, 2
-        )
-        src = src @ phi.T  # (J', n_s, r): δA·a + δG·z
-        dz = dh[act, s] @ rom.z_zone  # (J', r) per °C ambient
-        src += amb[None, k0:k1, None] * (dz @ ops.g[0, s].T)[:, None, :]
-        w[act, k0:k1] = src
-    d_states = np.zeros((dh.shape[0], plan.n_steps + 1, r))
-    _recur_shared(d_states, w, ops.a[0], plan)
+        if act.size:
+            load = amb[k0:k1, None] * (h[0, s] @ rom.z_zone) + qf[k0:k1, None] * rom.q_front
+            load += qr[k0:k1, None] * rom.q_rear  # (n_s, r): z_k
+            dk = (dh[act, s] @ rom.k_zone.reshape(7, r * r)).reshape(-1, r, r)  # (J', r, r): δK_s
+            d_modal = phi.T @ dk @ phi  # Φᵀ·δK·Φ
+            b, c = states[k0:k1] @ phi, load @ phi  # (n_s, r) modal state and load
+            src = b @ np.swapaxes(ops.l_mu[0, s] * d_modal, 1, 2) + c @ np.swapaxes(
+                ops.l_gamma[0, s] * d_modal, 1, 2
+            )  # (J', n_s, r): Φᵀ·(δA·a + δG·z)
+            dz = (dh[act, s] @ rom.z_zone) @ phi * ops.gamma[0, s]  # (J', r): Φᵀ·G·δz per °C ambient
+            src += amb[None, k0:k1, None] * dz[:, None, :]
+            y[1:, act] = np.swapaxes(src, 0, 1)
+        rom_modal.blocked_recursion(y, np.broadcast_to(ops.mu[0, s], (n_dir, r)))
+        d_sensors[:, k0 + 1 : k1 + 1] = np.swapaxes(y[1:], 0, 1) @ (rom.sensors @ phi).T
+        d_end = y[-1] @ phi.T
     return Tangents(
         sensors=np.asarray(states @ rom.sensors.T),
-        d_sensors=np.asarray(d_states @ rom.sensors.T),
+        d_sensors=d_sensors,
         states=states,
     )
-
-
-def _recur_shared(out: Array, w: Array, a_op: Array, plan: SegmentPlan) -> None:
-    """Like ``_recur`` for J vectors that share the operators a_op (S, r, r): out (J, n+1, r) in place."""
-    a_t = np.ascontiguousarray(np.swapaxes(a_op, 1, 2))
-    seg = plan.of_step.tolist()
-    for k in range(plan.n_steps):
-        np.matmul(out[:, k], a_t[seg[k]], out=out[:, k + 1])
-        out[:, k + 1] += w[:, k]
 
 
 def fe_sensors(
