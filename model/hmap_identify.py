@@ -172,7 +172,8 @@ class _Objective:
         self.bias_jac, self.bias_sd = bias_jac, self._bias_sd
         self._key: bytes = b""
         self._val: tuple[Array, Array, NDArray[np.intp], rom_segments.Tangents] | None = None
-        self._run: tuple[bytes, Array, Array, Array] | None = None  # θ, H, states, residuals of the last run
+        # θ, H, the states and operators, the residuals of the last run
+        self._run: tuple[bytes, Array, tuple[Array, rom_segments.Operators], Array] | None = None
         self._nuis: tuple[tuple[float, int], Array, Array] | None = None
         self.runs = 0
         self.runs_start = 0  # start-mode responses computed (the nuisance Jacobian's version)
@@ -260,11 +261,9 @@ class _Objective:
         key = th.tobytes()
         if self._run is None or self._run[0] != key:
             h = self.family.h_at(th, self.speeds, self.ambients)  # (S, 7)
-            states = rom_segments.simulate_states(
-                self.rom, h[None], self.plan, self.window.inputs, self.window.t0
-            )
-            r = (states[0] @ self.rom.sensors.T).ravel()[self.flat] - self.target
-            self._run, self.runs = (key, h, states[0], r), self.runs + 1
+            run = rom_segments.simulate_run(self.rom, h[None], self.plan, self.window.inputs, self.window.t0)
+            r = (run[0][0] @ self.rom.sensors.T).ravel()[self.flat] - self.target
+            self._run, self.runs = (key, h, run, r), self.runs + 1
         return self._run[3]
 
     def _eval_tangents(self, th: Array) -> tuple[Array, Array, NDArray[np.intp], rom_segments.Tangents]:
@@ -274,11 +273,11 @@ class _Objective:
         if self._val is None or self._key != key:
             r = self._residual(th)
             assert self._run is not None
-            h, states = self._run[1], self._run[2]
+            h, run = self._run[1], self._run[2]
             dh = np.moveaxis(self.family.h_jacobian(th, self.speeds, self.ambients), 2, 0)  # (p, S, 7)
             act = np.flatnonzero(np.any(dh != 0.0, axis=(1, 2)))
             tg = rom_segments.simulate_tangents(
-                self.rom, h, dh[act], self.plan, self.window.inputs, self.window.t0, states=states
+                self.rom, h, dh[act], self.plan, self.window.inputs, self.window.t0, run=run
             )
             j = tg.d_sensors.reshape(act.size, -1)[:, self.flat].T
             self._key, self._val = key, (r, j, act, tg)

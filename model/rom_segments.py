@@ -178,7 +178,14 @@ def simulate_states(
 
     ``t0``: uniform start [°C], an (N,) field (projected) or (P, r) reduced start states.
     """
-    return _run(rom, _check_h(h_seg, plan), plan, inputs, t0)[0]
+    return simulate_run(rom, h_seg, plan, inputs, t0)[0]
+
+
+def simulate_run(
+    rom: Any, h_seg: ArrayLike, plan: SegmentPlan, inputs: Any, t0: float | ArrayLike
+) -> tuple[Array, Operators]:
+    """``simulate_states`` and the step operators it used (``simulate_tangents(run=...)`` reuses both)."""
+    return _run(rom, _check_h(h_seg, plan), plan, inputs, t0)
 
 
 def _run(
@@ -237,30 +244,29 @@ def simulate_tangents(
     inputs: Any,
     t0: float | ArrayLike,
     *,
-    states: Array | None = None,
+    run: tuple[Array, Operators] | None = None,
 ) -> Tangents:
     """Sensors for one H per segment ``h_seg`` (S, 7) and their derivatives along J directions ``dh_seg``
     (J, S, 7) of H (tangent-linear model of the discrete step, exact to round-off).
 
     Differentiating a⁺ = A_s·a + G_s·z gives δa⁺ = A_s·δa + δA_s·a + δG_s·z + G_s·δz, with δA_s·a =
     Φ·(L_μ ∘ Φᵀ·δK_s·Φ)·Φᵀ·a and likewise δG_s (``loewner``): the J tangents reuse the candidate's S
-    eigendecompositions, so a full Jacobian costs about two runs instead of J + 1. ``states``: the run's
-    reduced states (n_steps+1, r) when the caller has them (``simulate_states(...)[0]`` of the same H,
-    inputs and start), not recomputed.
+    eigendecompositions, so a full Jacobian costs about two runs instead of J + 1. ``run``: the caller's
+    ``simulate_run`` of the same H (one candidate), inputs and start, not recomputed.
     """
     h = _check_h(np.asarray(h_seg, dtype=np.float64)[None], plan)
     dh = np.asarray(dh_seg, dtype=np.float64)
     if dh.ndim != 3 or dh.shape[1:] != (plan.n_segments, 7) or not np.all(np.isfinite(dh)):
         raise SegmentError(f"dh_seg: expected finite (J, {plan.n_segments}, 7), got shape {dh.shape}")
-    dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
+    _, amb, qf, qr = _inputs(inputs, plan.n_steps)
     r = rom.k0.shape[0]
-    if states is None:
-        run, ops = _run(rom, h, plan, inputs, t0)
-        states = run[0]  # (n+1, r)
-    elif states.shape != (plan.n_steps + 1, r):
-        raise SegmentError(f"states: expected ({plan.n_steps + 1}, {r}), got {states.shape}")
-    else:
-        ops = operators(rom, h, dt)
+    all_states, ops = _run(rom, h, plan, inputs, t0) if run is None else run
+    if all_states.shape != (1, plan.n_steps + 1, r) or ops.phi.shape[:2] != (1, plan.n_segments):
+        raise SegmentError(
+            f"run: expected one candidate's states (1, {plan.n_steps + 1}, {r}) and operators, got "
+            f"{all_states.shape}"
+        )
+    states = all_states[0]  # (n+1, r)
     assert ops.mu is not None and ops.gamma is not None
     n_dir = dh.shape[0]
     d_sensors = np.zeros((n_dir, plan.n_steps + 1, rom.sensors.shape[0]))

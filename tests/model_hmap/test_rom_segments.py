@@ -84,17 +84,19 @@ def test_tangents_are_the_derivative(model: Any, substeps: int) -> None:
 
 
 def test_tangents_from_given_states_are_the_same(model: Any) -> None:
-    """The caller's states of the same run (``states=``) give the tangents computed from scratch; a
-    wrong shape is refused."""
+    """The caller's run of the same H (``run=``) gives the tangents computed from scratch; a run of
+    another window or of a population is refused."""
     plan, inputs, h = _window(model.spec)
     dh = np.random.default_rng(2).normal(size=(2, plan.n_segments, 7))
-    states = rs.simulate_states(model.rom, h[None], plan, inputs, 21.0)[0]
-    given = rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0, states=states)
+    run = rs.simulate_run(model.rom, h[None], plan, inputs, 21.0)
+    np.testing.assert_array_equal(run[0], rs.simulate_states(model.rom, h[None], plan, inputs, 21.0))
+    given = rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0, run=run)
     fresh = rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0)
     np.testing.assert_array_equal(given.d_sensors, fresh.d_sensors)
     np.testing.assert_array_equal(given.sensors, fresh.sensors)
-    with pytest.raises(SegmentError, match="states"):
-        rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0, states=states[:-1])
+    two = rs.simulate_run(model.rom, np.stack([h, h]), plan, inputs, 21.0)
+    with pytest.raises(SegmentError, match="run"):
+        rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0, run=two)
 
 
 def test_loewner_matrix_gives_the_derivative_of_a_matrix_function() -> None:
