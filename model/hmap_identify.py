@@ -132,7 +132,8 @@ def _check(window: SpeedWindow, rom: Any) -> tuple[Array, NDArray[np.bool_]]:
 
 
 class _Objective:
-    """Whitened MAP residuals and their exact Jacobian; one model run per distinct θ."""
+    """Whitened MAP residuals and their exact Jacobian; one model run per distinct θ, its tangents when the
+    Jacobian is asked for."""
 
     def __init__(
         self,
@@ -421,9 +422,10 @@ def _levenberg_marquardt(
     """Bounded Levenberg–Marquardt on the normal equations over the parameters ``free`` (default all):
     Marquardt's diagonal scaling, steps projected on the bounds, stop when an accepted step lowers χ² by
     less than ``chi2_tol`` (the residuals are whitened, so that is a change far inside the posterior) or
-    moves θ by less than ``step_tol``. One model run per trial gives residuals and the exact Jacobian;
-    the normal equations are p×p, where scipy's TRF takes an SVD of the whole m×p Jacobian per iteration
-    (as costly as a model run here)."""
+    moves θ by less than ``step_tol``. One model run per trial gives its χ²; the exact Jacobian (the
+    tangents) is run only for a step taken (a rejected trial needs none); the normal equations are p×p,
+    where scipy's TRF takes an SVD of the whole m×p Jacobian per iteration (as costly as a model run
+    here)."""
     idx = np.arange(x0.size) if free is None else free
     x = x0.copy()
     a_full, g_full, cost = obj.normal(x)
