@@ -103,18 +103,17 @@ def _check_h(h_seg: ArrayLike, plan: SegmentPlan) -> Array:
 
 @dataclass(frozen=True)
 class Operators:
-    """Per (candidate, segment), (P, S, ...): the step matrices A = Φ·diag(μ)·Φᵀ and G = Φ·diag(γ)·Φᵀ, the
-    eigenpairs ``lam``, ``phi`` of K_s and the divided differences ``l_mu``, ``l_gamma`` (P, S, r, r) of μ(λ)
-    and γ(λ) (``loewner``) that give their derivatives."""
+    """Per (candidate, segment), (P, S, ...): the eigenpairs ``lam``, ``phi`` of K_s, the step's factors
+    ``mu``, ``gamma`` (P, S, r) (the step matrices are A = Φ·diag(μ)·Φᵀ and G = Φ·diag(γ)·Φᵀ) and the
+    divided differences ``l_mu``, ``l_gamma`` (P, S, r, r) of μ(λ) and γ(λ) (``loewner``) that give their
+    derivatives."""
 
-    a: Array
-    g: Array
     lam: Array
     phi: Array
+    mu: Array
+    gamma: Array
     l_mu: Array
     l_gamma: Array
-    mu: Array | None = None  # (P, S, r): μ(λ) and γ(λ) of the step, the modal form of A and G
-    gamma: Array | None = None
 
 
 def step_derivatives(lam: Array, dt_s: float, theta: float, substeps: int) -> tuple[Array, Array]:
@@ -150,17 +149,7 @@ def operators(rom: Any, h: Array, dt: float) -> Operators:
     theta, substeps = float(rom.theta), int(getattr(rom, "substeps", 1))
     mu, gamma = rom_modal.step_factors(lam, dt, theta, substeps)
     dmu, dgamma = step_derivatives(lam, dt, theta, substeps)
-    phi_t = np.swapaxes(phi, -1, -2)
-    return Operators(
-        (phi * mu[..., None, :]) @ phi_t,
-        (phi * gamma[..., None, :]) @ phi_t,
-        lam,
-        phi,
-        loewner(lam, mu, dmu),
-        loewner(lam, gamma, dgamma),
-        mu,
-        gamma,
-    )
+    return Operators(lam, phi, mu, gamma, loewner(lam, mu, dmu), loewner(lam, gamma, dgamma))
 
 
 def _start(rom: Any, t0: float | ArrayLike, p: int) -> Array:
@@ -197,7 +186,6 @@ def _run(
     b⁺ = μ∘b + γ∘Φᵀ·z, a diagonal recursion done in vectorised blocks (``rom_modal.blocked_recursion``)."""
     dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
     ops = operators(rom, h, dt)
-    assert ops.mu is not None and ops.gamma is not None
     p = h.shape[0]
     hz = h @ rom.z_zone  # (P, S, r): ambient load per °C
     out = np.empty((p, plan.n_steps + 1, rom.k0.shape[0]))
@@ -267,7 +255,6 @@ def simulate_tangents(
             f"{all_states.shape}"
         )
     states = all_states[0]  # (n+1, r)
-    assert ops.mu is not None and ops.gamma is not None
     n_dir = dh.shape[0]
     d_sensors = np.zeros((n_dir, plan.n_steps + 1, rom.sensors.shape[0]))
     d_end = np.zeros((n_dir, r))  # δa at the segment's start (none at the window's start)
