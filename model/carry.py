@@ -205,11 +205,33 @@ def end_ensemble(
     lo, hi = problem.bounds[:, 0], problem.bounds[:, 1]
     noise = factor(0.5 * (fit_cov + fit_cov.T))
     a0 = problem.model.initial_state(problem.t0)
-    dev = np.empty((samples, base.size))
-    dev_theta = np.empty((samples, theta.size))
+    thetas = np.empty((samples, theta.size))
+    starts = np.empty((samples, a0.size))
     for i in range(samples):
         z = rng.standard_normal(u.shape[1])
-        th = np.clip(theta + gain @ z + noise @ rng.standard_normal(noise.shape[1]), lo, hi)
-        dev[i] = end_state(problem, th, start=a0 + u @ z) - base
-        dev_theta[i] = th - theta
-    return Ensemble(base, dev, dev_theta)
+        thetas[i] = np.clip(theta + gain @ z + noise @ rng.standard_normal(noise.shape[1]), lo, hi)
+        starts[i] = a0 + u @ z
+    dev = end_states(problem, thetas, starts) - base
+    return Ensemble(base, dev, thetas - theta)
+
+
+def end_states(problem: Any, thetas: Array, starts: Array) -> Array:
+    """``end_state`` of each member: θ (P, p) from the reduced starts (P, r), (P, r); one batched run when
+    the model has ``end_states`` (``model.rom.ReducedModel``), else one run per member."""
+    batched = getattr(problem.model, "end_states", None)
+    if batched is None:
+        return np.array([end_state(problem, th, start=a) for th, a in zip(thetas, starts, strict=True)])
+    rom = problem.model
+    fields = rom.lift(starts)  # (P, N): each member's start field, as ``end_state`` gives it
+    shift = problem.layout.shift(thetas)
+    if shift is not None:
+        fields = fields + np.asarray(shift, dtype=np.float64)[:, None]
+    loads = problem.layout.load_scale(thetas)
+    return np.asarray(
+        batched(
+            thetas[:, :N_H],
+            problem.inputs,
+            rom.project(fields),
+            load_scale=None if loads is None else np.asarray(loads),
+        )
+    )

@@ -132,7 +132,8 @@ def _check(window: SpeedWindow, rom: Any) -> tuple[Array, NDArray[np.bool_]]:
 
 
 class _Objective:
-    """Whitened MAP residuals and their exact Jacobian; one model run per distinct θ."""
+    """Whitened MAP residuals and their exact Jacobian; one model run per distinct θ, its tangents when the
+    Jacobian is asked for."""
 
     def __init__(
         self,
@@ -171,8 +172,12 @@ class _Objective:
         self.mode_end = np.zeros((self.modes.shape[0], rom.k0.shape[0]))
         self.bias_jac, self.bias_sd = bias_jac, self._bias_sd
         self._key: bytes = b""
-        self._val: tuple[Array, Array, rom_segments.Tangents] | None = None
+        self._val: tuple[Array, Array, NDArray[np.intp], rom_segments.Tangents] | None = None
+        # θ, H, the states and operators, the residuals of the last run
+        self._run: tuple[bytes, Array, tuple[Array, rom_segments.Operators], Array] | None = None
+        self._nuis: tuple[tuple[float, int], Array, Array] | None = None
         self.runs = 0
+        self.runs_start = 0  # start-mode responses computed (the nuisance Jacobian's version)
         if self.modes.shape[0]:
             self.set_start_response(np.clip(prior.mean if x0 is None else x0, *family.bounds()))
 
@@ -193,6 +198,7 @@ class _Objective:
         self.bias_jac = np.hstack([self._bias_jac, resp])
         self.bias_sd = np.concatenate([self._bias_sd, np.ones(k)])
         self.runs += 1
+        self.runs_start += 1
 
     @property
     def n_x(self) -> int:
@@ -206,37 +212,85 @@ class _Objective:
         a, g, cost, _ = self.profiled(th, sigma)
         return a, g, cost
 
-    def profiled(self, th: Array, sigma: float | None = None) -> tuple[Array, Array, float, Array]:
-        """``normal``'s (A, g, χ²) and the nuisances' optimum c*(θ) (q,)."""
-        sig = self.sigma if sigma is None else sigma
-        r_base, j_t, _ = self._eval_base(th[: self.p])
-        rs, js = r_base / sig, j_t / sig
+    def cost(self, th: Array) -> float:
+        """``normal``'s χ² alone: one model run without the tangents (an LM trial that may be rejected)."""
+        r_base = self._residual(th[: self.p])
+        return self._profile(r_base, th, self.sigma)[3]
+
+    def _nuisance(self, sig: float) -> tuple[Array, Array]:
+        """The nuisances' whitened Jacobian (m, q) and normal matrix (q, q) at ``sig`` (kept until the
+        start modes' response changes)."""
+        key = (sig, self.runs_start)
+        if self._nuis is None or self._nuis[0] != key:
+            ns = self.bias_jac / sig
+            self._nuis = (key, ns, ns.T @ ns + np.diag(1.0 / self.bias_sd**2))
+        return self._nuis[1], self._nuis[2]
+
+    def _profile(self, r_base: Array, th: Array, sig: float) -> tuple[Array, Array, Array, float]:
+        """(whitened data residuals with the nuisances at their optimum, whitened prior residual, c*(θ),
+        χ²)."""
+        rs = r_base / sig
         pr = self.whiten @ (th[: self.p] - self.mu0)
-        a = js.T @ js + self.whiten.T @ self.whiten
         c: Array = np.zeros(self.bias_sd.size)
         if c.size:
-            ns = self.bias_jac / sig
-            ann = ns.T @ ns + np.diag(1.0 / self.bias_sd**2)
+            ns, ann = self._nuisance(sig)
             c = np.asarray(-np.linalg.solve(ann, ns.T @ rs), dtype=np.float64)
             rs = rs + ns @ c
-            a_tn = js.T @ ns
-            a = a - a_tn @ np.linalg.solve(ann, a_tn.T)
-        g = js.T @ rs + self.whiten.T @ pr
         cost = float(rs @ rs + pr @ pr + np.sum((c / self.bias_sd) ** 2))
+        return rs, pr, c, cost
+
+    def profiled(self, th: Array, sigma: float | None = None) -> tuple[Array, Array, float, Array]:
+        """``normal``'s (A, g, χ²) and the nuisances' optimum c*(θ) (q,). The Jacobian's columns of the
+        directions that move no segment's H are zero: the products run over the others only."""
+        sig = self.sigma if sigma is None else sigma
+        r_base, j_act, act, _ = self._eval_tangents(th[: self.p])
+        rs, pr, c, cost = self._profile(r_base, th, sig)
+        js = j_act / sig
+        blk = np.ix_(act, act)
+        a = self.whiten.T @ self.whiten
+        a[blk] += js.T @ js
+        if c.size:
+            ns, ann = self._nuisance(sig)
+            a_tn = js.T @ ns
+            a[blk] -= a_tn @ np.linalg.solve(ann, a_tn.T)
+        g = self.whiten.T @ pr
+        g[act] += js.T @ rs
         return a, g, cost, c
 
-    def _eval_base(self, th: Array) -> tuple[Array, Array, rom_segments.Tangents]:
-        if self._val is None or th.tobytes() != self._key:
+    def _residual(self, th: Array) -> Array:
+        """Model minus measured at the usable entries (m,) (the run's states kept for its tangents)."""
+        key = th.tobytes()
+        if self._run is None or self._run[0] != key:
             h = self.family.h_at(th, self.speeds, self.ambients)  # (S, 7)
-            dh = self.family.h_jacobian(th, self.speeds, self.ambients)  # (S, 7, p)
+            run = rom_segments.simulate_run(self.rom, h[None], self.plan, self.window.inputs, self.window.t0)
+            r = (run[0][0] @ self.rom.sensors.T).ravel()[self.flat] - self.target
+            self._run, self.runs = (key, h, run, r), self.runs + 1
+        return self._run[3]
+
+    def _eval_tangents(self, th: Array) -> tuple[Array, Array, NDArray[np.intp], rom_segments.Tangents]:
+        """(residuals (m,), the Jacobian's columns (m, J) of the directions ``act`` (J,) that move some
+        segment's H, the run); the other columns are zero."""
+        key = th.tobytes()
+        if self._val is None or self._key != key:
+            r = self._residual(th)
+            assert self._run is not None
+            h, run = self._run[1], self._run[2]
+            dh = np.moveaxis(self.family.h_jacobian(th, self.speeds, self.ambients), 2, 0)  # (p, S, 7)
+            act = np.flatnonzero(np.any(dh != 0.0, axis=(1, 2)))
             tg = rom_segments.simulate_tangents(
-                self.rom, h, np.moveaxis(dh, 2, 0), self.plan, self.window.inputs, self.window.t0
+                self.rom, h, dh[act], self.plan, self.window.inputs, self.window.t0, run=run
             )
-            r = tg.sensors.ravel()[self.flat] - self.target
-            j = tg.d_sensors.reshape(dh.shape[2], -1)[:, self.flat].T
-            self._key, self._val, self.runs = th.tobytes(), (r, j, tg), self.runs + 1
+            j = tg.d_sensors.reshape(act.size, -1)[:, self.flat].T
+            self._key, self._val = key, (r, j, act, tg)
         assert self._val is not None
         return self._val
+
+    def _eval_base(self, th: Array) -> tuple[Array, Array, rom_segments.Tangents]:
+        """Residuals (m,), the full Jacobian (m, p) and the run at θ ``th``."""
+        r, j_act, act, tg = self._eval_tangents(th)
+        j = np.zeros((r.size, self.p))
+        j[:, act] = j_act
+        return r, j, tg
 
     def _eval(self, x: Array) -> tuple[Array, Array, rom_segments.Tangents]:
         r, j, tg = self._eval_base(x[: self.p])
@@ -332,7 +386,7 @@ def identify_map(
         if obj.modes.shape[0] and np.max(np.abs(x - x0)) > RELINEARISE:
             obj.set_start_response(x)  # the start modes' response at the optimum's H, and polish
             x, message = _levenberg_marquardt(obj, x, lo, hi, opts)
-    r_base, _, tg = obj._eval_base(x)
+    r_base, _, _, tg = obj._eval_tangents(x)
     c = obj.profiled(x)[3]
     r = r_base + (obj.bias_jac @ c if nb else 0.0)
     rmse = float(np.sqrt(np.mean(r**2)))
@@ -368,9 +422,10 @@ def _levenberg_marquardt(
     """Bounded Levenberg–Marquardt on the normal equations over the parameters ``free`` (default all):
     Marquardt's diagonal scaling, steps projected on the bounds, stop when an accepted step lowers χ² by
     less than ``chi2_tol`` (the residuals are whitened, so that is a change far inside the posterior) or
-    moves θ by less than ``step_tol``. One model run per trial gives residuals and the exact Jacobian;
-    the normal equations are p×p, where scipy's TRF takes an SVD of the whole m×p Jacobian per iteration
-    (as costly as a model run here)."""
+    moves θ by less than ``step_tol``. One model run per trial gives its χ²; the exact Jacobian (the
+    tangents) is run only for a step taken (a rejected trial needs none); the normal equations are p×p,
+    where scipy's TRF takes an SVD of the whole m×p Jacobian per iteration (as costly as a model run
+    here)."""
     idx = np.arange(x0.size) if free is None else free
     x = x0.copy()
     a_full, g_full, cost = obj.normal(x)
@@ -381,12 +436,13 @@ def _levenberg_marquardt(
         step = np.linalg.solve(a + damping * np.diag(np.maximum(np.diag(a), 1e-12)), -g)
         trial = x.copy()
         trial[idx] = np.clip(x[idx] + step, lo[idx], hi[idx])
-        a_t, g_t, cost_t = obj.normal(trial)
+        cost_t = obj.cost(trial)  # the tangents only for a step taken
         if cost_t >= cost:
             damping *= 4.0
             if damping > 1e8:
                 return x, f"LM: no further decrease after {it + 1} iterations"
             continue
+        a_t, g_t, cost_t = obj.normal(trial)
         gain = cost - cost_t  # decrease of χ²
         x, a_full, g_full, cost = trial, a_t, g_t, cost_t
         damping = max(damping / 3.0, 1e-7)

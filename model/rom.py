@@ -196,6 +196,17 @@ class ReducedModel:
         b = rom_modal.modal_trajectory(self._modal_run(md, h2, inputs, self.initial_state(t0), scale2))
         return np.asarray(b[:, 0, :] @ md.phi[0].T)
 
+    def end_states(self, h: Array, inputs: InputLike, a0: Array, *, load_scale: Array | None = None) -> Array:
+        """The reduced states (P, r) at the window's end for P candidates H (P, 7) from reduced starts
+        ``a0`` (P, r): ``simulate_state``'s last row for each, in one batched run."""
+        h2, scale = self._check_population(h, load_scale)
+        starts = np.asarray(a0, dtype=np.float64)
+        if starts.shape != (h2.shape[0], self.rank):
+            raise RomError(f"a0: expected shape ({h2.shape[0]}, {self.rank}), got {starts.shape}")
+        md = rom_modal.modes(self.k0, self.k_zone, h2)
+        b = rom_modal.modal_trajectory(self._modal_run(md, h2, inputs, starts, scale))
+        return np.asarray(np.einsum("prs,ps->pr", md.phi, b[-1]))
+
     def steady_state(
         self,
         h: Array,

@@ -10,13 +10,14 @@ step, s ≥ 1 = s θ-steps of Δt/s)::
     a(k+1) = A_s·a(k) + G_s·z_k,   A_s = Φ_s·diag(μ)·Φ_sᵀ,  G_s = Φ_s·diag(γ)·Φ_sᵀ,
     z_k = Ti_k·Σ H_s,i·z_i + Qf_k·q_f + Qr_k·q_r,   K_s = K0_r + Σ H_s,i·K_i,r = Φ_s·diag(λ)·Φ_sᵀ
 
-with one eigendecomposition of K_s per (candidate, segment) (batched LAPACK), the per-step loads mapped by
-G_s in one product per segment, and one batched matrix–vector product per step for the whole population.
-The tangent model differentiates A_s and G_s as matrix functions of K_s (Daleckii–Krein: the derivative of
-f(K) along δK is Φ·(L_f ∘ Φᵀ·δK·Φ)·Φᵀ with L_f the divided differences of f over the eigenvalues), so it is
-exact for every ``substeps``. It reads the public arrays of a ``ReducedModel`` (k0, k_zone, z_zone, q_front,
-q_rear, sensors, theta, substeps, initial_state, lift) and changes nothing there; with one segment it
-reproduces ``simulate_sensors`` to round-off (a test checks it).
+with one eigendecomposition of K_s per (candidate, segment) (batched LAPACK); each segment runs in its modes
+(b = Φ_sᵀ·a: b(k+1) = μ∘b(k) + γ∘Φ_sᵀ·z_k, a diagonal recursion done in vectorised blocks by
+``rom_modal.blocked_recursion``; the state goes back through Φ_s at the segment's end). The tangent model
+differentiates A_s and G_s as matrix functions of K_s (Daleckii–Krein: the derivative of f(K) along δK
+is Φ·(L_f ∘ Φᵀ·δK·Φ)·Φᵀ with L_f the divided differences of f over the eigenvalues), so it is exact for
+every ``substeps``; the tangents step in the same modes. It reads the public arrays of a ``ReducedModel``
+(k0, k_zone, z_zone, q_front, q_rear, sensors, theta, substeps, initial_state, lift) and changes nothing
+there; with one segment it reproduces ``simulate_sensors`` to round-off (a test checks it).
 
 Errors::
 
@@ -102,14 +103,15 @@ def _check_h(h_seg: ArrayLike, plan: SegmentPlan) -> Array:
 
 @dataclass(frozen=True)
 class Operators:
-    """Per (candidate, segment), (P, S, ...): the step matrices A = Φ·diag(μ)·Φᵀ and G = Φ·diag(γ)·Φᵀ, the
-    eigenpairs ``lam``, ``phi`` of K_s and the divided differences ``l_mu``, ``l_gamma`` (P, S, r, r) of μ(λ)
-    and γ(λ) (``loewner``) that give their derivatives."""
+    """Per (candidate, segment), (P, S, ...): the eigenpairs ``lam``, ``phi`` of K_s, the step's factors
+    ``mu``, ``gamma`` (P, S, r) (the step matrices are A = Φ·diag(μ)·Φᵀ and G = Φ·diag(γ)·Φᵀ) and the
+    divided differences ``l_mu``, ``l_gamma`` (P, S, r, r) of μ(λ) and γ(λ) (``loewner``) that give their
+    derivatives."""
 
-    a: Array
-    g: Array
     lam: Array
     phi: Array
+    mu: Array
+    gamma: Array
     l_mu: Array
     l_gamma: Array
 
@@ -147,15 +149,7 @@ def operators(rom: Any, h: Array, dt: float) -> Operators:
     theta, substeps = float(rom.theta), int(getattr(rom, "substeps", 1))
     mu, gamma = rom_modal.step_factors(lam, dt, theta, substeps)
     dmu, dgamma = step_derivatives(lam, dt, theta, substeps)
-    phi_t = np.swapaxes(phi, -1, -2)
-    return Operators(
-        (phi * mu[..., None, :]) @ phi_t,
-        (phi * gamma[..., None, :]) @ phi_t,
-        lam,
-        phi,
-        loewner(lam, mu, dmu),
-        loewner(lam, gamma, dgamma),
-    )
+    return Operators(lam, phi, mu, gamma, loewner(lam, mu, dmu), loewner(lam, gamma, dgamma))
 
 
 def _start(rom: Any, t0: float | ArrayLike, p: int) -> Array:
@@ -173,33 +167,43 @@ def simulate_states(
 
     ``t0``: uniform start [°C], an (N,) field (projected) or (P, r) reduced start states.
     """
-    h = _check_h(h_seg, plan)
+    return simulate_run(rom, h_seg, plan, inputs, t0)[0]
+
+
+def simulate_run(
+    rom: Any, h_seg: ArrayLike, plan: SegmentPlan, inputs: Any, t0: float | ArrayLike
+) -> tuple[Array, Operators]:
+    """``simulate_states`` and the step operators it used (``simulate_tangents(run=...)`` reuses both)."""
+    return _run(rom, _check_h(h_seg, plan), plan, inputs, t0)
+
+
+def _run(
+    rom: Any, h: Array, plan: SegmentPlan, inputs: Any, t0: float | ArrayLike
+) -> tuple[Array, Operators]:
+    """``simulate_states`` for checked H (P, S, 7), with the step operators it used.
+
+    Each segment runs in its modes (A_s = Φ·diag(μ)·Φᵀ, G_s = Φ·diag(γ)·Φᵀ): b = Φᵀ·a steps as
+    b⁺ = μ∘b + γ∘Φᵀ·z, a diagonal recursion done in vectorised blocks (``rom_modal.blocked_recursion``)."""
     dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
     ops = operators(rom, h, dt)
     p = h.shape[0]
     hz = h @ rom.z_zone  # (P, S, r): ambient load per °C
     out = np.empty((p, plan.n_steps + 1, rom.k0.shape[0]))
     out[:, 0] = _start(rom, t0, p)
-    w = np.empty((p, plan.n_steps, out.shape[2]))
     ends = np.append(plan.start[1:], plan.n_steps)
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
+        phi = ops.phi[:, s]  # (P, r, r)
         z = (
             amb[None, k0:k1, None] * hz[:, s, None, :]
             + qf[k0:k1, None] * rom.q_front
             + qr[k0:k1, None] * rom.q_rear
-        )
-        w[:, k0:k1] = z @ np.swapaxes(ops.g[:, s], 1, 2)  # G_s·z_k for all steps of the segment
-    _recur(out, w, ops.a, plan)
-    return out
-
-
-def _recur(out: Array, w: Array, a_op: Array, plan: SegmentPlan) -> None:
-    """a(k+1) = A_s(k)·a(k) + w_k in place over all steps (one batched mat-vec per step)."""
-    a_t = np.ascontiguousarray(np.swapaxes(a_op, 2, 3))  # row-vector form: a(k+1) = a(k)·A_sᵀ
-    seg = plan.of_step.tolist()
-    for k in range(plan.n_steps):
-        np.matmul(out[:, k, None, :], a_t[:, seg[k]], out=out[:, k + 1, None, :])
-        out[:, k + 1] += w[:, k]
+        )  # (P, n_s, r): z_k for all steps of the segment
+        y = np.empty((k1 - k0 + 1, p, phi.shape[1]))
+        y[0] = np.einsum("pr,prs->ps", out[:, k0], phi)  # Φᵀ·a(k0)
+        y[1:] = np.swapaxes((z @ phi) * ops.gamma[:, s, None, :], 0, 1)  # γ∘Φᵀ·z_k
+        rom_modal.blocked_recursion(y, ops.mu[:, s])
+        out[:, k0 + 1 : k1 + 1] = np.swapaxes(y[1:], 0, 1) @ np.swapaxes(phi, 1, 2)
+    return out, ops
 
 
 def simulate_sensors(
@@ -221,60 +225,67 @@ class Tangents:
 
 
 def simulate_tangents(
-    rom: Any, h_seg: ArrayLike, dh_seg: ArrayLike, plan: SegmentPlan, inputs: Any, t0: float | ArrayLike
+    rom: Any,
+    h_seg: ArrayLike,
+    dh_seg: ArrayLike,
+    plan: SegmentPlan,
+    inputs: Any,
+    t0: float | ArrayLike,
+    *,
+    run: tuple[Array, Operators] | None = None,
 ) -> Tangents:
     """Sensors for one H per segment ``h_seg`` (S, 7) and their derivatives along J directions ``dh_seg``
     (J, S, 7) of H (tangent-linear model of the discrete step, exact to round-off).
 
     Differentiating a⁺ = A_s·a + G_s·z gives δa⁺ = A_s·δa + δA_s·a + δG_s·z + G_s·δz, with δA_s·a =
     Φ·(L_μ ∘ Φᵀ·δK_s·Φ)·Φᵀ·a and likewise δG_s (``loewner``): the J tangents reuse the candidate's S
-    eigendecompositions, so a full Jacobian costs about two runs instead of J + 1.
+    eigendecompositions, so a full Jacobian costs about two runs instead of J + 1. ``run``: the caller's
+    ``simulate_run`` of the same H (one candidate), inputs and start, not recomputed.
     """
     h = _check_h(np.asarray(h_seg, dtype=np.float64)[None], plan)
     dh = np.asarray(dh_seg, dtype=np.float64)
     if dh.ndim != 3 or dh.shape[1:] != (plan.n_segments, 7) or not np.all(np.isfinite(dh)):
         raise SegmentError(f"dh_seg: expected finite (J, {plan.n_segments}, 7), got shape {dh.shape}")
-    dt, amb, qf, qr = _inputs(inputs, plan.n_steps)
-    states = simulate_states(rom, h, plan, inputs, t0)[0]  # (n+1, r)
-    ops = operators(rom, h, dt)
-    r = states.shape[1]
-    w = np.empty((dh.shape[0], plan.n_steps, r))
+    _, amb, qf, qr = _inputs(inputs, plan.n_steps)
+    r = rom.k0.shape[0]
+    all_states, ops = _run(rom, h, plan, inputs, t0) if run is None else run
+    if all_states.shape != (1, plan.n_steps + 1, r) or ops.phi.shape[:2] != (1, plan.n_segments):
+        raise SegmentError(
+            f"run: expected one candidate's states (1, {plan.n_steps + 1}, {r}) and operators, got "
+            f"{all_states.shape}"
+        )
+    states = all_states[0]  # (n+1, r)
+    n_dir = dh.shape[0]
+    d_sensors = np.zeros((n_dir, plan.n_steps + 1, rom.sensors.shape[0]))
+    d_end = np.zeros((n_dir, r))  # δa at the segment's start (none at the window's start)
     ends = np.append(plan.start[1:], plan.n_steps)
     for s, (k0, k1) in enumerate(zip(plan.start.tolist(), ends.tolist(), strict=True)):
+        # the tangents in the segment's modes: β = Φᵀ·δa steps as β⁺ = μ∘β + Φᵀ·(δA·a + δG·z + G·δz)
+        phi = ops.phi[0, s]
+        y = np.zeros((k1 - k0 + 1, n_dir, r))
+        y[0] = d_end @ phi
         # only the directions that move this segment's H (a tabulated family: 2 nodes per zone of 8)
         act = np.flatnonzero(np.any(dh[:, s] != 0.0, axis=1))
-        w[:, k0:k1] = 0.0
-        if act.size == 0:
-            continue
-        phi = ops.phi[0, s]
-        load = amb[k0:k1, None] * (h[0, s] @ rom.z_zone) + qf[k0:k1, None] * rom.q_front
-        load += qr[k0:k1, None] * rom.q_rear  # (n_s, r): z_k
-        dk = (dh[act, s] @ rom.k_zone.reshape(7, r * r)).reshape(-1, r, r)  # (J', r, r): δK_s
-        d_modal = phi.T @ dk @ phi  # Φᵀ·δK·Φ
-        b, c = states[k0:k1] @ phi, load @ phi  # (n_s, r) modal state and load
-        src = b @ np.swapaxes(ops.l_mu[0, s] * d_modal, 1, 2) + c @ np.swapaxes(
-            ops.l_gamma[0, s] * d_modal, 1, 2
-        )
-        src = src @ phi.T  # (J', n_s, r): δA·a + δG·z
-        dz = dh[act, s] @ rom.z_zone  # (J', r) per °C ambient
-        src += amb[None, k0:k1, None] * (dz @ ops.g[0, s].T)[:, None, :]
-        w[act, k0:k1] = src
-    d_states = np.zeros((dh.shape[0], plan.n_steps + 1, r))
-    _recur_shared(d_states, w, ops.a[0], plan)
+        if act.size:
+            load = amb[k0:k1, None] * (h[0, s] @ rom.z_zone) + qf[k0:k1, None] * rom.q_front
+            load += qr[k0:k1, None] * rom.q_rear  # (n_s, r): z_k
+            dk = (dh[act, s] @ rom.k_zone.reshape(7, r * r)).reshape(-1, r, r)  # (J', r, r): δK_s
+            d_modal = phi.T @ dk @ phi  # Φᵀ·δK·Φ
+            b, c = states[k0:k1] @ phi, load @ phi  # (n_s, r) modal state and load
+            src = b @ np.swapaxes(ops.l_mu[0, s] * d_modal, 1, 2) + c @ np.swapaxes(
+                ops.l_gamma[0, s] * d_modal, 1, 2
+            )  # (J', n_s, r): Φᵀ·(δA·a + δG·z)
+            dz = (dh[act, s] @ rom.z_zone) @ phi * ops.gamma[0, s]  # (J', r): Φᵀ·G·δz per °C ambient
+            src += amb[None, k0:k1, None] * dz[:, None, :]
+            y[1:, act] = np.swapaxes(src, 0, 1)
+        rom_modal.blocked_recursion(y, np.broadcast_to(ops.mu[0, s], (n_dir, r)))
+        d_sensors[:, k0 + 1 : k1 + 1] = np.swapaxes(y[1:], 0, 1) @ (rom.sensors @ phi).T
+        d_end = y[-1] @ phi.T
     return Tangents(
         sensors=np.asarray(states @ rom.sensors.T),
-        d_sensors=np.asarray(d_states @ rom.sensors.T),
+        d_sensors=d_sensors,
         states=states,
     )
-
-
-def _recur_shared(out: Array, w: Array, a_op: Array, plan: SegmentPlan) -> None:
-    """Like ``_recur`` for J vectors that share the operators a_op (S, r, r): out (J, n+1, r) in place."""
-    a_t = np.ascontiguousarray(np.swapaxes(a_op, 1, 2))
-    seg = plan.of_step.tolist()
-    for k in range(plan.n_steps):
-        np.matmul(out[:, k], a_t[seg[k]], out=out[:, k + 1])
-        out[:, k + 1] += w[:, k]
 
 
 def fe_sensors(

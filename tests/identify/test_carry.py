@@ -120,6 +120,42 @@ def test_propagate_runs_the_members_through_the_gap(model: Any, cond3000: Condit
     assert np.abs(model.rom.sensors @ hot).max() > 0.01  # the gap's H error matters at the sensors
 
 
+def test_batched_end_states_are_each_members_own_run(model: Any, cond3000: Condition) -> None:
+    """``end_states`` (one batched run of the reduced model) gives ``end_state`` of each member, with the
+    load scales and the start shift fitted; a model without ``end_states`` runs the members one by one."""
+    from model.identify_problem import Layout
+
+    w = cond3000.window
+    lay = Layout(loads=True, t0_shift=True)
+    bounds = np.array([model.rom.h_box] * 7 + [(0.5, 1.5)] * 2 + [(-2.0, 2.0)], dtype=float)
+    problem = Problem.from_window(model.rom, w, bounds, layout=lay)
+    rng = np.random.default_rng(3)
+    thetas = np.column_stack(
+        [
+            cond3000.h_true[None, :] * rng.uniform(0.7, 1.3, (5, 7)),
+            rng.uniform(0.8, 1.2, (5, 2)),
+            rng.uniform(-1.0, 1.0, 5),
+        ]
+    )
+    a0 = model.rom.initial_state(w.t0)
+    starts = a0[None, :] + 0.2 * rng.normal(size=(5, model.rom.rank))
+    one_by_one = np.array(
+        [carry.end_state(problem, th, start=a) for th, a in zip(thetas, starts, strict=True)]
+    )
+    batched = carry.end_states(problem, thetas, starts)
+    assert np.abs(one_by_one - a0).max() > 1.0  # the window moves the state: the comparison is not trivial
+    np.testing.assert_allclose(batched, one_by_one, rtol=0, atol=1e-9 * np.abs(one_by_one).max())
+
+    class OneByOne:  # a stand-in model without ``end_states``
+        def __getattr__(self, name: str) -> Any:
+            if name == "end_states":
+                raise AttributeError(name)
+            return getattr(model.rom, name)
+
+    plain = Problem.from_window(OneByOne(), w, bounds, layout=lay)  # type: ignore[arg-type]
+    np.testing.assert_array_equal(carry.end_states(plain, thetas, starts), one_by_one)
+
+
 def test_bad_start_covariances_name_the_argument(model: Any, cond3000: Condition) -> None:
     with pytest.raises(IdentificationError, match="start_cov"):
         identify(model.rom, cond3000.window, rng=0, spec=model.spec, start_cov=np.zeros((3, 3)))

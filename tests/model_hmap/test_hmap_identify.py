@@ -116,6 +116,46 @@ def test_cost_in_model_runs(fit1: hi.MapFit, fit2: hi.MapFit) -> None:
     assert fit2.nfev <= 12  # warm: the previous posterior is the start
 
 
+def test_normal_equations_equal_the_dense_jacobians(model: Any, duty: DutyRun, cold: Gaussian) -> None:
+    """The objective's normal equations (the Jacobian's columns of the directions that move no segment's H
+    left out, the nuisance block kept) and its χ² without the tangents (an LM trial) equal those written out
+    with the full dense Jacobian of θ and the nuisances (Schur complement)."""
+    t0 = float(duty.run.ambient_c[0])
+    duty_w = window(model.spec, duty.run, 0, 120, t0)
+    # the speed held at a node (a service window at one speed): most directions move no H
+    held = replace(duty_w, speed_rpm=np.full_like(duty_w.speed_rpm, 4000.0))
+    for w, all_move in ((held, False), (duty_w, True)):
+        _check_normal_equations(model, w, cold, all_move)
+
+
+def _check_normal_equations(model: Any, w: Any, cold: Gaussian, all_move: bool) -> None:
+    meas, usable = hi._check(w, model.rom)
+    r = model.rom.k0.shape[0]
+    modes = 0.1 * np.eye(r)[:2]
+    obj = hi._Objective(model.rom, w, cold, NODES, (meas, usable), 0.15, np.full(32, 0.05), modes)
+    th = cold.mean + 0.05
+    a, g, cost, c = obj.profiled(th)
+    r_base, j, _ = obj._eval_base(th)
+    assert (np.count_nonzero(np.any(j != 0.0, axis=0)) == j.shape[1]) == all_move
+    sig = obj.sigma
+    js, ns, rs_ = j / sig, obj.bias_jac / sig, r_base / sig
+    ann = ns.T @ ns + np.diag(1.0 / obj.bias_sd**2)
+    c_ref = -np.linalg.solve(ann, ns.T @ rs_)
+    rr = rs_ + ns @ c_ref
+    pr = obj.whiten @ (th - obj.mu0)
+    a_tn = js.T @ ns
+    a_ref = js.T @ js + obj.whiten.T @ obj.whiten - a_tn @ np.linalg.solve(ann, a_tn.T)
+    g_ref = js.T @ rr + obj.whiten.T @ pr
+    cost_ref = float(rr @ rr + pr @ pr + np.sum((c_ref / obj.bias_sd) ** 2))
+    np.testing.assert_allclose(a, a_ref, rtol=1e-9, atol=1e-9 * np.abs(a_ref).max())
+    np.testing.assert_allclose(g, g_ref, rtol=1e-9, atol=1e-9 * np.abs(g_ref).max())
+    np.testing.assert_allclose(c, c_ref, rtol=1e-9, atol=1e-12)
+    assert cost == pytest.approx(cost_ref, rel=1e-12)
+    fresh = hi._Objective(model.rom, w, cold, NODES, (meas, usable), 0.15, np.full(32, 0.05), modes)
+    assert fresh.cost(th) == cost  # the trial's χ² without tangents
+    assert fresh._val is None  # ... and no tangents were run
+
+
 def test_forget_moves_information_toward_the_cold_prior(fit1: hi.MapFit, cold: Gaussian) -> None:
     post = fit1.posterior
     same = hi.forget(post, cold, elapsed_h=0.0)

@@ -83,6 +83,22 @@ def test_tangents_are_the_derivative(model: Any, substeps: int) -> None:
     np.testing.assert_allclose(tg.sensors, rs.simulate_sensors(rom, h[None], plan, inputs, 21.0)[0])
 
 
+def test_tangents_from_given_states_are_the_same(model: Any) -> None:
+    """The caller's run of the same H (``run=``) gives the tangents computed from scratch; a run of
+    another window or of a population is refused."""
+    plan, inputs, h = _window(model.spec)
+    dh = np.random.default_rng(2).normal(size=(2, plan.n_segments, 7))
+    run = rs.simulate_run(model.rom, h[None], plan, inputs, 21.0)
+    np.testing.assert_array_equal(run[0], rs.simulate_states(model.rom, h[None], plan, inputs, 21.0))
+    given = rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0, run=run)
+    fresh = rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0)
+    np.testing.assert_array_equal(given.d_sensors, fresh.d_sensors)
+    np.testing.assert_array_equal(given.sensors, fresh.sensors)
+    two = rs.simulate_run(model.rom, np.stack([h, h]), plan, inputs, 21.0)
+    with pytest.raises(SegmentError, match="run"):
+        rs.simulate_tangents(model.rom, h, dh, plan, inputs, 21.0, run=two)
+
+
 def test_loewner_matrix_gives_the_derivative_of_a_matrix_function() -> None:
     """Daleckii–Krein on a small SPD matrix with two nearly equal eigenvalues, against central differences."""
     rng = np.random.default_rng(4)
