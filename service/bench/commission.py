@@ -93,8 +93,24 @@ def fit_peer(temperatures: Path, displacements: Path, *, n_sensors: int) -> Any:
     return fit_mlr(log.temps_c[k], axial, n_clusters=n_sensors)
 
 
-def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Namespace) -> dict[str, Any]:
-    """One seed: the thermal test, both fits, the duty cycle served three times (module docstring)."""
+@dataclass(frozen=True)
+class PreparedSeed:
+    """One seed's thermal test (commissioned, and the MLR peer fitted on it) and its duty cycle (the plant's
+    run, its true axial growth [µm], the samples as the service reads them, the restart's sample)."""
+
+    mech: Any
+    report: Any
+    peer: Any
+    fit_s: float
+    mlr_s: float
+    run: Any
+    truth: Any
+    samples: list[Any]
+    restart_k: int
+
+
+def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Namespace) -> PreparedSeed:
+    """The seed's plant mechanics, thermal test, commissioning, MLR fit and duty cycle (module docstring)."""
     from model.plant import VirtualPlant
     from service.bench.compensation_run import PER_MIN, T0
     from service.engine.runtime import core_config
@@ -122,8 +138,26 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
     truth_h = draw_truth(np.random.default_rng([seed, 7]))
     duty = duty_profile(seed, duration_s=60.0 * total_min, idle_s=60.0 * args.rest_min)
     run, truth = plant.run(seed, "offsets", duty, truth_h)
-    samples = samples_from_plant(run, t0_s=T0)
-    restart_k = PER_MIN * (args.rest_min + (total_min - args.rest_min) // 2)
+    return PreparedSeed(
+        mech=mech,
+        report=rep,
+        peer=peer,
+        fit_s=fit_s,
+        mlr_s=mlr_s,
+        run=run,
+        truth=truth,
+        samples=samples_from_plant(run, t0_s=T0),
+        restart_k=PER_MIN * (args.rest_min + (total_min - args.rest_min) // 2),
+    )
+
+
+def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Namespace) -> dict[str, Any]:
+    """One seed: the thermal test, both fits, the duty cycle served three times (module docstring)."""
+    from service.bench.compensation_run import PER_MIN
+
+    prep = prepare_seed(model, settings, plant, seed, args)
+    mech, rep, peer, run, truth = prep.mech, prep.report, prep.peer, prep.run, prep.truth
+    samples, restart_k = prep.samples, prep.restart_k
     served = {
         "uncalibrated": serve_duty(model, settings, samples, run, truth, restart_k=restart_k),
         "calibrated": serve_duty(
@@ -175,8 +209,8 @@ def run_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Na
         "err": err,
         "covered": covered,
         "usable": usable,
-        "fit_s": fit_s,
-        "mlr_fit_s": mlr_s,
+        "fit_s": prep.fit_s,
+        "mlr_fit_s": prep.mlr_s,
     }
 
 

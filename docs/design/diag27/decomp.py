@@ -23,8 +23,8 @@ import argparse
 import json
 import os
 import sys
-import tempfile
 import time
+from contextlib import contextmanager, nullcontext
 from dataclasses import replace
 from pathlib import Path
 
@@ -62,30 +62,38 @@ def interp_matrix(src_fe, dst_fe):
     return sp.csr_matrix((v, (r, c)), shape=(pts.shape[0], src_fe.n_nodes))
 
 
-def serve(model, settings, samples, run, truth, *, restart_k, mechanics, true_h=None):
-    """The bench's serve_duty (no probe), recording the live mean and the zero each minute."""
-    from service.bench.compensation_run import PER_MIN, Session, stored_state
+@contextmanager
+def fixed_h(law):
+    from model.estimator import StepInput
+    from model.inputs import inputs_from_operation
     from service.estimate import state as st
 
     saved = st.FilteredState._step_input
-    if true_h is not None:
-        from model.estimator import StepInput
 
-        def step_input(self, inp):
-            from model.inputs import inputs_from_operation
+    def step_input(self, inp):
+        s = inputs_from_operation(
+            self.spec,
+            dt_s=1.0,
+            speed_rpm=np.array([inp.speed_rpm]),
+            torque_nm=np.array([inp.torque_nm]),
+            ambient_c=np.array([inp.ambient_c]),
+        )
+        h = np.asarray(law(inp.speed_rpm, inp.ambient_c), dtype=float)
+        return StepInput(h, inp.ambient_c, float(s.q_front_w[0]), float(s.q_rear_w[0]), self.dt_s)
 
-            s = inputs_from_operation(
-                self.spec,
-                dt_s=1.0,
-                speed_rpm=np.array([inp.speed_rpm]),
-                torque_nm=np.array([inp.torque_nm]),
-                ambient_c=np.array([inp.ambient_c]),
-            )
-            h = np.asarray(true_h(inp.speed_rpm), dtype=float)
-            return StepInput(h, inp.ambient_c, float(s.q_front_w[0]), float(s.q_rear_w[0]), self.dt_s)
-
-        st.FilteredState._step_input = step_input
+    st.FilteredState._step_input = step_input
     try:
+        yield
+    finally:
+        st.FilteredState._step_input = saved
+
+
+def serve(model, settings, samples, run, truth, *, restart_k, mechanics, true_h=None):
+    """The bench's serve_duty (no probe), recording the live mean and the zero each minute."""
+    from service.bench.compensation_run import PER_MIN, Session, stored_state
+
+    patch = fixed_h(lambda n, _amb: true_h(n)) if true_h is not None else nullcontext()
+    with patch:
         session = Session(model, settings, start=samples[0].t)
         session.svc.set_mechanics(mechanics)
         um, tref, means, hs, ok = [], [], [], [], []
@@ -108,8 +116,6 @@ def serve(model, settings, samples, run, truth, *, restart_k, mechanics, true_h=
             means.append(np.full(model.rom.rank, np.nan) if live is None else np.asarray(live.mean))
             hs.append(np.full(7, np.nan) if row.h is None else row.h)
         ctx = session.svc.growth.prepare()
-    finally:
-        st.FilteredState._step_input = saved
     return {
         "um": np.array(um),
         "tref": np.array(tref),
@@ -120,32 +126,17 @@ def serve(model, settings, samples, run, truth, *, restart_k, mechanics, true_h=
 
 
 def run_one(model, settings, plant, seed, args, P=None):
-    from model.plant import VirtualPlant
-    from service.bench.commission import fit_peer
-    from service.bench.compensation_run import PER_MIN, T0
-    from service.engine.runtime import core_config
+    from service.bench.commission import prepare_seed
+    from service.bench.compensation_run import PER_MIN
     from service.estimate.mechanics import served_mechanics_basis
-    from service.sim.duty import duty_profile
-    from service.sim.logsamples import samples_from_plant
     from service.sim.randomtruth import draw_truth
-    from service.sim.thermaltest import RECOMMENDED_PROFILE, SHORT_PROFILE, write_thermal_test
 
     t_start = time.perf_counter()
-    config = core_config(settings)
     basis = served_mechanics_basis(model.spec, model.fe)
-    mech = plant.mechanics(seed)
-    test_plant = VirtualPlant(plant.spec, fe=plant.fe, seed=seed, mechanics=mech, growth=plant.growth(seed))
-    with tempfile.TemporaryDirectory(prefix="diag-") as tmp:
-        profile = SHORT_PROFILE if args.short else RECOMMENDED_PROFILE
-        t = write_thermal_test(Path(tmp), mechanics=mech, profile=profile, seed=seed, plant=test_plant)
-        rep = t.commission(model, config, basis=basis, set_by="bench")
-        peer = fit_peer(t.temperatures, t.displacements, n_sensors=args.sensors)
-    total_min = round(60.0 * args.hours)
-    truth_h = draw_truth(np.random.default_rng([seed, 7]))
-    duty = duty_profile(seed, duration_s=60.0 * total_min, idle_s=60.0 * args.rest_min)
-    run, truth = plant.run(seed, "offsets", duty, truth_h)
-    samples = samples_from_plant(run, t0_s=T0)
-    restart_k = PER_MIN * (args.rest_min + (total_min - args.rest_min) // 2)
+    prep = prepare_seed(model, settings, plant, seed, args)
+    mech, rep, peer, run, truth = prep.mech, prep.report, prep.peer, prep.run, prep.truth
+    samples, restart_k = prep.samples, prep.restart_k
+    truth_h = draw_truth(np.random.default_rng([seed, 7]))  # the duty's, as prepare_seed draws it
     print(f"seed {seed}: plant+commission {time.perf_counter() - t_start:.0f} s", file=sys.stderr)
     a = serve(model, settings, samples, run, truth, restart_k=restart_k, mechanics=rep.calibration)
     print(f"seed {seed}: served a {time.perf_counter() - t_start:.0f} s", file=sys.stderr)

@@ -7,38 +7,11 @@ from __future__ import annotations
 
 import sys
 import tempfile
-from contextlib import contextmanager
 from pathlib import Path
 
 import numpy as np
 
-from diag27.decomp import OUT
-
-
-@contextmanager
-def fixed_h(law):
-    from model.estimator import StepInput
-    from model.inputs import inputs_from_operation
-    from service.estimate import state as st
-
-    saved = st.FilteredState._step_input
-
-    def step_input(self, inp):
-        s = inputs_from_operation(
-            self.spec,
-            dt_s=1.0,
-            speed_rpm=np.array([inp.speed_rpm]),
-            torque_nm=np.array([inp.torque_nm]),
-            ambient_c=np.array([inp.ambient_c]),
-        )
-        h = np.asarray(law(inp.speed_rpm, inp.ambient_c), dtype=float)
-        return StepInput(h, inp.ambient_c, float(s.q_front_w[0]), float(s.q_rear_w[0]), self.dt_s)
-
-    st.FilteredState._step_input = step_input
-    try:
-        yield
-    finally:
-        st.FilteredState._step_input = saved
+from diag27.decomp import OUT, fixed_h
 
 
 def main() -> int:
