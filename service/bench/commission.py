@@ -2,6 +2,7 @@
 (issue 27 item 4).
 
 Data are SYNTHETIC. Per seed the plant draws its own mechanics (``model.plantmech``, unknown to the service)
+and its own H(speed) truth (``service.sim.randomtruth``, the same in its test and its duty cycle: one machine)
 and runs the simulated ISO 230-3 thermal test (``service.sim.thermaltest``: temperatures, CAN log,
 displacements with noise, fixture offset, drift and missing readings). On that one test:
 
@@ -9,8 +10,8 @@ displacements with noise, fixture offset, drift and missing readings). On that o
 - the peer fits an MLR (``model.mlr``: 4–6 sensors by correlation clustering, least squares of the measured
   axial displacement on their temperatures plus an intercept).
 
-Then on a separate duty cycle of the same plant (``service.sim.duty``, seed's random H(speed) truth
-``service.sim.randomtruth``, per-channel offsets ±0.2 °C: ``service.bench.compensation_run.Plant``), every
+Then on a separate duty cycle of the same plant (``service.sim.duty``, the seed's H(speed) truth,
+per-channel offsets ±0.2 °C: ``service.bench.compensation_run.Plant``), every
 minute after the rest, the axial error against the plant's true growth (over its cold uniform start):
 
 - ``none``: no compensation (the error is the growth itself);
@@ -123,7 +124,12 @@ def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argpars
     config = core_config(settings)
     basis = served_mechanics_basis(model.spec, model.fe)
     mech = plant.mechanics(seed)
-    test_plant = VirtualPlant(plant.spec, fe=plant.fe, seed=seed, mechanics=mech, growth=plant.growth(seed))
+    # one machine: its test and its duty cycle share the seed's drawn H(speed) truth (the test's H was the
+    # paper's law, model.plant.h_true, for every seed until 2026-11-28)
+    truth_h = draw_truth(np.random.default_rng([seed, 7]))
+    test_plant = VirtualPlant(
+        plant.spec, fe=plant.fe, seed=seed, mechanics=mech, growth=plant.growth(seed), h_law=truth_h
+    )
     with tempfile.TemporaryDirectory(prefix="chtc-bench-commission-") as tmp:
         profile = SHORT_PROFILE if args.short else RECOMMENDED_PROFILE
         t = write_thermal_test(Path(tmp), mechanics=mech, profile=profile, seed=seed, plant=test_plant)
@@ -135,7 +141,6 @@ def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argpars
         mlr_s = time.perf_counter() - started
 
     total_min = round(60.0 * args.hours)
-    truth_h = draw_truth(np.random.default_rng([seed, 7]))
     duty = duty_profile(seed, duration_s=60.0 * total_min, idle_s=60.0 * args.rest_min)
     run, truth = plant.run(seed, "offsets", duty, truth_h)
     return PreparedSeed(

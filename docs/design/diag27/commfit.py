@@ -16,6 +16,7 @@ from diag27.decomp import OUT, interp_matrix
 
 def main() -> int:
     from model.plant import VirtualPlant
+    from service.sim.randomtruth import draw_truth
     from service.bench.commission import _setup
     from service.engine.commissioning import FieldHistory, field_history, fit_test, read_displacement_csv
     from service.engine.runtime import core_config
@@ -30,7 +31,10 @@ def main() -> int:
     phi = np.asarray(rom.basis)
     for seed in [int(s) for s in sys.argv[1:]]:
         mech = plant.mechanics(seed)
-        tp = VirtualPlant(plant.spec, fe=plant.fe, seed=seed, mechanics=mech, growth=plant.growth(seed))
+        truth_h = draw_truth(np.random.default_rng([seed, 7]))  # one machine: its test's and its duty's H
+        tp = VirtualPlant(
+            plant.spec, fe=plant.fe, seed=seed, mechanics=mech, growth=plant.growth(seed), h_law=truth_h
+        )
         with tempfile.TemporaryDirectory(prefix="diag-") as tmp:
             t = write_thermal_test(
                 Path(tmp), mechanics=mech, profile=RECOMMENDED_PROFILE, seed=seed, plant=tp

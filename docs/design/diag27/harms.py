@@ -1,5 +1,5 @@
 # ruff: noqa
-"""Diagnostic: (1) the commissioning on a live test field run with the test plant's TRUE H (model.plant.h_true);
+"""Diagnostic: (1) the commissioning on a live test field run with the test plant's TRUE H (the seed's drawn truth);
 (2) the duty served with the H of the duty's FINAL speed map (hindsight: is the map learnt too slowly?).
 Needs $CHTC_DIAG_OUT/seed*.npz (decomp.py) and test*.npz (commfit.py)."""
 
@@ -15,7 +15,7 @@ from diag27.decomp import OUT, fixed_h
 
 
 def main() -> int:
-    from model.plant import VirtualPlant, h_true
+    from model.plant import VirtualPlant
     from service.bench.commission import _setup
     from service.bench.compensation_run import PER_MIN, T0, Session, stored_state
     from service.engine.commissioning import field_history, fit_test, read_displacement_csv
@@ -34,17 +34,19 @@ def main() -> int:
         z = np.load(OUT / f"seed{seed}.npz")
         tz = np.load(OUT / f"test{seed}.npz")
         mech = plant.mechanics(seed)
-        tp = VirtualPlant(plant.spec, fe=plant.fe, seed=seed, mechanics=mech, growth=plant.growth(seed))
+        truth_h = draw_truth(np.random.default_rng([seed, 7]))  # one machine: its test's and its duty's H
+        tp = VirtualPlant(
+            plant.spec, fe=plant.fe, seed=seed, mechanics=mech, growth=plant.growth(seed), h_law=truth_h
+        )
         with tempfile.TemporaryDirectory(prefix="diag-") as tmp:
             t = write_thermal_test(
                 Path(tmp), mechanics=mech, profile=RECOMMENDED_PROFILE, seed=seed, plant=tp
             )
-            with fixed_h(lambda n, amb: h_true(n, amb)):
+            with fixed_h(lambda n, _amb: truth_h(n)):
                 hist = field_history(model, config, t.temperatures, t.canlog)
             disp = read_displacement_csv(t.displacements)
         x_th = fit_test(basis, phi, hist, disp)[0].result.x
         # the duty again (the a arm) to get its final map, then served with that map's H
-        truth_h = draw_truth(np.random.default_rng([seed, 7]))
         duty = duty_profile(seed, duration_s=60.0 * 150, idle_s=60.0 * 30)
         run, truth = plant.run(seed, "offsets", duty, truth_h)
         samples = samples_from_plant(run, t0_s=T0)
