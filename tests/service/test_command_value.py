@@ -1,0 +1,168 @@
+"""The command value and the CI gate (service.serve.command, service.serve.cigate): pure, driven by time."""
+
+from __future__ import annotations
+
+import itertools
+
+import numpy as np
+import pytest
+
+from service.serve.cigate import CiGateError, CiGateLimits, CiGateState, step_gate
+from service.serve.command import (
+    PROFILES,
+    CommandError,
+    CommandState,
+    CommandStatus,
+    advance,
+    profile_from,
+)
+
+GENERIC = PROFILES["generic"]
+
+
+def _run(
+    steps: list[tuple[float, bool, float | None, float | None]], *, hold_s: float = 60.0
+) -> list[CommandState]:
+    state = CommandState.start(steps[0][0])
+    out = []
+    for t, usable, growth, best in steps:
+        state = advance(
+            state, t=t, usable=usable, growth_um=growth, best_um=best, profile=GENERIC, hold_s=hold_s
+        )
+        out.append(state)
+    return out
+
+
+def test_follows_a_usable_growth_after_a_bounded_ramp_from_zero() -> None:
+    states = _run([(float(t), True, 3.0, 3.0) for t in range(0, 20)])
+    values = [s.value_um for s in states]
+    assert max(abs(np.diff(values))) <= GENERIC.max_step_um + 1e-12
+    assert states[1].status is CommandStatus.RATE_LIMITED  # 0 -> 3 µm at 0.5 µm/s
+    assert states[-1].value_um == pytest.approx(3.0)
+    assert states[-1].status is CommandStatus.FOLLOWING
+
+
+def test_holds_then_fades_to_the_best_estimate_and_returns_without_a_jump() -> None:
+    steps: list[tuple[float, bool, float | None, float | None]] = []
+    steps += [(float(t), True, 5.0, 5.0) for t in range(0, 30)]  # settled at 5 µm
+    steps += [(float(t), False, None, 9.0) for t in range(30, 150)]  # CI wide: mean 9 µm
+    steps += [(float(t), True, 2.0, 2.0) for t in range(150, 200)]  # usable again at 2 µm
+    states = _run(steps, hold_s=60.0)
+    by_t = {int(s.t): s for s in states}
+    assert by_t[40].status is CommandStatus.HOLDING and by_t[40].value_um == pytest.approx(5.0)
+    assert by_t[88].value_um == pytest.approx(5.0)  # held for 60 s after the last usable instant (29 s)
+    assert by_t[95].status is CommandStatus.FADING and 5.0 < by_t[95].value_um < 9.0
+    assert by_t[149].value_um == pytest.approx(9.0)
+    assert by_t[151].status is CommandStatus.RATE_LIMITED  # back from 9 to 2 µm at the profile's rate
+    assert by_t[199].value_um == pytest.approx(2.0) and by_t[199].status is CommandStatus.FOLLOWING
+    steps_um = np.abs(np.diff([s.value_um for s in states]))
+    assert steps_um.max() <= GENERIC.max_rate_um_s * 1.0 + 1e-12  # one update per second
+
+
+def test_moves_to_zero_only_when_nothing_is_known() -> None:
+    steps: list[tuple[float, bool, float | None, float | None]] = [
+        (float(t), True, 4.0, 4.0) for t in range(12)
+    ]
+    steps += [(float(t), False, None, None) for t in range(12, 100)]
+    states = _run(steps, hold_s=10.0)
+    assert states[15].status is CommandStatus.HOLDING
+    assert states[-1].status is CommandStatus.NONE and states[-1].value_um == pytest.approx(0.0)
+
+
+def test_the_absolute_limit_clips_and_says_so() -> None:
+    prof = profile_from("generic", limit_um=2.0, max_step_um=100.0, max_rate_um_s=100.0)
+    state = advance(
+        CommandState.start(0.0), t=1.0, usable=True, growth_um=5.0, best_um=5.0, profile=prof, hold_s=1
+    )
+    assert state.value_um == 2.0 and state.status is CommandStatus.AT_LIMIT
+    state = advance(state, t=2.0, usable=True, growth_um=-7.0, best_um=-7.0, profile=prof, hold_s=1)
+    assert state.value_um == -2.0 and state.status is CommandStatus.AT_LIMIT
+
+
+def test_a_clock_stepping_back_moves_nothing() -> None:
+    state = advance(
+        CommandState.start(100.0), t=110.0, usable=True, growth_um=1.0, best_um=1.0, profile=GENERIC, hold_s=1
+    )
+    back = advance(state, t=50.0, usable=True, growth_um=-50.0, best_um=-50.0, profile=GENERIC, hold_s=1)
+    assert back.value_um == state.value_um and back.t == state.t
+
+
+@pytest.mark.parametrize("seed", range(5))
+def test_random_verdicts_never_step_beyond_the_profile(seed: int) -> None:
+    rng = np.random.default_rng(seed)
+    for name, prof in PROFILES.items():
+        state = CommandState.start(0.0)
+        t, prev = 0.0, 0.0
+        for _ in range(500):
+            t += float(rng.uniform(0.1, 5.0))
+            growth = float(rng.normal(0, 30))
+            best = None if rng.random() < 0.2 else float(rng.normal(0, 30))
+            state = advance(
+                state,
+                t=t,
+                usable=bool(rng.random() < 0.6),
+                growth_um=growth,
+                best_um=best,
+                profile=prof,
+                hold_s=20,
+            )
+            assert abs(state.value_um - prev) <= prof.max_step_um + 1e-9, name
+            assert abs(state.value_um) <= prof.limit_um
+            prev = state.value_um
+
+
+def test_bad_profiles_and_inputs_name_the_field() -> None:
+    with pytest.raises(CommandError, match=r"controller\.profile"):
+        profile_from("okuma")
+    with pytest.raises(CommandError, match=r"controller\.max_rate_um_s"):
+        profile_from("fanuc", max_rate_um_s=0.0)
+    with pytest.raises(CommandError, match="growth_um"):
+        advance(
+            CommandState.start(0),
+            t=1,
+            usable=True,
+            growth_um=float("nan"),
+            best_um=0,
+            profile=GENERIC,
+            hold_s=1,
+        )
+
+
+LIMITS = CiGateLimits(max_ci95_um=2.0, enter_fraction=0.8, exit_hold_s=120.0, hard_fraction=1.5)
+
+
+def _gate(halves: list[float], dt: float = 5.0) -> list[bool]:
+    state, out = CiGateState(), []
+    for k, half in enumerate(halves):
+        state = step_gate(state, t=k * dt, half_um=half, limits=LIMITS)
+        out.append(state.open)
+    return out
+
+
+def test_gate_opens_below_the_entry_fraction_only() -> None:
+    assert _gate([1.9, 1.7, 1.61]) == [False, False, False]
+    assert _gate([1.9, 1.6, 1.9]) == [False, True, True]
+
+
+def test_gate_rides_out_a_half_width_that_hovers_at_the_tolerance() -> None:
+    rng = np.random.default_rng(1)
+    halves = [1.5] + list(1.95 + 0.1 * rng.standard_normal(200))  # median 1.95 µm, crossing 2.0 often
+    opened = _gate([min(h, 2.9) for h in halves], dt=5.0)
+    flips = sum(a != b for a, b in itertools.pairwise(opened))
+    plain = [h <= 2.0 for h in halves]
+    plain_flips = sum(a != b for a, b in itertools.pairwise(plain))
+    assert plain_flips > 20 and flips <= 2
+
+
+def test_gate_closes_after_the_hold_or_at_once_past_the_hard_limit() -> None:
+    assert _gate([1.0] + [2.2] * 30)[-1] is False  # 145 s above 2.0 µm
+    assert _gate([1.0] + [2.2] * 20)[-1] is True  # 100 s above: still open
+    assert _gate([1.0, 3.1]) == [True, False]  # past 1.5 × the tolerance
+    assert _gate([1.0, float("nan")]) == [True, False]
+
+
+def test_gate_limits_name_the_setting() -> None:
+    with pytest.raises(CiGateError, match="ci_enter_fraction"):
+        CiGateLimits(max_ci95_um=2.0, enter_fraction=1.2, exit_hold_s=1, hard_fraction=1.5)
+    with pytest.raises(CiGateError, match="ci_hard_fraction"):
+        CiGateLimits(max_ci95_um=2.0, enter_fraction=0.8, exit_hold_s=1, hard_fraction=0.9)
