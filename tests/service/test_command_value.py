@@ -146,7 +146,7 @@ def test_gate_opens_below_the_entry_fraction_only() -> None:
 
 def test_gate_rides_out_a_half_width_that_hovers_at_the_tolerance() -> None:
     rng = np.random.default_rng(1)
-    halves = [1.5] + list(1.95 + 0.1 * rng.standard_normal(200))  # median 1.95 µm, crossing 2.0 often
+    halves = [1.5, *(1.95 + 0.1 * rng.standard_normal(200))]  # median 1.95 µm, crossing 2.0 often
     opened = _gate([min(h, 2.9) for h in halves], dt=5.0)
     flips = sum(a != b for a, b in itertools.pairwise(opened))
     plain = [h <= 2.0 for h in halves]
