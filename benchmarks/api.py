@@ -41,6 +41,7 @@ import statistics
 import subprocess
 import sys
 import time
+from pathlib import Path
 from typing import Any
 
 import httpx
@@ -135,7 +136,10 @@ def _free_port() -> int:
 def _start_server(field_period_s: float = 10.0) -> tuple[subprocess.Popen[bytes], str]:
     port = _free_port()
     code = f"from benchmarks.api import serve; serve({port}, {field_period_s!r})"
-    proc = subprocess.Popen([sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE)
+    root = Path(__file__).resolve().parents[1]  # benchmarks/ is not installed: the child imports it from here
+    proc = subprocess.Popen(
+        [sys.executable, "-c", code], stdout=subprocess.DEVNULL, stderr=subprocess.PIPE, cwd=root
+    )
     url = f"http://127.0.0.1:{port}"
     deadline = time.monotonic() + 120.0
     while time.monotonic() < deadline:

@@ -35,10 +35,12 @@ import sys
 import threading
 import time
 from datetime import datetime
+from pathlib import Path
 from typing import Any
 
 import numpy as np
 
+ROOT = Path(__file__).resolve().parents[1]  # benchmarks/ is not installed: its children import it from here
 TARGET_READ_P99_MS = 10.0
 TARGET_REST_RATIO = 1.5
 COMPENSATION_NODES = (
@@ -166,7 +168,7 @@ class Server:
         }
         code = f"from benchmarks.opcua import serve; serve({json.dumps(cfg)!r})"
         self.proc = subprocess.Popen(
-            [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True
+            [sys.executable, "-c", code], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=ROOT
         )
         self.fed: dict[str, float] = {}
         self.ready = threading.Event()
@@ -261,8 +263,9 @@ def _run_readers(endpoint: str, args: argparse.Namespace) -> dict[str, Any]:
         "duration_s": args.duration,
     }
     code = f"from benchmarks.opcua import readers; readers({json.dumps(cfg)!r})"
+    timeout = 120 + 3 * args.duration
     proc = subprocess.run(
-        [sys.executable, "-c", code], capture_output=True, text=True, timeout=120 + 3 * args.duration
+        [sys.executable, "-c", code], capture_output=True, text=True, timeout=timeout, cwd=ROOT
     )
     lines = [x for x in proc.stdout.splitlines() if x.startswith("{")]
     if proc.returncode != 0 or not lines:
