@@ -166,7 +166,7 @@ async def _poll_running(url: str, stop: asyncio.Event, marks: list[tuple[float, 
 
 
 async def _loaded(url: str, rate: float, duration_s: float, clients: int) -> dict[str, Any]:
-    from benchmarks.api import _load
+    from benchmarks._api_load import _load
 
     marks: list[tuple[float, bool]] = []
     records: list[tuple[float, float]] = []
@@ -194,7 +194,7 @@ async def _loaded(url: str, rate: float, duration_s: float, clients: int) -> dic
 def phase(url: str, args: argparse.Namespace, *, hog: bool) -> dict[str, Any]:
     """One load phase; the service's own histograms (event-loop lag, /chtc request duration as uvicorn's
     app saw it) between scrapes before and after it."""
-    from benchmarks.api import _server_buckets, histogram_quantile
+    from benchmarks._api_load import _server_buckets, histogram_quantile
 
     before, server0 = _lag_buckets(_metric_samples(url)), _server_buckets(url)
     with cpu_hog() if hog else contextlib.nullcontext():

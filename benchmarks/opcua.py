@@ -276,7 +276,7 @@ def _run_readers(endpoint: str, args: argparse.Namespace) -> dict[str, Any]:
 # --- phases -------------------------------------------------------------------------------------------------
 def _rest(url: str, args: argparse.Namespace) -> dict[str, Any]:
     """The REST load; also the API's own p99 of the same requests (its latency histogram, scraped around)."""
-    from benchmarks.api import _load, _server_buckets, histogram_quantile
+    from benchmarks._api_load import _load, _server_buckets, histogram_quantile
 
     before = _server_buckets(url)
     out = asyncio.run(

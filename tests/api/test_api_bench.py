@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 
 from api.app import create_app
-from benchmarks.api import RawClient, _load, histogram_quantile
+from benchmarks._api_load import RawClient, _load, histogram_quantile
 from service.settings import Settings
 from service.sim.served import Served
 from tests.api.conftest import LiveServer
