@@ -156,6 +156,18 @@ def map_h_covariance(m: SpeedMap, speed_rpm: float, ambient_c: float, h_live: np
     return np.asarray(out)
 
 
+def _default_limits() -> CompensationLimits:
+    """The policy's limits for a server built without them (the benches' and the offline history's, which
+    judge the growth alone): the settings' ``[compensation]`` defaults (declared there; no environment)
+    without the mechanics rule, which has no commissioning to read there."""
+    from service.engine.config import compensation_limits
+    from service.settings import CompensationSettings
+
+    return dataclasses.replace(
+        compensation_limits(CompensationSettings()), require_mechanics_calibration=False
+    )
+
+
 class GrowthServer:
     """See the module docstring. Thread-safe: the API threads and the shell's worker threads call it."""
 
@@ -170,7 +182,7 @@ class GrowthServer:
         on_reference: Callable[[CompensationReference], None] | None = None,
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
-        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
+        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: its defaults)
         mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
         mechanics_basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
         probes: tuple[ProbeMeasurement, ...] = (),  # the stored probe readings (restored), oldest first
@@ -179,8 +191,8 @@ class GrowthServer:
         """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
         "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
         when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken
-        here (the shell stores it); ``limits`` the settings' [compensation] (None: the defaults)."""
-        self.limits = limits if limits is not None else CompensationLimits()
+        here (the shell stores it); ``limits`` the settings' [compensation] (None: ``_default_limits``)."""
+        self.limits = limits if limits is not None else _default_limits()
         self.model = model
         if reference is None and t_ref_c is not None:
             reference = CompensationReference(

@@ -1,4 +1,4 @@
-"""Combined mode (``experimental.mode = "combined"``, issue 17) through the real core and shell over the
+"""Combined mode (``identification.mode = "combined"``, issue 17) through the real core and shell over the
 virtual plant (its own mesh and truth): the per-condition identification of a held condition serves while
 the condition holds, the map's H at the current speed elsewhere (right after a change, at short
 conditions); the live state follows the served H; both job kinds share the worker and the job book."""

@@ -1,4 +1,4 @@
-"""Speed-map mode (``experimental.mode = "speed_map"``, issue 17) through the real core and shell: a short
+"""Speed-map mode (``identification.mode = "speed_map"``, issue 17) through the real core and shell: a short
 duty cycle from the virtual plant (its own mesh and truth), /chtc served from the map at the current speed
 right after a change, the status rules, the map persisted and restored as stale, the settings."""
 
@@ -63,7 +63,7 @@ def served(duty, loaded_model):
 
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
-    assert Settings().experimental.mode is IdentificationMode.COMBINED  # docs/design/hmap.md "Default"
+    assert Settings().identification.mode is IdentificationMode.COMBINED  # docs/design/hmap.md "Default"
     for mode in IdentificationMode:  # the settings' spelling is the enum's value
         assert core_config(Settings(experimental={"mode": mode.value})).mode is mode
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))

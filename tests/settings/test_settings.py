@@ -143,7 +143,7 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
         ("[identification]\nschedule_min = [5, 60]\n", "identification"),
         ("[identification]\nmax_window_s = 300\n", "identification"),
         ("[experimental]\ndistance_scales = [1000, 0, 5]\n", "experimental.distance_scales"),
-        ('[experimental]\nmode = "speedmap"\n', "experimental.mode"),
+        ('[experimental]\nmode = "speedmap"\n', "identification.mode"),
         ("[identification]\nmode = 1\n", "identification.mode"),
     ],
 )
@@ -273,14 +273,14 @@ def test_an_old_file_setting_a_moved_key_says_where_it_went(tmp_path: Path) -> N
 def test_a_moved_key_in_the_environment_says_where_it_went(monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
     with pytest.raises(
-        SettingsError, match=r"identification\.mode: moved to \[experimental\].*CHTC_EXPERIMENTAL__MODE"
+        SettingsError, match=r"identification\.mode: moved to \[experimental\].*CHTC_IDENTIFICATION__MODE"
     ):
         load_settings(None)
     monkeypatch.delenv("CHTC_IDENTIFICATION__MODE")
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
     monkeypatch.setenv("CHTC_EXPERIMENTAL__ROM_RANK", "46")
     s = load_settings(None)
-    assert (s.experimental.mode, s.experimental.rom_rank) == ("per_condition", 46)
+    assert (s.identification.mode, s.experimental.rom_rank) == ("per_condition", 46)
 
 
 @pytest.mark.parametrize("key", ["map_start_draws", "map_start_lead_min", "map_live_h_error"])
