@@ -786,13 +786,22 @@ def format_validation_error(err: ValidationError, *, source: str | Path | None =
 
 
 def _gone(loc: tuple[int | str, ...], given: object = None) -> str:
-    """Why ``loc`` is not a key: moved to another section, removed, or unknown. A whole section that is gone
-    (``loc`` its name alone; ``given`` its keys) names where each of its keys went."""
+    """Why ``loc`` is not a key: moved to another section, removed, or unknown. A section that is gone
+    (``loc`` its name alone, ``given`` its keys) names where each of its keys went."""
     if len(loc) == 1 and isinstance(given, dict):
         section = str(loc[0])
-        moved = [f"{section}.{k} {_moved(section, str(k))}" for k in given if (section, str(k)) in MOVED_KEYS]
-        if moved and len(moved) == len(given):
-            return "; ".join(moved)
+        targets = sorted({to.section for (old, _), to in MOVED_KEYS.items() if old == section})
+        if targets and section not in Settings.model_fields:
+            keys = [
+                f"{section}.{k} {_moved(section, str(k))}"
+                if (section, str(k)) in MOVED_KEYS
+                else f"{section}.{k}: unknown key"
+                for k in given
+            ]
+            return (
+                f"the section [{section}] is gone (its keys moved to [{'], ['.join(targets)}]): "
+                + "; ".join(keys)
+            )
     where = (str(loc[0]), str(loc[-1])) if len(loc) == 2 else None
     if where in MOVED_KEYS:
         return _moved(*where)

@@ -283,7 +283,7 @@ def main(args: argparse.Namespace) -> int:
     except (SettingsError, LogFormatError, OSError, ValueError) as err:
         print(f"chtc identify: {err}", file=sys.stderr)
         return 2
-    exp = settings.identification.model_copy(
+    exp = settings.experimental.model_copy(
         update={k: v for k, v in (("seed", args.seed), ("method", args.method)) if v is not None}
     )
     settings = settings.model_copy(update={"experimental": exp})

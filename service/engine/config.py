@@ -46,6 +46,7 @@ MIN_SPEED_RPM = 100.0  # below: spindle idle, no bearing heat, H not identifiabl
 INITIAL_H = (50.0,) * 7  # live-state H before the first identification (no data yet), W/(m²·K)
 STALE_AFTER_MIN_S = 60.0  # H is reported stale after this long without good data, or ...
 STALE_AFTER_SAMPLES = 6  # ... this many sample periods, whichever is longer
+FILTER = FilterSettings()  # the live state's filter tuning: its own defaults (frozen, shared)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -120,7 +121,7 @@ def core_config(settings: Settings) -> CoreConfig:
         estimate_loads=exp.estimate_loads,
         carry_start_error=exp.carry_start_error,
         start_modes=exp.start_modes,
-        filter=FilterSettings(),
+        filter=FILTER,
         time_budget_s=None,
         ci_threshold=ident.ci_rel_threshold,
         h_form_sd=exp.h_form_sd_ln,
