@@ -5,9 +5,9 @@ identification run inline with the configured seed (``experimental.seed``, ``--s
 always give the same H. Prints one line per identification with H and its 95 % confidence intervals, and
 writes them as JSON with ``--json FILE`` (``-`` for stdout), each with ``growth``: the thermal growth at the
 spindle nose at the identification's end as ``/compensation`` would have served it (axial, radial and the
-steady axial growth in µm, their 0.1-µm integers and 95 % CIs, over the zero (``growth.reference_c``, else
-the provisional one: the first converged live field's); ``service.engine.growthserve.GrowthHistory``; null
-for an identification that did not succeed).
+steady axial growth in µm, their 0.1-µm integers and 95 % CIs, over the zero (``compensation.reference_c``,
+else the provisional one: the first converged live field's); ``service.engine.growthserve.GrowthHistory``;
+null for an identification that did not succeed).
 
 The log is sampled as the live acquisition samples it in ``chtc replay`` (one sample per
 ``acquisition.sample_period_s``; ``service.sim.logsamples``), so both commands fit the same data. Without a
