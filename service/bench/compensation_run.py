@@ -20,8 +20,8 @@ identification inline, its own ``GrowthServer`` as ``chtc run`` builds it) sees 
   calibration, map, live state nor stored zero). "No stored state" is the database's: the commissioned zero
   also lives in the configuration, so this run is given ``compensation.reference_c`` = the plant's uniform
   start temperature, the zero its true growth is measured against (``Plant.start_c``). Without it the warm
-  spindle never rests in equilibrium, the growth would stay ``no_reference`` for the whole run and its coverage would
-  measure a provisional zero nobody applies;
+  spindle never rests in equilibrium, the growth would stay ``no_reference`` for the whole run and its
+  coverage would measure a provisional zero nobody applies;
 - ``outages`` (offsets): one run with a DAQ outage while CAN keeps coming (the acquisition's stale DAQ
   sample: the last temperatures with quality ``stale``, ambient NaN, ``daq_ok`` False, speed and torque
   live) and later both devices down (the acquisition's sample with neither: the last values, ``daq_ok`` and

@@ -189,8 +189,8 @@ class GrowthServer:
         probe_gate_sigma: float = DEFAULT_GATE_SIGMA,
     ) -> None:
         """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``compensation.reference_c``)
-        makes a "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
-        when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken
+        makes a "config" one; ``reference_on_first_start``: take one from the first sample at rest in
+        equilibrium when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken
         here (the shell stores it); ``limits`` the settings' [compensation] (None: ``_default_limits``)."""
         self.limits = limits if limits is not None else _default_limits()
         self.model = model
