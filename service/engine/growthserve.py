@@ -190,8 +190,9 @@ class GrowthServer:
     ) -> None:
         """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``compensation.reference_c``)
         makes a "config" one; ``reference_on_first_start``: take one from the first sample at rest in
-        equilibrium when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference
-        taken here (the shell stores it); ``limits`` the settings' [compensation] (None: ``_default_limits``)."""
+        equilibrium when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every
+        reference taken here (the shell stores it); ``limits`` the settings' [compensation] (None:
+        ``_default_limits``)."""
         self.limits = limits if limits is not None else _default_limits()
         self.model = model
         if reference is None and t_ref_c is not None:
