@@ -19,6 +19,7 @@ from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
 from service.identify.speedmap import MapConfig
 from service.identify.window import WindowRules
+from service.modelload import ModelRef
 from service.serve.policy import CompensationLimits
 from service.settings import Settings, load_settings
 
@@ -50,6 +51,7 @@ def test_the_engine_configuration_from_settings_is_the_documented_one(no_env: No
     defaults = Settings()
     assert core_config(documented) == core_config(defaults)
     assert compensation_limits(documented.compensation) == compensation_limits(defaults.compensation)
+    assert ModelRef.from_settings(documented) == ModelRef.from_settings(defaults)
     assert documented.compensation.reference_c == defaults.compensation.reference_c is None
 
 
@@ -69,9 +71,9 @@ def test_the_documented_file_writes_out_every_key_the_engine_reads() -> None:
 
 def _engine_config_classes() -> set[type]:
     """The dataclasses the engine's configuration is made of: ``CoreConfig``, the dataclasses its fields hold
-    (recursively) and the policy's limits."""
+    (recursively), the policy's limits and the model's reference."""
     found: set[type] = set()
-    todo: list[type] = [CoreConfig, CompensationLimits]
+    todo: list[type] = [CoreConfig, CompensationLimits, ModelRef]
     while todo:
         cls = todo.pop()
         if cls in found or cls in EXEMPT:
@@ -94,6 +96,7 @@ def test_no_engine_configuration_class_has_defaults_of_its_own() -> None:
         CalibrationConfig,
         MapConfig,
         CompensationLimits,
+        ModelRef,
     } <= classes
     with_defaults = [
         f"{cls.__name__}.{f.name}"
