@@ -16,6 +16,7 @@ from service.serve.command import (
     advance,
     profile_from,
 )
+from service.serve.controlled import ControlLimits, ControlState, step_control
 
 GENERIC = PROFILES["generic"]
 
@@ -166,3 +167,59 @@ def test_gate_limits_name_the_setting() -> None:
         CiGateLimits(max_ci95_um=2.0, enter_fraction=1.2, exit_hold_s=1, hard_fraction=1.5)
     with pytest.raises(CiGateError, match="ci_hard_fraction"):
         CiGateLimits(max_ci95_um=2.0, enter_fraction=0.8, exit_hold_s=1, hard_fraction=0.9)
+
+
+# ----------------------------------------------------------- the gated verdict and the command together
+
+CONTROL = ControlLimits(gate=LIMITS, profile=GENERIC, hold_s=60.0)
+
+
+def _control(
+    steps: list[tuple[float, bool, str | None, str, float | None, float]],
+) -> list[tuple[ControlState, bool]]:
+    state, out = ControlState.start(steps[0][0]), []
+    for t, usable, reason, status, growth, half in steps:
+        state, ok = step_control(
+            state,
+            t=t,
+            usable=usable,
+            reason=reason,
+            status=status,
+            growth_um=growth,
+            half_um=half,
+            limits=CONTROL,
+        )
+        out.append((state, ok))
+    return out
+
+
+def test_a_safety_reason_acts_at_once_and_the_command_holds() -> None:
+    steps = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps += [(float(t), False, "stale", "stale", 4.0, 1.0) for t in range(30, 40)]
+    out = _control(steps)
+    assert out[29][1] is True and out[30][1] is False  # the gate is open, the verdict drops at once
+    assert out[35][0].command.status is CommandStatus.HOLDING
+    assert out[35][0].command.value_um == pytest.approx(4.0)
+
+
+def test_a_wide_ci_alone_keeps_the_verdict_and_then_fades_to_the_growth_mean() -> None:
+    steps = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps += [(float(t), False, "ci_too_wide", "fresh", 6.0, 2.2) for t in range(30, 400, 5)]
+    out = _control(steps)
+    by_t = {int(s.command.t): (s, ok) for s, ok in out}
+    assert by_t[100][1] is True  # 70 s above the tolerance: the gate (120 s) holds the verdict
+    assert by_t[160][1] is False and by_t[160][0].command.status is CommandStatus.HOLDING
+    assert by_t[395][0].command.value_um == pytest.approx(6.0)  # faded to the growth's mean
+    assert by_t[395][0].command.status is CommandStatus.FADING
+
+
+def test_the_daq_lost_fades_to_the_open_loop_prediction_and_nothing_known_to_zero() -> None:
+    steps = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps += [(float(t), False, "open_loop_too_long", "predicted", 7.0, 1.0) for t in range(30, 200)]
+    out = _control(steps)
+    assert out[-1][0].command.value_um == pytest.approx(7.0)
+    steps = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps += [(float(t), False, "state_converging", "stale", 7.0, 1.0) for t in range(30, 200)]
+    out = _control(steps)
+    assert out[-1][0].command.value_um == pytest.approx(0.0)
+    assert out[-1][0].command.status is CommandStatus.NONE

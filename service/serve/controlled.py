@@ -1,0 +1,93 @@
+"""The served verdict with the CI gate, and the command value, advanced together on one clock (pure;
+docs/design/policy.md, "A steady verdict" and "The command value").
+
+``step_control`` takes the policy's plain verdict (``service.serve.policy.compensation_verdict``: ``usable``
+and its typed ``reason``), the served growth and its 95 % CI half-width, and returns the next
+:class:`ControlState` and whether the growth is usable *with the gate*:
+
+- the safety reasons (anything but ``ci_too_wide``) act at once: not usable whatever the gate says;
+- the CI reason goes through ``service.serve.cigate.step_gate`` (hysteresis), stepped on every call;
+- the command value (``service.serve.command.advance``) follows the gated verdict; its best estimate when not
+  usable is the growth's mean when only the CI bars it, or the open-loop prediction (status ``predicted``)
+  while the DAQ is lost; None (towards 0) otherwise.
+
+The service and the compensation bench (``python -m benchmarks compensation``) call this same function.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+from service.serve.cigate import CiGateLimits, CiGateState, step_gate
+from service.serve.command import CommandState, ControllerProfile, advance
+
+__all__ = ["ControlLimits", "ControlState", "best_estimate", "step_control"]
+
+CI_TOO_WIDE = "ci_too_wide"
+PREDICTED = "predicted"
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControlLimits:
+    """The gate's limits, the controller's profile and the command's hold (``[compensation]`` ``ci_*`` and
+    ``[controller]``; built by the engine's config from the settings, no defaults here)."""
+
+    gate: CiGateLimits
+    profile: ControllerProfile
+    hold_s: float
+
+
+@dataclass(frozen=True, kw_only=True)
+class ControlState:
+    """The CI gate's state and the command's (checkpointed with the live state)."""
+
+    gate: CiGateState
+    command: CommandState
+
+    @classmethod
+    def start(cls, t: float) -> ControlState:
+        """The gate closed, the command at 0 (nothing applied yet)."""
+        return cls(gate=CiGateState(), command=CommandState.start(t))
+
+
+def best_estimate(*, safe: bool, status: str, growth_um: float | None) -> float | None:
+    """What the command moves towards when the growth is not usable: the growth's mean when only its CI
+    bars it (``safe``: the plain verdict usable or ``ci_too_wide``), the open-loop prediction while the DAQ is
+    lost (``status`` ``predicted``); None when nothing is known."""
+    if growth_um is None or not math.isfinite(growth_um):
+        return None
+    return growth_um if safe or status == PREDICTED else None
+
+
+def step_control(
+    state: ControlState,
+    *,
+    t: float,
+    usable: bool,
+    reason: str | None,
+    status: str,
+    growth_um: float | None,
+    half_um: float,
+    limits: ControlLimits,
+) -> tuple[ControlState, bool]:
+    """The gated verdict and the command at ``t`` [POSIX s] (module docstring). ``usable``/``reason``: the
+    policy's plain verdict (``reason`` its code, None when usable); ``status``: the served status value;
+    ``growth_um``: the served growth (None: nothing served); ``half_um``: its 95 % CI half-width (NaN: none).
+    A ``t`` before the state's is taken as the state's (a clock that stepped back moves nothing)."""
+    now = max(float(t), state.command.t)
+    safe = usable or reason == CI_TOO_WIDE
+    half = half_um if growth_um is not None else math.nan
+    gate = step_gate(state.gate, t=now, half_um=half, limits=limits.gate)
+    gated = bool(safe and gate.open and growth_um is not None)
+    best = best_estimate(safe=safe, status=status, growth_um=growth_um)
+    command = advance(
+        state.command,
+        t=now,
+        usable=gated,
+        growth_um=growth_um if gated else None,
+        best_um=best,
+        profile=limits.profile,
+        hold_s=limits.hold_s,
+    )
+    return ControlState(gate=gate, command=command), gated
