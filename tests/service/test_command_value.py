@@ -174,9 +174,10 @@ def test_gate_limits_name_the_setting() -> None:
 CONTROL = ControlLimits(gate=LIMITS, profile=GENERIC, hold_s=60.0)
 
 
-def _control(
-    steps: list[tuple[float, bool, str | None, str, float | None, float]],
-) -> list[tuple[ControlState, bool]]:
+Step = tuple[float, bool, str | None, str, float | None, float]
+
+
+def _control(steps: list[Step]) -> list[tuple[ControlState, bool]]:
     state, out = ControlState.start(steps[0][0]), []
     for t, usable, reason, status, growth, half in steps:
         state, ok = step_control(
@@ -194,7 +195,7 @@ def _control(
 
 
 def test_a_safety_reason_acts_at_once_and_the_command_holds() -> None:
-    steps = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps: list[Step] = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
     steps += [(float(t), False, "stale", "stale", 4.0, 1.0) for t in range(30, 40)]
     out = _control(steps)
     assert out[29][1] is True and out[30][1] is False  # the gate is open, the verdict drops at once
@@ -203,7 +204,7 @@ def test_a_safety_reason_acts_at_once_and_the_command_holds() -> None:
 
 
 def test_a_wide_ci_alone_keeps_the_verdict_and_then_fades_to_the_growth_mean() -> None:
-    steps = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps: list[Step] = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
     steps += [(float(t), False, "ci_too_wide", "fresh", 6.0, 2.2) for t in range(30, 400, 5)]
     out = _control(steps)
     by_t = {int(s.command.t): (s, ok) for s, ok in out}
@@ -214,7 +215,7 @@ def test_a_wide_ci_alone_keeps_the_verdict_and_then_fades_to_the_growth_mean() -
 
 
 def test_the_daq_lost_fades_to_the_open_loop_prediction_and_nothing_known_to_zero() -> None:
-    steps = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps: list[Step] = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
     steps += [(float(t), False, "open_loop_too_long", "predicted", 7.0, 1.0) for t in range(30, 200)]
     out = _control(steps)
     assert out[-1][0].command.value_um == pytest.approx(7.0)
