@@ -56,3 +56,17 @@ def test_a_map_fits_truth_is_at_its_window_end(capsys) -> None:
     assert "map H = [2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5] at 4000 rpm" in out
     want = "plant truth H = [2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0] (the map at the window's end, 4000 rpm)"
     assert want in out
+
+
+def test_the_demo_rests_long_enough_for_an_offset_baseline() -> None:
+    """Issue 42: a 5-min rest equal to the baseline's 5-min equilibrium window left the demo without an
+    offset baseline for good, and its growth's CI at the 2 µm tolerance."""
+    from service.cli import build_parser
+    from service.commands.demo import demo_settings, idle_minutes
+
+    args = build_parser(["demo"]).parse_args(["demo", "--port", "8765"])
+    settings, _token = demo_settings(args, "sqlite:///:memory:")
+    rest_s = settings.identification.offset_rest_s
+    assert 60.0 * idle_minutes(args, settings) >= rest_s + 120.0
+    short = build_parser(["demo"]).parse_args(["demo", "--port", "8765", "--idle-min", "2"])
+    assert idle_minutes(short, settings) == 2.0
