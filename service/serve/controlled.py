@@ -1,5 +1,6 @@
-"""The served verdict with the CI gate, and the command value, advanced together on one clock (pure;
-docs/design/policy.md, "A steady verdict" and "The command value").
+"""The served verdict with the CI gate, and the command value, advanced together on one clock (pure, but for
+the small thread-safe holder ``Controller``; docs/design/policy.md, "A steady verdict" and "The command
+value").
 
 ``step_control`` takes the policy's plain verdict (``service.serve.policy.compensation_verdict``: ``usable``
 and its typed ``reason``), the served growth and its 95 % CI half-width, and returns the next
@@ -17,12 +18,23 @@ The service and the compensation bench (``python -m benchmarks compensation``) c
 from __future__ import annotations
 
 import math
+import threading
 from dataclasses import dataclass
 
+from service.estimate.growth import PlcCompensation, plc_compensation
 from service.serve.cigate import CiGateLimits, CiGateState, step_gate
-from service.serve.command import CommandState, ControllerProfile, advance
+from service.serve.command import CommandState, CommandStatus, ControllerProfile, advance
+from service.serve.verdict import Reason, Verdict
 
-__all__ = ["ControlLimits", "ControlState", "best_estimate", "step_control"]
+__all__ = [
+    "CommandSnapshot",
+    "ControlLimits",
+    "ControlState",
+    "Controller",
+    "best_estimate",
+    "gated_verdict",
+    "step_control",
+]
 
 CI_TOO_WIDE = "ci_too_wide"
 PREDICTED = "predicted"
@@ -91,3 +103,92 @@ def step_control(
         hold_s=limits.hold_s,
     )
     return ControlState(gate=gate, command=command), gated
+
+
+# ----------------------------------------------------------------------------- the service's controller
+
+
+@dataclass(frozen=True, kw_only=True)
+class CommandSnapshot:
+    """The command value served with ``/compensation`` (``command``): ``value_um`` [µm] what the controller
+    applies now (the axial growth it compensates, + towards the tool), its ``status``, the ``profile`` that
+    bounds it, and ``plc``: the value in each controller's unit (``service.estimate.growth.plc_compensation``
+    on the command value)."""
+
+    value_um: float
+    status: CommandStatus
+    profile: ControllerProfile
+    hold_s: float
+    plc: PlcCompensation
+    at: float  # the command's instant [POSIX s]
+
+
+class Controller:
+    """The gate's and the command's state of one spindle, advanced by ``step`` on the service's clock (each
+    published sample and each read; thread-safe). ``state`` is what the live checkpoint stores."""
+
+    def __init__(
+        self, limits: ControlLimits, *, tool_dir: int = -1, state: ControlState | None = None
+    ) -> None:
+        self.limits = limits
+        self.tool_dir = tool_dir
+        self._state = state
+        self._lock = threading.Lock()
+
+    @property
+    def state(self) -> ControlState | None:
+        """The state now (None: never stepped)."""
+        with self._lock:
+            return self._state
+
+    def restore(self, state: ControlState | None) -> None:
+        """Resume from a checkpointed state (None: start afresh)."""
+        with self._lock:
+            self._state = state
+
+    def step(
+        self, t: float, verdict: Verdict, *, growth_um: float | None, half_um: float
+    ) -> tuple[Verdict, CommandSnapshot]:
+        """The verdict with the CI gate and the command at ``t`` [POSIX s] from the policy's plain ``verdict``
+        (module docstring)."""
+        with self._lock:
+            state = self._state if self._state is not None else ControlState.start(t)
+            state, usable = step_control(
+                state,
+                t=t,
+                usable=verdict.usable,
+                reason=None if verdict.reason is None else verdict.reason.value,
+                status=verdict.status.value,
+                growth_um=growth_um,
+                half_um=half_um,
+                limits=self.limits,
+            )
+            self._state = state
+        cmd = state.command
+        snap = CommandSnapshot(
+            value_um=cmd.value_um,
+            status=cmd.status,
+            profile=self.limits.profile,
+            hold_s=self.limits.hold_s,
+            plc=plc_compensation(cmd.value_um, tool_dir=self.tool_dir),
+            at=cmd.t,
+        )
+        return gated_verdict(verdict, usable=usable, half_um=half_um, limits=self.limits.gate), snap
+
+
+def gated_verdict(verdict: Verdict, *, usable: bool, half_um: float, limits: CiGateLimits) -> Verdict:
+    """The policy's ``verdict`` with the gate's answer on the CI: a safety reason is kept as it is; a CI
+    within the tolerance while the gate is still closed reads ``ci_too_wide`` (waiting for the entry level);
+    a CI above the tolerance while the gate holds it open reads usable."""
+    if usable == verdict.usable:
+        return verdict
+    if usable:
+        return Verdict(verdict.status, True)
+    entry = limits.enter_fraction * limits.max_ci95_um
+    return Verdict(
+        verdict.status,
+        False,
+        Reason.CI_TOO_WIDE,
+        f"95 % CI half-width {half_um:.2f} µm: usable again at {entry:.2f} µm or less "
+        "(compensation.ci_enter_fraction × max_ci95_um)",
+    )

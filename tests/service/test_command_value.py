@@ -224,3 +224,26 @@ def test_the_daq_lost_fades_to_the_open_loop_prediction_and_nothing_known_to_zer
     out = _control(steps)
     assert out[-1][0].command.value_um == pytest.approx(0.0)
     assert out[-1][0].command.status is CommandStatus.NONE
+
+
+def test_the_controller_rewrites_only_the_ci_part_of_the_verdict() -> None:
+    from service.serve.controlled import Controller
+    from service.serve.verdict import ChtcStatus, Reason, Verdict
+
+    ctl = Controller(CONTROL, tool_dir=-1)
+    plain_ok = Verdict(ChtcStatus.FRESH, True)
+    # within the tolerance but above the entry level (1.6 µm): the closed gate says ci_too_wide
+    verdict, cmd = ctl.step(0.0, plain_ok, growth_um=3.0, half_um=1.8)
+    assert not verdict.usable and verdict.reason is Reason.CI_TOO_WIDE and "1.60" in (verdict.detail or "")
+    verdict, cmd = ctl.step(10.0, plain_ok, growth_um=3.0, half_um=1.2)
+    assert verdict.usable and cmd.value_um == pytest.approx(1.0)  # ramping at 1 µm per update
+    wide = Verdict(ChtcStatus.FRESH, False, Reason.CI_TOO_WIDE, "wide")
+    verdict, cmd = ctl.step(20.0, wide, growth_um=3.0, half_um=2.3)
+    assert verdict.usable and verdict.reason is None  # held open by the gate (120 s)
+    stale = Verdict(ChtcStatus.STALE, False, Reason.STALE, "no samples")
+    verdict, cmd = ctl.step(30.0, stale, growth_um=3.0, half_um=1.0)
+    assert verdict is stale and cmd.status is CommandStatus.HOLDING
+    assert cmd.plc.sd43900_mm == pytest.approx(cmd.value_um * 1e-3)  # tool to -Z: correction = +growth
+    # a clock stepping back moves nothing
+    _verdict, back = ctl.step(5.0, plain_ok, growth_um=-40.0, half_um=1.0)
+    assert back.value_um == cmd.value_um and back.at == cmd.at
