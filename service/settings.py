@@ -423,7 +423,7 @@ class ControllerSettings(_Section):
     limit_um: float | None = Field(default=None, gt=0.0, le=100000.0, allow_inf_nan=False)  # |command|
     # after the verdict drops, the last applied value is held this long [s] before it moves towards the best
     # estimate the service still has
-    hold_s: float = Field(default=120.0, ge=0.0, le=86400.0, allow_inf_nan=False)
+    hold_s: float = Field(default=300.0, ge=0.0, le=86400.0, allow_inf_nan=False)
 
 
 def check_token(text: str) -> str:
