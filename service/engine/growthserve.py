@@ -759,6 +759,8 @@ class GrowthServer:
             identified_at=None if rec is None else rec.finished_at,
             has_reference=self._reference is not None,
             has_mechanics=self._commissioning is not None,
+            # calibration off (no offset 1σ published): the operator handles the offsets, the rule is off
+            has_offset_baseline=view.offset_sd_c is None or view.calibration is not None,
         )
         return CompensationSnapshot(
             growth=est,

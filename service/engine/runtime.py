@@ -189,6 +189,7 @@ def growth_server(
         max_identification_age_min=c.max_identification_age_min,
         max_open_loop_min=c.max_open_loop_min,
         require_mechanics_calibration=c.require_mechanics_calibration,
+        require_offset_baseline=c.require_offset_baseline,
     )
     return GrowthServer(
         model,

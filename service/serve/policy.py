@@ -54,6 +54,9 @@ class CompensationLimits:
     # default is true (docs/design/policy.md), the pure default keeps the rule off for callers that judge the
     # growth alone
     require_mechanics_calibration: bool = False
+    # not usable while the sensors' offsets are unknown (``no_offset_baseline``: calibration on, no baseline;
+    # issue 40): the settings' default is true, the pure default keeps the rule off
+    require_offset_baseline: bool = False
 
 
 class LiveLike(Protocol):
@@ -171,12 +174,14 @@ def compensation_verdict(
     identified_at: datetime | None,
     has_reference: bool = True,
     has_mechanics: bool = True,
+    has_offset_baseline: bool = True,
 ) -> Verdict:
     """Whether a controller may apply the growth served now (see the module docstring), in this order:
     data (``no_data``, ``stale``, ``open_loop_too_long``; ``stale`` at once when the newest sample has neither
     DAQ nor CAN data), live state (``state_converging``,
     ``state_inconsistent``), ``no_reference``, ``mechanics_uncalibrated`` (only when ``limits`` require a
-    commissioning and ``has_mechanics`` is false), ``identification_old``, ``ci_too_wide``. The status is
+    commissioning and ``has_mechanics`` is false), ``no_offset_baseline`` (only when ``limits`` require a
+    baseline and ``has_offset_baseline`` is false), ``identification_old``, ``ci_too_wide``. The status is
     ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
     open_loop_s = 60.0 * limits.max_open_loop_min
     data = data_verdict(
@@ -227,6 +232,15 @@ def compensation_verdict(
             Reason.MECHANICS_UNCALIBRATED,
             "the mechanics (mount restraint, α) are not commissioned: the growth's CI does not cover an "
             "unknown mount (compensation.require_mechanics_calibration)",
+        )
+    if limits.require_offset_baseline and not has_offset_baseline:
+        return Verdict(
+            status,
+            False,
+            Reason.NO_OFFSET_BASELINE,
+            "no offset baseline of the sensors yet (a start on a warm spindle without the stored "
+            "calibration): the unknown offsets bend the field and the H, and the growth's CI does not cover "
+            "that (compensation.require_offset_baseline)",
         )
     if identified_at is None:
         return Verdict(status, False, Reason.NO_IDENTIFICATION, "no H identified yet")

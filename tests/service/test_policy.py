@@ -149,3 +149,28 @@ def test_an_uncalibrated_mechanics_is_not_usable_when_the_setting_asks_for_it() 
     assert verdict(has_mechanics=False) == (ChtcStatus.FRESH, True, None)  # the rule off: judged as before
     # the zero comes first: nothing to compensate against without one
     assert verdict(limits=strict, has_mechanics=False, has_reference=False)[2] is Reason.NO_REFERENCE
+
+
+def test_unknown_sensor_offsets_are_not_usable_when_the_setting_asks_for_it() -> None:
+    """Issue 40: after a warm start with no stored calibration the ±0.2 °C offsets biased the growth by −2 µm
+    for ~45 min inside a CI that missed it, so ``compensation.require_offset_baseline`` (default true)
+    withholds the growth until a baseline exists; with one it is judged by the later rules."""
+    from service.settings import Settings
+
+    strict = CompensationLimits(max_ci95_um=2.0, require_offset_baseline=True)
+    assert Settings().compensation.require_offset_baseline is True
+    assert verdict(limits=strict, has_offset_baseline=False) == (
+        ChtcStatus.FRESH,
+        False,
+        Reason.NO_OFFSET_BASELINE,
+    )
+    from service.serve.verdict import ACTIONS
+
+    assert Reason.NO_OFFSET_BASELINE in ACTIONS
+    assert verdict(limits=strict, has_offset_baseline=True) == (ChtcStatus.FRESH, True, None)
+    assert verdict(has_offset_baseline=False) == (ChtcStatus.FRESH, True, None)  # the rule off
+    # the mechanics come first (a commissioning is needed whatever the offsets)
+    both = CompensationLimits(require_offset_baseline=True, require_mechanics_calibration=True)
+    assert verdict(limits=both, has_mechanics=False, has_offset_baseline=False)[2] is (
+        Reason.MECHANICS_UNCALIBRATED
+    )
