@@ -382,9 +382,9 @@ class CompensationSettings(_Section):
     # match the spindle description (the simulator's plant)
     require_mechanics_calibration: bool = True
     # /compensation is not usable (reason no_offset_baseline) while sensor calibration is on and has no
-    # baseline yet: after a start on a warm spindle with no stored calibration the unknown offsets (±0.2 °C)
-    # biased the growth by up to −2 µm with a CI that missed it (issue 40; docs/design/policy.md); the baseline
-    # is taken at the next rest in equilibrium or on request (POST /api/v1/sensors/baseline)
+    # baseline yet: after a start on a warm spindle with no stored calibration the unknown offsets
+    # (±0.2 °C) biased the growth by up to −2 µm with a CI that missed it (issue 40; docs/design/policy.md);
+    # the baseline is taken at the next rest in equilibrium or on request (POST /api/v1/sensors/baseline)
     require_offset_baseline: bool = True
     # a probe reading (POST /api/v1/compensation/measurements) further than this many σ of its prediction (the
     # served growth's CI with the probe's own sd) is flagged and not absorbed (a crash or a tool change)

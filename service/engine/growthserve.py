@@ -772,6 +772,7 @@ class GrowthServer:
             channels=tuple(s.channel for s in self.model.spec.sensors),
             reference=self._reference,
             mechanics=self._mechanics,
+            sensor_faults=() if view.live is None else view.live.sensor_faults,
         )
 
 

@@ -67,8 +67,8 @@ ACTIONS: dict[Reason, str] = {
     "in order and clears itself (see /healthz, chtc_core_lag_seconds).",
     Reason.MECHANICS_UNCALIBRATED: "Commission the growth from a measured thermal test "
     "(`chtc commission growth`, docs/commissioning.md).",
-    Reason.NO_OFFSET_BASELINE: "Let the spindle rest in equilibrium (the baseline is taken by itself) or take "
-    "one at rest (POST /api/v1/sensors/baseline); a restart with the stored calibration keeps it.",
+    Reason.NO_OFFSET_BASELINE: "Let the spindle rest in equilibrium (the baseline is taken by itself) or "
+    "take one at rest (POST /api/v1/sensors/baseline); a restart with the stored calibration keeps it.",
 }
 
 
