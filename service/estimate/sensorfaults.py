@@ -29,7 +29,7 @@ detected channel (``FilteredState.forget_channel``: what its readings bent so fa
 
 Errors::
 
-    SensorFaultError(ValueError)   bad arrays (shape) or settings, the field named
+    SensorFaultError(ServiceError, ValueError)   bad arrays (shape) or settings, the field named
 """
 
 from __future__ import annotations
@@ -43,6 +43,7 @@ import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
 from service.contracts.sensorfault import FaultKind, SensorFault
+from service.errors import ServiceError
 
 __all__ = [
     "FaultChange",
@@ -57,7 +58,7 @@ __all__ = [
 Array = NDArray[np.float64]
 
 
-class SensorFaultError(ValueError):
+class SensorFaultError(ServiceError, ValueError):
     """Bad input to the fault monitor; the message names the field."""
 
 
@@ -69,7 +70,7 @@ class FaultMonitorSettings:
     stuck_band_c: float = 0.005  # [°C] peak-to-peak of a frozen reading (a DAQ's quantum is 0.01 °C)
     stuck_min_change_c: float = 0.1  # [°C] the prediction's move over the window that a live sensor shows
     cusum_k: float = 0.5  # [σ] allowance per sample
-    cusum_h: float = 25.0  # [σ·samples] alarm threshold
+    cusum_h: float = 50.0  # [σ·samples] alarm threshold (a stale H drove clean channels to 32 on the plant)
     reference_samples: int = 60  # the reference mean: the plain average over the first samples (10 min)
     reference_tau_samples: float = 2160.0  # then an exponential average with this time constant (6 h)
     recover_window: int = 30  # samples (5 min) judged for a recovery
@@ -241,11 +242,16 @@ class FaultMonitor:
         room = st.max_excluded - int(self.excluded().sum())
         out: list[FaultChange] = []
         for i in np.flatnonzero(stuck | drift)[: max(room, 0)]:
+            if drift[i] and self._fill[i] >= 6:  # a frozen reading the model ran away from: stuck, not drift
+                recent = self._window(self._raw, 6)[:, i]  # the last minute: noise alone never repeats
+                stuck[i] = float(recent.max() - recent.min()) <= st.stuck_band_c
             if stuck[i]:
+                n_flat = ws if self._fill[i] >= ws and not drift[i] else 6
+                last = self._raw[(self._pos - 1) % self._keep, i]
                 detail = (
-                    f"reading frozen at {self._raw[(self._pos - 1) % self._keep, i]:.2f} °C for {ws} samples "
-                    f"(peak-to-peak {ptp[i]:.3f} °C) while the noise ({self.noise_c:.2f} °C) or the model "
-                    f"({moved[i]:.2f} °C) should move it"
+                    f"reading frozen at {last:.2f} °C for {n_flat}+ samples (peak-to-peak ≤ "
+                    f"{st.stuck_band_c:.3f} °C) while the noise ({self.noise_c:.2f} °C) or the model should "
+                    "move it"
                 )
                 out.append(self._detect(t, int(i), FaultKind.STUCK, detail, abs(float(nu[i]))))
                 continue

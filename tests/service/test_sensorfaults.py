@@ -11,6 +11,7 @@ from service.estimate.sensorfaults import (
     FaultMonitor,
     FaultMonitorSettings,
     SensorFaultError,
+    fault_lines,
 )
 
 N = 32
@@ -62,6 +63,7 @@ def run(
     return out
 
 
+@pytest.mark.slow
 def test_clean_data_over_eight_hours_raise_no_alarm() -> None:
     for seed in range(3):
         m = FaultMonitor(N, noise_c=SIGMA)
@@ -91,6 +93,7 @@ def test_a_stuck_channel_is_found_within_its_window_and_taken_back_when_it_moves
     assert m.active() == ()
 
 
+@pytest.mark.slow
 def test_a_drift_is_found_before_it_reaches_one_degree_and_stays_out() -> None:
     for seed in range(5):
         m = FaultMonitor(N, noise_c=SIGMA)
@@ -143,3 +146,29 @@ def test_bad_input_names_the_field() -> None:
     with pytest.raises(SensorFaultError, match="channels"):
         FaultMonitor(N, channels=(1, 2))
     assert FaultKind("stuck") is FaultKind.STUCK
+
+
+def test_identification_windows_leave_out_what_a_fault_touched_and_the_log_says_it() -> None:
+    """A stuck channel is suspect from its frozen window's start; once taken back, windows after that are
+    clean again. The log names channel, kind, since when (UTC) and why, then the recovery."""
+    m = FaultMonitor(N, noise_c=SIGMA)
+    changes: list[str] = []
+    rng = np.random.default_rng(4)
+    frozen = 0.0
+    for k in range(1200):
+        y = np.round((truth(k) + SIGMA * rng.standard_normal(N)) / 0.01) * 0.01
+        frozen = y[2] if k == 300 else frozen
+        if 300 <= k < 500:
+            y[2] = frozen
+        got = m.observe(k * DT_S, y, np.ones(N, bool), truth(k), np.full(N, STD))
+        changes += fault_lines(got)
+        if 340 <= k < 500:
+            assert m.suspect(0.0, k * DT_S)[2] and m.excluded()[2]
+    assert not m.excluded()[2]
+    assert m.suspect(2900.0, 3050.0)[2]  # overlaps the frozen window (found at 3300 s, 31 samples back)
+    assert not m.suspect(2000.0, 2500.0)[2]  # before it
+    assert not m.suspect(11000.0, 11900.0)[2]  # after it was taken back
+    assert len(changes) == 2
+    assert changes[0].startswith("sensor channel 3 left out of the live state as stuck since 1970-01-01T")
+    assert f"frozen at {frozen:.2f} °C" in changes[0]
+    assert changes[1].startswith("sensor channel 3 taken back into the live state at ")
