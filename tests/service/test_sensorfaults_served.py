@@ -28,7 +28,7 @@ FROZEN = (48, 102)  # samples [from, to): minutes 8 to 17
 def test_a_stuck_channel_is_found_said_and_taken_back(tmp_path: Path) -> None:
     url = f"sqlite:///{tmp_path / 'chtc.sqlite'}"
     logs: list[str] = []
-    settings = Settings(growth={"reference_c": 23.2})
+    settings = Settings(compensation={"reference_c": 23.2})
     with served_service(database_url=url, settings=settings, feed_samples=0, on_event=logs.append) as s:
         samples = s.samples
         frozen = float(samples[FROZEN[0] - 1].temps_c[CHANNEL - 1])
