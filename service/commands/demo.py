@@ -29,7 +29,7 @@ import signal
 import tempfile
 import time
 from collections.abc import Callable
-from datetime import datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -181,6 +181,11 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
 
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)
+    resume_at = await asyncio.to_thread(clock_start_after, db_url)
+    if resume_at is not None:
+        clock.start(at=resume_at)
+        at = resume_at.isoformat(timespec="seconds")
+        print(f"plant clock starts at {at}, after what the database holds", flush=True)
     # the devices and the plant run in a process of their own, as real ones do: it computes the plant's
     # first chunk while this one loads the model
     plan = RigPlan.on_free_ports(
@@ -221,6 +226,30 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
         await rig.stop()
     print("demo stopped", flush=True)
     return 0
+
+
+def clock_start_after(db_url: str, *, now: datetime | None = None) -> datetime | None:
+    """Where the plant clock starts on a database an earlier demo left: a minute after the newest time it
+    holds, when that is later than now (its accelerated clock ran ahead of the wall clock); None: now. A
+    clock started behind the stored times would date the new samples before the stored live state,
+    conditions and identifications (issue 41)."""
+    from service.store.engine import create_db_engine
+    from service.store.newest import newest_time
+
+    try:
+        engine = create_db_engine(db_url, create_dirs=False)
+    except Exception:  # an unusable URL is the runtime's to report, with its checks
+        return None
+    try:
+        newest = newest_time(engine)
+    except Exception:  # an unreadable database is the runtime's to report, with its checks
+        return None
+    finally:
+        engine.dispose()
+    now = now if now is not None else datetime.now(UTC)
+    if newest is None or newest < now:
+        return None
+    return newest + timedelta(minutes=1)
 
 
 def _announce(args: argparse.Namespace, base_url: str, db_url: str, token: str | None) -> None:
