@@ -178,8 +178,8 @@ def compensation_verdict(
     ``state_inconsistent``), ``no_reference``, ``mechanics_uncalibrated`` (only when ``limits`` require a
     commissioning and ``has_mechanics`` is false), ``no_identification`` or ``identification_old``,
     ``ci_too_wide`` (not judged while the data or the live state block). The first is the verdict's
-    ``reason``; every one that blocks is listed, in this order, in ``Verdict.blocking``. The status is ``fresh``,
-    ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
+    ``reason``; every one that blocks is listed, in this order, in ``Verdict.blocking``. The status is
+    ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
     open_loop_s = 60.0 * limits.max_open_loop_min
     data = data_verdict(
         view.data_problems(now),
