@@ -963,6 +963,7 @@ const ACTION_BY_STATUS = {
   stale: "Check the DAQ and CAN connections (Devices card): the value is not being updated.",
   "no-data": "Wait for samples; if none arrive, check the devices.",
   identifying: "Wait: a new identification is on its way.",
+  converging: "Wait a few minutes: the live temperature state is settling after a (re)start.",
   "at-bound": "Wait for more data at this condition; if it persists, check the sensors.",
   predicted: "Restore the temperature DAQ: the value is predicted without measurements.",
   fresh: "Wait until the estimate is good enough to apply.",

@@ -142,11 +142,12 @@ def data_verdict(
 
 def _live_verdict(live: LiveLike | None, now: datetime) -> Verdict | None:
     if live is None:
-        return Verdict(ChtcStatus.STALE, False, Reason.STATE_CONVERGING, "the live state has not started")
+        not_started = "the live state has not started"
+        return Verdict(ChtcStatus.CONVERGING, False, Reason.STATE_CONVERGING, not_started)
     if not live.converged:
         since = _iso(datetime.fromtimestamp(live.started_at, tz=now.tzinfo))
         return Verdict(
-            ChtcStatus.STALE,
+            ChtcStatus.CONVERGING,
             False,
             Reason.STATE_CONVERGING,
             f"the live temperature state has not converged since {since} (restart or data gap)",
@@ -179,7 +180,8 @@ def compensation_verdict(
     commissioning and ``has_mechanics`` is false), ``no_identification`` or ``identification_old``,
     ``ci_too_wide`` (not judged while the data or the live state block). The first is the verdict's
     ``reason``; every one that blocks is listed, in this order, in ``Verdict.blocking``. The status is
-    ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
+    ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``converging`` (the live state settles),
+    ``stale`` or ``no-data``."""
     open_loop_s = 60.0 * limits.max_open_loop_min
     data = data_verdict(
         view.data_problems(now),
@@ -300,9 +302,10 @@ def chtc_verdict(
     """Whether the H served now may be used by a model that needs them (``/chtc``), and their status.
 
     The status: with the speed map serving (``map_verdict``), the map's; otherwise ``no-data`` (no sample;
-    ``stale`` for a restored record), ``stale`` (data not fresh, a restored record, or the live state not
-    converged), ``identifying`` (a job runs, or the record is of another condition, or the condition is
-    changing), else ``fresh``; a ``fresh`` one with an H on a bound of the search box is ``at-bound``.
+    ``stale`` for a restored record), ``stale`` (data not fresh), ``converging`` (fresh data, the live state
+    not converged yet), ``stale`` (a restored record), ``identifying`` (a job runs, or the record is of
+    another condition, or the condition is changing), else ``fresh``; a ``fresh`` one with an H on a bound of
+    the search box is ``at-bound``.
 
     The reason, in order: ``no_data``, ``stale`` (the H need measured temperatures: no open loop),
     ``state_converging``, the map's own (``map_old``, ``speed_not_visited``, ``restored``),
@@ -313,7 +316,11 @@ def chtc_verdict(
         status = map_verdict.status
     elif not has_sample:
         status = ChtcStatus.STALE if restored else ChtcStatus.NO_DATA
-    elif problems or restored or converging:
+    elif problems:
+        status = ChtcStatus.STALE
+    elif converging:  # fresh data: the live state settles (the H served are the last identified ones)
+        status = ChtcStatus.CONVERGING
+    elif restored:
         status = ChtcStatus.STALE
     elif (
         running
@@ -401,9 +408,10 @@ def map_verdict(
 ) -> Verdict:
     """How current the speed map is at the current speed. In this order: ``no-data`` (no sample), ``stale``
     (``problems``; or no speed known at all: ``speed_rpm`` None with a sample; or ``restored``: the stored
-    map, not re-fitted since the restart; or ``state_converging``), then ``identifying`` with ``map_old`` (the
-    fit's window ended more than ``fresh_s`` before the newest sample) or ``speed_not_visited`` (the current
-    speed is not within ``margin_rpm`` of a speed with >= ``min_visit_s`` of fitted data), else ``fresh``."""
+    map, not re-fitted since the restart), ``converging`` (``state_converging``), then ``identifying`` with
+    ``map_old`` (the fit's window ended more than ``fresh_s`` before the newest sample) or
+    ``speed_not_visited`` (the current speed is not within ``margin_rpm`` of a speed with >= ``min_visit_s``
+    of fitted data), else ``fresh``."""
     stale = ChtcStatus.STALE
     if newest_t is None:
         if speed_map.restored:
@@ -417,7 +425,7 @@ def map_verdict(
         return Verdict(stale, False, Reason.RESTORED, "the stored map, not re-fitted since the restart")
     if converging_since is not None:
         detail = f"the live temperature state has not converged since {_iso(converging_since)}"
-        return Verdict(stale, False, Reason.STATE_CONVERGING, detail)
+        return Verdict(ChtcStatus.CONVERGING, False, Reason.STATE_CONVERGING, detail)
     age = (newest_t - speed_map.fitted_at).total_seconds()
     if age > fresh_s:
         return Verdict(

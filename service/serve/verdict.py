@@ -17,6 +17,7 @@ class ChtcStatus(enum.StrEnum):
     PREDICTED = "predicted"  # the DAQ is down, CAN speed/torque alive: the live state runs open loop (growth)
     IDENTIFYING = "identifying"  # condition changed; a new identification is queued or running
     STALE = "stale"  # no recent good data (DAQ/CAN down, hung, frozen) or restored, not re-identified
+    CONVERGING = "converging"  # fresh data, the live state settling after a (re)start or a gap
     AT_BOUND = "at-bound"  # identified at the current condition, but an H sits on a bound of the search box
     NO_DATA = "no-data"  # no samples at all
 

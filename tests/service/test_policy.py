@@ -88,7 +88,9 @@ def test_each_limit_withholds_with_its_own_code(kw: dict[str, object], expected:
 
 def test_the_live_state_must_have_converged_and_agree_with_the_data() -> None:
     assert verdict(View(live=None))[2] is Reason.STATE_CONVERGING
-    assert verdict(View(live=Live(converged=False))) == (ChtcStatus.STALE, False, Reason.STATE_CONVERGING)
+    # fresh data, the state settling: converging, not stale (issue 41 item 4)
+    settling = View(live=Live(converged=False))
+    assert verdict(settling) == (ChtcStatus.CONVERGING, False, Reason.STATE_CONVERGING)
     recent = Live(high_since=NOW.timestamp() - 60.0)  # NIS high for 1 min: not yet inconsistent
     assert verdict(View(live=recent))[1]
     long = Live(high_since=NOW.timestamp() - 600.0)
