@@ -141,11 +141,12 @@ def check_database_url(url: str, option: str) -> None:
     from sqlalchemy.engine import make_url
     from sqlalchemy.exc import ArgumentError
 
+    from service.store.dburl import normalize_database_url
     from service.store.engine import SUPPORTED_DATABASES
 
     examples = "sqlite:///PATH or postgresql+psycopg://USER:PASSWORD@HOST:PORT/DB"
     try:
-        parsed = make_url(url)
+        parsed = make_url(normalize_database_url(url))
     except ArgumentError as err:
         raise CommandError(f"{option}: not a database URL: {url!r} (use {examples})") from err
     backend, driver = parsed.get_backend_name(), parsed.get_driver_name()
