@@ -27,6 +27,7 @@ __all__ = [
     "DefaultsHelpFormatter",
     "check_database_url",
     "check_listen",
+    "check_listens",
     "check_log_arguments",
     "override",
     "port_number",
@@ -106,6 +107,18 @@ def override(settings: Settings, section: str, **values: object) -> Settings:
     except ValueError as err:
         raise CommandError(str(err)) from err
     return out
+
+
+def check_listens(settings: Settings) -> None:
+    """``check_listen`` on every port this instance serves: the REST API, and the OPC UA server when enabled
+    (a busy OPC UA port was three tracebacks after the model had loaded: issue 41)."""
+    check_listen(settings.api.host, settings.api.port)
+    ua = settings.opcua
+    if ua.enabled:
+        try:
+            check_listen(ua.host, ua.port)
+        except CommandError as err:
+            raise CommandError(f"opcua.port: {err} (the OPC UA server's port)") from err
 
 
 def check_listen(host: str, port: int) -> None:

@@ -37,7 +37,7 @@ import numpy as np
 
 from service.commands._common import (
     check_database_url,
-    check_listen,
+    check_listens,
     override,
     port_number,
     positive_float,
@@ -314,5 +314,5 @@ def main(args: argparse.Namespace) -> int:
         log_spindle_default(settings)
         if args.database_url is not None:
             check_database_url(settings.database.url, "--database-url")
-        check_listen(settings.api.host, settings.api.port)
+        check_listens(settings)
         return asyncio.run(run_demo(args, settings, token))
