@@ -15,7 +15,7 @@ from sqlalchemy.sql import func
 
 from service.store.models import Condition, DeviceEvent, Identification, LiveStateRow, SampleRow
 
-__all__ = ["newest_time"]
+__all__ = ["newest_sample_time", "newest_time"]
 
 _COLUMNS: tuple[tuple[type, str], ...] = (
     (SampleRow, "t"),
@@ -40,3 +40,11 @@ def newest_time(engine: Engine) -> datetime | None:
             if isinstance(value, datetime) and (newest is None or value > newest):
                 newest = value
     return newest
+
+
+def newest_sample_time(engine: Engine) -> datetime | None:
+    """The newest stored sample's UTC time, any spindle (None: none stored): a replay's "now" for the
+    retention pass."""
+    with engine.connect() as conn:
+        value = conn.scalar(select(func.max(SampleRow.t)))
+    return value if isinstance(value, datetime) else None
