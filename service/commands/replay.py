@@ -211,7 +211,8 @@ async def _replay(
     period_s = settings.acquisition.sample_period_s
     lines = RecordLines()
     runtime = Runtime(settings=settings, clock=clock, on_event=lines.event, simulated_time=True)
-    await asyncio.to_thread(runtime.load)
+    model = await asyncio.to_thread(runtime.load)
+    lines.box = model.ref.h_box  # the CIs as chtc identify prints them (issue 41)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)
     replay = rig.replay
@@ -281,9 +282,10 @@ class RecordLines:
     """Prints the service's events and, after each, the identifications stored since, as ``chtc identify``
     prints them (records restored from an earlier run's database are not this replay's)."""
 
-    def __init__(self) -> None:
+    def __init__(self, box: tuple[float, float] | None = None) -> None:
         self.service: SoftSensorService | None = None
         self.printed: set[int] = set()
+        self.box = box  # the model's H search box: CI bounds beyond it print as identify prints them
 
     def follow(self, service: SoftSensorService | None) -> None:
         self.service = service
@@ -300,7 +302,7 @@ class RecordLines:
         for r in sorted(self.service.view.records, key=lambda r: r.id):
             if r.id not in self.printed:
                 self.printed.add(r.id)
-                print(format_record(r), flush=True)
+                print(format_record(r, self.box), flush=True)
 
 
 class GridClock:

@@ -551,14 +551,18 @@ def commission_growth(
 
 def format_report(rep: CommissionReport) -> list[str]:
     """The report as ``chtc commission growth`` prints it."""
-    f = rep.fit
-    d = rep.as_dict()
+    return format_report_dict(rep.as_dict())
+
+
+def format_report_dict(d: dict[str, Any]) -> list[str]:
+    """The report's JSON (``CommissionReport.as_dict``, also the service's answer to ``--url``) as ``chtc
+    commission growth`` prints it."""
     lines = [
         f"{d['readings_used']} of {d['readings']} displacement readings fitted "
-        f"({d['span'][0]} .. {d['span'][1]}), zero at {rep.t_ref_c:.2f} °C",
-        f"residual RMS {f.residual_rms_um:.3f} µm, max {f.residual_max_um:.3f} µm "
-        f"(σ used {f.noise_um:.3f} µm, "
-        f"correlation included); {rep.outliers} readings left out as outliers",
+        f"({d['span'][0]} .. {d['span'][1]}), zero at {d['t_ref_c']:.2f} °C",
+        f"residual RMS {d['residual_rms_um']:.3f} µm, max {d['residual_max_um']:.3f} µm "
+        f"(σ used {d['noise_um']:.3f} µm, "
+        f"correlation included); {d['outliers']} readings left out as outliers",
         "parameter                 value     95 % CI (posterior)        prior 1σ   posterior 1σ",
     ]
     for p in d["parameters"]:
@@ -568,17 +572,16 @@ def format_report(rep: CommissionReport) -> list[str]:
             f"  {p['name']:<21} {p['value']:>8.4f}  [{lo:>9.4f}, {hi:>9.4f}] {p['unit']:<5}  {prior:>8}   "
             f"{p['sd']:.4f}"
         )
-    for ph in rep.phases:
+    for ph in d["phases"]:
         lines.append(
-            f"  {ph.name}: {ph.n} readings, RMS {ph.rms_um:.3f} µm, max {ph.max_um:.3f} µm, "
-            f"mean {ph.mean_um:+.3f} µm"
+            f"  {ph['phase']}: {ph['n']} readings, RMS {ph['rms_um']:.3f} µm, max {ph['max_um']:.3f} µm, "
+            f"mean {ph['mean_um']:+.3f} µm"
         )
-    if rep.radial is not None:
-        lines.append(
-            f"  radial residual: RMS {rep.radial['rms_um']:.3f} µm, max {rep.radial['max_um']:.3f} µm"
-        )
+    radial = d.get("radial_residual")
+    if radial is not None:
+        lines.append(f"  radial residual: RMS {radial['rms_um']:.3f} µm, max {radial['max_um']:.3f} µm")
     lines.append(f"verdict: {d['verdict']}")
-    t = rep.timings_s
+    t = d.get("timings_s") or {}
     lines.append(
         f"cost: field history {t.get('field_history_s', 0):.1f} s, basis {t.get('basis_s', 0):.1f} s, "
         f"fit {t.get('fit_s', 0):.3f} s"
