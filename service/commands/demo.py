@@ -159,9 +159,23 @@ class Printer:
             at_end = getattr(rec, "method", None) == MAP_METHOD
             at = rec.window_to if at_end else rec.window_from + (rec.window_to - rec.window_from) / 2
             t_plant = elapsed - (self.clock() - at).total_seconds()
+            if at_end:  # the map's H at the speed its line names: the plant there, from the window's end on
+                k0 = _row(rows, t_plant)
+                k = _row_at_speed(rows, k0, float(rec.condition.speed_rpm))
+                if k is not None and k != k0:
+                    return k, f"the map at {float(rows.speed_rpm[k]):.0f} rpm, next to the window's end"
             label = "the map at the window's end" if at_end else "mid-window"
             where = f"{label}, {float(rows.speed_rpm[_row(rows, t_plant)]):.0f} rpm"
         return _row(rows, t_plant), where
+
+
+def _row_at_speed(rows: PlantRows, k0: int, speed_rpm: float) -> int | None:
+    """The first row from ``k0`` on at ``speed_rpm`` (±1 rpm), else the last one before it (None: none)."""
+    at = np.flatnonzero(np.abs(np.asarray(rows.speed_rpm, dtype=float) - speed_rpm) <= 1.0)
+    if at.size == 0:
+        return None
+    later = at[at >= k0]
+    return int(later[0]) if later.size else int(at[-1])
 
 
 def _row(rows: PlantRows, t_plant: float) -> int:

@@ -267,7 +267,9 @@ def test_replay_prints_h_with_cis_and_writes_no_undocumented_file(
     # (replay printed [4.63, 415] where identify printed [< 5, > 200]: issue 41 item 9)
     import re
 
-    bounds = [float(x) for b in blocks for x in re.findall(r"[\[,] (?![<>])([0-9.]+)", b)]
-    assert bounds and all(5.0 <= x <= 200.0 for x in bounds), sorted(bounds)[-3:]
+    cis = [ci.split(", ") for b in blocks for ci in re.findall(r"H\d=[0-9.]+ \[([^\]]+)\]", b)]
+    assert len(cis) == 7 * len(blocks)
+    bounds = [float(x) for ci in cis for x in ci if not x.startswith(("<", ">"))]
+    assert all(5.0 <= x <= 200.0 for x in bounds), sorted(bounds)[-3:]
     assert f"{len(rows)} identifications: " in printed
     assert list(work.iterdir()) == [] and sorted(p.name for p in out.parent.iterdir()) == ["ids.json"]
