@@ -160,6 +160,21 @@ def _token(args: argparse.Namespace, settings: Any) -> str:
     return str(token)
 
 
+def _check_not_displacements(temperatures: Path) -> None:
+    """``CommandError`` when the file given as TEMPERATURES is the displacement CSV (files swapped)."""
+    from service.engine.commissioning import AXIAL, ORDER
+
+    try:
+        with temperatures.open(encoding="utf-8-sig", errors="replace") as f:
+            head = [next(f, "") for _ in range(20)]
+    except OSError:
+        return  # a missing file is the reader's to name
+    header = next((line for line in head if line.strip() and not line.lstrip().startswith("#")), "")
+    if AXIAL in header.lower():
+        what = f"argument TEMPERATURES: {temperatures} is the displacement CSV ({AXIAL})"
+        raise CommandError(f"{what}: {ORDER}")
+
+
 def _growth_at(args: argparse.Namespace, settings: Any, set_by: str) -> int:
     """``--url``: the service fits and stores; its report printed as the offline fit's table (the JSON with
     ``--json``); a test the model does not explain is refused (409) with exit status 1, as offline."""
@@ -201,6 +216,7 @@ def growth(args: argparse.Namespace) -> int:
     from service.settings import load_settings
 
     settings = load_settings(args.config)
+    _check_not_displacements(args.temperatures)
     check_log_arguments(args.temperatures, args.canlog)
     set_by = args.set_by or os_user()
     if args.url is not None:

@@ -60,7 +60,9 @@ __all__ = [
 ]
 
 Array = NDArray[np.float64]
-TIME_COLUMNS = ("time", "utc", "at", "timestamp")
+TIME_COLUMNS = ("time", "utc", "at", "timestamp", "timestamp_utc")
+ORDER = "the order is TEMPERATURES CAN DISPLACEMENTS"
+MIN_SPAN_UM = 0.1  # a thermal test's axial growth spans µm; less is a file in mm (or no growth measured)
 AXIAL, RADIAL = "axial_um", "radial_um"
 RUNNING_RPM = 100.0  # above: the spindle turns (heat-up); below: at rest (cool-down)
 MISSING = ("", "nan", "na", "n/a", "-")
@@ -124,6 +126,11 @@ def parse_displacement_csv(text: str, name: str = "DISPLACEMENTS") -> Displaceme
         raise DisplacementFormatError(f"{name}: empty file (expected a header: time,{AXIAL}[,{RADIAL}])")
     head_line, header = rows[0]
     cols = [c.strip().lower() for c in header]
+    if AXIAL not in cols and any(c.startswith("ch") and c.endswith("_c") for c in cols):
+        raise DisplacementFormatError(
+            f"{name}:{head_line}: this is a temperature CSV (its header has the channels "
+            f"{', '.join(c for c in cols if c.startswith('ch'))[:40]}...), not the displacements: {ORDER}"
+        )
     t_col = next((cols.index(c) for c in TIME_COLUMNS if c in cols), None)
     if t_col is None:
         raise DisplacementFormatError(
@@ -153,11 +160,18 @@ def parse_displacement_csv(text: str, name: str = "DISPLACEMENTS") -> Displaceme
     if not np.any(np.isfinite(axial)):
         raise DisplacementFormatError(f"{name}: {AXIAL}: no value in any row")
     radial = np.asarray(rad)[order] if r_col is not None else None
+    span = float(np.nanmax(axial) - np.nanmin(axial))
+    if span < MIN_SPAN_UM:
+        raise DisplacementFormatError(
+            f"{name}: {AXIAL}: the values span only {span:.4g} over the test: in mm? The file's unit is µm "
+            f"({AXIAL}, e.g. 12.5 for 12.5 µm); a thermal test's growth spans several µm"
+        )
     return Displacements(t_s=tt, axial_um=axial, radial_um=radial)
 
 
 def read_displacement_csv(path: str | Path) -> Displacements:
-    """Read ``path``: a header with a time column (``time``, ``utc``, ``at`` or ``timestamp``: ISO-8601 UTC,
+    """Read ``path``: a header with a time column (``time``, ``utc``, ``at``, ``timestamp`` or
+    ``timestamp_utc``: ISO-8601 UTC,
     ``Z`` or ``+00:00``), ``axial_um`` and optionally ``radial_um`` [µm], one row per reading at any rate;
     an empty cell (or ``nan``) is a missing value; ``#`` lines are comments. ``DisplacementFormatError``
     naming the file, line and field for anything else."""

@@ -113,3 +113,31 @@ def test_replay_stops_within_seconds_on_sigint_and_sigterm(sig: int, tmp_path: P
     assert code == 130 and took < 15.0, (code, took, text_out[-2000:])
     assert "replay interrupted" in text_out and "Traceback" not in text_out, text_out[-2000:]
     assert out.exists()
+
+
+def _disp(rows: list[tuple[str, float]], time_col: str = "time") -> str:
+    return f"{time_col},axial_um\n" + "".join(f"{t},{a}\n" for t, a in rows)
+
+
+def test_a_displacement_file_in_mm_gets_the_unit_hint() -> None:
+    """Item 8: a file in mm (a 4-µm growth written 0.004) was fitted and got ``drift … the fixture slipped``,
+    not the unit hint the docs promise."""
+    from service.engine.commissioning import DisplacementFormatError, parse_displacement_csv
+
+    rows = [(f"2026-11-27T06:{m:02d}:00Z", 0.004 * m / 59) for m in range(60)]
+    with pytest.raises(DisplacementFormatError, match=r"in mm\? The file's unit is µm"):
+        parse_displacement_csv(_disp(rows), "d.csv")
+    ok = parse_displacement_csv(_disp([(t, 1000 * a) for t, a in rows], "timestamp_utc"), "d.csv")
+    assert ok.axial_um.size == 60  # in µm, with the temperature CSV's time column name: accepted
+
+
+def test_swapped_test_files_say_the_order(capsys: pytest.CaptureFixture[str]) -> None:
+    """Item 8: swapped files listed the CSV's columns instead of saying the order is wrong."""
+    temps = DATA / "example_thermal_test_temperatures.csv"
+    can = DATA / "example_thermal_test_can.blf"
+    disp = DATA / "example_thermal_test_displacements.csv"
+    for argv in ([disp, can, temps], [temps, can, temps]):
+        assert main(["commission", "growth", *map(str, argv)]) == 2
+        err = capsys.readouterr().err
+        assert "the order is TEMPERATURES CAN DISPLACEMENTS" in err, err
+        assert len(err.strip().splitlines()) == 1, err
