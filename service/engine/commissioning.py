@@ -200,12 +200,15 @@ def sha256_file(path: str | Path) -> str:
 @dataclass(frozen=True)
 class FieldHistory:
     """The service's filtered live state over the test: ``t_s`` (n,) epoch [s], reduced ``states`` (n, r)
-    [°C], ``converged`` (n,), the spindle ``speed_rpm`` (n,) held by the live state."""
+    [°C], ``converged`` (n,), the spindle ``speed_rpm`` (n,) held by the live state; ``start_c`` the mean
+    of the first sample's usable temperatures [°C] (the spindle uniform at rest: the test's zero; NaN when
+    unknown)."""
 
     t_s: Array
     states: Array
     converged: NDArray[np.bool_]
     speed_rpm: Array
+    start_c: float = math.nan
 
 
 def field_history(
@@ -223,8 +226,16 @@ def field_history(
     conv: list[bool] = []
     speed: list[float] = []
 
+    start: list[float] = []
+
     def keep(core: Any, k: int, last_ok: object) -> None:
-        live = core.view().live
+        view = core.view()
+        live = view.live
+        if not start and view.newest is not None:
+            temps = np.asarray(view.newest.temps_c, dtype=float)
+            ok = np.array([q == "ok" for q in view.newest.quality]) & np.isfinite(temps)
+            if ok.any():
+                start.append(float(np.mean(temps[ok])))
         if live is None:
             return
         t.append(float(live.t))
@@ -239,7 +250,11 @@ def field_history(
             "and a speed/torque from the CAN log)"
         )
     return FieldHistory(
-        t_s=np.asarray(t), states=np.vstack(states), converged=np.asarray(conv), speed_rpm=np.asarray(speed)
+        t_s=np.asarray(t),
+        states=np.vstack(states),
+        converged=np.asarray(conv),
+        speed_rpm=np.asarray(speed),
+        start_c=start[0] if start else math.nan,
     )
 
 
@@ -442,7 +457,10 @@ def fit_test(
     if ok.size < 2:
         raise CommissioningError("the live state never converged over the test: nothing to fit against")
     first = int(ok[0])
-    t_ref = float(np.mean(phi @ hist.states[first]))
+    # the test's zero: the spindle uniform at its start (its sensors' mean); the first converged field's mean
+    # (minutes later, off by its prior) printed 21.00 °C for a spindle at 21.51 °C (issue 41). The per-series
+    # offsets absorb the choice: the fitted mechanics do not depend on it.
+    t_ref = hist.start_c if math.isfinite(hist.start_c) else float(np.mean(phi @ hist.states[first]))
     t_src, states = hist.t_s[first:], hist.states[first:]
     unconverged = ~hist.converged[first:]  # the live state restarted (an improbable jump): not its field
 
