@@ -211,7 +211,7 @@ def _growth_at(args: argparse.Namespace, settings: Any, set_by: str) -> int:
 def growth(args: argparse.Namespace) -> int:
     """``chtc commission growth`` (module docstring)."""
     from service.commands._common import check_log_arguments
-    from service.engine.commissioning import FitLimits, commission_growth, format_report
+    from service.engine.commissioning import EXAMPLE_NOTE, FitLimits, commission_growth, format_report
     from service.engine.runtime import core_config, os_user
     from service.settings import load_settings
 
@@ -238,6 +238,8 @@ def growth(args: argparse.Namespace) -> int:
     )
     for line in format_report(rep):
         print(line)
+    if "example" in rep.calibration.sources:
+        print(f"WARNING: {EXAMPLE_NOTE}; a running service refuses it outside the demo", file=sys.stderr)
     if args.json_out is not None:
         text = json.dumps(rep.as_dict(), indent=2)
         if args.json_out == "-":

@@ -62,6 +62,20 @@ __all__ = [
 Array = NDArray[np.float64]
 TIME_COLUMNS = ("time", "utc", "at", "timestamp", "timestamp_utc")
 ORDER = "the order is TEMPERATURES CAN DISPLACEMENTS"
+# the first line of the shipped example's displacement file (service/data/example_thermal_test_*): another
+# machine's mechanics; a running service refuses it outside the demo, a stored one is marked (issue 41)
+EXAMPLE_MARK = "# chtc: shipped example"
+EXAMPLE_NOTE = (
+    "the shipped example thermal test (service/data/example_thermal_test_*): the virtual plant's mechanics, "
+    "not this spindle's; commission from a test measured on this spindle (docs/commissioning.md)"
+)
+
+
+def is_shipped_example(displacements_csv: str) -> bool:
+    """Whether the displacement CSV's text is the shipped example's (its ``EXAMPLE_MARK`` line)."""
+    return any(line.startswith(EXAMPLE_MARK) for line in displacements_csv.splitlines()[:5])
+
+
 MIN_SPAN_UM = 0.1  # a thermal test's axial growth spans µm; less is a file in mm (or no growth measured)
 AXIAL, RADIAL = "axial_um", "radial_um"
 RUNNING_RPM = 100.0  # above: the spindle turns (heat-up); below: at rest (cool-down)
@@ -534,6 +548,8 @@ def commission_growth(
     sources = {"temperatures": sha256_file(temperatures), "displacements": sha256_file(displacements)}
     if canlog is not None:
         sources["canlog"] = sha256_file(canlog)
+    if is_shipped_example(Path(displacements).read_text(encoding="utf-8-sig", errors="replace")):
+        sources["example"] = EXAMPLE_NOTE  # the stored record says so
     timings: dict[str, float] = {}
     t0 = time.perf_counter()
     hist = field_history(model, config, temperatures, canlog)

@@ -141,3 +141,33 @@ def test_swapped_test_files_say_the_order(capsys: pytest.CaptureFixture[str]) ->
         err = capsys.readouterr().err
         assert "the order is TEMPERATURES CAN DISPLACEMENTS" in err, err
         assert len(err.strip().splitlines()) == 1, err
+
+
+def test_the_shipped_example_thermal_test_is_refused_by_a_running_service() -> None:
+    """Item 7: the shipped example thermal test was accepted by any running service, which then ended
+    "usable" with another machine's mechanics. It is marked; refused (409) outside the demo unless forced."""
+    import base64
+
+    from fastapi.testclient import TestClient
+
+    from api.app import create_app
+    from api.deps import ClockInfo
+    from service.engine.commissioning import is_shipped_example
+    from service.settings import Settings
+
+    disp = (DATA / "example_thermal_test_displacements.csv").read_text(encoding="utf-8")
+    assert is_shipped_example(disp)
+    token = "w" * 32
+    body = {
+        "temperatures_csv": (DATA / "example_thermal_test_temperatures.csv").read_text(encoding="utf-8"),
+        "can_log_base64": base64.b64encode((DATA / "example_thermal_test_can.blf").read_bytes()).decode(),
+        "can_log_format": "blf",
+        "displacements_csv": disp,
+    }
+    app = create_app(Settings(api={"token": token}), None, clock_info=ClockInfo())  # type: ignore[arg-type]
+    with TestClient(app) as client:
+        r = client.post(
+            "/api/v1/compensation/mechanics", json=body, headers={"Authorization": f"Bearer {token}"}
+        )
+    assert r.status_code == 409, r.text
+    assert "shipped example" in r.json()["error"]["message"]
