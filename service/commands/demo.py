@@ -214,7 +214,11 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
     stop = asyncio.Event()
     _install_signals(stop)
     try:
-        print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
+        print(
+            "loading the model (the first run builds the reduced model: 1-4 min by the machine's load; "
+            "later runs load it from the cache) ...",
+            flush=True,
+        )
         await asyncio.to_thread(runtime.load)
         print("starting the virtual plant's machining cycle ...", flush=True)
         await rig.computed()
