@@ -162,9 +162,7 @@ def test_every_blocking_reason_is_listed_in_order_with_its_action() -> None:
     order."""
     from service.serve.verdict import ACTIONS
 
-    strict = CompensationLimits(
-        max_ci95_um=2.0, max_identification_age_min=480.0, require_mechanics_calibration=True
-    )
+    strict = replace(LIMITS, max_identification_age_min=480.0, require_mechanics_calibration=True)
     args: dict[str, object] = {
         "has_sample": True,
         "ci95_half_um": 2.5,
