@@ -11,11 +11,12 @@ process, database writer, the core in its own thread) and the API with the dashb
 Progress lines report detected conditions and identifications (H with fit, and the plant's true H for
 comparison).
 
-All timestamps are simulated plant time (UTC): they start at the real time and run ``--speedup`` times
-faster; ``/healthz`` says so (``clock.simulated``) and the dashboard marks its times "plant time". The demo
-writes with a token: ``api.token`` from ``--config``, else one generated for this run and printed, with the
-dashboard URL carrying it in its fragment (``#write-token=...``: a fragment is never sent to the server, so
-it lands in no request log). Stops on Ctrl-C or after ``--duration`` wall seconds.
+All timestamps are simulated plant time (UTC): they start at the real time (on a ``--database-url`` an
+earlier demo left, a minute after the newest time it holds: ``clock_start_after``) and run ``--speedup``
+times faster; ``/healthz`` says so (``clock.simulated``) and the dashboard marks its times "plant time".
+The demo writes with a token: ``api.token`` from ``--config``, else one generated for this run and printed,
+with the dashboard URL carrying it in its fragment (``#write-token=...``: a fragment is never sent to the
+server, so it lands in no request log). Stops on Ctrl-C or after ``--duration`` wall seconds.
 """
 
 from __future__ import annotations
