@@ -56,6 +56,7 @@ from service.commands._common import (
     positive_float,
 )
 from service.commands.identify import format_record, growth_dict, num, record_dict, summary_line
+from service.errors import ServiceError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -257,8 +258,9 @@ async def _replay(
         await rig.stop()
 
 
-class ReplayInterrupted(Exception):
-    """SIGINT or SIGTERM stopped the replay; ``records``: what it identified until then (stored)."""
+class ReplayInterrupted(ServiceError):
+    """SIGINT or SIGTERM stopped the replay; ``records``: what it identified until then (stored). Not a
+    failure: ``main`` writes the records out and exits 130."""
 
     def __init__(self, records: list[IdentificationRecord]) -> None:
         super().__init__(f"interrupted after {len(records)} identifications")
