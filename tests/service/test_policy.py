@@ -179,6 +179,11 @@ def test_unknown_sensor_offsets_are_not_usable_when_the_setting_asks_for_it() ->
     assert verdict(limits=strict, has_mechanics=False, has_offset_baseline=False)[2] is (
         Reason.MECHANICS_UNCALIBRATED
     )
+    both = compensation_verdict(
+        View(), NOW, limits=strict, has_sample=True, ci95_half_um=0.5, identified_at=NOW,
+        has_mechanics=False, has_offset_baseline=False,
+    )  # fmt: skip
+    assert [b.reason for b in both.blocking] == [Reason.MECHANICS_UNCALIBRATED, Reason.NO_OFFSET_BASELINE]
 
 
 def test_every_blocking_reason_is_listed_in_order_with_its_action() -> None:
