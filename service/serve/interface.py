@@ -51,6 +51,7 @@ from service.estimate.reference import CompensationReference
 from service.identify.mode import IdentificationMode
 
 # the policy's vocabulary, re-exported for api/ (which imports only this module of service/)
+from service.serve.controlled import CommandSnapshot as CommandSnapshot
 from service.serve.verdict import ACTIONS as ACTIONS
 from service.serve.verdict import ChtcStatus as ChtcStatus
 from service.serve.verdict import DataCode as DataCode
@@ -566,6 +567,8 @@ class CompensationSnapshot(Judged):
     # channels the live state leaves out as stuck or drifting (service.estimate.sensorfaults), by channel:
     # the growth's CI carries what they bent before they were found
     sensor_faults: tuple[SensorFault, ...] = ()
+    # what the controller applies now (service.serve.controlled; None: no controller stepped it)
+    command: CommandSnapshot | None = None
 
     @property
     def reference_at(self) -> datetime | None:

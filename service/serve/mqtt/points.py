@@ -29,7 +29,7 @@ import enum
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Protocol
 
 from service.errors import ServiceError
@@ -185,6 +185,23 @@ CATALOGUE: tuple[MetricDef, ...] = (
     MetricDef("Controller/IsgOffset", DataType.INT32, "0.1 µm", -2000.0, 2000.0, None, "ISG P-AXIS-00273"),
     MetricDef("Controller/ToolDir", DataType.INT32, doc="-1: the tool points to -Z"),
     *(MetricDef(f"Health/{d}", DataType.STRING, doc=f"{d}: ok, degraded, down, disabled") for d in DEVICES),
+    # the command value (docs/design/policy.md, "The command value"), after the rest: earlier aliases keep
+    # their numbers
+    MetricDef("Controller/Command", DataType.DOUBLE, "µm", -200.0, 200.0, "growth_um", "apply now"),
+    MetricDef(
+        "Controller/CommandStatus", DataType.STRING, doc="following, rate_limited, holding, fading, ..."
+    ),
+    MetricDef(
+        "Controller/CommandSD43900",
+        DataType.DOUBLE,
+        "mm",
+        -0.2,
+        0.2,
+        "mm",
+        "SINUMERIK SD43900 of the command",
+    ),
+    MetricDef("Controller/CommandIsgOffset", DataType.INT32, "0.1 µm", -2000.0, 2000.0, None, "ISG, command"),
+    MetricDef("Controller/CommandFanucUnits", DataType.INT32, "1 µm", -2000.0, 2000.0, None, "FANUC IS-B"),
 )
 
 
@@ -269,6 +286,17 @@ def _growth_points(snap: CompensationSnapshot | None, now: datetime) -> dict[str
     out["Controller/SD42960"] = Point(_num(p.sd42960_tool_axis_mm), q, t)
     out["Controller/IsgOffset"] = Point(int(p.isg_offset_0p1um), q, t)
     out["Controller/ToolDir"] = Point(int(snap.tool_dir), Quality.GOOD, t)
+    cmd = snap.command
+    if cmd is not None:  # always the value to apply: good; its status says what it does
+        at, c = datetime.fromtimestamp(cmd.at, tz=UTC), cmd.plc
+        out["Controller/Command"] = Point(_num(cmd.value_um), Quality.GOOD, at)
+        out["Controller/CommandStatus"] = Point(str(cmd.status.value), Quality.GOOD, at)
+        out["Controller/CommandSD43900"] = Point(_num(c.sd43900_mm), Quality.GOOD, at)
+        out["Controller/CommandIsgOffset"] = Point(int(c.isg_offset_0p1um), Quality.GOOD, at)
+        out["Controller/CommandFanucUnits"] = Point(round(c.correction_um), Quality.GOOD, at)
+    else:
+        for n in ("Command", "CommandStatus", "CommandSD43900", "CommandIsgOffset", "CommandFanucUnits"):
+            out[f"Controller/{n}"] = Point(None, Quality.BAD, t)
     return out
 
 

@@ -21,6 +21,7 @@ from service.errors import ServiceError
 from service.serve.interface import (
     ZONE_NAMES,
     ChtcSnapshot,
+    CommandSnapshot,
     CompensationSnapshot,
     DataCode,
     NoDataYetError,
@@ -190,6 +191,16 @@ def _vars(n_sensors: int) -> tuple[Var, ...]:
         Var(path="Controller.SD42960Mm", vtype="Double", unit="MMT", range=MM_RANGE, description="tool axis"),
         Var(path="Controller.IsgOffset0p1um", vtype="Int32", description="ISG P-AXIS-00273, 0.1 µm"),
         Var(path="Controller.ToolDir", vtype="Int32", description="-1: the tool points to -Z"),
+        # the command value (docs/design/policy.md, "The command value"): apply it whatever Status.Usable says
+        Var(path="Controller.CommandUm", vtype="Double", unit="4H", range=UM_RANGE, description="apply now"),
+        Var(path="Controller.CommandStatus", vtype="String", description="following, holding, fading, ..."),
+        Var(path="Controller.CommandCorrectionUm", vtype="Double", unit="4H", range=UM_RANGE),
+        Var(path="Controller.CommandSD43900Mm", vtype="Double", unit="MMT", range=MM_RANGE),
+        Var(path="Controller.CommandSD42960Mm", vtype="Double", unit="MMT", range=MM_RANGE),
+        Var(path="Controller.CommandIsgOffset0p1um", vtype="Int32", description="ISG P-AXIS-00273, 0.1 µm"),
+        Var(
+            path="Controller.CommandFanucUnits", vtype="Int32", description="FANUC IS-B detection units, 1 µm"
+        ),
         Var(path="Devices.Names", vtype="String", length=-1),
         Var(path="Devices.Status", vtype="String", length=-1, description="ok, degraded, down, disabled"),
         Var(path="Devices.Ok", vtype="Boolean", length=-1),
@@ -423,6 +434,7 @@ def _growth(comp: CompensationSnapshot | None, code: UaStatus) -> dict:
         out.update({f"Controller.{n}": Reading(NAN, code, None) for n in ctrl})
         out["Controller.IsgOffset0p1um"] = Reading(0, code, None)
         out["Controller.ToolDir"] = Reading(-1, UaStatus.GOOD, None)
+        out.update(_command(None, code))
         return out
     g = comp.growth
     ax, rad, steady = g.axial, g.radial, g.forecast.steady_axial
@@ -450,6 +462,27 @@ def _growth(comp: CompensationSnapshot | None, code: UaStatus) -> dict:
     out["Controller.SD42960Mm"] = Reading(_f(plc.sd42960_tool_axis_mm), code, at)
     out["Controller.IsgOffset0p1um"] = Reading(int(plc.isg_offset_0p1um), code, at)
     out["Controller.ToolDir"] = Reading(int(comp.tool_dir), UaStatus.GOOD, at)
+    out.update(_command(comp.command, code))
+    return out
+
+
+def _command(cmd: CommandSnapshot | None, code: UaStatus) -> dict:
+    """The command value's nodes: Good whenever a command was stepped (it is always the value to apply; its
+    status says what it does), ``code`` (the growth's) when there is none."""
+    names = ("CommandUm", "CommandCorrectionUm", "CommandSD43900Mm", "CommandSD42960Mm")
+    if cmd is None:
+        out = {f"Controller.{n}": Reading(NAN, code, None) for n in names}
+        out["Controller.CommandStatus"] = Reading("none", code, None)
+        out["Controller.CommandIsgOffset0p1um"] = Reading(0, code, None)
+        out["Controller.CommandFanucUnits"] = Reading(0, code, None)
+        return out
+    at = datetime.fromtimestamp(cmd.at, tz=UTC)
+    good, p = UaStatus.GOOD, cmd.plc
+    vals = (cmd.value_um, p.correction_um, p.sd43900_mm, p.sd42960_tool_axis_mm)
+    out = {f"Controller.{n}": Reading(_f(x), good, at) for n, x in zip(names, vals, strict=True)}
+    out["Controller.CommandStatus"] = Reading(str(cmd.status.value), good, at)
+    out["Controller.CommandIsgOffset0p1um"] = Reading(int(p.isg_offset_0p1um), good, at)
+    out["Controller.CommandFanucUnits"] = Reading(round(p.correction_um), good, at)
     return out
 
 
