@@ -21,6 +21,8 @@ import math
 import threading
 from dataclasses import dataclass
 
+import numpy as np
+
 from service.estimate.growth import PlcCompensation, plc_compensation
 from service.serve.cigate import CiGateLimits, CiGateState, step_gate
 from service.serve.command import CommandState, CommandStatus, ControllerProfile, advance
@@ -61,6 +63,48 @@ class ControlState:
     def start(cls, t: float) -> ControlState:
         """The gate closed, the command at 0 (nothing applied yet)."""
         return cls(gate=CiGateState(), command=CommandState.start(t))
+
+    def to_array(self) -> np.ndarray:
+        """The state as 8 numbers (NaN for None), for the live checkpoint (``LiveCheckpoint.control``)."""
+
+        def num(x: float | None) -> float:
+            return math.nan if x is None else float(x)
+
+        g, c = self.gate, self.command
+        return np.array(
+            [
+                1.0 if g.open else 0.0,
+                num(g.above_since),
+                num(g.t),
+                c.value_um,
+                c.t,
+                float(_STATUSES.index(c.status)),
+                num(c.last_usable_t),
+                c.target_um,
+            ]
+        )
+
+    @classmethod
+    def from_array(cls, arr: np.ndarray | None) -> ControlState | None:
+        """``to_array``'s inverse; None for None or an array that is not one (an older checkpoint)."""
+        if arr is None or np.shape(arr) != (8,):
+            return None
+        a = [float(x) for x in arr]
+
+        def opt(x: float) -> float | None:
+            return None if math.isnan(x) else x
+
+        k = int(a[5]) if math.isfinite(a[5]) else -1
+        if not (0 <= k < len(_STATUSES)) or not all(math.isfinite(a[i]) for i in (3, 4, 7)):
+            return None
+        gate = CiGateState(open=a[0] > 0.5, above_since=opt(a[1]), t=opt(a[2]))
+        command = CommandState(
+            value_um=a[3], t=a[4], status=_STATUSES[k], last_usable_t=opt(a[6]), target_um=a[7]
+        )
+        return cls(gate=gate, command=command)
+
+
+_STATUSES = tuple(CommandStatus)
 
 
 def best_estimate(*, safe: bool, status: str, growth_um: float | None) -> float | None:

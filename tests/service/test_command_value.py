@@ -247,3 +247,30 @@ def test_the_controller_rewrites_only_the_ci_part_of_the_verdict() -> None:
     # a clock stepping back moves nothing
     _verdict, back = ctl.step(5.0, plain_ok, growth_um=-40.0, half_um=1.0)
     assert back.value_um == cmd.value_um and back.at == cmd.at
+
+
+def test_the_control_state_survives_the_live_checkpoint() -> None:
+    from service.estimate.checkpoint import LiveCheckpoint
+
+    steps: list[Step] = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps += [(float(t), False, "ci_too_wide", "fresh", 6.0, 2.2) for t in range(30, 60)]
+    state = _control(steps)[-1][0]
+    r = 3
+    cp = LiveCheckpoint(
+        t=60.0,
+        model_version="m",
+        converged=True,
+        inputs=(20.0, 0.0, 0.0),
+        mean=np.zeros(r),
+        cov=np.eye(r),
+        cross=np.zeros((r, 9)),
+        bias_s=np.zeros((r, 4)),
+        bias_m=np.zeros((r, r)),
+        control=state.to_array(),
+    )
+    back = LiveCheckpoint.from_parts(
+        cp.to_bytes(), t=cp.t, model_version=cp.model_version, converged=True, inputs=cp.inputs
+    )
+    assert ControlState.from_array(back.control) == state
+    assert state.gate.above_since is not None and state.command.status is not CommandStatus.NONE
+    assert ControlState.from_array(None) is None and ControlState.from_array(np.zeros(3)) is None
