@@ -2,10 +2,18 @@
 
 A partition is ``samples_pYYYYMMDD`` holding ``[day 00:00 UTC, next day 00:00 UTC)``. What makes them:
 
-- the writer, for the days of each batch it has not seen yet (``ensure_days``: ``CREATE TABLE IF NOT EXISTS
-  … PARTITION OF``, serialized by an advisory lock so concurrent spindles' writers do not race), before any
-  insert of the batch;
+- the writer, for the days of each batch it has not seen yet and the day after each (``prepare_days``),
+  before the batch, in a short transaction of its own with a ``lock_timeout`` (issue 41.1): never inside a
+  data batch, whose transaction a frozen link can leave open on the server for long (an orphaned session)
+  holding every lock it took;
 - the retention pass (``service.store.retention``), ``PREMAKE_DAYS`` ahead, so the writer rarely has to.
+
+How (``ensure_days``): ``CREATE TABLE … (LIKE samples INCLUDING ALL)``, then ``ALTER TABLE samples ATTACH
+PARTITION``, serialized by an advisory lock so concurrent spindles' writers do not race. Attaching takes a
+``SHARE UPDATE EXCLUSIVE`` lock on ``samples``, which inserts do not wait for (``CREATE TABLE … PARTITION
+OF`` takes ``ACCESS EXCLUSIVE``: every spindle's inserts would queue behind it). ``LOCK_TIMEOUT_MS`` bounds
+every wait for a lock here (and in the retention pass): a DDL statement queued behind a stuck transaction
+would make every later insert queue behind it; it gives up instead and is tried again (the writer buffers).
 
 What drops them: the retention pass (``drop_before``), whole days older than ``database.raw_days``
 (``DROP TABLE`` of the partition: immediate, and the space is freed, unlike a ``DELETE``).
@@ -40,10 +48,13 @@ __all__ = [
     "ensure_days",
     "list_partitions",
     "partition_name",
+    "prepare_days",
+    "short_lock_waits",
 ]
 
 PREFIX = "samples_p"
 PREMAKE_DAYS = 3
+LOCK_TIMEOUT_MS = 2000  # partition DDL and the retention pass: the longest wait for a lock, ms
 _NAME = re.compile(r"^samples_p(\d{8})$")
 _LOCK = 0x43485443  # pg_advisory_xact_lock key: partition DDL of this schema, one at a time ("CHTC")
 COMPACTED = "chtc: compacted"  # the comment on a closed day's rebuilt index (done once)
@@ -67,8 +78,32 @@ def partitioned(conn: Connection) -> bool:
     return conn.dialect.name == "postgresql"
 
 
+def short_lock_waits(conn: Connection, ms: int = LOCK_TIMEOUT_MS) -> None:
+    """PostgreSQL: this transaction waits at most ``ms`` for any lock (``SET LOCAL``: it ends with it)."""
+    if partitioned(conn):
+        conn.exec_driver_sql(f"SET LOCAL lock_timeout = {int(ms)}")
+
+
+def prepare_days(engine: Engine, days: Iterable[date]) -> list[str]:
+    """The partitions of ``days`` and of the day after each, made ahead of need in a transaction of their
+    own (committed on return; ``LOCK_TIMEOUT_MS``); the names created. A day known to this engine costs
+    nothing. Raises SQLAlchemy's errors (a lock not granted in time: ``OperationalError``, transient)."""
+    if engine.dialect.name != "postgresql":
+        return []
+    known = _known.setdefault(engine, set())
+    wanted = sorted({d + timedelta(days=k) for d in days for k in (0, 1)} - known)
+    if not wanted:
+        return []
+    with engine.begin() as conn:
+        short_lock_waits(conn)
+        created = ensure_days(conn, wanted)
+    known.update(wanted)  # committed
+    return created
+
+
 def ensure_days(conn: Connection, days: Iterable[date]) -> list[str]:
-    """Create the partitions of ``days`` that do not exist yet (PostgreSQL); the names created."""
+    """Create the partitions of ``days`` that do not exist yet (PostgreSQL), in the caller's transaction
+    (see the module docstring); the names created."""
     if not partitioned(conn):
         return []
     known = _known.setdefault(conn.engine, set())
@@ -81,9 +116,11 @@ def ensure_days(conn: Connection, days: Iterable[date]) -> list[str]:
     for day in wanted:
         if day not in existing:
             lo, hi = day_bounds(day)
+            name = partition_name(day)
+            conn.execute(text(f'CREATE TABLE "{name}" (LIKE samples INCLUDING ALL)'))
             conn.execute(
                 text(
-                    f'CREATE TABLE IF NOT EXISTS "{partition_name(day)}" PARTITION OF samples '
+                    f'ALTER TABLE samples ATTACH PARTITION "{name}" '
                     f"FOR VALUES FROM ('{lo.isoformat()}') TO ('{hi.isoformat()}')"
                 )
             )

@@ -43,6 +43,7 @@ from service.store.partitions import (
     ensure_days,
     list_partitions,
     partition_name,
+    short_lock_waits,
     utc_day,
 )
 
@@ -84,6 +85,7 @@ def retention_pass(
     dropped: list[str] = []
     raw_deleted = min_deleted = backfilled = 0
     with engine.begin() as conn:
+        short_lock_waits(conn)  # a DROP queued behind a stuck writer would make every insert queue behind it
         if conn.dialect.name == "postgresql":
             conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
         if raw_cut is not None:
@@ -128,6 +130,7 @@ def _compact_closed(engine: Engine, today: date, raw_cut: date | None, limit: in
             break
         try:
             with engine.begin() as conn:
+                short_lock_waits(conn)
                 conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
                 if compact_day(conn, day):
                     done.append(partition_name(day))
