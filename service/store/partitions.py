@@ -49,6 +49,7 @@ __all__ = [
     "list_partitions",
     "partition_name",
     "prepare_days",
+    "schema_lock",
     "short_lock_waits",
 ]
 
@@ -56,7 +57,7 @@ PREFIX = "samples_p"
 PREMAKE_DAYS = 3
 LOCK_TIMEOUT_MS = 2000  # partition DDL and the retention pass: the longest wait for a lock, ms
 _NAME = re.compile(r"^samples_p(\d{8})$")
-_LOCK = 0x43485443  # pg_advisory_xact_lock key: partition DDL of this schema, one at a time ("CHTC")
+_LOCK = 0x43485443  # advisory lock key: partition DDL of this schema, one at a time ("CHTC"; schema_lock)
 COMPACTED = "chtc: compacted"  # the comment on a closed day's rebuilt index (done once)
 _known: weakref.WeakKeyDictionary[Engine, set[date]] = weakref.WeakKeyDictionary()
 
@@ -82,6 +83,12 @@ def short_lock_waits(conn: Connection, ms: int = LOCK_TIMEOUT_MS) -> None:
     """PostgreSQL: this transaction waits at most ``ms`` for any lock (``SET LOCAL``: it ends with it)."""
     if partitioned(conn):
         conn.exec_driver_sql(f"SET LOCAL lock_timeout = {int(ms)}")
+
+
+def schema_lock(conn: Connection, key: int) -> None:
+    """``pg_advisory_xact_lock`` of ``key`` in the current schema: advisory locks are database-wide, and the
+    services of another schema of the database (another plant, a test) have partitions of their own."""
+    conn.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext(current_schema()))"), {"k": key})
 
 
 def prepare_days(engine: Engine, days: Iterable[date]) -> list[str]:
@@ -110,7 +117,7 @@ def ensure_days(conn: Connection, days: Iterable[date]) -> list[str]:
     wanted = sorted(set(days) - known)
     if not wanted:
         return []
-    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+    schema_lock(conn, _LOCK)
     existing = {d for _, d in list_partitions(conn)}
     created = []
     for day in wanted:
@@ -151,7 +158,7 @@ def drop_before(conn: Connection, cutoff: date) -> list[str]:
     """Drop the partitions of the days before ``cutoff`` (whole days only); the names dropped."""
     if not partitioned(conn):
         return []
-    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+    schema_lock(conn, _LOCK)
     dropped = []
     for name, day in list_partitions(conn):
         if day < cutoff:
