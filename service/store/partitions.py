@@ -92,19 +92,32 @@ def schema_lock(conn: Connection, key: int) -> None:
 
 
 def prepare_days(engine: Engine, days: Iterable[date]) -> list[str]:
-    """The partitions of ``days`` and of the day after each, made ahead of need in a transaction of their
-    own (committed on return; ``LOCK_TIMEOUT_MS``); the names created. A day known to this engine costs
-    nothing. Raises SQLAlchemy's errors (a lock not granted in time: ``OperationalError``, transient)."""
+    """The partitions of ``days`` (needed now) and of the day after each (ahead of need), in a transaction
+    of their own (committed on return; ``LOCK_TIMEOUT_MS``); the names created. A day known to this engine
+    costs nothing, one that exists a catalog read. The days ahead are made only if the advisory lock is free
+    at once: a partition-making transaction elsewhere (another spindle's, or one its lost connection left
+    open on the server) never holds up a batch whose own days exist. Raises SQLAlchemy's errors (a needed
+    day's lock not granted in time: ``OperationalError``, transient)."""
     if engine.dialect.name != "postgresql":
         return []
     known = _known.setdefault(engine, set())
-    wanted = sorted({d + timedelta(days=k) for d in days for k in (0, 1)} - known)
-    if not wanted:
+    needed = set(days) - known
+    ahead = {d + timedelta(days=1) for d in days} - known - needed
+    if not needed and not ahead:
         return []
     with engine.begin() as conn:
         short_lock_waits(conn)
-        created = ensure_days(conn, wanted)
-    known.update(wanted)  # committed
+        existing = {d for _, d in list_partitions(conn)}
+        must, may = sorted(needed - existing), sorted(ahead - existing)
+        if must:
+            schema_lock(conn, _LOCK)
+            locked = True
+        else:
+            locked = bool(may) and _try_schema_lock(conn, _LOCK)
+        created = _create_missing(conn, must + may) if locked else []
+    known.update((needed | ahead) & existing)
+    if locked:
+        known.update(must + may)  # committed
     return created
 
 
@@ -118,9 +131,22 @@ def ensure_days(conn: Connection, days: Iterable[date]) -> list[str]:
     if not wanted:
         return []
     schema_lock(conn, _LOCK)
+    created = _create_missing(conn, wanted)
+    # a new one is known once committed (seen next time)
+    known.update(d for d in wanted if partition_name(d) not in created)
+    return created
+
+
+def _try_schema_lock(conn: Connection, key: int) -> bool:
+    query = text("SELECT pg_try_advisory_xact_lock(:k, hashtext(current_schema()))")
+    return bool(conn.execute(query, {"k": key}).scalar())
+
+
+def _create_missing(conn: Connection, days: list[date]) -> list[str]:
+    """Under the advisory lock: create the partitions of ``days`` not there; the names created."""
     existing = {d for _, d in list_partitions(conn)}
     created = []
-    for day in wanted:
+    for day in days:
         if day not in existing:
             lo, hi = day_bounds(day)
             name = partition_name(day)
@@ -131,8 +157,7 @@ def ensure_days(conn: Connection, days: Iterable[date]) -> list[str]:
                     f"FOR VALUES FROM ('{lo.isoformat()}') TO ('{hi.isoformat()}')"
                 )
             )
-            created.append(partition_name(day))
-    known.update(d for d in wanted if d in existing)  # a new one is known once committed (seen next time)
+            created.append(name)
     return created
 
 

@@ -4,8 +4,9 @@ Spindle s1 writes through ``tests.db.tcp_proxy.TcpProxy`` (FIN lost, as on a rea
 COMMIT of one of its sample batches: the server keeps that backend with the batch's uncommitted rows (an
 orphan); the client's watchdog aborts its side. Spindle s2 writes to the same database directly throughout.
 "new_day": the frozen batch is the first of a new UTC day (before the fix it created the day's partition in
-its transaction: the orphan held ``samples`` locked against every spindle). After the thaw every sample of s1
-is written within 60 s (its service ends its own orphan on reconnecting), none lost, none twice; s2's
+its transaction: the orphan held ``samples`` locked against every spindle). "partition": the freeze lands
+on the COMMIT of the transaction that makes the partitions ahead of that batch. After the thaw every sample
+of s1 is written within 60 s (its service ends its own orphan on reconnecting), none lost, none twice; s2's
 writes never wait.
 """
 
@@ -105,7 +106,7 @@ def stored(url: str) -> dict[str, list[datetime]]:
 @pytest.mark.parametrize(
     "freeze_s", [10.0, pytest.param(60.0, marks=pytest.mark.slow)], ids=["freeze10s", "freeze60s"]
 )
-@pytest.mark.parametrize("where", ["commit", "new_day"])
+@pytest.mark.parametrize("where", ["commit", "new_day", "partition"])
 def test_a_freeze_on_commit_that_loses_the_fin_blocks_no_writer(
     two_spindles: tuple[TcpProxy, Spindle, Spindle, str], where: str, freeze_s: float
 ) -> None:
@@ -117,12 +118,12 @@ def test_a_freeze_on_commit_that_loses_the_fin_blocks_no_writer(
         assert s.writer.flush(10.0)
 
     # the next batch of s1 freezes at its COMMIT; s1 and s2 keep storing a sample every 0.1 s throughout
-    start = DAY + timedelta(days=1) if where == "new_day" else t0 + timedelta(minutes=10)
+    start = t0 + timedelta(minutes=10) if where == "commit" else DAY + timedelta(days=1)
     stream1 = iter(samples(10_000, base=31.0, start=start))
     stream2 = iter(samples(10_000, base=41.0, start=start))
-    proxy.freeze_on(b"COMMIT", after=b"INSERT INTO samples")
+    proxy.freeze_on(b"COMMIT", after=b"ATTACH PARTITION" if where == "partition" else b"INSERT INTO samples")
     s1.send(next(stream1))
-    assert proxy.frozen.wait(10.0), "the link never froze on a COMMIT of samples"
+    assert proxy.frozen.wait(10.0), f"the link never froze on a COMMIT ({where})"
     frozen_at = time.monotonic()
     s2_waits: list[float] = []
     next_check = frozen_at
