@@ -538,7 +538,9 @@ class SharedDatabase:
     """The engines (and their watchdogs) of one instance that hosts several spindles: one pool for the API's
     reads and one for the writers, shared by every spindle's ``Persistence`` (each keeps its own
     spindle-bound session factory, writer thread and read threads), and the writer engine's idle probe
-    (``writer_heartbeat``: one ``SELECT 1`` answers every idle writer). Closed by its owner, after them."""
+    (``writer_heartbeat``: one ``SELECT 1`` answers every idle writer). The writers share the writer engine's
+    watchdog, but what it aborts and each writer's ``busy_s`` are that writer's own (one spindle's stuck write
+    degrades no other). Closed by its owner, after them."""
 
     engine: Engine
     read_watchdog: StatementWatchdog
