@@ -28,8 +28,8 @@ from tests.db.test_db_spindles import samples
 pytestmark = pytest.mark.postgres
 
 T1 = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
-ABORT_AFTER_S = 2.5
-STALL_S = 1.0
+ABORT_AFTER_S = 5.0
+STALL_S = 2.0  # margins for a loaded machine: s2's own writes take well under this
 
 
 def hold_row(engine: sa.Engine, spindle_id: str, t: datetime) -> sa.Connection:
@@ -83,10 +83,14 @@ def test_a_stuck_writer_neither_degrades_nor_aborts_its_neighbour(pg_url: str, p
         # an s2 write in flight (waiting on a lock too, but young) when the watchdog aborts s1's late one
         late = held[0]
         held.append(hold_row(other, "s2", s2_rows[25].t))
+        wait_until(  # s2's write starts about a second before s1's retry is aborted
+            lambda: ABORT_AFTER_S - 1.5 < (w1.status().busy_s or 0.0) < ABORT_AFTER_S - 1.0,
+            timeout_s=4 * ABORT_AFTER_S,
+            what="s1's retry about to be aborted",
+        )
         aborts = dog.aborts
         w2.submit_many(s2_rows[20:30])
         wait_until(lambda: dog.aborts > aborts, timeout_s=10.0, what="the watchdog's abort of s1's write")
-        time.sleep(0.3)
         held.pop().rollback()  # s2's lock goes: its write, never aborted, goes through
         assert w2.flush(5.0)
         w2.submit_many(s2_rows[30:])
