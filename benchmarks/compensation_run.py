@@ -120,7 +120,7 @@ class Tick:
     t: float  # the sample's instant [POSIX s]
     t_s: float  # plant time [s]
     served: bool
-    usable: bool  # the policy's plain verdict (no gate)
+    usable: bool  # the policy's plain verdict (before the CI gate: ``CompensationSnapshot.policy_verdict``)
     reason: str | None
     status: str
     um: float = math.nan
@@ -306,13 +306,14 @@ class Session:
                 t=t, t_s=t_s, served=False, usable=False, reason=None, status="none", truth_um=truth_um
             )
         ax = comp.growth.axial
+        plain = comp.policy_verdict or comp.verdict  # before the service's own CI gate
         return Tick(
             t=t,
             t_s=t_s,
             served=True,
-            usable=bool(comp.usable_for_compensation),
-            reason=reason_code(comp),
-            status=comp.status.value,
+            usable=bool(plain.usable),
+            reason=None if plain.reason is None else str(plain.reason.value),
+            status=plain.status.value,
             um=float(ax.um),
             lo=float(ax.ci95_um[0]),
             hi=float(ax.ci95_um[1]),

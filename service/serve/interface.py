@@ -569,6 +569,8 @@ class CompensationSnapshot(Judged):
     sensor_faults: tuple[SensorFault, ...] = ()
     # what the controller applies now (service.serve.controlled; None: no controller stepped it)
     command: CommandSnapshot | None = None
+    # the policy's verdict before the CI gate (``verdict`` is the gated one; None: no gate, they are one)
+    policy_verdict: Verdict | None = None
 
     @property
     def reference_at(self) -> datetime | None:
