@@ -1,0 +1,1 @@
+"""Benchmarks, studies and diagnostics of spindle-chtc (outside the product)."""
