@@ -88,7 +88,7 @@ def _soft(x: float, t: float) -> float:
 
 
 def lasso_path(
-    z: Array, y: Array, lams: Sequence[float], *, tol: float = 1e-7, max_iter: int = 3000
+    z: Array, y: Array, lams: Sequence[float] | Array, *, tol: float = 1e-7, max_iter: int = 3000
 ) -> Array:
     """Coefficients (len(lams), p) of argmin ||y − z b||² / (2n) + λ ||b||₁ (z, y centred) along the
     decreasing ``lams``, coordinate descent with warm starts (Friedman, Hastie & Tibshirani 2010)."""
@@ -137,7 +137,8 @@ class LinearPeer:
         """The displacement [µm] at ``rows`` of the feature series ``x`` (samples × features)."""
         d = lagged(x, rows, self.lags, self.lag_rows)
         if d.shape[1] != self.coef.size:
-            raise PeerError(f"x: expected {self.coef.size // (self.lags + 1)} features, got {x!r:.40}")
+            n_in = d.shape[1] // (self.lags + 1)
+            raise PeerError(f"x: expected {self.coef.size // (self.lags + 1)} features, got {n_in}")
         return np.asarray(((d - self.mean) / self.scale) @ self.coef + self.intercept)
 
     @property
