@@ -71,6 +71,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--families", default=",".join(FAMILIES), help=f"comma-separated subset of {','.join(FAMILIES)}"
     )
+    parser.add_argument(
+        "--jobs", type=int, default=1, help="seeds in this many processes (default 1; ~1 GiB each)"
+    )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument(
         "--raw", type=Path, default=None, help="also write every minute of every run (JSON) here"
@@ -387,9 +390,11 @@ def _ratio(rows: list[dict[str, Any]]) -> dict[str, float | None]:
     return out
 
 
-def summarize(seeds: list[Seed], rows: list[dict[str, Any]]) -> dict[str, Any]:
-    """The JSON object from the scenario rows (each with its ``seed``)."""
-    out: dict[str, Any] = {"synthetic": True, "seeds": [s.seed for s in seeds]}
+def summarize(infos: list[dict[str, Any]], rows: list[dict[str, Any]]) -> dict[str, Any]:
+    """The JSON object from the seeds' infos (``seed`` and what ``prepare_seed`` says) and the scenario rows
+    (each with its ``seed``)."""
+    seeds = [int(i["seed"]) for i in infos]
+    out: dict[str, Any] = {"synthetic": True, "seeds": seeds}
     fams = [f for f in FAMILIES if any(r["family"] == f for r in rows)]
     out["families"] = {f: _block([r for r in rows if r["family"] == f]) for f in fams}
     out["scenarios"] = {}
@@ -400,7 +405,7 @@ def summarize(seeds: list[Seed], rows: list[dict[str, Any]]) -> dict[str, Any]:
     pooled_rows = [r for r in rows if r["family"] in POOLED]
     if pooled_rows:
         ratio = _ratio(pooled_rows)
-        per_seed = {s.seed: _ratio([r for r in pooled_rows if r["seed"] == s.seed]) for s in seeds}
+        per_seed = {k: _ratio([r for r in pooled_rows if r["seed"] == k]) for k in seeds}
         worst = max(per_seed, key=lambda k: per_seed[k]["best_peer"] or -1.0)
         out["pooled"] = {
             "families": [f for f in POOLED if f in fams],
@@ -417,10 +422,10 @@ def summarize(seeds: list[Seed], rows: list[dict[str, Any]]) -> dict[str, Any]:
     no_state = [r for r in rows if r["family"] == "restarts" and r["name"].startswith("no_state")]
     if no_state:
         per: dict[str, float | None] = {}
-        for s in seeds:
-            sub = [r for r in no_state if r["seed"] == s.seed]
+        for k in seeds:
+            sub = [r for r in no_state if r["seed"] == k]
             cov = [c for r in sub for c, u in zip(r["covered"], r["usable"], strict=True) if u]
-            per[str(s.seed)] = _r(np.mean(cov)) if cov else None
+            per[str(k)] = _r(np.mean(cov)) if cov else None
         to_usable = [r["to_usable_min"] for r in no_state]
         finite = [v for v in per.values() if v is not None]
         out["restart_no_state"] = {
@@ -454,7 +459,7 @@ def summarize(seeds: list[Seed], rows: list[dict[str, Any]]) -> dict[str, Any]:
             **{m: figures(late[m]) for m in METHODS},
             "probe": [{"seed": r["seed"], **r["probe"], **(r["info"] or {})} for r in fixture],
         }
-    out["per_seed"] = [{"seed": s.seed, **s.info} for s in seeds]
+    out["per_seed"] = infos
     return out
 
 
@@ -472,53 +477,78 @@ def _setup() -> tuple[Any, Any, Any]:
     return model, settings, Plant(model.spec)
 
 
-def run_bench(args: argparse.Namespace) -> dict[str, Any]:
-    """Every seed's scenarios, summarised."""
-    from service.commands._common import override
-
+def _families(args: argparse.Namespace) -> tuple[str, ...]:
     families = tuple(f.strip() for f in args.families.split(",") if f.strip())
     bad = [f for f in families if f not in FAMILIES]
     if bad:
         raise ValueError(f"--families: unknown {bad}, known {list(FAMILIES)}")
-    if args.seeds < 1 or args.hours <= 0 or args.rest_min < 5:
-        raise ValueError(
-            f"--seeds >= 1, --hours > 0, --rest-min >= 5: got {args.seeds}, {args.hours}, {args.rest_min}"
-        )
+    return families
+
+
+def run_seed(
+    args: argparse.Namespace, seed: int, setup: tuple[Any, Any, Any] | None = None
+) -> tuple[dict[str, Any], list[dict[str, Any]]]:
+    """One seed: prepared, every scenario run; its info and its scenario rows."""
+    from service.commands._common import override
+
     started = time.perf_counter()
-    model, settings, plant = _setup()
-    seeds: list[Seed] = []
+    model, settings, plant = setup if setup is not None else _setup()
+    s = prepare_seed(model, settings, plant, seed, args)
+    progress(
+        f"seed {seed}: commissioned {s.info['fitted']} (plant {s.info['mechanics']}), peers fitted "
+        f"(ARX lags {s.info['arx_lags']}, LASSO {s.info['lasso_active']} inputs) "
+        f"({time.perf_counter() - started:.0f} s)"
+    )
+    # the controller zeroed at the test's start, the machine soaked in the test room's known 21 °C: the
+    # product told so (docs/commissioning.md step 5, ``--temperature 21``), a configured zero
+    zeroed = override(settings, "growth", reference_c=TEST_AMBIENT_C)
+    scs = draw_scenarios(
+        seed,
+        hours=args.hours,
+        rest_min=args.rest_min,
+        mlr_inputs=tuple(s.info["mlr_sensors"]),
+        families=_families(args),
+    )
     rows: list[dict[str, Any]] = []
-    for seed in range(args.first_seed, args.first_seed + args.seeds):
-        s = prepare_seed(model, settings, plant, seed, args)
-        seeds.append(s)
+    for sc in scs:
+        row = run_scenario(model, zeroed, plant, s, sc)
+        row["seed"] = seed
+        rows.append(row)
+        f = figures(row["err"]["product"])
         progress(
-            f"seed {seed}: commissioned {s.info['fitted']} (plant {s.info['mechanics']}), peers fitted "
-            f"(ARX lags {s.info['arx_lags']}, LASSO {s.info['lasso_active']} inputs) "
+            f"seed {seed} {sc.key}: product RMS {f['rms_um']} µm (usable {np.mean(row['usable']):.3f}), "
+            f"best peer {min(figures(row['err'][m])['rms_um'] or math.inf for m in PEERS)} µm "
             f"({time.perf_counter() - started:.0f} s)"
         )
-        # the controller zeroed at the test's start, the machine soaked in the test room's known 21 °C: the
-        # product told so (docs/commissioning.md step 5, ``--temperature 21``), a configured zero
-        zeroed = override(settings, "growth", reference_c=TEST_AMBIENT_C)
-        scs = draw_scenarios(
-            seed,
-            hours=args.hours,
-            rest_min=args.rest_min,
-            mlr_inputs=tuple(s.info["mlr_sensors"]),
-            families=families,
+    return {"seed": seed, **s.info}, rows
+
+
+def run_bench(args: argparse.Namespace) -> dict[str, Any]:
+    """Every seed's scenarios (``--jobs`` processes), summarised."""
+    families = _families(args)
+    if args.seeds < 1 or args.hours <= 0 or args.rest_min < 5 or args.jobs < 1:
+        raise ValueError(
+            f"--seeds >= 1, --hours > 0, --rest-min >= 5, --jobs >= 1: got {args.seeds}, {args.hours}, "
+            f"{args.rest_min}, {args.jobs}"
         )
-        for sc in scs:
-            row = run_scenario(model, zeroed, plant, s, sc)
-            row["seed"] = seed
-            rows.append(row)
-            f = figures(row["err"]["product"])
-            progress(
-                f"seed {seed} {sc.key}: product RMS {f['rms_um']} µm (usable {np.mean(row['usable']):.3f}), "
-                f"best peer {min(figures(row['err'][m])['rms_um'] or math.inf for m in PEERS)} µm "
-                f"({time.perf_counter() - started:.0f} s)"
-            )
+    started = time.perf_counter()
+    seeds = list(range(args.first_seed, args.first_seed + args.seeds))
+    done: dict[int, tuple[dict[str, Any], list[dict[str, Any]]]] = {}
+    if args.jobs > 1 and len(seeds) > 1:
+        from concurrent.futures import ProcessPoolExecutor
+
+        with ProcessPoolExecutor(max_workers=min(args.jobs, len(seeds))) as pool:
+            for seed, res in zip(seeds, pool.map(run_seed, [args] * len(seeds), seeds), strict=True):
+                done[seed] = res
+    else:
+        setup = _setup()
+        for seed in seeds:
+            done[seed] = run_seed(args, seed, setup)
+    infos = [done[s][0] for s in seeds]
+    rows = [r for s in seeds for r in done[s][1]]
     if args.raw is not None:
-        args.raw.write_text(json.dumps(rows), encoding="utf-8")
-    out = summarize(seeds, rows)
+        args.raw.write_text(json.dumps({"per_seed": infos, "rows": rows}), encoding="utf-8")
+    out = summarize(infos, rows)
     out["options"] = {
         "hours": args.hours,
         "rest_min": args.rest_min,

@@ -17,10 +17,10 @@ over 0–7000 rpm, torque 3–15 N·m) unless the family changes it; the ambient
 - ``sensors``: ``open`` (flagged by the DAQ), ``stuck`` (at its last value), ``drift`` (+0.5 °C/h), each from
   ``hours``/3 into the machining; the stuck or the drifting channel (drawn) is one of the MLR's inputs, the
   other and the open one are drawn from the rest;
-- ``restarts``: a warm restart at machining minute 60 (``hours``/3 when shorter): ``no_state`` without the
+- ``restarts``: a warm restart at machining minute 60 (half-way when shorter): ``no_state`` without the
   plant's sensor offsets, ``no_state_offsets`` with them (±0.2 °C), ``stored`` with them and the stored state;
 - ``machine``: ``fixture`` — the mount restraint changed by ±0.2–0.4 since the commissioning (clipped to
-  0–1) and a fixture offset of ±2–5 µm from ``hours``/3 on, tool-setter readings (σ 1 µm) every 30 min.
+  0–1) and a fixture offset of ±2–5 µm from ``hours``/6 on, tool-setter readings (σ 1 µm) every 30 min.
 
 Every family but ``restarts`` runs on the plant with the seed's sensor offsets (±0.2 °C, the same in its
 thermal test).
@@ -185,7 +185,7 @@ def draw_scenarios(
                 )
             )  # fmt: skip
     if "restarts" in families:
-        at = rest_s + min(3600.0, third)
+        at = rest_s + min(3600.0, _grid(mach_s / 2.0))
         for name, mode, offsets in (
             ("no_state", "no_state", False),
             ("no_state_offsets", "no_state", True),
@@ -203,7 +203,8 @@ def draw_scenarios(
         out.append(
             Scenario(
                 family="machine", name="fixture", plan=duty, ambient=shop, rest_min=rest_min,
-                fixture=(rest_s + third, offset), restraint=d_s, probe_every_min=PROBE_EVERY_MIN,
+                fixture=(rest_s + _grid(mach_s / 6.0), offset), restraint=d_s,
+                probe_every_min=PROBE_EVERY_MIN,
                 info={"offset_um": round(offset, 2), "restraint_change": round(d_s, 3)},
             )
         )  # fmt: skip
