@@ -273,8 +273,17 @@ def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -
             sd_um=PROBE_SD_UM,
             rng=np.random.default_rng([s.seed, 44]),
         )
+    watch = tuple(f.channel for f in sc.faults if f.kind != "open")  # the DAQ flags an open one itself
     served = serve(
-        model, settings, samples, run, truth, mechanics=s.report.calibration, restart=restart, probe=probe
+        model,
+        settings,
+        samples,
+        run,
+        truth,
+        mechanics=s.report.calibration,
+        restart=restart,
+        probe=probe,
+        watch=watch,
     )
     n = len(served.minutes)
     minute_rows = np.arange(n) * PER_MIN
@@ -321,10 +330,21 @@ def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -
     if sc.faults:
         f = sc.faults[0]
         on = t_min >= f.start_s / 60.0
-        out["fault"] = {"kind": f.kind, "channel": f.channel, "start_min": f.start_s / 60.0}
+        out["fault"] = {
+            "kind": f.kind,
+            "channel": f.channel,
+            "start_min": f.start_s / 60.0,
+            "rate_c_per_h": f.rate_c_per_h,
+        }
         out["fault"]["usable_missed_after"] = int(np.sum(usable & on & ~covered))
         out["fault"]["usable_after"] = int(np.sum(usable & on))
-        out["fault"]["detected_after_min"] = None  # the product has no sensor-fault detection yet
+        seen = served.detected.get(f.channel)
+        start_min = f.start_s / 60.0
+        out["fault"]["detected_after_min"] = None if seen is None else float(t_min[seen] - start_min)
+        if f.kind == "open":  # flagged by the DAQ: known from its first sample
+            out["fault"]["detected_after_min"] = 0.0
+        undetected = on & (t_min < (t_min[seen] if seen is not None else np.inf))
+        out["fault"]["usable_missed_undetected"] = int(np.sum(usable & undetected & ~covered))
     if sc.fixture is not None:
         out["fixture_min"] = sc.fixture[0] / 60.0
         out["probe"] = {
@@ -390,6 +410,10 @@ def _ratio(rows: list[dict[str, Any]]) -> dict[str, float | None]:
     return out
 
 
+def _within(minutes: float | None, limit: float) -> bool:
+    return minutes is not None and minutes <= limit
+
+
 def summarize(infos: list[dict[str, Any]], rows: list[dict[str, Any]]) -> dict[str, Any]:
     """The JSON object from the seeds' infos (``seed`` and what ``prepare_seed`` says) and the scenario rows
     (each with its ``seed``)."""
@@ -437,13 +461,24 @@ def summarize(infos: list[dict[str, Any]], rows: list[dict[str, Any]]) -> dict[s
         }
     faulted = [r for r in rows if "fault" in r]
     if faulted:
-        det = [r["fault"]["detected_after_min"] for r in faulted]
+        det = [r["fault"]["detected_after_min"] for r in faulted if r["fault"]["kind"] != "open"]
         known = [d for d in det if d is not None]
         out["faults"] = {
             "detect_min_median": _r(np.median(known), 1) if known else None,
             "detected": len(known),
             "runs": len(faulted),
+            "unflagged_runs": len(det),
+            "stuck_detected_within_30_min": sum(
+                r["fault"]["kind"] == "stuck" and _within(r["fault"]["detected_after_min"], 30.0)
+                for r in faulted
+            ),
+            "drift_detected_before_1_c": sum(
+                r["fault"]["kind"] == "drift"
+                and _within(r["fault"]["detected_after_min"], 60.0 / r["fault"]["rate_c_per_h"])
+                for r in faulted
+            ),
             "usable_missed_after_fault": sum(r["fault"]["usable_missed_after"] for r in faulted),
+            "usable_missed_undetected": sum(r["fault"]["usable_missed_undetected"] for r in faulted),
             "usable_after_fault": sum(r["fault"]["usable_after"] for r in faulted),
             "per_run": [{"seed": r["seed"], **r["fault"], **(r["info"] or {})} for r in faulted],
         }

@@ -48,9 +48,12 @@ class ProbePlan:
 @dataclass(kw_only=True)
 class Served:
     """Per plant minute the served row (``compensation_run.Minute``); the readings posted, accepted and
-    refused; the (minute, reading) pairs posted."""
+    refused; the (minute, reading) pairs posted; with ``watch`` channels, per channel the first minute
+    ``/compensation`` named it among its ``sensor_faults`` (the product's fault detection, issue 40 part 4;
+    none while the product has none)."""
 
     minutes: list[Any] = field(default_factory=list)
+    detected: dict[int, int] = field(default_factory=dict)
     readings: list[tuple[int, float]] = field(default_factory=list)
     accepted: int = 0
     refused: int = 0
@@ -66,6 +69,7 @@ def serve(
     mechanics: Any,
     restart: Restart | None = None,
     probe: ProbePlan | None = None,
+    watch: tuple[int, ...] = (),
 ) -> Served:
     """The scenario's samples through the service (module docstring); ``truth`` [µm] per plant minute."""
     from service.bench.compensation_run import PER_MIN, Session, stored_state
@@ -99,6 +103,11 @@ def serve(
         i = k // PER_MIN
         truth_um = float(truth[i])
         out.minutes.append(session.read(float(run.times_s[k]), truth_um, np.asarray(run.h_true[k])))
+        if watch:
+            comp = session.svc.compensation()
+            for f in getattr(comp, "sensor_faults", ()) if comp is not None else ():
+                if f.channel in watch and f.channel not in out.detected:
+                    out.detected[f.channel] = i
         since = k - round(probe.after_min * PER_MIN) if probe is not None else 0
         if probe is not None and since > 0 and since % every_k == 0:
             reading = truth_um + float(probe.rng.normal(0.0, probe.sd_um))
