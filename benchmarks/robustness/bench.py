@@ -9,7 +9,7 @@ few missing readings. On that one test:
 
 - the product commissions as docs/commissioning.md says (``ThermalTest.commission``: the service's own
   ``commission_growth``) and is zeroed at the test's start, the machine soaked in the test room's known
-  21 °C (step 5's ``--temperature 21``: ``[growth] reference_c = 21``; the truth's zero);
+  21 °C (step 5's ``--temperature 21``: ``[compensation] reference_c = 21``; the truth's zero);
 - each peer is fitted (``benchmarks.robustness.peers``: ``mlr``, ``ridge``, ``lasso``, ``arx``) and zeroed
   at the test's start (its mean prediction over the test's first 10 min, where the growth is 0).
 
@@ -536,7 +536,7 @@ def run_seed(
     )
     # the controller zeroed at the test's start, the machine soaked in the test room's known 21 °C: the
     # product told so (docs/commissioning.md step 5, ``--temperature 21``), a configured zero
-    zeroed = override(settings, "growth", reference_c=TEST_AMBIENT_C)
+    zeroed = override(settings, "compensation", reference_c=TEST_AMBIENT_C)
     scs = draw_scenarios(
         seed,
         hours=args.hours,

@@ -9,7 +9,7 @@ first sample (a stored calibration restored), read every minute as ``/compensati
   (``compensation_run.stored_state``: identification, offset calibration, map, zero, live checkpoint; the
   commissioning and the accepted probe readings replayed, as ``bench commission`` restarts); ``no_state``
   with an empty database (the commissioning's mechanics and the configured zero kept: they are the
-  configuration, ``[growth] reference_c`` and the commissioning file re-applied);
+  configuration, ``[compensation] reference_c`` and the commissioning file re-applied);
 - tool-setter readings (``ProbePlan``): every ``every_min`` after ``after_min`` the truth + N(0, sd²) posted
   as ``POST /compensation/measurements`` does (``SoftSensorService.add_measurement``), each minute's row read
   before that minute's reading.

@@ -12,7 +12,8 @@ from benchmarks.robustness.bench import main
 
 @pytest.mark.slow
 def test_one_seed_short_scenarios_give_every_key(capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["--seeds", "1", "--short", "--hours", "0.5", "--rest-min", "20", "--families", "sensors", "--json"]
+    argv = ["--seeds", "1", "--short", "--hours", "0.5", "--rest-min", "20", "--json"]
+    argv += ["--families", "sensors"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["seeds"] == [400]
