@@ -11,6 +11,7 @@ from benchmarks.robustness.bench import main
 
 
 @pytest.mark.slow
+@pytest.mark.timeout(1800)  # minutes on 2 loaded cores
 def test_one_seed_short_scenarios_give_every_key(capsys: pytest.CaptureFixture[str]) -> None:
     argv = ["--seeds", "1", "--short", "--hours", "0.5", "--rest-min", "20", "--json"]
     argv += ["--families", "sensors"]
