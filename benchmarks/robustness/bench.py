@@ -118,10 +118,10 @@ def _features(temps_c: np.ndarray, status: np.ndarray, ambient_c: np.ndarray) ->
 
 def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argparse.Namespace) -> Seed:
     """The seed's plant, its thermal test, the commissioning and the peers' fits (module docstring)."""
+    from benchmarks.commission import read_axial
+    from benchmarks.studies.mlr import fit_mlr
     from drivers.logs import read_temperature_csv
-    from model.mlr import fit_mlr
     from model.plant import VirtualPlant
-    from service.bench.commission import read_axial
     from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
     from service.sim.randomtruth import draw_truth
@@ -199,9 +199,9 @@ def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argpars
 
 def plant_scenario(plant: Any, s: Seed, sc: Scenario) -> tuple[Any, np.ndarray]:
     """The scenario's plant run (faults injected) and the truth [µm] per minute over the test's start."""
+    from benchmarks.compensation_run import DT_S, PER_MIN
     from model.plant import VirtualPlant
     from model.plantmech import build_plant_growth
-    from service.bench.compensation_run import DT_S, PER_MIN
 
     segs = segments(sc.plan, sc.ambient)
     offsets = s.offsets if sc.offsets else None
@@ -255,8 +255,8 @@ def applied(rows: list[Any]) -> np.ndarray:
 
 def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -> dict[str, Any]:
     """One scenario: plant, product, peers; the per-minute errors and the product's verdicts."""
-    from service.bench.compensation_run import PER_MIN, T0
-    from service.sim.logsamples import samples_from_plant
+    from benchmarks.compensation_run import PER_MIN, T0
+    from service.sim.plantsamples import samples_from_plant
 
     run, truth = plant_scenario(plant, s, sc)
     samples = samples_from_plant(run, t0_s=T0)
@@ -503,7 +503,7 @@ def summarize(infos: list[dict[str, Any]], rows: list[dict[str, Any]]) -> dict[s
 
 def _setup() -> tuple[Any, Any, Any]:
     """The served model, the bench's settings and the plant (``compensation_run.Plant``: drawn mechanics)."""
-    from service.bench.compensation_run import Plant
+    from benchmarks.compensation_run import Plant
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
 
@@ -572,8 +572,10 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
     if args.jobs > 1 and len(seeds) > 1:
         from concurrent.futures import ProcessPoolExecutor
 
+        # the options without the dispatcher's entries (a module does not pickle)
+        opts = argparse.Namespace(**{k: v for k, v in vars(args).items() if not k.startswith("_")})
         with ProcessPoolExecutor(max_workers=min(args.jobs, len(seeds))) as pool:
-            for seed, res in zip(seeds, pool.map(run_seed, [args] * len(seeds), seeds), strict=True):
+            for seed, res in zip(seeds, pool.map(run_seed, [opts] * len(seeds), seeds), strict=True):
                 done[seed] = res
     else:
         setup = _setup()
@@ -622,12 +624,8 @@ def _print(out: dict[str, Any]) -> None:
             )
 
 
-def main(argv: list[str] | None = None) -> int:
-    parser = argparse.ArgumentParser(
-        prog="python -m benchmarks.robustness", description=__doc__.split("\n")[0]
-    )
-    add_arguments(parser)
-    args = parser.parse_args(argv)
+def run(args: argparse.Namespace) -> int:
+    """Run with parsed options (what ``python -m benchmarks robustness`` calls); print the figures."""
     try:
         out = run_bench(args)
     except ValueError as err:
@@ -638,3 +636,12 @@ def main(argv: list[str] | None = None) -> int:
     else:
         _print(out)
     return 0
+
+
+def main(argv: list[str] | None = None) -> int:
+    """``python -m benchmarks.robustness [options]``."""
+    parser = argparse.ArgumentParser(
+        prog="python -m benchmarks.robustness", description=__doc__.split("\n")[0]
+    )
+    add_arguments(parser)
+    return run(parser.parse_args(argv))

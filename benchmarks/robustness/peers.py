@@ -4,7 +4,7 @@ Each peer is fitted on the seed's ISO 230-3 thermal test only (the displacement 
 temperature rows at or before them) and predicts the axial displacement [µm] from the 32 temperatures and the
 ambient [°C]:
 
-- ``mlr``: the present MLR (``model.mlr``: 5 sensors by correlation clustering, least squares);
+- ``mlr``: the present MLR (``benchmarks.studies.mlr``: 5 sensors by correlation clustering, least squares);
 - ``ridge``: all 32 channels + the ambient, standardised, an L2 penalty chosen by blocked cross-validation
   over time (Hoerl & Kennard 1970; for thermal errors e.g. Liu et al., Precision Engineering 2015);
 - ``lasso``: the same with an L1 penalty (Tibshirani 1996), coordinate descent (Friedman et al. 2010),

@@ -72,7 +72,7 @@ def serve(
     watch: tuple[int, ...] = (),
 ) -> Served:
     """The scenario's samples through the service (module docstring); ``truth`` [µm] per plant minute."""
-    from service.bench.compensation_run import PER_MIN, Session, stored_state
+    from benchmarks.compensation_run import PER_MIN, Session, stored_state
     from service.estimate.probe import ProbeError
 
     session = Session(model, settings, start=samples[0].t)
