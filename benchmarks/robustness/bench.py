@@ -76,7 +76,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument(
-        "--raw", type=Path, default=None, help="also write every minute of every run (JSON) here"
+        "--raw",
+        type=Path,
+        default=None,
+        help="also write every minute of every run (JSON) here (default: none)",
     )
 
 
