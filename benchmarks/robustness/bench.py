@@ -346,7 +346,8 @@ def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -
         out["fault"]["detected_after_min"] = None if seen is None else float(t_min[seen] - start_min)
         if f.kind == "open":  # flagged by the DAQ: known from its first sample
             out["fault"]["detected_after_min"] = 0.0
-        undetected = on & (t_min < (t_min[seen] if seen is not None else np.inf))
+        found_min = start_min if f.kind == "open" else (t_min[seen] if seen is not None else np.inf)
+        undetected = on & (t_min < found_min)
         out["fault"]["usable_missed_undetected"] = int(np.sum(usable & undetected & ~covered))
     if sc.fixture is not None:
         out["fixture_min"] = sc.fixture[0] / 60.0
