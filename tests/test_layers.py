@@ -121,6 +121,66 @@ def test_imports_point_inward(importer: str, forbidden: tuple[str, ...]) -> None
     assert _offending(importer, forbidden) == []
 
 
+def _import_graph(names: set[str]) -> dict[str, list[str]]:
+    return {n: sorted(i for i in modules()[n].imports if i in names and i != n) for n in sorted(names)}
+
+
+def _cycles(graph: dict[str, list[str]]) -> list[list[str]]:
+    """The import cycles of ``graph`` (module -> modules it imports): its strongly connected components of
+    more than one module (Tarjan's algorithm, iterative)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on: set[str] = set()
+    found: list[list[str]] = []
+    for root in graph:
+        if root in index:
+            continue
+        work = [(root, iter(graph[root]))]
+        index[root] = low[root] = len(index)
+        stack.append(root)
+        on.add(root)
+        while work:
+            v, it = work[-1]
+            w = next(it, None)
+            if w is not None:
+                if w not in index:
+                    index[w] = low[w] = len(index)
+                    stack.append(w)
+                    on.add(w)
+                    work.append((w, iter(graph[w])))
+                elif w in on:
+                    low[v] = min(low[v], index[w])
+                continue
+            work.pop()
+            if work:
+                low[work[-1][0]] = min(low[work[-1][0]], low[v])
+            if low[v] == index[v]:
+                comp = []
+                while True:
+                    w = stack.pop()
+                    on.discard(w)
+                    comp.append(w)
+                    if w == v:
+                        break
+                if len(comp) > 1:
+                    found.append(sorted(comp))
+    return found
+
+
+def test_no_module_import_cycles() -> None:
+    """No circle of imports between the product's modules (every import counts, also under
+    ``TYPE_CHECKING``): e.g. the core's parts and its serving strategies (issue 39)."""
+    product = {n for n in modules() if not _under(n, "service.bench")}  # the lab: leaving (issue 39 part 1)
+    assert _cycles(_import_graph(product)) == []
+
+
+def test_the_cycle_check_sees_a_cycle() -> None:
+    graph = {"a": ["b"], "b": ["c"], "c": ["a", "d"], "d": [], "e": ["a"]}
+    assert _cycles(graph) == [["a", "b", "c"]]
+    assert _cycles({"a": ["b"], "b": []}) == []
+
+
 def test_the_rules_see_a_violation() -> None:
     """The checker itself: a known import is found (so an empty list above means something)."""
     assert "service.store.reads imports service.store.errors.DatabaseBusyError" in _offending(
