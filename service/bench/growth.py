@@ -6,7 +6,7 @@ model built on the *plant's* mesh (``model.thermoelastic``), so mesh and time di
 service's. The samples go through the service's own core, sample by sample, exactly as
 ``service.engine.offline.run_offline`` feeds them (``ServiceCore.ingest``, identifications inline with the
 same seeded worker function). At every ``--every-s`` after the first successful identification the bench
-asks the service's own ``service.engine.growthserve.GrowthServer`` (as ``/compensation`` does) for the growth
+asks the service's own ``service.serve.compensation.GrowthServer`` (as ``/compensation`` does) for the growth
 of the core's view, so everything is the service's real path:
 
 - the field and its uncertainty: the filtered live state now (``field_belief``: the Kalman filter's reduced
@@ -49,7 +49,7 @@ from service.bench.chain import PROFILE as CHAIN
 from service.bench.chain import T0
 from service.bench.compensation_run import add_plant_mechanics_argument
 from service.bench.targets import Target, format_verdicts, report, verdicts
-from service.engine.growthserve import GrowthServer
+from service.serve.compensation import GrowthServer
 
 DT_S = 10.0
 HORIZON_STEPS = (30, 90, 180)  # 5, 15, 30 min of 10-s samples
@@ -188,7 +188,7 @@ class _Evaluator:
         self.t_ref = float(run.truth_c[0].mean()) if run.fields_c.size == 0 else float(run.fields_c[0].mean())
         self.rows = _Rows()
         self.last_terms: Any = None
-        # the service's own server (service.engine.growthserve): its terms, field belief and Σ_H
+        # the service's own server (service.serve.compensation): its terms, field belief and Σ_H
         self.server = GrowthServer(model, t_ref_c=self.t_ref, context=ctx)
         cond = np.column_stack([run.speed_rpm, run.torque_nm, run.ambient_c])
         self.cond = cond
@@ -200,7 +200,7 @@ class _Evaluator:
         }
 
     def __call__(self, core: Any, k: int, result: Any) -> None:
-        from service.engine.growthserve import field_belief
+        from service.serve.compensation import field_belief
 
         view = core.view()
         if result is None or k % self.every or view.live is None or view.current is None:

@@ -32,7 +32,6 @@ from service.acquire.calibration import CalibrationConfig
 from service.engine.config import CoreConfig, Restored
 from service.engine.core import ServiceCore
 from service.engine.corethread import CoreThread, InlineRunner
-from service.engine.growthserve import GrowthServer
 from service.engine.health import HealthSource
 from service.engine.looplag import LoopLagMonitor
 from service.engine.persistence import Persistence, SharedDatabase, open_persistence
@@ -44,6 +43,7 @@ from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.logctx import spindle_context
 from service.modelload import LoadedModel, ModelRef, load_model
+from service.serve.compensation import GrowthServer
 from service.serve.outlet import OUTLETS, Outlet, OutletContext, OutletFactory, load_factory
 from service.serve.policy import CompensationLimits
 from service.settings import Settings

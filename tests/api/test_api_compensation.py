@@ -21,11 +21,12 @@ from api.app import create_app
 from model.growth import Z95
 from model.inputs import inputs_from_operation
 from service.engine.core import ServiceCore
-from service.engine.growthserve import GrowthServer, field_belief, h_covariance, map_h_covariance
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.estimate.growth import build_context, condition_terms, estimate_growth
+from service.estimate.growthterms import h_covariance, map_h_covariance
 from service.modelload import LoadedModel
+from service.serve.compensation import GrowthServer, field_belief
 from service.serve.interface import NotReadyError
 from service.serve.policy import CompensationLimits, compensation_verdict
 from service.settings import Settings

@@ -240,7 +240,7 @@ def test_event_loop_lag_metric_on_metrics_endpoint(loaded_model, samples) -> Non
 
 
 def test_growth_terms_are_computed_once_per_key(loaded_model, samples) -> None:  # type: ignore[no-untyped-def]
-    from service.engine.growthserve import GrowthServer
+    from service.serve.compensation import GrowthServer
 
     svc, clock = _service(loaded_model, samples, None)
     for s in samples[:8]:
