@@ -182,7 +182,6 @@ def test_the_cycle_check_sees_a_cycle() -> None:
 
 
 MAX_CLASS_LINES = 400  # issue 39: no god class in the service
-LARGE_CLASSES_LEFT = {"service.estimate.state.FilteredState"}  # issue 39: not split yet (the live state)
 
 
 def _class_lines(root: str) -> dict[str, int]:
@@ -200,11 +199,7 @@ def _class_lines(root: str) -> dict[str, int]:
 def test_no_class_in_the_service_over_400_lines() -> None:
     lines = _class_lines("service")
     assert "service.engine.core.ServiceCore" in lines
-    big = {name: n for name, n in lines.items() if n > MAX_CLASS_LINES and name not in LARGE_CLASSES_LEFT}
-    assert big == {}
-    assert all(lines.get(name, 0) > MAX_CLASS_LINES for name in LARGE_CLASSES_LEFT), (
-        "split: drop it from the list"
-    )
+    assert {name: n for name, n in lines.items() if n > MAX_CLASS_LINES} == {}
 
 
 def test_the_rules_see_a_violation() -> None:
