@@ -76,8 +76,9 @@ def _identification_setup() -> tuple[Any, Any, str]:
     from model.inputs import inputs_from_operation
     from model.plant import Segment, VirtualPlant
     from service.modelload import ModelRef, load_model
+    from service.settings import Settings
 
-    model = load_model(ModelRef(cache_dir=os.environ.get("CHTC_MODEL__ROM_CACHE_DIR", "")))
+    model = load_model(ModelRef.from_settings(Settings()))  # CHTC_MODEL__ROM_CACHE_DIR, as before
     run = VirtualPlant(model.spec, seed=1).run([Segment(3600.0, 4000.0, 14.0, 21.8)], dt_s=10.0)
     inputs = inputs_from_operation(
         model.spec,

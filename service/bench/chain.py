@@ -14,7 +14,7 @@ unless ``experimental.carry_start_error`` is false), the fraction of seeds whose
 the fraction whose CIs cover all seven H at once.
 
 ``--mode per_condition|speed_map|combined`` and ``--set KEY=VALUE`` choose the identification mode and
-settings (``service.bench.identmode``; default: the settings' ``experimental.mode``), reported as
+settings (``service.bench.identmode``; default: the settings' ``identification.mode``), reported as
 ``mode``. In speed-map mode the last identification of a condition is the last map fit launched at it (its
 window: the rolling ``map_window_min``, up to 60 min, across the earlier conditions), served at the
 condition; in combined mode the condition's own per-condition one (``identmode.served_in_order``).
@@ -101,7 +101,7 @@ def run(
     overrides: dict[str, Any] | None = None,
     progress: Callable[[str], None] | None = None,
 ) -> dict[str, Any]:
-    """``ident_mode`` None: the settings' ``experimental.mode``; ``overrides``: ``--set`` settings."""
+    """``ident_mode`` None: the settings' ``identification.mode``; ``overrides``: ``--set`` settings."""
     from model.plant import h_true
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
@@ -135,10 +135,10 @@ def run(
     worst = min((float(np.mean(c["ci_coverage"])) for c in conditions), default=None)
     return {
         "synthetic": True,
-        "mode": settings.experimental.mode,
+        "mode": settings.identification.mode,
         "settings": overrides or {},
         "window_min": (
-            ident.map_window_min if settings.experimental.mode is IdentificationMode.SPEED_MAP else 40
+            ident.map_window_min if settings.identification.mode is IdentificationMode.SPEED_MAP else 40
         ),
         "conditions": conditions,
         "targets": verdicts(TARGETS, {"ci_coverage_mean_worst": worst}),

@@ -365,7 +365,7 @@ def run_bench(
     box_hi = float(model.ref.h_box[1])
     out: dict[str, Any] = {
         "synthetic": True,
-        "mode": settings.experimental.mode,
+        "mode": settings.identification.mode,
         "settings": overrides or {},
         "seeds": len(seeds),
         "seed_list": seeds,

@@ -18,10 +18,10 @@ identification inline, its own ``GrowthServer`` as ``chtc run`` builds it) sees 
   state's newest checkpoint, stored once a minute: up to a minute old at the restart);
 - ``restart_no_state`` (offsets): the same restart with an empty database (no identification, history,
   calibration, map, live state nor stored zero). "No stored state" is the database's: the commissioned zero
-  also lives in the configuration, so this run is given ``growth.reference_c`` = the plant's uniform start
-  temperature, the zero its true growth is measured against (``Plant.start_c``). Without it the warm spindle
-  never rests in equilibrium, the growth would stay ``no_reference`` for the whole run and its coverage would
-  measure a provisional zero nobody applies;
+  also lives in the configuration, so this run is given ``compensation.reference_c`` = the plant's uniform
+  start temperature, the zero its true growth is measured against (``Plant.start_c``). Without it the warm
+  spindle never rests in equilibrium, the growth would stay ``no_reference`` for the whole run and its
+  coverage would measure a provisional zero nobody applies;
 - ``outages`` (offsets): one run with a DAQ outage while CAN keeps coming (the acquisition's stale DAQ
   sample: the last temperatures with quality ``stale``, ambient NaN, ``daq_ok`` False, speed and torque
   live) and later both devices down (the acquisition's sample with neither: the last values, ``daq_ok`` and
@@ -417,7 +417,7 @@ def run_seed(
         out.rows["restart_stored"], _ = _serve(
             model, settings, samples, run, growth, first=restart_k, restored=restored
         )
-        zeroed = override(settings, "growth", reference_c=plant.start_c(run))
+        zeroed = override(settings, "compensation", reference_c=plant.start_c(run))
         out.rows["restart_no_state"], _ = _serve(model, zeroed, samples, run, growth, first=restart_k)
         out.rows["outages"], _ = _serve(
             model, settings, samples, run, growth, plan=plan, both_ticks=out.both_ticks

@@ -4,7 +4,7 @@ Data are SYNTHETIC: per seed a duty cycle (``service.sim.duty``: 5 min idle, the
 1–6 min among 0, 500, …, 7000 rpm, torque 3–15 N·m, ambient drifting ±1 °C; 4 h by default) runs on the
 virtual plant (finer mesh, its own truth ``model.plant.h_true``, σ = 0.15 °C, default settings). The samples
 go through the running service's own shell and core (``SoftSensorService`` with the identification run inline,
-as offline), in the settings' ``experimental.mode`` (``combined`` by default: a held condition's own
+as offline), in the settings' ``identification.mode`` (``combined`` by default: a held condition's own
 per-condition H once it has one, the speed map's elsewhere), or ``--mode speed_map`` or ``per_condition``
 (the paper's protocol).
 Every minute the bench reads ``/chtc`` (``SoftSensorService.chtc()``) and compares each served H with the
@@ -201,7 +201,7 @@ def run_bench(
             )
     return {
         "synthetic": True,
-        "mode": settings.experimental.mode,
+        "mode": settings.identification.mode,
         "settings": overrides or {},
         "hours": hours,
         "warmup_min": warmup_min,

@@ -363,7 +363,7 @@ def run(
                 progress(f"{name} seed {seed + 1}/{seeds} done ({time.perf_counter() - started:.0f} s)")
     out: dict[str, Any] = {
         "synthetic": True,
-        "mode": settings.experimental.mode,
+        "mode": settings.identification.mode,
         "settings": overrides or {},
         "seeds": seeds,
         "plant_mechanics": plant_mechanics,

@@ -72,9 +72,9 @@ def _load(args: argparse.Namespace) -> tuple[LoadedModel, list[Data]]:
     from model.inputs import inputs_from_operation
     from model.plant import Segment, VirtualPlant, h_true
     from service.modelload import ModelRef, load_model
-    from service.settings import default_cache_dir
+    from service.settings import Settings
 
-    model = load_model(ModelRef(cache_dir=str(default_cache_dir())))
+    model = load_model(ModelRef.from_settings(Settings()))
     plant = VirtualPlant(model.spec, noise_c=0.0, quant_c=0.0)
     data = []
     for speed, ambient in CONDITIONS:

@@ -1,6 +1,6 @@
 """The identification mode a bench runs in, the same for ``chtc bench chain``, ``restart`` and ``duty``:
-``--mode per_condition|speed_map|combined`` (``experimental.mode``; default: the settings' own, i.e. the
-built-in default or ``CHTC_EXPERIMENTAL__MODE``) and ``--set KEY=VALUE`` (any ``identification`` or
+``--mode per_condition|speed_map|combined`` (``identification.mode``; default: the settings' own, i.e. the
+built-in default or ``CHTC_IDENTIFICATION__MODE``) and ``--set KEY=VALUE`` (any ``identification`` or
 ``experimental`` setting by its key, e.g. ``--set map_min_window_min=7``, ``--set rom_rank=46``; the two
 sections share no key name, ``section.key`` works too), so the modes can be compared in one command line.
 Each bench reports the mode it ran as ``mode`` in its JSON.
@@ -36,8 +36,8 @@ def add_arguments(
         dest="ident_mode",
         choices=MODES + extra,
         default=default,
-        help="experimental.mode"
-        + ("" if default is not None else " (default: the settings', CHTC_EXPERIMENTAL__MODE or built-in)")
+        help="identification.mode"
+        + ("" if default is not None else " (default: the settings', CHTC_IDENTIFICATION__MODE or built-in)")
         + note,
     )
     parser.add_argument(
@@ -68,7 +68,7 @@ SET_SECTIONS = ("identification", "experimental")  # the sections ``--set`` reac
 
 
 def bench_settings(mode: str | None, overrides: dict[str, Any] | None = None) -> Settings:
-    """``Settings()`` (defaults and ``CHTC_*`` environment) with ``experimental.mode`` (None: kept) and the
+    """``Settings()`` (defaults and ``CHTC_*`` environment) with ``identification.mode`` (None: kept) and the
     overrides (``key`` or ``section.key`` of ``SET_SECTIONS``) applied and validated; ``ValueError`` naming
     the key when one is invalid or unknown."""
     from service.commands._common import CommandError, override
@@ -79,7 +79,7 @@ def bench_settings(mode: str | None, overrides: dict[str, Any] | None = None) ->
     for key, value in (overrides or {}).items():
         by_section[_section_of(settings, key)][key.rpartition(".")[2]] = value
     if mode is not None:
-        by_section["experimental"]["mode"] = mode
+        by_section["identification"]["mode"] = mode
     try:
         for name, values in by_section.items():
             settings = override(settings, name, **values) if values else settings

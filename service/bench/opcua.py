@@ -88,10 +88,10 @@ def serve(config: str) -> None:
     exit_on_sigterm()
     sections: dict[str, Any] = {
         "api": {"host": "127.0.0.1", "port": cfg["rest_port"]},
-        "growth": {"reference_c": 20.0},
+        "compensation": {"reference_c": 20.0},
         # per condition: no identification is due in the fed samples (the 4000 rpm condition's 11-16th
         # minute), so no job competes for this process's CPU (the real service runs jobs in another process)
-        "experimental": {"mode": "per_condition"},
+        "identification": {"mode": "per_condition"},
     }
     if cfg["opcua_port"]:
         sections["opcua"] = {

@@ -17,7 +17,7 @@ half-width and the fraction of seeds in which each H is flagged identified, CI w
 H identified, with the fraction of seeds that had one; core path).
 
 Identification mode (``--mode per_condition|speed_map|combined``, ``--set KEY=VALUE``:
-``service.bench.identmode``; default the settings' ``experimental.mode``), reported as ``mode``; core path
+``service.bench.identmode``; default the settings' ``identification.mode``), reported as ``mode``; core path
 only (``--path filter`` is the per-condition protocol by construction). In combined mode each condition's
 served H is its per-condition identification once there is one (``identmode.served_in_order``).
 
@@ -242,13 +242,13 @@ def run_bench(
     stored_offsets: bool = False,
     progress: Any = None,
 ) -> dict[str, Any]:
-    """``ident_mode`` None: the settings' ``experimental.mode``; ``overrides``: ``--set`` settings."""
+    """``ident_mode`` None: the settings' ``identification.mode``; ``overrides``: ``--set`` settings."""
     from service.modelload import ModelRef, load_model
 
     settings = identmode.bench_settings(ident_mode, overrides)
     per_condition = IdentificationMode.PER_CONDITION
-    mode = per_condition if path == "filter" else settings.experimental.mode
-    if path == "filter" and settings.experimental.mode is not per_condition and ident_mode is not None:
+    mode = per_condition if path == "filter" else settings.identification.mode
+    if path == "filter" and settings.identification.mode is not per_condition and ident_mode is not None:
         raise ValueError("--path filter runs the per-condition protocol only (no --mode speed_map)")
     model = load_model(ModelRef.from_settings(settings))
     started = time.perf_counter()

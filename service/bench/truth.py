@@ -248,7 +248,7 @@ def run(
     started = time.perf_counter()
     out: dict[str, Any] = {
         "synthetic": True,
-        "mode": settings.experimental.mode,
+        "mode": settings.identification.mode,
         "settings": overrides or {},
         "rom_rank": int(model.rom.rank),
         "rom_substeps": model.rom.substeps,

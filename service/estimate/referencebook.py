@@ -1,11 +1,12 @@
 """Which compensation reference (growth 0: where the controller was zeroed) the served growth uses
 (docs/commissioning.md, "Zero"): a commissioning fact, ``service.estimate.reference.CompensationReference``,
-stored (``POST /compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
-``growth.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for it,
-taken from the first sample at rest in equilibrium and reported to be stored (source "first_start"). With
-none, the growth is served against a provisional one (the uniform equivalent of the first converged live
-field, with its 1σ; not stored) and is not usable (reason ``no_reference``). Pure computation: no I/O; the
-clock is the live state's instants; one lock guards the reference, which API threads and the loop share.
+stored (``POST /compensation/reference``, ``chtc commission zero``) and restored at start, else the
+configured ``compensation.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start``
+asks for it, taken from the first sample at rest in equilibrium and reported to be stored (source
+"first_start"). With none, the growth is served against a provisional one (the uniform equivalent of the
+first converged live field, with its 1σ; not stored) and is not usable (reason ``no_reference``). Pure
+computation: no I/O; the clock is the live state's instants; one lock guards the reference, which API threads
+and the loop share.
 """
 
 from __future__ import annotations
@@ -67,16 +68,16 @@ class ReferenceBook:
         first_start_by: str = "service",
         on_reference: Callable[[CompensationReference], None] | None = None,
     ) -> None:
-        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
-        "config" one; ``on_first_start``: take one from the first sample at rest in equilibrium when there is
-        none (``set_by`` ``first_start_by``)."""
+        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``compensation.reference_c``)
+        makes a "config" one; ``on_first_start``: take one from the first sample at rest in equilibrium when
+        there is none (``set_by`` ``first_start_by``)."""
         if reference is None and t_ref_c is not None:
             reference = CompensationReference(
                 temperature_c=float(t_ref_c),
                 sd_c=0.0,
                 at=datetime.now(UTC),
                 source="config",
-                set_by="growth.reference_c",
+                set_by="compensation.reference_c",
             )
         self._reference = reference
         self._first_start = bool(on_first_start)

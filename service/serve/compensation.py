@@ -69,6 +69,21 @@ def terms_key(view: CoreView) -> TermsKey | None:
     return (None if rec is None else rec.id, tuple(live.h), tuple(live.load_scale), held)
 
 
+def _default_limits() -> CompensationLimits:
+    """The policy's limits for a server built without them (the benches' and the offline history's, which
+    judge the growth alone): the settings' ``[compensation]`` defaults (declared there; no environment)
+    without the mechanics rule, which has no commissioning to read there."""
+    from service.settings import CompensationSettings
+
+    s = CompensationSettings()
+    return CompensationLimits(
+        max_ci95_um=s.max_ci95_um,
+        max_identification_age_min=s.max_identification_age_min,
+        max_open_loop_min=s.max_open_loop_min,
+        require_mechanics_calibration=False,
+    )
+
+
 class GrowthServer:
     """See the module docstring. Thread-safe: the API threads and the shell's worker threads call it."""
 
@@ -83,17 +98,18 @@ class GrowthServer:
         on_reference: Callable[[CompensationReference], None] | None = None,
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
-        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
+        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: its defaults)
         mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
         mechanics_basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
         probes: tuple[ProbeMeasurement, ...] = (),  # the stored probe readings (restored), oldest first
         probe_gate_sigma: float = DEFAULT_GATE_SIGMA,
     ) -> None:
-        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
-        "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
-        when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken
-        here (the shell stores it); ``limits`` the settings' [compensation] (None: the defaults)."""
-        self.limits = limits if limits is not None else CompensationLimits()
+        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``compensation.reference_c``)
+        makes a "config" one; ``reference_on_first_start``: take one from the first sample at rest in
+        equilibrium when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every
+        reference taken here (the shell stores it); ``limits`` the settings' [compensation] (None:
+        ``_default_limits``)."""
+        self.limits = limits if limits is not None else _default_limits()
         self.model = model
         self.tool_dir = tool_dir
         self.references = ReferenceBook(

@@ -145,7 +145,7 @@ def test_identify_with_a_stated_speed_and_torque(logs, tmp_path, capsys):
 def test_identify_says_why_nothing_was_identified(logs, tmp_path, capsys, monkeypatch, mode):
     """A sped-up simulation recorded with wall-time stamps: 55 min of plant squeezed into 55 s; the reason
     names what the mode's first identification needs."""
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", mode)
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", mode)
     squeezed = _rewrite_csv(logs[0], tmp_path / "wall.csv", scale=1.0 / 60.0)
     assert cli_main(["identify", str(squeezed), "--speed-rpm", "3000", "--torque-nm", "5"]) == 1
     err = capsys.readouterr().err
@@ -291,7 +291,7 @@ def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path, monke
     # Per condition (combined and speed-map mode: a map fit's H reaches the live state at the first sample
     # after the worker returns it, and the map's bookkeeping depends on that; the full suite under load once
     # saw one fit fewer in the replay than offline).
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
 
     offline = [r for r in _identify(logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
 
@@ -330,7 +330,7 @@ def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_
     """One jittered row per second (as chtc record writes): replay used to sample rows one poll apart from
     identify's, and identify fed every row as a sample, so windows and H differed (13 s and H1 52 vs 200).
     Per-condition mode, as the test above (one identification per 10-min condition)."""
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")  # chtc identify's settings
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")  # chtc identify's settings
     offline = [r for r in _identify(realtime_logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
 
     def check(replayed, growth):
@@ -377,7 +377,7 @@ def test_identify_on_the_shipped_example_recording(tmp_path, capsys, monkeypatch
     bands from a cold start), so only the later maps are held to it."""
     from pathlib import Path
 
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", mode)
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", mode)
     data = Path(__file__).resolve().parents[2] / "service" / "data"
     out = tmp_path / "example.json"
     argv = ["identify", str(data / "example_temperatures.csv"), str(data / "example_can.blf")]
