@@ -4,11 +4,13 @@ against Python).
 
 - Imports point inward: ``model/`` imports none of ``drivers``, ``service``, ``api``; ``drivers/`` none of
   ``service``, ``api``. Inside the service the contracts sit below everything (``service.contracts``
-  imports only itself and ``service.errors``); the store imports no ``engine``/``serve``; ``serve`` (and the
-  interface the API reads, ``service.serve.interface``) no ``store``/``engine``; ``acquire``, ``estimate``,
-  ``identify`` none of the shell (``engine``, the tools, ``api``). Only ``engine`` and the tools wire the
-  packages (and the API) together. Every import counts, also one inside a function or under
-  ``TYPE_CHECKING``.
+  imports only itself and ``service.errors``); the store imports no engine (``core``, ``shell``, ``host``) and
+  no ``serve``; ``serve`` (and the interface the API reads, ``service.serve.interface``) no ``store``, no
+  engine; ``acquire``, ``estimate``, ``identify`` none of the wiring (the engine, the tools, ``api``). The
+  engine itself points inward: ``service.core`` (pure) imports none of ``service.shell``/``service.host``
+  and no asyncio, thread or database driver; ``service.shell`` none of ``service.host``. Only the engine and
+  the tools wire the packages (and the API) together. Every import counts, also one inside a function or
+  under ``TYPE_CHECKING``. No module-level import cycle; no class in ``service/`` over 400 lines.
 - Every exception class defined in a layer derives from that layer's root: ``model.errors.ModelError``,
   ``drivers.errors.DriverError``, ``service.errors.ServiceError``, ``api.errors.ApiError``.
 """
@@ -98,9 +100,23 @@ _SERVICE_PACKAGES = tuple(
     if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"
     if p.stem not in ("__init__", "contracts", "errors")
 )
-_SHELL = ("service.engine", "service.commands", "service.bench", "service.sim", "service.cli", "api")
+_TOOLS = ("service.commands", "service.bench", "service.sim", "service.cli")
+# the engine, in three packages (issue 39): the pure core, the asyncio shell, the host; with the tools and
+# the api they are the wiring, which no lower package imports
+_ENGINE = ("service.core", "service.shell", "service.host")
+_SHELL = (*_ENGINE, *_TOOLS, "api")
 
 RULES = [
+    # the pure core: no shell, no host, no tool; no event loop, no thread, no database driver
+    (
+        "service.core",
+        ("service.shell", "service.host", *_TOOLS, "asyncio", "threading", "concurrent", "sqlalchemy"),
+    ),
+    (
+        "service.shell",
+        ("service.host", "service.commands", "service.bench", "service.cli"),
+    ),  # sim: issue 39 part 1
+    ("service.host", ("service.commands", "service.bench", "service.cli")),
     ("model", ("drivers", "service", "api")),
     ("drivers", ("service", "api")),
     ("service", ("api",)),  # issue 28: the REST outlet is found by name (service.serve.outlet.OUTLETS)
@@ -198,7 +214,7 @@ def _class_lines(root: str) -> dict[str, int]:
 
 def test_no_class_in_the_service_over_400_lines() -> None:
     lines = _class_lines("service")
-    assert "service.engine.core.ServiceCore" in lines
+    assert "service.core.machine.ServiceCore" in lines
     assert {name: n for name, n in lines.items() if n > MAX_CLASS_LINES} == {}
 
 

@@ -161,7 +161,7 @@ def post_mechanics(
     service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()]
 ) -> MechanicsCommissionOut:
     from drivers.logs import LogFormatError
-    from service.engine.commissioning import CommissioningError
+    from service.shell.commissioning import CommissioningError
 
     try:
         can_bytes = base64.b64decode(body.can_log_base64, validate=True)

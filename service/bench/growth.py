@@ -4,7 +4,7 @@ Data are SYNTHETIC. Per seed the virtual plant (finer mesh, its own truth ``mode
 σ = 0.15 °C noise) runs a profile and keeps its full field every ``--every-s``; its growth comes from a growth
 model built on the *plant's* mesh (``model.thermoelastic``), so mesh and time discretisation differ from the
 service's. The samples go through the service's own core, sample by sample, exactly as
-``service.engine.offline.run_offline`` feeds them (``ServiceCore.ingest``, identifications inline with the
+``service.core.offline.run_offline`` feeds them (``ServiceCore.ingest``, identifications inline with the
 same seeded worker function). At every ``--every-s`` after the first successful identification the bench
 asks the service's own ``service.serve.compensation.GrowthServer`` (as ``/compensation`` does) for the growth
 of the core's view, so everything is the service's real path:
@@ -169,10 +169,10 @@ class _Plant:
 def serve_offline(
     samples: list[Any], model: Any, config: Any, on_sample: Callable[[Any, int, Any], None]
 ) -> None:
-    """The service's core offline (``service.engine.offline.run_offline``: the same events and job outcomes),
+    """The service's core offline (``service.core.offline.run_offline``: the same events and job outcomes),
     calling ``on_sample(core, k, last_ok_result)`` after sample k and its identifications, so that the live
     state can be read as the service would serve it."""
-    from service.engine.offline import run_offline
+    from service.core.offline import run_offline
 
     run_offline(samples, model=model, config=config, on_sample=on_sample)
 
@@ -335,8 +335,8 @@ def run(
     progress: Any = None,
     plant_mechanics: str = "drawn",
 ) -> dict[str, Any]:
-    from service.engine.runtime import core_config
     from service.estimate.growth import build_context
+    from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.sim.logsamples import samples_from_plant
 

@@ -2,7 +2,7 @@
 
 ``chtc commission growth TEMPERATURES CANLOG DISPLACEMENTS``: fit the growth's mechanics (mount restraint, α
 factors) to a measured thermal test (docs/commissioning.md, "Commission the growth";
-``service.engine.commissioning``): the service's own core runs over the temperature CSV and the CAN log, as
+``service.shell.commissioning``): the service's own core runs over the temperature CSV and the CAN log, as
 ``chtc identify`` does, and the displacement CSV (UTC time, ``axial_um``, optionally ``radial_um``) is fitted.
 Prints the residuals, the parameters with their prior and posterior, and the verdict; ``--json FILE`` writes
 the report. Exit status 0 when the model explains the test, 1 when it does not, 2 for unusable input. With
@@ -152,9 +152,9 @@ def _token(args: argparse.Namespace, settings: Any) -> str:
 def growth(args: argparse.Namespace) -> int:
     """``chtc commission growth`` (module docstring)."""
     from service.commands._common import check_log_arguments
-    from service.engine.commissioning import FitLimits, commission_growth, format_report
-    from service.engine.runtime import core_config, os_user
+    from service.host.runtime import core_config, os_user
     from service.settings import load_settings
+    from service.shell.commissioning import FitLimits, commission_growth, format_report
 
     settings = load_settings(args.config)
     check_log_arguments(args.temperatures, args.canlog)
@@ -173,8 +173,8 @@ def growth(args: argparse.Namespace) -> int:
         print(json.dumps(out, indent=2))
         print(f"mechanics stored and in use: {out['report']['verdict']}", file=sys.stderr)
         return 0
-    from service.engine.commissioning import read_displacement_csv
     from service.modelload import ModelRef, load_model
+    from service.shell.commissioning import read_displacement_csv
 
     read_displacement_csv(args.displacements)  # a bad file is reported before the model loads
     model = load_model(ModelRef.from_settings(settings))
@@ -208,7 +208,7 @@ def growth(args: argparse.Namespace) -> int:
 def main(args: argparse.Namespace) -> int:
     if args.action == "growth":
         return growth(args)
-    from service.engine.runtime import os_user
+    from service.host.runtime import os_user
     from service.settings import load_settings
 
     settings = load_settings(args.config)

@@ -9,7 +9,7 @@ Three stages, by how often their inputs change:
   shell calls it in a thread at ``start()``, otherwise the first request builds it (~0.7 s);
 - the condition terms (steady field, modes, horizon functionals, sensor sensitivity): per (identification,
   condition, live H and load scales), ``refresh(view)``; the shell starts it in a thread when a published view
-  has a new key (``wants_refresh``; ``service.engine.growthserve.TermsRefresher``), and a request whose key is
+  has a new key (``wants_refresh``; ``service.shell.growthserve.TermsRefresher``), and a request whose key is
   not ready computes it in its own (API) thread (~0.25 s), never on the event loop; the last 16 keys' terms
   are cached (``service.estimate.growthterms.TermsCache``);
 - the estimate: per request, from the latest published ``CoreView`` (dot products).

@@ -1,6 +1,6 @@
 """The read side of the running service: :class:`ViewReader` answers from one published ``CoreView``.
 
-The shell (``service.engine.shell.SoftSensorService``) publishes an immutable
+The shell (``service.shell.service.SoftSensorService``) publishes an immutable
 :class:`~service.serve.view.CoreView` after each event; every outlet (REST, OPC UA, MQTT) reads the same
 values with the same statuses through a ``ViewReader`` built from that view and one long-lived
 :class:`ReadContext` (the clock, the model, the growth server, the device health and the snapshot caches

@@ -7,7 +7,7 @@ service measures its own database operations:
 
 - ``StatementWatchdog.guard(what)`` brackets one operation (a write batch, a probe, an API read);
 - ``busy_s()`` is the age of the oldest operation still running: ``/healthz`` says db ``degraded`` when it
-  exceeds a few seconds (``service.engine.shell``), long before anything times out;
+  exceeds a few seconds (``service.shell.service``), long before anything times out;
 - a daemon thread aborts every open connection of the engine once an operation runs longer than
   ``abort_after_s``: for psycopg it shuts the socket down (the blocked ``recv`` returns, psycopg raises
   ``OperationalError``, translated to ``DatabaseUnavailableError``: the writer buffers and retries); for

@@ -14,8 +14,8 @@ import numpy as np
 
 from model.plant import Segment, VirtualPlant
 from service.bench.chain import T0
-from service.engine.offline import run_offline
-from service.engine.runtime import core_config
+from service.core.offline import run_offline
+from service.host.runtime import core_config
 from service.modelload import ModelRef, load_model
 from service.serve.compensation import GrowthServer
 from service.settings import Settings

@@ -13,7 +13,7 @@ from service.bench import restart
 from service.bench.restart import Served
 from service.bench.restart_filter import FilterRestart
 from service.bench.restart_profile import DT_S
-from service.engine.runtime import core_config
+from service.host.runtime import core_config
 from service.modelload import LoadedModel
 from service.settings import Settings
 from tests.service.conftest import plant_run

@@ -1,13 +1,13 @@
 """What the running service drives outside itself, as protocols: the database writer and the identification
-worker (``service.engine.shell.SoftSensorService`` takes them; ``service.engine.internal`` drives them)."""
+worker (``service.shell.service.SoftSensorService`` takes them; ``service.shell.internal`` drives them)."""
 
 from __future__ import annotations
 
 from typing import Protocol
 
 from service.contracts.records import Record
-from service.engine.health import StatusSource
 from service.identify.worker import JobOutcome, JobRequest
+from service.shell.health import StatusSource
 
 __all__ = ["RecordWriter", "Worker"]
 

@@ -1,9 +1,9 @@
 """The running soft sensor: :class:`SoftSensorService`, the asyncio shell around the pure
-:class:`service.engine.core.ServiceCore`, and the ``service.serve.interface.ChtcService`` the API reads.
+:class:`service.core.machine.ServiceCore`, and the ``service.serve.interface.ChtcService`` the API reads.
 
 A thin facade (as asyncua's ``Server`` wraps its ``InternalServer``) over its parts, exposed as they are:
 
-- ``internal`` (``service.engine.internal.InternalService``): the event loop's side of the core: events in
+- ``internal`` (``service.shell.internal.InternalService``): the event loop's side of the core: events in
   (``on_sample``, ``post``, ``handle``), the published view, instructions executed (database writer, worker
   process), outlets (``subscribe``), device health;
 - ``growth`` (``service.serve.compensation.GrowthServer``): what ``/compensation`` serves;
@@ -28,10 +28,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.ringbuffer import Sample
-from service.engine.archive import IdentificationArchive
-from service.engine.core import ServiceCore
-from service.engine.corethread import CoreRunner
-from service.engine.events import (
+from service.core.events import (
     BaselineRequested,
     Calibrated,
     Event,
@@ -41,10 +38,7 @@ from service.engine.events import (
     Rejected,
     RejectKind,
 )
-from service.engine.health import HealthSource
-from service.engine.internal import InternalService
-from service.engine.looplag import LoopLagMonitor
-from service.engine.ports import RecordWriter, Worker
+from service.core.machine import ServiceCore
 from service.estimate.mechanics import MechanicsCalibration
 from service.estimate.probe import ProbeError, ProbeMeasurement
 from service.estimate.reference import CompensationReference
@@ -62,6 +56,12 @@ from service.serve.interface import (
 )
 from service.serve.reader import MAP_H_BOX, NewestViewReads, ViewReader
 from service.serve.view import CoreView
+from service.shell.archive import IdentificationArchive
+from service.shell.corethread import CoreRunner
+from service.shell.health import HealthSource
+from service.shell.internal import InternalService
+from service.shell.looplag import LoopLagMonitor
+from service.shell.ports import RecordWriter, Worker
 from service.store.mechanics import mechanics_record
 from service.store.probes import probe_record
 from service.store.references import reference_record
@@ -69,8 +69,8 @@ from service.store.references import reference_record
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session, sessionmaker
 
-    from service.engine.commissioning import CommissionReport
     from service.serve.outlet import Outlet
+    from service.shell.commissioning import CommissionReport
     from service.store.reads import DbReads
 
 __all__ = ["MAP_H_BOX", "RecordWriter", "SoftSensorService", "Worker"]
@@ -195,9 +195,9 @@ class SoftSensorService(NewestViewReads):
         force: bool = False,
     ) -> tuple[CommissionReport, bool]:
         """Fit the mechanics to a measured thermal test with this service's own core and model
-        (``service.engine.commissioning``; blocking, seconds to a minute: call it off the event loop);
+        (``service.shell.commissioning``; blocking, seconds to a minute: call it off the event loop);
         store and use the calibration when the model explains the test (or ``force``). (report, stored)."""
-        from service.engine.commissioning import commission_growth
+        from service.shell.commissioning import commission_growth
 
         rep = commission_growth(
             self.core.model,

@@ -1,4 +1,4 @@
-"""The running service's machinery behind the facade ``service.engine.shell.SoftSensorService`` (as asyncua's
+"""The running service's machinery behind the facade ``service.shell.service.SoftSensorService`` (as asyncua's
 ``Server`` wraps its ``InternalServer``): the event loop's side of the pure core.
 
 Data flow::
@@ -7,7 +7,7 @@ Data flow::
     instructions: Store -> database writer, Launch -> worker process --JobOutcome--> JobOutcomeReceived,
                   Cancel -> worker, Log -> on_event
     after each event: core.view() --published--> readers (service.serve.reader.ViewReader, no lock)
-                                                 --subscribe()--> outlets' on_view (service.engine.outlets)
+                                                 --subscribe()--> outlets' on_view (service.shell.outlets)
 
 Each event gets an id (``"sample-1042"``, ``"outcome-3"``, ``"manual-1"``, ...) that the instructions and the
 stored identification records keep. When started, events are handled on the event loop: an API thread's
@@ -37,9 +37,7 @@ import numpy as np
 from drivers.ringbuffer import Sample
 from service.acquire.devicewatch import DeviceWatch
 from service.contracts.records import DeviceEventData
-from service.engine.core import ServiceCore
-from service.engine.corethread import CoreRunner, InlineRunner
-from service.engine.events import (
+from service.core.events import (
     Cancel,
     Event,
     IdsKnown,
@@ -50,19 +48,21 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.engine.gauges import Gauges
-from service.engine.growthserve import TermsRefresher
-from service.engine.health import HealthSource
-from service.engine.looplag import LoopLagMonitor
-from service.engine.outlets import OutletHub
+from service.core.machine import ServiceCore
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.compensation import GrowthServer
 from service.serve.interface import DeviceHealth, NotReadyError, SensorHistoryBuffer
 from service.serve.reader import ReadContext, ViewReader
 from service.serve.view import CoreView
+from service.shell.corethread import CoreRunner, InlineRunner
+from service.shell.gauges import Gauges
+from service.shell.growthserve import TermsRefresher
+from service.shell.health import HealthSource
+from service.shell.looplag import LoopLagMonitor
+from service.shell.outlets import OutletHub
 
 if TYPE_CHECKING:
-    from service.engine.ports import RecordWriter, Worker
+    from service.shell.ports import RecordWriter, Worker
 
 __all__ = ["HANDOVER_TIMEOUT_S", "InternalService"]
 

@@ -1,7 +1,7 @@
-"""What the core and its identification tracks share (``service.engine.core`` owns one ``CoreParts``; the
-per-condition track ``service.engine.schedtrack`` and the speed map's ``service.engine.maptrack`` work on
+"""What the core and its identification tracks share (``service.core.machine`` owns one ``CoreParts``; the
+per-condition track ``service.core.schedtrack`` and the speed map's ``service.core.maptrack`` work on
 it): the configuration, the live state, the sample history, the job book, the condition and the serving
-strategy (as ``Decides``: what the tracks ask of it; ``service.engine.serving`` implements it, and imports
+strategy (as ``Decides``: what the tracks ask of it; ``service.core.serving`` implements it, and imports
 this module, never the reverse); and ``Out``, the instructions of one ``handle`` call. Pure: no I/O, no
 clock, no lock.
 """
@@ -17,11 +17,11 @@ import numpy as np
 from service.acquire.calibration import OffsetCalibrator
 from service.acquire.history import RingHistory
 from service.contracts.records import Record
-from service.engine.config import CoreConfig
-from service.engine.events import Instruction, Log, Rejected, RejectKind, Store
-from service.engine.jobbook import Job, JobBook
-from service.engine.jobs import Offsets
-from service.engine.samples import SampleBook
+from service.core.config import CoreConfig
+from service.core.events import Instruction, Log, Rejected, RejectKind, Store
+from service.core.jobbook import Job, JobBook
+from service.core.jobs import Offsets
+from service.core.samples import SampleBook
 from service.estimate.state import FilteredState
 from service.estimate.state import h_rel_from_ci as h_rel
 from service.identify import scheduler as sched
@@ -37,7 +37,7 @@ Served = tuple[IdentificationRecord, Load]  # an identification whose H the live
 
 
 class Decides(Protocol):
-    """What the core and its tracks ask of the serving strategy (``service.engine.serving.Serving``): which
+    """What the core and its tracks ask of the serving strategy (``service.core.serving.Serving``): which
     identification serves, and which one the live state takes when one finishes or the condition moves."""
 
     current: IdentificationRecord | None

@@ -99,6 +99,6 @@ class GrowthHistory:
 
 
 class ServiceCoreLike(Protocol):
-    """What ``GrowthHistory`` reads of ``service.engine.core.ServiceCore``."""
+    """What ``GrowthHistory`` reads of ``service.core.machine.ServiceCore``."""
 
     def view(self) -> CoreView: ...

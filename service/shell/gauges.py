@@ -1,6 +1,6 @@
 """The running service's device health and metrics (``/healthz``, ``/metrics``): read from the parts the shell
 owns (the acquisition's sources, the database writer, the identification worker, the core's runner, the
-event loop's lag) and a published view. The per-device readings are ``service.engine.health``'s pure
+event loop's lag) and a published view. The per-device readings are ``service.shell.health``'s pure
 functions; this module gathers them."""
 
 from __future__ import annotations
@@ -10,21 +10,6 @@ from collections.abc import Callable, Mapping
 from datetime import datetime
 from typing import TYPE_CHECKING
 
-from service.engine.corethread import CoreRunner
-from service.engine.health import (
-    HealthSource,
-    StatusSource,
-    core_health,
-    db_health,
-    filter_health,
-    frame_events,
-    frame_outcomes,
-    loop_health,
-    poll_events,
-    poll_outcomes,
-    source_health,
-)
-from service.engine.looplag import LoopLagMonitor
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.interface import (
     ChtcSnapshot,
@@ -37,9 +22,24 @@ from service.serve.interface import (
     OutletMetrics,
 )
 from service.serve.view import CoreView
+from service.shell.corethread import CoreRunner
+from service.shell.health import (
+    HealthSource,
+    StatusSource,
+    core_health,
+    db_health,
+    filter_health,
+    frame_events,
+    frame_outcomes,
+    loop_health,
+    poll_events,
+    poll_outcomes,
+    source_health,
+)
+from service.shell.looplag import LoopLagMonitor
 
 if TYPE_CHECKING:
-    from service.engine.ports import Worker
+    from service.shell.ports import Worker
 
 __all__ = ["Gauges"]
 
