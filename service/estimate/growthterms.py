@@ -24,7 +24,7 @@ from service.estimate.state import FilterView
 
 if TYPE_CHECKING:
     from model.geometry import SpindleSpec
-    from service.identify.speedmap import SpeedMap
+    from model.hmap import Family
 
 __all__ = [
     "DT_S",
@@ -56,6 +56,20 @@ class CiRecord(Protocol):
 
     @property
     def ci95_hi(self) -> ArrayLike: ...
+
+
+class SpeedMap(Protocol):
+    """What the H covariance reads of a speed map (``service.identify.speedmap.SpeedMap``): its family and its
+    posterior over the family's parameters θ (mean, covariance)."""
+
+    @property
+    def model_family(self) -> Family: ...
+
+    @property
+    def mean(self) -> ArrayLike: ...
+
+    @property
+    def cov(self) -> ArrayLike: ...
 
 
 def live_belief(live: FilterView | None) -> FieldBelief:

@@ -15,7 +15,7 @@ import collections
 import dataclasses
 import threading
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
@@ -35,7 +35,23 @@ from service.estimate.probe import (
 from service.estimate.state import FilterView
 
 if TYPE_CHECKING:
-    from service.modelload import LoadedModel
+    from model.fem import FEModel
+    from model.geometry import SpindleSpec
+    from model.rom import ReducedModel
+
+
+class SpindleModel(Protocol):
+    """What the book reads of the service's model (``service.modelload.LoadedModel``)."""
+
+    @property
+    def spec(self) -> SpindleSpec: ...
+
+    @property
+    def fe(self) -> FEModel: ...
+
+    @property
+    def rom(self) -> ReducedModel: ...
+
 
 __all__ = ["FIELD_KEEP_EVERY_S", "FIELD_KEEP_S", "MechanicsBook", "prior_calibration"]
 
@@ -89,7 +105,7 @@ class MechanicsBook:
 
     def __init__(
         self,
-        model: LoadedModel,  # read on first use only
+        model: SpindleModel,  # read on first use only
         *,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
         mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
