@@ -189,10 +189,6 @@ class GrowthServer:
         """The probe readings kept (restored and new), newest first."""
         return self.book.probes()
 
-    def kept_span(self) -> tuple[float, float] | None:
-        """(oldest, newest) epoch [s] of the live fields kept for probe readings (None: none yet)."""
-        return self.book.kept_span()
-
     def measure(
         self,
         view: CoreView,
@@ -239,10 +235,6 @@ class GrowthServer:
             self._changed()
         return m
 
-    @property
-    def probe_gate_sigma(self) -> float:
-        return self.book.gate_sigma
-
     # --- the reference
     @property
     def reference(self) -> CompensationReference | None:
@@ -265,11 +257,6 @@ class GrowthServer:
             offsets = view.calibration.applied() if view.calibration is not None else None
             newest = (s.t, s.temps_c, good, offsets, s.speed_rpm)
         self.references.observe(view.live, self.book.current, newest)
-
-    @staticmethod
-    def zero_problem(ctx: GrowthContext, view: CoreView, sd_c: float) -> str | None:
-        """Why ``view``'s live field cannot give a zero now (``referencebook.zero_problem``)."""
-        return zero_problem(ctx, view.live, sd_c)
 
     def take_reference(
         self,
@@ -312,10 +299,6 @@ class GrowthServer:
         return None if ref is None else ref[0]
 
     # --- stage 2: the condition terms
-    @staticmethod
-    def terms_key(view: CoreView) -> TermsKey | None:
-        return terms_key(view)
-
     def wants_refresh(self, view: CoreView) -> bool:
         """True once per new key (the caller then runs ``refresh`` off the event loop)."""
         key = terms_key(view)
