@@ -11,6 +11,12 @@ against Python).
   and no asyncio, thread or database driver; ``service.shell`` none of ``service.host``. Only the engine and
   the tools wire the packages (and the API) together. Every import counts, also one inside a function or
   under ``TYPE_CHECKING``. No module-level import cycle; no class in ``service/`` over 400 lines.
+- The laboratory stays out of the product (issue 39): nothing under ``model``, ``drivers``, ``service``,
+  ``api`` imports ``benchmarks`` (which may import anything), and the running product (core, shell,
+  host, estimate, identify, store, serve, acquire, api) imports nothing of the simulator or the plant
+  (``service.sim``, ``model.plant``, ``model.plantmech``): those serve the demo, the simulate command, the
+  tests and the benchmarks. The wheel built from the tree holds no benchmark, study or diagnostic module
+  (``test_the_wheel_ships_no_laboratory``).
 - Every exception class defined in a layer derives from that layer's root: ``model.errors.ModelError``,
   ``drivers.errors.DriverError``, ``service.errors.ServiceError``, ``api.errors.ApiError``.
 """
@@ -19,6 +25,11 @@ from __future__ import annotations
 
 import ast
 import builtins
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -27,6 +38,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("model", "drivers", "service", "api")
+SCANNED = (*LAYERS, "benchmarks")  # the benchmarks are read too: the rules below name what they may not be
 
 
 @dataclass
@@ -72,7 +84,7 @@ def _parse(path: Path) -> Module:
 @cache
 def modules() -> dict[str, Module]:
     found = {}
-    for layer in LAYERS:
+    for layer in SCANNED:
         for path in sorted((ROOT / layer).rglob("*.py")):
             if "migrations" not in path.parts:
                 mod = _parse(path)
@@ -100,10 +112,20 @@ _SERVICE_PACKAGES = tuple(
     if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"
     if p.stem not in ("__init__", "contracts", "errors")
 )
-_TOOLS = ("service.commands", "service.bench", "service.sim", "service.cli")
+_TOOLS = ("service.commands", "benchmarks", "service.sim", "service.cli")
 # the engine, in three packages (issue 39): the pure core, the asyncio shell, the host; with the tools and
 # the api they are the wiring, which no lower package imports
 _ENGINE = ("service.core", "service.shell", "service.host")
+_RUNNING = (
+    *_ENGINE,
+    "service.estimate",
+    "service.identify",
+    "service.store",
+    "service.serve",
+    "service.acquire",
+    "api",
+)
+_SIMULATOR = ("service.sim", "model.plant", "model.plantmech")
 _SHELL = (*_ENGINE, *_TOOLS, "api")
 
 RULES = [
@@ -112,11 +134,8 @@ RULES = [
         "service.core",
         ("service.shell", "service.host", *_TOOLS, "asyncio", "threading", "concurrent", "sqlalchemy"),
     ),
-    (
-        "service.shell",
-        ("service.host", "service.commands", "service.bench", "service.cli"),
-    ),  # sim: issue 39 part 1
-    ("service.host", ("service.commands", "service.bench", "service.cli")),
+    ("service.shell", ("service.host", *_TOOLS)),
+    ("service.host", ("service.commands", "benchmarks", "service.cli")),
     ("model", ("drivers", "service", "api")),
     ("drivers", ("service", "api")),
     ("service", ("api",)),  # issue 28: the REST outlet is found by name (service.serve.outlet.OUTLETS)
@@ -128,6 +147,9 @@ RULES = [
     ("service.identify", (*_SHELL, "service.store", "service.serve")),
     ("service.estimate", (*_SHELL, "service.store", "service.serve")),
     ("service.acquire", (*_SHELL, "service.store")),
+    # issue 39: the laboratory out of the product; the running product imports no simulator and no plant
+    *((layer, ("benchmarks",)) for layer in LAYERS),
+    *((running, _SIMULATOR) for running in _RUNNING),
 ]
 
 
@@ -187,8 +209,7 @@ def _cycles(graph: dict[str, list[str]]) -> list[list[str]]:
 def test_no_module_import_cycles() -> None:
     """No circle of imports between the product's modules (every import counts, also under
     ``TYPE_CHECKING``): e.g. the core's parts and its serving strategies (issue 39)."""
-    product = {n for n in modules() if not _under(n, "service.bench")}  # the lab: leaving (issue 39 part 1)
-    assert _cycles(_import_graph(product)) == []
+    assert _cycles(_import_graph(set(modules()))) == []
 
 
 def test_the_cycle_check_sees_a_cycle() -> None:
@@ -223,6 +244,35 @@ def test_the_rules_see_a_violation() -> None:
     assert "service.store.reads imports service.store.errors.DatabaseBusyError" in _offending(
         "service.store", ("service.store.errors",)
     )
+    # the benchmarks are read, and they do import the simulator (what the product may not)
+    assert "benchmarks.compensation_run imports service.sim.plantsamples" in _offending(
+        "benchmarks", ("service.sim",)
+    )
+
+
+_LAB_NAME = re.compile(r"bench|diag\d*|stud(y|ies)", re.IGNORECASE)
+
+
+@pytest.mark.slow
+def test_the_wheel_ships_no_laboratory(tmp_path: Path) -> None:
+    """The wheel built from the tree holds the product's packages only (issue 39): no ``benchmarks``, and no
+    bench, study or diagnostic module inside them (none named so, none named as a study of
+    ``benchmarks/studies``). Built from a copy: a build in the tree would leave ``build/`` behind."""
+    src = tmp_path / "src"
+    junk = shutil.ignore_patterns(".git", ".*cache*", "__pycache__", "*.egg-info", "build", "dist", "tests")
+    shutil.copytree(ROOT, src, ignore=junk)
+    out = tmp_path / "wheel"
+    cmd = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out)]
+    built = subprocess.run([*cmd, "."], cwd=src, capture_output=True, text=True, timeout=240)
+    assert built.returncode == 0, built.stderr[-2000:]
+    (wheel,) = out.glob("*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert {n.split("/")[0] for n in names if ".dist-info/" not in n} == set(LAYERS)
+    studies = {p.stem for p in (ROOT / "benchmarks" / "studies").glob("*.py")} - {"__init__"}
+    modules = [Path(n) for n in names if n.endswith(".py")]
+    assert len(modules) > 100  # the product is there
+    lab = [str(m) for m in modules if m.stem in studies or any(_LAB_NAME.search(part) for part in m.parts)]
+    assert lab == []
 
 
 def _resolve(module: str, name: str) -> tuple[str, str]:

@@ -39,12 +39,13 @@ class SnapshotBook(Generic[S]):
         if force or not self._snapshots or snap.t - self._snapshots[-1].t >= self.every_s - 1e-9:
             self._snapshots.append(snap)
 
-    def mark(self, t: float) -> S:
+    def mark(self, t: float) -> S | None:
         """Keep the estimate of the latest recent step at or before ``t`` [s] as a snapshot (a window can
-        start there); none recent: ``at(t)``."""
+        start there); none recent: the latest kept snapshot at or before ``t``; None: none that old."""
         older = [s for s in self._recent if s.t <= t + 0.5 * self.dt_s]
         if not older:
-            return self.at(t)
+            kept = [s for s in self._snapshots if s.t <= t + 0.5 * self.dt_s]
+            return kept[-1] if kept else None
         snap = older[-1]
         if all(s.t != snap.t for s in self._snapshots):
             kept = sorted([*self._snapshots, snap], key=lambda s: s.t)

@@ -525,9 +525,10 @@ class FilteredState:
             return self.initialize(float(t), inputs, temps_c, usable, reason="prediction lost")
         return self._after_step(n, res)
 
-    def mark(self, t: float) -> StateSnapshot:
+    def mark(self, t: float) -> StateSnapshot | None:
         """Keep the estimate of the latest step at or before ``t`` [s] as a snapshot (a window can start
-        there); called at a condition change, whose start lies up to the hold time in the past."""
+        there); called at a condition change, whose start lies up to the hold time in the past. None when
+        the state has none that old (it started after ``t``: a window cannot start there; never an error)."""
         return self._book.mark(t)
 
     # --- queries --------------------------------------------------------------------------------------

@@ -11,15 +11,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.chain import T0
 from model.plant import Segment, VirtualPlant
-from service.bench.chain import T0
 from service.core.offline import run_offline
 from service.estimate.referencebook import REFERENCE_MAX_SD_UM
 from service.host.runtime import core_config
 from service.modelload import ModelRef, load_model
 from service.serve.compensation import GrowthServer
 from service.settings import Settings
-from service.sim.logsamples import samples_from_plant
+from service.sim.plantsamples import samples_from_plant
 
 REST_S = 1800.0
 
