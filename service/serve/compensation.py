@@ -81,6 +81,7 @@ def _default_limits() -> CompensationLimits:
         max_identification_age_min=s.max_identification_age_min,
         max_open_loop_min=s.max_open_loop_min,
         require_mechanics_calibration=False,
+        require_offset_baseline=s.require_offset_baseline,
     )
 
 
@@ -412,6 +413,8 @@ class GrowthServer:
             identified_at=None if rec is None else rec.finished_at,
             has_reference=self.reference is not None,
             has_mechanics=self.commissioning is not None,
+            # calibration off (no offset 1σ published): the operator handles the offsets, the rule is off
+            has_offset_baseline=view.offset_sd_c is None or view.calibration is not None,
         )
         return CompensationSnapshot(
             growth=est,
@@ -423,4 +426,5 @@ class GrowthServer:
             channels=tuple(s.channel for s in self.model.spec.sensors),
             reference=self.reference,
             mechanics=self.mechanics,
+            sensor_faults=() if view.live is None else view.live.sensor_faults,
         )
