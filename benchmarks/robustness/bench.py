@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.robustness import peers as P
+import benchmarks.robustness.peers as P
 from benchmarks.robustness.plantrun import concat_runs, inject_faults, scaled_law, segments
 from benchmarks.robustness.scenarios import FAMILIES, POOLED, TEST_AMBIENT_C, Scenario, draw_scenarios
 from benchmarks.robustness.serve import ProbePlan, Restart, serve
