@@ -97,7 +97,7 @@ def targets(settings: Any) -> tuple[Target, ...]:
     ]
     ctl = getattr(settings, "controller", None)
     if comp is not None and ctl is not None:
-        from service.engine.config import control_limits
+        from service.core.config import control_limits
 
         limits = control_limits(settings)
         out += [
@@ -526,7 +526,7 @@ def run_bench(
     """The bench over ``seeds`` (module docstring), ``jobs`` seeds at a time in worker processes;
     ``ValueError`` for a bad option. ``ticks_out``: a file for every seed's per-sample ticks (pickle)."""
     from benchmarks.compensation_run import Plant
-    from service.engine.config import control_limits
+    from service.core.config import control_limits
     from service.modelload import ModelRef, load_model
 
     plan = plan_for(hours, rest_min=rest_min)

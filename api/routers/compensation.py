@@ -164,7 +164,7 @@ def post_mechanics(
     service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()], request: Request
 ) -> MechanicsCommissionOut:
     from drivers.logs import LogFormatError
-    from service.engine.commissioning import EXAMPLE_NOTE, CommissioningError, is_shipped_example
+    from service.shell.commissioning import EXAMPLE_NOTE, CommissioningError, is_shipped_example
 
     simulated = bool(getattr(getattr(request.app.state, "clock_info", None), "simulated", False))
     if is_shipped_example(body.displacements_csv) and not simulated and not body.force:

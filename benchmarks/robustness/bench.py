@@ -44,7 +44,7 @@ from typing import Any
 
 import numpy as np
 
-from benchmarks.robustness import peers as P
+import benchmarks.robustness.peers as P
 from benchmarks.robustness.plantrun import concat_runs, inject_faults, scaled_law, segments
 from benchmarks.robustness.scenarios import FAMILIES, POOLED, TEST_AMBIENT_C, Scenario, draw_scenarios
 from benchmarks.robustness.serve import ProbePlan, Restart, serve
@@ -125,7 +125,7 @@ def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argpars
     from benchmarks.studies.mlr import fit_mlr
     from drivers.logs import read_temperature_csv
     from model.plant import VirtualPlant
-    from service.engine.runtime import core_config
+    from service.core.config import core_config
     from service.estimate.mechanics import served_mechanics_basis
     from service.sim.randomtruth import draw_truth
     from service.sim.thermaltest import RECOMMENDED_PROFILE, SHORT_PROFILE, write_thermal_test

@@ -1,21 +1,21 @@
 """The service's core: a pure state machine, ``handle(event) -> list[Instruction]``.
 
-Events and instructions are defined in ``service.engine.events``. The core owns the condition detector, the
+Events and instructions are defined in ``service.core.events``. The core owns the condition detector, the
 identification scheduler, the offset calibrator, the sample history (a ring buffer of its own) and the live
 state, and keeps what the API reads. The live state is closed loop (``service.estimate.state.FilteredState``:
 a Kalman filter on the reduced model, corrected by each sample's usable, offset-corrected channels); an
 identification window starts from it (mean and covariance) and is not scheduled before it has
 converged since the (re)start (``state_converging``). It does no I/O, takes no lock and imports no
 database code: records to store, jobs to launch or cancel and lines to log come out as instructions, which
-the asyncio shell (``service.engine.shell``) or the offline runner (``service.engine.offline``)
-executes. After each event ``view()`` gives an immutable snapshot (``service.engine.view.CoreView``) that
+the asyncio shell (``service.shell.service``) or the offline runner (``service.core.offline``)
+executes. After each event ``view()`` gives an immutable snapshot (``service.core.view.CoreView``) that
 the shell publishes for the API threads.
 
-The identification mode (``CoreConfig.mode``) is one serving strategy (``service.engine.serving``): it
-builds the tracks that run, the per-condition schedule (``service.engine.schedtrack``) and the speed map
-(``service.engine.maptrack``), each a stand-in when the mode does not run it, and decides which
+The identification mode (``CoreConfig.mode``) is one serving strategy (``service.core.serving``): it
+builds the tracks that run, the per-condition schedule (``service.core.schedtrack``) and the speed map
+(``service.core.maptrack``), each a stand-in when the mode does not run it, and decides which
 identification serves. The core hands each sample to both tracks and each outcome to the track that owns
-its job; it tests no mode. The state the core and its tracks share is a ``service.engine.parts.CoreParts``.
+its job; it tests no mode. The state the core and its tracks share is a ``service.core.parts.CoreParts``.
 
 One caller drives a core, from one thread. The same events on a fresh core give the same instructions.
 
@@ -50,8 +50,8 @@ from service.acquire.calibration import (
 )
 from service.acquire.history import RingHistory
 from service.contracts.records import ConditionEnd, ConditionStart
-from service.engine.config import CoreConfig, Restored
-from service.engine.events import (
+from service.core.config import CoreConfig, Restored
+from service.core.events import (
     BaselineRequested,
     Calibrated,
     Event,
@@ -62,13 +62,13 @@ from service.engine.events import (
     RejectKind,
     SampleReceived,
 )
-from service.engine.idcounter import IdCounter, rebase_ids
-from service.engine.jobbook import JobBook, job_key
-from service.engine.parts import CONDITIONS_KEPT, CoreParts, Out, h_rel, utc
-from service.engine.restorecut import cut_future
-from service.engine.samples import SampleBook
-from service.engine.serving import serving_for
-from service.engine.view import CoreView, NewestSample
+from service.core.idcounter import IdCounter, rebase_ids
+from service.core.jobbook import JobBook, job_key
+from service.core.parts import CONDITIONS_KEPT, CoreParts, Out, h_rel, utc
+from service.core.restorecut import cut_future
+from service.core.samples import SampleBook
+from service.core.serving import serving_for
+from service.core.view import CoreView, NewestSample
 from service.errors import ServiceError
 from service.estimate.checkpoint import CheckpointError
 from service.estimate.sensorfaults import fault_lines
@@ -106,7 +106,7 @@ class ServiceCore:
 
     def _build(self, restored: Restored) -> None:
         """The parts from what the database knew (again at the first sample when some of it was dated after
-        that sample: ``service.engine.restorecut``)."""
+        that sample: ``service.core.restorecut``)."""
         config, model = self.config, self.model
         serving = serving_for(config.mode, restored)
         n_sensors = len(model.spec.sensors)
@@ -172,7 +172,7 @@ class ServiceCore:
 
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
-        """One event in, what to do out (see ``service.engine.events``)."""
+        """One event in, what to do out (see ``service.core.events``)."""
         out = Out(event.event_id)
         match event:
             case SampleReceived():

@@ -1,7 +1,7 @@
 """The core's speed-map track (modes ``speed_map`` and ``combined``, docs/design/hmap.md): the map's own
 trigger, the live state's H from the map at each sample's speed, the map fits' launch, outcome and manual
-requests. ``MapTrack`` keeps its bookkeeping in a ``service.engine.mapbook.MapBook``; ``NoMaps`` stands in
-for it in per-condition mode. Pure: no I/O, no clock; the serving strategy (``service.engine.serving``)
+requests. ``MapTrack`` keeps its bookkeeping in a ``service.core.mapbook.MapBook``; ``NoMaps`` stands in
+for it in per-condition mode. Pure: no I/O, no clock; the serving strategy (``service.core.serving``)
 builds one.
 """
 
@@ -13,12 +13,12 @@ from typing import Protocol
 import numpy as np
 
 from model.identify_prior import HPrior
-from service.engine.events import JobOutcomeReceived, Launch, ManualAccepted, RejectKind
-from service.engine.jobbook import Job, MapValues, job_key
-from service.engine.jobs import converging_reason, job_request, job_window
-from service.engine.mapbook import MapBook
-from service.engine.parts import CoreParts, Out, utc
-from service.engine.view import NewestSample
+from service.core.events import JobOutcomeReceived, Launch, ManualAccepted, RejectKind
+from service.core.jobbook import Job, MapValues, job_key
+from service.core.jobs import converging_reason, job_request, job_window
+from service.core.mapbook import MapBook
+from service.core.parts import CoreParts, Out, utc
+from service.core.view import NewestSample
 from service.estimate.live import LiveStateError
 from service.identify import scheduler as sched
 from service.identify.detector import OperatingPoint

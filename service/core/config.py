@@ -1,5 +1,5 @@
 """The service core's configuration (``CoreConfig``, built from ``Settings`` by ``core_config``) and what
-the database knew at start-up (``Restored``, read by ``service.engine.persistence.restore``).
+the database knew at start-up (``Restored``, read by ``service.host.persistence.restore``).
 
 One declaration per setting: the configuration objects of the engine (``CoreConfig`` and its parts, the
 policy's ``CompensationLimits``) have no defaults of their own. Every value comes from its settings section
@@ -84,7 +84,7 @@ class CoreConfig:
     # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the
     # measurements are taken as they come and no offset uncertainty is carried in the CIs
     calibration: CalibrationConfig | None
-    # identification.mode: its serving strategy (service.engine.serving) decides what runs and what serves:
+    # identification.mode: its serving strategy (service.core.serving) decides what runs and what serves:
     # the per-condition schedule (the paper's protocol, one H per held condition), the speed map (H = F(n, Ti)
     # over a rolling window, re-fitted on condition changes; docs/design/hmap.md) or both ("combined": the
     # held condition's per-condition identification serves instead of the map's H, docs/design/hmap.md
@@ -208,7 +208,7 @@ def control_limits(settings: Settings) -> ControlLimits:
 
 @dataclass(frozen=True, kw_only=True)
 class Restored:
-    """What the database knew at start-up (``service.engine.persistence.restore``)."""
+    """What the database knew at start-up (``service.host.persistence.restore``)."""
 
     last: IdentificationRecord | None = None
     history: tuple[PastResult, ...] = ()

@@ -2,7 +2,7 @@
 database's ids when the database answers only after start-up.
 
 With the database unreachable at start-up the service cannot know the stored ids, so new ids start from a
-time-based base that no stored row can have (``service.engine.persistence.fallback_restored``): numbers like
+time-based base that no stored row can have (``service.host.persistence.fallback_restored``): numbers like
 1795761900000. When the database answers before the first id was needed (the usual case: a database that
 starts after the service), ``rebase_ids`` makes the ids continue from the stored ones instead: small and
 monotonic across runs. Once an id was issued, it and everything after it keep the time base for this run

@@ -1,6 +1,6 @@
 """Device health and metric counters from the acquisition sources and the database writer (pure readers).
 
-The shell (``service.engine.shell``) calls these for ``/healthz`` and ``/metrics``; the sources are
+The shell (``service.shell.service``) calls these for ``/healthz`` and ``/metrics``; the sources are
 ``drivers.base.Source`` objects (read only here), the writer is the buffered database writer.
 """
 
@@ -11,11 +11,11 @@ from datetime import datetime
 from typing import Protocol
 
 from drivers.base import SourceMetrics
-from service.engine.corethread import CoreLoad
-from service.engine.looplag import LoopLag
-from service.engine.view import CoreView
+from service.core.view import CoreView
 from service.serve.interface import DeviceHealth, DeviceStatus
 from service.serve.views import age_s
+from service.shell.corethread import CoreLoad
+from service.shell.looplag import LoopLag
 from service.store.writer import WriterStatus
 
 __all__ = [

@@ -1,25 +1,27 @@
-"""What the core and its identification tracks share (``service.engine.core`` owns one ``CoreParts``; the
-per-condition track ``service.engine.schedtrack`` and the speed map's ``service.engine.maptrack`` work on
+"""What the core and its identification tracks share (``service.core.machine`` owns one ``CoreParts``; the
+per-condition track ``service.core.schedtrack`` and the speed map's ``service.core.maptrack`` work on
 it): the configuration, the live state, the sample history, the job book, the condition and the serving
-strategy; and ``Out``, the instructions of one ``handle`` call. Pure: no I/O, no clock, no lock.
+strategy (as ``Decides``: what the tracks ask of it; ``service.core.serving`` implements it, and imports
+this module, never the reverse); and ``Out``, the instructions of one ``handle`` call. Pure: no I/O, no
+clock, no lock.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Any
+from typing import Any, Protocol
 
 import numpy as np
 
 from service.acquire.calibration import OffsetCalibrator
 from service.acquire.history import RingHistory
 from service.contracts.records import Record
-from service.engine.config import CoreConfig
-from service.engine.events import Instruction, Log, Rejected, RejectKind, Store
-from service.engine.jobbook import Job, JobBook
-from service.engine.jobs import Offsets
-from service.engine.samples import SampleBook
+from service.core.config import CoreConfig
+from service.core.events import Instruction, Log, Rejected, RejectKind, Store
+from service.core.jobbook import Job, JobBook
+from service.core.jobs import Offsets
+from service.core.samples import SampleBook
 from service.estimate.state import FilteredState
 from service.estimate.state import h_rel_from_ci as h_rel
 from service.identify import scheduler as sched
@@ -27,12 +29,29 @@ from service.identify.detector import ConditionDetector, DetectorStatus
 from service.modelload import LoadedModel
 from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 
-if TYPE_CHECKING:
-    from service.engine.serving import Serving
-
-__all__ = ["CONDITIONS_KEPT", "CoreParts", "Out", "h_rel", "utc"]
+__all__ = ["CONDITIONS_KEPT", "CoreParts", "Decides", "Load", "Out", "Served", "h_rel", "utc"]
 
 CONDITIONS_KEPT = 200
+Load = tuple[float, float] | None  # a per-condition fit's bearing-heat load scales
+Served = tuple[IdentificationRecord, Load]  # an identification whose H the live state takes, with its load
+
+
+class Decides(Protocol):
+    """What the core and its tracks ask of the serving strategy (``service.core.serving.Serving``): which
+    identification serves, and which one the live state takes when one finishes or the condition moves."""
+
+    current: IdentificationRecord | None
+    from_restore: bool
+    map_serves: bool
+    generation: int
+
+    def identified(
+        self, rec: IdentificationRecord, load: Load, condition: ConditionSnapshot | None
+    ) -> Served | None: ...
+
+    def mapped(self, rec: IdentificationRecord, condition: ConditionSnapshot | None) -> Served | None: ...
+
+    def follow(self, condition: ConditionSnapshot | None) -> Served | None: ...
 
 
 def utc(ts: float) -> datetime:
@@ -70,7 +89,7 @@ class CoreParts:
     jobs: JobBook
     samples: SampleBook
     calibrator: OffsetCalibrator | None
-    serving: Serving
+    serving: Decides
     condition: ConditionSnapshot | None = None
     conditions: tuple[ConditionSnapshot, ...] = ()
 

@@ -1,6 +1,6 @@
 """The core's speed-map bookkeeping (modes ``speed_map`` and ``combined``, docs/design/hmap.md): when a map
 fit is due, the running fit, the posteriors kept for the next windows' priors and the visited-speed tally.
-Pure: no I/O, no clock; the core's map track (``service.engine.maptrack.MapTrack``) owns one.
+Pure: no I/O, no clock; the core's map track (``service.core.maptrack.MapTrack``) owns one.
 """
 
 from __future__ import annotations
@@ -11,7 +11,7 @@ import numpy as np
 
 from model.hmap import Family, Gaussian
 from model.hmap_identify import forget
-from service.engine.config import CoreConfig
+from service.core.config import CoreConfig
 from service.identify.speedmap import SpeedMap, VisitTally
 from service.modelload import LoadedModel
 

@@ -1,7 +1,7 @@
 """What the core remembers of the samples themselves: the newest one, when each channel and each device last
 gave good data (freshness, ``CoreView.data_problems``), and which samples go to the database (decimated).
 
-Owned and driven by the core (``service.engine.core``), one sample at a time; no I/O.
+Owned and driven by the core (``service.core.machine``), one sample at a time; no I/O.
 """
 
 from __future__ import annotations
@@ -15,7 +15,7 @@ from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from service.acquire.decimate import SampleDecimator
 from service.contracts.records import SampleData, finite, finite_list
-from service.engine.view import NewestSample
+from service.core.view import NewestSample
 
 __all__ = ["SampleBook", "quality_names"]
 

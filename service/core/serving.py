@@ -20,10 +20,10 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Protocol
 
-from service.engine.config import CoreConfig, Restored
-from service.engine.maptrack import MapSide, MapTrack, NoMaps
-from service.engine.parts import CoreParts
-from service.engine.schedtrack import ManualTrack, ScheduleTrack, Unscheduled
+from service.core.config import CoreConfig, Restored
+from service.core.maptrack import MapSide, MapTrack, NoMaps
+from service.core.parts import CoreParts, Decides, Load, Served
+from service.core.schedtrack import ManualTrack, ScheduleTrack, Unscheduled
 from service.identify.mode import IdentificationMode
 from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 
@@ -37,9 +37,6 @@ __all__ = [
     "serving_for",
 ]
 
-Load = tuple[float, float] | None  # a per-condition fit's bearing-heat load scales
-Served = tuple[IdentificationRecord, Load]  # an identification whose H the live state takes, with its load
-
 
 @dataclass(frozen=True)
 class Tracks:
@@ -51,15 +48,11 @@ class Tracks:
     manual: ManualTrack
 
 
-class Serving(Protocol):
+class Serving(Decides, Protocol):
     """See the module docstring. ``generation`` changes whenever what serves changes (the map's H is then
     given to the live state again at the next sample when the map serves)."""
 
     mode: ClassVar[IdentificationMode]
-    current: IdentificationRecord | None
-    from_restore: bool
-    map_serves: bool
-    generation: int
 
     def longest_window_s(self, config: CoreConfig) -> float:
         """The longest window a job may start back in time [s] (the live state keeps its snapshots 3× this
@@ -67,14 +60,6 @@ class Serving(Protocol):
         ...
 
     def tracks(self, parts: CoreParts, restored: Restored) -> Tracks: ...
-
-    def identified(
-        self, rec: IdentificationRecord, load: Load, condition: ConditionSnapshot | None
-    ) -> Served | None: ...
-
-    def mapped(self, rec: IdentificationRecord, condition: ConditionSnapshot | None) -> Served | None: ...
-
-    def follow(self, condition: ConditionSnapshot | None) -> Served | None: ...
 
 
 class PerConditionServing:

@@ -1,7 +1,7 @@
 """An identification job's inputs from the core's state: the window, its start field and the request.
 
 Pure functions of the live state (``service.estimate.state.FilteredState``, read only), the sample history and
-the configuration; the core (``service.engine.core``) calls them when the scheduler starts a job. A window
+the configuration; the core (``service.core.machine``) calls them when the scheduler starts a job. A window
 starts from the filtered state at its start (mean and covariance: ``start_cov``), never before the state has
 converged since the (re)start (``FilteredState.ready_at``).
 """
@@ -14,7 +14,7 @@ from typing import Protocol
 
 import numpy as np
 
-from service.engine.config import CoreConfig
+from service.core.config import CoreConfig
 from service.estimate.live import LiveStateError
 from service.estimate.state import FilteredState, StateSnapshot
 from service.identify.scheduler import StartJob

@@ -1,7 +1,7 @@
 """Where the core's per-event work runs: inline (the caller's thread) or in one dedicated thread fed by a
 bounded queue (docs/design/threading.md).
 
-The shell (``service.engine.shell``) hands every event to a :class:`CoreRunner`. Two implementations:
+The shell (``service.shell.service``) hands every event to a :class:`CoreRunner`. Two implementations:
 
 - :class:`InlineRunner`: the event is handled at once in the caller's thread (offline runs, the compensation
   bench on its manual clock, the tests that drive the shell synchronously);
@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Protocol
 
-from service.engine.events import Event, Instruction, SampleReceived
+from service.core.events import Event, Instruction, SampleReceived
 from service.errors import ServiceError
 from service.logctx import in_current_context
 from service.serve.histogram import Histogram

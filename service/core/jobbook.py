@@ -1,5 +1,5 @@
 """The core's book of identification jobs: the API's job table, the jobs waiting for their outcome, the
-identification records this process made and their counts (owned and driven by ``service.engine.core``).
+identification records this process made and their counts (owned and driven by ``service.core.machine``).
 
 Ids: identification ids continue from ``next_identification_id`` (the database's, after a restart); a job's
 key is ``"job-<scheduler job id>"``. Every record keeps the id of the event that started its job and of the
@@ -15,7 +15,7 @@ from typing import TypedDict
 
 from model.identify import IdentificationResult
 from service.contracts.records import IdentificationData, JsonValue
-from service.engine.idcounter import IdCounter
+from service.core.idcounter import IdCounter
 from service.identify.scheduler import StartJob
 from service.serve.histogram import DURATION_BUCKETS_S
 from service.serve.interface import (
@@ -104,7 +104,7 @@ class JobBook:
 
     @property
     def id_counter(self) -> IdCounter:
-        """The identification ids (``service.engine.idcounter``)."""
+        """The identification ids (``service.core.idcounter``)."""
         return self._ids
 
     def first_of(self, condition_id: int) -> bool:

@@ -1,6 +1,6 @@
 """What goes into the service core and what comes out of it: frozen events and instructions.
 
-``ServiceCore.handle(event) -> list[Instruction]`` (``service.engine.core``). Every event carries an
+``ServiceCore.handle(event) -> list[Instruction]`` (``service.core.machine``). Every event carries an
 ``event_id`` (a string the caller makes unique, e.g. ``"sample-1042"``, ``"outcome-3"``, ``"manual-1"``) and
 every instruction the core emits while handling it carries the same id, as do the identification records it
 stores (``IdentificationData.started_by_event``: the event that started the job, ``finished_by_event``: the
@@ -10,7 +10,7 @@ one that ended it), so a story can be followed from a sample to the stored row w
     JobOutcomeReceived    -> Store(identification), Log, Launch (the next job that fell due)
     ManualRequested       -> ManualAccepted + Launch | Store (skipped at once) | Rejected(BUSY | NOT_READY)
     BaselineRequested     -> Calibrated + Log | Rejected(NOT_READY)
-    IdsKnown              -> Log (ids continue from the database's: service.engine.idcounter)
+    IdsKnown              -> Log (ids continue from the database's: service.core.idcounter)
 
 Refused requests are instructions (``Rejected`` with a :class:`RejectKind`), not exceptions: ``handle`` is
 total for well-formed events. The shell turns ``Rejected`` into ``BusyError`` / ``NotReadyError`` for the API.
@@ -25,7 +25,7 @@ from datetime import datetime
 from drivers.ringbuffer import Sample
 from service.acquire.calibration import Calibration
 from service.contracts.records import Record
-from service.engine.idcounter import IdsKnown
+from service.core.idcounter import IdsKnown
 from service.identify.worker import JobOutcome, JobRequest
 from service.serve.interface import IdentificationJob
 

@@ -11,7 +11,7 @@ The database being down never stops the service:
 - at start-up: the service starts without restored state and says so once (a logged warning); ids continue
   from a time-based base (``int(epoch s) * 1000``) so they cannot collide with rows of earlier runs, unless
   the database answers before the first id is issued: then they continue from the stored ones
-  (``Persistence.on_open``, ``service.engine.idcounter``); records are held in a ``GateSink`` until the
+  (``Persistence.on_open``, ``service.core.idcounter``); records are held in a ``GateSink`` until the
   schema is known to be in place (migrated / checked), retried in the background;
 - later: the writer buffers and retries (E's ``DbWriter``).
 """
@@ -28,8 +28,8 @@ from datetime import datetime
 from typing import TYPE_CHECKING, Any, TypeVar
 
 from service.contracts.records import Record
-from service.engine.config import Restored
-from service.engine.jobbook import MAP_METHOD
+from service.core.config import Restored
+from service.core.jobbook import MAP_METHOD
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from service.serve.histogram import Histogram
@@ -333,7 +333,7 @@ class Persistence:
             )
 
     async def _tell_ids(self, on_open: Callable[[int, int], None]) -> None:
-        """The stored ids, to continue from (``service.engine.idcounter``); a failed read keeps the base."""
+        """The stored ids, to continue from (``service.core.idcounter``); a failed read keeps the base."""
         from service.store.repository import max_ids, session_scope
 
         def read() -> tuple[int, int]:
@@ -589,7 +589,7 @@ def open_persistence(
 ) -> Persistence:
     """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage.
 
-    ``clock`` is the service's one clock (``service.engine.runtime.ScaledClock`` in the demo): the writer
+    ``clock`` is the service's one clock (``service.host.runtime.ScaledClock`` in the demo): the writer
     stamps its
     outage events and ``last_ok_at`` with it, so database health ages are on the same time axis as the rest.
     ``log_time``: that clock replays a log (``Persistence.log_time``: retention ages by the stored samples).

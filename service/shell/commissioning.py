@@ -5,7 +5,7 @@ and the nose's displacement (a capacitive sensor on a test mandrel: ``DISPLACEME
 axial, optionally radial, µm). ``commission_growth``:
 
 1. reads the displacement CSV (``read_displacement_csv``: any rate, empty cells allowed, a bad line named);
-2. runs the service's own core over the temperature CSV and the CAN log (``service.engine.offline``, the
+2. runs the service's own core over the temperature CSV and the CAN log (``service.core.offline``, the
    same samples as ``chtc identify`` and ``chtc replay``), so the field is the **service's** filtered live
    state, as it would be served, not a plant's truth; keeps its reduced mean at each sample;
 3. forms the fit's features (``model.growthfit``: each mount/α operator applied to the field's rise over the
@@ -43,7 +43,7 @@ from service.errors import ServiceError
 from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis
 
 if TYPE_CHECKING:
-    from service.engine.config import CoreConfig
+    from service.core.config import CoreConfig
     from service.modelload import LoadedModel
 
 __all__ = [
@@ -234,7 +234,7 @@ def field_history(
     identifications as ``chtc identify``, one sample per ``config.rules.dt_s``) and keep the live state after
     every sample."""
     from drivers.logsamples import samples_from_logs
-    from service.engine.offline import run_offline
+    from service.core.offline import run_offline
 
     data = samples_from_logs(temperatures, canlog, period_s=config.rules.dt_s)
     t: list[float] = []

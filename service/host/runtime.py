@@ -28,19 +28,19 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from drivers.acquisition import Acquisition, CanSource, DaqSource
 from drivers.ringbuffer import RingBuffer
-from service.engine.config import Restored, compensation_limits, core_config
-from service.engine.core import ServiceCore
-from service.engine.corethread import CoreThread, InlineRunner
-from service.engine.growthserve import GrowthServer
-from service.engine.health import HealthSource
-from service.engine.looplag import LoopLagMonitor
-from service.engine.persistence import Persistence, SharedDatabase, open_persistence
-from service.engine.shell import SoftSensorService, Worker
+from service.core.config import Restored, compensation_limits, core_config
+from service.core.machine import ServiceCore
+from service.host.persistence import Persistence, SharedDatabase, open_persistence
 from service.identify.worker import IdentificationWorker
 from service.logctx import spindle_context
 from service.modelload import LoadedModel, ModelRef, load_model
+from service.serve.compensation import GrowthServer
 from service.serve.outlet import OUTLETS, Outlet, OutletContext, OutletFactory, load_factory
 from service.settings import Settings
+from service.shell.corethread import CoreThread, InlineRunner
+from service.shell.health import HealthSource
+from service.shell.looplag import LoopLagMonitor
+from service.shell.service import SoftSensorService, Worker
 
 if TYPE_CHECKING:
     import uvicorn
@@ -110,7 +110,7 @@ def growth_server(
     """``/compensation``'s server from ``Settings``: the policy's limits and the zero: the restored one, else
     ``compensation.reference_c``, else (if configured) one taken at the first start (docs/design/growth.md,
     "Reference"). ``context``: the model's growth context, built once and shared by the spindles of one
-    geometry (``service.engine.host``; default: built by the server when first needed)."""
+    geometry (``service.host.fleet``; default: built by the server when first needed)."""
     c = settings.compensation
     return GrowthServer(
         model,
@@ -187,7 +187,7 @@ class Runtime:
     running_outlets: dict[str, Outlet] = field(default_factory=dict)  # started, in order
     devices: tuple[DaqDevice, CanDevice] | None = None  # closed at stop()
     simulated_time: bool = False  # the clock is a simulated plant time (demo, replay): the API says so
-    # an instance hosting several spindles (service.engine.host) injects what they share: a lease of the
+    # an instance hosting several spindles (service.host.fleet) injects what they share: a lease of the
     # identification pool (default: a worker process of this spindle's own), the database engines (default:
     # engines of its own), and whether this spindle's persistence runs the database-wide retention pass
     worker: Worker | None = None

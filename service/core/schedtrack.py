@@ -2,7 +2,7 @@
 scheduler (``service.identify.scheduler``) with the conditions the detector confirms and the samples' time,
 launches the jobs it starts, records their outcomes and takes manual requests in per-condition mode.
 ``Unscheduled`` stands in for it in speed-map mode (no per-condition schedule; a stray outcome is still
-recorded). Pure: no I/O, no clock; the serving strategy (``service.engine.serving``) builds one.
+recorded). Pure: no I/O, no clock; the serving strategy (``service.core.serving``) builds one.
 """
 
 from __future__ import annotations
@@ -13,11 +13,11 @@ from typing import Protocol
 
 from model.identify import IdentificationResult
 from model.identify_prior import HPrior
-from service.engine.events import Cancel, JobOutcomeReceived, Launch, ManualAccepted, RejectKind
-from service.engine.jobbook import Job, job_key
-from service.engine.jobs import converging_reason, job_request, job_window
-from service.engine.parts import CoreParts, Out, utc
-from service.engine.view import NewestSample
+from service.core.events import Cancel, JobOutcomeReceived, Launch, ManualAccepted, RejectKind
+from service.core.jobbook import Job, job_key
+from service.core.jobs import converging_reason, job_request, job_window
+from service.core.parts import CoreParts, Out, utc
+from service.core.view import NewestSample
 from service.estimate.live import LiveStateError
 from service.identify import scheduler as sched
 from service.identify.window import InsufficientWindowError

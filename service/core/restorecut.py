@@ -13,7 +13,7 @@ from __future__ import annotations
 from dataclasses import replace
 from datetime import UTC, datetime
 
-from service.engine.config import Restored
+from service.core.config import Restored
 
 __all__ = ["cut_future"]
 

@@ -2,7 +2,7 @@
 
 Used by ``chtc identify`` (recorded log files), the benches and tests. The samples go through exactly the
 same ``ServiceCore`` (sample history, live state, detector, scheduler, window building) and the same events
-as in the running service (``service.engine.shell``); the only difference is that each ``Launch`` runs
+as in the running service (``service.shell.service``); the only difference is that each ``Launch`` runs
 synchronously in this process (``service.identify.worker.run_job``, the worker process's own function, with
 the same seeded rng) instead of in the worker process, so the same log always gives the same H.
 """
@@ -18,9 +18,8 @@ from drivers.ringbuffer import Sample
 from model.identify import IdentificationResult
 from service.acquire.calibration import Calibration
 from service.contracts.records import Record
-from service.engine.config import CoreConfig, Restored
-from service.engine.core import ServiceCore
-from service.engine.events import (
+from service.core.config import CoreConfig, Restored
+from service.core.events import (
     Event,
     Instruction,
     JobOutcomeReceived,
@@ -29,6 +28,7 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
+from service.core.machine import ServiceCore
 from service.identify.worker import JobStatus, run_job
 from service.modelload import LoadedModel
 from service.serve.interface import ConditionSnapshot, IdentificationRecord

@@ -1,6 +1,6 @@
 """Several spindles in one instance (issue 29, item 5; docs/design/fleet.md).
 
-``Host(settings, ...)`` runs one :class:`service.engine.runtime.Runtime` per ``[[spindles]]`` entry
+``Host(settings, ...)`` runs one :class:`service.host.runtime.Runtime` per ``[[spindles]]`` entry
 (``Settings.per_spindle()``), each with its own devices, acquisition, core, writer and verdicts, and shares
 what one process can share:
 
@@ -10,7 +10,7 @@ what one process can share:
   processes, one per core by default) instead of a worker process per spindle, fair in the order asked;
 - one **database engine** pair (``SharedDatabase``: reads, writes), with spindle-bound sessions; the
   database-wide retention pass runs once, from the first spindle that starts;
-- one **event-loop lag monitor** (``service.engine.looplag``): the spindles share the loop, so one
+- one **event-loop lag monitor** (``service.shell.looplag``): the spindles share the loop, so one
   measurement serves every spindle's ``/healthz`` (``event_loop``) and ``/metrics``;
 - one **REST server**: the ``"rest_fleet"`` outlet (``api.fleet``) answers ``/api/v1/spindles`` and
   ``/api/v1/spindles/{id}/…``, one ``/metrics`` labelled by spindle, and today's paths when it hosts one.
@@ -38,12 +38,12 @@ from service.modelload import LoadedModel, ModelRef, load_model
 from service.serve.outlet import Outlet, OutletContext, OutletFactory, load_factory
 
 if TYPE_CHECKING:
-    from service.engine.looplag import LoopLagMonitor
-    from service.engine.persistence import SharedDatabase
-    from service.engine.runtime import CanDevice, DaqDevice, Runtime, ScaledClock
     from service.estimate.growth import GrowthContext
+    from service.host.persistence import SharedDatabase
+    from service.host.runtime import CanDevice, DaqDevice, Runtime, ScaledClock
     from service.identify.pool import WorkerPool
     from service.settings import Settings
+    from service.shell.looplag import LoopLagMonitor
 
 __all__ = ["DeviceFactory", "Host", "HostError", "HostedSpindle"]
 
@@ -127,8 +127,8 @@ class Host:
 
     async def start(self, *, api: bool = True) -> None:
         """Open the shared parts, then start each spindle (a failing one is reported, the rest start)."""
-        from service.engine.persistence import SharedDatabase
-        from service.engine.runtime import loop_lag_monitor
+        from service.host.persistence import SharedDatabase
+        from service.host.runtime import loop_lag_monitor
         from service.identify.pool import WorkerPool
 
         s = self.settings
@@ -160,7 +160,7 @@ class Host:
             await self.rest.start()
 
     async def _start_spindle(self, s: Settings) -> None:
-        from service.engine.runtime import Runtime
+        from service.host.runtime import Runtime
 
         sid = s.spindle.id
         # the first spindle that starts migrates the database (once) and runs its retention pass (it covers
