@@ -110,7 +110,12 @@ def targets(settings: Any) -> tuple[Target, ...]:
             Target("command.sign_changes_at_verdict_change", "<=", 0.0),
         ]
     if comp is not None:
-        out.append(Target("ci_half_um_max_usable", "<=", float(comp.max_ci95_um), unit="µm"))
+        # the served verdict has the CI gate (issue 42): a half-width above the tolerance stays usable for at
+        # most ci_exit_hold_s, and never above ci_hard_fraction × the tolerance
+        hard = float(comp.max_ci95_um) * float(getattr(comp, "ci_hard_fraction", 1.0))
+        out.append(
+            Target("ci_half_um_max_usable", "<=", hard, unit="µm", note="ci_hard_fraction × tolerance")
+        )
         out.append(Target("outage_can_alive.usable_min", "<=", float(comp.max_open_loop_min), unit="min"))
     return tuple(out)
 
