@@ -211,6 +211,7 @@ def user_errors() -> tuple[type[Exception], ...]:
     from drivers.errors import ConfigError
     from drivers.logs import LogFormatError
     from service.engine.commissioning import CommissioningError
+    from service.serve.errors import OutletError
     from service.settings import SettingsError
 
-    return (CommandError, SettingsError, ConfigError, LogFormatError, CommissioningError)
+    return (CommandError, SettingsError, ConfigError, LogFormatError, CommissioningError, OutletError)

@@ -11,6 +11,7 @@ from __future__ import annotations
 import asyncio
 from typing import TYPE_CHECKING
 
+from service.serve.interface import OutletMetrics
 from service.serve.opcua.nodes import variables
 from service.serve.opcua.server import Methods, OpcUaServer
 
@@ -58,6 +59,10 @@ class OpcUaOutlet:
 
     async def close(self) -> None:
         await asyncio.to_thread(self.server.stop)
+
+    def outlet_metrics(self) -> OutletMetrics:
+        """For ``/metrics`` (``service.serve.interface.CountedOutlet``): the requests refused, by reason."""
+        return OutletMetrics(refused=self.server.refusals.counts())
 
 
 def _job_text(job: IdentificationJob) -> str:
