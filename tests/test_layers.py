@@ -9,6 +9,12 @@ against Python).
   ``identify`` none of the shell (``engine``, the tools, ``api``). Only ``engine`` and the tools wire the
   packages (and the API) together. Every import counts, also one inside a function or under
   ``TYPE_CHECKING``.
+- The laboratory stays out of the product (issue 39): nothing under ``model``, ``drivers``, ``service``,
+  ``api`` imports ``benchmarks`` (which may import anything), and the running product (engine, estimate,
+  identify, store, serve, acquire, api) imports nothing of the simulator or the plant (``service.sim``,
+  ``model.plant``, ``model.plantmech``): those serve the demo, the simulate command, the tests and the
+  benchmarks. The wheel built from the tree holds no benchmark, study or diagnostic module
+  (``test_the_wheel_ships_no_laboratory``).
 - Every exception class defined in a layer derives from that layer's root: ``model.errors.ModelError``,
   ``drivers.errors.DriverError``, ``service.errors.ServiceError``, ``api.errors.ApiError``.
 """
@@ -17,6 +23,11 @@ from __future__ import annotations
 
 import ast
 import builtins
+import re
+import shutil
+import subprocess
+import sys
+import zipfile
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -25,6 +36,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("model", "drivers", "service", "api")
+SCANNED = (*LAYERS, "benchmarks")  # the benchmarks are read too: the rules below name what they may not be
 
 
 @dataclass
@@ -70,7 +82,7 @@ def _parse(path: Path) -> Module:
 @cache
 def modules() -> dict[str, Module]:
     found = {}
-    for layer in LAYERS:
+    for layer in SCANNED:
         for path in sorted((ROOT / layer).rglob("*.py")):
             if "migrations" not in path.parts:
                 mod = _parse(path)
@@ -98,7 +110,17 @@ _SERVICE_PACKAGES = tuple(
     if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"
     if p.stem not in ("__init__", "contracts", "errors")
 )
-_SHELL = ("service.engine", "service.commands", "service.bench", "service.sim", "service.cli", "api")
+_RUNNING = (
+    "service.engine",
+    "service.estimate",
+    "service.identify",
+    "service.store",
+    "service.serve",
+    "service.acquire",
+    "api",
+)
+_SIMULATOR = ("service.sim", "model.plant", "model.plantmech")
+_SHELL = ("service.engine", "service.commands", "benchmarks", "service.sim", "service.cli", "api")
 
 RULES = [
     ("model", ("drivers", "service", "api")),
@@ -112,6 +134,9 @@ RULES = [
     ("service.identify", (*_SHELL, "service.store", "service.serve")),
     ("service.estimate", (*_SHELL, "service.store", "service.serve")),
     ("service.acquire", (*_SHELL, "service.store")),
+    # issue 39: the laboratory out of the product; the running product imports no simulator and no plant
+    *((layer, ("benchmarks",)) for layer in LAYERS),
+    *((running, _SIMULATOR) for running in _RUNNING),
 ]
 
 
@@ -126,6 +151,35 @@ def test_the_rules_see_a_violation() -> None:
     assert "service.store.reads imports service.store.errors.DatabaseBusyError" in _offending(
         "service.store", ("service.store.errors",)
     )
+    # the benchmarks are read, and they do import the simulator (what the product may not)
+    assert "benchmarks.compensation_run imports service.sim.plantsamples" in _offending(
+        "benchmarks", ("service.sim",)
+    )
+
+
+_LAB_NAME = re.compile(r"bench|diag\d*|stud(y|ies)", re.IGNORECASE)
+
+
+@pytest.mark.slow
+def test_the_wheel_ships_no_laboratory(tmp_path: Path) -> None:
+    """The wheel built from the tree holds the product's packages only (issue 39): no ``benchmarks``, and no
+    bench, study or diagnostic module inside them (none named so, none named as a study of
+    ``benchmarks/studies``). Built from a copy: a build in the tree would leave ``build/`` behind."""
+    src = tmp_path / "src"
+    junk = shutil.ignore_patterns(".git", ".*cache*", "__pycache__", "*.egg-info", "build", "dist", "tests")
+    shutil.copytree(ROOT, src, ignore=junk)
+    out = tmp_path / "wheel"
+    cmd = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out)]
+    built = subprocess.run([*cmd, "."], cwd=src, capture_output=True, text=True, timeout=240)
+    assert built.returncode == 0, built.stderr[-2000:]
+    (wheel,) = out.glob("*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert {n.split("/")[0] for n in names if ".dist-info/" not in n} == set(LAYERS)
+    studies = {p.stem for p in (ROOT / "benchmarks" / "studies").glob("*.py")} - {"__init__"}
+    modules = [Path(n) for n in names if n.endswith(".py")]
+    assert len(modules) > 100  # the product is there
+    lab = [str(m) for m in modules if m.stem in studies or any(_LAB_NAME.search(part) for part in m.parts)]
+    assert lab == []
 
 
 def _resolve(module: str, name: str) -> tuple[str, str]:

@@ -10,7 +10,7 @@ else the provisional one: the first converged live field's); ``service.engine.gr
 null for an identification that did not succeed).
 
 The log is sampled as the live acquisition samples it in ``chtc replay`` (one sample per
-``acquisition.sample_period_s``; ``service.sim.logsamples``), so both commands fit the same data. Without a
+``acquisition.sample_period_s``; ``drivers.logsamples``), so both commands fit the same data. Without a
 CAN
 log the speed and torque must be stated (``--speed-rpm``/``--torque-nm``, constant over the log). Exit status:
 0 when at least one identification succeeded; 1 when none did, with the reason on stderr (each condition's
@@ -258,11 +258,11 @@ def offsets_line(calibration: Calibration | None, ident: IdentificationSettings)
 
 def main(args: argparse.Namespace) -> int:
     from drivers.logs import LogFormatError, read_temperature_csv
+    from drivers.logsamples import samples_from_logs
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import SettingsError, load_settings
-    from service.sim.logsamples import samples_from_logs
 
     try:
         settings = load_settings(args.config)

@@ -1,4 +1,4 @@
-"""``service.bench.identmode``: the identification mode and settings a bench runs with (--mode, --set)."""
+"""``benchmarks.identmode``: the identification mode and settings a bench runs with (--mode, --set)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import argparse
 
 import pytest
 
-from service.bench import identmode
+from benchmarks import identmode
 from service.settings import Settings
 
 

@@ -8,10 +8,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.chain import last_per_condition
+from benchmarks.identmode import served_in_order
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
-from service.bench.chain import last_per_condition
-from service.bench.identmode import served_in_order
 from service.engine.jobbook import MAP_METHOD
 from service.engine.persistence import open_persistence
 from service.identify.prior import ServedMapPrior

@@ -114,7 +114,7 @@ def _rewrite_csv(src, dst, *, keep=lambda t: True, scale=1.0):
 
 
 def test_acquisition_ticks_follow_the_replay_grid() -> None:
-    from service.sim.logsamples import acquisition_ticks
+    from drivers.logsamples import acquisition_ticks
 
     rows = np.array([100.2, 101.1, 102.3, 112.9, 125.0])
     ticks, idx = acquisition_ticks(rows, 100.0, period_s=10.0, phase=0.3)
@@ -354,11 +354,11 @@ def _assert_well_determined_h_covered(records: list[dict]) -> None:
     """The 95 % CIs of H6 and H7, the two best-determined H, cover the virtual plant's truth at the record's
     condition (``model.plant.h_true``; both recordings come from the plant at a constant 22 °C ambient).
 
-    What the offline bench establishes: ``chtc bench chain --seeds 20`` (the service core over 20 plant noise
-    seeds, three chained conditions, 2026-11-24) covered H6 and H7 in 20 of 20 seeds at each of 3000, 4000 and
-    5000 rpm (median |error| 3.7-4.5 % for H6, 7.7-15.4 % for H7). These windows are shorter (10-20 min
-    instead of 40), so the CIs are wider; a miss is allowed nowhere, since the nominal level (5 % per H) and
-    the bench's 0 misses in 120 seed-condition-H trials make one unlikely, and ``chtc identify`` is
+    What the offline bench establishes: ``python -m benchmarks chain --seeds 20`` (the service core over 20
+    plant noise seeds, three chained conditions, 2026-11-24) covered H6 and H7 in 20 of 20 seeds at each of
+    3000, 4000 and 5000 rpm (median |error| 3.7-4.5 % for H6, 7.7-15.4 % for H7). These windows are shorter
+    (10-20 min instead of 40), so the CIs are wider; a miss is allowed nowhere, since the nominal level (5 %
+    per H) and the bench's 0 misses in 120 seed-condition-H trials make one unlikely, and ``chtc identify`` is
     deterministic for a given recording (a miss is a change of the numbers, not bad luck)."""
     for r in records:
         c = r["condition"]
