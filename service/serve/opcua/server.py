@@ -22,7 +22,7 @@ import contextlib
 import logging
 import tempfile
 import threading
-from collections.abc import Callable, Iterator, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
@@ -240,9 +240,13 @@ class OpcUaServer:
         clock: Callable[[], datetime],
         bad_after_s: float,
         n_sensors: int = 32,
-        methods: Methods | None = None,
+        methods: Methods | Mapping[str, Methods] | None = None,
+        spindles: Sequence[str] = (),
     ) -> None:
+        """``spindles``: a cell's objects, one per spindle id (each fed by ``offer(reader, spindle)``, each
+        with its own ``methods[spindle]``); empty: one object, ``cfg.node_prefix``."""
         self.cfg = cfg
+        self.spindles = tuple(spindles) or (cfg.node_prefix,)
         self.variables = tuple(variables)
         self.clock = clock
         self.bad_after_s = float(bad_after_s)
@@ -251,15 +255,15 @@ class OpcUaServer:
         self.heartbeat = 0
         self.updates = 0
         self.update_errors = 0
-        self._slot: ViewReader | None = None
+        self._slots: dict[str, ViewReader] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._failed: BaseException | None = None
-        self._written: dict[str, tuple[object, int, datetime | None]] = {}
-        self._nodeids: dict[str, ua.NodeId] = {}
+        self._written: dict[tuple[str, str], tuple[object, int, datetime | None]] = {}
+        self._nodeids: dict[tuple[str, str], ua.NodeId] = {}
         self.refusals = Refusals()  # counted for /metrics, logged once per client and reason
         self.server: Server | None = None
         self.on_update: Callable[[], None] | None = None  # after each update (tests, the bench)
@@ -277,9 +281,9 @@ class OpcUaServer:
         if self._failed is not None:
             raise OutletError(f"the OPC UA server did not start: {self._failed}") from self._failed
 
-    def offer(self, reader: ViewReader) -> None:
-        """Hand over the newest reader (any thread; never blocks)."""
-        self._slot = reader
+    def offer(self, reader: ViewReader, spindle: str | None = None) -> None:
+        """Hand over the newest reader of ``spindle`` (None: the only one; any thread; never blocks)."""
+        self._slots[self.spindles[0] if spindle is None else spindle] = reader
         loop, wake = self._loop, self._wake
         if loop is not None and wake is not None and not loop.is_closed():
             with contextlib.suppress(RuntimeError):  # the loop just closed
@@ -342,28 +346,29 @@ class OpcUaServer:
             await self._update()
 
     async def _update(self) -> None:
-        reader = self._slot
-        if reader is None or self.server is None:
+        slots = dict(self._slots)
+        if not slots or self.server is None:
             return
-        try:
-            self.heartbeat += 1
-            now = self.clock()
-            readings = render(
-                reader,
-                now=now,
-                bad_after_s=self.bad_after_s,
-                heartbeat=self.heartbeat,
-                n_sensors=self.n_sensors,
-            )
-            await self._write(readings, now)
-            self.updates += 1
-        except Exception as err:  # keep serving the last values; say why once per failure
-            self.update_errors += 1
-            log.warning("OPC UA update failed: %s: %s", type(err).__name__, err)
+        self.heartbeat += 1
+        now = self.clock()
+        for spindle, reader in slots.items():
+            try:
+                readings = render(
+                    reader,
+                    now=now,
+                    bad_after_s=self.bad_after_s,
+                    heartbeat=self.heartbeat,
+                    n_sensors=self.n_sensors,
+                )
+                await self._write(spindle, readings, now)
+            except Exception as err:  # keep serving the last values; say why once per failure
+                self.update_errors += 1
+                log.warning("OPC UA update of %s failed: %s: %s", spindle, type(err).__name__, err)
+        self.updates += 1
         if self.on_update is not None:
             self.on_update()
 
-    async def _write(self, readings: dict[str, Reading], now: datetime) -> None:
+    async def _write(self, spindle: str, readings: dict[str, Reading], now: datetime) -> None:
         assert self.server is not None
         wall = datetime.now(UTC)
         for var in self.variables:
@@ -371,7 +376,8 @@ class OpcUaServer:
             if r is None:
                 continue
             key = (r.value, int(r.status), r.source_time)
-            if self._written.get(var.path) == key:
+            at = (spindle, var.path)
+            if self._written.get(at) == key:
                 continue
             dv = ua.DataValue(
                 Value=_variant(var, r.value),
@@ -379,8 +385,8 @@ class OpcUaServer:
                 SourceTimestamp=_ua_time(r.source_time or now),  # the data's time (the service's clock)
                 ServerTimestamp=wall,  # when this server took the value (its own clock)
             )
-            await self.server.write_attribute_value(self._nodeids[var.path], dv)
-            self._written[var.path] = key
+            await self.server.write_attribute_value(self._nodeids[at], dv)
+            self._written[at] = key
 
     async def _build(self) -> Server:
         cfg = self.cfg
@@ -407,14 +413,24 @@ class OpcUaServer:
             await server.load_certificate(str(cfg.certificate))
             await server.load_private_key(str(cfg.private_key))
         idx = await server.register_namespace(cfg.namespace_uri)
-        _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.node_prefix)
-        self._nodeids = {v.path: ua.NodeId(f"{cfg.node_prefix}.{v.path}", idx) for v in self.variables}
+        otype, instance = await build_address_space(server, idx, self.variables, spindle=self.spindles[0])
+        instances = {self.spindles[0]: instance}
+        for name in self.spindles[1:]:  # a cell: one object per spindle, of the same type
+            instances[name] = await add_instance(server, otype, name)
+        self._nodeids = {
+            (sp, v.path): ua.NodeId(f"{sp}.{v.path}", idx) for sp in self.spindles for v in self.variables
+        }
         waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
-        for var in self.variables:  # nothing is known before the first view
-            dv = ua.DataValue(Value=_initial(var), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC))
-            await server.write_attribute_value(self._nodeids[var.path], dv)
-        if self.methods is not None:
-            await self._add_methods(server, instance, idx, self.methods)
+        var_of = {v.path: v for v in self.variables}
+        for (_sp, path), nodeid in self._nodeids.items():  # nothing is known before the first view
+            dv = ua.DataValue(
+                Value=_initial(var_of[path]), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC)
+            )
+            await server.write_attribute_value(nodeid, dv)
+        for name, inst in instances.items():
+            methods = self.methods.get(name) if isinstance(self.methods, Mapping) else self.methods
+            if methods is not None:
+                await self._add_methods(server, inst, idx, methods)
         return server
 
     async def _add_methods(self, server: Server, instance: Any, idx: int, methods: Methods) -> None:
