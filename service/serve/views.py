@@ -31,6 +31,7 @@ import numpy.typing as npt
 from model.hmap import Z95
 from model.identify_prior import HPrior
 from service.contracts.records import IdentificationData, IdentificationRow, JsonValue
+from service.contracts.sensorfault import SensorFault
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
 from service.serve.interface import (
     ZONE_NAMES,
@@ -169,6 +170,7 @@ def chtc_snapshot(
     verdict: Verdict,
     bound: BoolArray,
     box: tuple[float, float] | None = None,
+    sensor_faults: tuple[SensorFault, ...] = (),
 ) -> ChtcSnapshot:
     """What ``/chtc`` serves: the current identification ``rec`` and the policy's ``verdict`` on it now
     (``service.serve.policy.chtc_verdict``); ``bound``: ``at_bound(rec, ...)`` (an H there is not
@@ -182,6 +184,7 @@ def chtc_snapshot(
         at_bound=bound,
         verdict=verdict,
         box=None if box is None else (float(box[0]), float(box[1])),
+        sensor_faults=sensor_faults,
     )
 
 
