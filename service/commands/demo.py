@@ -43,11 +43,11 @@ from service.commands._common import (
     port_number,
     positive_float,
 )
-from service.engine.jobbook import MAP_METHOD
+from service.core.jobbook import MAP_METHOD
 from service.logctx import install_logging, set_default
 
 if TYPE_CHECKING:
-    from service.engine.runtime import Runtime
+    from service.host.runtime import Runtime
     from service.serve.interface import IdentificationRecord
     from service.settings import Settings
     from service.sim.endless import PlantRows
@@ -100,7 +100,7 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> tuple[Settings, str 
         s = override(s, "api", token=generated)
     port = args.port
     if port == 0:
-        from service.engine.runtime import free_port
+        from service.host.runtime import free_port
 
         port = free_port(args.host)
     s = override(s, "api", host=args.host, port=port)
@@ -197,7 +197,7 @@ def dashboard_url(base: str, token: str | None) -> str:
 
 
 async def run_demo(args: argparse.Namespace, settings: Settings, token: str | None = None) -> int:
-    from service.engine.runtime import Runtime, ScaledClock
+    from service.host.runtime import Runtime, ScaledClock
     from service.sim.rigproc import RigPlan, RigProcess
     from service.sim.simrig import make_drivers
 

@@ -40,10 +40,10 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from drivers.sim.replay import Replay
-    from service.engine.runtime import ScaledClock
-    from service.engine.shell import SoftSensorService
+    from service.host.runtime import ScaledClock
     from service.serve.interface import CompensationSnapshot, IdentificationRecord
     from service.settings import Settings
+    from service.shell.service import SoftSensorService
 
 from drivers.logsamples import REPLAY_PHASE, write_acquisition_csv
 from service.commands._common import (
@@ -203,7 +203,7 @@ async def run_replay(
 async def _replay(
     args: argparse.Namespace, settings: Settings, served_csv: Path, growth: GrowthLog | None
 ) -> list[IdentificationRecord]:
-    from service.engine.runtime import Runtime, ScaledClock
+    from service.host.runtime import Runtime, ScaledClock
     from service.sim.simrig import SimAddress, make_drivers, replay_rig
 
     stop = asyncio.Event()  # SIGINT or SIGTERM: stop, store what was identified so far (issue 41)

@@ -54,7 +54,7 @@ UNITS: dict[str, tuple[str, str]] = {
     "NU": ("N·m", "newton metre"),
     "SEC": ("s", "second [unit of time]"),
 }
-# the devices of the health report (service.engine.health); one MQTT String metric each
+# the devices of the health report (service.shell.health); one MQTT String metric each
 DEVICES: tuple[str, ...] = ("modbus", "can", "db", "worker", "filter", "core", "event_loop")
 
 H = ("D55", (0.0, 500.0))

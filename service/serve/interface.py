@@ -1,6 +1,6 @@
 """The narrow interface through which the API reads (and pokes) the running service.
 
-``api/`` imports only this module from ``service/``. The running service (``service/engine/shell.py``)
+``api/`` imports only this module from ``service/``. The running service (``service/shell/service.py``)
 implements :class:`ChtcService`; the API tests serve it too (``service/sim/served.py``).
 
 Contract for implementers:
@@ -660,7 +660,7 @@ class ChtcService(Protocol):
         source: str,
         force: bool = False,
     ) -> tuple[Any, bool]:
-        """Fit the mechanics to a measured thermal test (``service.engine.commissioning``; blocking); store
+        """Fit the mechanics to a measured thermal test (``service.shell.commissioning``; blocking); store
         and use it when the model explains the test or ``force``: (report, stored). ``CommissioningError``
         (and ``drivers.logs.LogFormatError``) for unusable files, naming the line."""
         ...

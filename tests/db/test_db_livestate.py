@@ -9,8 +9,8 @@ import numpy as np
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.engine.persistence import restore
 from service.estimate.checkpoint import LiveCheckpoint
+from service.host.persistence import restore
 from service.store.livestate import live_state_record
 from service.store.models import LiveStateRow
 from service.store.repository import session_scope, write_records

@@ -10,8 +10,8 @@ import numpy as np
 from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.engine.persistence import restore
 from service.estimate.mechanics import MechanicsCalibration
+from service.host.persistence import restore
 from service.store.mechanics import mechanics_record
 from service.store.models import MechanicsCalibrationRow
 from service.store.repository import session_scope, write_records

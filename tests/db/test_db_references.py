@@ -8,8 +8,8 @@ from datetime import UTC, datetime, timedelta
 from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.engine.persistence import restore
 from service.estimate.reference import CompensationReference
+from service.host.persistence import restore
 from service.store.models import CompensationReferenceRow
 from service.store.references import reference_record
 from service.store.repository import session_scope, write_records

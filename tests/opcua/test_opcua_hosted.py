@@ -16,8 +16,8 @@ from asyncua import Client, ua
 
 from drivers.sim.faults import FaultKind
 from model.plant import Segment
-from service.engine.host import Host, HostError
-from service.engine.runtime import ScaledClock, free_port
+from service.host.fleet import Host, HostError
+from service.host.runtime import ScaledClock, free_port
 from service.settings import Settings
 from service.sim.simrig import SimAddress, make_drivers, plant_rig
 from tests.service.conftest import plant_run

@@ -15,7 +15,7 @@ from asyncua import Server, ua
 from asyncua.server.users import User, UserRole
 
 from service.cli import main as chtc
-from service.engine.runtime import enabled_outlets
+from service.host.runtime import enabled_outlets
 from service.serve.errors import OutletError
 from service.serve.opcua.nodes import VARS, unit_id
 from service.serve.opcua.security import (

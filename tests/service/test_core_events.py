@@ -16,8 +16,7 @@ import pytest
 
 from model.plant import Segment
 from service.contracts.records import IdentificationData
-from service.engine.core import ServiceCore
-from service.engine.events import (
+from service.core.events import (
     Event,
     Instruction,
     JobOutcomeReceived,
@@ -30,10 +29,11 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
 from service.identify.worker import run_job
 from service.modelload import LoadedModel
 from service.serve.interface import JobState, NotReadyError
+from service.shell.service import SoftSensorService
 from tests.engine_config import PER_CONDITION_10_20, product_core
 
 from .conftest import plant_run, samples_of
@@ -46,7 +46,7 @@ CFG = product_core(identification={**PER_CONDITION_10_20, "offset_calibration": 
 
 def test_importing_the_core_loads_no_database_code() -> None:
     code = (
-        "import sys, service.engine.core, service.engine.events, service.engine.view\n"
+        "import sys, service.core.machine, service.core.events, service.core.view\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('sqlalchemy', 'alembic')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

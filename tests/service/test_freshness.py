@@ -24,11 +24,11 @@ from drivers.modbus_daq import DaqReading
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from model.plant import Segment
-from service.engine.core import ServiceCore
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
+from service.host.runtime import core_config
 from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.serve.interface import ChtcStatus
+from service.shell.service import SoftSensorService
 from tests.modes import per_condition
 
 from .conftest import plant_run, samples_of

@@ -128,8 +128,8 @@ def test_bad_readings_are_refused_naming_the_field(
 def test_a_restart_replays_the_accepted_readings_after_the_commissioning_only() -> None:
     from typing import Any, cast
 
-    from service.engine.growthserve import GrowthServer
     from service.estimate.mechanics import MechanicsCalibration
+    from service.serve.compensation import GrowthServer
 
     rng = np.random.default_rng(11)
     truth = _truth(rng)

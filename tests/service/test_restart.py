@@ -8,13 +8,13 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 
 from model.plant import Segment
-from service.engine.core import ServiceCore
-from service.engine.offline import run_offline
-from service.engine.persistence import open_persistence
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
+from service.core.offline import run_offline
+from service.host.persistence import open_persistence
+from service.host.runtime import core_config
 from service.serve.interface import ChtcStatus
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from tests.modes import per_condition
 
 from .conftest import plant_run, samples_of

@@ -12,7 +12,7 @@ import pytest
 from model.hmap import NODES
 from model.identify_prior import COLD_SD_LOG, condition_prior
 from model.plant import Segment
-from service.engine.core import ServiceCore
+from service.core.machine import ServiceCore
 from service.identify.mode import IdentificationMode
 from service.identify.prior import job_prior
 from service.identify.speedmap import SpeedMap
