@@ -237,7 +237,12 @@ def _outlet_metrics(outlets: Mapping[str, OutletMetrics]) -> Iterator[Metric]:
         ),
     }
     connected = GaugeMetricFamily("chtc_outlet_connected", "1 while connected", labels=["outlet"])
+    refused = CounterMetricFamily(
+        "chtc_outlet_refused", "requests a server outlet refused, by reason", labels=["outlet", "reason"]
+    )
     for name, o in sorted(outlets.items()):
+        for reason, count in sorted(o.refused.items()):
+            refused.add_metric([name, reason], count)
         sent.add_metric([name, "sent"], o.sent)
         sent.add_metric([name, "dropped"], o.dropped)
         for key, fam in families.items():
@@ -247,6 +252,7 @@ def _outlet_metrics(outlets: Mapping[str, OutletMetrics]) -> Iterator[Metric]:
     yield sent
     yield from families.values()
     yield connected
+    yield refused
 
 
 def _loop_metrics(m: MetricsSnapshot) -> Iterator[Metric]:

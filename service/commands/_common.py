@@ -224,7 +224,8 @@ def user_errors() -> tuple[type[Exception], ...]:
     """The exception types a command reports as one line (imported lazily: ``chtc --help`` stays fast)."""
     from drivers.errors import ConfigError
     from drivers.logs import LogFormatError
+    from service.serve.errors import OutletError
     from service.settings import SettingsError
     from service.shell.commissioning import CommissioningError
 
-    return (CommandError, SettingsError, ConfigError, LogFormatError, CommissioningError)
+    return (CommandError, SettingsError, ConfigError, LogFormatError, CommissioningError, OutletError)

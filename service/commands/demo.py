@@ -341,4 +341,8 @@ def main(args: argparse.Namespace) -> int:
         if args.database_url is not None:
             check_database_url(settings.database.url, "--database-url")
         check_listens(settings)
+        from service.serve.opcua.preflight import check_opcua_files
+
+        if settings.opcua.enabled:  # an unreadable certificate: one line before the model loads
+            check_opcua_files(settings.opcua)
         return asyncio.run(run_demo(args, settings, token))

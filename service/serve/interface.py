@@ -493,7 +493,8 @@ class CoreMetrics:
 class OutletMetrics:
     """An outlet's delivery counters since start (``chtc_outlet_*``): messages ``sent``, ``dropped`` (its
     buffer full), ``buffered`` now, ``reconnects`` (connections after the first), ``connect_failures``
-    (refused tries) and ``connected`` now (None: an outlet without a connection of its own, a server)."""
+    (refused tries), ``connected`` now (None: an outlet without a connection of its own, a server) and the
+    requests a server ``refused``, by reason (OPC UA: ``Write``, ``Call``, ``BadTooManySessions``, ...)."""
 
     sent: int = 0
     dropped: int = 0
@@ -501,6 +502,7 @@ class OutletMetrics:
     reconnects: int = 0
     connect_failures: int = 0
     connected: bool | None = None
+    refused: Mapping[str, int] = field(default_factory=dict)
 
 
 @runtime_checkable
