@@ -43,7 +43,8 @@ from api.schemas import (
     mechanics_out,
     reference_out,
 )
-from service.serve.interface import NotReadyError, ProbeError
+from service.contracts.errors import NotReadyError
+from service.contracts.probe import ProbeError
 
 router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 
@@ -161,7 +162,7 @@ def post_mechanics(
     service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()]
 ) -> MechanicsCommissionOut:
     from drivers.logs import LogFormatError
-    from service.engine.commissioning import CommissioningError
+    from service.contracts.errors import CommissioningError
 
     try:
         can_bytes = base64.b64decode(body.can_log_base64, validate=True)

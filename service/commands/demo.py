@@ -46,8 +46,8 @@ from service.engine.jobbook import MAP_METHOD
 from service.logctx import install_logging, set_default
 
 if TYPE_CHECKING:
+    from service.contracts.snapshots import IdentificationRecord
     from service.engine.runtime import Runtime
-    from service.serve.interface import IdentificationRecord
     from service.settings import Settings
     from service.sim.endless import PlantRows
     from service.sim.rigproc import RigProcess

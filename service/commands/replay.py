@@ -39,9 +39,9 @@ from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
     from drivers.sim.replay import Replay
+    from service.contracts.snapshots import CompensationSnapshot, IdentificationRecord
     from service.engine.runtime import ScaledClock
     from service.engine.shell import SoftSensorService
-    from service.serve.interface import CompensationSnapshot, IdentificationRecord
     from service.settings import Settings
 
 from service.commands._common import (
@@ -145,7 +145,7 @@ async def watch_growth(
 ) -> None:
     """Read ``/compensation`` (off the loop) every ``every_s`` of the live state's time and at each new
     identification, until cancelled; stops if the service has no growth model."""
-    from service.serve.interface import NotReadyError
+    from service.contracts.errors import NotReadyError
 
     last_t: float | None = None
     while True:

@@ -39,8 +39,9 @@ from numpy.typing import NDArray
 
 from model.growthfit import PARAMS, MechanicsFitResult, MechanicsPrior
 from model.growthfit_joint import FitSeries, JointFit, fit_mechanics_joint
-from service.errors import ServiceError
-from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis
+from service.contracts.errors import CommissioningError
+from service.contracts.mechanics import MechanicsCalibration
+from service.estimate.mechanics import ServedMechanicsBasis
 
 if TYPE_CHECKING:
     from service.engine.config import CoreConfig
@@ -48,7 +49,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CommissionReport",
-    "CommissioningError",
     "DisplacementFormatError",
     "Displacements",
     "FieldHistory",
@@ -64,10 +64,6 @@ TIME_COLUMNS = ("time", "utc", "at", "timestamp")
 AXIAL, RADIAL = "axial_um", "radial_um"
 RUNNING_RPM = 100.0  # above: the spindle turns (heat-up); below: at rest (cool-down)
 MISSING = ("", "nan", "na", "n/a", "-")
-
-
-class CommissioningError(ServiceError, ValueError):
-    """Input a commissioning cannot use; the message names the file, line or field."""
 
 
 class DisplacementFormatError(CommissioningError):

@@ -5,7 +5,14 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from service.acquire.calibration import Calibration, CalibrationConfig
+from service.acquire.calibration import CalibrationConfig
+from service.contracts.calibration import Calibration
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.mode import IdentificationMode
+from service.contracts.probe import ProbeMeasurement
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import ConditionSnapshot, IdentificationRecord
 from service.defaults import (
     CARRY_START_ERROR,
     CI_REL_THRESHOLD,
@@ -13,17 +20,11 @@ from service.defaults import (
     H_NO_BASELINE_SD_LN,
     START_MODES,
 )
-from service.estimate.checkpoint import LiveCheckpoint
-from service.estimate.mechanics import MechanicsCalibration
-from service.estimate.probe import ProbeMeasurement
-from service.estimate.reference import CompensationReference
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
-from service.identify.mode import IdentificationMode
 from service.identify.scheduler import PastResult, SchedulerConfig
 from service.identify.speedmap import MapConfig, SpeedMap
 from service.identify.window import WindowRules
-from service.serve.interface import ConditionSnapshot, IdentificationRecord
 
 __all__ = ["CoreConfig", "Restored"]
 

@@ -45,12 +45,22 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from model.growth import Z95
+from service.contracts.errors import NotReadyError
+from service.contracts.growth import GrowthEstimate
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.probe import PROBES_KEPT, ProbeError, ProbeMeasurement
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import (
+    CompensationSnapshot,
+    ConditionSnapshot,
+    IdentificationRecord,
+    SectionSnapshot,
+)
 from service.engine.view import CoreView
 from service.estimate.growth import (
     ConditionTerms,
     FieldBelief,
     GrowthContext,
-    GrowthEstimate,
     build_context,
     condition_terms,
     estimate_growth,
@@ -59,26 +69,10 @@ from service.estimate.growth import (
     with_mechanics,
 )
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
-from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis, served_mechanics_basis
-from service.estimate.probe import (
-    DEFAULT_GATE_SIGMA,
-    PROBES_KEPT,
-    ProbeError,
-    ProbeMeasurement,
-    absorb,
-    prior_covariance,
-    prior_mean,
-    replay,
-)
-from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
+from service.estimate.mechanics import ServedMechanicsBasis, served_mechanics_basis
+from service.estimate.probe import DEFAULT_GATE_SIGMA, absorb, prior_covariance, prior_mean, replay
+from service.estimate.reference import equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
-from service.serve.interface import (
-    CompensationSnapshot,
-    ConditionSnapshot,
-    IdentificationRecord,
-    NotReadyError,
-    SectionSnapshot,
-)
 from service.serve.policy import CompensationLimits, compensation_verdict
 
 if TYPE_CHECKING:

@@ -11,10 +11,10 @@ from datetime import datetime
 from typing import Protocol
 
 from drivers.base import SourceMetrics
+from service.contracts.health import DeviceHealth, DeviceStatus
 from service.engine.corethread import CoreLoad
 from service.engine.looplag import LoopLag
 from service.engine.view import CoreView
-from service.serve.interface import DeviceHealth, DeviceStatus
 from service.serve.views import age_s
 from service.store.writer import WriterStatus
 

@@ -15,6 +15,7 @@ import numpy as np
 from service.acquire.calibration import OffsetCalibrator
 from service.acquire.history import RingHistory
 from service.contracts.records import Record
+from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.engine.config import CoreConfig
 from service.engine.events import Instruction, Log, Rejected, RejectKind, Store
 from service.engine.jobbook import Job, JobBook
@@ -25,7 +26,6 @@ from service.estimate.state import h_rel_from_ci as h_rel
 from service.identify import scheduler as sched
 from service.identify.detector import ConditionDetector, DetectorStatus
 from service.modelload import LoadedModel
-from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 
 if TYPE_CHECKING:
     from service.engine.serving import Serving

@@ -20,12 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Protocol
 
+from service.contracts.mode import IdentificationMode
+from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.engine.config import CoreConfig, Restored
 from service.engine.maptrack import MapSide, MapTrack, NoMaps
 from service.engine.parts import CoreParts
 from service.engine.schedtrack import ManualTrack, ScheduleTrack, Unscheduled
-from service.identify.mode import IdentificationMode
-from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 
 __all__ = [
     "CombinedServing",

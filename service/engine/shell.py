@@ -48,7 +48,30 @@ import numpy as np
 
 from drivers.ringbuffer import Sample
 from service.acquire.devicewatch import DeviceWatch
+from service.contracts.errors import BusyError, NotReadyError
+from service.contracts.health import DeviceHealth, DeviceStatus, HealthSnapshot, Readiness
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.metrics import CoreMetrics, FilterMetrics, HistogramData, MetricsSnapshot
+from service.contracts.mode import IdentificationMode
+from service.contracts.probe import ProbeError, ProbeMeasurement
 from service.contracts.records import DeviceEventData, Record
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import (
+    ChtcMapSnapshot,
+    ChtcSnapshot,
+    CompensationSnapshot,
+    ConditionSnapshot,
+    FieldAt,
+    FieldSnapshot,
+    IdentificationJob,
+    IdentificationPage,
+    IdentificationRecord,
+    OffsetBaseline,
+    SectionSnapshot,
+    SensorHistory,
+    SensorReading,
+    SpindleLayout,
+)
 from service.engine.archive import IdentificationArchive
 from service.engine.core import ServiceCore
 from service.engine.corethread import CoreRunner, InlineRunner
@@ -84,41 +107,11 @@ from service.engine.health import (
     source_health,
 )
 from service.engine.looplag import LoopLagMonitor
-from service.estimate.mechanics import MechanicsCalibration
-from service.estimate.probe import ProbeError, ProbeMeasurement
-from service.estimate.reference import CompensationReference
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
-from service.serve.interface import (
-    BusyError,
-    ChtcMapSnapshot,
-    ChtcSnapshot,
-    CompensationSnapshot,
-    ConditionSnapshot,
-    CoreMetrics,
-    CountedOutlet,
-    DeviceHealth,
-    DeviceStatus,
-    FieldAt,
-    FieldSnapshot,
-    FilterMetrics,
-    HealthSnapshot,
-    HistogramData,
-    IdentificationJob,
-    IdentificationMode,
-    IdentificationPage,
-    IdentificationRecord,
-    MetricsSnapshot,
-    NotReadyError,
-    OffsetBaseline,
-    Readiness,
-    SectionSnapshot,
-    SensorHistory,
-    SensorHistoryBuffer,
-    SensorReading,
-    SpindleLayout,
-)
+from service.serve.interface import CountedOutlet
 from service.serve.reader import MAP_H_BOX, ReadContext, ViewReader
+from service.serve.sensorhistory import SensorHistoryBuffer
 from service.serve.view import CoreView
 from service.store.mechanics import mechanics_record
 from service.store.probes import probe_record

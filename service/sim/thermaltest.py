@@ -164,7 +164,7 @@ def commission_seeds(
     import time
 
     from model.plantmech import mechanics_for_seed
-    from service.engine.commissioning import CommissioningError
+    from service.contracts.errors import CommissioningError
     from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
     from service.modelload import ModelRef, load_model

@@ -20,13 +20,13 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from model.growth import Z95
 from model.inputs import inputs_from_operation
+from service.contracts.errors import NotReadyError
 from service.engine.core import ServiceCore
 from service.engine.growthserve import GrowthServer, field_belief, h_covariance, map_h_covariance
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.estimate.growth import build_context, condition_terms, estimate_growth
 from service.modelload import LoadedModel
-from service.serve.interface import NotReadyError
 from service.serve.policy import CompensationLimits, compensation_verdict
 from service.settings import Settings
 from service.sim.served import ManualClock, served_service

@@ -12,10 +12,10 @@ from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
 from service.bench.chain import last_per_condition
 from service.bench.identmode import served_in_order
+from service.contracts.verdict import ChtcStatus
 from service.engine.jobbook import MAP_METHOD
 from service.engine.persistence import open_persistence
 from service.identify.prior import ServedMapPrior
-from service.serve.interface import ChtcStatus
 from service.settings import ExperimentalSettings, Settings
 
 from .conftest import inline_service, samples_of

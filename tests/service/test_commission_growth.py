@@ -169,8 +169,8 @@ def test_the_growth_server_uses_a_restored_or_new_commissioning(
 ) -> None:
     """``GrowthServer``: a shared context plus a restored calibration is calibrated on first use; a new
     commissioning replaces the operators and drops the condition terms computed with the old ones."""
+    from service.contracts.mechanics import MechanicsCalibration
     from service.engine.growthserve import GrowthServer
-    from service.estimate.mechanics import MechanicsCalibration
 
     _, basis, _ = fitted
     m = loaded_model

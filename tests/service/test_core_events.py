@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 from model.plant import Segment
+from service.contracts.errors import NotReadyError
 from service.contracts.records import IdentificationData
+from service.contracts.snapshots import JobState
 from service.engine.core import CoreConfig, ServiceCore
 from service.engine.events import (
     Event,
@@ -36,7 +38,6 @@ from service.identify.scheduler import SchedulerConfig
 from service.identify.window import WindowRules
 from service.identify.worker import run_job
 from service.modelload import LoadedModel
-from service.serve.interface import JobState, NotReadyError
 
 from .conftest import plant_run, samples_of
 from .drive import outcome_event

@@ -16,14 +16,14 @@ import pytest
 
 from drivers.ringbuffer import Sample
 from model.plant import Segment
+from service.contracts.health import DeviceStatus
+from service.contracts.verdict import DataCode
 from service.engine.core import ServiceCore
 from service.engine.corethread import CoreThread
 from service.engine.events import Event, IdsKnown, Instruction, SampleReceived
 from service.engine.looplag import LoopLagMonitor
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
-from service.serve.interface import DeviceStatus
-from service.serve.verdict import DataCode
 from service.settings import Settings
 from service.sim.served import ManualClock
 
@@ -169,8 +169,8 @@ def test_backlog_past_its_limit_is_served_as_core_behind(loaded_model, samples) 
 
 
 def test_core_behind_verdict_is_typed() -> None:
+    from service.contracts.verdict import ChtcStatus, DataProblem, Reason
     from service.serve.policy import data_verdict
-    from service.serve.verdict import ChtcStatus, DataProblem, Reason
 
     v = data_verdict(
         [DataProblem(DataCode.CORE_BEHIND, "samples wait 40 s")],

@@ -8,7 +8,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from service.serve.interface import ChtcStatus, DataCode, DataProblem, Reason
+from service.contracts.verdict import ChtcStatus, DataCode, DataProblem, Reason
 from service.serve.policy import CompensationLimits, compensation_verdict
 
 NOW = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)

@@ -9,15 +9,8 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 
-from service.estimate.probe import (
-    ProbeError,
-    ProbeMeasurement,
-    absorb,
-    predict,
-    prior_covariance,
-    prior_mean,
-    replay,
-)
+from service.contracts.probe import ProbeError, ProbeMeasurement
+from service.estimate.probe import absorb, predict, prior_covariance, prior_mean, replay
 
 AT = datetime(2026, 11, 27, 8, 0, tzinfo=UTC)
 # the feature row's scale at a hot spindle (µm): free and held mounts, other/shaft/housing α groups; held
@@ -128,8 +121,8 @@ def test_bad_readings_are_refused_naming_the_field(
 def test_a_restart_replays_the_accepted_readings_after_the_commissioning_only() -> None:
     from typing import Any, cast
 
+    from service.contracts.mechanics import MechanicsCalibration
     from service.engine.growthserve import GrowthServer
-    from service.estimate.mechanics import MechanicsCalibration
 
     rng = np.random.default_rng(11)
     truth = _truth(rng)

@@ -8,12 +8,12 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 
 from model.plant import Segment
+from service.contracts.verdict import ChtcStatus
 from service.engine.core import ServiceCore
 from service.engine.offline import run_offline
 from service.engine.persistence import open_persistence
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
-from service.serve.interface import ChtcStatus
 from service.settings import Settings
 from tests.modes import per_condition
 

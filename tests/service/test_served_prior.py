@@ -12,9 +12,9 @@ import pytest
 from model.hmap import NODES
 from model.identify_prior import COLD_SD_LOG, condition_prior
 from model.plant import Segment
+from service.contracts.mode import IdentificationMode
 from service.engine.core import CoreConfig, ServiceCore
 from service.identify.detector import DetectorConfig
-from service.identify.mode import IdentificationMode
 from service.identify.prior import job_prior
 from service.identify.scheduler import SchedulerConfig
 from service.identify.speedmap import MapConfig, SpeedMap

@@ -10,10 +10,10 @@ import numpy as np
 from drivers.quality import Quality
 from model.plant import Segment
 from service.contracts.records import IdentificationData
+from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.engine.core import Restored, ServiceCore
 from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
-from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.serve.views import data_to_record
 from service.settings import Settings
 

@@ -15,7 +15,7 @@ from service.serve.opcua.nodes import variables
 from service.serve.opcua.server import Methods, OpcUaServer
 
 if TYPE_CHECKING:
-    from service.serve.interface import IdentificationJob, OffsetBaseline
+    from service.contracts.snapshots import IdentificationJob, OffsetBaseline
     from service.serve.outlet import OutletContext
     from service.serve.reader import ViewReader
 
