@@ -10,8 +10,6 @@ from datetime import datetime
 
 import numpy as np
 
-from model.growth import Z95
-
 __all__ = ["GrowthEstimate", "GrowthForecastEstimate", "GrowthValue", "PlcCompensation"]
 
 
@@ -34,6 +32,8 @@ class GrowthValue:
     @classmethod
     def of(cls, um: float, std_field_um: float, std_h_um: float, std_mech_um: float = 0.0) -> GrowthValue:
         """The value with the parts combined as independent."""
+        from model.growth import Z95  # here: the model's numerics stay out of the types' import
+
         total = float(np.sqrt(std_field_um**2 + std_h_um**2 + std_mech_um**2))
 
         def ci(s: float) -> tuple[float, float]:
