@@ -11,7 +11,7 @@ linear in each mechanical parameter, so the model of the test is::
 - s in [0, 1]: the mount's radial restraint as the fraction of the way from free to held. A real flange is
   a spring (``model.plantmech``: k = K_HALF · s / (1 − s)); the blend of the two idealisations is what the
   fit can afford, and it matches the spring to ≤ 0.2 µm of the 10.8 µm between them (5000 rpm, nose);
-- a_s, a_h: α factors of the shaft's and the housing's material (``model.plantmech.alpha_region_scales``);
+- a_s, a_h: α factors of the shaft's and the housing's material (``model.mechprior.alpha_region_scales``);
 - c [µm], d [µm/h]: the sensor fixture's offset and the test setup's slow linear drift (nuisances).
 
 For a fixed s the model is linear in (a_s, a_h, c, d): a regularised linear least squares (Gaussian priors on
@@ -35,7 +35,7 @@ from scipy.optimize import minimize_scalar
 from model.errors import ModelError
 from model.fem import FEModel
 from model.geometry import SpindleSpec
-from model.plantmech import alpha_region_scales
+from model.mechprior import alpha_region_scales
 from model.thermoelastic import MechanicsVariant, build_growth_model
 
 Array = NDArray[np.float64]

@@ -23,10 +23,14 @@ a floating bearing that sticks (friction without limit: fused) moves it by +0.05
 stiffness (preload) halved or doubled by −0.05 / +0.08 µm; both far below the restraint (10.9 µm between
 free and held) and α's ±5 % (±0.4 µm).
 
+The α groups and their scatter (``alpha_region_scales``, ``ALPHA_REL``) are the product's
+(``model.mechprior``): the commissioning fit knows the same ranges the plant draws from.
+
 Errors::
 
-    PlantMechanicsError(ValueError)   a value outside its range, a spindle without [mechanics] or without the
-                                      shaft/housing regions
+    PlantMechanicsError(ValueError)   a value outside its range
+    model.mechprior.MechanicsSpecError(ValueError)   a spindle without [mechanics] or without the
+                                                     shaft/housing regions
 """
 
 from __future__ import annotations
@@ -39,6 +43,7 @@ import numpy as np
 from model.errors import ModelError
 from model.fem import FEModel
 from model.geometry import SpindleSpec
+from model.mechprior import ALPHA_REL, alpha_region_scales, mount_fix
 from model.thermoelastic import GrowthModel, MechanicsVariant, build_growth_model
 
 __all__ = [
@@ -46,15 +51,13 @@ __all__ = [
     "K_HALF_PA_PER_M",
     "PlantMechanics",
     "PlantMechanicsError",
+    "alpha_region_scales",
     "build_plant_growth",
     "mechanics_for_seed",
 ]
 
 K_HALF_PA_PER_M = 1.0e12  # radial face stiffness at which the growth is half-way from free to held
-ALPHA_REL = 0.05  # α scatter between heats of the same material: ±5 %
 SEED_STREAM = 11  # the mechanics' own stream: rng([seed, 11]); the truth uses [seed, 7]
-SHAFT_PREFIX = "shaft"  # regions named shaft* give the shaft's material
-HOUSING_REGION = "housing"  # this region gives the housing's material
 
 
 class PlantMechanicsError(ModelError, ValueError):
@@ -80,7 +83,7 @@ class PlantMechanics:
     @classmethod
     def nominal(cls, spec: SpindleSpec) -> PlantMechanics:
         """The description's own mechanics: its mount fixing, α as written (what the service assumes)."""
-        fix = _mechanics_fix(spec)
+        fix = mount_fix(spec)
         return cls(restraint=0.0 if fix == "axial" else 1.0)
 
     @classmethod
@@ -99,7 +102,7 @@ class PlantMechanics:
 
     def variant(self, spec: SpindleSpec) -> MechanicsVariant:
         """What ``model.thermoelastic.build_growth_model`` changes for these mechanics on ``spec``."""
-        _mechanics_fix(spec)
+        mount_fix(spec)
         scales = alpha_region_scales(spec, self.alpha_shaft, self.alpha_housing)
         if self.restraint >= 1.0:
             return MechanicsVariant(fix="axial_radial", region_alpha_scale=scales)
@@ -121,39 +124,6 @@ def mechanics_for_seed(seed: int) -> PlantMechanics:
     """The plant mechanics of bench seed ``seed``: ``PlantMechanics.draw(default_rng([seed, 11]))`` (its own
     stream: the seed's truth and duty cycle are the same with or without drawn mechanics)."""
     return PlantMechanics.draw(np.random.default_rng([int(seed), SEED_STREAM]))
-
-
-def _mechanics_fix(spec: SpindleSpec) -> str:
-    if spec.mechanics is None:
-        raise PlantMechanicsError("spec.mechanics: the spindle description has no [mechanics] section")
-    return spec.mechanics.mount.fix
-
-
-def _effective_material(spec: SpindleSpec, region: str) -> str:
-    assert spec.mechanics is not None
-    mat = next(g.material for g in spec.regions if g.name == region)
-    return spec.mechanics.region_material.get(region, mat)
-
-
-def alpha_region_scales(spec: SpindleSpec, alpha_shaft: float, alpha_housing: float) -> tuple[float, ...]:
-    """Per region (``spec.regions`` order): the shaft's factor on every region of the shaft's material, the
-    housing's on every region of the housing's material, 1 elsewhere (bearings, pulley)."""
-    _mechanics_fix(spec)
-    names = [g.name for g in spec.regions]
-    shaft = {_effective_material(spec, n) for n in names if n.startswith(SHAFT_PREFIX)}
-    if len(shaft) != 1 or HOUSING_REGION not in names:
-        raise PlantMechanicsError(
-            f"spec.regions: need regions named {SHAFT_PREFIX}* of one material "
-            f"and a {HOUSING_REGION!r} region"
-        )
-    shaft_mat, housing_mat = shaft.pop(), _effective_material(spec, HOUSING_REGION)
-    if shaft_mat == housing_mat:
-        raise PlantMechanicsError("spec.regions: shaft and housing share a material; their α cannot differ")
-    out = []
-    for n in names:
-        mat = _effective_material(spec, n)
-        out.append(alpha_shaft if mat == shaft_mat else alpha_housing if mat == housing_mat else 1.0)
-    return tuple(out)
 
 
 def build_plant_growth(spec: SpindleSpec, fe: FEModel, mechanics: PlantMechanics) -> GrowthModel:

@@ -1,9 +1,10 @@
 """Error of the reduced model against the full FE on random H and random input histories.
 
-Used at build time (the bound stored with the cache), by the tests and by ``chtc bench model``. The cases are
-drawn from their own seed, distinct from the training samples: H half log-uniform and half uniform in the box,
-1–4 piecewise-constant segments of ambient temperature and bearing heat over the window, and a start that is
-either uniform or a non-uniform full-FE steady field of another H and load (at the same ambient).
+Used at build time (the bound stored with the cache), by the tests and by ``python -m benchmarks model``. The
+cases are drawn from their own seed, distinct from the training samples: H half log-uniform and half uniform
+in the box, 1–4 piecewise-constant segments of ambient temperature and bearing heat over the window, and a
+start that is either uniform or a non-uniform full-FE steady field of another H and load (at the same
+ambient).
 """
 
 from __future__ import annotations

@@ -5,10 +5,10 @@ For a population (P candidates, rank r) the whole modal trajectory b(n), (n_step
 for the sensor product, made a call write ~15 MB of fresh arrays. Whether that is cheap depends on the
 allocator's history: glibc hands arrays above its (adaptive) mmap threshold out as fresh pages and faults
 each one on first touch (~1 µs per 4 KiB page here), which made the same call 1.7x slower in one process
-than in another (0.42 vs 0.25 ms per candidate, ``chtc bench model``). This evaluator keeps only ``chunk``
-steps of the trajectory and writes the outputs G·b(n) straight into the result: a call touches the result
-plus a few chunk-sized buffers, whatever the allocator does. The arithmetic is that of the "loop" path of
-``modal_trajectory`` (exact θ-method recursion; a run of constant input uses the power table), so the two
+than in another (0.42 vs 0.25 ms per candidate, ``python -m benchmarks model``). This evaluator keeps only
+``chunk`` steps of the trajectory and writes the outputs G·b(n) straight into the result: a call touches the
+result plus a few chunk-sized buffers, whatever the allocator does. The arithmetic is that of the "loop" path
+of ``modal_trajectory`` (exact θ-method recursion; a run of constant input uses the power table), so the two
 agree to round-off.
 
 Pure numpy; no I/O.

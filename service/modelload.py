@@ -23,13 +23,15 @@ __all__ = ["LoadedModel", "ModelRef", "load_model"]
 
 @dataclass(frozen=True, kw_only=True)
 class ModelRef:
-    """What identifies the model: spindle TOML (None: packaged), mesh size m, ROM rank, cache dir, H box."""
+    """What identifies the model: spindle TOML (None: packaged), mesh size m (None: the model's default),
+    ROM rank, cache dir, H box. No defaults here: ``from_settings`` builds it (``[model]``,
+    ``[experimental]``)."""
 
-    spindle: str | None = None
-    mesh_size_m: float | None = None
-    rom_rank: int = 56
-    cache_dir: str = ""
-    h_box: tuple[float, float] = (5.0, 200.0)
+    spindle: str | None
+    mesh_size_m: float | None
+    rom_rank: int
+    cache_dir: str
+    h_box: tuple[float, float]
 
     @classmethod
     def from_settings(cls, settings: Settings) -> ModelRef:

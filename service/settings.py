@@ -2,10 +2,12 @@
 
 ``Settings`` is built once at the edge (``chtc run --config FILE`` → ``load_settings(path)``, or
 ``create_app(settings)``) and handed down as typed sections: ``settings.modbus``, ``settings.can``,
-``settings.acquisition``, ``settings.model``, ``settings.identification``, ``settings.detector``,
-``settings.api``, ``settings.database``, ``settings.growth``, ``settings.compensation``, and
-``settings.experimental``: the research switches (identification mode, optimizer, the speed map's inner
-workings, mesh and rank) an operator leaves at their measured defaults (issue 25; docs/configuration.md).
+``settings.acquisition``, ``settings.model``, ``settings.identification`` (with the identification mode),
+``settings.detector``, ``settings.api``, ``settings.database``, ``settings.compensation``, and
+``settings.experimental``: the research switches (optimizer, the speed map's inner workings, mesh and rank)
+an operator leaves at their measured defaults (issue 25; docs/configuration.md). Each value is declared once,
+here: the engine's configuration objects have no defaults of their own and are built from these sections
+(``service.engine.config.core_config``).
 Nothing here opens a file, a socket or a database at import time.
 
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,
@@ -22,7 +24,8 @@ Errors::
 
     SettingsError(ValueError)   # bad value, unknown key, unreadable or malformed TOML; the message names
                                 # the key ("modbus.port: ...") and the file (and line for TOML syntax errors);
-                                # a key moved to [experimental] or removed says so (MOVED_KEYS, REMOVED_KEYS)
+                                # a key moved to another section or removed says so (MOVED_KEYS,
+                                # REMOVED_KEYS)
 """
 
 from __future__ import annotations
@@ -32,7 +35,7 @@ import tomllib
 from collections.abc import Callable
 from contextvars import ContextVar
 from pathlib import Path
-from typing import Any, Literal, TypeVar
+from typing import Any, Literal, NamedTuple, TypeVar
 
 from pydantic import (
     BaseModel,
@@ -197,9 +200,17 @@ class ModelSettings(_Section):
 
 
 class IdentificationSettings(_Section):
-    """What an operator tunes for a machine: when H is identified, on how much data, how sure it must be,
-    the sensor offsets, and how long the speed map stays fresh. The research switches are in
-    ``ExperimentalSettings`` (``[experimental]``)."""
+    """What an operator tunes for a machine: how H is identified and served (``mode``), when, on how much
+    data, how sure it must be, the sensor offsets, and how long the speed map stays fresh. The research
+    switches are in ``ExperimentalSettings`` (``[experimental]``)."""
+
+    # "per_condition": one H per held condition (the paper's protocol: schedule_min, min/max_window_s);
+    # "speed_map": H = F(n, Ti) fitted over a rolling window of map_window_min, re-fitted
+    # experimental.map_debounce_s after each condition change (and every map_refit_min), served at the
+    # current speed at once (docs/design/hmap.md); "combined": both, the per-condition H served at a condition
+    # held longer than the first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode").
+    # In [experimental] until issue 39
+    mode: IdentificationMode = IdentificationMode.COMBINED
 
     # re-identify this long after a condition change (or after the live state's convergence on a restart).
     # The first entry is 7 min, not 10: the window starts from the converged filtered state with its
@@ -220,7 +231,7 @@ class IdentificationSettings(_Section):
     offset_calibration: bool = True
     offset_rest_s: float = Field(default=300.0, gt=0)
     offset_sd_c: float = Field(default=0.173, ge=0)  # ±0.3 °C uniform, unknown until a baseline
-    # the speed map (experimental.mode "speed_map" or "combined", docs/design/hmap.md): fitted over a rolling
+    # the speed map (mode "speed_map" or "combined", docs/design/hmap.md): fitted over a rolling
     # window of map_window_min, again every map_refit_min without a change, not fresh after map_fresh_min
     map_window_min: float = Field(default=60.0, gt=0)
     map_refit_min: float = Field(default=10.0, gt=0)
@@ -258,14 +269,9 @@ class ExperimentalSettings(_Section):
     """Research switches (issue 25): their defaults are the measured choices (docs/design/hmap.md,
     docs/design/rom.md, docs/design/estimator.md); they are here to reproduce or extend a measurement (the
     benches' ``--set KEY=VALUE``, ``CHTC_EXPERIMENTAL__KEY``), not to tune a machine. One section for the
-    identification's and the model's switches, so an operator's file needs none of them."""
+    identification's and the model's switches, so an operator's file needs none of them (the identification
+    mode, the product's one choice among them, is ``identification.mode`` since issue 39)."""
 
-    # "per_condition": one H per held condition (the paper's protocol: identification.schedule_min,
-    # min/max_window_s); "speed_map": H = F(n, Ti) fitted over a rolling window of map_window_min, re-fitted
-    # map_debounce_s after each condition change (and every map_refit_min), served at the current speed at
-    # once (docs/design/hmap.md); "combined": both, the per-condition H served at a condition held longer
-    # than the first schedule entry, the map's elsewhere (docs/design/hmap.md "Combined mode")
-    mode: IdentificationMode = IdentificationMode.COMBINED
     method: Literal["hybrid", "igwo", "gwo", "woa", "ga", "empirical"] = "hybrid"
     # 1σ in ln H added in quadrature to every band /chtc serves: the model-form error no statistical band
     # sees (docs/design/policy.md, "The served H band"); the ``identified`` flag is judged on the widened band
@@ -306,12 +312,26 @@ class ExperimentalSettings(_Section):
         return value
 
 
-# keys that left a section (issue 25): an old file or CHTC_* variable setting one gets an error saying where
-# the key went, or why it is gone, instead of a bare "unknown key"
+class Moved(NamedTuple):
+    """Where a key went (``section``) and when and why (``why``, for the error message)."""
+
+    section: str
+    why: str
+
+
+_RESEARCH = "in issue 25 (a research switch; docs/configuration.md)"
 _FROM_MODEL = ("rom_rank", "mesh_size_m")
-MOVED_KEYS: dict[tuple[str, str], str] = {
-    ("model" if k in _FROM_MODEL else "identification", k): "experimental"
-    for k in ExperimentalSettings.model_fields
+# keys that left a section: an old file or CHTC_* variable setting one gets an error saying where the key
+# went, or why it is gone, instead of a bare "unknown key"
+MOVED_KEYS: dict[tuple[str, str], Moved] = {
+    **{
+        ("model" if k in _FROM_MODEL else "identification", k): Moved("experimental", _RESEARCH)
+        for k in ExperimentalSettings.model_fields
+    },
+    ("experimental", "mode"): Moved(
+        "identification", "in issue 39 (the product's identification mode, an operator's setting)"
+    ),
+    ("growth", "reference_c"): Moved("compensation", "in issue 39 ([growth] folded into [compensation])"),
 }
 REMOVED_KEYS: dict[tuple[str, str], str] = {
     ("identification", k): "removed in issue 25: measured without effect "
@@ -351,18 +371,15 @@ MIN_TOKEN_CHARS = 16
 PLACEHOLDER_TOKENS = ("change-me", "changeme", "replace-me", "your-token", "example")
 
 
-class GrowthSettings(_Section):
-    """The thermal growth at the tool (``/compensation``, docs/design/growth.md)."""
+class CompensationSettings(_Section):
+    """The thermal growth at the tool (``/compensation``, docs/design/growth.md): its configured zero and when
+    a controller may apply it (``usable_for_compensation``; the policy, ``service.serve.policy``;
+    docs/design/policy.md says how the defaults were chosen)."""
 
     # the uniform temperature [°C] at which the growth is 0 (where the controller's compensation was zeroed),
-    # used when no zero is stored (a stored one, POST /api/v1/compensation/reference, wins); None: none
+    # used when no zero is stored (a stored one, POST /api/v1/compensation/reference, wins); None: none.
+    # In [growth] until issue 39
     reference_c: float | None = Field(default=None, ge=-50.0, le=200.0, allow_inf_nan=False)
-
-
-class CompensationSettings(_Section):
-    """When a controller may apply the growth (``/compensation``'s ``usable_for_compensation``; the policy,
-    ``service.serve.policy``; docs/design/policy.md says how the defaults were chosen)."""
-
     # the growth's 95 % CI half-width the controller tolerates [µm]: wider is never usable
     max_ci95_um: float = Field(default=2.0, gt=0.0, le=1000.0, allow_inf_nan=False)
     # the H in use (the identification or map fit) may be at most this old [min]
@@ -370,7 +387,7 @@ class CompensationSettings(_Section):
     # DAQ down while CAN speed/torque keep coming: the growth is predicted open loop (status "predicted")
     # and stays usable at most this long [min] (and only while its CI is within max_ci95_um); 0: never
     max_open_loop_min: float = Field(default=10.0, ge=0.0, le=1440.0, allow_inf_nan=False)
-    # with no stored compensation zero (and no growth.reference_c), take one from the first sample at rest in
+    # with no stored compensation zero (and no reference_c), take one from the first sample at rest in
     # equilibrium and store it (source "first_start"); false: /compensation stays not usable (no_reference)
     # until one is set (POST /api/v1/compensation/reference or chtc commission zero). Only right if the
     # spindle rests in equilibrium when the service first starts and the controller was zeroed then.
@@ -570,7 +587,6 @@ class Settings(BaseSettings):
     detector: DetectorSettings = Field(default_factory=DetectorSettings)
     api: ApiSettings = Field(default_factory=ApiSettings)
     database: DatabaseSettings = Field(default_factory=DatabaseSettings)
-    growth: GrowthSettings = Field(default_factory=GrowthSettings)
     compensation: CompensationSettings = Field(default_factory=CompensationSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
     engine: EngineSettings = Field(default_factory=EngineSettings)
@@ -624,7 +640,7 @@ class Settings(BaseSettings):
         file_secret_settings: PydanticBaseSettingsSource,
     ) -> tuple[PydanticBaseSettingsSource, ...]:
         toml = InitSettingsSource(settings_cls, init_kwargs=dict(_TOML_DATA.get() or {}))
-        return (init_settings, env_settings, toml)
+        return (init_settings, env_settings, _GoneSectionsEnv(settings_cls), toml)
 
     @classmethod
     def from_toml(cls, path: str | Path | None, **overrides: Any) -> Settings:  # raw input for pydantic
@@ -649,6 +665,24 @@ class Settings(BaseSettings):
         data["opcua"]["users"] = {name: "**********" for name in data["opcua"]["users"]}
         data["database"]["url"] = make_url(self.database.url).render_as_string(hide_password=True)
         return data
+
+
+class _GoneSectionsEnv(PydanticBaseSettingsSource):
+    """``CHTC_<SECTION>__<KEY>`` of a section that no longer exists (``[growth]``): pydantic-settings reads
+    only declared sections and would ignore it silently; handed on, it fails as the file's key would, with
+    the "moved to" message."""
+
+    def get_field_value(self, field: Any, field_name: str) -> tuple[Any, str, bool]:  # abstract in the base
+        return None, field_name, False
+
+    def __call__(self) -> dict[str, Any]:
+        gone = {section for section, _ in MOVED_KEYS} - set(Settings.model_fields)
+        out: dict[str, Any] = {}
+        for name, value in os.environ.items():
+            section, sep, key = name.upper().removeprefix("CHTC_").partition("__")
+            if name.upper().startswith("CHTC_") and sep and section.lower() in gone:
+                out.setdefault(section.lower(), {})[key.lower()] = value
+        return out
 
 
 _S = TypeVar("_S", bound=BaseModel)
@@ -740,7 +774,7 @@ def format_validation_error(err: ValidationError, *, source: str | Path | None =
         key = ".".join(str(p) for p in item["loc"]) or "<root>"
         msg = item["msg"]
         if item["type"] == "extra_forbidden":
-            msg = _gone(item["loc"])
+            msg = _gone(item["loc"], item.get("input"))
         if not item["loc"] and item["type"] == "value_error":
             msg = msg.removeprefix("Value error, ")  # a rule across sections: its message names the keys
         given = item.get("input")
@@ -751,16 +785,34 @@ def format_validation_error(err: ValidationError, *, source: str | Path | None =
     return f"invalid settings{where} (env CHTC_<SECTION>__<KEY> overrides the file):\n  " + "\n  ".join(lines)
 
 
-def _gone(loc: tuple[int | str, ...]) -> str:
-    """Why ``loc`` is not a key: moved to another section, removed, or unknown."""
+def _gone(loc: tuple[int | str, ...], given: object = None) -> str:
+    """Why ``loc`` is not a key: moved to another section, removed, or unknown. A section that is gone
+    (``loc`` its name alone, ``given`` its keys) names where each of its keys went."""
+    if len(loc) == 1 and isinstance(given, dict):
+        section = str(loc[0])
+        targets = sorted({to.section for (old, _), to in MOVED_KEYS.items() if old == section})
+        if targets and section not in Settings.model_fields:
+            keys = [
+                f"{section}.{k} {_moved(section, str(k))}"
+                if (section, str(k)) in MOVED_KEYS
+                else f"{section}.{k}: unknown key"
+                for k in given
+            ]
+            return (
+                f"the section [{section}] is gone (its keys moved to [{'], ['.join(targets)}]): "
+                + "; ".join(keys)
+            )
     where = (str(loc[0]), str(loc[-1])) if len(loc) == 2 else None
     if where in MOVED_KEYS:
-        section, key = MOVED_KEYS[where], where[1]
-        return (
-            f"moved to [{section}] in issue 25 (a research switch; docs/configuration.md): write it as "
-            f"{section}.{key} (env CHTC_{section.upper()}__{key.upper()}), or delete the line to keep the "
-            "default"
-        )
+        return _moved(*where)
     if where in REMOVED_KEYS:
         return f"{REMOVED_KEYS[where]}; delete the line"
     return "unknown key"
+
+
+def _moved(old_section: str, key: str) -> str:
+    to = MOVED_KEYS[(old_section, key)]
+    return (
+        f"moved to [{to.section}] {to.why}: write it as {to.section}.{key} "
+        f"(env CHTC_{to.section.upper()}__{key.upper()}), or delete the line to keep the default"
+    )

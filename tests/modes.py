@@ -1,4 +1,4 @@
-"""The identification mode a test runs in, named where it matters (issue 17: ``experimental.mode`` is
+"""The identification mode a test runs in, named where it matters (issue 17: ``identification.mode`` is
 ``per_condition``, the paper's protocol, or ``speed_map``, and the default may be either).
 
 Tests of the per-condition protocol (``schedule_min``, one identification per held condition, warm starts
@@ -13,13 +13,12 @@ from typing import Any
 
 from service.settings import Settings
 
-PER_CONDITION: dict[str, Any] = {"mode": "per_condition"}  # the ``experimental`` section's key
+PER_CONDITION: dict[str, Any] = {"mode": "per_condition"}  # the ``identification`` section's key
 
 
 def per_condition(settings: Settings | None = None, **identification: Any) -> Settings:
     """``settings`` (default: ``Settings()``, i.e. the defaults and ``CHTC_*``) with
-    ``experimental.mode = "per_condition"`` and the given identification keys, validated."""
+    ``identification.mode = "per_condition"`` and the given identification keys, validated."""
     s = settings if settings is not None else Settings()
-    ident = type(s.identification).model_validate({**s.identification.model_dump(), **identification})
-    exp = type(s.experimental).model_validate({**s.experimental.model_dump(), **PER_CONDITION})
-    return s.model_copy(update={"identification": ident, "experimental": exp})
+    values = {**s.identification.model_dump(), **PER_CONDITION, **identification}
+    return s.model_copy(update={"identification": type(s.identification).model_validate(values)})

@@ -11,7 +11,13 @@ against Python).
   and the tools wire the packages (and the API) together. The API reads the service through ``serve`` and
   ``contracts`` only (and ``errors``, its settings' types and the log context: leaves that import nothing
   deeper, checked too). Every import counts, also one inside a function or under ``TYPE_CHECKING``.
-- No import cycles between packages (``service.<package>``, ``model``, ``drivers``, ``api``).
+- No import cycles between packages (``service.<package>``, ``model``, ``drivers``, ``api``, ``benchmarks``).
+- The laboratory stays out of the product (issue 39): nothing under ``model``, ``drivers``, ``service``,
+  ``api`` imports ``benchmarks`` (which may import anything), and the running product (engine, estimate,
+  identify, store, serve, acquire, api) imports nothing of the simulator or the plant (``service.sim``,
+  ``model.plant``, ``model.plantmech``): those serve the demo, the simulate command, the tests and the
+  benchmarks. The wheel built from the tree holds no benchmark, study or diagnostic module
+  (``test_the_wheel_ships_no_laboratory``).
 - Every exception class defined in a layer derives from that layer's root: ``model.errors.ModelError``,
   ``drivers.errors.DriverError``, ``service.errors.ServiceError``, ``api.errors.ApiError``.
 """
@@ -21,7 +27,11 @@ from __future__ import annotations
 import ast
 import builtins
 import itertools
+import re
+import shutil
+import subprocess
 import sys
+import zipfile
 from dataclasses import dataclass, field
 from functools import cache
 from pathlib import Path
@@ -30,6 +40,7 @@ import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
 LAYERS = ("model", "drivers", "service", "api")
+SCANNED = (*LAYERS, "benchmarks")  # the benchmarks are read too: the rules below name what they may not be
 
 
 @dataclass
@@ -75,7 +86,7 @@ def _parse(path: Path) -> Module:
 @cache
 def modules() -> dict[str, Module]:
     found = {}
-    for layer in LAYERS:
+    for layer in SCANNED:
         for path in sorted((ROOT / layer).rglob("*.py")):
             if "migrations" not in path.parts:
                 mod = _parse(path)
@@ -103,7 +114,17 @@ _SERVICE_PACKAGES = tuple(
     if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"
     if p.stem not in ("__init__", "contracts", "errors")
 )
-_SHELL = ("service.engine", "service.commands", "service.bench", "service.sim", "service.cli", "api")
+_RUNNING = (
+    "service.engine",
+    "service.estimate",
+    "service.identify",
+    "service.store",
+    "service.serve",
+    "service.acquire",
+    "api",
+)
+_SIMULATOR = ("service.sim", "model.plant", "model.plantmech")
+_SHELL = ("service.engine", "service.commands", "benchmarks", "service.sim", "service.cli", "api")
 # leaves of the service that are no layer: the configuration, its MQTT section and the log context; what they
 # import is checked below, so a layer that imports them reaches nothing deeper through them
 _LEAVES = ("service.settings", "service.mqttsettings", "service.logctx")
@@ -125,6 +146,9 @@ RULES = [
     ("service.settings", tuple(p for p in _SERVICE_PACKAGES if p not in ("service.defaults", *_LEAVES))),
     ("service.mqttsettings", _SERVICE_PACKAGES),
     ("service.logctx", _SERVICE_PACKAGES),
+    # issue 39: the laboratory out of the product; the running product imports no simulator and no plant
+    *((layer, ("benchmarks",)) for layer in LAYERS),
+    *((running, _SIMULATOR) for running in _RUNNING),
 ]
 
 
@@ -139,6 +163,35 @@ def test_the_rules_see_a_violation() -> None:
     assert "service.store.reads imports service.store.errors.DatabaseBusyError" in _offending(
         "service.store", ("service.store.errors",)
     )
+    # the benchmarks are read, and they do import the simulator (what the product may not)
+    assert "benchmarks.compensation_run imports service.sim.plantsamples" in _offending(
+        "benchmarks", ("service.sim",)
+    )
+
+
+_LAB_NAME = re.compile(r"bench|diag\d*|stud(y|ies)", re.IGNORECASE)
+
+
+@pytest.mark.slow
+def test_the_wheel_ships_no_laboratory(tmp_path: Path) -> None:
+    """The wheel built from the tree holds the product's packages only (issue 39): no ``benchmarks``, and no
+    bench, study or diagnostic module inside them (none named so, none named as a study of
+    ``benchmarks/studies``). Built from a copy: a build in the tree would leave ``build/`` behind."""
+    src = tmp_path / "src"
+    junk = shutil.ignore_patterns(".git", ".*cache*", "__pycache__", "*.egg-info", "build", "dist", "tests")
+    shutil.copytree(ROOT, src, ignore=junk)
+    out = tmp_path / "wheel"
+    cmd = [sys.executable, "-m", "pip", "wheel", "--no-deps", "--no-build-isolation", "-q", "-w", str(out)]
+    built = subprocess.run([*cmd, "."], cwd=src, capture_output=True, text=True, timeout=240)
+    assert built.returncode == 0, built.stderr[-2000:]
+    (wheel,) = out.glob("*.whl")
+    names = zipfile.ZipFile(wheel).namelist()
+    assert {n.split("/")[0] for n in names if ".dist-info/" not in n} == set(LAYERS)
+    studies = {p.stem for p in (ROOT / "benchmarks" / "studies").glob("*.py")} - {"__init__"}
+    modules = [Path(n) for n in names if n.endswith(".py")]
+    assert len(modules) > 100  # the product is there
+    lab = [str(m) for m in modules if m.stem in studies or any(_LAB_NAME.search(part) for part in m.parts)]
+    assert lab == []
 
 
 def test_the_contracts_are_types_only() -> None:
@@ -200,17 +253,8 @@ def find_cycle(graph: dict[str, dict[str, str]]) -> list[str]:
     return []
 
 
-# Known edges that close a cycle and are being removed elsewhere: issue 39 part 1 moves the log reader
-# ``service.sim.logsamples`` (imported by ``service.engine.commissioning``) to ``drivers/``. Drop an entry
-# once its import is gone (the test says so).
-PENDING_EDGES = {("service.engine", "service.sim")}
-
-
 def test_no_import_cycle_between_packages() -> None:
     graph = package_graph()
-    for a, b in PENDING_EDGES:
-        assert b in graph.get(a, {}), f"{a} no longer imports {b}: drop it from PENDING_EDGES"
-        del graph[a][b]
     cycle = find_cycle(graph)
     edges = [graph[a][b] for a, b in itertools.pairwise(cycle)]
     assert cycle == [], "import cycle " + " -> ".join(cycle) + ":\n  " + "\n  ".join(edges)

@@ -1,7 +1,7 @@
 """GET /chtc/map: the H map H = F(n, Ti) over the speed range (speed-map mode, docs/design/hmap.md), with its
 95 % bands, the speeds the fitted data have covered and how current the map is (cheap, with a weak ETag).
 
-Per-condition mode (``experimental.mode = "per_condition"``, the paper's protocol) has no map: 404
+Per-condition mode (``identification.mode = "per_condition"``, the paper's protocol) has no map: 404
 ``not_found`` saying so. In speed-map mode before the first map fit: 503 ``no_data`` with ``Retry-After``.
 The ETag covers what the snapshot says (the fit, status, ambient, current speed, newest sample), not
 ``served_at`` / ``sample_age_s``, as for ``/chtc``.
@@ -21,8 +21,8 @@ from service.contracts.snapshots import ChtcMapSnapshot
 router = APIRouter(tags=["chtc"], dependencies=[ReadAccess])
 
 PER_CONDITION = (
-    "no speed map: experimental.mode is per_condition (the paper's protocol, one H per held condition; "
-    'GET /chtc serves it); set experimental.mode = "speed_map" for H over the speed range'
+    "no speed map: identification.mode is per_condition (the paper's protocol, one H per held condition; "
+    'GET /chtc serves it); set identification.mode = "speed_map" for H over the speed range'
 )
 
 

@@ -3,7 +3,7 @@
 ``grey_wolf`` (IGWO of the paper, or standard GWO), ``whale`` (WOA) and ``genetic`` (real-coded GA) share one
 interface: ``f(func, bounds, *, rng, x0=None, init=None, popsize, maxiter, fun_target, time_budget_s, maxfev,
 callback, vectorized, clock) -> OptimizeResult``. The objective takes a whole population (P, D) → (P,) when
-``vectorized``. ``benchfuncs`` holds the paper's Table 1 functions.
+``vectorized``. The paper's Table 1 functions are the laboratory's (``benchmarks.studies.benchfuncs``).
 """
 
 from model.optim._common import BoundsError, ObjectiveError, OptimizerError, OptimizeResult

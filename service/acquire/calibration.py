@@ -49,6 +49,13 @@ from service.contracts.calibration import Calibration
 Array = NDArray[np.float64]
 
 __all__ = [
+    "CHANNEL_FLAT_C",
+    "EQUILIBRIUM_SD_C",
+    "FLAT_C",
+    "IDLE_SPEED_RPM",
+    "MAX_OFFSET_C",
+    "MAX_REST_S",
+    "MEAN_TOL_C",
     "BaselineRefined",
     "BaselineRejected",
     "BaselineRequest",
@@ -67,20 +74,33 @@ class CalibrationStatus(enum.StrEnum):
     CALIBRATED = "calibrated"
 
 
+# the equilibrium test's thresholds that have no settings key (temperatures °C, times s, speed rpm)
+MAX_REST_S = 7200.0  # the baseline averages at most this much of one rest period
+IDLE_SPEED_RPM = 100.0  # below: spindle at rest (no bearing heat)
+FLAT_C = 0.05  # |drift| of the channel mean over the window (fitted line)
+CHANNEL_FLAT_C = 0.4  # |drift| of one channel over the window (noise: ~0.1 °C 1σ at 30 samples)
+MAX_OFFSET_C = 0.6  # |mean(T_c − T_amb)| above this: not at the ambient (or a broken sensor)
+MEAN_TOL_C = 0.1  # |mean over channels of (T_c − T_amb)| above this: the spindle is warm
+EQUILIBRIUM_SD_C = 0.005  # what a spindle at rest still differs from the ambient
+
+
 @dataclass(frozen=True, kw_only=True)
 class CalibrationConfig:
-    """Thresholds of the equilibrium detector; temperatures °C, times s, speed rpm."""
+    """Thresholds of the equilibrium detector; temperatures °C, times s, speed rpm. From the settings'
+    ``identification.offset_*`` and ``min_good_channels`` and this module's constants (no defaults here:
+    ``service.engine.config.core_config`` builds it)."""
 
-    rest_s: float = 300.0  # idle and flat this long: the equilibrium test's window
-    max_rest_s: float = 7200.0  # the baseline averages at most this much of one rest period
-    idle_speed_rpm: float = 100.0  # below: spindle at rest (no bearing heat)
-    flat_c: float = 0.05  # |drift| of the channel mean over the window (fitted line)
-    channel_flat_c: float = 0.4  # |drift| of one channel over the window (noise: ~0.1 °C 1σ at 30 samples)
-    max_offset_c: float = 0.6  # |mean(T_c − T_amb)| above this: not at the ambient (or a broken sensor)
-    mean_tol_c: float = 0.1  # |mean over channels of (T_c − T_amb)| above this: the spindle is warm
-    min_channels: int = 24  # good channels needed for a baseline
-    no_baseline_sd_c: float = 0.3 / np.sqrt(3.0)  # offsets uniform in ±0.3 °C, unknown
-    equilibrium_sd_c: float = 0.005  # what a spindle at rest still differs from the ambient
+    rest_s: float  # idle and flat this long: the equilibrium test's window (identification.offset_rest_s)
+    max_rest_s: float  # MAX_REST_S
+    idle_speed_rpm: float  # IDLE_SPEED_RPM
+    flat_c: float  # FLAT_C
+    channel_flat_c: float  # CHANNEL_FLAT_C
+    max_offset_c: float  # MAX_OFFSET_C
+    mean_tol_c: float  # MEAN_TOL_C
+    min_channels: int  # good channels needed for a baseline (identification.min_good_channels)
+    # 1σ of the offsets before a baseline (identification.offset_sd_c: uniform in ±0.3 °C, unknown)
+    no_baseline_sd_c: float
+    equilibrium_sd_c: float  # EQUILIBRIUM_SD_C
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -191,10 +211,10 @@ def take_baseline(window: list[Reading], cfg: CalibrationConfig, source: str) ->
 
 @dataclass(kw_only=True)
 class OffsetCalibrator:
-    """See the module docstring. ``sample_period_s`` sizes the rest window's buffer."""
+    """See the module docstring. ``sample_period_s`` (the acquisition's) sizes the rest window's buffer."""
 
-    config: CalibrationConfig = field(default_factory=CalibrationConfig)
-    sample_period_s: float = 10.0
+    config: CalibrationConfig
+    sample_period_s: float
     current: Calibration | None = None
     status: CalibrationStatus = CalibrationStatus.NO_BASELINE
     _rest: deque[Reading] = field(init=False)

@@ -5,12 +5,12 @@ identification run inline with the configured seed (``experimental.seed``, ``--s
 always give the same H. Prints one line per identification with H and its 95 % confidence intervals, and
 writes them as JSON with ``--json FILE`` (``-`` for stdout), each with ``growth``: the thermal growth at the
 spindle nose at the identification's end as ``/compensation`` would have served it (axial, radial and the
-steady axial growth in µm, their 0.1-µm integers and 95 % CIs, over the zero (``growth.reference_c``, else
-the provisional one: the first converged live field's); ``service.engine.growthserve.GrowthHistory``; null
-for an identification that did not succeed).
+steady axial growth in µm, their 0.1-µm integers and 95 % CIs, over the zero (``compensation.reference_c``,
+else the provisional one: the first converged live field's); ``service.engine.growthserve.GrowthHistory``;
+null for an identification that did not succeed).
 
 The log is sampled as the live acquisition samples it in ``chtc replay`` (one sample per
-``acquisition.sample_period_s``; ``service.sim.logsamples``), so both commands fit the same data. Without a
+``acquisition.sample_period_s``; ``drivers.logsamples``), so both commands fit the same data. Without a
 CAN
 log the speed and torque must be stated (``--speed-rpm``/``--torque-nm``, constant over the log). Exit status:
 0 when at least one identification succeeded; 1 when none did, with the reason on stderr (each condition's
@@ -188,7 +188,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     """Why a log gave no successful identification: per detected condition, how long it lasted against what an
     identification needs; or why no condition was detected (``can_ok``: samples with a fresh speed/torque)."""
     ident, exp = settings.identification, settings.experimental
-    per_condition = exp.mode is IdentificationMode.PER_CONDITION
+    per_condition = ident.mode is IdentificationMode.PER_CONDITION
     if per_condition:
         need_s = max(ident.min_window_s, 60.0 * ident.schedule_min[0])
         need = (
@@ -199,7 +199,7 @@ def explain_nothing(result: OfflineResult, settings: Settings, *, can_ok: int) -
     else:
         need_s = 60.0 * exp.map_min_window_min
         need = (
-            f"experimental.mode = {exp.mode}: the first map fit needs {need_s / 60:.1f} min of data "
+            f"identification.mode = {ident.mode}: the first map fit needs {need_s / 60:.1f} min of data "
             "after the live state converged, at any speeds (experimental.map_min_window_min = "
             f"{exp.map_min_window_min:g})"
         )
@@ -258,11 +258,11 @@ def offsets_line(calibration: Calibration | None, ident: IdentificationSettings)
 
 def main(args: argparse.Namespace) -> int:
     from drivers.logs import LogFormatError, read_temperature_csv
+    from drivers.logsamples import samples_from_logs
     from service.engine.offline import run_offline
     from service.engine.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import SettingsError, load_settings
-    from service.sim.logsamples import samples_from_logs
 
     try:
         settings = load_settings(args.config)
@@ -292,7 +292,7 @@ def main(args: argparse.Namespace) -> int:
     if args.json_out is not None:  # the growth history (docs/design/growth.md): only for the JSON
         from service.engine.growthserve import GrowthHistory
 
-        growth = GrowthHistory(model, t_ref_c=settings.growth.reference_c)
+        growth = GrowthHistory(model, t_ref_c=settings.compensation.reference_c)
     result = run_offline(data.samples, model=model, config=core_config(settings), on_sample=growth)
     source = (
         f"{data.frames} CAN frames ({data.bad_frames} undecodable)"
@@ -302,7 +302,7 @@ def main(args: argparse.Namespace) -> int:
     print(
         f"{data.rows} rows -> {len(data.samples)} samples every {settings.acquisition.sample_period_s:g} s, "
         f"{source}; {len(result.records)} identifications "
-        f"({settings.experimental.mode}, seed {settings.experimental.seed})"
+        f"({settings.identification.mode}, seed {settings.experimental.seed})"
     )
     print(offsets_line(result.calibration, settings.identification))
     for r in result.records:

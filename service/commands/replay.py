@@ -44,6 +44,7 @@ if TYPE_CHECKING:
     from service.engine.shell import SoftSensorService
     from service.settings import Settings
 
+from drivers.logsamples import REPLAY_PHASE, write_acquisition_csv
 from service.commands._common import (
     CommandError,
     check_database_url,
@@ -54,7 +55,6 @@ from service.commands._common import (
     positive_float,
 )
 from service.commands.identify import format_record, growth_dict, num, record_dict, summary_line
-from service.sim.logsamples import REPLAY_PHASE, write_acquisition_csv
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

@@ -341,7 +341,7 @@ class ChtcSnapshot(Judged):
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class ChtcMapSnapshot(Judged):
-    """The identified H map H = F(n, Ti) over the speed range (``experimental.mode = "speed_map"``,
+    """The identified H map H = F(n, Ti) over the speed range (``identification.mode = "speed_map"``,
     docs/design/hmap.md): H1-H7 and their 95 % bands on a speed grid at the current ambient, the speeds the
     data have covered, and how current the map is.
 

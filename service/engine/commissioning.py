@@ -196,8 +196,8 @@ def field_history(
     """Run the service's core (``config``) over the logs (``run_offline``: the same samples, live state and
     identifications as ``chtc identify``, one sample per ``config.rules.dt_s``) and keep the live state after
     every sample."""
+    from drivers.logsamples import samples_from_logs
     from service.engine.offline import run_offline
-    from service.sim.logsamples import samples_from_logs
 
     data = samples_from_logs(temperatures, canlog, period_s=config.rules.dt_s)
     t: list[float] = []

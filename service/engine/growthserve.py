@@ -23,7 +23,7 @@ spindle description's (``[mechanics]`` as written) and the policy's ``mechanics_
 The reference (growth 0: where the controller was zeroed) is a commissioning fact,
 ``service.estimate.reference.CompensationReference`` (``reference``): stored (``POST
 /compensation/reference``, ``chtc commission zero``) and restored at start, else the configured
-``growth.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for
+``compensation.reference_c`` (source "config"), else, if ``compensation.reference_on_first_start`` asks for
 it, taken from the first sample at rest in equilibrium and stored (source "first_start"). With none, the
 growth is served against a provisional one (the uniform equivalent of the first converged live field, with its
 1σ; not stored) and is not usable (reason ``no_reference``).
@@ -150,6 +150,18 @@ def map_h_covariance(m: SpeedMap, speed_rpm: float, ambient_c: float, h_live: np
     return np.asarray(out)
 
 
+def _default_limits() -> CompensationLimits:
+    """The policy's limits for a server built without them (the benches' and the offline history's, which
+    judge the growth alone): the settings' ``[compensation]`` defaults (declared there; no environment)
+    without the mechanics rule, which has no commissioning to read there."""
+    from service.engine.config import compensation_limits
+    from service.settings import CompensationSettings
+
+    return dataclasses.replace(
+        compensation_limits(CompensationSettings()), require_mechanics_calibration=False
+    )
+
+
 class GrowthServer:
     """See the module docstring. Thread-safe: the API threads and the shell's worker threads call it."""
 
@@ -164,17 +176,18 @@ class GrowthServer:
         on_reference: Callable[[CompensationReference], None] | None = None,
         tool_dir: int = -1,
         context: GrowthContext | None = None,  # built already (the bench shares one across runs)
-        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: the defaults)
+        limits: CompensationLimits | None = None,  # the settings' [compensation] (None: its defaults)
         mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
         mechanics_basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
         probes: tuple[ProbeMeasurement, ...] = (),  # the stored probe readings (restored), oldest first
         probe_gate_sigma: float = DEFAULT_GATE_SIGMA,
     ) -> None:
-        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``growth.reference_c``) makes a
-        "config" one; ``reference_on_first_start``: take one from the first sample at rest in equilibrium
-        when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every reference taken
-        here (the shell stores it); ``limits`` the settings' [compensation] (None: the defaults)."""
-        self.limits = limits if limits is not None else CompensationLimits()
+        """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``compensation.reference_c``)
+        makes a "config" one; ``reference_on_first_start``: take one from the first sample at rest in
+        equilibrium when there is none (``set_by`` ``first_start_by``); ``on_reference`` is told every
+        reference taken here (the shell stores it); ``limits`` the settings' [compensation] (None:
+        ``_default_limits``)."""
+        self.limits = limits if limits is not None else _default_limits()
         self.model = model
         if reference is None and t_ref_c is not None:
             reference = CompensationReference(
@@ -182,7 +195,7 @@ class GrowthServer:
                 sd_c=0.0,
                 at=datetime.now(UTC),
                 source="config",
-                set_by="growth.reference_c",
+                set_by="compensation.reference_c",
             )
         self._reference = reference
         self._first_start = bool(reference_on_first_start)

@@ -45,7 +45,7 @@ class Job:
     started_by: str  # id of the event that started it
 
 
-MAP_METHOD = "speed-map"  # the method stored with a speed-map fit (experimental.mode = "speed_map")
+MAP_METHOD = "speed-map"  # the method stored with a speed-map fit (identification.mode = "speed_map")
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

@@ -28,8 +28,7 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from drivers.acquisition import Acquisition, CanSource, DaqSource
 from drivers.ringbuffer import RingBuffer
-from service.acquire.calibration import CalibrationConfig
-from service.engine.config import CoreConfig, Restored
+from service.engine.config import Restored, compensation_limits, core_config
 from service.engine.core import ServiceCore
 from service.engine.corethread import CoreThread, InlineRunner
 from service.engine.growthserve import GrowthServer
@@ -37,15 +36,10 @@ from service.engine.health import HealthSource
 from service.engine.looplag import LoopLagMonitor
 from service.engine.persistence import Persistence, SharedDatabase, open_persistence
 from service.engine.shell import SoftSensorService, Worker
-from service.identify.detector import DetectorConfig
-from service.identify.scheduler import SchedulerConfig
-from service.identify.speedmap import MapConfig
-from service.identify.window import WindowRules
 from service.identify.worker import IdentificationWorker
 from service.logctx import spindle_context
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.serve.outlet import OUTLETS, Outlet, OutletContext, OutletFactory, load_factory
-from service.serve.policy import CompensationLimits
 from service.settings import Settings
 
 if TYPE_CHECKING:
@@ -99,72 +93,6 @@ class CanDevice(CanSource, HealthSource, Protocol):
     async def close(self) -> None: ...
 
 
-def map_config(settings: Settings) -> MapConfig:
-    """The speed map's configuration (used in ``experimental.mode`` ``"speed_map"`` and ``"combined"``)."""
-    ident, exp = settings.identification, settings.experimental
-    return MapConfig(
-        window_s=60.0 * ident.map_window_min,
-        min_window_s=60.0 * exp.map_min_window_min,
-        debounce_s=exp.map_debounce_s,
-        refit_s=60.0 * ident.map_refit_min,
-        fresh_s=60.0 * ident.map_fresh_min,
-        margin_rpm=exp.map_margin_rpm,
-        min_visit_s=exp.map_min_visit_s,
-        tau_h=exp.map_forget_tau_h,
-        family=exp.map_family,
-        prior_weight=exp.map_prior_weight,
-        prior_level_sd=exp.map_prior_level_sd,
-    )
-
-
-def core_config(settings: Settings) -> CoreConfig:
-    """The core's configuration from ``Settings`` (minutes -> s; the window grid is the sample period)."""
-    ident, det, acq = settings.identification, settings.detector, settings.acquisition
-    exp = settings.experimental
-    schedule = tuple(60.0 * m for m in ident.schedule_min)
-    return CoreConfig(
-        detector=DetectorConfig(
-            speed_threshold_rpm=det.speed_threshold_rpm,
-            torque_threshold_nm=det.torque_threshold_nm,
-            ambient_threshold_c=det.ambient_threshold_c,
-            hold_s=det.hold_s,
-            median_samples=det.median_samples,
-            max_gap_s=det.max_gap_s,
-        ),
-        scheduler=SchedulerConfig(
-            min_data_s=ident.min_window_s,
-            schedule_s=schedule,
-            max_window_s=ident.max_window_s,
-            distance_scales=exp.distance_scales,
-            tolerance_s=0.5 * acq.sample_period_s,
-        ),
-        rules=WindowRules(
-            dt_s=acq.sample_period_s,
-            min_window_s=ident.min_window_s,
-            min_good_channels=ident.min_good_channels,
-        ),
-        method=exp.method,
-        seed=exp.seed,
-        estimate_loads=exp.estimate_loads,
-        carry_start_error=exp.carry_start_error,
-        start_modes=exp.start_modes,
-        ci_threshold=ident.ci_rel_threshold,
-        h_form_sd=exp.h_form_sd_ln,
-        mode=exp.mode,
-        speed_map=map_config(settings),
-        stale_after_s=max(60.0, 6.0 * acq.sample_period_s),
-        sample_store_period_s=settings.database.sample_store_period_s,
-        live_checkpoint_s=settings.database.live_checkpoint_s,
-        calibration=CalibrationConfig(
-            rest_s=ident.offset_rest_s,
-            no_baseline_sd_c=ident.offset_sd_c,
-            min_channels=ident.min_good_channels,
-        )
-        if ident.offset_calibration
-        else None,
-    )
-
-
 def free_port(host: str = "127.0.0.1") -> int:
     """An unused TCP port on ``host`` (for in-process simulators and the API in tests and the demo)."""
     with socket.socket(socket.AF_INET, socket.SOCK_STREAM) as s:
@@ -180,26 +108,20 @@ def growth_server(
     context: GrowthContext | None = None,
 ) -> GrowthServer:
     """``/compensation``'s server from ``Settings``: the policy's limits and the zero: the restored one, else
-    ``growth.reference_c``, else (if configured) one taken at the first start (docs/design/growth.md,
+    ``compensation.reference_c``, else (if configured) one taken at the first start (docs/design/growth.md,
     "Reference"). ``context``: the model's growth context, built once and shared by the spindles of one
     geometry (``service.engine.host``; default: built by the server when first needed)."""
     c = settings.compensation
-    limits = CompensationLimits(
-        max_ci95_um=c.max_ci95_um,
-        max_identification_age_min=c.max_identification_age_min,
-        max_open_loop_min=c.max_open_loop_min,
-        require_mechanics_calibration=c.require_mechanics_calibration,
-    )
     return GrowthServer(
         model,
-        t_ref_c=settings.growth.reference_c,
+        t_ref_c=c.reference_c,
         reference=None if restored is None else restored.reference,
         mechanics=None if restored is None else restored.mechanics,
         probes=() if restored is None else restored.probes,
         probe_gate_sigma=c.probe_gate_sigma,
         reference_on_first_start=c.reference_on_first_start,
         first_start_by=os_user(),
-        limits=limits,
+        limits=compensation_limits(c),
         context=context,
     )
 

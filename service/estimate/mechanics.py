@@ -28,7 +28,7 @@ from numpy.typing import ArrayLike, NDArray
 
 from model.fem import FEModel
 from model.geometry import SpindleSpec
-from model.plantmech import ALPHA_REL, alpha_region_scales
+from model.mechprior import ALPHA_REL, alpha_region_scales
 from model.thermoelastic import MechanicsVariant, build_growth_model
 
 __all__ = [

@@ -22,8 +22,8 @@ reference is stored as one **uniform temperature** ``temperature_c`` [°C] with 
 
 ``source`` says how it was set: "api" (``POST /compensation/reference``), "cli" (``chtc commission zero``),
 "first_start" (``compensation.reference_on_first_start``: at the first converged live state of a service that
-had none) or "config" (``growth.reference_c``); ``set_by`` who (the name given with the request, or the OS
-user); ``at`` when (UTC).
+had none) or "config" (``compensation.reference_c``); ``set_by`` who (the name given with the request, or the
+OS user); ``at`` when (UTC).
 """
 
 from __future__ import annotations

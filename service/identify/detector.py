@@ -91,14 +91,15 @@ class ConditionChanged:
 
 @dataclass(frozen=True, kw_only=True)
 class DetectorConfig:
-    """Thresholds (absolute, per quantity) and timing of the detector; times in s."""
+    """Thresholds (absolute, per quantity) and timing of the detector; times in s. The settings'
+    ``[detector]`` (no defaults here: ``service.engine.config.core_config`` builds it)."""
 
-    speed_threshold_rpm: float = 150.0
-    torque_threshold_nm: float = 1.0
-    ambient_threshold_c: float = 1.0
-    hold_s: float = 60.0
-    median_samples: int = 3
-    max_gap_s: float = 120.0
+    speed_threshold_rpm: float
+    torque_threshold_nm: float
+    ambient_threshold_c: float
+    hold_s: float
+    median_samples: int
+    max_gap_s: float
 
     def __post_init__(self) -> None:
         for name in (
@@ -138,10 +139,8 @@ class ConditionDetector:
     the same operating point after the restart is not reported as a change.
     """
 
-    def __init__(
-        self, config: DetectorConfig | None = None, *, reference: OperatingPoint | None = None
-    ) -> None:
-        self.config = config or DetectorConfig()
+    def __init__(self, config: DetectorConfig, *, reference: OperatingPoint | None = None) -> None:
+        self.config = config
         self.reference = reference
         self.status = DetectorStatus.STABLE if reference is not None else DetectorStatus.STARTING
         self.changes = 0

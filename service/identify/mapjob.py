@@ -1,4 +1,4 @@
-"""A speed-map identification job (``experimental.mode = "speed_map"``): the worker side.
+"""A speed-map identification job (``identification.mode = "speed_map"``): the worker side.
 
 The core sends a ``JobRequest`` whose ``speed_map`` is a :class:`MapJob` (the prior: the last posterior
 after ``forget``, or the family's cold-start prior); the worker (``service.identify.worker.run_job``) fits

@@ -1,4 +1,4 @@
-"""The prior of a per-condition identification in the served modes (``experimental.mode`` ``combined``;
+"""The prior of a per-condition identification in the served modes (``identification.mode`` ``combined``;
 docs/design/identification.md, "The prior of a served fit"): the cold physics prior at the condition
 (``model.identify_prior.condition_prior``, σ(ln H) = ln 3) plus, once a speed map exists, the map's data
 information at the condition's speed (``model.identify_prior.with_map``, weighed by the map's covariance

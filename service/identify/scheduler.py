@@ -64,13 +64,14 @@ class SchedulerStatus(enum.Enum):
 
 @dataclass(frozen=True, kw_only=True)
 class SchedulerConfig:
-    """Timing in s after the condition change; ``distance_scales`` (rpm, N·m, °C) for the nearest one."""
+    """Timing in s after the condition change; ``distance_scales`` (rpm, N·m, °C) for the nearest one. From
+    the settings' ``[identification]`` (no defaults here: ``service.engine.config.core_config`` builds it)."""
 
-    min_data_s: float = 600.0
-    schedule_s: tuple[float, ...] = (600.0, 1200.0, 2400.0, 3600.0)
-    max_window_s: float = 3600.0
-    distance_scales: tuple[float, float, float] = (1000.0, 5.0, 5.0)
-    tolerance_s: float = 0.0  # an entry is due this much early (sample-time jitter; the core uses dt/2)
+    min_data_s: float
+    schedule_s: tuple[float, ...]
+    max_window_s: float
+    distance_scales: tuple[float, float, float]
+    tolerance_s: float  # an entry is due this much early (sample-time jitter: half the sample period)
 
     def __post_init__(self) -> None:
         if not (math.isfinite(self.min_data_s) and self.min_data_s > 0):
@@ -197,7 +198,7 @@ class _Running:
 class IdentificationScheduler:
     """Pure scheduler: ``handle(event) -> list[instruction]``; ``history`` seeds the warm-start memory."""
 
-    config: SchedulerConfig = field(default_factory=SchedulerConfig)
+    config: SchedulerConfig
     history: list[PastResult] = field(default_factory=list)
     status: SchedulerStatus = SchedulerStatus.IDLE
     current: _Current | None = None

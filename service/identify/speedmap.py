@@ -1,5 +1,5 @@
 """The speed map's state in the service: the latest H map fit (``model.hmap_identify.MapFit``'s posterior),
-the speeds the data have covered, and its configuration (``experimental.mode = "speed_map"``).
+the speeds the data have covered, and its configuration (``identification.mode = "speed_map"``).
 
 Pure numpy (``model.hmap`` only): the core keeps a :class:`SpeedMap` (frozen, published in its view), the
 API threads evaluate it (``h_at``: microseconds), the database stores it as JSON in the identification's
@@ -30,6 +30,7 @@ from model.hmap import Family
 from service.errors import ServiceError
 
 __all__ = [
+    "MAP_BIN_RPM",
     "MAP_GRID_RPM",
     "MapConfig",
     "SpeedMap",
@@ -41,6 +42,7 @@ FloatArray = npt.NDArray[np.float64]
 MAP_GRID_RPM: FloatArray = np.arange(0.0, 7000.0 + 1.0, 100.0)  # the grid chtc_map() serves
 MAP_GRID_RPM.setflags(write=False)
 MIN_VISITED_S = 1.0  # accumulated seconds below this: forgotten
+MAP_BIN_RPM = 50.0  # visited speeds are binned to this (MapConfig.bin_rpm; no settings key)
 
 
 class SpeedMapError(ServiceError, ValueError):
@@ -49,7 +51,8 @@ class SpeedMapError(ServiceError, ValueError):
 
 @dataclass(frozen=True, kw_only=True)
 class MapConfig:
-    """The speed map mode's knobs (``identification.map_*`` settings; times in s, speeds in rpm).
+    """The speed map mode's knobs (``identification.map_*`` and ``experimental.map_*`` settings, no defaults
+    here: ``service.engine.config.map_config`` builds it; times in s, speeds in rpm).
 
     window_s: the rolling window of recent data each fit uses (60 min measured, docs/design/hmap.md);
     min_window_s: the shortest window fitted (a cold start waits this long);
@@ -66,18 +69,18 @@ class MapConfig:
     prior_level_sd: σ of the cold prior's overall ln H level per zone (``model.hmap.Family.prior``).
     """
 
-    window_s: float = 3600.0
-    min_window_s: float = 600.0
-    debounce_s: float = 60.0
-    refit_s: float = 600.0
-    fresh_s: float = 900.0
-    margin_rpm: float = 500.0
-    min_visit_s: float = 60.0
-    bin_rpm: float = 50.0
-    tau_h: float = 4.0
-    family: Literal["nodes", "physics"] = "nodes"
-    prior_weight: float = 0.25
-    prior_level_sd: float = 0.0
+    window_s: float
+    min_window_s: float
+    debounce_s: float
+    refit_s: float
+    fresh_s: float
+    margin_rpm: float
+    min_visit_s: float
+    bin_rpm: float  # MAP_BIN_RPM
+    tau_h: float
+    family: Literal["nodes", "physics"]
+    prior_weight: float
+    prior_level_sd: float
 
     def __post_init__(self) -> None:
         for name in ("window_s", "min_window_s", "refit_s", "fresh_s", "bin_rpm", "tau_h"):

@@ -24,7 +24,15 @@ import numpy as np
 from drivers.quality import usable
 from service.errors import ServiceError
 
-__all__ = ["InsufficientWindowError", "RawWindow", "WindowArrays", "WindowRules", "resample_window"]
+__all__ = [
+    "MAX_GAP_S",
+    "MIN_GOOD_FRACTION",
+    "InsufficientWindowError",
+    "RawWindow",
+    "WindowArrays",
+    "WindowRules",
+    "resample_window",
+]
 
 
 class InsufficientWindowError(ServiceError, ValueError):
@@ -35,15 +43,23 @@ class InsufficientWindowError(ServiceError, ValueError):
         self.reason = reason
 
 
+# a channel with a smaller fraction of good points in a window is masked (no settings key)
+MIN_GOOD_FRACTION = 0.8
+# the longest run of missing/bad points of a channel that is interpolated, s (no settings key)
+MAX_GAP_S = 300.0
+
+
 @dataclass(frozen=True, kw_only=True)
 class WindowRules:
-    """What counts as enough data; times in s."""
+    """What counts as enough data; times in s. From the settings (``acquisition.sample_period_s``,
+    ``identification.min_window_s``, ``identification.min_good_channels``) and this module's constants (no
+    defaults here: ``service.engine.config.core_config`` builds it)."""
 
-    dt_s: float = 10.0
-    min_window_s: float = 600.0
-    min_good_channels: int = 24
-    min_good_fraction: float = 0.8
-    max_gap_s: float = 300.0  # longest run of missing/bad points of a channel that is interpolated
+    dt_s: float
+    min_window_s: float
+    min_good_channels: int
+    min_good_fraction: float  # MIN_GOOD_FRACTION
+    max_gap_s: float  # longest run of missing/bad points of a channel that is interpolated (MAX_GAP_S)
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)

@@ -41,7 +41,6 @@ import numpy as np
 import numpy.typing as npt
 
 from service.contracts.outcome import Outcome
-from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD
 from service.errors import ServiceError
 from service.estimate.live import LiveStateError
 from service.identify.window import InsufficientWindowError, WindowArrays
@@ -82,17 +81,18 @@ class JobRequest:
     window: WindowArrays
     t0_c: float | np.ndarray  # uniform °C or (N,) initial field at window.times_s[0]
     warm_start: tuple[float, ...] | None
-    method: str = "hybrid"
-    seed: int = 0
-    estimate_loads: bool = False
+    # from the core's configuration (experimental.method, seed, ...; no defaults here)
+    method: str
+    seed: int
+    estimate_loads: bool
     estimate_t0_shift: bool = False  # fit a uniform offset of t0_c too
-    carry_start_error: bool = CARRY_START_ERROR  # CIs carry the start field's error (start_cov)
+    carry_start_error: bool  # CIs carry the start field's error (start_cov)
     # (r, r) °C² covariance of t0_c's error in reduced coordinates: the filtered live state's at the window
     # start (None: exact)
     start_cov: np.ndarray | None = None
-    start_modes: int = 0  # fit the start's leading uncertain directions too (IdentifyOptions.start_modes)
-    time_budget_s: float | None = None
-    ci_threshold: float = CI_REL_THRESHOLD  # 95 % half-width of log H above which an H is not identified
+    start_modes: int  # fit the start's leading uncertain directions too (IdentifyOptions.start_modes)
+    time_budget_s: float | None
+    ci_threshold: float  # 95 % half-width of log H above which an H is not identified
     offsets_c: np.ndarray | None = None  # (32,) °C sensor offsets to subtract (service.acquire.calibration)
     offset_sd_c: np.ndarray | None = None  # (32,) °C 1σ of the offsets still unknown, carried in the CIs
     # speed-map mode (docs/design/hmap.md): fit H = F(n, Ti) with this prior instead of one H for the window

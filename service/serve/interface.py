@@ -78,14 +78,14 @@ class ChtcService(Protocol):
 
     def chtc_map(self) -> ChtcMapSnapshot | None:
         """The H map over the speed range with its bands and the visited speeds; None when the service runs
-        per condition (``experimental.mode = "per_condition"``) or no map has been fitted yet. Cheap (a
+        per condition (``identification.mode = "per_condition"``) or no map has been fitted yet. Cheap (a
         prebuilt snapshot per map fit and ambient)."""
         ...
 
     def identification_mode(self) -> IdentificationMode:
         """``PER_CONDITION`` (the paper's protocol: one H per held condition), ``SPEED_MAP`` (H = F(n, Ti)
         over the speed range, ``chtc_map()``) or ``COMBINED`` (both: the per-condition H at a held condition,
-        the map's elsewhere); fixed for the service's life (``experimental.mode``; a ``str`` enum whose
+        the map's elsewhere); fixed for the service's life (``identification.mode``; a ``str`` enum whose
         values are the settings' spelling)."""
         ...
 

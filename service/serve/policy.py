@@ -45,15 +45,14 @@ __all__ = [
 
 @dataclass(frozen=True, kw_only=True)
 class CompensationLimits:
-    """The settings ``[compensation]`` (docs/configuration.md)."""
+    """The settings ``[compensation]`` (docs/configuration.md; no defaults here:
+    ``service.engine.config.compensation_limits`` builds it)."""
 
-    max_ci95_um: float = 2.0  # the growth's 95 % CI half-width the controller tolerates [µm]
-    max_identification_age_min: float = 1440.0  # the H in use identified at most this long ago [min]
-    max_open_loop_min: float = 10.0  # DAQ down, CAN alive: usable open loop for at most this long [min]
-    # not usable before a commissioning of the mechanics (``mechanics_uncalibrated``); the settings'
-    # default is true (docs/design/policy.md), the pure default keeps the rule off for callers that judge the
-    # growth alone
-    require_mechanics_calibration: bool = False
+    max_ci95_um: float  # the growth's 95 % CI half-width the controller tolerates [µm]
+    max_identification_age_min: float  # the H in use identified at most this long ago [min]
+    max_open_loop_min: float  # DAQ down, CAN alive: usable open loop for at most this long [min]
+    # not usable before a commissioning of the mechanics (``mechanics_uncalibrated``; docs/design/policy.md)
+    require_mechanics_calibration: bool
 
 
 class LiveLike(Protocol):

@@ -1,4 +1,4 @@
-"""Seeded machining duty cycles for the virtual plant (``chtc bench duty``, the map-mode tests).
+"""Seeded machining duty cycles for the virtual plant (``python -m benchmarks duty``, the map-mode tests).
 
 A duty cycle: ``idle_s`` at rest (the offset baseline's rest), then until ``duration_s`` the speed changes
 every 1–6 min (whole minutes) among 0, 500, …, 7000 rpm (never the same twice in a row), torque 3–15 N·m (0 at

@@ -1,4 +1,4 @@
-"""Seeded random smooth truths H(speed) for the virtual plant (``chtc bench compensation``).
+"""Seeded random smooth truths H(speed) for the virtual plant (``python -m benchmarks compensation``).
 
 Per zone i, with x = 2·n/7000 − 1 the speed n [rpm] scaled to [−1, 1] (clamped outside 0–7000 rpm)::
 

@@ -50,7 +50,8 @@ if TYPE_CHECKING:
 
 __all__ = ["AHEAD_S", "PROCESS_NAME", "RigPlan", "RigProcess", "RigProcessError"]
 
-# the child's name in ps, top and /proc/PID/comm (Linux), so that ``chtc bench api`` tells its CPU apart
+# the child's name in ps, top and /proc/PID/comm (Linux), so that ``python -m benchmarks api`` tells its CPU
+# apart
 PROCESS_NAME = "chtc-rig"
 # plant seconds computed ahead of the plant time served: a chunk is computed when less than this is left
 AHEAD_S = 900.0

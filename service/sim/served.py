@@ -1,11 +1,11 @@
-"""The real soft sensor, served from a virtual-plant run: for the API tests, ``chtc bench api`` and the
-fuzzing server.
+"""The real soft sensor, served from a virtual-plant run: for the API tests, ``python -m benchmarks api`` and
+the fuzzing server.
 
 ``served_service(database_url=..., plan=...)`` builds the service as ``service.engine.runtime.Runtime`` does
 (the real ``ServiceCore`` and ``SoftSensorService``, the model from the ROM cache, a real database through
 ``open_persistence``: SQLite in a temporary directory in the tests) and runs its asyncio shell on a loop in a
 background thread. Only the devices differ: instead of the acquisition polling drivers, :func:`feed` hands it
-the samples of a ``model.plant.VirtualPlant`` run (``service.sim.logsamples.samples_from_plant``), and the
+the samples of a ``model.plant.VirtualPlant`` run (``service.sim.plantsamples.samples_from_plant``), and the
 identification worker is :class:`InlineWorker` (the shell's ``Worker`` protocol), the worker process's job
 function ``service.identify.worker.run_job`` in a thread of this process (no second process, same seeded
 result, the same job->outcome mapping), so a fed sample's identification is recorded before :func:`feed`
@@ -45,7 +45,7 @@ from service.errors import ServiceError
 from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
-from service.sim.logsamples import samples_from_plant
+from service.sim.plantsamples import samples_from_plant
 
 __all__ = [
     "DEMO_FED",

@@ -222,7 +222,7 @@ def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dic
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
     from service.sim.duty import duty_profile
-    from service.sim.logsamples import samples_from_plant
+    from service.sim.plantsamples import samples_from_plant
 
     z95 = 1.959963984540054
     settings = Settings()

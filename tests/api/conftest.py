@@ -66,7 +66,7 @@ LENIENT_IDENTIFICATION = {"ci_rel_threshold": LENIENT_CI, "offset_calibration": 
 # Speed-map mode (issue 17, docs/design/hmap.md) on a seeded duty cycle (service.sim.duty: 5 min at rest, then
 # the speed changes every 1-6 min): the first map fit comes after experimental.map_min_window_min (10 min) of
 # data, re-fits follow the changes. The first MAP_FED samples (26.7 min) give several fits.
-MAP_MODE = Settings(experimental={"mode": "speed_map"})
+MAP_MODE = Settings(identification={"mode": "speed_map"})
 MAP_PLAN = Plan(profile=tuple(duty_profile(7, duration_s=1800.0)))
 MAP_FED = 160
 
@@ -87,7 +87,7 @@ def served(tmp_path: Path) -> Iterator[Served]:
     """The demo plan's first 22 min (3000 rpm, then 4000 rpm, 11 min each) fed through the real service: two
     identifications (ids 1 and 2, one per condition), condition 2 current, fresh, no H identified (default CI
     threshold); ``served.feed_next()`` feeds up to 30 more samples at 4000 rpm."""
-    demo = Settings(identification=DEMO_WINDOWS, experimental=PER_CONDITION)
+    demo = Settings(identification={**DEMO_WINDOWS, **PER_CONDITION})
     with served_service(database_url=sqlite_url(tmp_path), settings=demo, feed_samples=DEMO_FED) as s:
         yield s
 
@@ -98,7 +98,7 @@ def served_ro(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     validation, the OpenAPI document): built once for tests/api and closed after its last test (session
     scope kept its database writer probing through every later package: test_logctx saw its SQL)."""
     url = sqlite_url(tmp_path_factory.mktemp("served-ro"))
-    demo = Settings(identification=DEMO_WINDOWS, experimental=PER_CONDITION)
+    demo = Settings(identification={**DEMO_WINDOWS, **PER_CONDITION})
     with served_service(database_url=url, settings=demo, feed_samples=DEMO_FED) as s:
         yield s
 
@@ -189,7 +189,7 @@ def served_db_down(tmp_path: Path) -> Iterator[Served]:
     (tmp_path / "a-directory").mkdir()
     url = sqlite_url(tmp_path, "a-directory")
     demo = Settings(
-        identification=DEMO_WINDOWS, experimental=PER_CONDITION
+        identification={**DEMO_WINDOWS, **PER_CONDITION}
     )  # per condition: the two identifications it holds
     with served_service(database_url=url, settings=demo, feed_samples=DEMO_FED) as s:
         yield s

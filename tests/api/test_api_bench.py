@@ -9,7 +9,7 @@ from collections.abc import Iterator
 import pytest
 
 from api.app import create_app
-from service.bench.api import RawClient, _load, histogram_quantile
+from benchmarks._api_load import RawClient, _load, histogram_quantile
 from service.settings import Settings
 from service.sim.served import Served
 from tests.api.conftest import LiveServer
@@ -51,7 +51,7 @@ def test_histogram_quantile_interpolates_like_prometheus() -> None:
 def test_field_phase_loads_chtc_mesh_and_points_together(server: LiveServer) -> None:
     import argparse
 
-    from service.bench.api import field_phase
+    from benchmarks.api import field_phase
 
     args = argparse.Namespace(runs=1, duration=1.0, rate=20.0, clients=2, mesh_rate=2.0, points_rate=10.0)
     out = field_phase(server.url, args)

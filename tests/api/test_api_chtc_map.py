@@ -151,8 +151,8 @@ def test_per_condition_mode_answers_404_naming_the_setting(ro_client: TestClient
     assert r.status_code == 404
     err = r.json()["error"]
     assert err["code"] == "not_found"
-    assert "experimental.mode is per_condition" in err["message"]
-    assert 'experimental.mode = "speed_map"' in err["message"]
+    assert "identification.mode is per_condition" in err["message"]
+    assert 'identification.mode = "speed_map"' in err["message"]
     assert "etag" not in r.headers
 
 

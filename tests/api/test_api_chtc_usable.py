@@ -21,7 +21,7 @@ from tests.modes import PER_CONDITION
 @pytest.fixture
 def lenient(tmp_path: Path) -> Iterator[tuple[Served, TestClient]]:
     """The demo plan with a CI threshold under which the newest identification has every H identified."""
-    settings = Settings(identification=LENIENT_IDENTIFICATION, experimental=PER_CONDITION)
+    settings = Settings(identification={**LENIENT_IDENTIFICATION, **PER_CONDITION})
     with (
         served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED) as s,
         TestClient(create_app(settings, s.service, clock=s.clock)) as c,

@@ -27,11 +27,12 @@ from service.engine.runtime import core_config
 from service.engine.shell import SoftSensorService
 from service.estimate.growth import build_context, condition_terms, estimate_growth
 from service.modelload import LoadedModel
-from service.serve.policy import CompensationLimits, compensation_verdict
+from service.serve.policy import compensation_verdict
 from service.settings import Settings
 from service.sim.served import ManualClock, served_service
 from tests.api.conftest import MAP_MODE, LiveServer, served_map_mode, sqlite_url
 from tests.api.test_api_dashboard import _chromium
+from tests.engine_config import product_limits
 from tests.modes import per_condition
 
 
@@ -139,7 +140,10 @@ def test_the_verdict_is_the_policys_on_the_growth_and_goes_stale_when_data_stop(
     snap = served.svc.compensation()
     assert snap is not None
     lo, hi = comp["axial"]["ci95_um"]
-    limits = CompensationLimits()
+    # the served service's limits: [compensation]'s defaults, without the mechanics rule on the simulator's
+    # plant (service.sim.served: its mechanics match the spindle description)
+    limits = served.svc.growth.limits
+    assert limits == dataclasses.replace(product_limits(), require_mechanics_calibration=False)
     expected = compensation_verdict(
         served.svc.view,
         served.clock(),
@@ -283,12 +287,12 @@ def test_section_is_the_live_fields_displacement_of_every_parts_outline(served: 
 
 
 def test_the_reference_temperature_is_a_setting(tmp_path: Path, served: Served) -> None:
-    """``growth.reference_c``: the growth over a uniform 20 °C (a "config" zero, 1σ 0) instead of the
+    """``compensation.reference_c``: the growth over a uniform 20 °C (a "config" zero, 1σ 0) instead of the
     provisional one. Linear: it differs from the provisional by Σg·(T_prov − 20) at the nose, and its CI
     lacks the provisional zero's 1σ."""
     default = served.client.get("/api/v1/compensation").json()
     assert default["reference"] is None and default["usable_for_compensation"] is False
-    settings = per_condition(Settings(growth={"reference_c": 20.0}))  # type: ignore[arg-type]  # as ``served``
+    settings = per_condition(Settings(compensation={"reference_c": 20.0}))  # type: ignore[arg-type]  # as ``served``
     with served_service(database_url=sqlite_url(tmp_path), settings=settings) as s:
         client = TestClient(create_app(settings, s.service, clock=s.clock))
         body = client.get("/api/v1/compensation").json()

@@ -36,7 +36,7 @@ from tests.api.conftest import (
 from tests.modes import PER_CONDITION
 
 # the newest identification has all seven H identified: the banner then names only a case's own cause
-LENIENT = Settings(identification=LENIENT_IDENTIFICATION, experimental=PER_CONDITION)
+LENIENT = Settings(identification={**LENIENT_IDENTIFICATION, **PER_CONDITION})
 
 CHROMIUM_FLAGS = [
     "--headless",
@@ -474,7 +474,7 @@ def test_the_first_screen_at_1400x1000_is_the_compensation_as_served(
     """At 1400×1000, without scrolling: the growth to correct with its 95 % CI, whether it may be applied
     and, when not, why and what to do; the one status there is the one /compensation serves, and the H card
     shows /chtc's (each card the API's own, never the page's)."""
-    settings = LENIENT if lenient else Settings(identification=DEMO_WINDOWS, experimental=PER_CONDITION)
+    settings = LENIENT if lenient else Settings(identification={**DEMO_WINDOWS, **PER_CONDITION})
     s = served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=DEMO_FED)
     with s, _server(s) as server:  # a 1400×1000 viewport (the window's own is smaller by its frame)
         page.call(

@@ -92,7 +92,7 @@ def test_post_while_the_model_loads_is_503_then_accepted(tmp_path: Path) -> None
     # a manual job needs min_window_s of the condition's data; no scheduled job (it would wait for the model);
     # per-condition mode: a manual map fit would need map_min_window_min (10 min) of data instead
     ident = {"min_window_s": 120.0, "schedule_min": (30.0,)}
-    settings = Settings(identification=ident, experimental=PER_CONDITION)
+    settings = Settings(identification={**ident, **PER_CONDITION})
     with served_service(database_url=sqlite_url(tmp_path), settings=settings, loading=True) as s:
         s.feed_next(20)  # 200 s of the first condition: only the loading model stands in the way
         app = create_app(Settings(api={"token": WRITE_TOKEN}), s.service, clock=s.clock)

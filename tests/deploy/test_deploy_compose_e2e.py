@@ -11,7 +11,7 @@ healthcheck pass; the API token from the ``.env`` is the one the service accepts
 the end.
 
 The only deviation from the compose file is the identification timing (``TRIAL_TIMING``), for either
-``experimental.mode``: the shipped per-condition schedule identifies 7 min after a condition change on 7 min
+``identification.mode``: the shipped per-condition schedule identifies 7 min after a condition change on 7 min
 of data, the speed map fits first after 10 min of data; the test asks for 45 s (1-s samples: 45 of them, 30
 needed) so that it ends in a few minutes (it asked for 90 s of 2-s samples: 45 s more of the run). The plant
 still runs in real time, as in the compose file. The mode is the settings' default (the compose file does not

@@ -28,9 +28,9 @@ class Condition:
 @pytest.fixture(scope="session")
 def model() -> Any:
     from service.modelload import ModelRef, load_model
-    from service.settings import default_cache_dir
+    from service.settings import Settings
 
-    return load_model(ModelRef(cache_dir=str(default_cache_dir())))
+    return load_model(ModelRef.from_settings(Settings()))  # the product's model
 
 
 @pytest.fixture(scope="session")

@@ -1,4 +1,5 @@
-"""Smoke test of ``chtc bench identify`` with one seed everywhere (the benchmark itself is not a test)."""
+"""Smoke test of ``python -m benchmarks identify`` with one seed everywhere (the benchmark itself is not a
+test)."""
 
 from __future__ import annotations
 
@@ -6,13 +7,12 @@ import json
 
 import pytest
 
-from service.cli import main
+from benchmarks.cli import main
 
 
 @pytest.mark.slow
 def test_bench_identify_json_shape(capsys: pytest.CaptureFixture[str]) -> None:
     args = [
-        "bench",
         "identify",
         "--json",
         "--seeds",
@@ -43,7 +43,7 @@ def test_bench_identify_json_shape(capsys: pytest.CaptureFixture[str]) -> None:
 def test_bench_identify_tables_without_28x150_print_every_target(capsys: pytest.CaptureFixture[str]) -> None:
     """Without ``--json`` and with ``--skip-28x150`` the tables used to crash (TypeError on the skipped
     figure); now every target is printed with its verdict, the skipped one as not measured."""
-    args = ["bench", "identify", "--seeds", "1", "--ci-seeds", "1", "--warm-seeds", "1", "--skip-28x150"]
+    args = ["identify", "--seeds", "1", "--ci-seeds", "1", "--warm-seeds", "1", "--skip-28x150"]
     assert main(args) == 0
     out = capsys.readouterr().out
     assert "IGWO 28x150 on the reduced model: skipped" in out

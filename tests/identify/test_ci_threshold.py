@@ -12,8 +12,8 @@ import argparse
 import numpy as np
 import pytest
 
+from benchmarks.identify import _load, _noisy
 from model.identify import IdentifyOptions, identify
-from service.bench.identify import _load, _noisy
 
 pytestmark = pytest.mark.slow
 

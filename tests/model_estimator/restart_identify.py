@@ -6,9 +6,9 @@ restart time, off by a 20 % draw), over ``--seeds`` noise seeds: median |H error
 seeds covering all seven and the median CI half-width, for windows started from (a) the plant's true field
 (interpolated onto the service mesh: the best possible start) and (b) the filter's mean with its covariance
 as ``start_cov``. Run: ``OPENBLAS_NUM_THREADS=1 python -m tests.model_estimator.restart_identify --seeds 10``
-(~1 min per lead time and window). Superseded by ``chtc bench restart --mode filter`` (the whole restart
-profile through ``service.estimate.state.FilteredState``; docs/design/estimator.md, "Identification after a
-restart"); this script's 2026-11-23 figures (rank-30 θ-step model) are in that page's git history.
+(~1 min per lead time and window). Superseded by ``python -m benchmarks restart --mode filter`` (the whole
+restart profile through ``service.estimate.state.FilteredState``; docs/design/estimator.md, "Identification
+after a restart"); this script's 2026-11-23 figures (rank-30 θ-step model) are in that page's git history.
 """
 
 from __future__ import annotations

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from model.fe_check import mesh_study
+from benchmarks.studies.fe_check import mesh_study
 from model.geometry import Region
 from model.mesh import MeshError, graded_axis, rect_mesh
 

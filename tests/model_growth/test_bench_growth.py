@@ -1,11 +1,12 @@
-"""``chtc bench growth``: its duty profile and its registration (the bench itself is run by hand)."""
+"""``python -m benchmarks growth``: its duty profile and its registration (the bench itself is run by
+hand)."""
 
 from __future__ import annotations
 
 import numpy as np
 
-from service.bench.growth import CHAIN, DT_S, _Rows, duty_profile, summarise
-from service.cli import build_parser
+from benchmarks.cli import build_parser
+from benchmarks.growth import CHAIN, DT_S, _Rows, duty_profile, summarise
 
 
 def test_duty_profile_is_seeded_and_in_range() -> None:
@@ -33,14 +34,12 @@ def test_summary_of_rows() -> None:
 
 
 def test_registered_as_a_bench() -> None:
-    args = build_parser(["bench", "growth", "--seeds", "2", "--json"]).parse_args(
-        ["bench", "growth", "--seeds", "2", "--json"]
-    )
-    assert args._module.__name__ == "service.bench.growth" and args.seeds == 2 and args.json
+    args = build_parser(["growth", "--seeds", "2", "--json"]).parse_args(["growth", "--seeds", "2", "--json"])
+    assert args._module.__name__ == "benchmarks.growth" and args.seeds == 2 and args.json
     assert CHAIN[0][1] == 0.0  # starts idle and cold, like the chain bench
 
 
 def test_plant_mechanics_option_defaults_to_drawn() -> None:
-    parse = build_parser(["bench", "growth"]).parse_args
-    assert parse(["bench", "growth"]).plant_mechanics == "drawn"
-    assert parse(["bench", "growth", "--plant-mechanics", "nominal"]).plant_mechanics == "nominal"
+    parse = build_parser(["growth"]).parse_args
+    assert parse(["growth"]).plant_mechanics == "drawn"
+    assert parse(["growth", "--plant-mechanics", "nominal"]).plant_mechanics == "nominal"

@@ -5,8 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.studies.growth_check import mesh_study
 from model.geometry import Region, SpindleSpec
-from model.growth_check import mesh_study
 from model.mesh import rect_mesh
 from model.thermoelastic import ElasticProperties, assemble_elasticity, make_solver
 

@@ -5,9 +5,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.studies.growth_check import AMBIENT_C, steady_field
 from model.fem import FEModel
 from model.geometry import SpindleSpec, spec_from_dict
-from model.growth_check import AMBIENT_C, steady_field
 from model.plant import VirtualPlant
 from model.plantmech import (
     ALPHA_REL,
@@ -142,7 +142,7 @@ def test_alpha_factors_scale_the_growth_proportionally(
 
 
 def test_bench_plant_draws_per_seed_or_keeps_the_nominal(spec: SpindleSpec) -> None:
-    from service.bench.compensation_run import Plant
+    from benchmarks.compensation_run import Plant
 
     drawn, nominal = Plant(spec), Plant(spec, mechanics="nominal")
     assert drawn.mechanics(7) == mechanics_for_seed(7) != drawn.mechanics(8)

@@ -8,9 +8,9 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks.studies.growth_path import Band, axial_1d_um, band_integral_m
 from model.fem import build_fe_model
 from model.geometry import SpindleError, load_spindle, spec_from_dict
-from model.growth_path import Band, axial_1d_um, band_integral_m
 from model.thermoelastic import ThermoelasticError, build_growth_model
 from tests.model_growth.conftest import packaged_doc
 
@@ -106,7 +106,7 @@ def test_band_integral_of_a_linear_rise(spec) -> None:  # type: ignore[no-untype
 
 
 def test_section_sketch_marks_mount_floating_surface_and_outputs(spec) -> None:  # type: ignore[no-untyped-def]
-    from model.growth_check import section_sketch
+    from benchmarks.studies.growth_check import section_sketch
 
     text = section_sketch(spec)
     assert text.count("*") == len(spec.mechanics.outputs)
@@ -115,7 +115,7 @@ def test_section_sketch_marks_mount_floating_surface_and_outputs(spec) -> None: 
 
 
 def test_bench_model_growth_figures(spec) -> None:  # type: ignore[no-untyped-def]
-    from service.bench.model import _growth_figures
+    from benchmarks.model import _growth_figures
 
     res = _growth_figures(build_fe_model(spec, mesh_size_m=0.005), spec)
     assert res["growth_outputs"][0] == "nose_axial"

@@ -1,11 +1,11 @@
-"""The MLR peer (model.mlr) on synthetic data."""
+"""The MLR peer (benchmarks.studies.mlr) on synthetic data."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from model.mlr import MlrError, fit_mlr, select_sensors
+from benchmarks.studies.mlr import MlrError, fit_mlr, select_sensors
 
 
 def _groups(rng: np.random.Generator, n: int = 400) -> tuple[np.ndarray, list[list[int]]]:

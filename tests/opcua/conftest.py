@@ -117,7 +117,7 @@ def opcua_settings(
         **kw,
     }
     # no [opcua] spindle: the NodeIds follow the spindle's id (ns=2;s=Spindle1.…, as the Node peer reads them)
-    return Settings(opcua=cfg, growth={"reference_c": 20.0}, spindle={"id": "Spindle1"})  # type: ignore[arg-type]
+    return Settings(opcua=cfg, compensation={"reference_c": 20.0}, spindle={"id": "Spindle1"})  # type: ignore[arg-type]
 
 
 @dataclass

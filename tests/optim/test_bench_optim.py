@@ -1,4 +1,4 @@
-"""Smoke test of ``chtc bench optim`` at a tiny budget (the benchmark itself is not a test)."""
+"""Smoke test of ``python -m benchmarks optim`` at a tiny budget (the benchmark itself is not a test)."""
 
 from __future__ import annotations
 
@@ -6,13 +6,12 @@ import json
 
 import pytest
 
-from service.cli import main
+from benchmarks.cli import main
 
 
 def test_bench_optim_json_has_every_method_and_a_verdict(capsys: pytest.CaptureFixture[str]) -> None:
     rc = main(
         [
-            "bench",
             "optim",
             "--json",
             "--seeds",

@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from model.optim import benchfuncs as bf
+from benchmarks.studies import benchfuncs as bf
 
 
 @pytest.mark.parametrize("name", bf.NAMES)

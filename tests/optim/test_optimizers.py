@@ -8,8 +8,8 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks.studies import benchfuncs as bf
 from model.optim import BoundsError, ObjectiveError, OptimizeResult, genetic, grey_wolf, whale
-from model.optim import benchfuncs as bf
 from model.optim.grey_wolf import igwo_weights, perturbation_probability
 
 Solver = Callable[..., OptimizeResult]

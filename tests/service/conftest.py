@@ -15,7 +15,7 @@ from model.geometry import load_spindle
 from model.plant import PlantRun, Segment, VirtualPlant
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
-from service.sim.logsamples import samples_from_plant
+from service.sim.plantsamples import samples_from_plant
 
 T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
 

@@ -12,14 +12,14 @@ import sys
 
 import numpy as np
 
+from benchmarks.chain import T0
 from model.plant import Segment, VirtualPlant
-from service.bench.chain import T0
 from service.engine.growthserve import GrowthServer
 from service.engine.offline import run_offline
 from service.engine.runtime import core_config
 from service.modelload import ModelRef, load_model
 from service.settings import Settings
-from service.sim.logsamples import samples_from_plant
+from service.sim.plantsamples import samples_from_plant
 
 
 def main(seed: int, offsets: bool) -> dict[str, object]:

@@ -1,4 +1,5 @@
-"""``chtc bench api``'s live bench (issue 30): its pure helpers, and the CPU hog it starts and kills."""
+"""``python -m benchmarks api``'s live bench (issue 30): its pure helpers, and the CPU hog it starts and
+kills."""
 
 from __future__ import annotations
 
@@ -6,7 +7,7 @@ import argparse
 
 import pytest
 
-from service.bench.api_live import (
+from benchmarks.api_live import (
     add_arguments,
     classify,
     cpu_hog,

@@ -1,4 +1,5 @@
-"""``chtc bench chain``: its summary arithmetic, and a one-seed run of the command (shape and sanity)."""
+"""``python -m benchmarks chain``: its summary arithmetic, and a one-seed run of the command (shape and
+sanity)."""
 
 from __future__ import annotations
 
@@ -7,8 +8,8 @@ import json
 import numpy as np
 import pytest
 
-from service.bench.chain import summarise
-from service.cli import main
+from benchmarks.chain import summarise
+from benchmarks.cli import main
 
 
 def test_summarise_per_h_over_seeds() -> None:
@@ -28,7 +29,7 @@ def test_summarise_per_h_over_seeds() -> None:
 @pytest.mark.slow
 @pytest.mark.parametrize("mode", ["per_condition", "speed_map"])
 def test_bench_chain_one_seed(mode: str, capsys: pytest.CaptureFixture[str]) -> None:
-    assert main(["bench", "chain", "--seeds", "1", "--mode", mode, "--json"]) == 0
+    assert main(["chain", "--seeds", "1", "--mode", mode, "--json"]) == 0
     out = json.loads(capsys.readouterr().out)
     assert out["synthetic"] is True and out["mode"] == mode
     assert out["window_min"] == (40 if mode == "per_condition" else 60)
@@ -37,6 +38,6 @@ def test_bench_chain_one_seed(mode: str, capsys: pytest.CaptureFixture[str]) -> 
         assert c["seeds"] == 1 and len(c["h_err_pct_median"]) == 7
         assert all(0.0 <= x <= 1.0 for x in c["ci_coverage"])
         assert min(c["h_err_pct_median"]) < 15.0  # the best-determined H (H6) is close to the truth
-    assert main(["bench", "chain", "--seeds", "0"]) == 2
-    assert main(["bench", "chain", "--set", "map_window_min=5"]) == 2  # < map_min_window_min
+    assert main(["chain", "--seeds", "0"]) == 2
+    assert main(["chain", "--set", "map_window_min=5"]) == 2  # < map_min_window_min
     assert "map_min_window_min" in capsys.readouterr().err

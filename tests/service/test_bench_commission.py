@@ -1,5 +1,5 @@
-"""``chtc bench commission``: the pooled figures from hand-made rows, and one short seed end to end (thermal
-test, commissioning, MLR, duty cycle through the service's core)."""
+"""``python -m benchmarks commission``: the pooled figures from hand-made rows, and one short seed end to end
+(thermal test, commissioning, MLR, duty cycle through the service's core)."""
 
 from __future__ import annotations
 
@@ -9,8 +9,8 @@ import math
 import numpy as np
 import pytest
 
-from service.bench import commission as bc
-from service.cli import main
+from benchmarks import commission as bc
+from benchmarks.cli import main
 
 
 def _row(seed: int, cal: list[float], mlr: list[float]) -> dict:
@@ -68,7 +68,7 @@ def test_summary_pools_seeds_and_ratios_per_seed() -> None:
 
 @pytest.mark.slow
 def test_one_short_seed_end_to_end(capsys: pytest.CaptureFixture[str]) -> None:
-    argv = ["bench", "commission", "--seeds", "1", "--short", "--hours", "1", "--rest-min", "10"]
+    argv = ["commission", "--seeds", "1", "--short", "--hours", "1", "--rest-min", "10"]
     argv += ["--probe-min", "20", "--json"]
     assert main(argv) == 0
     out = json.loads(capsys.readouterr().out)

@@ -1,5 +1,6 @@
-"""``chtc bench compensation``: the random truths, the figures from hand-made minute rows, the reason adapter,
-the timeline, and one short seed through the real service (plant, shell, core, inline identification)."""
+"""``python -m benchmarks compensation``: the random truths, the figures from hand-made minute rows, the
+reason adapter, the timeline, and one short seed through the real service (plant, shell, core, inline
+identification)."""
 
 from __future__ import annotations
 
@@ -9,9 +10,9 @@ from types import SimpleNamespace
 import numpy as np
 import pytest
 
+from benchmarks import compensation as cb
+from benchmarks.compensation_run import Minute, Plan, SeedRows, plan_for, reason_code
 from model.plant import h_true
-from service.bench import compensation as cb
-from service.bench.compensation_run import Minute, Plan, SeedRows, plan_for, reason_code
 from service.sim.randomtruth import H_BOX, draw_truth
 
 SPEEDS = np.linspace(0.0, 7000.0, 701)
@@ -231,20 +232,20 @@ def test_one_short_seed_through_the_service() -> None:
 
 
 def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFixture[str]) -> None:
-    from service import cli
+    from benchmarks import cli
 
     with pytest.raises(SystemExit):
-        cli.main(["bench", "compensation", "--help"])
+        cli.main(["compensation", "--help"])
     assert "--hours" in capsys.readouterr().out
-    assert cli.main(["bench", "compensation", "--seeds", "0"]) == 2
-    assert cli.main(["bench", "compensation", "--hours", "0.5"]) == 2
+    assert cli.main(["compensation", "--seeds", "0"]) == 2
+    assert cli.main(["compensation", "--hours", "0.5"]) == 2
 
 
 def test_plant_mechanics_option_defaults_to_drawn() -> None:
-    from service import cli
+    from benchmarks import cli
 
-    parse = cli.build_parser(["bench", "compensation"]).parse_args
-    assert parse(["bench", "compensation"]).plant_mechanics == "drawn"
-    assert parse(["bench", "compensation", "--plant-mechanics", "nominal"]).plant_mechanics == "nominal"
+    parse = cli.build_parser(["compensation"]).parse_args
+    assert parse(["compensation"]).plant_mechanics == "drawn"
+    assert parse(["compensation", "--plant-mechanics", "nominal"]).plant_mechanics == "nominal"
     with pytest.raises(SystemExit):
-        parse(["bench", "compensation", "--plant-mechanics", "random"])
+        parse(["compensation", "--plant-mechanics", "random"])

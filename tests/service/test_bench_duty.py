@@ -1,6 +1,6 @@
-"""``chtc bench duty``: one short seed through the real service (shell, core, inline identification), the
-aggregation and the command's registration (the full bench is a measurement; docs/design/hmap.md has its
-figures)."""
+"""``python -m benchmarks duty``: one short seed through the real service (shell, core, inline
+identification), the aggregation and the command's registration (the full bench is a measurement;
+docs/design/hmap.md has its figures)."""
 
 from __future__ import annotations
 
@@ -9,7 +9,7 @@ import itertools
 import numpy as np
 import pytest
 
-from service.bench import duty
+from benchmarks import duty
 from service.sim.duty import SPEEDS_RPM, condition_at, duty_profile
 
 
@@ -60,10 +60,10 @@ def test_one_short_seed_through_the_service_in_map_mode() -> None:
 
 
 def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFixture[str]) -> None:
-    from service import cli
+    from benchmarks import cli
 
     with pytest.raises(SystemExit):
-        cli.main(["bench", "duty", "--help"])
+        cli.main(["duty", "--help"])
     assert "--mode" in capsys.readouterr().out
-    assert cli.main(["bench", "duty", "--seeds", "0"]) == 2
-    assert cli.main(["bench", "duty", "--set", "nokey"]) == 2
+    assert cli.main(["duty", "--seeds", "0"]) == 2
+    assert cli.main(["duty", "--set", "nokey"]) == 2

@@ -1,6 +1,6 @@
-"""``chtc bench fleet``'s parts: the quantile of a scraped histogram (pure), and one short real run of two
-hosted spindles (devices process, ``chtc run`` with ``[[spindles]]``, PostgreSQL) whose figures come out
-measured, not made up. Slow: about half a minute."""
+"""``python -m benchmarks fleet``'s parts: the quantile of a scraped histogram (pure), and one short real run
+of two hosted spindles (devices process, ``chtc run`` with ``[[spindles]]``, PostgreSQL) whose figures come
+out measured, not made up. Slow: about half a minute."""
 
 from __future__ import annotations
 
@@ -8,7 +8,7 @@ from pathlib import Path
 
 import pytest
 
-from service.bench.fleet_host import p99_of, run_n, write_buckets
+from benchmarks.fleet_host import p99_of, run_n, write_buckets
 
 INF = float("inf")
 

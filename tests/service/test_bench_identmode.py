@@ -1,4 +1,4 @@
-"""``service.bench.identmode``: the identification mode and settings a bench runs with (--mode, --set)."""
+"""``benchmarks.identmode``: the identification mode and settings a bench runs with (--mode, --set)."""
 
 from __future__ import annotations
 
@@ -6,16 +6,16 @@ import argparse
 
 import pytest
 
-from service.bench import identmode
+from benchmarks import identmode
 from service.settings import Settings
 
 
 def test_the_mode_defaults_to_the_settings_and_can_be_chosen(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.delenv("CHTC_EXPERIMENTAL__MODE", raising=False)
-    assert identmode.bench_settings(None).experimental.mode == Settings().experimental.mode
+    monkeypatch.delenv("CHTC_IDENTIFICATION__MODE", raising=False)
+    assert identmode.bench_settings(None).identification.mode == Settings().identification.mode
     for mode in identmode.MODES:
         s = identmode.bench_settings(mode, {"map_min_window_min": 7, "schedule_min": [7, 20, 40]})
-        assert s.experimental.mode == mode
+        assert s.identification.mode == mode
         assert s.experimental.map_min_window_min == 7.0 and s.identification.schedule_min == (
             7.0,
             20.0,
@@ -23,9 +23,9 @@ def test_the_mode_defaults_to_the_settings_and_can_be_chosen(monkeypatch: pytest
         )
     s = identmode.bench_settings(None, {"rom_rank": 46, "experimental.seed": 3, "map_fresh_min": 20})
     assert (s.experimental.rom_rank, s.experimental.seed, s.identification.map_fresh_min) == (46, 3, 20.0)
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "speed_map")  # the environment is the settings' own
-    assert identmode.bench_settings(None).experimental.mode == "speed_map"
-    assert identmode.bench_settings("per_condition").experimental.mode == "per_condition"
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "speed_map")  # the environment is the settings' own
+    assert identmode.bench_settings(None).identification.mode == "speed_map"
+    assert identmode.bench_settings("per_condition").identification.mode == "per_condition"
 
 
 def test_bad_settings_are_named() -> None:

@@ -1,5 +1,5 @@
-"""``chtc bench model`` times the full FE and the reduced model in turns and reports the median of the
-per-turn ratios (issue 15: a load change between the two sides no longer biases the speed-up)."""
+"""``python -m benchmarks model`` times the full FE and the reduced model in turns and reports the median of
+the per-turn ratios (issue 15: a load change between the two sides no longer biases the speed-up)."""
 
 from __future__ import annotations
 
@@ -8,10 +8,10 @@ import statistics
 
 import pytest
 
+from benchmarks.model import _speed_figures
 from model.fem import build_fe_model
 from model.geometry import load_spindle
 from model.rom import build_rom
-from service.bench.model import _speed_figures
 
 
 @pytest.fixture(scope="module")

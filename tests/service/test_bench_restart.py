@@ -1,5 +1,5 @@
-"""``chtc bench restart``: the aggregation over seeds and the command's registration (the full bench is a
-measurement; docs/design/estimator.md has its figures)."""
+"""``python -m benchmarks restart``: the aggregation over seeds and the command's registration (the full bench
+is a measurement; docs/design/estimator.md has its figures)."""
 
 from __future__ import annotations
 
@@ -8,11 +8,11 @@ from typing import Any
 import numpy as np
 import pytest
 
+from benchmarks import restart
+from benchmarks.restart import Served
+from benchmarks.restart_filter import FilterRestart
+from benchmarks.restart_profile import DT_S
 from model.plant import Segment
-from service.bench import restart
-from service.bench.restart import Served
-from service.bench.restart_filter import FilterRestart
-from service.bench.restart_profile import DT_S
 from service.engine.runtime import core_config
 from service.modelload import LoadedModel
 from service.settings import Settings
@@ -83,19 +83,19 @@ def test_ratios_against_the_start_at_minute_zero() -> None:
 
 
 def test_command_is_registered_and_checks_its_arguments(capsys: pytest.CaptureFixture[str]) -> None:
-    from service import cli
+    from benchmarks import cli
 
     with pytest.raises(SystemExit):
-        cli.main(["bench", "restart", "--help"])
+        cli.main(["restart", "--help"])
     assert "--start-modes" in capsys.readouterr().out
-    assert cli.main(["bench", "restart", "--starts", "200"]) == 2
+    assert cli.main(["restart", "--starts", "200"]) == 2
     assert "outside the profile" in capsys.readouterr().err
     # the identification mode (--mode per_condition|speed_map) and the path (--path core|filter)
-    assert cli.main(["bench", "restart", "--path", "filter", "--mode", "speed_map"]) == 2
+    assert cli.main(["restart", "--path", "filter", "--mode", "speed_map"]) == 2
     assert "per-condition protocol only" in capsys.readouterr().err
-    assert cli.main(["bench", "restart", "--path", "core", "--mode", "filter"]) == 2  # the old spelling
+    assert cli.main(["restart", "--path", "core", "--mode", "filter"]) == 2  # the old spelling
     assert "contradicts" in capsys.readouterr().err
-    assert cli.main(["bench", "restart", "--set", "nope=1"]) == 2
+    assert cli.main(["restart", "--set", "nope=1"]) == 2
     assert "unknown setting nope" in capsys.readouterr().err
 
 

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from service.bench.targets import Target, format_verdicts, verdicts
+from benchmarks.targets import Target, format_verdicts, verdicts
 
 
 def test_verdicts_met_missed_and_not_measured() -> None:

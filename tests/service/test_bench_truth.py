@@ -1,11 +1,12 @@
-"""``chtc bench truth``: its random profiles and truths, and its summary arithmetic (no plant run)."""
+"""``python -m benchmarks truth``: its random profiles and truths, and its summary arithmetic (no plant
+run)."""
 
 from __future__ import annotations
 
 import numpy as np
 
+from benchmarks.truth import H_LIMITS, REST_S, draw_levels, h_law, segments, summarise_raw, verdict
 from model.plant import h_true
-from service.bench.truth import H_LIMITS, REST_S, draw_levels, h_law, segments, summarise_raw, verdict
 
 
 def test_levels_are_hidden_truths_with_fast_speeds_drift_and_a_torque_step() -> None:

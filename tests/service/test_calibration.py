@@ -13,21 +13,30 @@ from service.acquire.calibration import (
     BaselineRejected,
     BaselineRequest,
     BaselineTaken,
-    CalibrationConfig,
     CalibrationStatus,
     OffsetCalibrator,
     Reading,
     equilibrium,
 )
-from service.engine.core import CoreConfig, ServiceCore
+from service.engine.config import CoreConfig
+from service.engine.core import ServiceCore
 from service.engine.events import Launch, SampleReceived, Store
 from service.modelload import LoadedModel
+from tests.engine_config import product_core
 
 from .conftest import plant_run, samples_of
 from .drive import feed as feed_core
 
 T = datetime(2026, 3, 1, 6, 0, tzinfo=UTC)
 OFFSETS = np.random.default_rng(5).uniform(-0.2, 0.2, 32)
+CAL = product_core().calibration  # the product's equilibrium test (identification.offset_*)
+assert CAL is not None
+
+
+def calibrator() -> OffsetCalibrator:
+    """The product's calibrator at the product's 10-s sample period."""
+    assert CAL is not None
+    return OffsetCalibrator(config=CAL, sample_period_s=10.0)
 
 
 def readings(
@@ -60,9 +69,10 @@ def feed(cal: OffsetCalibrator, items) -> list:  # type: ignore[no-untyped-def]
 
 
 def test_a_rest_at_the_ambient_gives_a_baseline_with_the_offsets() -> None:
-    cal = OffsetCalibrator()
+    cal = calibrator()
     assert cal.status is CalibrationStatus.NO_BASELINE
-    assert np.allclose(cal.offset_sd(), 0.3 / np.sqrt(3))  # unknown offsets: ±0.3 °C uniform
+    # unknown offsets: ±0.3 °C uniform, 1σ 0.3/√3 = 0.1732 (identification.offset_sd_c, rounded to 0.173)
+    assert np.allclose(cal.offset_sd(), 0.173)
     taken = feed(cal, readings(31))
     assert len(taken) == 1 and isinstance(taken[0], BaselineTaken)
     c = taken[0].calibration
@@ -81,7 +91,7 @@ def test_a_rest_at_the_ambient_gives_a_baseline_with_the_offsets() -> None:
 def test_a_longer_rest_refines_the_same_baseline_silently() -> None:
     """No new ``BaselineTaken`` (no operator message); a ``BaselineRefined`` to store each time the samples
     doubled (30 -> 60 -> 120) and when the rest ends, carrying the in-memory baseline."""
-    cal = OffsetCalibrator()
+    cal = calibrator()
     first = feed(cal, readings(31))
     later = feed(cal, readings(150, start=31, seed=1))
     assert len(first) == 1 and isinstance(first[0], BaselineTaken) and first[0].calibration.samples == 30
@@ -96,16 +106,16 @@ def test_a_longer_rest_refines_the_same_baseline_silently() -> None:
 
 
 def test_a_cooling_or_warm_spindle_is_not_an_equilibrium() -> None:
-    cooling = OffsetCalibrator()
+    cooling = calibrator()
     assert feed(cooling, readings(60, excess=3.0, decay_s=1800.0)) == []
     assert cooling.current is None and cooling.status is CalibrationStatus.SETTLING
     warm = readings(31, excess=0.5)  # flat but 0.5 °C above the ambient
-    assert equilibrium(warm, CalibrationConfig()) == "the spindle is not at the ambient temperature"
-    assert "drifting" in str(equilibrium(readings(31, excess=3.0, decay_s=1800.0), CalibrationConfig()))
+    assert equilibrium(warm, CAL) == "the spindle is not at the ambient temperature"
+    assert "drifting" in str(equilibrium(readings(31, excess=3.0, decay_s=1800.0), CAL))
 
 
 def test_running_resets_the_rest_and_rearms_the_automatic_baseline() -> None:
-    cal = OffsetCalibrator()
+    cal = calibrator()
     feed(cal, readings(31))
     feed(cal, readings(5, start=31, speed=3000.0))
     assert cal.status is CalibrationStatus.CALIBRATED  # the offsets are kept while the spindle runs
@@ -116,7 +126,7 @@ def test_running_resets_the_rest_and_rearms_the_automatic_baseline() -> None:
 
 
 def test_a_manual_request_takes_a_baseline_or_names_why_not() -> None:
-    cal = OffsetCalibrator()
+    cal = calibrator()
     feed(cal, readings(10))
     short = cal.handle(BaselineRequest(T))
     assert isinstance(short[0], BaselineRejected) and "at rest for 90 s only" in short[0].reason
@@ -126,7 +136,7 @@ def test_a_manual_request_takes_a_baseline_or_names_why_not() -> None:
 
 
 def test_an_open_channel_keeps_no_offset_and_the_prior_uncertainty() -> None:
-    cal = OffsetCalibrator()
+    cal = calibrator()
     items = readings(31)
     items = [
         Reading(t=r.t, temps_c=r.temps_c, ok=np.arange(32) != 4, ambient_c=r.ambient_c, speed_rpm=r.speed_rpm)
@@ -134,7 +144,9 @@ def test_an_open_channel_keeps_no_offset_and_the_prior_uncertainty() -> None:
     ]
     c = feed(cal, items)[0].calibration
     assert np.isnan(c.offsets_c[4]) and cal.offsets()[4] == 0.0
-    assert c.sd_c[4] == pytest.approx(np.hypot(0.3 / np.sqrt(3), 0.005))
+    assert c.sd_c[4] == pytest.approx(
+        np.hypot(0.173, 0.005)
+    )  # the prior's 1σ (offset_sd_c) and equilibrium's
 
 
 def test_the_core_zeroes_the_offsets_of_its_jobs(loaded_model: LoadedModel) -> None:
@@ -151,12 +163,12 @@ def test_the_core_zeroes_the_offsets_of_its_jobs(loaded_model: LoadedModel) -> N
                 return core, started[0].request
         raise AssertionError("no identification was launched")
 
-    core, req = first_request(CoreConfig())
+    core, req = first_request(product_core())
     assert core.view().calibration is not None
     assert np.all(np.abs(req.offsets_c - OFFSETS) < 4.5 * 0.15 / np.sqrt(85))
     assert np.all(req.offset_sd_c < 0.03)
     # without calibration the filtered state needs offset-free sensors to converge (docs/design/estimator.md)
-    _, plain = first_request(CoreConfig(calibration=None), plant_run(profile))
+    _, plain = first_request(product_core(identification={"offset_calibration": False}), plant_run(profile))
     assert plain.offsets_c is None and plain.offset_sd_c is None
 
 
@@ -171,7 +183,7 @@ def test_a_baseline_taken_by_the_core_is_stored_and_a_restarted_core_starts_with
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
     run = plant_run([Segment(600.0, 0.0, 0.0, 21.0), Segment(300.0, 3000.0, 5.0, 21.0)], offsets_c=OFFSETS)
     first = open_persistence(db, migrate=True)
-    core = ServiceCore(CoreConfig(), model=loaded_model)
+    core = ServiceCore(product_core(), model=loaded_model)
     for ins in feed_core(core, samples_of(run)):
         if isinstance(ins, Store):
             first.sink.submit(ins.record)
@@ -183,7 +195,7 @@ def test_a_baseline_taken_by_the_core_is_stored_and_a_restarted_core_starts_with
     try:
         restored = second.restored.calibration
         assert restored is not None and restored.t_to == taken.t_to
-        fresh = ServiceCore(CoreConfig(), model=loaded_model, restored=second.restored).view()
+        fresh = ServiceCore(product_core(), model=loaded_model, restored=second.restored).view()
         assert fresh.calibration is not None and fresh.offset_sd_c is not None
         np.testing.assert_allclose(fresh.calibration.applied(), taken.applied())
         np.testing.assert_allclose(fresh.offset_sd_c, taken.sd_c)

@@ -87,7 +87,7 @@ def test_demo_starts_without_a_connect_warning_and_stops_quietly_on_ctrl_c(tmp_p
     traceback. A terminal's Ctrl-C reaches the whole process group: so does the SIGINT here (about 60 s)."""
     import sys
 
-    from service.bench.api_live import rig_pids
+    from benchmarks.api_live import rig_pids
 
     argv = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", "--segment-min", "5"]
     argv += ["--database-url", f"sqlite:///{tmp_path / 'demo.db'}"]

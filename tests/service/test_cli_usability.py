@@ -4,29 +4,30 @@ from __future__ import annotations
 
 import argparse
 import socket
+from collections.abc import Callable, Sequence
 
 import pytest
 
-from service.cli import BENCHMARKS, COMMANDS, build_parser, main
+from benchmarks import cli as bench_cli
+from service.cli import COMMANDS, build_parser, main
 
 
-def _subparser(argv: list[str]) -> argparse.ArgumentParser:
-    parser = build_parser(argv)
+def _subparser(
+    argv: list[str], build: Callable[[Sequence[str]], argparse.ArgumentParser] = build_parser
+) -> argparse.ArgumentParser:
+    parser = build(argv)
     action = next(a for a in parser._actions if isinstance(a, argparse._SubParsersAction))
-    sub = action.choices[argv[0]]
-    if argv[0] == "bench":
-        inner = next(a for a in sub._actions if isinstance(a, argparse._SubParsersAction))
-        sub = inner.choices[argv[1]]
+    sub: argparse.ArgumentParser = action.choices[argv[0]]
     return sub
 
 
-ALL = [[c] for c in COMMANDS] + [["bench", b] for b in BENCHMARKS]
+ALL = [[c] for c in COMMANDS] + [["benchmarks", b] for b in bench_cli.BENCHMARKS]  # python -m benchmarks
 
 
 @pytest.mark.parametrize("argv", ALL, ids=" ".join)
 def test_help_states_every_default(argv: list[str]) -> None:
     """Every option that takes a value says its default (or what happens without it) in ``--help``."""
-    sub = _subparser(argv)
+    sub = _subparser(argv[1:], bench_cli.build_parser) if argv[0] == "benchmarks" else _subparser(argv)
     formatter = sub._get_formatter()
     missing = []
     for action in sub._actions:
@@ -36,6 +37,18 @@ def test_help_states_every_default(argv: list[str]) -> None:
         if "default" not in text.lower():
             missing.append(action.option_strings[-1])
     assert not missing, f"chtc {' '.join(argv)}: no default in --help for {missing}"
+
+
+def test_chtc_lists_product_commands_only(capsys: pytest.CaptureFixture[str]) -> None:
+    """The operator's ``chtc --help`` names the product's commands; the benchmarks are
+    ``python -m benchmarks`` (issue 39), and ``chtc bench`` is no command."""
+    with pytest.raises(SystemExit):
+        main(["--help"])
+    out = capsys.readouterr().out
+    assert all(c in out for c in COMMANDS) and "bench" not in out
+    with pytest.raises(SystemExit) as exc:
+        main(["bench", "compensation"])
+    assert exc.value.code == 2 and "invalid choice: 'bench'" in capsys.readouterr().err
 
 
 def test_help_shows_the_demo_port_and_simulate_speedup(capsys: pytest.CaptureFixture[str]) -> None:

@@ -1,4 +1,4 @@
-"""Combined mode (``experimental.mode = "combined"``, issue 17) through the real core and shell over the
+"""Combined mode (``identification.mode = "combined"``, issue 17) through the real core and shell over the
 virtual plant (its own mesh and truth): the per-condition identification of a held condition serves while
 the condition holds, the map's H at the current speed elsewhere (right after a change, at short
 conditions); the live state follows the served H; both job kinds share the worker and the job book."""
@@ -8,15 +8,15 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.chain import last_per_condition
+from benchmarks.identmode import served_in_order
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
-from service.bench.chain import last_per_condition
-from service.bench.identmode import served_in_order
 from service.contracts.verdict import ChtcStatus
 from service.engine.jobbook import MAP_METHOD
 from service.engine.persistence import open_persistence
 from service.identify.prior import ServedMapPrior
-from service.settings import ExperimentalSettings, Settings
+from service.settings import Settings
 
 from .conftest import inline_service, samples_of
 
@@ -24,7 +24,7 @@ pytestmark = pytest.mark.slow  # the combined-mode service over a duty cycle (~3
 
 # 5 min idle; 3000 rpm held 20 min (per-condition at 7 and 20 min; the map's first fit after 10 min of
 # data); 4500 rpm for 4 min (shorter than the first schedule entry: the map's only); 2000 rpm held 12 min
-SETTINGS = Settings(experimental=ExperimentalSettings(mode="combined"))
+SETTINGS = Settings(identification={"mode": "combined"})  # type: ignore[arg-type]  # the default, named
 PROFILE = (
     Segment(300.0, 0.0, 0.0, 20.0),
     Segment(1200.0, 3000.0, 6.0, 20.0),

@@ -18,7 +18,7 @@ from model.plant import Segment
 from service.contracts.errors import NotReadyError
 from service.contracts.records import IdentificationData
 from service.contracts.snapshots import JobState
-from service.engine.core import CoreConfig, ServiceCore
+from service.engine.core import ServiceCore
 from service.engine.events import (
     Event,
     Instruction,
@@ -33,21 +33,16 @@ from service.engine.events import (
     Store,
 )
 from service.engine.shell import SoftSensorService
-from service.identify.detector import DetectorConfig
-from service.identify.scheduler import SchedulerConfig
-from service.identify.window import WindowRules
 from service.identify.worker import run_job
 from service.modelload import LoadedModel
+from tests.engine_config import PER_CONDITION_10_20, product_core
 
 from .conftest import plant_run, samples_of
 from .drive import outcome_event
 
-CFG = CoreConfig(
-    detector=DetectorConfig(hold_s=60.0),
-    scheduler=SchedulerConfig(min_data_s=600.0, schedule_s=(600.0, 1200.0), max_window_s=3600.0),
-    rules=WindowRules(dt_s=10.0, min_window_s=600.0, min_good_channels=24),
-    calibration=None,
-)
+# the product's defaults but the per-condition protocol with 10-min windows (PER_CONDITION_10_20: these tests'
+# timings) and without the sensor offset calibration (its baseline would add events the tests do not expect)
+CFG = product_core(identification={**PER_CONDITION_10_20, "offset_calibration": False})
 
 
 def test_importing_the_core_loads_no_database_code() -> None:

@@ -9,22 +9,17 @@ from datetime import UTC, datetime
 
 from model.plant import Segment
 from service.contracts.records import ConditionStart
-from service.engine.core import CoreConfig, ServiceCore
+from service.engine.core import ServiceCore
 from service.engine.events import IdsKnown, Log, SampleReceived, Store
 from service.engine.persistence import fallback_restored, open_persistence
-from service.identify.detector import DetectorConfig
-from service.identify.scheduler import SchedulerConfig
-from service.identify.window import WindowRules
 from service.settings import Settings
+from tests.engine_config import PER_CONDITION_10_20, product_core
 
 from .conftest import plant_run, samples_of
 
-CFG = CoreConfig(
-    detector=DetectorConfig(hold_s=60.0),
-    scheduler=SchedulerConfig(min_data_s=600.0, schedule_s=(600.0, 1200.0), max_window_s=3600.0),
-    rules=WindowRules(dt_s=10.0, min_window_s=600.0, min_good_channels=24),
-    calibration=None,
-)
+# the product's defaults but the per-condition protocol with 10-min windows (PER_CONDITION_10_20: these tests'
+# timings) and without the sensor offset calibration
+CFG = product_core(identification={**PER_CONDITION_10_20, "offset_calibration": False})
 UNREACHABLE = "postgresql+psycopg://u:p@127.0.0.1:1/x"  # nothing listens on port 1: refused at once
 
 

@@ -2,20 +2,22 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
 from service.identify.detector import (
     ConditionChanged,
     ConditionDetector,
-    DetectorConfig,
     DetectorError,
     DetectorStatus,
     OperatingPoint,
     SampleEvent,
 )
+from tests.engine_config import product_core
 
-CFG = DetectorConfig(speed_threshold_rpm=150, torque_threshold_nm=1.0, ambient_threshold_c=1.0, hold_s=60)
+CFG = product_core().detector  # the product's: 150 rpm, 1 N·m, 1 °C, held 60 s, median of 3, gap 120 s
 DT = 10.0
 
 
@@ -133,9 +135,9 @@ def test_gap_restarts_hold():
 
 def test_bad_config_and_time_order():
     with pytest.raises(DetectorError, match="hold_s"):
-        DetectorConfig(hold_s=-1)
+        replace(CFG, hold_s=-1)
     with pytest.raises(DetectorError, match="median_samples"):
-        DetectorConfig(median_samples=0)
+        replace(CFG, median_samples=0)
     det = ConditionDetector(CFG)
     det.handle(SampleEvent(t=10.0, speed_rpm=3000, torque_nm=2, ambient_c=23))
     with pytest.raises(DetectorError, match="older"):

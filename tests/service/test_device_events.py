@@ -7,6 +7,7 @@ from datetime import UTC, datetime, timedelta
 from drivers.base import SourceMetrics
 from service.acquire.devicewatch import DeviceWatch, transition_detail
 from service.contracts.health import DeviceHealth, DeviceStatus
+from tests.engine_config import product_core
 
 
 def test_recovery_names_the_cleared_error() -> None:
@@ -73,13 +74,13 @@ class _Source:
 
 
 def test_a_recovered_device_no_longer_shows_its_old_error(loaded_model) -> None:
-    from service.engine.core import CoreConfig, ServiceCore
+    from service.engine.core import ServiceCore
     from service.engine.shell import SoftSensorService
 
     now = [datetime(2026, 3, 2, 6, 0, tzinfo=UTC)]
     src = _Source()
     src.metrics.count_error(TimeoutError("modbus 127.0.0.1:5020: no answer within 1 s"), now[0])
-    core = ServiceCore(CoreConfig(), model=loaded_model)
+    core = ServiceCore(product_core(), model=loaded_model)
     svc = SoftSensorService(core, worker=None, sources={"modbus": src}, clock=lambda: now[0])
     dev = next(d for d in svc.health().devices if d.name == "modbus")
     assert dev.status is DeviceStatus.DEGRADED and "no answer" in dev.message

@@ -138,16 +138,16 @@ def test_three_conditions_detected_identified_and_served(tmp_path):
     err = np.abs(h - truth) / truth
     detail = {"h": h, "lo": lo, "hi": hi, "truth": truth, "identified": identified}
     assert np.all(covered[identified]), detail
-    # What the offline bench establishes for this very profile (`chtc bench chain --seeds 20 --json`: the same
-    # segments through the same service core, plant noise seeds 0-19, this test's seed 3 among them;
-    # 2026-11-24): at 5000 rpm every H's 95 % CI covered the truth in 20 of 20 seeds; H6, the best-determined
-    # H, had |error| at most 8.4 % (median 3.7 %); a seed's median |error| over the seven H was at most 25.8 %
-    # (median 15.8 %). The live run differs only by event-loop timing (which sample lands on a grid point,
-    # docs/design/service.md) and by its window (>= 35 min here, 40 in the bench). Asserted, with tolerances
-    # set from those figures and not from a run of this test:
-    # - the CIs of H6 and H7 cover the truth (0 misses in 40 seed x H trials offline; 5 % each nominally);
-    # - at least 6 of the 7 CIs cover the truth (7 in every seed offline; one miss allowed for the timing);
-    # - H6's error within 1.5 x the bench's maximum (8.4 % -> 12.5 %);
+    # What the offline bench establishes for this very profile
+    # (`python -m benchmarks chain --seeds 20 --json`: the same segments through the same service core, plant
+    # noise seeds 0-19, this test's seed 3 among them; 2026-11-24): at 5000 rpm every H's 95 % CI covered the
+    # truth in 20 of 20 seeds; H6, the best-determined H, had |error| at most 8.4 % (median 3.7 %); a seed's
+    # median |error| over the seven H was at most 25.8 % (median 15.8 %). The live run differs only by
+    # event-loop timing (which sample lands on a grid point, docs/design/service.md) and by its window (>= 35
+    # min here, 40 in the bench). Asserted, with tolerances set from those figures and not from a run of this
+    # test: - the CIs of H6 and H7 cover the truth (0 misses in 40 seed x H trials offline; 5 % each
+    # nominally); - at least 6 of the 7 CIs cover the truth (7 in every seed offline; one miss allowed for the
+    # timing); - H6's error within 1.5 x the bench's maximum (8.4 % -> 12.5 %);
     # - the median error over the seven H within 1.25 x the bench's worst seed (25.8 % -> 32 %).
     assert covered[5] and covered[6], detail
     assert covered.sum() >= 6, detail

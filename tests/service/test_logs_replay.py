@@ -114,7 +114,7 @@ def _rewrite_csv(src, dst, *, keep=lambda t: True, scale=1.0):
 
 
 def test_acquisition_ticks_follow_the_replay_grid() -> None:
-    from service.sim.logsamples import acquisition_ticks
+    from drivers.logsamples import acquisition_ticks
 
     rows = np.array([100.2, 101.1, 102.3, 112.9, 125.0])
     ticks, idx = acquisition_ticks(rows, 100.0, period_s=10.0, phase=0.3)
@@ -145,7 +145,7 @@ def test_identify_with_a_stated_speed_and_torque(logs, tmp_path, capsys):
 def test_identify_says_why_nothing_was_identified(logs, tmp_path, capsys, monkeypatch, mode):
     """A sped-up simulation recorded with wall-time stamps: 55 min of plant squeezed into 55 s; the reason
     names what the mode's first identification needs."""
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", mode)
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", mode)
     squeezed = _rewrite_csv(logs[0], tmp_path / "wall.csv", scale=1.0 / 60.0)
     assert cli_main(["identify", str(squeezed), "--speed-rpm", "3000", "--torque-nm", "5"]) == 1
     err = capsys.readouterr().err
@@ -291,7 +291,7 @@ def test_replay_gives_the_same_identifications_as_identify(logs, tmp_path, monke
     # Per condition (combined and speed-map mode: a map fit's H reaches the live state at the first sample
     # after the worker returns it, and the map's bookkeeping depends on that; the full suite under load once
     # saw one fit fewer in the replay than offline).
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
 
     offline = [r for r in _identify(logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
 
@@ -330,7 +330,7 @@ def test_replay_reproduces_identify_for_a_realtime_recording(realtime_logs, tmp_
     """One jittered row per second (as chtc record writes): replay used to sample rows one poll apart from
     identify's, and identify fed every row as a sample, so windows and H differed (13 s and H1 52 vs 200).
     Per-condition mode, as the test above (one identification per 10-min condition)."""
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")  # chtc identify's settings
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")  # chtc identify's settings
     offline = [r for r in _identify(realtime_logs, tmp_path / "offline.json") if r["outcome"] == "ok"]
 
     def check(replayed, growth):
@@ -354,11 +354,11 @@ def _assert_well_determined_h_covered(records: list[dict]) -> None:
     """The 95 % CIs of H6 and H7, the two best-determined H, cover the virtual plant's truth at the record's
     condition (``model.plant.h_true``; both recordings come from the plant at a constant 22 °C ambient).
 
-    What the offline bench establishes: ``chtc bench chain --seeds 20`` (the service core over 20 plant noise
-    seeds, three chained conditions, 2026-11-24) covered H6 and H7 in 20 of 20 seeds at each of 3000, 4000 and
-    5000 rpm (median |error| 3.7-4.5 % for H6, 7.7-15.4 % for H7). These windows are shorter (10-20 min
-    instead of 40), so the CIs are wider; a miss is allowed nowhere, since the nominal level (5 % per H) and
-    the bench's 0 misses in 120 seed-condition-H trials make one unlikely, and ``chtc identify`` is
+    What the offline bench establishes: ``python -m benchmarks chain --seeds 20`` (the service core over 20
+    plant noise seeds, three chained conditions, 2026-11-24) covered H6 and H7 in 20 of 20 seeds at each of
+    3000, 4000 and 5000 rpm (median |error| 3.7-4.5 % for H6, 7.7-15.4 % for H7). These windows are shorter
+    (10-20 min instead of 40), so the CIs are wider; a miss is allowed nowhere, since the nominal level (5 %
+    per H) and the bench's 0 misses in 120 seed-condition-H trials make one unlikely, and ``chtc identify`` is
     deterministic for a given recording (a miss is a change of the numbers, not bad luck)."""
     for r in records:
         c = r["condition"]
@@ -377,7 +377,7 @@ def test_identify_on_the_shipped_example_recording(tmp_path, capsys, monkeypatch
     bands from a cold start), so only the later maps are held to it."""
     from pathlib import Path
 
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", mode)
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", mode)
     data = Path(__file__).resolve().parents[2] / "service" / "data"
     out = tmp_path / "example.json"
     argv = ["identify", str(data / "example_temperatures.csv"), str(data / "example_can.blf")]

@@ -35,7 +35,7 @@ def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
     # The plan has no rest, so no offset baseline: the CI carries the unknown offsets (~2.1 µm half-width
     # here), over the default 2 µm tolerance; this test is about the open loop, so the tolerance is wider.
     settings = Settings(
-        compensation={"max_open_loop_min": LIMIT_MIN, "max_ci95_um": 4.0}, growth={"reference_c": 23.2}
+        compensation={"max_open_loop_min": LIMIT_MIN, "max_ci95_um": 4.0, "reference_c": 23.2}
     )
     with served_service(database_url=url, settings=settings) as s:
         yield s

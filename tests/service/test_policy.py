@@ -3,16 +3,17 @@ controller applies (data, live state, reference, the H's age, the CI against the
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime, timedelta
 
 import pytest
 
 from service.contracts.verdict import ChtcStatus, DataCode, DataProblem, Reason
-from service.serve.policy import CompensationLimits, compensation_verdict
+from service.serve.policy import compensation_verdict
+from tests.engine_config import product_limits
 
 NOW = datetime(2026, 3, 1, 8, 0, tzinfo=UTC)
-LIMITS = CompensationLimits(max_ci95_um=2.0, max_identification_age_min=480.0, max_open_loop_min=10.0)
+LIMITS = product_limits()  # the product's: 2 µm, 24 h, 10 min open loop, mechanics commissioned
 
 
 @dataclass(frozen=True)
@@ -56,6 +57,7 @@ def verdict(view: View | None = None, **kw: object) -> tuple[ChtcStatus, bool, R
         "ci95_half_um": 0.7,
         "identified_at": NOW - timedelta(minutes=30),
         "has_reference": True,
+        "has_mechanics": True,  # a commissioned machine (the product's rule asks for one)
     }
     v = compensation_verdict(view or View(), NOW, **(args | kw))  # type: ignore[arg-type]
     assert v.usable == (v.reason is None) and (v.action is None) == v.usable
@@ -76,7 +78,7 @@ def test_a_known_growth_is_usable_whatever_the_h_flags_say() -> None:
         ({"ci95_half_um": float("nan")}, (ChtcStatus.FRESH, False, Reason.CI_TOO_WIDE)),
         ({"identified_at": None}, (ChtcStatus.FRESH, False, Reason.NO_IDENTIFICATION)),
         (
-            {"identified_at": NOW - timedelta(minutes=481)},
+            {"identified_at": NOW - timedelta(minutes=1441)},  # the product's 24 h limit (was 8 h here)
             (ChtcStatus.FRESH, False, Reason.IDENTIFICATION_OLD),
         ),
         ({"has_reference": False}, (ChtcStatus.FRESH, False, Reason.NO_REFERENCE)),
@@ -105,7 +107,7 @@ def test_daq_down_with_can_alive_is_predicted_for_at_most_the_open_loop_limit() 
         assert why is (None if usable else Reason.OPEN_LOOP_TOO_LONG)
     wide = View(problems=(DAQ_DOWN,), last_good_daq_t=NOW - timedelta(minutes=2))
     assert verdict(wide, ci95_half_um=3.0) == (ChtcStatus.PREDICTED, False, Reason.CI_TOO_WIDE)
-    never = CompensationLimits(max_open_loop_min=0.0)
+    never = replace(LIMITS, max_open_loop_min=0.0)
     assert verdict(wide, limits=never)[2] is Reason.OPEN_LOOP_TOO_LONG
 
 
@@ -113,7 +115,7 @@ def test_the_first_sample_without_temperatures_is_predicted_before_the_freshness
     """The newest sample came after the last good DAQ data: open loop from there, never ``fresh``."""
     early = View(last_good_daq_t=NOW - timedelta(seconds=20))
     assert verdict(early) == (ChtcStatus.PREDICTED, True, None)
-    assert verdict(early, limits=CompensationLimits(max_open_loop_min=0.0))[2] is Reason.OPEN_LOOP_TOO_LONG
+    assert verdict(early, limits=replace(LIMITS, max_open_loop_min=0.0))[2] is Reason.OPEN_LOOP_TOO_LONG
     assert verdict(View(last_good_daq_t=None))[:2] == (ChtcStatus.STALE, False)
 
 
@@ -137,7 +139,7 @@ def test_an_uncalibrated_mechanics_is_not_usable_when_the_setting_asks_for_it() 
     a commissioned one passes to the later rules (here: usable)."""
     from service.settings import Settings
 
-    strict = CompensationLimits(max_ci95_um=2.0, require_mechanics_calibration=True)
+    strict = LIMITS
     assert Settings().compensation.require_mechanics_calibration is True
     assert verdict(limits=strict, has_mechanics=False) == (
         ChtcStatus.FRESH,
@@ -146,6 +148,7 @@ def test_an_uncalibrated_mechanics_is_not_usable_when_the_setting_asks_for_it() 
     )
     assert verdict(limits=strict, has_mechanics=True) == (ChtcStatus.FRESH, True, None)
     assert verdict(limits=strict, has_mechanics=True, ci95_half_um=2.5)[2] is Reason.CI_TOO_WIDE
-    assert verdict(has_mechanics=False) == (ChtcStatus.FRESH, True, None)  # the rule off: judged as before
+    off = replace(LIMITS, require_mechanics_calibration=False)
+    assert verdict(limits=off, has_mechanics=False) == (ChtcStatus.FRESH, True, None)  # the rule off
     # the zero comes first: nothing to compensate against without one
     assert verdict(limits=strict, has_mechanics=False, has_reference=False)[2] is Reason.NO_REFERENCE

@@ -11,14 +11,14 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
+from benchmarks.chain import T0
 from model.plant import Segment, VirtualPlant
-from service.bench.chain import T0
 from service.engine.growthserve import REFERENCE_MAX_SD_UM, GrowthServer
 from service.engine.offline import run_offline
 from service.engine.runtime import core_config
 from service.modelload import ModelRef, load_model
 from service.settings import Settings
-from service.sim.logsamples import samples_from_plant
+from service.sim.plantsamples import samples_from_plant
 
 REST_S = 1800.0
 

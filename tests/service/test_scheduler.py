@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import pytest
 
 from service.identify.detector import OperatingPoint
@@ -16,14 +18,16 @@ from service.identify.scheduler import (
     ManualRejected,
     ManualRequest,
     PastResult,
-    SchedulerConfig,
     SchedulerError,
     SchedulerStatus,
     StartJob,
     Tick,
 )
+from tests.engine_config import product_core
 
-CFG = SchedulerConfig(min_data_s=600, schedule_s=(600, 1200, 2400, 3600), max_window_s=3600)
+# the product's scheduler with 10-min windows at 10, 20, 40, 60 min (the paper's schedule: these tests' round
+# times; the product's first window is 7 min)
+CFG = product_core(identification={"schedule_min": (10.0, 20.0, 40.0, 60.0), "min_window_s": 600.0}).scheduler
 P3000 = OperatingPoint(speed_rpm=3000, torque_nm=2.0, ambient_c=23.2)
 P4000 = OperatingPoint(speed_rpm=4000, torque_nm=2.0, ambient_c=21.8)
 P5000 = OperatingPoint(speed_rpm=5000, torque_nm=2.0, ambient_c=22.0)
@@ -67,7 +71,7 @@ def test_first_request_after_min_data_then_schedule():
 
 
 def test_window_is_capped_at_max_window():
-    cfg = SchedulerConfig(min_data_s=600, schedule_s=(600, 4000), max_window_s=1800)
+    cfg = replace(CFG, schedule_s=(600.0, 4000.0), max_window_s=1800.0)
     s = IdentificationScheduler(config=cfg)
     s.handle(ConditionStarted(t=60, condition_id=1, point=P3000, t_start=0))
     (j1,) = s.handle(Tick(600))
@@ -160,10 +164,10 @@ def test_manual_requests():
 
 def test_bad_config_and_event():
     with pytest.raises(SchedulerError, match="schedule_s"):
-        SchedulerConfig(min_data_s=600, schedule_s=(300, 1200))
+        replace(CFG, schedule_s=(300.0, 1200.0))
     with pytest.raises(SchedulerError, match="schedule_s"):
-        SchedulerConfig(schedule_s=(1200, 600))
+        replace(CFG, schedule_s=(1200.0, 600.0))
     with pytest.raises(SchedulerError, match="max_window_s"):
-        SchedulerConfig(min_data_s=600, max_window_s=100)
+        replace(CFG, max_window_s=100.0)
     with pytest.raises(SchedulerError, match="unknown"):
         IdentificationScheduler(config=CFG).handle("tick")  # type: ignore[arg-type]

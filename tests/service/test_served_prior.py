@@ -13,23 +13,17 @@ from model.hmap import NODES
 from model.identify_prior import COLD_SD_LOG, condition_prior
 from model.plant import Segment
 from service.contracts.mode import IdentificationMode
-from service.engine.core import CoreConfig, ServiceCore
-from service.identify.detector import DetectorConfig
+from service.engine.core import ServiceCore
 from service.identify.prior import job_prior
-from service.identify.scheduler import SchedulerConfig
-from service.identify.speedmap import MapConfig, SpeedMap
-from service.identify.window import WindowRules
+from service.identify.speedmap import SpeedMap
+from tests.engine_config import PER_CONDITION_10_20, product_core
 
 from .conftest import plant_run, samples_of
 from .drive import feed, launches
 
-CFG = CoreConfig(
-    detector=DetectorConfig(hold_s=60.0),
-    scheduler=SchedulerConfig(min_data_s=600.0, schedule_s=(600.0, 1200.0), max_window_s=3600.0),
-    rules=WindowRules(dt_s=10.0, min_window_s=600.0, min_good_channels=24),
-    calibration=None,
-    speed_map=MapConfig(min_window_s=600.0),
-)
+# the product's defaults but the per-condition protocol with 10-min windows (PER_CONDITION_10_20: these tests'
+# timings) and without the sensor offset calibration (the tests replace the mode where they need a served one)
+CFG = product_core(identification={**PER_CONDITION_10_20, "offset_calibration": False})
 
 
 @pytest.fixture(scope="module")

@@ -57,12 +57,12 @@ def _rec(rid: int, cond: ConditionSnapshot, method: str = "hybrid") -> Identific
     [("per_condition", PerConditionServing), ("speed_map", SpeedMapServing), ("combined", CombinedServing)],
 )
 def test_each_mode_has_its_strategy_and_keeps_the_settings_spelling(value: str, strategy: type) -> None:
-    mode = Settings(experimental={"mode": value}).experimental.mode
+    mode = Settings(identification={"mode": value}).identification.mode
     assert mode is IdentificationMode(value) and mode == value and f"{mode}" == value
     serving = serving_for(mode, Restored())
     assert type(serving) is strategy and serving.mode is mode
-    with pytest.raises(SettingsError, match=r"experimental\.mode"):
-        Settings.from_toml(None, experimental={"mode": "perCondition"})
+    with pytest.raises(SettingsError, match=r"identification\.mode"):
+        Settings.from_toml(None, identification={"mode": "perCondition"})
 
 
 def test_per_condition_serves_its_newest_identification_and_never_the_map() -> None:

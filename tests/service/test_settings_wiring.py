@@ -4,18 +4,19 @@
 ``detector.max_gap_s`` were accepted and documented but ``runtime.core_config`` dropped them. Each test
 changes one setting and sees the effect in the state machines built from ``core_config(settings)`` (the
 configuration the running service's core gets), not in a copy of the setting. The defaults of the CI
-threshold, ``start_modes`` and ``carry_start_error`` are one value in every layer.
+threshold, ``start_modes`` and ``carry_start_error`` are one value in every layer (the engine's configuration
+and the job request have no defaults of their own: ``tests/settings/test_engine_config.py``).
 """
 
 from __future__ import annotations
 
+from dataclasses import MISSING
 from typing import Any
 
 import pytest
 
 from model.identify import IdentifyOptions
-from service.engine.core import CoreConfig
-from service.engine.runtime import core_config
+from service.engine.config import core_config
 from service.identify.detector import ConditionDetector, SampleEvent
 from service.identify.scheduler import (
     ConditionStarted,
@@ -112,13 +113,14 @@ def test_max_gap_s_restarts_the_hold() -> None:
 
 def test_defaults_are_one_value_in_every_layer() -> None:
     ident, exp = Settings().identification, Settings().experimental
-    cfg, default_core = core_config(Settings()), CoreConfig()
+    cfg = core_config(Settings())
     assert (
         ident.ci_rel_threshold == 0.5
     )  # docs/design/identification.md "Identified" (measured: 30 % never passes H1)
-    for value in (cfg.ci_threshold, default_core.ci_threshold, IdentifyOptions().ci_threshold):
+    for value in (cfg.ci_threshold, IdentifyOptions().ci_threshold):  # the model library's own default
         assert value == ident.ci_rel_threshold
-    assert cfg.start_modes == default_core.start_modes == exp.start_modes
-    assert cfg.carry_start_error == default_core.carry_start_error == exp.carry_start_error
-    assert JobRequest.__dataclass_fields__["carry_start_error"].default == exp.carry_start_error
-    assert JobRequest.__dataclass_fields__["ci_threshold"].default == ident.ci_rel_threshold
+    assert cfg.start_modes == exp.start_modes
+    assert cfg.carry_start_error == exp.carry_start_error
+    for name in ("method", "seed", "estimate_loads", "carry_start_error", "start_modes", "ci_threshold"):
+        # a job takes these from the core's configuration (service.engine.jobs.job_request), never its own
+        assert JobRequest.__dataclass_fields__[name].default is MISSING, name

@@ -1,4 +1,4 @@
-"""Speed-map mode (``experimental.mode = "speed_map"``, issue 17) through the real core and shell: a short
+"""Speed-map mode (``identification.mode = "speed_map"``, issue 17) through the real core and shell: a short
 duty cycle from the virtual plant (its own mesh and truth), /chtc served from the map at the current speed
 right after a change, the status rules, the map persisted and restored as stale, the settings."""
 
@@ -15,9 +15,9 @@ from model.hmap import Z95
 from model.plant import VirtualPlant, h_true
 from service.contracts.mode import IdentificationMode
 from service.contracts.verdict import ChtcStatus, DataCode, DataProblem
+from service.engine.config import core_config, map_config
 from service.engine.core import ServiceCore
 from service.engine.persistence import open_persistence
-from service.engine.runtime import core_config, map_config
 from service.engine.shell import MAP_H_BOX, SoftSensorService
 from service.identify.prior import ServedMapPrior
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
@@ -35,7 +35,7 @@ def map_settings(**kw: object) -> Settings:
     """Speed-map mode with ``kw`` in whichever section holds each key."""
     exp = {k: v for k, v in kw.items() if k in ExperimentalSettings.model_fields}
     ident = {k: v for k, v in kw.items() if k not in exp}
-    return Settings(identification=ident, experimental={"mode": "speed_map", **exp})  # type: ignore[arg-type]
+    return Settings(identification={"mode": "speed_map", **ident}, experimental=exp)  # type: ignore[arg-type]
 
 
 # The tests on the duty cycle below are ``slow``: the plant run and the service over it take ~12 s.
@@ -63,20 +63,22 @@ def served(duty, loaded_model):
 
 
 def test_settings_choose_the_mode_and_validate_the_map_keys() -> None:
-    assert Settings().experimental.mode is IdentificationMode.COMBINED  # docs/design/hmap.md "Default"
+    assert Settings().identification.mode is IdentificationMode.COMBINED  # docs/design/hmap.md "Default"
     for mode in IdentificationMode:  # the settings' spelling is the enum's value
-        assert core_config(Settings(experimental={"mode": mode.value})).mode is mode
+        assert core_config(Settings(identification={"mode": mode.value})).mode is mode
     cfg = map_config(map_settings(map_window_min=30, map_debounce_s=10, map_fresh_min=12))
     assert isinstance(cfg, MapConfig)
     assert (cfg.window_s, cfg.debounce_s, cfg.fresh_s, cfg.family) == (1800.0, 10.0, 720.0, "nodes")
-    with pytest.raises(SettingsError, match=r"experimental\.mode"):
-        Settings.from_toml(None, experimental={"mode": "speedmap"})
+    with pytest.raises(SettingsError, match=r"identification\.mode"):
+        Settings.from_toml(None, identification={"mode": "speedmap"})
     with pytest.raises(SettingsError, match="map_min_window_min"):
-        Settings.from_toml(None, experimental={"mode": "speed_map", "map_min_window_min": 90})
+        Settings.from_toml(
+            None, identification={"mode": "speed_map"}, experimental={"map_min_window_min": 90}
+        )
     with pytest.raises(SettingsError, match="map_margin_rpm"):
         Settings.from_toml(None, experimental={"map_margin_rpm": -1})
     with pytest.raises(SpeedMapError, match="window_s"):
-        MapConfig(window_s=0.0)
+        replace(cfg, window_s=0.0)
 
 
 @pytest.mark.slow

@@ -7,11 +7,12 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from service.identify.window import InsufficientWindowError, RawWindow, WindowRules, resample_window
+from service.identify.window import InsufficientWindowError, RawWindow, resample_window
+from tests.engine_config import product_core
 
-RULES = WindowRules(
-    dt_s=10.0, min_window_s=600.0, min_good_channels=24, min_good_fraction=0.9, max_gap_s=60.0
-)
+# the product's rules (10-s grid, 24 good channels) with a 10-min minimum window and stricter hole rules than
+# the product's (0.8, 300 s), so the short synthetic windows below reach each rule's edge
+RULES = replace(product_core().rules, min_window_s=600.0, min_good_fraction=0.9, max_gap_s=60.0)
 
 
 def raw(n: int = 121, *, jitter: float = 0.0, seed: int = 0) -> RawWindow:

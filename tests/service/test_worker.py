@@ -11,27 +11,22 @@ import numpy as np
 import pytest
 
 from model.plant import ChannelFault, Segment
-from service.engine.core import CoreConfig, ServiceCore
+from service.engine.core import ServiceCore
 from service.engine.events import Log, ManualRequested, Rejected, RejectKind
-from service.identify.detector import DetectorConfig
-from service.identify.scheduler import SchedulerConfig
-from service.identify.window import WindowRules
 from service.identify.worker import (
     IdentificationWorker,
-    JobRequest,
     JobStatus,
     final_field,
     run_identification,
 )
+from tests.engine_config import PER_CONDITION_10_20, product_core
 
 from .conftest import T0, plant_run, samples_of
 from .drive import feed, launches, stored
 
-CFG = CoreConfig(
-    detector=DetectorConfig(hold_s=60.0),
-    scheduler=SchedulerConfig(min_data_s=600.0, schedule_s=(600.0, 1200.0), max_window_s=3600.0),
-    rules=WindowRules(dt_s=10.0, min_window_s=600.0, min_good_channels=24),
-)
+# the product's defaults but the per-condition protocol with 10-min windows (PER_CONDITION_10_20: these tests'
+# timings)
+CFG = product_core(identification=PER_CONDITION_10_20)
 
 
 def test_window_of_the_first_launch(loaded_model):
@@ -126,9 +121,7 @@ def test_worker_process_runs_and_cancels(model_ref, window_request, loaded_model
         try:
             version = await worker.start()
             ok = await worker.run(window_request)
-            worker_cancel = JobRequest(
-                job_id=99, window=window_request.window, t0_c=window_request.t0_c, warm_start=None
-            )
+            worker_cancel = dataclasses.replace(window_request, job_id=99, warm_start=None)
             task = asyncio.ensure_future(worker.run(worker_cancel))
             worker.cancel(99)
             cancelled = await task

@@ -144,6 +144,7 @@ def test_relative_paths_resolve_against_the_file(tmp_path: Path) -> None:
         ("[identification]\nmax_window_s = 300\n", "identification"),
         ("[experimental]\ndistance_scales = [1000, 0, 5]\n", "experimental.distance_scales"),
         ('[experimental]\nmode = "speedmap"\n', "experimental.mode"),
+        ('[identification]\nmode = "speedmap"\n', "identification.mode"),
         ("[identification]\nmode = 1\n", "identification.mode"),
     ],
 )
@@ -194,20 +195,11 @@ def test_methods_match_the_model() -> None:
 
 
 def test_sections_build_the_pure_cores_configs() -> None:
-    from service.identify.detector import DetectorConfig
-    from service.identify.scheduler import SchedulerConfig
+    from service.engine.config import core_config
 
-    s = Settings()
-    detector = DetectorConfig(**s.detector.model_dump())
-    assert detector.thresholds == (150.0, 1.0, 1.0)
-    ident = s.identification
-    sched = SchedulerConfig(
-        min_data_s=ident.min_window_s,
-        schedule_s=ident.schedule_s,
-        max_window_s=ident.max_window_s,
-        distance_scales=s.experimental.distance_scales,
-    )
-    assert sched.schedule_s == (420.0, 1200.0, 2400.0, 3600.0)
+    cfg = core_config(Settings())
+    assert cfg.detector.thresholds == (150.0, 1.0, 1.0)
+    assert cfg.scheduler.schedule_s == (420.0, 1200.0, 2400.0, 3600.0)
 
 
 @pytest.mark.parametrize("path", sorted(EXAMPLE.parent.glob("*.toml")), ids=lambda p: p.name)
@@ -218,6 +210,7 @@ def test_every_shipped_config_file_is_valid(path: Path) -> None:
 
 # --- issue 25: an operator's [identification] is short; the research switches are in [experimental] -------
 OPERATOR_KEYS = {
+    "mode",  # in [experimental] from issue 25 to issue 39: the product's one choice of identification
     "schedule_min",
     "min_window_s",
     "max_window_s",
@@ -233,11 +226,11 @@ OPERATOR_KEYS = {
 }
 
 
-def test_identification_has_at_most_12_operator_keys() -> None:
+def test_identification_has_at_most_13_operator_keys() -> None:
     from service.settings import ExperimentalSettings, IdentificationSettings
 
     keys = set(IdentificationSettings.model_fields)
-    assert len(keys) <= 12, sorted(keys)
+    assert len(keys) <= 13, sorted(keys)  # 12 and the mode (issue 39)
     assert keys == OPERATOR_KEYS  # a new key is a decision: operator's, or experimental
     assert not keys & set(ExperimentalSettings.model_fields)  # ``--set KEY`` finds one section
 
@@ -253,13 +246,14 @@ def test_an_old_file_setting_a_moved_key_says_where_it_went(tmp_path: Path) -> N
     with pytest.raises(SettingsError) as info:
         load_settings(path)
     message = str(info.value)
-    for section, key in (("identification", "mode"), ("identification", "seed"), ("model", "rom_rank")):
+    for section, key in (("identification", "seed"), ("identification", "map_family"), ("model", "rom_rank")):
         assert f"\n  {section}.{key}: moved to [experimental]" in message, key
         assert f"experimental.{key} (env CHTC_EXPERIMENTAL__{key.upper()})" in message, key
-    assert "schedule_min" not in message and "h_box" not in message  # the keys that stayed are fine
+    # the keys that stayed are fine, and the mode is back in [identification] since issue 39
+    assert "schedule_min" not in message and "h_box" not in message and ".mode" not in message
     moved = write(
         tmp_path,
-        '[identification]\nschedule_min = [7, 20]\n[experimental]\nmode = "combined"\nseed = 3\n'
+        '[identification]\nschedule_min = [7, 20]\nmode = "combined"\n[experimental]\nseed = 3\n'
         'map_family = "nodes"\nrom_rank = 56\n[model]\nh_box = [5.0, 200.0]\n',
     )
     s = load_settings(moved)  # the same values, written where they now live
@@ -271,16 +265,24 @@ def test_an_old_file_setting_a_moved_key_says_where_it_went(tmp_path: Path) -> N
 
 
 def test_a_moved_key_in_the_environment_says_where_it_went(monkeypatch: pytest.MonkeyPatch) -> None:
-    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
+    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")  # where the mode was, issues 25 to 39
     with pytest.raises(
-        SettingsError, match=r"identification\.mode: moved to \[experimental\].*CHTC_EXPERIMENTAL__MODE"
+        SettingsError,
+        match=r"experimental\.mode: moved to \[identification\] in issue 39.*CHTC_IDENTIFICATION__MODE",
     ):
         load_settings(None)
-    monkeypatch.delenv("CHTC_IDENTIFICATION__MODE")
-    monkeypatch.setenv("CHTC_EXPERIMENTAL__MODE", "per_condition")
+    monkeypatch.delenv("CHTC_EXPERIMENTAL__MODE")
+    monkeypatch.setenv("CHTC_IDENTIFICATION__SEED", "3")  # before issue 25
+    with pytest.raises(
+        SettingsError,
+        match=r"identification\.seed: moved to \[experimental\] in issue 25.*CHTC_EXPERIMENTAL__SEED",
+    ):
+        load_settings(None)
+    monkeypatch.delenv("CHTC_IDENTIFICATION__SEED")
+    monkeypatch.setenv("CHTC_IDENTIFICATION__MODE", "per_condition")
     monkeypatch.setenv("CHTC_EXPERIMENTAL__ROM_RANK", "46")
     s = load_settings(None)
-    assert (s.experimental.mode, s.experimental.rom_rank) == ("per_condition", 46)
+    assert (s.identification.mode, s.experimental.rom_rank) == ("per_condition", 46)
 
 
 @pytest.mark.parametrize("key", ["map_start_draws", "map_start_lead_min", "map_live_h_error"])
@@ -312,5 +314,5 @@ def test_the_configuration_docs_minimal_machine_file_is_valid(tmp_path: Path) ->
     text = (EXAMPLE.parents[1] / "docs" / "configuration.md").read_text(encoding="utf-8")
     block = text.split("A minimal file for one spindle:", 1)[1].split("```toml\n", 1)[1].split("```", 1)[0]
     s = load_settings(write(tmp_path, block))
-    assert (s.modbus.port, s.can.interface, s.growth.reference_c) == (502, "socketcan", 20.0)
+    assert (s.modbus.port, s.can.interface, s.compensation.reference_c) == (502, "socketcan", 20.0)
     assert s.experimental == Settings().experimental

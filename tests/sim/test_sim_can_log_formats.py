@@ -15,8 +15,8 @@ import pytest
 from drivers.can_codec import encode_status
 from drivers.can_sensor import CanReading, CanSpindleSensor
 from drivers.logs import TemperatureCsvWriter, write_can_log
+from drivers.logsamples import samples_from_logs
 from drivers.sim.replay import Replay
-from service.sim.logsamples import samples_from_logs
 
 T0 = datetime(2026, 3, 1, 12, 0, tzinfo=UTC)
 SUFFIXES = [".trc", ".mf4"]
