@@ -10,6 +10,9 @@ spindle (each with its own token checks, guard, metrics and routes, reading only
 - ``/healthz``, ``/readyz`` (root and ``/api/v1``): the instance's. Live while it serves; ready once every
   running spindle's model is loaded (a spindle whose DAQ is down is not fresh but does not make the instance
   unready: a restart would not help it, and the others would be taken out of service with it);
+- ``/api/v1/openapi.json``: the instance's own OpenAPI document (its paths, and the 404 of an unknown
+  spindle) when it hosts several; ``/api/v1/spindles/{id}/openapi.json`` the spindle's, with the paths a host
+  serves for it (``/api/v1/spindles/{id}/chtc``, never ``/api/v1/chtc``, which is 404 on a host);
 - anything else (today's paths, ``/``): the spindle's own when the instance hosts exactly one, else a 404
   that says to use ``/api/v1/spindles/{id}/…``.
 """
@@ -39,6 +42,7 @@ __all__ = ["FleetDispatch", "FleetOutlet", "create_fleet_app", "fleet_outlet"]
 
 _SPINDLE_API = re.compile(r"^/api/v1/spindles/([^/]+)(/.*)$")
 _SPINDLE_PAGE = re.compile(r"^/spindles/([^/]+)(/.*)?$")
+OPENAPI_PATH = f"{API_PREFIX}/openapi.json"
 _FLEET_PATHS = frozenset(
     {"/api/v1/spindles", "/api/v1/spindles/", "/metrics", "/api/v1/metrics", "/healthz", "/readyz"}
     | {"/api/v1/healthz", "/api/v1/readyz"}
@@ -66,7 +70,15 @@ class MergedMetrics:
 def create_fleet_app(host: FleetHost, apps: Mapping[str, FastAPI], *, clock_info: ClockInfo) -> FastAPI:
     """The instance's own answers (list, health, readiness, metrics); no spindle's routes. The list and the
     metrics honour ``[api] read_token`` as every spindle's reads do."""
-    app = FastAPI(title="spindle-chtc (host)", version="1", openapi_url=None, docs_url=None, redoc_url=None)
+    app = FastAPI(
+        title="spindle-chtc (host)",
+        version="1",
+        description="An instance hosting several spindles: its own answers here; each spindle's API under "
+        "/api/v1/spindles/{spindle_id}/ (its document: /api/v1/spindles/{spindle_id}/openapi.json).",
+        openapi_url=OPENAPI_PATH,
+        docs_url=None,
+        redoc_url=None,
+    )
     app.state.auth = AuthConfig.from_settings(host.settings.api)
     app.state.clock_info = clock_info
     metrics = MergedMetrics(apps)
@@ -138,7 +150,51 @@ def create_fleet_app(host: FleetHost, apps: Mapping[str, FastAPI], *, clock_info
         return Response(generate_latest(metrics), media_type=CONTENT_TYPE_LATEST)
 
     app.state.merged_metrics = metrics
+    _install_host_openapi(app)
     return app
+
+
+def _install_host_openapi(app: FastAPI) -> None:
+    """The instance's document: its routes, and the spindles' documents with the 404 of an unknown id."""
+    from fastapi.openapi.utils import get_openapi
+
+    def openapi() -> dict[str, Any]:
+        if app.openapi_schema is None:
+            doc = get_openapi(
+                title=app.title, version=app.version, description=app.description, routes=app.routes
+            )
+            not_found = {
+                "description": "no running spindle with this id on this instance (the list: /api/v1/spindles)"
+            }
+            doc["paths"][f"{API_PREFIX}/spindles/{{spindle_id}}/openapi.json"] = {
+                "get": {
+                    "summary": "The spindle's OpenAPI document (paths under /api/v1/spindles/{spindle_id}/)",
+                    "parameters": [
+                        {"name": "spindle_id", "in": "path", "required": True, "schema": {"type": "string"}}
+                    ],
+                    "responses": {"200": {"description": "the document"}, "404": not_found},
+                }
+            }
+            app.openapi_schema = doc
+        return app.openapi_schema
+
+    app.openapi = openapi  # type: ignore[method-assign]
+
+
+def spindle_openapi(app: FastAPI, sid: str) -> dict[str, Any]:
+    """``app``'s document with the paths a host serves for spindle ``sid``: ``/api/v1/x`` as
+    ``/api/v1/spindles/{sid}/x``; paths outside ``/api/v1`` (reached only on a one-spindle instance) left
+    out."""
+    import copy
+
+    doc = copy.deepcopy(app.openapi())
+    paths = doc.get("paths", {})
+    doc["paths"] = {
+        f"{API_PREFIX}/spindles/{sid}{p.removeprefix(API_PREFIX)}": item
+        for p, item in paths.items()
+        if p == API_PREFIX or p.startswith(API_PREFIX + "/")
+    }
+    return doc
 
 
 class FleetDispatch:
@@ -154,12 +210,16 @@ class FleetDispatch:
             return
         path: str = scope["path"]
         if m := _SPINDLE_API.match(path):
+            if m.group(2) == "/openapi.json" and m.group(1) in self.apps:
+                doc = spindle_openapi(self.apps[m.group(1)], m.group(1))
+                await JSONResponse(doc)(scope, receive, send)
+                return
             await self._to_spindle(m.group(1), API_PREFIX + m.group(2), scope, receive, send)
             return
         if m := _SPINDLE_PAGE.match(path):
             await self._to_spindle(m.group(1), m.group(2) or "/", scope, receive, send)
             return
-        if path in _FLEET_PATHS:
+        if path in _FLEET_PATHS or (path == OPENAPI_PATH and len(self.apps) != 1):
             await self.fleet(scope, receive, send)
             return
         if len(self.apps) == 1:  # one spindle: today's paths are its own

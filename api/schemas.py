@@ -119,6 +119,14 @@ class SpindleAnswer(BaseModel):
     )
 
 
+class BlockerOut(BaseModel):
+    """One reason a served value is not usable, and what the operator should do about it."""
+
+    reason_code: Reason
+    reason: str = Field(description="'code: detail' for humans (never parse it)")
+    action: str
+
+
 class VerdictOut(SpindleAnswer):
     """The served-value policy's verdict (service.serve.policy): one status, the usable flag, and when not
     usable the typed reason, a human detail and what the operator should do."""
@@ -128,6 +136,11 @@ class VerdictOut(SpindleAnswer):
     reason_code: Reason | None = Field(description="why not usable, one code of the enum (null when usable)")
     reason: str | None = Field(description="why not usable, for humans: 'code: detail' (never parse it)")
     action: str | None = Field(description="what the operator should do (null when usable)")
+    blocking: list[BlockerOut] = Field(
+        default_factory=list,
+        description="every reason that blocks, in order, each with its action (the first is reason_code; "
+        "empty when usable)",
+    )
 
 
 def _verdict(v: Verdict) -> dict[str, Any]:
@@ -137,6 +150,9 @@ def _verdict(v: Verdict) -> dict[str, Any]:
         "reason_code": None if v.reason is None else _enum(v.reason),
         "reason": v.text,
         "action": v.action,
+        "blocking": [
+            BlockerOut(reason_code=_enum(b.reason), reason=b.text, action=b.action) for b in v.blocking
+        ],
     }
 
 

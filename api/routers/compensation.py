@@ -21,7 +21,7 @@ import tempfile
 from pathlib import Path
 from typing import Annotated
 
-from fastapi import APIRouter, Body
+from fastapi import APIRouter, Body, Request
 
 from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep, WriteAccess
 from api.errors import ApiError
@@ -159,10 +159,17 @@ def get_mechanics(service: ServiceDep) -> MechanicsOut:
     "stored, restored at every start",
 )
 def post_mechanics(
-    service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()]
+    service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()], request: Request
 ) -> MechanicsCommissionOut:
     from drivers.logs import LogFormatError
     from service.contracts.errors import CommissioningError
+    from service.contracts.mechanics import EXAMPLE_NOTE, is_shipped_example
+
+    simulated = bool(getattr(getattr(request.app.state, "clock_info", None), "simulated", False))
+    if is_shipped_example(body.displacements_csv) and not simulated and not body.force:
+        raise ApiError(
+            status=409, code="conflict", message=f"nothing stored: {EXAMPLE_NOTE} (force to store it anyway)"
+        )
 
     try:
         can_bytes = base64.b64decode(body.can_log_base64, validate=True)

@@ -82,8 +82,10 @@ function fmtSig(v, digits = 3) {
 function fmtBound(v, box) {
   if (v === null || v === undefined || Number.isNaN(Number(v))) return "–";
   const [lo, hi] = box || [0.1, 1e4];
-  if (v > hi) return "> " + hi;
-  if (v < lo) return "< " + lo;
+  // a box edge as Python's "{:g}" writes it (the CLI's): 500, not 499.99999999999983
+  const g = (x) => String(Number(Number(x).toPrecision(6)));
+  if (v > hi) return "> " + g(hi);
+  if (v < lo) return "< " + g(lo);
   return fmtSig(v);
 }
 function utc(iso) { return iso ? iso.replace("T", " ").replace(/\.\d+/, "").replace("Z", " UTC") : "–"; }
@@ -246,12 +248,17 @@ const DEVICE_CAUSES = {
   worker: { down: "Identification worker down", degraded: "Identification worker degraded", what: "worker" },
 };
 
+// devices judged on a recent window (the event loop's lag, the core's backlog): no "last ok" time to name
+// (their "never ok" read as a fault that never cleared, though the log said "recovered")
+const NO_LAST_OK = new Set(["event_loop", "core"]);
+
 function deviceCauses(health) {
   const out = [];
   for (const d of health?.devices || []) {
     if (d.status !== "down" && d.status !== "degraded") continue;
     const names = DEVICE_CAUSES[d.name] || { down: `${d.name} down`, degraded: `${d.name} degraded` };
-    const since = d.age_s !== null && d.age_s !== undefined ? `last ok ${ageText(d.age_s)} ago` : "never ok";
+    const known = d.age_s !== null && d.age_s !== undefined;
+    const since = known ? `last ok ${ageText(d.age_s)} ago` : NO_LAST_OK.has(d.name) ? "" : "never ok";
     const detail = [d.message, since].filter(Boolean).join("; ");
     // the database down loses nothing (records are buffered): a warning, not an alarm
     const sev = d.status === "down" && d.name !== "db" ? "alarm" : "warn";
@@ -963,6 +970,7 @@ const ACTION_BY_STATUS = {
   stale: "Check the DAQ and CAN connections (Devices card): the value is not being updated.",
   "no-data": "Wait for samples; if none arrive, check the devices.",
   identifying: "Wait: a new identification is on its way.",
+  converging: "Wait a few minutes: the live temperature state is settling after a (re)start.",
   "at-bound": "Wait for more data at this condition; if it persists, check the sensors.",
   predicted: "Restore the temperature DAQ: the value is predicted without measurements.",
   fresh: "Wait until the estimate is good enough to apply.",

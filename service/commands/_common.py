@@ -27,6 +27,7 @@ __all__ = [
     "DefaultsHelpFormatter",
     "check_database_url",
     "check_listen",
+    "check_listens",
     "check_log_arguments",
     "override",
     "port_number",
@@ -108,6 +109,18 @@ def override(settings: Settings, section: str, **values: object) -> Settings:
     return out
 
 
+def check_listens(settings: Settings) -> None:
+    """``check_listen`` on every port this instance serves: the REST API, and the OPC UA server when enabled
+    (a busy OPC UA port was three tracebacks after the model had loaded: issue 41)."""
+    check_listen(settings.api.host, settings.api.port)
+    ua = settings.opcua
+    if ua.enabled:
+        try:
+            check_listen(ua.host, ua.port)
+        except CommandError as err:
+            raise CommandError(f"opcua.port: {err} (the OPC UA server's port)") from err
+
+
 def check_listen(host: str, port: int) -> None:
     """Raise ``CommandError`` if ``host:port`` cannot be listened on (busy, or not a local address).
 
@@ -141,11 +154,12 @@ def check_database_url(url: str, option: str) -> None:
     from sqlalchemy.engine import make_url
     from sqlalchemy.exc import ArgumentError
 
+    from service.store.dburl import normalize_database_url
     from service.store.engine import SUPPORTED_DATABASES
 
     examples = "sqlite:///PATH or postgresql+psycopg://USER:PASSWORD@HOST:PORT/DB"
     try:
-        parsed = make_url(url)
+        parsed = make_url(normalize_database_url(url))
     except ArgumentError as err:
         raise CommandError(f"{option}: not a database URL: {url!r} (use {examples})") from err
     backend, driver = parsed.get_backend_name(), parsed.get_driver_name()

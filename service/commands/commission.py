@@ -70,6 +70,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     g.add_argument("--timeout", type=float, default=600.0, help="with --url: seconds to wait for the service")
 
 
+class RefusedError(CommandError):
+    """The service answered with an error ``status`` (401, 403, 409, 422, ...)."""
+
+    def __init__(self, message: str, status: int) -> None:
+        super().__init__(message)
+        self.status = status
+
+
 def zero(
     url: str,
     token: str,
@@ -84,7 +92,10 @@ def zero(
     body: dict[str, Any] = {"source": "cli", "set_by": set_by}
     if temperature_c is not None:
         body["temperature_c"] = temperature_c
-    return _post(url, "/api/v1/compensation/reference", body, token, "the zero", timeout_s, transport)
+    try:
+        return _post(url, "/api/v1/compensation/reference", body, token, "the zero", timeout_s, transport)
+    except RefusedError as err:  # the API's field is this command's option (issue 41)
+        raise RefusedError(str(err).replace("temperature_c", "--temperature"), err.status) from err
 
 
 def _post(
@@ -105,7 +116,7 @@ def _post(
             message = resp.json().get("error", {}).get("message", resp.text)
         except ValueError:
             message = resp.text
-        raise CommandError(f"the service refused {what} ({resp.status_code}): {message}")
+        raise RefusedError(f"the service refused {what} ({resp.status_code}): {message}", resp.status_code)
     out: dict[str, Any] = resp.json()
     return out
 
@@ -149,17 +160,27 @@ def _token(args: argparse.Namespace, settings: Any) -> str:
     return str(token)
 
 
-def growth(args: argparse.Namespace) -> int:
-    """``chtc commission growth`` (module docstring)."""
-    from service.commands._common import check_log_arguments
-    from service.engine.commissioning import FitLimits, commission_growth, format_report
-    from service.engine.runtime import core_config, os_user
-    from service.settings import load_settings
+def _check_not_displacements(temperatures: Path) -> None:
+    """``CommandError`` when the file given as TEMPERATURES is the displacement CSV (files swapped)."""
+    from service.engine.commissioning import AXIAL, ORDER
 
-    settings = load_settings(args.config)
-    check_log_arguments(args.temperatures, args.canlog)
-    set_by = args.set_by or os_user()
-    if args.url is not None:
+    try:
+        with temperatures.open(encoding="utf-8-sig", errors="replace") as f:
+            head = [next(f, "") for _ in range(20)]
+    except OSError:
+        return  # a missing file is the reader's to name
+    header = next((line for line in head if line.strip() and not line.lstrip().startswith("#")), "")
+    if AXIAL in header.lower():
+        what = f"argument TEMPERATURES: {temperatures} is the displacement CSV ({AXIAL})"
+        raise CommandError(f"{what}: {ORDER}")
+
+
+def _growth_at(args: argparse.Namespace, settings: Any, set_by: str) -> int:
+    """``--url``: the service fits and stores; its report printed as the offline fit's table (the JSON with
+    ``--json``); a test the model does not explain is refused (409) with exit status 1, as offline."""
+    from service.engine.commissioning import format_report_dict
+
+    try:
         out = send_growth(
             args.url,
             _token(args, settings),
@@ -170,9 +191,37 @@ def growth(args: argparse.Namespace) -> int:
             force=args.force,
             timeout_s=args.timeout,
         )
-        print(json.dumps(out, indent=2))
-        print(f"mechanics stored and in use: {out['report']['verdict']}", file=sys.stderr)
-        return 0
+    except RefusedError as err:
+        if err.status != 409:
+            raise
+        print(f"chtc commission growth: {err}", file=sys.stderr)
+        return 1
+    for line in format_report_dict(out["report"]):
+        print(line)
+    if args.json_out is not None:
+        text = json.dumps(out, indent=2)
+        if args.json_out == "-":
+            print(text)
+        else:
+            Path(args.json_out).write_text(text + "\n", encoding="utf-8")
+    print(f"mechanics stored and in use: {out['report']['verdict']}", file=sys.stderr)
+    return 0
+
+
+def growth(args: argparse.Namespace) -> int:
+    """``chtc commission growth`` (module docstring)."""
+    from service.commands._common import check_log_arguments
+    from service.contracts.mechanics import EXAMPLE_NOTE
+    from service.engine.commissioning import FitLimits, commission_growth, format_report
+    from service.engine.runtime import core_config, os_user
+    from service.settings import load_settings
+
+    settings = load_settings(args.config)
+    _check_not_displacements(args.temperatures)
+    check_log_arguments(args.temperatures, args.canlog)
+    set_by = args.set_by or os_user()
+    if args.url is not None:
+        return _growth_at(args, settings, set_by)
     from service.engine.commissioning import read_displacement_csv
     from service.modelload import ModelRef, load_model
 
@@ -190,6 +239,8 @@ def growth(args: argparse.Namespace) -> int:
     )
     for line in format_report(rep):
         print(line)
+    if "example" in rep.calibration.sources:
+        print(f"WARNING: {EXAMPLE_NOTE}; a running service refuses it outside the demo", file=sys.stderr)
     if args.json_out is not None:
         text = json.dumps(rep.as_dict(), indent=2)
         if args.json_out == "-":

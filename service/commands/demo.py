@@ -11,11 +11,12 @@ process, database writer, the core in its own thread) and the API with the dashb
 Progress lines report detected conditions and identifications (H with fit, and the plant's true H for
 comparison).
 
-All timestamps are simulated plant time (UTC): they start at the real time and run ``--speedup`` times
-faster; ``/healthz`` says so (``clock.simulated``) and the dashboard marks its times "plant time". The demo
-writes with a token: ``api.token`` from ``--config``, else one generated for this run and printed, with the
-dashboard URL carrying it in its fragment (``#write-token=...``: a fragment is never sent to the server, so
-it lands in no request log). Stops on Ctrl-C or after ``--duration`` wall seconds.
+All timestamps are simulated plant time (UTC): they start at the real time (on a ``--database-url`` an
+earlier demo left, a minute after the newest time it holds: ``clock_start_after``) and run ``--speedup``
+times faster; ``/healthz`` says so (``clock.simulated``) and the dashboard marks its times "plant time".
+The demo writes with a token: ``api.token`` from ``--config``, else one generated for this run and printed,
+with the dashboard URL carrying it in its fragment (``#write-token=...``: a fragment is never sent to the
+server, so it lands in no request log). Stops on Ctrl-C or after ``--duration`` wall seconds.
 """
 
 from __future__ import annotations
@@ -29,7 +30,7 @@ import signal
 import tempfile
 import time
 from collections.abc import Callable
-from datetime import datetime
+from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -37,7 +38,7 @@ import numpy as np
 
 from service.commands._common import (
     check_database_url,
-    check_listen,
+    check_listens,
     override,
     port_number,
     positive_float,
@@ -159,9 +160,23 @@ class Printer:
             at_end = getattr(rec, "method", None) == MAP_METHOD
             at = rec.window_to if at_end else rec.window_from + (rec.window_to - rec.window_from) / 2
             t_plant = elapsed - (self.clock() - at).total_seconds()
+            if at_end:  # the map's H at the speed its line names: the plant there, from the window's end on
+                k0 = _row(rows, t_plant)
+                k = _row_at_speed(rows, k0, float(rec.condition.speed_rpm))
+                if k is not None and k != k0:
+                    return k, f"the map at {float(rows.speed_rpm[k]):.0f} rpm, next to the window's end"
             label = "the map at the window's end" if at_end else "mid-window"
             where = f"{label}, {float(rows.speed_rpm[_row(rows, t_plant)]):.0f} rpm"
         return _row(rows, t_plant), where
+
+
+def _row_at_speed(rows: PlantRows, k0: int, speed_rpm: float) -> int | None:
+    """The first row from ``k0`` on at ``speed_rpm`` (±1 rpm), else the last one before it (None: none)."""
+    at = np.flatnonzero(np.abs(np.asarray(rows.speed_rpm, dtype=float) - speed_rpm) <= 1.0)
+    if at.size == 0:
+        return None
+    later = at[at >= k0]
+    return int(later[0]) if later.size else int(at[-1])
 
 
 def _row(rows: PlantRows, t_plant: float) -> int:
@@ -181,6 +196,11 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
 
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)
+    resume_at = await asyncio.to_thread(clock_start_after, db_url)
+    if resume_at is not None:
+        clock.start(at=resume_at)
+        at = resume_at.isoformat(timespec="seconds")
+        print(f"plant clock starts at {at}, after what the database holds", flush=True)
     # the devices and the plant run in a process of their own, as real ones do: it computes the plant's
     # first chunk while this one loads the model
     plan = RigPlan.on_free_ports(
@@ -195,7 +215,11 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
     stop = asyncio.Event()
     _install_signals(stop)
     try:
-        print("loading the model (the first run builds the reduced model, about a minute) ...", flush=True)
+        print(
+            "loading the model (the first run builds the reduced model: 1-4 min by the machine's load; "
+            "later runs load it from the cache) ...",
+            flush=True,
+        )
         await asyncio.to_thread(runtime.load)
         print("starting the virtual plant's machining cycle ...", flush=True)
         await rig.computed()
@@ -221,6 +245,30 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
         await rig.stop()
     print("demo stopped", flush=True)
     return 0
+
+
+def clock_start_after(db_url: str, *, now: datetime | None = None) -> datetime | None:
+    """Where the plant clock starts on a database an earlier demo left: a minute after the newest time it
+    holds, when that is later than now (its accelerated clock ran ahead of the wall clock); None: now. A
+    clock started behind the stored times would date the new samples before the stored live state,
+    conditions and identifications (issue 41)."""
+    from service.store.engine import create_db_engine
+    from service.store.newest import newest_time
+
+    try:
+        engine = create_db_engine(db_url, create_dirs=False)
+    except Exception:  # an unusable URL is the runtime's to report, with its checks
+        return None
+    try:
+        newest = newest_time(engine)
+    except Exception:  # an unreadable database is the runtime's to report, with its checks
+        return None
+    finally:
+        engine.dispose()
+    now = now if now is not None else datetime.now(UTC)
+    if newest is None or newest < now:
+        return None
+    return newest + timedelta(minutes=1)
 
 
 def _announce(args: argparse.Namespace, base_url: str, db_url: str, token: str | None) -> None:
@@ -285,5 +333,5 @@ def main(args: argparse.Namespace) -> int:
         log_spindle_default(settings)
         if args.database_url is not None:
             check_database_url(settings.database.url, "--database-url")
-        check_listen(settings.api.host, settings.api.port)
+        check_listens(settings)
         return asyncio.run(run_demo(args, settings, token))

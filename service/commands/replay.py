@@ -29,6 +29,7 @@ import asyncio
 import contextlib
 import csv
 import json
+import signal
 import sys
 import tempfile
 import time
@@ -55,6 +56,7 @@ from service.commands._common import (
     positive_float,
 )
 from service.commands.identify import format_record, growth_dict, num, record_dict, summary_line
+from service.errors import ServiceError
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -204,11 +206,14 @@ async def _replay(
     from service.engine.runtime import Runtime, ScaledClock
     from service.sim.simrig import SimAddress, make_drivers, replay_rig
 
+    stop = asyncio.Event()  # SIGINT or SIGTERM: stop, store what was identified so far (issue 41)
+    install_stop_signals(stop)
     clock = ScaledClock(args.speedup)
     period_s = settings.acquisition.sample_period_s
     lines = RecordLines()
     runtime = Runtime(settings=settings, clock=clock, on_event=lines.event, simulated_time=True)
-    await asyncio.to_thread(runtime.load)
+    model = await asyncio.to_thread(runtime.load)
+    lines.box = model.ref.h_box  # the CIs as chtc identify prints them (issue 41)
     address = SimAddress.free(speedup=args.speedup)
     rig = await replay_rig(served_csv, args.can, address=address, begin=False)
     replay = rig.replay
@@ -228,17 +233,21 @@ async def _replay(
         if args.api:
             await runtime.wait_api()
             print(f"dashboard: {runtime.url}   (API: {runtime.url}api/v1/chtc)", flush=True)
-        await _begin_in_phase(replay, clock, settings.acquisition.sample_period_s / args.speedup)
-        await asyncio.sleep(replay.duration_s + 2.0 * settings.acquisition.sample_period_s / args.speedup)
+        if not stop.is_set():
+            await _begin_in_phase(replay, clock, settings.acquisition.sample_period_s / args.speedup)
+        tail_s = 2.0 * settings.acquisition.sample_period_s / args.speedup
+        await _sleep_unless(stop, replay.duration_s + tail_s)
         deadline = time.monotonic() + args.grace
         service = runtime.service
         assert service is not None
-        while service.view.running_job is not None and time.monotonic() < deadline:
-            await asyncio.sleep(0.1)
+        while service.view.running_job is not None and time.monotonic() < deadline and not stop.is_set():
+            await _sleep_unless(stop, 0.1)
         records = list(reversed(service.view.records))
         lines.print_new()
-        if watcher is not None:  # the growth served after the last identification
-            await asyncio.sleep(2.0 * period_s / args.speedup)
+        if watcher is not None and not stop.is_set():  # the growth served after the last identification
+            await _sleep_unless(stop, 2.0 * period_s / args.speedup)
+        if stop.is_set():
+            raise ReplayInterrupted(records)
         return records
     finally:
         if watcher is not None:
@@ -249,13 +258,36 @@ async def _replay(
         await rig.stop()
 
 
+class ReplayInterrupted(ServiceError):
+    """SIGINT or SIGTERM stopped the replay; ``records``: what it identified until then (stored). Not a
+    failure: ``main`` writes the records out and exits 130."""
+
+    def __init__(self, records: list[IdentificationRecord]) -> None:
+        super().__init__(f"interrupted after {len(records)} identifications")
+        self.records = records
+
+
+def install_stop_signals(stop: asyncio.Event) -> None:
+    """SIGINT and SIGTERM set ``stop`` (handlers on the running loop: a terminal's Ctrl-C, ``kill``)."""
+    loop = asyncio.get_running_loop()
+    for sig in (signal.SIGINT, signal.SIGTERM):
+        with contextlib.suppress(NotImplementedError, RuntimeError):
+            loop.add_signal_handler(sig, stop.set)
+
+
+async def _sleep_unless(stop: asyncio.Event, seconds: float) -> None:
+    with contextlib.suppress(TimeoutError):
+        await asyncio.wait_for(stop.wait(), timeout=max(0.0, seconds))
+
+
 class RecordLines:
     """Prints the service's events and, after each, the identifications stored since, as ``chtc identify``
     prints them (records restored from an earlier run's database are not this replay's)."""
 
-    def __init__(self) -> None:
+    def __init__(self, box: tuple[float, float] | None = None) -> None:
         self.service: SoftSensorService | None = None
         self.printed: set[int] = set()
+        self.box = box  # the model's H search box: CI bounds beyond it print as identify prints them
 
     def follow(self, service: SoftSensorService | None) -> None:
         self.service = service
@@ -272,7 +304,7 @@ class RecordLines:
         for r in sorted(self.service.view.records, key=lambda r: r.id):
             if r.id not in self.printed:
                 self.printed.add(r.id)
-                print(format_record(r), flush=True)
+                print(format_record(r, self.box), flush=True)
 
 
 class GridClock:
@@ -332,15 +364,20 @@ def main(args: argparse.Namespace) -> int:
         return 2
     log_spindle_default(settings)
     growth = GrowthLog()
+    interrupted = False
     try:
         records = asyncio.run(run_replay(args, settings, growth=growth))
     except (LogFormatError, OSError) as err:
         print(f"chtc replay: {err}", file=sys.stderr)
         return 2
+    except ReplayInterrupted as stop:
+        records, interrupted = stop.records, True
+        print(f"chtc replay: {stop}; writing them out", file=sys.stderr)
     write_out(args.out, records, growth)
     print(summary_line(records))
-    print(f"replay done: {len(records)} identifications -> {args.out} and the database")
+    done = "replay interrupted" if interrupted else "replay done"
+    print(f"{done}: {len(records)} identifications -> {args.out} and the database")
     if args.growth_out is not None:
         growth.write(args.growth_out)
         print(f"growth history: {len(growth.rows)} rows -> {args.growth_out}")
-    return 0
+    return 130 if interrupted else 0

@@ -31,7 +31,7 @@ if TYPE_CHECKING:
 from service.commands._common import (
     CommandError,
     check_database_url,
-    check_listen,
+    check_listens,
     override,
     port_number,
 )
@@ -188,7 +188,7 @@ def main(args: argparse.Namespace) -> int:
         return 0
     try:
         check_database_url(settings.database.url, "database.url")
-        check_listen(settings.api.host, settings.api.port)
+        check_listens(settings)
         migrate = args.migrate or migrates_by_default(settings.database.url)
         return asyncio.run(serve(settings, migrate=migrate))
     except (ConfigError, CommandError, HostError) as err:

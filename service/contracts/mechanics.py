@@ -1,6 +1,7 @@
 """A commissioning of the served growth's mechanics (``MechanicsCalibration``): θ = (s, a_s, a_h) and its
 covariance, made by ``service.engine.commissioning``, stored (``mechanics_calibrations``), updated by probe
-readings (``service.estimate.probe``) and served by ``/compensation`` (docs/commissioning.md).
+readings (``service.estimate.probe``) and served by ``/compensation`` (docs/commissioning.md); and how the
+shipped example thermal test is told apart (``is_shipped_example``: another machine's mechanics).
 
 Errors::
 
@@ -20,9 +21,30 @@ from numpy.typing import NDArray
 from service.contracts.columns import Column, finite, plain_dict
 from service.errors import ServiceError
 
-__all__ = ["MECH_PARAMS", "MechanicsCalibration", "MechanicsError"]
+__all__ = [
+    "EXAMPLE_MARK",
+    "EXAMPLE_NOTE",
+    "MECH_PARAMS",
+    "MechanicsCalibration",
+    "MechanicsError",
+    "is_shipped_example",
+]
 
 Array = NDArray[np.float64]
+# the first line of the shipped example's displacement file (service/data/example_thermal_test_*): another
+# machine's mechanics; a running service refuses it outside the demo, a stored one is marked (issue 41)
+EXAMPLE_MARK = "# chtc: shipped example"
+EXAMPLE_NOTE = (
+    "the shipped example thermal test (service/data/example_thermal_test_*): the virtual plant's mechanics, "
+    "not this spindle's; commission from a test measured on this spindle (docs/commissioning.md)"
+)
+
+
+def is_shipped_example(displacements_csv: str) -> bool:
+    """Whether the displacement CSV's text is the shipped example's (its ``EXAMPLE_MARK`` line)."""
+    return any(line.startswith(EXAMPLE_MARK) for line in displacements_csv.splitlines()[:5])
+
+
 MECH_PARAMS = ("restraint", "alpha_shaft", "alpha_housing")
 
 

@@ -7,7 +7,7 @@ from __future__ import annotations
 import enum
 from dataclasses import dataclass
 
-__all__ = ["ACTIONS", "ChtcStatus", "DataCode", "DataProblem", "Reason", "Verdict"]
+__all__ = ["ACTIONS", "Blocker", "ChtcStatus", "DataCode", "DataProblem", "Reason", "Verdict"]
 
 
 class ChtcStatus(enum.StrEnum):
@@ -17,6 +17,7 @@ class ChtcStatus(enum.StrEnum):
     PREDICTED = "predicted"  # the DAQ is down, CAN speed/torque alive: the live state runs open loop (growth)
     IDENTIFYING = "identifying"  # condition changed; a new identification is queued or running
     STALE = "stale"  # no recent good data (DAQ/CAN down, hung, frozen) or restored, not re-identified
+    CONVERGING = "converging"  # fresh data, the live state settling after a (re)start or a gap
     AT_BOUND = "at-bound"  # identified at the current condition, but an H sits on a bound of the search box
     NO_DATA = "no-data"  # no samples at all
 
@@ -88,18 +89,42 @@ class DataProblem:
 
 
 @dataclass(frozen=True)
+class Blocker:
+    """One reason a served value may not be used, with its detail and the operator's action."""
+
+    reason: Reason
+    detail: str | None = None
+
+    @property
+    def action(self) -> str:
+        return ACTIONS[self.reason]
+
+    @property
+    def text(self) -> str:
+        return self.reason.value if not self.detail else f"{self.reason.value}: {self.detail}"
+
+
+@dataclass(frozen=True)
 class Verdict:
-    """One served value's verdict at an instant: ``reason`` None iff ``usable``."""
+    """One served value's verdict at an instant: ``reason`` None iff ``usable``. ``reason`` and ``detail`` are
+    the first blocking reason; ``more`` the others that block too, in the policy's order (a user who stores
+    the zero then learns at once that the mechanics are uncommissioned, not after)."""
 
     status: ChtcStatus
     usable: bool
     reason: Reason | None = None
     detail: str | None = None
+    more: tuple[Blocker, ...] = ()
 
     @property
     def action(self) -> str | None:
         """What the operator should do (None when usable)."""
         return None if self.reason is None else ACTIONS[self.reason]
+
+    @property
+    def blocking(self) -> tuple[Blocker, ...]:
+        """Every reason that blocks, in order: the first (``reason``) and ``more`` (empty when usable)."""
+        return () if self.reason is None else (Blocker(self.reason, self.detail), *self.more)
 
     @property
     def text(self) -> str | None:

@@ -67,6 +67,7 @@ from service.engine.events import (
 from service.engine.idcounter import IdCounter, rebase_ids
 from service.engine.jobbook import JobBook, job_key
 from service.engine.parts import CONDITIONS_KEPT, CoreParts, Out, h_rel, utc
+from service.engine.restorecut import cut_future
 from service.engine.samples import SampleBook
 from service.engine.serving import serving_for
 from service.engine.view import CoreView, NewestSample
@@ -96,10 +97,17 @@ class ServiceCore:
     ) -> None:
         self.config = config
         self.model = model
-        restored = restored or Restored()
+        self._capacity = history_capacity
+        self._restored: Restored | None = restored or Restored()  # until the first sample (``cut_future``)
+        self._build(self._restored)
+
+    def _build(self, restored: Restored) -> None:
+        """The parts from what the database knew (again at the first sample when some of it was dated after
+        that sample: ``service.engine.restorecut``)."""
+        config, model = self.config, self.model
         serving = serving_for(config.mode, restored)
         n_sensors = len(model.spec.sensors)
-        self._ring = RingBuffer(history_capacity, n_sensors)
+        self._ring = RingBuffer(self._capacity, n_sensors)
         last_point = None
         if restored.conditions:
             c = restored.conditions[0]
@@ -223,6 +231,8 @@ class ServiceCore:
     def _on_sample(self, sample: Sample, out: Out) -> None:
         """Store, advance the live state, detect; then the tracks (the map's first, as it reserves job ids
         before this sample's per-condition jobs)."""
+        if self._restored is not None:
+            self._restore_until(sample.t.timestamp())
         p = self._p
         self._ring.append(sample)  # first: an out-of-order sample raises before anything changed
         ts = sample.t.timestamp()
@@ -249,6 +259,18 @@ class ServiceCore:
             todo += self._on_change(change, out)
         self._tracks.maps.sample(newest, ts, out)
         self._tracks.schedule.tick(todo, ts, out)
+
+    def _restore_until(self, ts: float) -> None:
+        """At the first sample: what was restored dated after it is not resumed (the parts are built again
+        without it; the next ids, possibly re-based by ``IdsKnown`` meanwhile, are kept)."""
+        restored, self._restored = self._restored, None
+        assert restored is not None
+        kept, notes = cut_future(restored, ts)
+        if not notes:
+            return
+        next_ids = self._cond_ids.next_id, self._p.jobs.id_counter.next_id
+        self._build(replace(kept, next_condition_id=next_ids[0], next_identification_id=next_ids[1]))
+        self._notes[:0] = notes
 
     def _checkpoint(self, ts: float, out: Out) -> None:
         """Hand the live state to the writer every ``live_checkpoint_s`` of sample time; log start notes."""

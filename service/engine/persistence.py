@@ -296,6 +296,9 @@ class Persistence:
     owns_engines: bool = True  # False: the engines are a SharedDatabase's, closed by its owner
     heartbeat: Heartbeat | None = None  # the writer engine's idle probe (a SharedDatabase's, shared)
     retention: bool = True  # run the retention pass (it covers every spindle: one per database suffices)
+    # the clock is a log's or a plant's (replay, demo): the retention pass ages rows by the newest stored
+    # sample, not by the clock (a replayed log is older than raw_days by the wall clock: issue 41)
+    log_time: bool = False
     _task: asyncio.Task[None] | None = None
     _retention_task: asyncio.Task[None] | None = None
     last_retention: RetentionReport | None = None
@@ -382,6 +385,10 @@ class Persistence:
         from service.store.retention import retention_pass
 
         now = self.clock() if self.clock is not None else _dt.now(UTC)
+        if self.log_time:
+            from service.store.newest import newest_sample_time
+
+            now = newest_sample_time(self.writer_engine or self.engine) or now
         db = self.settings
         return retention_pass(
             self.writer_engine or self.engine, now=now, raw_days=db.raw_days, minute_days=db.minute_days
@@ -559,12 +566,14 @@ def open_persistence(
     spindle: SpindleSettings | None = None,
     shared: SharedDatabase | None = None,
     retention: bool = True,
+    log_time: bool = False,
 ) -> Persistence:
     """Engine + schema + restore + writer for ``settings.database``; never raises for a database outage.
 
     ``clock`` is the service's one clock (``service.engine.runtime.ScaledClock`` in the demo): the writer
     stamps its
     outage events and ``last_ok_at`` with it, so database health ages are on the same time axis as the rest.
+    ``log_time``: that clock replays a log (``Persistence.log_time``: retention ages by the stored samples).
     """
     from service.store.reads import DbReads
 
@@ -635,6 +644,7 @@ def open_persistence(
         owns_engines=shared is None,
         heartbeat=heartbeat,
         retention=retention,
+        log_time=log_time,
     )
 
 

@@ -232,6 +232,7 @@ class Runtime:
             spindle=s.spindle,
             shared=self.shared_db,
             retention=self.retention,
+            log_time=self.simulated_time,
         )
         self.persistence.start_background()
         self.ring = RingBuffer(s.acquisition.ring_capacity, len(model.spec.sensors))

@@ -497,12 +497,14 @@ class FilteredState:
             return self.initialize(float(t), inputs, temps_c, usable, reason="prediction lost")
         return self._after_step(n, res)
 
-    def mark(self, t: float) -> StateSnapshot:
+    def mark(self, t: float) -> StateSnapshot | None:
         """Keep the estimate of the latest step at or before ``t`` [s] as a snapshot (a window can start
-        there); called at a condition change, whose start lies up to the hold time in the past."""
+        there); called at a condition change, whose start lies up to the hold time in the past. None when
+        the state has none that old (it started after ``t``: a window cannot start there; never an error)."""
         older = [s for s in self._recent if s.t <= t + 0.5 * self.dt_s]
         if not older:
-            return self.field_at(t)
+            kept = [s for s in self._snapshots if s.t <= t + 0.5 * self.dt_s]
+            return kept[-1] if kept else None
         snap = older[-1]
         if all(s.t != snap.t for s in self._snapshots):
             kept = sorted([*self._snapshots, snap], key=lambda s: s.t)

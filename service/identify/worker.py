@@ -403,6 +403,10 @@ async def supervise_job(
     try:
         with single_threaded_children():
             fut = submit()
+        # a job given up (cancelled, discarded) may still end in an error nobody awaits: the pool's close
+        # terminates its process (BrokenProcessPool); asyncio then logged "Future exception was never
+        # retrieved" at every stop during a job (issue 41)
+        fut.add_done_callback(_retrieve)
         try:
             return await asyncio.wait_for(asyncio.shield(fut), timeout=timeout_s)
         except TimeoutError:
@@ -416,6 +420,11 @@ async def supervise_job(
     except BrokenProcessPool as err:
         discard()
         return JobOutcome(job_id=job_id, status=Outcome.FAILED, message=f"worker process died: {err}")
+
+
+def _retrieve(fut: asyncio.Future[JobOutcome]) -> None:
+    if not fut.cancelled():
+        fut.exception()
 
 
 async def _after_cancel(

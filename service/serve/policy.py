@@ -31,7 +31,7 @@ from typing import Protocol
 import numpy as np
 
 from service.contracts.snapshots import ConditionSnapshot, ConditionState
-from service.contracts.verdict import ChtcStatus, DataCode, DataProblem, Reason, Verdict
+from service.contracts.verdict import Blocker, ChtcStatus, DataCode, DataProblem, Reason, Verdict
 
 __all__ = [
     "CompensationLimits",
@@ -141,11 +141,12 @@ def data_verdict(
 
 def _live_verdict(live: LiveLike | None, now: datetime) -> Verdict | None:
     if live is None:
-        return Verdict(ChtcStatus.STALE, False, Reason.STATE_CONVERGING, "the live state has not started")
+        not_started = "the live state has not started"
+        return Verdict(ChtcStatus.CONVERGING, False, Reason.STATE_CONVERGING, not_started)
     if not live.converged:
         since = _iso(datetime.fromtimestamp(live.started_at, tz=now.tzinfo))
         return Verdict(
-            ChtcStatus.STALE,
+            ChtcStatus.CONVERGING,
             False,
             Reason.STATE_CONVERGING,
             f"the live temperature state has not converged since {since} (restart or data gap)",
@@ -175,8 +176,11 @@ def compensation_verdict(
     data (``no_data``, ``stale``, ``open_loop_too_long``; ``stale`` at once when the newest sample has neither
     DAQ nor CAN data), live state (``state_converging``,
     ``state_inconsistent``), ``no_reference``, ``mechanics_uncalibrated`` (only when ``limits`` require a
-    commissioning and ``has_mechanics`` is false), ``identification_old``, ``ci_too_wide``. The status is
-    ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``stale`` or ``no-data``."""
+    commissioning and ``has_mechanics`` is false), ``no_identification`` or ``identification_old``,
+    ``ci_too_wide`` (not judged while the data or the live state block). The first is the verdict's
+    ``reason``; every one that blocks is listed, in this order, in ``Verdict.blocking``. The status is
+    ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``converging`` (the live state settles),
+    ``stale`` or ``no-data``."""
     open_loop_s = 60.0 * limits.max_open_loop_min
     data = data_verdict(
         view.data_problems(now),
@@ -210,42 +214,71 @@ def compensation_verdict(
             Reason.STALE,
             "neither temperatures (DAQ) nor speed/torque (CAN) in the newest sample (see /readyz)",
         )
+    found: list[Verdict] = []  # every blocking reason, in order
     if data is not None and not data.usable:
-        return data
+        found.append(data)
     live = _live_verdict(view.live, now)
     if live is not None:
-        return Verdict(
-            status if status is ChtcStatus.PREDICTED else live.status, False, live.reason, live.detail
-        )
+        first = status if status is ChtcStatus.PREDICTED else live.status
+        found.append(Verdict(first if not found else live.status, False, live.reason, live.detail))
+    transient = bool(found)  # the data or the live state: the growth's CI means nothing then
     if not has_reference:
-        return Verdict(status, False, Reason.NO_REFERENCE, "no compensation reference (zero) is stored")
+        no_zero = "no compensation reference (zero) is stored"
+        found.append(Verdict(status, False, Reason.NO_REFERENCE, no_zero))
     if limits.require_mechanics_calibration and not has_mechanics:
-        return Verdict(
-            status,
-            False,
-            Reason.MECHANICS_UNCALIBRATED,
-            "the mechanics (mount restraint, α) are not commissioned: the growth's CI does not cover an "
-            "unknown mount (compensation.require_mechanics_calibration)",
+        found.append(
+            Verdict(
+                status,
+                False,
+                Reason.MECHANICS_UNCALIBRATED,
+                "the mechanics (mount restraint, α) are not commissioned: the growth's CI does not cover an "
+                "unknown mount (compensation.require_mechanics_calibration)",
+            )
         )
+    found += _identification_blockers(
+        status, now, identified_at, None if transient else ci95_half_um, limits=limits
+    )
+    if not found:
+        return Verdict(status, True)
+    head = found[0]
+    more = tuple(Blocker(v.reason, v.detail) for v in found[1:] if v.reason is not None)
+    return Verdict(head.status, False, head.reason, head.detail, more=more)
+
+
+def _identification_blockers(
+    status: ChtcStatus,
+    now: datetime,
+    identified_at: datetime | None,
+    ci95_half_um: float | None,
+    *,
+    limits: CompensationLimits,
+) -> list[Verdict]:
+    """``no_identification`` or ``identification_old``; ``ci_too_wide`` (``ci95_half_um`` None: not
+    judged)."""
     if identified_at is None:
-        return Verdict(status, False, Reason.NO_IDENTIFICATION, "no H identified yet")
+        return [Verdict(status, False, Reason.NO_IDENTIFICATION, "no H identified yet")]
+    out = []
     age_min = max(0.0, (now - identified_at).total_seconds()) / 60.0
     if age_min > limits.max_identification_age_min:
-        return Verdict(
-            status,
-            False,
-            Reason.IDENTIFICATION_OLD,
-            f"the H in use were identified {age_min:.0f} min ago "
-            f"(limit {limits.max_identification_age_min:.0f} min)",
+        out.append(
+            Verdict(
+                status,
+                False,
+                Reason.IDENTIFICATION_OLD,
+                f"the H in use were identified {age_min:.0f} min ago "
+                f"(limit {limits.max_identification_age_min:.0f} min)",
+            )
         )
-    if not np.isfinite(ci95_half_um) or ci95_half_um > limits.max_ci95_um:
-        return Verdict(
-            status,
-            False,
-            Reason.CI_TOO_WIDE,
-            f"95 % CI half-width {ci95_half_um:.2f} µm over the tolerance {limits.max_ci95_um:.2f} µm",
+    if ci95_half_um is not None and (not np.isfinite(ci95_half_um) or ci95_half_um > limits.max_ci95_um):
+        out.append(
+            Verdict(
+                status,
+                False,
+                Reason.CI_TOO_WIDE,
+                f"95 % CI half-width {ci95_half_um:.2f} µm over the tolerance {limits.max_ci95_um:.2f} µm",
+            )
         )
-    return Verdict(status, True)
+    return out
 
 
 def chtc_verdict(
@@ -268,9 +301,10 @@ def chtc_verdict(
     """Whether the H served now may be used by a model that needs them (``/chtc``), and their status.
 
     The status: with the speed map serving (``map_verdict``), the map's; otherwise ``no-data`` (no sample;
-    ``stale`` for a restored record), ``stale`` (data not fresh, a restored record, or the live state not
-    converged), ``identifying`` (a job runs, or the record is of another condition, or the condition is
-    changing), else ``fresh``; a ``fresh`` one with an H on a bound of the search box is ``at-bound``.
+    ``stale`` for a restored record), ``stale`` (data not fresh), ``converging`` (fresh data, the live state
+    not converged yet), ``stale`` (a restored record), ``identifying`` (a job runs, or the record is of
+    another condition, or the condition is changing), else ``fresh``; a ``fresh`` one with an H on a bound of
+    the search box is ``at-bound``.
 
     The reason, in order: ``no_data``, ``stale`` (the H need measured temperatures: no open loop),
     ``state_converging``, the map's own (``map_old``, ``speed_not_visited``, ``restored``),
@@ -281,7 +315,11 @@ def chtc_verdict(
         status = map_verdict.status
     elif not has_sample:
         status = ChtcStatus.STALE if restored else ChtcStatus.NO_DATA
-    elif problems or restored or converging:
+    elif problems:
+        status = ChtcStatus.STALE
+    elif converging:  # fresh data: the live state settles (the H served are the last identified ones)
+        status = ChtcStatus.CONVERGING
+    elif restored:
         status = ChtcStatus.STALE
     elif (
         running
@@ -369,9 +407,10 @@ def map_verdict(
 ) -> Verdict:
     """How current the speed map is at the current speed. In this order: ``no-data`` (no sample), ``stale``
     (``problems``; or no speed known at all: ``speed_rpm`` None with a sample; or ``restored``: the stored
-    map, not re-fitted since the restart; or ``state_converging``), then ``identifying`` with ``map_old`` (the
-    fit's window ended more than ``fresh_s`` before the newest sample) or ``speed_not_visited`` (the current
-    speed is not within ``margin_rpm`` of a speed with >= ``min_visit_s`` of fitted data), else ``fresh``."""
+    map, not re-fitted since the restart), ``converging`` (``state_converging``), then ``identifying`` with
+    ``map_old`` (the fit's window ended more than ``fresh_s`` before the newest sample) or
+    ``speed_not_visited`` (the current speed is not within ``margin_rpm`` of a speed with >= ``min_visit_s``
+    of fitted data), else ``fresh``."""
     stale = ChtcStatus.STALE
     if newest_t is None:
         if speed_map.restored:
@@ -385,7 +424,7 @@ def map_verdict(
         return Verdict(stale, False, Reason.RESTORED, "the stored map, not re-fitted since the restart")
     if converging_since is not None:
         detail = f"the live temperature state has not converged since {_iso(converging_since)}"
-        return Verdict(stale, False, Reason.STATE_CONVERGING, detail)
+        return Verdict(ChtcStatus.CONVERGING, False, Reason.STATE_CONVERGING, detail)
     age = (newest_t - speed_map.fitted_at).total_seconds()
     if age > fresh_s:
         return Verdict(

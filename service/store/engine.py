@@ -26,6 +26,7 @@ from sqlalchemy.engine.interfaces import DBAPIConnection
 from sqlalchemy.orm import ORMExecuteState, Session, sessionmaker, with_loader_criteria
 from sqlalchemy.pool import ConnectionPoolEntry
 
+from service.store.dburl import normalize_database_url
 from service.store.errors import DatabaseUnavailableError
 
 # What the store is built and tested for: backend -> the SQLAlchemy drivers (a URL's ``+driver``).
@@ -51,6 +52,7 @@ def create_db_engine(
     ``pool_size`` and ``max_overflow`` bound the pool (None: SQLAlchemy's defaults, 5 and 10);
     ``transaction_pooling``: the server is reached through a transaction-mode pooler (no prepared statements).
     """
+    url = normalize_database_url(url)  # postgres://, postgresql:// -> postgresql+psycopg://
     parsed = make_url(url)
     if parsed.get_backend_name() == "sqlite":
         return _sqlite_engine(url, echo=echo, busy_timeout_ms=sqlite_busy_timeout_ms, create_dirs=create_dirs)

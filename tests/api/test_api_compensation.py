@@ -157,6 +157,14 @@ def test_the_verdict_is_the_policys_on_the_growth_and_goes_stale_when_data_stop(
     assert comp["usable_for_compensation"] is expected.usable
     assert comp["reason_code"] == (None if expected.reason is None else expected.reason.value)
     assert (comp["action"] is None) is expected.usable
+    # every blocking reason, in order, each with its action (issue 41 item 17)
+    assert [b["reason_code"] for b in comp["blocking"]] == [b.reason.value for b in expected.blocking]
+    assert [b["action"] for b in comp["blocking"]] == [b.action for b in expected.blocking]
+    assert (
+        comp["blocking"][:1]
+        == [{"reason_code": comp["reason_code"], "reason": comp["reason"], "action": comp["action"]}]
+        or expected.usable
+    )
     limit = served.svc.view.stale_after_s
     try:
         clock.now = last.t + timedelta(seconds=limit - 1)

@@ -15,6 +15,7 @@ from sqlalchemy import func, select
 from api.app import create_app
 from model.plant import Segment
 from model.plantmech import mechanics_for_seed
+from service.cli import main
 from service.commands.commission import send_growth
 from service.settings import Settings
 from service.sim.served import served_service
@@ -102,7 +103,21 @@ def test_commissioning_needs_the_token_names_bad_input_and_is_used_and_restored(
             assert session.scalar(select(func.count()).select_from(MechanicsCalibrationRow)) == 1
 
 
-def test_the_cli_sends_the_test_and_reports_a_refusal(thermal_test: ThermalTest, tmp_path: Path) -> None:
+def _scaled(csv_text: str, factor: float) -> str:
+    """The displacement CSV with every µm value times ``factor`` (the time column kept)."""
+    out = []
+    for line in csv_text.splitlines():
+        cells = line.split(",")
+        if line.startswith("#") or len(cells) < 2 or not cells[1].replace(".", "").lstrip("-").isdigit():
+            out.append(line)  # a comment or the header
+            continue
+        out.append(",".join([cells[0], *(f"{float(c) * factor:.4f}" if c else c for c in cells[1:])]))
+    return "\n".join(out) + "\n"
+
+
+def test_the_cli_sends_the_test_and_reports_a_refusal(
+    thermal_test: ThermalTest, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     from service.commands._common import CommandError
 
     settings = per_condition(Settings(api={"token": WRITE_TOKEN}, identification=DEMO_WINDOWS))  # type: ignore[arg-type]
@@ -114,5 +129,19 @@ def test_the_cli_sends_the_test_and_reports_a_refusal(thermal_test: ThermalTest,
             with pytest.raises(CommandError, match=r"\(403\)"):
                 send_growth(live.url, "w" * 40, set_by="x", **files)
             out = send_growth(live.url, WRITE_TOKEN, set_by="dave", **files)
+            # issue 41 items 6 and 14: --url prints the offline table, not ~150 lines of JSON; a test the
+            # model does not explain (the displacements scaled by 1.3: α beyond 1 ± 0.15) is exit status 1
+            args = ["commission", "growth", str(t.temperatures), str(t.canlog), str(t.displacements)]
+            args += ["--url", live.url, "--token", WRITE_TOKEN, "--set-by", "dave"]
+            assert main(args) == 0
+            printed = capsys.readouterr().out
+            assert "parameter                 value" in printed and "verdict: the model explains" in printed
+            assert not printed.lstrip().startswith("{")
+            scaled = tmp_path / "scaled.csv"
+            scaled.write_text(_scaled(t.displacements.read_text(), 1.3))
+            args[4] = str(scaled)
+            assert main(args) == 1
+            err = capsys.readouterr().err
+            assert "(409)" in err and "does not explain" in err and len(err.strip().splitlines()) == 1, err
         assert out["stored"] and out["mechanics"]["source"] == "cli" and out["mechanics"]["set_by"] == "dave"
         assert s.service.compensation_mechanics() is not None

@@ -104,7 +104,9 @@ def test_the_cli_says_why_the_service_refuses(served: object) -> None:
 
     app = create_app(Settings(api={"token": WRITE_TOKEN}), served.service, clock=served.clock)  # type: ignore[attr-defined]
     with LiveServer(app) as live:
-        with pytest.raises(CommandError, match=r"\(409\).*turns"):
+        with pytest.raises(CommandError, match=r"\(409\).*turns") as refused:
             zero(live.url, WRITE_TOKEN, temperature_c=None, set_by="x")
+        # the command's option, not the API's field (issue 41 item 5)
+        assert "--temperature" in str(refused.value) and "temperature_c" not in str(refused.value)
         with pytest.raises(CommandError, match=r"\(403\)"):
             zero(live.url, "w" * 40, temperature_c=None, set_by="x")

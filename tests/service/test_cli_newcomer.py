@@ -263,5 +263,13 @@ def test_replay_prints_h_with_cis_and_writes_no_undocumented_file(
     # each block's first line names its fit (the summary line after the last block names both kinds)
     assert sum("speed-map fit" in b.splitlines()[0] for b in blocks) == len(maps)
     assert all(f"H{i}=" in b for b in blocks for i in range(1, 8))
+    # the CIs as chtc identify prints them: a bound beyond the search box [5, 200] is "> 200" / "< 5"
+    # (replay printed [4.63, 415] where identify printed [< 5, > 200]: issue 41 item 9)
+    import re
+
+    cis = [ci.split(", ") for b in blocks for ci in re.findall(r"H\d=[0-9.]+ \[([^\]]+)\]", b)]
+    assert len(cis) == 7 * len(blocks)
+    bounds = [float(x) for ci in cis for x in ci if not x.startswith(("<", ">"))]
+    assert all(5.0 <= x <= 200.0 for x in bounds), sorted(bounds)[-3:]
     assert f"{len(rows)} identifications: " in printed
     assert list(work.iterdir()) == [] and sorted(p.name for p in out.parent.iterdir()) == ["ids.json"]

@@ -96,6 +96,10 @@ def test_the_cli_recovers_the_drawn_mechanics_within_their_ci(
     assert {ph["phase"].split()[0] for ph in rep["phases"]} == {"heat-up", "cool-down"}
     assert rep["sources"]["displacements"] == hashlib.sha256(t.displacements.read_bytes()).hexdigest()
     assert rep["timings_s"]["fit_s"] < 10.0
+    # the test's zero is the spindle's uniform start temperature (21.0 °C here), not the first converged
+    # field's mean (issue 41 item 14: 21.00 °C printed for a spindle uniform at 21.51 °C)
+    assert rep["t_ref_c"] == pytest.approx(21.0, abs=0.06), rep["t_ref_c"]
+    assert f"zero at {rep['t_ref_c']:.2f} °C" in text
 
 
 @pytest.fixture(scope="module")

@@ -56,3 +56,23 @@ def test_a_map_fits_truth_is_at_its_window_end(capsys) -> None:
     assert "map H = [2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5] at 4000 rpm" in out
     want = "plant truth H = [2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0] (the map at the window's end, 4000 rpm)"
     assert want in out
+
+
+def test_a_map_fits_truth_is_at_the_speed_its_line_names(capsys) -> None:
+    """Issue 41 item 10: a map fit launched at a condition change holds the map at the new condition (4000
+    rpm), while the plant at the window's end still ran the old speed (3000 rpm); the truth line was printed
+    for 3000 rpm under a map line at 4000 rpm. It is the plant's truth at the named speed: the first row of
+    that speed from the window's end on."""
+    plant_now = 3700.0
+    record = SimpleNamespace(
+        window_from=T0,
+        window_to=T0 + timedelta(seconds=3590),  # 10 s before the plant reached 4000 rpm
+        method="speed-map",
+        h=[2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5],
+        condition=SimpleNamespace(speed_rpm=4000.0),
+    )
+    printer = _printer(plant_now, record)
+    printer("map identification job-6 ok: 7 model runs, RMSE 0.107 °C, 0.18 s; visited 3 speed bins")
+    out = capsys.readouterr().out
+    assert "map H = [2.1, 4.0, 6.0, 8.0, 10.0, 12.0, 14.5] at 4000 rpm" in out
+    assert "plant truth H = [2.0, 4.0, 6.0, 8.0, 10.0, 12.0, 14.0] (the map at 4000 rpm" in out, out

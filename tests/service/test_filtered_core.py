@@ -64,8 +64,8 @@ def _restored(core: ServiceCore) -> Restored:
 
 def test_a_restart_mid_run_waits_for_convergence_then_serves_fresh_h(loaded_model, run_samples) -> None:  # type: ignore[no-untyped-def]
     """The service runs 25 min, restarts with what it stored (not its live state): the new live state starts
-    from the wide prior; /chtc serves the stored H as stale with reason ``state_converging``; no window is
-    launched before the state has converged, none starts before the convergence time, and fresh H come
+    from the wide prior; /chtc serves the stored H as converging with reason ``state_converging``; no window
+    is launched before the state has converged, none starts before the convergence time, and fresh H come
     within 15 min of the restart."""
     run, samples = run_samples
     cfg = core_config(per_condition())  # the per-condition schedule after convergence (restart bench figures)
@@ -91,7 +91,7 @@ def test_a_restart_mid_run_waits_for_convergence_then_serves_fresh_h(loaded_mode
         snap = svc.chtc()
         assert snap is not None
         if live is not None and not live.converged:
-            assert snap.status is ChtcStatus.STALE
+            assert snap.status is ChtcStatus.CONVERGING
             assert snap.reason is not None and snap.reason.startswith("state_converging"), snap.reason
             assert snap.identification_id == first.view().current.id  # the stored H, with its time
         if first_fresh is None and not svc.view.current_from_restore:

@@ -159,12 +159,13 @@ def test_snapshots_marks_gaps_and_errors(case: Case) -> None:
         state.push(10.0 * k + 0.4, **_sample(run, k))  # sample times jitter around the 10-s grid
     assert state.t == 190.0
     snap = state.mark(123.0)  # a condition change: the step at or before t is kept for a window start
-    assert snap.t == 120.0 and state.field_at(123.0).t == 120.0
+    assert snap is not None and snap.t == 120.0 and state.field_at(123.0).t == 120.0
     assert state.field_at(100.0).t == 60.0  # otherwise one snapshot a minute
     np.testing.assert_array_equal(state.covariance_at(123.0), snap.cov)
     assert snap.field_c.shape == (case.model.rom.n_nodes,) and np.all(snap.field_std_c > 0)
     with pytest.raises(LiveStateError, match="no live-state snapshot"):
         state.field_at(-100.0)
+    assert state.mark(-100.0) is None  # before the state began (a clock stepped back): nothing, no error
     # a gap longer than max_gap_s restarts from the wide prior: large covariance again, not converged
     before = float(np.trace(state.field_now().cov))
     upd = state.push(190.0 + 3600.0, **_sample(run, 20))

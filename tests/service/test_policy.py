@@ -90,7 +90,9 @@ def test_each_limit_withholds_with_its_own_code(kw: dict[str, object], expected:
 
 def test_the_live_state_must_have_converged_and_agree_with_the_data() -> None:
     assert verdict(View(live=None))[2] is Reason.STATE_CONVERGING
-    assert verdict(View(live=Live(converged=False))) == (ChtcStatus.STALE, False, Reason.STATE_CONVERGING)
+    # fresh data, the state settling: converging, not stale (issue 41 item 4)
+    settling = View(live=Live(converged=False))
+    assert verdict(settling) == (ChtcStatus.CONVERGING, False, Reason.STATE_CONVERGING)
     recent = Live(high_since=NOW.timestamp() - 60.0)  # NIS high for 1 min: not yet inconsistent
     assert verdict(View(live=recent))[1]
     long = Live(high_since=NOW.timestamp() - 600.0)
@@ -152,3 +154,37 @@ def test_an_uncalibrated_mechanics_is_not_usable_when_the_setting_asks_for_it() 
     assert verdict(limits=off, has_mechanics=False) == (ChtcStatus.FRESH, True, None)  # the rule off
     # the zero comes first: nothing to compensate against without one
     assert verdict(limits=strict, has_mechanics=False, has_reference=False)[2] is Reason.NO_REFERENCE
+
+
+def test_every_blocking_reason_is_listed_in_order_with_its_action() -> None:
+    """Issue 41 item 17: out of the box the zero and the commissioning are both missing; the verdict names
+    both at once (the first stays ``reason`` for compatibility), each with its action, in the policy's
+    order."""
+    from service.contracts.verdict import ACTIONS
+
+    strict = replace(LIMITS, max_identification_age_min=480.0, require_mechanics_calibration=True)
+    args: dict[str, object] = {
+        "has_sample": True,
+        "ci95_half_um": 2.5,
+        "identified_at": NOW - timedelta(hours=9),
+    }
+    v = compensation_verdict(View(), NOW, limits=strict, has_reference=False, has_mechanics=False, **args)  # type: ignore[arg-type]
+    assert v.reason is Reason.NO_REFERENCE
+    codes = [b.reason for b in v.blocking]
+    assert codes == [
+        Reason.NO_REFERENCE,
+        Reason.MECHANICS_UNCALIBRATED,
+        Reason.IDENTIFICATION_OLD,
+        Reason.CI_TOO_WIDE,
+    ]
+    assert [b.action for b in v.blocking] == [ACTIONS[c] for c in codes]
+    converging = View(live=Live(converged=False))
+    v = compensation_verdict(converging, NOW, limits=strict, has_reference=False, has_mechanics=True, **args)  # type: ignore[arg-type]
+    # the live state first; the CI of a state that has not converged is not judged
+    assert [b.reason for b in v.blocking] == [
+        Reason.STATE_CONVERGING,
+        Reason.NO_REFERENCE,
+        Reason.IDENTIFICATION_OLD,
+    ]
+    assert compensation_verdict(View(), NOW, limits=LIMITS, has_sample=True, ci95_half_um=0.5,
+                                identified_at=NOW, has_reference=True).blocking == ()  # fmt: skip

@@ -60,7 +60,7 @@ def test_restart_restores_last_h_stale_with_ids_and_history(tmp_path, loaded_mod
     now[0] = later[-1].t + timedelta(seconds=1)
     assert svc.condition().id == ok[-1].condition.id
     snap = svc.chtc()
-    assert snap.status is ChtcStatus.STALE
+    assert snap.status is ChtcStatus.CONVERGING  # fresh data: not stale (issue 41 item 4)
     # the live state restarted from its wide prior: /chtc says why no fresh H may come yet
     assert snap.reason is not None and snap.reason.startswith("state_converging"), snap.reason
     page = svc.list_identifications(since=None, until=None, limit=10, offset=0)
@@ -133,8 +133,8 @@ CURRENT = (ChtcStatus.FRESH, ChtcStatus.AT_BOUND)  # identified at the current c
 def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(tmp_path):
     """The served service (``service.sim.served``: the real core and shell, SQLite, samples of a
     virtual-plant run, jobs inline) stopped mid-run and restarted on its database: the last stored H is
-    served at once as ``stale`` with its time, never usable, with ``state_converging`` as the reason until
-    the filtered live state has converged; no identification window starts before that; then a new H
+    served at once with its time, never usable, as ``converging`` with ``state_converging`` as the reason
+    until the filtered live state has converged; no identification window starts before that; then a new H
     comes within the restart bench's bound (sample time), served at its condition (``fresh``, or
     ``at-bound`` when one of its H sits on a bound) over HTTP."""
     from fastapi.testclient import TestClient
@@ -171,15 +171,16 @@ def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(
                     break
                 live = svc.core.view().live
                 assert live is not None
-                # the stored H: stale, with its time, never usable
-                assert snap.status is ChtcStatus.STALE and snap.identified_at == last_at, snap
+                # the stored H, with its time, never usable: converging while the state settles, then stale
+                want = ChtcStatus.STALE if live.converged else ChtcStatus.CONVERGING
+                assert snap.status is want and snap.identified_at == last_at, snap
                 assert snap.usable_for_compensation is False
                 if not live.converged:
                     assert converged_at is None, "the state converged, then unconverged"
                     assert snap.reason is not None and snap.reason.startswith("state_converging"), snap.reason
                     if second.fed == RESTART_AT + 1:  # and so over HTTP, right after the restart
                         body = client.get("/api/v1/chtc").json()
-                        assert body["status"] == "stale" and body["identification_id"] == last_id
+                        assert body["status"] == "converging" and body["identification_id"] == last_id
                         assert datetime.fromisoformat(body["identified_at"]) == last_at
                         assert body["usable_for_compensation"] is False
                         assert body["reason"].startswith("state_converging"), body["reason"]

@@ -175,7 +175,7 @@ def test_status_rules(served) -> None:
     assert status(speed_rpm=far) == "identifying speed_not_visited"
     assert status(newest_t=m.fitted_at + timedelta(minutes=16)) == "identifying map_old"
     assert status(problems=(DataProblem(DataCode.DAQ_NO_GOOD_DATA, ""),)) == "stale stale"
-    assert status(converging_since=now) == "stale state_converging"
+    assert status(converging_since=now) == "converging state_converging"
     restored = SpeedMap.from_json(m.to_json(), identification_id=m.identification_id)
     assert status(map=restored) == "stale restored"
     assert status(newest_t=None, speed_rpm=None) == "no-data no_data"

@@ -93,3 +93,30 @@ def test_a_broken_pool_is_discarded_and_its_job_failed() -> None:
     out = asyncio.run(pool.run())
     assert (out.status, out.message) == (Outcome.FAILED, "worker process died: a process died")
     assert (pool.cancels, pool.discards) == (0, 1)
+
+
+def test_a_pool_that_breaks_after_a_cancel_leaves_no_unretrieved_exception(
+    caplog: pytest.LogCaptureFixture,
+) -> None:
+    """Issue 41 (``chtc demo`` stopped during a job): the job's task is cancelled, the worker's pool is then
+    terminated and the job's future ends in ``BrokenProcessPool`` with nobody waiting for it; asyncio logged
+    ``ERROR Future exception was never retrieved``."""
+    import gc
+
+    async def scenario() -> None:
+        pool = Pool(stops_when_cancelled=False)
+        task = asyncio.ensure_future(pool.run(timeout_s=10.0, grace_s=0.01))
+        while pool.fut is None:
+            await asyncio.sleep(0)
+        task.cancel()
+        with pytest.raises(asyncio.CancelledError):
+            await task
+        assert pool.fut is not None
+        pool.fut.set_exception(BrokenProcessPool("terminated at close"))  # the pool's close
+        pool.fut = None
+        await asyncio.sleep(0)
+
+    with caplog.at_level("ERROR", logger="asyncio"):
+        asyncio.run(scenario())
+        gc.collect()
+    assert not [r for r in caplog.records if "never retrieved" in r.getMessage()], caplog.text
