@@ -8,7 +8,7 @@ Naming: every number carries its unit in its name (``h_w_m2k``, ``ambient_c``, `
 from __future__ import annotations
 
 import math
-from datetime import datetime, timedelta
+from datetime import UTC, datetime, timedelta
 from typing import Any, Literal
 
 import numpy as np
@@ -119,6 +119,33 @@ class SpindleAnswer(BaseModel):
     )
 
 
+class SensorFaultOut(BaseModel):
+    """A channel the live state leaves out: stuck or drifting without the DAQ flagging it."""
+
+    channel: int = Field(description="sensor channel, 1..32")
+    kind: Literal["stuck", "drift"] = Field(description="stuck: frozen reading; drift: walks off the model")
+    since: datetime = Field(description="UTC instant it was found and left out")
+    detail: str = Field(description="the evidence, for humans (never parse it)")
+
+
+def sensor_faults_out(faults: Any) -> list[SensorFaultOut]:
+    return [
+        SensorFaultOut(
+            channel=f.channel,
+            kind=_enum(f.kind),
+            since=datetime.fromtimestamp(f.since_t, tz=UTC),
+            detail=f.detail,
+        )
+        for f in faults
+    ]
+
+
+SENSOR_FAULTS_DOC = (
+    "channels left out of the live state as stuck or drifting (not flagged by the DAQ; the CI carries what "
+    "they bent before they were found); empty when none"
+)
+
+
 class BlockerOut(BaseModel):
     """One reason a served value is not usable, and what the operator should do about it."""
 
@@ -180,6 +207,7 @@ class ChtcOut(VerdictOut):
     newest_sample_at: datetime | None
     sample_age_s: float | None = Field(description="age of the newest sample at served_at, s")
     served_at: datetime
+    sensor_faults: list[SensorFaultOut] = Field(default_factory=list, description=SENSOR_FAULTS_DOC)
 
 
 def chtc_out(s: ChtcSnapshot, now: datetime, *, spindle_id: str) -> ChtcOut:
@@ -209,6 +237,7 @@ def chtc_out(s: ChtcSnapshot, now: datetime, *, spindle_id: str) -> ChtcOut:
         newest_sample_at=s.newest_sample_at,
         sample_age_s=age,
         served_at=now,
+        sensor_faults=sensor_faults_out(s.sensor_faults),
     )
 
 
@@ -881,6 +910,7 @@ class CompensationOut(VerdictOut):
     newest_sample_at: datetime | None
     sample_age_s: float | None = Field(description="age of the newest sample at served_at, s")
     served_at: datetime
+    sensor_faults: list[SensorFaultOut] = Field(default_factory=list, description=SENSOR_FAULTS_DOC)
 
 
 def _growth_value(v: Any) -> GrowthValueOut:
@@ -947,6 +977,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime, *, spindle_id: str)
         newest_sample_at=s.newest_sample_at,
         sample_age_s=age,
         served_at=now,
+        sensor_faults=sensor_faults_out(getattr(s, "sensor_faults", ())),
     )
 
 

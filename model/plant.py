@@ -75,13 +75,16 @@ class ChannelFault:
     """A fault on ``channel`` (1..32) from ``start_s`` to ``end_s`` [s] (None: to the end).
 
     kind "open": open circuit, value OPEN_CIRCUIT_C and status 1; "stuck": the value freezes at the last
-    reading before start_s, status 0; "range": value OUT_OF_RANGE_C and status 2.
+    reading before start_s, status 0; "range": value OUT_OF_RANGE_C and status 2; "drift": the reading gains
+    ``rate_c_per_h`` [°C/h] × the time since start_s, status 0 (a sensor or its cold junction ageing; the
+    gain stays at its value at end_s afterwards: a drifted sensor does not come back by itself).
     """
 
     channel: int
-    kind: Literal["open", "stuck", "range"]
+    kind: Literal["open", "stuck", "range", "drift"]
     start_s: float
     end_s: float | None = None
+    rate_c_per_h: float = 0.5
 
 
 @dataclass
@@ -122,8 +125,10 @@ def _check_faults(faults: Sequence[ChannelFault]) -> tuple[ChannelFault, ...]:
     for i, f in enumerate(faults):
         if not 1 <= f.channel <= N_CHANNELS:
             raise PlantError(f"faults[{i}].channel: must be 1..{N_CHANNELS}, got {f.channel}")
-        if f.kind not in ("open", "stuck", "range"):
-            raise PlantError(f"faults[{i}].kind: must be open, stuck or range, got {f.kind!r}")
+        if f.kind not in ("open", "stuck", "range", "drift"):
+            raise PlantError(f"faults[{i}].kind: must be open, stuck, range or drift, got {f.kind!r}")
+        if not np.isfinite(f.rate_c_per_h):
+            raise PlantError(f"faults[{i}].rate_c_per_h: must be finite, got {f.rate_c_per_h}")
     return tuple(faults)
 
 
@@ -350,6 +355,10 @@ class VirtualPlant:
                 meas[on, c], run.status[on, c] = OPEN_CIRCUIT_C, STATUS_OPEN
             elif f.kind == "range":
                 meas[on, c], run.status[on, c] = OUT_OF_RANGE_C, STATUS_RANGE
+            elif f.kind == "drift":
+                end = np.inf if f.end_s is None else f.end_s
+                dt_h = (np.minimum(run.times_s, end) - f.start_s) / 3600.0
+                meas[:, c] += f.rate_c_per_h * np.maximum(dt_h, 0.0)
             elif on.any():
                 first = int(np.argmax(on))
                 meas[on, c] = meas[max(first - 1, 0), c]

@@ -398,6 +398,11 @@ class CompensationSettings(_Section):
     # CI covered the truth 4 % of the time (docs/design/policy.md); false only for a machine whose mechanics
     # match the spindle description (the simulator's plant)
     require_mechanics_calibration: bool = True
+    # /compensation is not usable (reason no_offset_baseline) while sensor calibration is on and has no
+    # baseline yet: after a start on a warm spindle with no stored calibration the unknown offsets
+    # (±0.2 °C) biased the growth by up to −2 µm with a CI that missed it (issue 40; docs/design/policy.md);
+    # the baseline is taken at the next rest in equilibrium or on request (POST /api/v1/sensors/baseline)
+    require_offset_baseline: bool = True
     # a probe reading (POST /api/v1/compensation/measurements) further than this many σ of its prediction (the
     # served growth's CI with the probe's own sd) is flagged and not absorbed (a crash or a tool change)
     probe_gate_sigma: float = Field(default=3.0, gt=0.0, le=100.0, allow_inf_nan=False)

@@ -21,6 +21,7 @@ def etag_of(s: ChtcSnapshot) -> str:
     c = s.condition
     key = f"{s.identification_id}|{s.status}|{s.newest_sample_at}|{c.id}|{c.state}"
     key += f"|{s.model_version}|{s.reason}"
+    key += "|" + ",".join(f"{f.channel}{f.kind}" for f in s.sensor_faults)
     return weak_etag(key)
 
 

@@ -988,6 +988,7 @@ function showComp(c, problem) {
     $("comp-usable").textContent = "No compensation value";
     $("comp-reason").textContent = problem.detail;
     $("comp-action").textContent = problem.action ? "What to do: " + problem.action : "";
+    $("comp-faults").textContent = "";
     for (const id of ["comp-status", "comp-age", "comp-at"]) $(id).textContent = "–";
     banner();
     return;
@@ -1004,6 +1005,9 @@ function showComp(c, problem) {
   const action = "action" in c ? c.action : (usable ? null : ACTION_BY_STATUS[c.status]);
   $("comp-action").textContent = !usable && action ? "What to do: " + action : "";
   $("comp-status").textContent = c.status + (c.reason_code ? ` · ${c.reason_code}` : "");
+  // channels the live state left out as stuck or drifting (the DAQ did not flag them): channel, since, why
+  $("comp-faults").textContent = (c.sensor_faults || []).map((f) =>
+    `Sensor ${f.channel} left out (${f.kind}) since ${utc(f.since)}: ${f.detail}`).join("\n");
   const plant = state.clockInfo?.simulated ? " (plant time)" : "";
   $("comp-age").textContent = c.sample_age_s === null ? "none yet" : `${ageText(c.sample_age_s)} old${plant}`;
   const ref = c.reference;

@@ -107,8 +107,15 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> tuple[Settings, str 
     s = override(s, "database", url=db_url)
     # the virtual plant starts at rest in equilibrium: the demo's controller is zeroed there (a real
     # installation sets its zero at commissioning: docs/commissioning.md)
-    # the demo's plant has the spindle description's own mechanics: nothing to commission
-    s = override(s, "compensation", reference_on_first_start=True, require_mechanics_calibration=False)
+    # the demo's plant has the spindle description's own mechanics: nothing to commission; and sensors
+    # without offsets (model.plant.VirtualPlant's default): no baseline needed before its short first rest
+    s = override(
+        s,
+        "compensation",
+        reference_on_first_start=True,
+        require_mechanics_calibration=False,
+        require_offset_baseline=False,
+    )
     return override(s, "experimental", seed=args.seed), generated
 
 

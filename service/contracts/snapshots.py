@@ -24,6 +24,7 @@ from service.contracts.growth import GrowthEstimate, PlcCompensation
 from service.contracts.mechanics import MechanicsCalibration
 from service.contracts.records import IdentificationData
 from service.contracts.reference import CompensationReference
+from service.contracts.sensorfault import SensorFault
 from service.contracts.verdict import ChtcStatus, Verdict
 
 __all__ = [
@@ -284,6 +285,8 @@ class ChtcSnapshot(Judged):
     unit: str = H_UNIT
     zones: tuple[str, ...] = ZONE_NAMES
     box: tuple[float, float] | None = None  # the search box of H, W/(m²·K) (bounds beyond it print "> box")
+    # channels the live state leaves out as stuck or drifting (service.estimate.sensorfaults), by channel
+    sensor_faults: tuple[SensorFault, ...] = ()
 
     @property
     def h(self) -> FloatArray:
@@ -415,6 +418,9 @@ class CompensationSnapshot(Judged):
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
     reference: CompensationReference | None = None  # the zero in use (None: none set, not usable)
     mechanics: MechanicsCalibration | None = None  # the commissioned mechanics (None: the description's)
+    # channels the live state leaves out as stuck or drifting (service.estimate.sensorfaults), by channel:
+    # the growth's CI carries what they bent before they were found
+    sensor_faults: tuple[SensorFault, ...] = ()
 
     @property
     def reference_at(self) -> datetime | None:

@@ -44,6 +44,7 @@ class Reason(enum.StrEnum):
     OPEN_LOOP_TOO_LONG = "open_loop_too_long"  # DAQ down longer than the open-loop limit
     CORE_BEHIND = "core_behind"  # the core thread's backlog of samples is older than its limit
     MECHANICS_UNCALIBRATED = "mechanics_uncalibrated"  # no commissioning of the growth's mechanics yet
+    NO_OFFSET_BASELINE = "no_offset_baseline"  # the sensors' offsets unknown (no baseline at rest yet)
 
 
 ACTIONS: dict[Reason, str] = {
@@ -67,6 +68,8 @@ ACTIONS: dict[Reason, str] = {
     "in order and clears itself (see /healthz, chtc_core_lag_seconds).",
     Reason.MECHANICS_UNCALIBRATED: "Commission the growth from a measured thermal test "
     "(`chtc commission growth`, docs/commissioning.md).",
+    Reason.NO_OFFSET_BASELINE: "Let the spindle rest in equilibrium (the baseline is taken by itself) or "
+    "take one at rest (POST /api/v1/sensors/baseline); a restart with the stored calibration keeps it.",
 }
 
 

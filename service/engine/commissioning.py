@@ -63,6 +63,7 @@ Array = NDArray[np.float64]
 TIME_COLUMNS = ("time", "utc", "at", "timestamp", "timestamp_utc")
 ORDER = "the order is TEMPERATURES CAN DISPLACEMENTS"
 MIN_SPAN_UM = 0.1  # a thermal test's axial growth spans µm; less is a file in mm (or no growth measured)
+MIN_UNIT_ROWS = 10  # the unit is judged on a log of at least this many readings (a thermal test has hundreds)
 AXIAL, RADIAL = "axial_um", "radial_um"
 RUNNING_RPM = 100.0  # above: the spindle turns (heat-up); below: at rest (cool-down)
 MISSING = ("", "nan", "na", "n/a", "-")
@@ -156,8 +157,9 @@ def parse_displacement_csv(text: str, name: str = "DISPLACEMENTS") -> Displaceme
     if not np.any(np.isfinite(axial)):
         raise DisplacementFormatError(f"{name}: {AXIAL}: no value in any row")
     radial = np.asarray(rad)[order] if r_col is not None else None
-    span = float(np.nanmax(axial) - np.nanmin(axial))
-    if span < MIN_SPAN_UM:
+    finite = axial[np.isfinite(axial)]
+    span = float(finite.max() - finite.min())
+    if finite.size >= MIN_UNIT_ROWS and span < MIN_SPAN_UM:  # a test's log, not a snippet: judge its unit
         raise DisplacementFormatError(
             f"{name}: {AXIAL}: the values span only {span:.4g} over the test: in mm? The file's unit is µm "
             f"({AXIAL}, e.g. 12.5 for 12.5 µm); a thermal test's growth spans several µm"

@@ -181,6 +181,7 @@ def compensation_limits(section: CompensationSettings) -> CompensationLimits:
         max_identification_age_min=section.max_identification_age_min,
         max_open_loop_min=section.max_open_loop_min,
         require_mechanics_calibration=section.require_mechanics_calibration,
+        require_offset_baseline=section.require_offset_baseline,
     )
 
 

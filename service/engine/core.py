@@ -72,6 +72,7 @@ from service.engine.samples import SampleBook
 from service.engine.serving import serving_for
 from service.engine.view import CoreView, NewestSample
 from service.errors import ServiceError
+from service.estimate.sensorfaults import fault_lines
 from service.estimate.state import FilteredState
 from service.identify import scheduler as sched
 from service.identify.detector import ConditionChanged, ConditionDetector, OperatingPoint, SampleEvent
@@ -144,7 +145,7 @@ class ServiceCore:
             config=config,
             model=model,
             live=live,
-            history=RingHistory(self._ring),
+            history=RingHistory(self._ring, suspect=live.suspect_channels),
             detector=ConditionDetector(config.detector, reference=last_point),
             scheduler=sched.IdentificationScheduler(config=config.scheduler, history=list(restored.history)),
             jobs=JobBook(
@@ -242,7 +243,7 @@ class ServiceCore:
         row = p.samples.to_store(newest)
         if row is not None:
             out.store(row)
-        self._advance_live(newest, ts)
+        self._advance_live(newest, ts, out)
         self._checkpoint(ts, out)
         todo: list[sched.Instruction] = []
         if self._resumed:
@@ -326,14 +327,14 @@ class ServiceCore:
             why = next((r.reason for r in result if isinstance(r, BaselineRejected)), "no baseline")
             out.reject(RejectKind.NOT_READY, why)
 
-    def _advance_live(self, s: NewestSample, ts: float) -> None:
+    def _advance_live(self, s: NewestSample, ts: float, out: Out) -> None:
         """Predict to the sample and correct with its usable channels (quality OK, finite; the calibration's
         offsets are subtracted inside the filter)."""
         inputs = (s.ambient_c, s.speed_rpm, s.torque_nm)
         usable = np.array([q == "ok" for q in s.quality], dtype=bool) & np.isfinite(s.temps_c)
         temps = np.where(usable, s.temps_c, 0.0)
         if self._p.live.initialized:
-            self._p.live.push(
+            upd = self._p.live.push(
                 ts,
                 ambient_c=inputs[0],
                 speed_rpm=inputs[1],
@@ -341,6 +342,8 @@ class ServiceCore:
                 temps_c=temps,
                 usable=usable,
             )
+            for line in fault_lines(upd.faults):
+                out.log(line)
             return
         if not np.isfinite(inputs).all():
             return  # wait for ambient, speed and torque (CAN may come up after the DAQ) before starting

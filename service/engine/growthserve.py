@@ -766,6 +766,8 @@ class GrowthServer:
             identified_at=None if rec is None else rec.finished_at,
             has_reference=self._reference is not None,
             has_mechanics=self._commissioning is not None,
+            # calibration off (no offset 1σ published): the operator handles the offsets, the rule is off
+            has_offset_baseline=view.offset_sd_c is None or view.calibration is not None,
         )
         return CompensationSnapshot(
             growth=est,
@@ -777,6 +779,7 @@ class GrowthServer:
             channels=tuple(s.channel for s in self.model.spec.sensors),
             reference=self._reference,
             mechanics=self._mechanics,
+            sensor_faults=() if view.live is None else view.live.sensor_faults,
         )
 
 

@@ -72,6 +72,16 @@ class OffsetBias:
         self.s = s
         self.m = ikc @ self.m @ ikc.T
 
+    def charge(self, channel: int, bias_c: float) -> None:
+        """Channel ``channel`` (0-based) was off by about ``bias_c`` [°C] while used (a drifting or stuck
+        sensor, found and left out now): its part S[:, channel]·b becomes a state error of 1σ |b| in M (a
+        constant offset's sensitivity: a drift grown to b bent the state less: on the safe side)."""
+        b = float(bias_c)
+        if not (0 <= channel < self.n and np.isfinite(b)):
+            raise ValueError(f"charge: channel 0..{self.n - 1} and a finite bias_c, got {channel}, {bias_c}")
+        col = self.s[:, channel]
+        self.m = self.m + b * b * np.outer(col, col)
+
     def _absorbed(self) -> Array:
         return np.asarray((self.s * self.sd[None, :] ** 2) @ self.s.T)
 

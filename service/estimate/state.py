@@ -63,6 +63,7 @@ from model.estimator import usable as usable_channels
 from service.contracts.checkpoint import LiveCheckpoint
 from service.estimate.live import LiveStateError
 from service.estimate.offsetbias import OffsetBias, kalman_gain
+from service.estimate.sensorfaults import FaultChange, FaultMonitor, FaultMonitorSettings, SensorFault
 
 __all__ = [
     "GUESSED_H_REL",
@@ -116,6 +117,9 @@ class FilterSettings:
     # after an open-loop run longer than max_gap_s, the first update on data whose NIS is this improbable
     # (χ² upper tail) restarts the state from the prior on that sample instead of correcting it
     reacquire_restart_p: float = 1e-6
+    # the stuck/drifting channel monitor (service.estimate.sensorfaults; None: off): a channel it finds is
+    # left out of the updates until it recovers
+    faults: FaultMonitorSettings | None = field(default_factory=FaultMonitorSettings)
 
 
 @dataclass(frozen=True, eq=False)
@@ -154,6 +158,7 @@ class SampleUpdate:
     verdict: str
     restarted: bool = False
     reason: str = ""
+    faults: tuple[FaultChange, ...] = ()  # sensor faults detected or recovered on this sample
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
@@ -191,6 +196,8 @@ class FilterView:
     inconsistent_after_s: float
     # the unknown sensor offsets' share of ``cov`` (r, r) [°C²] (service.estimate.offsetbias; None: not kept)
     offset_cov: Array | None = None
+    # channels left out of the updates as stuck or drifting (service.estimate.sensorfaults), by channel
+    sensor_faults: tuple[SensorFault, ...] = ()
 
     @property
     def converged(self) -> bool:
@@ -295,6 +302,13 @@ class FilteredState:
         sensors = np.asarray(rom.sensors)
         # the unknown offsets' share of the state's error (in ``view().cov``; service.estimate.offsetbias)
         self._bias = OffsetBias(sensors.shape[1], sensors.shape[0])
+        fst = self.settings.faults
+        self._monitor = (
+            None
+            if fst is None
+            else FaultMonitor(sensors.shape[0], noise_c=self.settings.noise.sigma_meas_c, settings=fst)
+        )
+        self._changes: list[FaultChange] = []
 
     # --- state ----------------------------------------------------------------------------------------
     @property
@@ -337,6 +351,8 @@ class FilteredState:
             prior = wide_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig, sigma_shape_c=sig)
         self._filter = StateEstimator(self.rom, prior, noise=self._noise, offsets_c=self.offsets_c)
         self._bias.restart()
+        if self._monitor is not None:
+            self._monitor.restart()
         self._t = float(t)
         self._inputs = _Inputs(*(float(x) for x in inputs))
         self._window = NisWindow(self.settings.nis_window)
@@ -617,7 +633,19 @@ class FilteredState:
             high_since=self.high_since,
             inconsistent_after_s=self.settings.inconsistent_after_s,
             offset_cov=_frozen(offset_cov),
+            sensor_faults=self.sensor_faults(),
         )
+
+    def suspect_channels(self, t_from: float, t_to: float) -> NDArray[np.bool_]:
+        """Channels (32,) whose data in [t_from, t_to] [s] an identification window must leave out: stuck
+        or drifting now or then (``FaultMonitor.suspect``; none without the monitor)."""
+        if self._monitor is None:
+            return np.zeros(self._bias.n, dtype=bool)
+        return self._monitor.suspect(t_from, t_to)
+
+    def sensor_faults(self) -> tuple[SensorFault, ...]:
+        """The channels left out of the updates now, stuck or drifting (``service.estimate.sensorfaults``)."""
+        return () if self._monitor is None else self._monitor.active()
 
     def steady(self) -> Array:
         """Steady field (N,) [°C] for the current H and the last inputs (``rom.steady_state``)."""
@@ -633,13 +661,24 @@ class FilteredState:
             return None
         est = self.estimator
         y = np.asarray(temps_c, dtype=np.float64)
-        if y.shape == (self._bias.n,):  # else the estimator names the bad shape
-            use = usable_channels(y - est.offsets_c, mask)
-            if use.any():
-                sensors = np.asarray(self.rom.sensors)
-                gain = kalman_gain(est.estimate.cov, sensors, use, est.noise.r_var)
-                self._bias.update(gain, sensors, use)
-        return est.update(y, mask)
+        if y.shape != (self._bias.n,):
+            return est.update(y, mask)  # the estimator names the bad shape
+        ok = usable_channels(y - est.offsets_c, mask)
+        use = ok if self._monitor is None else ok & ~self._monitor.excluded()
+        if use.any():
+            sensors = np.asarray(self.rom.sensors)
+            gain = kalman_gain(est.estimate.cov, sensors, use, est.noise.r_var)
+            self._bias.update(gain, sensors, use)
+        res = est.update(y, use)
+        if self._monitor is not None and self._t is not None and self.converged_at is not None:
+            changes = self._monitor.observe(
+                self._t, y, ok, res.predicted_c, res.predicted_std_c, est.offsets_c
+            )
+            for ch in changes:
+                if not ch.recovered:  # what its readings bent so far becomes an uncertainty of the state
+                    self._bias.charge(ch.fault.index, ch.bias_c)
+            self._changes.extend(changes)
+        return res
 
     def _after_step(
         self, n: int, res: StepResult | None, *, restarted: bool = False, reason: str = ""
@@ -667,7 +706,8 @@ class FilteredState:
             self._reacquiring, self.reacquired_at = False, self._t
         self._keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
         self.steps += n
-        return SampleUpdate(self._t, n, nis, dof, verdict, restarted, reason)
+        changes, self._changes = tuple(self._changes), []
+        return SampleUpdate(self._t, n, nis, dof, verdict, restarted, reason, changes)
 
     def _prediction_lost(self, res: StepResult | None) -> bool:
         """The first update after an open-loop run longer than ``max_gap_s`` has an improbable NIS."""

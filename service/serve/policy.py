@@ -53,6 +53,9 @@ class CompensationLimits:
     max_open_loop_min: float  # DAQ down, CAN alive: usable open loop for at most this long [min]
     # not usable before a commissioning of the mechanics (``mechanics_uncalibrated``; docs/design/policy.md)
     require_mechanics_calibration: bool
+    # not usable while the sensors' offsets are unknown (``no_offset_baseline``: calibration on, no baseline;
+    # issue 40; docs/design/policy.md)
+    require_offset_baseline: bool
 
 
 class LiveLike(Protocol):
@@ -171,12 +174,14 @@ def compensation_verdict(
     identified_at: datetime | None,
     has_reference: bool = True,
     has_mechanics: bool = True,
+    has_offset_baseline: bool = True,
 ) -> Verdict:
     """Whether a controller may apply the growth served now (see the module docstring), in this order:
     data (``no_data``, ``stale``, ``open_loop_too_long``; ``stale`` at once when the newest sample has neither
     DAQ nor CAN data), live state (``state_converging``,
     ``state_inconsistent``), ``no_reference``, ``mechanics_uncalibrated`` (only when ``limits`` require a
-    commissioning and ``has_mechanics`` is false), ``no_identification`` or ``identification_old``,
+    commissioning and ``has_mechanics`` is false), ``no_offset_baseline`` (only when ``limits`` require a
+    baseline and ``has_offset_baseline`` is false), ``no_identification`` or ``identification_old``,
     ``ci_too_wide`` (not judged while the data or the live state block). The first is the verdict's
     ``reason``; every one that blocks is listed, in this order, in ``Verdict.blocking``. The status is
     ``fresh``, ``predicted`` (DAQ down, CAN alive: open loop), ``converging`` (the live state settles),
@@ -233,6 +238,17 @@ def compensation_verdict(
                 Reason.MECHANICS_UNCALIBRATED,
                 "the mechanics (mount restraint, α) are not commissioned: the growth's CI does not cover an "
                 "unknown mount (compensation.require_mechanics_calibration)",
+            )
+        )
+    if limits.require_offset_baseline and not has_offset_baseline:
+        found.append(
+            Verdict(
+                status,
+                False,
+                Reason.NO_OFFSET_BASELINE,
+                "no offset baseline of the sensors yet (a start on a warm spindle without the stored "
+                "calibration): the unknown offsets bend the field and the H, and the growth's CI does not "
+                "cover that (compensation.require_offset_baseline)",
             )
         )
     found += _identification_blockers(

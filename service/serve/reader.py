@@ -142,6 +142,7 @@ class ViewReader:
             # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
             # one: an H there is never fresh (at-bound), as in per-condition mode
             box = MAP_H_BOX
+        faults = () if live is None else live.sensor_faults
         key = (
             rec.id,
             newest,
@@ -152,6 +153,7 @@ class ViewReader:
             v.running_job is not None,
             v.current_from_restore,
             None if fresh is None else (id(v.speed_map), fresh),
+            faults,
         )
         cached = ctx.snap_cache
         if cached is not None and cached[0] == key:
@@ -175,7 +177,9 @@ class ViewReader:
             restored=v.current_from_restore,
             zones=ZONE_NAMES,
         )
-        snap = chtc_snapshot(rec, newest_sample_at=newest, verdict=verdict, bound=bound, box=box)
+        snap = chtc_snapshot(
+            rec, newest_sample_at=newest, verdict=verdict, bound=bound, box=box, sensor_faults=faults
+        )
         ctx.snap_cache = (key, snap)
         return snap
 

@@ -32,6 +32,7 @@ from model.hmap import Z95
 from model.identify_prior import HPrior
 from service.contracts.columns import JsonValue
 from service.contracts.records import IdentificationData, IdentificationRow
+from service.contracts.sensorfault import SensorFault
 from service.contracts.snapshots import (
     ZONE_NAMES,
     ChtcMapSnapshot,
@@ -170,6 +171,7 @@ def chtc_snapshot(
     verdict: Verdict,
     bound: BoolArray,
     box: tuple[float, float] | None = None,
+    sensor_faults: tuple[SensorFault, ...] = (),
 ) -> ChtcSnapshot:
     """What ``/chtc`` serves: the current identification ``rec`` and the policy's ``verdict`` on it now
     (``service.serve.policy.chtc_verdict``); ``bound``: ``at_bound(rec, ...)`` (an H there is not
@@ -183,6 +185,7 @@ def chtc_snapshot(
         at_bound=bound,
         verdict=verdict,
         box=None if box is None else (float(box[0]), float(box[1])),
+        sensor_faults=sensor_faults,
     )
 
 

@@ -338,6 +338,10 @@ def served_service(
         # settings ask for the rule explicitly (issue 27)
         comp = s.compensation.model_copy(update={"require_mechanics_calibration": False})
         s = s.model_copy(update={"compensation": comp})
+    if "require_offset_baseline" not in s.compensation.model_fields_set:
+        # nor offsets on its sensors (``VirtualPlant``'s default): nothing for a baseline to remove
+        comp = s.compensation.model_copy(update={"require_offset_baseline": False})
+        s = s.model_copy(update={"compensation": comp})
     samples = plant_samples(plan) if plan is not None else ()
     clock = clock if clock is not None else ManualClock(samples[0].t if samples else PLAN_T0)
     say = on_event or (lambda _msg: None)

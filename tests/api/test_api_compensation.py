@@ -140,10 +140,13 @@ def test_the_verdict_is_the_policys_on_the_growth_and_goes_stale_when_data_stop(
     snap = served.svc.compensation()
     assert snap is not None
     lo, hi = comp["axial"]["ci95_um"]
-    # the served service's limits: [compensation]'s defaults, without the mechanics rule on the simulator's
-    # plant (service.sim.served: its mechanics match the spindle description)
+    # the served service's limits: [compensation]'s defaults, without the mechanics and offset-baseline rules
+    # on the simulator's plant (service.sim.served: its mechanics match the spindle description, its sensors
+    # have no offsets)
     limits = served.svc.growth.limits
-    assert limits == dataclasses.replace(product_limits(), require_mechanics_calibration=False)
+    assert limits == dataclasses.replace(
+        product_limits(), require_mechanics_calibration=False, require_offset_baseline=False
+    )
     expected = compensation_verdict(
         served.svc.view,
         served.clock(),

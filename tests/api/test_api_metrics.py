@@ -105,6 +105,7 @@ def test_h_gauges_status_usable_and_build_info(
         "predicted": 0.0,
         "identifying": 0.0,
         "stale": 0.0,
+        "converging": 0.0,
         "at-bound": 0.0,
         "no-data": 0.0,
         str(snap.status): 1.0,

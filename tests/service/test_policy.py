@@ -156,6 +156,36 @@ def test_an_uncalibrated_mechanics_is_not_usable_when_the_setting_asks_for_it() 
     assert verdict(limits=strict, has_mechanics=False, has_reference=False)[2] is Reason.NO_REFERENCE
 
 
+def test_unknown_sensor_offsets_are_not_usable_when_the_setting_asks_for_it() -> None:
+    """Issue 40: after a warm start with no stored calibration the ±0.2 °C offsets biased the growth by −2 µm
+    for ~45 min inside a CI that missed it, so ``compensation.require_offset_baseline`` (default true)
+    withholds the growth until a baseline exists; with one it is judged by the later rules."""
+    from service.settings import Settings
+
+    strict = LIMITS
+    assert Settings().compensation.require_offset_baseline is True
+    assert verdict(limits=strict, has_offset_baseline=False) == (
+        ChtcStatus.FRESH,
+        False,
+        Reason.NO_OFFSET_BASELINE,
+    )
+    from service.contracts.verdict import ACTIONS
+
+    assert Reason.NO_OFFSET_BASELINE in ACTIONS
+    assert verdict(limits=strict, has_offset_baseline=True) == (ChtcStatus.FRESH, True, None)
+    off = replace(LIMITS, require_offset_baseline=False)
+    assert verdict(limits=off, has_offset_baseline=False) == (ChtcStatus.FRESH, True, None)  # the rule off
+    # the mechanics come first (a commissioning is needed whatever the offsets)
+    assert verdict(limits=strict, has_mechanics=False, has_offset_baseline=False)[2] is (
+        Reason.MECHANICS_UNCALIBRATED
+    )
+    both = compensation_verdict(
+        View(), NOW, limits=strict, has_sample=True, ci95_half_um=0.5, identified_at=NOW,
+        has_mechanics=False, has_offset_baseline=False,
+    )  # fmt: skip
+    assert [b.reason for b in both.blocking] == [Reason.MECHANICS_UNCALIBRATED, Reason.NO_OFFSET_BASELINE]
+
+
 def test_every_blocking_reason_is_listed_in_order_with_its_action() -> None:
     """Issue 41 item 17: out of the box the zero and the commissioning are both missing; the verdict names
     both at once (the first stays ``reason`` for compatibility), each with its action, in the policy's

@@ -206,6 +206,7 @@ _REFERENCE_ONLY = frozenset(
     {
         Reason.NO_REFERENCE,
         Reason.MECHANICS_UNCALIBRATED,
+        Reason.NO_OFFSET_BASELINE,
         Reason.IDENTIFICATION_OLD,
         Reason.CI_TOO_WIDE,
         Reason.NO_IDENTIFICATION,

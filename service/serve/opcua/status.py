@@ -60,6 +60,7 @@ _NOT_ACCURATE = frozenset(
         Reason.CI_TOO_WIDE,
         Reason.NO_REFERENCE,
         Reason.MECHANICS_UNCALIBRATED,
+        Reason.NO_OFFSET_BASELINE,
         Reason.STATE_INCONSISTENT,
     }
 )
