@@ -153,7 +153,10 @@ def get_mechanics(service: ServiceDep) -> MechanicsOut:
         409: {
             "description": "the model does not explain the test (nothing stored; see the message, or force)"
         },
-        422: {"description": "a file that cannot be read (the message names the file, line and field)"},
+        422: {
+            "description": "a file that cannot be read, or `can_log_base64` that is not base64 (the message "
+            "names the file, line and field)"
+        },
     },
     summary="commission the growth's mechanics from a measured thermal test (needs the bearer token); "
     "stored, restored at every start",
@@ -222,7 +225,10 @@ def get_measurements(service: ServiceDep) -> list[MeasurementOut]:
     responses={
         401: {"description": "no token"},
         403: {"description": "wrong token"},
-        422: {"description": "a bad field, `at` in the future or older than the live state's kept history"},
+        422: {
+            "description": "a bad field, `at` in the future or older than the live state's kept history, or "
+            "no compensation zero to measure against (the message names it)"
+        },
         503: {"description": "the growth model is not available"},
     },
     summary="a probe reading of the axial growth (needs the bearer token): absorbed into the mechanical "

@@ -171,6 +171,10 @@ def _render(
     response_model=FieldMeshOut | FieldGridOut | FieldPointsOut,
     responses={
         304: {"description": "not modified since the ETag (mesh and grid)"},
+        422: {
+            "description": "a bad parameter, `points` without `format=points`, or `format=points` without "
+            "`points` (the message names it)"
+        },
         503: {"description": "no field yet, or too many field requests in progress (Retry-After)"},
     },
     summary="predicted temperature field (°C) on the (r, z) section: mesh, grid or points",

@@ -28,6 +28,9 @@ MAX_ID = 2**63 - 1  # the database's BIGINT; larger ids cannot exist (and would 
     response_model=IdentificationPageOut,
     dependencies=[ReadAccess],
     summary="stored identifications, newest first",
+    responses={
+        422: {"description": "a bad parameter, or `until` not later than `since` (the message names it)"}
+    },
 )
 def list_identifications(
     service: ServiceDep,

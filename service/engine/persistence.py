@@ -348,9 +348,7 @@ class Persistence:
         on_open(cond_max + 1, ident_max + 1)
 
     def _prepare_guarded(self) -> None:
-        guard = self.read_watchdog.guard("migrate") if self.read_watchdog is not None else nullcontext()
-        with guard:
-            _prepare_schema(self.engine, self.migrate, self.spindle)
+        _prepare_schema(self.engine, self.migrate, self.spindle, watchdog=self.read_watchdog)
 
     def start_background(self) -> None:
         if self.sink.writer is None and self._task is None:
@@ -430,16 +428,35 @@ def _retention_text(r: RetentionReport) -> str:
     )
 
 
-def _prepare_schema(engine: Engine, migrate: bool, spindle: SpindleSettings | None = None) -> None:
-    """Migrate (or check the revision), then register the spindle (every row refers to it)."""
+def _prepare_schema(
+    engine: Engine,
+    migrate: bool,
+    spindle: SpindleSettings | None = None,
+    *,
+    watchdog: StatementWatchdog | None = None,
+) -> None:
+    """Migrate (or check the revision), then register the spindle (every row refers to it).
+
+    A migration runs as long as it needs (20 spindle-days: ~45 s): on PostgreSQL on an engine of its own,
+    without the serving statement timeout and outside ``watchdog`` (``service.store.migrate``); the check and
+    the registration are serving work, under ``watchdog``."""
     from service.store.migrate import current_revision, head_revision, upgrade
 
     sid = spindle.id if spindle is not None else None
     if migrate:
-        upgrade(engine, spindle_id=sid)
-    else:
-        _check_revision(engine, current_revision(engine), head_revision())
-    _register_spindle(engine, spindle)
+        upgrade(_migration_target(engine), spindle_id=sid)
+    with nullcontext() if watchdog is None else watchdog.guard("check the schema"):
+        if not migrate:
+            _check_revision(engine, current_revision(engine), head_revision())
+        _register_spindle(engine, spindle)
+
+
+def _migration_target(engine: Engine) -> Engine | str:
+    """PostgreSQL: the URL (``upgrade`` opens and disposes an engine of its own, no watchdog on it); SQLite:
+    the engine itself (an in-memory database exists only there; it has no statement timeout)."""
+    if engine.dialect.name == "postgresql":
+        return engine.url.render_as_string(hide_password=False)
+    return engine
 
 
 def _register_spindle(engine: Engine, spindle: SpindleSettings | None) -> None:
@@ -528,7 +545,9 @@ class SharedDatabase:
     """The engines (and their watchdogs) of one instance that hosts several spindles: one pool for the API's
     reads and one for the writers, shared by every spindle's ``Persistence`` (each keeps its own
     spindle-bound session factory, writer thread and read threads), and the writer engine's idle probe
-    (``writer_heartbeat``: one ``SELECT 1`` answers every idle writer). Closed by its owner, after them."""
+    (``writer_heartbeat``: one ``SELECT 1`` answers every idle writer). The writers share the writer engine's
+    watchdog, but what it aborts and each writer's ``busy_s`` are that writer's own (one spindle's stuck write
+    degrades no other). Closed by its owner, after them."""
 
     engine: Engine
     read_watchdog: StatementWatchdog
@@ -594,8 +613,8 @@ def open_persistence(
         w_factory = make_session_factory(w_engine, spindle_id=sid)
     sink = GateSink(max_held=db.buffer_max)
     try:
-        with read_watchdog.guard("migrate and restore"):  # a hung database cannot hold the start-up
-            _prepare_schema(engine, migrate, spindle)
+        _prepare_schema(engine, migrate, spindle, watchdog=read_watchdog)
+        with read_watchdog.guard("restore"):  # a hung database cannot hold the start-up
             restored = restore(factory, on_problem=say)
         from_db = True
         sink.open(

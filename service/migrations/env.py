@@ -38,6 +38,7 @@ def _configure(connection: Connection) -> None:
         include_object=include_object,
         compare_type=True,
         render_as_batch=connection.dialect.name == "sqlite",
+        on_version_apply=config.attributes.get("on_version_apply", ()),  # progress (service.store.migrate)
     )
     with context.begin_transaction():
         context.run_migrations()

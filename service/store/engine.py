@@ -14,6 +14,10 @@ that server connection), and ``transaction_pooling`` turns psycopg's prepared st
 the next one; measured 6 of 240 transactions failing with ``DuplicatePreparedStatement``). The ``options``
 startup parameter (``-csearch_path=…``) is refused by PgBouncer: use a database per schema there.
 None of these sees a link that freezes without a reset; ``service.store.watchdog`` covers that on the client.
+The server side of such a freeze (the backend the lost connection leaves, holding its transaction's locks) is
+bounded by ``service.store.sessions``: per-session keepalives, ``tcp_user_timeout`` and
+``idle_in_transaction_session_timeout`` sent as startup options, and the orphaned backend ended from the next
+connection (not behind a transaction-mode pooler, see there).
 """
 
 from __future__ import annotations
@@ -28,6 +32,7 @@ from sqlalchemy.pool import ConnectionPoolEntry
 
 from service.store.dburl import normalize_database_url
 from service.store.errors import DatabaseUnavailableError
+from service.store.sessions import end_orphans, server_options
 
 # What the store is built and tested for: backend -> the SQLAlchemy drivers (a URL's ``+driver``).
 SUPPORTED_DATABASES: dict[str, tuple[str, ...]] = {"sqlite": ("pysqlite",), "postgresql": ("psycopg",)}
@@ -62,17 +67,24 @@ def create_db_engine(
     if parsed.get_backend_name() != "postgresql":
         return create_engine(url, echo=echo, pool_pre_ping=True, **kwargs)
     timeout = max(1, round(connect_timeout_s))
+    user_timeout_ms = 1000 * max(timeout, 10)
     connect_args: dict[str, object] = {
         "connect_timeout": timeout,
         "keepalives": 1,
         "keepalives_idle": 10,
         "keepalives_interval": 5,
         "keepalives_count": 3,
-        "tcp_user_timeout": 1000 * max(timeout, 10),
+        "tcp_user_timeout": user_timeout_ms,
     }
     if transaction_pooling:
         connect_args["prepare_threshold"] = None
+    else:  # PgBouncer refuses the options startup parameter (and its server sessions are its own)
+        base = parsed.query.get("options", "")
+        base = " ".join(base) if isinstance(base, tuple) else base
+        connect_args["options"] = server_options(user_timeout_ms=user_timeout_ms, base=base)
     engine = create_engine(url, echo=echo, pool_pre_ping=True, connect_args=connect_args, **kwargs)
+    if not transaction_pooling:
+        end_orphans(engine)
     if statement_timeout_s is not None:
         ms = max(1, round(1000 * statement_timeout_s))
 

@@ -2,10 +2,18 @@
 
 A partition is ``samples_pYYYYMMDD`` holding ``[day 00:00 UTC, next day 00:00 UTC)``. What makes them:
 
-- the writer, for the days of each batch it has not seen yet (``ensure_days``: ``CREATE TABLE IF NOT EXISTS
-  … PARTITION OF``, serialized by an advisory lock so concurrent spindles' writers do not race), before any
-  insert of the batch;
+- the writer, for the days of each batch it has not seen yet and the day after each (``prepare_days``),
+  before the batch, in a short transaction of its own with a ``lock_timeout`` (issue 41.1): never inside a
+  data batch, whose transaction a frozen link can leave open on the server for long (an orphaned session)
+  holding every lock it took;
 - the retention pass (``service.store.retention``), ``PREMAKE_DAYS`` ahead, so the writer rarely has to.
+
+How (``ensure_days``): ``CREATE TABLE … (LIKE samples INCLUDING ALL)``, then ``ALTER TABLE samples ATTACH
+PARTITION``, serialized by an advisory lock so concurrent spindles' writers do not race. Attaching takes a
+``SHARE UPDATE EXCLUSIVE`` lock on ``samples``, which inserts do not wait for (``CREATE TABLE … PARTITION
+OF`` takes ``ACCESS EXCLUSIVE``: every spindle's inserts would queue behind it). ``LOCK_TIMEOUT_MS`` bounds
+every wait for a lock here (and in the retention pass): a DDL statement queued behind a stuck transaction
+would make every later insert queue behind it; it gives up instead and is tried again (the writer buffers).
 
 What drops them: the retention pass (``drop_before``), whole days older than ``database.raw_days``
 (``DROP TABLE`` of the partition: immediate, and the space is freed, unlike a ``DELETE``).
@@ -40,12 +48,16 @@ __all__ = [
     "ensure_days",
     "list_partitions",
     "partition_name",
+    "prepare_days",
+    "schema_lock",
+    "short_lock_waits",
 ]
 
 PREFIX = "samples_p"
 PREMAKE_DAYS = 3
+LOCK_TIMEOUT_MS = 2000  # partition DDL and the retention pass: the longest wait for a lock, ms
 _NAME = re.compile(r"^samples_p(\d{8})$")
-_LOCK = 0x43485443  # pg_advisory_xact_lock key: partition DDL of this schema, one at a time ("CHTC")
+_LOCK = 0x43485443  # advisory lock key: partition DDL of this schema, one at a time ("CHTC"; schema_lock)
 COMPACTED = "chtc: compacted"  # the comment on a closed day's rebuilt index (done once)
 _known: weakref.WeakKeyDictionary[Engine, set[date]] = weakref.WeakKeyDictionary()
 
@@ -67,28 +79,85 @@ def partitioned(conn: Connection) -> bool:
     return conn.dialect.name == "postgresql"
 
 
+def short_lock_waits(conn: Connection, ms: int = LOCK_TIMEOUT_MS) -> None:
+    """PostgreSQL: this transaction waits at most ``ms`` for any lock (``SET LOCAL``: it ends with it)."""
+    if partitioned(conn):
+        conn.exec_driver_sql(f"SET LOCAL lock_timeout = {int(ms)}")
+
+
+def schema_lock(conn: Connection, key: int) -> None:
+    """``pg_advisory_xact_lock`` of ``key`` in the current schema: advisory locks are database-wide, and the
+    services of another schema of the database (another plant, a test) have partitions of their own."""
+    conn.execute(text("SELECT pg_advisory_xact_lock(:k, hashtext(current_schema()))"), {"k": key})
+
+
+def prepare_days(engine: Engine, days: Iterable[date]) -> list[str]:
+    """The partitions of ``days`` (needed now) and of the day after each (ahead of need), in a transaction
+    of their own (committed on return; ``LOCK_TIMEOUT_MS``); the names created. A day known to this engine
+    costs nothing, one that exists a catalog read. The days ahead are made only if the advisory lock is free
+    at once: a partition-making transaction elsewhere (another spindle's, or one its lost connection left
+    open on the server) never holds up a batch whose own days exist. Raises SQLAlchemy's errors (a needed
+    day's lock not granted in time: ``OperationalError``, transient)."""
+    if engine.dialect.name != "postgresql":
+        return []
+    known = _known.setdefault(engine, set())
+    needed = set(days) - known
+    ahead = {d + timedelta(days=1) for d in days} - known - needed
+    if not needed and not ahead:
+        return []
+    with engine.begin() as conn:
+        short_lock_waits(conn)
+        existing = {d for _, d in list_partitions(conn)}
+        must, may = sorted(needed - existing), sorted(ahead - existing)
+        if must:
+            schema_lock(conn, _LOCK)
+            locked = True
+        else:
+            locked = bool(may) and _try_schema_lock(conn, _LOCK)
+        created = _create_missing(conn, must + may) if locked else []
+    known.update((needed | ahead) & existing)
+    if locked:
+        known.update(must + may)  # committed
+    return created
+
+
 def ensure_days(conn: Connection, days: Iterable[date]) -> list[str]:
-    """Create the partitions of ``days`` that do not exist yet (PostgreSQL); the names created."""
+    """Create the partitions of ``days`` that do not exist yet (PostgreSQL), in the caller's transaction
+    (see the module docstring); the names created."""
     if not partitioned(conn):
         return []
     known = _known.setdefault(conn.engine, set())
     wanted = sorted(set(days) - known)
     if not wanted:
         return []
-    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+    schema_lock(conn, _LOCK)
+    created = _create_missing(conn, wanted)
+    # a new one is known once committed (seen next time)
+    known.update(d for d in wanted if partition_name(d) not in created)
+    return created
+
+
+def _try_schema_lock(conn: Connection, key: int) -> bool:
+    query = text("SELECT pg_try_advisory_xact_lock(:k, hashtext(current_schema()))")
+    return bool(conn.execute(query, {"k": key}).scalar())
+
+
+def _create_missing(conn: Connection, days: list[date]) -> list[str]:
+    """Under the advisory lock: create the partitions of ``days`` not there; the names created."""
     existing = {d for _, d in list_partitions(conn)}
     created = []
-    for day in wanted:
+    for day in days:
         if day not in existing:
             lo, hi = day_bounds(day)
+            name = partition_name(day)
+            conn.execute(text(f'CREATE TABLE "{name}" (LIKE samples INCLUDING ALL)'))
             conn.execute(
                 text(
-                    f'CREATE TABLE IF NOT EXISTS "{partition_name(day)}" PARTITION OF samples '
+                    f'ALTER TABLE samples ATTACH PARTITION "{name}" '
                     f"FOR VALUES FROM ('{lo.isoformat()}') TO ('{hi.isoformat()}')"
                 )
             )
-            created.append(partition_name(day))
-    known.update(d for d in wanted if d in existing)  # a new one is known once committed (seen next time)
+            created.append(name)
     return created
 
 
@@ -114,7 +183,7 @@ def drop_before(conn: Connection, cutoff: date) -> list[str]:
     """Drop the partitions of the days before ``cutoff`` (whole days only); the names dropped."""
     if not partitioned(conn):
         return []
-    conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+    schema_lock(conn, _LOCK)
     dropped = []
     for name, day in list_partitions(conn):
         if day < cutoff:

@@ -10,11 +10,11 @@ from __future__ import annotations
 from collections.abc import Iterator, Sequence
 from contextlib import contextmanager
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import date, datetime
 from itertools import groupby
 from typing import Generic, TypeVar
 
-from sqlalchemy import Connection, Table, delete, func, insert, select, update
+from sqlalchemy import Connection, Engine, Table, delete, func, insert, select, update
 from sqlalchemy import exc as sa_exc
 from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
@@ -50,7 +50,7 @@ from service.store.models import (
     SpeedMapStateRow,
     Spindle,
 )
-from service.store.partitions import ensure_days, utc_day
+from service.store.partitions import ensure_days, prepare_days, utc_day
 from service.store.sqlerrors import translate
 
 T = TypeVar("T")
@@ -116,8 +116,8 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
     INSERT (or one UPDATE each for ends); samples and minute means skip rows already stored."""
     sid = spindle_of(session)
     days = {utc_day(r.t) for r in records if isinstance(r, SampleData)}
-    if days:  # PostgreSQL: the days' partitions first, before any insert of the batch
-        ensure_days(session.connection(), days)
+    if days:  # PostgreSQL: the days' partitions first, committed apart from the batch (never inside it)
+        _prepare_partitions(session, days)
     for kind, group in groupby(records, key=type):
         run = list(group)
         if kind is ConditionEnd:
@@ -134,6 +134,16 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
             insert_ignore_rows(session, _TABLE_OF[kind], [_stamped(r, sid) for r in run])
         else:
             session.execute(insert(_TABLE_OF[kind]), [_stamped(r, sid) for r in run])
+
+
+def _prepare_partitions(session: Session, days: set[date]) -> None:
+    """``service.store.partitions.prepare_days`` on the session's engine; a session bound to a connection
+    (the caller owns the transaction) makes them in it."""
+    bind = session.get_bind()
+    if isinstance(bind, Engine):
+        prepare_days(bind, days)
+    else:
+        ensure_days(session.connection(), days)
 
 
 def _stamped(record: Record, sid: str) -> dict[str, object]:

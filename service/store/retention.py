@@ -30,7 +30,7 @@ from dataclasses import dataclass
 from datetime import date, datetime, timedelta
 from types import SimpleNamespace
 
-from sqlalchemy import Connection, Engine, delete, func, select, text
+from sqlalchemy import Connection, Engine, delete, func, select
 from sqlalchemy.exc import DBAPIError
 
 from service.store.downsample import minute_means
@@ -43,13 +43,15 @@ from service.store.partitions import (
     ensure_days,
     list_partitions,
     partition_name,
+    schema_lock,
+    short_lock_waits,
     utc_day,
 )
 
 __all__ = ["RetentionReport", "backfill_minutes", "retention_pass"]
 
 log = logging.getLogger(__name__)
-_LOCK = 0x43485452  # pg_advisory_xact_lock key: one retention pass at a time ("CHTR")
+_LOCK = 0x43485452  # advisory lock key: one retention pass at a time in a schema ("CHTR"; schema_lock)
 COMPACT_PER_PASS = 2  # closed days' indexes rebuilt a pass (yesterday, and one of a backlog)
 
 
@@ -84,8 +86,9 @@ def retention_pass(
     dropped: list[str] = []
     raw_deleted = min_deleted = backfilled = 0
     with engine.begin() as conn:
+        short_lock_waits(conn)  # a DROP queued behind a stuck writer would make every insert queue behind it
         if conn.dialect.name == "postgresql":
-            conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+            schema_lock(conn, _LOCK)
         if raw_cut is not None:
             backfilled = _backfill_before(conn, raw_cut, keep_from=min_cut)
             if conn.dialect.name == "postgresql":
@@ -128,7 +131,8 @@ def _compact_closed(engine: Engine, today: date, raw_cut: date | None, limit: in
             break
         try:
             with engine.begin() as conn:
-                conn.execute(text("SELECT pg_advisory_xact_lock(:k)"), {"k": _LOCK})
+                short_lock_waits(conn)
+                schema_lock(conn, _LOCK)
                 if compact_day(conn, day):
                     done.append(partition_name(day))
         except DBAPIError as err:  # e.g. a partition another role owns: storage only, never fatal

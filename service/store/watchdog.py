@@ -8,14 +8,17 @@ service measures its own database operations:
 - ``StatementWatchdog.guard(what)`` brackets one operation (a write batch, a probe, an API read);
 - ``busy_s()`` is the age of the oldest operation still running: ``/healthz`` says db ``degraded`` when it
   exceeds a few seconds (``service.engine.shell``), long before anything times out;
-- a daemon thread aborts every open connection of the engine once an operation runs longer than
-  ``abort_after_s``: for psycopg it shuts the socket down (the blocked ``recv`` returns, psycopg raises
-  ``OperationalError``, translated to ``DatabaseUnavailableError``: the writer buffers and retries); for
-  SQLite it calls ``sqlite3.Connection.interrupt()``.
+- ``busy_s(thread)`` is the same for the operations of one thread (a spindle's writer: its own health);
+- a daemon thread aborts the connections of an operation that runs longer than ``abort_after_s``: for
+  psycopg it shuts the socket down (the blocked ``recv`` returns, psycopg raises ``OperationalError``,
+  translated to ``DatabaseUnavailableError``: the writer buffers and retries); for SQLite it calls
+  ``sqlite3.Connection.interrupt()``.
 
-All connections are aborted, not just the stuck one: an operation older than ``abort_after_s`` (longer than
-the server-side ``statement_timeout`` that cancels a merely slow statement) means the link itself is frozen,
-and the other connections of the pool share it. Each engine (the writer's, the API reads') has its own
+What is aborted: every connection of the engine except those checked out by a thread whose operations are
+all younger than ``abort_after_s`` (issue 41.2). So the late operation's own connection, the idle ones of
+the pool (a frozen link holds them too; the next checkout's pre-ping replaces them) and one being connected
+or pinged, but never another spindle's write in flight that is still within its time: on a frozen link that
+one becomes late in its turn and is aborted then. Each engine (the writer's, the API reads') has its own
 watchdog. Times here are wall (monotonic) seconds, not the service's clock: they bound real waiting.
 """
 
@@ -78,16 +81,19 @@ class StatementWatchdog:
         self.poll_s = poll_s
         self._monotonic = monotonic
         self._lock = threading.Lock()
-        self._running: dict[int, tuple[str, float]] = {}
+        self._running: dict[int, tuple[str, float, int]] = {}  # key -> (what, start, thread ident)
         self._aborted: set[int] = set()  # operations whose connections were aborted already
         self._ids = itertools.count()
         self._conns: dict[int, DBAPIConnection] = {}
+        self._owner: dict[int, int] = {}  # id(connection) -> ident of the thread that checked it out
         self.aborts = 0
         self._stop = threading.Event()
         self._thread = threading.Thread(target=in_current_context(self._run), name=name, daemon=True)
         event.listen(engine, "connect", self._on_connect)
         event.listen(engine, "close", self._on_close)
         event.listen(engine, "close_detached", self._on_close)
+        event.listen(engine, "checkout", self._on_checkout)
+        event.listen(engine, "checkin", self._on_checkin)
 
     # --- connections ------------------------------------------------------------------------------
     def _on_connect(self, dbapi_conn: DBAPIConnection, _record: ConnectionPoolEntry) -> None:
@@ -97,6 +103,15 @@ class StatementWatchdog:
     def _on_close(self, dbapi_conn: DBAPIConnection, *_: object) -> None:
         with self._lock:
             self._conns.pop(id(dbapi_conn), None)
+            self._owner.pop(id(dbapi_conn), None)
+
+    def _on_checkout(self, dbapi_conn: DBAPIConnection, *_: object) -> None:
+        with self._lock:
+            self._owner[id(dbapi_conn)] = threading.get_ident()
+
+    def _on_checkin(self, dbapi_conn: DBAPIConnection | None, *_: object) -> None:
+        with self._lock:
+            self._owner.pop(id(dbapi_conn), None)
 
     # --- operations -------------------------------------------------------------------------------
     @contextlib.contextmanager
@@ -104,7 +119,7 @@ class StatementWatchdog:
         """Bracket one database operation (thread-safe, nestable)."""
         key = next(self._ids)
         with self._lock:
-            self._running[key] = (what, self._monotonic())
+            self._running[key] = (what, self._monotonic(), threading.get_ident())
         try:
             yield
         finally:
@@ -112,31 +127,36 @@ class StatementWatchdog:
                 self._running.pop(key, None)
                 self._aborted.discard(key)
 
-    def busy(self) -> tuple[str, float] | None:
-        """(what, seconds) of the oldest operation still running, or None when idle."""
+    def busy(self, thread: int | None = None) -> tuple[str, float] | None:
+        """(what, seconds) of the oldest operation still running (of ``thread``, a thread ident, if given),
+        or None when idle."""
         with self._lock:
-            if not self._running:
+            ops = [v for v in self._running.values() if thread is None or v[2] == thread]
+            if not ops:
                 return None
-            what, t0 = min(self._running.values(), key=lambda v: v[1])
+            what, t0, _ = min(ops, key=lambda v: v[1])
         return what, self._monotonic() - t0
 
-    def busy_s(self) -> float | None:
-        b = self.busy()
+    def busy_s(self, thread: int | None = None) -> float | None:
+        b = self.busy(thread)
         return None if b is None else b[1]
 
     def check(self) -> int:
-        """Abort every connection once per operation older than ``abort_after_s``; returns how many."""
+        """Abort the connections of each operation older than ``abort_after_s``, once per operation (see the
+        module docstring for which); returns how many."""
         now = self._monotonic()
         with self._lock:
             late = [
                 (k, what, now - t0)
-                for k, (what, t0) in self._running.items()
+                for k, (what, t0, _) in self._running.items()
                 if now - t0 > self.abort_after_s and k not in self._aborted
             ]
             if not late:
                 return 0
             self._aborted.update(k for k, _, _ in late)
-            conns = list(self._conns.values())
+            old = {th for _, t0, th in self._running.values() if now - t0 > self.abort_after_s}
+            young = {th for _, _, th in self._running.values()} - old
+            conns = [c for key, c in self._conns.items() if self._owner.get(key) not in young]
         n = self._abort(conns)
         _, what, age = late[0]
         log.warning("database: %s not answered for %.1f s: aborted %d connection(s)", what, age, n)

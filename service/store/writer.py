@@ -11,8 +11,10 @@ written once the database is back.
 
 With a ``watchdog`` (``service.store.watchdog.StatementWatchdog``) every write and probe is guarded: one that
 waits longer than the watchdog's ``abort_after_s`` (a hung database) is aborted and handled like an outage;
-``status().busy_s`` says how long the current one has been waiting (health: ``degraded`` after a few
-seconds). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
+``status().busy_s`` says how long this writer's current one has been waiting (health: ``degraded`` after a
+few seconds). Both are this writer's own: the writers of one engine (a host's spindles) share its watchdog,
+but one spindle's stuck write neither shows in another's status nor aborts another's write in flight
+(issue 41.2). With ``heartbeat_s`` an idle, connected writer probes every ``heartbeat_s`` (``SELECT 1``), so a
 database that hangs while nothing is written is noticed too, and ``last_ok_at`` stays fresh. The writers of
 one engine (an instance hosting several spindles) share a ``Heartbeat``: one probe answers all of them, and a
 success of any of them (a write or a probe) within ``heartbeat_s`` stands for a probe of the others.
@@ -33,7 +35,7 @@ import logging
 import threading
 import time
 from collections import deque
-from collections.abc import Callable, Iterable, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from types import TracebackType
@@ -150,6 +152,7 @@ class DbWriter:
         self._stall_s = stall_s
         self._monotonic = monotonic
         self._last_ok_mono = -float("inf")
+        self._busy_since: float | None = None  # monotonic start of this writer's current write/probe
         self._queue: deque[Record] = deque()
         self._cond = threading.Condition()
         self._stop = threading.Event()
@@ -225,7 +228,7 @@ class DbWriter:
                 last_error=err[0] if err else None,
                 last_error_at=err[1] if err else None,
                 last_ok_at=self._last_ok_at,
-                busy_s=None if self._watchdog is None else self._watchdog.busy_s(),
+                busy_s=self._busy_s(),
                 stall_s=self._stall_s,
                 **self._counts,
             )
@@ -274,8 +277,27 @@ class DbWriter:
                 self._cond.wait_for(lambda: self._queue or self._stop.is_set(), timeout=wait)
             return list(itertools.islice(self._queue, self._batch_size))
 
-    def _guard(self, what: str) -> contextlib.AbstractContextManager[None]:
-        return contextlib.nullcontext() if self._watchdog is None else self._watchdog.guard(what)
+    def _busy_s(self) -> float | None:
+        """Wall seconds this writer's current write/probe has been waiting (None: idle, or no watchdog)."""
+        since = self._busy_since
+        return None if since is None or self._watchdog is None else self._monotonic() - since
+
+    @contextlib.contextmanager
+    def _busy(self) -> Iterator[None]:
+        """This writer waits on the database (its own write or probe, or the engine's shared heartbeat)."""
+        outer = self._busy_since is not None
+        if not outer:
+            self._busy_since = self._monotonic()
+        try:
+            yield
+        finally:
+            if not outer:
+                self._busy_since = None
+
+    @contextlib.contextmanager
+    def _guard(self, what: str) -> Iterator[None]:
+        with self._busy(), contextlib.nullcontext() if self._watchdog is None else self._watchdog.guard(what):
+            yield
 
     def _write(self, batch: Sequence[Record]) -> None:
         started = time.perf_counter()
@@ -324,7 +346,8 @@ class DbWriter:
             self._probe()
             return
         assert self._heartbeat_s is not None
-        mono, at = self._heartbeat.beat(self._select_one, self._heartbeat_s)
+        with self._busy():
+            mono, at = self._heartbeat.beat(self._select_one, self._heartbeat_s)
         with self._cond:
             if mono > self._last_ok_mono:
                 self._last_ok_mono, self._last_ok_at = mono, at
