@@ -1,4 +1,4 @@
-"""The REST API of an instance that hosts several spindles (``service.engine.host``; docs/design/fleet.md).
+"""The REST API of an instance that hosts several spindles (``service.host.fleet``; docs/design/fleet.md).
 
 One uvicorn server, one ASGI app (:class:`FleetDispatch`) in front of one ``create_app`` per running
 spindle (each with its own token checks, guard, metrics and routes, reading only its own service):
@@ -260,7 +260,7 @@ async def _not_found(send: Send, message: str) -> None:
 
 class FleetOutlet(RestOutlet):
     """uvicorn serving :class:`FleetDispatch` on ``[api] host:port`` (the ``"rest_fleet"`` outlet); the
-    context's ``service`` is the ``service.engine.host.Host``."""
+    context's ``service`` is the ``service.host.fleet.Host``."""
 
     name = "rest_fleet"
 

@@ -7,7 +7,7 @@ advanced with earlier, imperfect H (``service.estimate.live``). This bench measu
 
 Data are SYNTHETIC: per seed the virtual plant (finer mesh, its own truth ``model.plant.h_true``, σ = 0.15 °C)
 runs the end-to-end test's profile (5 min idle, then 3000 → 4000 → 5000 rpm, 45 min each, from a cold
-spindle), and the samples go through the service's own core offline (``service.engine.offline.run_offline``:
+spindle), and the samples go through the service's own core offline (``service.core.offline.run_offline``:
 detector, scheduler, live state, windows, identification; deterministic). For the last identification of
 each condition (the 40-min window) it reports, per H, the median and maximum relative error against the truth
 over the seeds, the median relative 95 % half-width of the CI as served (with the carried start-field error
@@ -104,8 +104,8 @@ def run(
 ) -> dict[str, Any]:
     """``ident_mode`` None: the settings' ``identification.mode``; ``overrides``: ``--set`` settings."""
     from model.plant import h_true
-    from service.engine.offline import run_offline
-    from service.engine.runtime import core_config
+    from service.core.offline import run_offline
+    from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
 
     settings = identmode.bench_settings(ident_mode, overrides)

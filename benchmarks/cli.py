@@ -36,6 +36,8 @@ BENCHMARKS: dict[str, str] = {
     "retention pass at many spindle-days",
     "commission": "the product's commissioning vs an MLR peer (correlation-clustered sensors) on the same "
     "thermal test, then on a duty cycle: axial error of each",
+    "robustness": "the product vs MLR, ridge, LASSO and ARX peers where regressions fail: ambient ramps and "
+    "cycles, other duty spectra, airflow, sensor faults, restarts, a changed machine (issue 40)",
 }
 
 

@@ -6,7 +6,7 @@ and its own H(speed) truth (``service.sim.randomtruth``, the same in its test an
 and runs the simulated ISO 230-3 thermal test (``service.sim.thermaltest``: temperatures, CAN log,
 displacements with noise, fixture offset, drift and missing readings). On that one test:
 
-- the product commissions (``service.engine.commissioning.commission_growth``, the service's own core);
+- the product commissions (``service.shell.commissioning.commission_growth``, the service's own core);
 - the peer fits an MLR (``benchmarks.studies.mlr``: 4–6 sensors by correlation clustering, least squares of
   the measured axial displacement on their temperatures plus an intercept).
 
@@ -114,8 +114,8 @@ def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argpars
     """The seed's plant mechanics, thermal test, commissioning, MLR fit and duty cycle (module docstring)."""
     from benchmarks.compensation_run import PER_MIN, T0
     from model.plant import VirtualPlant
-    from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
+    from service.host.runtime import core_config
     from service.sim.duty import duty_profile
     from service.sim.plantsamples import samples_from_plant
     from service.sim.randomtruth import draw_truth

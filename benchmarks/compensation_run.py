@@ -48,7 +48,8 @@ from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from service.contracts.checkpoint import LiveCheckpoint
 from service.contracts.records import Record
-from service.engine.persistence import GateSink
+from service.contracts.snapshots import ConditionState
+from service.host.persistence import GateSink
 
 DT_S = 10.0
 PER_MIN = 6  # samples per minute
@@ -262,10 +263,10 @@ class Session:
         start: datetime,
         restored: Any = None,
     ) -> None:
-        from service.engine.core import ServiceCore
-        from service.engine.runtime import core_config, growth_server
-        from service.engine.shell import SoftSensorService
+        from service.core.machine import ServiceCore
+        from service.host.runtime import core_config, growth_server
         from service.identify.worker import run_job
+        from service.shell.service import SoftSensorService
         from service.sim.served import ManualClock
 
         core = ServiceCore(core_config(settings), model=model, restored=restored, history_capacity=100_000)
@@ -322,15 +323,14 @@ class Session:
 
 
 def stored_state(view: Any, reference: Any = None, live: LiveCheckpoint | None = None) -> Any:
-    """What the database holds of a run at ``view`` (``service.engine.persistence.restore`` builds the same
+    """What the database holds of a run at ``view`` (``service.host.persistence.restore`` builds the same
     ``Restored`` from its tables): the served identification, the newest complete H per condition, the
     conditions (stable), the offset calibration, the speed map and its newest fit, the compensation
     zero ``reference`` (the growth server's) and the live state's newest checkpoint ``live``."""
     from dataclasses import replace
 
-    from service.contracts.snapshots import ConditionState
-    from service.engine.config import Restored
-    from service.engine.jobbook import MAP_METHOD
+    from service.core.config import Restored
+    from service.core.jobbook import MAP_METHOD
     from service.identify.detector import OperatingPoint
     from service.identify.scheduler import PastResult
 

@@ -33,6 +33,7 @@ import numpy as np
 from benchmarks import identmode
 from benchmarks.targets import progress_to_stderr, report
 from service.contracts.mode import IdentificationMode
+from service.contracts.verdict import ChtcStatus
 
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 DT_S = 10.0
@@ -77,12 +78,11 @@ def run_seed(model: Any, settings: Any, seed: int, *, hours: float, warmup_min: 
     """One duty cycle through the service (module docstring)."""
     from model.geometry import load_spindle
     from model.plant import VirtualPlant, h_true
-    from service.contracts.verdict import ChtcStatus
-    from service.engine.core import ServiceCore
-    from service.engine.jobbook import MAP_METHOD
-    from service.engine.runtime import core_config
-    from service.engine.shell import SoftSensorService
+    from service.core.jobbook import MAP_METHOD
+    from service.core.machine import ServiceCore
+    from service.host.runtime import core_config
     from service.identify.worker import run_job
+    from service.shell.service import SoftSensorService
     from service.sim.duty import condition_at, duty_profile
     from service.sim.plantsamples import samples_from_plant
     from service.sim.served import ManualClock

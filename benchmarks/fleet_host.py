@@ -42,7 +42,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from service.engine.runtime import free_port
+from service.host.runtime import free_port
 
 __all__ = ["BARS", "measure_fleet", "p99_of", "run_n"]
 

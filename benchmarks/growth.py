@@ -4,9 +4,9 @@ Data are SYNTHETIC. Per seed the virtual plant (finer mesh, its own truth ``mode
 σ = 0.15 °C noise) runs a profile and keeps its full field every ``--every-s``; its growth comes from a growth
 model built on the *plant's* mesh (``model.thermoelastic``), so mesh and time discretisation differ from the
 service's. The samples go through the service's own core, sample by sample, exactly as
-``service.engine.offline.run_offline`` feeds them (``ServiceCore.ingest``, identifications inline with the
+``service.core.offline.run_offline`` feeds them (``ServiceCore.ingest``, identifications inline with the
 same seeded worker function). At every ``--every-s`` after the first successful identification the bench
-asks the service's own ``service.engine.growthserve.GrowthServer`` (as ``/compensation`` does) for the growth
+asks the service's own ``service.serve.compensation.GrowthServer`` (as ``/compensation`` does) for the growth
 of the core's view, so everything is the service's real path:
 
 - the field and its uncertainty: the filtered live state now (``field_belief``: the Kalman filter's reduced
@@ -49,7 +49,7 @@ from benchmarks.chain import PROFILE as CHAIN
 from benchmarks.chain import T0
 from benchmarks.compensation_run import add_plant_mechanics_argument
 from benchmarks.targets import Target, format_verdicts, report, verdicts
-from service.engine.growthserve import GrowthServer
+from service.serve.compensation import GrowthServer
 
 DT_S = 10.0
 HORIZON_STEPS = (30, 90, 180)  # 5, 15, 30 min of 10-s samples
@@ -169,10 +169,10 @@ class _Plant:
 def serve_offline(
     samples: list[Any], model: Any, config: Any, on_sample: Callable[[Any, int, Any], None]
 ) -> None:
-    """The service's core offline (``service.engine.offline.run_offline``: the same events and job outcomes),
+    """The service's core offline (``service.core.offline.run_offline``: the same events and job outcomes),
     calling ``on_sample(core, k, last_ok_result)`` after sample k and its identifications, so that the live
     state can be read as the service would serve it."""
-    from service.engine.offline import run_offline
+    from service.core.offline import run_offline
 
     run_offline(samples, model=model, config=config, on_sample=on_sample)
 
@@ -188,7 +188,7 @@ class _Evaluator:
         self.t_ref = float(run.truth_c[0].mean()) if run.fields_c.size == 0 else float(run.fields_c[0].mean())
         self.rows = _Rows()
         self.last_terms: Any = None
-        # the service's own server (service.engine.growthserve): its terms, field belief and Σ_H
+        # the service's own server (service.serve.compensation): its terms, field belief and Σ_H
         self.server = GrowthServer(model, t_ref_c=self.t_ref, context=ctx)
         cond = np.column_stack([run.speed_rpm, run.torque_nm, run.ambient_c])
         self.cond = cond
@@ -200,7 +200,7 @@ class _Evaluator:
         }
 
     def __call__(self, core: Any, k: int, result: Any) -> None:
-        from service.engine.growthserve import field_belief
+        from service.serve.compensation import field_belief
 
         view = core.view()
         if result is None or k % self.every or view.live is None or view.current is None:
@@ -335,8 +335,8 @@ def run(
     progress: Any = None,
     plant_mechanics: str = "drawn",
 ) -> dict[str, Any]:
-    from service.engine.runtime import core_config
     from service.estimate.growth import build_context
+    from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.sim.plantsamples import samples_from_plant
 

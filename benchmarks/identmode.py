@@ -105,7 +105,7 @@ def served_in_order(records: Iterable[IdentificationRecord]) -> list[Identificat
     """The ok identifications in the order ``/chtc`` serves them (oldest first): every per-condition one, and
     each map fit except those at a condition that already has a per-condition one (combined mode serves that
     one while the condition holds). In the per-condition and speed-map modes: every ok one."""
-    from service.engine.jobbook import MAP_METHOD
+    from service.core.jobbook import MAP_METHOD
 
     held: set[int] = set()
     out = []

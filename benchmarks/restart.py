@@ -24,7 +24,7 @@ served H is its per-condition identification once there is one (``identmode.serv
 Paths (``--path``; ``--mode core|filter`` is accepted as its old spelling):
 
 - ``core`` (default): the samples go through the service's own core offline
-  (``service.engine.offline.run_offline``, as ``chtc identify`` and ``python -m benchmarks chain``): whatever
+  (``service.core.offline.run_offline``, as ``chtc identify`` and ``python -m benchmarks chain``): whatever
   the service does today;
 - ``filter``: what wiring the filtered live state would give, without the core: the samples are pushed
   through ``service.estimate.state.FilteredState`` (Schmidt–Kalman filter, wide "heated" prior at the
@@ -89,8 +89,8 @@ def stored_calibration(model: Any, settings: Any, run: Any) -> Any:
     """The offset baseline the service takes in the profile's idle, cold first 5 min (the core over those
     samples and the first ones at speed: the baseline ends with the rest): what the database holds after a
     run from minute 0 (``service.store.calibrations``; None: no baseline)."""
-    from service.engine.offline import run_offline
-    from service.engine.runtime import core_config
+    from service.core.offline import run_offline
+    from service.host.runtime import core_config
     from service.sim.plantsamples import samples_from_plant
 
     samples = samples_from_plant(run, t0_s=T0)[: BASELINE_SAMPLES + 6]
@@ -100,9 +100,9 @@ def stored_calibration(model: Any, settings: Any, run: Any) -> Any:
 def run_core(model: Any, settings: Any, run: Any, start: int, *, calibration: Any = None) -> list[Served]:
     """The service's core offline over the samples from index ``start`` on; ``calibration`` the stored
     offset baseline it restores (None: none)."""
-    from service.engine.config import Restored
-    from service.engine.offline import run_offline
-    from service.engine.runtime import core_config
+    from service.core.config import Restored
+    from service.core.offline import run_offline
+    from service.host.runtime import core_config
     from service.sim.plantsamples import samples_from_plant
 
     samples = samples_from_plant(run, t0_s=T0)[start:]

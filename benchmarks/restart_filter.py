@@ -11,7 +11,7 @@ at least ``min_window_s``; ``model.identify`` fits it from the snapshot's mean w
 The filter then uses the new H with its CI's σ(log H) as the considered H error (``set_h(h_rel=...)``).
 
 What the core decides is taken from the core itself, never copied: its configuration
-(``service.engine.runtime.core_config``: the initial H, the idle speed below which it skips a window, the
+(``service.host.runtime.core_config``: the initial H, the idle speed below which it skips a window, the
 schedule, the window lengths, the CI threshold) and the considered H error
 (``service.estimate.state.h_rel_from_ci``, ``GUESSED_H_REL`` before the first identification).
 """
@@ -23,8 +23,8 @@ from typing import Any
 import numpy as np
 
 from benchmarks.restart_profile import BASELINE_SAMPLES, DT_S, T0, Served
-from service.engine.runtime import core_config
 from service.estimate.state import GUESSED_H_REL, h_rel_from_ci
+from service.host.runtime import core_config
 
 
 class FilterRestart:

@@ -14,7 +14,7 @@ Data are SYNTHETIC, but nothing in them is shared with the service's model or wi
 - scenario ``clean``: nothing else; scenario ``offsets``: per-channel offsets uniform in ±0.2 °C and one
   channel open circuit from the start.
 
-The samples go through ``chtc identify``'s code path (``service.engine.offline.run_offline`` with the
+The samples go through ``chtc identify``'s code path (``service.core.offline.run_offline`` with the
 settings'
 defaults: detector, scheduler, live state, offset calibration, windows, identification). For the last
 successful identification of every condition (its longest window) it reports, per H, the median |error|
@@ -238,8 +238,8 @@ def run(
     progress: Any = None,
 ) -> dict[str, Any]:
     from model.fem import build_fe_model
-    from service.engine.offline import run_offline
-    from service.engine.runtime import core_config
+    from service.core.offline import run_offline
+    from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.sim.plantsamples import samples_from_plant
 

@@ -1,5 +1,5 @@
 """The service's identification defaults, in one place: ``service.settings`` (what a user configures),
-``service.engine.core.CoreConfig`` and ``service.identify.worker.JobRequest`` all take them from here.
+``service.core.machine.CoreConfig`` and ``service.identify.worker.JobRequest`` all take them from here.
 
 No imports beyond ``model.defaults`` (which has none): settings load fast.
 """

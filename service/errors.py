@@ -20,7 +20,7 @@ still works where a caller relies on it. Each package keeps its errors in its ow
     │   └── RecordRejectedError(DatabaseError, RecordError)            the database refuses a record
     │       └── StoredCalibrationError(RecordRejectedError)  service.store.calibrations: unusable stored row
     ├── LiveStateError(ServiceError, RuntimeError)           service.estimate.live: no state/snapshot yet
-    │   └── StateConverging(LiveStateError)                  service.engine.jobs: filter not converged
+    │   └── StateConverging(LiveStateError)                  service.core.jobs: filter not converged
     ├── GrowthEstimateError(ServiceError, ValueError)        service.estimate.growth
     ├── DetectorError(ServiceError, ValueError)              service.identify.detector: bad configuration
     ├── SchedulerError(ServiceError, ValueError)             service.identify.scheduler: bad configuration
@@ -28,7 +28,7 @@ still works where a caller relies on it. Each package keeps its errors in its ow
     ├── InsufficientWindowError(ServiceError, ValueError)    service.identify.window: too few usable data
     ├── WorkerError(ServiceError, RuntimeError)              service.identify.worker: the worker process
     ├── JobCancelled(ServiceError)                           service.identify.worker: a job stopped on request
-    ├── CoreError(ServiceError, ValueError)                  service.engine.core: an event the core refuses
+    ├── CoreError(ServiceError, ValueError)                  service.core.machine: an event the core refuses
     ├── SettingsError(ServiceError, ValueError)              service.settings: names the key
     ├── CommandError(ServiceError, ValueError)               service.commands._common: a CLI user error
     ├── ProfileError(ServiceError, ValueError)               service.commands.simulate: a bad profile file
@@ -39,7 +39,7 @@ still works where a caller relies on it. Each package keeps its errors in its ow
 The layers below (``model.errors.ModelError``, ``drivers.errors.DriverError``) keep their own roots: the
 service translates them where it calls them (a job's failure becomes its stored outcome,
 ``service.identify.worker.job_outcome_of``), or lets them through unchanged where they name the bad input.
-The store never raises an API error: ``service.engine.archive`` turns a database that cannot answer into
+The store never raises an API error: ``service.shell.archive`` turns a database that cannot answer into
 ``NotReadyError`` (503) for the API.
 """
 

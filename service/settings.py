@@ -7,7 +7,7 @@
 ``settings.experimental``: the research switches (optimizer, the speed map's inner workings, mesh and rank)
 an operator leaves at their measured defaults (issue 25; docs/configuration.md). Each value is declared once,
 here: the engine's configuration objects have no defaults of their own and are built from these sections
-(``service.engine.config.core_config``).
+(``service.core.config.core_config``).
 Nothing here opens a file, a socket or a database at import time.
 
 Precedence, highest first: keyword arguments to ``Settings(...)``, environment variables, the TOML file,

@@ -6,7 +6,7 @@ from __future__ import annotations
 
 from typing import Any
 
-from service.engine.config import CoreConfig, compensation_limits, core_config
+from service.core.config import CoreConfig, compensation_limits, core_config
 from service.serve.policy import CompensationLimits
 from service.settings import CompensationSettings, Settings
 

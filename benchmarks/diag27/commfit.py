@@ -18,8 +18,8 @@ def main() -> int:
     from model.plant import VirtualPlant
     from service.sim.randomtruth import draw_truth
     from benchmarks.commission import _setup
-    from service.engine.commissioning import FieldHistory, field_history, fit_test, read_displacement_csv
-    from service.engine.runtime import core_config
+    from service.shell.commissioning import FieldHistory, field_history, fit_test, read_displacement_csv
+    from service.host.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
     from service.sim.thermaltest import RECOMMENDED_PROFILE, write_thermal_test
 

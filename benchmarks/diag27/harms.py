@@ -18,8 +18,8 @@ def main() -> int:
     from model.plant import VirtualPlant
     from benchmarks.commission import _setup
     from benchmarks.compensation_run import PER_MIN, T0, Session, stored_state
-    from service.engine.commissioning import field_history, fit_test, read_displacement_csv
-    from service.engine.runtime import core_config
+    from service.shell.commissioning import field_history, fit_test, read_displacement_csv
+    from service.host.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
     from service.sim.duty import duty_profile
     from service.sim.plantsamples import samples_from_plant

@@ -13,7 +13,7 @@ from benchmarks.diag27.decomp import OUT
 
 def main() -> int:
     from benchmarks.commission import _setup
-    from service.engine.commissioning import Displacements, FieldHistory, fit_test
+    from service.shell.commissioning import Displacements, FieldHistory, fit_test
     from service.estimate.mechanics import served_mechanics_basis
 
     model, _, _ = _setup()

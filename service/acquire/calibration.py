@@ -88,7 +88,7 @@ EQUILIBRIUM_SD_C = 0.005  # what a spindle at rest still differs from the ambien
 class CalibrationConfig:
     """Thresholds of the equilibrium detector; temperatures °C, times s, speed rpm. From the settings'
     ``identification.offset_*`` and ``min_good_channels`` and this module's constants (no defaults here:
-    ``service.engine.config.core_config`` builds it)."""
+    ``service.core.config.core_config`` builds it)."""
 
     rest_s: float  # idle and flat this long: the equilibrium test's window (identification.offset_rest_s)
     max_rest_s: float  # MAX_REST_S

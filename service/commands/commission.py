@@ -2,7 +2,7 @@
 
 ``chtc commission growth TEMPERATURES CANLOG DISPLACEMENTS``: fit the growth's mechanics (mount restraint, α
 factors) to a measured thermal test (docs/commissioning.md, "Commission the growth";
-``service.engine.commissioning``): the service's own core runs over the temperature CSV and the CAN log, as
+``service.shell.commissioning``): the service's own core runs over the temperature CSV and the CAN log, as
 ``chtc identify`` does, and the displacement CSV (UTC time, ``axial_um``, optionally ``radial_um``) is fitted.
 Prints the residuals, the parameters with their prior and posterior, and the verdict; ``--json FILE`` writes
 the report. Exit status 0 when the model explains the test, 1 when it does not, 2 for unusable input. With
@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from service.commands._common import CommandError
+from service.contracts.mechanics import EXAMPLE_NOTE
 
 __all__ = ["add_arguments", "main", "zero"]
 
@@ -162,7 +163,7 @@ def _token(args: argparse.Namespace, settings: Any) -> str:
 
 def _check_not_displacements(temperatures: Path) -> None:
     """``CommandError`` when the file given as TEMPERATURES is the displacement CSV (files swapped)."""
-    from service.engine.commissioning import AXIAL, ORDER
+    from service.shell.commissioning import AXIAL, ORDER
 
     try:
         with temperatures.open(encoding="utf-8-sig", errors="replace") as f:
@@ -178,7 +179,7 @@ def _check_not_displacements(temperatures: Path) -> None:
 def _growth_at(args: argparse.Namespace, settings: Any, set_by: str) -> int:
     """``--url``: the service fits and stores; its report printed as the offline fit's table (the JSON with
     ``--json``); a test the model does not explain is refused (409) with exit status 1, as offline."""
-    from service.engine.commissioning import format_report_dict
+    from service.shell.commissioning import format_report_dict
 
     try:
         out = send_growth(
@@ -211,10 +212,9 @@ def _growth_at(args: argparse.Namespace, settings: Any, set_by: str) -> int:
 def growth(args: argparse.Namespace) -> int:
     """``chtc commission growth`` (module docstring)."""
     from service.commands._common import check_log_arguments
-    from service.contracts.mechanics import EXAMPLE_NOTE
-    from service.engine.commissioning import FitLimits, commission_growth, format_report
-    from service.engine.runtime import core_config, os_user
+    from service.host.runtime import core_config, os_user
     from service.settings import load_settings
+    from service.shell.commissioning import FitLimits, commission_growth, format_report
 
     settings = load_settings(args.config)
     _check_not_displacements(args.temperatures)
@@ -222,8 +222,8 @@ def growth(args: argparse.Namespace) -> int:
     set_by = args.set_by or os_user()
     if args.url is not None:
         return _growth_at(args, settings, set_by)
-    from service.engine.commissioning import read_displacement_csv
     from service.modelload import ModelRef, load_model
+    from service.shell.commissioning import read_displacement_csv
 
     read_displacement_csv(args.displacements)  # a bad file is reported before the model loads
     model = load_model(ModelRef.from_settings(settings))
@@ -259,7 +259,7 @@ def growth(args: argparse.Namespace) -> int:
 def main(args: argparse.Namespace) -> int:
     if args.action == "growth":
         return growth(args)
-    from service.engine.runtime import os_user
+    from service.host.runtime import os_user
     from service.settings import load_settings
 
     settings = load_settings(args.config)

@@ -43,12 +43,13 @@ from service.commands._common import (
     port_number,
     positive_float,
 )
-from service.engine.jobbook import MAP_METHOD
+from service.contracts.snapshots import IdentificationRecord
+from service.core.jobbook import MAP_METHOD
 from service.logctx import install_logging, set_default
 
 if TYPE_CHECKING:
     from service.contracts.snapshots import IdentificationRecord
-    from service.engine.runtime import Runtime
+    from service.host.runtime import Runtime
     from service.settings import Settings
     from service.sim.endless import PlantRows
     from service.sim.rigproc import RigProcess
@@ -100,7 +101,7 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> tuple[Settings, str 
         s = override(s, "api", token=generated)
     port = args.port
     if port == 0:
-        from service.engine.runtime import free_port
+        from service.host.runtime import free_port
 
         port = free_port(args.host)
     s = override(s, "api", host=args.host, port=port)
@@ -197,7 +198,7 @@ def dashboard_url(base: str, token: str | None) -> str:
 
 
 async def run_demo(args: argparse.Namespace, settings: Settings, token: str | None = None) -> int:
-    from service.engine.runtime import Runtime, ScaledClock
+    from service.host.runtime import Runtime, ScaledClock
     from service.sim.rigproc import RigPlan, RigProcess
     from service.sim.simrig import make_drivers
 

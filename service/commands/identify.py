@@ -6,7 +6,7 @@ always give the same H. Prints one line per identification with H and its 95 % c
 writes them as JSON with ``--json FILE`` (``-`` for stdout), each with ``growth``: the thermal growth at the
 spindle nose at the identification's end as ``/compensation`` would have served it (axial, radial and the
 steady axial growth in µm, their 0.1-µm integers and 95 % CIs, over the zero (``compensation.reference_c``,
-else the provisional one: the first converged live field's); ``service.engine.growthserve.GrowthHistory``;
+else the provisional one: the first converged live field's); ``service.shell.growthserve.GrowthHistory``;
 null for an identification that did not succeed).
 
 The log is sampled as the live acquisition samples it in ``chtc replay`` (one sample per
@@ -30,14 +30,14 @@ import numpy as np
 
 from service.commands._common import check_log_arguments
 from service.contracts.mode import IdentificationMode
-from service.engine.jobbook import MAP_METHOD
+from service.core.jobbook import MAP_METHOD
 from service.serve.numbers import format_bound
 
 if TYPE_CHECKING:
     from service.contracts.calibration import Calibration
     from service.contracts.growth import GrowthEstimate, GrowthValue
     from service.contracts.snapshots import IdentificationRecord
-    from service.engine.offline import OfflineResult
+    from service.core.offline import OfflineResult
     from service.settings import IdentificationSettings, Settings
 
 
@@ -259,8 +259,8 @@ def offsets_line(calibration: Calibration | None, ident: IdentificationSettings)
 def main(args: argparse.Namespace) -> int:
     from drivers.logs import LogFormatError, read_temperature_csv
     from drivers.logsamples import samples_from_logs
-    from service.engine.offline import run_offline
-    from service.engine.runtime import core_config
+    from service.core.offline import run_offline
+    from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import SettingsError, load_settings
 
@@ -290,7 +290,7 @@ def main(args: argparse.Namespace) -> int:
     model = load_model(ModelRef.from_settings(settings))
     growth = None
     if args.json_out is not None:  # the growth history (docs/design/growth.md): only for the JSON
-        from service.engine.growthserve import GrowthHistory
+        from service.shell.growthserve import GrowthHistory
 
         growth = GrowthHistory(model, t_ref_c=settings.compensation.reference_c)
     result = run_offline(data.samples, model=model, config=core_config(settings), on_sample=growth)

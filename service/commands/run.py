@@ -25,7 +25,7 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     from drivers.can_sensor import CanSpindleSensor
     from drivers.modbus_daq import ModbusDaq
-    from service.engine.runtime import ScaledClock
+    from service.host.runtime import ScaledClock
     from service.settings import Settings
 
 from service.commands._common import (
@@ -104,7 +104,7 @@ def until_signal() -> asyncio.Event:
 
 
 async def serve(settings: Settings, *, migrate: bool) -> int:
-    from service.engine.runtime import Runtime, ScaledClock
+    from service.host.runtime import Runtime, ScaledClock
 
     if settings.spindles:
         return await serve_host(settings, migrate=migrate)
@@ -126,9 +126,9 @@ async def serve(settings: Settings, *, migrate: bool) -> int:
 
 
 async def serve_host(settings: Settings, *, migrate: bool) -> int:
-    """Several spindles (``[[spindles]]``) in this one process: ``service.engine.host``."""
-    from service.engine.host import Host
-    from service.engine.runtime import ScaledClock
+    """Several spindles (``[[spindles]]``) in this one process: ``service.host.fleet``."""
+    from service.host.fleet import Host
+    from service.host.runtime import ScaledClock
 
     clock = ScaledClock(1.0)
     host = Host(
@@ -169,7 +169,7 @@ def main(args: argparse.Namespace) -> int:
 
     from drivers.errors import ConfigError
     from service.commands.demo import log_spindle_default, quiet_third_party_logs
-    from service.engine.host import HostError
+    from service.host.fleet import HostError
     from service.settings import SettingsError, load_settings
 
     quiet_third_party_logs()

@@ -13,7 +13,7 @@ maps to HTTP codes (``api/errors.py``; any other ``ServiceError`` is a 500).
     ├── NotReadyError(ServiceError)               model not loaded / not enough good data   -> 503
     └── CommissioningError(ServiceError, ValueError)
                                                   a thermal test a commissioning cannot use (names the file,
-                                                  line or field; ``service.engine.commissioning``) -> 422
+                                                  line or field; ``service.shell.commissioning``) -> 422
 
 ``service.store.errors.RecordRejectedError`` (a record the database refuses) is also a ``RecordError``.
 """

@@ -1,5 +1,5 @@
 """A commissioning of the served growth's mechanics (``MechanicsCalibration``): θ = (s, a_s, a_h) and its
-covariance, made by ``service.engine.commissioning``, stored (``mechanics_calibrations``), updated by probe
+covariance, made by ``service.shell.commissioning``, stored (``mechanics_calibrations``), updated by probe
 readings (``service.estimate.probe``) and served by ``/compensation`` (docs/commissioning.md); and how the
 shipped example thermal test is told apart (``is_shipped_example``: another machine's mechanics).
 

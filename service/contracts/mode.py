@@ -1,6 +1,6 @@
 """The identification mode (``identification.mode``), fixed for a service's life.
 
-Each mode has one serving strategy in ``service.engine.serving``, which decides what runs (the per-condition
+Each mode has one serving strategy in ``service.core.serving``, which decides what runs (the per-condition
 schedule, the speed map, or both) and which identification is served.
 """
 

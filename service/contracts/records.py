@@ -220,7 +220,7 @@ class IdentificationData:
     message: str = ""
     # test_points, rmse_per_sensor, at_bound: JSON, so a new diagnostic needs no column
     diagnostics: Mapping[str, JsonValue] | None = field(default=None)
-    # ids of the service core's events that started and ended the job (service.engine.events), stored in
+    # ids of the service core's events that started and ended the job (service.core.events), stored in
     # the diagnostics as {"events": {"started_by": ..., "finished_by": ...}}: a story to follow when debugging
     started_by_event: str | None = None
     finished_by_event: str | None = None

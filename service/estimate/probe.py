@@ -8,7 +8,7 @@ growth is bilinear in θ = (s, a_s, a_h) (``service.estimate.mechanics``)::
     y = Σ_m w_m(s) Σ_j c_j F[m, j] + e,   w = (1 − s, s),  c = (1, a_s, a_h)
     F = op_axial · (T − T_ref)   (2 mounts, 3 α groups) [µm]
 
-``F`` (the fit's feature row, ``service.engine.commissioning._features``) is all a reading needs of the
+``F`` (the fit's feature row, ``service.shell.commissioning._features``) is all a reading needs of the
 field, so it is stored with the reading and the update is replayed exactly after a restart. The update is
 one extended-Kalman step linearised at the current mean (exact in each of s and α separately)::
 

@@ -48,7 +48,6 @@ from model.estimator import (
     Convergence,
     CovarianceError,
     Estimate,
-    NisWindow,
     NoiseModel,
     StateEstimator,
     StepInput,
@@ -61,9 +60,12 @@ from model.estimator import (
 )
 from model.estimator import usable as usable_channels
 from service.contracts.checkpoint import LiveCheckpoint
+from service.estimate.convergegate import ConvergenceGate
 from service.estimate.live import LiveStateError
+from service.estimate.nistrack import NisTrack
 from service.estimate.offsetbias import OffsetBias, kalman_gain
 from service.estimate.sensorfaults import FaultChange, FaultMonitor, FaultMonitorSettings, SensorFault
+from service.estimate.snapshots import SnapshotBook
 
 __all__ = [
     "GUESSED_H_REL",
@@ -256,6 +258,31 @@ class _Inputs:
     torque_nm: float
 
 
+def _held(old: _Inputs | None, vals: tuple[float, float, float]) -> _Inputs:
+    """``vals`` (ambient °C, speed rpm, torque N·m), a non-finite one replaced by ``old``'s (NaN: none)."""
+    olds = (math.nan,) * 3 if old is None else (old.ambient_c, old.speed_rpm, old.torque_nm)
+    return _Inputs(*(float(v) if math.isfinite(v) else o for v, o in zip(vals, olds, strict=True)))
+
+
+def _bearing_heat(spec: Any, inp: _Inputs, load_scale: tuple[float, float]) -> tuple[float, float]:
+    """The front and rear bearing heats [W] at ``inp`` (``model.inputs``), times ``load_scale``."""
+    from model.inputs import inputs_from_operation
+
+    series = inputs_from_operation(
+        spec,
+        dt_s=1.0,
+        speed_rpm=np.array([inp.speed_rpm]),
+        torque_nm=np.array([inp.torque_nm]),
+        ambient_c=np.array([inp.ambient_c]),
+    )
+    return float(series.q_front_w[0]) * load_scale[0], float(series.q_rear_w[0]) * load_scale[1]
+
+
+def _with_rms(sigma: float, sd: Array) -> float:
+    """``sigma`` and the RMS of ``sd`` in quadrature (the same unit)."""
+    return math.hypot(sigma, float(np.sqrt(np.mean(sd**2))) if sd.size else 0.0)
+
+
 class FilteredState:
     """Closed-loop live state on a ``ReducedModel`` ``rom`` for the spindle ``spec``; H (7,) [W/(m²·K)]."""
 
@@ -279,25 +306,18 @@ class FilteredState:
         self._noise = self.settings.noise
         self.offsets_c = None if offsets_c is None else np.asarray(offsets_c, dtype=np.float64)
         st = self.settings
-        self._snapshots: deque[StateSnapshot] = deque(maxlen=max(2, int(st.keep_s / st.snapshot_every_s) + 2))
-        self._recent: deque[StateSnapshot] = deque(maxlen=max(1, st.recent_steps))
+        self._book: SnapshotBook[StateSnapshot] = SnapshotBook(
+            keep_s=st.keep_s, every_s=st.snapshot_every_s, recent_steps=st.recent_steps, dt_s=self.dt_s
+        )
         self._filter: StateEstimator | None = None
-        self._window = NisWindow(st.nis_window)
-        self._gate = NisWindow(st.converge_nis_samples)
+        self._nis = NisTrack(st.nis_window, st.converge_nis_samples, keep=max(1, int(st.keep_s / self.dt_s)))
         self._t: float | None = None
         self._inputs: _Inputs | None = None
-        self.converged_at: float | None = None  # [s] first converged sample since the (re)start
         # a run of steps without a measurement update (open loop): since when [s], and whether it was long
         # enough (> max_gap_s) that windows wait for the convergence test on data again (``ready_at``)
-        self._blind_from: float | None = None
-        self._reacquiring = False
-        self.reacquired_at: float | None = None  # [s] the state passed the test again after an open-loop run
+        self._gate = ConvergenceGate(st.max_gap_s)
         self.started_at: float | None = None
-        self.high_since: float | None = None  # [s] the NIS window "high" since (None: not high)
         self.last_restart: tuple[float, str] | None = None  # [s] and why the state last restarted
-        self._last: tuple[float, int] = (0.0, 0)
-        self._convergence: Convergence | None = None
-        self.nis_history: deque[tuple[float, float, int]] = deque(maxlen=max(1, int(st.keep_s / self.dt_s)))
         self.steps = 0
         sensors = np.asarray(rom.sensors)
         # the unknown offsets' share of the state's error (in ``view().cov``; service.estimate.offsetbias)
@@ -311,6 +331,26 @@ class FilteredState:
         self._changes: list[FaultChange] = []
 
     # --- state ----------------------------------------------------------------------------------------
+    @property
+    def converged_at(self) -> float | None:
+        """[s] the first converged sample since the (re)start (None: not yet)."""
+        return self._gate.converged_at
+
+    @property
+    def reacquired_at(self) -> float | None:
+        """[s] the state passed the test again after an open-loop run (None: not since the (re)start)."""
+        return self._gate.reacquired_at
+
+    @property
+    def high_since(self) -> float | None:
+        """[s] the NIS window "high" since (None: not high)."""
+        return self._nis.high_since
+
+    @property
+    def nis_history(self) -> deque[tuple[float, float, int]]:
+        """(t [s], NIS, dof) of the samples with an update, the last ``keep_s``."""
+        return self._nis.history
+
     @property
     def initialized(self) -> bool:
         return self._filter is not None
@@ -355,15 +395,10 @@ class FilteredState:
             self._monitor.restart()
         self._t = float(t)
         self._inputs = _Inputs(*(float(x) for x in inputs))
-        self._window = NisWindow(self.settings.nis_window)
-        self._gate = NisWindow(self.settings.converge_nis_samples)
-        self.converged_at = None
-        self._blind_from, self._reacquiring, self.reacquired_at = None, False, None
+        self._nis.restart()
+        self._gate.restart()
         self.started_at = float(t)
-        self.high_since = None
-        self._convergence = None
-        for dq in (self._snapshots, self._recent):
-            dq.clear()
+        self._book.clear()
         self.last_restart = (float(t), reason)
         return self._after_step(0, self._measure(temps_c, usable), restarted=True, reason=reason)
 
@@ -374,7 +409,7 @@ class FilteredState:
         return LiveCheckpoint(
             t=self.t,
             model_version=model_version,
-            converged=self.converged_at is not None and not self._reacquiring,
+            converged=not self._gate.initial,
             inputs=(inp.ambient_c, inp.speed_rpm, inp.torque_nm),
             mean=est.mean.copy(),
             cov=est.cov.copy(),
@@ -404,16 +439,11 @@ class FilteredState:
         self._bias.s, self._bias.m = cp.bias_s.copy(), cp.bias_m.copy()
         self._t = float(cp.t)
         self._inputs = _Inputs(*cp.inputs)
-        self._window = NisWindow(self.settings.nis_window)
-        self._gate = NisWindow(self.settings.converge_nis_samples)
-        self.converged_at = float(cp.t) if cp.converged else None
-        self._blind_from, self._reacquiring, self.reacquired_at = None, cp.converged, None
+        self._nis.restart()
+        self._gate.restart(float(cp.t) if cp.converged else None)
         self.started_at = float(cp.t)
-        self.high_since = None
-        self._convergence = None
-        for dq in (self._snapshots, self._recent):
-            dq.clear()
-        self._keep(self._snapshot(), force=True)
+        self._book.clear()
+        self._book.keep(self._snapshot(), force=True)
 
     def set_h(
         self,
@@ -455,9 +485,7 @@ class FilteredState:
             sd = np.asarray(sd_c, dtype=np.float64)
             if sd.shape == (self._bias.n,):
                 self._bias.set_sd(sd)
-            sd = sd[np.isfinite(sd)]
-            rms = float(np.sqrt(np.mean(sd**2))) if sd.size else 0.0
-            sigma = math.hypot(self.settings.noise.sigma_meas_c, rms)
+            sigma = _with_rms(self.settings.noise.sigma_meas_c, sd[np.isfinite(sd)])
             self._noise = replace(self._noise, sigma_meas_c=sigma)
             if self._filter is not None:
                 self._filter.set_noise(self._noise)
@@ -482,14 +510,14 @@ class FilteredState:
         """
         if self._filter is None or self._t is None or self._inputs is None:
             raise LiveStateError("initialize() the live state before pushing samples")
-        new = self._valid(ambient_c, speed_rpm, torque_nm)
+        new = _held(self._inputs, (ambient_c, speed_rpm, torque_nm))
         n = int(np.floor((float(t) - self._t) / self.dt_s + 0.5))
         inputs = (new.ambient_c, new.speed_rpm, new.torque_nm)
         if n * self.dt_s > self.settings.max_gap_s:
             return self.initialize(float(t), inputs, temps_c, usable, reason="gap")
         if n <= 0:
             self._inputs = new
-            return SampleUpdate(self._t, 0, 0.0, 0, self._window.verdict())
+            return SampleUpdate(self._t, 0, 0.0, 0, self._nis.window.verdict())
         step = self._step_input(self._inputs)
         a = self._filter.transition(step.h, step.dt_s).a
         try:
@@ -497,7 +525,7 @@ class FilteredState:
                 self._filter.predict(step)
                 self._bias.predict(a)
                 self._t += self.dt_s
-                self._keep(self._snapshot())
+                self._book.keep(self._snapshot())
             self._filter.predict(step)
             self._bias.predict(a)
             self._t += self.dt_s
@@ -517,16 +545,7 @@ class FilteredState:
         """Keep the estimate of the latest step at or before ``t`` [s] as a snapshot (a window can start
         there); called at a condition change, whose start lies up to the hold time in the past. None when
         the state has none that old (it started after ``t``: a window cannot start there; never an error)."""
-        older = [s for s in self._recent if s.t <= t + 0.5 * self.dt_s]
-        if not older:
-            kept = [s for s in self._snapshots if s.t <= t + 0.5 * self.dt_s]
-            return kept[-1] if kept else None
-        snap = older[-1]
-        if all(s.t != snap.t for s in self._snapshots):
-            kept = sorted([*self._snapshots, snap], key=lambda s: s.t)
-            self._snapshots.clear()
-            self._snapshots.extend(kept[-(self._snapshots.maxlen or len(kept)) :])
-        return snap
+        return self._book.mark(t)
 
     # --- queries --------------------------------------------------------------------------------------
     def field_now(self) -> StateSnapshot:
@@ -551,25 +570,15 @@ class FilteredState:
 
     def field_at(self, t: float) -> StateSnapshot:
         """The latest snapshot at or before ``t`` [s], up to half a step later (sample-time jitter)."""
-        older = [s for s in self._snapshots if s.t <= t + 0.5 * self.dt_s]
-        if not older:
-            raise LiveStateError(f"no live-state snapshot at or before t={t:.0f} s")
-        return older[-1]
+        return self._book.at(t)
 
     def covariance_at(self, t: float) -> Array:
         """The covariance (r, r) [°C²] of the snapshot ``field_at(t)``: ``identify(start_cov=...)``."""
         return np.array(self.field_at(t).cov)
 
-    def start_cov(self, t: float) -> Array:
-        """Alias of ``covariance_at``: the start uncertainty of a window beginning at ``t`` [s]."""
-        return self.covariance_at(t)
-
     def first_snapshot_after(self, t: float) -> StateSnapshot:
         """The earliest snapshot at or after ``t`` [s]."""
-        newer = [s for s in self._snapshots if s.t >= t - 1e-9]
-        if not newer:
-            raise LiveStateError(f"no live-state snapshot at or after t={t:.0f} s")
-        return newer[0]
+        return self._book.first_after(t)
 
     def convergence(self) -> Convergence:
         """The convergence test now (``model.estimator.convergence``): covariance bounds, NIS window."""
@@ -577,7 +586,7 @@ class FilteredState:
         return convergence(
             self.rom,
             self.estimator.estimate,
-            self._gate,
+            self._nis.gate,
             sensor_std_bound_c=st.sensor_std_bound_c,
             field_rms_bound_c=st.field_rms_bound_c,
         )
@@ -587,29 +596,23 @@ class FilteredState:
         last open-loop run longer than ``max_gap_s`` the first sample the state passed the convergence test
         on data again (None: not yet). An identification window never starts on a state that ran open loop
         (a DAQ outage): its start field would be the open-loop prediction, and the fit would bend H to it."""
-        if self._reacquiring:
-            return None
-        if self.converged_at is None or self.reacquired_at is None:
-            return self.converged_at
-        return max(self.converged_at, self.reacquired_at)
+        return self._gate.ready_at()
 
     @property
     def reacquiring(self) -> bool:
         """The state ran open loop for longer than ``max_gap_s`` and has not passed the test on data again."""
-        return self._reacquiring
+        return self._gate.reacquiring
 
     def nis_verdict(self) -> str:
         """The NIS window's verdict: "filling", "ok", "high" (inconsistent: the model misses something) or
         "low"."""
-        return self._window.verdict()
+        return self._nis.window.verdict()
 
     def view(self) -> FilterView:
         """An immutable copy of the state now for readers on other threads (raises before ``initialize``)."""
         est, inp = self.estimator.estimate, self._inputs
         assert inp is not None and self.started_at is not None
-        conv = self._convergence
-        reason = "converged" if self.converged_at is not None else conv.reason if conv else "starting"
-        total, dof = self._window.totals()
+        reason = self._gate.reason()
         offset_cov = self._bias.extra_cov()
         return FilterView(
             t=self.t,
@@ -624,13 +627,7 @@ class FilteredState:
             started_at=self.started_at,
             converged_at=self.converged_at,
             reason=reason,
-            nis=self._last[0],
-            nis_dof=self._last[1],
-            verdict=self._window.verdict(),
-            nis_sum=total,
-            nis_sum_dof=dof,
-            nis_band=self._window.band(),
-            high_since=self.high_since,
+            **self._nis.view_fields(),
             inconsistent_after_s=self.settings.inconsistent_after_s,
             offset_cov=_frozen(offset_cov),
             sensor_faults=self.sensor_faults(),
@@ -651,7 +648,7 @@ class FilteredState:
         """Steady field (N,) [°C] for the current H and the last inputs (``rom.steady_state``)."""
         if self._inputs is None:
             raise LiveStateError("the live state has not been initialised (no sample yet)")
-        qf, qr = self._heat(self._inputs)
+        qf, qr = _bearing_heat(self.spec, self._inputs, self.load_scale)
         a = self.rom.steady_state(self.h, ambient_c=self._inputs.ambient_c, q_front_w=qf, q_rear_w=qr)
         return np.asarray(self.rom.lift(a))
 
@@ -686,81 +683,35 @@ class FilteredState:
         assert self._t is not None
         nis, dof = (0.0, 0) if res is None else (res.nis, res.dof)
         self._track_blind(n, dof)
-        self._window.push(nis, dof)
-        self._gate.push(nis, dof)
-        if dof:
-            self.nis_history.append((self._t, nis, dof))
-        self._last = (nis, dof)
-        verdict = self._window.verdict()
-        if verdict != "high":
-            self.high_since = None
-        elif self.high_since is None:
-            self.high_since = self._t
+        verdict = self._nis.push(self._t, nis, dof)
         newly = False
-        if self.converged_at is None or (self._reacquiring and dof):
-            self._convergence = self.convergence()
-            newly = self._convergence.converged
-        if newly and self.converged_at is None:
-            self.converged_at = self._t
-        elif newly:
-            self._reacquiring, self.reacquired_at = False, self._t
-        self._keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
+        if self._gate.testing(dof):
+            self._gate.last = self.convergence()
+            newly = self._gate.last.converged
+        if newly:
+            self._gate.passed(self._t)
+        self._book.keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
         self.steps += n
         changes, self._changes = tuple(self._changes), []
         return SampleUpdate(self._t, n, nis, dof, verdict, restarted, reason, changes)
 
     def _prediction_lost(self, res: StepResult | None) -> bool:
         """The first update after an open-loop run longer than ``max_gap_s`` has an improbable NIS."""
-        if not (self._reacquiring and self._blind_from is not None and res is not None and res.dof):
+        if res is None or not self._gate.after_open_loop(res.dof):
             return False
         return bool(res.nis > chi2.isf(self.settings.reacquire_restart_p, res.dof))
 
     def _track_blind(self, n: int, dof: int) -> None:
-        """Follow runs of steps without a measurement update; past ``max_gap_s`` the state re-acquires: the
-        convergence gate starts again with the first update on data (``ready_at``)."""
+        """Follow runs of steps without a measurement update (``ConvergenceGate.track_blind``)."""
         assert self._t is not None
-        if dof:
-            if self._reacquiring and self._blind_from is not None:
-                self._gate = NisWindow(self.settings.converge_nis_samples)
-            self._blind_from = None
-            return
-        if self._blind_from is None:
-            self._blind_from = self._t - n * self.dt_s
-        if self.converged_at is not None and self._t - self._blind_from > self.settings.max_gap_s:
-            self._reacquiring = True
+        if self._gate.track_blind(self._t, n, self.dt_s, dof):
+            self._nis.regate()
 
     def _snapshot(self) -> StateSnapshot:
         est = self.estimator.estimate
-        initial = self.converged_at is None or self._reacquiring
+        initial = self._gate.initial
         return StateSnapshot(self.t, est.mean, est.cov, initial, self.rom.basis)
 
-    def _keep(self, snap: StateSnapshot, *, force: bool = False) -> None:
-        self._recent.append(snap)
-        every = self.settings.snapshot_every_s
-        if force or not self._snapshots or snap.t - self._snapshots[-1].t >= every - 1e-9:
-            self._snapshots.append(snap)
-
-    def _valid(self, ambient_c: float, speed_rpm: float, torque_nm: float) -> _Inputs:
-        old = self._inputs
-        vals = (ambient_c, speed_rpm, torque_nm)
-        olds = (math.nan,) * 3 if old is None else (old.ambient_c, old.speed_rpm, old.torque_nm)
-        return _Inputs(*(float(v) if math.isfinite(v) else o for v, o in zip(vals, olds, strict=True)))
-
-    def _heat(self, inp: _Inputs) -> tuple[float, float]:
-        from model.inputs import inputs_from_operation
-
-        series = inputs_from_operation(
-            self.spec,
-            dt_s=1.0,
-            speed_rpm=np.array([inp.speed_rpm]),
-            torque_nm=np.array([inp.torque_nm]),
-            ambient_c=np.array([inp.ambient_c]),
-        )
-        return (
-            float(series.q_front_w[0]) * self.load_scale[0],
-            float(series.q_rear_w[0]) * self.load_scale[1],
-        )
-
     def _step_input(self, inp: _Inputs) -> StepInput:
-        qf, qr = self._heat(inp)
+        qf, qr = _bearing_heat(self.spec, inp, self.load_scale)
         return StepInput(self.h, inp.ambient_c, qf, qr, self.dt_s)

@@ -92,7 +92,7 @@ class ConditionChanged:
 @dataclass(frozen=True, kw_only=True)
 class DetectorConfig:
     """Thresholds (absolute, per quantity) and timing of the detector; times in s. The settings'
-    ``[detector]`` (no defaults here: ``service.engine.config.core_config`` builds it)."""
+    ``[detector]`` (no defaults here: ``service.core.config.core_config`` builds it)."""
 
     speed_threshold_rpm: float
     torque_threshold_nm: float

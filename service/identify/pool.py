@@ -3,7 +3,7 @@
 ``IdentificationWorker`` (``service.identify.worker``) is one process per spindle: 105–170 MiB each, the
 largest part of a spindle's memory. An instance hosting many spindles instead starts ``WorkerPool(workers=K)``
 (K = the cores it may use) and gives each spindle a ``lease()``: a ``PooledWorker`` with the interface the
-shell drives (``service.engine.shell.Worker``), so the shell does not know which it has.
+shell drives (``service.shell.service.Worker``), so the shell does not know which it has.
 
 - **Models.** Each process loads a reduced model the first time a job needs it, keyed by its ``ModelRef``
   (spindles of the same geometry share one), and keeps it.

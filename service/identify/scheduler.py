@@ -65,7 +65,7 @@ class SchedulerStatus(enum.Enum):
 @dataclass(frozen=True, kw_only=True)
 class SchedulerConfig:
     """Timing in s after the condition change; ``distance_scales`` (rpm, N·m, °C) for the nearest one. From
-    the settings' ``[identification]`` (no defaults here: ``service.engine.config.core_config`` builds it)."""
+    the settings' ``[identification]`` (no defaults here: ``service.core.config.core_config`` builds it)."""
 
     min_data_s: float
     schedule_s: tuple[float, ...]

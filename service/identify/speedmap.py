@@ -52,7 +52,7 @@ class SpeedMapError(ServiceError, ValueError):
 @dataclass(frozen=True, kw_only=True)
 class MapConfig:
     """The speed map mode's knobs (``identification.map_*`` and ``experimental.map_*`` settings, no defaults
-    here: ``service.engine.config.map_config`` builds it; times in s, speeds in rpm).
+    here: ``service.core.config.map_config`` builds it; times in s, speeds in rpm).
 
     window_s: the rolling window of recent data each fit uses (60 min measured, docs/design/hmap.md);
     min_window_s: the shortest window fitted (a cold start waits this long);

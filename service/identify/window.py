@@ -53,7 +53,7 @@ MAX_GAP_S = 300.0
 class WindowRules:
     """What counts as enough data; times in s. From the settings (``acquisition.sample_period_s``,
     ``identification.min_window_s``, ``identification.min_good_channels``) and this module's constants (no
-    defaults here: ``service.engine.config.core_config`` builds it)."""
+    defaults here: ``service.core.config.core_config`` builds it)."""
 
     dt_s: float
     min_window_s: float

@@ -2,7 +2,7 @@
 
 ``api/`` imports from ``service/`` only this package (``service.serve``) and the value types it hands out
 (``service.contracts``: the snapshots, the errors, the verdict). The running service
-(``service/engine/shell.py``) implements :class:`ChtcService`; the API tests serve it too
+(``service/shell/service.py``) implements :class:`ChtcService`; the API tests serve it too
 (``service/sim/served.py``).
 
 Contract for implementers:
@@ -136,7 +136,7 @@ class ChtcService(Protocol):
         source: str,
         force: bool = False,
     ) -> tuple[Any, bool]:
-        """Fit the mechanics to a measured thermal test (``service.engine.commissioning``; blocking); store
+        """Fit the mechanics to a measured thermal test (``service.shell.commissioning``; blocking); store
         and use it when the model explains the test or ``force``: (report, stored). ``CommissioningError``
         (and ``drivers.logs.LogFormatError``) for unusable files, naming the line."""
         ...
@@ -210,7 +210,7 @@ class HostedRuntime(Protocol):
 
 
 class HostedSpindle(Protocol):
-    """One spindle of a host (``service.engine.host.HostedSpindle``): its id, description, settings and
+    """One spindle of a host (``service.host.fleet.HostedSpindle``): its id, description, settings and
     running instance, or the ``error`` that stopped it."""
 
     @property
@@ -234,7 +234,7 @@ class HostedSpindle(Protocol):
 
 class FleetHost(Protocol):
     """What the fleet's REST API (``api/fleet.py``) reads of an instance hosting several spindles
-    (``service.engine.host.Host``; docs/design/fleet.md)."""
+    (``service.host.fleet.Host``; docs/design/fleet.md)."""
 
     @property
     def settings(self) -> Settings: ...

@@ -71,7 +71,7 @@ class OutletContext:
     clock and whether it is a simulated plant time, and the event sink for operator messages."""
 
     settings: Settings
-    service: Any  # service.engine.shell.SoftSensorService (typed loosely: serve may not import engine)
+    service: Any  # service.shell.service.SoftSensorService (typed loosely: serve may not import engine)
     clock: Callable[[], datetime]
     simulated: bool = False
     speedup: float = 1.0
@@ -84,7 +84,7 @@ OutletFactory = Callable[[OutletContext], Outlet]
 # their settings section ([opcua] enabled = true, [mqtt] enabled = true)
 OUTLETS: Mapping[str, str] = {
     "rest": "api.outlet:rest_outlet",
-    "rest_fleet": "api.fleet:fleet_outlet",  # an instance hosting several spindles (service.engine.host)
+    "rest_fleet": "api.fleet:fleet_outlet",  # an instance hosting several spindles (service.host.fleet)
     "opcua": "service.serve.opcua.outlet:opcua_outlet",
     "mqtt": "service.serve.mqtt.outlet:mqtt_outlet",
 }

@@ -17,7 +17,7 @@ What each served value needs (docs/design/policy.md):
   prior-dominated (its band is the prior's: finite and honest), not the stored ones before a
   re-identification.
 
-The inputs are the core's published view (``service.engine.view.CoreView`` satisfies :class:`PolicyView`)
+The inputs are the core's published view (``service.core.view.CoreView`` satisfies :class:`PolicyView`)
 and the instant; the growth's CI half-width and the reference come from the growth server.
 """
 
@@ -46,7 +46,7 @@ __all__ = [
 @dataclass(frozen=True, kw_only=True)
 class CompensationLimits:
     """The settings ``[compensation]`` (docs/configuration.md; no defaults here:
-    ``service.engine.config.compensation_limits`` builds it)."""
+    ``service.core.config.compensation_limits`` builds it)."""
 
     max_ci95_um: float  # the growth's 95 % CI half-width the controller tolerates [µm]
     max_identification_age_min: float  # the H in use identified at most this long ago [min]
@@ -71,7 +71,7 @@ class LiveLike(Protocol):
 
 
 class NewestLike(Protocol):
-    """What the policy reads of the newest sample (``service.engine.view.NewestSample``)."""
+    """What the policy reads of the newest sample (``service.core.view.NewestSample``)."""
 
     @property
     def t(self) -> datetime: ...
@@ -84,7 +84,7 @@ class NewestLike(Protocol):
 
 
 class PolicyView(Protocol):
-    """What the policy reads of the core's published view (``service.engine.view.CoreView``)."""
+    """What the policy reads of the core's published view (``service.core.view.CoreView``)."""
 
     @property
     def newest(self) -> NewestLike | None: ...

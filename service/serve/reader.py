@@ -1,6 +1,6 @@
 """The read side of the running service: :class:`ViewReader` answers from one published ``CoreView``.
 
-The shell (``service.engine.shell.SoftSensorService``) publishes an immutable
+The shell (``service.shell.service.SoftSensorService``) publishes an immutable
 :class:`~service.serve.view.CoreView` after each event; every outlet (REST, OPC UA, MQTT) reads the same
 values with the same statuses through a ``ViewReader`` built from that view and one long-lived
 :class:`ReadContext` (the clock, the model, the growth server, the device health and the snapshot caches
@@ -26,7 +26,10 @@ from model.defaults import BOUND_REL_TOL
 from model.hmap import LEVEL_BOUNDS
 from service.contracts.errors import NoDataYetError, NotFoundError
 from service.contracts.health import DeviceHealth, HealthSnapshot, Readiness
+from service.contracts.mechanics import MechanicsCalibration
 from service.contracts.mode import IdentificationMode
+from service.contracts.probe import ProbeMeasurement
+from service.contracts.reference import CompensationReference
 from service.contracts.snapshots import (
     ZONE_NAMES,
     ChtcMapSnapshot,
@@ -52,7 +55,7 @@ from service.serve.views import at_bound, chtc_map_snapshot, chtc_snapshot, map_
 if TYPE_CHECKING:
     from service.modelload import LoadedModel
 
-__all__ = ["MAP_H_BOX", "GrowthReads", "ReadContext", "ViewReader"]
+__all__ = ["MAP_H_BOX", "GrowthReads", "NewestViewReads", "ReadContext", "ViewReader"]
 
 Clock = Callable[[], datetime]
 # the speed map's bounds of H, W/(m²·K) (its family's ln-H bounds)
@@ -60,7 +63,15 @@ MAP_H_BOX = (float(np.exp(LEVEL_BOUNDS[0])), float(np.exp(LEVEL_BOUNDS[1])))
 
 
 class GrowthReads(Protocol):
-    """What a reader needs of the growth server (``service.engine.growthserve.GrowthServer``)."""
+    """What a reader needs of the growth server (``service.serve.compensation.GrowthServer``)."""
+
+    @property
+    def reference(self) -> CompensationReference | None: ...
+
+    @property
+    def mechanics(self) -> MechanicsCalibration | None: ...
+
+    def probes(self) -> list[ProbeMeasurement]: ...
 
     def snapshot(self, view: CoreView, now: datetime) -> CompensationSnapshot | None: ...
 
@@ -273,6 +284,16 @@ class ViewReader:
     def compensation_section(self) -> SectionSnapshot | None:
         return self.ctx.growth.section_snapshot(self.view, self.ctx.clock())
 
+    def compensation_reference(self) -> CompensationReference | None:
+        return self.ctx.growth.reference
+
+    def compensation_mechanics(self) -> MechanicsCalibration | None:
+        return self.ctx.growth.mechanics
+
+    def compensation_measurements(self) -> list[ProbeMeasurement]:
+        """The probe readings kept (restored and new), newest first."""
+        return self.ctx.growth.probes()
+
     def sensors(self) -> Sequence[SensorReading]:
         v = self.view
         s = v.newest
@@ -348,6 +369,63 @@ class ViewReader:
             reasons.append("model not loaded")
         reasons.extend(str(p) for p in self.view.data_problems(self.ctx.clock()))
         return Readiness(not reasons, tuple(reasons))
+
+
+class NewestViewReads:
+    """The read side of ``service.serve.interface.ChtcService`` for whatever publishes views (the running
+    service's ``SoftSensorService``): each read is answered by ``reader()``, a :class:`ViewReader` of the
+    newest published view, the same values every outlet serves."""
+
+    def reader(self) -> ViewReader:
+        raise NotImplementedError
+
+    def chtc(self) -> ChtcSnapshot | None:
+        return self.reader().chtc()
+
+    def chtc_map(self) -> ChtcMapSnapshot | None:
+        return self.reader().chtc_map()
+
+    def identification_mode(self) -> IdentificationMode:
+        return self.reader().identification_mode()
+
+    def field(self, at: FieldAt) -> FieldSnapshot:
+        return self.reader().field(at)
+
+    def compensation(self) -> CompensationSnapshot | None:
+        return self.reader().compensation()
+
+    def compensation_section(self) -> SectionSnapshot | None:
+        return self.reader().compensation_section()
+
+    def compensation_reference(self) -> CompensationReference | None:
+        return self.reader().compensation_reference()
+
+    def compensation_mechanics(self) -> MechanicsCalibration | None:
+        return self.reader().compensation_mechanics()
+
+    def compensation_measurements(self) -> list[ProbeMeasurement]:
+        return self.reader().compensation_measurements()
+
+    def sensors(self) -> Sequence[SensorReading]:
+        return self.reader().sensors()
+
+    def condition(self) -> ConditionSnapshot:
+        return self.reader().condition()
+
+    def recent_conditions(self, limit: int) -> Sequence[ConditionSnapshot]:
+        return self.reader().recent_conditions(limit)
+
+    def layout(self) -> SpindleLayout:
+        return self.reader().layout()
+
+    def job(self, job_id: str) -> IdentificationJob:
+        return self.reader().job(job_id)
+
+    def health(self) -> HealthSnapshot:
+        return self.reader().health()
+
+    def ready(self) -> Readiness:
+        return self.reader().ready()
 
 
 def problem_codes(v: CoreView, now: datetime) -> tuple[DataProblem, ...]:

@@ -65,13 +65,13 @@ class CoreView:
     # and the latest map fit
     map_config: MapConfig | None = None
     speed_map: SpeedMap | None = None
-    # the serving strategy's verdict (service.engine.serving): ``current`` is the map's fit and /chtc serves H
+    # the serving strategy's verdict (service.core.serving): ``current`` is the map's fit and /chtc serves H
     # from the map at the current speed; false in per-condition mode, and in combined mode while the held
     # condition's per-condition identification serves (docs/design/hmap.md, "Combined mode")
     map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
     h_form_sd: float = 0.0  # experimental.h_form_sd_ln: 1σ in ln H added to every served H band
-    # the core thread's backlog (service.engine.corethread; the shell sets both when it publishes): the time
+    # the core thread's backlog (service.shell.corethread; the shell sets both when it publishes): the time
     # stamp of the oldest sample acquired but not handled yet (None: none waits), and how old it may get
     # before the data are not fresh (``core_behind``)
     pending_since: datetime | None = None

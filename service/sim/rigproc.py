@@ -81,7 +81,7 @@ class RigPlan:
     @classmethod
     def on_free_ports(cls, **kwargs: Any) -> RigPlan:
         """A plan on free loopback ports (``host`` default 127.0.0.1)."""
-        from service.engine.runtime import free_port
+        from service.host.runtime import free_port
 
         host = kwargs.pop("host", "127.0.0.1")
         return cls(host=host, modbus_port=free_port(host), can_port=free_port(host), **kwargs)

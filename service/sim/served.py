@@ -1,7 +1,7 @@
 """The real soft sensor, served from a virtual-plant run: for the API tests, ``python -m benchmarks api`` and
 the fuzzing server.
 
-``served_service(database_url=..., plan=...)`` builds the service as ``service.engine.runtime.Runtime`` does
+``served_service(database_url=..., plan=...)`` builds the service as ``service.host.runtime.Runtime`` does
 (the real ``ServiceCore`` and ``SoftSensorService``, the model from the ROM cache, a real database through
 ``open_persistence``: SQLite in a temporary directory in the tests) and runs its asyncio shell on a loop in a
 background thread. Only the devices differ: instead of the acquisition polling drivers, :func:`feed` hands it
@@ -37,14 +37,14 @@ from typing import TypeVar
 from drivers.ringbuffer import Sample
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
-from service.engine.core import ServiceCore
-from service.engine.persistence import Persistence, open_persistence
-from service.engine.runtime import CanDevice, DaqDevice, core_config, growth_server
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
 from service.errors import ServiceError
+from service.host.persistence import Persistence, open_persistence
+from service.host.runtime import CanDevice, DaqDevice, core_config, growth_server
 from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.plantsamples import samples_from_plant
 
 __all__ = [

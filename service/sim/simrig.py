@@ -18,7 +18,7 @@ from typing import TYPE_CHECKING
 
 import can
 
-from service.engine.runtime import ScaledClock, free_port
+from service.host.runtime import ScaledClock, free_port
 
 if TYPE_CHECKING:
     from drivers.can_sensor import CanSpindleSensor

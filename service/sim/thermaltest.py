@@ -20,6 +20,7 @@ import numpy as np
 
 from model.plant import Segment, VirtualPlant
 from model.plantmech import PlantMechanics
+from service.contracts.errors import CommissioningError
 
 __all__ = [
     "RECOMMENDED_PROFILE",
@@ -56,9 +57,9 @@ class ThermalTest:
     drift_um_per_h: float
 
     def commission(self, model: Any, config: Any, *, basis: Any, set_by: str = "bench") -> Any:
-        """The product's commissioning of these files (``service.engine.commissioning.commission_growth``,
+        """The product's commissioning of these files (``service.shell.commissioning.commission_growth``,
         the service's own core under ``config``; ``basis`` the served mechanics basis, built once)."""
-        from service.engine.commissioning import commission_growth
+        from service.shell.commissioning import commission_growth
 
         return commission_growth(
             model,
@@ -164,9 +165,8 @@ def commission_seeds(
     import time
 
     from model.plantmech import mechanics_for_seed
-    from service.contracts.errors import CommissioningError
-    from service.engine.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
+    from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
 
@@ -216,9 +216,9 @@ def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dic
 
     from model.geometry import load_spindle
     from model.plantmech import mechanics_for_seed
-    from service.engine.offline import run_offline
-    from service.engine.runtime import core_config
+    from service.core.offline import run_offline
     from service.estimate.mechanics import served_mechanics_basis
+    from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
     from service.sim.duty import duty_profile

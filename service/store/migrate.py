@@ -8,7 +8,7 @@ scripts work from the Alembic CLI: ``alembic -c service/alembic.ini upgrade head
 A migration may rewrite every stored sample (0007, 0008: ~45 s for 20 spindle-days), so it runs without the
 serving timeouts: on PostgreSQL its transaction sets ``statement_timeout``, ``lock_timeout`` and
 ``idle_in_transaction_session_timeout`` to 0 (off) whatever the engine's connections set, and the service
-gives it an engine of its own, outside the client-side watchdog (``service.engine.persistence``). A frozen
+gives it an engine of its own, outside the client-side watchdog (``service.host.persistence``). A frozen
 link is still noticed, by the kernel (the connection's TCP keepalives and ``tcp_user_timeout``). Progress is
 logged: each revision applied with its wall time, and every ``PROGRESS_EVERY_S`` while one runs.
 """

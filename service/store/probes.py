@@ -3,7 +3,7 @@
 Every reading taken (``POST /compensation/measurements``), absorbed or not, is written through the buffered
 writer (``probe_record``); the newest ``PROBES_KEPT`` are restored at start-up (``restore_probes``) and the
 accepted ones measured after the restored commissioning are replayed into the mechanical posterior
-(``service.engine.growthserve``). A stored row that is not a reading (a feature row of the wrong size, an sd
+(``service.serve.compensation``). A stored row that is not a reading (a feature row of the wrong size, an sd
 not > 0) raises ``StoredProbeError`` naming the row; the row stays in the table.
 """
 

@@ -303,7 +303,7 @@ def last_identification(
 
 def last_served_identification(session: Session, *, method: str | None = None) -> Identification | None:
     """The successful identification served last: the highest id (ids grow in launch order across restarts,
-    ``service.engine.persistence.restore``), not the newest ``finished_at``: in the demo each run's simulated
+    ``service.host.persistence.restore``), not the newest ``finished_at``: in the demo each run's simulated
     clock starts again at the wall clock, so a later run's results can carry earlier times. ``method``: only
     those of this method (e.g. the newest speed-map fit). None if there is none.
     """

@@ -18,7 +18,7 @@ partitions are shared), in one transaction:
 
 Identifications, conditions, calibrations, references, probe readings and device events are kept.
 ``0`` days keeps for ever. What runs it: the service, every ``database.retention_every_s`` (a day) of wall
-time (``service.engine.persistence``), and ``chtc db retention`` on demand. Concurrent passes (many
+time (``service.host.persistence``), and ``chtc db retention`` on demand. Concurrent passes (many
 spindles' services) are serialized by an advisory lock on PostgreSQL and harmless anyway (idempotent).
 """
 

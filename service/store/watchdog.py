@@ -7,7 +7,7 @@ service measures its own database operations:
 
 - ``StatementWatchdog.guard(what)`` brackets one operation (a write batch, a probe, an API read);
 - ``busy_s()`` is the age of the oldest operation still running: ``/healthz`` says db ``degraded`` when it
-  exceeds a few seconds (``service.engine.shell``), long before anything times out;
+  exceeds a few seconds (``service.shell.service``), long before anything times out;
 - ``busy_s(thread)`` is the same for the operations of one thread (a spindle's writer: its own health);
 - a daemon thread aborts the connections of an operation that runs longer than ``abort_after_s``: for
   psycopg it shuts the socket down (the blocked ``recv`` returns, psycopg raises ``OperationalError``,

@@ -74,7 +74,7 @@ class WriterStatus:
 
 
 class Heartbeat:
-    """The idle probe of one engine, shared by its writers (``service.engine.persistence.SharedDatabase``).
+    """The idle probe of one engine, shared by its writers (``service.host.persistence.SharedDatabase``).
 
     A connected writer whose heartbeat is due calls ``beat(probe, max_age_s)``: the newest success of any
     writer of the engine younger than ``max_age_s`` is its answer; else the first caller runs ``probe()``

@@ -24,8 +24,8 @@ from api.app import create_app
 from drivers.can_sensor import CanSpindleSensor
 from drivers.errors import DeviceError
 from drivers.modbus_daq import ModbusDaq
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.duty import duty_profile
 from service.sim.served import DEMO_FED, ManualClock, Plan, Served, served_service
 from tests.modes import PER_CONDITION

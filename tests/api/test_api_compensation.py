@@ -21,14 +21,15 @@ from api.app import create_app
 from model.growth import Z95
 from model.inputs import inputs_from_operation
 from service.contracts.errors import NotReadyError
-from service.engine.core import ServiceCore
-from service.engine.growthserve import GrowthServer, field_belief, h_covariance, map_h_covariance
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
 from service.estimate.growth import build_context, condition_terms, estimate_growth
+from service.estimate.growthterms import h_covariance, map_h_covariance
+from service.host.runtime import core_config
 from service.modelload import LoadedModel
+from service.serve.compensation import GrowthServer, field_belief
 from service.serve.policy import compensation_verdict
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.served import ManualClock, served_service
 from tests.api.conftest import MAP_MODE, LiveServer, served_map_mode, sqlite_url
 from tests.api.test_api_dashboard import _chromium

@@ -20,8 +20,8 @@ from api.routers.field import grid_out, mesh_out
 from api.routers.field_render import FieldRenderer
 from model.locator import TriangleLocator, locator_for
 from service.contracts.snapshots import FieldSnapshot
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.served import Served
 
 URL = "/api/v1/temperature-field"

@@ -12,8 +12,8 @@ from fastapi.testclient import TestClient
 
 from api.app import create_app
 from api.guard import GuardLimits
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from tests.api.conftest import WRITE_TOKEN, LiveServer, ManualClock
 
 AUTH = {"Authorization": f"Bearer {WRITE_TOKEN}"}

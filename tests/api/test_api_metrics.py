@@ -9,8 +9,8 @@ from fastapi.testclient import TestClient
 from prometheus_client.parser import text_string_to_metric_families
 
 from api.app import create_app
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.served import Served
 from tests.api.conftest import ManualClock
 

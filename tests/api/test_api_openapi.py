@@ -8,8 +8,8 @@ from typing import Any
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from tests.api.conftest import WRITE_TOKEN, ManualClock
 
 ERROR_REF = {"$ref": "#/components/schemas/Error"}

@@ -15,8 +15,8 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from drivers.quality import Quality
 from service.contracts.snapshots import ZONE_NAMES
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.served import Served, feed, served_service
 from tests.api.conftest import ManualClock, sqlite_url
 

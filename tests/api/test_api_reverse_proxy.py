@@ -21,8 +21,8 @@ import httpx
 import pytest
 
 from api.app import create_app
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from tests.api.conftest import WRITE_TOKEN, LiveServer, ManualClock, free_port
 
 CONF = Path(__file__).resolve().parents[2] / "deploy" / "nginx" / "chtc.conf"

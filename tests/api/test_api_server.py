@@ -13,8 +13,8 @@ import uvicorn
 
 from api.app import create_app
 from api.server import ServerLimits, server_config
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from tests.api.conftest import WRITE_TOKEN, ManualClock, free_port
 
 HEADER_TIMEOUT_S = 0.5

@@ -9,8 +9,8 @@ import pytest
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.engine.shell import SoftSensorService
 from service.settings import Settings, SettingsError, load_settings
+from service.shell.service import SoftSensorService
 from tests.api.conftest import ManualClock
 
 REPO = Path(__file__).resolve().parents[2]

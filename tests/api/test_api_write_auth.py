@@ -7,8 +7,8 @@ from pathlib import Path
 from fastapi.testclient import TestClient
 
 from api.app import create_app
-from service.engine.shell import SoftSensorService
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.served import Served, served_service
 from tests.api.conftest import WRITE_TOKEN, ManualClock, sqlite_url
 from tests.modes import PER_CONDITION

@@ -81,7 +81,7 @@ def _protocol_methods() -> dict[str, inspect.Signature]:
 
 
 def test_the_service_matches_the_protocol_signatures() -> None:
-    cls = importlib.import_module("service.engine.shell").SoftSensorService
+    cls = importlib.import_module("service.shell.service").SoftSensorService
     for name, sig in _protocol_methods().items():
         assert hasattr(cls, name), f"SoftSensorService lacks {name}()"
         got = inspect.signature(getattr(cls, name))

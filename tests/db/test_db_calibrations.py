@@ -12,7 +12,7 @@ from sqlalchemy import select
 
 from service.contracts.calibration import Calibration
 from service.contracts.records import ConditionStart
-from service.engine.persistence import open_persistence
+from service.host.persistence import open_persistence
 from service.settings import Settings
 from service.store import repository as repo
 from service.store.calibrations import StoredCalibrationError, calibration_from_row

@@ -10,7 +10,7 @@ from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.contracts.checkpoint import LiveCheckpoint
-from service.engine.persistence import restore
+from service.host.persistence import restore
 from service.store.models import LiveStateRow
 from service.store.repository import session_scope, write_records
 

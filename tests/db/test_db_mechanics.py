@@ -11,7 +11,7 @@ from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.contracts.mechanics import MechanicsCalibration
-from service.engine.persistence import restore
+from service.host.persistence import restore
 from service.store.models import MechanicsCalibrationRow
 from service.store.repository import session_scope, write_records
 

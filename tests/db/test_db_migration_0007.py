@@ -10,7 +10,7 @@ import sqlalchemy as sa
 from alembic.autogenerate import compare_metadata
 from alembic.migration import MigrationContext
 
-from service.engine.persistence import restore
+from service.host.persistence import restore
 from service.store import migrate
 from service.store import repository as repo
 from service.store.engine import create_db_engine, make_session_factory

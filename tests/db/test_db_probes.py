@@ -9,7 +9,7 @@ from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.contracts.probe import ProbeMeasurement
-from service.engine.persistence import restore
+from service.host.persistence import restore
 from service.store.models import ProbeMeasurementRow
 from service.store.probes import probe_record
 from service.store.repository import session_scope, write_records

@@ -9,7 +9,7 @@ from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
 from service.contracts.reference import CompensationReference
-from service.engine.persistence import restore
+from service.host.persistence import restore
 from service.store.models import CompensationReferenceRow
 from service.store.repository import session_scope, write_records
 

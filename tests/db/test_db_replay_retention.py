@@ -10,7 +10,7 @@ from pathlib import Path
 from sqlalchemy import func, select
 
 from service.contracts.records import SampleData
-from service.engine.persistence import open_persistence
+from service.host.persistence import open_persistence
 from service.settings import DatabaseSettings
 from service.store.models import SampleRow
 from service.store.repository import session_scope, write_records

@@ -12,7 +12,7 @@ from sqlalchemy.orm import Session, sessionmaker
 
 from service.commands.db import main as db_main
 from service.contracts.records import ConditionStart, SampleData
-from service.engine.persistence import restore
+from service.host.persistence import restore
 from service.store import migrate
 from service.store import repository as repo
 from service.store.downsample import minute_means

@@ -16,7 +16,7 @@ from service.contracts.records import (
     DeviceEventData,
     SampleData,
 )
-from service.engine.persistence import restore
+from service.host.persistence import restore
 from service.identify.speedmap import SpeedMap
 from service.store import repository as repo
 from service.store.models import (
@@ -185,7 +185,7 @@ def test_the_writer_stores_minute_means_beside_the_samples(factory: sessionmaker
 
 
 def test_the_service_registers_its_spindle_stamps_its_rows_and_runs_retention(db_url: str) -> None:
-    from service.engine.persistence import open_persistence
+    from service.host.persistence import open_persistence
     from service.settings import Settings, SpindleSettings
 
     db = Settings().database.model_copy(update={"url": db_url, "raw_days": 1, "minute_days": 2})

@@ -10,7 +10,7 @@ import pytest
 import sqlalchemy as sa
 
 from service.contracts.errors import NotReadyError
-from service.engine.archive import IdentificationArchive
+from service.shell.archive import IdentificationArchive
 from service.store.engine import create_db_engine, make_session_factory
 from service.store.errors import DatabaseUnavailableError
 from service.store.reads import DatabaseBusyError, DatabaseTimeoutError, DbReads

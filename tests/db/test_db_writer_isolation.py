@@ -1,7 +1,7 @@
 """Issue 41.2: one spindle's stuck write does not degrade the others (real PostgreSQL).
 
 Two writers (spindles s1, s2) on one engine, sharing its watchdog and its heartbeat, as a host's spindles do
-(``service.engine.persistence.SharedDatabase``). s1's write waits on a row lock another session holds (what a
+(``service.host.persistence.SharedDatabase``). s1's write waits on a row lock another session holds (what a
 retry meets behind an orphaned batch); s2 keeps writing. s2's status stays ok (no ``busy_s`` of s1's), the
 watchdog's abort of s1's late write leaves s2's write in flight alone, and every row of both lands.
 """
@@ -15,7 +15,7 @@ import pytest
 import sqlalchemy as sa
 
 from service.contracts.health import DeviceStatus
-from service.engine.health import db_health
+from service.shell.health import db_health
 from service.store import repository as repo
 from service.store.engine import create_db_engine, make_session_factory
 from service.store.models import SampleRow

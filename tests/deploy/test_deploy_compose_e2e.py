@@ -36,8 +36,8 @@ import pytest
 import sqlalchemy as sa
 from sqlalchemy.engine import make_url
 
-from service.engine.shell import MAP_H_BOX
 from service.settings import default_cache_dir
+from service.shell.service import MAP_H_BOX
 from tests.deploy.deployhelpers import ROOT, load_compose, runtime_stage
 from tests.deploy.localstack import (
     DB_VAR,
@@ -172,7 +172,7 @@ def test_compose_stack_serves_fresh_h_from_the_simulator(stack: dict[str, Any], 
     assert chtc["unit"] == "W/(m²·K)"
     assert [z["name"] for z in chtc["zones"]] == [f"H{i}" for i in range(1, 8)]
     # inside the search box of the mode that ran: model.h_box per condition, the speed map's own box
-    # (service.engine.shell.MAP_H_BOX; /chtc/map answers 404 in per-condition mode)
+    # (service.shell.service.MAP_H_BOX; /chtc/map answers 404 in per-condition mode)
     map_mode = get_json(f"{api}/api/v1/chtc/map")[0] != 404
     lo, hi = MAP_H_BOX if map_mode else (5.0, 200.0)
     assert all(lo <= z["h_w_m2k"] <= hi for z in chtc["zones"]), chtc

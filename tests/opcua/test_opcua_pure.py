@@ -14,7 +14,8 @@ from asyncua.server.users import User, UserRole
 
 from service.cli import main as chtc
 from service.contracts.verdict import ChtcStatus, Reason, Verdict
-from service.engine.runtime import enabled_outlets
+from service.host.runtime import enabled_outlets
+from service.mqttsettings import MqttSettings
 from service.serve.errors import OutletError
 from service.serve.opcua.nodes import VARS, unit_id
 from service.serve.opcua.security import (
@@ -203,7 +204,6 @@ def test_the_node_ids_follow_the_spindle_id_unless_set(tmp_path: Path, toml: str
 
 
 def test_the_opcua_and_sparkplug_names_resolve_from_the_spindle_id() -> None:
-    from service.mqttsettings import MqttSettings
 
     s = Settings(spindle={"id": "cell3-sp07"})  # type: ignore[arg-type]
     assert s.opcua.spindle is None and s.opcua.for_spindle(s.spindle.id).node_prefix == "cell3-sp07"

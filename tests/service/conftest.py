@@ -49,10 +49,10 @@ def inline_service(
 ):
     """The real shell and core with ``settings``, the identification run inline (``run_job``, no worker
     process) and a manual clock at the first sample: ``(service, clock)``."""
-    from service.engine.core import ServiceCore
-    from service.engine.runtime import core_config
-    from service.engine.shell import SoftSensorService
+    from service.core.machine import ServiceCore
+    from service.host.runtime import core_config
     from service.identify.worker import run_job
+    from service.shell.service import SoftSensorService
     from service.sim.served import ManualClock
 
     core = ServiceCore(core_config(settings), model=model, history_capacity=10_000, restored=restored)

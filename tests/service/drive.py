@@ -7,8 +7,8 @@ from datetime import datetime
 
 from drivers.ringbuffer import Sample
 from service.contracts.records import Record
-from service.engine.core import ServiceCore
-from service.engine.events import Event, Instruction, JobOutcomeReceived, Launch, SampleReceived, Store
+from service.core.events import Event, Instruction, JobOutcomeReceived, Launch, SampleReceived, Store
+from service.core.machine import ServiceCore
 from service.identify.worker import JobOutcome, run_job
 from service.modelload import LoadedModel
 

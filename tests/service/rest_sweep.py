@@ -14,10 +14,10 @@ import numpy as np
 
 from benchmarks.chain import T0
 from model.plant import Segment, VirtualPlant
-from service.engine.growthserve import GrowthServer
-from service.engine.offline import run_offline
-from service.engine.runtime import core_config
+from service.core.offline import run_offline
+from service.host.runtime import core_config
 from service.modelload import ModelRef, load_model
+from service.serve.compensation import GrowthServer
 from service.settings import Settings
 from service.sim.plantsamples import samples_from_plant
 

@@ -13,7 +13,7 @@ from benchmarks.restart import Served
 from benchmarks.restart_filter import FilterRestart
 from benchmarks.restart_profile import DT_S
 from model.plant import Segment
-from service.engine.runtime import core_config
+from service.host.runtime import core_config
 from service.modelload import LoadedModel
 from service.settings import Settings
 from tests.service.conftest import plant_run

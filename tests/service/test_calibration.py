@@ -18,9 +18,9 @@ from service.acquire.calibration import (
     Reading,
     equilibrium,
 )
-from service.engine.config import CoreConfig
-from service.engine.core import ServiceCore
-from service.engine.events import Launch, SampleReceived, Store
+from service.core.config import CoreConfig
+from service.core.events import Launch, SampleReceived, Store
+from service.core.machine import ServiceCore
 from service.modelload import LoadedModel
 from tests.engine_config import product_core
 
@@ -177,7 +177,7 @@ def test_a_baseline_taken_by_the_core_is_stored_and_a_restarted_core_starts_with
 ) -> None:
     """Real SQLite through the service's writer: the core's baseline becomes an ``offset_calibrations`` row;
     after a restart the restored core is calibrated with the same offsets and 1σ before any rest."""
-    from service.engine.persistence import open_persistence
+    from service.host.persistence import open_persistence
     from service.settings import Settings
 
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})

@@ -20,9 +20,9 @@ import numpy as np
 
 from drivers.ringbuffer import Sample
 from model.plant import Segment
-from service.engine.core import ServiceCore
-from service.engine.events import SampleReceived
-from service.engine.runtime import core_config
+from service.core.events import SampleReceived
+from service.core.machine import ServiceCore
+from service.host.runtime import core_config
 from service.modelload import LoadedModel
 from service.settings import Settings
 from service.sim.served import Plan, feed, plant_samples, served_service

@@ -21,7 +21,7 @@ def no_model_load(monkeypatch: pytest.MonkeyPatch) -> None:
     """A model load fails the test: the check under test must come before it (about 10-46 s). Patched where
     the commands call it (``Runtime.load``), with the runtime imported first: imported under the patch, it
     kept the failing stand-in for the later tests of this module."""
-    import service.engine.runtime as runtime
+    import service.host.runtime as runtime
     import service.modelload as modelload
 
     def no_load(*a: object, **k: object) -> None:

@@ -15,6 +15,7 @@ from sqlalchemy import text
 
 from service.cli import main
 from service.commands._common import check_database_url
+from service.contracts.mechanics import is_shipped_example
 from service.store.dburl import normalize_database_url
 from service.store.engine import create_db_engine
 
@@ -44,7 +45,7 @@ def test_other_urls_are_left_as_written() -> None:
 @pytest.fixture
 def no_model_load(monkeypatch: pytest.MonkeyPatch) -> None:
     """A model load fails the test: the check under test must come before it."""
-    import service.engine.runtime as runtime
+    import service.host.runtime as runtime
     import service.modelload as modelload
 
     def no_load(*a: object, **k: object) -> None:
@@ -122,7 +123,7 @@ def _disp(rows: list[tuple[str, float]], time_col: str = "time") -> str:
 def test_a_displacement_file_in_mm_gets_the_unit_hint() -> None:
     """Item 8: a file in mm (a 4-µm growth written 0.004) was fitted and got ``drift … the fixture slipped``,
     not the unit hint the docs promise."""
-    from service.engine.commissioning import DisplacementFormatError, parse_displacement_csv
+    from service.shell.commissioning import DisplacementFormatError, parse_displacement_csv
 
     rows = [(f"2026-11-27T06:{m:02d}:00Z", 0.004 * m / 59) for m in range(60)]
     with pytest.raises(DisplacementFormatError, match=r"in mm\? The file's unit is µm"):
@@ -152,7 +153,6 @@ def test_the_shipped_example_thermal_test_is_refused_by_a_running_service() -> N
 
     from api.app import create_app
     from api.deps import ClockInfo
-    from service.contracts.mechanics import is_shipped_example
     from service.settings import Settings
 
     disp = (DATA / "example_thermal_test_displacements.csv").read_text(encoding="utf-8")

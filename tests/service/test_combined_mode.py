@@ -13,8 +13,8 @@ from benchmarks.identmode import served_in_order
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
 from service.contracts.verdict import ChtcStatus
-from service.engine.jobbook import MAP_METHOD
-from service.engine.persistence import open_persistence
+from service.core.jobbook import MAP_METHOD
+from service.host.persistence import open_persistence
 from service.identify.prior import ServedMapPrior
 from service.settings import Settings
 

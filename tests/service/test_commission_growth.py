@@ -17,13 +17,7 @@ import pytest
 from model.plant import Segment
 from model.plantmech import mechanics_for_seed
 from service.cli import main as cli_main
-from service.engine.commissioning import (
-    Displacements,
-    field_history,
-    fit_test,
-    read_displacement_csv,
-)
-from service.engine.runtime import core_config
+from service.contracts.mechanics import MechanicsCalibration
 from service.estimate.growth import (
     FieldBelief,
     build_context,
@@ -32,8 +26,15 @@ from service.estimate.growth import (
     with_mechanics,
 )
 from service.estimate.mechanics import served_mechanics_basis
+from service.host.runtime import core_config
 from service.modelload import LoadedModel
 from service.settings import Settings
+from service.shell.commissioning import (
+    Displacements,
+    field_history,
+    fit_test,
+    read_displacement_csv,
+)
 from service.sim.thermaltest import ThermalTest, write_thermal_test
 
 pytestmark = pytest.mark.slow  # a 80-min plant run (~5 s) and the service's core over it (~5 s)
@@ -173,8 +174,7 @@ def test_the_growth_server_uses_a_restored_or_new_commissioning(
 ) -> None:
     """``GrowthServer``: a shared context plus a restored calibration is calibrated on first use; a new
     commissioning replaces the operators and drops the condition terms computed with the old ones."""
-    from service.contracts.mechanics import MechanicsCalibration
-    from service.engine.growthserve import GrowthServer
+    from service.serve.compensation import GrowthServer
 
     _, basis, _ = fitted
     m = loaded_model

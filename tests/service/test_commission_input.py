@@ -1,4 +1,4 @@
-"""The displacement CSV of a thermal test (``service.engine.commissioning.read_displacement_csv``): any rate,
+"""The displacement CSV of a thermal test (``service.shell.commissioning.read_displacement_csv``): any rate,
 missing values, comments; a bad file is one line naming the file, line and field, also through the CLI."""
 
 from __future__ import annotations
@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from service.cli import main as cli_main
-from service.engine.commissioning import DisplacementFormatError, read_displacement_csv
+from service.shell.commissioning import DisplacementFormatError, read_displacement_csv
 
 
 def _write(tmp_path: Path, text: str) -> Path:

@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 
 from model.growthfit import PARAMS, MechanicsFitResult
-from service.engine.commissioning import FitLimits, judge_fit
+from service.shell.commissioning import FitLimits, judge_fit
 
 
 def _fit(restraint: float, sd: float = 0.024) -> MechanicsFitResult:

@@ -18,8 +18,7 @@ from model.plant import Segment
 from service.contracts.errors import NotReadyError
 from service.contracts.records import IdentificationData
 from service.contracts.snapshots import JobState
-from service.engine.core import ServiceCore
-from service.engine.events import (
+from service.core.events import (
     Event,
     Instruction,
     JobOutcomeReceived,
@@ -32,9 +31,10 @@ from service.engine.events import (
     SampleReceived,
     Store,
 )
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
 from service.identify.worker import run_job
 from service.modelload import LoadedModel
+from service.shell.service import SoftSensorService
 from tests.engine_config import PER_CONDITION_10_20, product_core
 
 from .conftest import plant_run, samples_of
@@ -47,7 +47,7 @@ CFG = product_core(identification={**PER_CONDITION_10_20, "offset_calibration": 
 
 def test_importing_the_core_loads_no_database_code() -> None:
     code = (
-        "import sys, service.engine.core, service.engine.events, service.engine.view\n"
+        "import sys, service.core.machine, service.core.events, service.core.view\n"
         "print(sorted(m for m in sys.modules if m.split('.')[0] in ('sqlalchemy', 'alembic')))"
     )
     out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, check=True)

@@ -17,14 +17,14 @@ import pytest
 from drivers.ringbuffer import Sample
 from model.plant import Segment
 from service.contracts.health import DeviceStatus
-from service.contracts.verdict import DataCode
-from service.engine.core import ServiceCore
-from service.engine.corethread import CoreThread
-from service.engine.events import Event, IdsKnown, Instruction, SampleReceived
-from service.engine.looplag import LoopLagMonitor
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.contracts.verdict import ChtcStatus, DataCode, DataProblem, Reason
+from service.core.events import Event, IdsKnown, Instruction, SampleReceived
+from service.core.machine import ServiceCore
+from service.host.runtime import core_config
 from service.settings import Settings
+from service.shell.corethread import CoreThread
+from service.shell.looplag import LoopLagMonitor
+from service.shell.service import SoftSensorService
 from service.sim.served import ManualClock
 
 from .conftest import plant_run, samples_of
@@ -169,7 +169,6 @@ def test_backlog_past_its_limit_is_served_as_core_behind(loaded_model, samples) 
 
 
 def test_core_behind_verdict_is_typed() -> None:
-    from service.contracts.verdict import ChtcStatus, DataProblem, Reason
     from service.serve.policy import data_verdict
 
     v = data_verdict(
@@ -240,7 +239,7 @@ def test_event_loop_lag_metric_on_metrics_endpoint(loaded_model, samples) -> Non
 
 
 def test_growth_terms_are_computed_once_per_key(loaded_model, samples) -> None:  # type: ignore[no-untyped-def]
-    from service.engine.growthserve import GrowthServer
+    from service.serve.compensation import GrowthServer
 
     svc, clock = _service(loaded_model, samples, None)
     for s in samples[:8]:

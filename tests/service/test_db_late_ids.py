@@ -9,9 +9,9 @@ from datetime import UTC, datetime
 
 from model.plant import Segment
 from service.contracts.records import ConditionStart
-from service.engine.core import ServiceCore
-from service.engine.events import IdsKnown, Log, SampleReceived, Store
-from service.engine.persistence import fallback_restored, open_persistence
+from service.core.events import IdsKnown, Log, SampleReceived, Store
+from service.core.machine import ServiceCore
+from service.host.persistence import fallback_restored, open_persistence
 from service.settings import Settings
 from tests.engine_config import PER_CONDITION_10_20, product_core
 
@@ -27,7 +27,7 @@ def test_an_unreachable_database_is_a_warning_said_once(caplog) -> None:  # type
     """It went only to the progress lines, which ``chtc demo --quiet`` silences: the demo started silently."""
     db = Settings().database.model_copy(update={"url": UNREACHABLE})
     said: list[str] = []
-    with caplog.at_level(logging.INFO, logger="service.engine.persistence"):
+    with caplog.at_level(logging.INFO, logger="service.host.persistence"):
         p = open_persistence(db, migrate=True, on_event=said.append)
         try:
 
@@ -39,7 +39,7 @@ def test_an_unreachable_database_is_a_warning_said_once(caplog) -> None:  # type
             asyncio.run(retry_a_few_times())
         finally:
             p.close()
-    logged = [r for r in caplog.records if r.name == "service.engine.persistence"]
+    logged = [r for r in caplog.records if r.name == "service.host.persistence"]
     assert [r.levelno for r in logged] == [logging.WARNING], [r.getMessage() for r in logged]
     text = logged[0].getMessage()
     assert text.startswith("db: not available at start-up (database not reachable") and "ids start at" in text

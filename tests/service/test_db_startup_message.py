@@ -3,7 +3,7 @@ database is unreachable (it is reachable)."""
 
 from __future__ import annotations
 
-from service.engine.persistence import open_persistence
+from service.host.persistence import open_persistence
 from service.settings import Settings
 
 
@@ -11,7 +11,7 @@ def test_new_database_without_migrate_names_the_missing_schema(tmp_path, caplog)
     import logging
 
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'new.db'}"})
-    with caplog.at_level(logging.WARNING, logger="service.engine.persistence"):
+    with caplog.at_level(logging.WARNING, logger="service.host.persistence"):
         p = open_persistence(db, migrate=False)
     try:
         status = p.sink.status()
@@ -50,7 +50,7 @@ def test_retries_log_a_problem_once(tmp_path, caplog) -> None:
         task.cancel()
 
     try:
-        with caplog.at_level(logging.INFO, logger="service.engine.persistence"):
+        with caplog.at_level(logging.INFO, logger="service.host.persistence"):
             asyncio.run(retry_a_few_times())
         assert [r for r in caplog.records if "not ready" in r.getMessage()] == []
     finally:

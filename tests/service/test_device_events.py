@@ -74,8 +74,8 @@ class _Source:
 
 
 def test_a_recovered_device_no_longer_shows_its_old_error(loaded_model) -> None:
-    from service.engine.core import ServiceCore
-    from service.engine.shell import SoftSensorService
+    from service.core.machine import ServiceCore
+    from service.shell.service import SoftSensorService
 
     now = [datetime(2026, 3, 2, 6, 0, tzinfo=UTC)]
     src = _Source()

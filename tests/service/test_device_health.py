@@ -16,10 +16,10 @@ from drivers.can_sensor import CanSpindleSensor
 from drivers.sim.can_node import SimulatedCanNode
 from drivers.sim.faults import FaultController, FaultKind
 from drivers.sim.source import ArrayTimeline, TimelineSource
-from service.engine.core import ServiceCore
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
+from service.host.runtime import core_config
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 
 
 async def _can_health(client: httpx.AsyncClient) -> dict:

@@ -18,7 +18,7 @@ import pytest
 
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant, h_true
-from service.engine.runtime import Runtime, ScaledClock, free_port
+from service.host.runtime import Runtime, ScaledClock, free_port
 from service.settings import Settings
 from service.sim.simrig import SimAddress, make_drivers, plant_rig
 from tests.modes import per_condition

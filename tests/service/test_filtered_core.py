@@ -15,18 +15,19 @@ import numpy as np
 import pytest
 
 from model.plant import Segment
+from service.contracts.checkpoint import LiveCheckpoint
 from service.contracts.health import DeviceStatus
 from service.contracts.verdict import ChtcStatus
-from service.engine.config import Restored
-from service.engine.core import ServiceCore
-from service.engine.events import SampleReceived
-from service.engine.health import filter_health
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.core.config import Restored
+from service.core.events import SampleReceived
+from service.core.machine import ServiceCore
+from service.host.runtime import core_config
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from service.identify.worker import run_job
 from service.settings import Settings
+from service.shell.health import filter_health
+from service.shell.service import SoftSensorService
 from tests.modes import per_condition
 
 from .conftest import plant_run, samples_of
@@ -43,7 +44,7 @@ def run_samples():  # type: ignore[no-untyped-def]
 
 
 def _restored(core: ServiceCore) -> Restored:
-    """What the database would give the next process (service.engine.persistence.restore)."""
+    """What the database would give the next process (service.host.persistence.restore)."""
     v = core.view()
     assert v.current is not None
     rec = v.current
@@ -166,8 +167,7 @@ def test_a_restart_with_the_stored_live_state_resumes_it(loaded_model, run_sampl
     back by ``restore``, it lets the next process continue the same filtered state: converged from the first
     sample, and its field near an uninterrupted run's after the next samples (one sample lost in the
     restart): far nearer than a start from the prior."""
-    from service.contracts.checkpoint import LiveCheckpoint
-    from service.engine.persistence import restore
+    from service.host.persistence import restore
     from service.store import migrate
     from service.store.engine import create_db_engine, make_session_factory
     from service.store.repository import session_scope, write_records

@@ -12,7 +12,7 @@ import pytest
 
 from drivers.sim.faults import FaultKind
 from model.plant import Segment
-from service.engine.runtime import Runtime, ScaledClock, free_port
+from service.host.runtime import Runtime, ScaledClock, free_port
 from service.settings import Settings
 from service.sim.simrig import SimAddress, make_drivers, plant_rig
 

@@ -14,11 +14,11 @@ import pytest
 
 from model.plant import Segment
 from service.contracts.records import ConditionStart
-from service.engine.config import Restored
-from service.engine.core import ServiceCore
-from service.engine.events import Log, Store
-from service.engine.restorecut import cut_future
-from service.engine.runtime import core_config
+from service.core.config import Restored
+from service.core.events import Log, Store
+from service.core.machine import ServiceCore
+from service.core.restorecut import cut_future
+from service.host.runtime import core_config
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from tests.modes import per_condition

@@ -17,8 +17,8 @@ import pytest
 
 from drivers.sim.faults import FaultKind
 from model.plant import Segment
-from service.engine.host import Host
-from service.engine.runtime import ScaledClock, free_port
+from service.host.fleet import Host
+from service.host.runtime import ScaledClock, free_port
 from service.logctx import SpindleFilter
 from service.settings import Settings
 from service.sim.simrig import SimAddress, make_drivers, plant_rig

@@ -19,8 +19,7 @@ from starlette.routing import Route
 from starlette.testclient import TestClient
 
 from api.spindlehdr import HEADER, SpindleHeader
-from service.engine.corethread import CoreThread
-from service.engine.events import Event, IdsKnown, Instruction
+from service.core.events import Event, IdsKnown, Instruction
 from service.logctx import (
     LOG_FORMAT,
     NO_SPINDLE,
@@ -31,6 +30,7 @@ from service.logctx import (
     set_default,
     spindle_context,
 )
+from service.shell.corethread import CoreThread
 
 log = logging.getLogger("service.test_logctx")
 
@@ -205,7 +205,7 @@ def test_a_running_spindle_logs_its_id_from_its_tasks_and_threads(tmp_path, reco
     task's device warnings, the database threads' lines (the writer, SQLAlchemy's statements from the
     writer and the read pool) and the runtime's own events all name the spindle; nothing is logged outside
     its context (the process default is unset: such a line would say ``-``)."""
-    from service.engine.runtime import Runtime, ScaledClock
+    from service.host.runtime import Runtime, ScaledClock
     from service.settings import Settings
     from service.sim.simrig import SimAddress, make_drivers
 

@@ -13,10 +13,10 @@ import numpy as np
 import pytest
 
 from service.contracts.calibration import Calibration
+from service.core.config import Restored
+from service.core.machine import ServiceCore
 from service.defaults import H_FORM_SD_LN, H_NO_BASELINE_SD_LN
-from service.engine.config import Restored
-from service.engine.core import ServiceCore
-from service.engine.runtime import core_config
+from service.host.runtime import core_config
 from service.settings import Settings
 
 

@@ -13,13 +13,13 @@ import pytest
 
 from drivers.ringbuffer import Sample
 from model.plant import Segment
-from service.engine.core import ServiceCore
-from service.engine.runtime import core_config, enabled_outlets
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
+from service.host.runtime import core_config, enabled_outlets
 from service.serve.errors import OutletError
 from service.serve.outlet import OUTLETS, load_factory
 from service.serve.reader import ViewReader
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 from service.sim.served import ManualClock
 
 from .conftest import plant_run, samples_of

@@ -9,6 +9,7 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 
+from service.contracts.mechanics import MechanicsCalibration
 from service.contracts.probe import ProbeError, ProbeMeasurement
 from service.estimate.probe import absorb, predict, prior_covariance, prior_mean, replay
 
@@ -121,8 +122,7 @@ def test_bad_readings_are_refused_naming_the_field(
 def test_a_restart_replays_the_accepted_readings_after_the_commissioning_only() -> None:
     from typing import Any, cast
 
-    from service.contracts.mechanics import MechanicsCalibration
-    from service.engine.growthserve import GrowthServer
+    from service.serve.compensation import GrowthServer
 
     rng = np.random.default_rng(11)
     truth = _truth(rng)

@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from service.engine.runtime import ScaledClock
+from service.host.runtime import ScaledClock
 from service.settings import Settings
 from service.sim.rigproc import RigPlan, RigProcess, RigProcessError
 from service.sim.simrig import make_drivers

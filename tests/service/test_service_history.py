@@ -11,11 +11,11 @@ from drivers.quality import Quality
 from model.plant import Segment
 from service.contracts.records import IdentificationData
 from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
-from service.engine.core import Restored, ServiceCore
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.core.machine import Restored, ServiceCore
+from service.host.runtime import core_config
 from service.serve.views import data_to_record
 from service.settings import Settings
+from service.shell.service import SoftSensorService
 
 from .conftest import plant_run, samples_of
 

@@ -14,11 +14,11 @@ from drivers.base import Backoff, SourceMetrics
 from drivers.errors import DeviceError
 from drivers.modbus_daq import ModbusDaq
 from drivers.registers import RegisterValues, default_register_map, encode
-from service.engine.core import ServiceCore
-from service.engine.health import frame_events, frame_outcomes
-from service.engine.runtime import core_config
-from service.engine.shell import SoftSensorService
+from service.core.machine import ServiceCore
+from service.host.runtime import core_config
 from service.settings import Settings
+from service.shell.health import frame_events, frame_outcomes
+from service.shell.service import SoftSensorService
 from tests.drivers.drvhelpers import PymodbusDaqServer, free_port
 
 

@@ -1,4 +1,4 @@
-"""One serving strategy per identification mode (``service.engine.serving``, issue 25): which identification
+"""One serving strategy per identification mode (``service.core.serving``, issue 25): which identification
 serves, whether the map's H does, and which H the live state takes, driven as pure objects (no core, no
 model). The same rules through the real core and shell: tests/service/test_combined_mode.py and
 test_speed_map.py."""
@@ -13,8 +13,8 @@ import pytest
 from service.contracts.mode import IdentificationMode
 from service.contracts.records import IdentificationData
 from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
-from service.engine.config import Restored
-from service.engine.serving import CombinedServing, PerConditionServing, SpeedMapServing, serving_for
+from service.core.config import Restored
+from service.core.serving import CombinedServing, PerConditionServing, SpeedMapServing, serving_for
 from service.serve.views import data_to_record
 from service.settings import Settings, SettingsError
 

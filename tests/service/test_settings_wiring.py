@@ -16,7 +16,7 @@ from typing import Any
 import pytest
 
 from model.identify import IdentifyOptions
-from service.engine.config import core_config
+from service.core.config import core_config
 from service.identify.detector import ConditionDetector, SampleEvent
 from service.identify.scheduler import (
     ConditionStarted,
@@ -122,5 +122,5 @@ def test_defaults_are_one_value_in_every_layer() -> None:
     assert cfg.start_modes == exp.start_modes
     assert cfg.carry_start_error == exp.carry_start_error
     for name in ("method", "seed", "estimate_loads", "carry_start_error", "start_modes", "ci_threshold"):
-        # a job takes these from the core's configuration (service.engine.jobs.job_request), never its own
+        # a job takes these from the core's configuration (service.core.jobs.job_request), never its own
         assert JobRequest.__dataclass_fields__[name].default is MISSING, name

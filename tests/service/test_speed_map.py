@@ -15,14 +15,14 @@ from model.hmap import Z95
 from model.plant import VirtualPlant, h_true
 from service.contracts.mode import IdentificationMode
 from service.contracts.verdict import ChtcStatus, DataCode, DataProblem
-from service.engine.config import core_config, map_config
-from service.engine.core import ServiceCore
-from service.engine.persistence import open_persistence
-from service.engine.shell import MAP_H_BOX, SoftSensorService
+from service.core.config import core_config, map_config
+from service.core.machine import ServiceCore
+from service.host.persistence import open_persistence
 from service.identify.prior import ServedMapPrior
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
 from service.serve.policy import map_verdict
 from service.settings import ExperimentalSettings, Settings, SettingsError
+from service.shell.service import MAP_H_BOX, SoftSensorService
 from service.sim.duty import condition_at, duty_profile
 from tests.modes import per_condition
 
@@ -240,7 +240,7 @@ def test_restart_restores_the_map_as_stale(tmp_path, duty, loaded_model) -> None
 
 # --- the fit's start covariance and prior (issue 17: honest bands on the steady chain) --------------------
 def _book(loaded_model, **kw: object):
-    from service.engine.mapbook import MapBook
+    from service.core.mapbook import MapBook
 
     return MapBook(core_config(map_settings(**kw)), loaded_model, None)
 
@@ -278,7 +278,7 @@ def test_a_map_window_longer_than_max_window_s_still_starts(duty, loaded_model) 
     """The live state keeps its snapshots 3× the longest window a job may use: the per-condition
     ``max_window_s`` alone (90 s here, as the compose test's trial timing) dropped the snapshot at the
     convergence time before the map's first 10-min window needed it (every fit: insufficient data)."""
-    from service.engine.offline import run_offline
+    from service.core.offline import run_offline
 
     settings = map_settings(min_window_s=90.0, max_window_s=90.0, schedule_min=[1.5])
     result = run_offline(duty[2][:90], model=loaded_model, config=core_config(settings))  # 15 min

@@ -11,8 +11,8 @@ import numpy as np
 import pytest
 
 from model.plant import ChannelFault, Segment
-from service.engine.core import ServiceCore
-from service.engine.events import Log, ManualRequested, Rejected, RejectKind
+from service.core.events import Log, ManualRequested, Rejected, RejectKind
+from service.core.machine import ServiceCore
 from service.identify.worker import (
     IdentificationWorker,
     JobStatus,
@@ -170,7 +170,7 @@ def test_manual_requests_and_idle_condition(loaded_model):
 def test_chained_windows_carry_the_start_field_error(loaded_model):
     """With ``carry_start_error`` (and no start directions fitted) the windows carry the filtered state's
     covariance at their start: the CIs widen, the H stay (nearly: the filter weighs later H by their CIs)."""
-    from service.engine.offline import run_offline
+    from service.core.offline import run_offline
 
     run = plant_run([Segment(1300.0, 3000.0, 2.0, 23.2), Segment(1300.0, 4000.0, 3.0, 23.2)])
     samples = samples_of(run)

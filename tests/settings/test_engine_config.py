@@ -13,7 +13,7 @@ from pathlib import Path
 import pytest
 
 from service.acquire.calibration import CalibrationConfig
-from service.engine.config import CoreConfig, compensation_limits, core_config
+from service.core.config import CoreConfig, compensation_limits, core_config
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig

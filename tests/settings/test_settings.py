@@ -195,7 +195,7 @@ def test_methods_match_the_model() -> None:
 
 
 def test_sections_build_the_pure_cores_configs() -> None:
-    from service.engine.config import core_config
+    from service.core.config import core_config
 
     cfg = core_config(Settings())
     assert cfg.detector.thresholds == (150.0, 1.0, 1.0)

@@ -124,7 +124,7 @@ class ServedReader(Protocol):
 
 
 H_UNIT = "W/(m²·K)"
-# the devices of the health report (service.engine.health); one String metric each
+# the devices of the health report (service.shell.health); one String metric each
 DEVICES: tuple[str, ...] = ("modbus", "can", "db", "worker", "filter", "core", "event_loop")
 
 
