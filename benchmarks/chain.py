@@ -34,11 +34,11 @@ import numpy as np
 
 from benchmarks import identmode
 from benchmarks.targets import Target, format_verdicts, progress_to_stderr, report, verdicts
-from service.identify.mode import IdentificationMode
+from service.contracts.mode import IdentificationMode
 
 if TYPE_CHECKING:
     from drivers.ringbuffer import Sample
-    from service.serve.interface import IdentificationRecord
+    from service.contracts.snapshots import IdentificationRecord
 
 TARGETS_NOTE = "mean over H1-H7, every condition; the nominal 95 % range python -m benchmarks identify uses"
 TARGETS = (Target("ci_coverage_mean_worst", "in", (0.85, 1.0), note=TARGETS_NOTE),)

@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.compensation_run import add_jobs_argument
-from service.estimate.probe import ProbeError
+from service.contracts.probe import ProbeError
 
 Z95 = 1.959963984540054
 METHODS = ("none", "mlr", "uncalibrated", "calibrated", "probe")

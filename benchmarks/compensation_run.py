@@ -46,8 +46,9 @@ import numpy as np
 
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
-from service.contracts.records import LiveStateData, Record
-from service.estimate.checkpoint import LiveCheckpoint
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.records import Record
+from service.contracts.snapshots import ConditionState
 from service.host.persistence import GateSink
 
 DT_S = 10.0
@@ -228,24 +229,24 @@ class NewestLiveState(GateSink):
 
     def __init__(self) -> None:
         super().__init__(max_held=0)
-        self.record: LiveStateData | None = None
+        self.record: LiveCheckpoint | None = None
 
     def submit(self, record: Record) -> bool:
-        if isinstance(record, LiveStateData):
+        if isinstance(record, LiveCheckpoint):
             self.record = record
         return True
 
     def checkpoint(self) -> LiveCheckpoint | None:
         """The stored checkpoint as ``restore`` reads it back (None: none stored yet)."""
-        rec = self.record
-        if rec is None:
+        if self.record is None:
             return None
+        row = self.record.values()
         return LiveCheckpoint.from_parts(
-            rec.payload,
-            t=rec.at.timestamp(),
-            model_version=rec.model_version,
-            converged=rec.converged,
-            inputs=(rec.ambient_c, rec.speed_rpm, rec.torque_nm),
+            bytes(row["payload"]),  # type: ignore[arg-type]
+            t=row["at"].timestamp(),  # type: ignore[union-attr]
+            model_version=self.record.model_version,
+            converged=self.record.converged,
+            inputs=self.record.inputs,
         )
 
 
@@ -332,7 +333,6 @@ def stored_state(view: Any, reference: Any = None, live: LiveCheckpoint | None =
     from service.core.jobbook import MAP_METHOD
     from service.identify.detector import OperatingPoint
     from service.identify.scheduler import PastResult
-    from service.serve.interface import ConditionState
 
     latest: dict[int, Any] = {}
     for rec in view.records:  # newest first

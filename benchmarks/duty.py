@@ -32,7 +32,8 @@ import numpy as np
 
 from benchmarks import identmode
 from benchmarks.targets import progress_to_stderr, report
-from service.identify.mode import IdentificationMode
+from service.contracts.mode import IdentificationMode
+from service.contracts.verdict import ChtcStatus
 
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 DT_S = 10.0
@@ -81,7 +82,6 @@ def run_seed(model: Any, settings: Any, seed: int, *, hours: float, warmup_min: 
     from service.core.machine import ServiceCore
     from service.host.runtime import core_config
     from service.identify.worker import run_job
-    from service.serve.interface import ChtcStatus
     from service.shell.service import SoftSensorService
     from service.sim.duty import condition_at, duty_profile
     from service.sim.plantsamples import samples_from_plant

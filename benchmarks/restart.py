@@ -59,7 +59,7 @@ from benchmarks.restart_profile import (
     truth,
 )
 from benchmarks.targets import progress_to_stderr, report
-from service.identify.mode import IdentificationMode
+from service.contracts.mode import IdentificationMode
 
 STARTS_MIN = (0, 30, 60, 90)
 PATHS = ("core", "filter")

@@ -37,7 +37,7 @@ def interp_matrix(src_fe, dst_fe):
     """Sparse P1 interpolation (N_dst, N_src) of src-mesh fields at dst nodes."""
     import scipy.sparse as sp
 
-    from service.estimate.locator import TriangleLocator
+    from model.locator import TriangleLocator
 
     loc = TriangleLocator(src_fe.nodes_rz, src_fe.triangles)
     pts = np.asarray(dst_fe.nodes_rz)

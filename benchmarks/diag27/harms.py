@@ -51,7 +51,7 @@ def main() -> int:
         run, truth = plant.run(seed, "offsets", duty, truth_h)
         samples = samples_from_plant(run, t0_s=T0)
         restart_k = PER_MIN * (30 + 120 // 2)
-        from service.estimate.mechanics import MechanicsCalibration
+        from service.contracts.mechanics import MechanicsCalibration
 
         cal = None
 

@@ -43,12 +43,13 @@ from service.commands._common import (
     port_number,
     positive_float,
 )
+from service.contracts.snapshots import IdentificationRecord
 from service.core.jobbook import MAP_METHOD
 from service.logctx import install_logging, set_default
 
 if TYPE_CHECKING:
+    from service.contracts.snapshots import IdentificationRecord
     from service.host.runtime import Runtime
-    from service.serve.interface import IdentificationRecord
     from service.settings import Settings
     from service.sim.endless import PlantRows
     from service.sim.rigproc import RigProcess

@@ -59,7 +59,7 @@ from model.estimator import (
     wide_prior,
 )
 from model.estimator import usable as usable_channels
-from service.estimate.checkpoint import LiveCheckpoint
+from service.contracts.checkpoint import LiveCheckpoint
 from service.estimate.convergegate import ConvergenceGate
 from service.estimate.live import LiveStateError
 from service.estimate.nistrack import NisTrack
@@ -403,7 +403,7 @@ class FilteredState:
         return self._after_step(0, self._measure(temps_c, usable), restarted=True, reason=reason)
 
     def checkpoint(self, model_version: str) -> LiveCheckpoint:
-        """The state now as a ``LiveCheckpoint`` (``service.estimate.checkpoint``) of ``model_version``."""
+        """The state now as a ``LiveCheckpoint`` (``service.contracts.checkpoint``) of ``model_version``."""
         est, inp = self.estimator.estimate, self._inputs
         assert inp is not None
         return LiveCheckpoint(

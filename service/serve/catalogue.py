@@ -27,7 +27,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import Literal
 
-from service.serve.interface import ZONE_NAMES
+from service.contracts.snapshots import ZONE_NAMES
 
 __all__ = ["DEVICES", "POINTS", "UNITS", "VERDICTS", "PointDef", "VType", "by_mqtt", "by_opcua"]
 

@@ -36,6 +36,8 @@ import numpy as np
 
 from drivers.ringbuffer import Sample
 from service.acquire.devicewatch import DeviceWatch
+from service.contracts.errors import NotReadyError
+from service.contracts.health import DeviceHealth
 from service.contracts.records import DeviceEventData
 from service.core.events import (
     Cancel,
@@ -51,8 +53,8 @@ from service.core.events import (
 from service.core.machine import ServiceCore
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.compensation import GrowthServer
-from service.serve.interface import DeviceHealth, NotReadyError, SensorHistoryBuffer
 from service.serve.reader import ReadContext, ViewReader
+from service.serve.sensorhistory import SensorHistoryBuffer
 from service.serve.view import CoreView
 from service.shell.corethread import CoreRunner, InlineRunner
 from service.shell.gauges import Gauges

@@ -20,6 +20,7 @@ import numpy as np
 
 from model.plant import Segment, VirtualPlant
 from model.plantmech import PlantMechanics
+from service.contracts.errors import CommissioningError
 
 __all__ = [
     "RECOMMENDED_PROFILE",
@@ -168,7 +169,6 @@ def commission_seeds(
     from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
-    from service.shell.commissioning import CommissioningError
 
     settings = Settings()
     model = load_model(ModelRef.from_settings(settings))

@@ -22,8 +22,8 @@ from api.schemas import chtc_map_out
 from model import hmap_identify as hi
 from model.hmap import NODES
 from model.plant import VirtualPlant
+from service.contracts.snapshots import H_UNIT, ZONE_NAMES, ChtcMapSnapshot
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
-from service.serve.interface import H_UNIT, ZONE_NAMES, ChtcMapSnapshot
 from service.serve.policy import map_verdict
 from service.serve.views import chtc_map_snapshot
 from service.settings import Settings

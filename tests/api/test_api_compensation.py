@@ -20,13 +20,13 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from model.growth import Z95
 from model.inputs import inputs_from_operation
+from service.contracts.errors import NotReadyError
 from service.core.machine import ServiceCore
 from service.estimate.growth import build_context, condition_terms, estimate_growth
 from service.estimate.growthterms import h_covariance, map_h_covariance
 from service.host.runtime import core_config
 from service.modelload import LoadedModel
 from service.serve.compensation import GrowthServer, field_belief
-from service.serve.interface import NotReadyError
 from service.serve.policy import compensation_verdict
 from service.settings import Settings
 from service.shell.service import SoftSensorService

@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from api.app import create_app
-from service.estimate.mechanics import MechanicsCalibration
+from service.contracts.mechanics import MechanicsCalibration
 from service.estimate.probe import prior_covariance
 from service.settings import Settings
 from service.sim.served import served_service

@@ -156,7 +156,7 @@ def test_an_outlet_that_counts_shows_on_metrics(
 ) -> None:
     """The MQTT outlet's counters (service.serve.interface.CountedOutlet) reach /metrics as chtc_outlet_*;
     never started here (no broker): nothing sent, not connected."""
-    from service.serve.mqtt.config import MqttSettings
+    from service.mqttsettings import MqttSettings
     from service.serve.mqtt.outlet import MqttOutlet
 
     outlet = MqttOutlet(MqttSettings(enabled=True).for_spindle("spindle1"), state_dir=tmp_path)

@@ -10,8 +10,9 @@ import numpy as np
 import pytest
 
 from model.geometry import load_spindle
+from service.contracts.snapshots import FieldSnapshot
 from service.serve.histogram import Histogram
-from service.serve.interface import ChtcService, FieldSnapshot
+from service.serve.interface import ChtcService
 from service.sim.served import Served
 
 

@@ -15,7 +15,9 @@ from asyncua import Server, ua
 from asyncua.server.users import User, UserRole
 
 from service.cli import main as chtc
+from service.contracts.verdict import ChtcStatus, Reason, Verdict
 from service.host.runtime import enabled_outlets
+from service.mqttsettings import MqttSettings
 from service.serve.errors import OutletError
 from service.serve.opcua.nodes import VARS, unit_id
 from service.serve.opcua.security import (
@@ -26,7 +28,6 @@ from service.serve.opcua.security import (
     verify_password,
 )
 from service.serve.opcua.status import UaStatus, lost_since, status_of, worst
-from service.serve.verdict import ChtcStatus, Reason, Verdict
 from service.settings import Settings, SettingsError
 
 S = ChtcStatus
@@ -205,7 +206,6 @@ def test_the_node_ids_follow_the_spindle_id_unless_set(tmp_path: Path, toml: str
 
 
 def test_the_opcua_and_sparkplug_names_resolve_from_the_spindle_id() -> None:
-    from service.serve.mqtt.config import MqttSettings
 
     s = Settings(spindle={"id": "cell3-sp07"})  # type: ignore[arg-type]
     assert s.opcua.spindle is None and s.opcua.for_spindle(s.spindle.id).node_prefix == "cell3-sp07"

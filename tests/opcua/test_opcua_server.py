@@ -18,9 +18,9 @@ import pytest
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
+from service.contracts.verdict import ChtcStatus, Reason, Verdict
 from service.serve.opcua.nodes import UNITS_NAMESPACE, VARS, Var
 from service.serve.opcua.status import UaStatus, lost_since, status_of
-from service.serve.verdict import ChtcStatus, Reason, Verdict
 from service.sim.served import feed
 
 from .conftest import (

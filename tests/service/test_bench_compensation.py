@@ -57,7 +57,7 @@ def test_random_truth_is_the_plants_h_law_signature() -> None:
 
 
 def test_reason_code_is_the_verdicts_typed_reason() -> None:
-    from service.serve.verdict import ChtcStatus, Reason, Verdict
+    from service.contracts.verdict import ChtcStatus, Reason, Verdict
 
     stale = Verdict(ChtcStatus.STALE, False, Reason.STALE, "daq_no_good_data: no data for 70 s")
     assert reason_code(SimpleNamespace(verdict=stale)) == "stale"

@@ -17,6 +17,7 @@ import pytest
 from model.plant import Segment
 from model.plantmech import mechanics_for_seed
 from service.cli import main as cli_main
+from service.contracts.mechanics import MechanicsCalibration
 from service.estimate.growth import (
     FieldBelief,
     build_context,
@@ -173,7 +174,6 @@ def test_the_growth_server_uses_a_restored_or_new_commissioning(
 ) -> None:
     """``GrowthServer``: a shared context plus a restored calibration is calibrated on first use; a new
     commissioning replaces the operators and drops the condition terms computed with the old ones."""
-    from service.estimate.mechanics import MechanicsCalibration
     from service.serve.compensation import GrowthServer
 
     _, basis, _ = fitted

@@ -108,7 +108,7 @@ def test_a_checkpoint_resumed_under_a_narrower_h_ci_stays_positive(loaded_model:
     the resumed state keeps a positive semi-definite P without restarting (without the rescale: a negative
     variance at the first sample, and a restart). A checkpoint without ``param_std`` (written before it was
     kept) still loads."""
-    from service.estimate.checkpoint import LiveCheckpoint
+    from service.contracts.checkpoint import LiveCheckpoint
 
     samples = _warm_up(loaded_model, 6, 72)
     state = FilteredState(loaded_model.rom, loaded_model.spec, h=H_GUESS)

@@ -19,7 +19,8 @@ import pytest
 
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
-from service.serve.interface import ChtcStatus, CompensationSnapshot, Reason
+from service.contracts.snapshots import CompensationSnapshot
+from service.contracts.verdict import ChtcStatus, Reason
 from service.settings import Settings
 from service.sim.served import Served, feed, served_service
 

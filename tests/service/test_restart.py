@@ -8,11 +8,12 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 
 from model.plant import Segment
+from service.contracts.records import ConditionStart
+from service.contracts.verdict import ChtcStatus
 from service.core.machine import ServiceCore
 from service.core.offline import run_offline
 from service.host.persistence import open_persistence
 from service.host.runtime import core_config
-from service.serve.interface import ChtcStatus
 from service.settings import Settings
 from service.shell.service import SoftSensorService
 from tests.modes import per_condition
@@ -72,7 +73,6 @@ def test_restore_picks_the_last_served_not_the_latest_stamped(tmp_path):
     """Issue 13.11: a demo run stamps simulated time hours ahead; the next run's clock starts at the wall
     clock again, so its identification (id 3) carries an earlier finished_at than the first run's (id 2).
     The restore must pick id 3, the one served last."""
-    from service.contracts.records import ConditionStart
     from tests.db.test_db_repository import ident
 
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
@@ -106,7 +106,6 @@ def test_restore_picks_the_last_served_not_the_latest_stamped(tmp_path):
 def test_writer_stamps_with_the_service_clock(tmp_path):
     """Issue 13.11 / 12.23: the database writer's last_ok_at (what /health ages) uses the injected clock, so
     the database is not "last ok 2.8 h ago" in a demo running hours ahead of the wall clock."""
-    from service.contracts.records import ConditionStart
 
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
     simulated = datetime.now(UTC) + timedelta(hours=2.8)

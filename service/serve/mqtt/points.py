@@ -32,17 +32,12 @@ from dataclasses import dataclass
 from datetime import datetime
 from typing import Protocol
 
+from service.contracts.errors import NoDataYetError
+from service.contracts.health import HealthSnapshot
+from service.contracts.snapshots import ZONE_NAMES, ChtcSnapshot, CompensationSnapshot, ConditionSnapshot
+from service.contracts.verdict import ChtcStatus
 from service.errors import ServiceError
 from service.serve.catalogue import DEVICES, PointDef, by_mqtt
-from service.serve.interface import (
-    ZONE_NAMES,
-    ChtcSnapshot,
-    ChtcStatus,
-    CompensationSnapshot,
-    ConditionSnapshot,
-    HealthSnapshot,
-    NoDataYetError,
-)
 
 __all__ = [
     "ALIASES",

@@ -17,18 +17,12 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
+from service.contracts.errors import NoDataYetError
+from service.contracts.snapshots import ZONE_NAMES, ChtcSnapshot, CompensationSnapshot, SensorReading
+from service.contracts.verdict import ChtcStatus, DataCode, Reason, Verdict
 from service.errors import ServiceError
 from service.serve.catalogue import PER_SENSOR, POINTS, UNITS, VType
-from service.serve.interface import (
-    ZONE_NAMES,
-    ChtcSnapshot,
-    CompensationSnapshot,
-    DataCode,
-    NoDataYetError,
-    SensorReading,
-)
 from service.serve.opcua.status import UaStatus, lost_since, status_of, worst
-from service.serve.verdict import ChtcStatus, Reason, Verdict
 
 if TYPE_CHECKING:
     from service.serve.reader import ViewReader

@@ -13,12 +13,12 @@ from collections.abc import Callable, Mapping
 from datetime import datetime
 from typing import TYPE_CHECKING, Any
 
-from service.serve.interface import OutletMetrics
+from service.contracts.metrics import OutletMetrics
 from service.serve.opcua.nodes import variables
 from service.serve.opcua.server import Methods, OpcUaServer
 
 if TYPE_CHECKING:
-    from service.serve.interface import IdentificationJob, OffsetBaseline
+    from service.contracts.snapshots import IdentificationJob, OffsetBaseline
     from service.serve.outlet import OutletContext
     from service.serve.reader import ViewReader
     from service.settings import Settings
