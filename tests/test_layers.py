@@ -250,10 +250,7 @@ def test_no_class_in_the_service_over_400_lines() -> None:
     lines = _class_lines("service")
     assert "service.core.machine.ServiceCore" in lines
     big = {name: n for name, n in lines.items() if n > MAX_CLASS_LINES}
-    # FilteredState was split to 398 lines (issue 39); the sensor-fault monitor (issue 40 part 4) brought it
-    # back to 432 on merging: its next split (the fault bookkeeping of _measure) is pending
-    assert set(big) <= {"service.estimate.state.FilteredState"}, big
-    assert big.get("service.estimate.state.FilteredState", 0) <= 440
+    assert big == {}, big
 
 
 def test_the_rules_see_a_violation() -> None:
