@@ -62,7 +62,7 @@ def plant_samples(seed: int) -> list[Sample]:
     """The profile's plant run as acquisition samples every 10 s."""
     from model.geometry import load_spindle
     from model.plant import Segment, VirtualPlant
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     run = VirtualPlant(load_spindle(), seed=seed).run([Segment(*s) for s in PROFILE], dt_s=10.0)
     return samples_from_plant(run, t0_s=T0)

@@ -3,8 +3,8 @@ service runs of its five scenarios, read every minute as ``/compensation`` and `
 
 Per seed and variant (``clean``; ``offsets``: per-channel offsets uniform in ±0.2 °C) the virtual plant
 (``model.plant.VirtualPlant``: its finer mesh, 2.5-s internal steps, σ = 0.15 °C) runs the seed's duty cycle
-(``service.sim.duty``: ``rest_min`` at rest, then the speed changing every 1–6 min over 0–7000 rpm) with the
-seed's random truth (``service.sim.randomtruth``, never ``model.plant.h_true``) and keeps its whole field
+(``simulator.duty``: ``rest_min`` at rest, then the speed changing every 1–6 min over 0–7000 rpm) with the
+seed's random truth (``simulator.randomtruth``, never ``model.plant.h_true``) and keeps its whole field
 every minute; the true axial growth is that field's through a growth model built on the plant's mesh with the
 plant's own mechanics (``--plant-mechanics drawn``, the default: the seed's mount restraint and α factors,
 ``model.plantmech``, which the service does not know; ``nominal``: the description's), over the plant's
@@ -267,7 +267,7 @@ class Session:
         from service.host.runtime import core_config, growth_server
         from service.identify.worker import run_job
         from service.shell.service import SoftSensorService
-        from service.sim.served import ManualClock
+        from simulator.served import ManualClock
 
         core = ServiceCore(core_config(settings), model=model, restored=restored, history_capacity=100_000)
         self.clock = ManualClock(start)
@@ -389,9 +389,9 @@ def run_seed(
 ) -> SeedRows:
     """The five scenarios of one seed (module docstring)."""
     from service.commands._common import override
-    from service.sim.duty import duty_profile
-    from service.sim.plantsamples import samples_from_plant
-    from service.sim.randomtruth import draw_truth
+    from simulator.duty import duty_profile
+    from simulator.plantsamples import samples_from_plant
+    from simulator.randomtruth import draw_truth
 
     # a plant with the description's own mechanics needs no commissioning (issue 27's rule, off); a drawn
     # plant's are unknown to the service: the settings' rule applies (default: not usable, reason

@@ -241,7 +241,7 @@ def run(
     from service.core.offline import run_offline
     from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     settings = identmode.bench_settings(ident_mode, overrides)
     model = load_model(ModelRef.from_settings(settings))

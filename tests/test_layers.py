@@ -18,7 +18,7 @@ against Python).
 - The laboratory stays out of the product (issue 39): nothing under ``model``, ``drivers``, ``service``,
   ``api`` imports ``benchmarks`` (which may import anything), and the running product (core, shell,
   host, estimate, identify, store, serve, acquire, api) imports nothing of the simulator or the plant
-  (``service.sim``, ``model.plant``, ``model.plantmech``): those serve the demo, the simulate command, the
+  (``simulator``, ``model.plant``, ``model.plantmech``): those serve the demo, the simulate command, the
   tests and the benchmarks. The wheel built from the tree holds no benchmark, study or diagnostic module
   (``test_the_wheel_ships_no_laboratory``).
 - Every exception class defined in a layer derives from that layer's root: ``model.errors.ModelError``,
@@ -42,7 +42,7 @@ from pathlib import Path
 import pytest
 
 ROOT = Path(__file__).resolve().parents[1]
-LAYERS = ("model", "drivers", "service", "api")
+LAYERS = ("model", "drivers", "service", "simulator", "api")
 SCANNED = (*LAYERS, "benchmarks")  # the benchmarks are read too: the rules below name what they may not be
 
 
@@ -117,7 +117,7 @@ _SERVICE_PACKAGES = tuple(
     if (p.is_dir() and (p / "__init__.py").exists()) or p.suffix == ".py"
     if p.stem not in ("__init__", "contracts", "errors")
 )
-_TOOLS = ("service.commands", "benchmarks", "service.sim", "service.cli")
+_TOOLS = ("service.commands", "benchmarks", "simulator", "service.cli")
 # the engine, in three packages (issue 39): the pure core, the asyncio shell, the host; with the tools and
 # the api they are the wiring, which no lower package imports
 _ENGINE = ("service.core", "service.shell", "service.host")
@@ -130,7 +130,7 @@ _RUNNING = (
     "service.acquire",
     "api",
 )
-_SIMULATOR = ("service.sim", "model.plant", "model.plantmech")
+_SIMULATOR = ("simulator", "model.plant", "model.plantmech")
 _SHELL = (*_ENGINE, *_TOOLS, "api")
 # leaves of the service that are no layer: the configuration, its MQTT section and the log context; what they
 # import is checked below, so a layer that imports them reaches nothing deeper through them
@@ -145,8 +145,8 @@ RULES = [
     ),
     ("service.shell", ("service.host", *_TOOLS)),
     ("service.host", ("service.commands", "benchmarks", "service.cli")),
-    ("model", ("drivers", "service", "api")),
-    ("drivers", ("service", "api")),
+    ("model", ("drivers", "service", "simulator", "api")),
+    ("drivers", ("service", "simulator", "api")),
     ("service", ("api",)),  # issue 28: the REST outlet is found by name (service.serve.outlet.OUTLETS)
     ("service.errors", ("service.", "model", "drivers", "api")),
     ("service.contracts", (*_SERVICE_PACKAGES, "drivers", "api")),  # below every other service package
@@ -259,8 +259,8 @@ def test_the_rules_see_a_violation() -> None:
         "service.store", ("service.store.errors",)
     )
     # the benchmarks are read, and they do import the simulator (what the product may not)
-    assert "benchmarks.compensation_run imports service.sim.plantsamples" in _offending(
-        "benchmarks", ("service.sim",)
+    assert "benchmarks.compensation_run imports simulator.plantsamples" in _offending(
+        "benchmarks", ("simulator",)
     )
 
 
@@ -410,6 +410,7 @@ ROOTS = {
     "model": ("model.errors", "ModelError"),
     "drivers": ("drivers.errors", "DriverError"),
     "service": ("service.errors", "ServiceError"),
+    "simulator": ("simulator.errors", "SimulatorError"),
     "api": ("api.errors", "ApiError"),
 }
 

@@ -129,7 +129,7 @@ def run_one(model, settings, plant, seed, args, P=None):
     from benchmarks.commission import prepare_seed
     from benchmarks.compensation_run import PER_MIN
     from service.estimate.mechanics import served_mechanics_basis
-    from service.sim.randomtruth import draw_truth
+    from simulator.randomtruth import draw_truth
 
     t_start = time.perf_counter()
     basis = served_mechanics_basis(model.spec, model.fe)

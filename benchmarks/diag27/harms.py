@@ -21,10 +21,10 @@ def main() -> int:
     from service.shell.commissioning import field_history, fit_test, read_displacement_csv
     from service.host.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
-    from service.sim.duty import duty_profile
-    from service.sim.plantsamples import samples_from_plant
-    from service.sim.randomtruth import draw_truth
-    from service.sim.thermaltest import RECOMMENDED_PROFILE, write_thermal_test
+    from simulator.duty import duty_profile
+    from simulator.plantsamples import samples_from_plant
+    from simulator.randomtruth import draw_truth
+    from simulator.thermaltest import RECOMMENDED_PROFILE, write_thermal_test
 
     model, settings, plant = _setup()
     config = core_config(settings)

@@ -206,7 +206,7 @@ async def _replay(
     args: argparse.Namespace, settings: Settings, served_csv: Path, growth: GrowthLog | None
 ) -> list[IdentificationRecord]:
     from service.host.runtime import Runtime, ScaledClock
-    from service.sim.simrig import SimAddress, make_drivers, replay_rig
+    from simulator.simrig import SimAddress, make_drivers, replay_rig
 
     stop = asyncio.Event()  # SIGINT or SIGTERM: stop, store what was identified so far (issue 41)
     install_stop_signals(stop)

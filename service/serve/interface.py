@@ -3,7 +3,7 @@
 ``api/`` imports from ``service/`` only this package (``service.serve``) and the value types it hands out
 (``service.contracts``: the snapshots, the errors, the verdict). The running service
 (``service/shell/service.py``) implements :class:`ChtcService`; the API tests serve it too
-(``service/sim/served.py``).
+(``simulator/served.py``).
 
 Contract for implementers:
 

@@ -1,4 +1,4 @@
-"""GET /compensation on the real service (``service.sim.served``: the core and shell on their loop, a real
+"""GET /compensation on the real service (``simulator.served``: the core and shell on their loop, a real
 database) fed with virtual-plant samples: the served growth equals ``estimate_growth`` on the same inputs,
 its status follows the /chtc rules (stale when data stop), and the dashboard shows it."""
 
@@ -30,7 +30,7 @@ from service.serve.compensation import GrowthServer, field_belief
 from service.serve.policy import compensation_verdict
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import ManualClock, served_service
+from simulator.served import ManualClock, served_service
 from tests.api.conftest import MAP_MODE, LiveServer, served_map_mode, sqlite_url
 from tests.api.test_api_dashboard import _chromium
 from tests.engine_config import product_limits
@@ -50,7 +50,7 @@ class Served:
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
-    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm), in
+    """The real service on its loop (``simulator.served``), fed the whole demo plan (3000 then 4000 rpm), in
     per-condition mode (Σ_H from the record's CIs, ``h_covariance``; the map's: ``served_map`` below)."""
     url = sqlite_url(tmp_path_factory.mktemp("served-compensation"))
     with served_service(database_url=url, settings=per_condition(), feed_samples=1) as s:
@@ -142,7 +142,7 @@ def test_the_verdict_is_the_policys_on_the_growth_and_goes_stale_when_data_stop(
     assert snap is not None
     lo, hi = comp["axial"]["ci95_um"]
     # the served service's limits: [compensation]'s defaults, without the mechanics and offset-baseline rules
-    # on the simulator's plant (service.sim.served: its mechanics match the spindle description, its sensors
+    # on the simulator's plant (simulator.served: its mechanics match the spindle description, its sensors
     # have no offsets)
     limits = served.svc.growth.limits
     assert limits == dataclasses.replace(

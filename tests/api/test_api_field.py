@@ -22,7 +22,7 @@ from model.locator import TriangleLocator, locator_for
 from service.contracts.snapshots import FieldSnapshot
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import Served
+from simulator.served import Served
 
 URL = "/api/v1/temperature-field"
 

@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from drivers.quality import Quality
 from model.geometry import load_spindle
 from service.serve.sensorhistory import SensorHistoryBuffer
-from service.sim.served import Served, feed
+from simulator.served import Served, feed
 from tests.api.conftest import ManualClock
 
 

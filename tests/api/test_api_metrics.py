@@ -11,7 +11,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from api.app import create_app
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import Served
+from simulator.served import Served
 from tests.api.conftest import ManualClock
 
 

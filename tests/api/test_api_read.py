@@ -17,7 +17,7 @@ from drivers.quality import Quality
 from service.contracts.snapshots import ZONE_NAMES
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import Served, feed, served_service
+from simulator.served import Served, feed, served_service
 from tests.api.conftest import ManualClock, sqlite_url
 
 

@@ -13,7 +13,7 @@ from model.geometry import load_spindle
 from service.contracts.snapshots import FieldSnapshot
 from service.serve.histogram import Histogram
 from service.serve.interface import ChtcService
-from service.sim.served import Served
+from simulator.served import Served
 
 
 def _linear_field(nodes: np.ndarray) -> np.ndarray:

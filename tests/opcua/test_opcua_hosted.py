@@ -19,7 +19,7 @@ from model.plant import Segment
 from service.host.fleet import Host, HostError
 from service.host.runtime import ScaledClock, free_port
 from service.settings import Settings
-from service.sim.simrig import SimAddress, make_drivers, plant_rig
+from simulator.simrig import SimAddress, make_drivers, plant_rig
 from tests.service.conftest import plant_run
 
 pytestmark = pytest.mark.slow

@@ -21,7 +21,7 @@ from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 from service.contracts.verdict import ChtcStatus, Reason, Verdict
 from service.serve.opcua.nodes import UNITS_NAMESPACE, VARS, Var
 from service.serve.opcua.status import UaStatus, lost_since, status_of
-from service.sim.served import feed
+from simulator.served import feed
 
 from .conftest import (
     NS,

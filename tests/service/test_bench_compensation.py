@@ -13,7 +13,7 @@ import pytest
 from benchmarks import compensation as cb
 from benchmarks.compensation_run import Minute, Plan, SeedRows, plan_for, reason_code
 from model.plant import h_true
-from service.sim.randomtruth import H_BOX, draw_truth
+from simulator.randomtruth import H_BOX, draw_truth
 
 SPEEDS = np.linspace(0.0, 7000.0, 701)
 

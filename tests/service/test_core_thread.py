@@ -25,7 +25,7 @@ from service.settings import Settings
 from service.shell.corethread import CoreThread
 from service.shell.looplag import LoopLagMonitor
 from service.shell.service import SoftSensorService
-from service.sim.served import ManualClock
+from simulator.served import ManualClock
 
 from .conftest import plant_run, samples_of
 

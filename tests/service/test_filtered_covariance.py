@@ -1,6 +1,6 @@
 """The filtered state's covariance stays a covariance (docs/design/estimator.md, "Covariance health").
 
-The bug (2026-11-27, the simulated ISO 230-3 thermal test ``python -m service.sim.thermaltest --short
+The bug (2026-11-27, the simulated ISO 230-3 thermal test ``python -m simulator.thermaltest --short
 --seed 4`` commissioned through the core): an identification's ``set_h`` with a narrower CI lowered the
 considered H errors' 1σ while their cross-covariance with the state was kept, so the next predictions made
 P indefinite (negative variances, negative NIS) and the served field reached 165 °C, still "converged".

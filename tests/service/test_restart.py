@@ -130,7 +130,7 @@ CURRENT = (ChtcStatus.FRESH, ChtcStatus.AT_BOUND)  # identified at the current c
 
 
 def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(tmp_path):
-    """The served service (``service.sim.served``: the real core and shell, SQLite, samples of a
+    """The served service (``simulator.served``: the real core and shell, SQLite, samples of a
     virtual-plant run, jobs inline) stopped mid-run and restarted on its database: the last stored H is
     served at once with its time, never usable, as ``converging`` with ``state_converging`` as the reason
     until the filtered live state has converged; no identification window starts before that; then a new H
@@ -139,7 +139,7 @@ def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(
     from fastapi.testclient import TestClient
 
     from api.app import create_app
-    from service.sim.served import Plan, served_service
+    from simulator.served import Plan, served_service
 
     plan = Plan(profile=RESTART_PLAN_PROFILE, seed=4)
     url = f"sqlite:///{tmp_path / 'chtc.db'}"

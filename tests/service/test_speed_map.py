@@ -23,7 +23,7 @@ from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
 from service.serve.policy import map_verdict
 from service.settings import ExperimentalSettings, Settings, SettingsError
 from service.shell.service import MAP_H_BOX, SoftSensorService
-from service.sim.duty import condition_at, duty_profile
+from simulator.duty import condition_at, duty_profile
 from tests.modes import per_condition
 
 from .conftest import inline_service, samples_of
