@@ -30,7 +30,8 @@ from fastapi.responses import JSONResponse
 from pydantic_core import ErrorDetails
 from starlette.exceptions import HTTPException as StarletteHTTPException
 
-from service.serve.interface import BusyError, NoDataYetError, NotFoundError, NotReadyError, ServiceError
+from service.contracts.errors import BusyError, NoDataYetError, NotFoundError, NotReadyError
+from service.errors import ServiceError
 
 
 class ApiError(Exception):

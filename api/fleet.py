@@ -35,7 +35,7 @@ from api.errors import error_body
 from api.outlet import RestOutlet
 
 if TYPE_CHECKING:
-    from service.host.fleet import Host
+    from service.serve.interface import FleetHost
     from service.serve.outlet import OutletContext
 
 __all__ = ["FleetDispatch", "FleetOutlet", "create_fleet_app", "fleet_outlet"]
@@ -67,7 +67,7 @@ class MergedMetrics:
         yield from merged.values()
 
 
-def create_fleet_app(host: Host, apps: Mapping[str, FastAPI], *, clock_info: ClockInfo) -> FastAPI:
+def create_fleet_app(host: FleetHost, apps: Mapping[str, FastAPI], *, clock_info: ClockInfo) -> FastAPI:
     """The instance's own answers (list, health, readiness, metrics); no spindle's routes. The list and the
     metrics honour ``[api] read_token`` as every spindle's reads do."""
     app = FastAPI(
@@ -270,7 +270,7 @@ class FleetOutlet(RestOutlet):
 
     def build_app(self, info: ClockInfo) -> ASGIApp:
         ctx = self.ctx
-        host: Host = ctx.service
+        host: FleetHost = ctx.service
         for sid, hosted in host.spindles.items():
             if hosted.runtime is not None and hosted.runtime.service is not None:
                 service = hosted.runtime.service

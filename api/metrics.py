@@ -1,5 +1,5 @@
 """Prometheus exposition: a per-app ``CollectorRegistry`` with the API's own request-latency histogram and a
-collector that turns the service's :class:`service.serve.interface.MetricsSnapshot` into ``chtc_*`` families
+collector that turns the service's :class:`service.contracts.metrics.MetricsSnapshot` into ``chtc_*`` families
 at
 scrape time (the service exposes numbers; the API exports them).
 """
@@ -21,18 +21,12 @@ from prometheus_client.core import (
 from prometheus_client.registry import Collector
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
+from service.contracts.metrics import FilterMetrics, HistogramData, MetricsSnapshot, OutletMetrics
+from service.contracts.snapshots import ChtcSnapshot, CompensationSnapshot
+from service.contracts.verdict import ChtcStatus
+from service.errors import ServiceError
 from service.serve.histogram import LATENCY_BUCKETS_S
-from service.serve.interface import (
-    ChtcService,
-    ChtcSnapshot,
-    ChtcStatus,
-    CompensationSnapshot,
-    FilterMetrics,
-    HistogramData,
-    MetricsSnapshot,
-    OutletMetrics,
-    ServiceError,
-)
+from service.serve.interface import ChtcService
 
 REQUEST_BUCKETS_S = (0.0005, 0.001, 0.002, 0.005, 0.01, 0.02, 0.05, 0.1, 0.25, 0.5, 1.0)
 
@@ -237,7 +231,12 @@ def _outlet_metrics(outlets: Mapping[str, OutletMetrics]) -> Iterator[Metric]:
         ),
     }
     connected = GaugeMetricFamily("chtc_outlet_connected", "1 while connected", labels=["outlet"])
+    refused = CounterMetricFamily(
+        "chtc_outlet_refused", "requests a server outlet refused, by reason", labels=["outlet", "reason"]
+    )
     for name, o in sorted(outlets.items()):
+        for reason, count in sorted(o.refused.items()):
+            refused.add_metric([name, reason], count)
         sent.add_metric([name, "sent"], o.sent)
         sent.add_metric([name, "dropped"], o.dropped)
         for key, fam in families.items():
@@ -247,6 +246,7 @@ def _outlet_metrics(outlets: Mapping[str, OutletMetrics]) -> Iterator[Metric]:
     yield sent
     yield from families.values()
     yield connected
+    yield refused
 
 
 def _loop_metrics(m: MetricsSnapshot) -> Iterator[Metric]:

@@ -15,28 +15,25 @@ import numpy as np
 from pydantic import BaseModel, Field, field_validator
 
 from api.deps import ClockInfo
-from service.estimate.mechanics import MECH_PARAMS, MechanicsCalibration
-from service.estimate.probe import ProbeMeasurement
-from service.estimate.reference import CompensationReference
-from service.serve.interface import (
+from service.contracts.command import CommandSnapshot
+from service.contracts.health import DeviceHealth, HealthSnapshot
+from service.contracts.mechanics import MECH_PARAMS, MechanicsCalibration
+from service.contracts.probe import ProbeMeasurement
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import (
     H_UNIT,
     ZONE_NAMES,
     ChtcMapSnapshot,
     ChtcSnapshot,
-    ChtcStatus,
-    CommandSnapshot,
     CompensationSnapshot,
     ConditionSnapshot,
-    DeviceHealth,
-    HealthSnapshot,
     IdentificationJob,
     IdentificationRecord,
     OffsetBaseline,
-    Reason,
     SectionSnapshot,
     SensorReading,
-    Verdict,
 )
+from service.contracts.verdict import ChtcStatus, Reason, Verdict
 
 
 def _enum(value: object) -> Any:

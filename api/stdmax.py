@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from service.serve.interface import FieldSnapshot
+from service.contracts.snapshots import FieldSnapshot
 
 __all__ = ["std_max"]
 

@@ -55,11 +55,11 @@ def stop_process(proc: subprocess.Popen[Any] | mp.process.BaseProcess) -> None:
 # --- the server's service: the real one, fed a virtual-plant run ---------------------------------------
 @contextmanager
 def bench_service(tmp: Path, *, field_period_s: float = 10.0) -> Iterator[tuple[Any, str]]:
-    """The served service the benchmark's API serves (``service.sim.served``: the real core and shell on
+    """The served service the benchmark's API serves (``simulator.served``: the real core and shell on
     SQLite in ``tmp``, fed the demo plan's first 22 min: two identifications, fresh) and a line saying what
     it is. The next samples follow every ``field_period_s`` wall seconds (5 min of them at 4000 rpm, before
     the next scheduled identification), so the live field changes as with a running acquisition."""
-    from service.sim.served import DEMO_FED, served_service
+    from simulator.served import DEMO_FED, served_service
 
     with served_service(database_url=f"sqlite:///{tmp / 'chtc.db'}", feed_samples=DEMO_FED) as served:
         stop = served.feed_every(field_period_s)

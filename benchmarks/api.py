@@ -7,7 +7,7 @@ By default it measures the service users run (``benchmarks.api_live``: ``chtc de
 Set-up of ``--served`` (all on loopback):
 
 - the API (REST outlet, ``api.outlet``) runs under uvicorn in a **subprocess**, one worker, around the real
-  service (``service.sim.served``: the core and the shell on SQLite, fed a virtual-plant run, a new sample
+  service (``simulator.served``: the core and the shell on SQLite, fed a virtual-plant run, a new sample
   every ``--field-period`` s; no devices and no worker process run beside it);
 - the load is open-loop: ``--rate`` requests/s spread over ``--clients`` concurrent clients (one keep-alive
   connection each), each request sent at its scheduled instant; latency is measured at the client from send
@@ -100,7 +100,7 @@ def serve(port: int, field_period_s: float = 10.0) -> None:
     from pathlib import Path
 
     from service.settings import ApiSettings, Settings
-    from service.sim.served import exit_on_sigterm
+    from simulator.served import exit_on_sigterm
 
     exit_on_sigterm()
     with (

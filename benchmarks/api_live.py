@@ -69,8 +69,8 @@ def process_cpu_s(pid: int) -> float:
 
 
 def rig_pids(pid: int) -> list[int]:
-    """The demo's rig process (``service.sim.rigproc``, named ``chtc-rig``) among ``pid``'s children."""
-    from service.sim.rigproc import PROCESS_NAME
+    """The demo's rig process (``simulator.rigproc``, named ``chtc-rig``) among ``pid``'s children."""
+    from simulator.rigproc import PROCESS_NAME
 
     out = []
     for c in _children(pid):

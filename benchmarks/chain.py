@@ -34,11 +34,11 @@ import numpy as np
 
 from benchmarks import identmode
 from benchmarks.targets import Target, format_verdicts, progress_to_stderr, report, verdicts
-from service.identify.mode import IdentificationMode
+from service.contracts.mode import IdentificationMode
 
 if TYPE_CHECKING:
     from drivers.ringbuffer import Sample
-    from service.serve.interface import IdentificationRecord
+    from service.contracts.snapshots import IdentificationRecord
 
 TARGETS_NOTE = "mean over H1-H7, every condition; the nominal 95 % range python -m benchmarks identify uses"
 TARGETS = (Target("ci_coverage_mean_worst", "in", (0.85, 1.0), note=TARGETS_NOTE),)
@@ -62,7 +62,7 @@ def plant_samples(seed: int) -> list[Sample]:
     """The profile's plant run as acquisition samples every 10 s."""
     from model.geometry import load_spindle
     from model.plant import Segment, VirtualPlant
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     run = VirtualPlant(load_spindle(), seed=seed).run([Segment(*s) for s in PROFILE], dt_s=10.0)
     return samples_from_plant(run, t0_s=T0)

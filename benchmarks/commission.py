@@ -2,15 +2,15 @@
 side (issue 27 item 4).
 
 Data are SYNTHETIC. Per seed the plant draws its own mechanics (``model.plantmech``, unknown to the service)
-and its own H(speed) truth (``service.sim.randomtruth``, the same in its test and its duty cycle: one machine)
-and runs the simulated ISO 230-3 thermal test (``service.sim.thermaltest``: temperatures, CAN log,
+and its own H(speed) truth (``simulator.randomtruth``, the same in its test and its duty cycle: one machine)
+and runs the simulated ISO 230-3 thermal test (``simulator.thermaltest``: temperatures, CAN log,
 displacements with noise, fixture offset, drift and missing readings). On that one test:
 
 - the product commissions (``service.shell.commissioning.commission_growth``, the service's own core);
 - the peer fits an MLR (``benchmarks.studies.mlr``: 4–6 sensors by correlation clustering, least squares of
   the measured axial displacement on their temperatures plus an intercept).
 
-Then on a separate duty cycle of the same plant (``service.sim.duty``, the seed's H(speed) truth,
+Then on a separate duty cycle of the same plant (``simulator.duty``, the seed's H(speed) truth,
 per-channel offsets ±0.2 °C: ``benchmarks.compensation_run.Plant``), every
 minute after the rest, the axial error against the plant's true growth (over its cold uniform start):
 
@@ -47,7 +47,7 @@ from typing import Any
 import numpy as np
 
 from benchmarks.compensation_run import add_jobs_argument
-from service.estimate.probe import ProbeError
+from service.contracts.probe import ProbeError
 
 Z95 = 1.959963984540054
 METHODS = ("none", "mlr", "uncalibrated", "calibrated", "probe")
@@ -116,10 +116,10 @@ def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argpars
     from model.plant import VirtualPlant
     from service.estimate.mechanics import served_mechanics_basis
     from service.host.runtime import core_config
-    from service.sim.duty import duty_profile
-    from service.sim.plantsamples import samples_from_plant
-    from service.sim.randomtruth import draw_truth
-    from service.sim.thermaltest import RECOMMENDED_PROFILE, SHORT_PROFILE, write_thermal_test
+    from simulator.duty import duty_profile
+    from simulator.plantsamples import samples_from_plant
+    from simulator.randomtruth import draw_truth
+    from simulator.thermaltest import RECOMMENDED_PROFILE, SHORT_PROFILE, write_thermal_test
 
     config = core_config(settings)
     basis = served_mechanics_basis(model.spec, model.fe)

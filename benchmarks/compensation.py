@@ -2,8 +2,8 @@
 truth (issue 26 item 10).
 
 Data are SYNTHETIC, on duty cycles of the product's own making whose truth appears nowhere else: per seed a
-random smooth H(speed) curve per zone (``service.sim.randomtruth``, never ``model.plant.h_true``), the duty
-cycle of ``service.sim.duty`` (``--rest-min`` at rest, 30, then the speed changing every 1–6 min over 0–7000
+random smooth H(speed) curve per zone (``simulator.randomtruth``, never ``model.plant.h_true``), the duty
+cycle of ``simulator.duty`` (``--rest-min`` at rest, 30, then the speed changing every 1–6 min over 0–7000
 rpm, torque 3–15 N·m, ambient drifting ±1 °C), the virtual plant on its own finer mesh and time step, run
 clean and with per-channel offsets of ±0.2 °C, with its own mechanics (``--plant-mechanics drawn``, the
 default: per seed a mount restraint between free and held and α factors within ±5 %, ``model.plantmech``; the

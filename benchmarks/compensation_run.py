@@ -3,8 +3,8 @@ service runs of its five scenarios, read every minute as ``/compensation`` and `
 
 Per seed and variant (``clean``; ``offsets``: per-channel offsets uniform in ±0.2 °C) the virtual plant
 (``model.plant.VirtualPlant``: its finer mesh, 2.5-s internal steps, σ = 0.15 °C) runs the seed's duty cycle
-(``service.sim.duty``: ``rest_min`` at rest, then the speed changing every 1–6 min over 0–7000 rpm) with the
-seed's random truth (``service.sim.randomtruth``, never ``model.plant.h_true``) and keeps its whole field
+(``simulator.duty``: ``rest_min`` at rest, then the speed changing every 1–6 min over 0–7000 rpm) with the
+seed's random truth (``simulator.randomtruth``, never ``model.plant.h_true``) and keeps its whole field
 every minute; the true axial growth is that field's through a growth model built on the plant's mesh with the
 plant's own mechanics (``--plant-mechanics drawn``, the default: the seed's mount restraint and α factors,
 ``model.plantmech``, which the service does not know; ``nominal``: the description's), over the plant's
@@ -46,8 +46,9 @@ import numpy as np
 
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
-from service.contracts.records import LiveStateData, Record
-from service.estimate.checkpoint import LiveCheckpoint
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.records import Record
+from service.contracts.snapshots import ConditionState
 from service.host.persistence import GateSink
 
 DT_S = 10.0
@@ -245,24 +246,24 @@ class NewestLiveState(GateSink):
 
     def __init__(self) -> None:
         super().__init__(max_held=0)
-        self.record: LiveStateData | None = None
+        self.record: LiveCheckpoint | None = None
 
     def submit(self, record: Record) -> bool:
-        if isinstance(record, LiveStateData):
+        if isinstance(record, LiveCheckpoint):
             self.record = record
         return True
 
     def checkpoint(self) -> LiveCheckpoint | None:
         """The stored checkpoint as ``restore`` reads it back (None: none stored yet)."""
-        rec = self.record
-        if rec is None:
+        if self.record is None:
             return None
+        row = self.record.values()
         return LiveCheckpoint.from_parts(
-            rec.payload,
-            t=rec.at.timestamp(),
-            model_version=rec.model_version,
-            converged=rec.converged,
-            inputs=(rec.ambient_c, rec.speed_rpm, rec.torque_nm),
+            bytes(row["payload"]),  # type: ignore[arg-type]
+            t=row["at"].timestamp(),  # type: ignore[union-attr]
+            model_version=self.record.model_version,
+            converged=self.record.converged,
+            inputs=self.record.inputs,
         )
 
 
@@ -283,7 +284,7 @@ class Session:
         from service.host.runtime import core_config, growth_server
         from service.identify.worker import run_job
         from service.shell.service import SoftSensorService
-        from service.sim.served import ManualClock
+        from simulator.served import ManualClock
 
         core = ServiceCore(core_config(settings), model=model, restored=restored, history_capacity=100_000)
         self.clock = ManualClock(start)
@@ -371,7 +372,6 @@ def stored_state(view: Any, reference: Any = None, live: LiveCheckpoint | None =
     from service.core.jobbook import MAP_METHOD
     from service.identify.detector import OperatingPoint
     from service.identify.scheduler import PastResult
-    from service.serve.interface import ConditionState
 
     latest: dict[int, Any] = {}
     for rec in view.records:  # newest first
@@ -429,9 +429,9 @@ def run_seed(
 ) -> SeedRows:
     """The five scenarios of one seed (module docstring)."""
     from service.commands._common import override
-    from service.sim.duty import duty_profile
-    from service.sim.plantsamples import samples_from_plant
-    from service.sim.randomtruth import draw_truth
+    from simulator.duty import duty_profile
+    from simulator.plantsamples import samples_from_plant
+    from simulator.randomtruth import draw_truth
 
     # a plant with the description's own mechanics needs no commissioning (issue 27's rule, off); a drawn
     # plant's are unknown to the service: the settings' rule applies (default: not usable, reason

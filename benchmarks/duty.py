@@ -1,7 +1,7 @@
 """``python -m benchmarks duty``: the served H over a machining duty cycle (issue 17), against the plant's
 truth.
 
-Data are SYNTHETIC: per seed a duty cycle (``service.sim.duty``: 5 min idle, then the speed changes every
+Data are SYNTHETIC: per seed a duty cycle (``simulator.duty``: 5 min idle, then the speed changes every
 1–6 min among 0, 500, …, 7000 rpm, torque 3–15 N·m, ambient drifting ±1 °C; 4 h by default) runs on the
 virtual plant (finer mesh, its own truth ``model.plant.h_true``, σ = 0.15 °C, default settings). The samples
 go through the running service's own shell and core (``SoftSensorService`` with the identification run inline,
@@ -32,7 +32,8 @@ import numpy as np
 
 from benchmarks import identmode
 from benchmarks.targets import progress_to_stderr, report
-from service.identify.mode import IdentificationMode
+from service.contracts.mode import IdentificationMode
+from service.contracts.verdict import ChtcStatus
 
 T0 = datetime(2026, 3, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 DT_S = 10.0
@@ -81,11 +82,10 @@ def run_seed(model: Any, settings: Any, seed: int, *, hours: float, warmup_min: 
     from service.core.machine import ServiceCore
     from service.host.runtime import core_config
     from service.identify.worker import run_job
-    from service.serve.interface import ChtcStatus
     from service.shell.service import SoftSensorService
-    from service.sim.duty import condition_at, duty_profile
-    from service.sim.plantsamples import samples_from_plant
-    from service.sim.served import ManualClock
+    from simulator.duty import condition_at, duty_profile
+    from simulator.plantsamples import samples_from_plant
+    from simulator.served import ManualClock
 
     profile = duty_profile(seed, duration_s=3600.0 * hours)
     run = VirtualPlant(load_spindle(), seed=seed).run(profile, dt_s=DT_S)

@@ -4,7 +4,7 @@ rates, writing into one PostgreSQL (issue 29, item 8; docs/design/fleet.md).
 For each N (and N = 1 first, the baseline the per-spindle figures are taken against):
 
 1. a fresh schema in the PostgreSQL of ``--pg-url``;
-2. the devices of N spindles in a child process (``service.sim.fleetrig``): N Modbus DAQs and N CAN nodes
+2. the devices of N spindles in a child process (``simulator.fleetrig``): N Modbus DAQs and N CAN nodes
    behind N python-can-remote hubs, at real rate, playing virtual-plant duty cycles;
 3. the product: ``chtc run --config host.toml --migrate``, a real process with one ``[[spindles]]`` entry
    each (shared model, identification pool, engines; its REST server on a free port);
@@ -286,7 +286,7 @@ def run_n(
             str(DEVICES_NICE),
             sys.executable,
             "-m",
-            "service.sim.fleetrig",
+            "simulator.fleetrig",
             json.dumps(plan),
         ],
         stdin=subprocess.PIPE,

@@ -338,7 +338,7 @@ def run(
     from service.estimate.growth import build_context
     from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     every = round(every_s / DT_S)
     if every < 1 or any(n % every for n in HORIZON_STEPS):

@@ -13,10 +13,10 @@ import json
 from collections.abc import Iterable
 from typing import TYPE_CHECKING, Any
 
-from service.identify.mode import IdentificationMode
+from service.contracts.mode import IdentificationMode
 
 if TYPE_CHECKING:
-    from service.serve.interface import IdentificationRecord
+    from service.contracts.snapshots import IdentificationRecord
     from service.settings import Settings
 
 MODES = tuple(m.value for m in IdentificationMode)

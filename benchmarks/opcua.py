@@ -3,7 +3,7 @@ OPC UA (and MQTT) outlets cost the REST API (issue 28, "Bars").
 
 Set-up (all on loopback; figures, not assertions):
 
-- the **server** is a subprocess: the real service (``service.sim.served``: the demo plan through the real
+- the **server** is a subprocess: the real service (``simulator.served``: the demo plan through the real
   core and shell on SQLite, two identifications, a configured zero so ``/compensation`` is usable), fed the
   plan's next sample every ``--feed-period`` wall seconds, serving REST (the REST outlet, as ``chtc run``)
   and, in the "on" phase, the OPC UA outlet (and MQTT when available: ``--mqtt``; to a Mosquitto the bench
@@ -84,7 +84,7 @@ def serve(config: str) -> None:
 
     from service.serve.outlet import OutletContext, load_factory
     from service.settings import Settings
-    from service.sim.served import DEMO_FED, exit_on_sigterm, served_service
+    from simulator.served import DEMO_FED, exit_on_sigterm, served_service
 
     cfg = json.loads(config)
     exit_on_sigterm()

@@ -59,7 +59,7 @@ from benchmarks.restart_profile import (
     truth,
 )
 from benchmarks.targets import progress_to_stderr, report
-from service.identify.mode import IdentificationMode
+from service.contracts.mode import IdentificationMode
 
 STARTS_MIN = (0, 30, 60, 90)
 PATHS = ("core", "filter")
@@ -91,7 +91,7 @@ def stored_calibration(model: Any, settings: Any, run: Any) -> Any:
     run from minute 0 (``service.store.calibrations``; None: no baseline)."""
     from service.core.offline import run_offline
     from service.host.runtime import core_config
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     samples = samples_from_plant(run, t0_s=T0)[: BASELINE_SAMPLES + 6]
     return run_offline(samples, model=model, config=core_config(settings)).calibration
@@ -103,7 +103,7 @@ def run_core(model: Any, settings: Any, run: Any, start: int, *, calibration: An
     from service.core.config import Restored
     from service.core.offline import run_offline
     from service.host.runtime import core_config
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     samples = samples_from_plant(run, t0_s=T0)[start:]
     restored = None if calibration is None else Restored(calibration=calibration)

@@ -43,7 +43,7 @@ if TYPE_CHECKING:
     from model.fem import FEModel
     from model.geometry import SpindleSpec
     from model.plant import PlantRun, Segment
-    from service.serve.interface import IdentificationRecord
+    from service.contracts.snapshots import IdentificationRecord
 
 T0 = datetime(2026, 2, 2, 6, 0, 0, tzinfo=UTC).timestamp()
 H_REF = np.array([88.21, 46.32, 68.49, 46.72, 52.13, 70.23, 16.54])  # paper Table 4: the draw's centre
@@ -241,7 +241,7 @@ def run(
     from service.core.offline import run_offline
     from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     settings = identmode.bench_settings(ident_mode, overrides)
     model = load_model(ModelRef.from_settings(settings))

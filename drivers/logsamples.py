@@ -11,7 +11,7 @@ range); a non-finite temperature is NAN. Unknown-ID, wrong-DLC or garbled frames
 like the live CAN driver does. ``write_acquisition_csv`` writes the rows those samples show, one per period,
 for ``chtc replay`` to serve (so both commands see the same data; docs/design/service.md).
 
-A virtual plant's run gives its samples through ``service.sim.plantsamples`` (the simulator's side).
+A virtual plant's run gives its samples through ``simulator.plantsamples`` (the simulator's side).
 """
 
 from __future__ import annotations

@@ -34,7 +34,7 @@ still works where a caller relies on it. Each package keeps its errors in its ow
     ├── ProfileError(ServiceError, ValueError)               service.commands.simulate: a bad profile file
     ├── OutletError(ServiceError, RuntimeError)              service.serve.errors: an outlet (REST, OPC UA,
     │                                                        MQTT) cannot be loaded, configured or started
-    └── ServedError(ServiceError, RuntimeError)              service.sim.served: the test rig's service
+    └── ServedError(ServiceError, RuntimeError)              simulator.served: the test rig's service
 
 The layers below (``model.errors.ModelError``, ``drivers.errors.DriverError``) keep their own roots: the
 service translates them where it calls them (a job's failure becomes its stored outcome,

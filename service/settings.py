@@ -53,10 +53,10 @@ from pydantic_settings import (
     SettingsConfigDict,
 )
 
+from service.contracts.mode import IdentificationMode
 from service.defaults import CARRY_START_ERROR, CI_REL_THRESHOLD, H_FORM_SD_LN, START_MODES
 from service.errors import ServiceError
-from service.identify.mode import IdentificationMode
-from service.serve.mqtt.config import MqttSettings
+from service.mqttsettings import MqttSettings
 
 APP_DIR_NAME = "spindle-chtc"
 IDENTIFICATION_METHODS = ("hybrid", "igwo", "gwo", "woa", "ga", "empirical")  # == model.identify.METHODS

@@ -12,7 +12,7 @@ from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep
 from api.errors import ApiError
 from api.routers.conditional import cached_json, weak_etag
 from api.schemas import ChtcOut, chtc_out
-from service.serve.interface import ChtcSnapshot
+from service.contracts.snapshots import ChtcSnapshot
 
 router = APIRouter(tags=["chtc"], dependencies=[ReadAccess])
 

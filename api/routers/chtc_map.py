@@ -15,8 +15,8 @@ from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep
 from api.errors import ApiError
 from api.routers.conditional import cached_json, weak_etag
 from api.schemas import ChtcMapOut, chtc_map_out
-from service.identify.mode import IdentificationMode
-from service.serve.interface import ChtcMapSnapshot
+from service.contracts.mode import IdentificationMode
+from service.contracts.snapshots import ChtcMapSnapshot
 
 router = APIRouter(tags=["chtc"], dependencies=[ReadAccess])
 

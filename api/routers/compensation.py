@@ -43,7 +43,9 @@ from api.schemas import (
     mechanics_out,
     reference_out,
 )
-from service.serve.interface import NotReadyError, ProbeError
+from service.contracts.errors import CommissioningError, NotReadyError
+from service.contracts.mechanics import EXAMPLE_NOTE, is_shipped_example
+from service.contracts.probe import ProbeError
 
 router = APIRouter(tags=["compensation"], dependencies=[ReadAccess])
 
@@ -164,7 +166,6 @@ def post_mechanics(
     service: ServiceDep, _: WriteAccess, body: Annotated[MechanicsCommissionIn, Body()], request: Request
 ) -> MechanicsCommissionOut:
     from drivers.logs import LogFormatError
-    from service.shell.commissioning import EXAMPLE_NOTE, CommissioningError, is_shipped_example
 
     simulated = bool(getattr(getattr(request.app.state, "clock_info", None), "simulated", False))
     if is_shipped_example(body.displacements_csv) and not simulated and not body.force:

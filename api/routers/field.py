@@ -26,7 +26,8 @@ from api.routers.conditional import if_none_match
 from api.routers.field_render import GZIP_MIN_BYTES, FieldGate, FieldRenderer, Rendered, _clean
 from api.schemas import FieldGridOut, FieldMeshOut, FieldPointsOut, PointOut
 from api.stdmax import std_max
-from service.serve.interface import ChtcService, FieldAt, FieldSnapshot
+from service.contracts.snapshots import FieldAt, FieldSnapshot
+from service.serve.interface import ChtcService
 
 router = APIRouter(tags=["temperature field"], dependencies=[ReadAccess])
 

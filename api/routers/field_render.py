@@ -10,7 +10,7 @@ sample, so:
   metadata are compressed per field);
 - a body is cached per content (at, t, identification, a hash of the temperatures, format and grid size);
   its ETag is that key, so a client polling an unchanged field gets a 304;
-- a grid's points are located once per grid size (``service.estimate.locator.TriangleLocator.grid``).
+- a grid's points are located once per grid size (``model.locator.TriangleLocator.grid``).
 
 ``FieldGate`` sheds load: at most ``limit`` field requests are in progress; the next one gets a 503 with
 ``Retry-After`` at once instead of queueing for a thread.
@@ -31,7 +31,7 @@ import numpy as np
 
 from api.schemas import FieldMeta
 from api.stdmax import std_max
-from service.serve.interface import FieldSnapshot
+from service.contracts.snapshots import FieldSnapshot
 
 __all__ = ["FieldGate", "FieldRenderer", "Rendered"]
 

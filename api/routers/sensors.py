@@ -10,7 +10,7 @@ from fastapi import APIRouter, Query, Response
 from api.deps import ClockDep, ReadAccess, ServiceDep, SpindleIdDep, WriteAccess
 from api.errors import ApiError, invalid
 from api.schemas import BaselineOut, SensorsOut, baseline_out, sensor_out
-from service.serve.interface import NotReadyError
+from service.contracts.errors import NotReadyError
 
 router = APIRouter(tags=["sensors"], dependencies=[ReadAccess])
 

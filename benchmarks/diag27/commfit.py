@@ -16,12 +16,12 @@ from benchmarks.diag27.decomp import OUT, interp_matrix
 
 def main() -> int:
     from model.plant import VirtualPlant
-    from service.sim.randomtruth import draw_truth
+    from simulator.randomtruth import draw_truth
     from benchmarks.commission import _setup
     from service.shell.commissioning import FieldHistory, field_history, fit_test, read_displacement_csv
     from service.host.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
-    from service.sim.thermaltest import RECOMMENDED_PROFILE, write_thermal_test
+    from simulator.thermaltest import RECOMMENDED_PROFILE, write_thermal_test
 
     model, settings, plant = _setup()
     config = core_config(settings)

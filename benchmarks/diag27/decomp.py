@@ -37,7 +37,7 @@ def interp_matrix(src_fe, dst_fe):
     """Sparse P1 interpolation (N_dst, N_src) of src-mesh fields at dst nodes."""
     import scipy.sparse as sp
 
-    from service.estimate.locator import TriangleLocator
+    from model.locator import TriangleLocator
 
     loc = TriangleLocator(src_fe.nodes_rz, src_fe.triangles)
     pts = np.asarray(dst_fe.nodes_rz)
@@ -129,7 +129,7 @@ def run_one(model, settings, plant, seed, args, P=None):
     from benchmarks.commission import prepare_seed
     from benchmarks.compensation_run import PER_MIN
     from service.estimate.mechanics import served_mechanics_basis
-    from service.sim.randomtruth import draw_truth
+    from simulator.randomtruth import draw_truth
 
     t_start = time.perf_counter()
     basis = served_mechanics_basis(model.spec, model.fe)

@@ -21,10 +21,10 @@ def main() -> int:
     from service.shell.commissioning import field_history, fit_test, read_displacement_csv
     from service.host.runtime import core_config
     from service.estimate.mechanics import served_mechanics_basis
-    from service.sim.duty import duty_profile
-    from service.sim.plantsamples import samples_from_plant
-    from service.sim.randomtruth import draw_truth
-    from service.sim.thermaltest import RECOMMENDED_PROFILE, write_thermal_test
+    from simulator.duty import duty_profile
+    from simulator.plantsamples import samples_from_plant
+    from simulator.randomtruth import draw_truth
+    from simulator.thermaltest import RECOMMENDED_PROFILE, write_thermal_test
 
     model, settings, plant = _setup()
     config = core_config(settings)
@@ -51,7 +51,7 @@ def main() -> int:
         run, truth = plant.run(seed, "offsets", duty, truth_h)
         samples = samples_from_plant(run, t0_s=T0)
         restart_k = PER_MIN * (30 + 120 // 2)
-        from service.estimate.mechanics import MechanicsCalibration
+        from service.contracts.mechanics import MechanicsCalibration
 
         cal = None
 

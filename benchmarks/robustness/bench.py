@@ -2,8 +2,8 @@
 (issue 40 parts 1, 2 and 6).
 
 Data are SYNTHETIC. Per seed the plant draws its own mechanics (``model.plantmech``), its own H(speed) truth
-(``service.sim.randomtruth``) and its own sensor offsets (±0.2 °C), never the service's, and records the ISO
-230-3 thermal test (``service.sim.thermaltest``, the recommended 4-h profile at 21 °C; ``--short``: the 80-min
+(``simulator.randomtruth``) and its own sensor offsets (±0.2 °C), never the service's, and records the ISO
+230-3 thermal test (``simulator.thermaltest``, the recommended 4-h profile at 21 °C; ``--short``: the 80-min
 one) as a real probe records it: noise σ = 0.3 µm, a zero error U(±3) µm, a set-up drift U(±0.3) µm/h, a
 few missing readings. On that one test:
 
@@ -127,8 +127,8 @@ def prepare_seed(model: Any, settings: Any, plant: Any, seed: int, args: argpars
     from model.plant import VirtualPlant
     from service.core.config import core_config
     from service.estimate.mechanics import served_mechanics_basis
-    from service.sim.randomtruth import draw_truth
-    from service.sim.thermaltest import RECOMMENDED_PROFILE, SHORT_PROFILE, write_thermal_test
+    from simulator.randomtruth import draw_truth
+    from simulator.thermaltest import RECOMMENDED_PROFILE, SHORT_PROFILE, write_thermal_test
 
     mech = plant.mechanics(seed)
     growth = plant.growth(seed)
@@ -259,7 +259,7 @@ def applied(rows: list[Any]) -> np.ndarray:
 def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -> dict[str, Any]:
     """One scenario: plant, product, peers; the per-minute errors and the product's verdicts."""
     from benchmarks.compensation_run import PER_MIN, T0
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.plantsamples import samples_from_plant
 
     run, truth = plant_scenario(plant, s, sc)
     samples = samples_from_plant(run, t0_s=T0)

@@ -1,7 +1,7 @@
 """The scenario families of the robustness bench, drawn per seed (issue 40 part 1).
 
 Every scenario: the spindle at rest for ``rest_min`` (not counted), then machining for ``hours`` (the
-counted minutes). The speed plan is the test-like duty cycle (``service.sim.duty``: a new speed every 1–6 min
+counted minutes). The speed plan is the test-like duty cycle (``simulator.duty``: a new speed every 1–6 min
 over 0–7000 rpm, torque 3–15 N·m) unless the family changes it; the ambient is the test's (21 °C) with a
 ±1 K sinusoid of 2–4 h (the shop's ordinary drift) unless the family changes it.
 
@@ -75,7 +75,7 @@ def _grid(t_s: float) -> float:
 
 
 def _test_like(rng: np.random.Generator, duration_s: float) -> list[tuple[float, float, float]]:
-    """The test-like duty cycle's speeds (``service.sim.duty``'s rule) for ``duration_s``."""
+    """The test-like duty cycle's speeds (``simulator.duty``'s rule) for ``duration_s``."""
     speeds = np.arange(0.0, 7001.0, 500.0)
     out: list[tuple[float, float, float]] = []
     t, last = 0.0, 0.0

@@ -73,7 +73,7 @@ def serve(
 ) -> Served:
     """The scenario's samples through the service (module docstring); ``truth`` [µm] per plant minute."""
     from benchmarks.compensation_run import PER_MIN, Session, stored_state
-    from service.estimate.probe import ProbeError
+    from service.contracts.probe import ProbeError
 
     session = Session(model, settings, start=samples[0].t)
     session.svc.set_mechanics(mechanics)

@@ -44,6 +44,8 @@ from datetime import datetime
 import numpy as np
 from numpy.typing import NDArray
 
+from service.contracts.calibration import Calibration
+
 Array = NDArray[np.float64]
 
 __all__ = [
@@ -58,7 +60,6 @@ __all__ = [
     "BaselineRejected",
     "BaselineRequest",
     "BaselineTaken",
-    "Calibration",
     "CalibrationConfig",
     "CalibrationStatus",
     "OffsetCalibrator",
@@ -118,23 +119,6 @@ class BaselineRequest:
     """An operator asks for a baseline now (from the newest ``rest_s`` of samples)."""
 
     t: datetime
-
-
-@dataclass(frozen=True, eq=False, kw_only=True)
-class Calibration:
-    """A baseline: per-channel offsets (32,) °C (NaN: no usable data in the window, not corrected) and their
-    1σ (32,) °C, the window [t_from, t_to] (UTC) and how it was taken ("auto" | "manual")."""
-
-    offsets_c: Array
-    sd_c: Array
-    t_from: datetime
-    t_to: datetime
-    samples: int
-    source: str
-
-    def applied(self) -> Array:
-        """The offsets to subtract (32,) °C: 0 where the baseline had no data."""
-        return np.where(np.isfinite(self.offsets_c), self.offsets_c, 0.0)
 
 
 @dataclass(frozen=True, eq=False)

@@ -1,6 +1,6 @@
 """Device-state transitions from periodic health observations (pure; the service's health loop feeds it).
 
-Each observation of a device (``service.serve.interface.DeviceHealth``) is compared with the previous one; a
+Each observation of a device (``service.contracts.health.DeviceHealth``) is compared with the previous one; a
 change
 of status is one event ``"<old>-><new>"``, logged and stored once. A device that is already down or degraded
 when it is first seen is reported once as ``"down"``/``"degraded"`` ("at start-up"): an unreachable DAQ at
@@ -15,7 +15,7 @@ from __future__ import annotations
 from collections.abc import Iterable
 from dataclasses import dataclass
 
-from service.serve.interface import DeviceHealth, DeviceStatus
+from service.contracts.health import DeviceHealth, DeviceStatus
 
 __all__ = ["DeviceEvent", "DeviceWatch", "transition_detail"]
 

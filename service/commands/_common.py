@@ -6,7 +6,7 @@ Error tree (all reported by the commands as one line ``chtc <command>: <message>
     └── CommandError        bad command-line value, address in use, unusable input (names the option)
 
 ``service.settings.SettingsError``, ``drivers.errors.ConfigError``, ``drivers.logs.LogFormatError`` and
-``service.shell.commissioning.CommissioningError`` are reported the same way by the commands
+``service.contracts.errors.CommissioningError`` are reported the same way by the commands
 (``USER_ERRORS``).
 """
 
@@ -224,7 +224,8 @@ def user_errors() -> tuple[type[Exception], ...]:
     """The exception types a command reports as one line (imported lazily: ``chtc --help`` stays fast)."""
     from drivers.errors import ConfigError
     from drivers.logs import LogFormatError
+    from service.contracts.errors import CommissioningError
+    from service.serve.errors import OutletError
     from service.settings import SettingsError
-    from service.shell.commissioning import CommissioningError
 
-    return (CommandError, SettingsError, ConfigError, LogFormatError, CommissioningError)
+    return (CommandError, SettingsError, ConfigError, LogFormatError, CommissioningError, OutletError)

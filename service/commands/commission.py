@@ -30,6 +30,7 @@ from pathlib import Path
 from typing import Any
 
 from service.commands._common import CommandError
+from service.contracts.mechanics import EXAMPLE_NOTE
 
 __all__ = ["add_arguments", "main", "zero"]
 
@@ -213,7 +214,7 @@ def growth(args: argparse.Namespace) -> int:
     from service.commands._common import check_log_arguments
     from service.host.runtime import core_config, os_user
     from service.settings import load_settings
-    from service.shell.commissioning import EXAMPLE_NOTE, FitLimits, commission_growth, format_report
+    from service.shell.commissioning import FitLimits, commission_growth, format_report
 
     settings = load_settings(args.config)
     _check_not_displacements(args.temperatures)

@@ -1,10 +1,10 @@
 """``chtc demo``: the whole soft sensor against simulated devices driven by the virtual plant, on SQLite.
 
 The virtual plant (``model.plant.VirtualPlant``, its own finer mesh and ground truth) runs a seeded machining
-duty cycle until the demo is stopped (``service.sim.endless``: ``--idle-min`` at rest, then the speed changes
+duty cycle until the demo is stopped (``simulator.endless``: ``--idle-min`` at rest, then the speed changes
 every 1–6 min over 0–7000 rpm with torque; computed 30 plant minutes ahead, chunk by chunk). The plant and
 the simulated Modbus DAQ and CAN node that serve it at ``--speedup`` plant seconds per wall second run in a
-child process (``service.sim.rigproc``: a busy service cannot starve them, and they take nothing from the
+child process (``simulator.rigproc``: a busy service cannot starve them, and they take nothing from the
 service's GIL), on free loopback ports: Modbus TCP, and CAN through a python-can-remote hub, as ``chtc
 simulate`` serves them. The unchanged service (real drivers, ring buffer, detector, scheduler, worker
 process, database writer, the core in its own thread) and the API with the dashboard run in this process.
@@ -43,15 +43,16 @@ from service.commands._common import (
     port_number,
     positive_float,
 )
+from service.contracts.snapshots import IdentificationRecord
 from service.core.jobbook import MAP_METHOD
 from service.logctx import install_logging, set_default
 
 if TYPE_CHECKING:
+    from service.contracts.snapshots import IdentificationRecord
     from service.host.runtime import Runtime
-    from service.serve.interface import IdentificationRecord
     from service.settings import Settings
-    from service.sim.endless import PlantRows
-    from service.sim.rigproc import RigProcess
+    from simulator.endless import PlantRows
+    from simulator.rigproc import RigProcess
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -219,8 +220,8 @@ def dashboard_url(base: str, token: str | None) -> str:
 
 async def run_demo(args: argparse.Namespace, settings: Settings, token: str | None = None) -> int:
     from service.host.runtime import Runtime, ScaledClock
-    from service.sim.rigproc import RigPlan, RigProcess
-    from service.sim.simrig import make_drivers
+    from simulator.rigproc import RigPlan, RigProcess
+    from simulator.simrig import make_drivers
 
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)
@@ -365,4 +366,8 @@ def main(args: argparse.Namespace) -> int:
         if args.database_url is not None:
             check_database_url(settings.database.url, "--database-url")
         check_listens(settings)
+        from service.serve.opcua.preflight import check_opcua_files
+
+        if settings.opcua.enabled:  # an unreadable certificate: one line before the model loads
+            check_opcua_files(settings.opcua)
         return asyncio.run(run_demo(args, settings, token))

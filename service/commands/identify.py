@@ -29,15 +29,15 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from service.commands._common import check_log_arguments
+from service.contracts.mode import IdentificationMode
 from service.core.jobbook import MAP_METHOD
-from service.identify.mode import IdentificationMode
 from service.serve.numbers import format_bound
 
 if TYPE_CHECKING:
-    from service.acquire.calibration import Calibration
+    from service.contracts.calibration import Calibration
+    from service.contracts.growth import GrowthEstimate, GrowthValue
+    from service.contracts.snapshots import IdentificationRecord
     from service.core.offline import OfflineResult
-    from service.estimate.growth import GrowthEstimate, GrowthValue
-    from service.serve.interface import IdentificationRecord
     from service.settings import IdentificationSettings, Settings
 
 

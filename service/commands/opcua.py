@@ -1,9 +1,10 @@
 """``chtc opcua``: the OPC UA outlet's tools (docs/integration.md, "OPC UA").
 
 - ``chtc opcua nodeset [--out FILE]``: the NodeSet2 XML of our namespace (the ``SpindleThermalModelType`` and
-  the spindle's instance with its string NodeIds, named ``[opcua] spindle`` or ``spindle.id``), to import into
-  TIA Portal (OPC UA client interface) or TwinCAT (TF6100 ``UA_*`` blocks, the Target Browser). Built
-  offline: no service, no network.
+  the spindle's instance with its string NodeIds, named ``[opcua] spindle`` or ``spindle.id``; with
+  ``[[spindles]]`` one instance per spindle, named by its id), valid against the OPC Foundation's schemas, to
+  import into TIA Portal (OPC UA client interface) or TwinCAT (TF6100 ``UA_*`` blocks, the Target Browser).
+  Built offline: no service, no network.
 - ``chtc opcua user NAME``: a PBKDF2-SHA256 hash of a password read from the terminal (or
   ``--password-stdin``) for ``[opcua] users`` or the users file (``NAME = "pbkdf2_sha256$..."``).
 """
@@ -46,13 +47,26 @@ def main(args: argparse.Namespace) -> int:
 
     settings = load_settings(args.config)
     cfg = settings.opcua.for_spindle(settings.spindle.id)
+    spindles: list[str] = []
+    if settings.spindles:  # a cell: one object per spindle, named by its id
+        if settings.opcua.spindle is not None:
+            raise CommandError(
+                "opcua.spindle names the object of one spindle; with [[spindles]] each object is named by "
+                "its spindles[i].id (unset opcua.spindle)"
+            )
+        spindles = [s.spindle.id for s in settings.per_spindle()]
     if args.out is not None:
-        count = asyncio.run(export_nodeset(cfg, variables(), args.out))
-        print(f"wrote {args.out}: {count} variables in {cfg.namespace_uri}", file=sys.stderr)
+        count = asyncio.run(export_nodeset(cfg, variables(), args.out, spindles=spindles))
+        objects = len(spindles) or 1
+        print(
+            f"wrote {args.out}: {count} variables ({objects} spindle object(s) and their type) in "
+            f"{cfg.namespace_uri}",
+            file=sys.stderr,
+        )
         return 0
     with tempfile.TemporaryDirectory(prefix="chtc-nodeset-") as tmp:
         path = Path(tmp) / "nodeset.xml"
-        asyncio.run(export_nodeset(cfg, variables(), path))
+        asyncio.run(export_nodeset(cfg, variables(), path, spindles=spindles))
         sys.stdout.write(path.read_text(encoding="utf-8"))
     return 0
 

@@ -38,10 +38,13 @@ from datetime import UTC, datetime, timedelta
 from pathlib import Path
 from typing import TYPE_CHECKING
 
+from service.contracts.errors import NotReadyError
+from service.contracts.snapshots import CompensationSnapshot, IdentificationRecord
+
 if TYPE_CHECKING:
     from drivers.sim.replay import Replay
+    from service.contracts.snapshots import CompensationSnapshot, IdentificationRecord
     from service.host.runtime import ScaledClock
-    from service.serve.interface import CompensationSnapshot, IdentificationRecord
     from service.settings import Settings
     from service.shell.service import SoftSensorService
 
@@ -147,7 +150,6 @@ async def watch_growth(
 ) -> None:
     """Read ``/compensation`` (off the loop) every ``every_s`` of the live state's time and at each new
     identification, until cancelled; stops if the service has no growth model."""
-    from service.serve.interface import NotReadyError
 
     last_t: float | None = None
     while True:
@@ -204,7 +206,7 @@ async def _replay(
     args: argparse.Namespace, settings: Settings, served_csv: Path, growth: GrowthLog | None
 ) -> list[IdentificationRecord]:
     from service.host.runtime import Runtime, ScaledClock
-    from service.sim.simrig import SimAddress, make_drivers, replay_rig
+    from simulator.simrig import SimAddress, make_drivers, replay_rig
 
     stop = asyncio.Event()  # SIGINT or SIGTERM: stop, store what was identified so far (issue 41)
     install_stop_signals(stop)

@@ -170,6 +170,8 @@ def main(args: argparse.Namespace) -> int:
     from drivers.errors import ConfigError
     from service.commands.demo import log_spindle_default, quiet_third_party_logs
     from service.host.fleet import HostError
+    from service.serve.errors import OutletError
+    from service.serve.opcua.preflight import check_opcua_files
     from service.settings import SettingsError, load_settings
 
     quiet_third_party_logs()
@@ -189,8 +191,10 @@ def main(args: argparse.Namespace) -> int:
     try:
         check_database_url(settings.database.url, "database.url")
         check_listens(settings)
+        if settings.opcua.enabled:  # an unreadable certificate: one line before the model loads
+            check_opcua_files(settings.opcua)
         migrate = args.migrate or migrates_by_default(settings.database.url)
         return asyncio.run(serve(settings, migrate=migrate))
-    except (ConfigError, CommandError, HostError) as err:
+    except (ConfigError, CommandError, HostError, OutletError) as err:
         print(f"chtc run: {err}", file=sys.stderr)
         return 2

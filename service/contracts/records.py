@@ -11,49 +11,24 @@ imports neither SQLAlchemy nor the model.
 from __future__ import annotations
 
 import math
-from collections.abc import Iterable, Mapping, Sequence
-from dataclasses import dataclass, field, fields
+from collections.abc import Mapping, Sequence
+from dataclasses import dataclass, field
 from datetime import datetime
-from typing import TYPE_CHECKING, Protocol, SupportsFloat, TypeVar
+from typing import TYPE_CHECKING, Protocol
 
-import numpy as np
-
+from service.contracts.calibration import Calibration
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.columns import Column, JsonValue, check_times, finite, finite_list, plain, plain_dict
 from service.contracts.errors import RecordError
+from service.contracts.mechanics import MechanicsCalibration
 from service.contracts.outcome import OUTCOMES
+from service.contracts.probe import ProbeMeasurement
+from service.contracts.reference import CompensationReference
 
 if TYPE_CHECKING:
-    from _typeshed import DataclassInstance
-
     from model.identify import IdentificationResult
 
 N_ZONES = 7
-K = TypeVar("K")
-
-# What a JSON column holds (``diagnostics``): built by ``_plain`` from numpy values.
-JsonValue = None | bool | int | float | str | list["JsonValue"] | dict[str, "JsonValue"]
-ColumnScalar = datetime | int | float | str | bool | bytes | None
-Column = ColumnScalar | list[float | None] | list[bool] | dict[str, JsonValue]
-
-
-def finite(value: SupportsFloat | None) -> float | None:
-    """``float(value)``, or None for None/NaN/±inf (JSON and SQL have no NaN)."""
-    if value is None:
-        return None
-    x = float(value)
-    return x if math.isfinite(x) else None
-
-
-def finite_list(values: Iterable[SupportsFloat | None]) -> list[float | None]:
-    return [finite(v) for v in values]
-
-
-def _check_times(record: DataclassInstance) -> None:
-    for f in fields(record):
-        value = getattr(record, f.name)
-        if isinstance(value, datetime) and (value.tzinfo is None or value.utcoffset() is None):
-            raise RecordError(
-                f"{type(record).__name__}.{f.name}: naive datetime {value.isoformat()}; need UTC"
-            )
 
 
 def _check_len(record: object, name: str, value: Sequence[object] | None, n: int) -> None:
@@ -72,7 +47,7 @@ class ConditionStart:
     ambient_c: float
 
     def __post_init__(self) -> None:
-        _check_times(self)
+        check_times(self)
 
     def values(self) -> dict[str, Column]:
         return {
@@ -92,7 +67,7 @@ class ConditionEnd:
     ended_at: datetime
 
     def __post_init__(self) -> None:
-        _check_times(self)
+        check_times(self)
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -103,7 +78,7 @@ class DeviceEventData:
     detail: str = ""
 
     def __post_init__(self) -> None:
-        _check_times(self)
+        check_times(self)
 
     def values(self) -> dict[str, Column]:
         return {"t": self.t, "device": self.device[:16], "kind": self.kind[:64], "detail": self.detail}
@@ -123,7 +98,7 @@ class SampleData:
     daq_ok: bool = True
 
     def __post_init__(self) -> None:
-        _check_times(self)
+        check_times(self)
         _check_len(self, "quality", self.quality, len(self.temps_c))
 
     def values(self) -> dict[str, Column]:
@@ -159,7 +134,7 @@ class SampleMinuteData:
     daq_ok: bool
 
     def __post_init__(self) -> None:
-        _check_times(self)
+        check_times(self)
         if self.n < 1:
             raise RecordError(f"SampleMinuteData.n: need >= 1, got {self.n}")
 
@@ -251,7 +226,7 @@ class IdentificationData:
     finished_by_event: str | None = None
 
     def __post_init__(self) -> None:
-        _check_times(self)
+        check_times(self)
         if self.outcome not in OUTCOMES:
             raise RecordError(f"IdentificationData.outcome: {self.outcome!r} is not one of {OUTCOMES}")
         for name, value in (
@@ -292,7 +267,7 @@ class IdentificationData:
         per_sensor = finite_list(result.rmse_per_sensor)
         f = finite(result.f)
         diagnostics: dict[str, JsonValue] = {
-            "test_points": _plain(result.test_points),
+            "test_points": plain(result.test_points),
             "rmse_per_sensor": list(per_sensor),
             "at_bound": [bool(v) for v in result.at_bound],
             # a MAP fit (served modes): H the data did not see, kept at the prior (never identified)
@@ -397,201 +372,8 @@ class IdentificationData:
     def _stored_diagnostics(self) -> dict[str, JsonValue] | None:
         events = {"started_by": self.started_by_event, "finished_by": self.finished_by_event}
         if all(v is None for v in events.values()):
-            return None if self.diagnostics is None else _plain_dict(self.diagnostics)
-        return _plain_dict({**(self.diagnostics or {}), "events": events})
-
-
-@dataclass(frozen=True, kw_only=True)
-class OffsetCalibrationData:
-    """A sensor offset baseline (``service.acquire.calibration.Calibration``): offsets and their 1σ per
-    channel [°C] (None: the channel had no data at rest, not corrected), the rest window [t_from, t_to]
-    (UTC), the number of samples averaged and how it was taken ("auto" | "manual")."""
-
-    t_from: datetime
-    t_to: datetime
-    source: str
-    samples: int
-    offsets_c: tuple[float | None, ...]
-    sd_c: tuple[float | None, ...]
-
-    def __post_init__(self) -> None:
-        _check_times(self)
-        _check_len(self, "sd_c", self.sd_c, len(self.offsets_c))
-        if self.source not in CALIBRATION_SOURCES:
-            raise RecordError(f"OffsetCalibrationData.source: {self.source!r} not in {CALIBRATION_SOURCES}")
-        if self.samples < 1:
-            raise RecordError(f"OffsetCalibrationData.samples: need >= 1, got {self.samples}")
-        if self.t_to < self.t_from:
-            raise RecordError("OffsetCalibrationData.t_to: before t_from")
-
-    def values(self) -> dict[str, Column]:
-        return {
-            "t_from": self.t_from,
-            "t_to": self.t_to,
-            "source": self.source,
-            "samples": int(self.samples),
-            "offsets_c": finite_list(self.offsets_c),
-            "sd_c": finite_list(self.sd_c),
-        }
-
-
-CALIBRATION_SOURCES = ("auto", "manual")
-
-
-@dataclass(frozen=True, kw_only=True)
-class CompensationReferenceData:
-    """A compensation zero (``service.estimate.reference.CompensationReference``): the uniform temperature
-    [°C] at which the growth is 0 and its 1σ [°C], when (UTC), how (``source``) and by whom (``set_by``)."""
-
-    at: datetime
-    temperature_c: float
-    sd_c: float
-    source: str
-    set_by: str
-
-    def __post_init__(self) -> None:
-        _check_times(self)
-        if not (math.isfinite(self.temperature_c) and math.isfinite(self.sd_c) and self.sd_c >= 0.0):
-            raise RecordError("CompensationReferenceData: temperature_c and sd_c (>= 0) must be finite")
-
-    def values(self) -> dict[str, Column]:
-        return {
-            "at": self.at,
-            "temperature_c": float(self.temperature_c),
-            "sd_c": float(self.sd_c),
-            "source": self.source[:16],
-            "set_by": self.set_by[:64],
-        }
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class LiveStateData:
-    """The live state's checkpoint (``service.estimate.checkpoint.LiveCheckpoint``): its time ``at`` (UTC),
-    the reduced model it belongs to, whether it had converged, the held inputs (ambient °C, speed rpm,
-    torque N·m) and the arrays as an ``.npz`` ``payload``. The writer keeps only the newest row."""
-
-    at: datetime
-    model_version: str
-    converged: bool
-    ambient_c: float
-    speed_rpm: float
-    torque_nm: float
-    payload: bytes
-
-    def __post_init__(self) -> None:
-        _check_times(self)
-        if not all(math.isfinite(x) for x in (self.ambient_c, self.speed_rpm, self.torque_nm)):
-            raise RecordError("LiveStateData: ambient_c, speed_rpm and torque_nm must be finite")
-        if not self.payload:
-            raise RecordError("LiveStateData.payload: empty")
-
-    def values(self) -> dict[str, Column]:
-        return {
-            "at": self.at,
-            "model_version": self.model_version[:64],
-            "converged": bool(self.converged),
-            "ambient_c": float(self.ambient_c),
-            "speed_rpm": float(self.speed_rpm),
-            "torque_nm": float(self.torque_nm),
-            "payload": self.payload,
-        }
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class MechanicsCalibrationData:
-    """A commissioning of the growth's mechanics (``service.estimate.mechanics.MechanicsCalibration``): when
-    (UTC), how (``source``) and by whom, θ = (restraint, α shaft, α housing) and its covariance (3×3, row
-    major), the fit's residual RMS and max [µm], its verdict, the SHA-256 of the test's files and its
-    report."""
-
-    at: datetime
-    set_by: str
-    source: str
-    restraint: float
-    alpha_shaft: float
-    alpha_housing: float
-    cov: list[list[float]]
-    residual_rms_um: float
-    residual_max_um: float
-    explained: bool
-    temperatures_sha256: str
-    canlog_sha256: str | None
-    displacements_sha256: str
-    report: dict[str, JsonValue]
-
-    def __post_init__(self) -> None:
-        _check_times(self)
-        vals = (self.restraint, self.alpha_shaft, self.alpha_housing, *(v for r in self.cov for v in r))
-        if not all(math.isfinite(v) for v in vals) or len(self.cov) != 3:
-            raise RecordError("MechanicsCalibrationData: θ and its 3×3 covariance must be finite")
-
-    def values(self) -> dict[str, Column]:
-        return {
-            "at": self.at,
-            "set_by": self.set_by[:64],
-            "source": self.source[:16],
-            "restraint": float(self.restraint),
-            "alpha_shaft": float(self.alpha_shaft),
-            "alpha_housing": float(self.alpha_housing),
-            "cov": [finite(v) for r in self.cov for v in r],  # row major
-            "residual_rms_um": finite(self.residual_rms_um),
-            "residual_max_um": finite(self.residual_max_um),
-            "explained": bool(self.explained),
-            "temperatures_sha256": self.temperatures_sha256[:64],
-            "canlog_sha256": None if self.canlog_sha256 is None else self.canlog_sha256[:64],
-            "displacements_sha256": self.displacements_sha256[:64],
-            "report": _plain_dict(self.report),
-        }
-
-
-@dataclass(frozen=True, kw_only=True, eq=False)
-class ProbeMeasurementData:
-    """A probe reading in service (``service.estimate.probe.ProbeMeasurement``): its instant (UTC), the axial
-    reading and its 1σ [µm], the field's feature row (2×3, row major) [µm] and growth variance [µm²] then,
-    the prediction, its 1σ and the innovation [µm], whether it was absorbed, who sent it."""
-
-    at: datetime
-    recorded_at: datetime
-    axial_um: float
-    sd_um: float
-    features: list[list[float]]
-    field_var_um2: float
-    predicted_um: float
-    sigma_um: float
-    innovation_um: float
-    accepted: bool
-    set_by: str
-    source: str
-
-    def __post_init__(self) -> None:
-        _check_times(self)
-        vals = (
-            self.axial_um,
-            self.sd_um,
-            self.field_var_um2,
-            self.predicted_um,
-            self.sigma_um,
-            self.innovation_um,
-        )
-        flat = [v for r in self.features for v in r]
-        if not all(math.isfinite(v) for v in (*vals, *flat)) or len(flat) != 6:
-            raise RecordError("ProbeMeasurementData: finite values and a 2×3 feature row needed")
-
-    def values(self) -> dict[str, Column]:
-        return {
-            "at": self.at,
-            "recorded_at": self.recorded_at,
-            "axial_um": float(self.axial_um),
-            "sd_um": float(self.sd_um),
-            "features": [finite(v) for r in self.features for v in r],  # row major
-            "field_var_um2": float(self.field_var_um2),
-            "predicted_um": float(self.predicted_um),
-            "sigma_um": float(self.sigma_um),
-            "innovation_um": float(self.innovation_um),
-            "accepted": bool(self.accepted),
-            "set_by": self.set_by[:64],
-            "source": self.source[:16],
-        }
+            return None if self.diagnostics is None else plain_dict(self.diagnostics)
+        return plain_dict({**(self.diagnostics or {}), "events": events})
 
 
 Record = (
@@ -601,11 +383,11 @@ Record = (
     | DeviceEventData
     | SampleData
     | SampleMinuteData
-    | OffsetCalibrationData
-    | CompensationReferenceData
-    | LiveStateData
-    | MechanicsCalibrationData
-    | ProbeMeasurementData
+    | Calibration
+    | CompensationReference
+    | LiveCheckpoint
+    | MechanicsCalibration
+    | ProbeMeasurement
 )
 RECORD_TYPES = (
     ConditionStart,
@@ -614,28 +396,9 @@ RECORD_TYPES = (
     DeviceEventData,
     SampleData,
     SampleMinuteData,
-    OffsetCalibrationData,
-    CompensationReferenceData,
-    LiveStateData,
-    MechanicsCalibrationData,
-    ProbeMeasurementData,
+    Calibration,
+    CompensationReference,
+    LiveCheckpoint,
+    MechanicsCalibration,
+    ProbeMeasurement,
 )
-
-
-def _plain(value: object) -> JsonValue:
-    """JSON-safe copy: numpy scalars/arrays to Python, non-finite floats to None, keys to str."""
-    if isinstance(value, Mapping):
-        return _plain_dict(value)
-    if isinstance(value, np.ndarray | np.generic):
-        value = value.tolist()
-    if isinstance(value, list | tuple):
-        return [_plain(v) for v in value]
-    if isinstance(value, float):
-        return finite(value)
-    if value is None or isinstance(value, bool | int | str):
-        return value
-    raise RecordError(f"diagnostics: {type(value).__name__} is not JSON")
-
-
-def _plain_dict(value: Mapping[K, object]) -> dict[str, JsonValue]:
-    return {str(k): _plain(v) for k, v in value.items()}

@@ -14,22 +14,23 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 from service.acquire import calibration as cal
-from service.acquire.calibration import Calibration, CalibrationConfig
+from service.acquire.calibration import CalibrationConfig
+from service.contracts.calibration import Calibration
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.mode import IdentificationMode
+from service.contracts.probe import ProbeMeasurement
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import ConditionSnapshot, IdentificationRecord
 from service.defaults import H_NO_BASELINE_SD_LN
-from service.estimate.checkpoint import LiveCheckpoint
-from service.estimate.mechanics import MechanicsCalibration
-from service.estimate.probe import ProbeMeasurement
-from service.estimate.reference import CompensationReference
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
-from service.identify.mode import IdentificationMode
 from service.identify.scheduler import PastResult, SchedulerConfig
 from service.identify.speedmap import MAP_BIN_RPM, MapConfig, SpeedMap
 from service.identify.window import MAX_GAP_S, MIN_GOOD_FRACTION, WindowRules
 from service.serve.cigate import CiGateLimits
 from service.serve.command import profile_from
 from service.serve.controlled import ControlLimits
-from service.serve.interface import ConditionSnapshot, IdentificationRecord
 from service.serve.policy import CompensationLimits
 
 if TYPE_CHECKING:

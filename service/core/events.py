@@ -23,11 +23,11 @@ from dataclasses import dataclass
 from datetime import datetime
 
 from drivers.ringbuffer import Sample
-from service.acquire.calibration import Calibration
+from service.contracts.calibration import Calibration
 from service.contracts.records import Record
+from service.contracts.snapshots import IdentificationJob
 from service.core.idcounter import IdsKnown
 from service.identify.worker import JobOutcome, JobRequest
-from service.serve.interface import IdentificationJob
 
 __all__ = [
     "BaselineRequested",

@@ -14,17 +14,13 @@ from types import MappingProxyType
 from typing import TypedDict
 
 from model.identify import IdentificationResult
-from service.contracts.records import IdentificationData, JsonValue
+from service.contracts.columns import JsonValue
+from service.contracts.metrics import HistogramData
+from service.contracts.records import IdentificationData
+from service.contracts.snapshots import ConditionSnapshot, IdentificationJob, IdentificationRecord, JobState
 from service.core.idcounter import IdCounter
 from service.identify.scheduler import StartJob
 from service.serve.histogram import DURATION_BUCKETS_S
-from service.serve.interface import (
-    ConditionSnapshot,
-    HistogramData,
-    IdentificationJob,
-    IdentificationRecord,
-    JobState,
-)
 from service.serve.views import data_to_record
 
 __all__ = ["MAP_METHOD", "Job", "JobBook", "MapValues", "job_key"]

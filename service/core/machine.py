@@ -44,12 +44,14 @@ from service.acquire.calibration import (
     BaselineRejected,
     BaselineRequest,
     BaselineTaken,
-    Calibration,
     OffsetCalibrator,
     Reading,
 )
 from service.acquire.history import RingHistory
+from service.contracts.calibration import Calibration
+from service.contracts.checkpoint import CheckpointError
 from service.contracts.records import ConditionEnd, ConditionStart
+from service.contracts.snapshots import ConditionSnapshot, ConditionState
 from service.core.config import CoreConfig, Restored
 from service.core.events import (
     BaselineRequested,
@@ -70,15 +72,11 @@ from service.core.samples import SampleBook
 from service.core.serving import serving_for
 from service.core.view import CoreView, NewestSample
 from service.errors import ServiceError
-from service.estimate.checkpoint import CheckpointError
 from service.estimate.sensorfaults import fault_lines
 from service.estimate.state import FilteredState
 from service.identify import scheduler as sched
 from service.identify.detector import ConditionChanged, ConditionDetector, OperatingPoint, SampleEvent
 from service.modelload import LoadedModel
-from service.serve.interface import ConditionSnapshot, ConditionState
-from service.store.calibrations import calibration_record
-from service.store.livestate import live_state_record
 
 __all__ = ["CoreConfig", "CoreError", "Restored", "ServiceCore"]
 
@@ -285,7 +283,7 @@ class ServiceCore:
         if every <= 0.0 or not live.initialized or ts - self._checkpoint_t < every:
             return
         self._checkpoint_t = ts
-        out.store(live_state_record(live.checkpoint(self.model.version)))
+        out.store(live.checkpoint(self.model.version))
 
     def _calibrate(self, s: NewestSample, out: Out) -> None:
         cal = self._p.calibrator
@@ -301,11 +299,11 @@ class ServiceCore:
         live = self._p.live
         for ins in instructions:
             if isinstance(ins, BaselineRefined):  # the same rest, a longer average: stored, no message
-                out.store(calibration_record(ins.calibration))
+                out.store(ins.calibration)
                 live.set_offsets(ins.calibration.applied(), ins.calibration.sd_c)
             if isinstance(ins, BaselineTaken):
                 c = ins.calibration
-                out.store(calibration_record(c))
+                out.store(c)
                 out.log(
                     f"sensor offsets zeroed ({c.source} baseline, {c.samples} samples at rest until "
                     f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."

@@ -16,8 +16,9 @@ from typing import Protocol
 
 from drivers.ringbuffer import Sample
 from model.identify import IdentificationResult
-from service.acquire.calibration import Calibration
+from service.contracts.calibration import Calibration
 from service.contracts.records import Record
+from service.contracts.snapshots import ConditionSnapshot, IdentificationRecord
 from service.core.config import CoreConfig, Restored
 from service.core.events import (
     Event,
@@ -31,7 +32,6 @@ from service.core.events import (
 from service.core.machine import ServiceCore
 from service.identify.worker import JobStatus, run_job
 from service.modelload import LoadedModel
-from service.serve.interface import ConditionSnapshot, IdentificationRecord
 
 __all__ = ["OfflineResult", "RecordSink", "run_job", "run_offline"]
 

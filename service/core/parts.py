@@ -17,6 +17,7 @@ import numpy as np
 from service.acquire.calibration import OffsetCalibrator
 from service.acquire.history import RingHistory
 from service.contracts.records import Record
+from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.core.config import CoreConfig
 from service.core.events import Instruction, Log, Rejected, RejectKind, Store
 from service.core.jobbook import Job, JobBook
@@ -27,7 +28,6 @@ from service.estimate.state import h_rel_from_ci as h_rel
 from service.identify import scheduler as sched
 from service.identify.detector import ConditionDetector, DetectorStatus
 from service.modelload import LoadedModel
-from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 
 __all__ = ["CONDITIONS_KEPT", "CoreParts", "Decides", "Load", "Out", "Served", "h_rel", "utc"]
 

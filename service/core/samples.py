@@ -14,7 +14,8 @@ import numpy as np
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from service.acquire.decimate import SampleDecimator
-from service.contracts.records import SampleData, finite, finite_list
+from service.contracts.columns import finite, finite_list
+from service.contracts.records import SampleData
 from service.core.view import NewestSample
 
 __all__ = ["SampleBook", "quality_names"]

@@ -13,6 +13,7 @@ from typing import Protocol
 
 from model.identify import IdentificationResult
 from model.identify_prior import HPrior
+from service.contracts.snapshots import IdentificationRecord
 from service.core.events import Cancel, JobOutcomeReceived, Launch, ManualAccepted, RejectKind
 from service.core.jobbook import Job, job_key
 from service.core.jobs import converging_reason, job_request, job_window
@@ -22,7 +23,6 @@ from service.estimate.live import LiveStateError
 from service.identify import scheduler as sched
 from service.identify.window import InsufficientWindowError
 from service.identify.worker import JobOutcome, JobStatus
-from service.serve.interface import IdentificationRecord
 
 __all__ = ["ManualTrack", "ScheduleTrack", "Unscheduled"]
 

@@ -20,12 +20,12 @@ from __future__ import annotations
 from dataclasses import dataclass
 from typing import ClassVar, Protocol
 
+from service.contracts.mode import IdentificationMode
+from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.core.config import CoreConfig, Restored
 from service.core.maptrack import MapSide, MapTrack, NoMaps
 from service.core.parts import CoreParts, Decides, Load, Served
 from service.core.schedtrack import ManualTrack, ScheduleTrack, Unscheduled
-from service.identify.mode import IdentificationMode
-from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 
 __all__ = [
     "CombinedServing",

@@ -21,9 +21,7 @@ Errors::
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
-from datetime import datetime
-from typing import Any
+from dataclasses import dataclass
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
@@ -32,29 +30,20 @@ from model.fem import FEModel
 from model.geometry import SpindleSpec
 from model.mechprior import ALPHA_REL, alpha_region_scales
 from model.thermoelastic import MechanicsVariant, build_growth_model
-from service.errors import ServiceError
 
 __all__ = [
-    "MECH_PARAMS",
     "PRIOR_MEAN",
     "PRIOR_SD",
-    "MechanicsCalibration",
-    "MechanicsError",
     "ServedMechanicsBasis",
     "served_mechanics_basis",
 ]
 
 Array = NDArray[np.float64]
-MECH_PARAMS = ("restraint", "alpha_shaft", "alpha_housing")
 SERVED = ("nose_axial", "nose_radial")
 # what is known before a test: s anywhere in [0, 1] (uniform: mean 0.5, sd 1/√12 ≈ 0.29), α within ±5 %
 # (uniform ±5 %: sd 0.05/√3 ≈ 0.029; the fit's Gaussian prior takes 0.05, wider)
 PRIOR_MEAN = (0.5, 1.0, 1.0)
 PRIOR_SD = (1.0 / math.sqrt(12.0), ALPHA_REL / math.sqrt(3.0), ALPHA_REL / math.sqrt(3.0))
-
-
-class MechanicsError(ServiceError, ValueError):
-    """A bad mechanical calibration or basis; the message names the field."""
 
 
 @dataclass(frozen=True, eq=False)
@@ -106,51 +95,3 @@ def served_mechanics_basis(spec: SpindleSpec, fe: FEModel) -> ServedMechanicsBas
             for o, name in enumerate(SERVED):
                 ops[o, m, j] = gm.operator(name)
     return ServedMechanicsBasis(operators=ops)
-
-
-@dataclass(frozen=True, kw_only=True)
-class MechanicsCalibration:
-    """A stored commissioning of the mechanics: θ = (s, a_s, a_h) ``x`` and its posterior covariance ``cov``
-    (3, 3); ``at`` (UTC) when it was made, ``set_by`` who ran it, ``source`` (``cli``/``api``), the SHA-256 of
-    the test's files (``sources``: role -> hex), the fit's residual RMS and max [µm], its verdict
-    (``explained``) and the whole report (``report``, JSON-ready)."""
-
-    x: tuple[float, float, float]
-    cov: tuple[tuple[float, ...], ...]
-    at: datetime
-    set_by: str
-    source: str
-    sources: dict[str, str] = field(default_factory=dict)
-    residual_rms_um: float = math.nan
-    residual_max_um: float = math.nan
-    explained: bool = False
-    report: dict[str, Any] = field(default_factory=dict)
-
-    def __post_init__(self) -> None:
-        x = np.asarray(self.x, dtype=float)
-        c = np.asarray(self.cov, dtype=float)
-        if x.shape != (3,) or not np.all(np.isfinite(x)):
-            raise MechanicsError(f"x: expected 3 finite values (s, a_s, a_h), got {self.x!r}")
-        if not 0.0 <= x[0] <= 1.0 or not (0.5 < x[1] < 1.5 and 0.5 < x[2] < 1.5):
-            raise MechanicsError(f"x: restraint in [0, 1] and α factors in (0.5, 1.5), got {self.x!r}")
-        if c.shape != (3, 3) or not np.all(np.isfinite(c)) or np.any(np.diag(c) < 0):
-            raise MechanicsError(f"cov: expected a finite (3, 3) covariance, got shape {c.shape}")
-        if self.at.tzinfo is None:
-            raise MechanicsError("at: must be timezone-aware (UTC)")
-
-    @property
-    def mean(self) -> Array:
-        return np.asarray(self.x, dtype=float)
-
-    @property
-    def covariance(self) -> Array:
-        c = np.asarray(self.cov, dtype=float)
-        return np.asarray(0.5 * (c + c.T))
-
-    @property
-    def sd(self) -> Array:
-        return np.asarray(np.sqrt(np.maximum(np.diag(self.covariance), 0.0)))
-
-    def as_dict(self) -> dict[str, float]:
-        """Name -> value."""
-        return {n: float(v) for n, v in zip(MECH_PARAMS, self.x, strict=True)}

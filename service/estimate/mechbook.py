@@ -19,19 +19,12 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.probe import PROBES_KEPT, ProbeError, ProbeMeasurement
 from service.estimate.growth import GrowthContext, build_context, with_mechanics
 from service.estimate.growthterms import DT_S
-from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis, served_mechanics_basis
-from service.estimate.probe import (
-    DEFAULT_GATE_SIGMA,
-    PROBES_KEPT,
-    ProbeError,
-    ProbeMeasurement,
-    absorb,
-    prior_covariance,
-    prior_mean,
-    replay,
-)
+from service.estimate.mechanics import ServedMechanicsBasis, served_mechanics_basis
+from service.estimate.probe import DEFAULT_GATE_SIGMA, absorb, prior_covariance, prior_mean, replay
 from service.estimate.state import FilterView
 
 if TYPE_CHECKING:

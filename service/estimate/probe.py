@@ -26,19 +26,15 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
-from datetime import datetime
 
 import numpy as np
 from numpy.typing import ArrayLike, NDArray
 
-from service.errors import ServiceError
+from service.contracts.probe import ProbeError, ProbeMeasurement
 from service.estimate.mechanics import PRIOR_MEAN
 
 __all__ = [
-    "PROBES_KEPT",
     "PROBE_PRIOR_SD",
-    "ProbeError",
-    "ProbeMeasurement",
     "ProbeUpdate",
     "absorb",
     "predict",
@@ -51,11 +47,6 @@ Array = NDArray[np.float64]
 # 1/√12), α factors ±5 % as 1σ (the commissioning fit's Gaussian prior, ``model.growthfit.MechanicsPrior``)
 PROBE_PRIOR_SD = (1.0 / math.sqrt(12.0), 0.05, 0.05)
 DEFAULT_GATE_SIGMA = 3.0
-PROBES_KEPT = 1000  # readings kept in memory and restored at start (listed by GET), the newest
-
-
-class ProbeError(ServiceError, ValueError):
-    """A probe reading that cannot be used; the message names the field."""
 
 
 def prior_covariance() -> Array:
@@ -85,33 +76,6 @@ def predict(features: ArrayLike, x: ArrayLike) -> tuple[float, Array]:
     y = float(w @ g)
     h = np.array([g[1] - g[0], float(w @ f[:, 1]), float(w @ f[:, 2])])
     return y, h
-
-
-@dataclass(frozen=True, kw_only=True)
-class ProbeMeasurement:
-    """A probe reading: ``at`` (UTC) its instant, ``axial_um`` the tool's axial position relative to the
-    commissioned zero and its 1σ ``sd_um`` [µm]; ``features`` (2, 3) [µm] the field's feature row then and
-    ``field_var_um2`` [µm²] the served growth's variance from the field (and the zero) then; the outcome:
-    ``predicted_um`` and ``sigma_um`` (√S) before it, the innovation ``innovation_um``, ``accepted``;
-    ``set_by``/``source`` who sent it; ``id`` the stored row (None: not stored yet)."""
-
-    at: datetime
-    axial_um: float
-    sd_um: float
-    features: tuple[tuple[float, ...], ...]
-    field_var_um2: float
-    predicted_um: float
-    sigma_um: float
-    innovation_um: float
-    accepted: bool
-    set_by: str = "api"
-    source: str = "api"
-    id: int | None = None
-
-    @property
-    def sigma_ratio(self) -> float:
-        """|ν| / √S: how many predicted σ the reading lies off."""
-        return abs(self.innovation_um) / self.sigma_um if self.sigma_um > 0 else math.inf
 
 
 @dataclass(frozen=True)

@@ -29,55 +29,20 @@ OS user); ``at`` when (UTC).
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
-from datetime import datetime
 
 import numpy as np
 from numpy.typing import ArrayLike
 
-from service.errors import ServiceError
+from service.contracts.reference import ReferenceError
 
 __all__ = [
     "EQUILIBRIUM_SPREAD_C",
-    "REFERENCE_SOURCES",
-    "CompensationReference",
-    "ReferenceError",
     "equilibrium_zero",
     "uniform_equivalent",
 ]
 
-REFERENCE_SOURCES = ("api", "cli", "first_start", "config")
-MAX_SET_BY = 64  # characters of ``set_by`` kept
 EQUILIBRIUM_SPREAD_C = 0.5  # 1σ [°C] across the good channels above which the spindle is not uniform
 MIN_CHANNELS = 8  # good channels an equilibrium zero needs
-
-
-class ReferenceError(ServiceError, ValueError):
-    """A compensation reference that cannot be used; the message names the field."""
-
-
-@dataclass(frozen=True, kw_only=True)
-class CompensationReference:
-    """Where the controller was zeroed: the uniform ``temperature_c`` [°C] of growth 0, its 1σ ``sd_c`` [°C],
-    when (``at``, UTC), how (``source``, one of ``REFERENCE_SOURCES``) and by whom (``set_by``)."""
-
-    temperature_c: float
-    sd_c: float
-    at: datetime
-    source: str
-    set_by: str
-
-    def __post_init__(self) -> None:
-        if not math.isfinite(self.temperature_c) or not -50.0 <= self.temperature_c <= 200.0:
-            raise ReferenceError(f"temperature_c: need a finite °C in [-50, 200], got {self.temperature_c!r}")
-        if not math.isfinite(self.sd_c) or self.sd_c < 0.0:
-            raise ReferenceError(f"sd_c: need a finite 1σ >= 0 °C, got {self.sd_c!r}")
-        if self.at.tzinfo is None:
-            raise ReferenceError("at: must be timezone-aware (UTC)")
-        if self.source not in REFERENCE_SOURCES:
-            raise ReferenceError(f"source: {self.source!r} not in {REFERENCE_SOURCES}")
-        if not self.set_by.strip() or len(self.set_by) > MAX_SET_BY:
-            raise ReferenceError(f"set_by: need 1..{MAX_SET_BY} characters, got {self.set_by!r}")
 
 
 def uniform_equivalent(

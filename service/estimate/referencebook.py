@@ -18,8 +18,9 @@ from datetime import UTC, datetime
 import numpy as np
 from numpy.typing import ArrayLike
 
+from service.contracts.reference import CompensationReference
 from service.estimate.growth import GrowthContext
-from service.estimate.reference import CompensationReference, equilibrium_zero, uniform_equivalent
+from service.estimate.reference import equilibrium_zero, uniform_equivalent
 from service.estimate.state import FilterView
 
 __all__ = ["REFERENCE_MAX_SD_UM", "ReferenceBook", "live_uniform_equivalent", "zero_problem"]

@@ -35,7 +35,6 @@ Errors::
 from __future__ import annotations
 
 import math
-from collections import deque
 from dataclasses import dataclass, field, replace
 from functools import cached_property
 from typing import Any
@@ -59,12 +58,13 @@ from model.estimator import (
     wide_prior,
 )
 from model.estimator import usable as usable_channels
-from service.estimate.checkpoint import LiveCheckpoint
+from service.contracts.checkpoint import LiveCheckpoint
 from service.estimate.convergegate import ConvergenceGate
+from service.estimate.faultwatch import FaultWatch
 from service.estimate.live import LiveStateError
 from service.estimate.nistrack import NisTrack
 from service.estimate.offsetbias import OffsetBias, kalman_gain
-from service.estimate.sensorfaults import FaultChange, FaultMonitor, FaultMonitorSettings, SensorFault
+from service.estimate.sensorfaults import FaultChange, FaultMonitorSettings, SensorFault
 from service.estimate.snapshots import SnapshotBook
 
 __all__ = [
@@ -322,13 +322,7 @@ class FilteredState:
         sensors = np.asarray(rom.sensors)
         # the unknown offsets' share of the state's error (in ``view().cov``; service.estimate.offsetbias)
         self._bias = OffsetBias(sensors.shape[1], sensors.shape[0])
-        fst = self.settings.faults
-        self._monitor = (
-            None
-            if fst is None
-            else FaultMonitor(sensors.shape[0], noise_c=self.settings.noise.sigma_meas_c, settings=fst)
-        )
-        self._changes: list[FaultChange] = []
+        self._faults = FaultWatch.of(self.settings.faults, sensors.shape[0], self.settings.noise, self._bias)
 
     # --- state ----------------------------------------------------------------------------------------
     @property
@@ -345,11 +339,6 @@ class FilteredState:
     def high_since(self) -> float | None:
         """[s] the NIS window "high" since (None: not high)."""
         return self._nis.high_since
-
-    @property
-    def nis_history(self) -> deque[tuple[float, float, int]]:
-        """(t [s], NIS, dof) of the samples with an update, the last ``keep_s``."""
-        return self._nis.history
 
     @property
     def initialized(self) -> bool:
@@ -391,8 +380,7 @@ class FilteredState:
             prior = wide_prior(self.rom, ambient_c=ambient, sigma_uniform_c=sig, sigma_shape_c=sig)
         self._filter = StateEstimator(self.rom, prior, noise=self._noise, offsets_c=self.offsets_c)
         self._bias.restart()
-        if self._monitor is not None:
-            self._monitor.restart()
+        self._faults.restart()
         self._t = float(t)
         self._inputs = _Inputs(*(float(x) for x in inputs))
         self._nis.restart()
@@ -403,7 +391,7 @@ class FilteredState:
         return self._after_step(0, self._measure(temps_c, usable), restarted=True, reason=reason)
 
     def checkpoint(self, model_version: str) -> LiveCheckpoint:
-        """The state now as a ``LiveCheckpoint`` (``service.estimate.checkpoint``) of ``model_version``."""
+        """The state now as a ``LiveCheckpoint`` (``service.contracts.checkpoint``) of ``model_version``."""
         est, inp = self.estimator.estimate, self._inputs
         assert inp is not None
         return LiveCheckpoint(
@@ -576,10 +564,6 @@ class FilteredState:
         """The covariance (r, r) [°C²] of the snapshot ``field_at(t)``: ``identify(start_cov=...)``."""
         return np.array(self.field_at(t).cov)
 
-    def first_snapshot_after(self, t: float) -> StateSnapshot:
-        """The earliest snapshot at or after ``t`` [s]."""
-        return self._book.first_after(t)
-
     def convergence(self) -> Convergence:
         """The convergence test now (``model.estimator.convergence``): covariance bounds, NIS window."""
         st = self.settings
@@ -602,11 +586,6 @@ class FilteredState:
     def reacquiring(self) -> bool:
         """The state ran open loop for longer than ``max_gap_s`` and has not passed the test on data again."""
         return self._gate.reacquiring
-
-    def nis_verdict(self) -> str:
-        """The NIS window's verdict: "filling", "ok", "high" (inconsistent: the model misses something) or
-        "low"."""
-        return self._nis.window.verdict()
 
     def view(self) -> FilterView:
         """An immutable copy of the state now for readers on other threads (raises before ``initialize``)."""
@@ -635,22 +614,12 @@ class FilteredState:
 
     def suspect_channels(self, t_from: float, t_to: float) -> NDArray[np.bool_]:
         """Channels (32,) whose data in [t_from, t_to] [s] an identification window must leave out: stuck
-        or drifting now or then (``FaultMonitor.suspect``; none without the monitor)."""
-        if self._monitor is None:
-            return np.zeros(self._bias.n, dtype=bool)
-        return self._monitor.suspect(t_from, t_to)
+        or drifting now or then (``FaultWatch.suspect``)."""
+        return self._faults.suspect(t_from, t_to)
 
     def sensor_faults(self) -> tuple[SensorFault, ...]:
         """The channels left out of the updates now, stuck or drifting (``service.estimate.sensorfaults``)."""
-        return () if self._monitor is None else self._monitor.active()
-
-    def steady(self) -> Array:
-        """Steady field (N,) [°C] for the current H and the last inputs (``rom.steady_state``)."""
-        if self._inputs is None:
-            raise LiveStateError("the live state has not been initialised (no sample yet)")
-        qf, qr = _bearing_heat(self.spec, self._inputs, self.load_scale)
-        a = self.rom.steady_state(self.h, ambient_c=self._inputs.ambient_c, q_front_w=qf, q_rear_w=qr)
-        return np.asarray(self.rom.lift(a))
+        return self._faults.active()
 
     # --- internals ------------------------------------------------------------------------------------
     def _measure(self, temps_c: ArrayLike | None, mask: ArrayLike | None) -> StepResult | None:
@@ -661,20 +630,14 @@ class FilteredState:
         if y.shape != (self._bias.n,):
             return est.update(y, mask)  # the estimator names the bad shape
         ok = usable_channels(y - est.offsets_c, mask)
-        use = ok if self._monitor is None else ok & ~self._monitor.excluded()
+        use = self._faults.usable(ok)
         if use.any():
             sensors = np.asarray(self.rom.sensors)
             gain = kalman_gain(est.estimate.cov, sensors, use, est.noise.r_var)
             self._bias.update(gain, sensors, use)
         res = est.update(y, use)
-        if self._monitor is not None and self._t is not None and self.converged_at is not None:
-            changes = self._monitor.observe(
-                self._t, y, ok, res.predicted_c, res.predicted_std_c, est.offsets_c
-            )
-            for ch in changes:
-                if not ch.recovered:  # what its readings bent so far becomes an uncertainty of the state
-                    self._bias.charge(ch.fault.index, ch.bias_c)
-            self._changes.extend(changes)
+        if self._t is not None and self.converged_at is not None:
+            self._faults.observe(self._t, y, ok, res, est.offsets_c)
         return res
 
     def _after_step(
@@ -692,8 +655,7 @@ class FilteredState:
             self._gate.passed(self._t)
         self._book.keep(self._snapshot(), force=newly)  # the first window start allowed is always kept
         self.steps += n
-        changes, self._changes = tuple(self._changes), []
-        return SampleUpdate(self._t, n, nis, dof, verdict, restarted, reason, changes)
+        return SampleUpdate(self._t, n, nis, dof, verdict, restarted, reason, self._faults.take_changes())
 
     def _prediction_lost(self, res: StepResult | None) -> bool:
         """The first update after an open-loop run longer than ``max_gap_s`` has an improbable NIS."""

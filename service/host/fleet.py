@@ -20,8 +20,11 @@ geometry) or whose start fails is reported (``failed``: id → reason, ``/api/v1
 start; a device fault is the affected spindle's alone (its driver backs off; the others' loops and threads
 never wait on it). Every spindle's failure after start is in its own health.
 
-OPC UA and MQTT are not hosted per spindle yet: ``[opcua]``/``[mqtt]`` enabled with ``[[spindles]]`` is
-refused at start (``HostError``); one process per spindle (no ``[[spindles]]``) keeps them.
+- one **OPC UA server** (``[opcua] enabled``): ``service.serve.opcua.outlet.HostedOpcUa``, one object per
+  running spindle named by its id, of one type, each fed by its spindle's views (issue 43).
+
+MQTT is not hosted per spindle yet: ``[mqtt]`` enabled with ``[[spindles]]`` is refused at start
+(``HostError``); one process per spindle (no ``[[spindles]]``) keeps it.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ if TYPE_CHECKING:
     from service.host.persistence import SharedDatabase
     from service.host.runtime import CanDevice, DaqDevice, Runtime, ScaledClock
     from service.identify.pool import WorkerPool
+    from service.serve.opcua.outlet import HostedOpcUa
     from service.settings import Settings
     from service.shell.looplag import LoopLagMonitor
 
@@ -88,16 +92,21 @@ class Host:
     pool: WorkerPool | None = None
     db: SharedDatabase | None = None
     rest: Outlet | None = None
+    opcua: HostedOpcUa | None = None
     loop_lag: LoopLagMonitor | None = None
     _loop_lag_task: asyncio.Task[None] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        for name in ("opcua", "mqtt"):
-            if self.settings.spindles and getattr(self.settings, name).enabled:
-                raise HostError(
-                    f"[{name}] enabled = true is not supported with [[spindles]] yet: run one process per "
-                    "spindle for OPC UA/MQTT (docs/design/fleet.md)"
-                )
+        if self.settings.spindles and self.settings.mqtt.enabled:
+            raise HostError(
+                "[mqtt] enabled = true is not supported with [[spindles]] yet: run one process per "
+                "spindle for MQTT (docs/design/fleet.md)"
+            )
+        if self.settings.spindles and self.settings.opcua.enabled and self.settings.opcua.spindle is not None:
+            raise HostError(
+                "opcua.spindle names the object of one spindle; with [[spindles]] each object is named by "
+                "its spindles[i].id (unset opcua.spindle)"
+            )
 
     @property
     def failed(self) -> dict[str, str]:
@@ -138,9 +147,13 @@ class Host:
         self.pool = WorkerPool(workers=workers)
         self.db = await asyncio.to_thread(SharedDatabase.open, s.database)
         for spindle in s.per_spindle():
-            await self._start_spindle(spindle)
+            # the host serves OPC UA for every spindle (``_start_opcua``), not each spindle for itself
+            off = spindle.opcua.model_copy(update={"enabled": False})
+            await self._start_spindle(spindle.model_copy(update={"opcua": off}))
         if self.models:  # every pool process loads every geometry now (memory at start, first jobs quick)
             await self.pool.warm(list(self.models))
+        if s.opcua.enabled:
+            await self._start_opcua()
         started = len(self.spindles) - len(self.failed)
         self.on_event(
             f"host: {started} of {len(self.spindles)} spindles running, {len(self.models)} model(s), "
@@ -158,6 +171,23 @@ class Host:
             )
             self.rest = factory(ctx)
             await self.rest.start()
+
+    async def _start_opcua(self) -> None:
+        """One OPC UA server with an object per running spindle, each subscribed to its spindle's views."""
+        from service.serve.opcua.outlet import HostedOpcUa
+
+        services = {
+            sid: h.runtime.service
+            for sid, h in self.spindles.items()
+            if h.runtime is not None and h.runtime.service is not None
+        }
+        if not services:
+            return
+        self.opcua = HostedOpcUa(self.settings, services, clock=self.clock)
+        await self.opcua.start()
+        for sid, service in services.items():
+            service.subscribe(self.opcua.feeds[sid])
+        self.on_event(f"OPC UA server at {self.opcua.server.endpoint}: {len(services)} spindle object(s)")
 
     async def _start_spindle(self, s: Settings) -> None:
         from service.host.runtime import Runtime
@@ -222,6 +252,13 @@ class Host:
         if self.rest is not None:
             with contextlib.suppress(Exception):
                 await self.rest.close()
+        if self.opcua is not None:
+            for h in self.spindles.values():
+                feed = self.opcua.feeds.get(h.id)
+                if feed is not None and h.runtime is not None and h.runtime.service is not None:
+                    h.runtime.service.unsubscribe(feed)
+            with contextlib.suppress(Exception):
+                await self.opcua.close()
         for hosted in reversed(list(self.spindles.values())):
             if hosted.runtime is not None:
                 try:

@@ -27,13 +27,18 @@ from dataclasses import dataclass, field
 from datetime import datetime
 from typing import TYPE_CHECKING, Any, TypeVar
 
+from service.contracts.calibration import Calibration
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.probe import ProbeMeasurement
 from service.contracts.records import Record
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import ConditionState, IdentificationRecord
 from service.core.config import Restored
 from service.core.jobbook import MAP_METHOD
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from service.serve.histogram import Histogram
-from service.serve.interface import ConditionState, IdentificationRecord
 from service.serve.views import condition_from_row, row_to_record
 from service.store.errors import SchemaError
 
@@ -41,11 +46,11 @@ if TYPE_CHECKING:
     from sqlalchemy.engine import Engine
     from sqlalchemy.orm import Session, sessionmaker
 
-    from service.acquire.calibration import Calibration
-    from service.estimate.checkpoint import LiveCheckpoint
-    from service.estimate.mechanics import MechanicsCalibration
-    from service.estimate.probe import ProbeMeasurement
-    from service.estimate.reference import CompensationReference
+    from service.contracts.calibration import Calibration
+    from service.contracts.checkpoint import LiveCheckpoint
+    from service.contracts.mechanics import MechanicsCalibration
+    from service.contracts.probe import ProbeMeasurement
+    from service.contracts.reference import CompensationReference
     from service.identify.speedmap import SpeedMap
     from service.settings import DatabaseSettings, SpindleSettings
     from service.store.reads import DbReads

@@ -19,11 +19,10 @@ The state advances on the service's clock (``t``, POSIX s): a clock that steps b
 
 from __future__ import annotations
 
-import enum
 import math
 from dataclasses import dataclass, replace
 
-from service.errors import ServiceError
+from service.contracts.command import CommandError, CommandStatus, ControllerProfile
 
 __all__ = [
     "PROFILES",
@@ -34,38 +33,6 @@ __all__ = [
     "advance",
     "profile_from",
 ]
-
-
-class CommandError(ServiceError, ValueError):
-    """A controller profile or command input that cannot be used (names the field)."""
-
-
-class CommandStatus(enum.StrEnum):
-    """What the command value does now (``/compensation`` ``command.status``)."""
-
-    FOLLOWING = "following"  # equals the usable growth
-    RATE_LIMITED = "rate_limited"  # moving towards its target, cut by the profile's step or rate
-    HOLDING = "holding"  # the verdict dropped: the last applied value, held for hold_s
-    FADING = "fading"  # past the hold: moving towards the best estimate the service has
-    AT_LIMIT = "at_limit"  # clipped at the profile's absolute limit
-    NONE = "none"  # nothing known: 0, or moving towards it
-
-
-@dataclass(frozen=True, kw_only=True)
-class ControllerProfile:
-    """How far a controller lets the command move (``[controller]``; docs/design/policy.md says where each
-    default comes from)."""
-
-    name: str
-    max_step_um: float  # the largest change between two updates [µm]
-    max_rate_um_s: float  # the largest rate of change [µm/s]
-    limit_um: float  # the largest magnitude served [µm]
-
-    def __post_init__(self) -> None:
-        for field in ("max_step_um", "max_rate_um_s", "limit_um"):
-            value = getattr(self, field)
-            if not (math.isfinite(value) and value > 0):
-                raise CommandError(f"controller.{field}: must be a positive number, got {value!r}")
 
 
 # sinumerik: SD43900 is spread over interpolation cycles (MD32760) and values above MD20392 (default 1 mm) are

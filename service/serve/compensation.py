@@ -27,23 +27,26 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from service.contracts.errors import NotReadyError
+from service.contracts.growth import GrowthEstimate
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.probe import ProbeError, ProbeMeasurement
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import CompensationSnapshot, SectionSnapshot
 from service.estimate.growth import (
     ConditionTerms,
     FieldBelief,
     GrowthContext,
-    GrowthEstimate,
     estimate_growth,
     plc_compensation,
 )
 from service.estimate.growth_section import SectionOperator, build_section, section_displacement_um
 from service.estimate.growthterms import TermsCache, held_terms, live_belief
-from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis
+from service.estimate.mechanics import ServedMechanicsBasis
 from service.estimate.mechbook import MechanicsBook
-from service.estimate.probe import DEFAULT_GATE_SIGMA, ProbeError, ProbeMeasurement
-from service.estimate.reference import CompensationReference
+from service.estimate.probe import DEFAULT_GATE_SIGMA
 from service.estimate.referencebook import ReferenceBook, live_uniform_equivalent, zero_problem
 from service.serve.controlled import Controller, ControlLimits, ControlState
-from service.serve.interface import CompensationSnapshot, NotReadyError, SectionSnapshot
 from service.serve.policy import CompensationLimits, compensation_verdict
 from service.serve.view import CoreView
 

@@ -23,10 +23,11 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from service.estimate.growth import PlcCompensation, plc_compensation
+from service.contracts.command import CommandSnapshot
+from service.contracts.verdict import Reason, Verdict
+from service.estimate.growth import plc_compensation
 from service.serve.cigate import CiGateLimits, CiGateState, step_gate
 from service.serve.command import CommandState, CommandStatus, ControllerProfile, advance
-from service.serve.verdict import Reason, Verdict
 
 __all__ = [
     "CommandSnapshot",
@@ -150,21 +151,6 @@ def step_control(
 
 
 # ----------------------------------------------------------------------------- the service's controller
-
-
-@dataclass(frozen=True, kw_only=True)
-class CommandSnapshot:
-    """The command value served with ``/compensation`` (``command``): ``value_um`` [µm] what the controller
-    applies now (the axial growth it compensates, + towards the tool), its ``status``, the ``profile`` that
-    bounds it, and ``plc``: the value in each controller's unit (``service.estimate.growth.plc_compensation``
-    on the command value)."""
-
-    value_um: float
-    status: CommandStatus
-    profile: ControllerProfile
-    hold_s: float
-    plc: PlcCompensation
-    at: float  # the command's instant [POSIX s]
 
 
 class Controller:

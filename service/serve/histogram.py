@@ -5,7 +5,7 @@ from __future__ import annotations
 import threading
 from collections.abc import Sequence
 
-from service.serve.interface import HistogramData
+from service.contracts.metrics import HistogramData
 
 __all__ = ["DURATION_BUCKETS_S", "LATENCY_BUCKETS_S", "Histogram"]
 

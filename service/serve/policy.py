@@ -30,8 +30,8 @@ from typing import Protocol
 
 import numpy as np
 
-from service.serve.interface import ConditionSnapshot, ConditionState
-from service.serve.verdict import Blocker, ChtcStatus, DataCode, DataProblem, Reason, Verdict
+from service.contracts.snapshots import ConditionSnapshot, ConditionState
+from service.contracts.verdict import Blocker, ChtcStatus, DataCode, DataProblem, Reason, Verdict
 
 __all__ = [
     "CompensationLimits",

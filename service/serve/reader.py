@@ -24,34 +24,30 @@ import numpy as np
 
 from model.defaults import BOUND_REL_TOL
 from model.hmap import LEVEL_BOUNDS
-from service.estimate.live import steady_field
-from service.estimate.mechanics import MechanicsCalibration
-from service.estimate.probe import ProbeMeasurement
-from service.estimate.reference import CompensationReference
-from service.identify.prior import ServedMapPrior
-from service.serve.interface import (
+from service.contracts.errors import NoDataYetError, NotFoundError
+from service.contracts.health import DeviceHealth, HealthSnapshot, Readiness
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.mode import IdentificationMode
+from service.contracts.probe import ProbeMeasurement
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import (
     ZONE_NAMES,
     ChtcMapSnapshot,
     ChtcSnapshot,
     CompensationSnapshot,
     ConditionSnapshot,
-    DataProblem,
-    DeviceHealth,
     FieldAt,
     FieldSnapshot,
-    HealthSnapshot,
     IdentificationJob,
-    IdentificationMode,
-    NoDataYetError,
-    NotFoundError,
-    Readiness,
     SectionPart,
     SectionSnapshot,
     SensorReading,
     SpindleLayout,
-    Verdict,
     ZoneInfo,
 )
+from service.contracts.verdict import DataProblem, Verdict
+from service.estimate.live import steady_field
+from service.identify.prior import ServedMapPrior
 from service.serve.policy import chtc_verdict, map_verdict
 from service.serve.view import CoreView
 from service.serve.views import at_bound, chtc_map_snapshot, chtc_snapshot, map_record, served_record

@@ -15,17 +15,12 @@ from datetime import datetime
 
 import numpy as np
 
-from service.acquire.calibration import Calibration
+from service.contracts.calibration import Calibration
+from service.contracts.metrics import HistogramData
+from service.contracts.snapshots import ConditionSnapshot, IdentificationJob, IdentificationRecord
+from service.contracts.verdict import DataCode, DataProblem
 from service.estimate.state import FilterView
 from service.identify.speedmap import MapConfig, SpeedMap
-from service.serve.interface import (
-    ConditionSnapshot,
-    DataCode,
-    DataProblem,
-    HistogramData,
-    IdentificationJob,
-    IdentificationRecord,
-)
 
 __all__ = ["CoreView", "NewestSample"]
 

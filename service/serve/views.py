@@ -30,18 +30,19 @@ import numpy.typing as npt
 
 from model.hmap import Z95
 from model.identify_prior import HPrior
-from service.contracts.records import IdentificationData, IdentificationRow, JsonValue
+from service.contracts.columns import JsonValue
+from service.contracts.records import IdentificationData, IdentificationRow
 from service.contracts.sensorfault import SensorFault
-from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
-from service.serve.interface import (
+from service.contracts.snapshots import (
     ZONE_NAMES,
     ChtcMapSnapshot,
     ChtcSnapshot,
     ConditionSnapshot,
     ConditionState,
     IdentificationRecord,
-    Verdict,
 )
+from service.contracts.verdict import Verdict
+from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
 
 __all__ = [
     "ConditionRow",

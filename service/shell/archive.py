@@ -11,7 +11,8 @@ from collections.abc import Callable, Sequence
 from datetime import datetime
 from typing import TYPE_CHECKING, TypeVar
 
-from service.serve.interface import IdentificationPage, IdentificationRecord, NotFoundError, NotReadyError
+from service.contracts.errors import NotFoundError, NotReadyError
+from service.contracts.snapshots import IdentificationPage, IdentificationRecord
 from service.serve.views import row_to_record
 
 if TYPE_CHECKING:

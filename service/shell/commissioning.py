@@ -39,8 +39,9 @@ from numpy.typing import NDArray
 
 from model.growthfit import PARAMS, MechanicsFitResult, MechanicsPrior
 from model.growthfit_joint import FitSeries, JointFit, fit_mechanics_joint
-from service.errors import ServiceError
-from service.estimate.mechanics import MechanicsCalibration, ServedMechanicsBasis
+from service.contracts.errors import CommissioningError
+from service.contracts.mechanics import EXAMPLE_NOTE, MechanicsCalibration, is_shipped_example
+from service.estimate.mechanics import ServedMechanicsBasis
 
 if TYPE_CHECKING:
     from service.core.config import CoreConfig
@@ -48,7 +49,6 @@ if TYPE_CHECKING:
 
 __all__ = [
     "CommissionReport",
-    "CommissioningError",
     "DisplacementFormatError",
     "Displacements",
     "FieldHistory",
@@ -62,29 +62,11 @@ __all__ = [
 Array = NDArray[np.float64]
 TIME_COLUMNS = ("time", "utc", "at", "timestamp", "timestamp_utc")
 ORDER = "the order is TEMPERATURES CAN DISPLACEMENTS"
-# the first line of the shipped example's displacement file (service/data/example_thermal_test_*): another
-# machine's mechanics; a running service refuses it outside the demo, a stored one is marked (issue 41)
-EXAMPLE_MARK = "# chtc: shipped example"
-EXAMPLE_NOTE = (
-    "the shipped example thermal test (service/data/example_thermal_test_*): the virtual plant's mechanics, "
-    "not this spindle's; commission from a test measured on this spindle (docs/commissioning.md)"
-)
-
-
-def is_shipped_example(displacements_csv: str) -> bool:
-    """Whether the displacement CSV's text is the shipped example's (its ``EXAMPLE_MARK`` line)."""
-    return any(line.startswith(EXAMPLE_MARK) for line in displacements_csv.splitlines()[:5])
-
-
 MIN_SPAN_UM = 0.1  # a thermal test's axial growth spans µm; less is a file in mm (or no growth measured)
 MIN_UNIT_ROWS = 10  # the unit is judged on a log of at least this many readings (a thermal test has hundreds)
 AXIAL, RADIAL = "axial_um", "radial_um"
 RUNNING_RPM = 100.0  # above: the spindle turns (heat-up); below: at rest (cool-down)
 MISSING = ("", "nan", "na", "n/a", "-")
-
-
-class CommissioningError(ServiceError, ValueError):
-    """Input a commissioning cannot use; the message names the file, line or field."""
 
 
 class DisplacementFormatError(CommissioningError):

@@ -10,17 +10,16 @@ from collections.abc import Callable, Mapping
 from datetime import datetime
 from typing import TYPE_CHECKING
 
-from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
-from service.serve.interface import (
-    ChtcSnapshot,
+from service.contracts.health import DeviceHealth, DeviceStatus
+from service.contracts.metrics import (
     CoreMetrics,
-    DeviceHealth,
-    DeviceStatus,
     FilterMetrics,
     HistogramData,
     MetricsSnapshot,
     OutletMetrics,
 )
+from service.contracts.snapshots import ChtcSnapshot
+from service.serve.histogram import LATENCY_BUCKETS_S, Histogram
 from service.serve.view import CoreView
 from service.shell.corethread import CoreRunner
 from service.shell.health import (

@@ -18,9 +18,9 @@ import logging
 from collections.abc import Callable, Coroutine
 from typing import TYPE_CHECKING, Protocol
 
-from service.estimate.growth import GrowthEstimate
+from service.contracts.errors import NotReadyError
+from service.contracts.growth import GrowthEstimate
 from service.serve.compensation import GrowthServer
-from service.serve.interface import NotReadyError
 from service.serve.view import CoreView
 
 if TYPE_CHECKING:

@@ -11,8 +11,8 @@ from datetime import datetime
 from typing import Protocol
 
 from drivers.base import SourceMetrics
+from service.contracts.health import DeviceHealth, DeviceStatus
 from service.core.view import CoreView
-from service.serve.interface import DeviceHealth, DeviceStatus
 from service.serve.views import age_s
 from service.shell.corethread import CoreLoad
 from service.shell.looplag import LoopLag

@@ -36,7 +36,10 @@ import numpy as np
 
 from drivers.ringbuffer import Sample
 from service.acquire.devicewatch import DeviceWatch
-from service.contracts.records import DeviceEventData, LiveStateData, Record
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.errors import NotReadyError
+from service.contracts.health import DeviceHealth
+from service.contracts.records import DeviceEventData, Record
 from service.core.events import (
     Cancel,
     Event,
@@ -49,11 +52,10 @@ from service.core.events import (
     Store,
 )
 from service.core.machine import ServiceCore
-from service.estimate.checkpoint import CheckpointError, LiveCheckpoint
 from service.identify.worker import JobOutcome, JobRequest, JobStatus
 from service.serve.compensation import GrowthServer
-from service.serve.interface import DeviceHealth, NotReadyError, SensorHistoryBuffer
 from service.serve.reader import ReadContext, ViewReader
+from service.serve.sensorhistory import SensorHistoryBuffer
 from service.serve.view import CoreView
 from service.shell.corethread import CoreRunner, InlineRunner
 from service.shell.gauges import Gauges
@@ -77,20 +79,9 @@ def with_control(record: Record, growth: GrowthServer) -> Record:
     the live state, ``GrowthServer(control_state=...)``); any other record as it is."""
     ctl = growth.controller
     state = None if ctl is None else ctl.state
-    if not isinstance(record, LiveStateData) or state is None:
+    if not isinstance(record, LiveCheckpoint) or state is None:
         return record
-    try:
-        cp = LiveCheckpoint.from_parts(
-            record.payload,
-            t=record.at.timestamp(),
-            model_version=record.model_version,
-            converged=record.converged,
-            inputs=(record.ambient_c, record.speed_rpm, record.torque_nm),
-        )
-    except CheckpointError as err:  # never lose the checkpoint for the command's sake
-        log.warning("live checkpoint stored without the command's state: %s", err)
-        return record
-    return replace(record, payload=replace(cp, control=state.to_array()).to_bytes())
+    return replace(record, control=state.to_array())
 
 
 class InternalService:

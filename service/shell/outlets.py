@@ -12,7 +12,8 @@ import time
 from collections.abc import Callable
 from typing import TYPE_CHECKING
 
-from service.serve.interface import CountedOutlet, OutletMetrics
+from service.contracts.metrics import OutletMetrics
+from service.serve.interface import CountedOutlet
 from service.serve.reader import ViewReader
 
 if TYPE_CHECKING:

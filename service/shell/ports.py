@@ -20,7 +20,7 @@ class RecordWriter(StatusSource, Protocol):
 
 class Worker(Protocol):
     """The identification worker as the shell drives it: ``service.identify.worker.IdentificationWorker`` (a
-    process) in the running service, ``service.sim.served.InlineWorker`` (a thread) in the API tests.
+    process) in the running service, ``simulator.served.InlineWorker`` (a thread) in the API tests.
 
     ``model_version`` is None until ``start()`` has loaded the model; ``run`` never raises for a failed job (a
     failure is an outcome); ``running_job`` is the job id ``run`` is busy with, ``restarts`` counts processes

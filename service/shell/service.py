@@ -28,6 +28,18 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.ringbuffer import Sample
+from service.contracts.errors import BusyError, NotReadyError
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.metrics import MetricsSnapshot
+from service.contracts.probe import ProbeError, ProbeMeasurement
+from service.contracts.reference import CompensationReference
+from service.contracts.snapshots import (
+    IdentificationJob,
+    IdentificationPage,
+    IdentificationRecord,
+    OffsetBaseline,
+    SensorHistory,
+)
 from service.core.events import (
     BaselineRequested,
     Calibrated,
@@ -39,21 +51,8 @@ from service.core.events import (
     RejectKind,
 )
 from service.core.machine import ServiceCore
-from service.estimate.mechanics import MechanicsCalibration
-from service.estimate.probe import ProbeError, ProbeMeasurement
-from service.estimate.reference import CompensationReference
 from service.identify.worker import JobOutcome, JobRequest
 from service.serve.compensation import GrowthServer
-from service.serve.interface import (
-    BusyError,
-    IdentificationJob,
-    IdentificationPage,
-    IdentificationRecord,
-    MetricsSnapshot,
-    NotReadyError,
-    OffsetBaseline,
-    SensorHistory,
-)
 from service.serve.reader import MAP_H_BOX, NewestViewReads, ViewReader
 from service.serve.view import CoreView
 from service.shell.archive import IdentificationArchive

@@ -17,7 +17,7 @@ Everything is built at the edge from ``settings.database``; nothing connects at 
         page = repo.list_identifications(s, since=t0, until=t1, limit=50, offset=0, outcome=None)
         row = repo.get_identification(s, 12)              # RecordNotFoundError if absent
         data = records.IdentificationData.from_row(row)   # the stored record back (inverse of values())
-        rec = row_to_record(row)                          # -> service.serve.interface.IdentificationRecord
+        rec = row_to_record(row)                          # -> contracts.snapshots.IdentificationRecord
         last = repo.last_identification(s)                # newest "ok" one, or None if there is none
         seeds = repo.latest_per_condition(s, limit=100)   # newest ok result per condition (scheduler history)
         max_cond_id, max_ident_id = repo.max_ids(s)       # resume id counters after a restart

@@ -1,10 +1,10 @@
 """Sensor offset baselines in the database: ``Calibration`` <-> ``offset_calibrations`` rows.
 
-The service writes every baseline it takes (``calibration_record`` through the buffered writer) and restores
-the newest at start-up (``restore_calibration``), so the offsets survive a restart instead of falling back to
-"no baseline" (wider CIs) until the spindle rests again. A stored row that does not make a baseline (wrong
-channel count, a negative or missing 1σ, an unknown source) raises ``StoredCalibrationError`` naming the row
-and the field; the row stays in the table.
+The service writes every baseline it takes through the buffered writer (``Calibration.values`` is its row)
+and restores the newest at start-up (``restore_calibration``), so the offsets survive a restart instead of
+falling back to "no baseline" (wider CIs) until the spindle rests again. A stored row that does not make a
+baseline (wrong channel count, a negative or missing 1σ, an unknown source) raises ``StoredCalibrationError``
+naming the row and the field; the row stays in the table.
 """
 
 from __future__ import annotations
@@ -15,8 +15,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from service.acquire.calibration import Calibration
-from service.contracts.records import CALIBRATION_SOURCES, OffsetCalibrationData, finite_list
+from service.contracts.calibration import CALIBRATION_SOURCES, Calibration
 from service.store.errors import RecordRejectedError
 
 if TYPE_CHECKING:
@@ -24,23 +23,11 @@ if TYPE_CHECKING:
 
     from service.store.models import OffsetCalibrationRow
 
-__all__ = ["StoredCalibrationError", "calibration_from_row", "calibration_record", "restore_calibration"]
+__all__ = ["StoredCalibrationError", "calibration_from_row", "restore_calibration"]
 
 
 class StoredCalibrationError(RecordRejectedError):
     """A stored offset baseline that cannot be used; the message names the row and the field."""
-
-
-def calibration_record(c: Calibration) -> OffsetCalibrationData:
-    """The record the writer stores for baseline ``c`` (NaN offsets become NULL)."""
-    return OffsetCalibrationData(
-        t_from=c.t_from,
-        t_to=c.t_to,
-        source=c.source,
-        samples=int(c.samples),
-        offsets_c=tuple(finite_list(c.offsets_c)),
-        sd_c=tuple(finite_list(c.sd_c)),
-    )
 
 
 def calibration_from_row(row: OffsetCalibrationRow, *, n_channels: int = 32) -> Calibration:

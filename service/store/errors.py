@@ -17,7 +17,7 @@
 construction; ``RecordRejectedError`` is also one, so ``except RecordError`` catches both. SQLAlchemy errors
 are translated into this tree in ``service.store.sqlerrors`` (this module imports no SQLAlchemy). None of
 these is an API error: the service turns a database that cannot answer into
-``service.serve.interface.NotReadyError`` where it serves the API (``service.shell.archive``).
+``service.contracts.errors.NotReadyError`` where it serves the API (``service.shell.archive``).
 """
 
 from __future__ import annotations

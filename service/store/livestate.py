@@ -1,42 +1,28 @@
 """The live state's checkpoint in the database: ``LiveCheckpoint`` <-> the one ``live_state`` row.
 
-The core hands a checkpoint to the buffered writer every ``engine.live_checkpoint_s`` of sample time
-(``live_state_record``); the writer replaces the stored row (``service.store.repository.write_records``), so
-the table holds one row whatever the uptime. ``restore_live_state`` reads it at start-up. A stored row that is
-not a checkpoint (a damaged payload, a bad shape) raises ``StoredLiveStateError`` naming the row; the row
-stays, the service starts the filter from its prior and the next checkpoint replaces it.
+The core hands a checkpoint (``LiveCheckpoint.values`` is its row) to the buffered writer every
+``engine.live_checkpoint_s`` of sample time; the writer replaces the stored row
+(``service.store.repository.write_records``), so the table holds one row whatever the uptime.
+``restore_live_state`` reads it at start-up. A stored row that is not a checkpoint (a damaged payload, a bad
+shape) raises ``StoredLiveStateError`` naming the row; the row stays, the service starts the filter from its
+prior and the next checkpoint replaces it.
 """
 
 from __future__ import annotations
 
-from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
-from service.contracts.records import LiveStateData
-from service.estimate.checkpoint import CheckpointError, LiveCheckpoint
+from service.contracts.checkpoint import CheckpointError, LiveCheckpoint
 from service.store.errors import RecordRejectedError
 
 if TYPE_CHECKING:
     from sqlalchemy.orm import Session
 
-__all__ = ["StoredLiveStateError", "live_state_record", "restore_live_state"]
+__all__ = ["StoredLiveStateError", "restore_live_state"]
 
 
 class StoredLiveStateError(RecordRejectedError):
     """A stored live-state checkpoint that cannot be used; the message names the row and why."""
-
-
-def live_state_record(cp: LiveCheckpoint) -> LiveStateData:
-    """The record the writer stores for ``cp``."""
-    return LiveStateData(
-        at=datetime.fromtimestamp(cp.t, tz=UTC),
-        model_version=cp.model_version,
-        converged=cp.converged,
-        ambient_c=cp.inputs[0],
-        speed_rpm=cp.inputs[1],
-        torque_nm=cp.inputs[2],
-        payload=cp.to_bytes(),
-    )
 
 
 def restore_live_state(session: Session) -> LiveCheckpoint | None:

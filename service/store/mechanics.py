@@ -12,8 +12,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from service.contracts.records import MechanicsCalibrationData
-from service.estimate.mechanics import MechanicsCalibration, MechanicsError
+from service.contracts.mechanics import MechanicsCalibration, MechanicsError
 from service.store.errors import RecordRejectedError
 
 if TYPE_CHECKING:
@@ -28,24 +27,9 @@ class StoredMechanicsError(RecordRejectedError):
     """A stored commissioning that cannot be used; the message names the row and why."""
 
 
-def mechanics_record(cal: MechanicsCalibration) -> MechanicsCalibrationData:
-    """The record the writer stores for ``cal``."""
-    return MechanicsCalibrationData(
-        at=cal.at,
-        set_by=cal.set_by,
-        source=cal.source,
-        restraint=cal.x[0],
-        alpha_shaft=cal.x[1],
-        alpha_housing=cal.x[2],
-        cov=[[float(v) for v in row] for row in cal.cov],
-        residual_rms_um=cal.residual_rms_um,
-        residual_max_um=cal.residual_max_um,
-        explained=cal.explained,
-        temperatures_sha256=cal.sources.get("temperatures", ""),
-        canlog_sha256=cal.sources.get("canlog"),
-        displacements_sha256=cal.sources.get("displacements", ""),
-        report=dict(cal.report),
-    )
+def mechanics_record(cal: MechanicsCalibration) -> MechanicsCalibration:
+    """The record the writer stores for ``cal``: the calibration itself (``MechanicsCalibration.values``)."""
+    return cal
 
 
 def mechanics_from_row(row: MechanicsCalibrationRow) -> MechanicsCalibration:

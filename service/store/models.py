@@ -47,7 +47,7 @@ from sqlalchemy import (
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, declared_attr, mapped_column, relationship
 
-from service.contracts.records import JsonValue
+from service.contracts.columns import JsonValue
 from service.store.types import Float32, QualityMap, TemperatureArray, UtcDateTime
 
 # BIGINT everywhere; on SQLite an INTEGER PRIMARY KEY (the 64-bit rowid) so database ids autoincrement there
@@ -232,7 +232,7 @@ class SpeedMapStateRow(SpindleScoped, Base):
 
 
 class OffsetCalibrationRow(SpindleScoped, Base):
-    """A sensor offset baseline (``service.acquire.calibration.Calibration``); the newest is restored."""
+    """A sensor offset baseline (``service.contracts.calibration.Calibration``); the newest is restored."""
 
     __tablename__ = "offset_calibrations"
     __table_args__ = (Index(None, "spindle_id", "t_to"),)
@@ -247,7 +247,7 @@ class OffsetCalibrationRow(SpindleScoped, Base):
 
 
 class CompensationReferenceRow(SpindleScoped, Base):
-    """A compensation zero (``service.estimate.reference.CompensationReference``); the newest is restored."""
+    """A compensation zero (``service.contracts.reference.CompensationReference``); the newest is restored."""
 
     __tablename__ = "compensation_references"
     __table_args__ = (Index(None, "spindle_id", "at"),)
@@ -261,7 +261,7 @@ class CompensationReferenceRow(SpindleScoped, Base):
 
 
 class MechanicsCalibrationRow(SpindleScoped, Base):
-    """A commissioning of the growth's mechanics (``service.estimate.mechanics.MechanicsCalibration``); the
+    """A commissioning of the growth's mechanics (``service.contracts.mechanics.MechanicsCalibration``); the
     newest is restored and serves ``/compensation``."""
 
     __tablename__ = "mechanics_calibrations"
@@ -285,7 +285,7 @@ class MechanicsCalibrationRow(SpindleScoped, Base):
 
 
 class ProbeMeasurementRow(SpindleScoped, Base):
-    """A probe reading in service (``service.estimate.probe.ProbeMeasurement``); the accepted ones measured
+    """A probe reading in service (``service.contracts.probe.ProbeMeasurement``); the accepted ones measured
     after the newest commissioning are replayed into the mechanical posterior at start-up."""
 
     __tablename__ = "probe_measurements"
@@ -307,7 +307,7 @@ class ProbeMeasurementRow(SpindleScoped, Base):
 
 
 class LiveStateRow(SpindleScoped, Base):
-    """The live state's newest checkpoint (``service.estimate.checkpoint.LiveCheckpoint``): one row, replaced
+    """The live state's newest checkpoint (``service.contracts.checkpoint.LiveCheckpoint``): one row, replaced
     on every write (``service.store.repository.write_records``); a restart resumes the filter from it."""
 
     __tablename__ = "live_state"

@@ -10,11 +10,11 @@ not > 0) raises ``StoredProbeError`` naming the row; the row stays in the table.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from datetime import datetime
 from typing import TYPE_CHECKING
 
-from service.contracts.records import ProbeMeasurementData
-from service.estimate.probe import PROBES_KEPT, ProbeMeasurement
+from service.contracts.probe import PROBES_KEPT, ProbeMeasurement
 from service.store.errors import RecordRejectedError
 
 if TYPE_CHECKING:
@@ -29,22 +29,9 @@ class StoredProbeError(RecordRejectedError):
     """A stored probe reading that cannot be used; the message names the row and why."""
 
 
-def probe_record(m: ProbeMeasurement, recorded_at: datetime) -> ProbeMeasurementData:
-    """The record the writer stores for ``m`` (taken at ``recorded_at``, UTC)."""
-    return ProbeMeasurementData(
-        at=m.at,
-        recorded_at=recorded_at,
-        axial_um=m.axial_um,
-        sd_um=m.sd_um,
-        features=[[float(v) for v in row] for row in m.features],
-        field_var_um2=m.field_var_um2,
-        predicted_um=m.predicted_um,
-        sigma_um=m.sigma_um,
-        innovation_um=m.innovation_um,
-        accepted=m.accepted,
-        set_by=m.set_by,
-        source=m.source,
-    )
+def probe_record(m: ProbeMeasurement, recorded_at: datetime) -> ProbeMeasurement:
+    """The reading the writer stores for ``m``: ``m`` taken at ``recorded_at`` (UTC)."""
+    return replace(m, recorded_at=recorded_at)
 
 
 def probe_from_row(row: ProbeMeasurementRow) -> ProbeMeasurement:
@@ -69,6 +56,7 @@ def probe_from_row(row: ProbeMeasurementRow) -> ProbeMeasurement:
             set_by=str(row.set_by),
             source=str(row.source),
             id=int(row.id),
+            recorded_at=row.recorded_at,
         )
     except (TypeError, ValueError) as err:
         raise StoredProbeError(f"probe_measurements row {row.id}: {err}") from err

@@ -10,7 +10,7 @@ the server's worker threads for as long as a hung database wants. ``DbReads.run(
   most ``threads`` threads, never the API's pool).
 
 Both are ``service.store.errors.DatabaseUnavailableError`` (the store's tree, drawn there); the service
-turns them into ``service.serve.interface.NotReadyError`` for the API (``service.shell.archive``), which
+turns them into ``service.contracts.errors.NotReadyError`` for the API (``service.shell.archive``), which
 answers 503 in its error shape, with ``Retry-After``.
 """
 

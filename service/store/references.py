@@ -11,8 +11,7 @@ from __future__ import annotations
 
 from typing import TYPE_CHECKING
 
-from service.contracts.records import CompensationReferenceData
-from service.estimate.reference import CompensationReference, ReferenceError
+from service.contracts.reference import CompensationReference, ReferenceError
 from service.store.errors import RecordRejectedError
 
 if TYPE_CHECKING:
@@ -27,11 +26,9 @@ class StoredReferenceError(RecordRejectedError):
     """A stored compensation zero that cannot be used; the message names the row and why."""
 
 
-def reference_record(ref: CompensationReference) -> CompensationReferenceData:
-    """The record the writer stores for ``ref``."""
-    return CompensationReferenceData(
-        at=ref.at, temperature_c=ref.temperature_c, sd_c=ref.sd_c, source=ref.source, set_by=ref.set_by
-    )
+def reference_record(ref: CompensationReference) -> CompensationReference:
+    """The record the writer stores for ``ref``: the reference itself (``CompensationReference.values``)."""
+    return ref
 
 
 def reference_from_row(row: CompensationReferenceRow) -> CompensationReference:

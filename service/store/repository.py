@@ -20,20 +20,20 @@ from sqlalchemy.dialects import postgresql, sqlite
 from sqlalchemy.orm import InstrumentedAttribute, Session, joinedload, sessionmaker
 from sqlalchemy.sql import Select
 
+from service.contracts.calibration import Calibration
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.probe import ProbeMeasurement
 from service.contracts.records import (
-    CompensationReferenceData,
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
     IdentificationData,
-    LiveStateData,
-    MechanicsCalibrationData,
-    OffsetCalibrationData,
-    ProbeMeasurementData,
     Record,
     SampleData,
     SampleMinuteData,
 )
+from service.contracts.reference import CompensationReference
 from service.store.errors import RecordNotFoundError
 from service.store.models import (
     Base,
@@ -84,11 +84,11 @@ _TABLE_OF: dict[type, type] = {
     IdentificationData: Identification,
     DeviceEventData: DeviceEvent,
     SampleData: SampleRow,
-    OffsetCalibrationData: OffsetCalibrationRow,
-    CompensationReferenceData: CompensationReferenceRow,
-    LiveStateData: LiveStateRow,
-    MechanicsCalibrationData: MechanicsCalibrationRow,
-    ProbeMeasurementData: ProbeMeasurementRow,
+    Calibration: OffsetCalibrationRow,
+    CompensationReference: CompensationReferenceRow,
+    LiveCheckpoint: LiveStateRow,
+    MechanicsCalibration: MechanicsCalibrationRow,
+    ProbeMeasurement: ProbeMeasurementRow,
     SampleMinuteData: SampleMinuteRow,
 }
 # keyed by (spindle_id, t): a retried batch (the commit went through, its acknowledgement did not) is skipped
@@ -124,7 +124,7 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
             for end in run:
                 assert isinstance(end, ConditionEnd)
                 _end_condition(session, end)
-        elif kind is LiveStateData:  # one row: the newest checkpoint replaces the stored one
+        elif kind is LiveCheckpoint:  # one row: the newest checkpoint replaces the stored one
             session.execute(delete(LiveStateRow).where(LiveStateRow.spindle_id == sid))
             session.execute(insert(LiveStateRow), [_stamped(run[-1], sid)])
         elif kind is IdentificationData:
@@ -236,7 +236,7 @@ def add_samples(session: Session, records: Sequence[SampleData]) -> None:
         write_records(session, records)
 
 
-def add_offset_calibration(session: Session, record: OffsetCalibrationData) -> OffsetCalibrationRow:
+def add_offset_calibration(session: Session, record: Calibration) -> OffsetCalibrationRow:
     row = OffsetCalibrationRow(**record.values(), spindle_id=spindle_of(session))
     session.add(row)
     session.flush()

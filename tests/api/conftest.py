@@ -1,4 +1,4 @@
-"""Fixtures for the API tests: the real service (``service.sim.served``: the core and shell fed a
+"""Fixtures for the API tests: the real service (``simulator.served``: the core and shell fed a
 virtual-plant run, real SQLite in the test's tmp dir), its hand-moved clock, the app, a live uvicorn server.
 
 ``served`` is function-scoped (about 0.5 s: the plant run is computed once per process, the model comes from
@@ -26,8 +26,8 @@ from drivers.errors import DeviceError
 from drivers.modbus_daq import ModbusDaq
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.duty import duty_profile
-from service.sim.served import DEMO_FED, ManualClock, Plan, Served, served_service
+from simulator.duty import duty_profile
+from simulator.served import DEMO_FED, ManualClock, Plan, Served, served_service
 from tests.modes import PER_CONDITION
 
 __all__ = [
@@ -63,7 +63,7 @@ DEMO_WINDOWS = {"schedule_min": (10.0, 20.0, 40.0, 60.0), "min_window_s": 600.0}
 LENIENT_IDENTIFICATION = {"ci_rel_threshold": LENIENT_CI, "offset_calibration": False, **DEMO_WINDOWS}
 
 
-# Speed-map mode (issue 17, docs/design/hmap.md) on a seeded duty cycle (service.sim.duty: 5 min at rest, then
+# Speed-map mode (issue 17, docs/design/hmap.md) on a seeded duty cycle (simulator.duty: 5 min at rest, then
 # the speed changes every 1-6 min): the first map fit comes after experimental.map_min_window_min (10 min) of
 # data, re-fits follow the changes. The first MAP_FED samples (26.7 min) give several fits.
 MAP_MODE = Settings(identification={"mode": "speed_map"})

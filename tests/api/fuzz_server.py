@@ -1,7 +1,7 @@
 """The API over the real service for the schemathesis acceptance runs (docs/design/api.md, "Fuzzing").
 
 ``python -m tests.api.fuzz_server PORT [--read-token]`` serves on 127.0.0.1:PORT with the production uvicorn
-limits (``api.server.server_config``) the real service (``service.sim.served``: the core and the shell on
+limits (``api.server.server_config``) the real service (``simulator.served``: the core and the shell on
 SQLite in a temporary directory, fed the demo plan's first 22 min of virtual-plant samples). No more samples
 follow and the service's clock stays at the last one, so the data stay fresh (readyz 200) however long the
 run; the fuzzer's POSTs start real identifications. Tokens: write ``fuzz-write-token-0123456789``, read (with
@@ -18,7 +18,7 @@ import uvicorn
 from api.app import create_app
 from api.server import server_config
 from service.settings import Settings
-from service.sim.served import DEMO_FED, exit_on_sigterm, served_service
+from simulator.served import DEMO_FED, exit_on_sigterm, served_service
 
 WRITE_TOKEN = "fuzz-write-token-0123456789"
 READ_TOKEN = "fuzz-read-token-0123456789"

@@ -10,7 +10,7 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from model.plant import Segment
 from service.settings import Settings
-from service.sim.served import Plan, served_service
+from simulator.served import Plan, served_service
 
 from .conftest import WRITE_TOKEN, sqlite_url
 

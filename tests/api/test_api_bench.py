@@ -11,7 +11,7 @@ import pytest
 from api.app import create_app
 from benchmarks._api_load import RawClient, _load, histogram_quantile
 from service.settings import Settings
-from service.sim.served import Served
+from simulator.served import Served
 from tests.api.conftest import LiveServer
 
 

@@ -22,12 +22,12 @@ from api.schemas import chtc_map_out
 from model import hmap_identify as hi
 from model.hmap import NODES
 from model.plant import VirtualPlant
+from service.contracts.snapshots import H_UNIT, ZONE_NAMES, ChtcMapSnapshot
 from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
-from service.serve.interface import H_UNIT, ZONE_NAMES, ChtcMapSnapshot
 from service.serve.policy import map_verdict
 from service.serve.views import chtc_map_snapshot
 from service.settings import Settings
-from service.sim.served import Served
+from simulator.served import Served
 from tests.api.conftest import served_map_mode
 from tests.model_hmap.duty import DutyRun, load_service_model, run_duty, window
 
@@ -171,7 +171,7 @@ def test_the_openapi_document_describes_the_map(ro_client: TestClient) -> None:
     assert set(doc["components"]["schemas"]["VisitedOut"]["properties"]) == {"speed_rpm", "duration_s"}
 
 
-# --- the endpoint on the real service in speed-map mode (service.sim.served, MAP_PLAN)
+# --- the endpoint on the real service in speed-map mode (simulator.served, MAP_PLAN)
 
 
 @pytest.fixture(scope="module")

@@ -13,7 +13,7 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from drivers.quality import Quality
 from service.settings import Settings
-from service.sim.served import DEMO_FED, Served, feed, served_service
+from simulator.served import DEMO_FED, Served, feed, served_service
 from tests.api.conftest import LENIENT_IDENTIFICATION, sqlite_url
 from tests.modes import PER_CONDITION
 

@@ -1,4 +1,4 @@
-"""GET /compensation on the real service (``service.sim.served``: the core and shell on their loop, a real
+"""GET /compensation on the real service (``simulator.served``: the core and shell on their loop, a real
 database) fed with virtual-plant samples: the served growth equals ``estimate_growth`` on the same inputs,
 its status follows the /chtc rules (stale when data stop), and the dashboard shows it."""
 
@@ -20,17 +20,17 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from model.growth import Z95
 from model.inputs import inputs_from_operation
+from service.contracts.errors import NotReadyError
 from service.core.machine import ServiceCore
 from service.estimate.growth import build_context, condition_terms, estimate_growth
 from service.estimate.growthterms import h_covariance, map_h_covariance
 from service.host.runtime import core_config
 from service.modelload import LoadedModel
 from service.serve.compensation import GrowthServer, field_belief
-from service.serve.interface import NotReadyError
 from service.serve.policy import compensation_verdict
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import ManualClock, served_service
+from simulator.served import ManualClock, served_service
 from tests.api.conftest import MAP_MODE, LiveServer, served_map_mode, sqlite_url
 from tests.api.test_api_dashboard import _chromium
 from tests.engine_config import product_limits
@@ -50,7 +50,7 @@ class Served:
 
 @pytest.fixture(scope="module")
 def served(tmp_path_factory: pytest.TempPathFactory) -> Iterator[Served]:
-    """The real service on its loop (``service.sim.served``), fed the whole demo plan (3000 then 4000 rpm), in
+    """The real service on its loop (``simulator.served``), fed the whole demo plan (3000 then 4000 rpm), in
     per-condition mode (Σ_H from the record's CIs, ``h_covariance``; the map's: ``served_map`` below)."""
     url = sqlite_url(tmp_path_factory.mktemp("served-compensation"))
     with served_service(database_url=url, settings=per_condition(), feed_samples=1) as s:
@@ -142,7 +142,7 @@ def test_the_verdict_is_the_policys_on_the_growth_and_goes_stale_when_data_stop(
     assert snap is not None
     lo, hi = comp["axial"]["ci95_um"]
     # the served service's limits: [compensation]'s defaults, without the mechanics and offset-baseline rules
-    # on the simulator's plant (service.sim.served: its mechanics match the spindle description, its sensors
+    # on the simulator's plant (simulator.served: its mechanics match the spindle description, its sensors
     # have no offsets)
     limits = served.svc.growth.limits
     assert limits == dataclasses.replace(
@@ -388,11 +388,10 @@ def test_the_command_value_is_served_in_each_controllers_unit(served: Served) ->
 def test_the_live_checkpoint_carries_the_command_state() -> None:
     from types import SimpleNamespace
 
-    from service.contracts.records import LiveStateData
+    from service.contracts.checkpoint import LiveCheckpoint
+    from service.contracts.verdict import ChtcStatus, Verdict
     from service.core.config import control_limits
-    from service.estimate.checkpoint import LiveCheckpoint
     from service.serve.controlled import Controller, ControlState
-    from service.serve.verdict import ChtcStatus, Verdict
     from service.shell.internal import with_control
 
     ctl = Controller(control_limits(Settings()))
@@ -409,19 +408,10 @@ def test_the_live_checkpoint_carries_the_command_state() -> None:
         bias_s=np.zeros((r, 3)),
         bias_m=np.zeros((r, r)),
     )
-    rec = LiveStateData(
-        at=datetime.fromtimestamp(100.0, tz=UTC),
-        model_version="m",
-        converged=True,
-        ambient_c=20.0,
-        speed_rpm=0.0,
-        torque_nm=0.0,
-        payload=cp.to_bytes(),
-    )
-    out = with_control(rec, SimpleNamespace(controller=ctl))  # type: ignore[arg-type]
-    assert isinstance(out, LiveStateData)
+    out = with_control(cp, SimpleNamespace(controller=ctl))  # type: ignore[arg-type]
+    assert isinstance(out, LiveCheckpoint)
     back = LiveCheckpoint.from_parts(
-        out.payload, t=100.0, model_version="m", converged=True, inputs=cp.inputs
+        out.to_bytes(), t=100.0, model_version="m", converged=True, inputs=cp.inputs
     )
     assert ControlState.from_array(back.control) == ctl.state
-    assert with_control(rec, SimpleNamespace(controller=None)) is rec  # type: ignore[arg-type]
+    assert with_control(cp, SimpleNamespace(controller=None)) is cp  # type: ignore[arg-type]

@@ -1,5 +1,5 @@
 """The dashboard: served by the app without any external resource, and rendered by real headless Chromium,
-over the real service (``service.sim.served``)."""
+over the real service (``simulator.served``)."""
 
 from __future__ import annotations
 
@@ -23,7 +23,7 @@ from api.app import STATIC_DIR, create_app
 from model.geometry import SpindleSpec, load_spindle
 from model.plant import Segment
 from service.settings import Settings
-from service.sim.served import DEMO_FED, Plan, Served, feed, served_service
+from simulator.served import DEMO_FED, Plan, Served, feed, served_service
 from tests.api.conftest import (
     DEMO_WINDOWS,
     LENIENT_IDENTIFICATION,

@@ -1,6 +1,6 @@
 """Database failures reach the client as the error shape or a marked partial page, never a bare 500.
 
-The real service (``service.sim.served``) on a SQLite database that cannot be opened (the file is a
+The real service (``simulator.served``) on a SQLite database that cannot be opened (the file is a
 directory): it starts without restored state, buffers its records, and its history reads fail with the
 persistence layer's error.
 """
@@ -14,7 +14,7 @@ from fastapi.testclient import TestClient
 
 from api.app import create_app
 from service.settings import Settings
-from service.sim.served import Served, served_service
+from simulator.served import Served, served_service
 from tests.api.conftest import WRITE_TOKEN
 from tests.db.conftest import db_url, pg_schema  # noqa: F401 - real SQLite and PostgreSQL
 

@@ -18,11 +18,11 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from api.routers.field import grid_out, mesh_out
 from api.routers.field_render import FieldRenderer
-from service.estimate.locator import TriangleLocator, locator_for
-from service.serve.interface import FieldSnapshot
+from model.locator import TriangleLocator, locator_for
+from service.contracts.snapshots import FieldSnapshot
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import Served
+from simulator.served import Served
 
 URL = "/api/v1/temperature-field"
 

@@ -17,7 +17,7 @@ from api.app import create_app
 from api.deps import ClockInfo
 from api.fleet import FleetDispatch, create_fleet_app
 from service.settings import Settings
-from service.sim.served import DEMO_FED, served_service
+from simulator.served import DEMO_FED, served_service
 from tests.api.conftest import LiveServer, sqlite_url
 from tests.api.test_api_dashboard import LENIENT, _attr, _banner, _case, _chromium
 

@@ -11,8 +11,8 @@ from fastapi.testclient import TestClient
 
 from drivers.quality import Quality
 from model.geometry import load_spindle
-from service.serve.interface import SensorHistoryBuffer
-from service.sim.served import Served, feed
+from service.serve.sensorhistory import SensorHistoryBuffer
+from simulator.served import Served, feed
 from tests.api.conftest import ManualClock
 
 

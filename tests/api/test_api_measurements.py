@@ -1,4 +1,4 @@
-"""Probe readings through the API on the real service (``service.sim.served``, real SQLite): ``POST
+"""Probe readings through the API on the real service (``simulator.served``, real SQLite): ``POST
 /compensation/measurements`` needs the write token and names a bad field; a reading that agrees is absorbed
 and the served mechanical CI tightens; one far off is flagged, stored with accepted=false and not absorbed;
 GET lists both; a restart replays the accepted one onto the restored commissioning."""
@@ -13,11 +13,11 @@ from fastapi.testclient import TestClient
 from sqlalchemy import select
 
 from api.app import create_app
-from service.estimate.mechanics import MechanicsCalibration
+from service.contracts.mechanics import MechanicsCalibration
 from service.estimate.probe import prior_covariance
 from service.settings import Settings
-from service.sim.served import served_service
 from service.store.models import ProbeMeasurementRow
+from simulator.served import served_service
 from tests.modes import per_condition
 
 from .conftest import DEMO_WINDOWS, WRITE_TOKEN, sqlite_url

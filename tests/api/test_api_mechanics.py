@@ -1,4 +1,4 @@
-"""The commissioning of the growth's mechanics through the API on the real service (``service.sim.served``,
+"""The commissioning of the growth's mechanics through the API on the real service (``simulator.served``,
 real SQLite): ``POST /compensation/mechanics`` needs the write token, names a bad file's line and field,
 fits a thermal test with the service's own core, stores the calibration, ``/compensation`` uses it (its CI
 carries the mechanical posterior) and a restart restores it; the CLI's ``--url`` sends the same request."""
@@ -18,9 +18,9 @@ from model.plantmech import mechanics_for_seed
 from service.cli import main
 from service.commands.commission import send_growth
 from service.settings import Settings
-from service.sim.served import served_service
-from service.sim.thermaltest import ThermalTest, write_thermal_test
 from service.store.models import MechanicsCalibrationRow
+from simulator.served import served_service
+from simulator.thermaltest import ThermalTest, write_thermal_test
 from tests.modes import per_condition
 
 from .conftest import DEMO_WINDOWS, WRITE_TOKEN, LiveServer, sqlite_url

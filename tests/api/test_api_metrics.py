@@ -11,7 +11,7 @@ from prometheus_client.parser import text_string_to_metric_families
 from api.app import create_app
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import Served
+from simulator.served import Served
 from tests.api.conftest import ManualClock
 
 
@@ -156,7 +156,7 @@ def test_an_outlet_that_counts_shows_on_metrics(
 ) -> None:
     """The MQTT outlet's counters (service.serve.interface.CountedOutlet) reach /metrics as chtc_outlet_*;
     never started here (no broker): nothing sent, not connected."""
-    from service.serve.mqtt.config import MqttSettings
+    from service.mqttsettings import MqttSettings
     from service.serve.mqtt.outlet import MqttOutlet
 
     outlet = MqttOutlet(MqttSettings(enabled=True).for_spindle("spindle1"), state_dir=tmp_path)

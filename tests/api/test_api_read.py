@@ -14,10 +14,10 @@ from fastapi.testclient import TestClient
 
 from api.app import create_app
 from drivers.quality import Quality
-from service.serve.interface import ZONE_NAMES
+from service.contracts.snapshots import ZONE_NAMES
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import Served, feed, served_service
+from simulator.served import Served, feed, served_service
 from tests.api.conftest import ManualClock, sqlite_url
 
 

@@ -1,4 +1,4 @@
-"""The compensation zero through the API on the real service (``service.sim.served``, real SQLite):
+"""The compensation zero through the API on the real service (``simulator.served``, real SQLite):
 ``POST /compensation/reference`` needs the write token, refuses a zero the live field cannot give and says
 why, stores what it is given, and a stored zero survives restarts, also a warm one, where a service without it
 would re-zero on the warm spindle."""
@@ -16,8 +16,8 @@ from api.app import create_app
 from model.plant import Segment
 from service.commands.commission import zero
 from service.settings import Settings
-from service.sim.served import Plan, feed, served_service
 from service.store.models import CompensationReferenceRow
+from simulator.served import Plan, feed, served_service
 from tests.modes import per_condition
 
 from .conftest import DEMO_WINDOWS, WRITE_TOKEN, LiveServer, sqlite_url

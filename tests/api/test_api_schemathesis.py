@@ -18,7 +18,7 @@ from schemathesis.config import SchemathesisConfig
 
 from api.app import create_app
 from service.settings import Settings
-from service.sim.served import DEMO_FED, served_service
+from simulator.served import DEMO_FED, served_service
 from tests.api.conftest import WRITE_TOKEN, served_map_mode, sqlite_url
 
 pytestmark = pytest.mark.slow  # property-based runs over every operation (~20 s each at load 8)

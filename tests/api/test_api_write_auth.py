@@ -9,7 +9,7 @@ from fastapi.testclient import TestClient
 from api.app import create_app
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import Served, served_service
+from simulator.served import Served, served_service
 from tests.api.conftest import WRITE_TOKEN, ManualClock, sqlite_url
 from tests.modes import PER_CONDITION
 

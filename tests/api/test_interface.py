@@ -10,9 +10,10 @@ import numpy as np
 import pytest
 
 from model.geometry import load_spindle
+from service.contracts.snapshots import FieldSnapshot
 from service.serve.histogram import Histogram
-from service.serve.interface import ChtcService, FieldSnapshot
-from service.sim.served import Served
+from service.serve.interface import ChtcService
+from simulator.served import Served
 
 
 def _linear_field(nodes: np.ndarray) -> np.ndarray:

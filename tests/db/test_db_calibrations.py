@@ -10,12 +10,12 @@ import numpy as np
 import pytest
 from sqlalchemy import select
 
-from service.acquire.calibration import Calibration
-from service.contracts.records import ConditionStart, OffsetCalibrationData
+from service.contracts.calibration import Calibration
+from service.contracts.records import ConditionStart
 from service.host.persistence import open_persistence
 from service.settings import Settings
 from service.store import repository as repo
-from service.store.calibrations import StoredCalibrationError, calibration_from_row, calibration_record
+from service.store.calibrations import StoredCalibrationError, calibration_from_row
 from service.store.errors import RecordError
 from service.store.models import OffsetCalibrationRow
 
@@ -57,7 +57,7 @@ def test_the_newest_baseline_is_restored_after_a_restart(db_url: str) -> None:
     assert first.restored.calibration is None
     older, newer = baseline(T0, seed=1), baseline(T0 + timedelta(hours=3), source="manual", seed=2)
     for c in (newer, older):  # stored out of order: the newest t_to wins, not the last written
-        assert first.sink.submit(calibration_record(c))
+        assert first.sink.submit(c)
     assert first.close().written == 2
 
     second = open_persistence(db_settings(db_url), migrate=False)
@@ -74,7 +74,7 @@ def test_the_newest_baseline_is_restored_after_a_restart(db_url: str) -> None:
 def test_a_bad_stored_baseline_is_named_kept_and_the_rest_restored(db_url: str) -> None:
     first = open_persistence(db_settings(db_url), migrate=True)
     first.sink.submit(ConditionStart(id=7, started_at=T0, speed_rpm=3000.0, torque_nm=5.0, ambient_c=22.0))
-    first.sink.submit(calibration_record(baseline(T0)))
+    first.sink.submit(baseline(T0))
     first.close()
     with repo.session_scope(first.session_factory) as s:  # a later row, damaged: 31 channels
         bad = OffsetCalibrationRow(
@@ -137,8 +137,15 @@ def test_each_bad_field_is_named(field: str, value: object, why: str) -> None:
 def test_a_record_refuses_a_naive_time_or_mismatched_lengths() -> None:
     naive = datetime(2026, 3, 1, 6, 0)
     with pytest.raises(RecordError, match="t_to: naive"):
-        OffsetCalibrationData(t_from=T0, t_to=naive, source="auto", samples=3, offsets_c=(0.1,), sd_c=(0.01,))
+        Calibration(
+            t_from=T0, t_to=naive, source="auto", samples=3, offsets_c=np.array([0.1]), sd_c=np.array([0.01])
+        )
     with pytest.raises(RecordError, match="sd_c: expected 2 values"):
-        OffsetCalibrationData(
-            t_from=T0, t_to=T0, source="auto", samples=3, offsets_c=(0.1, 0.2), sd_c=(0.01,)
+        Calibration(
+            t_from=T0,
+            t_to=T0,
+            source="auto",
+            samples=3,
+            offsets_c=np.array([0.1, 0.2]),
+            sd_c=np.array([0.01]),
         )

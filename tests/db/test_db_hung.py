@@ -4,7 +4,7 @@ A real PostgreSQL behind ``tests.db.tcp_proxy.TcpProxy``, which ``freeze()``s: c
 is forwarded, and the close of a connection the service gives up on meanwhile is lost, as on a real link: its
 server session stays behind (issue 41.1: with the close delivered at the thaw, the orphan was hidden, and this
 test still failed 2 of 5 runs under load when the freeze landed on a batch's COMMIT). The service is the real
-one (``service.sim.served``: ``open_persistence``, the core, the shell and the API, as in production, only
+one (``simulator.served``: ``open_persistence``, the core, the shell and the API, as in production, only
 with short database timeouts), fed virtual-plant samples; each sample it takes is stored
 (``database.sample_store_period_s`` = the 10-s sample period).
 """
@@ -21,10 +21,10 @@ from fastapi.testclient import TestClient
 
 from model.plant import Segment
 from service.settings import Settings
-from service.sim.served import Plan, Served, served_service
 from service.store import repository as repo
 from service.store.engine import create_db_engine, make_session_factory
 from service.store.models import SampleRow
+from simulator.served import Plan, Served, served_service
 from tests.db.conftest import pg_schema_url
 from tests.db.tcp_proxy import TcpProxy, free_port
 

@@ -9,9 +9,8 @@ import numpy as np
 from sqlalchemy import func, select, update
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.estimate.checkpoint import LiveCheckpoint
+from service.contracts.checkpoint import LiveCheckpoint
 from service.host.persistence import restore
-from service.store.livestate import live_state_record
 from service.store.models import LiveStateRow
 from service.store.repository import session_scope, write_records
 
@@ -38,9 +37,9 @@ def test_the_newest_checkpoint_replaces_the_row_and_is_restored(factory: session
     assert restore(factory).live is None
     cps = [_checkpoint(T0 + 60.0 * i, i) for i in range(3)]
     with session_scope(factory, "write") as s:
-        write_records(s, [live_state_record(cps[0])])
+        write_records(s, [cps[0]])
     with session_scope(factory, "write") as s:
-        write_records(s, [live_state_record(cp) for cp in cps[1:]])
+        write_records(s, list(cps[1:]))
     with session_scope(factory, "count") as s:
         assert s.scalar(select(func.count()).select_from(LiveStateRow)) == 1
     got = restore(factory).live
@@ -55,7 +54,7 @@ def test_a_damaged_checkpoint_is_reported_and_the_filter_starts_from_its_prior(
     factory: sessionmaker[Session],
 ) -> None:
     with session_scope(factory, "write") as s:
-        write_records(s, [live_state_record(_checkpoint(T0, 1))])
+        write_records(s, [_checkpoint(T0, 1)])
         s.execute(update(LiveStateRow).values(payload=b"not an archive"))
     said: list[str] = []
     assert restore(factory, on_problem=said.append).live is None

@@ -10,9 +10,8 @@ import numpy as np
 from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.estimate.mechanics import MechanicsCalibration
+from service.contracts.mechanics import MechanicsCalibration
 from service.host.persistence import restore
-from service.store.mechanics import mechanics_record
 from service.store.models import MechanicsCalibrationRow
 from service.store.repository import session_scope, write_records
 
@@ -41,7 +40,7 @@ def test_the_newest_commissioning_is_restored_with_its_posterior(factory: sessio
     assert restore(factory).mechanics is None
     old, new = _cal(AT, 0.3, "alice"), _cal(AT + timedelta(days=1), 0.64, "bob")
     with session_scope(factory, "write") as s:
-        write_records(s, [mechanics_record(new), mechanics_record(old)])  # the order of writing is not it
+        write_records(s, [new, old])  # the order of writing is not it
     got = restore(factory).mechanics
     assert got is not None
     assert got.x == new.x and got.set_by == "bob" and got.source == "cli" and got.at == new.at
@@ -53,7 +52,7 @@ def test_the_newest_commissioning_is_restored_with_its_posterior(factory: sessio
 def test_an_unusable_stored_commissioning_is_reported_and_none_is_used(
     factory: sessionmaker[Session],
 ) -> None:
-    row = mechanics_record(_cal(AT, 0.5, "x")).values() | {"restraint": 1.7, "spindle_id": "spindle1"}
+    row = _cal(AT, 0.5, "x").values() | {"restraint": 1.7, "spindle_id": "spindle1"}
     with session_scope(factory, "write") as s:
         s.execute(insert(MechanicsCalibrationRow), [row])
     said: list[str] = []

@@ -8,7 +8,7 @@ from datetime import UTC, datetime, timedelta
 from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.estimate.probe import ProbeMeasurement
+from service.contracts.probe import ProbeMeasurement
 from service.host.persistence import restore
 from service.store.models import ProbeMeasurementRow
 from service.store.probes import probe_record

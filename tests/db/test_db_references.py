@@ -8,10 +8,9 @@ from datetime import UTC, datetime, timedelta
 from sqlalchemy import insert
 from sqlalchemy.orm import Session, sessionmaker
 
-from service.estimate.reference import CompensationReference
+from service.contracts.reference import CompensationReference
 from service.host.persistence import restore
 from service.store.models import CompensationReferenceRow
-from service.store.references import reference_record
 from service.store.repository import session_scope, write_records
 
 AT = datetime(2026, 11, 27, 8, 0, tzinfo=UTC)
@@ -24,7 +23,7 @@ def test_the_newest_zero_is_restored(factory: sessionmaker[Session]) -> None:
         temperature_c=22.25, sd_c=0.03, at=AT + timedelta(days=1), source="api", set_by="bob"
     )
     with session_scope(factory, "write") as s:
-        write_records(s, [reference_record(new), reference_record(old)])  # the order of writing is not it
+        write_records(s, [new, old])  # the order of writing is not it
     assert restore(factory).reference == new
 
 

@@ -9,11 +9,11 @@ import numpy as np
 import sqlalchemy as sa
 from sqlalchemy.orm import Session, sessionmaker
 
+from service.contracts.checkpoint import LiveCheckpoint
 from service.contracts.records import (
     ConditionEnd,
     ConditionStart,
     DeviceEventData,
-    LiveStateData,
     SampleData,
 )
 from service.host.persistence import restore
@@ -59,14 +59,16 @@ def fill(factory: sessionmaker[Session], *, base: float, h1: float) -> None:
         ),
         ident(1, 1, T0 + timedelta(minutes=20), h=[h1, 46.0, 68.0, 46.0, 52.0, 70.0, 16.0]),
         DeviceEventData(t=T0, device="can", kind=f"gap-{base}"),
-        LiveStateData(
-            at=T0,
+        LiveCheckpoint(
+            t=T0.timestamp(),
             model_version="m",
             converged=True,
-            ambient_c=base,
-            speed_rpm=1.0,
-            torque_nm=1.0,
-            payload=b"x",
+            inputs=(base, 1.0, 1.0),
+            mean=np.zeros(2),
+            cov=np.eye(2),
+            cross=np.zeros((2, 9)),
+            bias_s=np.zeros((2, 3)),
+            bias_m=np.eye(2),
         ),
         *samples(30, base=base),
     ]

@@ -9,7 +9,7 @@ from pathlib import Path
 import pytest
 import sqlalchemy as sa
 
-from service.serve.interface import NotReadyError
+from service.contracts.errors import NotReadyError
 from service.shell.archive import IdentificationArchive
 from service.store.engine import create_db_engine, make_session_factory
 from service.store.errors import DatabaseUnavailableError

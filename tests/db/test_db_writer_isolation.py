@@ -14,7 +14,7 @@ from datetime import UTC, datetime, timedelta
 import pytest
 import sqlalchemy as sa
 
-from service.serve.interface import DeviceStatus
+from service.contracts.health import DeviceStatus
 from service.shell.health import db_health
 from service.store import repository as repo
 from service.store.engine import create_db_engine, make_session_factory

@@ -15,7 +15,7 @@ from collections.abc import Callable
 
 from service.serve.mqtt.points import read_points
 from service.serve.mqtt.sparkplug import SparkplugSession, SparkplugTopics
-from service.sim.served import served_service
+from simulator.served import served_service
 
 
 def _ms(f: Callable[[], object], n: int = 200) -> str:

@@ -10,11 +10,11 @@ from pathlib import Path
 import pytest
 from pydantic import ValidationError
 
-from service.serve.interface import ChtcStatus
+from service.contracts.verdict import ChtcStatus
+from service.mqttsettings import MqttSettings
 from service.serve.mqtt import sparkplug_b_pb2 as pb
 from service.serve.mqtt.bdseq import BdSeqStore
 from service.serve.mqtt.buffer import OutBuffer
-from service.serve.mqtt.config import MqttSettings
 from service.serve.mqtt.plainjson import payload
 from service.serve.mqtt.points import CATALOGUE, Point, Quality, changed, quality_of
 from service.serve.mqtt.sparkplug import (

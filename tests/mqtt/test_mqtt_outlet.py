@@ -18,16 +18,10 @@ from typing import TypeVar
 
 import pytest
 
-from service.serve.interface import (
-    ChtcSnapshot,
-    CompensationSnapshot,
-    ConditionSnapshot,
-    DeviceHealth,
-    DeviceStatus,
-    HealthSnapshot,
-    NoDataYetError,
-)
-from service.serve.mqtt.config import MqttSettings
+from service.contracts.errors import NoDataYetError
+from service.contracts.health import DeviceHealth, DeviceStatus, HealthSnapshot
+from service.contracts.snapshots import ChtcSnapshot, CompensationSnapshot, ConditionSnapshot
+from service.mqttsettings import MqttSettings
 from service.serve.mqtt.outlet import MqttOutlet
 from service.serve.mqtt.points import CATALOGUE
 from tests.mqtt.peers import Broker, broker, kind, make_certificates, metrics_by_name, need_peers, peer
@@ -233,7 +227,7 @@ def test_a_broker_outage_buffers_up_to_the_bound_and_reconnects_with_a_new_birth
 CHILD = """
 import asyncio, sys
 from pathlib import Path
-from service.serve.mqtt.config import MqttSettings
+from service.mqttsettings import MqttSettings
 from service.serve.mqtt.outlet import MqttOutlet
 sys.path.insert(0, {tests!r})
 from tests.mqtt.test_mqtt_outlet import Reader

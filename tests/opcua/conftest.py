@@ -1,5 +1,5 @@
 """Fixtures for the OPC UA outlet's tests: certificates made at test time (never committed), the real served
-service (``service.sim.served``: the demo plan through the real core and shell, a hand-moved clock) with the
+service (``simulator.served``: the demo plan through the real core and shell, a hand-moved clock) with the
 OPC UA outlet subscribed to it on loopback, and REST on the same service for comparison."""
 
 from __future__ import annotations
@@ -32,7 +32,7 @@ from service.serve.opcua.outlet import OpcUaOutlet, opcua_outlet
 from service.serve.opcua.security import hash_password
 from service.serve.outlet import OutletContext
 from service.settings import Settings
-from service.sim.served import DEMO_FED, Served, served_service
+from simulator.served import DEMO_FED, Served, served_service
 
 USER, PASSWORD = "plc1", "a-long-test-password"
 CLIENT_URI = "urn:freeopcua:client"  # asyncua's client application URI (its certificate must name it)

@@ -190,7 +190,7 @@ def test_node_opcua_sees_the_status_codes_change_when_the_daq_stops(tmp_path: Pa
     import time
     from datetime import timedelta
 
-    from service.sim.served import feed
+    from simulator.served import feed
 
     r = start_rig(tmp_path / "rig", opcua_settings(pki))
     paths = ["Status.Text", "Status.Code", "Status.Usable", "Growth.Axial"]

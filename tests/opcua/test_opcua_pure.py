@@ -5,6 +5,8 @@ NodeSet2 (loaded back into a fresh server as TIA Portal or TwinCAT would import 
 from __future__ import annotations
 
 import asyncio
+import socket
+import time
 from datetime import UTC, datetime, timedelta
 from pathlib import Path
 
@@ -13,7 +15,9 @@ from asyncua import Server, ua
 from asyncua.server.users import User, UserRole
 
 from service.cli import main as chtc
+from service.contracts.verdict import ChtcStatus, Reason, Verdict
 from service.host.runtime import enabled_outlets
+from service.mqttsettings import MqttSettings
 from service.serve.errors import OutletError
 from service.serve.opcua.nodes import VARS, unit_id
 from service.serve.opcua.security import (
@@ -24,7 +28,6 @@ from service.serve.opcua.security import (
     verify_password,
 )
 from service.serve.opcua.status import UaStatus, lost_since, status_of, worst
-from service.serve.verdict import ChtcStatus, Reason, Verdict
 from service.settings import Settings, SettingsError
 
 S = ChtcStatus
@@ -203,7 +206,6 @@ def test_the_node_ids_follow_the_spindle_id_unless_set(tmp_path: Path, toml: str
 
 
 def test_the_opcua_and_sparkplug_names_resolve_from_the_spindle_id() -> None:
-    from service.serve.mqtt.config import MqttSettings
 
     s = Settings(spindle={"id": "cell3-sp07"})  # type: ignore[arg-type]
     assert s.opcua.spindle is None and s.opcua.for_spindle(s.spindle.id).node_prefix == "cell3-sp07"
@@ -224,3 +226,37 @@ def test_the_opcua_and_sparkplug_names_resolve_from_the_spindle_id() -> None:
     for per in Settings(spindles=hosted).per_spindle():  # type: ignore[arg-type]
         assert per.opcua.for_spindle(per.spindle.id).node_prefix == per.spindle.id
         assert per.mqtt.for_spindle(per.spindle.id).device == per.spindle.id
+
+
+@pytest.mark.parametrize(
+    ("setting", "content", "message"),
+    [
+        ("certificate", None, "opcua.certificate: cannot read"),
+        ("certificate", b"not a certificate", "opcua.certificate: "),
+        (
+            "private_key",
+            b"-----BEGIN PRIVATE KEY-----\nAAAA\n-----END PRIVATE KEY-----\n",
+            "opcua.private_key: ",
+        ),
+    ],
+)
+def test_an_unreadable_certificate_is_one_line_before_the_model_loads(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], setting: str, content: bytes | None, message: str
+) -> None:
+    path = tmp_path / f"{setting}.pem"
+    if content is not None:
+        path.write_bytes(content)
+    config = tmp_path / "chtc.toml"
+    with socket.socket() as s:  # a free port for the API (checked before the OPC UA files)
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    config.write_text(
+        f'[api]\nport = {port}\n[database]\nurl = "sqlite:///{tmp_path / "db.sqlite"}"\n'
+        f'[opcua]\nenabled = true\nport = {port}\n{setting} = "{path}"\n',
+        encoding="utf-8",
+    )
+    t0 = time.monotonic()
+    assert chtc(["run", "--config", str(config)]) == 2
+    assert time.monotonic() - t0 < 5.0  # the model (about 10 s) was not loaded
+    err = capsys.readouterr().err.strip()
+    assert message in err and len(err.splitlines()) == 1, err

@@ -9,6 +9,7 @@ Sign&Encrypt only)."""
 from __future__ import annotations
 
 import asyncio
+import logging
 from datetime import datetime, timedelta
 from typing import Any
 
@@ -17,10 +18,10 @@ import pytest
 from asyncua import Client, ua
 from asyncua.crypto.security_policies import SecurityPolicyBasic256Sha256
 
+from service.contracts.verdict import ChtcStatus, Reason, Verdict
 from service.serve.opcua.nodes import UNITS_NAMESPACE, VARS, Var
 from service.serve.opcua.status import UaStatus, lost_since, status_of
-from service.serve.verdict import ChtcStatus, Reason, Verdict
-from service.sim.served import feed
+from simulator.served import feed
 
 from .conftest import (
     NS,
@@ -134,6 +135,8 @@ def test_the_type_the_nodeids_and_every_value_with_its_unit_status_and_time(rig:
 async def _check_node(c: Client, var: Var) -> None:
     node = await node_path(c, var.path)
     assert ua.AccessLevel.CurrentWrite not in await node.get_access_level(), var.path
+    historizing = await node.read_attribute(ua.AttributeIds.Historizing)
+    assert historizing.Value.Value is False, var.path  # no history is served
     typedef = await node.read_type_definition()
     if var.unit is None:
         assert typedef == ua.NodeId(ua.ObjectIds.BaseDataVariableType), var.path
@@ -170,20 +173,49 @@ def test_a_subscription_gets_a_new_sample_within_one_sample_period(rig: Rig) -> 
     rig.run(run)
 
 
-def test_anonymous_may_read_but_not_write_call_or_add_nodes(rig: Rig) -> None:
+async def _user_executable(c: Client) -> list[bool]:
+    idx = await c.get_namespace_index(NS)
+    out = []
+    for name in ("StartIdentification", "TakeSensorBaseline"):
+        method = c.get_node(f"ns={idx};s=Spindle1.{name}")
+        assert (await method.read_attribute(ua.AttributeIds.Executable)).Value.Value is True
+        out.append((await method.read_attribute(ua.AttributeIds.UserExecutable)).Value.Value)
+    return out
+
+
+def test_anonymous_may_read_but_not_write_call_or_add_nodes(
+    rig: Rig, caplog: pytest.LogCaptureFixture
+) -> None:
+    before = dict(rig.outlet.outlet_metrics().refused)
+
     async def run() -> None:
         async with Client(rig.url) as c:
             node = await node_path(c, "Growth.Axial")
-            with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
-                await node.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
+            for _ in range(5):  # a client that keeps writing: one log line, five counted
+                with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
+                    await node.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
             with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
                 await c.nodes.objects.add_variable(2, "Injected", 1.0)
             spindle = c.get_node("ns=2;s=Spindle1")
+            assert await _user_executable(c) == [False, False]  # what the session may do
             with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
                 await spindle.call_method("2:TakeSensorBaseline")
             assert isinstance(await node.read_value(), float)
+            level = (await node.read_attribute(ua.AttributeIds.UserAccessLevel)).Value.Value
+            assert level == ua.AccessLevel.CurrentRead.mask
 
-    rig.run(run)
+    with caplog.at_level(logging.INFO):
+        rig.run(run)
+    refused = rig.outlet.outlet_metrics().refused
+    assert refused.get("Write", 0) - before.get("Write", 0) == 5
+    assert refused.get("AddNodes", 0) - before.get("AddNodes", 0) == 1
+    assert refused.get("Call", 0) - before.get("Call", 0) == 1
+    asyncua_loud = [
+        r for r in caplog.records if r.name.startswith("asyncua.server") and r.levelno >= logging.WARNING
+    ]
+    assert asyncua_loud == [], [r.getMessage() for r in asyncua_loud]
+    lines = [r for r in caplog.records if "refused Write for anonymous" in r.getMessage()]
+    assert len(lines) <= 1 and all(r.levelno == logging.INFO for r in lines)  # 0: an earlier test logged it
 
 
 def _secure(c: Client, pki: Pki, *, rogue: bool = False) -> Any:
@@ -205,6 +237,7 @@ def test_an_encrypted_session_with_a_user_reads_and_may_call_but_not_write(rig: 
             with pytest.raises(ua.UaStatusCodeError, match="BadUserAccessDenied"):
                 await node.write_value(ua.DataValue(ua.Variant(1.0, ua.VariantType.Double)))
             spindle = c.get_node("ns=2;s=Spindle1")
+            assert await _user_executable(c) == [True, True]
             try:  # the service answers (a job, or busy/not ready): the call itself is authorised
                 result = await spindle.call_method(
                     "2:StartIdentification", ua.Variant("opcua test", ua.VariantType.String)
@@ -332,6 +365,7 @@ def test_no_sample_yet_waits_for_initial_data_and_sessions_are_bounded(tmp_path,
             return got
 
         got = r.run(run)
+        assert r.outlet.outlet_metrics().refused.get("BadMaxConnectionsReached") == 1  # /metrics, not ERROR
     finally:
         stop_rig(r)
     assert got["Status.Text"].Value.Value == "no-data" and got["Status.Usable"].Value.Value is False

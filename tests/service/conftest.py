@@ -15,7 +15,7 @@ from model.geometry import load_spindle
 from model.plant import PlantRun, Segment, VirtualPlant
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
-from service.sim.plantsamples import samples_from_plant
+from simulator.plantsamples import samples_from_plant
 
 T0 = datetime(2026, 1, 5, 8, 0, 0, tzinfo=UTC).timestamp()
 
@@ -53,7 +53,7 @@ def inline_service(
     from service.host.runtime import core_config
     from service.identify.worker import run_job
     from service.shell.service import SoftSensorService
-    from service.sim.served import ManualClock
+    from simulator.served import ManualClock
 
     core = ServiceCore(core_config(settings), model=model, history_capacity=10_000, restored=restored)
     clock = ManualClock(samples[0].t)

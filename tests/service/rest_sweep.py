@@ -19,7 +19,7 @@ from service.host.runtime import core_config
 from service.modelload import ModelRef, load_model
 from service.serve.compensation import GrowthServer
 from service.settings import Settings
-from service.sim.plantsamples import samples_from_plant
+from simulator.plantsamples import samples_from_plant
 
 
 def main(seed: int, offsets: bool) -> dict[str, object]:

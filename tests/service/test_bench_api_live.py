@@ -57,7 +57,7 @@ def test_the_rig_process_is_told_apart_by_its_name() -> None:
     import sys
 
     other = "print(1, flush=True); input()"
-    code = "from service.sim.rigproc import name_process; name_process('chtc-rig'); " + other
+    code = "from simulator.rigproc import name_process; name_process('chtc-rig'); " + other
     env = {**os.environ, "PYTHONPATH": os.pathsep.join(sys.path)}
     procs = [
         subprocess.Popen([sys.executable, "-c", c], stdin=subprocess.PIPE, stdout=subprocess.PIPE, env=env)

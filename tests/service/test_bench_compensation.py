@@ -13,7 +13,7 @@ import pytest
 from benchmarks import compensation as cb
 from benchmarks.compensation_run import Minute, Plan, SeedRows, plan_for, reason_code
 from model.plant import h_true
-from service.sim.randomtruth import H_BOX, draw_truth
+from simulator.randomtruth import H_BOX, draw_truth
 
 SPEEDS = np.linspace(0.0, 7000.0, 701)
 
@@ -57,7 +57,7 @@ def test_random_truth_is_the_plants_h_law_signature() -> None:
 
 
 def test_reason_code_is_the_verdicts_typed_reason() -> None:
-    from service.serve.verdict import ChtcStatus, Reason, Verdict
+    from service.contracts.verdict import ChtcStatus, Reason, Verdict
 
     stale = Verdict(ChtcStatus.STALE, False, Reason.STALE, "daq_no_good_data: no data for 70 s")
     assert reason_code(SimpleNamespace(verdict=stale)) == "stale"

@@ -10,7 +10,7 @@ import numpy as np
 import pytest
 
 from benchmarks import duty
-from service.sim.duty import SPEEDS_RPM, condition_at, duty_profile
+from simulator.duty import SPEEDS_RPM, condition_at, duty_profile
 
 
 def test_duty_profile_is_seeded_and_within_the_issues_ranges() -> None:

@@ -6,7 +6,7 @@ non-finite values`` out of the core's sample handling. In ``chtc run`` that exce
 task group, so the DAQ and CAN loops stopped silently and `/healthz` then reported the (healthy) DAQ as
 `down`.
 
-The core is driven with events first (what its view holds), then the real service (``service.sim.served``:
+The core is driven with events first (what its view holds), then the real service (``simulator.served``:
 core, shell, SQLite) takes the samples as the acquisition hands them over, and what it serves is checked.
 """
 
@@ -25,7 +25,7 @@ from service.core.machine import ServiceCore
 from service.host.runtime import core_config
 from service.modelload import LoadedModel
 from service.settings import Settings
-from service.sim.served import Plan, feed, plant_samples, served_service
+from simulator.served import Plan, feed, plant_samples, served_service
 
 PLAN = Plan(profile=(Segment(780.0, 3000.0, 5.0, 22.0),))  # 13 min: one identification (first window 7 min)
 N_SILENT = 6  # the first minute: the DAQ answers, CAN does not (yet)

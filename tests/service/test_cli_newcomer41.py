@@ -15,6 +15,7 @@ from sqlalchemy import text
 
 from service.cli import main
 from service.commands._common import check_database_url
+from service.contracts.mechanics import is_shipped_example
 from service.store.dburl import normalize_database_url
 from service.store.engine import create_db_engine
 
@@ -153,7 +154,6 @@ def test_the_shipped_example_thermal_test_is_refused_by_a_running_service() -> N
     from api.app import create_app
     from api.deps import ClockInfo
     from service.settings import Settings
-    from service.shell.commissioning import is_shipped_example
 
     disp = (DATA / "example_thermal_test_displacements.csv").read_text(encoding="utf-8")
     assert is_shipped_example(disp)

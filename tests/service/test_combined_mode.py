@@ -12,10 +12,10 @@ from benchmarks.chain import last_per_condition
 from benchmarks.identmode import served_in_order
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
+from service.contracts.verdict import ChtcStatus
 from service.core.jobbook import MAP_METHOD
 from service.host.persistence import open_persistence
 from service.identify.prior import ServedMapPrior
-from service.serve.interface import ChtcStatus
 from service.settings import Settings
 
 from .conftest import inline_service, samples_of

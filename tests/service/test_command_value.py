@@ -227,8 +227,8 @@ def test_the_daq_lost_fades_to_the_open_loop_prediction_and_nothing_known_to_zer
 
 
 def test_the_controller_rewrites_only_the_ci_part_of_the_verdict() -> None:
+    from service.contracts.verdict import ChtcStatus, Reason, Verdict
     from service.serve.controlled import Controller
-    from service.serve.verdict import ChtcStatus, Reason, Verdict
 
     ctl = Controller(CONTROL, tool_dir=-1)
     plain_ok = Verdict(ChtcStatus.FRESH, True)
@@ -250,7 +250,7 @@ def test_the_controller_rewrites_only_the_ci_part_of_the_verdict() -> None:
 
 
 def test_the_control_state_survives_the_live_checkpoint() -> None:
-    from service.estimate.checkpoint import LiveCheckpoint
+    from service.contracts.checkpoint import LiveCheckpoint
 
     steps: list[Step] = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
     steps += [(float(t), False, "ci_too_wide", "fresh", 6.0, 2.2) for t in range(30, 60)]

@@ -1,5 +1,5 @@
 """``chtc commission growth`` on a thermal test recorded on the virtual plant with drawn mechanics the service
-does not know (``service.sim.thermaltest``): the fit recovers them within their CIs, says where the model
+does not know (``simulator.thermaltest``): the fit recovers them within their CIs, says where the model
 fails when the test is corrupted, and the growth served with the calibration carries the mechanical
 posterior in its CI."""
 
@@ -17,6 +17,7 @@ import pytest
 from model.plant import Segment
 from model.plantmech import mechanics_for_seed
 from service.cli import main as cli_main
+from service.contracts.mechanics import MechanicsCalibration
 from service.estimate.growth import (
     FieldBelief,
     build_context,
@@ -34,7 +35,7 @@ from service.shell.commissioning import (
     fit_test,
     read_displacement_csv,
 )
-from service.sim.thermaltest import ThermalTest, write_thermal_test
+from simulator.thermaltest import ThermalTest, write_thermal_test
 
 pytestmark = pytest.mark.slow  # a 80-min plant run (~5 s) and the service's core over it (~5 s)
 
@@ -53,7 +54,7 @@ def thermal_test(tmp_path_factory: pytest.TempPathFactory) -> ThermalTest:
 
 
 def test_the_shipped_example_is_this_test(thermal_test: ThermalTest) -> None:
-    """service/data/example_thermal_test_*: ``python -m service.sim.thermaltest OUT --short --seed 3``."""
+    """service/data/example_thermal_test_*: ``python -m simulator.thermaltest OUT --short --seed 3``."""
     from drivers.logs import read_can_log, read_temperature_csv
 
     data = Path(__file__).resolve().parents[2] / "service" / "data"
@@ -173,7 +174,6 @@ def test_the_growth_server_uses_a_restored_or_new_commissioning(
 ) -> None:
     """``GrowthServer``: a shared context plus a restored calibration is calibrated on first use; a new
     commissioning replaces the operators and drops the condition terms computed with the old ones."""
-    from service.estimate.mechanics import MechanicsCalibration
     from service.serve.compensation import GrowthServer
 
     _, basis, _ = fitted

@@ -15,7 +15,9 @@ import numpy as np
 import pytest
 
 from model.plant import Segment
+from service.contracts.errors import NotReadyError
 from service.contracts.records import IdentificationData
+from service.contracts.snapshots import JobState
 from service.core.events import (
     Event,
     Instruction,
@@ -32,7 +34,6 @@ from service.core.events import (
 from service.core.machine import ServiceCore
 from service.identify.worker import run_job
 from service.modelload import LoadedModel
-from service.serve.interface import JobState, NotReadyError
 from service.shell.service import SoftSensorService
 from tests.engine_config import PER_CONDITION_10_20, product_core
 

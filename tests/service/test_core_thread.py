@@ -16,16 +16,16 @@ import pytest
 
 from drivers.ringbuffer import Sample
 from model.plant import Segment
+from service.contracts.health import DeviceStatus
+from service.contracts.verdict import ChtcStatus, DataCode, DataProblem, Reason
 from service.core.events import Event, IdsKnown, Instruction, SampleReceived
 from service.core.machine import ServiceCore
 from service.host.runtime import core_config
-from service.serve.interface import DeviceStatus
-from service.serve.verdict import DataCode
 from service.settings import Settings
 from service.shell.corethread import CoreThread
 from service.shell.looplag import LoopLagMonitor
 from service.shell.service import SoftSensorService
-from service.sim.served import ManualClock
+from simulator.served import ManualClock
 
 from .conftest import plant_run, samples_of
 
@@ -170,7 +170,6 @@ def test_backlog_past_its_limit_is_served_as_core_behind(loaded_model, samples) 
 
 def test_core_behind_verdict_is_typed() -> None:
     from service.serve.policy import data_verdict
-    from service.serve.verdict import ChtcStatus, DataProblem, Reason
 
     v = data_verdict(
         [DataProblem(DataCode.CORE_BEHIND, "samples wait 40 s")],

@@ -6,7 +6,7 @@ from datetime import UTC, datetime, timedelta
 
 from drivers.base import SourceMetrics
 from service.acquire.devicewatch import DeviceWatch, transition_detail
-from service.serve.interface import DeviceHealth, DeviceStatus
+from service.contracts.health import DeviceHealth, DeviceStatus
 from tests.engine_config import product_core
 
 

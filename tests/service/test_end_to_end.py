@@ -20,7 +20,7 @@ from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant, h_true
 from service.host.runtime import Runtime, ScaledClock, free_port
 from service.settings import Settings
-from service.sim.simrig import SimAddress, make_drivers, plant_rig
+from simulator.simrig import SimAddress, make_drivers, plant_rig
 from tests.modes import per_condition
 
 # 150 plant s per wall s: the 8400 plant s take 56 s wall (84 s at 100x). Measured alone at 100x and

@@ -15,6 +15,9 @@ import numpy as np
 import pytest
 
 from model.plant import Segment
+from service.contracts.checkpoint import LiveCheckpoint
+from service.contracts.health import DeviceStatus
+from service.contracts.verdict import ChtcStatus
 from service.core.config import Restored
 from service.core.events import SampleReceived
 from service.core.machine import ServiceCore
@@ -22,7 +25,6 @@ from service.host.runtime import core_config
 from service.identify.detector import OperatingPoint
 from service.identify.scheduler import PastResult
 from service.identify.worker import run_job
-from service.serve.interface import ChtcStatus, DeviceStatus
 from service.settings import Settings
 from service.shell.health import filter_health
 from service.shell.service import SoftSensorService
@@ -165,7 +167,6 @@ def test_a_restart_with_the_stored_live_state_resumes_it(loaded_model, run_sampl
     back by ``restore``, it lets the next process continue the same filtered state: converged from the first
     sample, and its field near an uninterrupted run's after the next samples (one sample lost in the
     restart): far nearer than a start from the prior."""
-    from service.contracts.records import LiveStateData
     from service.host.persistence import restore
     from service.store import migrate
     from service.store.engine import create_db_engine, make_session_factory
@@ -179,7 +180,7 @@ def test_a_restart_with_the_stored_live_state_resumes_it(loaded_model, run_sampl
     records = [
         r
         for r in stored(feed_and_run(first, loaded_model, samples[:RESTART_K]))
-        if isinstance(r, LiveStateData)
+        if isinstance(r, LiveCheckpoint)
     ]
     assert abs(len(records) - RESTART_K // 6) <= 1  # one a minute of sample time
     eng = create_db_engine(f"sqlite:///{tmp_path}/chtc.db")
@@ -189,7 +190,7 @@ def test_a_restart_with_the_stored_live_state_resumes_it(loaded_model, run_sampl
         write_records(s, records)
     live = restore(factory).live
     eng.dispose()
-    assert live is not None and live.converged and live.t == records[-1].at.timestamp()
+    assert live is not None and live.converged and live.t == records[-1].values()["at"].timestamp()
 
     restored = replace(_restored(first), live=live, calibration=first.view().calibration)
     core = ServiceCore(cfg, model=loaded_model, restored=restored)

@@ -1,6 +1,6 @@
 """The filtered state's covariance stays a covariance (docs/design/estimator.md, "Covariance health").
 
-The bug (2026-11-27, the simulated ISO 230-3 thermal test ``python -m service.sim.thermaltest --short
+The bug (2026-11-27, the simulated ISO 230-3 thermal test ``python -m simulator.thermaltest --short
 --seed 4`` commissioned through the core): an identification's ``set_h`` with a narrower CI lowered the
 considered H errors' 1σ while their cross-covariance with the state was kept, so the next predictions made
 P indefinite (negative variances, negative NIS) and the served field reached 165 °C, still "converged".
@@ -108,7 +108,7 @@ def test_a_checkpoint_resumed_under_a_narrower_h_ci_stays_positive(loaded_model:
     the resumed state keeps a positive semi-definite P without restarting (without the rescale: a negative
     variance at the first sample, and a restart). A checkpoint without ``param_std`` (written before it was
     kept) still loads."""
-    from service.estimate.checkpoint import LiveCheckpoint
+    from service.contracts.checkpoint import LiveCheckpoint
 
     samples = _warm_up(loaded_model, 6, 72)
     state = FilteredState(loaded_model.rom, loaded_model.spec, h=H_GUESS)

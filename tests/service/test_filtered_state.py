@@ -273,11 +273,11 @@ def test_considered_h_error_from_a_ci_is_the_log_normal_sigma() -> None:
 
 
 def test_a_resumed_checkpoint_continues_the_same_state_and_a_stale_one_restarts(case: Case) -> None:
-    """A restart with the stored checkpoint (``service.estimate.checkpoint``, through its ``.npz`` bytes):
+    """A restart with the stored checkpoint (``service.contracts.checkpoint``, through its ``.npz`` bytes):
     the new state continues where the old one stood, converged, and its next updates equal the uninterrupted
     state's. A checkpoint older than ``max_gap_s`` at the first sample starts from the prior; one of another
     model is refused, naming the model."""
-    from service.estimate.checkpoint import CheckpointError, LiveCheckpoint
+    from service.contracts.checkpoint import CheckpointError, LiveCheckpoint
 
     run = case.run
     state = _filter(case, 0, run.h_true[0])

@@ -24,10 +24,12 @@ from drivers.modbus_daq import DaqReading
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
 from model.plant import Segment
+from service.contracts.records import IdentificationData
+from service.contracts.snapshots import ConditionSnapshot, ConditionState
+from service.contracts.verdict import ChtcStatus
 from service.core.machine import ServiceCore
 from service.host.runtime import core_config
 from service.identify.worker import JobOutcome, JobRequest, run_job
-from service.serve.interface import ChtcStatus
 from service.shell.service import SoftSensorService
 from tests.modes import per_condition
 
@@ -218,8 +220,6 @@ def test_not_identified_and_condition_change_are_not_usable(loaded_model, identi
 def test_a_stored_negative_lower_bound_is_not_served() -> None:
     """Rows stored with the former linear CI may hold a negative lower bound; H > 0, so 0 is served (the
     same mapping serves a row read back and a record just finished)."""
-    from service.contracts.records import IdentificationData
-    from service.serve.interface import ConditionSnapshot, ConditionState
     from service.serve.views import data_to_record
 
     t = datetime(2026, 1, 1, tzinfo=UTC)

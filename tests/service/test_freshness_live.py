@@ -14,7 +14,7 @@ from drivers.sim.faults import FaultKind
 from model.plant import Segment
 from service.host.runtime import Runtime, ScaledClock, free_port
 from service.settings import Settings
-from service.sim.simrig import SimAddress, make_drivers, plant_rig
+from simulator.simrig import SimAddress, make_drivers, plant_rig
 
 from .conftest import plant_run
 

@@ -21,7 +21,7 @@ from service.host.fleet import Host
 from service.host.runtime import ScaledClock, free_port
 from service.logctx import SpindleFilter
 from service.settings import Settings
-from service.sim.simrig import SimAddress, make_drivers, plant_rig
+from simulator.simrig import SimAddress, make_drivers, plant_rig
 from tests.db.conftest import pg_schema, pg_schema_url
 
 from .conftest import plant_run

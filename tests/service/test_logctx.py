@@ -207,7 +207,7 @@ def test_a_running_spindle_logs_its_id_from_its_tasks_and_threads(tmp_path, reco
     its context (the process default is unset: such a line would say ``-``)."""
     from service.host.runtime import Runtime, ScaledClock
     from service.settings import Settings
-    from service.sim.simrig import SimAddress, make_drivers
+    from simulator.simrig import SimAddress, make_drivers
 
     sql = logging.getLogger("sqlalchemy.engine")
     sql_level = sql.level

@@ -19,7 +19,7 @@ from drivers.logs import TemperatureCsvWriter, write_can_log
 from model.plant import Segment, h_true
 from service.cli import main as cli_main
 from service.commands.replay import GrowthLog
-from service.serve.interface import ChtcStatus
+from service.contracts.verdict import ChtcStatus
 from service.settings import Settings
 from tests.timing import LoopLag
 

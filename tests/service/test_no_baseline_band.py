@@ -12,7 +12,7 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from service.acquire.calibration import Calibration
+from service.contracts.calibration import Calibration
 from service.core.config import Restored
 from service.core.machine import ServiceCore
 from service.defaults import H_FORM_SD_LN, H_NO_BASELINE_SD_LN

@@ -2,7 +2,7 @@
 live state continues open loop, its covariance growing; ``/compensation`` serves the growth as ``predicted``
 (never ``fresh``), usable at most ``compensation.max_open_loop_min``; with CAN lost too it is stale at once.
 
-The real service (``service.sim.served``) is fed the virtual plant's demo run, then the acquisition's samples
+The real service (``simulator.served``) is fed the virtual plant's demo run, then the acquisition's samples
 as ``drivers.acquisition.combine`` builds them when the DAQ is silent (every channel ``STALE`` with its last
 value, the ambient flagged, ``daq_ok`` False) and CAN still delivers.
 """
@@ -19,9 +19,10 @@ import pytest
 
 from drivers.quality import Quality
 from drivers.ringbuffer import Sample
-from service.serve.interface import ChtcStatus, CompensationSnapshot, Reason
+from service.contracts.snapshots import CompensationSnapshot
+from service.contracts.verdict import ChtcStatus, Reason
 from service.settings import Settings
-from service.sim.served import Served, feed, served_service
+from simulator.served import Served, feed, served_service
 
 pytestmark = pytest.mark.slow
 LIMIT_MIN = 6.0

@@ -20,7 +20,7 @@ from service.serve.outlet import OUTLETS, load_factory
 from service.serve.reader import ViewReader
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.served import ManualClock
+from simulator.served import ManualClock
 
 from .conftest import plant_run, samples_of
 

@@ -8,7 +8,7 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
-from service.serve.interface import ChtcStatus, DataCode, DataProblem, Reason
+from service.contracts.verdict import ChtcStatus, DataCode, DataProblem, Reason
 from service.serve.policy import compensation_verdict
 from tests.engine_config import product_limits
 
@@ -169,7 +169,7 @@ def test_unknown_sensor_offsets_are_not_usable_when_the_setting_asks_for_it() ->
         False,
         Reason.NO_OFFSET_BASELINE,
     )
-    from service.serve.verdict import ACTIONS
+    from service.contracts.verdict import ACTIONS
 
     assert Reason.NO_OFFSET_BASELINE in ACTIONS
     assert verdict(limits=strict, has_offset_baseline=True) == (ChtcStatus.FRESH, True, None)
@@ -190,7 +190,7 @@ def test_every_blocking_reason_is_listed_in_order_with_its_action() -> None:
     """Issue 41 item 17: out of the box the zero and the commissioning are both missing; the verdict names
     both at once (the first stays ``reason`` for compatibility), each with its action, in the policy's
     order."""
-    from service.serve.verdict import ACTIONS
+    from service.contracts.verdict import ACTIONS
 
     strict = replace(LIMITS, max_identification_age_min=480.0, require_mechanics_calibration=True)
     args: dict[str, object] = {

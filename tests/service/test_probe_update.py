@@ -9,15 +9,9 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 import pytest
 
-from service.estimate.probe import (
-    ProbeError,
-    ProbeMeasurement,
-    absorb,
-    predict,
-    prior_covariance,
-    prior_mean,
-    replay,
-)
+from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.probe import ProbeError, ProbeMeasurement
+from service.estimate.probe import absorb, predict, prior_covariance, prior_mean, replay
 
 AT = datetime(2026, 11, 27, 8, 0, tzinfo=UTC)
 # the feature row's scale at a hot spindle (µm): free and held mounts, other/shaft/housing α groups; held
@@ -128,7 +122,6 @@ def test_bad_readings_are_refused_naming_the_field(
 def test_a_restart_replays_the_accepted_readings_after_the_commissioning_only() -> None:
     from typing import Any, cast
 
-    from service.estimate.mechanics import MechanicsCalibration
     from service.serve.compensation import GrowthServer
 
     rng = np.random.default_rng(11)

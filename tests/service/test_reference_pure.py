@@ -8,12 +8,8 @@ from datetime import UTC, datetime
 import numpy as np
 import pytest
 
-from service.estimate.reference import (
-    CompensationReference,
-    ReferenceError,
-    equilibrium_zero,
-    uniform_equivalent,
-)
+from service.contracts.reference import CompensationReference, ReferenceError
+from service.estimate.reference import equilibrium_zero, uniform_equivalent
 
 AT = datetime(2026, 11, 27, 8, 0, tzinfo=UTC)
 

@@ -8,11 +8,12 @@ from datetime import UTC, datetime, timedelta
 import numpy as np
 
 from model.plant import Segment
+from service.contracts.records import ConditionStart
+from service.contracts.verdict import ChtcStatus
 from service.core.machine import ServiceCore
 from service.core.offline import run_offline
 from service.host.persistence import open_persistence
 from service.host.runtime import core_config
-from service.serve.interface import ChtcStatus
 from service.settings import Settings
 from service.shell.service import SoftSensorService
 from tests.modes import per_condition
@@ -72,7 +73,6 @@ def test_restore_picks_the_last_served_not_the_latest_stamped(tmp_path):
     """Issue 13.11: a demo run stamps simulated time hours ahead; the next run's clock starts at the wall
     clock again, so its identification (id 3) carries an earlier finished_at than the first run's (id 2).
     The restore must pick id 3, the one served last."""
-    from service.contracts.records import ConditionStart
     from tests.db.test_db_repository import ident
 
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
@@ -106,7 +106,6 @@ def test_restore_picks_the_last_served_not_the_latest_stamped(tmp_path):
 def test_writer_stamps_with_the_service_clock(tmp_path):
     """Issue 13.11 / 12.23: the database writer's last_ok_at (what /health ages) uses the injected clock, so
     the database is not "last ok 2.8 h ago" in a demo running hours ahead of the wall clock."""
-    from service.contracts.records import ConditionStart
 
     db = Settings().database.model_copy(update={"url": f"sqlite:///{tmp_path / 'chtc.db'}"})
     simulated = datetime.now(UTC) + timedelta(hours=2.8)
@@ -131,7 +130,7 @@ CURRENT = (ChtcStatus.FRESH, ChtcStatus.AT_BOUND)  # identified at the current c
 
 
 def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(tmp_path):
-    """The served service (``service.sim.served``: the real core and shell, SQLite, samples of a
+    """The served service (``simulator.served``: the real core and shell, SQLite, samples of a
     virtual-plant run, jobs inline) stopped mid-run and restarted on its database: the last stored H is
     served at once with its time, never usable, as ``converging`` with ``state_converging`` as the reason
     until the filtered live state has converged; no identification window starts before that; then a new H
@@ -140,7 +139,7 @@ def test_restart_mid_run_serves_stored_h_stale_until_converged_then_a_fresh_one(
     from fastapi.testclient import TestClient
 
     from api.app import create_app
-    from service.sim.served import Plan, served_service
+    from simulator.served import Plan, served_service
 
     plan = Plan(profile=RESTART_PLAN_PROFILE, seed=4)
     url = f"sqlite:///{tmp_path / 'chtc.db'}"

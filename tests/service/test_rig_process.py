@@ -18,8 +18,8 @@ import pytest
 
 from service.host.runtime import ScaledClock
 from service.settings import Settings
-from service.sim.rigproc import RigPlan, RigProcess, RigProcessError
-from service.sim.simrig import make_drivers
+from simulator.rigproc import RigPlan, RigProcess, RigProcessError
+from simulator.simrig import make_drivers
 
 # at rest for the whole test (10 plant min at real rate): the speed is 0, the temperatures the first rows';
 # one chunk of 20 min, more than AHEAD_S: the child sends nothing more during a test (a broken pipe would end
@@ -81,7 +81,7 @@ def test_a_failing_rig_process_is_a_typed_error_naming_the_cause(tmp_path: Path)
 
 CHILD_OF = """
 import asyncio, sys
-from service.sim.rigproc import RigPlan, RigProcess, RigProcessError
+from simulator.rigproc import RigPlan, RigProcess, RigProcessError
 
 async def main():
     plan = RigPlan.on_free_ports(**{plan!r})

@@ -2,7 +2,7 @@
 its checks, leaves it out, says so in the log, ``/chtc``, ``/compensation`` (and its REST body), and takes it
 back once its readings move and agree with the model again.
 
-The served service (``service.sim.served``) is fed the demo plan's plant run with channel 5 frozen at its
+The served service (``simulator.served``) is fed the demo plan's plant run with channel 5 frozen at its
 reading of minute 8 until minute 17 (quality ok: the DAQ does not flag it).
 """
 
@@ -17,7 +17,7 @@ import pytest
 from api.schemas import compensation_out
 from service.contracts.sensorfault import FaultKind
 from service.settings import Settings
-from service.sim.served import feed, served_service
+from simulator.served import feed, served_service
 
 pytestmark = pytest.mark.slow
 

@@ -12,8 +12,8 @@ import pytest
 from model.hmap import NODES
 from model.identify_prior import COLD_SD_LOG, condition_prior
 from model.plant import Segment
+from service.contracts.mode import IdentificationMode
 from service.core.machine import ServiceCore
-from service.identify.mode import IdentificationMode
 from service.identify.prior import job_prior
 from service.identify.speedmap import SpeedMap
 from tests.engine_config import PER_CONDITION_10_20, product_core

@@ -10,9 +10,9 @@ import numpy as np
 from drivers.quality import Quality
 from model.plant import Segment
 from service.contracts.records import IdentificationData
+from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.core.machine import Restored, ServiceCore
 from service.host.runtime import core_config
-from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.serve.views import data_to_record
 from service.settings import Settings
 from service.shell.service import SoftSensorService

@@ -10,11 +10,11 @@ from datetime import UTC, datetime, timedelta
 
 import pytest
 
+from service.contracts.mode import IdentificationMode
 from service.contracts.records import IdentificationData
+from service.contracts.snapshots import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.core.config import Restored
 from service.core.serving import CombinedServing, PerConditionServing, SpeedMapServing, serving_for
-from service.identify.mode import IdentificationMode
-from service.serve.interface import ConditionSnapshot, ConditionState, IdentificationRecord
 from service.serve.views import data_to_record
 from service.settings import Settings, SettingsError
 

@@ -13,17 +13,17 @@ import pytest
 from model.geometry import load_spindle
 from model.hmap import Z95
 from model.plant import VirtualPlant, h_true
+from service.contracts.mode import IdentificationMode
+from service.contracts.verdict import ChtcStatus, DataCode, DataProblem
 from service.core.config import core_config, map_config
 from service.core.machine import ServiceCore
 from service.host.persistence import open_persistence
-from service.identify.mode import IdentificationMode
 from service.identify.prior import ServedMapPrior
 from service.identify.speedmap import MapConfig, SpeedMap, SpeedMapError
-from service.serve.interface import ChtcStatus, DataCode, DataProblem
 from service.serve.policy import map_verdict
 from service.settings import ExperimentalSettings, Settings, SettingsError
 from service.shell.service import MAP_H_BOX, SoftSensorService
-from service.sim.duty import condition_at, duty_profile
+from simulator.duty import condition_at, duty_profile
 from tests.modes import per_condition
 
 from .conftest import inline_service, samples_of

@@ -12,16 +12,8 @@ from api.schemas import chtc_out
 from model.defaults import BOUND_REL_TOL
 from model.hmap import Z95
 from service.contracts.records import IdentificationData
-from service.serve.interface import (
-    ZONE_NAMES,
-    ChtcSnapshot,
-    ChtcStatus,
-    ConditionSnapshot,
-    ConditionState,
-    DataCode,
-    DataProblem,
-    Reason,
-)
+from service.contracts.snapshots import ZONE_NAMES, ChtcSnapshot, ConditionSnapshot, ConditionState
+from service.contracts.verdict import ChtcStatus, DataCode, DataProblem, Reason
 from service.serve.policy import chtc_verdict
 from service.serve.views import at_bound, chtc_snapshot, data_to_record, served_record
 

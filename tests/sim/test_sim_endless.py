@@ -1,4 +1,4 @@
-"""The demo's endless plant (``service.sim.endless``): the duty cycle runs chunk after chunk with the plant's
+"""The demo's endless plant (``simulator.endless``): the duty cycle runs chunk after chunk with the plant's
 state carried over (no jump at a chunk's seam), seeded, the speed changing every few minutes, no end."""
 
 from __future__ import annotations
@@ -10,8 +10,8 @@ import pytest
 
 from model.geometry import load_spindle
 from model.plant import VirtualPlant
-from service.sim.duty import duty_cycle
-from service.sim.endless import EndlessPlant
+from simulator.duty import duty_cycle
+from simulator.endless import EndlessPlant
 
 
 @pytest.fixture(scope="module")

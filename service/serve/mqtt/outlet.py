@@ -33,11 +33,11 @@ from typing import TYPE_CHECKING
 
 import aiomqtt
 
+from service.contracts.metrics import OutletMetrics
 from service.errors import ServiceError
-from service.serve.interface import OutletMetrics
+from service.mqttsettings import MqttSettings
 from service.serve.mqtt.bdseq import BdSeqStore
 from service.serve.mqtt.buffer import OutBuffer, OutletCounters
-from service.serve.mqtt.config import MqttSettings
 from service.serve.mqtt.plainjson import OFFLINE, ONLINE, JsonTopics, payload
 from service.serve.mqtt.points import CATALOGUE, Point, ServedReader, changed, read_points
 from service.serve.mqtt.sparkplug import PayloadError, SparkplugSession, SparkplugTopics, is_rebirth_request

@@ -32,18 +32,15 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import Protocol
 
+from service.contracts.errors import NoDataYetError
+from service.contracts.health import HealthSnapshot
+from service.contracts.snapshots import ZONE_NAMES, ChtcSnapshot, CompensationSnapshot, ConditionSnapshot
+from service.contracts.verdict import ChtcStatus
 from service.errors import ServiceError
-from service.serve.interface import (
-    ZONE_NAMES,
-    ChtcSnapshot,
-    ChtcStatus,
-    CompensationSnapshot,
-    ConditionSnapshot,
-    HealthSnapshot,
-    NoDataYetError,
-)
+from service.serve.catalogue import DEVICES, PointDef, by_mqtt
 
 __all__ = [
+    "ALIASES",
     "CATALOGUE",
     "DEVICES",
     "DataType",
@@ -128,81 +125,70 @@ class ServedReader(Protocol):
     def health(self) -> HealthSnapshot: ...
 
 
-H_UNIT = "W/(m²·K)"
-# the devices of the health report (service.shell.health); one String metric each
-DEVICES: tuple[str, ...] = ("modbus", "can", "db", "worker", "filter", "core", "event_loop")
+# the deadband (``MqttDeadbands``'s field) of a number, by its unit (UNECE code)
+DEADBANDS: dict[str, str] = {
+    "D55": "h_w_m2k",
+    "4H": "growth_um",
+    "MMT": "mm",
+    "C94": "speed_rpm",
+    "NU": "torque_nm",
+    "CEL": "temperature_c",
+    "SEC": "age_s",
+}
 
 
-def _h_metrics() -> list[MetricDef]:
-    out = []
-    for z in ZONE_NAMES:
-        out += [
-            MetricDef(f"Chtc/{z}", DataType.DOUBLE, H_UNIT, 0.0, 500.0, "h_w_m2k", f"{z}"),
-            MetricDef(f"Chtc/{z}/CiLow", DataType.DOUBLE, H_UNIT, 0.0, 500.0, "h_w_m2k", "95 % CI, low"),
-            MetricDef(f"Chtc/{z}/CiHigh", DataType.DOUBLE, H_UNIT, 0.0, 500.0, "h_w_m2k", "95 % CI, high"),
-            MetricDef(f"Chtc/{z}/Identified", DataType.BOOLEAN, doc="CI narrow enough, not at a bound"),
-            MetricDef(f"Chtc/{z}/PriorDominated", DataType.BOOLEAN, doc="the data did not see it"),
-        ]
-    return out
+def _metric(p: PointDef) -> MetricDef:
+    lo, hi = (None, None) if p.range is None else p.range
+    return MetricDef(
+        name=str(p.mqtt),
+        datatype=DataType[p.vtype.upper()],
+        unit=p.symbol,
+        low=lo,
+        high=hi,
+        deadband=None if p.unit is None else DEADBANDS[p.unit],
+        doc=p.description,
+    )
 
 
-def _growth(name: str, doc: str) -> list[MetricDef]:
-    um = ("µm", -200.0, 200.0, "growth_um")
-    return [
-        MetricDef(f"Growth/{name}", DataType.DOUBLE, *um, doc),
-        MetricDef(f"Growth/{name}/CiLow", DataType.DOUBLE, *um, "95 % CI, low"),
-        MetricDef(f"Growth/{name}/CiHigh", DataType.DOUBLE, *um, "95 % CI, high"),
-    ]
-
-
-CATALOGUE: tuple[MetricDef, ...] = (
-    MetricDef("Status/Code", DataType.STRING, doc="/compensation status: fresh, predicted, stale, ..."),
-    MetricDef("Status/Usable", DataType.BOOLEAN, doc="a controller may apply the correction now"),
-    MetricDef("Status/Reason", DataType.STRING, doc="why not usable (a reason code; empty when usable)"),
-    MetricDef("Status/NewestSampleTime", DataType.DATETIME, doc="UTC of the newest sample (ms epoch)"),
-    MetricDef("Status/SampleAge", DataType.DOUBLE, "s", 0.0, 86400.0, "age_s", "age of the newest sample"),
-    MetricDef("Status/Heartbeat", DataType.UINT32, doc="+1 per published view (wraps at 2³²)"),
-    MetricDef("Chtc/Status", DataType.STRING, doc="/chtc status"),
-    MetricDef("Chtc/Usable", DataType.BOOLEAN, doc="/chtc usable_for_compensation"),
-    MetricDef("Chtc/Reason", DataType.STRING, doc="/chtc reason code (empty when usable)"),
-    MetricDef("Chtc/IdentificationId", DataType.INT64, doc="the identification served"),
-    *_h_metrics(),
-    MetricDef("Condition/Id", DataType.INT64, doc="the operating condition's id"),
-    MetricDef("Condition/State", DataType.STRING, doc="stable | changing"),
-    MetricDef("Condition/Speed", DataType.DOUBLE, "rpm", 0.0, 30000.0, "speed_rpm", "speed"),
-    MetricDef("Condition/Torque", DataType.DOUBLE, "N·m", -500.0, 500.0, "torque_nm", "torque"),
-    MetricDef("Condition/Ambient", DataType.DOUBLE, "°C", -20.0, 60.0, "temperature_c", "ambient"),
-    *_growth("Axial", "axial growth at the spindle nose, + towards the tool"),
-    *_growth("Radial", "radial growth of the nose, + outwards"),
-    *_growth("SteadyAxial", "axial growth if the condition and H hold (forecast)"),
-    MetricDef(
-        "Controller/CorrectionUm", DataType.DOUBLE, "µm", -200.0, 200.0, "growth_um", "axis correction"
+# The Sparkplug aliases: the metric names in alias order (1-based; ``SparkplugSession``). Append only, so
+# an alias keeps its metric across versions; the catalogue declares what each one is.
+ALIASES: tuple[str, ...] = (
+    "Status/Code",
+    "Status/Usable",
+    "Status/Reason",
+    "Status/NewestSampleTime",
+    "Status/SampleAge",
+    "Status/Heartbeat",
+    "Chtc/Status",
+    "Chtc/Usable",
+    "Chtc/Reason",
+    "Chtc/IdentificationId",
+    *(
+        f"Chtc/{z}{leaf}"
+        for z in ZONE_NAMES
+        for leaf in ("", "/CiLow", "/CiHigh", "/Identified", "/PriorDominated")
     ),
-    MetricDef(
-        "Controller/SD43900", DataType.DOUBLE, "mm", -0.2, 0.2, "mm", "SINUMERIK $SA_TEMP_COMP_ABS_VALUE"
-    ),
-    MetricDef("Controller/SD42960", DataType.DOUBLE, "mm", -0.2, 0.2, "mm", "SINUMERIK $SC_TOOL_TEMP_COMP"),
-    MetricDef("Controller/IsgOffset", DataType.INT32, "0.1 µm", -2000.0, 2000.0, None, "ISG P-AXIS-00273"),
-    MetricDef("Controller/ToolDir", DataType.INT32, doc="-1: the tool points to -Z"),
-    *(MetricDef(f"Health/{d}", DataType.STRING, doc=f"{d}: ok, degraded, down, disabled") for d in DEVICES),
-    # the command value (docs/design/policy.md, "The command value"), after the rest: earlier aliases keep
-    # their numbers
-    MetricDef("Controller/Command", DataType.DOUBLE, "µm", -200.0, 200.0, "growth_um", "apply now"),
-    MetricDef(
-        "Controller/CommandStatus", DataType.STRING, doc="following, rate_limited, holding, fading, ..."
-    ),
-    MetricDef(
-        "Controller/CommandSD43900",
-        DataType.DOUBLE,
-        "mm",
-        -0.2,
-        0.2,
-        "mm",
-        "SINUMERIK SD43900 of the command",
-    ),
-    MetricDef("Controller/CommandIsgOffset", DataType.INT32, "0.1 µm", -2000.0, 2000.0, None, "ISG, command"),
-    MetricDef("Controller/CommandFanucUnits", DataType.INT32, "1 µm", -2000.0, 2000.0, None, "FANUC IS-B"),
+    "Condition/Id",
+    "Condition/State",
+    "Condition/Speed",
+    "Condition/Torque",
+    "Condition/Ambient",
+    *(f"Growth/{g}{leaf}" for g in ("Axial", "Radial", "SteadyAxial") for leaf in ("", "/CiLow", "/CiHigh")),
+    "Controller/CorrectionUm",
+    "Controller/SD43900",
+    "Controller/SD42960",
+    "Controller/IsgOffset",
+    "Controller/ToolDir",
+    *(f"Health/{d}" for d in DEVICES),
+    # the command value (issue 42), after the rest: earlier aliases keep their numbers
+    "Controller/Command",
+    "Controller/CommandStatus",
+    "Controller/CommandSD43900",
+    "Controller/CommandIsgOffset",
+    "Controller/CommandFanucUnits",
 )
+# the metrics in alias order, rendered from the point catalogue (``service.serve.catalogue``)
+CATALOGUE: tuple[MetricDef, ...] = tuple(_metric(by_mqtt()[name]) for name in ALIASES)
 
 
 def catalogue_index() -> dict[str, MetricDef]:

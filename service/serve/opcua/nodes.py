@@ -15,41 +15,39 @@ import math
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
-from typing import TYPE_CHECKING, Literal
+from typing import TYPE_CHECKING
 
+from service.contracts.command import CommandSnapshot
+from service.contracts.errors import NoDataYetError
+from service.contracts.snapshots import ZONE_NAMES, ChtcSnapshot, CompensationSnapshot, SensorReading
+from service.contracts.verdict import ChtcStatus, DataCode, Reason, Verdict
 from service.errors import ServiceError
-from service.serve.interface import (
-    ZONE_NAMES,
-    ChtcSnapshot,
-    CommandSnapshot,
-    CompensationSnapshot,
-    DataCode,
-    NoDataYetError,
-    SensorReading,
-)
+from service.serve.catalogue import PER_SENSOR, POINTS, UNITS, VType
 from service.serve.opcua.status import UaStatus, lost_since, status_of, worst
-from service.serve.verdict import ChtcStatus, Reason, Verdict
 
 if TYPE_CHECKING:
     from service.serve.reader import ViewReader
 
-__all__ = ["UNECE", "UNITS_NAMESPACE", "VARS", "Reading", "Var", "render", "unit_id"]
+__all__ = [
+    "MODEL_PUBLISHED",
+    "MODEL_VERSION",
+    "UNECE",
+    "UNITS_NAMESPACE",
+    "VARS",
+    "Reading",
+    "Var",
+    "render",
+    "unit_id",
+]
 
-VType = Literal["Double", "Boolean", "String", "UInt32", "Int32", "Int64", "DateTime"]
 UNITS_NAMESPACE = "http://www.opcfoundation.org/UA/units/un/cefact"
-# UNECE Rec. 20 code -> (display name, description) (SPEC §7)
-UNECE: dict[str, tuple[str, str]] = {
-    "D55": ("W/(m²·K)", "watt per square metre kelvin"),
-    "CEL": ("°C", "degree Celsius"),
-    "KEL": ("K", "kelvin"),
-    "4H": ("µm", "micrometre (micron)"),
-    "MMT": ("mm", "millimetre"),
-    "C94": ("min⁻¹", "reciprocal minute (revolutions per minute)"),
-    "NU": ("N·m", "newton metre"),
-    "SEC": ("s", "second [unit of time]"),
-}
+UNECE = UNITS  # UNECE Rec. 20 code -> (display name, description) (SPEC §7; service.serve.catalogue)
 NAN = float("nan")
 EPOCH = datetime(1601, 1, 1, tzinfo=UTC)  # OPC UA's "no time" (DateTime 0)
+# The address space's model version (the NodeSet2's <Models>): raise it, and the date, whenever a variable,
+# a method, a unit or a range changes, so an engineering tool sees that its import is out of date.
+MODEL_VERSION = "2.0.0"
+MODEL_PUBLISHED = datetime(2026, 11, 29, tzinfo=UTC)
 
 
 def unit_id(code: str) -> int:
@@ -104,108 +102,21 @@ GROUPS: dict[str, str] = {
     "Controller": "Values a PLC writes to the CNC's temperature compensation (docs/integration.md)",
     "Devices": "Health of the service's devices (Modbus DAQ, CAN, database, worker, filter, ...)",
 }
-H_RANGE = (0.0, 1000.0)
-T_RANGE = (-50.0, 250.0)
-UM_RANGE = (-2000.0, 2000.0)
-MM_RANGE = (-2.0, 2.0)
-S_RANGE = (0.0, 1.0e9)
 
 
 def _vars(n_sensors: int) -> tuple[Var, ...]:
-    h = [
-        Var(path=f"H.{z}", vtype="Double", unit="D55", range=H_RANGE, description=f"{z}, W/(m²·K)")
-        for z in ZONE_NAMES
-    ]
-    n = n_sensors
-    return (
-        Var(path="Status.Usable", vtype="Boolean", description="apply the compensation values only if true"),
-        Var(path="Status.Code", vtype="UInt32", description="the StatusCode of the compensation values"),
-        Var(path="Status.Text", vtype="String", description="fresh, predicted, identifying, stale, ..."),
-        Var(path="Status.Reason", vtype="String", description="why not usable (a code; empty when usable)"),
-        Var(path="Status.Detail", vtype="String", description="the reason for humans (never parse it)"),
-        Var(path="Status.Action", vtype="String", description="what the operator should do"),
+    """The address space's variables, rendered from the point catalogue (``service.serve.catalogue``)."""
+    return tuple(
         Var(
-            path="Status.HUsable", vtype="Boolean", description="H1-H7 may be used by a model that needs them"
-        ),
-        Var(path="Status.HText", vtype="String", description="H1-H7's status"),
-        Var(path="Status.HReason", vtype="String", description="why H1-H7 are not usable (a code)"),
-        Var(path="Status.NewestSampleTime", vtype="DateTime", description="UTC of the newest sample"),
-        Var(path="Status.SampleAge", vtype="Double", unit="SEC", range=S_RANGE, description="its age"),
-        Var(path="Status.Heartbeat", vtype="UInt32", description="+1 at every update of this address space"),
-        *h,
-        Var(path="H.Values", vtype="Double", length=7, unit="D55", range=H_RANGE, description="H1-H7"),
-        Var(path="H.CiLow95", vtype="Double", length=7, unit="D55", range=H_RANGE, description="95 % CI low"),
-        Var(
-            path="H.CiHigh95", vtype="Double", length=7, unit="D55", range=H_RANGE, description="95 % CI high"
-        ),
-        Var(path="H.Identified", vtype="Boolean", length=7, description="the data determine this H"),
-        Var(path="H.PriorDominated", vtype="Boolean", length=7, description="this H is the prior's"),
-        Var(
-            path="H.AtBound", vtype="Boolean", length=7, description="this H is on a bound of the search box"
-        ),
-        Var(path="H.IdentifiedAt", vtype="DateTime", description="UTC end of the identification served"),
-        Var(path="H.IdentificationId", vtype="Int64", description="the identification served"),
-        Var(path="Condition.SpeedRpm", vtype="Double", unit="C94", range=(0.0, 60000.0), description="speed"),
-        Var(
-            path="Condition.TorqueNm",
-            vtype="Double",
-            unit="NU",
-            range=(-1000.0, 1000.0),
-            description="torque",
-        ),
-        Var(path="Condition.AmbientC", vtype="Double", unit="CEL", range=T_RANGE, description="ambient"),
-        Var(path="Condition.State", vtype="String", description="stable or changing"),
-        Var(path="Condition.Since", vtype="DateTime", description="UTC start of this condition"),
-        Var(path="Condition.Id", vtype="Int64", description="the condition's id"),
-        Var(path="Temperatures.Measured", vtype="Double", length=n, unit="CEL", range=T_RANGE),
-        Var(path="Temperatures.Predicted", vtype="Double", length=n, unit="CEL", range=T_RANGE),
-        Var(path="Temperatures.PredictedSd", vtype="Double", length=n, unit="KEL", range=(0.0, 100.0)),
-        Var(
-            path="Temperatures.ChannelOk",
-            vtype="Boolean",
-            length=n,
-            description="the channel's value is usable",
-        ),
-        Var(
-            path="Temperatures.Quality", vtype="String", length=n, description="ok, stale, open_circuit, ..."
-        ),
-        Var(
-            path="Temperatures.Names", vtype="String", length=n, description="channel names, channel 1 first"
-        ),
-        Var(path="Growth.Axial", vtype="Double", unit="4H", range=UM_RANGE, description="+ towards the tool"),
-        Var(path="Growth.AxialSd", vtype="Double", unit="4H", range=(0.0, 1000.0), description="1σ"),
-        Var(path="Growth.AxialCiLow95", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Growth.AxialCiHigh95", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Growth.Radial", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Growth.RadialCiLow95", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Growth.RadialCiHigh95", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Growth.SteadyAxial", vtype="Double", unit="4H", range=UM_RANGE, description="if held"),
-        Var(path="Growth.SteadyAxialCiLow95", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Growth.SteadyAxialCiHigh95", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Growth.TauS", vtype="Double", unit="SEC", range=S_RANGE, description="time constant"),
-        Var(path="Growth.ForecastHorizons", vtype="Double", length=-1, unit="SEC", range=S_RANGE),
-        Var(path="Growth.ForecastAxial", vtype="Double", length=-1, unit="4H", range=UM_RANGE),
-        Var(path="Growth.ReferenceC", vtype="Double", unit="CEL", range=T_RANGE, description="the zero's T"),
-        Var(path="Controller.CorrectionUm", vtype="Double", unit="4H", range=UM_RANGE, description="axis"),
-        Var(path="Controller.SD43900Mm", vtype="Double", unit="MMT", range=MM_RANGE, description="SINUMERIK"),
-        Var(path="Controller.SD42960Mm", vtype="Double", unit="MMT", range=MM_RANGE, description="tool axis"),
-        Var(path="Controller.IsgOffset0p1um", vtype="Int32", description="ISG P-AXIS-00273, 0.1 µm"),
-        Var(path="Controller.ToolDir", vtype="Int32", description="-1: the tool points to -Z"),
-        # the command value (docs/design/policy.md, "The command value"): apply it whatever Status.Usable says
-        Var(path="Controller.CommandUm", vtype="Double", unit="4H", range=UM_RANGE, description="apply now"),
-        Var(path="Controller.CommandStatus", vtype="String", description="following, holding, fading, ..."),
-        Var(path="Controller.CommandCorrectionUm", vtype="Double", unit="4H", range=UM_RANGE),
-        Var(path="Controller.CommandSD43900Mm", vtype="Double", unit="MMT", range=MM_RANGE),
-        Var(path="Controller.CommandSD42960Mm", vtype="Double", unit="MMT", range=MM_RANGE),
-        Var(path="Controller.CommandIsgOffset0p1um", vtype="Int32", description="ISG P-AXIS-00273, 0.1 µm"),
-        Var(
-            path="Controller.CommandFanucUnits", vtype="Int32", description="FANUC IS-B detection units, 1 µm"
-        ),
-        Var(path="Devices.Names", vtype="String", length=-1),
-        Var(path="Devices.Status", vtype="String", length=-1, description="ok, degraded, down, disabled"),
-        Var(path="Devices.Ok", vtype="Boolean", length=-1),
-        Var(path="Devices.AgeS", vtype="Double", length=-1, unit="SEC", range=S_RANGE),
-        Var(path="Devices.ModelLoaded", vtype="Boolean"),
+            path=p.opcua,
+            vtype=p.vtype,
+            length=n_sensors if p.length == PER_SENSOR else p.length,
+            unit=p.unit,
+            range=p.range,
+            description=p.description,
+        )
+        for p in POINTS
+        if p.opcua is not None
     )
 
 
@@ -469,7 +380,7 @@ def _growth(comp: CompensationSnapshot | None, code: UaStatus) -> dict:
 def _command(cmd: CommandSnapshot | None, code: UaStatus) -> dict:
     """The command value's nodes: Good whenever a command was stepped (it is always the value to apply; its
     status says what it does), ``code`` (the growth's) when there is none."""
-    names = ("CommandUm", "CommandCorrectionUm", "CommandSD43900Mm", "CommandSD42960Mm")
+    names = ("CommandUm", "CommandCorrectionUm", "CommandSD43900Mm")
     if cmd is None:
         out = {f"Controller.{n}": Reading(NAN, code, None) for n in names}
         out["Controller.CommandStatus"] = Reading("none", code, None)
@@ -478,7 +389,7 @@ def _command(cmd: CommandSnapshot | None, code: UaStatus) -> dict:
         return out
     at = datetime.fromtimestamp(cmd.at, tz=UTC)
     good, p = UaStatus.GOOD, cmd.plc
-    vals = (cmd.value_um, p.correction_um, p.sd43900_mm, p.sd42960_tool_axis_mm)
+    vals = (cmd.value_um, p.correction_um, p.sd43900_mm)
     out = {f"Controller.{n}": Reading(_f(x), good, at) for n, x in zip(names, vals, strict=True)}
     out["Controller.CommandStatus"] = Reading(str(cmd.status.value), good, at)
     out["Controller.CommandIsgOffset0p1um"] = Reading(int(p.isg_offset_0p1um), good, at)

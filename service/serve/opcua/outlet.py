@@ -9,17 +9,21 @@ The methods (``[opcua] methods = true``) call the service's own requests, as ``P
 from __future__ import annotations
 
 import asyncio
-from typing import TYPE_CHECKING
+from collections.abc import Callable, Mapping
+from datetime import datetime
+from typing import TYPE_CHECKING, Any
 
+from service.contracts.metrics import OutletMetrics
 from service.serve.opcua.nodes import variables
 from service.serve.opcua.server import Methods, OpcUaServer
 
 if TYPE_CHECKING:
-    from service.serve.interface import IdentificationJob, OffsetBaseline
+    from service.contracts.snapshots import IdentificationJob, OffsetBaseline
     from service.serve.outlet import OutletContext
     from service.serve.reader import ViewReader
+    from service.settings import Settings
 
-__all__ = ["OpcUaOutlet", "opcua_outlet"]
+__all__ = ["HostedOpcUa", "OpcUaOutlet", "opcua_outlet"]
 
 
 class OpcUaOutlet:
@@ -33,12 +37,7 @@ class OpcUaOutlet:
         bad_after_s = (
             cfg.bad_after_s if cfg.bad_after_s is not None else 60.0 * s.compensation.max_open_loop_min
         )
-        methods = None
-        if cfg.methods:
-            methods = Methods(
-                start_identification=lambda reason: _job_text(service.request_identification(reason)),
-                take_sensor_baseline=lambda: _baseline_text(service.request_baseline()),
-            )
+        methods = _methods(service) if cfg.methods else None
         self.server = OpcUaServer(
             cfg,
             variables=variables(n_sensors),
@@ -58,6 +57,79 @@ class OpcUaOutlet:
 
     async def close(self) -> None:
         await asyncio.to_thread(self.server.stop)
+
+    def outlet_metrics(self) -> OutletMetrics:
+        """For ``/metrics`` (``service.serve.interface.CountedOutlet``): the requests refused, by reason."""
+        return OutletMetrics(refused=self.server.refusals.counts())
+
+
+class _SpindleFeed:
+    """One hosted spindle's subscription: its views go to its object on the host's server."""
+
+    name = "opcua"
+
+    def __init__(self, server: OpcUaServer, spindle: str) -> None:
+        self.server = server
+        self.spindle = spindle
+
+    async def start(self) -> None:
+        return None
+
+    def on_view(self, reader: ViewReader) -> None:
+        self.server.offer(reader, self.spindle)
+
+    async def close(self) -> None:
+        return None
+
+
+class HostedOpcUa:
+    """One OPC UA server for the spindles of a host (``[[spindles]]``): one object per spindle, named by its
+    id, of the one type (``SpindleThermalModelType``), each fed by its spindle's views (``feeds``: subscribe
+    each to its spindle's service) and, with ``methods = true``, with its own methods."""
+
+    name = "opcua"
+
+    def __init__(
+        self, settings: Settings, services: Mapping[str, Any], *, clock: Callable[[], datetime]
+    ) -> None:
+        ids = list(services)
+        cfg = settings.opcua.for_spindle(ids[0])  # the endpoint and security; the objects are the ids
+        bad_after_s = (
+            cfg.bad_after_s if cfg.bad_after_s is not None else 60.0 * settings.compensation.max_open_loop_min
+        )
+        n_sensors = max(
+            (len(svc.core.model.spec.sensors) for svc in services.values() if hasattr(svc, "core")),
+            default=32,
+        )
+        methods = None
+        if cfg.methods:
+            methods = {sid: _methods(svc) for sid, svc in services.items()}
+        self.server = OpcUaServer(
+            cfg,
+            variables=variables(n_sensors),
+            clock=clock,
+            bad_after_s=bad_after_s,
+            n_sensors=n_sensors,
+            methods=methods,
+            spindles=ids,
+        )
+        self.feeds = {sid: _SpindleFeed(self.server, sid) for sid in ids}
+
+    async def start(self) -> None:
+        await asyncio.to_thread(self.server.start)
+
+    async def close(self) -> None:
+        await asyncio.to_thread(self.server.stop)
+
+    def outlet_metrics(self) -> OutletMetrics:
+        return OutletMetrics(refused=self.server.refusals.counts())
+
+
+def _methods(service: Any) -> Methods:
+    return Methods(
+        start_identification=lambda reason: _job_text(service.request_identification(reason)),
+        take_sensor_baseline=lambda: _baseline_text(service.request_baseline()),
+    )
 
 
 def _job_text(job: IdentificationJob) -> str:

@@ -35,6 +35,7 @@ from cryptography import x509
 from cryptography.hazmat.primitives.serialization import Encoding
 
 from service.serve.errors import OutletError
+from service.serve.opcua.refusals import Refusals
 
 __all__ = [
     "HashedUserManager",
@@ -165,7 +166,8 @@ class HashedUserManager:
 class ReadOnlyRules(PermissionRuleset):
     """See the module docstring: read for every session, Call for users, nothing else."""
 
-    def __init__(self) -> None:
+    def __init__(self, refusals: Refusals | None = None) -> None:
+        self.refusals = refusals
         call = ua.NodeId(ua.ObjectIds.CallRequest_Encoding_DefaultBinary)
         self._call = call
         self._read = {ua.NodeId(t) for t in READ_TYPES} - {call}
@@ -187,4 +189,15 @@ class ReadOnlyRules(PermissionRuleset):
         log.debug("request %s by %s", action_type_id, user)
         if action_type_id in self._read:
             return True
-        return action_type_id == self._call and user.role is UserRole.User
+        if action_type_id == self._call and user.role is UserRole.User:
+            return True
+        if self.refusals is not None:
+            client = "anonymous" if user.role is UserRole.Anonymous else f"user {user.name}"
+            self.refusals.note(client, _request_name(action_type_id))
+        return False
+
+
+def _request_name(type_id: ua.NodeId) -> str:
+    """``Write`` for WriteRequest_Encoding_DefaultBinary (the request a rule refused)."""
+    name = ua.ObjectIdNames.get(type_id.Identifier, str(type_id)) if type_id.NamespaceIndex == 0 else ""
+    return (name or str(type_id)).removesuffix("_Encoding_DefaultBinary").removesuffix("Request")

@@ -20,19 +20,35 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import logging
+import tempfile
 import threading
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
 from asyncua import Server, ua
+from asyncua.common.callback import CallbackType, ServerItemCallback
 from asyncua.server.internal_session import InternalSession
+from asyncua.server.users import UserRole
 
 from service.logctx import in_current_context
 from service.serve.errors import OutletError
-from service.serve.opcua.nodes import EPOCH, GROUPS, UNECE, UNITS_NAMESPACE, Reading, Var, render, unit_id
+from service.serve.opcua.nodes import (
+    EPOCH,
+    GROUPS,
+    MODEL_PUBLISHED,
+    MODEL_VERSION,
+    UNECE,
+    UNITS_NAMESPACE,
+    Reading,
+    Var,
+    render,
+    unit_id,
+)
+from service.serve.opcua.nodeset import Model, conform
+from service.serve.opcua.refusals import UAPROCESSOR, Refusals, install_fault_filter
 from service.serve.opcua.security import (
     HashedUserManager,
     ReadOnlyRules,
@@ -44,7 +60,15 @@ if TYPE_CHECKING:
     from service.serve.reader import ViewReader
     from service.settings import OpcUaSettings
 
-__all__ = ["TYPE_NAME", "Methods", "OpcUaServer", "build_address_space"]
+__all__ = [
+    "METHODS",
+    "TYPE_NAME",
+    "Methods",
+    "OpcUaServer",
+    "add_methods",
+    "build_address_space",
+    "export_nodeset",
+]
 
 log = logging.getLogger(__name__)
 TYPE_NAME = "SpindleThermalModelType"
@@ -104,6 +128,7 @@ async def _add_variable(
     attrs.ArrayDimensions = [max(var.length, 0)] if var.length else []
     attrs.AccessLevel = ua.AccessLevel.CurrentRead.mask
     attrs.UserAccessLevel = ua.AccessLevel.CurrentRead.mask
+    attrs.Historizing = False  # no history is served (asyncua's default is True)
     item = ua.AddNodesItem()
     item.RequestedNewNodeId = nodeid
     item.BrowseName = ua.QualifiedName(var.name, idx)
@@ -126,19 +151,48 @@ async def _add_variable(
             DisplayName=ua.LocalizedText(name),
             Description=ua.LocalizedText(desc),
         )
-        prop = await node.add_property(0, "EngineeringUnits", ua.Variant(eu, ua.VariantType.ExtensionObject))
+        prop = await node.add_property(
+            _child_id(nodeid, "EngineeringUnits"),
+            ua.QualifiedName("EngineeringUnits", 0),
+            ua.Variant(eu, ua.VariantType.ExtensionObject),
+        )
         await prop.write_attribute(
             ua.AttributeIds.DataType, ua.DataValue(ua.Variant(ua.NodeId(ua.ObjectIds.EUInformation)))
         )
         await prop.set_modelling_rule(True)
     if var.range is not None:
         rng = ua.Range(Low=float(var.range[0]), High=float(var.range[1]))
-        prop = await node.add_property(0, "EURange", ua.Variant(rng, ua.VariantType.ExtensionObject))
+        prop = await node.add_property(
+            _child_id(nodeid, "EURange"),
+            ua.QualifiedName("EURange", 0),
+            ua.Variant(rng, ua.VariantType.ExtensionObject),
+        )
         await prop.write_attribute(
             ua.AttributeIds.DataType, ua.DataValue(ua.Variant(ua.NodeId(ua.ObjectIds.Range)))
         )
         await prop.set_modelling_rule(True)
     return res.AddedNodeId
+
+
+def user_attributes(event: ServerItemCallback, _dispatcher: object) -> None:
+    """asyncua's PostRead callback: the UserExecutable of a method as the reading session may call it.
+
+    asyncua answers the attribute as stored (True, the methods' own); an anonymous session's Call is refused
+    (``ReadOnlyRules``), so it reads False. UserAccessLevel and UserWriteMask are the same for every
+    session (CurrentRead, 0: nobody writes), as stored."""
+    user = event.user
+    if not event.is_external or (user is not None and user.role is UserRole.User):
+        return
+    params, results = event.request_params, event.response_params
+    for i, rv in enumerate(params.NodesToRead):
+        value = results[i].Value
+        if rv.AttributeId == ua.AttributeIds.UserExecutable and value is not None and value.Value is True:
+            results[i] = ua.DataValue(ua.Variant(False, ua.VariantType.Boolean))
+
+
+def _child_id(parent: ua.NodeId, name: str) -> ua.NodeId:
+    """A child's stable string NodeId: the parent's and the child's name (``<path>.EURange``)."""
+    return ua.NodeId(f"{parent.Identifier}.{name}", parent.NamespaceIndex)
 
 
 async def build_address_space(
@@ -163,10 +217,15 @@ async def build_address_space(
         groups[group] = gid
     for var in variables:
         await _add_variable(server, groups[var.group], ua.NodeId(f"{TYPE_NAME}.{var.path}", idx), var, idx)
-    instance = await server.nodes.objects.add_object(
+    return otype, await add_instance(server, otype, spindle)
+
+
+async def add_instance(server: Server, otype: Any, spindle: str) -> Any:
+    """An object ``spindle`` of the type ``otype`` below Objects (NodeIds ``ns=<ours>;s=<spindle>...``)."""
+    idx = otype.nodeid.NamespaceIndex
+    return await server.nodes.objects.add_object(
         ua.NodeId(spindle, idx), ua.QualifiedName(spindle, idx), objecttype=otype.nodeid
     )
-    return otype, instance
 
 
 class OpcUaServer:
@@ -181,9 +240,13 @@ class OpcUaServer:
         clock: Callable[[], datetime],
         bad_after_s: float,
         n_sensors: int = 32,
-        methods: Methods | None = None,
+        methods: Methods | Mapping[str, Methods] | None = None,
+        spindles: Sequence[str] = (),
     ) -> None:
+        """``spindles``: a cell's objects, one per spindle id (each fed by ``offer(reader, spindle)``, each
+        with its own ``methods[spindle]``); empty: one object, ``cfg.node_prefix``."""
         self.cfg = cfg
+        self.spindles = tuple(spindles) or (cfg.node_prefix,)
         self.variables = tuple(variables)
         self.clock = clock
         self.bad_after_s = float(bad_after_s)
@@ -192,15 +255,16 @@ class OpcUaServer:
         self.heartbeat = 0
         self.updates = 0
         self.update_errors = 0
-        self._slot: ViewReader | None = None
+        self._slots: dict[str, ViewReader] = {}
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
         self._thread: threading.Thread | None = None
         self._ready = threading.Event()
         self._failed: BaseException | None = None
-        self._written: dict[str, tuple[object, int, datetime | None]] = {}
-        self._nodeids: dict[str, ua.NodeId] = {}
+        self._written: dict[tuple[str, str], tuple[object, int, datetime | None]] = {}
+        self._nodeids: dict[tuple[str, str], ua.NodeId] = {}
+        self.refusals = Refusals()  # counted for /metrics, logged once per client and reason
         self.server: Server | None = None
         self.on_update: Callable[[], None] | None = None  # after each update (tests, the bench)
 
@@ -217,9 +281,9 @@ class OpcUaServer:
         if self._failed is not None:
             raise OutletError(f"the OPC UA server did not start: {self._failed}") from self._failed
 
-    def offer(self, reader: ViewReader) -> None:
-        """Hand over the newest reader (any thread; never blocks)."""
-        self._slot = reader
+    def offer(self, reader: ViewReader, spindle: str | None = None) -> None:
+        """Hand over the newest reader of ``spindle`` (None: the only one; any thread; never blocks)."""
+        self._slots[self.spindles[0] if spindle is None else spindle] = reader
         loop, wake = self._loop, self._wake
         if loop is not None and wake is not None and not loop.is_closed():
             with contextlib.suppress(RuntimeError):  # the loop just closed
@@ -246,20 +310,24 @@ class OpcUaServer:
     async def _main(self) -> None:
         self._loop = asyncio.get_running_loop()
         self._wake, self._stop = asyncio.Event(), asyncio.Event()
+        faults = install_fault_filter(self.refusals)
         try:
-            server = await self._build()
-            await server.start()
-        except BaseException as err:
-            self._failed = err
-            self._ready.set()
-            raise
-        self.server = server
-        try:
-            await self._update()
-            self._ready.set()
-            await self._serve()
+            try:
+                server = await self._build()
+                await server.start()
+            except BaseException as err:
+                self._failed = err
+                self._ready.set()
+                raise
+            self.server = server
+            try:
+                await self._update()
+                self._ready.set()
+                await self._serve()
+            finally:
+                await server.stop()
         finally:
-            await server.stop()
+            logging.getLogger(UAPROCESSOR).removeFilter(faults)
 
     async def _serve(self) -> None:
         assert self._wake is not None and self._stop is not None
@@ -278,28 +346,29 @@ class OpcUaServer:
             await self._update()
 
     async def _update(self) -> None:
-        reader = self._slot
-        if reader is None or self.server is None:
+        slots = dict(self._slots)
+        if not slots or self.server is None:
             return
-        try:
-            self.heartbeat += 1
-            now = self.clock()
-            readings = render(
-                reader,
-                now=now,
-                bad_after_s=self.bad_after_s,
-                heartbeat=self.heartbeat,
-                n_sensors=self.n_sensors,
-            )
-            await self._write(readings, now)
-            self.updates += 1
-        except Exception as err:  # keep serving the last values; say why once per failure
-            self.update_errors += 1
-            log.warning("OPC UA update failed: %s: %s", type(err).__name__, err)
+        self.heartbeat += 1
+        now = self.clock()
+        for spindle, reader in slots.items():
+            try:
+                readings = render(
+                    reader,
+                    now=now,
+                    bad_after_s=self.bad_after_s,
+                    heartbeat=self.heartbeat,
+                    n_sensors=self.n_sensors,
+                )
+                await self._write(spindle, readings, now)
+            except Exception as err:  # keep serving the last values; say why once per failure
+                self.update_errors += 1
+                log.warning("OPC UA update of %s failed: %s: %s", spindle, type(err).__name__, err)
+        self.updates += 1
         if self.on_update is not None:
             self.on_update()
 
-    async def _write(self, readings: dict[str, Reading], now: datetime) -> None:
+    async def _write(self, spindle: str, readings: dict[str, Reading], now: datetime) -> None:
         assert self.server is not None
         wall = datetime.now(UTC)
         for var in self.variables:
@@ -307,7 +376,8 @@ class OpcUaServer:
             if r is None:
                 continue
             key = (r.value, int(r.status), r.source_time)
-            if self._written.get(var.path) == key:
+            at = (spindle, var.path)
+            if self._written.get(at) == key:
                 continue
             dv = ua.DataValue(
                 Value=_variant(var, r.value),
@@ -315,8 +385,8 @@ class OpcUaServer:
                 SourceTimestamp=_ua_time(r.source_time or now),  # the data's time (the service's clock)
                 ServerTimestamp=wall,  # when this server took the value (its own clock)
             )
-            await self.server.write_attribute_value(self._nodeids[var.path], dv)
-            self._written[var.path] = key
+            await self.server.write_attribute_value(self._nodeids[at], dv)
+            self._written[at] = key
 
     async def _build(self) -> Server:
         cfg = self.cfg
@@ -332,8 +402,9 @@ class OpcUaServer:
         server.set_server_name("spindle-chtc OPC UA")
         await server.set_application_uri("urn:spindle-chtc:server")
         server.set_security_policy(
-            [POLICIES[p] for p in cfg.security_policies], permission_ruleset=ReadOnlyRules()
+            [POLICIES[p] for p in cfg.security_policies], permission_ruleset=ReadOnlyRules(self.refusals)
         )
+        server.subscribe_server_callback(CallbackType.PostRead, user_attributes)
         ids = (["Anonymous"] if cfg.anonymous else []) + (["Username"] if users else [])
         if not ids:
             raise OutletError("opcua: anonymous = false and no users: nobody could connect")
@@ -342,19 +413,27 @@ class OpcUaServer:
             await server.load_certificate(str(cfg.certificate))
             await server.load_private_key(str(cfg.private_key))
         idx = await server.register_namespace(cfg.namespace_uri)
-        _otype, instance = await build_address_space(server, idx, self.variables, spindle=cfg.node_prefix)
-        self._nodeids = {v.path: ua.NodeId(f"{cfg.node_prefix}.{v.path}", idx) for v in self.variables}
+        otype, instance = await build_address_space(server, idx, self.variables, spindle=self.spindles[0])
+        instances = {self.spindles[0]: instance}
+        for name in self.spindles[1:]:  # a cell: one object per spindle, of the same type
+            instances[name] = await add_instance(server, otype, name)
+        self._nodeids = {
+            (sp, v.path): ua.NodeId(f"{sp}.{v.path}", idx) for sp in self.spindles for v in self.variables
+        }
         waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
-        for var in self.variables:  # nothing is known before the first view
-            dv = ua.DataValue(Value=_initial(var), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC))
-            await server.write_attribute_value(self._nodeids[var.path], dv)
-        if self.methods is not None:
-            await self._add_methods(server, instance, idx, self.methods)
+        var_of = {v.path: v for v in self.variables}
+        for (_sp, path), nodeid in self._nodeids.items():  # nothing is known before the first view
+            dv = ua.DataValue(
+                Value=_initial(var_of[path]), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC)
+            )
+            await server.write_attribute_value(nodeid, dv)
+        for name, inst in instances.items():
+            methods = self.methods.get(name) if isinstance(self.methods, Mapping) else self.methods
+            if methods is not None:
+                await self._add_methods(server, inst, idx, methods)
         return server
 
     async def _add_methods(self, server: Server, instance: Any, idx: int, methods: Methods) -> None:
-        spindle = self.cfg.node_prefix
-
         async def run(fn: Callable[[], str]) -> list[ua.Variant]:
             try:
                 msg = await asyncio.to_thread(fn)  # the service's handover blocks: off this loop
@@ -370,33 +449,120 @@ class OpcUaServer:
         async def take_sensor_baseline(_parent: ua.NodeId) -> list[ua.Variant]:
             return await run(methods.take_sensor_baseline)
 
-        reason = ua.Argument(Name="Reason", DataType=ua.NodeId(ua.ObjectIds.String), ValueRank=-1)
-        out = ua.Argument(Name="Result", DataType=ua.NodeId(ua.ObjectIds.String), ValueRank=-1)
-        await instance.add_method(
-            ua.NodeId(f"{spindle}.StartIdentification", idx),
-            ua.QualifiedName("StartIdentification", idx),
-            start_identification,
-            [reason],
-            [out],
+        await add_methods(
+            server,
+            instance,
+            {"StartIdentification": start_identification, "TakeSensorBaseline": take_sensor_baseline},
         )
-        await instance.add_method(
-            ua.NodeId(f"{spindle}.TakeSensorBaseline", idx),
-            ua.QualifiedName("TakeSensorBaseline", idx),
-            take_sensor_baseline,
-            [],
-            [out],
-        )
+
+
+# name -> (description, input arguments); every method returns one String, "Result"
+METHODS: dict[str, tuple[str, tuple[tuple[str, str], ...]]] = {
+    "StartIdentification": (
+        "Start an identification of H1-H7 now (as POST /identifications); Reason: free text, at most 200 "
+        "characters. Authenticated users only.",
+        (("Reason", "why (kept in the identification's record)"),),
+    ),
+    "TakeSensorBaseline": (
+        "Take the sensor offset baseline now (as POST /sensors/baseline). Authenticated users only.",
+        (),
+    ),
+}
+
+
+def _argument(name: str, description: str) -> ua.Argument:
+    return ua.Argument(
+        Name=name,
+        DataType=ua.NodeId(ua.ObjectIds.String),
+        ValueRank=-1,
+        Description=ua.LocalizedText(description),
+    )
+
+
+async def add_methods(server: Server, instance: Any, callbacks: dict[str, Callable[..., Any]] | None) -> None:
+    """Add ``METHODS`` below ``instance`` with string NodeIds (``<spindle>.StartIdentification``, its
+    ``<spindle>.StartIdentification.InputArguments``, ...); ``callbacks`` None: the model only (the NodeSet
+    export)."""
+    parent: ua.NodeId = instance.nodeid
+    idx = parent.NamespaceIndex
+    for name, (description, inputs) in METHODS.items():
+        mid = _child_id(parent, name)
+        attrs = ua.MethodAttributes()
+        attrs.DisplayName = ua.LocalizedText(name)
+        attrs.Description = ua.LocalizedText(description)
+        attrs.WriteMask = attrs.UserWriteMask = 0
+        attrs.Executable = attrs.UserExecutable = True  # UserExecutable per session: ``user_attributes``
+        item = ua.AddNodesItem()
+        item.RequestedNewNodeId = mid
+        item.BrowseName = ua.QualifiedName(name, idx)
+        item.NodeClass = ua.NodeClass.Method
+        item.ParentNodeId = parent
+        item.ReferenceTypeId = ua.NodeId(ua.ObjectIds.HasComponent)
+        item.NodeAttributes = attrs
+        (await server.iserver.isession.add_nodes([item]))[0].StatusCode.check()
+        method = server.get_node(mid)
+        args = {
+            "InputArguments": [_argument(n, d) for n, d in inputs],
+            "OutputArguments": [_argument("Result", "what the service did (or why not)")],
+        }
+        for prop_name, arguments in args.items():
+            if not arguments:
+                continue
+            prop = await method.add_property(
+                _child_id(mid, prop_name),
+                ua.QualifiedName(prop_name, 0),
+                ua.Variant(arguments, ua.VariantType.ExtensionObject, is_array=True),
+                datatype=ua.NodeId(ua.ObjectIds.Argument),
+            )
+            await prop.write_attribute(
+                ua.AttributeIds.ValueRank, ua.DataValue(ua.Variant(1, ua.VariantType.Int32))
+            )
+            await prop.write_attribute(
+                ua.AttributeIds.ArrayDimensions,
+                ua.DataValue(ua.Variant([len(arguments)], ua.VariantType.UInt32, is_array=True)),
+            )
+        if callbacks is not None:
+            server.iserver.isession.add_method_callback(mid, callbacks[name])
 
 
 def _ua_time(t: datetime) -> datetime:
     return t.astimezone(UTC) if t.tzinfo is not None else t.replace(tzinfo=UTC)
 
 
-async def export_nodeset(cfg: OpcUaSettings, variables: Sequence[Var], path: Path) -> int:
-    """Write the NodeSet2 XML of our namespace (the type and the instance) to ``path``; the node count."""
+async def export_nodeset(
+    cfg: OpcUaSettings, variables: Sequence[Var], path: Path, *, spindles: Sequence[str] = ()
+) -> int:
+    """Write the NodeSet2 XML of our namespace (the type, the instance ``cfg.node_prefix`` or, for a cell,
+    one instance per name of ``spindles``, and with ``cfg.methods`` each instance's methods and their
+    arguments) to ``path``, valid against the OPC Foundation's schemas (``service.serve.opcua.nodeset``);
+    the number of data variables (the type's and the instances')."""
+    names = list(spindles) or [cfg.node_prefix]
     server = Server()
     await server.init()
     idx = await server.register_namespace(cfg.namespace_uri)
-    await build_address_space(server, idx, variables, spindle=cfg.node_prefix)
-    await server.export_xml_by_ns(str(path), [idx], export_values=True)
-    return sum(1 for _ in path.read_text(encoding="utf-8").split("<UAVariable")) - 1
+    otype, instance = await build_address_space(server, idx, variables, spindle=names[0])
+    instances = [instance] + [await add_instance(server, otype, name) for name in names[1:]]
+    if cfg.methods:
+        for inst in instances:
+            await add_methods(server, inst, None)
+    with tempfile.TemporaryDirectory(prefix="chtc-nodeset-") as tmp:
+        raw = Path(tmp) / "raw.xml"
+        with _quiet("asyncua.common.xmlexporter"):  # its warning that values may be invalid: mended below
+            await server.export_xml_by_ns(str(raw), [idx], export_values=True)
+        text = conform(
+            raw.read_text(encoding="utf-8"),
+            Model(uri=cfg.namespace_uri, version=MODEL_VERSION, published=MODEL_PUBLISHED),
+        )
+    path.write_text(text, encoding="utf-8")
+    return (1 + len(names)) * len(variables)
+
+
+@contextlib.contextmanager
+def _quiet(logger: str) -> Iterator[None]:
+    lg = logging.getLogger(logger)
+    level = lg.level
+    lg.setLevel(logging.ERROR)
+    try:
+        yield
+    finally:
+        lg.setLevel(level)

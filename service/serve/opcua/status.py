@@ -35,7 +35,7 @@ from __future__ import annotations
 import enum
 from datetime import datetime
 
-from service.serve.verdict import ChtcStatus, Reason, Verdict
+from service.contracts.verdict import ChtcStatus, Reason, Verdict
 
 __all__ = ["UaStatus", "lost_since", "severity", "status_of", "worst"]
 

@@ -1,9 +1,9 @@
-"""Simulated devices of many spindles in one process (``python -m service.sim.fleetrig``; bench fleet).
+"""Simulated devices of many spindles in one process (``python -m simulator.fleetrig``; bench fleet).
 
 Each spindle has its own simulated Modbus DAQ (a pymodbus server on its own loopback port) and its own CAN
 node behind its own python-can-remote hub (``drivers.sim.can_hub``), both at their real rates (the DAQ
 converts every second, the node sends SpindleStatus every 10 ms), so the soft sensor reaches them exactly as
-it reaches real devices. They play virtual-plant runs (``service.sim.endless``: random duty cycles on the
+it reaches real devices. They play virtual-plant runs (``simulator.endless``: random duty cycles on the
 plant's own mesh and step) of ``--plants`` seeds; spindle i plays plant ``i % plants``, so the spindles of
 one plant change speed at the same moments, as a cell does.
 
@@ -26,7 +26,7 @@ from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
 if TYPE_CHECKING:
-    from service.sim.endless import PlantRows
+    from simulator.endless import PlantRows
 
 __all__ = ["FleetRigPlan", "main"]
 
@@ -46,7 +46,7 @@ class FleetRigPlan:
 
 def _plants(plan: FleetRigPlan) -> list[PlantRows]:
     from model.geometry import load_spindle
-    from service.sim.endless import EndlessPlant
+    from simulator.endless import EndlessPlant
 
     spec = load_spindle()
     rows: list[PlantRows] = []
@@ -118,7 +118,7 @@ async def _until_told_to_stop() -> None:
 def main(argv: list[str] | None = None) -> int:
     args = sys.argv[1:] if argv is None else argv
     if len(args) != 1:
-        print("usage: python -m service.sim.fleetrig '<plan JSON>'", file=sys.stderr)
+        print("usage: python -m simulator.fleetrig '<plan JSON>'", file=sys.stderr)
         return 2
     plan = FleetRigPlan(**json.loads(args[0]))
     signal.signal(signal.SIGINT, signal.SIG_IGN)

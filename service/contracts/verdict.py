@@ -1,6 +1,6 @@
 """The typed verdict on a served value (``Verdict``, ``Reason``) and the freshness of H (``ChtcStatus``): the
-vocabulary of the served-value policy (``service.serve.policy``), kept apart so that the snapshots of
-``service.serve.interface`` can carry a verdict without importing the policy's functions."""
+vocabulary of the served-value policy (``service.serve.policy``), kept apart so that the snapshots
+(``service.contracts.snapshots``) can carry a verdict without importing the policy's functions."""
 
 from __future__ import annotations
 

@@ -30,11 +30,13 @@ from __future__ import annotations
 import io
 import math
 from dataclasses import dataclass
+from datetime import UTC, datetime
 from typing import Any
 
 import numpy as np
 from numpy.typing import NDArray
 
+from service.contracts.columns import Column
 from service.errors import ServiceError
 
 __all__ = ["CheckpointError", "LiveCheckpoint"]
@@ -117,6 +119,19 @@ class LiveCheckpoint:
             arrays["control"] = np.asarray(self.control, dtype="<f8")
         np.savez(buf, **arrays)
         return buf.getvalue()
+
+    def values(self) -> dict[str, Column]:
+        """The one ``live_state`` row (``service.store``): the time, the model, the held inputs and the arrays
+        as an ``.npz`` ``payload``; the writer keeps only the newest."""
+        return {
+            "at": datetime.fromtimestamp(self.t, tz=UTC),
+            "model_version": self.model_version[:64],
+            "converged": bool(self.converged),
+            "ambient_c": float(self.inputs[0]),
+            "speed_rpm": float(self.inputs[1]),
+            "torque_nm": float(self.inputs[2]),
+            "payload": self.to_bytes(),
+        }
 
     @classmethod
     def from_parts(

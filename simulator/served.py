@@ -5,7 +5,7 @@ the fuzzing server.
 (the real ``ServiceCore`` and ``SoftSensorService``, the model from the ROM cache, a real database through
 ``open_persistence``: SQLite in a temporary directory in the tests) and runs its asyncio shell on a loop in a
 background thread. Only the devices differ: instead of the acquisition polling drivers, :func:`feed` hands it
-the samples of a ``model.plant.VirtualPlant`` run (``service.sim.plantsamples.samples_from_plant``), and the
+the samples of a ``model.plant.VirtualPlant`` run (``simulator.plantsamples.samples_from_plant``), and the
 identification worker is :class:`InlineWorker` (the shell's ``Worker`` protocol), the worker process's job
 function ``service.identify.worker.run_job`` in a thread of this process (no second process, same seeded
 result, the same job->outcome mapping), so a fed sample's identification is recorded before :func:`feed`
@@ -38,14 +38,14 @@ from drivers.ringbuffer import Sample
 from model.geometry import load_spindle
 from model.plant import Segment, VirtualPlant
 from service.core.machine import ServiceCore
-from service.errors import ServiceError
 from service.host.persistence import Persistence, open_persistence
 from service.host.runtime import CanDevice, DaqDevice, core_config, growth_server
 from service.identify.worker import JobOutcome, JobRequest, run_job
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.settings import Settings
 from service.shell.service import SoftSensorService
-from service.sim.plantsamples import samples_from_plant
+from simulator.errors import SimulatorError
+from simulator.plantsamples import samples_from_plant
 
 __all__ = [
     "DEMO_FED",
@@ -71,7 +71,7 @@ DEMO_FED = 133
 PLAN_T0 = datetime(2026, 11, 22, 7, 0, tzinfo=UTC)
 
 
-class ServedError(ServiceError, RuntimeError):
+class ServedError(SimulatorError, RuntimeError):
     """The served service did not settle in time, or its loop has stopped."""
 
 

@@ -6,7 +6,7 @@ the devices' work delayed the API. Here the rig is a process of its own, as ``ch
 simulated Modbus DAQ on a loopback port and the simulated CAN node behind a python-can-remote hub
 (``drivers.sim.can_hub``) on another, both chosen by the parent (:meth:`RigPlan.address`), so the service
 reaches them exactly as it reaches real devices (Modbus TCP, CAN interface ``remote``). The child computes the
-endless plant (``service.sim.endless``) chunk by chunk too, ``AHEAD_S`` plant seconds ahead of the time
+endless plant (``simulator.endless``) chunk by chunk too, ``AHEAD_S`` plant seconds ahead of the time
 served.
 
 The parent talks to the child over one ``multiprocessing`` pipe. Child to parent: ``("rows", PlantRows)``
@@ -23,7 +23,7 @@ SIGKILL: the kernel closes its end) and, as a second guard, when it is re-parent
 
 Errors::
 
-    RigProcessError(ServiceError, RuntimeError)   the rig process failed, exited, or did not answer
+    RigProcessError(SimulatorError, RuntimeError)   the rig process failed, exited, or did not answer
 """
 
 from __future__ import annotations
@@ -41,12 +41,12 @@ from multiprocessing.connection import Connection
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
-from service.errors import ServiceError
-from service.sim.simrig import SimAddress
+from simulator.errors import SimulatorError
+from simulator.simrig import SimAddress
 
 if TYPE_CHECKING:
     from drivers.sim.source import TimelineSource
-    from service.sim.endless import EndlessPlant, PlantRows
+    from simulator.endless import EndlessPlant, PlantRows
 
 __all__ = ["AHEAD_S", "PROCESS_NAME", "RigPlan", "RigProcess", "RigProcessError"]
 
@@ -57,7 +57,7 @@ PROCESS_NAME = "chtc-rig"
 AHEAD_S = 900.0
 
 
-class RigProcessError(ServiceError, RuntimeError):
+class RigProcessError(SimulatorError, RuntimeError):
     """The rig process failed (its message), exited, or did not answer in time."""
 
 
@@ -253,7 +253,7 @@ class _Inbox:
 
 async def _serve(conn: Connection, plan: RigPlan) -> None:
     from model.geometry import load_spindle
-    from service.sim.endless import EndlessPlant
+    from simulator.endless import EndlessPlant
 
     inbox = _Inbox(conn)
     plant = EndlessPlant(

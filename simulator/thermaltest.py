@@ -20,6 +20,7 @@ import numpy as np
 
 from model.plant import Segment, VirtualPlant
 from model.plantmech import PlantMechanics
+from service.contracts.errors import CommissioningError
 
 __all__ = [
     "RECOMMENDED_PROFILE",
@@ -168,7 +169,6 @@ def commission_seeds(
     from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
-    from service.shell.commissioning import CommissioningError
 
     settings = Settings()
     model = load_model(ModelRef.from_settings(settings))
@@ -207,7 +207,7 @@ def commission_seeds(
 
 def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dict[str, Any]:
     """Out of sample: commission seed ``seed``'s drawn plant on the 4-h test, then serve a duty cycle
-    (``service.sim.duty``, seed + 1000) on the same plant through the service's core: the axial growth with
+    (``simulator.duty``, seed + 1000) on the same plant through the service's core: the axial growth with
     the calibrated operators against the plant's truth every minute after ``after_min``, its CI (the live
     state's covariance, which holds the considered H error, and the mechanical posterior) and its coverage;
     the uncalibrated (the description's mechanics) error beside it. No reference 1σ and no identification
@@ -221,8 +221,8 @@ def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dic
     from service.host.runtime import core_config
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
-    from service.sim.duty import duty_profile
-    from service.sim.plantsamples import samples_from_plant
+    from simulator.duty import duty_profile
+    from simulator.plantsamples import samples_from_plant
 
     z95 = 1.959963984540054
     settings = Settings()
@@ -286,7 +286,7 @@ def duty_check(seed: int, *, hours: float = 2.0, after_min: float = 30.0) -> dic
 
 
 def main(argv: Sequence[str] | None = None) -> int:
-    """``python -m service.sim.thermaltest OUT [--seed N] [--short]``: write a thermal test into OUT;
+    """``python -m simulator.thermaltest OUT [--seed N] [--short]``: write a thermal test into OUT;
     ``--commission-seeds A B``: commission seeds A..B-1 and print one JSON line each; ``--duty-check-seeds S
     ...``: ``duty_check`` for each seed, one JSON line each."""
     import argparse
@@ -294,7 +294,7 @@ def main(argv: Sequence[str] | None = None) -> int:
 
     from model.plantmech import mechanics_for_seed
 
-    p = argparse.ArgumentParser(prog="python -m service.sim.thermaltest", description=__doc__)
+    p = argparse.ArgumentParser(prog="python -m simulator.thermaltest", description=__doc__)
     p.add_argument("out", type=Path, nargs="?", default=None, help="directory for the three files")
     p.add_argument("--seed", type=int, default=3, help="the plant's seed (its drawn mechanics)")
     p.add_argument("--short", action="store_true", help="the 80-min profile instead of the 4-h one")

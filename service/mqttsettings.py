@@ -1,6 +1,7 @@
 """The ``[mqtt]`` settings section (docs/configuration.md, docs/integration.md "MQTT"): off by default.
 
-Kept beside the outlet so that ``service.settings`` only names the section; nothing here opens a socket.
+A leaf below both ``service.settings`` (which names the section) and the outlet (``service.serve.mqtt``), so
+neither imports the other's package; nothing here opens a socket.
 """
 
 from __future__ import annotations

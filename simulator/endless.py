@@ -1,6 +1,6 @@
 """The virtual plant running a machining duty cycle without an end, computed chunk by chunk (``chtc demo``).
 
-``EndlessPlant(spec, seed=...)`` takes its segments from ``service.sim.duty.duty_cycle(seed)`` (at rest first,
+``EndlessPlant(spec, seed=...)`` takes its segments from ``simulator.duty.duty_cycle(seed)`` (at rest first,
 then a new speed every 1–6 min) and runs ``model.plant.VirtualPlant`` over them ``chunk_s`` plant seconds at a
 time, each chunk from the last one's final field (so the plant's state is continuous) with one seeded noise
 generator (so a seed gives the same run, whatever the chunking's timing). ``next_chunk()`` computes the next
@@ -18,7 +18,7 @@ import numpy as np
 from numpy.typing import NDArray
 
 from model.plant import Segment, VirtualPlant
-from service.sim.duty import duty_cycle
+from simulator.duty import duty_cycle
 
 if TYPE_CHECKING:
     from model.fem import FEModel

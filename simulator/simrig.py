@@ -1,5 +1,5 @@
 """In-process simulated devices for ``chtc replay`` and the end-to-end tests (``chtc demo`` runs its own in a
-child process: ``service.sim.rigproc``).
+child process: ``simulator.rigproc``).
 
 A rig is the simulated Modbus DAQ (``drivers.sim.modbus_server.SimulatedDaq``) on a free loopback port and
 the CAN side on a private python-can ``virtual`` channel: either the simulated sensor node driven by a
@@ -42,7 +42,7 @@ def _channel() -> str:
 class SimAddress:
     """Where a rig will serve: DAQ ``host:port`` and the CAN ``channel`` (chosen before it starts): a
     private ``virtual`` channel in this process, or a python-can-remote hub's URL (``can_interface="remote"``:
-    a rig in another process, ``service.sim.rigproc``)."""
+    a rig in another process, ``simulator.rigproc``)."""
 
     host: str
     port: int
