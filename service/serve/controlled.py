@@ -19,7 +19,7 @@ from __future__ import annotations
 
 import math
 import threading
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -135,7 +135,9 @@ def step_control(
     now = max(float(t), state.command.t)
     safe = usable or reason == CI_TOO_WIDE
     half = half_um if growth_um is not None else math.nan
-    gate = step_gate(state.gate, t=now, half_um=half, limits=limits.gate)
+    # open loop (DAQ lost) the CI only grows: no hold on the way out, it closes once above the tolerance
+    gl = replace(limits.gate, exit_hold_s=0.0) if status == PREDICTED else limits.gate
+    gate = step_gate(state.gate, t=now, half_um=half, limits=gl)
     gated = bool(safe and gate.open and growth_um is not None)
     best = best_estimate(safe=safe, status=status, growth_um=growth_um)
     command = advance(

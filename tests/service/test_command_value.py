@@ -274,3 +274,9 @@ def test_the_control_state_survives_the_live_checkpoint() -> None:
     assert ControlState.from_array(back.control) == state
     assert state.gate.above_since is not None and state.command.status is not CommandStatus.NONE
     assert ControlState.from_array(None) is None and ControlState.from_array(np.zeros(3)) is None
+
+
+def test_open_loop_the_gate_closes_as_soon_as_the_ci_passes_the_tolerance() -> None:
+    steps: list[Step] = [(float(t), True, None, "fresh", 4.0, 1.0) for t in range(0, 30)]
+    steps += [(30.0, False, "ci_too_wide", "predicted", 4.5, 2.2)]
+    assert _control(steps)[-1][1] is False  # fresh data: the gate would hold it for 120 s
