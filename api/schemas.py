@@ -15,6 +15,7 @@ import numpy as np
 from pydantic import BaseModel, Field, field_validator
 
 from api.deps import ClockInfo
+from service.contracts.command import CommandSnapshot
 from service.contracts.health import DeviceHealth, HealthSnapshot
 from service.contracts.mechanics import MECH_PARAMS, MechanicsCalibration
 from service.contracts.probe import ProbeMeasurement
@@ -658,6 +659,60 @@ class PlcOut(BaseModel):
     isg_temp_comp_position_0_0p1um: int = Field(description="Beckhoff/ISG P-AXIS-00272, 0.1 µm")
 
 
+class ProfileOut(BaseModel):
+    """The controller profile that bounds the command ([controller]; docs/design/policy.md)."""
+
+    name: str = Field(description="generic, sinumerik, fanuc or heidenhain")
+    max_step_um: float = Field(description="the largest change per update, µm")
+    max_rate_um_s: float = Field(description="the largest rate of change, µm/s")
+    limit_um: float = Field(description="the largest magnitude served, µm")
+
+
+class CommandOut(BaseModel):
+    """What the controller applies now (docs/design/policy.md, 'The command value'): the axial growth to
+    compensate, µm (+ towards the tool), following the growth while usable, held for hold_s when the verdict
+    drops, then moving towards the best estimate the service has, never faster than the profile allows. Apply
+    it whatever usable_for_compensation says; its status says what it does."""
+
+    value_um: float = Field(description="the growth the controller compensates now, µm")
+    status: Literal["following", "rate_limited", "holding", "fading", "at_limit", "none"] = Field(
+        description="following: the usable growth; rate_limited: moving towards it, cut by the profile; "
+        "holding: the verdict dropped, the last applied value held; fading: past the hold, moving towards "
+        "the best estimate; at_limit: clipped at the profile's limit; none: nothing known, 0 or towards it"
+    )
+    at: datetime = Field(description="UTC instant of the command (the service's clock)")
+    hold_s: float = Field(description="how long the last applied value is held after the verdict drops, s")
+    profile: ProfileOut
+    correction_um: float = Field(description="axis correction cancelling the command, µm (-tool_dir·value)")
+    sd43900_temp_comp_abs_value_mm: float = Field(description="SINUMERIK SD43900 for the command, mm")
+    sd42960_tool_temp_comp_mm: float = Field(description="SINUMERIK SD42960 for the command, mm")
+    isg_temp_comp_offset_0_0p1um: int = Field(description="Beckhoff/ISG P-AXIS-00273 for the command, 0.1 µm")
+    fanuc_is_b_units: int = Field(description="FANUC detection units at IS-B (1 µm) of the correction")
+    fanuc_is_c_units: int = Field(description="FANUC detection units at IS-C (0.1 µm) of the correction")
+
+
+def command_out(c: CommandSnapshot) -> CommandOut:
+    p = c.plc
+    return CommandOut(
+        value_um=round(c.value_um, 4),
+        status=c.status.value,
+        at=datetime.fromtimestamp(c.at, tz=UTC),
+        hold_s=c.hold_s,
+        profile=ProfileOut(
+            name=c.profile.name,
+            max_step_um=c.profile.max_step_um,
+            max_rate_um_s=c.profile.max_rate_um_s,
+            limit_um=c.profile.limit_um,
+        ),
+        correction_um=round(p.correction_um, 4),
+        sd43900_temp_comp_abs_value_mm=round(p.sd43900_mm, 7),
+        sd42960_tool_temp_comp_mm=round(p.sd42960_tool_axis_mm, 7),
+        isg_temp_comp_offset_0_0p1um=p.isg_offset_0p1um,
+        fanuc_is_b_units=round(p.correction_um),
+        fanuc_is_c_units=round(10.0 * p.correction_um),
+    )
+
+
 class SensitivityOut(BaseModel):
     channel: int
     axial_um_per_c: float = Field(description="axial growth per °C error of this channel, µm/°C")
@@ -900,6 +955,9 @@ class CompensationOut(VerdictOut):
     radial: GrowthValueOut = Field(description="nose outer diameter, + outwards")
     forecast: GrowthForecastOut
     plc: PlcOut
+    command: CommandOut | None = Field(
+        None, description="what the controller applies now (docs/design/policy.md); null: not stepped yet"
+    )
     sensitivity: list[SensitivityOut] = Field(description="growth per unit temperature error of each sensor")
     identification_id: int | None = Field(
         description="the identification whose H the growth uses (null before the first one: the live state's "
@@ -965,6 +1023,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime, *, spindle_id: str)
             isg_temp_comp_coefficient_um_per_m=p.isg_coefficient_um_per_m,
             isg_temp_comp_position_0_0p1um=p.isg_position_0p1um,
         ),
+        command=None if s.command is None else command_out(s.command),
         sensitivity=[
             SensitivityOut(channel=c, axial_um_per_c=round(a, 5), radial_um_per_c=round(r, 5))
             for c, a, r in zip(

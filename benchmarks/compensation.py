@@ -24,8 +24,11 @@ the rest), the restarts', the outages' figures, ``max_ci_bound_over_box``; the i
 from __future__ import annotations
 
 import argparse
+import itertools
+import math
 import sys
 import time
+from dataclasses import dataclass
 from typing import Any
 
 import numpy as np
@@ -36,12 +39,14 @@ from benchmarks.compensation_run import (
     Minute,
     Plan,
     SeedRows,
+    Tick,
     add_jobs_argument,
     add_plant_mechanics_argument,
     plan_for,
     run_seed,
 )
 from benchmarks.targets import Target, format_verdicts, progress_to_stderr, report, verdicts
+from service.serve.controlled import ControlLimits, ControlState, step_control
 
 NORMAL = ("normal_clean", "normal_offsets")
 
@@ -56,6 +61,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     add_plant_mechanics_argument(parser)
     identmode.add_arguments(parser)
     parser.add_argument("--json", action="store_true", help="print one JSON object")
+    parser.add_argument(
+        "--ticks-out",
+        default=None,
+        help="also write every sample's served growth, CI and plain verdict per seed (pickle) to this file, "
+        "to try CI gates and command settings offline (``benchmarks.compensation.control_grid``)",
+    )
 
 
 def targets(settings: Any) -> tuple[Target, ...]:
@@ -84,8 +95,27 @@ def targets(settings: Any) -> tuple[Target, ...]:
         Target("outage_both.usable_s_after_loss", "<=", 60.0, unit="s", note="worst seed"),
         Target("max_ci_bound_over_box", "<=", 10.0),
     ]
+    ctl = getattr(settings, "controller", None)
+    if comp is not None and ctl is not None:
+        from service.core.config import control_limits
+
+        limits = control_limits(settings)
+        out += [
+            Target("transitions_per_hour_median", "<=", 2.0, note="with the CI gate, median over runs"),
+            Target("transitions_per_hour_max", "<=", 6.0, note="in any run's clock hour"),
+            Target("gated.usable_fraction", ">=", 0.90, note="with the CI gate"),
+            Target("gated.coverage_usable", "in", (0.90, 0.99), note="with the CI gate"),
+            Target("command.err_um_p95", "<=", 1.5, unit="µm", note="every machining minute"),
+            Target("command.max_step_um", "<=", limits.profile.max_step_um, unit="µm"),
+            Target("command.sign_changes_at_verdict_change", "<=", 0.0),
+        ]
     if comp is not None:
-        out.append(Target("ci_half_um_max_usable", "<=", float(comp.max_ci95_um), unit="µm"))
+        # the served verdict has the CI gate (issue 42): a half-width above the tolerance stays usable for at
+        # most ci_exit_hold_s, and never above ci_hard_fraction × the tolerance
+        hard = float(comp.max_ci95_um) * float(getattr(comp, "ci_hard_fraction", 1.0))
+        out.append(
+            Target("ci_half_um_max_usable", "<=", hard, unit="µm", note="ci_hard_fraction × tolerance")
+        )
         out.append(Target("outage_can_alive.usable_min", "<=", float(comp.max_open_loop_min), unit="min"))
     return tuple(out)
 
@@ -254,8 +284,11 @@ def seed_figures(seed: SeedRows, plan: Plan, box_hi: float) -> dict[str, Any]:
     }
 
 
-def summarise(seeds: dict[int, SeedRows], plan: Plan, box_hi: float) -> dict[str, Any]:
-    """Pooled figures over the seeds, and per seed."""
+def summarise(
+    seeds: dict[int, SeedRows], plan: Plan, box_hi: float, limits: ControlLimits | None = None
+) -> dict[str, Any]:
+    """Pooled figures over the seeds, and per seed; with ``limits``, the gated verdict and the command
+    value (``control_figures``)."""
     per = {s: seed_figures(r, plan, box_hi) for s, r in seeds.items()}
     normal = [m for r in seeds.values() for name in NORMAL for m in r.rows[name]]
     after = [m for m in normal if m.t_s >= 60.0 * plan.rest_min]
@@ -308,6 +341,168 @@ def summarise(seeds: dict[int, SeedRows], plan: Plan, box_hi: float) -> dict[str
         "wall_s_per_seed": [p["wall_s"] for p in per.values()],
         "per_seed": {str(s): p for s, p in per.items()},
     }
+    if limits is not None:
+        out |= control_figures({s: r.ticks for s, r in seeds.items()}, plan, limits)
+    return out
+
+
+# ------------------------------------------------------------------------ the CI gate and the command value
+
+
+@dataclass(frozen=True, kw_only=True)
+class Controlled:
+    """One run's ticks through ``service.serve.controlled.step_control``: per tick the gated verdict and the
+    command value [µm]."""
+
+    ticks: list[Tick]
+    usable: list[bool]
+    command_um: list[float]
+
+
+def control_run(ticks: list[Tick], limits: ControlLimits) -> Controlled:
+    """The gate and the command over one run's ticks, exactly as the service steps them on each sample."""
+    if not ticks:
+        return Controlled(ticks=[], usable=[], command_um=[])
+    state = ControlState.start(ticks[0].t)
+    usable, command = [], []
+    for tk in ticks:
+        state, ok = step_control(
+            state,
+            t=tk.t,
+            usable=tk.usable,
+            reason=tk.reason,
+            status=tk.status,
+            growth_um=tk.um if tk.served else None,
+            half_um=0.5 * (tk.hi - tk.lo) if tk.served else math.nan,
+            limits=limits,
+        )
+        usable.append(ok)
+        command.append(state.command.value_um)
+    return Controlled(ticks=ticks, usable=usable, command_um=command)
+
+
+def _transitions(flags: list[bool]) -> int:
+    return sum(a != b for a, b in itertools.pairwise(flags))
+
+
+def _hourly(run: Controlled, start_s: float, flags: list[bool]) -> tuple[float, int]:
+    """Transitions per machining hour over the run after ``start_s``, and the most in one clock hour of it."""
+    idx = [i for i, tk in enumerate(run.ticks) if tk.t_s >= start_s]
+    if len(idx) < 2:
+        return 0.0, 0
+    hours = (run.ticks[idx[-1]].t_s - run.ticks[idx[0]].t_s) / 3600.0
+    per_hour: dict[int, int] = {}
+    for a, b in itertools.pairwise(idx):
+        if flags[a] != flags[b]:
+            h = int((run.ticks[b].t_s - start_s) // 3600.0)
+            per_hour[h] = per_hour.get(h, 0) + 1
+    total = sum(per_hour.values())
+    return total / hours if hours > 0 else 0.0, max(per_hour.values(), default=0)
+
+
+def control_figures(
+    ticks: dict[int, dict[str, list[Tick]]], plan: Plan, limits: ControlLimits
+) -> dict[str, Any]:
+    """The verdict with the CI gate and the command value over the normal runs (machining, after the rest)
+    and the outages run: transitions per machining hour (gated and plain), the gated usable fraction and
+    coverage, the command's |error| against the truth on every machining minute, its largest step, and what
+    it does where the verdict changes."""
+    start_s = 60.0 * plan.rest_min
+    rates, rates_plain, worst, worst_plain = [], [], [], []
+    minutes: list[tuple[Tick, bool, float]] = []
+    halves: list[float] = []
+    steps: list[float] = []
+    jumps: list[float] = []
+    sign_changes = changes = 0
+    outage_err: list[float] = []
+    for runs in ticks.values():
+        for name, run_ticks in runs.items():
+            run = control_run(run_ticks, limits)
+            cmd = run.command_um
+            steps += [abs(b - a) for a, b in itertools.pairwise(cmd)]
+            for i in range(1, len(cmd)):
+                if run.usable[i] != run.usable[i - 1] and run.ticks[i].t_s >= start_s:
+                    changes += 1
+                    jumps.append(abs(cmd[i] - cmd[i - 1]))
+                    if cmd[i] * cmd[i - 1] < 0.0:
+                        sign_changes += 1
+            if name == "outages":
+                outage_err += [
+                    abs(c - tk.truth_um)
+                    for tk, c in zip(run.ticks, cmd, strict=True)
+                    if tk.t_s >= start_s and math.isfinite(tk.truth_um)
+                ]
+                continue
+            rate, most = _hourly(run, start_s, run.usable)
+            rate_p, most_p = _hourly(run, start_s, [tk.usable for tk in run.ticks])
+            rates.append(rate)
+            worst.append(most)
+            rates_plain.append(rate_p)
+            worst_plain.append(most_p)
+            for tk, ok, c in zip(run.ticks, run.usable, cmd, strict=True):
+                if tk.t_s >= start_s and math.isfinite(tk.truth_um):
+                    minutes.append((tk, ok, c))
+                if ok and tk.t_s >= start_s:
+                    halves.append(0.5 * (tk.hi - tk.lo))
+    err = np.array([abs(c - tk.truth_um) for tk, _ok, c in minutes])
+    usable = [tk for tk, ok, _c in minutes if ok]
+    return {
+        "transitions_per_hour_median": _r(np.median(rates)) if rates else None,
+        "transitions_per_hour_max": max(worst, default=None),
+        "transitions_per_hour_per_run": [_r(r, 2) for r in rates],
+        "plain_transitions_per_hour_median": _r(np.median(rates_plain)) if rates_plain else None,
+        "plain_transitions_per_hour_max": max(worst_plain, default=None),
+        "gated": {
+            "usable_fraction": _r(len(usable) / len(minutes)) if minutes else None,
+            "coverage_usable": _r(np.mean([tk.lo <= tk.truth_um <= tk.hi for tk in usable]))
+            if usable
+            else None,
+            "ci_half_um_max_usable": _r(max(halves)) if halves else None,
+        },
+        "command": {
+            "err_um_median": _r(np.median(err)) if err.size else None,
+            "err_um_p95": _r(np.percentile(err, 95)) if err.size else None,
+            "err_um_max": _r(err.max()) if err.size else None,
+            "max_step_um": _r(max(steps, default=0.0)),
+            "verdict_changes": changes,
+            "max_jump_um_at_verdict_change": _r(max(jumps, default=0.0)),
+            "sign_changes_at_verdict_change": sign_changes,
+            "outage_err_um_p95": _r(np.percentile(outage_err, 95)) if outage_err else None,
+            "outage_err_um_max": _r(max(outage_err)) if outage_err else None,
+        },
+        "control": {
+            "ci_enter_fraction": limits.gate.enter_fraction,
+            "ci_exit_hold_s": limits.gate.exit_hold_s,
+            "ci_hard_fraction": limits.gate.hard_fraction,
+            "profile": limits.profile.name,
+            "max_step_um": limits.profile.max_step_um,
+            "max_rate_um_s": limits.profile.max_rate_um_s,
+            "hold_s": limits.hold_s,
+        },
+    }
+
+
+def control_grid(
+    path: str,
+    *,
+    base: ControlLimits,
+    enter: tuple[float, ...] = (0.6, 0.7, 0.8, 0.9, 1.0),
+    exit_hold_s: tuple[float, ...] = (0.0, 60.0, 180.0, 300.0, 600.0),
+    hard: tuple[float, ...] = (1.25, 1.5, 2.0),
+    hold_s: tuple[float, ...] = (60.0, 120.0, 300.0),
+) -> list[dict[str, Any]]:
+    """The control figures for every combination of gate and hold settings over the ticks a run wrote with
+    ``--ticks-out`` (the grid docs/design/policy.md reports)."""
+    import pickle
+    from dataclasses import replace
+
+    with open(path, "rb") as fh:
+        dumped = pickle.load(fh)
+    out = []
+    for e, x, h, hs in itertools.product(enter, exit_hold_s, hard, hold_s):
+        gate = replace(base.gate, enter_fraction=e, exit_hold_s=x, hard_fraction=h)
+        fig = control_figures(dumped["ticks"], dumped["plan"], replace(base, gate=gate, hold_s=hs))
+        out.append(fig)
     return out
 
 
@@ -331,10 +526,12 @@ def run_bench(
     progress: Any = None,
     jobs: int = 1,
     plant_mechanics: str = "drawn",
+    ticks_out: str | None = None,
 ) -> dict[str, Any]:
     """The bench over ``seeds`` (module docstring), ``jobs`` seeds at a time in worker processes;
-    ``ValueError`` for a bad option."""
+    ``ValueError`` for a bad option. ``ticks_out``: a file for every seed's per-sample ticks (pickle)."""
     from benchmarks.compensation_run import Plant
+    from service.core.config import control_limits
     from service.modelload import ModelRef, load_model
 
     plan = plan_for(hours, rest_min=rest_min)
@@ -362,6 +559,11 @@ def run_bench(
         plant = Plant(model.spec, mechanics=plant_mechanics)
         for seed in seeds:
             done(seed, run_seed(model, settings, plant, seed, plan, progress=progress))
+    if ticks_out is not None:
+        import pickle
+
+        with open(ticks_out, "wb") as fh:
+            pickle.dump({"plan": plan, "ticks": {s: r.ticks for s, r in results.items()}}, fh)
     box_hi = float(model.ref.h_box[1])
     out: dict[str, Any] = {
         "synthetic": True,
@@ -380,7 +582,7 @@ def run_bench(
         },
         "minute_samples": PER_MIN,
         "h_box": [float(model.ref.h_box[0]), box_hi],
-        **summarise(results, plan, box_hi),
+        **summarise(results, plan, box_hi, control_limits(settings)),
     }
     out["targets"] = verdicts(targets(settings), _flat(out))
     out["wall_s"] = round(time.perf_counter() - started, 1)
@@ -467,6 +669,22 @@ def _print_table(out: dict[str, Any]) -> None:
     )
     print(f"both devices down: usable up to {ob['usable_s_after_loss']} s after the last sample")
     print(f"largest served H CI bound / search box upper bound: {out['max_ci_bound_over_box']}")
+    if "command" in out:
+        g, c, k = out["gated"], out["command"], out["control"]
+        print(
+            f"\nwith the CI gate (enter {k['ci_enter_fraction']}, exit after {k['ci_exit_hold_s']} s, hard "
+            f"{k['ci_hard_fraction']} × tolerance): transitions per machining hour median "
+            f"{out['transitions_per_hour_median']}, most in an hour {out['transitions_per_hour_max']} (plain "
+            f"verdict: {out['plain_transitions_per_hour_median']}, {out['plain_transitions_per_hour_max']}); "
+            f"usable {g['usable_fraction']}, coverage when usable {g['coverage_usable']}"
+        )
+        print(
+            f"command value ({k['profile']}, hold {k['hold_s']} s): |error| median {c['err_um_median']} µm, "
+            f"p95 {c['err_um_p95']} µm, max {c['err_um_max']} µm; largest step {c['max_step_um']} µm; at "
+            f"{c['verdict_changes']} verdict changes: largest jump {c['max_jump_um_at_verdict_change']} µm, "
+            f"sign changes {c['sign_changes_at_verdict_change']}; outages: |error| p95 "
+            f"{c['outage_err_um_p95']} µm"
+        )
     print(format_verdicts(out["targets"]))
 
 
@@ -485,6 +703,7 @@ def main(args: argparse.Namespace) -> int:
             progress=progress_to_stderr,
             jobs=int(args.jobs),
             plant_mechanics=str(args.plant_mechanics),
+            ticks_out=args.ticks_out,
         )
     except ValueError as err:
         print(f"error: {err}", file=sys.stderr)

@@ -113,6 +113,23 @@ class Minute:
     h_truth: np.ndarray = field(default_factory=lambda: np.full(7, np.nan))
 
 
+@dataclass(frozen=True, kw_only=True, slots=True)
+class Tick:
+    """What ``/compensation`` serves after one sample (every 10 s), for the CI gate and the command value
+    (``service.serve.controlled``), beside the truth on the minute samples (NaN between them)."""
+
+    t: float  # the sample's instant [POSIX s]
+    t_s: float  # plant time [s]
+    served: bool
+    usable: bool  # the policy's plain verdict (before the CI gate: ``CompensationSnapshot.policy_verdict``)
+    reason: str | None
+    status: str
+    um: float = math.nan
+    lo: float = math.nan
+    hi: float = math.nan
+    truth_um: float = math.nan
+
+
 def reason_code(snap: Any) -> str | None:
     """The typed reason of a ``/chtc`` or ``/compensation`` snapshot (its policy verdict's ``Reason``, what
     the API serves as ``reason_code``; None when usable). Never parsed from the human text."""
@@ -282,6 +299,28 @@ class Session:
             growth=growth_server(model, settings, restored),
         )
 
+    def tick(self, t: float, t_s: float, truth_um: float) -> Tick:
+        """What /compensation serves now (plain verdict, growth and CI), beside the truth."""
+        comp = self.svc.compensation()
+        if comp is None:
+            return Tick(
+                t=t, t_s=t_s, served=False, usable=False, reason=None, status="none", truth_um=truth_um
+            )
+        ax = comp.growth.axial
+        plain = comp.policy_verdict or comp.verdict  # before the service's own CI gate
+        return Tick(
+            t=t,
+            t_s=t_s,
+            served=True,
+            usable=bool(plain.usable),
+            reason=None if plain.reason is None else str(plain.reason.value),
+            status=plain.status.value,
+            um=float(ax.um),
+            lo=float(ax.ci95_um[0]),
+            hi=float(ax.ci95_um[1]),
+            truth_um=truth_um,
+        )
+
     def read(self, t_s: float, truth_um: float, h_truth: np.ndarray) -> Minute:
         """What /compensation and /chtc serve now, beside the truth."""
         svc = self.svc
@@ -372,6 +411,7 @@ class SeedRows:
     """A seed's rows per scenario, the both-down ticks (s after the last sample, usable) and its wall time."""
 
     rows: dict[str, list[Minute]] = field(default_factory=dict)
+    ticks: dict[str, list[Tick]] = field(default_factory=dict)  # every sample (normal runs, outages)
     both_ticks: list[tuple[float, bool]] = field(default_factory=list)
     ref_before_restart: float | None = None
     mechanics: dict[str, float] = field(default_factory=dict)  # the plant's (``PlantMechanics.as_dict``)
@@ -406,8 +446,10 @@ def run_seed(
         run, growth = plant.run(seed, variant, profile, truth)
         samples = samples_from_plant(run, t0_s=T0)
         restart_k = plan.restart_min * PER_MIN
-        normal, stored = _serve(model, settings, samples, run, growth, capture_at=restart_k)
+        ticks: list[Tick] = []
+        normal, stored = _serve(model, settings, samples, run, growth, capture_at=restart_k, ticks=ticks)
         out.rows[f"normal_{variant}"] = normal
+        out.ticks[f"normal_{variant}"] = ticks
         if progress is not None:
             progress(f"  seed {seed} {variant}: normal run ({time.perf_counter() - started:.0f} s)")
         if variant != "offsets":
@@ -420,8 +462,16 @@ def run_seed(
         )
         zeroed = override(settings, "compensation", reference_c=plant.start_c(run))
         out.rows["restart_no_state"], _ = _serve(model, zeroed, samples, run, growth, first=restart_k)
+        out.ticks["outages"] = []
         out.rows["outages"], _ = _serve(
-            model, settings, samples, run, growth, plan=plan, both_ticks=out.both_ticks
+            model,
+            settings,
+            samples,
+            run,
+            growth,
+            plan=plan,
+            both_ticks=out.both_ticks,
+            ticks=out.ticks["outages"],
         )
     out.wall_s = time.perf_counter() - started
     return out
@@ -439,10 +489,11 @@ def _serve(
     capture_at: int | None = None,
     plan: Plan | None = None,
     both_ticks: list[tuple[float, bool]] | None = None,
+    ticks: list[Tick] | None = None,
 ) -> tuple[list[Minute], tuple[Any, float | None] | None]:
     """The samples from ``first`` on through one service; with ``plan`` its two outages. Returns the minute
     rows and, with ``capture_at``, what is stored (``stored_state``, the reference) just before that
-    sample."""
+    sample; with ``ticks``, appends what is served after every sample."""
     session = Session(model, settings, start=samples[first].t, restored=restored)
     svc = session.svc
     rows: list[Minute] = []
@@ -470,6 +521,9 @@ def _serve(
         if both[0] <= k < both[1] and both_ticks is not None:
             m = session.read(t_s, math.nan, run.h_true[k])
             both_ticks.append((t_s - float(run.times_s[both[0] - 1]), m.usable))
+        if ticks is not None:
+            truth = float(growth[k // PER_MIN]) if minute else math.nan
+            ticks.append(session.tick(sample.t.timestamp(), t_s, truth))
         if minute:
             rows.append(
                 session.read(t_s, float(growth[k // PER_MIN]), np.asarray(run.h_true[k], dtype=float))

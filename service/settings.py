@@ -406,6 +406,29 @@ class CompensationSettings(_Section):
     # a probe reading (POST /api/v1/compensation/measurements) further than this many σ of its prediction (the
     # served growth's CI with the probe's own sd) is flagged and not absorbed (a crash or a tool change)
     probe_gate_sigma: float = Field(default=3.0, gt=0.0, le=100.0, allow_inf_nan=False)
+    # the CI part of the verdict has hysteresis (service.serve.cigate; docs/design/policy.md, "A steady
+    # verdict"): usable again only when the 95 % CI half-width is at most this fraction of max_ci95_um ...
+    ci_enter_fraction: float = Field(default=0.8, gt=0.0, le=1.0, allow_inf_nan=False)
+    # ... and not usable once it has stayed above max_ci95_um this long [s] ...
+    ci_exit_hold_s: float = Field(default=300.0, ge=0.0, le=86400.0, allow_inf_nan=False)
+    # ... or at once above this multiple of max_ci95_um (or not a number)
+    ci_hard_fraction: float = Field(default=1.5, ge=1.0, le=10.0, allow_inf_nan=False)
+
+
+class ControllerSettings(_Section):
+    """The command value served for the controller (``/compensation`` ``command``; service.serve.command;
+    docs/design/policy.md, "The command value"): how far it may move per update and per second, its absolute
+    limit (the profile's unless overridden), and how long it holds the last applied value when the verdict
+    drops."""
+
+    # sinumerik, fanuc, heidenhain or generic: the largest step, rate and magnitude the controller accepts
+    profile: Literal["generic", "sinumerik", "fanuc", "heidenhain"] = "generic"
+    max_step_um: float | None = Field(default=None, gt=0.0, le=10000.0, allow_inf_nan=False)  # per update
+    max_rate_um_s: float | None = Field(default=None, gt=0.0, le=10000.0, allow_inf_nan=False)
+    limit_um: float | None = Field(default=None, gt=0.0, le=100000.0, allow_inf_nan=False)  # |command|
+    # after the verdict drops, the last applied value is held this long [s] before it moves towards the best
+    # estimate the service still has
+    hold_s: float = Field(default=300.0, ge=0.0, le=86400.0, allow_inf_nan=False)
 
 
 def check_token(text: str) -> str:
@@ -593,6 +616,7 @@ class Settings(BaseSettings):
     api: ApiSettings = Field(default_factory=ApiSettings)
     database: DatabaseSettings = Field(default_factory=DatabaseSettings)
     compensation: CompensationSettings = Field(default_factory=CompensationSettings)
+    controller: ControllerSettings = Field(default_factory=ControllerSettings)
     experimental: ExperimentalSettings = Field(default_factory=ExperimentalSettings)
     engine: EngineSettings = Field(default_factory=EngineSettings)
     opcua: OpcUaSettings = Field(default_factory=OpcUaSettings)

@@ -985,6 +985,7 @@ function showComp(c, problem) {
   if (!c) {
     pill.textContent = problem.title;
     $("comp-um").textContent = "–"; $("comp-ci").textContent = "no value"; $("comp-correction").textContent = "";
+    $("comp-command").textContent = "";
     $("comp-usable").textContent = "No compensation value";
     $("comp-reason").textContent = problem.detail;
     $("comp-action").textContent = problem.action ? "What to do: " + problem.action : "";
@@ -1000,6 +1001,10 @@ function showComp(c, problem) {
   $("comp-ci").textContent = `95 % CI [${signed(a.ci95_um[0], 1)}, ${signed(a.ci95_um[1], 1)}] µm (± ${fmt((a.ci95_um[1] - a.ci95_um[0]) / 2, 1)})`;
   $("comp-correction").textContent = `axis correction ${signed(c.plc.correction_um, 1)} µm · SD43900 ` +
     `${c.plc.sd43900_temp_comp_abs_value_mm.toFixed(4)} mm · ISG ${c.plc.isg_temp_comp_offset_0_0p1um} × 0.1 µm`;
+  // the command value: what the controller applies now (held, faded, rate-limited by the service)
+  const cmd = c.command;
+  $("comp-command").textContent = cmd ? `controller command ${signed(cmd.value_um, 1)} µm (${cmd.status}, ` +
+    `profile ${cmd.profile.name}) · SD43900 ${cmd.sd43900_temp_comp_abs_value_mm.toFixed(4)} mm` : "";
   $("comp-usable").textContent = usable ? "Usable: apply the correction" : "Not usable: do not apply";
   $("comp-reason").textContent = usable ? "" : (c.reason || "");
   const action = "action" in c ? c.action : (usable ? null : ACTION_BY_STATUS[c.status]);

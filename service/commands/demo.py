@@ -77,7 +77,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--seed", type=int, default=0, help="duty-cycle, plant noise and identification seed")
     parser.add_argument(
-        "--idle-min", type=float, default=5.0, help="plant minutes at rest before the machining starts"
+        "--idle-min",
+        type=float,
+        default=None,
+        help="plant minutes at rest before the machining starts (default: the offset baseline's equilibrium "
+        "window identification.offset_rest_s plus 5 min, 10 min with the defaults; shorter: the demo runs "
+        "without an offset baseline and its growth's CI is wider)",
     )
     parser.add_argument(
         "--segment-min",
@@ -109,7 +114,8 @@ def demo_settings(args: argparse.Namespace, db_url: str) -> tuple[Settings, str 
     # the virtual plant starts at rest in equilibrium: the demo's controller is zeroed there (a real
     # installation sets its zero at commissioning: docs/commissioning.md)
     # the demo's plant has the spindle description's own mechanics: nothing to commission; and sensors
-    # without offsets (model.plant.VirtualPlant's default): no baseline needed before its short first rest
+    # without offsets (model.plant.VirtualPlant's default): usable before a baseline (its first rest takes
+    # one: idle_minutes)
     s = override(
         s,
         "compensation",
@@ -191,6 +197,21 @@ def _row(rows: PlantRows, t_plant: float) -> int:
     return min(int(np.searchsorted(rows.times_s, t_plant)), len(rows.times_s) - 1)
 
 
+# the rest beyond the baseline's equilibrium window: the first samples, the filter's start
+IDLE_MARGIN_S = 300.0
+
+
+def idle_minutes(args: argparse.Namespace, settings: Settings) -> float:
+    """The plant's rest before the machining [min]: ``--idle-min``, else long enough for the offset baseline
+    (``identification.offset_rest_s`` of idle samples at equilibrium, plus ``IDLE_MARGIN_S``). The endless
+    duty cycle never rests that long again, so a demo whose first rest is shorter runs without a baseline:
+    every channel's offset stays unknown (1σ ``identification.offset_sd_c``, 0.17 °C), the filter widens its
+    measurement noise by it and the growth's 95 % CI half-width sits at the 2 µm tolerance (issue 42)."""
+    if args.idle_min is not None:
+        return float(args.idle_min)
+    return (settings.identification.offset_rest_s + IDLE_MARGIN_S) / 60.0
+
+
 def dashboard_url(base: str, token: str | None) -> str:
     """The dashboard's URL; with a generated write token in its fragment (``#write-token=...``), which the
     browser never sends to the server: the page keeps it in the tab's sessionStorage for its write buttons."""
@@ -204,6 +225,7 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
 
     db_url = settings.database.url
     clock = ScaledClock(args.speedup)
+    idle_min = idle_minutes(args, settings)
     resume_at = await asyncio.to_thread(clock_start_after, db_url)
     if resume_at is not None:
         clock.start(at=resume_at)
@@ -214,7 +236,7 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
     plan = RigPlan.on_free_ports(
         spindle=settings.model.spindle,
         seed=args.seed,
-        idle_s=60.0 * args.idle_min,
+        idle_s=60.0 * idle_min,
         segment_s=None if args.segment_min is None else 60.0 * args.segment_min,
         speedup=args.speedup,
     )
@@ -240,7 +262,7 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
         await runtime.wait_api()
         await rig.start()
         runtime.start_acquisition()
-        _announce(args, runtime.url, db_url, token)
+        _announce(args, runtime.url, db_url, token, idle_min)
         started = time.monotonic()
         while not stop.is_set():
             if args.duration is not None and time.monotonic() - started >= args.duration:
@@ -279,7 +301,9 @@ def clock_start_after(db_url: str, *, now: datetime | None = None) -> datetime |
     return newest + timedelta(minutes=1)
 
 
-def _announce(args: argparse.Namespace, base_url: str, db_url: str, token: str | None) -> None:
+def _announce(
+    args: argparse.Namespace, base_url: str, db_url: str, token: str | None, idle_min: float
+) -> None:
     print(f"dashboard: {dashboard_url(base_url, token)}", flush=True)
     print(f"API: {base_url}api/v1/compensation; database: {_safe(db_url)}", flush=True)
     if token is not None:
@@ -292,7 +316,7 @@ def _announce(args: argparse.Namespace, base_url: str, db_url: str, token: str |
         print("write token: the configured api.token", flush=True)
     every = "1-6 min" if args.segment_min is None else f"{args.segment_min:g} min"
     print(
-        f"plant profile: {args.idle_min:g} min at rest, then a machining cycle (a new speed every "
+        f"plant profile: {idle_min:g} min at rest, then a machining cycle (a new speed every "
         f"{every}, 0-7000 rpm) until stopped; plant time runs x{args.speedup:g} (1 wall s = "
         f"{args.speedup:g} plant s) and every time shown is plant time; Ctrl-C stops",
         flush=True,

@@ -63,6 +63,9 @@ class LiveCheckpoint:
     bias_s: Array
     bias_m: Array
     param_std: Array | None = None  # (9,) the considered parameters' 1σ at the checkpoint (``cross``'s)
+    # the served verdict's CI gate and the command value at the checkpoint, as numbers
+    # (``service.serve.controlled.ControlState.to_array``; None in checkpoints before issue 42)
+    control: Array | None = None
 
     def __post_init__(self) -> None:
         if not math.isfinite(self.t):
@@ -112,6 +115,8 @@ class LiveCheckpoint:
         arrays: dict[str, Any] = {name: np.asarray(getattr(self, name), dtype="<f8") for name in _ARRAYS}
         if self.param_std is not None:
             arrays["param_std"] = np.asarray(self.param_std, dtype="<f8")
+        if self.control is not None:
+            arrays["control"] = np.asarray(self.control, dtype="<f8")
         np.savez(buf, **arrays)
         return buf.getvalue()
 
@@ -143,8 +148,9 @@ class LiveCheckpoint:
         try:
             with np.load(io.BytesIO(payload), allow_pickle=False) as npz:
                 arrays = {name: np.array(npz[name], dtype=np.float64) for name in _ARRAYS}
-                if "param_std" in npz.files:  # older checkpoints lack it
-                    arrays["param_std"] = np.array(npz["param_std"], dtype=np.float64)
+                for name in ("param_std", "control"):  # older checkpoints lack them
+                    if name in npz.files:
+                        arrays[name] = np.array(npz[name], dtype=np.float64)
         except KeyError as err:
             raise CheckpointError(f"live checkpoint: payload lacks the array {err}") from err
         except (OSError, ValueError, EOFError) as err:

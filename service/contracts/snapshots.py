@@ -20,6 +20,7 @@ import numpy as np
 import numpy.typing as npt
 
 from model.locator import TriangleLocator, locator_for
+from service.contracts.command import CommandSnapshot
 from service.contracts.growth import GrowthEstimate, PlcCompensation
 from service.contracts.mechanics import MechanicsCalibration
 from service.contracts.records import IdentificationData
@@ -421,6 +422,10 @@ class CompensationSnapshot(Judged):
     # channels the live state leaves out as stuck or drifting (service.estimate.sensorfaults), by channel:
     # the growth's CI carries what they bent before they were found
     sensor_faults: tuple[SensorFault, ...] = ()
+    # what the controller applies now (service.serve.controlled; None: no controller stepped it)
+    command: CommandSnapshot | None = None
+    # the policy's verdict before the CI gate (``verdict`` is the gated one; None: no gate, they are one)
+    policy_verdict: Verdict | None = None
 
     @property
     def reference_at(self) -> datetime | None:

@@ -28,6 +28,9 @@ from service.identify.detector import DetectorConfig
 from service.identify.scheduler import PastResult, SchedulerConfig
 from service.identify.speedmap import MAP_BIN_RPM, MapConfig, SpeedMap
 from service.identify.window import MAX_GAP_S, MIN_GOOD_FRACTION, WindowRules
+from service.serve.cigate import CiGateLimits
+from service.serve.command import profile_from
+from service.serve.controlled import ControlLimits
 from service.serve.policy import CompensationLimits
 
 if TYPE_CHECKING:
@@ -38,6 +41,7 @@ __all__ = [
     "Restored",
     "calibration_config",
     "compensation_limits",
+    "control_limits",
     "core_config",
     "map_config",
 ]
@@ -182,6 +186,24 @@ def compensation_limits(section: CompensationSettings) -> CompensationLimits:
         max_open_loop_min=section.max_open_loop_min,
         require_mechanics_calibration=section.require_mechanics_calibration,
         require_offset_baseline=section.require_offset_baseline,
+    )
+
+
+def control_limits(settings: Settings) -> ControlLimits:
+    """The CI gate's limits (``[compensation]`` ``max_ci95_um``, ``ci_*``), the controller's profile and the
+    command's hold (``[controller]``) for ``service.serve.controlled``."""
+    comp, ctl = settings.compensation, settings.controller
+    return ControlLimits(
+        gate=CiGateLimits(
+            max_ci95_um=comp.max_ci95_um,
+            enter_fraction=comp.ci_enter_fraction,
+            exit_hold_s=comp.ci_exit_hold_s,
+            hard_fraction=comp.ci_hard_fraction,
+        ),
+        profile=profile_from(
+            ctl.profile, max_step_um=ctl.max_step_um, max_rate_um_s=ctl.max_rate_um_s, limit_um=ctl.limit_um
+        ),
+        hold_s=ctl.hold_s,
     )
 
 

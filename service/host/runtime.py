@@ -28,13 +28,14 @@ from typing import TYPE_CHECKING, Any, Protocol
 
 from drivers.acquisition import Acquisition, CanSource, DaqSource
 from drivers.ringbuffer import RingBuffer
-from service.core.config import Restored, compensation_limits, core_config
+from service.core.config import Restored, compensation_limits, control_limits, core_config
 from service.core.machine import ServiceCore
 from service.host.persistence import Persistence, SharedDatabase, open_persistence
 from service.identify.worker import IdentificationWorker
 from service.logctx import spindle_context
 from service.modelload import LoadedModel, ModelRef, load_model
 from service.serve.compensation import GrowthServer
+from service.serve.controlled import ControlState
 from service.serve.outlet import OUTLETS, Outlet, OutletContext, OutletFactory, load_factory
 from service.settings import Settings
 from service.shell.corethread import CoreThread, InlineRunner
@@ -123,6 +124,11 @@ def growth_server(
         first_start_by=os_user(),
         limits=compensation_limits(c),
         context=context,
+        control=control_limits(settings),
+        # the gate's and the command's state from the live checkpoint (None: none stored, or an older one)
+        control_state=None
+        if restored is None or restored.live is None
+        else ControlState.from_array(restored.live.control),
     )
 
 

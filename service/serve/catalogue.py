@@ -287,6 +287,26 @@ def _devices() -> list[PointDef]:
     ]  # fmt: skip
 
 
+def _command() -> list[PointDef]:
+    """The command value (issue 42; docs/design/policy.md "The command value"): always the value to apply,
+    its status says what it does, so its quality is the service's. Last: earlier MQTT aliases keep theirs."""
+    s: Verdict = "service"
+    return [
+        _p("controller.command", "Double", "the command value: the growth the controller compensates now", s,
+           q=UM, opcua="Controller.CommandUm", mqtt="Controller/Command"),
+        _p("controller.command_status", "String", "following, rate_limited, holding, fading, at_limit, none",
+           s, opcua="Controller.CommandStatus", mqtt="Controller/CommandStatus"),
+        _p("controller.command_correction", "Double", "the axis correction of the command", s, q=UM,
+           opcua="Controller.CommandCorrectionUm"),
+        _p("controller.command_sd43900", "Double", "SINUMERIK SD43900 of the command", s, q=MM,
+           opcua="Controller.CommandSD43900Mm", mqtt="Controller/CommandSD43900"),
+        _p("controller.command_isg_offset", "Int32", "Beckhoff/ISG P-AXIS-00273 of the command, 0.1 µm", s,
+           opcua="Controller.CommandIsgOffset0p1um", mqtt="Controller/CommandIsgOffset"),
+        _p("controller.command_fanuc", "Int32", "FANUC IS-B units (1 µm) of the command's correction",
+           s, opcua="Controller.CommandFanucUnits", mqtt="Controller/CommandFanucUnits"),
+    ]  # fmt: skip
+
+
 POINTS: tuple[PointDef, ...] = (
     *_status(),
     *_h(),
@@ -295,6 +315,7 @@ POINTS: tuple[PointDef, ...] = (
     *_growth(),
     *_controller(),
     *_devices(),
+    *_command(),
 )
 
 

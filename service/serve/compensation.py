@@ -46,6 +46,7 @@ from service.estimate.mechanics import ServedMechanicsBasis
 from service.estimate.mechbook import MechanicsBook
 from service.estimate.probe import DEFAULT_GATE_SIGMA
 from service.estimate.referencebook import ReferenceBook, live_uniform_equivalent, zero_problem
+from service.serve.controlled import Controller, ControlLimits, ControlState
 from service.serve.policy import CompensationLimits, compensation_verdict
 from service.serve.view import CoreView
 
@@ -107,6 +108,9 @@ class GrowthServer:
         mechanics_basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
         probes: tuple[ProbeMeasurement, ...] = (),  # the stored probe readings (restored), oldest first
         probe_gate_sigma: float = DEFAULT_GATE_SIGMA,
+        control: ControlLimits
+        | None = None,  # the CI gate and the command (None: neither, the plain verdict)
+        control_state: ControlState | None = None,  # their checkpointed state (restored)
     ) -> None:
         """``reference``: the stored one (restored); else ``t_ref_c`` [°C] (``compensation.reference_c``)
         makes a "config" one; ``reference_on_first_start``: take one from the first sample at rest in
@@ -132,6 +136,10 @@ class GrowthServer:
             gate_sigma=probe_gate_sigma,
         )
         self.terms = TermsCache()
+        # the CI gate and the command value, stepped on every snapshot (each published sample and each read)
+        self.controller = (
+            None if control is None else Controller(control, tool_dir=tool_dir, state=control_state)
+        )
         self._estimate: tuple[tuple[object, ...], GrowthEstimate] | None = None
         self._section_op: SectionOperator | None = None
         self._section: tuple[tuple[object, ...], np.ndarray] | None = None
@@ -419,9 +427,16 @@ class GrowthServer:
             # calibration off (no offset 1σ published): the operator handles the offsets, the rule is off
             has_offset_baseline=view.offset_sd_c is None or view.calibration is not None,
         )
+        plain, command = verdict, None
+        if self.controller is not None:
+            verdict, command = self.controller.step(
+                now.timestamp(), plain, growth_um=est.axial.um, half_um=0.5 * (hi - lo)
+            )
         return CompensationSnapshot(
             growth=est,
             verdict=verdict,
+            policy_verdict=plain,
+            command=command,
             newest_sample_at=None if view.newest is None else view.newest.t,
             identification_id=None if rec is None else rec.id,
             plc=plc_compensation(est.axial.um, tool_dir=self.tool_dir),

@@ -36,9 +36,10 @@ import numpy as np
 
 from drivers.ringbuffer import Sample
 from service.acquire.devicewatch import DeviceWatch
+from service.contracts.checkpoint import LiveCheckpoint
 from service.contracts.errors import NotReadyError
 from service.contracts.health import DeviceHealth
-from service.contracts.records import DeviceEventData
+from service.contracts.records import DeviceEventData, Record
 from service.core.events import (
     Cancel,
     Event,
@@ -71,6 +72,16 @@ __all__ = ["HANDOVER_TIMEOUT_S", "InternalService"]
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
 HANDOVER_TIMEOUT_S = 30.0  # an API thread waits this long for the event loop to handle its request
+
+
+def with_control(record: Record, growth: GrowthServer) -> Record:
+    """A live-state checkpoint with the CI gate's and the command's state added (they survive a restart with
+    the live state, ``GrowthServer(control_state=...)``); any other record as it is."""
+    ctl = growth.controller
+    state = None if ctl is None else ctl.state
+    if not isinstance(record, LiveCheckpoint) or state is None:
+        return record
+    return replace(record, control=state.to_array())
 
 
 class InternalService:
@@ -244,6 +255,8 @@ class InternalService:
         if isinstance(event, SampleReceived):
             self._remember_history()
         self._refresh_growth()
+        if isinstance(event, SampleReceived):
+            self._step_command()
         if isinstance(self.runner, InlineRunner):
             for ins in instructions:
                 self._execute(ins)
@@ -252,6 +265,16 @@ class InternalService:
             self._on_loop(functools.partial(self._execute_all, instructions))
         self._prepare_answers()
         return instructions
+
+    def _step_command(self) -> None:
+        """Each published sample steps the CI gate and the command value (``GrowthServer.snapshot``; a read
+        steps them too), so that they move on the service's clock whether or not anything reads them."""
+        if self.growth.controller is None:
+            return
+        try:
+            self.reader().compensation()
+        except Exception as err:  # the request raises it to its caller; never stop the core for it
+            log.debug("command not stepped: %s: %s", type(err).__name__, err)
 
     def _prepare_answers(self) -> None:
         """With the core thread: build ``/chtc``'s snapshot of the new view here, so that a request on the
@@ -296,7 +319,7 @@ class InternalService:
     def _execute(self, ins: Instruction) -> None:
         if isinstance(ins, Store):
             if self.writer is not None:
-                self.writer.submit(ins.record)
+                self.writer.submit(with_control(ins.record, self.growth))
         elif isinstance(ins, Launch):
             self._launch(ins)
         elif isinstance(ins, Cancel):

@@ -362,3 +362,56 @@ def test_in_map_mode_the_h_covariance_is_the_maps_at_the_current_speed(
         assert body[name]["ci95_um"] == pytest.approx(list(w.ci95_um), abs=1e-4), name
     steady = body["forecast"]["steady_axial"]
     assert steady["ci95_um"] == pytest.approx(list(want.forecast.steady_axial.ci95_um), abs=1e-4)
+
+
+def test_the_command_value_is_served_in_each_controllers_unit(served: Served) -> None:
+    """Issue 42: /compensation serves what the controller applies now (the gate's and the command's state
+    stepped on the service's clock), bounded by the profile, in each controller's unit."""
+    client = served.client
+    comp = client.get("/api/v1/compensation").json()
+    cmd = comp["command"]
+    assert cmd is not None and cmd["profile"]["name"] == "generic"
+    prof = served.svc.growth.controller.limits.profile  # type: ignore[union-attr]
+    assert abs(cmd["value_um"]) <= prof.limit_um
+    assert cmd["status"] in ("following", "rate_limited", "holding", "fading", "at_limit", "none")
+    corr = -comp["plc"]["tool_dir"] * cmd["value_um"]
+    assert cmd["correction_um"] == pytest.approx(corr, abs=1e-3)
+    assert cmd["sd43900_temp_comp_abs_value_mm"] == pytest.approx(corr * 1e-3, abs=1e-6)
+    assert cmd["fanuc_is_c_units"] == round(10.0 * cmd["correction_um"])
+    # the plain verdict here is no_reference (a safety reason): the command is not following the growth
+    assert comp["reason_code"] != "ci_too_wide" or cmd["status"] != "following"
+    snap = served.svc.compensation()
+    assert snap is not None and snap.policy_verdict is not None
+    assert snap.verdict.reason == snap.policy_verdict.reason or snap.policy_verdict.reason is None
+
+
+def test_the_live_checkpoint_carries_the_command_state() -> None:
+    from types import SimpleNamespace
+
+    from service.contracts.checkpoint import LiveCheckpoint
+    from service.contracts.verdict import ChtcStatus, Verdict
+    from service.core.config import control_limits
+    from service.serve.controlled import Controller, ControlState
+    from service.shell.internal import with_control
+
+    ctl = Controller(control_limits(Settings()))
+    ctl.step(100.0, Verdict(ChtcStatus.FRESH, True), growth_um=3.0, half_um=1.0)
+    r = 2
+    cp = LiveCheckpoint(
+        t=100.0,
+        model_version="m",
+        converged=True,
+        inputs=(20.0, 0.0, 0.0),
+        mean=np.zeros(r),
+        cov=np.eye(r),
+        cross=np.zeros((r, 9)),
+        bias_s=np.zeros((r, 3)),
+        bias_m=np.zeros((r, r)),
+    )
+    out = with_control(cp, SimpleNamespace(controller=ctl))  # type: ignore[arg-type]
+    assert isinstance(out, LiveCheckpoint)
+    back = LiveCheckpoint.from_parts(
+        out.to_bytes(), t=100.0, model_version="m", converged=True, inputs=cp.inputs
+    )
+    assert ControlState.from_array(back.control) == ctl.state
+    assert with_control(cp, SimpleNamespace(controller=None)) is cp  # type: ignore[arg-type]

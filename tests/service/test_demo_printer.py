@@ -58,6 +58,20 @@ def test_a_map_fits_truth_is_at_its_window_end(capsys) -> None:
     assert want in out
 
 
+def test_the_demo_rests_long_enough_for_an_offset_baseline() -> None:
+    """Issue 42: a 5-min rest equal to the baseline's 5-min equilibrium window left the demo without an
+    offset baseline for good, and its growth's CI at the 2 µm tolerance."""
+    from service.cli import build_parser
+    from service.commands.demo import demo_settings, idle_minutes
+
+    args = build_parser(["demo"]).parse_args(["demo", "--port", "8765"])
+    settings, _token = demo_settings(args, "sqlite:///:memory:")
+    rest_s = settings.identification.offset_rest_s
+    assert 60.0 * idle_minutes(args, settings) >= rest_s + 120.0
+    short = build_parser(["demo"]).parse_args(["demo", "--port", "8765", "--idle-min", "2"])
+    assert idle_minutes(short, settings) == 2.0
+
+
 def test_a_map_fits_truth_is_at_the_speed_its_line_names(capsys) -> None:
     """Issue 41 item 10: a map fit launched at a condition change holds the map at the new condition (4000
     rpm), while the plant at the window's end still ran the old speed (3000 rpm); the truth line was printed

@@ -13,20 +13,22 @@ from pathlib import Path
 import pytest
 
 from service.acquire.calibration import CalibrationConfig
-from service.core.config import CoreConfig, compensation_limits, core_config
+from service.core.config import CoreConfig, compensation_limits, control_limits, core_config
 from service.estimate.state import FilterSettings
 from service.identify.detector import DetectorConfig
 from service.identify.scheduler import SchedulerConfig
 from service.identify.speedmap import MapConfig
 from service.identify.window import WindowRules
 from service.modelload import ModelRef
+from service.serve.cigate import CiGateLimits
+from service.serve.controlled import ControlLimits
 from service.serve.policy import CompensationLimits
 from service.settings import Settings, load_settings
 
 EXAMPLE = Path(__file__).resolve().parents[2] / "deploy" / "chtc.example.toml"
 
 # the sections the engine's configuration is built from (and the keys of [database] it reads)
-ENGINE_SECTIONS = ("identification", "detector", "acquisition", "experimental", "compensation")
+ENGINE_SECTIONS = ("identification", "detector", "acquisition", "experimental", "compensation", "controller")
 ENGINE_DATABASE_KEYS = ("sample_store_period_s", "live_checkpoint_s")
 
 # dataclasses reachable from the engine's configuration that keep defaults, and why: each has no settings
@@ -51,6 +53,7 @@ def test_the_engine_configuration_from_settings_is_the_documented_one(no_env: No
     defaults = Settings()
     assert core_config(documented) == core_config(defaults)
     assert compensation_limits(documented.compensation) == compensation_limits(defaults.compensation)
+    assert control_limits(documented) == control_limits(defaults)
     assert ModelRef.from_settings(documented) == ModelRef.from_settings(defaults)
     assert documented.compensation.reference_c == defaults.compensation.reference_c is None
 
@@ -73,7 +76,7 @@ def _engine_config_classes() -> set[type]:
     """The dataclasses the engine's configuration is made of: ``CoreConfig``, the dataclasses its fields hold
     (recursively), the policy's limits and the model's reference."""
     found: set[type] = set()
-    todo: list[type] = [CoreConfig, CompensationLimits, ModelRef]
+    todo: list[type] = [CoreConfig, CompensationLimits, ControlLimits, ModelRef]
     while todo:
         cls = todo.pop()
         if cls in found or cls in EXEMPT:
@@ -96,6 +99,8 @@ def test_no_engine_configuration_class_has_defaults_of_its_own() -> None:
         CalibrationConfig,
         MapConfig,
         CompensationLimits,
+        ControlLimits,
+        CiGateLimits,
         ModelRef,
     } <= classes
     with_defaults = [

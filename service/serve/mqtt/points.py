@@ -29,7 +29,7 @@ import enum
 import math
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from datetime import datetime
+from datetime import UTC, datetime
 from typing import Protocol
 
 from service.contracts.errors import NoDataYetError
@@ -180,6 +180,12 @@ ALIASES: tuple[str, ...] = (
     "Controller/IsgOffset",
     "Controller/ToolDir",
     *(f"Health/{d}" for d in DEVICES),
+    # the command value (issue 42), after the rest: earlier aliases keep their numbers
+    "Controller/Command",
+    "Controller/CommandStatus",
+    "Controller/CommandSD43900",
+    "Controller/CommandIsgOffset",
+    "Controller/CommandFanucUnits",
 )
 # the metrics in alias order, rendered from the point catalogue (``service.serve.catalogue``)
 CATALOGUE: tuple[MetricDef, ...] = tuple(_metric(by_mqtt()[name]) for name in ALIASES)
@@ -266,6 +272,17 @@ def _growth_points(snap: CompensationSnapshot | None, now: datetime) -> dict[str
     out["Controller/SD42960"] = Point(_num(p.sd42960_tool_axis_mm), q, t)
     out["Controller/IsgOffset"] = Point(int(p.isg_offset_0p1um), q, t)
     out["Controller/ToolDir"] = Point(int(snap.tool_dir), Quality.GOOD, t)
+    cmd = snap.command
+    if cmd is not None:  # always the value to apply: good; its status says what it does
+        at, c = datetime.fromtimestamp(cmd.at, tz=UTC), cmd.plc
+        out["Controller/Command"] = Point(_num(cmd.value_um), Quality.GOOD, at)
+        out["Controller/CommandStatus"] = Point(str(cmd.status.value), Quality.GOOD, at)
+        out["Controller/CommandSD43900"] = Point(_num(c.sd43900_mm), Quality.GOOD, at)
+        out["Controller/CommandIsgOffset"] = Point(int(c.isg_offset_0p1um), Quality.GOOD, at)
+        out["Controller/CommandFanucUnits"] = Point(round(c.correction_um), Quality.GOOD, at)
+    else:
+        for n in ("Command", "CommandStatus", "CommandSD43900", "CommandIsgOffset", "CommandFanucUnits"):
+            out[f"Controller/{n}"] = Point(None, Quality.BAD, t)
     return out
 
 

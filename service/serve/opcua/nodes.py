@@ -17,6 +17,7 @@ from dataclasses import dataclass
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
+from service.contracts.command import CommandSnapshot
 from service.contracts.errors import NoDataYetError
 from service.contracts.snapshots import ZONE_NAMES, ChtcSnapshot, CompensationSnapshot, SensorReading
 from service.contracts.verdict import ChtcStatus, DataCode, Reason, Verdict
@@ -344,6 +345,7 @@ def _growth(comp: CompensationSnapshot | None, code: UaStatus) -> dict:
         out.update({f"Controller.{n}": Reading(NAN, code, None) for n in ctrl})
         out["Controller.IsgOffset0p1um"] = Reading(0, code, None)
         out["Controller.ToolDir"] = Reading(-1, UaStatus.GOOD, None)
+        out.update(_command(None, code))
         return out
     g = comp.growth
     ax, rad, steady = g.axial, g.radial, g.forecast.steady_axial
@@ -371,6 +373,27 @@ def _growth(comp: CompensationSnapshot | None, code: UaStatus) -> dict:
     out["Controller.SD42960Mm"] = Reading(_f(plc.sd42960_tool_axis_mm), code, at)
     out["Controller.IsgOffset0p1um"] = Reading(int(plc.isg_offset_0p1um), code, at)
     out["Controller.ToolDir"] = Reading(int(comp.tool_dir), UaStatus.GOOD, at)
+    out.update(_command(comp.command, code))
+    return out
+
+
+def _command(cmd: CommandSnapshot | None, code: UaStatus) -> dict:
+    """The command value's nodes: Good whenever a command was stepped (it is always the value to apply; its
+    status says what it does), ``code`` (the growth's) when there is none."""
+    names = ("CommandUm", "CommandCorrectionUm", "CommandSD43900Mm")
+    if cmd is None:
+        out = {f"Controller.{n}": Reading(NAN, code, None) for n in names}
+        out["Controller.CommandStatus"] = Reading("none", code, None)
+        out["Controller.CommandIsgOffset0p1um"] = Reading(0, code, None)
+        out["Controller.CommandFanucUnits"] = Reading(0, code, None)
+        return out
+    at = datetime.fromtimestamp(cmd.at, tz=UTC)
+    good, p = UaStatus.GOOD, cmd.plc
+    vals = (cmd.value_um, p.correction_um, p.sd43900_mm)
+    out = {f"Controller.{n}": Reading(_f(x), good, at) for n, x in zip(names, vals, strict=True)}
+    out["Controller.CommandStatus"] = Reading(str(cmd.status.value), good, at)
+    out["Controller.CommandIsgOffset0p1um"] = Reading(int(p.isg_offset_0p1um), good, at)
+    out["Controller.CommandFanucUnits"] = Reading(round(p.correction_um), good, at)
     return out
 
 
