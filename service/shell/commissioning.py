@@ -29,7 +29,7 @@ import hashlib
 import io
 import math
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -214,10 +214,16 @@ def field_history(
 ) -> FieldHistory:
     """Run the service's core (``config``) over the logs (``run_offline``: the same samples, live state and
     identifications as ``chtc identify``, one sample per ``config.rules.dt_s``) and keep the live state after
-    every sample."""
+    every sample.
+
+    The sensor-fault monitor is off here: on a thermal test's heat-up steps it flags sound channels as
+    drifting, and the bias it then charges widened the fit's CI until a displacement log scaled by 1.3
+    passed as explained (tests/api/test_api_mechanics.py). The test is a supervised measurement; the
+    verdict's residual check still refuses a log the model does not explain."""
     from drivers.logsamples import samples_from_logs
     from service.core.offline import run_offline
 
+    config = replace(config, filter=replace(config.filter, faults=None))
     data = samples_from_logs(temperatures, canlog, period_s=config.rules.dt_s)
     t: list[float] = []
     states: list[Array] = []
