@@ -32,6 +32,7 @@ from sqlalchemy.engine import make_url
 
 from service.store import migrate
 from service.store.engine import create_db_engine
+from service.store.errors import DatabaseError
 
 pytestmark = pytest.mark.postgres
 
@@ -152,8 +153,13 @@ def test_transaction_pooling_runs_prepared_queries_across_server_connections(bou
 
 
 def test_control_prepared_statements_fail_behind_transaction_pooling(bouncer: str) -> None:
-    """The control: psycopg's default (prepared after 5 runs) breaks once the server connection changes."""
-    engine = create_db_engine(bouncer, statement_timeout_s=5.0, transaction_pooling=False)
+    """The control: psycopg's default (prepared after 5 runs) breaks once the server connection changes.
+    (``create_db_engine`` without ``transaction_pooling`` cannot even connect through PgBouncer: it sends the
+    session limits as the ``options`` startup parameter, which PgBouncer refuses; a plain engine shows the
+    prepared statements' failure alone.)"""
+    with pytest.raises(DatabaseError, match="options"):
+        migrate.upgrade(create_db_engine(bouncer, statement_timeout_s=5.0, transaction_pooling=False))
+    engine = sa.create_engine(bouncer, pool_pre_ping=True)
     try:
         migrate.upgrade(engine)
         with pytest.raises(sa.exc.DBAPIError, match="prepared statement"):
