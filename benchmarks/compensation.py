@@ -65,7 +65,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "--ticks-out",
         default=None,
         help="also write every sample's served growth, CI and plain verdict per seed (pickle) to this file, "
-        "to try CI gates and command settings offline (``benchmarks.compensation.control_grid``)",
+        "to try CI gates and command settings offline (``benchmarks.compensation.control_grid``; "
+        "default: none written)",
     )
 
 
