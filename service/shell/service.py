@@ -150,6 +150,11 @@ class SoftSensorService(NewestViewReads):
         self.reader = i.reader
 
     @property
+    def model_loaded(self) -> bool:
+        """The identification worker has loaded its model (a host's ``/readyz`` waits for it)."""
+        return bool(self.internal.model_loaded)
+
+    @property
     def view(self) -> CoreView:
         """The core's state after the last event (immutable; replaced, never changed)."""
         return self.internal.view

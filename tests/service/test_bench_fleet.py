@@ -37,9 +37,6 @@ def test_the_write_histogram_is_summed_over_the_spindles() -> None:
     assert write_buckets(text) == {0.01: 4.0, INF: 6.0}
 
 
-@pytest.mark.xfail(
-    strict=False, reason="open regression at the end of the round: a host's /readyz never 200 (as test_host)"
-)
 @pytest.mark.slow
 @pytest.mark.postgres
 def test_a_short_fleet_run_measures_two_hosted_spindles(pg_url: str, tmp_path: Path) -> None:

@@ -153,10 +153,6 @@ def pg_schema_db(pg_url: str, pg_schema: str) -> str:
     return pg_schema_url(pg_url, pg_schema)
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="open regression at the end of the round: a host's /readyz answers 503",
-)
 @pytest.mark.postgres
 def test_two_spindles_share_one_process_and_a_daq_down_is_only_its_own(
     pg_schema_db: str, tmp_path: Path
