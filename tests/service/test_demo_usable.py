@@ -21,10 +21,6 @@ import pytest
 DEADLINE_S = 300.0  # the bar: usable within 5 min of wall clock from the command's start
 
 
-@pytest.mark.xfail(
-    strict=False,
-    reason="open regression at the end of the round: the demo not usable within 5 wall minutes",
-)
 @pytest.mark.slow
 def test_demo_serves_a_usable_compensation_within_5_wall_minutes(tmp_path: Path) -> None:
     argv = [sys.executable, "-m", "service.cli", "demo", "--port", "0", "--quiet", "--duration", "600"]
@@ -53,6 +49,12 @@ def test_demo_serves_a_usable_compensation_within_5_wall_minutes(tmp_path: Path)
                                  b.get("reason_code")))  # fmt: skip
                     if b["usable_for_compensation"]:
                         break
+                cond = c.get("/api/v1/condition")
+                if cond.status_code == 200:
+                    speeds.add(cond.json()["current"]["speed_rpm"])
+                time.sleep(2.0)
+            # usable may come before the machining starts (the demo rests first): wait for the cycle to run
+            while len(speeds) < 2 and time.monotonic() - started < DEADLINE_S + 120.0:
                 cond = c.get("/api/v1/condition")
                 if cond.status_code == 200:
                     speeds.add(cond.json()["current"]["speed_rpm"])
