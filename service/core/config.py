@@ -31,10 +31,10 @@ from service.identify.window import MAX_GAP_S, MIN_GOOD_FRACTION, WindowRules
 from service.serve.cigate import CiGateLimits
 from service.serve.command import profile_from
 from service.serve.controlled import ControlLimits
-from service.serve.policy import CompensationLimits
+from service.serve.policy import compensation_limits
 
 if TYPE_CHECKING:
-    from service.settings import CompensationSettings, IdentificationSettings, Settings
+    from service.settings import IdentificationSettings, Settings
 
 __all__ = [
     "CoreConfig",
@@ -175,17 +175,6 @@ def map_config(settings: Settings) -> MapConfig:
         family=exp.map_family,
         prior_weight=exp.map_prior_weight,
         prior_level_sd=exp.map_prior_level_sd,
-    )
-
-
-def compensation_limits(section: CompensationSettings) -> CompensationLimits:
-    """The policy's limits from ``[compensation]`` (``service.serve.policy``)."""
-    return CompensationLimits(
-        max_ci95_um=section.max_ci95_um,
-        max_identification_age_min=section.max_identification_age_min,
-        max_open_loop_min=section.max_open_loop_min,
-        require_mechanics_calibration=section.require_mechanics_calibration,
-        require_offset_baseline=section.require_offset_baseline,
     )
 
 

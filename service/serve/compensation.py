@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 from collections.abc import Callable
+from dataclasses import replace
 from datetime import UTC, datetime
 from typing import TYPE_CHECKING
 
@@ -47,7 +48,7 @@ from service.estimate.mechbook import MechanicsBook
 from service.estimate.probe import DEFAULT_GATE_SIGMA
 from service.estimate.referencebook import ReferenceBook, live_uniform_equivalent, zero_problem
 from service.serve.controlled import Controller, ControlLimits, ControlState
-from service.serve.policy import CompensationLimits, compensation_verdict
+from service.serve.policy import CompensationLimits, compensation_limits, compensation_verdict
 from service.serve.view import CoreView
 
 if TYPE_CHECKING:
@@ -79,14 +80,7 @@ def _default_limits() -> CompensationLimits:
     without the mechanics rule, which has no commissioning to read there."""
     from service.settings import CompensationSettings
 
-    s = CompensationSettings()
-    return CompensationLimits(
-        max_ci95_um=s.max_ci95_um,
-        max_identification_age_min=s.max_identification_age_min,
-        max_open_loop_min=s.max_open_loop_min,
-        require_mechanics_calibration=False,
-        require_offset_baseline=s.require_offset_baseline,
-    )
+    return replace(compensation_limits(CompensationSettings()), require_mechanics_calibration=False)
 
 
 class GrowthServer:

@@ -26,17 +26,21 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 from datetime import datetime
-from typing import Protocol
+from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
 from service.contracts.snapshots import ConditionSnapshot, ConditionState
 from service.contracts.verdict import Blocker, ChtcStatus, DataCode, DataProblem, Reason, Verdict
 
+if TYPE_CHECKING:
+    from service.settings import CompensationSettings
+
 __all__ = [
     "CompensationLimits",
     "PolicyView",
     "chtc_verdict",
+    "compensation_limits",
     "compensation_verdict",
     "data_verdict",
     "map_verdict",
@@ -56,6 +60,18 @@ class CompensationLimits:
     # not usable while the sensors' offsets are unknown (``no_offset_baseline``: calibration on, no baseline;
     # issue 40; docs/design/policy.md)
     require_offset_baseline: bool
+
+
+def compensation_limits(section: CompensationSettings) -> CompensationLimits:
+    """The policy's limits from ``[compensation]`` (the one mapping: the engine's config and the growth
+    server's default both call it)."""
+    return CompensationLimits(
+        max_ci95_um=section.max_ci95_um,
+        max_identification_age_min=section.max_identification_age_min,
+        max_open_loop_min=section.max_open_loop_min,
+        require_mechanics_calibration=section.require_mechanics_calibration,
+        require_offset_baseline=section.require_offset_baseline,
+    )
 
 
 class LiveLike(Protocol):
