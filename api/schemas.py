@@ -18,7 +18,7 @@ from api.deps import ClockInfo
 from service.contracts.command import CommandSnapshot
 from service.contracts.health import DeviceHealth, HealthSnapshot
 from service.contracts.mechanics import MECH_PARAMS, MechanicsCalibration
-from service.contracts.probe import ProbeMeasurement
+from service.contracts.probe import FixtureOffset, ProbeMeasurement
 from service.contracts.reference import CompensationReference
 from service.contracts.snapshots import (
     H_UNIT,
@@ -622,8 +622,9 @@ class GrowthValueOut(BaseModel):
     std_h_um: float = Field(description="1σ from H's uncertainty, µm")
     std_mech_um: float = Field(
         0.0,
-        description="1σ from the commissioned mechanics' posterior (mount restraint, α), µm; 0 without a "
-        "commissioning (then the policy's mechanics_uncalibrated rule applies)",
+        description="1σ from the commissioned mechanics' posterior (mount restraint, α) and, on the axial "
+        "growth, the fixture offset's (fixture_offset), µm; 0 without a commissioning (then the policy's "
+        "mechanics_uncalibrated rule applies)",
     )
 
 
@@ -849,7 +850,13 @@ class MeasurementOut(BaseModel):
     innovation_um: float = Field(description="reading − predicted, µm")
     sigma_ratio: float = Field(description="|innovation| / sigma_um")
     accepted: bool = Field(
-        description="absorbed into the mechanics; false: beyond compensation.probe_gate_sigma"
+        description="absorbed into the mechanics and the fixture offset; false: beyond "
+        "compensation.probe_gate_sigma"
+    )
+    offset_step: bool = Field(
+        False,
+        description="absorbed as a step of the fixture offset: beyond the gate, like the reading before it "
+        'with a consistent innovation (docs/commissioning.md, "Probe measurements")',
     )
     message: str
     set_by: str
@@ -866,7 +873,10 @@ def measurement_out(m: ProbeMeasurement) -> MeasurementOut:
 
 def _measurement_fields(m: ProbeMeasurement) -> dict[str, Any]:
     msg = (
-        "absorbed: the mechanical posterior and the served CI tightened"
+        f"absorbed as a STEP of the fixture offset: innovation {m.innovation_um:+.2f} µm is "
+        f"{m.sigma_ratio:.1f} σ, like the reading before it; the offset was re-estimated"
+        if m.offset_step
+        else "absorbed: the mechanical posterior, the fixture offset and the served CI updated"
         if m.accepted
         else f"flagged, NOT absorbed: innovation {m.innovation_um:+.2f} µm is {m.sigma_ratio:.1f} σ "
         f"(σ {m.sigma_um:.2f} µm), beyond the gate compensation.probe_gate_sigma: a crash or a tool "
@@ -882,6 +892,7 @@ def _measurement_fields(m: ProbeMeasurement) -> dict[str, Any]:
         "innovation_um": round(m.innovation_um, 4),
         "sigma_ratio": round(m.sigma_ratio, 3) if math.isfinite(m.sigma_ratio) else 1e9,
         "accepted": m.accepted,
+        "offset_step": m.offset_step,
         "message": msg,
         "set_by": m.set_by,
         "source": m.source,
@@ -951,6 +962,11 @@ class CompensationOut(VerdictOut):
         description="the commissioned mechanics in use (GET /compensation/mechanics); null: the spindle "
         "description's, uncalibrated",
     )
+    fixture_offset: FixtureOffsetOut | None = Field(
+        None,
+        description="the fixture or tool-holder offset the probe readings measured, included in `axial`; "
+        "null: no reading absorbed since the commissioning (the growth is over the commissioned zero)",
+    )
     axial: GrowthValueOut = Field(description="spindle nose on the axis, + towards the tool")
     radial: GrowthValueOut = Field(description="nose outer diameter, + outwards")
     forecast: GrowthForecastOut
@@ -983,6 +999,30 @@ def _growth_value(v: Any) -> GrowthValueOut:
     )
 
 
+class FixtureOffsetOut(BaseModel):
+    """The fixture or tool-holder offset the probe readings measured (docs/commissioning.md, "Probe
+    measurements"): included in ``axial`` (its value, and its 1σ in ``axial.std_mech_um``)."""
+
+    um: float = Field(description="the offset, µm, + towards the tool (added to the axial growth)")
+    sd_um: float = Field(description="its 1σ, µm")
+    ci95_um: tuple[float, float] = Field(description="its 95 % CI, µm")
+    readings: int = Field(description="probe readings absorbed since the commissioning")
+    steps: int = Field(description="of them absorbed as a step of the offset (two consistent gated readings)")
+    at: datetime = Field(description="UTC instant of the last reading absorbed")
+
+
+def fixture_offset_out(o: FixtureOffset) -> FixtureOffsetOut:
+    z = 1.959963984540054
+    return FixtureOffsetOut(
+        um=round(o.um, 4),
+        sd_um=round(o.sd_um, 4),
+        ci95_um=(round(o.um - z * o.sd_um, 4), round(o.um + z * o.sd_um, 4)),
+        readings=o.readings,
+        steps=o.steps,
+        at=o.at,
+    )
+
+
 def compensation_out(s: CompensationSnapshot, now: datetime, *, spindle_id: str) -> CompensationOut:
     g, f, p = s.growth, s.growth.forecast, s.plc
     age = None if s.newest_sample_at is None else round((now - s.newest_sample_at).total_seconds(), 3)
@@ -995,6 +1035,7 @@ def compensation_out(s: CompensationSnapshot, now: datetime, *, spindle_id: str)
         t_ref_at=s.reference_at,
         reference=None if s.reference is None else reference_out(s.reference),
         mechanics=None if getattr(s, "mechanics", None) is None else mechanics_out(s.mechanics),  # type: ignore[arg-type]
+        fixture_offset=None if s.fixture_offset is None else fixture_offset_out(s.fixture_offset),
         axial=_growth_value(g.axial),
         radial=_growth_value(g.radial),
         forecast=GrowthForecastOut(

@@ -406,6 +406,11 @@ class CompensationSettings(_Section):
     # a probe reading (POST /api/v1/compensation/measurements) further than this many σ of its prediction (the
     # served growth's CI with the probe's own sd) is flagged and not absorbed (a crash or a tool change)
     probe_gate_sigma: float = Field(default=3.0, gt=0.0, le=100.0, allow_inf_nan=False)
+    # probe readings also estimate a fixture or tool-holder offset b (service.estimate.probe; issue 40): its
+    # prior 1σ at the commissioning and after a step (two consecutive gated readings that agree) [µm] ...
+    probe_offset_sd_um: float = Field(default=5.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    # ... and its random walk between readings [µm²/h] (a slow drift; a step is found by the gate)
+    probe_offset_q_um2_per_h: float = Field(default=0.05, ge=0.0, le=1000.0, allow_inf_nan=False)
     # the CI part of the verdict has hysteresis (service.serve.cigate; docs/design/policy.md, "A steady
     # verdict"): usable again only when the 95 % CI half-width is at most this fraction of max_ci95_um ...
     ci_enter_fraction: float = Field(default=0.8, gt=0.0, le=1.0, allow_inf_nan=False)

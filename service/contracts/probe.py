@@ -17,7 +17,7 @@ from service.contracts.columns import Column, finite
 from service.contracts.errors import RecordError
 from service.errors import ServiceError
 
-__all__ = ["PROBES_KEPT", "ProbeError", "ProbeMeasurement"]
+__all__ = ["PROBES_KEPT", "FixtureOffset", "ProbeError", "ProbeMeasurement"]
 
 PROBES_KEPT = 1000  # readings kept in memory and restored at start (listed by GET), the newest
 
@@ -31,8 +31,10 @@ class ProbeMeasurement:
     """A probe reading: ``at`` (UTC) its instant, ``axial_um`` the tool's axial position relative to the
     commissioned zero and its 1σ ``sd_um`` [µm]; ``features`` (2, 3) [µm] the field's feature row then and
     ``field_var_um2`` [µm²] the served growth's variance from the field (and the zero) then; the outcome:
-    ``predicted_um`` and ``sigma_um`` (√S) before it, the innovation ``innovation_um``, ``accepted``;
-    ``set_by``/``source`` who sent it; ``id`` the stored row (None: not stored yet)."""
+    ``predicted_um`` and ``sigma_um`` (√S) before it, the innovation ``innovation_um``, ``accepted``,
+    ``offset_step`` (absorbed as a step of the fixture offset: gated, right after a consistent gated one;
+    ``service.estimate.probe``); ``set_by``/``source`` who sent it; ``id`` the stored row (None: not stored
+    yet)."""
 
     at: datetime
     axial_um: float
@@ -43,6 +45,7 @@ class ProbeMeasurement:
     sigma_um: float
     innovation_um: float
     accepted: bool
+    offset_step: bool = False
     set_by: str = "api"
     source: str = "api"
     id: int | None = None
@@ -85,6 +88,28 @@ class ProbeMeasurement:
             "sigma_um": float(self.sigma_um),
             "innovation_um": float(self.innovation_um),
             "accepted": bool(self.accepted),
+            "offset_step": bool(self.offset_step),
             "set_by": self.set_by[:64],
             "source": self.source[:16],
         }
+
+
+@dataclass(frozen=True, kw_only=True)
+class FixtureOffset:
+    """The fixture or tool-holder offset the probe readings measured (``service.estimate.probe``): ``um`` the
+    estimate b [µm] (+ towards the tool, added to the served axial growth), ``sd_um`` its 1σ, ``cov_mech_um``
+    its covariance with θ = (s, a_s, a_h) (3,) [µm], ``readings`` absorbed since the commissioning, ``at``
+    (UTC) the last one absorbed and ``steps`` of them taken as a step of the offset."""
+
+    um: float
+    sd_um: float
+    cov_mech_um: tuple[float, float, float]
+    readings: int
+    at: datetime
+    steps: int = 0
+
+    def __post_init__(self) -> None:
+        if not all(math.isfinite(v) for v in (self.um, self.sd_um, *self.cov_mech_um)) or self.sd_um < 0:
+            raise ProbeError("FixtureOffset: finite values and sd_um >= 0 needed")
+        if self.at.utcoffset() is None:
+            raise ProbeError(f"FixtureOffset.at: naive datetime {self.at.isoformat()}; need UTC")

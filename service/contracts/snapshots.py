@@ -23,6 +23,7 @@ from model.locator import TriangleLocator, locator_for
 from service.contracts.command import CommandSnapshot
 from service.contracts.growth import GrowthEstimate, PlcCompensation
 from service.contracts.mechanics import MechanicsCalibration
+from service.contracts.probe import FixtureOffset
 from service.contracts.records import IdentificationData
 from service.contracts.reference import CompensationReference
 from service.contracts.sensorfault import SensorFault
@@ -419,6 +420,8 @@ class CompensationSnapshot(Judged):
     channels: tuple[int, ...]  # sensor channel numbers of the sensitivity entries
     reference: CompensationReference | None = None  # the zero in use (None: none set, not usable)
     mechanics: MechanicsCalibration | None = None  # the commissioned mechanics (None: the description's)
+    # the fixture offset the probe readings measured, included in the axial growth (None: none absorbed)
+    fixture_offset: FixtureOffset | None = None
     # channels the live state leaves out as stuck or drifting (service.estimate.sensorfaults), by channel:
     # the growth's CI carries what they bent before they were found
     sensor_faults: tuple[SensorFault, ...] = ()

@@ -30,7 +30,9 @@ Uncertainty, each part reported and combined as independent (σ² = σ_field² +
   Jacobian stands in for the current field's (exact at steady state, an over-estimate early in a warm-up).
 - mechanical part (only with a commissioned calibration, ``with_mechanics``): the posterior of the mount
   restraint and the α factors (``service.estimate.mechanics``) through ∂g/∂θ·(T − T_ref); exact now and at
-  steady state; at a horizon the larger of the two (the field between them is not formed).
+  steady state; at a horizon the larger of the two (the field between them is not formed). With probe
+  readings absorbed, the fixture offset b they measured (``service.estimate.probe``) is added to every served
+  axial growth, and Var(b) + 2 ∂g/∂θ·Cov(θ, b) joins the axial mechanical part.
 
 Errors::
 
@@ -99,13 +101,25 @@ class GrowthContext:
     g_mech: Array | None = None
     g_mech_phi: Array | None = None
     cov_mech: Array | None = None
+    # the fixture offset the probe readings measured (``with_mechanics``): b [µm] added to the axial growth,
+    # Var(b) [µm²], Cov(θ, b) (3,) [µm]
+    offset_um: float = 0.0
+    offset_var_um2: float = 0.0
+    offset_cov_mech: Array | None = None
 
 
 def with_mechanics(
-    ctx: GrowthContext, operators: ArrayLike, jacobian: ArrayLike, cov: ArrayLike
+    ctx: GrowthContext,
+    operators: ArrayLike,
+    jacobian: ArrayLike,
+    cov: ArrayLike,
+    *,
+    offset: tuple[float, float, ArrayLike] | None = None,
 ) -> GrowthContext:
     """``ctx`` with the calibrated operators g(θ) (2, N), their Jacobian ∂g/∂θ (2, 3, N) and the posterior
-    Σ_θ (3, 3) (``service.estimate.mechanics``); the growth model (section drawing) keeps its own."""
+    Σ_θ (3, 3) (``service.estimate.mechanics``); the growth model (section drawing) keeps its own.
+    ``offset``: the fixture offset (b [µm], Var(b) [µm²], Cov(θ, b) (3,) [µm]; ``service.estimate.probe``),
+    added to every served axial growth with its variance and its covariance with θ (None: none)."""
     g = np.asarray(operators, dtype=float)
     jac = np.asarray(jacobian, dtype=float)
     c = np.asarray(cov, dtype=float)
@@ -115,6 +129,12 @@ def with_mechanics(
             f"mechanics: expected operators (2, {n}), jacobian (2, 3, {n}), cov (3, 3); "
             f"got {g.shape}, {jac.shape}, {c.shape}"
         )
+    b, var_b, cov_b = (0.0, 0.0, None) if offset is None else offset
+    cb = None if cov_b is None else np.asarray(cov_b, dtype=float)
+    if not (np.isfinite(b) and np.isfinite(var_b) and var_b >= 0.0) or (
+        cb is not None and (cb.shape != (3,) or not np.all(np.isfinite(cb)))
+    ):
+        raise GrowthEstimateError(f"offset: expected finite (b, Var(b) >= 0, Cov(θ, b) (3,)), got {offset!r}")
     return replace(
         ctx,
         g=g,
@@ -122,6 +142,9 @@ def with_mechanics(
         g_mech=jac,
         g_mech_phi=None if ctx.phi is None else np.einsum("opn,nr->opr", jac, ctx.phi),
         cov_mech=0.5 * (c + c.T),
+        offset_um=float(b),
+        offset_var_um2=float(var_b),
+        offset_cov_mech=cb,
     )
 
 
@@ -407,11 +430,12 @@ def estimate_growth(
     x, gx = _mean_growth(ctx, belief)
     reduced_mean = belief.state is not None
     g1 = ctx.g.sum(axis=1)  # growth per uniform kelvin (2,)
-    now = gx - g1 * t_ref_c
+    b = np.array([ctx.offset_um, 0.0])  # the fixture offset moves the tool axially only
+    now = gx - g1 * t_ref_c + b
     ref_std = np.abs(g1) * float(t_ref_sd_c)  # the reference's part (2,) [µm]
     std_now = np.hypot(_field_std(ctx.g, ctx.g_phi, belief), ref_std)
     h_now = np.zeros(2) if belief.includes_h else _h_std(terms.jg, terms.cov_h)
-    steady = terms.steady_um - g1 * t_ref_c
+    steady = terms.steady_um - g1 * t_ref_c + b
     h_ss = _h_std(terms.jg, terms.cov_h)
     m_now, m_ss = _mech_std(ctx, x, reduced_mean, terms.t_ss, t_ref_c)
     m_hz = np.maximum(m_now, m_ss)
@@ -453,7 +477,8 @@ def _mech_std(
     ctx: GrowthContext, x: Array, reduced_mean: bool, t_ss: Array, t_ref_c: float
 ) -> tuple[Array, Array]:
     """The mechanical 1σ (2,) [µm] now (field ``x``, nodal or reduced) and at the steady field ``t_ss``, over
-    the uniform ``t_ref_c``; zeros without a calibration in ``ctx``."""
+    the uniform ``t_ref_c``, the fixture offset's part in the axial one (Var(b) + 2 j·Cov(θ, b)); zeros
+    without a calibration in ``ctx``."""
     if ctx.g_mech is None or ctx.cov_mech is None:
         return np.zeros(2), np.zeros(2)
     ones = ctx.g_mech.sum(axis=2) * t_ref_c  # (2, 3)
@@ -463,9 +488,11 @@ def _mech_std(
         j_now = ctx.g_mech @ x - ones
     j_ss = ctx.g_mech @ t_ss - ones
     cov = np.asarray(ctx.cov_mech, dtype=np.float64)
+    cb = np.zeros(3) if ctx.offset_cov_mech is None else ctx.offset_cov_mech
 
     def std(j: Array) -> Array:
         var = np.sum((j @ cov) * j, axis=1)
+        var[0] += ctx.offset_var_um2 + 2.0 * float(j[0] @ cb)
         return np.asarray(np.sqrt(np.maximum(var, 0.0)))
 
     return std(j_now), std(j_ss)

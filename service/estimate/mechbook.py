@@ -20,11 +20,19 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from service.contracts.mechanics import MechanicsCalibration
-from service.contracts.probe import PROBES_KEPT, ProbeError, ProbeMeasurement
+from service.contracts.probe import PROBES_KEPT, FixtureOffset, ProbeError, ProbeMeasurement
 from service.estimate.growth import GrowthContext, build_context, with_mechanics
 from service.estimate.growthterms import DT_S
 from service.estimate.mechanics import ServedMechanicsBasis, served_mechanics_basis
-from service.estimate.probe import DEFAULT_GATE_SIGMA, absorb, prior_covariance, prior_mean, replay
+from service.estimate.probe import (
+    ProbeState,
+    ProbeTuning,
+    prior_covariance,
+    prior_mean,
+    replay_state,
+    start_state,
+    take_reading,
+)
 from service.estimate.state import FilterView
 
 if TYPE_CHECKING:
@@ -46,7 +54,7 @@ class SpindleModel(Protocol):
     def rom(self) -> ReducedModel: ...
 
 
-__all__ = ["FIELD_KEEP_EVERY_S", "FIELD_KEEP_S", "MechanicsBook", "prior_calibration"]
+__all__ = ["FIELD_KEEP_EVERY_S", "FIELD_KEEP_S", "MechanicsBook", "fixture_offset", "prior_calibration"]
 
 FIELD_KEEP_S = 3 * 3600.0  # the live fields kept for probe readings: the live state's own history (keep_s)
 FIELD_KEEP_EVERY_S = 30.0  # one kept every this [s]; a reading takes the nearest
@@ -66,30 +74,49 @@ def prior_calibration(at: datetime) -> MechanicsCalibration:
     )
 
 
-def posterior(base: MechanicsCalibration, x: np.ndarray, cov: np.ndarray, n: int) -> MechanicsCalibration:
-    """``base`` with θ ``x`` (clipped to the calibration's range) and Σ ``cov`` after ``n`` readings."""
+def posterior(base: MechanicsCalibration, state: ProbeState) -> MechanicsCalibration:
+    """``base`` with θ of the probe filter's ``state`` (clipped to the calibration's range) and Σ_θ, after its
+    readings (the offset b is served beside it: ``fixture_offset``)."""
+    x, cov = state.mechanics
     xs = (
         float(np.clip(x[0], 0.0, 1.0)),
         float(np.clip(x[1], 0.51, 1.49)),
         float(np.clip(x[2], 0.51, 1.49)),
     )
-    report = {**base.report, "probe_readings_absorbed": n}
+    report = {**base.report, "probe_readings_absorbed": state.absorbed}
     return dataclasses.replace(
         base, x=xs, cov=tuple(tuple(float(v) for v in row) for row in cov), report=report
     )
 
 
+def fixture_offset(state: ProbeState | None) -> FixtureOffset | None:
+    """The offset the probe filter's ``state`` estimates (None: no reading absorbed since the commissioning:
+    the growth is then relative to the commissioned zero, as it always was)."""
+    if state is None or state.absorbed == 0:
+        return None
+    b, var, cov_tb = state.offset
+    return FixtureOffset(
+        um=b,
+        sd_um=float(np.sqrt(max(var, 0.0))),
+        cov_mech_um=(float(cov_tb[0]), float(cov_tb[1]), float(cov_tb[2])),
+        readings=state.absorbed,
+        at=datetime.fromtimestamp(state.t, tz=UTC),
+        steps=state.steps,
+    )
+
+
 def replayed(
-    cal: MechanicsCalibration | None, probes: tuple[ProbeMeasurement, ...]
-) -> MechanicsCalibration | None:
-    """``cal`` (None: the prior) after the accepted readings measured after it (oldest first); ``cal`` when
-    there are none."""
-    use = sorted((m for m in probes if m.accepted and (cal is None or m.at > cal.at)), key=lambda m: m.at)
-    if not use:
-        return cal
+    cal: MechanicsCalibration | None, probes: tuple[ProbeMeasurement, ...], tuning: ProbeTuning
+) -> tuple[MechanicsCalibration | None, ProbeState | None]:
+    """``cal`` (None: the prior from the first reading on) after the readings measured after it (oldest
+    first; their stored decisions, ``service.estimate.probe.replay_state``) and the probe filter's state
+    (None: no commissioning and no reading); ``cal`` itself when none was absorbed."""
+    use = sorted((m for m in probes if cal is None or m.at > cal.at), key=lambda m: m.at)
+    if cal is None and not use:
+        return None, None
     base = cal if cal is not None else prior_calibration(use[0].at)
-    x, cov = replay(base.mean, base.covariance, use)
-    return posterior(base, x, cov, len(use))
+    state = replay_state(start_state(base.mean, base.covariance, base.at.timestamp(), tuning), use, tuning)
+    return (posterior(base, state) if state.absorbed else cal), state
 
 
 class MechanicsBook:
@@ -104,19 +131,19 @@ class MechanicsBook:
         mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
         basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
         probes: tuple[ProbeMeasurement, ...] = (),  # the stored probe readings (restored), oldest first
-        gate_sigma: float = DEFAULT_GATE_SIGMA,
+        tuning: ProbeTuning,  # the settings' [compensation] probe_* (``service.serve.compensation``)
     ) -> None:
         self.model = model
         self.lock = threading.Lock()
         self.error: str | None = None
-        self.gate_sigma = float(gate_sigma)
+        self.tuning = tuning
         self._commissioning = mechanics
         self._probes: collections.deque[ProbeMeasurement] = collections.deque(probes, maxlen=PROBES_KEPT)
         self._fields: collections.deque[Kept] = collections.deque(
             maxlen=int(FIELD_KEEP_S / FIELD_KEEP_EVERY_S) + 2
         )
         self._op_phi: np.ndarray | None = None  # the axial mount/α operators on the reduced basis (2, 3, r)
-        self._mechanics = replayed(mechanics, probes)
+        self._mechanics, self._state = replayed(mechanics, probes, tuning)
         self._basis = basis
         self._base_ctx: GrowthContext | None = context  # the described mechanics' context
         self._ctx: GrowthContext | None = context if self._mechanics is None else None  # else: calibrated
@@ -130,7 +157,7 @@ class MechanicsBook:
                 try:
                     if self._base_ctx is None:
                         self._base_ctx = build_context(m.spec, m.fe, basis=m.rom.basis)
-                    self._ctx = self._calibrated(self._base_ctx, self._mechanics)
+                    self._ctx = self._calibrated(self._base_ctx, self._mechanics, self._state)
                 except Exception as err:  # any failure of the optional growth model: served as 503
                     self.error = f"growth model unavailable: {type(err).__name__}: {err}"
             return self._ctx
@@ -140,14 +167,24 @@ class MechanicsBook:
         """The context built so far (None: not yet), never building it."""
         return self._ctx
 
-    def _calibrated(self, base: GrowthContext, cal: MechanicsCalibration | None) -> GrowthContext:
-        """``base`` with ``cal``'s operators and posterior (the basis built once, ~2 s); ``base`` if None."""
+    def _calibrated(
+        self, base: GrowthContext, cal: MechanicsCalibration | None, state: ProbeState | None
+    ) -> GrowthContext:
+        """``base`` with ``cal``'s operators and posterior and the fixture offset of ``state`` (the basis
+        built once, ~2 s); ``base`` if ``cal`` is None."""
         if cal is None:
             return base
         if self._basis is None:
             self._basis = served_mechanics_basis(self.model.spec, self.model.fe)
         b = self._basis
-        return with_mechanics(base, b.operators_at(cal.x), b.jacobian_at(cal.x), cal.covariance)
+        off = fixture_offset(state)
+        return with_mechanics(
+            base,
+            b.operators_at(cal.x),
+            b.jacobian_at(cal.x),
+            cal.covariance,
+            offset=None if off is None else (off.um, off.sd_um**2, off.cov_mech_um),
+        )
 
     def basis(self) -> ServedMechanicsBasis:
         """The served outputs' mount/α operators (built once, ~2 s; blocking)."""
@@ -164,6 +201,11 @@ class MechanicsBook:
         return self._mechanics
 
     @property
+    def fixture_offset(self) -> FixtureOffset | None:
+        """The fixture offset the probe readings measured (None: none absorbed since the commissioning)."""
+        return fixture_offset(self._state)
+
+    @property
     def commissioning(self) -> MechanicsCalibration | None:
         """The commissioning (stored or set), before any probe reading (None: not commissioned)."""
         return self._commissioning
@@ -172,7 +214,8 @@ class MechanicsBook:
         """Use ``cal`` from now on; the context must be built (``context()``) and the basis (``basis()``)."""
         with self.lock:
             assert self._base_ctx is not None
-            self._ctx = self._calibrated(self._base_ctx, cal)
+            self._state = start_state(cal.mean, cal.covariance, cal.at.timestamp(), self.tuning)
+            self._ctx = self._calibrated(self._base_ctx, cal, self._state)
             self._mechanics = cal
             self._commissioning = cal
 
@@ -237,9 +280,10 @@ class MechanicsBook:
         set_by: str,
         source: str,
     ) -> ProbeMeasurement:
-        """Predict the reading from the kept ``field`` (reduced mean, cov) and the mechanics in use, absorb it
-        (a Kalman step, ``service.estimate.probe``) unless it lies beyond ``gate_sigma`` σ of the prediction,
-        and keep it. ``ctx`` (with its reduced basis) and the basis are built already."""
+        """Predict the reading from the kept ``field`` (reduced mean, cov), the mechanics and the fixture
+        offset in use, absorb it (a Kalman step, ``service.estimate.probe``) unless it lies beyond
+        ``tuning.gate_sigma`` σ of the prediction (or as a step of the offset, right after a consistent gated
+        one), and keep it. ``ctx`` (with its reduced basis) and the basis are built already."""
         mean, cov = field
         basis = self.basis()
         assert ctx.phi is not None
@@ -251,14 +295,12 @@ class MechanicsBook:
             g1 = float(ctx.g[0].sum())
             field_var = float(g_phi @ cov @ g_phi) + (g1 * t_ref_sd) ** 2
             base = self._mechanics if self._mechanics is not None else prior_calibration(at)
-            up = absorb(
-                base.mean,
-                base.covariance,
-                feats,
-                float(axial_um),
-                float(sd_um) ** 2 + field_var,
-                gate_sigma=self.gate_sigma,
-            )
+            state = self._state
+            if state is None:
+                state = start_state(base.mean, base.covariance, at.timestamp(), self.tuning)
+            var = float(sd_um) ** 2 + field_var
+            state, up = take_reading(state, feats, float(axial_um), var, at.timestamp(), self.tuning)
+            self._state = state
             m = ProbeMeasurement(
                 at=at,
                 axial_um=float(axial_um),
@@ -269,15 +311,15 @@ class MechanicsBook:
                 sigma_um=up.sigma_um,
                 innovation_um=up.innovation_um,
                 accepted=up.accepted,
+                offset_step=up.offset_step,
                 set_by=set_by,
                 source=source,
             )
             self._probes.append(m)
             if not up.accepted:
                 return m
-            n = int(base.report.get("probe_readings_absorbed", 0)) + 1
-            cal = posterior(base, up.x, up.cov, n)
+            cal = posterior(base, state)
             assert self._base_ctx is not None
-            self._ctx = self._calibrated(self._base_ctx, cal)  # the basis is built (above): cheap
+            self._ctx = self._calibrated(self._base_ctx, cal, state)  # the basis is built (above): cheap
             self._mechanics = cal
         return m

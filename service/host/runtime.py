@@ -34,7 +34,7 @@ from service.host.persistence import Persistence, SharedDatabase, open_persisten
 from service.identify.worker import IdentificationWorker
 from service.logctx import spindle_context
 from service.modelload import LoadedModel, ModelRef, load_model
-from service.serve.compensation import GrowthServer
+from service.serve.compensation import GrowthServer, probe_tuning
 from service.serve.controlled import ControlState
 from service.serve.outlet import OUTLETS, Outlet, OutletContext, OutletFactory, load_factory
 from service.settings import Settings
@@ -119,7 +119,7 @@ def growth_server(
         reference=None if restored is None else restored.reference,
         mechanics=None if restored is None else restored.mechanics,
         probes=() if restored is None else restored.probes,
-        probe_gate_sigma=c.probe_gate_sigma,
+        probe=probe_tuning(c),
         reference_on_first_start=c.reference_on_first_start,
         first_start_by=os_user(),
         limits=compensation_limits(c),

@@ -31,7 +31,7 @@ import numpy as np
 from service.contracts.errors import NotReadyError
 from service.contracts.growth import GrowthEstimate
 from service.contracts.mechanics import MechanicsCalibration
-from service.contracts.probe import ProbeError, ProbeMeasurement
+from service.contracts.probe import FixtureOffset, ProbeError, ProbeMeasurement
 from service.contracts.reference import CompensationReference
 from service.contracts.snapshots import CompensationSnapshot, SectionSnapshot
 from service.estimate.growth import (
@@ -45,7 +45,7 @@ from service.estimate.growth_section import SectionOperator, build_section, sect
 from service.estimate.growthterms import TermsCache, held_terms, live_belief
 from service.estimate.mechanics import ServedMechanicsBasis
 from service.estimate.mechbook import MechanicsBook
-from service.estimate.probe import DEFAULT_GATE_SIGMA
+from service.estimate.probe import ProbeTuning
 from service.estimate.referencebook import ReferenceBook, live_uniform_equivalent, zero_problem
 from service.serve.controlled import Controller, ControlLimits, ControlState
 from service.serve.policy import CompensationLimits, compensation_limits, compensation_verdict
@@ -53,8 +53,9 @@ from service.serve.view import CoreView
 
 if TYPE_CHECKING:
     from service.modelload import LoadedModel
+    from service.settings import CompensationSettings
 
-__all__ = ["GrowthServer", "TermsKey", "field_belief", "terms_key"]
+__all__ = ["GrowthServer", "TermsKey", "field_belief", "probe_tuning", "terms_key"]
 
 TermsKey = tuple[object, ...]
 
@@ -72,6 +73,23 @@ def terms_key(view: CoreView) -> TermsKey | None:
         return None
     held = (cond.id, cond.speed_rpm, cond.torque_nm, cond.ambient_c) if cond is not None else live.inputs
     return (None if rec is None else rec.id, tuple(live.h), tuple(live.load_scale), held)
+
+
+def probe_tuning(section: CompensationSettings) -> ProbeTuning:
+    """The probe filter's tuning from ``[compensation]`` (the one mapping: ``chtc run``'s growth server and
+    the default below call it)."""
+    return ProbeTuning(
+        gate_sigma=section.probe_gate_sigma,
+        offset_sd_um=section.probe_offset_sd_um,
+        offset_q_um2_per_h=section.probe_offset_q_um2_per_h,
+    )
+
+
+def _default_probe_tuning() -> ProbeTuning:
+    """The settings' ``[compensation]`` defaults (declared there; no environment)."""
+    from service.settings import CompensationSettings
+
+    return probe_tuning(CompensationSettings())
 
 
 def _default_limits() -> CompensationLimits:
@@ -101,7 +119,7 @@ class GrowthServer:
         mechanics: MechanicsCalibration | None = None,  # the stored commissioning (restored)
         mechanics_basis: ServedMechanicsBasis | None = None,  # built already (tests, benches)
         probes: tuple[ProbeMeasurement, ...] = (),  # the stored probe readings (restored), oldest first
-        probe_gate_sigma: float = DEFAULT_GATE_SIGMA,
+        probe: ProbeTuning | None = None,  # the settings' [compensation] probe_* (None: their defaults)
         control: ControlLimits
         | None = None,  # the CI gate and the command (None: neither, the plain verdict)
         control_state: ControlState | None = None,  # their checkpointed state (restored)
@@ -127,7 +145,7 @@ class GrowthServer:
             mechanics=mechanics,
             basis=mechanics_basis,
             probes=probes,
-            gate_sigma=probe_gate_sigma,
+            tuning=probe if probe is not None else _default_probe_tuning(),
         )
         self.terms = TermsCache()
         # the CI gate and the command value, stepped on every snapshot (each published sample and each read)
@@ -164,6 +182,11 @@ class GrowthServer:
     def commissioning(self) -> MechanicsCalibration | None:
         """The commissioning (stored or set), before any probe reading (None: not commissioned)."""
         return self.book.commissioning
+
+    @property
+    def fixture_offset(self) -> FixtureOffset | None:
+        """The fixture offset the probe readings measured (``MechanicsBook.fixture_offset``)."""
+        return self.book.fixture_offset
 
     @property
     def computed(self) -> int:
@@ -207,7 +230,8 @@ class GrowthServer:
     ) -> ProbeMeasurement:
         """Take a probe reading (the tool's axial position over the commissioned zero at ``at`` [µm], 1σ
         ``sd_um``): predict it from the live field kept nearest ``at`` and the mechanics in use, absorb it
-        unless it lies beyond ``probe_gate_sigma`` σ of the prediction, and keep it (the caller stores it).
+        unless it lies beyond ``probe.gate_sigma`` σ of the prediction (or as a step of the fixture offset,
+        ``service.estimate.probe``), and keep it (the caller stores it).
         Blocking (the basis, ~2 s the first time). ``ProbeError`` naming the field for a reading that cannot
         be used."""
         if not (math.isfinite(axial_um) and math.isfinite(sd_um) and sd_um > 0.0):
@@ -438,5 +462,6 @@ class GrowthServer:
             channels=tuple(s.channel for s in self.model.spec.sensors),
             reference=self.reference,
             mechanics=self.mechanics,
+            fixture_offset=self.fixture_offset,
             sensor_faults=() if view.live is None else view.live.sensor_faults,
         )

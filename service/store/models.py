@@ -1,4 +1,4 @@
-"""SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` to ``0008``).
+"""SQLAlchemy 2.0 typed declarative models (the schema of migrations ``0001_initial`` to ``0009``).
 
 Since ``0007`` every table but ``spindles`` carries ``spindle_id`` (``SpindleScoped``): many spindles share
 one database. Service-assigned ids (conditions, identifications) are unique per spindle (composite keys
@@ -44,6 +44,7 @@ from sqlalchemy import (
     SmallInteger,
     String,
     Text,
+    false,
 )
 from sqlalchemy.orm import DeclarativeBase, Mapped, declared_attr, mapped_column, relationship
 
@@ -304,6 +305,8 @@ class ProbeMeasurementRow(SpindleScoped, Base):
     accepted: Mapped[bool] = mapped_column(Boolean)  # absorbed into the posterior
     set_by: Mapped[str] = mapped_column(String(64))
     source: Mapped[str] = mapped_column(String(16))
+    # absorbed as a step of the fixture offset (revision 0009; older rows: false)
+    offset_step: Mapped[bool] = mapped_column(Boolean, server_default=false())
 
 
 class LiveStateRow(SpindleScoped, Base):

@@ -53,6 +53,7 @@ def probe_from_row(row: ProbeMeasurementRow) -> ProbeMeasurement:
             sigma_um=float(row.sigma_um),
             innovation_um=float(row.innovation_um),
             accepted=bool(row.accepted),
+            offset_step=bool(row.offset_step),
             set_by=str(row.set_by),
             source=str(row.source),
             id=int(row.id),

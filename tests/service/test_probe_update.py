@@ -11,7 +11,15 @@ import pytest
 
 from service.contracts.mechanics import MechanicsCalibration
 from service.contracts.probe import ProbeError, ProbeMeasurement
-from service.estimate.probe import absorb, predict, prior_covariance, prior_mean, replay
+from service.estimate.probe import (
+    absorb,
+    predict,
+    prior_covariance,
+    prior_mean,
+    replay,
+    replay_state,
+    start_state,
+)
 
 AT = datetime(2026, 11, 27, 8, 0, tzinfo=UTC)
 # the feature row's scale at a hot spindle (µm): free and held mounts, other/shaft/housing α groups; held
@@ -155,10 +163,16 @@ def test_a_restart_replays_the_accepted_readings_after_the_commissioning_only() 
     server = GrowthServer(cast(Any, None), mechanics=cal, probes=(before, flagged, after))
     got = server.mechanics
     assert got is not None and server.commissioning is cal
-    want_x, want_cov = replay(cal.mean, cal.covariance, [after])
+    from service.serve.compensation import _default_probe_tuning
+
+    tuning = _default_probe_tuning()
+    start = start_state(cal.mean, cal.covariance, AT.timestamp(), tuning)
+    want_x, want_cov = replay_state(start, [flagged, after], tuning).mechanics  # θ and b jointly
     assert np.allclose(got.mean, want_x, rtol=0, atol=1e-12)
     assert np.allclose(got.covariance, want_cov, rtol=0, atol=1e-12)
     assert got.report["probe_readings_absorbed"] == 1
+    off = server.fixture_offset
+    assert off is not None and off.readings == 1 and off.sd_um < tuning.offset_sd_um
     assert [m.at for m in server.probes()] == [after.at, flagged.at, before.at]
     assert GrowthServer(cast(Any, None), mechanics=cal, probes=(before,)).mechanics is cal
     alone = GrowthServer(cast(Any, None), probes=(after,)).mechanics  # no commissioning: from the prior
