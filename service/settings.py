@@ -409,6 +409,9 @@ class CompensationSettings(_Section):
     # probe readings also estimate a fixture or tool-holder offset b (service.estimate.probe; issue 40): its
     # prior 1σ at the commissioning and after a step (two consecutive gated readings that agree) [µm] ...
     probe_offset_sd_um: float = Field(default=5.0, gt=0.0, le=1000.0, allow_inf_nan=False)
+    # ... a step of it is taken when two readings in a row lie beyond this many σ of their prediction, on the
+    # same side and consistent (a single outlier beyond probe_gate_sigma is never a step) ...
+    probe_step_sigma: float = Field(default=2.0, gt=0.0, le=100.0, allow_inf_nan=False)
     # ... and its random walk between readings [µm²/h] (a slow drift; a step is found by the gate)
     probe_offset_q_um2_per_h: float = Field(default=0.05, ge=0.0, le=1000.0, allow_inf_nan=False)
     # the CI part of the verdict has hysteresis (service.serve.cigate; docs/design/policy.md, "A steady

@@ -32,14 +32,17 @@ cross covariance is carried into the served CI.
 
 **Gate and persistent offsets.** A reading with |ν| > ``gate_sigma`` · √S is not absorbed: a crash, a
 chip under the setter, a mis-read. A step of the offset (a fixture re-clamped, another tool holder) gives
-the same symptom, but persistently. So: when a reading is gated and the reading before it (the one
-immediately before, with nothing absorbed in between) was gated too, with *consistent* innovations — the
-same sign and |ν₂ − ν₁| ≤ ``gate_sigma`` · √(S₁ + S₂) — the pair is taken as a step of b: b's variance is
-re-initialised to ``offset_sd_um``² (its cross covariances with θ zeroed, its mean kept) and the second
-reading is absorbed. One outlier is never absorbed; a persistent step is tracked from its second reading
-on; θ is not bent by it, because after the re-initialisation b carries nearly all of the innovation
-(Var(b) ≫ h_θ P_θθ h_θᵀ). The step is stored with the reading (``offset_step``) and the first reading of
-the pair stays stored as not absorbed.
+the same symptom, but persistently; a smaller step (2–3 σ) is absorbed, but a Kalman gain tuned for a slow
+b follows it over many readings and leans on θ meanwhile. So, a two-reading persistence test: when a reading
+lies beyond ``step_sigma`` · √S (< ``gate_sigma``) and so did the reading immediately before it, with a
+*consistent* innovation — the same sign and |ν₂ − ν₁| ≤ ``gate_sigma`` · √(S₁ + S₂) — the pair is taken as a
+step of b: b's variance is re-initialised to ``offset_sd_um``² (its cross covariances with θ zeroed, its mean
+kept) and the second reading is absorbed, gated or not. One outlier is never absorbed (a single reading
+never makes a step); a persistent step is tracked from its second reading on; θ is not bent by it, because
+after the re-initialisation b carries nearly all of the innovation (Var(b) ≫ h_θ P_θθ h_θᵀ). A false step
+needs two same-signed readings beyond 2 σ in a row (≈ 0.1 % of pairs) and costs only b's precision until
+the next reading. The step is stored with the reading (``offset_step``); a gated first reading of the pair
+stays stored as not absorbed.
 
 **Replay.** ``replay`` takes the stored decisions (``accepted``, ``offset_step``) instead of re-running the
 gate: the accepted readings, oldest first, each after b's time update since the previous accepted one (a
@@ -101,10 +104,11 @@ def prior_mean() -> Array:
 
 @dataclass(frozen=True, kw_only=True)
 class ProbeTuning:
-    """The probe filter's settings (``[compensation]`` ``probe_*``; declared there): the gate [σ], b's prior
-    1σ at the commissioning and after a step [µm], b's random walk [µm²/h]."""
+    """The probe filter's settings (``[compensation]`` ``probe_*``; declared there): the gate [σ], the step
+    test's threshold [σ], b's prior 1σ at the commissioning and after a step [µm], b's random walk [µm²/h]."""
 
     gate_sigma: float
+    step_sigma: float
     offset_sd_um: float
     offset_q_um2_per_h: float
 
@@ -183,7 +187,7 @@ class ProbeState:
     """The probe filter's state: x = (s, a_s, a_h, b) (4,), P (4, 4), ``t`` [epoch s] of its last time
     update (the commissioning, then the last absorbed reading), ``absorbed`` readings since the
     commissioning, ``steps`` of them absorbed as a step of the offset, and ``pending`` (ν, √S) of the last
-    reading when it was gated (None: absorbed or none)."""
+    reading when it lay beyond ``step_sigma`` (None: within, a step, or none)."""
 
     x: Array
     cov: Array
@@ -229,13 +233,23 @@ def _offset_reset(p: Array, tuning: ProbeTuning) -> Array:
     return q
 
 
-def consistent_step(pending: tuple[float, float] | None, nu: float, sigma: float, gate: float) -> bool:
-    """True when a gated reading (ν, √S) confirms the gated one before it (``pending``): the same sign and
-    |ν − ν₁| ≤ ``gate`` · √(S₁ + S) (module docstring, "Gate and persistent offsets")."""
-    if pending is None:
+def _beyond(nu: float, sigma: float, threshold: float) -> bool:
+    return abs(nu) > threshold * sigma
+
+
+def consistent_step(
+    pending: tuple[float, float] | None, nu: float, sigma: float, tuning: ProbeTuning
+) -> bool:
+    """True when a reading (ν, √S) beyond ``step_sigma`` confirms the one before it (``pending``, beyond it
+    too): the same sign and |ν − ν₁| ≤ ``gate_sigma`` · √(S₁ + S) (module docstring)."""
+    if pending is None or not _beyond(nu, sigma, tuning.step_sigma):
         return False
     nu1, sigma1 = pending
-    return nu * nu1 > 0.0 and abs(nu - nu1) <= gate * math.hypot(sigma, sigma1)
+    return nu * nu1 > 0.0 and abs(nu - nu1) <= tuning.gate_sigma * math.hypot(sigma, sigma1)
+
+
+def _pending(nu: float, sigma: float, tuning: ProbeTuning) -> tuple[float, float] | None:
+    return (nu, sigma) if _beyond(nu, sigma, tuning.step_sigma) else None
 
 
 def take_reading(
@@ -246,25 +260,27 @@ def take_reading(
     t: float,
     tuning: ProbeTuning,
 ) -> tuple[ProbeState, ProbeUpdate]:
-    """A live reading at ``t`` [epoch s] (module docstring): gated; absorbed; or, gated right after a
-    consistent gated one, absorbed as a step of the offset. The new state and the reading's outcome."""
+    """A live reading at ``t`` [epoch s] (module docstring): absorbed; gated; or, beyond ``step_sigma`` right
+    after a consistent one, absorbed as a step of the offset. The new state and the reading's outcome."""
     p = _time_update(state, t, tuning)
     up = absorb(state.x, p, features, axial_um, var_um2, gate_sigma=tuning.gate_sigma)
+    pending = _pending(up.innovation_um, up.sigma_um, tuning)
+    if consistent_step(state.pending, up.innovation_um, up.sigma_um, tuning):
+        step = absorb(state.x, _offset_reset(p, tuning), features, axial_um, var_um2, gate_sigma=None)
+        out = replace(up, x=step.x, cov=step.cov, accepted=True, offset_step=True)
+        return ProbeState(step.x, step.cov, float(t), state.absorbed + 1, state.steps + 1), out
     if up.accepted:
-        return ProbeState(up.x, up.cov, float(t), state.absorbed + 1, state.steps), up
-    if not consistent_step(state.pending, up.innovation_um, up.sigma_um, tuning.gate_sigma):
-        return replace(state, pending=(up.innovation_um, up.sigma_um)), up
-    step = absorb(state.x, _offset_reset(p, tuning), features, axial_um, var_um2, gate_sigma=None)
-    out = replace(up, x=step.x, cov=step.cov, accepted=True, offset_step=True)
-    return ProbeState(step.x, step.cov, float(t), state.absorbed + 1, state.steps + 1), out
+        return ProbeState(up.x, up.cov, float(t), state.absorbed + 1, state.steps, pending), up
+    return replace(state, pending=pending), up
 
 
 def replay_state(state: ProbeState, readings: Iterable[ProbeMeasurement], tuning: ProbeTuning) -> ProbeState:
     """``state`` after the stored ``readings`` (oldest first) with their stored decisions, no gate (module
     docstring, "Replay"); a reading not absorbed only sets ``pending``."""
     for m in readings:
+        pending = None if m.offset_step else _pending(m.innovation_um, m.sigma_um, tuning)
         if not m.accepted:
-            state = replace(state, pending=(m.innovation_um, m.sigma_um))
+            state = replace(state, pending=pending)
             continue
         t = m.at.timestamp()
         p = _time_update(state, t, tuning)
@@ -272,7 +288,7 @@ def replay_state(state: ProbeState, readings: Iterable[ProbeMeasurement], tuning
             p = _offset_reset(p, tuning)
         var = m.sd_um**2 + m.field_var_um2
         up = absorb(state.x, p, m.features, m.axial_um, var, gate_sigma=None)
-        state = ProbeState(up.x, up.cov, t, state.absorbed + 1, state.steps + int(m.offset_step))
+        state = ProbeState(up.x, up.cov, t, state.absorbed + 1, state.steps + int(m.offset_step), pending)
     return state
 
 

@@ -80,6 +80,7 @@ def probe_tuning(section: CompensationSettings) -> ProbeTuning:
     the default below call it)."""
     return ProbeTuning(
         gate_sigma=section.probe_gate_sigma,
+        step_sigma=section.probe_step_sigma,
         offset_sd_um=section.probe_offset_sd_um,
         offset_q_um2_per_h=section.probe_offset_q_um2_per_h,
     )

@@ -17,7 +17,7 @@ from service.store.repository import session_scope, write_records
 AT = datetime(2026, 11, 27, 8, 0, tzinfo=UTC)
 
 
-def _m(at: datetime, y: float, accepted: bool) -> ProbeMeasurement:
+def _m(at: datetime, y: float, accepted: bool, *, step: bool = False) -> ProbeMeasurement:
     return ProbeMeasurement(
         at=at,
         axial_um=y,
@@ -28,6 +28,7 @@ def _m(at: datetime, y: float, accepted: bool) -> ProbeMeasurement:
         sigma_um=1.2,
         innovation_um=0.3 if accepted else 40.0,
         accepted=accepted,
+        offset_step=step,
         set_by="plc",
         source="api",
     )
@@ -38,13 +39,14 @@ def test_readings_are_stored_and_restored_oldest_first(factory: sessionmaker[Ses
     first, flagged, last = (
         _m(AT, 4.5, True),
         _m(AT + timedelta(hours=1), 50.0, False),
-        _m(AT + timedelta(hours=2), 5.0, True),
+        _m(AT + timedelta(hours=2), 5.0, True, step=True),  # absorbed as a step of the fixture offset
     )
     with session_scope(factory, "write") as s:
         write_records(s, [probe_record(m, AT + timedelta(hours=3)) for m in (last, first, flagged)])
     got = restore(factory).probes
     assert [m.at for m in got] == [first.at, flagged.at, last.at]
     assert [m.accepted for m in got] == [True, False, True]
+    assert [m.offset_step for m in got] == [False, False, True]  # the replay takes the stored decision
     assert all(m.id is not None for m in got)
     for a, b in zip(got, (first, flagged, last), strict=True):
         assert a.features == b.features and a.axial_um == b.axial_um and a.sd_um == b.sd_um
