@@ -162,6 +162,17 @@ def test_the_served_growth_uses_the_calibration_and_carries_its_posterior(
     assert est.axial.std_mech_um == pytest.approx(float(np.sqrt(jac[0] @ cov @ jac[0])), rel=1e-9)
     assert est.axial.std_mech_um > 0.0 and nominal.axial.std_mech_um == 0.0
     assert est.axial.std_um == pytest.approx(np.hypot(est.axial.std_h_um, est.axial.std_mech_um), rel=1e-9)
+    # a fixture offset b measured by probe readings: added to the axial growth (now, forecast, steady), its
+    # variance and its covariance with θ in the axial mechanical part; the radial growth untouched
+    cb = np.array([0.004, -0.001, 0.002])  # Cov(θ, b) [µm]
+    off = with_mechanics(base, basis.operators_at(x), basis.jacobian_at(x), cov, offset=(3.0, 0.25, cb))  # type: ignore[attr-defined]
+    with_b = estimate_growth(off, terms, belief, t_ref_c=21.0, at=at)
+    assert with_b.axial.um == pytest.approx(est.axial.um + 3.0, abs=1e-9)
+    assert with_b.forecast.steady_axial.um == pytest.approx(est.forecast.steady_axial.um + 3.0, abs=1e-9)
+    assert with_b.forecast.axial[0].um == pytest.approx(est.forecast.axial[0].um + 3.0, abs=1e-9)
+    want = jac[0] @ cov @ jac[0] + 0.25 + 2.0 * jac[0] @ cb
+    assert with_b.axial.std_mech_um == pytest.approx(float(np.sqrt(want)), rel=1e-9)
+    assert with_b.radial.um == est.radial.um and with_b.radial.std_mech_um == est.radial.std_mech_um
     # at the zero's own uniform temperature nothing grows, whatever the mechanics
     flat = FieldBelief(mean_c=np.full(m.fe.n_nodes, 21.0))
     assert estimate_growth(ctx, terms, flat, t_ref_c=21.0, at=at).axial.std_mech_um == pytest.approx(
