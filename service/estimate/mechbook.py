@@ -1,7 +1,8 @@
 """The mechanics the served growth uses, and the probe readings that update them (docs/commissioning.md,
 "Commission the growth", "Probe measurements"): the growth context (operators of nose axial and radial
 growth, g·Φ; built once per model, ~0.7 s), calibrated with the commissioning updated by the readings
-absorbed since (``service.estimate.mechanics``, ``service.estimate.probe``). Pure computation: no I/O, no
+absorbed since (``service.estimate.mechanics``, ``service.estimate.probe``), and the fixture offset those
+readings measured (added to the served axial growth with its variance once one is absorbed). Pure computation: no I/O, no
 clock; one lock guards the state, which the API threads and the shell's worker threads share.
 
 Without a commissioning the operators are the spindle description's (``[mechanics]`` as written) and the

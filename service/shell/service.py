@@ -248,13 +248,17 @@ class SoftSensorService(NewestViewReads):
         if self.writer is not None:
             self.writer.submit(probe_record(m, now))
         verdict = (
-            "absorbed"
+            f"absorbed as a STEP of the fixture offset ({m.sigma_ratio:.1f} σ off, like the one before)"
+            if m.offset_step
+            else "absorbed"
             if m.accepted
             else f"NOT absorbed: {m.sigma_ratio:.1f} σ off (a crash or a tool change since the last one?)"
         )
+        off = self.growth.fixture_offset
         self.on_event(
             f"probe reading {m.axial_um:+.2f} ± {m.sd_um:.2f} µm at {m.at.isoformat()} (predicted "
             f"{m.predicted_um:+.2f} ± {m.sigma_um:.2f} µm): {verdict}"
+            + ("" if off is None else f"; fixture offset {off.um:+.2f} ± {off.sd_um:.2f} µm")
         )
         return m
 
