@@ -157,3 +157,36 @@ def test_without_an_offset_the_mechanics_are_as_without_b() -> None:
         y4 = predict(f_test, theta)[0] + state.x[3]
         assert abs(y4 - predict(f_test, x3)[0]) < 0.5, seed  # the same growth within the reading noise
         assert np.all(np.sqrt(np.diag(p_theta)) <= np.sqrt(np.diag(cov)) + 1e-12)  # never wider
+
+
+def test_a_restarted_growth_server_serves_the_live_offset_and_mechanics() -> None:
+    """The growth server restored with the stored readings (``MechanicsBook`` → ``replay_state``) holds the
+    posterior the live filter had, the offset (with its step) included."""
+    from typing import Any, cast
+
+    from service.contracts.mechanics import MechanicsCalibration
+    from service.serve.compensation import GrowthServer, probe_tuning
+    from service.settings import CompensationSettings
+
+    tuning = probe_tuning(CompensationSettings())
+    assert tuning == TUNING  # the settings' defaults are the ones tested above
+    rng = np.random.default_rng(21)
+    truth, mean, cov = _commissioned(rng)
+    cal = MechanicsCalibration(
+        x=(float(mean[0]), float(mean[1]), float(mean[2])),
+        cov=tuple(tuple(float(v) for v in r) for r in cov),
+        at=AT,
+        set_by="test",
+        source="cli",
+    )
+    state, kept = start_state(mean, cov, AT.timestamp(), TUNING), []
+    for k, b in enumerate([0.0, 0.0, 0.0, 5.0, 5.0, 5.0]):
+        state, m = _take(state, rng, truth, b, k, 0.5)
+        kept.append(m)
+    assert state.steps == 1
+    server = GrowthServer(cast(Any, None), mechanics=cal, probes=tuple(kept))
+    got, off = server.mechanics, server.fixture_offset
+    assert got is not None and off is not None
+    assert np.allclose(got.mean, np.clip(state.x[:3], [0.0, 0.51, 0.51], [1.0, 1.49, 1.49]), atol=1e-12)
+    assert off.um == state.x[3] and off.sd_um == np.sqrt(state.cov[3, 3]) and off.steps == 1
+    assert off.readings == state.absorbed == got.report["probe_readings_absorbed"]
