@@ -2,8 +2,9 @@
 "Commission the growth", "Probe measurements"): the growth context (operators of nose axial and radial
 growth, g·Φ; built once per model, ~0.7 s), calibrated with the commissioning updated by the readings
 absorbed since (``service.estimate.mechanics``, ``service.estimate.probe``), and the fixture offset those
-readings measured (added to the served axial growth with its variance once one is absorbed). Pure computation: no I/O, no
-clock; one lock guards the state, which the API threads and the shell's worker threads share.
+readings measured (added to the served axial growth with its variance once one is absorbed). Pure
+computation: no I/O, no clock; one lock guards the state, which the API threads and the shell's worker
+threads share.
 
 Without a commissioning the operators are the spindle description's (``[mechanics]`` as written) and the
 policy's ``mechanics_uncalibrated`` rule applies; with one (restored or ``set``) the operators are the
