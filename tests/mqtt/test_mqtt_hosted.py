@@ -342,3 +342,56 @@ async def host_scenario(mosquitto: Broker, tmp_path: Path, group: str) -> dict[s
         nd = seen.of("NDEATH")[-1]
         assert next(m.long_value for m in nd.metrics if m.name == "bdSeq") == first_bd
     return out
+
+
+def test_json_mode_gives_each_spindle_its_own_connection_topics_and_availability(
+    mosquitto: Broker, tmp_path: Path
+) -> None:
+    """JSON with ``[[spindles]]``: one connection per spindle (each its own Will on its own availability
+    topic), ``{topic_prefix}/{device}/...``; a set client_id is made unique per spindle."""
+    from service.serve.mqtt.hosted import HostedMqtt
+
+    prefix = f"shop{os.getpid()}"
+    settings = Settings(
+        spindles=[
+            {"id": "a", "can": {"channel": "a"}},
+            {"id": "b", "modbus": {"port": 5999}, "can": {"channel": "b"}, "mqtt": {"device_id": "press-2"}},
+        ],
+        mqtt={
+            "enabled": True,
+            "mode": "json",
+            "port": mosquitto.port,
+            "topic_prefix": prefix,
+            "client_id": "cell",
+            "state_dir": str(tmp_path),
+        },
+    )
+
+    async def scenario() -> None:
+        spindles = {s.spindle.id: s for s in settings.per_spindle()}
+        hosted = HostedMqtt(settings, spindles, clock=lambda: datetime.now(UTC), on_event=lambda _m: None)
+        assert [o.settings.effective_client_id for o in hosted.outlets] == ["cell-a", "cell-press-2"]
+        topics: dict[str, bytes] = {}
+        async with aiomqtt.Client("127.0.0.1", mosquitto.port, identifier=f"t-json-{os.getpid()}") as c:
+            await c.subscribe(f"{prefix}/#", qos=1)
+
+            async def collect() -> None:
+                async for m in c.messages:
+                    assert isinstance(m.payload, bytes)
+                    topics[str(m.topic)] = m.payload
+
+            task = asyncio.create_task(collect())
+            for feed in hosted.feeds.values():
+                feed.on_view(Reader())
+            await hosted.start()
+            want = {
+                f"{prefix}/{d}/{leaf}" for d in ("a", "press-2") for leaf in ("availability", "Status/Usable")
+            }
+            assert await until(lambda: want <= set(topics), 10.0), sorted(topics)[:5]
+            assert topics[f"{prefix}/a/availability"] == b"online"
+            await hosted.close()
+            assert await until(lambda: topics[f"{prefix}/press-2/availability"] == b"offline", 10.0)
+            task.cancel()
+            await asyncio.gather(task, return_exceptions=True)
+
+    asyncio.run(scenario())
