@@ -14,9 +14,10 @@ a single spindle (``mqtt_outlet``), every running spindle of a host with Sparkpl
                      a new bdSeq: NBIRTH, then a DBIRTH per live device) or "online" (JSON), then the
                      buffers in the order queued, DDEATHs of devices whose spindle stopped, and NCMD rebirths
 
-During a broker outage the sampler keeps buffering up to ``buffer_messages``; on reconnect Sparkplug sends a
-new NBIRTH/DBIRTH with the current values and then the buffered DDATA flagged ``is_historical`` (a host keeps
-them out of its current values), JSON sends "online", the buffered values and the current ones (retained).
+During a broker outage each device's sampler keeps buffering up to ``buffer_messages``; on reconnect
+Sparkplug sends a new NBIRTH and the DBIRTHs with the current values and then the buffered DDATA flagged
+``is_historical`` (a host keeps them out of its current values), JSON sends "online", the buffered values
+and the current ones (retained).
 
 Errors::
 
@@ -334,8 +335,8 @@ class MqttOutlet:
         self._born = set()
         for q in self.devices.live:
             self.devices.born(q.name)
+            self._born.add(q.name)  # before the await: a stop meanwhile gets its DDEATH after this DBIRTH
             await client.publish(s.topics.of("DBIRTH", q.name), s.dbirth(q.current, now), qos=0)
-            self._born.add(q.name)
             self.counters.sent += 1
         self.counters.births += 1
 
