@@ -92,6 +92,9 @@ class _Section(BaseModel):
 
 
 SPINDLE_ID_PATTERN = r"^[A-Za-z][A-Za-z0-9_-]{0,62}$"
+# the [mqtt] keys a hosted spindle may set of its own ([[spindles]] mqtt = {...}): its Sparkplug device id and
+# JSON topic level; the rest (broker, group, edge node) is the host's one connection
+SPINDLE_MQTT_KEYS = frozenset({"device_id"})
 
 
 class SpindleSettings(_Section):
@@ -106,13 +109,16 @@ class SpindleEntry(_Section):
     """One spindle of an instance that hosts several (``[[spindles]]``; docs/design/fleet.md).
 
     ``modbus`` and ``can`` hold only the keys that differ from the top-level ``[modbus]``/``[can]`` (its DAQ
-    address, its CAN channel), merged over them; ``geometry`` is its ``model.spindle`` file (default: the
-    top-level one). Spindles with the same geometry share one reduced model."""
+    address, its CAN channel), merged over them; ``mqtt`` likewise over ``[mqtt]``, with only the keys a
+    spindle may have of its own (``SPINDLE_MQTT_KEYS``: its Sparkplug device id, the level of its JSON
+    topics); ``geometry`` is its ``model.spindle`` file (default: the top-level one). Spindles with the same
+    geometry share one reduced model."""
 
     id: str = Field(pattern=SPINDLE_ID_PATTERN)
     description: str = Field(default="", max_length=200)
     modbus: dict[str, Any] = Field(default_factory=dict)  # raw keys, validated merged over [modbus]
     can: dict[str, Any] = Field(default_factory=dict)  # raw keys, validated merged over [can]
+    mqtt: dict[str, Any] = Field(default_factory=dict)  # raw keys (SPINDLE_MQTT_KEYS), merged over [mqtt]
     geometry: Path | None = None
 
 
@@ -652,6 +658,13 @@ class Settings(BaseSettings):
             seen[entry.id] = where
             modbus = _merged(ModbusSettings, self.modbus, entry.modbus, f"{where}.modbus")
             can = _merged(CanSettings, self.can, entry.can, f"{where}.can")
+            other = sorted(set(entry.mqtt) - SPINDLE_MQTT_KEYS)
+            if other:
+                raise ValueError(
+                    f"{where}.mqtt.{other[0]}: not per spindle (the host's one MQTT connection has it; "
+                    f"per spindle: {', '.join(sorted(SPINDLE_MQTT_KEYS))})"
+                )
+            mqtt = _merged(MqttSettings, self.mqtt, entry.mqtt, f"{where}.mqtt")
             model = (
                 self.model
                 if entry.geometry is None
@@ -660,11 +673,20 @@ class Settings(BaseSettings):
             spindle = SpindleSettings(id=entry.id, description=entry.description)
             out.append(
                 self.model_copy(
-                    update={"spindle": spindle, "modbus": modbus, "can": can, "model": model, "spindles": []}
+                    update={
+                        "spindle": spindle,
+                        "modbus": modbus,
+                        "can": can,
+                        "mqtt": mqtt,
+                        "model": model,
+                        "spindles": [],
+                    }
                 )
             )
         _check_unique(out, lambda s: f"{s.modbus.host}:{s.modbus.port}/unit {s.modbus.unit}", "modbus")
         _check_unique(out, lambda s: f"{s.can.interface}:{s.can.channel}", "can")
+        if self.mqtt.enabled:
+            _check_unique(out, lambda s: s.mqtt.for_spindle(s.spindle.id).device, "mqtt", what="device id")
         return out
 
     @classmethod
@@ -735,13 +757,16 @@ def _merged(cls: type[_S], base: _S, changes: dict[str, Any], where: str) -> _S:
         raise ValueError(f"{where}.{key}: {first['msg']}") from None
 
 
-def _check_unique(spindles: list[Settings], key: Callable[[Settings], str], section: str) -> None:
-    """Two hosted spindles on one device address would read each other's data: refused, naming both."""
+def _check_unique(
+    spindles: list[Settings], key: Callable[[Settings], str], section: str, *, what: str = "device"
+) -> None:
+    """Two hosted spindles on one device address would read each other's data (or publish as one MQTT
+    device): refused, naming both."""
     seen: dict[str, str] = {}
     for s in spindles:
         k = key(s)
         if k in seen:
-            raise ValueError(f"spindles: {seen[k]} and {s.spindle.id} share the {section} device {k}")
+            raise ValueError(f"spindles: {seen[k]} and {s.spindle.id} share the {section} {what} {k}")
         seen[k] = s.spindle.id
 
 

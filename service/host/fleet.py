@@ -21,10 +21,11 @@ start; a device fault is the affected spindle's alone (its driver backs off; the
 never wait on it). Every spindle's failure after start is in its own health.
 
 - one **OPC UA server** (``[opcua] enabled``): ``service.serve.opcua.outlet.HostedOpcUa``, one object per
-  running spindle named by its id, of one type, each fed by its spindle's views (issue 43).
-
-MQTT is not hosted per spindle yet: ``[mqtt]`` enabled with ``[[spindles]]`` is refused at start
-(``HostError``); one process per spindle (no ``[[spindles]]``) keeps it.
+  running spindle named by its id, of one type, each fed by its spindle's views (issue 43);
+- one **Sparkplug B edge node** (``[mqtt] enabled``): ``service.serve.mqtt.hosted.HostedMqtt``, one device
+  per running spindle named by its id (or its ``spindles[i].mqtt.device_id``), each fed by its spindle's
+  views: one NBIRTH, a DBIRTH per spindle, DDATA per spindle, NDEATH as the Will (issue 43). In JSON mode one
+  connection per spindle (``{topic_prefix}/{device}/...``).
 """
 
 from __future__ import annotations
@@ -34,7 +35,7 @@ import contextlib
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, Any
 
 from service.errors import ServiceError
 from service.modelload import LoadedModel, ModelRef, load_model
@@ -45,6 +46,7 @@ if TYPE_CHECKING:
     from service.host.persistence import SharedDatabase
     from service.host.runtime import CanDevice, DaqDevice, Runtime, ScaledClock
     from service.identify.pool import WorkerPool
+    from service.serve.mqtt.hosted import HostedMqtt
     from service.serve.opcua.outlet import HostedOpcUa
     from service.settings import Settings
     from service.shell.looplag import LoopLagMonitor
@@ -93,14 +95,15 @@ class Host:
     db: SharedDatabase | None = None
     rest: Outlet | None = None
     opcua: HostedOpcUa | None = None
+    mqtt: HostedMqtt | None = None
     loop_lag: LoopLagMonitor | None = None
     _loop_lag_task: asyncio.Task[None] | None = field(default=None, repr=False)
 
     def __post_init__(self) -> None:
-        if self.settings.spindles and self.settings.mqtt.enabled:
+        if self.settings.spindles and self.settings.mqtt.enabled and self.settings.mqtt.device_id is not None:
             raise HostError(
-                "[mqtt] enabled = true is not supported with [[spindles]] yet: run one process per "
-                "spindle for MQTT (docs/design/fleet.md)"
+                "mqtt.device_id names the device of one spindle; with [[spindles]] each device is named by "
+                "its spindles[i].id or spindles[i].mqtt.device_id (unset mqtt.device_id)"
             )
         if self.settings.spindles and self.settings.opcua.enabled and self.settings.opcua.spindle is not None:
             raise HostError(
@@ -147,13 +150,19 @@ class Host:
         self.pool = WorkerPool(workers=workers)
         self.db = await asyncio.to_thread(SharedDatabase.open, s.database)
         for spindle in s.per_spindle():
-            # the host serves OPC UA for every spindle (``_start_opcua``), not each spindle for itself
-            off = spindle.opcua.model_copy(update={"enabled": False})
-            await self._start_spindle(spindle.model_copy(update={"opcua": off}))
+            # the host serves OPC UA and MQTT for every spindle (``_start_opcua``, ``_start_mqtt``), not each
+            # spindle for itself
+            off = {
+                "opcua": spindle.opcua.model_copy(update={"enabled": False}),
+                "mqtt": spindle.mqtt.model_copy(update={"enabled": False}),
+            }
+            await self._start_spindle(spindle.model_copy(update=off))
         if self.models:  # every pool process loads every geometry now (memory at start, first jobs quick)
             await self.pool.warm(list(self.models))
         if s.opcua.enabled:
             await self._start_opcua()
+        if s.mqtt.enabled:
+            await self._start_mqtt()
         started = len(self.spindles) - len(self.failed)
         self.on_event(
             f"host: {started} of {len(self.spindles)} spindles running, {len(self.models)} model(s), "
@@ -176,11 +185,7 @@ class Host:
         """One OPC UA server with an object per running spindle, each subscribed to its spindle's views."""
         from service.serve.opcua.outlet import HostedOpcUa
 
-        services = {
-            sid: h.runtime.service
-            for sid, h in self.spindles.items()
-            if h.runtime is not None and h.runtime.service is not None
-        }
+        services = self._running()
         if not services:
             return
         self.opcua = HostedOpcUa(self.settings, services, clock=self.clock)
@@ -188,6 +193,31 @@ class Host:
         for sid, service in services.items():
             service.subscribe(self.opcua.feeds[sid])
         self.on_event(f"OPC UA server at {self.opcua.server.endpoint}: {len(services)} spindle object(s)")
+
+    def _running(self) -> dict[str, Any]:
+        """The running spindles' services, by id, in the order of the file."""
+        return {
+            sid: h.runtime.service
+            for sid, h in self.spindles.items()
+            if h.runtime is not None and h.runtime.service is not None
+        }
+
+    async def _start_mqtt(self) -> None:
+        """One Sparkplug edge node with a device per running spindle (JSON: a connection per spindle), each
+        subscribed to its spindle's views."""
+        from service.serve.mqtt.hosted import HostedMqtt
+
+        services = self._running()
+        if not services:
+            return
+        spindles = {sid: self.spindles[sid].settings for sid in services}
+        self.mqtt = HostedMqtt(self.settings, spindles, clock=self.clock, on_event=self.on_event)
+        await self.mqtt.start()
+        for sid, service in services.items():
+            service.subscribe(self.mqtt.feeds[sid])
+        m = self.settings.mqtt
+        where = f"{m.group_id}/{m.edge_node_id}" if m.mode == "sparkplug" else m.topic_prefix
+        self.on_event(f"MQTT ({m.mode}) to {m.host}:{m.port}, {where}: {len(services)} spindle device(s)")
 
     async def _start_spindle(self, s: Settings) -> None:
         from service.host.runtime import Runtime
@@ -252,6 +282,13 @@ class Host:
         if self.rest is not None:
             with contextlib.suppress(Exception):
                 await self.rest.close()
+        if self.mqtt is not None:
+            for h in self.spindles.values():
+                device = self.mqtt.feeds.get(h.id)
+                if device is not None and h.runtime is not None and h.runtime.service is not None:
+                    h.runtime.service.unsubscribe(device)
+            with contextlib.suppress(Exception):
+                await self.mqtt.close()
         if self.opcua is not None:
             for h in self.spindles.values():
                 feed = self.opcua.feeds.get(h.id)

@@ -56,6 +56,10 @@ class OutBuffer(Generic[T]):
             return
         self._items.appendleft(item)
 
+    def peek(self) -> T | None:
+        """The oldest message, left in place (None: empty)."""
+        return self._items[0] if self._items else None
+
     def take(self) -> T | None:
         """The oldest message (None: empty)."""
         return self._items.popleft() if self._items else None

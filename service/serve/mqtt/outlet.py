@@ -1,16 +1,23 @@
-"""The MQTT outlet: the asyncio shell around ``service.serve.mqtt.points`` / ``sparkplug`` / ``plainjson``.
+"""The MQTT outlet: the asyncio shell around ``service.serve.mqtt.points`` / ``devices`` / ``sparkplug`` /
+``plainjson``.
 
-Three tasks, none of which the service waits for::
+One connection (one Sparkplug edge node, or one JSON device) with one device per spindle it carries: one for
+a single spindle (``mqtt_outlet``), every running spindle of a host with Sparkplug
+(``service.serve.mqtt.hosted``). Tasks, none of which the service waits for::
 
-    on_view(reader)  (event loop, after each published view: remember it, wake the sampler; never blocks)
-    sampler          reader -> points (in a thread: compensation() may compute) -> changes beyond the
-                     deadbands -> bounded buffer (oldest dropped, counted); also every ``tick_s`` (ages)
+    on_view(reader)  (event loop, after each published view of a spindle: remember it, wake its sampler;
+                     never blocks)
+    sampler          one per device: reader -> points (in a thread: compensation() may compute) -> changes
+                     beyond the deadbands -> the device's bounded buffer (oldest dropped, counted); also
+                     every ``tick_s`` (ages)
     connection       a new aiomqtt client per try, exponential backoff; on connect: births (Sparkplug,
-                     a new bdSeq) or "online" (JSON), then the buffer in order, and NCMD rebirths
+                     a new bdSeq: NBIRTH, then a DBIRTH per live device) or "online" (JSON), then the
+                     buffers in the order queued, DDEATHs of devices whose spindle stopped, and NCMD rebirths
 
-During a broker outage the sampler keeps buffering up to ``buffer_messages``; on reconnect Sparkplug sends a
-new NBIRTH/DBIRTH with the current values and then the buffered DDATA flagged ``is_historical`` (a host keeps
-them out of its current values), JSON sends "online", the buffered values and the current ones (retained).
+During a broker outage each device's sampler keeps buffering up to ``buffer_messages``; on reconnect
+Sparkplug sends a new NBIRTH and the DBIRTHs with the current values and then the buffered DDATA flagged
+``is_historical`` (a host keeps them out of its current values), JSON sends "online", the buffered values
+and the current ones (retained).
 
 Errors::
 
@@ -25,8 +32,8 @@ import contextlib
 import logging
 import ssl
 import time
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import replace
 from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING
@@ -37,16 +44,17 @@ from service.contracts.metrics import OutletMetrics
 from service.errors import ServiceError
 from service.mqttsettings import MqttSettings
 from service.serve.mqtt.bdseq import BdSeqStore
-from service.serve.mqtt.buffer import OutBuffer, OutletCounters
+from service.serve.mqtt.buffer import OutletCounters
+from service.serve.mqtt.devices import Devices, Item
 from service.serve.mqtt.plainjson import OFFLINE, ONLINE, JsonTopics, payload
-from service.serve.mqtt.points import CATALOGUE, Point, ServedReader, changed, read_points
+from service.serve.mqtt.points import Point, ServedReader, read_points
 from service.serve.mqtt.sparkplug import PayloadError, SparkplugSession, SparkplugTopics, is_rebirth_request
 from service.settings import default_data_dir
 
 if TYPE_CHECKING:
     from service.serve.outlet import OutletContext
 
-__all__ = ["MqttOutlet", "MqttOutletError", "mqtt_outlet"]
+__all__ = ["DeviceFeed", "MqttOutlet", "MqttOutletError", "mqtt_outlet"]
 
 log = logging.getLogger(__name__)
 Clock = Callable[[], datetime]
@@ -56,20 +64,58 @@ class MqttOutletError(ServiceError):
     """The MQTT outlet cannot start as configured."""
 
 
-@dataclass(frozen=True)
-class _Item:
-    """One buffered message: Sparkplug DDATA (``points``) or one JSON topic (a single point)."""
-
-    serial: int
-    points: dict[str, Point]
-
-
 def _utc_now() -> datetime:
     return datetime.now(UTC)
 
 
+class DeviceFeed:
+    """One device's subscription to its spindle's views and its sampler task (module docstring). With a
+    host, ``service.subscribe(feed)`` for each spindle; ``close()`` when that spindle stops (its DDEATH)."""
+
+    name = "mqtt"
+
+    def __init__(self, outlet: MqttOutlet, device: str) -> None:
+        self.outlet = outlet
+        self.device = device
+        self.reader: ServedReader | None = None
+        self.views = 0
+        self.wake = asyncio.Event()
+
+    async def start(self) -> None:
+        return None  # the outlet runs the sampler (``run``)
+
+    def on_view(self, reader: ServedReader) -> None:
+        """A new view was published: remember its reader and wake the sampler (cheap; never blocks)."""
+        self.reader = reader
+        self.views += 1
+        self.wake.set()
+
+    async def close(self) -> None:
+        """The spindle stopped: its DDEATH (Sparkplug), nothing more for it."""
+        self.outlet.device_stopped(self.device)
+
+    async def run(self) -> None:
+        o = self.outlet
+        while True:
+            with contextlib.suppress(TimeoutError):
+                await asyncio.wait_for(self.wake.wait(), timeout=o.settings.tick_s)
+            self.wake.clear()
+            reader = self.reader
+            if reader is None:
+                continue
+            try:
+                points = await asyncio.to_thread(read_points, reader, now=o.clock(), heartbeat=self.views)
+            except Exception as err:  # a reader failure must not end the outlet; the next view retries
+                log.warning(
+                    "mqtt: reading %s's served values failed: %s: %s", self.device, type(err).__name__, err
+                )
+                continue
+            o.offer(self.device, points)
+
+
 class MqttOutlet:
-    """See the module docstring. ``start()`` on the loop, ``on_view`` after each publish, ``close()``."""
+    """See the module docstring. ``start()`` on the loop, ``on_view`` after each publish (a single spindle;
+    a host feeds ``feeds[device]``), ``close()``."""
 
     name = "mqtt"
 
@@ -80,28 +126,32 @@ class MqttOutlet:
         state_dir: Path,
         clock: Clock = _utc_now,
         on_event: Callable[[str], None] | None = None,
+        devices: Sequence[str] | None = None,
     ) -> None:
         self.settings = settings
         self.clock = clock
         self.on_event = on_event or (lambda msg: log.info("%s", msg))
         self.sparkplug = settings.mode == "sparkplug"
         s = settings
-        self.session = SparkplugSession(SparkplugTopics(s.group_id, s.edge_node_id, s.device))
-        self.json_topics = JsonTopics(s.topic_prefix, s.device)
+        names = list(devices) if devices is not None else [s.device]
+        if not self.sparkplug and len(names) != 1:
+            raise ValueError("mqtt: a JSON connection carries one device")
+        self.session = SparkplugSession(SparkplugTopics(s.group_id, s.edge_node_id, names[0]))
+        self.json_topics = JsonTopics(s.topic_prefix, names[0])
         self.bdseq = BdSeqStore(Path(state_dir) / f"mqtt-bdseq-{s.group_id}-{s.edge_node_id}")
         self.bd_seq: int | None = None  # this connection's
-        self.buffer: OutBuffer[_Item] = OutBuffer(s.buffer_messages)
+        self.devices = Devices(
+            names,
+            buffer_messages=s.buffer_messages,
+            deadbands=s.deadbands.model_dump(),
+            per_point=not self.sparkplug,
+        )
+        self.feeds = {n: DeviceFeed(self, n) for n in names}
         self.counters = OutletCounters()
-        self._deadbands = s.deadbands.model_dump()
-        self._reader: ServedReader | None = None
-        self._views = 0
-        self._current: dict[str, Point] = {}  # the newest points read
-        self._queued: dict[str, Point] = {}  # the last point queued (or born) per metric: the deadband base
-        self._serial = 0
-        self._birth_mark = 0  # Sparkplug: items with serial <= this were queued before the current birth
-        self._wake = asyncio.Event()  # the sampler: a new view
-        self._have_points = asyncio.Event()  # the first values are read: births carry them
-        self._send = asyncio.Event()  # the sender: a buffered message or a rebirth
+        self._born: set[str] = set()  # devices with a DBIRTH in this connection
+        self._deaths: list[str] = []  # devices whose spindle stopped: DDEATH due
+        self._have_points = asyncio.Event()  # every device's first values are read: births carry them
+        self._send = asyncio.Event()  # the sender: a buffered message, a rebirth or a death
         self._rebirth_due = False
         self._last_rebirth = -float("inf")
         self._tasks: list[asyncio.Task[None]] = []
@@ -114,15 +164,13 @@ class MqttOutlet:
     async def start(self) -> None:
         self._tls = self._tls_context()
         self._tasks = [
-            asyncio.create_task(self._sampler(), name="mqtt-sampler"),
-            asyncio.create_task(self._connection(), name="mqtt-connection"),
+            asyncio.create_task(feed.run(), name=f"mqtt-sampler-{name}") for name, feed in self.feeds.items()
         ]
+        self._tasks.append(asyncio.create_task(self._connection(), name="mqtt-connection"))
 
     def on_view(self, reader: ServedReader) -> None:
-        """A new view was published: remember its reader and wake the sampler (cheap; never blocks)."""
-        self._reader = reader
-        self._views += 1
-        self._wake.set()
+        """A single spindle's new view (its only device's feed; cheap, never blocks)."""
+        self.feeds[self.session.topics.device].on_view(reader)
 
     async def close(self) -> None:
         """Say goodbye (NDEATH / "offline": a clean disconnect sends no Will) and stop."""
@@ -137,16 +185,16 @@ class MqttOutlet:
         self.counters.connected = False
 
     def stats(self) -> OutletCounters:
-        """The counters now (a copy), with the buffer's drops."""
-        return replace(self.counters, dropped=self.buffer.dropped)
+        """The counters now (a copy), with the buffers' drops."""
+        return replace(self.counters, dropped=self.devices.dropped)
 
     def outlet_metrics(self) -> OutletMetrics:
         """For ``/metrics`` (``service.serve.interface.CountedOutlet``)."""
         c = self.counters
         return OutletMetrics(
             sent=c.sent,
-            dropped=self.buffer.dropped,
-            buffered=len(self.buffer),
+            dropped=self.devices.dropped,
+            buffered=self.devices.buffered,
             reconnects=c.reconnects,
             connect_failures=c.connect_failures,
             connected=c.connected,
@@ -154,37 +202,26 @@ class MqttOutlet:
 
     @property
     def buffered(self) -> int:
-        return len(self.buffer)
+        return self.devices.buffered
 
-    # --- sampler -----------------------------------------------------------------------------------------
-    async def _sampler(self) -> None:
-        while True:
-            with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self._wake.wait(), timeout=self.settings.tick_s)
-            self._wake.clear()
-            reader = self._reader
-            if reader is None:
-                continue
-            try:
-                points = await asyncio.to_thread(read_points, reader, now=self.clock(), heartbeat=self._views)
-            except Exception as err:  # a reader failure must not end the outlet; the next view retries
-                log.warning("mqtt: reading the served values failed: %s: %s", type(err).__name__, err)
-                continue
-            self._enqueue(points)
+    # --- the devices ---------------------------------------------------------------------------------------
+    def offer(self, device: str, points: dict[str, Point]) -> None:
+        """A device's sampler read ``points``: queue the changes, wake the sender."""
+        if self.devices.offer(device, points):
+            self._send.set()
+        if all(q.have_points for q in self.devices.live):
+            self._have_points.set()
 
-    def _enqueue(self, points: dict[str, Point]) -> None:
-        self._current = points
-        self._have_points.set()
-        names = changed(CATALOGUE, points, self._queued, self._deadbands)
-        if not names:
+    def device_stopped(self, device: str) -> None:
+        """``device``'s spindle stopped: its sampler ends, its buffer goes, a DDEATH if it was born."""
+        if not self.devices.stop(device):
             return
-        for n in names:
-            self._queued[n] = points[n]
-        groups = [names] if self.sparkplug else [[n] for n in names]
-        for group in groups:
-            self._serial += 1
-            self.buffer.put(_Item(self._serial, {n: points[n] for n in group}))
-        self._send.set()
+        task = next((t for t in self._tasks if t.get_name() == f"mqtt-sampler-{device}"), None)
+        if task is not None:
+            task.cancel()
+        if self.sparkplug and device in self._born:
+            self._deaths.append(device)
+            self._send.set()
 
     # --- connection ----------------------------------------------------------------------------------------
     def _tls_context(self) -> ssl.SSLContext | None:
@@ -288,24 +325,38 @@ class MqttOutlet:
             await asyncio.gather(*tasks, return_exceptions=True)
 
     async def _births(self, client: aiomqtt.Client) -> None:
+        """NBIRTH, then a DBIRTH per live device with its current values (later deltas are against them)."""
         assert self.bd_seq is not None
-        self._birth_mark = self._serial
-        self._queued = dict(self._current)
-        for topic, body in self.session.births(self.bd_seq, self._current, self.clock()):
-            await client.publish(topic, body, qos=0)
+        now = self.clock()
+        s = self.session
+        self._deaths.clear()  # the NBIRTH restarts the node: a stopped device is simply not born again
+        await client.publish(s.topics.nbirth, s.nbirth(self.bd_seq, now), qos=0)
+        self.counters.sent += 1
+        self._born = set()
+        for q in self.devices.live:
+            self.devices.born(q.name)
+            self._born.add(q.name)  # before the await: a stop meanwhile gets its DDEATH after this DBIRTH
+            await client.publish(s.topics.of("DBIRTH", q.name), s.dbirth(q.current, now), qos=0)
             self.counters.sent += 1
         self.counters.births += 1
 
     async def _drain(self, client: aiomqtt.Client) -> None:
         """Send the buffered messages in order (the only sender while connected: seq stays in order)."""
         if not self.sparkplug:  # after a (re)connect the retained topics get the current values last
-            self._requeue_current()
+            for q in self.devices.live:
+                self.devices.requeue_current(q.name)
         while True:
             if self._rebirth_due:
                 self._rebirth_due = False
                 await self._births(client)
                 self.counters.rebirths += 1
-            item = self.buffer.take()
+            while self._deaths:
+                device = self._deaths.pop(0)
+                body = self.session.ddeath(self.clock())
+                await client.publish(self.session.topics.of("DDEATH", device), body, qos=0)
+                self._born.discard(device)
+                self.counters.sent += 1
+            item = self.devices.take()
             if item is None:
                 self._send.clear()
                 await self._send.wait()
@@ -313,21 +364,15 @@ class MqttOutlet:
             try:
                 await self._publish(client, item)
             except aiomqtt.MqttError:
-                self.buffer.put_back(item)
+                self.devices.put_back(item)
                 raise
             self.counters.sent += 1
 
-    def _requeue_current(self) -> None:
-        for n, p in self._current.items():
-            self._serial += 1
-            self.buffer.put(_Item(self._serial, {n: p}))
-        self._queued = dict(self._current)
-
-    async def _publish(self, client: aiomqtt.Client, item: _Item) -> None:
+    async def _publish(self, client: aiomqtt.Client, item: Item) -> None:
         if self.sparkplug:
-            historical = item.serial <= self._birth_mark
-            body = self.session.data(item.points, self.clock(), historical=historical)
-            await client.publish(self.session.topics.ddata, body, qos=0)
+            historical = self.devices.historical(item)
+            body = self.session.ddata(item.points, self.clock(), historical=historical)
+            await client.publish(self.session.topics.of("DDATA", item.device), body, qos=0)
             return
         ((name, point),) = item.points.items()
         await client.publish(self.json_topics.value(name), payload(point), qos=1, retain=True)

@@ -1,16 +1,22 @@
 """Sparkplug B topics and payloads (Eclipse Sparkplug 3.0; pure: bytes in, bytes out).
 
-Edge node = this instance (``group_id``/``edge_node_id``), device = the spindle (``device_id``)::
+Edge node = this instance (``group_id``/``edge_node_id``), device = a spindle (``device_id``; with
+``[[spindles]]`` one device per spindle, all under the one edge node)::
 
     spBv1.0/{group}/NBIRTH/{node}            bdSeq, Node Control/Rebirth          seq 0
-    spBv1.0/{group}/DBIRTH/{node}/{device}   every metric: name, alias, datatype,  seq 1
-                                             properties engUnit/engLow/engHigh(/Quality)
-    spBv1.0/{group}/DDATA/{node}/{device}    changed metrics by alias only         seq 2, 3, ... 255, 0, ...
+    spBv1.0/{group}/DBIRTH/{node}/{device}   every metric: name, alias, datatype,  seq 1 (2, 3, ... one per
+                                             properties engUnit/engLow/engHigh     device)
+                                             (/Quality)
+    spBv1.0/{group}/DDATA/{node}/{device}    changed metrics by alias only         the next seq (mod 256)
+    spBv1.0/{group}/DDEATH/{node}/{device}   a device that stopped (no metrics)    the next seq
     spBv1.0/{group}/NDEATH/{node}            bdSeq (the MQTT Will; no seq)
-    spBv1.0/{group}/NCMD/{node}              Node Control/Rebirth = true -> births again, same bdSeq
+    spBv1.0/{group}/NCMD/{node}              Node Control/Rebirth = true -> births again (NBIRTH and every
+                                             device's DBIRTH), same bdSeq
 
-``SparkplugSession`` holds the sequence number and the aliases; the outlet (``service.serve.mqtt.outlet``)
-owns the connection. Payloads are the generated ``sparkplug_b_pb2`` (Eclipse Tahu's ``sparkplug_b.proto``).
+``SparkplugNode`` holds the edge node's one sequence number (shared by all its devices, as Sparkplug says)
+and the aliases (the same for every device); ``SparkplugSession`` is the node with one device (a single
+spindle). The outlet (``service.serve.mqtt.outlet``) owns the connection. Payloads are the generated
+``sparkplug_b_pb2`` (Eclipse Tahu's ``sparkplug_b.proto``).
 """
 
 from __future__ import annotations
@@ -23,7 +29,15 @@ from service.errors import ServiceError
 from service.serve.mqtt import sparkplug_b_pb2 as pb
 from service.serve.mqtt.points import CATALOGUE, DataType, MetricDef, Point, Quality, Value
 
-__all__ = ["NAMESPACE", "REBIRTH", "PayloadError", "SparkplugSession", "SparkplugTopics", "ms"]
+__all__ = [
+    "NAMESPACE",
+    "REBIRTH",
+    "PayloadError",
+    "SparkplugNode",
+    "SparkplugSession",
+    "SparkplugTopics",
+    "ms",
+]
 
 NAMESPACE = "spBv1.0"
 REBIRTH = "Node Control/Rebirth"
@@ -41,9 +55,12 @@ def ms(t: datetime) -> int:
 
 @dataclass(frozen=True)
 class SparkplugTopics:
+    """The edge node's topics; ``device`` names the device of a single spindle (``dbirth``, ``ddata``), and
+    :meth:`of` gives any device's."""
+
     group: str
     node: str
-    device: str
+    device: str = ""
 
     def _node(self, kind: str) -> str:
         return f"{NAMESPACE}/{self.group}/{kind}/{self.node}"
@@ -67,6 +84,10 @@ class SparkplugTopics:
     @property
     def ddata(self) -> str:
         return f"{self._node('DDATA')}/{self.device}"
+
+    def of(self, kind: str, device: str) -> str:
+        """``kind`` (``DBIRTH``, ``DDATA``, ``DDEATH``) of ``device``."""
+        return f"{self._node(kind)}/{device}"
 
 
 def _set_value(m: pb.Payload.Metric, datatype: DataType, value: Value) -> None:
@@ -103,15 +124,16 @@ def _quality(m: pb.Payload.Metric, q: Quality) -> None:
         _prop(m.properties, "Quality", DataType.INT32, q.sparkplug)
 
 
-class SparkplugSession:
-    """Sequence numbers and aliases of one edge node with one device (module docstring).
+class SparkplugNode:
+    """Sequence number and aliases of one edge node with any number of devices (module docstring); pure:
+    payloads out, no I/O.
 
     Not thread-safe: the outlet's publisher task is its only user. Aliases are the catalogue's positions
-    (1-based; 0 is ``bdSeq``'s place and unused), stable across births and versions that only append.
+    (1-based; 0 is ``bdSeq``'s place and unused), stable across births and versions that only append, and
+    the same for every device.
     """
 
-    def __init__(self, topics: SparkplugTopics, *, catalogue: Sequence[MetricDef] = CATALOGUE) -> None:
-        self.topics = topics
+    def __init__(self, *, catalogue: Sequence[MetricDef] = CATALOGUE) -> None:
         self.catalogue = tuple(catalogue)
         self.alias = {m.name: i for i, m in enumerate(self.catalogue, start=1)}
         self._seq = 0
@@ -129,11 +151,9 @@ class SparkplugSession:
         m.name, m.timestamp, m.datatype, m.long_value = BDSEQ, ms(now), DataType.INT64, bd_seq
         return p.SerializeToString()
 
-    def births(
-        self, bd_seq: int, points: Mapping[str, Point], now: datetime
-    ) -> tuple[tuple[str, bytes], tuple[str, bytes]]:
-        """NBIRTH (seq 0, ``bdSeq``, ``Node Control/Rebirth``) and DBIRTH (seq 1, every metric with its
-        alias, datatype, properties and current value): after each connect and each honoured rebirth."""
+    def nbirth(self, bd_seq: int, now: datetime) -> bytes:
+        """NBIRTH (seq 0, ``bdSeq``, ``Node Control/Rebirth``): restarts the sequence; the devices' DBIRTHs
+        follow it (after each connect and each honoured rebirth)."""
         self._seq = 0
         nb = pb.Payload()
         nb.timestamp, nb.seq = ms(now), self._next_seq()
@@ -141,6 +161,11 @@ class SparkplugSession:
         m.name, m.timestamp, m.datatype, m.long_value = BDSEQ, ms(now), DataType.INT64, bd_seq
         m = nb.metrics.add()
         m.name, m.timestamp, m.datatype, m.boolean_value = REBIRTH, ms(now), DataType.BOOLEAN, False
+        return nb.SerializeToString()
+
+    def dbirth(self, points: Mapping[str, Point], now: datetime) -> bytes:
+        """DBIRTH of one device: every metric with its alias, datatype, properties and current value (an
+        absent one null and bad)."""
         db = pb.Payload()
         db.timestamp, db.seq = ms(now), self._next_seq()
         for d in self.catalogue:
@@ -155,9 +180,9 @@ class SparkplugSession:
                 _prop(m.properties, "engLow", DataType.DOUBLE, d.low)
                 _prop(m.properties, "engHigh", DataType.DOUBLE, d.high)
             _quality(m, p.quality)
-        return (self.topics.nbirth, nb.SerializeToString()), (self.topics.dbirth, db.SerializeToString())
+        return db.SerializeToString()
 
-    def data(self, points: Mapping[str, Point], now: datetime, *, historical: bool = False) -> bytes:
+    def ddata(self, points: Mapping[str, Point], now: datetime, *, historical: bool = False) -> bytes:
         """DDATA with ``points`` (name -> point) by alias only; ``historical``: values from before the
         current birth (sent after a reconnect), which a host must not take as the current value."""
         p = pb.Payload()
@@ -171,6 +196,32 @@ class SparkplugSession:
             _set_value(m, d.datatype, point.value)
             _quality(m, point.quality)
         return p.SerializeToString()
+
+    def ddeath(self, now: datetime) -> bytes:
+        """DDEATH of one device (its spindle stopped): a timestamp and the next ``seq``, no metrics; a host
+        marks the device's metrics stale until its next DBIRTH."""
+        p = pb.Payload()
+        p.timestamp, p.seq = ms(now), self._next_seq()
+        return p.SerializeToString()
+
+
+class SparkplugSession(SparkplugNode):
+    """The edge node with one device, ``topics.device`` (a single spindle: today's names)."""
+
+    def __init__(self, topics: SparkplugTopics, *, catalogue: Sequence[MetricDef] = CATALOGUE) -> None:
+        super().__init__(catalogue=catalogue)
+        self.topics = topics
+
+    def births(
+        self, bd_seq: int, points: Mapping[str, Point], now: datetime
+    ) -> tuple[tuple[str, bytes], tuple[str, bytes]]:
+        """NBIRTH (seq 0) and the device's DBIRTH (seq 1)."""
+        nb = self.nbirth(bd_seq, now)
+        return (self.topics.nbirth, nb), (self.topics.dbirth, self.dbirth(points, now))
+
+    def data(self, points: Mapping[str, Point], now: datetime, *, historical: bool = False) -> bytes:
+        """The device's DDATA (:meth:`SparkplugNode.ddata`)."""
+        return self.ddata(points, now, historical=historical)
 
 
 def is_rebirth_request(payload: bytes) -> bool:
