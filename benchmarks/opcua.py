@@ -82,6 +82,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         "server, one object per spindle; PostgreSQL at --pg-url; REST /api/v1/spindles/{id}/compensation, "
         "a CPU-hog phase, every spindle compared with REST): benchmarks.opcua_host",
     )
+    parser.add_argument(
+        "--settle", type=float, default=15.0, help="N > 1: s after every /compensation answers, before loads"
+    )
     parser.add_argument("--pg-url", default=None, help="N > 1: PostgreSQL (default: benchmarks fleet's)")
     parser.add_argument("--plants", type=int, default=4, help="N > 1: distinct duty cycles the devices play")
     parser.add_argument("--feed-period", type=float, default=1.0, help="wall s between fed samples")

@@ -4,7 +4,9 @@ so their CPU is not the REST load's) and the browse-and-compare check against RE
 Readers: ``clients`` asyncua clients, each reading the 10 compensation nodes of one spindle in one Read (as a
 PLC's ``OPC_UA_ReadList``) ``read_rate`` times a second, open loop; client k's i-th read goes to spindle
 ``spread(i, k, n)``. The subprocess prints ``{"connected": k}`` once every client has its session, then one
-JSON result ``{"latencies_s", "errors", "per_spindle"}``.
+JSON result ``{"latencies_s", "errors", "bad", "per_spindle"}``: ``errors`` the reads that failed (an
+exception or a timeout), ``bad`` per node path how many of its values came back with a Bad StatusCode
+(the verdict's, e.g. Bad_WaitingForInitialData before a spindle's first growth: not a failure of the read).
 """
 
 from __future__ import annotations
@@ -55,6 +57,7 @@ async def _readers(cfg: dict[str, Any]) -> dict[str, Any]:
     loop = asyncio.get_running_loop()
     lat: list[float] = []
     errors = 0
+    bad: dict[str, int] = {}
     per_spindle = dict.fromkeys(ids, 0)
     rate, duration = float(cfg["read_rate"]), float(cfg["duration_s"])
     t0 = loop.time() + 0.2
@@ -70,7 +73,9 @@ async def _readers(cfg: dict[str, Any]) -> dict[str, Any]:
             start = time.perf_counter()
             try:
                 values = await c.read_attributes(nodes[sid], ua.AttributeIds.Value)
-                errors += sum(v.StatusCode_.value >> 30 == 2 for v in values)  # Bad
+                for path, v in zip(READ_NODES, values, strict=True):
+                    if v.StatusCode_.value >> 30 == 2:
+                        bad[path] = bad.get(path, 0) + 1
             except Exception:
                 errors += 1
             lat.append(time.perf_counter() - start)
@@ -79,7 +84,7 @@ async def _readers(cfg: dict[str, Any]) -> dict[str, Any]:
     await asyncio.gather(*(reader(k, c) for k, c in enumerate(clients)))
     for c in clients:
         await c.disconnect()
-    return {"latencies_s": lat, "errors": errors, "per_spindle": per_spindle}
+    return {"latencies_s": lat, "errors": errors, "bad": bad, "per_spindle": per_spindle}
 
 
 # --- every spindle browsable, and equal to REST at the same `at` ------------------------------------------

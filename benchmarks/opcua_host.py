@@ -6,7 +6,7 @@ spindles at their real rates in one child process (nice 10, the last core), one 
 product, ``chtc run --config host.toml --migrate`` with N ``[[spindles]]`` (pinned to the other cores). The
 product is started ``--runs`` times with the outlets off and ``--runs`` times with ``[opcua] enabled``,
 alternating (off, on, off, on, ...); the devices and the schema stay. In every phase, after each spindle's
-``/compensation`` answers:
+``/compensation`` answers and ``--settle`` s more:
 
 - **REST**: GET ``/api/v1/spindles/{id}/compensation`` at ``--rate`` requests/s over ``--rest-clients``
   keep-alive connections, request i to spindle i mod N, for ``--duration`` s (in this process);
@@ -77,6 +77,7 @@ def run_host_bench(n: int, args: argparse.Namespace) -> dict[str, Any]:
                 with product(config, config.with_suffix(".log"), api_port):
                     phase = _Phase(n, ids, api_port, outlets.opcua_port, args)
                     phase.wait_answers()
+                    time.sleep(args.settle)  # the start's own work (first live fields, jobs) passes
                     first_on, last_on = on and not ons, on and run == args.runs - 1
                     (ons if on else offs).append(phase.run(check=first_on, hog=last_on))
                 state = "on" if on else "off"
@@ -162,6 +163,7 @@ class _Readers:
         self.result = {
             "latencies_ms": [1e3 * x for x in r["latencies_s"]],
             "errors": r["errors"],
+            "bad": r["bad"],
             "per_spindle": r["per_spindle"],
         }
 
@@ -241,6 +243,14 @@ def _brief(phase: dict[str, Any]) -> str:
     return f"REST p99 {q['rest']['p99_ms']:.1f} ms{read}"
 
 
+def _bad(phases: list[dict[str, Any]]) -> dict[str, int]:
+    out: dict[str, int] = {}
+    for p in phases:
+        for path, k in p["bad"].items():
+            out[path] = out.get(path, 0) + k
+    return out
+
+
 def _figures(
     n: int,
     ids: list[str],
@@ -287,6 +297,7 @@ def _figures(
         },
         "read_errors": sum(r["quiet"]["opcua"]["errors"] for r in ons)
         + sum(h["opcua"]["errors"] for h in hog),
+        "bad_values_by_node": _bad([r["quiet"]["opcua"] for r in ons] + [h["opcua"] for h in hog]),
         "rest_errors": sum(r["quiet"]["rest"]["errors"] for r in (*offs, *ons)),
         "equal_to_rest": None if check is None else check["equal"],
         "equal_to_rest_detail": check,
