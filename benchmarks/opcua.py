@@ -20,6 +20,11 @@ Set-up (all on loopback; figures, not assertions):
   connections (``benchmarks.api``'s raw client), in both phases; the "off" phase runs the same server
   without the OPC UA and MQTT outlets. The phases alternate ``--runs`` times; medians are quoted.
   ``rest_p99_ratio_outlets_on`` = REST p99 with the outlets on / off, same invocation.
+
+``--spindles N`` with N > 1: the hosted server (one OPC UA server, one object per spindle) of N simulated
+spindles started as ``python -m benchmarks fleet`` starts them, REST ``/api/v1/spindles/{id}/compensation``,
+a CPU-hog phase and every spindle compared with REST: ``benchmarks.opcua_host``. ``--spindles 1`` (the
+default) is the bench above.
 """
 
 from __future__ import annotations

@@ -280,6 +280,7 @@ def _figures(
         "read_p50_ms": percentile(reads, 50),
         "read_p99_ms": percentile(reads, 99),
         "read_max_ms": max(reads) if reads else None,
+        "read_p99_ms_per_run": [percentile(r["quiet"]["opcua"]["latencies_ms"], 99) for r in ons],
         "read_p50_ms_hog": percentile(hog_reads, 50),
         "read_p99_ms_hog": percentile(hog_reads, 99),
         "rest_p99_ms_outlets_off": median_or_none(rest_off),
