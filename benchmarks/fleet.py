@@ -68,6 +68,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument(
         "--writers-only", action="store_true", help="only the write-capacity part (no hosting)"
     )
+    parser.add_argument(
+        "--outlets",
+        default="",
+        help="comma-separated protocol outlets on for every hosted spindle: opcua, mqtt (the bench starts "
+        "its own Mosquitto); none by default",
+    )
     parser.add_argument("--json", action="store_true")
 
 
@@ -171,17 +177,66 @@ def main(args: argparse.Namespace) -> int:
     """Run ``python -m benchmarks fleet``."""
     if args.writers_only:
         return writers_main(args)
+    from benchmarks.fleet_host import parse_outlets
+
+    try:
+        outlets = parse_outlets(args.outlets)
+    except ValueError as err:
+        return _refuse(str(err))
+    if (refusal := _host_refusal(outlets)) is not None:
+        return _refuse(f"--outlets {args.outlets}: the host refuses it: {refusal}")
+    broker = None
+    if "mqtt" in outlets:
+        from benchmarks.opcua import Broker
+
+        broker = Broker()
+    try:
+        return _hosted(args, outlets, mqtt_port=0 if broker is None else broker.port)
+    finally:
+        if broker is not None:
+            broker.stop()
+
+
+def _refuse(message: str) -> int:
+    import sys
+
+    print(f"benchmarks fleet: {message}", file=sys.stderr)
+    return 2
+
+
+def _host_refusal(outlets: frozenset[str]) -> str | None:
+    """The host's own refusal of these outlets with ``[[spindles]]`` (e.g. ``[mqtt]`` before MQTT is hosted),
+    checked on a two-spindle configuration before anything starts; None when it takes them."""
+    from benchmarks.fleet_host import host_toml, outlets_for, refused_by_host
+
+    with tempfile.TemporaryDirectory() as tmp:
+        config = Path(tmp) / "check.toml"
+        o = outlets_for(outlets, mqtt_port=1883, state_dir=tmp)
+        config.write_text(host_toml("sqlite://", 8000, [5020, 5021], [8001, 8002], o), encoding="utf-8")
+        return refused_by_host(config)
+
+
+def _hosted(args: argparse.Namespace, outlets: frozenset[str], *, mqtt_port: int) -> int:
     from benchmarks.fleet_host import measure_fleet, verdicts
     from benchmarks.storage import retention_at
 
     ns = sorted({int(x) for x in args.spindles.split(",") if x.strip()})
+    started = datetime.now(UTC).isoformat(timespec="seconds")
     report: dict[str, Any] = measure_fleet(
-        ns, pg_url=args.pg_url, warmup_s=args.warmup_s, window_s=args.window_s, plants=args.plants
+        ns,
+        pg_url=args.pg_url,
+        warmup_s=args.warmup_s,
+        window_s=args.window_s,
+        plants=args.plants,
+        outlets=outlets,
+        mqtt_port=mqtt_port,
     )
     passes = sorted(float(retention_at(args.pg_url, 50, 10)["pass_s"]) for _ in range(args.retention_runs))
     report["retention_pass_s_500_spindle_days"] = round(statistics.median(passes), 3)
     report["retention_passes_s"] = [round(x, 3) for x in passes]
     report["cpu_count"] = os.cpu_count()
+    report["utc"] = started  # when the bench started; utc_end when it reported
+    report["utc_end"] = datetime.now(UTC).isoformat(timespec="seconds")
     checks = verdicts(report["runs"])
     report["verdicts"] = [{"bar": text, "met": ok} for text, ok in checks]
     if args.json:
@@ -198,6 +253,7 @@ def main(args: argparse.Namespace) -> int:
             f"{r.get('mib_per_added_spindle', float('nan')):>11.2f}{r['cpu_pct_per_spindle']:>11.3f}"
             f"{r['bytes_per_spindle_day']:>12d}{r['connections']:>7d}{r['load_average_1min']:>7.2f}"
         )
+    print(f"outlets: {', '.join(k for k, on in report['outlets'].items() if on) or 'none'} (beside REST)")
     print(f"retention pass at 500 spindle-days: {report['retention_pass_s_500_spindle_days']} s")
     for text, ok in checks:
         print(f"  {'met   ' if ok else 'MISSED'} {text}")

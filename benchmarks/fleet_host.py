@@ -44,7 +44,16 @@ from typing import Any
 
 from service.host.runtime import free_port
 
-__all__ = ["BARS", "measure_fleet", "p99_of", "run_n"]
+__all__ = [
+    "BARS",
+    "OUTLETS",
+    "Outlets",
+    "measure_fleet",
+    "p99_of",
+    "parse_outlets",
+    "refused_by_host",
+    "run_n",
+]
 
 BARS = {"write_p99_ms": 50.0, "mib_per_added_spindle": 60.0, "cpu_pct_per_spindle": 2.0}
 DEVICES_NICE = 10
@@ -205,13 +214,53 @@ def connections(admin: Any, schema: str) -> int:
 
 
 # --- one N ------------------------------------------------------------------------------------------
-def host_toml(url: str, api_port: int, modbus_ports: list[int], can_ports: list[int]) -> str:
+OUTLETS = ("opcua", "mqtt")
+
+
+@dataclass(frozen=True)
+class Outlets:
+    """The protocol outlets the hosted product serves for every spindle, beside REST (``--outlets``): the
+    port of each (0: off). MQTT needs a broker: ``mqtt_port`` is the bench's own Mosquitto's."""
+
+    opcua_port: int = 0
+    mqtt_port: int = 0
+    state_dir: str = ""  # [mqtt] state_dir (the Sparkplug bdSeq file)
+    max_connections: int = 10  # [opcua] max_connections
+
+    def flags(self) -> dict[str, bool]:
+        """The JSON key saying which outlets were on, e.g. {"opcua": true, "mqtt": false}."""
+        return {"opcua": self.opcua_port > 0, "mqtt": self.mqtt_port > 0}
+
+
+def parse_outlets(text: str) -> frozenset[str]:
+    """``--outlets opcua,mqtt`` as a set of names ('' or 'none': none); ValueError on an unknown name."""
+    names = {x.strip().lower() for x in text.split(",") if x.strip()} - {"none"}
+    unknown = sorted(names - set(OUTLETS))
+    if unknown:
+        raise ValueError(f"--outlets: unknown {', '.join(unknown)} (known: {', '.join(OUTLETS)}, none)")
+    return frozenset(names)
+
+
+def host_toml(
+    url: str, api_port: int, modbus_ports: list[int], can_ports: list[int], outlets: Outlets | None = None
+) -> str:
     lines = [
         "[api]",
         f"port = {api_port}",
         "[database]",
         f"url = {json.dumps(url)}",
     ]
+    o = outlets or Outlets()
+    if o.opcua_port:
+        lines += [
+            "[opcua]",
+            "enabled = true",
+            f"port = {o.opcua_port}",
+            f"max_connections = {o.max_connections}",
+        ]
+    if o.mqtt_port:
+        lines += ["[mqtt]", "enabled = true", 'host = "127.0.0.1"', f"port = {o.mqtt_port}"]
+        lines += [f"state_dir = {json.dumps(o.state_dir)}"] if o.state_dir else []
     for i, (m, c) in enumerate(zip(modbus_ports, can_ports, strict=True)):
         lines += [
             "[[spindles]]",
@@ -220,6 +269,22 @@ def host_toml(url: str, api_port: int, modbus_ports: list[int], can_ports: list[
             f'can = {{ interface = "remote", channel = "ws://127.0.0.1:{c}/" }}',
         ]
     return "\n".join(lines) + "\n"
+
+
+def refused_by_host(config: Path) -> str | None:
+    """What the host says when it refuses these settings at start (e.g. ``[mqtt]`` with ``[[spindles]]``
+    before MQTT is hosted): its message, naming the setting; None when it takes them. Checked here, before
+    any process starts, through the product's own ``Host`` (no I/O in its constructor)."""
+    from service.host.fleet import Host, HostError
+    from service.host.runtime import ScaledClock
+    from service.settings import load_settings
+
+    settings = load_settings(config)
+    try:
+        Host(settings=settings, clock=ScaledClock(1.0), devices=lambda s: None, on_event=lambda m: None)  # type: ignore[arg-type, return-value]
+    except HostError as err:
+        return str(err)
+    return None
 
 
 def _get(url: str, timeout_s: float = 5.0) -> tuple[int, str]:
@@ -261,19 +326,13 @@ def _snapshot(base: str, pid: int, admin: Any, schema: str) -> _Snapshot:
     )
 
 
-def run_n(
-    n: int,
-    *,
-    pg_url: str,
-    warmup_s: float,
-    window_s: float,
-    plants: int,
-    workdir: Path,
-    row_bytes: dict[str, float],
-) -> dict[str, Any]:
-    """One N: devices, the product, the window; the figures of that run."""
-    env = {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
-    hours = (warmup_s + window_s) / 3600.0 + 0.5
+def _env() -> dict[str, str]:
+    return {**os.environ, "OPENBLAS_NUM_THREADS": "1", "OMP_NUM_THREADS": "1", "MKL_NUM_THREADS": "1"}
+
+
+@contextlib.contextmanager
+def devices(n: int, *, plants: int, hours: float) -> Iterator[tuple[list[int], list[int]]]:
+    """The devices of N spindles (``simulator.fleetrig``, nice 10, pinned): (Modbus ports, CAN hub ports)."""
     plan = {"host": "127.0.0.1", "spindles": n, "plants": plants, "hours": round(hours, 3)}
     say(f"N={n}: devices (plants: {min(plants, n)} × {hours:.2f} h)")
     rig = subprocess.Popen(
@@ -291,61 +350,100 @@ def run_n(
         ],
         stdin=subprocess.PIPE,
         stdout=subprocess.PIPE,
-        env=env,
+        env=_env(),
     )
-    product: subprocess.Popen[bytes] | None = None
     try:
         assert rig.stdout is not None
         line = rig.stdout.readline().decode().strip()
         if not line.startswith("ready "):
             raise RuntimeError(f"the devices' process did not start (said {line!r}, code {rig.poll()})")
         ports = json.loads(line.removeprefix("ready "))
-        modbus_ports, can_ports = ports["modbus_ports"], ports["can_ports"]
-        with fresh_schema(pg_url) as (schema, url, admin):
-            api_port = free_port()
-            config = workdir / f"host-{n}.toml"
-            config.write_text(host_toml(url, api_port, modbus_ports, can_ports), encoding="utf-8")
-            log = (workdir / f"product-{n}.log").open("wb")
-            say(f"N={n}: product (chtc run --config {config.name} --migrate)")
-            product = subprocess.Popen(
-                [
-                    *pin(PRODUCT_CPUS),
-                    sys.executable,
-                    "-m",
-                    "service.cli",
-                    "run",
-                    "--config",
-                    str(config),
-                    "--migrate",
-                ],
-                stdout=log,
-                stderr=subprocess.STDOUT,
-                env=env,
-            )
+        yield ports["modbus_ports"], ports["can_ports"]
+    finally:
+        _stop(rig)
+
+
+@contextlib.contextmanager
+def product(config: Path, log_path: Path, api_port: int) -> Iterator[subprocess.Popen[bytes]]:
+    """``chtc run --config CONFIG --migrate`` (pinned), ready (``/readyz`` 200) when entered; then stopped."""
+    with log_path.open("wb") as log:
+        say(f"product (chtc run --config {config.name} --migrate)")
+        proc = subprocess.Popen(
+            [
+                *pin(PRODUCT_CPUS),
+                sys.executable,
+                "-m",
+                "service.cli",
+                "run",
+                "--config",
+                str(config),
+                "--migrate",
+            ],
+            stdout=log,
+            stderr=subprocess.STDOUT,
+            env=_env(),
+        )
+        try:
             base = f"http://127.0.0.1:{api_port}"
-            _wait(lambda: _get(f"{base}/readyz")[0] == 200, 600.0, "the product's /readyz", product)
+            try:
+                _wait(lambda: _get(f"{base}/readyz")[0] == 200, 600.0, "the product's /readyz", proc)
+            except (RuntimeError, TimeoutError) as err:
+                tail = log_path.read_text(errors="replace").strip().splitlines()[-3:]
+                raise RuntimeError(f"{err}; its log ends: {' | '.join(tail)}") from None
+            yield proc
+        finally:
+            _stop(proc)
+
+
+def run_n(
+    n: int,
+    *,
+    pg_url: str,
+    warmup_s: float,
+    window_s: float,
+    plants: int,
+    workdir: Path,
+    row_bytes: dict[str, float],
+    outlets: Outlets | None = None,
+) -> dict[str, Any]:
+    """One N: devices, the product (with ``outlets`` on for every spindle), the window; that run's figures."""
+    hours = (warmup_s + window_s) / 3600.0 + 0.5
+    with (
+        devices(n, plants=plants, hours=hours) as (modbus_ports, can_ports),
+        fresh_schema(pg_url) as (
+            schema,
+            url,
+            admin,
+        ),
+    ):
+        api_port = free_port()
+        config = workdir / f"host-{n}.toml"
+        config.write_text(host_toml(url, api_port, modbus_ports, can_ports, outlets), encoding="utf-8")
+        with product(config, workdir / f"product-{n}.log", api_port) as proc:
+            base = f"http://127.0.0.1:{api_port}"
             listed = json.loads(_get(f"{base}/api/v1/spindles")[1])["spindles"]
             running = sum(1 for s in listed if s["running"])
             say(f"N={n}: {running}/{n} spindles running; warm-up {warmup_s:g} s")
             time.sleep(warmup_s)
-            w0 = _snapshot(base, product.pid, admin, schema)
+            w0 = _snapshot(base, proc.pid, admin, schema)
             say(f"N={n}: measuring {window_s:g} s")
             time.sleep(window_s)
-            w1 = _snapshot(base, product.pid, admin, schema)
+            w1 = _snapshot(base, proc.pid, admin, schema)
             wall_s = w1.t - w0.t
             days = n * wall_s / 86400.0
             rows_day = {t: (w1.rows.get(t, 0) - w0.rows.get(t, 0)) / days for t in w1.rows}
             healthy, degraded = _health(base, [str(x["id"]) for x in listed])
-            result = {
+            return {
                 "spindles": n,
                 "running": running,
+                "outlets": (outlets or Outlets()).flags(),
                 "healthy_at_end": healthy,
                 "degraded_parts": degraded,
                 "write_p99_ms": _ms(p99_of(w0.writes, w1.writes)),
                 "writes": int(w1.writes.get(float("inf"), 0) - w0.writes.get(float("inf"), 0)),
-                "rss_mib": round(rss_mib(product.pid), 1),
-                "rss_main_mib": round(rss_mib(product.pid, with_children=False), 1),
-                "pool_processes": len(children(product.pid)),
+                "rss_mib": round(rss_mib(proc.pid), 1),
+                "rss_main_mib": round(rss_mib(proc.pid, with_children=False), 1),
+                "pool_processes": len(children(proc.pid)),
                 "cpu_pct": round(100.0 * (w1.cpu_s - w0.cpu_s) / wall_s, 2),
                 "cpu_pct_per_spindle": round(100.0 * (w1.cpu_s - w0.cpu_s) / wall_s / n, 3),
                 "rows_per_spindle_day": {t: round(v) for t, v in rows_day.items() if v > 0},
@@ -353,13 +451,6 @@ def run_n(
                 "connections": connections(admin, schema),
                 "load_average_1min": round(os.getloadavg()[0], 2),
             }
-            _stop(product)
-            product = None
-            return result
-    finally:
-        if product is not None:
-            _stop(product)
-        _stop(rig)
 
 
 def _health(base: str, ids: list[str]) -> tuple[int, dict[str, int]]:
@@ -380,6 +471,10 @@ def _ms(s: float | None) -> float | None:
 
 
 def _stop(proc: subprocess.Popen[bytes]) -> None:
+    """SIGTERM, then SIGKILL after 30 s; closes its stdin (the devices' process stops at end of file)."""
+    if proc.stdin is not None:
+        with contextlib.suppress(OSError):
+            proc.stdin.close()
     if proc.poll() is None:
         proc.terminate()
         try:
@@ -389,21 +484,42 @@ def _stop(proc: subprocess.Popen[bytes]) -> None:
             proc.wait(10.0)
 
 
+def outlets_for(names: frozenset[str], *, mqtt_port: int, state_dir: str) -> Outlets:
+    """Fresh ports for one product's outlets (``names`` from ``parse_outlets``)."""
+    return Outlets(
+        opcua_port=free_port() if "opcua" in names else 0,
+        mqtt_port=mqtt_port if "mqtt" in names else 0,
+        state_dir=state_dir,
+    )
+
+
 def measure_fleet(
-    ns: list[int], *, pg_url: str, warmup_s: float, window_s: float, plants: int
+    ns: list[int],
+    *,
+    pg_url: str,
+    warmup_s: float,
+    window_s: float,
+    plants: int,
+    outlets: frozenset[str] = frozenset(),
+    mqtt_port: int = 0,
 ) -> dict[str, Any]:
-    """The runs (N = 1 first as the baseline) with the per-added-spindle memory."""
+    """The runs (N = 1 first as the baseline) with the per-added-spindle memory; ``outlets`` on for every
+    spindle in each run (MQTT to the broker on ``mqtt_port``)."""
     say("bytes per row at a spindle-day's scale (python -m benchmarks storage's synthetic day)")
     row_bytes = day_bytes_per_row(pg_url)
     with tempfile.TemporaryDirectory(prefix="chtc-bench-fleet-") as tmp:
         kw: dict[str, Any] = {"pg_url": pg_url, "warmup_s": warmup_s, "window_s": window_s, "plants": plants}
         kw.update(workdir=Path(tmp), row_bytes=row_bytes)
-        base = run_n(1, **kw)
+
+        def one(n: int) -> dict[str, Any]:
+            return run_n(n, outlets=outlets_for(outlets, mqtt_port=mqtt_port, state_dir=tmp), **kw)
+
+        base = one(1)
         say(f"N=1: {json.dumps(base)}")  # each run's figures as they come (a later failure keeps them)
         runs = []
         prev = base
         for n in ns:
-            r = run_n(n, **kw)
+            r = one(n)
             # the slope from the previous N (the first: from N = 1): fixed costs (the pool, the model) cancel
             r["mib_per_added_spindle"] = round(
                 (r["rss_mib"] - prev["rss_mib"]) / max(n - prev["spindles"], 1), 2
@@ -411,7 +527,12 @@ def measure_fleet(
             runs.append(r)
             say(f"N={n}: {json.dumps(r)}")
             prev = r
-    return {"baseline": base, "runs": runs, "bytes_per_row": {t: round(b, 1) for t, b in row_bytes.items()}}
+    return {
+        "outlets": {name: name in outlets for name in OUTLETS},
+        "baseline": base,
+        "runs": runs,
+        "bytes_per_row": {t: round(b, 1) for t, b in row_bytes.items()},
+    }
 
 
 def verdicts(runs: list[dict[str, Any]]) -> list[tuple[str, bool]]:

@@ -20,6 +20,11 @@ Set-up (all on loopback; figures, not assertions):
   connections (``benchmarks.api``'s raw client), in both phases; the "off" phase runs the same server
   without the OPC UA and MQTT outlets. The phases alternate ``--runs`` times; medians are quoted.
   ``rest_p99_ratio_outlets_on`` = REST p99 with the outlets on / off, same invocation.
+
+``--spindles N`` with N > 1: the hosted server (one OPC UA server, one object per spindle) of N simulated
+spindles started as ``python -m benchmarks fleet`` starts them, REST ``/api/v1/spindles/{id}/compensation``,
+a CPU-hog phase and every spindle compared with REST: ``benchmarks.opcua_host``. ``--spindles 1`` (the
+default) is the bench above.
 """
 
 from __future__ import annotations
@@ -63,8 +68,30 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--read-rate", type=float, default=10.0, help="reads per second per OPC UA client")
     parser.add_argument("--rate", type=float, default=50.0, help="REST GET /chtc per second")
     parser.add_argument("--rest-clients", type=int, default=2, help="REST keep-alive connections")
-    parser.add_argument("--duration", type=float, default=10.0, help="seconds of load per phase")
-    parser.add_argument("--runs", type=int, default=2, help="off/on phase pairs; medians are quoted")
+    parser.add_argument(
+        "--duration",
+        type=float,
+        default=None,
+        help="seconds of load per phase (default: 10; 20 with --spindles N > 1)",
+    )
+    parser.add_argument(
+        "--runs",
+        type=int,
+        default=None,
+        help="off/on phase pairs; medians are quoted (default: 2; 3 with N > 1)",
+    )
+    parser.add_argument(
+        "--spindles",
+        default="1",
+        help="comma-separated N: N > 1 hosts N simulated spindles as 'benchmarks fleet' does (one OPC UA "
+        "server, one object per spindle; PostgreSQL at --pg-url; REST /api/v1/spindles/{id}/compensation, "
+        "a CPU-hog phase, every spindle compared with REST): benchmarks.opcua_host",
+    )
+    parser.add_argument(
+        "--settle", type=float, default=15.0, help="N > 1: s after every /compensation answers, before loads"
+    )
+    parser.add_argument("--pg-url", default=None, help="N > 1: PostgreSQL (default: benchmarks fleet's)")
+    parser.add_argument("--plants", type=int, default=4, help="N > 1: distinct duty cycles the devices play")
     parser.add_argument("--feed-period", type=float, default=1.0, help="wall s between fed samples")
     parser.add_argument(
         "--mqtt",
@@ -434,11 +461,44 @@ def _free_port() -> int:
         return int(s.getsockname()[1])
 
 
+def _hosted_main(ns: list[int], args: argparse.Namespace) -> int:
+    """``--spindles N[,M]`` with a hosted N: ``benchmarks.opcua_host``; N = 1 in the list runs as before."""
+    from benchmarks.fleet import DEFAULT_PG
+    from benchmarks.opcua_host import run_host_bench
+
+    if args.pg_url is None:
+        args.pg_url = DEFAULT_PG
+    results = [run_bench(args) if n == 1 else run_host_bench(n, args) for n in ns]
+    if args.json:
+        print(json.dumps(results[0] if len(results) == 1 else {"runs": results}, indent=2))
+        return 0
+    for r in results:
+        if r.get("spindles", 1) == 1:
+            continue
+        print(
+            f"N={r['spindles']}: {r['clients']} clients x {r['read_rate_per_client']:g} reads/s: read p50 "
+            f"{_fmt(r['read_p50_ms'])} ms, p99 {_fmt(r['read_p99_ms'])} ms; beside a CPU hog p99 "
+            f"{_fmt(r['read_p99_ms_hog'])} ms; REST /compensation p99 "
+            f"{_fmt(r['rest_p99_ms_outlets_off'])} -> "
+            f"{_fmt(r['rest_p99_ms_outlets_on'])} ms (ratio {_fmt(r['rest_p99_ratio_outlets_on'])}); "
+            f"equal to REST: {r['equal_to_rest']}"
+        )
+        for v in r["verdicts"]:
+            print(f"  {'met   ' if v['met'] else 'MISSED'} {v['bar']} (measured {v['value']})")
+    return 0
+
+
 def _fmt(x: float | None) -> str:
     return "-" if x is None else f"{x:.2f}"
 
 
 def main(args: argparse.Namespace) -> int:
+    ns = sorted({int(x) for x in str(args.spindles).split(",") if x.strip()})
+    hosted = [n for n in ns if n > 1]
+    args.duration = args.duration if args.duration is not None else (20.0 if hosted else 10.0)
+    args.runs = args.runs if args.runs is not None else (3 if hosted else 2)
+    if hosted:
+        return _hosted_main(ns, args)
     r = run_bench(args)
     if args.json:
         print(json.dumps(r, indent=2))

@@ -5,7 +5,9 @@ operation runs Python on it; on a thread of its own none of that runs on the loo
 Values cross over through a latest-value slot (:meth:`OpcUaServer.offer`: the newest ``ViewReader``, and a
 wake-up by ``call_soon_threadsafe``); the server's loop renders it (``service.serve.opcua.nodes.render``) at
 most every ``update_interval_s`` and at least every ``refresh_s`` (so ages and statuses move on while no view
-arrives: the acquisition stopped), and writes only the values that changed.
+arrives: the acquisition stopped), and writes only the values that changed. In a cell, an update renders
+only the spindles with a new reader or not rendered for ``refresh_s`` (``_due``): N spindles' views wake it
+up to 1/``update_interval_s`` times a second, and rendering all N each time cost N times the work.
 
 Address space (namespace ``[opcua] namespace_uri``, index 2 on this server): the object type
 ``SpindleThermalModelType`` (below BaseObjectType) with one object per group (``Status``, ``H``,
@@ -256,6 +258,8 @@ class OpcUaServer:
         self.updates = 0
         self.update_errors = 0
         self._slots: dict[str, ViewReader] = {}
+        self._rendered: dict[str, tuple[ViewReader, float]] = {}  # the reader rendered last, loop time
+        self.renders: dict[str, int] = {}  # renders per spindle (tests, the bench)
         self._loop: asyncio.AbstractEventLoop | None = None
         self._wake: asyncio.Event | None = None
         self._stop: asyncio.Event | None = None
@@ -351,7 +355,10 @@ class OpcUaServer:
             return
         self.heartbeat += 1
         now = self.clock()
-        for spindle, reader in slots.items():
+        t = asyncio.get_running_loop().time()
+        for spindle, reader in self._due(slots, t).items():
+            self._rendered[spindle] = (reader, t)
+            self.renders[spindle] = self.renders.get(spindle, 0) + 1
             try:
                 readings = render(
                     reader,
@@ -367,6 +374,16 @@ class OpcUaServer:
         self.updates += 1
         if self.on_update is not None:
             self.on_update()
+
+    def _due(self, slots: dict[str, ViewReader], t: float) -> dict[str, ViewReader]:
+        """The spindles to render at loop time ``t``: a new reader, or none rendered for ``refresh_s``
+        (50 ms early: the wait that times out after ``refresh_s`` may wake a clock tick before it)."""
+        out = {}
+        for spindle, reader in slots.items():
+            last = self._rendered.get(spindle)
+            if last is None or last[0] is not reader or t - last[1] >= self.cfg.refresh_s - 0.05:
+                out[spindle] = reader
+        return out
 
     async def _write(self, spindle: str, readings: dict[str, Reading], now: datetime) -> None:
         assert self.server is not None
