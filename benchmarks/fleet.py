@@ -34,6 +34,7 @@ from datetime import UTC, datetime
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
 
+from benchmarks.fleet_host import DEFAULT_PG
 from benchmarks.targets import format_verdicts
 
 if TYPE_CHECKING:
@@ -42,7 +43,6 @@ if TYPE_CHECKING:
 
     from service.contracts.records import SampleData
 
-DEFAULT_PG = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 SAMPLE_PERIOD_S = 10.0
 
 

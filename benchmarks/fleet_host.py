@@ -46,6 +46,7 @@ from service.host.runtime import free_port
 
 __all__ = [
     "BARS",
+    "DEFAULT_PG",
     "OUTLETS",
     "Outlets",
     "measure_fleet",
@@ -55,6 +56,8 @@ __all__ = [
     "run_n",
 ]
 
+# the benches' PostgreSQL (a role with CREATE DATABASE rights)
+DEFAULT_PG = os.environ.get("CHTC_TEST_PG_URL", "postgresql+psycopg://postgres@127.0.0.1:5432/test")
 BARS = {"write_p99_ms": 50.0, "mib_per_added_spindle": 60.0, "cpu_pct_per_spindle": 2.0}
 DEVICES_NICE = 10
 # On a plant the devices are other hardware: here, with 2 cores or more, they get the last core and the

@@ -463,7 +463,7 @@ def _free_port() -> int:
 
 def _hosted_main(ns: list[int], args: argparse.Namespace) -> int:
     """``--spindles N[,M]`` with a hosted N: ``benchmarks.opcua_host``; N = 1 in the list runs as before."""
-    from benchmarks.fleet import DEFAULT_PG
+    from benchmarks.fleet_host import DEFAULT_PG
     from benchmarks.opcua_host import run_host_bench
 
     if args.pg_url is None:
