@@ -277,6 +277,11 @@ class OffsetCalibrator:
         self.current, self.status = calibration, CalibrationStatus.CALIBRATED
         return [BaselineTaken(calibration)]
 
+    def forget(self) -> None:
+        """Drop the current baseline (an adopted one that does not fit the sensors): none until a rest."""
+        self.current = None
+        self.status = CalibrationStatus.SETTLING if self._rest else CalibrationStatus.NO_BASELINE
+
     def offsets(self) -> Array:
         """The offsets to subtract (32,) °C: the current baseline's, zeros without one."""
         return self.current.applied() if self.current is not None else np.zeros(32)

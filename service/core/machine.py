@@ -54,6 +54,7 @@ from service.contracts.commissionbaseline import COMMISSIONING, commissioning_ba
 from service.contracts.errors import RecordError
 from service.contracts.records import ConditionEnd, ConditionStart
 from service.contracts.snapshots import ConditionSnapshot, ConditionState
+from service.core.baselinecheck import MAX_SLOPE, BaselineCheck
 from service.core.config import CoreConfig, Restored
 from service.core.events import (
     BaselineAdopted,
@@ -138,6 +139,7 @@ class ServiceCore:
         )
         if calibrator is not None:  # a restored baseline's offsets go to the filter at once
             live.set_offsets(calibrator.offsets(), calibrator.offset_sd())
+        self._check = _check_of(None if calibrator is None else calibrator.current)
         if restored.live is not None:  # the stored checkpoint: the filter resumes instead of restarting
             try:
                 live.resume(restored.live, model.version)
@@ -265,6 +267,8 @@ class ServiceCore:
         if row is not None:
             out.store(row)
         self._advance_live(newest, ts, out)
+        if self._check is not None:
+            self._judge_baseline(newest, ts, out)
         self._checkpoint(ts, out)
         todo: list[sched.Instruction] = []
         if self._resumed:
@@ -334,8 +338,31 @@ class ServiceCore:
                 )
                 out.instructions.append(Calibrated(out.event_id, c))
                 live.set_offsets(c.applied(), c.sd_c)
+                self._check = _check_of(c)
                 return c
         return None
+
+    def _judge_baseline(self, s: NewestSample, ts: float, out: Out) -> None:
+        """The commissioning's offsets against the live field's residuals (``service.core.
+        baselinecheck``): kept, or dropped (back to no baseline) when zero offsets fit the sensors better."""
+        live, cal, check = self._p.live, self._p.calibrator, self._check
+        if check is None or cal is None or not live.initialized:
+            return
+        usable = np.array([q == "ok" for q in s.quality], dtype=bool) & np.isfinite(s.temps_c)
+        beta = check.add(ts, np.asarray(s.temps_c, dtype=float), usable, live.view().sensors_c)
+        if beta is None:
+            return
+        self._check = None
+        if beta >= MAX_SLOPE:
+            out.log(f"the commissioning's sensor offsets fit the sensors (residual slope {beta:+.2f}): kept")
+            return
+        cal.forget()
+        live.set_offsets(cal.offsets(), cal.offset_sd())
+        out.log(
+            f"the commissioning's sensor offsets do NOT fit the sensors (residual slope {beta:+.2f}: a "
+            "sensor exchanged or the DAQ re-zeroed since?): not used; no offset baseline until the spindle "
+            "rests (or POST /api/v1/sensors/baseline at rest)"
+        )
 
     def _on_baseline(self, t: datetime, out: Out) -> None:
         """Take a baseline now from the newest samples at rest; ``Rejected`` naming why not."""
@@ -450,3 +477,8 @@ def _adopted_line(c: Calibration) -> str:
         f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."
         f"{np.nanmax(c.offsets_c):+.2f} °C, 1σ {float(np.nanmedian(c.sd_c)):.3f} °C, until the spindle rests"
     )
+
+
+def _check_of(c: Calibration | None) -> BaselineCheck | None:
+    """A commissioning's baseline in use is checked against the sensors; any other is not."""
+    return BaselineCheck(c.applied()) if c is not None and c.source == COMMISSIONING else None

@@ -26,6 +26,7 @@ from service.contracts.commissionbaseline import (
 )
 from service.contracts.errors import RecordError
 from service.contracts.mechanics import MechanicsCalibration
+from service.core.baselinecheck import CHECK_S, MAX_SLOPE, BaselineCheck
 from service.core.config import Restored
 from service.core.events import BaselineAdopted, Calibrated, Log, Store
 from service.core.machine import ServiceCore
@@ -214,3 +215,53 @@ def test_a_restart_with_the_stored_commissioning_and_no_baseline_starts_calibrat
     after = core.view().calibration
     assert after is not None and after.source == "auto"  # the rest's own baseline replaced it
     assert np.all(np.abs(after.offsets_c - OFFSETS) < 0.1)
+
+
+# ------------------------------------------------------------------------ do the offsets still fit?
+
+
+def test_the_check_tells_offsets_that_fit_from_offsets_that_are_not_there() -> None:
+    """β = Σ r·o / Σ o² over ``check_s``: residuals that do not follow the offsets keep them (β ≈ 0),
+    residuals r = −o (the sensors have none) give β ≈ −1; nothing before ``check_s``."""
+    rng = np.random.default_rng(2)
+    usable = np.ones(32, bool)
+    usable[3] = False
+    for sensor_offsets, lo, hi in ((OFFSETS, -0.2, 0.2), (np.zeros(32), -1.2, -0.8)):
+        check = BaselineCheck(OFFSETS, check_s=600.0)
+        betas = []
+        for k in range(61):
+            truth = 30.0 + rng.normal(0.0, 1.0, 32)
+            measured = truth + sensor_offsets + rng.normal(0.0, 0.1, 32)
+            predicted = truth + rng.normal(0.0, 0.05, 32)  # the filter's estimate: close to the truth
+            betas.append(check.add(10.0 * k, measured, usable, predicted))
+        assert betas[:-1] == [None] * 60 and betas[-1] is not None
+        assert lo < betas[-1] < hi, betas[-1]
+    assert (MAX_SLOPE, CHECK_S) == (-0.5, 600.0)
+
+
+@pytest.mark.parametrize("sensors_have_them", [True, False])
+def test_the_core_keeps_the_commissionings_offsets_only_if_the_sensors_still_have_them(
+    sensors_have_them: bool, loaded_model: LoadedModel
+) -> None:
+    """A start while machining with the commissioning's offsets adopted: after 10 min of live state they are
+    kept when the plant's sensors have them, dropped (no baseline, said why) when they have none."""
+    run = plant_run([Segment(780.0, 5000.0, 5.0, 21.0)], offsets_c=OFFSETS if sensors_have_them else None)
+    core = ServiceCore(product_core(), model=loaded_model)
+    commissioned = Calibration(
+        offsets_c=OFFSETS,
+        sd_c=np.full(32, np.hypot(0.01, AGE_SD_C)),
+        t_from=T - timedelta(days=30),
+        t_to=T - timedelta(days=30) + timedelta(minutes=15),
+        samples=91,
+        source="commissioning",
+    )
+    core.handle(BaselineAdopted("baseline-1", commissioned))
+    logs = [i.message for i in feed_core(core, samples_of(run)) if isinstance(i, Log)]
+    said = [m for m in logs if "commissioning's sensor offsets" in m]
+    assert len(said) == 1, logs
+    view = core.view()
+    if sensors_have_them:
+        assert "fit the sensors" in said[0] and view.calibration is commissioned
+    else:
+        assert "do NOT fit" in said[0] and view.calibration is None
+        assert view.offset_sd_c is not None and np.all(view.offset_sd_c > 0.1)  # back to unknown offsets
