@@ -16,7 +16,7 @@ import pytest
 
 from model.plant import Segment, VirtualPlant
 from model.plantmech import mechanics_for_seed
-from service.acquire.calibration import BaselineTaken, CalibrationStatus, OffsetCalibrator
+from service.acquire.calibration import BaselineTaken, CalibrationStatus, OffsetCalibrator, Reading
 from service.contracts.calibration import Calibration
 from service.contracts.commissionbaseline import (
     AGE_SD_C,
@@ -37,10 +37,25 @@ from tests.engine_config import product_core
 
 from .conftest import plant_run, samples_of
 from .drive import feed as feed_core
-from .test_calibration import CAL, readings
 
 T = datetime(2026, 3, 1, 6, 0, tzinfo=UTC)
 OFFSETS = np.random.default_rng(11).uniform(-0.2, 0.2, 32)
+CAL = product_core().calibration  # the product's equilibrium test (identification.offset_*)
+
+
+def readings(n: int) -> list[Reading]:
+    """n samples every 10 s at rest at 20 °C ambient, the sensors with ``OFFSETS`` and σ 0.15 °C noise."""
+    rng = np.random.default_rng(0)
+    return [
+        Reading(
+            t=T + timedelta(seconds=10 * k),
+            temps_c=20.0 + OFFSETS + 0.15 * rng.standard_normal(32),
+            ok=np.ones(32, bool),
+            ambient_c=20.0,
+            speed_rpm=0.0,
+        )
+        for k in range(n)
+    ]
 
 
 def rest_baseline(seed: int = 1, source: str = "auto") -> Calibration:
