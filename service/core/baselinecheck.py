@@ -11,7 +11,9 @@ filter's residuals at the sensors with the offsets applied, ``r = T_measured −
 regressed on the offsets ``o``: ``β = Σ r·o / Σ o²`` (usable channels only). Right offsets leave residuals
 that do not follow them (β ≈ 0); offsets that are not there leave ``r ≈ −o`` (β ≈ −1). ``β < MAX_SLOPE``
 (−0.5) is where zero offsets explain the sensors better than the commissioning's (Σ(r + o)² < Σ r²): the
-baseline is dropped and the service is back to "no baseline" (``no_offset_baseline``) until a rest.
+baseline is dropped and the service is back to "no baseline" (``no_offset_baseline``) until a rest. Offsets
+whose RMS is within ``AGE_SD_C`` (the 1σ the adopted baseline carries for its age) are not checked
+(``needs_check``): zero is then inside their CI anyway, and β = Σ r·o / Σ o² would be noise over a small Σ o².
 
 Measured (``/tmp/cb_beta.py`` in the branch's report: a core starting 60 min into machining with the
 commissioning's offsets adopted, no identification, two offset draws): β −0.19..+0.01 over every 10–30 min
@@ -25,11 +27,19 @@ from dataclasses import dataclass, field
 import numpy as np
 from numpy.typing import NDArray
 
-__all__ = ["CHECK_S", "MAX_SLOPE", "BaselineCheck"]
+from service.contracts.commissionbaseline import AGE_SD_C
+
+__all__ = ["CHECK_S", "MAX_SLOPE", "BaselineCheck", "needs_check"]
 
 Array = NDArray[np.float64]
 CHECK_S = 600.0  # [s] of live state over which the commissioning's offsets are judged
 MAX_SLOPE = -0.5  # β below this: zero offsets explain the sensors better than the commissioning's
+
+
+def needs_check(offsets_c: Array) -> bool:
+    """Whether offsets (32,) [°C] (0: not corrected) are large enough to check: RMS over AGE_SD_C."""
+    o = offsets_c[np.isfinite(offsets_c) & (offsets_c != 0.0)]
+    return bool(o.size) and float(np.sqrt(np.mean(o**2))) > AGE_SD_C
 
 
 @dataclass

@@ -54,7 +54,7 @@ from service.contracts.commissionbaseline import COMMISSIONING, commissioning_ba
 from service.contracts.errors import RecordError
 from service.contracts.records import ConditionEnd, ConditionStart
 from service.contracts.snapshots import ConditionSnapshot, ConditionState
-from service.core.baselinecheck import MAX_SLOPE, BaselineCheck
+from service.core.baselinecheck import MAX_SLOPE, BaselineCheck, needs_check
 from service.core.config import CoreConfig, Restored
 from service.core.events import (
     BaselineAdopted,
@@ -480,5 +480,8 @@ def _adopted_line(c: Calibration) -> str:
 
 
 def _check_of(c: Calibration | None) -> BaselineCheck | None:
-    """A commissioning's baseline in use is checked against the sensors; any other is not."""
-    return BaselineCheck(c.applied()) if c is not None and c.source == COMMISSIONING else None
+    """A commissioning's baseline in use is checked against the sensors (any other is not), unless its offsets
+    are within the 1σ added for their age of zero (``needs_check``): then either answer is covered."""
+    if c is None or c.source != COMMISSIONING or not needs_check(c.applied()):
+        return None
+    return BaselineCheck(c.applied())

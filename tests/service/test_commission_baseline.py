@@ -26,7 +26,7 @@ from service.contracts.commissionbaseline import (
 )
 from service.contracts.errors import RecordError
 from service.contracts.mechanics import MechanicsCalibration
-from service.core.baselinecheck import CHECK_S, MAX_SLOPE, BaselineCheck
+from service.core.baselinecheck import CHECK_S, MAX_SLOPE, BaselineCheck, needs_check
 from service.core.config import Restored
 from service.core.events import BaselineAdopted, Calibrated, Log, Store
 from service.core.machine import ServiceCore
@@ -252,6 +252,7 @@ def test_the_check_tells_offsets_that_fit_from_offsets_that_are_not_there() -> N
         assert betas[:-1] == [None] * 60 and betas[-1] is not None
         assert lo < betas[-1] < hi, betas[-1]
     assert (MAX_SLOPE, CHECK_S) == (-0.5, 600.0)
+    assert needs_check(OFFSETS) and not needs_check(0.02 * OFFSETS / np.abs(OFFSETS).max())
 
 
 @pytest.mark.parametrize("sensors_have_them", [True, False])
