@@ -18,9 +18,8 @@ whose RMS is within ``AGE_SD_C`` (the 1σ the adopted baseline carries for its a
 Measured (drivers ``/tmp/cb_beta.py`` and ``/tmp/cb_check.py``, not committed: a core starting 60 min into
 machining with the commissioning's offsets adopted, no identification run): β over the first 60 min
 −0.19..+0.01 when the plant's sensors had those offsets, −0.76..−0.94 when they had none; the core's check
-after
-its 10 min −0.02, −0.18, −0.09 against −0.89, −0.93, −0.92 (three offset draws). One draw reached β −0.53
-later, at a new speed with its H never identified: the check judges the first ``check_s`` once, not forever.
+after its 10 min −0.02, −0.18, −0.09 against −0.89, −0.93, −0.92 (three offset draws). One draw reached
+β −0.53 later, at a new speed with its H never identified: the check judges the first ``check_s`` once.
 """
 
 from __future__ import annotations
