@@ -393,15 +393,17 @@ class SensorOut(BaseModel):
     )
     offset_sd_c: float | None = Field(default=None, description="1σ of the offset still unknown, °C")
     offset_calibrated_at: datetime | None = Field(default=None, description="UTC end of the baseline")
-    offset_source: Literal["auto", "manual"] | None = Field(
-        default=None, description="how the baseline was taken (null: no baseline, offsets unknown)"
+    offset_source: Literal["auto", "manual", "commissioning"] | None = Field(
+        default=None,
+        description="how the baseline was taken: at rest (auto), asked for (manual) or the commissioning "
+        "thermal test's rest, used until the spindle rests (commissioning); null: no baseline (unknown)",
     )
 
 
 class BaselineOut(BaseModel):
     t_from: datetime
     t_to: datetime = Field(description="UTC calibration time (end of the rest window)")
-    source: str = Field(description='"auto" (detected equilibrium) or "manual"')
+    source: str = Field(description='"auto" (detected equilibrium), "manual" or "commissioning"')
     samples: int
     offsets_c: list[float | None] = Field(description="per channel 1..32, °C (null: no data at rest)")
     sd_c: list[float] = Field(description="per channel 1σ of the offset, °C")

@@ -407,7 +407,8 @@ class CompensationSettings(_Section):
     # /compensation is not usable (reason no_offset_baseline) while sensor calibration is on and has no
     # baseline yet: after a start on a warm spindle with no stored calibration the unknown offsets
     # (±0.2 °C) biased the growth by up to −2 µm with a CI that missed it (issue 40; docs/design/policy.md);
-    # the baseline is taken at the next rest in equilibrium or on request (POST /api/v1/sensors/baseline)
+    # the baseline is taken at the next rest in equilibrium or on request (POST /api/v1/sensors/baseline);
+    # until then the stored commissioning's (its thermal test's rest) counts, when it fits the sensors
     require_offset_baseline: bool = True
     # a probe reading (POST /api/v1/compensation/measurements) further than this many σ of its prediction (the
     # served growth's CI with the probe's own sd) is flagged and not absorbed (a crash or a tool change)

@@ -28,6 +28,9 @@ uniform: 0.17 °C) and the identification carries it in the CIs as a constant bi
 baseline the carried 1σ is the baseline's own error: the channel's scatter / √n plus ``equilibrium_sd_c``
 (a spindle never sits exactly at the ambient).
 
+``adopt(calibration)``: a baseline from elsewhere (the commissioning's rest) when there is none; the next
+rest's baseline replaces it.
+
 Status: ``NO_BASELINE`` → ``SETTLING`` (idle, collecting) → ``CALIBRATED``; a calibrated calibrator keeps
 its offsets while it settles for the next baseline. ``OffsetCalibrator(current=...)`` starts calibrated
 with a stored baseline (the service restores the newest from the database, ``service.store.calibrations``).
@@ -265,6 +268,19 @@ class OffsetCalibrator:
             return []
         self._announced = c.samples
         return [BaselineRefined(c)]
+
+    def adopt(self, calibration: Calibration) -> list[Instruction]:
+        """Use ``calibration`` (e.g. the commissioning's) if there is no baseline yet: ``BaselineTaken``;
+        nothing when there is one (never replaced but by a rest)."""
+        if self.current is not None:
+            return []
+        self.current, self.status = calibration, CalibrationStatus.CALIBRATED
+        return [BaselineTaken(calibration)]
+
+    def forget(self) -> None:
+        """Drop the current baseline (an adopted one that does not fit the sensors): none until a rest."""
+        self.current = None
+        self.status = CalibrationStatus.SETTLING if self._rest else CalibrationStatus.NO_BASELINE
 
     def offsets(self) -> Array:
         """The offsets to subtract (32,) °C: the current baseline's, zeros without one."""

@@ -19,13 +19,15 @@ from service.contracts.errors import RecordError
 __all__ = ["CALIBRATION_SOURCES", "Calibration"]
 
 Array = NDArray[np.float64]
-CALIBRATION_SOURCES = ("auto", "manual")
+# "auto": a rest detected, "manual": an operator's request, "commissioning": the commissioning thermal test's
+# initial rest, kept in the stored commissioning (``service.contracts.commissionbaseline``)
+CALIBRATION_SOURCES = ("auto", "manual", "commissioning")
 
 
 @dataclass(frozen=True, eq=False, kw_only=True)
 class Calibration:
     """A baseline: per-channel offsets (32,) °C (NaN: no usable data in the window, not corrected) and their
-    1σ (32,) °C, the window [t_from, t_to] (UTC) and how it was taken ("auto" | "manual")."""
+    1σ (32,) °C, the window [t_from, t_to] (UTC) and how it was taken (``CALIBRATION_SOURCES``)."""
 
     offsets_c: Array
     sd_c: Array

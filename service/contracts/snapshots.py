@@ -145,7 +145,7 @@ class SensorReading:
     offset_c: float | None = None  # zeroed sensor offset (subtracted before the fit); None: no baseline
     offset_sd_c: float | None = None  # 1σ of the offset still unknown, carried in the CIs
     offset_calibrated_at: datetime | None = None  # UTC end of the baseline (service.acquire.calibration)
-    offset_source: str | None = None  # how the baseline was taken: "auto" | "manual"; None: no baseline
+    offset_source: str | None = None  # the baseline's source (Calibration.source); None: no baseline
     predicted_sd_c: float | None = None  # 1σ of predicted_c (the filtered state's and the model's error)
 
 

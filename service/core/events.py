@@ -10,6 +10,7 @@ one that ended it), so a story can be followed from a sample to the stored row w
     JobOutcomeReceived    -> Store(identification), Log, Launch (the next job that fell due)
     ManualRequested       -> ManualAccepted + Launch | Store (skipped at once) | Rejected(BUSY | NOT_READY)
     BaselineRequested     -> Calibrated + Log | Rejected(NOT_READY)
+    BaselineAdopted       -> Calibrated + Store + Log (the calibrator had no baseline) | nothing
     IdsKnown              -> Log (ids continue from the database's: service.core.idcounter)
 
 Refused requests are instructions (``Rejected`` with a :class:`RejectKind`), not exceptions: ``handle`` is
@@ -30,6 +31,7 @@ from service.core.idcounter import IdsKnown
 from service.identify.worker import JobOutcome, JobRequest
 
 __all__ = [
+    "BaselineAdopted",
     "BaselineRequested",
     "Calibrated",
     "Cancel",
@@ -82,7 +84,17 @@ class BaselineRequested:
     t: datetime
 
 
-Event = SampleReceived | JobOutcomeReceived | ManualRequested | BaselineRequested | IdsKnown
+@dataclass(frozen=True, eq=False)
+class BaselineAdopted:
+    """A baseline known from elsewhere (the stored commissioning's rest, ``service.contracts.
+    commissionbaseline``), set while the service runs: used only when the calibrator has none (a rest
+    baseline is never replaced)."""
+
+    event_id: str
+    calibration: Calibration
+
+
+Event = SampleReceived | JobOutcomeReceived | ManualRequested | BaselineRequested | BaselineAdopted | IdsKnown
 
 
 # --- instructions ------------------------------------------------------------------------------------------

@@ -50,10 +50,14 @@ from service.acquire.calibration import (
 from service.acquire.history import RingHistory
 from service.contracts.calibration import Calibration
 from service.contracts.checkpoint import CheckpointError
+from service.contracts.commissionbaseline import COMMISSIONING, commissioning_baseline
+from service.contracts.errors import RecordError
 from service.contracts.records import ConditionEnd, ConditionStart
 from service.contracts.snapshots import ConditionSnapshot, ConditionState
+from service.core.baselinecheck import MAX_SLOPE, BaselineCheck, needs_check
 from service.core.config import CoreConfig, Restored
 from service.core.events import (
+    BaselineAdopted,
     BaselineRequested,
     Calibrated,
     Event,
@@ -125,14 +129,17 @@ class ServiceCore:
         # the considered H error: the stored result's CI, 100 % for the guessed initial H
         live.set_h(h0, h_rel=1.0 if last is None else h_rel(last.h, last.ci95_hi))
         cal = config.calibration
+        self._notes: list[str] = []  # said with the first event (the constructor has no ``Out``)
         calibrator = (
             None
             if cal is None
-            else OffsetCalibrator(config=cal, sample_period_s=config.rules.dt_s, current=restored.calibration)
+            else OffsetCalibrator(
+                config=cal, sample_period_s=config.rules.dt_s, current=self._start_baseline(restored)
+            )
         )
         if calibrator is not None:  # a restored baseline's offsets go to the filter at once
             live.set_offsets(calibrator.offsets(), calibrator.offset_sd())
-        self._notes: list[str] = []  # said with the first event (the constructor has no ``Out``)
+        self._check = _check_of(None if calibrator is None else calibrator.current)
         if restored.live is not None:  # the stored checkpoint: the filter resumes instead of restarting
             try:
                 live.resume(restored.live, model.version)
@@ -168,6 +175,19 @@ class ServiceCore:
         self._tracks = serving.tracks(self._p, restored)
         self._p.serve(serving.follow(self._p.condition))
 
+    def _start_baseline(self, restored: Restored) -> Calibration | None:
+        """The stored baseline; without one, the stored commissioning's (its test's rest), said in a note."""
+        if restored.calibration is not None or self.config.calibration is None:
+            return restored.calibration
+        try:
+            c = commissioning_baseline(restored.mechanics)
+        except RecordError as err:
+            self._notes.append(f"the commissioning's offset baseline is not used: {err}")
+            return None
+        if c is not None:
+            self._notes.append(_adopted_line(c))
+        return c
+
     # --- the state machine ----------------------------------------------------------------------------------
     def handle(self, event: Event) -> list[Instruction]:
         """One event in, what to do out (see ``service.core.events``)."""
@@ -181,6 +201,9 @@ class ServiceCore:
                 self._on_manual(event.reason, out)
             case BaselineRequested():
                 self._on_baseline(event.t, out)
+            case BaselineAdopted():
+                if self._p.calibrator is not None:
+                    self._calibrated(self._p.calibrator.adopt(event.calibration), out)
             case IdsKnown():
                 rebase_ids(event, self._cond_ids, self._p.jobs.id_counter, out.log)
             case _:
@@ -244,6 +267,8 @@ class ServiceCore:
         if row is not None:
             out.store(row)
         self._advance_live(newest, ts, out)
+        if self._check is not None:
+            self._judge_baseline(newest, ts, out)
         self._checkpoint(ts, out)
         todo: list[sched.Instruction] = []
         if self._resumed:
@@ -305,14 +330,39 @@ class ServiceCore:
                 c = ins.calibration
                 out.store(c)
                 out.log(
-                    f"sensor offsets zeroed ({c.source} baseline, {c.samples} samples at rest until "
+                    _adopted_line(c)
+                    if c.source == COMMISSIONING
+                    else f"sensor offsets zeroed ({c.source} baseline, {c.samples} samples at rest until "
                     f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."
                     f"{np.nanmax(c.offsets_c):+.2f} °C"
                 )
                 out.instructions.append(Calibrated(out.event_id, c))
                 live.set_offsets(c.applied(), c.sd_c)
+                self._check = _check_of(c)
                 return c
         return None
+
+    def _judge_baseline(self, s: NewestSample, ts: float, out: Out) -> None:
+        """The commissioning's offsets against the live field's residuals (``service.core.
+        baselinecheck``): kept, or dropped (back to no baseline) when zero offsets fit the sensors better."""
+        live, cal, check = self._p.live, self._p.calibrator, self._check
+        if check is None or cal is None or not live.initialized:
+            return
+        usable = np.array([q == "ok" for q in s.quality], dtype=bool) & np.isfinite(s.temps_c)
+        beta = check.add(ts, np.asarray(s.temps_c, dtype=float), usable, live.view().sensors_c)
+        if beta is None:
+            return
+        self._check = None
+        if beta >= MAX_SLOPE:
+            out.log(f"the commissioning's sensor offsets fit the sensors (residual slope {beta:+.2f}): kept")
+            return
+        cal.forget()
+        live.set_offsets(cal.offsets(), cal.offset_sd())
+        out.log(
+            f"the commissioning's sensor offsets do NOT fit the sensors (residual slope {beta:+.2f}: a "
+            "sensor exchanged or the DAQ re-zeroed since?): not used; no offset baseline until the spindle "
+            "rests (or POST /api/v1/sensors/baseline at rest)"
+        )
 
     def _on_baseline(self, t: datetime, out: Out) -> None:
         """Take a baseline now from the newest samples at rest; ``Rejected`` naming why not."""
@@ -419,3 +469,19 @@ class ServiceCore:
             out.reject(RejectKind.NOT_READY, "no samples yet: nothing to identify from")
             return
         self._tracks.manual.manual(reason, newest, out)
+
+
+def _adopted_line(c: Calibration) -> str:
+    return (
+        f"sensor offsets from the commissioning's rest ({c.samples} samples until "
+        f"{c.t_to.isoformat(timespec='seconds')}): {np.nanmin(c.offsets_c):+.2f}.."
+        f"{np.nanmax(c.offsets_c):+.2f} °C, 1σ {float(np.nanmedian(c.sd_c)):.3f} °C, until the spindle rests"
+    )
+
+
+def _check_of(c: Calibration | None) -> BaselineCheck | None:
+    """A commissioning's baseline in use is checked against the sensors (any other is not), unless its offsets
+    are within the 1σ added for their age of zero (``needs_check``): then either answer is covered."""
+    if c is None or c.source != COMMISSIONING or not needs_check(c.applied()):
+        return None
+    return BaselineCheck(c.applied())

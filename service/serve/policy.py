@@ -263,8 +263,9 @@ def compensation_verdict(
                 False,
                 Reason.NO_OFFSET_BASELINE,
                 "no offset baseline of the sensors yet (a start on a warm spindle without the stored "
-                "calibration): the unknown offsets bend the field and the H, and the growth's CI does not "
-                "cover that (compensation.require_offset_baseline)",
+                "calibration, and no commissioning's that fits the sensors): the unknown offsets bend the "
+                "field and the H, and the growth's CI does not cover that; let the spindle rest "
+                "(compensation.require_offset_baseline)",
             )
         )
     found += _identification_blockers(

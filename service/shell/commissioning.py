@@ -39,6 +39,8 @@ from numpy.typing import NDArray
 
 from model.growthfit import PARAMS, MechanicsFitResult, MechanicsPrior
 from model.growthfit_joint import FitSeries, JointFit, fit_mechanics_joint
+from service.contracts.calibration import Calibration
+from service.contracts.commissionbaseline import BASELINE_KEY, baseline_entry
 from service.contracts.errors import CommissioningError
 from service.contracts.mechanics import EXAMPLE_NOTE, MechanicsCalibration, is_shipped_example
 from service.estimate.mechanics import ServedMechanicsBasis
@@ -200,13 +202,16 @@ class FieldHistory:
     """The service's filtered live state over the test: ``t_s`` (n,) epoch [s], reduced ``states`` (n, r)
     [°C], ``converged`` (n,), the spindle ``speed_rpm`` (n,) held by the live state; ``start_c`` the mean
     of the first sample's usable temperatures [°C] (the spindle uniform at rest: the test's zero; NaN when
-    unknown)."""
+    unknown); ``baseline`` the offset baseline the core took during the test's initial rest, as it stood when
+    the spindle first ran (the rest's refined average; None: no baseline, ``baseline_note`` says why)."""
 
     t_s: Array
     states: Array
     converged: NDArray[np.bool_]
     speed_rpm: Array
     start_c: float = math.nan
+    baseline: Calibration | None = None
+    baseline_note: str = ""
 
 
 def field_history(
@@ -219,7 +224,10 @@ def field_history(
     The sensor-fault monitor is off here: on a thermal test's heat-up steps it flags sound channels as
     drifting, and the bias it then charges widened the fit's CI until a displacement log scaled by 1.3
     passed as explained (tests/api/test_api_mechanics.py). The test is a supervised measurement; the
-    verdict's residual check still refuses a log the model does not explain."""
+    verdict's residual check still refuses a log the model does not explain.
+
+    The test starts at rest, soaked at the room temperature: the core's offset calibrator takes its baseline
+    there; the one it holds when the spindle first turns is kept (``FieldHistory.baseline``)."""
     from drivers.logsamples import samples_from_logs
     from service.core.offline import run_offline
 
@@ -231,6 +239,7 @@ def field_history(
     speed: list[float] = []
 
     start: list[float] = []
+    rest: list[Calibration | None] = []  # the baseline when the spindle first turned
 
     def keep(core: Any, k: int, last_ok: object) -> None:
         view = core.view()
@@ -240,6 +249,8 @@ def field_history(
             ok = np.array([q == "ok" for q in view.newest.quality]) & np.isfinite(temps)
             if ok.any():
                 start.append(float(np.mean(temps[ok])))
+        if not rest and view.newest is not None and abs(float(view.newest.speed_rpm)) >= RUNNING_RPM:
+            rest.append(view.calibration)
         if live is None:
             return
         t.append(float(live.t))
@@ -253,12 +264,25 @@ def field_history(
             f"{temperatures}: the live state never started over this log (no sample with temperatures "
             "and a speed/torque from the CAN log)"
         )
+    baseline = rest[0] if rest else None
+    note = ""
+    if config.calibration is None:
+        note = "sensor calibration is off (identification.offset_calibration)"
+    elif not rest:
+        note = "the spindle never turned during the test"
+    elif baseline is None:
+        note = (
+            "the core took no offset baseline in the test's initial rest (shorter than "
+            f"{config.calibration.rest_s:.0f} s at rest, or not at the ambient: docs/commissioning.md)"
+        )
     return FieldHistory(
         t_s=np.asarray(t),
         states=np.vstack(states),
         converged=np.asarray(conv),
         speed_rpm=np.asarray(speed),
         start_c=start[0] if start else math.nan,
+        baseline=baseline,
+        baseline_note=note,
     )
 
 
@@ -376,6 +400,8 @@ class CommissionReport:
     radial: dict[str, float] | None
     timings_s: dict[str, float] = field(default_factory=dict)
     outliers: int = 0
+    baseline: Calibration | None = None  # the offset baseline of the test's initial rest (FieldHistory)
+    baseline_note: str = ""  # why there is none
 
     def as_dict(self) -> dict[str, Any]:
         """JSON-ready: the parameters with prior and posterior, residuals, verdict, phases, timings."""
@@ -425,6 +451,8 @@ class CommissionReport:
             "radial_residual": self.radial,
             "timings_s": {k: round(v, 3) for k, v in self.timings_s.items()},
             "sources": self.calibration.sources,
+            BASELINE_KEY: baseline_entry(self.baseline),
+            "offset_baseline_note": self.baseline_note or None,
         }
 
 
@@ -582,6 +610,8 @@ def commission_growth(
         radial=radial,
         timings_s=timings,
         outliers=int(sum(joint.outliers)),
+        baseline=hist.baseline,
+        baseline_note=hist.baseline_note,
     )
     full = MechanicsCalibration(**{**cal.__dict__, "report": rep.as_dict()})
     return CommissionReport(**{**rep.__dict__, "calibration": full})
@@ -618,6 +648,7 @@ def format_report_dict(d: dict[str, Any]) -> list[str]:
     radial = d.get("radial_residual")
     if radial is not None:
         lines.append(f"  radial residual: RMS {radial['rms_um']:.3f} µm, max {radial['max_um']:.3f} µm")
+    lines.append(_baseline_line(d))
     lines.append(f"verdict: {d['verdict']}")
     t = d.get("timings_s") or {}
     lines.append(
@@ -625,3 +656,17 @@ def format_report_dict(d: dict[str, Any]) -> list[str]:
         f"fit {t.get('fit_s', 0):.3f} s"
     )
     return lines
+
+
+def _baseline_line(d: dict[str, Any]) -> str:
+    """The report's offset baseline in one line (a report made before it was kept: said so)."""
+    b = d.get(BASELINE_KEY)
+    if b is None:
+        why = d.get("offset_baseline_note") or "not in this report"
+        return f"sensor offsets: no baseline from the test's rest ({why})"
+    offs = [v for v in b["offsets_c"] if v is not None]
+    span = f"{min(offs):+.3f}..{max(offs):+.3f} °C" if offs else "no channel"
+    return (
+        f"sensor offsets from the test's rest: {span} over {len(offs)} channels ({b['samples']} samples "
+        f"until {b['t_to']}); used after a restart until the spindle rests again"
+    )

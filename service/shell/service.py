@@ -28,7 +28,8 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from drivers.ringbuffer import Sample
-from service.contracts.errors import BusyError, NotReadyError
+from service.contracts.commissionbaseline import commissioning_baseline
+from service.contracts.errors import BusyError, NotReadyError, RecordError
 from service.contracts.mechanics import MechanicsCalibration
 from service.contracts.metrics import MetricsSnapshot
 from service.contracts.probe import ProbeError, ProbeMeasurement
@@ -41,6 +42,7 @@ from service.contracts.snapshots import (
     SensorHistory,
 )
 from service.core.events import (
+    BaselineAdopted,
     BaselineRequested,
     Calibrated,
     Event,
@@ -221,10 +223,18 @@ class SoftSensorService(NewestViewReads):
 
     def set_mechanics(self, cal: MechanicsCalibration) -> None:
         """Serve with ``cal`` from now on and store it (restored at every start); blocking (~2 s the first
-        time: the mount/α operators)."""
+        time: the mount/α operators). The offset baseline of its test's rest is used when the core has none
+        (``service.contracts.commissionbaseline``: a start without the stored baseline)."""
         self.growth.set_mechanics(cal)
         if self.writer is not None:
             self.writer.submit(mechanics_record(cal))
+        try:
+            baseline = commissioning_baseline(cal)
+        except RecordError as err:
+            self.on_event(f"the commissioning's offset baseline is not used: {err}")
+            baseline = None
+        if baseline is not None:
+            self.post(BaselineAdopted(self.internal.next_id("baseline"), baseline))
         x = cal.x
         self.on_event(
             f"mechanics commissioned: restraint {x[0]:.3f}, α shaft {x[1]:.3f}, α housing {x[2]:.3f} "

@@ -45,3 +45,53 @@ def test_sensors_show_offset_fields(client: TestClient) -> None:
     ch = client.get("/api/v1/sensors").json()["channels"][0]
     assert {"offset_c", "offset_sd_c", "offset_calibrated_at", "offset_source"} <= set(ch)
     assert ch["offset_source"] is None  # no baseline yet
+
+
+def test_a_commissioning_with_a_baseline_gives_the_offsets_until_a_rest(tmp_path: Path) -> None:
+    """A running spindle without a baseline (a restart with an empty database): ``/compensation`` is blocked
+    by no_offset_baseline; the commissioning set (its test's rest baseline in its report) gives the offsets,
+    shown by GET /sensors with the source ``commissioning``, and the block is gone (issue 40 part 3)."""
+    from datetime import timedelta
+
+    import numpy as np
+
+    from service.contracts.calibration import Calibration
+    from service.contracts.commissionbaseline import AGE_SD_C, BASELINE_KEY, baseline_entry
+    from service.contracts.mechanics import MechanicsCalibration
+
+    settings = Settings(api={"token": WRITE_TOKEN}, compensation={"require_offset_baseline": True})
+    with served_service(database_url=sqlite_url(tmp_path), settings=settings, feed_samples=20) as s:
+        app = create_app(settings, s.service, clock=s.clock)
+        offsets = np.linspace(-0.2, 0.2, 32)
+        rest = Calibration(
+            offsets_c=offsets,
+            sd_c=np.full(32, 0.01),
+            t_from=s.clock() - timedelta(days=30, minutes=15),
+            t_to=s.clock() - timedelta(days=30),
+            samples=91,
+            source="auto",
+        )
+        with TestClient(app) as c:
+            before = c.get("/api/v1/compensation").json()
+            s.service.set_mechanics(
+                MechanicsCalibration(
+                    x=(0.6, 1.0, 1.0),
+                    cov=((0.01, 0.0, 0.0), (0.0, 0.001, 0.0), (0.0, 0.0, 0.001)),
+                    at=s.clock() - timedelta(days=30),
+                    set_by="test",
+                    source="cli",
+                    explained=True,
+                    report={BASELINE_KEY: baseline_entry(rest)},
+                )
+            )
+            ch = c.get("/api/v1/sensors").json()["channels"]
+            after = c.get("/api/v1/compensation").json()
+
+    def reasons(body: dict) -> set[str]:  # type: ignore[type-arg]
+        return {body["reason_code"], *(b["reason_code"] for b in body["blocking"])}
+
+    assert "no_offset_baseline" in reasons(before), before
+    assert {c["offset_source"] for c in ch} == {"commissioning"}
+    assert [c["offset_c"] for c in ch] == pytest.approx(list(offsets), abs=1e-4)
+    assert [c["offset_sd_c"] for c in ch] == pytest.approx([float(np.hypot(0.01, AGE_SD_C))] * 32, abs=1e-4)
+    assert "no_offset_baseline" not in reasons(after), after

@@ -101,6 +101,11 @@ def test_the_cli_recovers_the_drawn_mechanics_within_their_ci(
     # field's mean (issue 41 item 14: 21.00 °C printed for a spindle uniform at 21.51 °C)
     assert rep["t_ref_c"] == pytest.approx(21.0, abs=0.06), rep["t_ref_c"]
     assert f"zero at {rep['t_ref_c']:.2f} °C" in text
+    # the offset baseline of the test's 10-min rest (issue 40 part 3): this plant's sensors have no offsets
+    b = rep["offset_baseline"]
+    assert b["source"] == "auto" and b["samples"] >= 55 and len(b["offsets_c"]) == 32
+    assert max(abs(v) for v in b["offsets_c"]) < 4.0 * max(b["sd_c"]) < 0.1
+    assert "sensor offsets from the test's rest:" in text
 
 
 @pytest.fixture(scope="module")
