@@ -243,6 +243,7 @@ class ServiceCore:
             speed_map=self._tracks.maps.speed_map,
             map_serves=p.serving.map_serves,
             ci_threshold=self.config.ci_threshold,
+            offsets_unchecked=self._check is not None,
             h_form_sd=float(np.hypot(self.config.h_form_sd, p.no_baseline_sd())),
         )
 

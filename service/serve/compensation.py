@@ -444,7 +444,9 @@ class GrowthServer:
             has_reference=self.reference is not None,
             has_mechanics=self.commissioning is not None,
             # calibration off (no offset 1σ published): the operator handles the offsets, the rule is off
-            has_offset_baseline=view.offset_sd_c is None or view.calibration is not None,
+            # a commissioning's baseline counts once its check has ended (it may not fit these sensors)
+            has_offset_baseline=view.offset_sd_c is None
+            or (view.calibration is not None and not view.offsets_unchecked),
         )
         plain, command = verdict, None
         if self.controller is not None:

@@ -263,8 +263,9 @@ def compensation_verdict(
                 False,
                 Reason.NO_OFFSET_BASELINE,
                 "no offset baseline of the sensors yet (a start on a warm spindle without the stored "
-                "calibration, and no commissioning's that fits the sensors): the unknown offsets bend the "
-                "field and the H, and the growth's CI does not cover that; let the spindle rest "
+                "calibration, and no commissioning's that fits the sensors, or its 10-min check against "
+                "the live residuals still running): the unknown offsets bend the field and the H, and the "
+                "growth's CI does not cover that; let the spindle rest "
                 "(compensation.require_offset_baseline)",
             )
         )

@@ -70,6 +70,9 @@ class CoreView:
     # condition's per-condition identification serves (docs/design/hmap.md, "Combined mode")
     map_serves: bool = True
     ci_threshold: float = 0.5  # identification.ci_rel_threshold (the core's config)
+    # the baseline in use is the commissioning's and its check against the live residuals has not ended yet
+    # (``service.core.baselinecheck``): not a founded baseline for the verdict until it has
+    offsets_unchecked: bool = False
     h_form_sd: float = 0.0  # experimental.h_form_sd_ln: 1σ in ln H added to every served H band
     # the core thread's backlog (service.shell.corethread; the shell sets both when it publishes): the time
     # stamp of the oldest sample acquired but not handled yet (None: none waits), and how old it may get

@@ -272,10 +272,12 @@ def test_the_core_keeps_the_commissionings_offsets_only_if_the_sensors_still_hav
         source="commissioning",
     )
     core.handle(BaselineAdopted("baseline-1", commissioned))
+    assert core.view().offsets_unchecked  # not a founded baseline for the verdict until checked
     logs = [i.message for i in feed_core(core, samples_of(run)) if isinstance(i, Log)]
     said = [m for m in logs if "commissioning's sensor offsets" in m]
     assert len(said) == 1, logs
     view = core.view()
+    assert not view.offsets_unchecked
     if sensors_have_them:
         assert "fit the sensors" in said[0] and view.calibration is commissioned
     else:
