@@ -107,7 +107,7 @@ def test_0008_keeps_every_row_and_value_of_a_0007_database(db_url: str) -> None:
         before = _counts(eng)
         assert before == {"samples/a": N, "samples/b": N, "samples_1min/a": 20, "samples_1min/b": 20}
         migrate.upgrade(eng)
-        assert migrate.current_revision(eng) == "0008"
+        assert migrate.current_revision(eng) == migrate.head_revision()  # 0008 and any later one
         assert _counts(eng) == before  # every row kept
         with eng.connect() as conn:
             ctx = MigrationContext.configure(
