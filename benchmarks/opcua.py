@@ -45,21 +45,11 @@ from typing import Any
 
 import numpy as np
 
+from benchmarks.opcua_figures import COMPENSATION_NODES
+
 ROOT = Path(__file__).resolve().parents[1]  # benchmarks/ is not installed: its children import it from here
 TARGET_READ_P99_MS = 10.0
 TARGET_REST_RATIO = 1.5
-COMPENSATION_NODES = (
-    "Status.Usable",
-    "Status.Heartbeat",
-    "Status.SampleAge",
-    "Growth.Axial",
-    "Growth.AxialCiLow95",
-    "Growth.AxialCiHigh95",
-    "Controller.CorrectionUm",
-    "Controller.SD43900Mm",
-    "Controller.SD42960Mm",
-    "Controller.IsgOffset0p1um",
-)
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

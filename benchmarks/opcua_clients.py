@@ -18,23 +18,19 @@ import time
 from collections.abc import Sequence
 from typing import Any
 
-from benchmarks.opcua_figures import COMPARED, STATUS_NODES, UaValue, differences, spread
+from benchmarks.opcua_figures import (
+    COMPARED,
+    COMPENSATION_NODES,
+    STATUS_NODES,
+    UaValue,
+    differences,
+    spread,
+)
 
 __all__ = ["NS", "READ_NODES", "equal_to_rest", "readers"]
 
 NS = "urn:spindle-chtc:opcua"
-READ_NODES = (
-    "Status.Usable",
-    "Status.Heartbeat",
-    "Status.SampleAge",
-    "Growth.Axial",
-    "Growth.AxialCiLow95",
-    "Growth.AxialCiHigh95",
-    "Controller.CorrectionUm",
-    "Controller.SD43900Mm",
-    "Controller.SD42960Mm",
-    "Controller.IsgOffset0p1um",
-)
+READ_NODES = COMPENSATION_NODES  # each client reads one spindle's in one Read
 GROUPS = {"Status", "H", "Condition", "Temperatures", "Growth", "Controller", "Devices"}
 
 

@@ -15,6 +15,7 @@ from typing import Any
 
 __all__ = [
     "COMPARED",
+    "COMPENSATION_NODES",
     "UaValue",
     "differences",
     "median_or_none",
@@ -22,6 +23,20 @@ __all__ = [
     "rest_ratio",
     "spread",
 ]
+
+# the 10 compensation variables one client reads in one Read (the single-spindle and the hosted bench)
+COMPENSATION_NODES = (
+    "Status.Usable",
+    "Status.Heartbeat",
+    "Status.SampleAge",
+    "Growth.Axial",
+    "Growth.AxialCiLow95",
+    "Growth.AxialCiHigh95",
+    "Controller.CorrectionUm",
+    "Controller.SD43900Mm",
+    "Controller.SD42960Mm",
+    "Controller.IsgOffset0p1um",
+)
 
 # the OPC UA variables compared with GET /api/v1/spindles/{id}/compensation: the values whose
 # SourceTimestamp is the growth's ``at`` and whose StatusCode is the verdict's
