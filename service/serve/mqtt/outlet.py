@@ -49,6 +49,7 @@ from service.serve.mqtt.devices import Devices, Item
 from service.serve.mqtt.plainjson import OFFLINE, ONLINE, JsonTopics, payload
 from service.serve.mqtt.points import Point, ServedReader, read_points
 from service.serve.mqtt.sparkplug import PayloadError, SparkplugSession, SparkplugTopics, is_rebirth_request
+from service.serve.tasks import raise_if_cancelled, stop_tasks
 from service.settings import default_data_dir
 
 if TYPE_CHECKING:
@@ -97,8 +98,10 @@ class DeviceFeed:
     async def run(self) -> None:
         o = self.outlet
         while True:
+            raise_if_cancelled()
             with contextlib.suppress(TimeoutError):
-                await asyncio.wait_for(self.wake.wait(), timeout=o.settings.tick_s)
+                async with asyncio.timeout(o.settings.tick_s):
+                    await self.wake.wait()
             self.wake.clear()
             reader = self.reader
             if reader is None:
@@ -177,11 +180,13 @@ class MqttOutlet:
         self._closing = True
         client = self._client
         if client is not None and self.counters.connected:
-            with contextlib.suppress(aiomqtt.MqttError, asyncio.TimeoutError):
-                await asyncio.wait_for(self._goodbye(client), timeout=2.0)
-        for task in self._tasks:
-            task.cancel()
-        await asyncio.gather(*self._tasks, return_exceptions=True)
+            with contextlib.suppress(aiomqtt.MqttError, TimeoutError):
+                async with asyncio.timeout(2.0):
+                    await self._goodbye(client)
+        abandoned = await stop_tasks(self._tasks, timeout_s=15.0)
+        if abandoned:
+            names = sorted(t.get_name() for t in abandoned)
+            log.warning("mqtt: %s did not stop within 15 s; abandoned", names)
         self.counters.connected = False
 
     def stats(self) -> OutletCounters:
@@ -263,8 +268,10 @@ class MqttOutlet:
         backoff = s.backoff_initial_s
         ever = False
         with contextlib.suppress(TimeoutError):  # births with values rather than nulls, if they come soon
-            await asyncio.wait_for(self._have_points.wait(), timeout=s.tick_s)
+            async with asyncio.timeout(s.tick_s):
+                await self._have_points.wait()
         while not self._closing:
+            raise_if_cancelled()
             client = self._client_for_try()
             connected = False
             try:
@@ -312,6 +319,7 @@ class MqttOutlet:
         else:
             await client.publish(self.json_topics.availability, ONLINE, qos=1, retain=True)
             self.counters.sent += 1
+        raise_if_cancelled()
         tasks = [asyncio.create_task(self._drain(client))]
         if self.sparkplug:
             tasks.append(asyncio.create_task(self._commands(client)))
@@ -320,9 +328,7 @@ class MqttOutlet:
             for task in done:
                 task.result()
         finally:
-            for task in tasks:
-                task.cancel()
-            await asyncio.gather(*tasks, return_exceptions=True)
+            await stop_tasks(tasks, timeout_s=10.0)
 
     async def _births(self, client: aiomqtt.Client) -> None:
         """NBIRTH, then a DBIRTH per live device with its current values (later deltas are against them)."""
@@ -346,6 +352,7 @@ class MqttOutlet:
             for q in self.devices.live:
                 self.devices.requeue_current(q.name)
         while True:
+            raise_if_cancelled()  # a publish's acknowledgement may have swallowed the cancel (serve/tasks.py)
             if self._rebirth_due:
                 self._rebirth_due = False
                 await self._births(client)
