@@ -20,7 +20,7 @@ spindle (each with its own token checks, guard, metrics and routes, reading only
 from __future__ import annotations
 
 import re
-from collections.abc import Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping
 from typing import TYPE_CHECKING, Any
 
 from fastapi import FastAPI, Response
@@ -32,9 +32,11 @@ from starlette.types import ASGIApp, Receive, Scope, Send
 from api.app import API_PREFIX, create_app
 from api.deps import AuthConfig, ClockInfo, ReadAccess
 from api.errors import error_body
+from api.metrics import outlet_families
 from api.outlet import RestOutlet
 
 if TYPE_CHECKING:
+    from service.contracts.metrics import OutletMetrics
     from service.serve.interface import FleetHost
     from service.serve.outlet import OutletContext
 
@@ -51,19 +53,26 @@ _FLEET_PATHS = frozenset(
 
 class MergedMetrics:
     """The spindles' exposed families merged by name (a family's samples from every spindle, its HELP and
-    TYPE once), so ``/metrics`` stays one valid exposition."""
+    TYPE once), so ``/metrics`` stays one valid exposition; then the host's own outlets' counters
+    (``host_outlets``: the OPC UA server's and the MQTT edge node's, ``chtc_outlet_*`` without a ``spindle``
+    label: one server and one node serve every spindle)."""
 
-    def __init__(self, apps: Mapping[str, FastAPI]) -> None:
+    def __init__(
+        self,
+        apps: Mapping[str, FastAPI],
+        host_outlets: Callable[[], Mapping[str, OutletMetrics]] = dict,
+    ) -> None:
         self.apps = apps
+        self.host_outlets = host_outlets
 
     def collect(self) -> Iterator[Metric]:
         merged: dict[str, Metric] = {}
-        for app in self.apps.values():
-            for fam in app.state.metrics.exposed.collect():
-                out = merged.get(fam.name)
-                if out is None:
-                    out = merged[fam.name] = Metric(fam.name, fam.documentation, fam.type, fam.unit)
-                out.samples.extend(fam.samples)
+        families = [fam for app in self.apps.values() for fam in app.state.metrics.exposed.collect()]
+        for fam in [*families, *outlet_families(self.host_outlets())]:
+            out = merged.get(fam.name)
+            if out is None:
+                out = merged[fam.name] = Metric(fam.name, fam.documentation, fam.type, fam.unit)
+            out.samples.extend(fam.samples)
         yield from merged.values()
 
 
@@ -81,7 +90,7 @@ def create_fleet_app(host: FleetHost, apps: Mapping[str, FastAPI], *, clock_info
     )
     app.state.auth = AuthConfig.from_settings(host.settings.api)
     app.state.clock_info = clock_info
-    metrics = MergedMetrics(apps)
+    metrics = MergedMetrics(apps, host.outlet_metrics)
 
     def spindle_rows() -> list[dict[str, Any]]:
         rows = []

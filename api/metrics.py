@@ -207,10 +207,10 @@ class ServiceCollector(Collector):
             )
         yield from _filter_gauges(m.filter)
         yield from _loop_metrics(m)
-        yield from _outlet_metrics(m.outlets)
+        yield from outlet_families(m.outlets)
 
 
-def _outlet_metrics(outlets: Mapping[str, OutletMetrics]) -> Iterator[Metric]:
+def outlet_families(outlets: Mapping[str, OutletMetrics]) -> Iterator[Metric]:
     """The outlets' deliveries (MQTT: messages sent and dropped, the buffer, reconnects; integration.md)."""
     if not outlets:
         return
@@ -389,4 +389,4 @@ class RequestTimer:
             )
 
 
-__all__ = ["LATENCY_BUCKETS_S", "ApiMetrics", "RequestTimer"]
+__all__ = ["LATENCY_BUCKETS_S", "ApiMetrics", "RequestTimer", "outlet_families"]

@@ -105,6 +105,7 @@ class Minute:
     t_ref_c: float = math.nan
     truth_um: float = math.nan
     converged: bool = False  # the live state
+    nis_ratio: float = math.nan  # the live state's NIS window: Σ NIS / Σ dof (1 when consistent)
     h: np.ndarray | None = None  # /chtc (7,) and CI, flags; None: nothing served
     h_lo: np.ndarray | None = None
     h_hi: np.ndarray | None = None
@@ -341,6 +342,9 @@ class Session:
             "truth_um": truth_um,
             "h_truth": h_truth,
             "converged": bool(live is not None and live.converged),
+            "nis_ratio": (live.nis_sum / live.nis_sum_dof)
+            if live is not None and live.nis_sum_dof
+            else math.nan,
         }
         if comp is None:
             status = "none" if chtc is None else chtc.status.value

@@ -324,6 +324,7 @@ def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -
             "served_um": [round(r.um, 3) for r, k in zip(rows, keep, strict=True) if k],
             "lo_um": [round(r.lo, 3) for r, k in zip(rows, keep, strict=True) if k],
             "hi_um": [round(r.hi, 3) for r, k in zip(rows, keep, strict=True) if k],
+            "nis_ratio": [round(r.nis_ratio, 3) for r, k in zip(rows, keep, strict=True) if k],
         },
     }
     if sc.restart is not None:

@@ -42,6 +42,7 @@ from service.modelload import LoadedModel, ModelRef, load_model
 from service.serve.outlet import Outlet, OutletContext, OutletFactory, load_factory
 
 if TYPE_CHECKING:
+    from service.contracts.metrics import OutletMetrics
     from service.estimate.growth import GrowthContext
     from service.host.persistence import SharedDatabase
     from service.host.runtime import CanDevice, DaqDevice, Runtime, ScaledClock
@@ -114,6 +115,11 @@ class Host:
     @property
     def failed(self) -> dict[str, str]:
         return {sid: h.error for sid, h in self.spindles.items() if h.error is not None}
+
+    def outlet_metrics(self) -> dict[str, OutletMetrics]:
+        """The host's own outlets' counters for ``/metrics`` (the OPC UA server's refusals, the MQTT
+        connections' deliveries), by outlet name; a spindle's own ``/metrics`` has none of them."""
+        return {o.name: o.outlet_metrics() for o in (self.opcua, self.mqtt) if o is not None}
 
     def model(self, settings: Settings) -> LoadedModel:
         """The reduced model of ``settings``' geometry: loaded once, shared by the spindles that have it."""

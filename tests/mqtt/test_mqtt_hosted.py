@@ -14,6 +14,7 @@ from __future__ import annotations
 import asyncio
 import contextlib
 import os
+import re
 import time
 from collections.abc import AsyncIterator, Callable
 from dataclasses import dataclass, field
@@ -23,7 +24,9 @@ from typing import Any
 
 import aiomqtt
 import pytest
+from prometheus_client import generate_latest
 
+from api.fleet import MergedMetrics
 from model.plant import Segment
 from service.host.fleet import Host, HostError
 from service.host.runtime import ScaledClock
@@ -329,6 +332,11 @@ async def host_scenario(mosquitto: Broker, tmp_path: Path, group: str) -> dict[s
             assert next(m.long_value for m in nb[0].metrics if m.name == "bdSeq") == first_bd
             assert sorted(p.seq for p in seen.of("DBIRTH", after=t_ask)) == [1, 2, 3]
             say("rebirth")
+            exposed = generate_latest(MergedMetrics({}, host.outlet_metrics)).decode()  # the host's /metrics
+            line = r'^chtc_outlet_messages_total\{outlet="mqtt",result="sent"\} (\S+)$'
+            sent = re.search(line, exposed, re.M)
+            assert sent is not None and float(sent.group(1)) >= len(seen.of("DDATA")) > 0, exposed
+            assert 'chtc_outlet_connected{outlet="mqtt"} 1.0' in exposed
             out["timing"] = (
                 f"{t_data - t0:.1f} s from the births to every spindle's speed in DDATA; a's DAQ stopped -> "
                 f"shown in its metrics after {t_lost - t_stop:.1f} s ({trail})"
