@@ -41,11 +41,17 @@ def test_a_restored_baseline_or_no_calibration_serves_the_model_form_term_alone(
     assert off.view().h_form_sd == pytest.approx(H_FORM_SD_LN)
 
 
-def test_the_live_states_considered_h_error_carries_the_no_baseline_term(loaded_model) -> None:  # type: ignore[no-untyped-def]
+def test_the_live_states_considered_h_error_is_the_served_bands(loaded_model) -> None:  # type: ignore[no-untyped-def]
+    """The fit's band, the model-form term and, without a baseline, the no-baseline term, in quadrature: the
+    growth's CI (which takes the H error from the live state) admits what the served H band admits."""
     cfg = core_config(Settings())
     h = np.full(7, 40.0)
     hi = h * math.exp(1.96 * 0.1)  # a band of σ(ln H) = 0.1 (h_rel_from_ci reads it with 1.96)
     blind = ServiceCore(cfg, model=loaded_model)._p.h_rel_for(h, hi)
-    np.testing.assert_allclose(blind, math.hypot(0.1, H_NO_BASELINE_SD_LN), rtol=1e-6)
+    np.testing.assert_allclose(blind, math.sqrt(0.1**2 + H_FORM_SD_LN**2 + H_NO_BASELINE_SD_LN**2), rtol=1e-6)
     seen = ServiceCore(cfg, model=loaded_model, restored=Restored(calibration=_calibration()))
-    np.testing.assert_allclose(seen._p.h_rel_for(h, hi), 0.1, rtol=1e-6)
+    np.testing.assert_allclose(seen._p.h_rel_for(h, hi), math.hypot(0.1, H_FORM_SD_LN), rtol=1e-6)
+    formless = ServiceCore(
+        replace(cfg, h_form_sd=0.0), model=loaded_model, restored=Restored(calibration=_calibration())
+    )
+    np.testing.assert_allclose(formless._p.h_rel_for(h, hi), 0.1, rtol=1e-6)
