@@ -325,6 +325,19 @@ def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -
             "lo_um": [round(r.lo, 3) for r, k in zip(rows, keep, strict=True) if k],
             "hi_um": [round(r.hi, 3) for r, k in zip(rows, keep, strict=True) if k],
             "nis_ratio": [round(r.nis_ratio, 3) for r, k in zip(rows, keep, strict=True) if k],
+            "h": [
+                None if r.h is None else [round(float(v), 2) for v in r.h]
+                for r, k in zip(rows, keep, strict=True)
+                if k
+            ],
+            "h_truth": [
+                [round(float(v), 2) for v in r.h_truth] for r, k in zip(rows, keep, strict=True) if k
+            ],
+            "identified": [
+                None if r.identified is None else [bool(v) for v in r.identified]
+                for r, k in zip(rows, keep, strict=True)
+                if k
+            ],
         },
     }
     if sc.restart is not None:
