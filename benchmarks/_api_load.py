@@ -7,6 +7,7 @@ from __future__ import annotations
 import asyncio
 import math
 import time
+from collections.abc import Sequence
 from typing import Any
 
 import httpx
@@ -67,8 +68,13 @@ async def _load(
     kind: str,
     headers: str = "",
     records: list[tuple[float, float]] | None = None,
+    rotate: Sequence[str] = (),
 ) -> dict[str, Any]:
-    """Open-loop load; ``records`` (if given) gets (send time perf_counter, latency s) per request."""
+    """Open-loop load; ``records`` (if given) gets (send time perf_counter, latency s) per request;
+    ``rotate`` (raw clients only): request i goes to ``rotate[i % len(rotate)]`` instead of ``url``."""
+    if rotate and kind != "raw":
+        raise ValueError("_load: rotate needs kind='raw'")
+    targets = [RawClient(u, headers).request for u in rotate]
     n = max(1, int(rate * duration_s))
     loop = asyncio.get_running_loop()
     lat: list[float] = []
@@ -87,6 +93,8 @@ async def _load(
             if (delay := due - loop.time()) > 0:
                 await asyncio.sleep(delay)
             late.append(max(0.0, loop.time() - due))
+            if targets:
+                client.request = targets[i % len(targets)]
             start = time.perf_counter()
             status = await client.get()
             lat.append(time.perf_counter() - start)

@@ -191,35 +191,16 @@ def _rest_load(base: str, ids: list[str], args: argparse.Namespace) -> dict[str,
 async def _rest(
     base: str, ids: list[str], *, rate: float, duration_s: float, conns: int
 ) -> tuple[list[float], dict[int, int]]:
-    from benchmarks._api_load import RawClient
+    """REST GET ``/api/v1/spindles/{id}/compensation`` at ``rate``, request i to spindle i mod N: the API
+    bench's open-loop load (``benchmarks._api_load._load``); the latencies [s] and the statuses."""
+    from benchmarks._api_load import _load
 
     paths = [f"{base}/api/v1/spindles/{sid}/compensation" for sid in ids]
-    requests = [RawClient(p).request for p in paths]
-    pool = [RawClient(paths[0]) for _ in range(conns)]
-    for c in pool:  # open the connections before the clock starts
-        await c.get()
-    loop = asyncio.get_running_loop()
-    n = max(1, int(rate * duration_s))
-    t0 = loop.time() + 0.1
-    lat: list[float] = []
-    statuses: dict[int, int] = {}
-
-    async def worker(w: int, client: RawClient) -> None:
-        for i in range(w, n, conns):
-            if (delay := t0 + i / rate - loop.time()) > 0:
-                await asyncio.sleep(delay)
-            client.request = requests[i % len(ids)]
-            start = time.perf_counter()
-            status = await client.get()
-            lat.append(time.perf_counter() - start)
-            statuses[status] = statuses.get(status, 0) + 1
-
-    try:
-        await asyncio.gather(*(worker(w, c) for w, c in enumerate(pool)))
-    finally:
-        for c in pool:
-            await c.aclose()
-    return lat, statuses
+    records: list[tuple[float, float]] = []
+    out = await _load(
+        paths[0], rate=rate, duration_s=duration_s, clients=conns, kind="raw", records=records, rotate=paths
+    )
+    return [lat for _, lat in records], dict(out["statuses"])
 
 
 @contextlib.contextmanager
