@@ -27,7 +27,6 @@ import pytest
 from prometheus_client import generate_latest
 
 from api.fleet import MergedMetrics
-from model.plant import Segment
 from service.host.fleet import Host, HostError
 from service.host.runtime import ScaledClock
 from service.host.runtime import free_port as free_api_port
@@ -38,10 +37,10 @@ from service.serve.mqtt.outlet import MqttOutlet
 from service.serve.mqtt.points import CATALOGUE, Point, Quality
 from service.serve.mqtt.sparkplug import SparkplugNode
 from service.settings import Settings
-from simulator.simrig import SimAddress, make_drivers, plant_rig
+from simulator.simrig import SimAddress, plant_rig
+from tests.hostrig import host_plant_run, simulated_host
 from tests.mqtt.peers import MOSQUITTO, Broker, broker
 from tests.mqtt.test_mqtt_outlet import Reader
-from tests.service.conftest import plant_run
 
 T0 = datetime(2026, 11, 29, 12, 0, tzinfo=UTC)
 SPEEDUP = 40.0
@@ -243,16 +242,8 @@ async def host_scenario(mosquitto: Broker, tmp_path: Path, group: str) -> dict[s
             "backoff_max_s": 1.0,
         },
     )
-    clock = ScaledClock(SPEEDUP)
-    by_port = {a.port: a for a in addresses.values()}
-    host = Host(
-        settings=settings,
-        clock=clock,
-        devices=lambda s: make_drivers(s, by_port[s.modbus.port], clock=clock),
-        on_event=lambda _m: None,
-        simulated_time=True,
-    )
-    run = plant_run([Segment(7200.0, 3000.0, 5.0, 22.0)], seed=11)
+    host = simulated_host(settings, addresses, speedup=SPEEDUP)
+    run = host_plant_run()
     rigs = []
     out: dict[str, Any] = {}
     alias = {m.name: i for i, m in enumerate(CATALOGUE, start=1)}

@@ -15,12 +15,11 @@ import pytest
 from asyncua import Client, ua
 
 from drivers.sim.faults import FaultKind
-from model.plant import Segment
 from service.host.fleet import Host, HostError
 from service.host.runtime import ScaledClock, free_port
 from service.settings import Settings
-from simulator.simrig import SimAddress, make_drivers, plant_rig
-from tests.service.conftest import plant_run
+from simulator.simrig import SimAddress, plant_rig
+from tests.hostrig import host_plant_run, simulated_host
 
 pytestmark = pytest.mark.slow
 SPEEDUP = 40.0
@@ -48,16 +47,8 @@ async def scenario(db_url: str) -> dict[str, Any]:
         engine={"identification_workers": 1},
         opcua={"enabled": True, "port": free_port()},
     )
-    clock = ScaledClock(SPEEDUP)
-    by_port = {a.port: a for a in addresses.values()}
-    host = Host(
-        settings=settings,
-        clock=clock,
-        devices=lambda s: make_drivers(s, by_port[s.modbus.port], clock=clock),
-        on_event=lambda _m: None,
-        simulated_time=True,
-    )
-    run = plant_run([Segment(7200.0, 3000.0, 5.0, 22.0)], seed=11)
+    host = simulated_host(settings, addresses, speedup=SPEEDUP)
+    run = host_plant_run()
     rigs = []
     out: dict[str, Any] = {}
     try:
