@@ -208,43 +208,29 @@ def _temperatures() -> list[PointDef]:
     ]  # fmt: skip
 
 
-def _growth() -> list[PointDef]:
-    out: list[PointDef] = []
-    for name, ua_name, doc in (
-        ("axial", "Axial", "axial growth at the spindle nose, + towards the tool"),
-        ("radial", "Radial", "radial growth of the nose, + outwards"),
-        ("steady_axial", "SteadyAxial", "axial growth if the condition and H hold (forecast)"),
-    ):
-        out.append(
-            _p(
-                f"growth.{name}",
-                "Double",
-                doc,
-                "compensation",
-                q=UM,
-                opcua=f"Growth.{ua_name}",
-                mqtt=f"Growth/{ua_name}",
-            )
-        )
-        if name == "axial":
-            out.append(
-                _p(
-                    "growth.axial_sd",
-                    "Double",
-                    "axial growth: 1σ",
-                    "compensation",
-                    q=UM_SD,
-                    opcua="Growth.AxialSd",
-                )
-            )
-        out += [
-            _p(f"growth.{name}.ci_low", "Double", "95 % CI, low", "compensation", q=UM,
-               opcua=f"Growth.{ua_name}CiLow95", mqtt=f"Growth/{ua_name}/CiLow"),
-            _p(f"growth.{name}.ci_high", "Double", "95 % CI, high", "compensation", q=UM,
-               opcua=f"Growth.{ua_name}CiHigh95", mqtt=f"Growth/{ua_name}/CiHigh"),
-        ]  # fmt: skip
+def _growth_value(name: str, ua_name: str, doc: str) -> PointDef:
+    opcua, mqtt = f"Growth.{ua_name}", f"Growth/{ua_name}"
+    return _p(f"growth.{name}", "Double", doc, "compensation", q=UM, opcua=opcua, mqtt=mqtt)
+
+
+def _growth_ci(name: str, ua_name: str) -> list[PointDef]:
     return [
-        *out,
+        _p(f"growth.{name}.ci_low", "Double", "95 % CI, low", "compensation", q=UM,
+           opcua=f"Growth.{ua_name}CiLow95", mqtt=f"Growth/{ua_name}/CiLow"),
+        _p(f"growth.{name}.ci_high", "Double", "95 % CI, high", "compensation", q=UM,
+           opcua=f"Growth.{ua_name}CiHigh95", mqtt=f"Growth/{ua_name}/CiHigh"),
+    ]  # fmt: skip
+
+
+def _growth() -> list[PointDef]:
+    return [
+        _growth_value("axial", "Axial", "axial growth at the spindle nose, + towards the tool"),
+        _p("growth.axial_sd", "Double", "axial growth: 1σ", "compensation", q=UM_SD, opcua="Growth.AxialSd"),
+        *_growth_ci("axial", "Axial"),
+        _growth_value("radial", "Radial", "radial growth of the nose, + outwards"),
+        *_growth_ci("radial", "Radial"),
+        _growth_value("steady_axial", "SteadyAxial", "axial growth if the condition and H hold (forecast)"),
+        *_growth_ci("steady_axial", "SteadyAxial"),
         _p("growth.tau", "Double", "time constant of the growth", "compensation", q=SECONDS,
            opcua="Growth.TauS"),
         _p("growth.forecast_horizons", "Double", "forecast horizons", "compensation", q=SECONDS, length=-1,
