@@ -166,15 +166,19 @@ class TermsCache:
     live H follows the map at the speed bin and the rounded ambient, which flip back and forth (noise at a
     bin's edge): each value comes back from here instead of ~0.2 s of eigen-solves. ``claim`` marks one key
     pending (one refresh at a time per key); ``computed`` and ``compute_cpu_s`` count the misses and their
-    CPU [s]. Thread-safe."""
+    CPU [s]. A key is computed by one thread at a time: a ``get`` of a key another thread is computing waits
+    for that result (``joined`` counts them) instead of computing it again beside it (the shell's refresher
+    and every outlet reading the same new view). Thread-safe."""
 
     def __init__(self, kept: int = TERMS_KEPT) -> None:
         self.kept = kept
         self._lock = threading.Lock()
         self._terms: collections.OrderedDict[Hashable, ConditionTerms] = collections.OrderedDict()
         self._pending: Hashable | None = None
+        self._running: dict[Hashable, threading.Event] = {}  # keys being computed: set when done
         self.computed = 0
         self.compute_cpu_s = 0.0
+        self.joined = 0
 
     def __contains__(self, key: Hashable) -> bool:
         with self._lock:
@@ -196,24 +200,43 @@ class TermsCache:
     ) -> ConditionTerms:
         """The terms of ``key``: cached, else ``compute()`` (blocking, outside the lock), which returns the
         terms and the growth context they were computed with; they are kept when that context is still
-        ``current()`` (a commissioning may have changed the operators meanwhile: then ``clear`` follows)."""
-        with self._lock:
-            cached = self._terms.get(key)
-            if cached is not None:
-                self._terms.move_to_end(key)
-                return cached
-        cpu = time.thread_time()
-        terms, ctx = compute()
-        with self._lock:
-            self.computed += 1
-            self.compute_cpu_s += time.thread_time() - cpu
-            if ctx is current():
-                self._terms[key] = terms
-                while len(self._terms) > self.kept:
-                    self._terms.popitem(last=False)
-            if self._pending == key:
-                self._pending = None
-        return terms
+        ``current()`` (a commissioning may have changed the operators meanwhile: then ``clear`` follows).
+        While another thread computes ``key``, this one waits for it and takes its result; it computes
+        itself when that result was not kept (it failed, or its context was replaced)."""
+        joined = False
+        while True:
+            with self._lock:
+                cached = self._terms.get(key)
+                if cached is not None:
+                    self._terms.move_to_end(key)
+                    return cached
+                running = self._running.get(key)
+                if running is None or joined:
+                    done = threading.Event()
+                    if running is None:
+                        self._running[key] = done
+                    break
+                self.joined += 1
+            running.wait()
+            joined = True  # once: its result not kept, compute here (and do not wait again)
+        try:
+            cpu = time.thread_time()
+            terms, ctx = compute()
+            with self._lock:
+                self.computed += 1
+                self.compute_cpu_s += time.thread_time() - cpu
+                if ctx is current():
+                    self._terms[key] = terms
+                    while len(self._terms) > self.kept:
+                        self._terms.popitem(last=False)
+                if self._pending == key:
+                    self._pending = None
+            return terms
+        finally:
+            with self._lock:
+                if self._running.get(key) is done:
+                    del self._running[key]
+            done.set()
 
     def clear(self) -> None:
         """Forget every key (the operators changed: a commissioning or an absorbed probe reading)."""

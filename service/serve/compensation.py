@@ -10,8 +10,9 @@ Three stages, by how often their inputs change:
 - the condition terms (steady field, modes, horizon functionals, sensor sensitivity): per (identification,
   condition, live H and load scales), ``refresh(view)``; the shell starts it in a thread when a published view
   has a new key (``wants_refresh``; ``service.shell.growthserve.TermsRefresher``), and a request whose key is
-  not ready computes it in its own (API) thread (~0.25 s), never on the event loop; the last 16 keys' terms
-  are cached (``service.estimate.growthterms.TermsCache``);
+  not ready computes it in its own (API or outlet) thread (~0.25 s), never on the event loop, or waits for
+  the computation of that key already running; the last 16 keys' terms are cached
+  (``service.estimate.growthterms.TermsCache``);
 - the estimate: per request, from the latest published ``CoreView`` (dot products).
 
 The live field's uncertainty comes through ONE function, :func:`field_belief`. The mechanics and the probe
