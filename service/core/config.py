@@ -70,6 +70,9 @@ class CoreConfig:
     time_budget_s: float | None  # an identification's optimizer budget (None: none; no settings key)
     ci_threshold: float  # identification.ci_rel_threshold
     h_form_sd: float  # experimental.h_form_sd_ln: added to every served H band (ln H)
+    # added to the live state's considered H error (ln H; CoreParts.h_rel_for): h_form_sd in the service, 0 in
+    # the commissioning's field history, whose fit estimates its own residual noise and correlation
+    live_h_form_sd: float
     # added to h_form_sd and to the live state's considered H error while calibration is on but has no
     # baseline yet (ln H; CoreParts.no_baseline_sd; service.defaults.H_NO_BASELINE_SD_LN)
     h_no_baseline_sd: float
@@ -130,6 +133,7 @@ def core_config(settings: Settings) -> CoreConfig:
         time_budget_s=None,
         ci_threshold=ident.ci_rel_threshold,
         h_form_sd=exp.h_form_sd_ln,
+        live_h_form_sd=exp.h_form_sd_ln,
         h_no_baseline_sd=H_NO_BASELINE_SD_LN,
         stale_after_s=max(STALE_AFTER_MIN_S, STALE_AFTER_SAMPLES * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,

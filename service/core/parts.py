@@ -124,10 +124,10 @@ class CoreParts:
 
     def h_rel_for(self, h: Any, hi: Any) -> np.ndarray:
         """The live state's considered H error (relative 1σ, 7) for H ``h`` with 95 % upper bound ``hi``:
-        the fit's σ(ln H) (``h_rel``), the model-form term ``h_form_sd`` and ``no_baseline_sd`` in quadrature,
-        as the served band (``/chtc``) has them: the growth's CI takes its H error from here (issue 40;
-        docs/design/policy.md, "The served H band")."""
-        form = np.hypot(h_rel(h, hi), self.config.h_form_sd)
+        the fit's σ(ln H) (``h_rel``), the model-form term ``live_h_form_sd`` (the served band's
+        ``h_form_sd``) and ``no_baseline_sd`` in quadrature, as the served band (``/chtc``) has them: the
+        growth's CI takes its H error from here (issue 40; docs/design/policy.md, "The served H band")."""
+        form = np.hypot(h_rel(h, hi), self.config.live_h_form_sd)
         return np.asarray(np.hypot(form, self.no_baseline_sd()))
 
     def offsets(self) -> Offsets | None:

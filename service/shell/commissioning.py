@@ -231,7 +231,9 @@ def field_history(
     from drivers.logsamples import samples_from_logs
     from service.core.offline import run_offline
 
-    config = replace(config, filter=replace(config.filter, faults=None))
+    # the fit estimates the residuals' noise and correlation itself: the live state's considered H error stays
+    # the identifications' own (no model-form term: counted twice, it let a 1.3-scaled test pass as explained)
+    config = replace(config, filter=replace(config.filter, faults=None), live_h_form_sd=0.0)
     data = samples_from_logs(temperatures, canlog, period_s=config.rules.dt_s)
     t: list[float] = []
     states: list[Array] = []

@@ -27,7 +27,7 @@ def _as(settings: Settings, sid: str) -> Settings:
 
 
 def _dispatch(apps: dict[str, FastAPI], clock: object) -> FleetDispatch:
-    host = SimpleNamespace(settings=Settings(), clock=clock, spindles={}, failed={})
+    host = SimpleNamespace(settings=Settings(), clock=clock, spindles={}, failed={}, outlet_metrics=dict)
     return FleetDispatch(create_fleet_app(host, apps, clock_info=ClockInfo()), apps)  # type: ignore[arg-type]
 
 

@@ -20,7 +20,7 @@ def _client(ids: tuple[str, ...]) -> TestClient:
         s = Settings()
         own = s.model_copy(update={"spindle": s.spindle.model_copy(update={"id": sid})})
         apps[sid] = create_app(own, None)
-    host = SimpleNamespace(settings=Settings(), clock=None, spindles={}, failed={})
+    host = SimpleNamespace(settings=Settings(), clock=None, spindles={}, failed={}, outlet_metrics=dict)
     return TestClient(FleetDispatch(create_fleet_app(host, apps, clock_info=ClockInfo()), apps))  # type: ignore[arg-type]
 
 

@@ -249,7 +249,9 @@ def test_probes_are_the_instances_root_health_endpoints(plant: dict[str, str]) -
 
 def test_a_multi_spindle_instance_answers_the_probes_paths() -> None:
     """Cells run ``[[spindles]]`` instances (api/fleet.py): their own /healthz and /readyz answer."""
-    host = SimpleNamespace(settings=Settings(), spindles={}, failed=[], clock=lambda: datetime.now(UTC))
+    host = SimpleNamespace(
+        settings=Settings(), spindles={}, failed=[], clock=lambda: datetime.now(UTC), outlet_metrics=dict
+    )
     with TestClient(create_fleet_app(host, {}, clock_info=ClockInfo())) as client:  # type: ignore[arg-type]
         assert client.get("/healthz").status_code == 200
         ready = client.get("/readyz")

@@ -52,6 +52,6 @@ def test_the_live_states_considered_h_error_is_the_served_bands(loaded_model) ->
     seen = ServiceCore(cfg, model=loaded_model, restored=Restored(calibration=_calibration()))
     np.testing.assert_allclose(seen._p.h_rel_for(h, hi), math.hypot(0.1, H_FORM_SD_LN), rtol=1e-6)
     formless = ServiceCore(
-        replace(cfg, h_form_sd=0.0), model=loaded_model, restored=Restored(calibration=_calibration())
+        replace(cfg, live_h_form_sd=0.0), model=loaded_model, restored=Restored(calibration=_calibration())
     )
     np.testing.assert_allclose(formless._p.h_rel_for(h, hi), 0.1, rtol=1e-6)
