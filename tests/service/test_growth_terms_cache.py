@@ -54,9 +54,11 @@ def _in_thread(fn: Any) -> tuple[threading.Thread, dict[str, object]]:
     return t, out
 
 
-def test_a_reader_of_a_key_being_computed_takes_that_result() -> None:
-    cache = TermsCache()
-    first, second = _Blocking("terms"), _Blocking("again")
+def _second_reader_waits(
+    cache: TermsCache, first: _Blocking, second: Any
+) -> tuple[dict[str, object], dict[str, object]]:
+    """``first`` computes key "k" in one thread; a second reader asks for "k" meanwhile (``second`` its
+    compute) and is seen waiting; then ``first`` is released. Both readers' outcomes."""
     ta, a = _in_thread(lambda: cache.get("k", first, lambda: CTX))
     assert first.started.wait(10.0)
     tb, b = _in_thread(lambda: cache.get("k", second, lambda: CTX))
@@ -64,6 +66,13 @@ def test_a_reader_of_a_key_being_computed_takes_that_result() -> None:
     first.release.set()
     ta.join(10.0)
     tb.join(10.0)
+    return a, b
+
+
+def test_a_reader_of_a_key_being_computed_takes_that_result() -> None:
+    cache = TermsCache()
+    first, second = _Blocking("terms"), _Blocking("again")
+    a, b = _second_reader_waits(cache, first, second)
     assert a == {"value": "terms"} and b == {"value": "terms"}
     assert second.calls == 0 and cache.computed == 1
     assert cache.get("k", second, lambda: CTX) == "terms" and second.calls == 0  # cached
@@ -84,13 +93,7 @@ def test_a_failed_computation_is_retried_by_the_reader_that_waited() -> None:
     cache = TermsCache()
     failing, retry = _Blocking("never", fail=True), _Blocking("terms")
     retry.release.set()
-    ta, a = _in_thread(lambda: cache.get("k", failing, lambda: CTX))
-    assert failing.started.wait(10.0)
-    tb, b = _in_thread(lambda: cache.get("k", retry, lambda: CTX))
-    _wait_for(lambda: cache.joined == 1, "the second reader to wait for the first")
-    failing.release.set()
-    ta.join(10.0)
-    tb.join(10.0)
+    a, b = _second_reader_waits(cache, failing, retry)
     assert isinstance(a["error"], RuntimeError)
     assert b == {"value": "terms"} and retry.calls == 1
     assert cache.get("k", _Blocking("unused"), lambda: CTX) == "terms"  # kept
