@@ -12,13 +12,20 @@ READ_TOKEN = "read-token-for-probes-tests"
 
 
 def _steady(body: dict[str, object]) -> dict[str, object]:
-    """The body without ``uptime_s`` (wall time: it moves between the two requests)."""
-    return {k: v for k, v in body.items() if k != "uptime_s"}
+    """The body without what moves between the two requests on its own.
+
+    ``uptime_s`` is wall time, and a device's counters count background work: the writer's queue takes the
+    service's own rows (checkpoints, results) at any moment, so ``pending`` moved between two requests made
+    right after a flush (1 of ~30 fresh-clone runs). Names, statuses and everything else must agree.
+    """
+    devices = body.get("devices")
+    steady = {k: v for k, v in body.items() if k != "uptime_s"}
+    if isinstance(devices, list):
+        steady["devices"] = [{k: v for k, v in d.items() if k != "counters"} for d in devices]
+    return steady
 
 
-def test_root_probes_answer_as_the_api_ones(client: TestClient, clock: ManualClock, served: Served) -> None:
-    writer = served.persistence.sink.writer
-    assert writer is not None and writer.flush()  # the fed samples written: the db's counters hold still
+def test_root_probes_answer_as_the_api_ones(client: TestClient, clock: ManualClock) -> None:
     for path in ("/healthz", "/readyz"):
         root, api = client.get(path), client.get(f"/api/v1{path}")
         assert root.status_code == api.status_code == 200
