@@ -35,6 +35,7 @@ from service.commands._common import (
     override,
     port_number,
 )
+from service.shell.heap import freeze_startup_heap
 
 log = logging.getLogger("chtc")
 
@@ -117,6 +118,7 @@ async def serve(settings: Settings, *, migrate: bool) -> int:
     try:
         await runtime.start(daq=daq, can=can_sensor, api=True)
         await runtime.wait_api()
+        log.info("%s", freeze_startup_heap().message())
         log.info("serving on %s", runtime.url)
         await stop.wait()
     finally:
@@ -143,6 +145,7 @@ async def serve_host(settings: Settings, *, migrate: bool) -> int:
     try:
         await host.start(api=True)
         await host.wait_api()
+        log.info("%s", freeze_startup_heap().message())
         log.info(
             "serving %d spindles on %s (list: %sapi/v1/spindles)", len(host.spindles), host.url, host.url
         )
