@@ -46,6 +46,7 @@ from service.commands._common import (
 from service.contracts.snapshots import IdentificationRecord
 from service.core.jobbook import MAP_METHOD
 from service.logctx import install_logging, set_default
+from service.shell.heap import freeze_startup_heap
 
 if TYPE_CHECKING:
     from service.contracts.snapshots import IdentificationRecord
@@ -262,6 +263,7 @@ async def run_demo(args: argparse.Namespace, settings: Settings, token: str | No
         await runtime.wait_api()
         await rig.start()
         runtime.start_acquisition()
+        freeze_startup_heap()  # as chtc run: no full collector pass over the start-up's objects
         _announce(args, runtime.url, db_url, token, idle_min)
         started = time.monotonic()
         while not stop.is_set():
