@@ -8,7 +8,8 @@ degraded. :func:`freeze_startup_heap` runs once the process has started what it 
 then ``gc.freeze()`` moves every object still alive into the permanent generation, which later passes do
 not visit. Frozen objects are still freed when their reference count falls to 0; only a reference cycle
 among objects alive at the freeze and dropped later is never reclaimed (a start-up's objects live as long
-as the process). The Python documentation names this use (``gc.freeze``: "to avoid ... collections").
+as the process). ``gc.freeze`` is documented to move every tracked object "to a permanent generation and
+ignore them in all the future collections".
 """
 
 from __future__ import annotations

@@ -16,7 +16,7 @@ def _steady(body: dict[str, object]) -> dict[str, object]:
 
     ``uptime_s`` is wall time, and a device's counters count background work: the writer's queue takes the
     service's own rows (checkpoints, results) at any moment, so ``pending`` moved between two requests made
-    right after a flush (1 of ~30 fresh-clone runs). Names, statuses and everything else must agree.
+    right after a flush (a fresh-clone CI run failed on it). Names, statuses and everything else must agree.
     """
     devices = body.get("devices")
     steady = {k: v for k, v in body.items() if k != "uptime_s"}
