@@ -7,7 +7,6 @@ none; each page's verdict is its own spindle's."""
 from __future__ import annotations
 
 from pathlib import Path
-from types import SimpleNamespace
 
 import httpx
 import pytest
@@ -20,6 +19,7 @@ from service.settings import Settings
 from simulator.served import DEMO_FED, served_service
 from tests.api.conftest import LiveServer, sqlite_url
 from tests.api.test_api_dashboard import LENIENT, _attr, _banner, _case, _chromium
+from tests.fakehost import bare_host
 
 
 def _as(settings: Settings, sid: str) -> Settings:
@@ -27,7 +27,7 @@ def _as(settings: Settings, sid: str) -> Settings:
 
 
 def _dispatch(apps: dict[str, FastAPI], clock: object) -> FleetDispatch:
-    host = SimpleNamespace(settings=Settings(), clock=clock, spindles={}, failed={}, outlet_metrics=dict)
+    host = bare_host(clock)
     return FleetDispatch(create_fleet_app(host, apps, clock_info=ClockInfo()), apps)  # type: ignore[arg-type]
 
 

@@ -4,14 +4,13 @@ the host served no OpenAPI of its own."""
 
 from __future__ import annotations
 
-from types import SimpleNamespace
-
 from fastapi.testclient import TestClient
 
 from api.app import create_app
 from api.deps import ClockInfo
 from api.fleet import FleetDispatch, create_fleet_app
 from service.settings import Settings
+from tests.fakehost import bare_host
 
 
 def _client(ids: tuple[str, ...]) -> TestClient:
@@ -20,7 +19,7 @@ def _client(ids: tuple[str, ...]) -> TestClient:
         s = Settings()
         own = s.model_copy(update={"spindle": s.spindle.model_copy(update={"id": sid})})
         apps[sid] = create_app(own, None)
-    host = SimpleNamespace(settings=Settings(), clock=None, spindles={}, failed={}, outlet_metrics=dict)
+    host = bare_host()
     return TestClient(FleetDispatch(create_fleet_app(host, apps, clock_info=ClockInfo()), apps))  # type: ignore[arg-type]
 
 

@@ -17,7 +17,6 @@ import subprocess
 import tomllib
 from datetime import UTC, datetime
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import pytest
@@ -31,6 +30,7 @@ from model.geometry import load_spindle
 from service.cli import build_parser
 from service.settings import Settings, load_settings
 from tests.deploy.deployhelpers import ROOT, dockerfile_env, dockerfile_exec_form, runtime_stage
+from tests.fakehost import bare_host
 
 CHART = ROOT / "deploy" / "helm" / "spindle-chtc"
 EXAMPLE = CHART / "examples" / "plant-3x4-values.yaml"
@@ -249,9 +249,7 @@ def test_probes_are_the_instances_root_health_endpoints(plant: dict[str, str]) -
 
 def test_a_multi_spindle_instance_answers_the_probes_paths() -> None:
     """Cells run ``[[spindles]]`` instances (api/fleet.py): their own /healthz and /readyz answer."""
-    host = SimpleNamespace(
-        settings=Settings(), spindles={}, failed=[], clock=lambda: datetime.now(UTC), outlet_metrics=dict
-    )
+    host = bare_host(lambda: datetime.now(UTC))
     with TestClient(create_fleet_app(host, {}, clock_info=ClockInfo())) as client:  # type: ignore[arg-type]
         assert client.get("/healthz").status_code == 200
         ready = client.get("/readyz")
