@@ -205,6 +205,9 @@ class ConditionTerms:
     (N, k) = E·V (``modes_e_phi`` (k, r) = VᵀEΦ, ``modes_ss`` (k,) = VᵀE·T_ss) and ``modes_g`` (2, k) = g·V
     for the dominant time constant; ``tau_s`` (k,);
     ``sens`` (2, 32) [µm/°C] growth per unit sensor error.
+
+    ``compact()`` drops the nodal ``w`` and ``modes_e`` (None): what a reduced belief (the service's live
+    state) does not use, 1.2 of the 1.27 MiB of one condition's terms on the service mesh (issue 43 part 5).
     """
 
     h: Array
@@ -217,16 +220,24 @@ class ConditionTerms:
     steady_um: Array
     jg: Array
     horizons_s: Array
-    w: Array
+    w: Array | None  # None: compact (``compact()``)
     w_phi: Array | None
     w_ss: Array
     jw: Array
-    modes_e: Array
+    modes_e: Array | None  # None: compact
     modes_e_phi: Array | None
     modes_ss: Array
     modes_g: Array
     tau_s: Array
     sens: Array
+
+    def compact(self) -> ConditionTerms:
+        """These terms without the nodal functionals (``w``, ``modes_e``): for reduced beliefs only (an
+        estimate from a nodal one then raises ``GrowthEstimateError``); the same terms when there is no
+        reduced basis to use instead."""
+        if self.w_phi is None or self.modes_e_phi is None:
+            return self
+        return replace(self, w=None, modes_e=None)
 
 
 def _horizon_functionals(
@@ -363,19 +374,23 @@ def _mean_growth(ctx: GrowthContext, b: FieldBelief) -> tuple[Array, Array]:
     return a, gp @ a
 
 
-def _field_std(nodal: Array, reduced: Array | None, b: FieldBelief) -> Array:
-    """1σ [µm] of rows of a nodal functional (m, N) (reduced (m, r)) under the belief's uncertainty."""
+def _field_std(nodal: Array | None, reduced: Array | None, b: FieldBelief) -> Array:
+    """1σ [µm] of rows of a nodal functional (m, N) (reduced (m, r)) under the belief's uncertainty; the
+    nodal one may be None (compact terms) when the belief is reduced."""
     given = [x for x in (b.cov, b.deviations, b.factor, b.std_c) if x is not None]
     if len(given) > 1:
         raise GrowthEstimateError("belief: give at most one of cov, deviations, factor, std_c")
     if not given:
-        return np.zeros(nodal.shape[0])
+        rows = nodal if nodal is not None else reduced
+        return np.zeros(0 if rows is None else rows.shape[0])
     if b.factor is not None:
+        nodal = _nodal(nodal)
         u = np.asarray(b.factor, dtype=float)
         if u.ndim != 2 or u.shape[0] != nodal.shape[1]:
             raise GrowthEstimateError(f"belief.factor: expected ({nodal.shape[1]}, k), got {u.shape}")
         return np.asarray(np.sqrt(np.sum((nodal @ u) ** 2, axis=1)))
     if b.std_c is not None:
+        nodal = _nodal(nodal)
         s = np.asarray(b.std_c, dtype=float)
         if s.shape != (nodal.shape[1],):
             raise GrowthEstimateError(f"belief.std_c: expected ({nodal.shape[1]},), got {s.shape}")
@@ -423,12 +438,14 @@ def estimate_growth(
         raise GrowthEstimateError(f"t_ref_c: must be finite, got {t_ref_c!r}")
     if not (np.isfinite(t_ref_sd_c) and t_ref_sd_c >= 0.0):
         raise GrowthEstimateError(f"t_ref_sd_c: must be a finite 1σ >= 0 °C, got {t_ref_sd_c!r}")
-    if terms.w.shape[-1] != ctx.g.shape[1]:
+    if terms.t_ss.shape[-1] != ctx.g.shape[1]:
         raise GrowthEstimateError(
             "terms: built for another mesh than the context (condition_terms(ctx, ...))"
         )
     x, gx = _mean_growth(ctx, belief)
     reduced_mean = belief.state is not None
+    if (terms.w is None or terms.modes_e is None) and not reduced_mean:
+        raise GrowthEstimateError("terms: compact (no nodal functionals) for a nodal belief.mean_c")
     g1 = ctx.g.sum(axis=1)  # growth per uniform kelvin (2,)
     b = np.array([ctx.offset_um, 0.0])  # the fixture offset moves the tool axially only
     now = gx - g1 * t_ref_c + b
@@ -441,15 +458,15 @@ def estimate_growth(
     m_hz = np.maximum(m_now, m_ss)
     axial, radial = [], []
     for i in range(terms.horizons_s.size):
-        wx = (terms.w_phi[i] if reduced_mean and terms.w_phi is not None else terms.w[i]) @ x
+        w_i = None if terms.w is None else terms.w[i]
+        wx = (terms.w_phi[i] if reduced_mean and terms.w_phi is not None else _nodal(w_i)) @ x
         y = steady + wx - terms.w_ss[i]
-        s_f = np.hypot(
-            _field_std(terms.w[i], None if terms.w_phi is None else terms.w_phi[i], belief), ref_std
-        )
+        s_f = np.hypot(_field_std(w_i, None if terms.w_phi is None else terms.w_phi[i], belief), ref_std)
         s_h = _h_std(terms.jw[i], terms.cov_h)
         axial.append(GrowthValue.of(y[0], s_f[0], s_h[0], m_hz[0]))
         radial.append(GrowthValue.of(y[1], s_f[1], s_h[1], m_hz[1]))
-    proj = terms.modes_e_phi @ x if reduced_mean and terms.modes_e_phi is not None else terms.modes_e.T @ x
+    modes_e = terms.modes_e_phi if reduced_mean and terms.modes_e_phi is not None else None
+    proj = modes_e @ x if modes_e is not None else _nodal(terms.modes_e).T @ x
     gap = terms.modes_g[0] * (proj - terms.modes_ss)
     forecast = GrowthForecastEstimate(
         steady_axial=GrowthValue.of(steady[0], ref_std[0], h_ss[0], m_ss[0]),
@@ -471,6 +488,13 @@ def estimate_growth(
         h=tuple(float(v) for v in terms.h),
         ambient_c=terms.ambient_c,
     )
+
+
+def _nodal(arr: Array | None) -> Array:
+    """A nodal functional of the terms (checked present: compact terms serve reduced beliefs only)."""
+    if arr is None:
+        raise GrowthEstimateError("terms: compact (no nodal functionals) for a nodal belief")
+    return arr
 
 
 def _mech_std(

@@ -348,7 +348,8 @@ class GrowthServer:
 
         def compute() -> tuple[ConditionTerms, object]:
             ctx = self.prepare()
-            return held_terms(ctx, self.model.spec, live, held, view.current, speed_map), ctx
+            # compact: the live belief is reduced, and 16 keys of nodal functionals cost ~20 MiB a spindle
+            return held_terms(ctx, self.model.spec, live, held, view.current, speed_map).compact(), ctx
 
         return self.terms.get(key, compute, lambda: self.book.current)
 

@@ -113,6 +113,40 @@ def test_reduced_state_and_covariance_match_model_growth(
     assert by_factor.axial.std_field_um == pytest.approx(expected[ia], rel=1e-9)
 
 
+def test_compact_terms_serve_a_reduced_belief_alike_and_refuse_a_nodal_one(
+    fe: FEModel, ctx: GrowthContext, terms: ConditionTerms
+) -> None:
+    """The service caches compact terms (issue 43 part 5): without the nodal functionals, a reduced belief's
+    estimate is the same to the last bit, they are far smaller, and a nodal belief is refused by name."""
+    assert ctx.phi is not None
+    small = terms.compact()
+    assert small.w is None and small.modes_e is None
+    assert terms.w is not None and terms.modes_e is not None  # the full terms are left as they were
+
+    def nbytes(t: ConditionTerms) -> int:
+        return sum(v.nbytes for v in vars(t).values() if isinstance(v, np.ndarray))
+
+    assert nbytes(small) < 0.5 * nbytes(terms)
+    rng = np.random.default_rng(5)
+    r = ctx.phi.shape[1]
+    u = rng.normal(size=(r, r))
+    for belief in (
+        FieldBelief(state=30.0 * rng.standard_normal(r), cov=u @ u.T * 0.01),
+        FieldBelief(state=30.0 * rng.standard_normal(r), deviations=0.1 * rng.standard_normal((50, r))),
+        FieldBelief(state=30.0 * rng.standard_normal(r)),
+    ):
+        full = estimate_growth(ctx, terms, belief, t_ref_c=AMB, at=AT)
+        assert estimate_growth(ctx, small, belief, t_ref_c=AMB, at=AT) == full
+    nodal = (
+        FieldBelief(mean_c=np.full(fe.n_nodes, AMB)),
+        FieldBelief(state=np.zeros(r), std_c=np.full(fe.n_nodes, 0.1)),
+        FieldBelief(state=np.zeros(r), factor=np.ones((fe.n_nodes, 1))),
+    )
+    for belief in nodal:
+        with pytest.raises(GrowthEstimateError, match="compact"):
+            estimate_growth(ctx, small, belief, t_ref_c=AMB, at=AT)
+
+
 def test_per_node_std_is_bounded_by_full_correlation(
     fe: FEModel, growth: GrowthModel, ctx: GrowthContext, terms: ConditionTerms
 ) -> None:
