@@ -69,6 +69,20 @@ class NoMaps:
         raise AssertionError(f"no map fit runs, yet {job.key} came back as one")  # owns() is never true
 
 
+def into_box(
+    h: np.ndarray, lo: np.ndarray, hi: np.ndarray, box: tuple[float, float]
+) -> tuple[np.ndarray, np.ndarray]:
+    """The map's H (7,) with its 95 % band ``lo``..``hi`` as the live state may take it: clipped into the
+    reduced model's H box (it holds there only), and which of them are guesses (7,): those whose whole band
+    lies outside the box, where the map extrapolated (its level bounds are 0.5–500 W/(m²·K)) and no
+    per-condition fit could follow; their considered error is then the guessed one (``CoreParts.h_rel_for``).
+    Seen after an airflow change mid-shift: the map put H1 at 500 and H5 at 1 (docs/design/robustness.md)."""
+    box_lo, box_hi = float(box[0]), float(box[1])
+    arr = np.asarray(h, dtype=np.float64)
+    beyond = (np.asarray(hi, dtype=np.float64) < box_lo) | (np.asarray(lo, dtype=np.float64) > box_hi)
+    return np.clip(arr, box_lo, box_hi), beyond
+
+
 class MapTrack:
     """See the module docstring."""
 
@@ -126,8 +140,9 @@ class MapTrack:
         if key == book.live_key:
             return
         book.live_key = key
-        h, _, hi = book.family.h_ci95_at(mean, cov, [abs(s.speed_rpm)], s.ambient_c)
-        self.p.live.set_h(h[0], h_rel=self.p.h_rel_for(h[0], hi[0]))
+        h, lo, hi = book.family.h_ci95_at(mean, cov, [abs(s.speed_rpm)], s.ambient_c)
+        inside, guessed = into_box(h[0], lo[0], hi[0], self.p.model.ref.h_box)
+        self.p.live.set_h(inside, h_rel=self.p.h_rel_for(h[0], hi[0], guessed))
 
     def _launch(self, ts: float, reason: str, out: Out) -> str | None:
         """Launch a map fit over the rolling window ending now; None, or why not (stored when it is a job

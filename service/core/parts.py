@@ -23,7 +23,7 @@ from service.core.events import Instruction, Log, Rejected, RejectKind, Store
 from service.core.jobbook import Job, JobBook
 from service.core.jobs import Offsets
 from service.core.samples import SampleBook
-from service.estimate.state import FilteredState
+from service.estimate.state import GUESSED_H_REL, FilteredState
 from service.estimate.state import h_rel_from_ci as h_rel
 from service.identify import scheduler as sched
 from service.identify.detector import ConditionDetector, DetectorStatus
@@ -122,13 +122,18 @@ class CoreParts:
         cal = self.calibrator
         return self.config.h_no_baseline_sd if cal is not None and cal.current is None else 0.0
 
-    def h_rel_for(self, h: Any, hi: Any) -> np.ndarray:
+    def h_rel_for(self, h: Any, hi: Any, guessed: Any = None) -> np.ndarray:
         """The live state's considered H error (relative 1σ, 7) for H ``h`` with 95 % upper bound ``hi``:
         the fit's σ(ln H) (``h_rel``), the model-form term ``live_h_form_sd`` (the served band's
         ``h_form_sd``) and ``no_baseline_sd`` in quadrature, as the served band (``/chtc``) has them: the
-        growth's CI takes its H error from here (issue 40; docs/design/policy.md, "The served H band")."""
+        growth's CI takes its H error from here (issue 40; docs/design/policy.md, "The served H band").
+        ``guessed`` (7,) marks H that are no estimate (a fit's H on its search box's bound, a map's outside
+        the box): theirs is ``GUESSED_H_REL``, whatever their band says (a bound's band is not a CI)."""
         form = np.hypot(h_rel(h, hi), self.config.live_h_form_sd)
-        return np.asarray(np.hypot(form, self.no_baseline_sd()))
+        rel = np.hypot(form, self.no_baseline_sd())
+        if guessed is not None:
+            rel = np.where(np.asarray(guessed, dtype=bool), GUESSED_H_REL, rel)
+        return np.asarray(rel)
 
     def offsets(self) -> Offsets | None:
         cal = self.calibrator
@@ -139,7 +144,7 @@ class CoreParts:
         has just started to serve (None: the live state's H stays, or comes from the map)."""
         if served is not None:
             rec, load = served
-            self.live.set_h(rec.h, load, h_rel=self.h_rel_for(rec.h, rec.ci95_hi))
+            self.live.set_h(rec.h, load, h_rel=self.h_rel_for(rec.h, rec.ci95_hi, rec.at_bound))
 
     def store_outcome(self, job: Job, *, outcome: str, message: str, finished_at: datetime, out: Out) -> None:
         data, _ = self.jobs.ended(
