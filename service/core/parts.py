@@ -127,8 +127,8 @@ class CoreParts:
         the fit's σ(ln H) (``h_rel``), the model-form term ``live_h_form_sd`` (the served band's
         ``h_form_sd``) and ``no_baseline_sd`` in quadrature, as the served band (``/chtc``) has them: the
         growth's CI takes its H error from here (issue 40; docs/design/policy.md, "The served H band").
-        ``guessed`` (7,) marks H that are no estimate (a fit's H on its search box's bound, a map's outside
-        the box): theirs is ``GUESSED_H_REL``, whatever their band says (a bound's band is not a CI)."""
+        ``guessed`` (7,) marks H that are no estimate (a fit's H on its search box's bound, a map's whose band
+        lies wholly outside the box): theirs is ``GUESSED_H_REL``, whatever their band says."""
         form = np.hypot(h_rel(h, hi), self.config.live_h_form_sd)
         rel = np.hypot(form, self.no_baseline_sd())
         if guessed is not None:

@@ -77,11 +77,16 @@ class FaultMonitorSettings:
     recover_z: float = 0.5  # |mean z − reference| within this [σ]
     recover_rms: float = 1.5  # RMS of z − reference within this [σ]
     max_excluded: int = 3  # channels excluded at once at most
+    # a CUSUM above this fraction of cusum_h: the channel's data are suspect (identification windows leave it
+    # out; the live state still uses it), at most max_excluded such channels, the highest first
+    suspect_cusum_frac: float = 0.5
 
     def __post_init__(self) -> None:
         for name in ("stuck_window", "reference_samples", "recover_window"):
             if getattr(self, name) < 2:
                 raise SensorFaultError(f"{name}: must be >= 2 samples, got {getattr(self, name)}")
+        if not 0.0 < self.suspect_cusum_frac <= 1.0:
+            raise SensorFaultError(f"suspect_cusum_frac: must be in (0, 1], got {self.suspect_cusum_frac}")
         for name in ("stuck_band_c", "stuck_min_change_c", "cusum_k", "cusum_h", "recover_z", "recover_rms"):
             v = getattr(self, name)
             if not (math.isfinite(v) and v > 0.0):
@@ -151,11 +156,17 @@ class FaultMonitor:
     def suspect(self, t_from: float, t_to: float) -> NDArray[np.bool_]:
         """Channels (n,) whose data in [t_from, t_to] [s] are suspect: out now, or a fault found overlaps
         the span (a stuck channel from its frozen window's start; a drift from any time before it was found,
-        as its start is unknown). An identification window leaves them out entirely."""
+        as its start is unknown), or a CUSUM risen past ``suspect_cusum_frac`` of its threshold without an
+        alarm yet (a drift not yet found: its start is unknown too). An identification window leaves them out
+        entirely."""
         out = self.excluded()
         for i, lo, hi in self._spans:
             if t_to >= lo and (hi is None or t_from <= hi):
                 out[i] = True
+        st = self.settings
+        level = np.where(out, 0.0, np.maximum(self._hi, self._lo))
+        rising = np.flatnonzero(level >= st.suspect_cusum_frac * st.cusum_h)
+        out[rising[np.argsort(-level[rising])][: st.max_excluded]] = True
         return out
 
     def restart(self) -> None:

@@ -172,3 +172,31 @@ def test_identification_windows_leave_out_what_a_fault_touched_and_the_log_says_
     assert changes[0].startswith("sensor channel 3 left out of the live state as stuck since 1970-01-01T")
     assert f"frozen at {frozen:.2f} °C" in changes[0]
     assert changes[1].startswith("sensor channel 3 taken back into the live state at ")
+
+
+def test_a_drift_is_suspect_for_identification_windows_before_its_alarm() -> None:
+    """A CUSUM past half its threshold leaves the channel out of identification windows (not yet out of the
+    live state's updates): the windows taken while a drift grows unseen no longer carry it."""
+    m = FaultMonitor(N, noise_c=SIGMA)
+    rng = np.random.default_rng(6)
+    first_suspect = found = None
+    for k in range(3 * 360):
+        true = truth(k)
+        y = true + SIGMA * rng.standard_normal(N)
+        if k >= 400:
+            y[20] += 0.5 * (k - 400) * DT_S / 3600.0
+        used = ~m.excluded()
+        pred = true + np.where(used, 0.3 * (y - true) * (np.arange(N) == 20), 0.0)
+        m.observe(k * DT_S, y, np.ones(N, bool), pred, np.full(N, STD))
+        if first_suspect is None and m.suspect(0.0, k * DT_S)[20]:
+            first_suspect = k
+        if found is None and m.excluded()[20]:
+            found = k
+        others = m.suspect(0.0, k * DT_S)
+        others[20] = False
+        assert not others.any(), f"sample {k}: clean channels suspect {np.flatnonzero(others)}"
+    assert first_suspect is not None and found is not None
+    assert 400 < first_suspect < found  # suspect before the alarm
+    assert m.excluded()[20]  # by the end it is out of the live state's updates too
+    with pytest.raises(SensorFaultError, match="suspect_cusum_frac"):
+        FaultMonitorSettings(suspect_cusum_frac=0.0)
