@@ -381,8 +381,7 @@ def _field_std(nodal: Array | None, reduced: Array | None, b: FieldBelief) -> Ar
     if len(given) > 1:
         raise GrowthEstimateError("belief: give at most one of cov, deviations, factor, std_c")
     if not given:
-        rows = nodal if nodal is not None else reduced
-        return np.zeros(0 if rows is None else rows.shape[0])
+        return np.zeros(_nodal(nodal if reduced is None else reduced).shape[0])
     if b.factor is not None:
         nodal = _nodal(nodal)
         u = np.asarray(b.factor, dtype=float)
@@ -444,8 +443,6 @@ def estimate_growth(
         )
     x, gx = _mean_growth(ctx, belief)
     reduced_mean = belief.state is not None
-    if (terms.w is None or terms.modes_e is None) and not reduced_mean:
-        raise GrowthEstimateError("terms: compact (no nodal functionals) for a nodal belief.mean_c")
     g1 = ctx.g.sum(axis=1)  # growth per uniform kelvin (2,)
     b = np.array([ctx.offset_um, 0.0])  # the fixture offset moves the tool axially only
     now = gx - g1 * t_ref_c + b
