@@ -70,7 +70,7 @@ from service.core.events import (
 )
 from service.core.idcounter import IdCounter, rebase_ids
 from service.core.jobbook import JobBook, job_key
-from service.core.parts import CONDITIONS_KEPT, CoreParts, Out, h_rel, utc
+from service.core.parts import CONDITIONS_KEPT, CoreParts, Out, considered_h_rel, utc
 from service.core.restorecut import cut_future
 from service.core.samples import SampleBook
 from service.core.serving import serving_for
@@ -126,8 +126,6 @@ class ServiceCore:
             dt_s=config.rules.dt_s,
             settings=replace(config.filter, keep_s=3 * serving.longest_window_s(config)),
         )
-        # the considered H error: the stored result's CI, 100 % for the guessed initial H
-        live.set_h(h0, h_rel=1.0 if last is None else h_rel(last.h, last.ci95_hi))
         cal = config.calibration
         self._notes: list[str] = []  # said with the first event (the constructor has no ``Out``)
         calibrator = (
@@ -139,6 +137,24 @@ class ServiceCore:
         )
         if calibrator is not None:  # a restored baseline's offsets go to the filter at once
             live.set_offsets(calibrator.offsets(), calibrator.offset_sd())
+        # the considered H error (before ``resume``, which rescales to it): the stored result's as a served
+        # one's (``CoreParts.h_rel_for``: its band, the form term, no baseline yet, guessed where at a bound);
+        # 100 % for the guessed initial H
+        no_baseline = (
+            config.h_no_baseline_sd if calibrator is not None and calibrator.current is None else 0.0
+        )
+        rel = (
+            1.0
+            if last is None
+            else considered_h_rel(
+                last.h,
+                last.ci95_hi,
+                form_sd=config.live_h_form_sd,
+                no_baseline_sd=no_baseline,
+                guessed=last.at_bound,
+            )
+        )
+        live.set_h(h0, h_rel=rel)
         self._check = _check_of(None if calibrator is None else calibrator.current)
         if restored.live is not None:  # the stored checkpoint: the filter resumes instead of restarting
             try:

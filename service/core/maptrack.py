@@ -24,7 +24,7 @@ from service.identify import scheduler as sched
 from service.identify.detector import OperatingPoint
 from service.identify.mapjob import MapJob
 from service.identify.prior import job_prior
-from service.identify.speedmap import MapConfig, SpeedMap
+from service.identify.speedmap import MapConfig, SpeedMap, beyond_box
 from service.identify.window import InsufficientWindowError
 from service.identify.worker import JobStatus
 
@@ -77,10 +77,8 @@ def into_box(
     lies outside the box, where the map extrapolated (its level bounds are 0.5–500 W/(m²·K)) and no
     per-condition fit could follow; their considered error is then the guessed one (``CoreParts.h_rel_for``).
     Seen after an airflow change mid-shift: the map put H1 at 500 and H5 at 1 (docs/design/robustness.md)."""
-    box_lo, box_hi = float(box[0]), float(box[1])
     arr = np.asarray(h, dtype=np.float64)
-    beyond = (np.asarray(hi, dtype=np.float64) < box_lo) | (np.asarray(lo, dtype=np.float64) > box_hi)
-    return np.clip(arr, box_lo, box_hi), beyond
+    return np.clip(arr, float(box[0]), float(box[1])), beyond_box(lo, hi, box)
 
 
 class MapTrack:

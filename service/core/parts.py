@@ -29,7 +29,17 @@ from service.identify import scheduler as sched
 from service.identify.detector import ConditionDetector, DetectorStatus
 from service.modelload import LoadedModel
 
-__all__ = ["CONDITIONS_KEPT", "CoreParts", "Decides", "Load", "Out", "Served", "h_rel", "utc"]
+__all__ = [
+    "CONDITIONS_KEPT",
+    "CoreParts",
+    "Decides",
+    "Load",
+    "Out",
+    "Served",
+    "considered_h_rel",
+    "h_rel",
+    "utc",
+]
 
 CONDITIONS_KEPT = 200
 Load = tuple[float, float] | None  # a per-condition fit's bearing-heat load scales
@@ -129,11 +139,9 @@ class CoreParts:
         growth's CI takes its H error from here (issue 40; docs/design/policy.md, "The served H band").
         ``guessed`` (7,) marks H that are no estimate (a fit's H on its search box's bound, a map's whose band
         lies wholly outside the box): theirs is ``GUESSED_H_REL``, whatever their band says."""
-        form = np.hypot(h_rel(h, hi), self.config.live_h_form_sd)
-        rel = np.hypot(form, self.no_baseline_sd())
-        if guessed is not None:
-            rel = np.where(np.asarray(guessed, dtype=bool), GUESSED_H_REL, rel)
-        return np.asarray(rel)
+        return considered_h_rel(
+            h, hi, form_sd=self.config.live_h_form_sd, no_baseline_sd=self.no_baseline_sd(), guessed=guessed
+        )
 
     def offsets(self) -> Offsets | None:
         cal = self.calibrator
@@ -157,3 +165,15 @@ class CoreParts:
         )
         out.store(data)
         out.log(f"identification {job.key} {outcome}: {message}")
+
+
+def considered_h_rel(
+    h: Any, hi: Any, *, form_sd: float, no_baseline_sd: float, guessed: Any = None
+) -> np.ndarray:
+    """``CoreParts.h_rel_for`` before the parts exist (a restart's stored H): the fit's σ(ln H) from its
+    95 % upper bound ``hi``, ``form_sd`` and ``no_baseline_sd`` in quadrature; ``GUESSED_H_REL`` where
+    ``guessed``."""
+    rel = np.hypot(np.hypot(h_rel(h, hi), form_sd), no_baseline_sd)
+    if guessed is not None:
+        rel = np.where(np.asarray(guessed, dtype=bool), GUESSED_H_REL, rel)
+    return np.asarray(rel)

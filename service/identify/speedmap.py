@@ -36,7 +36,20 @@ __all__ = [
     "SpeedMap",
     "SpeedMapError",
     "VisitTally",
+    "beyond_box",
 ]
+
+
+def beyond_box(lo: npt.ArrayLike, hi: npt.ArrayLike, box: tuple[float, float]) -> npt.NDArray[np.bool_]:
+    """Which H's 95 % band ``lo``..``hi`` [W/(m²·K)] lies wholly outside ``box`` (the reduced model's H box,
+    ``model.rom``'s ``h_box``): there the map extrapolated beyond where the live state's model holds (its
+    level bounds are 0.5–500 W/(m²·K)), so such an H is a guess, never identified, and the live state takes it
+    with the guessed considered error (``service.core.maptrack.into_box``; docs/design/robustness.md)."""
+    box_lo, box_hi = float(box[0]), float(box[1])
+    return np.asarray(
+        (np.asarray(hi, dtype=np.float64) < box_lo) | (np.asarray(lo, dtype=np.float64) > box_hi), dtype=bool
+    )
+
 
 FloatArray = npt.NDArray[np.float64]
 MAP_GRID_RPM: FloatArray = np.arange(0.0, 7000.0 + 1.0, 100.0)  # the grid chtc_map() serves

@@ -149,6 +149,7 @@ class ViewReader:
                 condition=cond,
                 ci_threshold=v.ci_threshold,
                 prior=ctx.map_prior.at(v.speed_map, level_sd=level_sd, speed_rpm=speed, ambient_c=ambient),
+                model_box=box,
             )
             # the map's search box is its family's bounds (model.hmap.LEVEL_BOUNDS), not the per-condition
             # one: an H there is never fresh (at-bound), as in per-condition mode
@@ -250,6 +251,7 @@ class ViewReader:
             margin_rpm=cfg.margin_rpm,
             form_sd=v.h_form_sd,
             box=MAP_H_BOX,
+            model_box=ctx.model.ref.h_box,
         )
         ctx.map_cache = (key, snap)
         return snap

@@ -42,7 +42,7 @@ from service.contracts.snapshots import (
     IdentificationRecord,
 )
 from service.contracts.verdict import Verdict
-from service.identify.speedmap import MAP_GRID_RPM, SpeedMap
+from service.identify.speedmap import MAP_GRID_RPM, SpeedMap, beyond_box
 
 __all__ = [
     "ConditionRow",
@@ -243,6 +243,7 @@ def map_record(
     condition: ConditionSnapshot,
     ci_threshold: float,
     prior: HPrior | None = None,
+    model_box: tuple[float, float] | None = None,
 ) -> IdentificationRecord:
     """The record ``/chtc`` serves in speed-map mode: the stored map fit ``rec`` (provenance, fit) with H1-H7
     and their 95 % bands from the map at ``speed_rpm`` and ``ambient_c`` (the newest sample's), taken at the
@@ -250,7 +251,10 @@ def map_record(
 
     With ``prior`` (``service.identify.prior.ServedMapPrior``: the map's information there on the cold
     physics prior) H and the band are its instead, and ``prior_dominated`` where the data did not see an H
-    (never identified)."""
+    (never identified).
+
+    With ``model_box`` (the reduced model's H box): an H whose band lies wholly outside it is a guess the map
+    extrapolated, never identified (``service.identify.speedmap.beyond_box``)."""
     dominated = np.zeros(N_ZONES, dtype=bool)
     if prior is None:
         h3, lo3, hi3 = speed_map.h_at([speed_rpm], ambient_c)
@@ -261,13 +265,16 @@ def map_record(
         lo, hi = h * np.exp(-Z95 * sd), h * np.exp(Z95 * sd)
         dominated = prior.dominated(sd**2)
     half = 0.5 * np.log(hi / lo)
+    known = (half <= ci_threshold) & ~dominated
+    if model_box is not None:
+        known &= ~beyond_box(lo, hi, model_box)
     return replace(
         rec,
         condition=condition,
         h=_ro(np.array(h, dtype=float)),
         ci95_lo=_ro(np.array(lo, dtype=float)),
         ci95_hi=_ro(np.array(hi, dtype=float)),
-        identified=_ro_bool(np.asarray((half <= ci_threshold) & ~dominated, dtype=bool)),
+        identified=_ro_bool(np.asarray(known, dtype=bool)),
         at_bound=_ro_bool(np.zeros(N_ZONES, dtype=bool)),
         prior_dominated=_ro_bool(np.array(dominated, dtype=bool)),
     )
@@ -284,13 +291,18 @@ def chtc_map_snapshot(
     margin_rpm: float,
     form_sd: float = 0.0,
     box: tuple[float, float] = (0.0, np.inf),
+    model_box: tuple[float, float] | None = None,
 ) -> ChtcMapSnapshot:
     """What ``chtc_map()`` serves: the map on ``MAP_GRID_RPM`` at ``ambient_c`` with its bands, ``identified``
     where the band's half-width in ln H is <= ``ci_threshold``, the visited speeds and the policy's
     ``verdict`` (``service.serve.policy.map_verdict``); the bands widened by ``form_sd`` and truncated to
-    ``box`` as ``/chtc``'s (``widen_band``)."""
+    ``box`` as ``/chtc``'s (``widen_band``); with ``model_box`` never where the band lies wholly outside the
+    reduced model's H box (as ``map_record``)."""
     h, lo, hi = speed_map.h_at(MAP_GRID_RPM, ambient_c)
     lo, hi, half = widen_band(h, lo, hi, form_sd=form_sd, box=box)
+    known = half <= ci_threshold
+    if model_box is not None:
+        known &= ~beyond_box(lo, hi, model_box)
     return ChtcMapSnapshot(
         fitted_at=speed_map.fitted_at,
         identification_id=speed_map.identification_id,
@@ -300,7 +312,7 @@ def chtc_map_snapshot(
         h_w_m2k=_ro(np.asarray(h, dtype=float)),
         ci95_lo_w_m2k=_ro(np.asarray(lo, dtype=float)),
         ci95_hi_w_m2k=_ro(np.asarray(hi, dtype=float)),
-        identified=_ro_bool(np.asarray(half <= ci_threshold, dtype=bool)),
+        identified=_ro_bool(np.asarray(known, dtype=bool)),
         visited_rpm=speed_map.visited_rpm,
         visited_s=speed_map.visited_s,
         verdict=verdict,
