@@ -38,6 +38,7 @@ import sys
 import tempfile
 import time
 import zlib
+from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
@@ -369,6 +370,8 @@ def run_scenario(model: Any, settings: Any, plant: Any, s: Seed, sc: Scenario) -
             "readings": len(served.readings),
             "accepted": served.accepted,
             "refused": served.refused,
+            # the minute the first reading was posted (after that minute's row was read)
+            "first_min": float(t_min[served.readings[0][0]]) if served.readings else None,
         }
     return out
 
@@ -510,10 +513,38 @@ def summarize(infos: list[dict[str, Any]], rows: list[dict[str, Any]]) -> dict[s
         out["machine_after_change"] = {
             "from": "1 h after the fixture offset",
             **{m: figures(late[m]) for m in METHODS},
+            # the product's verdict split at the first reading: before it, nothing tells the machine changed
+            "product_coverage_usable": {
+                "before_first_reading": _coverage(fixture, lambda r, t: t <= _first(r)),
+                "after_first_reading": _coverage(fixture, lambda r, t: t > _first(r)),
+                "from_1_h_after_the_change": _coverage(fixture, lambda r, t: t >= r["fixture_min"] + 60.0),
+            },
             "probe": [{"seed": r["seed"], **r["probe"], **(r["info"] or {})} for r in fixture],
         }
     out["per_seed"] = infos
     return out
+
+
+def _first(row: dict[str, Any]) -> float:
+    """The minute of a machine run's first probe reading (inf: none)."""
+    first = row["probe"].get("first_min")
+    return np.inf if first is None else float(first)
+
+
+def _coverage(rows: list[dict[str, Any]], keep: Callable[[dict[str, Any], float], bool]) -> dict[str, Any]:
+    """The product's coverage when usable and usable fraction over the minutes ``keep`` selects."""
+    u = [
+        (ok, c)
+        for r in rows
+        for ok, c, t in zip(r["usable"], r["covered"], r["t_min"], strict=True)
+        if keep(r, t)
+    ]
+    usable = [c for ok, c in u if ok]
+    return {
+        "coverage_usable": _r(np.mean(usable)) if usable else None,
+        "usable_fraction": _r(np.mean([ok for ok, _ in u])) if u else None,
+        "minutes": len(u),
+    }
 
 
 # -------------------------------------------------------------------------------------------------- main

@@ -33,3 +33,19 @@ def test_one_seed_short_scenarios_give_every_key(capsys: pytest.CaptureFixture[s
 def test_unknown_family_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
     assert main(["--families", "ambient,weather"]) == 2
     assert "--families" in capsys.readouterr().err
+
+
+def test_the_machine_familys_coverage_splits_at_the_first_reading() -> None:
+    from benchmarks.robustness.bench import _coverage, _first
+
+    row = {
+        "t_min": [30.0, 31.0, 32.0, 33.0, 34.0],
+        "usable": [True, True, False, True, True],
+        "covered": [False, False, False, True, False],
+        "probe": {"first_min": 31.0},
+    }
+    before = _coverage([row], lambda r, t: t <= _first(r))
+    after = _coverage([row], lambda r, t: t > _first(r))
+    assert before == {"coverage_usable": 0.0, "usable_fraction": 1.0, "minutes": 2}
+    assert after == {"coverage_usable": 0.5, "usable_fraction": 0.667, "minutes": 3}
+    assert _first({"probe": {"first_min": None}}) == float("inf")  # no reading: all before it
