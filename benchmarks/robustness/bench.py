@@ -77,6 +77,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     )
     parser.add_argument("--json", action="store_true", help="print one JSON object")
     parser.add_argument(
+        "--spindle",
+        type=Path,
+        default=None,
+        help="a spindle TOML for the product and the plant alike (default: the packaged one); e.g. with a "
+        "channel moved to the rear pulley (docs/design/growth.md, 'One shaft-side channel')",
+    )
+    parser.add_argument(
+        "--pulley-channel",
+        type=int,
+        default=None,
+        help="move this DAQ channel (1-32; 22 is a mid-housing one) to a pyrometer on the rear pulley's rim, "
+        "in the product and the plant (benchmarks/robustness/pulley.py); instead of --spindle",
+    )
+    parser.add_argument(
         "--raw",
         type=Path,
         default=None,
@@ -550,13 +564,17 @@ def _coverage(rows: list[dict[str, Any]], keep: Callable[[dict[str, Any], float]
 # -------------------------------------------------------------------------------------------------- main
 
 
-def _setup() -> tuple[Any, Any, Any]:
-    """The served model, the bench's settings and the plant (``compensation_run.Plant``: drawn mechanics)."""
+def _setup(spindle: Path | None = None) -> tuple[Any, Any, Any]:
+    """The served model, the bench's settings and the plant (``compensation_run.Plant``: drawn mechanics),
+    all of the packaged spindle or of ``spindle`` (a TOML)."""
     from benchmarks.compensation_run import Plant
+    from service.commands._common import override
     from service.modelload import ModelRef, load_model
     from service.settings import Settings
 
     settings = Settings()
+    if spindle is not None:
+        settings = override(settings, "model", spindle=str(spindle))
     model = load_model(ModelRef.from_settings(settings))
     return model, settings, Plant(model.spec)
 
@@ -576,7 +594,7 @@ def run_seed(
     from service.commands._common import override
 
     started = time.perf_counter()
-    model, settings, plant = setup if setup is not None else _setup()
+    model, settings, plant = setup if setup is not None else _setup(getattr(args, "spindle", None))
     s = prepare_seed(model, settings, plant, seed, args)
     progress(
         f"seed {seed}: commissioned {s.info['fitted']} (plant {s.info['mechanics']}), peers fitted "
@@ -616,6 +634,11 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
             f"{args.rest_min}, {args.jobs}"
         )
     started = time.perf_counter()
+    if args.pulley_channel is not None:
+        from benchmarks.robustness.pulley import pulley_spindle
+
+        args.spindle = pulley_spindle(args.pulley_channel, Path(tempfile.mkdtemp(prefix="chtc-pulley-")))
+        _setup(args.spindle)  # its reduced model built once, before the seeds' processes load it
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     done: dict[int, tuple[dict[str, Any], list[dict[str, Any]]]] = {}
     if args.jobs > 1 and len(seeds) > 1:
@@ -627,7 +650,7 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
             for seed, res in zip(seeds, pool.map(run_seed, [opts] * len(seeds), seeds), strict=True):
                 done[seed] = res
     else:
-        setup = _setup()
+        setup = _setup(args.spindle)
         for seed in seeds:
             done[seed] = run_seed(args, seed, setup)
     infos = [done[s][0] for s in seeds]
@@ -639,6 +662,8 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
         "hours": args.hours,
         "rest_min": args.rest_min,
         "short_test": bool(args.short),
+        "spindle": None if args.spindle is None else str(args.spindle),
+        "pulley_channel": args.pulley_channel,
         "families": list(families),
     }
     out["wall_s"] = round(time.perf_counter() - started, 1)
