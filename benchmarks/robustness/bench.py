@@ -81,14 +81,20 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         type=Path,
         default=None,
         help="a spindle TOML for the product and the plant alike (default: the packaged one); e.g. with a "
-        "channel moved to the rear pulley (docs/design/growth.md, 'One shaft-side channel')",
+        "channel moved to the shaft (docs/design/growth.md, 'One shaft-side channel')",
     )
     parser.add_argument(
-        "--pulley-channel",
+        "--shaft-channel",
         type=int,
         default=None,
-        help="move this DAQ channel (1-32; 22 is a mid-housing one) to a pyrometer on the rear pulley's rim, "
-        "in the product and the plant (benchmarks/robustness/pulley.py); instead of --spindle",
+        help="move this DAQ channel (1-32; 22 is a mid-housing one) to a pyrometer on the shaft, at "
+        "--shaft-spot, in the product and the plant (benchmarks/robustness/shaftchannel.py); instead of "
+        "--spindle",
+    )
+    parser.add_argument(
+        "--shaft-spot",
+        default="pulley",
+        help="where --shaft-channel looks: pulley (the rear pulley's rim, H1) or nose (the shaft nose, H5)",
     )
     parser.add_argument(
         "--raw",
@@ -634,10 +640,11 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
             f"{args.rest_min}, {args.jobs}"
         )
     started = time.perf_counter()
-    if args.pulley_channel is not None:
-        from benchmarks.robustness.pulley import pulley_spindle
+    if args.shaft_channel is not None:
+        from benchmarks.robustness.shaftchannel import shaft_spindle
 
-        args.spindle = pulley_spindle(args.pulley_channel, Path(tempfile.mkdtemp(prefix="chtc-pulley-")))
+        tmp = Path(tempfile.mkdtemp(prefix="chtc-shaft-"))
+        args.spindle = shaft_spindle(args.shaft_channel, args.shaft_spot, tmp)
         _setup(args.spindle)  # its reduced model built once, before the seeds' processes load it
     seeds = list(range(args.first_seed, args.first_seed + args.seeds))
     done: dict[int, tuple[dict[str, Any], list[dict[str, Any]]]] = {}
@@ -663,7 +670,7 @@ def run_bench(args: argparse.Namespace) -> dict[str, Any]:
         "rest_min": args.rest_min,
         "short_test": bool(args.short),
         "spindle": None if args.spindle is None else str(args.spindle),
-        "pulley_channel": args.pulley_channel,
+        "shaft_channel": None if args.shaft_channel is None else f"{args.shaft_channel}@{args.shaft_spot}",
         "families": list(families),
     }
     out["wall_s"] = round(time.perf_counter() - started, 1)
