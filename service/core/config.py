@@ -10,6 +10,7 @@ constant of the module that uses it; the functions here are the one place that m
 
 from __future__ import annotations
 
+import zlib
 from dataclasses import dataclass
 from typing import TYPE_CHECKING
 
@@ -40,6 +41,7 @@ __all__ = [
     "CoreConfig",
     "Restored",
     "calibration_config",
+    "checkpoint_phase",
     "compensation_limits",
     "control_limits",
     "core_config",
@@ -83,6 +85,10 @@ class CoreConfig:
     # the live state is handed to the writer this often [s of sample time] (a restart resumes the filter
     # from it: service.estimate.checkpoint); 0: never (database.live_checkpoint_s)
     live_checkpoint_s: float
+    # the first checkpoint this long after the first sample [s], the next every live_checkpoint_s: a host's
+    # spindles, started together, would otherwise all hand theirs to the writers in the same second
+    # (``checkpoint_phase``; docs/design/fleet.md)
+    live_checkpoint_phase_s: float = 0.0
     min_speed_rpm: float  # below: spindle idle, no bearing heat, H not identifiable -> skipped
     initial_h: tuple[float, ...]  # live-state H before the first identification (no data yet)
     # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the
@@ -95,6 +101,13 @@ class CoreConfig:
     # "Combined mode")
     mode: IdentificationMode
     speed_map: MapConfig  # the map's knobs (used when the mode fits one)
+
+
+def checkpoint_phase(spindle_id: str, every_s: float) -> float:
+    """How long after its live state starts a spindle's first checkpoint falls [s]: a fraction of
+    ``every_s`` drawn from the spindle's id (CRC-32), so a host's spindles, started together, spread theirs
+    over the period without knowing each other (the same fraction at every start)."""
+    return every_s * (zlib.crc32(spindle_id.encode("utf-8")) % 1000) / 1000.0 if every_s > 0.0 else 0.0
 
 
 def core_config(settings: Settings) -> CoreConfig:
@@ -138,6 +151,7 @@ def core_config(settings: Settings) -> CoreConfig:
         stale_after_s=max(STALE_AFTER_MIN_S, STALE_AFTER_SAMPLES * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
         live_checkpoint_s=settings.database.live_checkpoint_s,
+        live_checkpoint_phase_s=checkpoint_phase(settings.spindle.id, settings.database.live_checkpoint_s),
         min_speed_rpm=MIN_SPEED_RPM,
         initial_h=INITIAL_H,
         calibration=calibration_config(ident) if ident.offset_calibration else None,

@@ -316,13 +316,18 @@ class ServiceCore:
         self._notes[:0] = notes
 
     def _checkpoint(self, ts: float, out: Out) -> None:
-        """Hand the live state to the writer every ``live_checkpoint_s`` of sample time; log start notes."""
+        """Hand the live state to the writer every ``live_checkpoint_s`` of sample time, the first
+        ``live_checkpoint_phase_s`` after the live state starts; log start notes."""
         for note in self._notes:
             out.log(note)
         self._notes.clear()
         every = self.config.live_checkpoint_s
         live = self._p.live
-        if every <= 0.0 or not live.initialized or ts - self._checkpoint_t < every:
+        if every <= 0.0 or not live.initialized:
+            return
+        if self._checkpoint_t == -math.inf:  # the first one ``live_checkpoint_phase_s`` from now
+            self._checkpoint_t = ts - every + self.config.live_checkpoint_phase_s
+        if ts - self._checkpoint_t < every:
             return
         self._checkpoint_t = ts
         out.store(live.checkpoint(self.model.version))

@@ -10,6 +10,7 @@ from __future__ import annotations
 
 from dataclasses import replace
 from datetime import timedelta
+from itertools import pairwise
 
 import numpy as np
 import pytest
@@ -18,7 +19,7 @@ from model.plant import Segment
 from service.contracts.checkpoint import LiveCheckpoint
 from service.contracts.health import DeviceStatus
 from service.contracts.verdict import ChtcStatus
-from service.core.config import Restored
+from service.core.config import Restored, checkpoint_phase
 from service.core.events import SampleReceived
 from service.core.machine import ServiceCore
 from service.host.runtime import core_config
@@ -160,6 +161,25 @@ def test_a_drifting_sensor_is_reported_as_a_persistent_inconsistency(loaded_mode
     live = svc.view.live
     assert live is not None and live.inconsistent(live.t) and live.verdict == "high"
     assert filter_health(svc.view, drifted[-1].t).status is DeviceStatus.DEGRADED
+
+
+def test_a_hosts_spindles_spread_their_checkpoints_over_the_minute(loaded_model, run_samples) -> None:  # type: ignore[no-untyped-def]
+    """Spindles started together hand their checkpoints to the writers at phases drawn from their ids (not
+    all in the same second, which made a burst of 50 writes a minute at N = 50), each still one a minute."""
+    from .drive import stored
+
+    phases = [checkpoint_phase(f"spindle{i}", 60.0) for i in range(1, 51)]
+    assert all(0.0 <= p < 60.0 for p in phases) and len({round(p) for p in phases}) > 30
+    assert checkpoint_phase("spindle7", 60.0) == phases[6] and checkpoint_phase("x", 0.0) == 0.0
+    _run, samples = run_samples
+    for phase in (0.0, 35.0):
+        cfg = replace(core_config(per_condition()), live_checkpoint_phase_s=phase)
+        out = feed_and_run(ServiceCore(cfg, model=loaded_model), loaded_model, samples[:60])
+        at = [r.values()["at"] for r in stored(out) if isinstance(r, LiveCheckpoint)]
+        assert len(at) >= 5
+        first = (at[0] - samples[0].t).total_seconds()
+        assert phase <= first < phase + 20.0, first  # once the live state runs (its first sample or two)
+        assert all((b - a).total_seconds() == 60.0 for a, b in pairwise(at))
 
 
 def test_a_restart_with_the_stored_live_state_resumes_it(loaded_model, run_samples, tmp_path) -> None:  # type: ignore[no-untyped-def]
