@@ -97,13 +97,14 @@ class ZoneSpec:
 
 @dataclass(frozen=True)
 class SensorSpec:
-    """One temperature channel at (r_m, z_m) [m], role "bearing"/"housing", the paper's test point if any."""
+    """One temperature channel at (r_m, z_m) [m], role "bearing"/"housing"/"shaft" (a pyrometer aimed at the
+    shaft: docs/design/growth.md, "One shaft-side channel"), the paper's test point if any."""
 
     channel: int
     name: str
     r_m: float
     z_m: float
-    role: Literal["bearing", "housing"]
+    role: Literal["bearing", "housing", "shaft"]
     test_point: int | None = None
 
 
@@ -275,8 +276,8 @@ def _sensor(d: Mapping[str, Any], path: str, index: int, regions: tuple[Region, 
         raise SpindleError(f"{path}channel: expected {index + 1} (channels 1..32 in order), got {channel!r}")
     r, z = _num(d, "r_m", path, positive=True), _num(d, "z_m", path)
     role = _str(d, "role", path)
-    if role not in ("bearing", "housing"):
-        raise SpindleError(f"{path}role: must be 'bearing' or 'housing', got {role!r}")
+    if role not in ("bearing", "housing", "shaft"):
+        raise SpindleError(f"{path}role: must be 'bearing', 'housing' or 'shaft', got {role!r}")
     tp = d.get("test_point")
     if tp is not None and tp not in TEST_POINTS:
         raise SpindleError(f"{path}test_point: must be one of {TEST_POINTS}, got {tp!r}")

@@ -27,7 +27,7 @@ MAX_LIMIT = 10_000
 class ChannelHistoryOut(BaseModel):
     channel: int
     name: str = Field(description="sensor name from the spindle description")
-    role: str = Field(description='"bearing" | "housing"')
+    role: str = Field(description='"bearing" | "housing" | "shaft" (a pyrometer aimed at the shaft)')
     measured_c: list[float | None] = Field(
         description="°C per sample; null = no usable value (quality not ok)"
     )

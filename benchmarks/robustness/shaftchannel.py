@@ -36,7 +36,7 @@ def shaft_spindle(channel: int, spot: str, dest: Path) -> Path:
         rf"(\[\[sensors\]\]\nchannel = {int(channel)}\n)name = \"[^\"]*\"\nr_m = [0-9.]+\nz_m = [0-9.]+\n"
         rf"role = \"[a-z]+\"\n"
     )
-    moved, n = block.subn(rf'\g<1>name = "{name}"\nr_m = {r_m}\nz_m = {z_m}\nrole = "housing"\n', text)
+    moved, n = block.subn(rf'\g<1>name = "{name}"\nr_m = {r_m}\nz_m = {z_m}\nrole = "shaft"\n', text)
     if n != 1:
         raise ValueError(f"--shaft-channel: channel {channel} not found in the packaged spindle TOML")
     path = dest / f"spindle_{spot}_ch{int(channel)}.toml"

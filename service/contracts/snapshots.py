@@ -132,7 +132,7 @@ class SensorReading:
 
     channel: int  # 1..32
     name: str
-    role: str  # "bearing" | "housing"
+    role: str  # "bearing" | "housing" | "shaft"
     r_m: float
     z_m: float
     measured_c: float | None  # None when the channel has no usable value (see quality)
@@ -462,7 +462,7 @@ class SensorHistory:
     predicted_c: np.ndarray  # (n, C) °C; NaN before the first identification
     channels: tuple[int, ...]  # (C,) channel numbers of the columns
     names: tuple[str, ...]  # (C,) sensor names (the spindle description's)
-    roles: tuple[str, ...]  # (C,) "bearing" | "housing"
+    roles: tuple[str, ...]  # (C,) "bearing" | "housing" | "shaft"
     capacity: int  # samples the buffer keeps; older ones are gone
 
 

@@ -31,7 +31,7 @@ def test_packaged_spindle_loads(spec) -> None:  # type: ignore[no-untyped-def]
     [
         (("sensors", 4, "r_m"), -0.01, r"^sensors\[4\]\.r_m: must be > 0"),
         (("sensors", 4, "r_m"), 0.3, r"^sensors\[4\]\.r_m: point .* not inside any solid region"),
-        (("sensors", 2, "role"), "shaft", r"^sensors\[2\]\.role:"),
+        (("sensors", 2, "role"), "rotor", r"^sensors\[2\]\.role: must be .bearing., .housing. or .shaft."),
         (("sensors", 2, "channel"), 9, r"^sensors\[2\]\.channel: expected 3"),
         (("regions", 1, "material"), "unobtainium", r"^regions\[1\]\.material: unknown material"),
         (("regions", 0, "r1_m"), 0.0, r"^regions\[0\]\.r1_m: must be > 0"),

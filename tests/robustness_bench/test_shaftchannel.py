@@ -17,7 +17,7 @@ def test_the_channel_moves_to_the_spot_and_nothing_else_changes(spot: str, tmp_p
     moved = load_spindle(str(shaft_spindle(22, spot, tmp_path)))
     name, r_m, z_m = SHAFT_SPOTS[spot]
     s = moved.sensors[21]
-    assert (s.channel, s.name, s.r_m, s.z_m) == (22, name, r_m, z_m)
+    assert (s.channel, s.name, s.r_m, s.z_m, s.role) == (22, name, r_m, z_m, "shaft")
     assert [x for i, x in enumerate(moved.sensors) if i != 21] == [
         x for i, x in enumerate(packaged.sensors) if i != 21
     ]
