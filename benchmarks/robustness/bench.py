@@ -89,7 +89,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
         default=None,
         help="move this DAQ channel (1-32; 22 is a mid-housing one) to a pyrometer on the shaft, at "
         "--shaft-spot, in the product and the plant (benchmarks/robustness/shaftchannel.py); instead of "
-        "--spindle",
+        "--spindle (default: none)",
     )
     parser.add_argument(
         "--shaft-spot",

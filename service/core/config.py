@@ -88,7 +88,7 @@ class CoreConfig:
     # the first checkpoint this long after the first sample [s], the next every live_checkpoint_s: a host's
     # spindles, started together, would otherwise all hand theirs to the writers in the same second
     # (``checkpoint_phase``; docs/design/fleet.md)
-    live_checkpoint_phase_s: float = 0.0
+    live_checkpoint_phase_s: float
     min_speed_rpm: float  # below: spindle idle, no bearing heat, H not identifiable -> skipped
     initial_h: tuple[float, ...]  # live-state H before the first identification (no data yet)
     # sensor offsets zeroed against a baseline at thermal equilibrium (service.acquire.calibration); None: the

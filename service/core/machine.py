@@ -140,21 +140,11 @@ class ServiceCore:
         # the considered H error (before ``resume``, which rescales to it): the stored result's as a served
         # one's (``CoreParts.h_rel_for``: its band, the form term, no baseline yet, guessed where at a bound);
         # 100 % for the guessed initial H
-        no_baseline = (
-            config.h_no_baseline_sd if calibrator is not None and calibrator.current is None else 0.0
+        no_base = config.h_no_baseline_sd if calibrator is not None and calibrator.current is None else 0.0
+        kw = {"form_sd": config.live_h_form_sd, "no_baseline_sd": no_base}
+        live.set_h(
+            h0, h_rel=1.0 if last is None else considered_h_rel(last.h, last.ci95_hi, last.at_bound, **kw)
         )
-        rel = (
-            1.0
-            if last is None
-            else considered_h_rel(
-                last.h,
-                last.ci95_hi,
-                form_sd=config.live_h_form_sd,
-                no_baseline_sd=no_baseline,
-                guessed=last.at_bound,
-            )
-        )
-        live.set_h(h0, h_rel=rel)
         self._check = _check_of(None if calibrator is None else calibrator.current)
         if restored.live is not None:  # the stored checkpoint: the filter resumes instead of restarting
             try:

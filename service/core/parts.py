@@ -168,7 +168,7 @@ class CoreParts:
 
 
 def considered_h_rel(
-    h: Any, hi: Any, *, form_sd: float, no_baseline_sd: float, guessed: Any = None
+    h: Any, hi: Any, guessed: Any = None, *, form_sd: float, no_baseline_sd: float
 ) -> np.ndarray:
     """``CoreParts.h_rel_for`` before the parts exist (a restart's stored H): the fit's σ(ln H) from its
     95 % upper bound ``hi``, ``form_sd`` and ``no_baseline_sd`` in quadrature; ``GUESSED_H_REL`` where
