@@ -70,7 +70,7 @@ from service.core.events import (
 )
 from service.core.idcounter import IdCounter, rebase_ids
 from service.core.jobbook import JobBook, job_key
-from service.core.parts import CONDITIONS_KEPT, CoreParts, Out, considered_h_rel, utc
+from service.core.parts import CONDITIONS_KEPT, CoreParts, Out, considered_h_rel, no_baseline_sd, utc
 from service.core.restorecut import cut_future
 from service.core.samples import SampleBook
 from service.core.serving import serving_for
@@ -140,8 +140,7 @@ class ServiceCore:
         # the considered H error (before ``resume``, which rescales to it): the stored result's as a served
         # one's (``CoreParts.h_rel_for``: its band, the form term, no baseline yet, guessed where at a bound);
         # 100 % for the guessed initial H
-        no_base = config.h_no_baseline_sd if calibrator is not None and calibrator.current is None else 0.0
-        kw = {"form_sd": config.live_h_form_sd, "no_baseline_sd": no_base}
+        kw = {"form_sd": config.live_h_form_sd, "no_baseline_sd": no_baseline_sd(config, calibrator)}
         live.set_h(
             h0, h_rel=1.0 if last is None else considered_h_rel(last.h, last.ci95_hi, last.at_bound, **kw)
         )

@@ -38,6 +38,7 @@ __all__ = [
     "Served",
     "considered_h_rel",
     "h_rel",
+    "no_baseline_sd",
     "utc",
 ]
 
@@ -126,11 +127,8 @@ class CoreParts:
         return cond
 
     def no_baseline_sd(self) -> float:
-        """1σ in ln H (``config.h_no_baseline_sd``) the H bands carry while offset calibration is on and has
-        no baseline (the offsets unknown, 0.17 °C per channel: a warm start with an empty database), else 0
-        (docs/design/estimator.md, "Warm restart with no stored state")."""
-        cal = self.calibrator
-        return self.config.h_no_baseline_sd if cal is not None and cal.current is None else 0.0
+        """``no_baseline_sd`` of this core's configuration and calibrator."""
+        return no_baseline_sd(self.config, self.calibrator)
 
     def h_rel_for(self, h: Any, hi: Any, guessed: Any = None) -> np.ndarray:
         """The live state's considered H error (relative 1σ, 7) for H ``h`` with 95 % upper bound ``hi``:
@@ -165,6 +163,13 @@ class CoreParts:
         )
         out.store(data)
         out.log(f"identification {job.key} {outcome}: {message}")
+
+
+def no_baseline_sd(config: CoreConfig, calibrator: OffsetCalibrator | None) -> float:
+    """1σ in ln H (``config.h_no_baseline_sd``) the H bands carry while offset calibration is on and has
+    no baseline (the offsets unknown, 0.17 °C per channel: a warm start with an empty database), else 0
+    (docs/design/estimator.md, "Warm restart with no stored state")."""
+    return config.h_no_baseline_sd if calibrator is not None and calibrator.current is None else 0.0
 
 
 def considered_h_rel(

@@ -40,6 +40,13 @@ __all__ = [
 ]
 
 
+FloatArray = npt.NDArray[np.float64]
+MAP_GRID_RPM: FloatArray = np.arange(0.0, 7000.0 + 1.0, 100.0)  # the grid chtc_map() serves
+MAP_GRID_RPM.setflags(write=False)
+MIN_VISITED_S = 1.0  # accumulated seconds below this: forgotten
+MAP_BIN_RPM = 50.0  # visited speeds are binned to this (MapConfig.bin_rpm; no settings key)
+
+
 def beyond_box(lo: npt.ArrayLike, hi: npt.ArrayLike, box: tuple[float, float]) -> npt.NDArray[np.bool_]:
     """Which H's 95 % band ``lo``..``hi`` [W/(m²·K)] lies wholly outside ``box`` (the reduced model's H box,
     ``model.rom``'s ``h_box``): there the map extrapolated beyond where the live state's model holds (its
@@ -49,13 +56,6 @@ def beyond_box(lo: npt.ArrayLike, hi: npt.ArrayLike, box: tuple[float, float]) -
     return np.asarray(
         (np.asarray(hi, dtype=np.float64) < box_lo) | (np.asarray(lo, dtype=np.float64) > box_hi), dtype=bool
     )
-
-
-FloatArray = npt.NDArray[np.float64]
-MAP_GRID_RPM: FloatArray = np.arange(0.0, 7000.0 + 1.0, 100.0)  # the grid chtc_map() serves
-MAP_GRID_RPM.setflags(write=False)
-MIN_VISITED_S = 1.0  # accumulated seconds below this: forgotten
-MAP_BIN_RPM = 50.0  # visited speeds are binned to this (MapConfig.bin_rpm; no settings key)
 
 
 class SpeedMapError(ServiceError, ValueError):
