@@ -151,7 +151,7 @@ def core_config(settings: Settings) -> CoreConfig:
         stale_after_s=max(STALE_AFTER_MIN_S, STALE_AFTER_SAMPLES * acq.sample_period_s),
         sample_store_period_s=settings.database.sample_store_period_s,
         live_checkpoint_s=settings.database.live_checkpoint_s,
-        live_checkpoint_phase_s=0.0,  # checkpoint_phase(): off, it failed tests/db/test_db_hung.py (fleet.md)
+        live_checkpoint_phase_s=checkpoint_phase(settings.spindle.id, settings.database.live_checkpoint_s),
         min_speed_rpm=MIN_SPEED_RPM,
         initial_h=INITIAL_H,
         calibration=calibration_config(ident) if ident.offset_calibration else None,

@@ -112,28 +112,37 @@ def ensure_spindle(session: Session, spindle_id: str, *, description: str = "", 
 
 
 def write_records(session: Session, records: Sequence[Record]) -> None:
-    """Write records in order, stamped with the session's spindle; runs of one kind become one multi-row
-    INSERT (or one UPDATE each for ends); samples and minute means skip rows already stored."""
+    """Write records stamped with the session's spindle, in a few statements whatever the batch's length:
+    samples and minute means (rows of their own, keyed by time, referred to by nothing) one multi-row INSERT
+    each, skipping rows already stored; the other records in order, runs of one kind one multi-row INSERT (or
+    one UPDATE each for ends); of the live-state checkpoints only the newest, which replaces the stored one.
+    An outage's backlog interleaves a checkpoint a minute with the samples: written run by run, its round
+    trips outlasted the writer's stall limit and every retry was aborted (docs/design/persistence.md).
+    """
     sid = spindle_of(session)
     days = {utc_day(r.t) for r in records if isinstance(r, SampleData)}
     if days:  # PostgreSQL: the days' partitions first, committed apart from the batch (never inside it)
         _prepare_partitions(session, days)
-    for kind, group in groupby(records, key=type):
+    for keyed in _IDEMPOTENT:
+        rows = [_stamped(r, sid) for r in records if type(r) is keyed]
+        if rows:
+            insert_ignore_rows(session, _TABLE_OF[keyed], rows)
+    ordered = [r for r in records if type(r) not in _IDEMPOTENT and type(r) is not LiveCheckpoint]
+    for kind, group in groupby(ordered, key=type):
         run = list(group)
         if kind is ConditionEnd:
             for end in run:
                 assert isinstance(end, ConditionEnd)
                 _end_condition(session, end)
-        elif kind is LiveCheckpoint:  # one row: the newest checkpoint replaces the stored one
-            session.execute(delete(LiveStateRow).where(LiveStateRow.spindle_id == sid))
-            session.execute(insert(LiveStateRow), [_stamped(run[-1], sid)])
         elif kind is IdentificationData:
             rows = [_split_speed_map(session, r, sid) for r in run]  # type: ignore[arg-type]
             session.execute(insert(Identification), rows)
-        elif kind in _IDEMPOTENT:
-            insert_ignore_rows(session, _TABLE_OF[kind], [_stamped(r, sid) for r in run])
         else:
             session.execute(insert(_TABLE_OF[kind]), [_stamped(r, sid) for r in run])
+    checkpoints = [r for r in records if type(r) is LiveCheckpoint]
+    if checkpoints:  # one row: the newest checkpoint replaces the stored one
+        session.execute(delete(LiveStateRow).where(LiveStateRow.spindle_id == sid))
+        session.execute(insert(LiveStateRow), [_stamped(checkpoints[-1], sid)])
 
 
 def _prepare_partitions(session: Session, days: set[date]) -> None:
