@@ -271,17 +271,30 @@ class OpcUaServer:
         self.refusals = Refusals()  # counted for /metrics, logged once per client and reason
         self.server: Server | None = None
         self.on_update: Callable[[], None] | None = None  # after each update (tests, the bench)
+        # the start's progress (``start``): one step per object built, one per object's initial values, one
+        # per object's methods, one for the server's own start
+        self.start_total = 3 * len(self.spindles) + 1
+        self.start_steps = 0
 
     @property
     def endpoint(self) -> str:
         return f"opc.tcp://{self.cfg.host}:{self.cfg.port}{self.cfg.path}"
 
     # --- lifecycle (caller's thread) ---------------------------------------------------------------------
-    def start(self, timeout_s: float = 60.0) -> None:
+    def start(self, stall_s: float = 60.0) -> None:
+        """Start the server's thread and wait until it serves, however long its start takes while it makes
+        progress (a cell's objects are built one by one: 50 spindles' took over 60 s beside the spindles'
+        own start on 2 cores, and ended the host); ``OutletError`` once ``stall_s`` pass without a step."""
         self._thread = threading.Thread(target=in_current_context(self._run), name="chtc-opcua", daemon=True)
         self._thread.start()
-        if not self._ready.wait(timeout_s):
-            raise OutletError(f"the OPC UA server did not start within {timeout_s:.0f} s")
+        seen = -1
+        while not self._ready.wait(stall_s):
+            if self.start_steps == seen:
+                raise OutletError(
+                    f"the OPC UA server did not start: no progress for {stall_s:.0f} s "
+                    f"({self.start_steps} of {self.start_total} start steps done)"
+                )
+            seen = self.start_steps
         if self._failed is not None:
             raise OutletError(f"the OPC UA server did not start: {self._failed}") from self._failed
 
@@ -319,6 +332,7 @@ class OpcUaServer:
             try:
                 server = await self._build()
                 await server.start()
+                self.start_steps += 1
             except BaseException as err:
                 self._failed = err
                 self._ready.set()
@@ -432,22 +446,24 @@ class OpcUaServer:
         idx = await server.register_namespace(cfg.namespace_uri)
         otype, instance = await build_address_space(server, idx, self.variables, spindle=self.spindles[0])
         instances = {self.spindles[0]: instance}
+        self.start_steps += 1
         for name in self.spindles[1:]:  # a cell: one object per spindle, of the same type
             instances[name] = await add_instance(server, otype, name)
+            self.start_steps += 1
         self._nodeids = {
             (sp, v.path): ua.NodeId(f"{sp}.{v.path}", idx) for sp in self.spindles for v in self.variables
         }
         waiting = ua.StatusCode(ua.StatusCodes.BadWaitingForInitialData)
-        var_of = {v.path: v for v in self.variables}
-        for (_sp, path), nodeid in self._nodeids.items():  # nothing is known before the first view
-            dv = ua.DataValue(
-                Value=_initial(var_of[path]), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC)
-            )
-            await server.write_attribute_value(nodeid, dv)
+        for sp in self.spindles:  # nothing is known before the first view
+            for var in self.variables:
+                dv = ua.DataValue(Value=_initial(var), StatusCode_=waiting, ServerTimestamp=datetime.now(UTC))
+                await server.write_attribute_value(self._nodeids[(sp, var.path)], dv)
+            self.start_steps += 1
         for name, inst in instances.items():
             methods = self.methods.get(name) if isinstance(self.methods, Mapping) else self.methods
             if methods is not None:
                 await self._add_methods(server, inst, idx, methods)
+            self.start_steps += 1
         return server
 
     async def _add_methods(self, server: Server, instance: Any, idx: int, methods: Methods) -> None:
