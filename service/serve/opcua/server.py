@@ -271,9 +271,9 @@ class OpcUaServer:
         self.refusals = Refusals()  # counted for /metrics, logged once per client and reason
         self.server: Server | None = None
         self.on_update: Callable[[], None] | None = None  # after each update (tests, the bench)
-        # the start's progress (``start``): one step per object built, one per object's initial values, one
-        # per object's methods, one for the server's own start
-        self.start_total = 3 * len(self.spindles) + 1
+        # the start's progress (``start``): one step for the server's set-up, one per object built, one per
+        # object's initial values, one per object's methods, one for the server's own start
+        self.start_total = 3 * len(self.spindles) + 2
         self.start_steps = 0
 
     @property
@@ -444,6 +444,7 @@ class OpcUaServer:
             await server.load_certificate(str(cfg.certificate))
             await server.load_private_key(str(cfg.private_key))
         idx = await server.register_namespace(cfg.namespace_uri)
+        self.start_steps += 1
         otype, instance = await build_address_space(server, idx, self.variables, spindle=self.spindles[0])
         instances = {self.spindles[0]: instance}
         self.start_steps += 1
