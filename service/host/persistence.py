@@ -513,15 +513,20 @@ def _start_writer(
     ).start()
 
 
-def _engine(db: DatabaseSettings, spindle_id: str) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
+def _engine(
+    db: DatabaseSettings, spindle_id: str, *, writer: bool = False
+) -> tuple[Engine, sessionmaker[Session], StatementWatchdog]:
     """(engine, session factory, watchdog): one per use (the writer's, the API reads'), each its own pool."""
     from service.store.engine import make_session_factory
 
-    engine, watchdog = _bare_engine(db)
+    engine, watchdog = _bare_engine(db, writer=writer)
     return engine, make_session_factory(engine, spindle_id=spindle_id), watchdog
 
 
-def _bare_engine(db: DatabaseSettings) -> tuple[Engine, StatementWatchdog]:
+def _bare_engine(db: DatabaseSettings, *, writer: bool = False) -> tuple[Engine, StatementWatchdog]:
+    """``writer``: the writers' engine, without the pool's pre-ping (a write on a dead connection fails,
+    the pool is invalidated and the writer retries, as for any outage): a ``SELECT 1`` before each write was
+    a fifth of the writers' time at N = 50 (docs/design/fleet.md)."""
     from service.store.engine import create_db_engine
     from service.store.watchdog import StatementWatchdog
 
@@ -534,6 +539,7 @@ def _bare_engine(db: DatabaseSettings) -> tuple[Engine, StatementWatchdog]:
         pool_size=db.pool_size,
         max_overflow=db.max_overflow,
         transaction_pooling=db.transaction_pooling,
+        pre_ping=not writer,
     )
     watchdog = StatementWatchdog(engine, abort_after_s=statement_s + 1.0).start()
     return engine, watchdog
@@ -565,7 +571,7 @@ class SharedDatabase:
         from service.store.writer import Heartbeat
 
         engine, watchdog = _bare_engine(db)
-        w_engine, w_watchdog = _bare_engine(db)
+        w_engine, w_watchdog = _bare_engine(db, writer=True)
         return cls(
             engine=engine,
             read_watchdog=watchdog,
@@ -608,7 +614,7 @@ def open_persistence(
     heartbeat = None if shared is None else shared.writer_heartbeat
     if shared is None:
         engine, factory, read_watchdog = _engine(db, sid)
-        w_engine, w_factory, w_watchdog = _engine(db, sid)
+        w_engine, w_factory, w_watchdog = _engine(db, sid, writer=True)
     else:
         from service.store.engine import make_session_factory
 

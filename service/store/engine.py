@@ -49,13 +49,15 @@ def create_db_engine(
     pool_size: int | None = None,
     max_overflow: int = 0,
     transaction_pooling: bool = False,
+    pre_ping: bool = True,
 ) -> Engine:
     """An engine for ``url`` (``sqlite:///path`` or ``postgresql+psycopg://…``), configured as above.
 
     ``statement_timeout_s`` (PostgreSQL) is set with ``SET LOCAL`` in every transaction, so a ``options``
     query parameter in the URL (a ``search_path``) is kept and nothing leaks through a pooler;
     ``pool_size`` and ``max_overflow`` bound the pool (None: SQLAlchemy's defaults, 5 and 10);
-    ``transaction_pooling``: the server is reached through a transaction-mode pooler (no prepared statements).
+    ``transaction_pooling``: the server is reached through a transaction-mode pooler (no prepared statements);
+    ``pre_ping``: test each pooled connection (``SELECT 1``) before it is handed out (PostgreSQL).
     """
     url = normalize_database_url(url)  # postgres://, postgresql:// -> postgresql+psycopg://
     parsed = make_url(url)
@@ -65,7 +67,7 @@ def create_db_engine(
     if pool_size is not None:
         kwargs = {"pool_size": pool_size, "max_overflow": max_overflow}
     if parsed.get_backend_name() != "postgresql":
-        return create_engine(url, echo=echo, pool_pre_ping=True, **kwargs)
+        return create_engine(url, echo=echo, pool_pre_ping=pre_ping, **kwargs)
     timeout = max(1, round(connect_timeout_s))
     user_timeout_ms = 1000 * max(timeout, 10)
     connect_args: dict[str, object] = {
@@ -82,7 +84,7 @@ def create_db_engine(
         base = parsed.query.get("options", "")
         base = " ".join(base) if isinstance(base, tuple) else base
         connect_args["options"] = server_options(user_timeout_ms=user_timeout_ms, base=base)
-    engine = create_engine(url, echo=echo, pool_pre_ping=True, connect_args=connect_args, **kwargs)
+    engine = create_engine(url, echo=echo, pool_pre_ping=pre_ping, connect_args=connect_args, **kwargs)
     if not transaction_pooling:
         end_orphans(engine)
     if statement_timeout_s is not None:
