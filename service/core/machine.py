@@ -70,7 +70,7 @@ from service.core.events import (
 )
 from service.core.idcounter import IdCounter, rebase_ids
 from service.core.jobbook import JobBook, job_key
-from service.core.parts import CONDITIONS_KEPT, CoreParts, Out, considered_h_rel, no_baseline_sd, utc
+from service.core.parts import CONDITIONS_KEPT, CoreParts, Out, live_h_rel, utc
 from service.core.restorecut import cut_future
 from service.core.samples import SampleBook
 from service.core.serving import serving_for
@@ -140,9 +140,11 @@ class ServiceCore:
         # the considered H error (before ``resume``, which rescales to it): the stored result's as a served
         # one's (``CoreParts.h_rel_for``: its band, the form term, no baseline yet, guessed where at a bound);
         # 100 % for the guessed initial H
-        kw = {"form_sd": config.live_h_form_sd, "no_baseline_sd": no_baseline_sd(config, calibrator)}
         live.set_h(
-            h0, h_rel=1.0 if last is None else considered_h_rel(last.h, last.ci95_hi, last.at_bound, **kw)
+            h0,
+            h_rel=1.0
+            if last is None
+            else live_h_rel(config, calibrator, last.h, last.ci95_hi, last.at_bound),
         )
         self._check = _check_of(None if calibrator is None else calibrator.current)
         if restored.live is not None:  # the stored checkpoint: the filter resumes instead of restarting

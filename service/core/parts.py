@@ -38,6 +38,7 @@ __all__ = [
     "Served",
     "considered_h_rel",
     "h_rel",
+    "live_h_rel",
     "no_baseline_sd",
     "utc",
 ]
@@ -137,9 +138,7 @@ class CoreParts:
         growth's CI takes its H error from here (issue 40; docs/design/policy.md, "The served H band").
         ``guessed`` (7,) marks H that are no estimate (a fit's H on its search box's bound, a map's whose band
         lies wholly outside the box): theirs is ``GUESSED_H_REL``, whatever their band says."""
-        return considered_h_rel(
-            h, hi, form_sd=self.config.live_h_form_sd, no_baseline_sd=self.no_baseline_sd(), guessed=guessed
-        )
+        return live_h_rel(self.config, self.calibrator, h, hi, guessed)
 
     def offsets(self) -> Offsets | None:
         cal = self.calibrator
@@ -170,6 +169,20 @@ def no_baseline_sd(config: CoreConfig, calibrator: OffsetCalibrator | None) -> f
     no baseline (the offsets unknown, 0.17 °C per channel: a warm start with an empty database), else 0
     (docs/design/estimator.md, "Warm restart with no stored state")."""
     return config.h_no_baseline_sd if calibrator is not None and calibrator.current is None else 0.0
+
+
+def live_h_rel(
+    config: CoreConfig, calibrator: OffsetCalibrator | None, h: Any, hi: Any, guessed: Any = None
+) -> np.ndarray:
+    """``considered_h_rel`` with the live state's terms: ``config.live_h_form_sd`` and ``no_baseline_sd``
+    (``CoreParts.h_rel_for``; a restart's stored H before the parts exist)."""
+    return considered_h_rel(
+        h,
+        hi,
+        guessed,
+        form_sd=config.live_h_form_sd,
+        no_baseline_sd=no_baseline_sd(config, calibrator),
+    )
 
 
 def considered_h_rel(

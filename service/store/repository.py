@@ -120,14 +120,22 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
     trips outlasted the writer's stall limit and every retry was aborted (docs/design/persistence.md).
     """
     sid = spindle_of(session)
-    days = {utc_day(r.t) for r in records if isinstance(r, SampleData)}
+    keyed: dict[type, list[Record]] = {kind: [] for kind in _IDEMPOTENT}
+    ordered: list[Record] = []
+    newest: LiveCheckpoint | None = None
+    for r in records:  # one pass: the keyed rows, the rest in order, the newest checkpoint
+        if type(r) in keyed:
+            keyed[type(r)].append(r)
+        elif isinstance(r, LiveCheckpoint):
+            newest = r
+        else:
+            ordered.append(r)
+    days = {utc_day(r.t) for r in keyed[SampleData] if isinstance(r, SampleData)}
     if days:  # PostgreSQL: the days' partitions first, committed apart from the batch (never inside it)
         _prepare_partitions(session, days)
-    for keyed in _IDEMPOTENT:
-        rows = [_stamped(r, sid) for r in records if type(r) is keyed]
-        if rows:
-            insert_ignore_rows(session, _TABLE_OF[keyed], rows)
-    ordered = [r for r in records if type(r) not in _IDEMPOTENT and type(r) is not LiveCheckpoint]
+    for kind, kept in keyed.items():
+        if kept:
+            insert_ignore_rows(session, _TABLE_OF[kind], [_stamped(r, sid) for r in kept])
     for kind, group in groupby(ordered, key=type):
         run = list(group)
         if kind is ConditionEnd:
@@ -139,10 +147,9 @@ def write_records(session: Session, records: Sequence[Record]) -> None:
             session.execute(insert(Identification), rows)
         else:
             session.execute(insert(_TABLE_OF[kind]), [_stamped(r, sid) for r in run])
-    checkpoints = [r for r in records if type(r) is LiveCheckpoint]
-    if checkpoints:  # one row: the newest checkpoint replaces the stored one
+    if newest is not None:  # one row: the newest checkpoint replaces the stored one
         session.execute(delete(LiveStateRow).where(LiveStateRow.spindle_id == sid))
-        session.execute(insert(LiveStateRow), [_stamped(checkpoints[-1], sid)])
+        session.execute(insert(LiveStateRow), [_stamped(newest, sid)])
 
 
 def _prepare_partitions(session: Session, days: set[date]) -> None:
